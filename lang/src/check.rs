@@ -1,0 +1,478 @@
+//! Name resolution and type checking of a parsed file against the built-ins
+//! of an [`Env`]. Every problem found is reported; an unknown name gets type
+//! [`Type::Any`] afterwards so one mistake does not cascade into many.
+
+use std::collections::HashMap;
+
+use crate::ast::*;
+use crate::diag::{codes, suggest, Diag, Diagnostics};
+use crate::span::Span;
+use crate::types::{Env, Param, Type};
+
+/// Check a file. Returns the diagnostics (empty when the file is fine).
+pub fn check(file: &File, env: &dyn Env) -> Diagnostics {
+    let mut c = Checker {
+        env,
+        globals: HashMap::new(),
+        locals: Vec::new(),
+        diags: Diagnostics::default(),
+    };
+    let mut blocks: HashMap<(String, String), Span> = HashMap::new();
+    for item in &file.items {
+        match item {
+            Item::Let(l) => {
+                let ty = c.expr(&l.value);
+                if let Some((_, first)) = c.globals.get(&l.name.name) {
+                    let first = *first;
+                    c.diags.push(
+                        Diag::new(
+                            codes::DUPLICATE_NAME,
+                            l.name.span,
+                            format!("`{}` is defined twice", l.name.name),
+                        )
+                        .label("defined again here")
+                        .note(first, "first defined here")
+                        .help("a scene file states each name once; pick another name"),
+                    );
+                } else {
+                    c.globals.insert(l.name.name.clone(), (ty, l.name.span));
+                }
+            }
+            Item::Block(b) => {
+                c.block(b);
+                if let Some(name) = &b.name {
+                    let key = (b.kind.name.clone(), name.name.clone());
+                    if let Some(first) = blocks.get(&key) {
+                        c.diags.push(
+                            Diag::new(
+                                codes::DUPLICATE_NAME,
+                                name.span,
+                                format!("two `{}` blocks are named `{}`", b.kind.name, name.name),
+                            )
+                            .label("named again here")
+                            .note(*first, "first named here")
+                            .help("block names must be unique: they name the outputs"),
+                        );
+                    } else {
+                        blocks.insert(key, name.span);
+                    }
+                }
+            }
+        }
+    }
+    c.diags.sorted()
+}
+
+struct Checker<'e> {
+    env: &'e dyn Env,
+    globals: HashMap<String, (Type, Span)>,
+    locals: Vec<HashMap<String, Type>>,
+    diags: Diagnostics,
+}
+
+impl Checker<'_> {
+    fn lookup(&self, name: &str) -> Option<Type> {
+        for scope in self.locals.iter().rev() {
+            if let Some(t) = scope.get(name) {
+                return Some(t.clone());
+            }
+        }
+        if let Some((t, _)) = self.globals.get(name) {
+            return Some(t.clone());
+        }
+        self.env.constant(name)
+    }
+
+    fn visible_names(&self) -> Vec<&str> {
+        let mut names: Vec<&str> = self
+            .locals
+            .iter()
+            .flat_map(|s| s.keys().map(String::as_str))
+            .collect();
+        names.extend(self.globals.keys().map(String::as_str));
+        names.extend(self.env.constant_names());
+        names
+    }
+
+    fn block(&mut self, b: &Block) {
+        let Some(sig) = self.env.block(&b.kind.name) else {
+            let mut d = Diag::new(
+                codes::UNKNOWN_BLOCK,
+                b.kind.span,
+                format!("unknown statement `{}`", b.kind.name),
+            )
+            .label("not a statement");
+            let names = self.env.block_names();
+            d = match suggest(&b.kind.name, names.iter().copied()) {
+                Some(s) => d.help(format!("did you mean `{s}`?")),
+                None => d.help(format!("statements are: {}", names.join(", "))),
+            };
+            self.diags.push(d);
+            for f in &b.fields {
+                self.expr(&f.value);
+            }
+            return;
+        };
+        let mut seen: HashMap<&str, Span> = HashMap::new();
+        for f in &b.fields {
+            let ty = self.expr(&f.value);
+            let Some(param) = sig.fields.iter().find(|p| p.name == f.name.name) else {
+                let names: Vec<&str> = sig.fields.iter().map(|p| p.name).collect();
+                let help = match suggest(&f.name.name, names.iter().copied()) {
+                    Some(s) => format!("did you mean `{s}`?"),
+                    None => format!("`{}` has the fields: {}", sig.kind, names.join(", ")),
+                };
+                self.diags.push(
+                    Diag::new(
+                        codes::UNKNOWN_FIELD,
+                        f.name.span,
+                        format!("`{}` has no field `{}`", sig.kind, f.name.name),
+                    )
+                    .label("unknown field")
+                    .help(help),
+                );
+                continue;
+            };
+            if let Some(first) = seen.insert(param.name, f.name.span) {
+                self.diags.push(
+                    Diag::new(
+                        codes::DUPLICATE_FIELD,
+                        f.name.span,
+                        format!("field `{}` is given twice", f.name.name),
+                    )
+                    .label("given again here")
+                    .note(first, "first given here")
+                    .help("remove one of them"),
+                );
+            }
+            self.expect_type(param, &ty, f.value.span);
+        }
+        for p in &sig.fields {
+            if p.default.is_none() && !seen.contains_key(p.name) {
+                self.diags.push(
+                    Diag::new(
+                        codes::MISSING_FIELD,
+                        b.kind.span,
+                        format!("`{}` needs the field `{}`", sig.kind, p.name),
+                    )
+                    .label(format!("`{}` is missing", p.name))
+                    .help(format!("add `{}: ...` ({}: {})", p.name, p.ty, p.doc)),
+                );
+            }
+        }
+    }
+
+    fn expect_type(&mut self, param: &Param, actual: &Type, span: Span) {
+        if !param.ty.accepts(actual) {
+            self.diags.push(
+                Diag::new(
+                    codes::TYPE,
+                    span,
+                    format!("`{}` must be a {}, not a {actual}", param.name, param.ty),
+                )
+                .label(format!("this is a {actual}"))
+                .help(format!("`{}`: {}", param.name, param.doc)),
+            );
+        }
+    }
+
+    fn expr(&mut self, e: &Expr) -> Type {
+        match &e.kind {
+            ExprKind::Number(_) => Type::Number,
+            ExprKind::Bool(_) => Type::Bool,
+            ExprKind::Str(_) => Type::Str,
+            ExprKind::Var(id) => self.var(id),
+            ExprKind::List(items) => {
+                let types: Vec<Type> = items.iter().map(|i| self.expr(i)).collect();
+                if types.len() == 3 && types.iter().all(|t| matches!(t, Type::Number)) {
+                    return Type::Vec3;
+                }
+                let first = types.iter().find(|t| !matches!(t, Type::Any)).cloned();
+                match first {
+                    None => Type::list(Type::Any),
+                    Some(t) if types.iter().all(|u| t.accepts(u) && u.accepts(&t)) => Type::list(t),
+                    Some(_) => Type::list(Type::Any),
+                }
+            }
+            ExprKind::Call { callee, args, .. } => self.call(callee, args, e.span),
+            ExprKind::Member(recv, name) => {
+                let t = self.expr(recv);
+                if !matches!(name.name.as_str(), "x" | "y" | "z") {
+                    self.diags.push(
+                        Diag::new(
+                            codes::UNKNOWN_FIELD,
+                            name.span,
+                            format!("no member `{}`", name.name),
+                        )
+                        .label("unknown member")
+                        .help("vectors have the members `.x`, `.y` and `.z`"),
+                    );
+                    return Type::Any;
+                }
+                if !Type::Vec3.accepts(&t) {
+                    self.diags.push(
+                        Diag::new(
+                            codes::TYPE,
+                            recv.span,
+                            format!("`.{}` needs a vector, not a {t}", name.name),
+                        )
+                        .label(format!("this is a {t}"))
+                        .help("only vectors `[x, y, z]` have components"),
+                    );
+                    return Type::Any;
+                }
+                Type::Number
+            }
+            ExprKind::Neg(inner) => {
+                let t = self.expr(inner);
+                if !t.is_numeric() {
+                    self.diags.push(
+                        Diag::new(codes::TYPE, inner.span, format!("cannot negate a {t}"))
+                            .label(format!("this is a {t}"))
+                            .help("`-` applies to numbers and vectors"),
+                    );
+                    return Type::Any;
+                }
+                t
+            }
+            ExprKind::Binary(op, l, r) => {
+                let (lt, rt) = (self.expr(l), self.expr(r));
+                for (t, side) in [(&lt, l), (&rt, r)] {
+                    if !t.is_numeric() {
+                        self.diags.push(
+                            Diag::new(
+                                codes::TYPE,
+                                side.span,
+                                format!("`{}` needs numbers or vectors, not a {t}", op.symbol()),
+                            )
+                            .label(format!("this is a {t}"))
+                            .help("arithmetic applies to numbers and vectors; shapes are combined with `union`, `intersection`, `subtraction`"),
+                        );
+                        return Type::Any;
+                    }
+                }
+                match (lt, rt) {
+                    (Type::Number, Type::Number) => Type::Number,
+                    (Type::Any, _) | (_, Type::Any) => Type::Any,
+                    _ => Type::Vec3,
+                }
+            }
+            ExprKind::For { bindings, body } => {
+                self.locals.push(HashMap::new());
+                for b in bindings {
+                    let elem = match &b.source {
+                        Source::Range { start, end, .. } => {
+                            for bound in [start, end] {
+                                let t = self.expr(bound);
+                                if !Type::Number.accepts(&t) {
+                                    self.diags.push(
+                                        Diag::new(
+                                            codes::TYPE,
+                                            bound.span,
+                                            format!("range bounds must be numbers, not a {t}"),
+                                        )
+                                        .label(format!("this is a {t}"))
+                                        .help("write ranges as `0..n` with whole numbers"),
+                                    );
+                                }
+                            }
+                            Type::Number
+                        }
+                        Source::List(list) => match self.expr(list) {
+                            Type::List(e) => *e,
+                            Type::Vec3 => Type::Number,
+                            Type::Any => Type::Any,
+                            t => {
+                                self.diags.push(
+                                    Diag::new(
+                                        codes::TYPE,
+                                        list.span,
+                                        format!("cannot loop over a {t}"),
+                                    )
+                                    .label(format!("this is a {t}"))
+                                    .help("loop over a range `0..n` or a list `[...]`"),
+                                );
+                                Type::Any
+                            }
+                        },
+                    };
+                    self.locals
+                        .last_mut()
+                        .expect("scope pushed above")
+                        .insert(b.var.name.clone(), elem);
+                }
+                for l in &body.lets {
+                    let t = self.expr(&l.value);
+                    self.locals
+                        .last_mut()
+                        .expect("scope pushed above")
+                        .insert(l.name.name.clone(), t);
+                }
+                let t = self.expr(&body.value);
+                self.locals.pop();
+                Type::list(t)
+            }
+        }
+    }
+
+    fn var(&mut self, id: &Ident) -> Type {
+        if let Some(t) = self.lookup(&id.name) {
+            return t;
+        }
+        let mut d = Diag::new(
+            codes::UNKNOWN_NAME,
+            id.span,
+            format!("unknown name `{}`", id.name),
+        )
+        .label("not defined");
+        if self.env.function(&id.name).is_some() {
+            d = d.help(format!(
+                "`{0}` is a built-in function: call it as `{0}(...)`",
+                id.name
+            ));
+        } else {
+            let names = self.visible_names();
+            d = match suggest(&id.name, names.iter().copied()) {
+                Some(s) => d.help(format!("did you mean `{s}`?")),
+                None => d.help("define it first with `let name = ...`"),
+            };
+        }
+        self.diags.push(d);
+        Type::Any
+    }
+
+    fn call(&mut self, callee: &Ident, args: &[Arg], span: Span) -> Type {
+        let arg_types: Vec<Type> = args.iter().map(|a| self.expr(&a.value)).collect();
+        let Some(sig) = self.env.function(&callee.name) else {
+            let mut d = Diag::new(
+                codes::UNKNOWN_FUNCTION,
+                callee.span,
+                format!("unknown function `{}`", callee.name),
+            )
+            .label("no such built-in");
+            if self.lookup(&callee.name).is_some() {
+                d = Diag::new(
+                    codes::NOT_CALLABLE,
+                    callee.span,
+                    format!("`{}` is a value, not a function", callee.name),
+                )
+                .label("cannot be called")
+                .help("only built-ins can be called; use the name without `(...)`");
+            } else {
+                let names = self.env.function_names();
+                d = match suggest(&callee.name, names.iter().copied()) {
+                    Some(s) => d.help(format!("did you mean `{s}`?")),
+                    None => d.help("`sdfl docs` lists the built-in functions"),
+                };
+            }
+            self.diags.push(d);
+            return Type::Any;
+        };
+        let sig = sig.clone();
+        let mut given: HashMap<&str, Span> = HashMap::new();
+        let mut seen_named = false;
+        for (i, (arg, ty)) in args.iter().zip(&arg_types).enumerate() {
+            let param = match &arg.name {
+                None => {
+                    if seen_named {
+                        self.diags.push(
+                            Diag::new(
+                                codes::POSITIONAL_AFTER_NAMED,
+                                arg.value.span,
+                                "positional argument after a named one",
+                            )
+                            .label("positional")
+                            .help("put positional arguments first, or name this one"),
+                        );
+                        continue;
+                    }
+                    match sig.params.get(i) {
+                        Some(p) => p,
+                        None => match &sig.rest {
+                            Some(rest) => {
+                                let elem_ok =
+                                    rest.ty.accepts(ty) || Type::list(rest.ty.clone()).accepts(ty);
+                                if !elem_ok {
+                                    self.expect_type(rest, ty, arg.value.span);
+                                }
+                                continue;
+                            }
+                            None => {
+                                let n = sig.params.len();
+                                self.diags.push(
+                                    Diag::new(
+                                        codes::TOO_MANY_ARGS,
+                                        arg.value.span,
+                                        format!(
+                                            "`{}` takes {n} argument{}",
+                                            sig.name,
+                                            if n == 1 { "" } else { "s" }
+                                        ),
+                                    )
+                                    .label("one too many")
+                                    .help(format!("signature: {}", sig.synopsis())),
+                                );
+                                continue;
+                            }
+                        },
+                    }
+                }
+                Some(name) => {
+                    seen_named = true;
+                    match sig.params.iter().find(|p| p.name == name.name) {
+                        Some(p) => p,
+                        None => {
+                            let names: Vec<&str> = sig.params.iter().map(|p| p.name).collect();
+                            let help = match suggest(&name.name, names.iter().copied()) {
+                                Some(s) => {
+                                    format!("did you mean `{s}`? signature: {}", sig.synopsis())
+                                }
+                                None => format!("signature: {}", sig.synopsis()),
+                            };
+                            self.diags.push(
+                                Diag::new(
+                                    codes::UNKNOWN_ARG,
+                                    name.span,
+                                    format!("`{}` has no parameter `{}`", sig.name, name.name),
+                                )
+                                .label("unknown parameter")
+                                .help(help),
+                            );
+                            continue;
+                        }
+                    }
+                }
+            };
+            let at = arg.name.as_ref().map_or(arg.value.span, |n| n.span);
+            if let Some(first) = given.insert(param.name, at) {
+                self.diags.push(
+                    Diag::new(
+                        codes::DUPLICATE_ARG,
+                        at,
+                        format!("`{}` is given twice", param.name),
+                    )
+                    .label("given again here")
+                    .note(first, "first given here")
+                    .help(format!("signature: {}", sig.synopsis())),
+                );
+                continue;
+            }
+            let param = param.clone();
+            self.expect_type(&param, ty, arg.value.span);
+        }
+        for p in &sig.params {
+            if p.default.is_none() && !given.contains_key(p.name) {
+                self.diags.push(
+                    Diag::new(
+                        codes::MISSING_ARG,
+                        span,
+                        format!("`{}` needs the argument `{}`", sig.name, p.name),
+                    )
+                    .label(format!("`{}` is missing", p.name))
+                    .help(format!("signature: {}", sig.synopsis())),
+                );
+            }
+        }
+        sig.returns.clone()
+    }
+}

@@ -1,0 +1,244 @@
+//! Diagnostics: every user-facing error is a [`Diag`] with a stable code, a
+//! primary span and label, and help. All diagnostics of a file are gathered in
+//! a [`Diagnostics`] and rendered together through miette.
+
+use std::fmt;
+use std::sync::Arc;
+
+use miette::{GraphicalReportHandler, GraphicalTheme, LabeledSpan, NamedSource, SourceCode};
+
+use crate::span::Span;
+
+/// Stable diagnostic codes. Tests and users may match on these strings, so
+/// they never change meaning; new codes are added, old ones are not reused.
+pub mod codes {
+    pub const SYNTAX: &str = "sdfl::syntax";
+    pub const NESTING: &str = "sdfl::syntax::nesting";
+    pub const NUMBER: &str = "sdfl::syntax::number";
+    pub const ESCAPE: &str = "sdfl::syntax::escape";
+    pub const UNKNOWN_NAME: &str = "sdfl::name::unknown";
+    pub const UNKNOWN_FUNCTION: &str = "sdfl::name::unknown-function";
+    pub const UNKNOWN_BLOCK: &str = "sdfl::name::unknown-block";
+    pub const DUPLICATE_NAME: &str = "sdfl::name::duplicate";
+    pub const NOT_CALLABLE: &str = "sdfl::name::not-callable";
+    pub const UNKNOWN_ARG: &str = "sdfl::arg::unknown";
+    pub const MISSING_ARG: &str = "sdfl::arg::missing";
+    pub const DUPLICATE_ARG: &str = "sdfl::arg::duplicate";
+    pub const TOO_MANY_ARGS: &str = "sdfl::arg::too-many";
+    pub const POSITIONAL_AFTER_NAMED: &str = "sdfl::arg::positional-after-named";
+    pub const UNKNOWN_FIELD: &str = "sdfl::field::unknown";
+    pub const MISSING_FIELD: &str = "sdfl::field::missing";
+    pub const DUPLICATE_FIELD: &str = "sdfl::field::duplicate";
+    pub const TYPE: &str = "sdfl::type::mismatch";
+    pub const VALUE: &str = "sdfl::value::range";
+    pub const ARITHMETIC: &str = "sdfl::value::arithmetic";
+    pub const TOO_LARGE: &str = "sdfl::limit::too-large";
+    pub const PATH: &str = "sdfl::path::escape";
+    pub const IO: &str = "sdfl::io";
+}
+
+/// One diagnostic: what went wrong, where, and what to do about it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Diag {
+    pub code: &'static str,
+    pub message: String,
+    pub span: Span,
+    pub label: String,
+    pub help: Option<String>,
+    /// Secondary spans, e.g. the earlier definition of a duplicate name.
+    pub notes: Vec<(Span, String)>,
+}
+
+impl Diag {
+    pub fn new(code: &'static str, span: Span, message: impl Into<String>) -> Self {
+        Diag {
+            code,
+            message: message.into(),
+            span,
+            label: String::new(),
+            help: None,
+            notes: Vec::new(),
+        }
+    }
+    pub fn label(mut self, label: impl Into<String>) -> Self {
+        self.label = label.into();
+        self
+    }
+    pub fn help(mut self, help: impl Into<String>) -> Self {
+        self.help = Some(help.into());
+        self
+    }
+    pub fn note(mut self, span: Span, text: impl Into<String>) -> Self {
+        self.notes.push((span, text.into()));
+        self
+    }
+}
+
+/// Diagnostics collected while processing one source file.
+#[derive(Debug, Clone, Default)]
+pub struct Diagnostics {
+    pub diags: Vec<Diag>,
+}
+
+impl Diagnostics {
+    pub fn push(&mut self, d: Diag) {
+        self.diags.push(d);
+    }
+    pub fn is_empty(&self) -> bool {
+        self.diags.is_empty()
+    }
+    pub fn len(&self) -> usize {
+        self.diags.len()
+    }
+    pub fn extend(&mut self, other: Diagnostics) {
+        self.diags.extend(other.diags);
+    }
+    /// Sort by position so a report reads top to bottom.
+    pub fn sorted(mut self) -> Self {
+        self.diags.sort_by_key(|d| (d.span.start, d.span.end));
+        self
+    }
+}
+
+/// A source file: its name (as shown to the user) and its text.
+#[derive(Debug, Clone)]
+pub struct SourceFile {
+    pub name: String,
+    pub text: Arc<str>,
+}
+
+impl SourceFile {
+    pub fn new(name: impl Into<String>, text: impl Into<Arc<str>>) -> Self {
+        SourceFile {
+            name: name.into(),
+            text: text.into(),
+        }
+    }
+    /// 1-based line and column of a byte offset.
+    pub fn line_col(&self, offset: usize) -> (usize, usize) {
+        let offset = offset.min(self.text.len());
+        let before = &self.text[..floor_char_boundary(&self.text, offset)];
+        let line = before.matches('\n').count() + 1;
+        let col = before.rsplit('\n').next().map_or(0, |l| l.chars().count()) + 1;
+        (line, col)
+    }
+}
+
+fn floor_char_boundary(s: &str, mut i: usize) -> usize {
+    while i > 0 && !s.is_char_boundary(i) {
+        i -= 1;
+    }
+    i
+}
+
+/// Lines longer than this are not quoted in reports (a megabyte line would
+/// otherwise be printed whole); the location is given as line:column instead.
+const MAX_QUOTED_LINE: usize = 400;
+
+/// A diagnostic joined with its source, as miette wants it.
+struct Located<'a> {
+    diag: &'a Diag,
+    source: Option<NamedSource<Arc<str>>>,
+    location: String,
+}
+
+impl fmt::Debug for Located<'_> {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        self.diag.fmt(f)
+    }
+}
+
+impl fmt::Display for Located<'_> {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        if self.source.is_some() {
+            write!(f, "{}", self.diag.message)
+        } else {
+            write!(f, "{} (at {})", self.diag.message, self.location)
+        }
+    }
+}
+
+impl std::error::Error for Located<'_> {}
+
+impl miette::Diagnostic for Located<'_> {
+    fn code<'b>(&'b self) -> Option<Box<dyn fmt::Display + 'b>> {
+        Some(Box::new(self.diag.code))
+    }
+    fn help<'b>(&'b self) -> Option<Box<dyn fmt::Display + 'b>> {
+        self.diag
+            .help
+            .as_ref()
+            .map(|h| Box::new(h) as Box<dyn fmt::Display>)
+    }
+    fn source_code(&self) -> Option<&dyn SourceCode> {
+        self.source.as_ref().map(|s| s as &dyn SourceCode)
+    }
+    fn labels(&self) -> Option<Box<dyn Iterator<Item = LabeledSpan> + '_>> {
+        self.source.as_ref()?;
+        let primary = LabeledSpan::new_primary_with_span(
+            (!self.diag.label.is_empty()).then(|| self.diag.label.clone()),
+            self.diag.span,
+        );
+        let notes = self
+            .diag
+            .notes
+            .iter()
+            .map(|(s, t)| LabeledSpan::new_with_span(Some(t.clone()), *s));
+        Some(Box::new(std::iter::once(primary).chain(notes)))
+    }
+}
+
+/// Render diagnostics as text. `color` selects ANSI colours (for terminals);
+/// without colour the output is stable and is what the file tests compare.
+pub fn render(source: &SourceFile, diags: &Diagnostics, color: bool) -> String {
+    let theme = if color {
+        GraphicalTheme::unicode()
+    } else {
+        GraphicalTheme::unicode_nocolor()
+    };
+    let handler = GraphicalReportHandler::new_themed(theme)
+        .with_width(100)
+        .with_links(false);
+    let mut out = String::new();
+    for diag in &diags.diags {
+        let (line, col) = source.line_col(diag.span.start);
+        let quotable = [diag.span.start, diag.span.end]
+            .into_iter()
+            .chain(diag.notes.iter().map(|n| n.0.start))
+            .all(|off| line_len_at(&source.text, off) <= MAX_QUOTED_LINE);
+        let located = Located {
+            diag,
+            source: quotable.then(|| NamedSource::new(source.name.clone(), source.text.clone())),
+            location: format!("{}:{line}:{col}", source.name),
+        };
+        // Writing into a String cannot fail.
+        let _ = handler.render_report(&mut out, &located);
+    }
+    let n = diags.len();
+    if n > 0 {
+        out.push_str(&format!(
+            "{n} error{} in {}\n",
+            if n == 1 { "" } else { "s" },
+            source.name
+        ));
+    }
+    out
+}
+
+fn line_len_at(text: &str, offset: usize) -> usize {
+    let offset = floor_char_boundary(text, offset.min(text.len()));
+    let start = text[..offset].rfind('\n').map_or(0, |i| i + 1);
+    let end = text[offset..].find('\n').map_or(text.len(), |i| offset + i);
+    end - start
+}
+
+/// The nearest of `candidates` to `name`, if it is close enough to be a
+/// plausible typo.
+pub fn suggest<'a>(name: &str, candidates: impl IntoIterator<Item = &'a str>) -> Option<&'a str> {
+    candidates
+        .into_iter()
+        .map(|c| (strsim::damerau_levenshtein(name, c), c))
+        .filter(|(d, c)| *d <= (name.len().max(c.len()) / 3).max(1))
+        .min_by_key(|(d, c)| (*d, *c))
+        .map(|(_, c)| c)
+}

@@ -1,0 +1,15 @@
+//! The sdfl front end: source text → owned, spanned AST → checked program.
+//!
+//! This crate knows the syntax and the type system, never the built-ins'
+//! meaning: the standard library supplies their signatures through
+//! [`types::Env`]. It depends on neither the runtime nor dfdx.
+
+pub mod ast;
+pub mod check;
+pub mod diag;
+pub mod parse;
+pub mod span;
+pub mod types;
+
+pub use diag::{codes, render, Diag, Diagnostics, SourceFile};
+pub use span::Span;

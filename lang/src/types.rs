@@ -1,0 +1,169 @@
+//! Static types and the signatures of built-ins. The built-ins themselves
+//! live in the standard library, which hands the checker an [`Env`].
+
+use std::fmt;
+
+/// The static type of an expression.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Type {
+    /// Unknown (after an error) or deliberately open: accepts and is accepted
+    /// by everything, so one mistake does not cascade.
+    Any,
+    Number,
+    Bool,
+    Str,
+    /// Three numbers. A list of numbers is accepted where a vector is wanted;
+    /// its length is checked when the value is known.
+    Vec3,
+    List(Box<Type>),
+    /// A domain type of the standard library: `shape`, `material`, `camera`…
+    Named(&'static str),
+    /// Any one of these.
+    OneOf(Vec<Type>),
+}
+
+impl Type {
+    pub fn list(of: Type) -> Type {
+        Type::List(Box::new(of))
+    }
+
+    /// Whether a value of type `actual` may be passed where `self` is wanted.
+    pub fn accepts(&self, actual: &Type) -> bool {
+        match (self, actual) {
+            (Type::Any, _) | (_, Type::Any) => true,
+            (Type::OneOf(options), a) => options.iter().any(|o| o.accepts(a)),
+            (want, Type::OneOf(options)) => options.iter().all(|o| want.accepts(o)),
+            (Type::Vec3, Type::List(e)) | (Type::List(e), Type::Vec3) => e.accepts(&Type::Number),
+            (Type::List(a), Type::List(b)) => a.accepts(b),
+            (a, b) => a == b,
+        }
+    }
+
+    pub fn is_numeric(&self) -> bool {
+        matches!(self, Type::Number | Type::Vec3 | Type::Any)
+            || matches!(self, Type::List(e) if e.is_numeric())
+    }
+}
+
+impl fmt::Display for Type {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Type::Any => write!(f, "any value"),
+            Type::Number => write!(f, "number"),
+            Type::Bool => write!(f, "bool"),
+            Type::Str => write!(f, "string"),
+            Type::Vec3 => write!(f, "vector [x, y, z]"),
+            Type::List(e) => write!(f, "list of {e}"),
+            Type::Named(n) => write!(f, "{n}"),
+            Type::OneOf(options) => {
+                for (i, o) in options.iter().enumerate() {
+                    if i > 0 {
+                        write!(f, " or ")?;
+                    }
+                    write!(f, "{o}")?;
+                }
+                Ok(())
+            }
+        }
+    }
+}
+
+/// One parameter of a built-in function or one field of a block.
+#[derive(Debug, Clone)]
+pub struct Param {
+    pub name: &'static str,
+    pub ty: Type,
+    /// The default as written in docs; `None` means the parameter is required.
+    pub default: Option<&'static str>,
+    pub doc: &'static str,
+}
+
+impl Param {
+    pub fn required(name: &'static str, ty: Type, doc: &'static str) -> Self {
+        Param {
+            name,
+            ty,
+            default: None,
+            doc,
+        }
+    }
+    pub fn optional(
+        name: &'static str,
+        ty: Type,
+        default: &'static str,
+        doc: &'static str,
+    ) -> Self {
+        Param {
+            name,
+            ty,
+            default: Some(default),
+            doc,
+        }
+    }
+}
+
+/// The signature of a built-in function.
+#[derive(Debug, Clone)]
+pub struct Signature {
+    pub name: &'static str,
+    pub params: Vec<Param>,
+    /// Extra positional arguments of this type (lists of it are flattened),
+    /// as in `union(a, b, c)`.
+    pub rest: Option<Param>,
+    pub returns: Type,
+    pub doc: &'static str,
+}
+
+impl Signature {
+    /// `name(a: number, b: shape = ...)`, for help texts.
+    pub fn synopsis(&self) -> String {
+        let mut parts: Vec<String> = self
+            .params
+            .iter()
+            .map(|p| match p.default {
+                Some(d) => format!("{}: {} = {d}", p.name, p.ty),
+                None => format!("{}: {}", p.name, p.ty),
+            })
+            .collect();
+        if let Some(r) = &self.rest {
+            parts.push(format!("{}: {}...", r.name, r.ty));
+        }
+        format!("{}({})", self.name, parts.join(", "))
+    }
+}
+
+/// The signature of a block statement (`render`, …).
+#[derive(Debug, Clone)]
+pub struct BlockSig {
+    pub kind: &'static str,
+    pub fields: Vec<Param>,
+    pub doc: &'static str,
+}
+
+/// What the checker knows of the standard library.
+pub trait Env {
+    fn function(&self, name: &str) -> Option<&Signature>;
+    fn block(&self, kind: &str) -> Option<&BlockSig>;
+    fn constant(&self, name: &str) -> Option<Type>;
+    fn function_names(&self) -> Vec<&'static str>;
+    fn block_names(&self) -> Vec<&'static str>;
+    fn constant_names(&self) -> Vec<&'static str>;
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn acceptance() {
+        assert!(Type::Vec3.accepts(&Type::list(Type::Number)));
+        assert!(!Type::Vec3.accepts(&Type::Named("shape")));
+        assert!(Type::Named("shape").accepts(&Type::Any));
+        let cam = Type::OneOf(vec![
+            Type::Named("camera"),
+            Type::list(Type::Named("camera")),
+        ]);
+        assert!(cam.accepts(&Type::list(Type::Named("camera"))));
+        assert!(!cam.accepts(&Type::Number));
+    }
+}
