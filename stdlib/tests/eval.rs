@@ -1,0 +1,108 @@
+//! Evaluation of scene files: loops, defaults, value errors.
+
+use sdfl_lang::{codes, SourceFile};
+use sdfl_stdlib::{load, StdEnv};
+
+fn codes_of(src: &str) -> Vec<&'static str> {
+    match load(&SourceFile::new("test.sdfl", src)) {
+        Ok(_) => Vec::new(),
+        Err(d) => d.diags.iter().map(|d| d.code).collect(),
+    }
+}
+
+#[test]
+fn every_default_evaluates() {
+    // Defaults are sdfl source; each one must parse and evaluate.
+    let env = StdEnv::get();
+    for b in env.builtins() {
+        let args: Vec<String> = b
+            .sig
+            .params
+            .iter()
+            .filter(|p| p.default.is_none())
+            .map(|p| {
+                use sdfl_lang::types::Type;
+                let v = if p.ty.accepts(&Type::Named("shape")) {
+                    "sphere()"
+                } else if p.ty.accepts(&Type::Named("material")) {
+                    "rainbow()"
+                } else if p.ty.accepts(&Type::Str) {
+                    "\"x.png\""
+                } else if p.ty.accepts(&Type::Vec3) && !p.ty.accepts(&Type::Number) {
+                    "[1, 2, 3]"
+                } else {
+                    "1"
+                };
+                format!("{}: {v}", p.name)
+            })
+            .collect();
+        let rest = if b.sig.rest.is_some() {
+            "sphere(), "
+        } else {
+            ""
+        };
+        let src = format!("let x = {}({rest}{})", b.sig.name, args.join(", "));
+        let r = load(&SourceFile::new("t", src.clone()));
+        // Outputs need a .gif name etc.; only defaults matter here, so any
+        // failure must be a value error of the placeholder arguments.
+        if let Err(d) = r {
+            assert!(
+                d.diags.iter().all(|d| d.code == codes::VALUE),
+                "{src}: {d:?}"
+            );
+        }
+    }
+}
+
+#[test]
+fn torus_example_loads() {
+    let src = std::fs::read_to_string(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../examples/torus.sdfl"
+    ))
+    .unwrap();
+    let p = load(&SourceFile::new("torus.sdfl", src)).unwrap();
+    let r = &p.renders[0];
+    assert_eq!(
+        (r.width, r.height, r.iterations, r.cameras.len()),
+        (256, 256, 64, 20)
+    );
+    assert_eq!((r.near, r.far), (0.0, 5.0));
+}
+
+#[test]
+fn loops_build_many_shapes() {
+    let src = "let s = union(for i in 0..10, j in 0..=4 { let r = 0.1 + i * 0.01; sphere(r, center: [i, j, 0]) })\n\
+               render r { scene: s, camera: look_at([0, 0, 5]), outputs: [image(\"a.png\")] }";
+    let p = load(&SourceFile::new("t", src)).unwrap();
+    assert_eq!(p.renders[0].scene.primitive_count(), 50);
+}
+
+#[test]
+fn value_errors_are_all_reported() {
+    let src = "let a = sphere(-1)\nlet b = box([1, 0, 1])\nlet c = 1 / 0\n\
+               render r { scene: torus(), camera: orbit(views: 0), near: 3, far: 1, size: [0, 10], outputs: [image(\"../x.png\")] }";
+    let c = codes_of(src);
+    assert_eq!(c.iter().filter(|c| **c == codes::VALUE).count(), 3, "{c:?}");
+    assert!(c.contains(&codes::ARITHMETIC), "{c:?}");
+    assert!(c.contains(&codes::PATH), "{c:?}");
+}
+
+#[test]
+fn huge_loops_are_refused_quickly() {
+    let t = std::time::Instant::now();
+    let c = codes_of("let s = union(for i in 0..1e9 { sphere() })");
+    assert_eq!(c, vec![codes::TOO_LARGE]);
+    let c = codes_of("let s = union(for i in 0..1e5, j in 0..1e5 { sphere() })");
+    assert_eq!(c, vec![codes::TOO_LARGE]);
+    assert!(t.elapsed().as_secs() < 30);
+}
+
+#[test]
+fn arithmetic_on_vectors_broadcasts() {
+    let src = "let v = [1, 2, 3] * 2 + 1\nlet s = sphere(center: v / 10)\n\
+               render r { scene: s, camera: look_at([0, 0, 5]), outputs: [image(\"a.png\")] }";
+    let p = load(&SourceFile::new("t", src)).unwrap();
+    let c = p.renders[0].scene.primitive_center().unwrap();
+    assert!((c - glam::DVec3::new(0.3, 0.5, 0.7)).length() < 1e-12);
+}

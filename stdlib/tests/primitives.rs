@@ -1,0 +1,296 @@
+//! Every exact primitive against brute force: the distance from a query point
+//! to a dense sample of the surface (made independently of the SDF formula)
+//! must match `|sdf|`, and the sign must match an independent inside test.
+
+use std::f64::consts::TAU;
+use std::sync::Arc;
+
+use glam::{DQuat, DVec3};
+use sdfl_stdlib::shape::Shape;
+
+/// Deterministic uniform numbers in [0, 1).
+struct Lcg(u64);
+impl Lcg {
+    fn next(&mut self) -> f64 {
+        self.0 = self
+            .0
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        (self.0 >> 11) as f64 / (1u64 << 53) as f64
+    }
+    fn in_box(&mut self, lo: DVec3, hi: DVec3) -> DVec3 {
+        lo + (hi - lo) * DVec3::new(self.next(), self.next(), self.next())
+    }
+}
+
+/// Points on the faces of an axis-aligned box, spaced about `h`.
+fn box_surface(c: DVec3, half: DVec3, h: f64) -> Vec<DVec3> {
+    let mut out = Vec::new();
+    for axis in 0..3 {
+        let (u, v) = ((axis + 1) % 3, (axis + 2) % 3);
+        let nu = (2.0 * half[u] / h).ceil() as usize + 1;
+        let nv = (2.0 * half[v] / h).ceil() as usize + 1;
+        for side in [-1.0, 1.0] {
+            for i in 0..nu {
+                for j in 0..nv {
+                    let mut p = DVec3::ZERO;
+                    p[axis] = side * half[axis];
+                    p[u] = -half[u] + 2.0 * half[u] * i as f64 / (nu - 1) as f64;
+                    p[v] = -half[v] + 2.0 * half[v] * j as f64 / (nv - 1) as f64;
+                    out.push(c + p);
+                }
+            }
+        }
+    }
+    out
+}
+
+fn check(shape: &Shape, surface: &[DVec3], inside: impl Fn(DVec3) -> bool, spacing: f64) {
+    let b = shape.bounds().expect("bounded").expand(0.6);
+    let mut rng = Lcg(42);
+    for _ in 0..300 {
+        let p = rng.in_box(b.min, b.max);
+        let brute = surface
+            .iter()
+            .map(|s| (p - *s).length())
+            .fold(f64::INFINITY, f64::min);
+        let d = shape.distance(p);
+        // Sampling can only overestimate the true distance, by at most about
+        // the spacing; the SDF must never exceed the sampled distance.
+        assert!(
+            d.abs() <= brute + 1e-9,
+            "{}: |sdf| {d} > brute {brute} at {p}",
+            shape.name()
+        );
+        assert!(
+            brute - d.abs() <= spacing,
+            "{}: sdf {d} vs brute {brute} at {p}",
+            shape.name()
+        );
+        if brute > spacing {
+            assert_eq!(
+                d < 0.0,
+                inside(p),
+                "{}: sign wrong at {p} (sdf {d})",
+                shape.name()
+            );
+        }
+    }
+}
+
+#[test]
+fn sphere() {
+    let (c, r) = (DVec3::new(0.3, -0.2, 0.1), 0.8);
+    let n = 40_000;
+    let golden = std::f64::consts::PI * (3.0 - 5f64.sqrt());
+    let surface: Vec<DVec3> = (0..n)
+        .map(|i| {
+            let y = 1.0 - 2.0 * (i as f64 + 0.5) / n as f64;
+            let rad = (1.0 - y * y).sqrt();
+            let t = golden * i as f64;
+            c + r * DVec3::new(rad * t.cos(), y, rad * t.sin())
+        })
+        .collect();
+    check(
+        &Shape::Sphere {
+            center: c,
+            radius: r,
+        },
+        &surface,
+        |p| (p - c).length() < r,
+        0.02,
+    );
+}
+
+#[test]
+fn box_() {
+    let (c, size) = (DVec3::new(0.1, 0.2, -0.3), DVec3::new(1.0, 0.6, 0.8));
+    let surface = box_surface(c, size / 2.0, 0.01);
+    let inside = |p: DVec3| ((p - c).abs() - size / 2.0).max_element() < 0.0;
+    check(&Shape::Box { center: c, size }, &surface, inside, 0.01);
+}
+
+#[test]
+fn box_frame() {
+    let (c, size, e) = (DVec3::new(0.0, 0.1, 0.0), DVec3::new(1.2, 1.0, 0.8), 0.1);
+    let half = size / 2.0;
+    // The frame is the union of 12 edge boxes; its surface is the part of
+    // their faces not strictly inside another edge box.
+    let mut edges = Vec::new();
+    for axis in 0..3 {
+        for s1 in [-1.0, 1.0] {
+            for s2 in [-1.0, 1.0] {
+                let (u, v) = ((axis + 1) % 3, (axis + 2) % 3);
+                let mut ec = DVec3::ZERO;
+                ec[u] = s1 * (half[u] - e / 2.0);
+                ec[v] = s2 * (half[v] - e / 2.0);
+                let mut eh = DVec3::splat(e / 2.0);
+                eh[axis] = half[axis];
+                edges.push((c + ec, eh));
+            }
+        }
+    }
+    let inside_edge =
+        |p: DVec3, (ec, eh): (DVec3, DVec3)| ((p - ec).abs() - eh).max_element() < -1e-9;
+    let surface: Vec<DVec3> = edges
+        .iter()
+        .flat_map(|(ec, eh)| box_surface(*ec, *eh, 0.008))
+        .filter(|p| !edges.iter().any(|e| inside_edge(*p, *e)))
+        .collect();
+    let inside = |p: DVec3| edges.iter().any(|e| inside_edge(p, *e));
+    check(
+        &Shape::BoxFrame {
+            center: c,
+            size,
+            thickness: e,
+        },
+        &surface,
+        inside,
+        0.008,
+    );
+}
+
+#[test]
+fn torus() {
+    let (c, big, small) = (DVec3::new(0.2, 0.0, -0.1), 1.0, 0.25);
+    let (nu, nv) = (900, 220);
+    let mut surface = Vec::new();
+    for i in 0..nu {
+        for j in 0..nv {
+            let (u, v) = (TAU * i as f64 / nu as f64, TAU * j as f64 / nv as f64);
+            let ring = big + small * v.cos();
+            surface.push(c + DVec3::new(ring * u.cos(), ring * u.sin(), small * v.sin()));
+        }
+    }
+    let inside = |p: DVec3| {
+        let q = p - c;
+        let a = (q.x * q.x + q.y * q.y).sqrt() - big;
+        a * a + q.z * q.z < small * small
+    };
+    check(
+        &Shape::Torus {
+            center: c,
+            major: big,
+            minor: small,
+        },
+        &surface,
+        inside,
+        0.01,
+    );
+}
+
+#[test]
+fn capsule() {
+    let (a, b, r) = (DVec3::new(-0.5, 0.0, 0.2), DVec3::new(0.4, 0.3, -0.2), 0.3);
+    let axis = (b - a).normalize();
+    let (u, v) = (axis.any_orthonormal_pair().0, axis.any_orthonormal_pair().1);
+    let mut surface = Vec::new();
+    let len = (b - a).length();
+    for i in 0..=200 {
+        for j in 0..300 {
+            let t = len * i as f64 / 200.0;
+            let ang = TAU * j as f64 / 300.0;
+            surface.push(a + axis * t + r * (u * ang.cos() + v * ang.sin()));
+        }
+    }
+    // Hemispherical caps: the full spheres' points that are beyond the ends.
+    for (end, dir) in [(a, -axis), (b, axis)] {
+        for i in 0..20_000 {
+            let y = 1.0 - 2.0 * (i as f64 + 0.5) / 20_000.0;
+            let rad = (1.0 - y * y).sqrt();
+            let t = 2.399963229728653 * i as f64;
+            let d = DVec3::new(rad * t.cos(), y, rad * t.sin());
+            if d.dot(dir) >= 0.0 {
+                surface.push(end + r * d);
+            }
+        }
+    }
+    let inside = |p: DVec3| {
+        let h = ((p - a).dot(b - a) / (b - a).length_squared()).clamp(0.0, 1.0);
+        (p - a - (b - a) * h).length() < r
+    };
+    check(&Shape::Capsule { a, b, radius: r }, &surface, inside, 0.012);
+}
+
+#[test]
+fn cylinder() {
+    let (c, r, h) = (DVec3::new(0.0, 0.2, 0.1), 0.5, 1.2);
+    let mut surface = Vec::new();
+    for i in 0..=240 {
+        for j in 0..400 {
+            let ang = TAU * j as f64 / 400.0;
+            let z = -h / 2.0 + h * i as f64 / 240.0;
+            surface.push(c + DVec3::new(r * ang.cos(), r * ang.sin(), z));
+        }
+    }
+    for i in 0..=100 {
+        for j in 0..400 {
+            let rad = r * i as f64 / 100.0;
+            let ang = TAU * j as f64 / 400.0;
+            for z in [-h / 2.0, h / 2.0] {
+                surface.push(c + DVec3::new(rad * ang.cos(), rad * ang.sin(), z));
+            }
+        }
+    }
+    let inside = |p: DVec3| {
+        let q = p - c;
+        (q.x * q.x + q.y * q.y).sqrt() < r && q.z.abs() < h / 2.0
+    };
+    check(
+        &Shape::Cylinder {
+            center: c,
+            radius: r,
+            height: h,
+        },
+        &surface,
+        inside,
+        0.01,
+    );
+}
+
+#[test]
+fn rotated_scaled_translated_box_stays_exact() {
+    let size = DVec3::new(1.0, 0.5, 0.7);
+    let q = DQuat::from_axis_angle(DVec3::new(1.0, 2.0, 0.5).normalize(), 0.7);
+    let (s, t) = (1.3, DVec3::new(0.2, -0.1, 0.4));
+    let shape = Shape::Translate(
+        Arc::new(Shape::Scale(
+            Arc::new(Shape::Rotate(
+                Arc::new(Shape::Box {
+                    center: DVec3::ZERO,
+                    size,
+                }),
+                q,
+            )),
+            s,
+        )),
+        t,
+    );
+    let surface: Vec<DVec3> = box_surface(DVec3::ZERO, size / 2.0, 0.006)
+        .into_iter()
+        .map(|p| q * p * s + t)
+        .collect();
+    let inside = |p: DVec3| {
+        let local = q.inverse() * ((p - t) / s);
+        (local.abs() - size / 2.0).max_element() < 0.0
+    };
+    check(&shape, &surface, inside, 0.01);
+}
+
+#[test]
+fn plane_is_signed_distance_to_the_plane() {
+    let n = DVec3::new(1.0, 2.0, 2.0) / 3.0;
+    let plane = Shape::Plane {
+        normal: n,
+        height: 0.5,
+    };
+    let mut rng = Lcg(7);
+    for _ in 0..100 {
+        let p = rng.in_box(DVec3::splat(-3.0), DVec3::splat(3.0));
+        // Foot of the perpendicular, found independently by projection.
+        let foot = p - n * (p.dot(n) - 0.5);
+        assert!((foot.dot(n) - 0.5).abs() < 1e-12);
+        let d = plane.distance(p);
+        assert!((d.abs() - (p - foot).length()).abs() < 1e-12);
+    }
+}
