@@ -1,1 +1,171 @@
-fn main() {}
+//! Benchmarks of the SDF evaluator and sphere tracer: run by hand with
+//! `cargo run --release -p sdfl-bench`, never as a timed test.
+//!
+//! For N = 1, 10, 100, 1 000, 10 000 primitives (spheres scattered in a
+//! cube, scaled so the scene keeps its size) it measures evaluation
+//! throughput (points/s, one thread) and 512×512 frame time (all threads),
+//! naive min-union against BVH-culled, and the same expression evaluated by
+//! the fidget crate's JIT in the same run; it prints a Markdown table.
+
+use std::time::Instant;
+
+use glam::{DVec3, Vec3A};
+use sdfl_runtime::render::{render_view, Needs};
+use sdfl_runtime::{LowerOptions, Lowered};
+use sdfl_stdlib::camera::Camera;
+use sdfl_stdlib::material::Material;
+use sdfl_stdlib::shape::Shape;
+use sdfl_stdlib::RenderJob;
+use std::sync::Arc;
+
+mod peer;
+
+/// Deterministic uniform numbers in [0, 1).
+pub struct Lcg(pub u64);
+impl Lcg {
+    pub fn next(&mut self) -> f64 {
+        self.0 = self
+            .0
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        (self.0 >> 11) as f64 / (1u64 << 53) as f64
+    }
+}
+
+/// `n` spheres in [-1, 1]^3 with radii shrinking as n grows (so they stay
+/// mostly separate), as (centre, radius).
+pub fn scattered_spheres(n: usize) -> Vec<(DVec3, f64)> {
+    let mut rng = Lcg(1234);
+    let r = 0.5 / (n as f64).cbrt();
+    (0..n)
+        .map(|_| {
+            let c = DVec3::new(rng.next(), rng.next(), rng.next()) * 2.0 - DVec3::ONE;
+            (c, r * (0.5 + 0.5 * rng.next()))
+        })
+        .collect()
+}
+
+fn scene(spheres: &[(DVec3, f64)]) -> Shape {
+    Shape::Union(
+        spheres
+            .iter()
+            .map(|(c, r)| {
+                Arc::new(Shape::Sphere {
+                    center: *c,
+                    radius: *r,
+                })
+            })
+            .collect(),
+    )
+}
+
+fn sample_points(count: usize) -> Vec<Vec3A> {
+    let mut rng = Lcg(99);
+    (0..count)
+        .map(|_| {
+            Vec3A::new(rng.next() as f32, rng.next() as f32, rng.next() as f32) * 3.0
+                - Vec3A::splat(1.5)
+        })
+        .collect()
+}
+
+/// Best of `reps` runs of `f`, in seconds.
+fn best_of(reps: usize, mut f: impl FnMut()) -> f64 {
+    (0..reps)
+        .map(|_| {
+            let t = Instant::now();
+            f();
+            t.elapsed().as_secs_f64()
+        })
+        .fold(f64::INFINITY, f64::min)
+}
+
+fn frame_time(lowered: &Lowered, shape: &Shape) -> f64 {
+    let job = RenderJob {
+        name: "bench".into(),
+        scene: Arc::new(shape.clone()),
+        material: Arc::new(Material::Rainbow),
+        cameras: vec![Camera::look_at(
+            DVec3::new(0.0, 0.0, -3.5),
+            DVec3::ZERO,
+            DVec3::Y,
+            1.0,
+        )],
+        width: 512,
+        height: 512,
+        near: 0.0,
+        far: 8.0,
+        iterations: 128,
+        epsilon: 1e-4,
+        background: DVec3::ZERO,
+        outputs: vec![],
+    };
+    let needs = Needs {
+        color: true,
+        depth: false,
+        normals: false,
+        mask: false,
+    };
+    best_of(3, || {
+        render_view(lowered, &job, &job.cameras[0], (512, 512), needs, &|_| {});
+    })
+}
+
+fn main() {
+    let sizes: Vec<usize> = std::env::args()
+        .nth(1)
+        .map(|s| s.split(',').filter_map(|x| x.parse().ok()).collect())
+        .unwrap_or_else(|| vec![1, 10, 100, 1000, 10_000]);
+    let points = sample_points(200_000);
+    println!("| N | naive Mpts/s | culled Mpts/s | fidget JIT Mpts/s | culled / fidget | naive frame ms | culled frame ms | BVH nodes | lowering ms |");
+    println!("|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
+    for &n in &sizes {
+        let spheres = scattered_spheres(n);
+        let shape = scene(&spheres);
+        let naive = Lowered::new(
+            &shape,
+            LowerOptions {
+                cull: false,
+                ..Default::default()
+            },
+        );
+        let t_lower = Instant::now();
+        let culled = Lowered::new(&shape, LowerOptions::default());
+        let lower_ms = t_lower.elapsed().as_secs_f64() * 1e3;
+        // Check the evaluators agree before timing them.
+        for p in points.iter().take(2000) {
+            let (a, b) = (naive.dist(*p), culled.dist(*p));
+            assert!(
+                (a - b).abs() <= 1e-5 * a.abs().max(1.0),
+                "naive {a} != culled {b} at {p}"
+            );
+        }
+        let mut out = vec![0f32; points.len()];
+        // Fewer points for the O(N) evaluators at large N keep runs short.
+        let naive_pts = if n >= 1000 {
+            &points[..20_000]
+        } else {
+            &points[..]
+        };
+        let t_naive = best_of(3, || {
+            naive.eval_batch(naive_pts, &mut out[..naive_pts.len()])
+        });
+        let t_culled = best_of(3, || culled.eval_batch(&points, &mut out));
+        let fidget = peer::FidgetScene::new(&spheres);
+        fidget.check_against(&culled, &points[..2000]);
+        let (fidget_rate, _) = fidget.throughput(&points, n);
+        let rate = |count: usize, t: f64| count as f64 / t / 1e6;
+        let culled_rate = rate(points.len(), t_culled);
+        println!(
+            "| {n} | {:.2} | {:.2} | {:.2} | {:.2} | {:.1} | {:.1} | {} | {:.1} |",
+            rate(naive_pts.len(), t_naive),
+            culled_rate,
+            fidget_rate / 1e6,
+            culled_rate * 1e6 / fidget_rate,
+            frame_time(&naive, &shape) * 1e3,
+            frame_time(&culled, &shape) * 1e3,
+            culled.bvh_nodes,
+            lower_ms,
+        );
+    }
+}

@@ -19,6 +19,37 @@ pub const MAX_LOOP: u64 = 1_000_000;
 /// Most loop iterations and calls in a whole file: a bound on evaluation
 /// time and memory (a few hundred bytes per shape).
 pub const MAX_WORK: u64 = 2_000_000;
+/// Deepest nesting of shapes and lists (built through chains of `let`s,
+/// which brackets do not limit): tree walkers recurse this deep.
+pub const MAX_DEPTH: usize = 200;
+
+/// Whether a value nests deeper than `limit` (visits at most `limit` levels).
+fn deeper_than(v: &Value, limit: usize) -> bool {
+    fn shape(s: &crate::shape::Shape, limit: usize) -> bool {
+        use crate::shape::Shape::*;
+        if limit == 0 {
+            return true;
+        }
+        match s {
+            Union(c) | Intersection(c) => c.iter().any(|c| shape(c, limit - 1)),
+            Subtraction(a, b)
+            | SmoothUnion(a, b, _)
+            | SmoothIntersection(a, b, _)
+            | SmoothSubtraction(a, b, _) => shape(a, limit - 1) || shape(b, limit - 1),
+            Translate(s, _) | Rotate(s, _) | Scale(s, _) | Paint(s, _) => shape(s, limit - 1),
+            Displace { shape: s, .. } => shape(s, limit - 1),
+            _ => false,
+        }
+    }
+    if limit == 0 {
+        return true;
+    }
+    match v {
+        Value::List(items) => items.iter().any(|i| deeper_than(i, limit - 1)),
+        Value::Shape(s) => shape(s, limit),
+        _ => false,
+    }
+}
 
 pub struct Evaluator<'e> {
     env: &'e StdEnv,
@@ -422,9 +453,24 @@ impl<'e> Evaluator<'e> {
             }
         }
         match (builtin.eval)(&bound) {
-            Ok(v) => v,
+            Ok(v) => self.depth_checked(v, span),
             Err(d) => self.error(d),
         }
+    }
+
+    fn depth_checked(&mut self, v: Value, span: Span) -> Value {
+        if !deeper_than(&v, MAX_DEPTH) {
+            return v;
+        }
+        self.error(
+            Diag::new(
+                codes::TOO_LARGE,
+                span,
+                format!("value nested more than {MAX_DEPTH} levels deep"),
+            )
+            .label("too deep")
+            .help("build long sequences with `for` and `union` instead of chaining `let`s"),
+        )
     }
 }
 

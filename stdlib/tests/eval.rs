@@ -106,3 +106,16 @@ fn arithmetic_on_vectors_broadcasts() {
     let c = p.renders[0].scene.primitive_center().unwrap();
     assert!((c - glam::DVec3::new(0.3, 0.5, 0.7)).length() < 1e-12);
 }
+
+#[test]
+fn deep_let_chains_are_refused() {
+    let mut src = String::from("let s0 = sphere()\n");
+    for i in 1..5000 {
+        src.push_str(&format!("let s{i} = s{}.translate([0.001, 0, 0])\n", i - 1));
+    }
+    let c = codes_of(&src);
+    assert!(
+        !c.is_empty() && c.iter().all(|c| *c == codes::TOO_LARGE),
+        "{c:?}"
+    );
+}

@@ -1,0 +1,404 @@
+//! Running a `render` job: plan what the outputs need, lower the scene, trace
+//! every view in parallel bands of rows, and write the outputs.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use glam::{DVec3, Vec3A};
+use rayon::prelude::*;
+use sdfl_stdlib::camera::{pixel_ndc, Camera};
+use sdfl_stdlib::{OutputKind, RenderJob};
+use serde::Serialize;
+
+use crate::output::{colormap, to_u8, write_png, GifWriter};
+use crate::sdf::{LowerOptions, Lowered};
+use crate::trace::{normal, sphere_trace, TraceSettings};
+
+/// Rows per parallel work unit.
+const BAND_ROWS: usize = 8;
+
+/// Which per-pixel quantities a job computes, and which output asks for each.
+/// Quantities no output needs are never computed.
+#[derive(Debug, Clone, Default, Serialize)]
+pub struct Plan {
+    pub color: Vec<String>,
+    pub depth: Vec<String>,
+    pub normals: Vec<String>,
+    pub mask: Vec<String>,
+}
+
+impl Plan {
+    pub fn of(job: &RenderJob) -> Plan {
+        let mut plan = Plan::default();
+        for o in &job.outputs {
+            let who = o.path.display().to_string();
+            match o.kind {
+                OutputKind::Image | OutputKind::Gif { .. } => plan.color.push(who),
+                OutputKind::Depth => plan.depth.push(who),
+                OutputKind::Normals => plan.normals.push(who),
+                OutputKind::Mask => plan.mask.push(who),
+            }
+        }
+        if !plan.color.is_empty() && (job.material.needs_normal() || any_painted_needs_normal(job))
+        {
+            plan.normals
+                .push("shading (the material uses normals)".into());
+        }
+        plan
+    }
+}
+
+fn any_painted_needs_normal(job: &RenderJob) -> bool {
+    fn walk(s: &sdfl_stdlib::shape::Shape) -> bool {
+        use sdfl_stdlib::shape::Shape::*;
+        match s {
+            Paint(inner, m) => m.needs_normal() || walk(inner),
+            Union(c) | Intersection(c) => c.iter().any(|c| walk(c)),
+            Subtraction(a, b)
+            | SmoothUnion(a, b, _)
+            | SmoothIntersection(a, b, _)
+            | SmoothSubtraction(a, b, _) => walk(a) || walk(b),
+            Translate(s, _) | Rotate(s, _) | Scale(s, _) => walk(s),
+            Displace { shape, .. } => walk(shape),
+            _ => false,
+        }
+    }
+    walk(&job.scene)
+}
+
+/// Per-view buffers; `None` for quantities the plan does not need.
+pub struct ViewBuffers {
+    pub width: u32,
+    pub height: u32,
+    pub color: Option<Vec<u8>>,
+    /// Hit depth `t`, 0 for misses.
+    pub depth: Option<Vec<f32>>,
+    pub normals: Option<Vec<u8>>,
+    pub mask: Option<Vec<u8>>,
+    pub hits: u64,
+    pub steps: u64,
+}
+
+/// Which quantities to compute for each pixel.
+#[derive(Debug, Clone, Copy)]
+pub struct Needs {
+    pub color: bool,
+    pub depth: bool,
+    pub normals: bool,
+    pub mask: bool,
+}
+
+impl From<&Plan> for Needs {
+    fn from(p: &Plan) -> Self {
+        Needs {
+            color: !p.color.is_empty(),
+            depth: !p.depth.is_empty(),
+            normals: p.normals.iter().any(|n| !n.starts_with("shading")),
+            mask: !p.mask.is_empty(),
+        }
+    }
+}
+
+/// Trace one view. `progress` is called with the number of pixels finished.
+pub fn render_view(
+    scene: &Lowered,
+    job: &RenderJob,
+    cam: &Camera,
+    (width, height): (u32, u32),
+    needs: Needs,
+    progress: &(dyn Fn(u64) + Sync),
+) -> ViewBuffers {
+    let (w, h) = (width as usize, height as usize);
+    let settings = TraceSettings {
+        near: job.near as f32,
+        far: job.far as f32,
+        max_steps: job.iterations,
+        epsilon: job.epsilon as f32,
+        lipschitz: scene.lipschitz,
+    };
+    let (ax, ay, az) = cam.axes();
+    let origin: Vec3A = cam.eye.as_vec3().into();
+    let alloc = |on: bool, n: usize| on.then(|| vec![0u8; n]);
+    let mut color = alloc(needs.color, w * h * 3);
+    let mut depth = needs.depth.then(|| vec![0f32; w * h]);
+    let mut normals = alloc(needs.normals, w * h * 3);
+    let mut mask = alloc(needs.mask, w * h);
+    let background = job.background.to_array().map(to_u8);
+
+    // Split every buffer into bands of rows; each band is traced by one task.
+    let bands = h.div_ceil(BAND_ROWS);
+    let mut color_b = split(color.as_deref_mut(), w * 3 * BAND_ROWS, bands);
+    let mut depth_b = split(depth.as_deref_mut(), w * BAND_ROWS, bands);
+    let mut normal_b = split(normals.as_deref_mut(), w * 3 * BAND_ROWS, bands);
+    let mut mask_b = split(mask.as_deref_mut(), w * BAND_ROWS, bands);
+    let work: Vec<_> = (0..bands)
+        .map(|b| {
+            (
+                b,
+                color_b[b].take(),
+                depth_b[b].take(),
+                normal_b[b].take(),
+                mask_b[b].take(),
+            )
+        })
+        .collect();
+    let (hits, steps) = work
+        .into_par_iter()
+        .map(|(band, mut col, mut dep, mut nor, mut msk)| {
+            let (mut hits, mut steps) = (0u64, 0u64);
+            let rows = (band * BAND_ROWS)..((band + 1) * BAND_ROWS).min(h);
+            let nrows = rows.len();
+            for (r, j) in rows.enumerate() {
+                for i in 0..w {
+                    let (xn, yn) = pixel_ndc(i as u32, j as u32, width, height);
+                    let d64 = (ax * (xn / cam.focal) + ay * (yn / cam.focal) + az).normalize();
+                    let dir: Vec3A = d64.as_vec3().into();
+                    let hit = sphere_trace(&*scene.root, origin, dir, &settings);
+                    steps += hit.steps as u64;
+                    let k = r * w + i;
+                    if !hit.hit {
+                        if let Some(c) = col.as_deref_mut() {
+                            c[k * 3..k * 3 + 3].copy_from_slice(&background);
+                        }
+                        continue;
+                    }
+                    hits += 1;
+                    let p = origin + dir * hit.t;
+                    let mut n_cache = None;
+                    let mut get_normal =
+                        || *n_cache.get_or_insert_with(|| normal(&*scene.root, p, 5e-4, -dir));
+                    if let Some(c) = col.as_deref_mut() {
+                        let (_, id) = scene.root.dist_id(p);
+                        let info = scene.prims.get(id as usize);
+                        let material = info
+                            .and_then(|i| i.material.as_deref())
+                            .unwrap_or(&job.material);
+                        let center = info.map_or(DVec3::ZERO, |i| i.center);
+                        let n = if material.needs_normal() {
+                            get_normal()
+                        } else {
+                            Vec3A::Z
+                        };
+                        let p64 = DVec3::from(p.to_array().map(f64::from));
+                        let n64 = DVec3::from(n.to_array().map(f64::from));
+                        let rgb = material.shade(p64, center, n64);
+                        c[k * 3..k * 3 + 3].copy_from_slice(&rgb.to_array().map(to_u8));
+                    }
+                    if let Some(d) = dep.as_deref_mut() {
+                        d[k] = hit.t;
+                    }
+                    if let Some(nb) = nor.as_deref_mut() {
+                        let n = get_normal();
+                        let rgb = [n.x, n.y, n.z].map(|x| to_u8(((x + 1.0) * 0.5) as f64));
+                        nb[k * 3..k * 3 + 3].copy_from_slice(&rgb);
+                    }
+                    if let Some(m) = msk.as_deref_mut() {
+                        m[k] = 255;
+                    }
+                }
+            }
+            progress((nrows * w) as u64);
+            (hits, steps)
+        })
+        .reduce(|| (0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
+    ViewBuffers {
+        width,
+        height,
+        color,
+        depth,
+        normals,
+        mask,
+        hits,
+        steps,
+    }
+}
+
+fn split<T>(buf: Option<&mut [T]>, chunk: usize, bands: usize) -> Vec<Option<&mut [T]>> {
+    match buf {
+        Some(b) => b.chunks_mut(chunk).map(Some).collect(),
+        None => (0..bands).map(|_| None).collect(),
+    }
+}
+
+/// A file that was written.
+#[derive(Debug, Clone, Serialize)]
+pub struct Written {
+    pub path: PathBuf,
+    pub kind: &'static str,
+    pub width: u32,
+    pub height: u32,
+    pub frames: usize,
+}
+
+/// What a job did and how long each stage took.
+#[derive(Debug, Clone, Serialize)]
+pub struct JobReport {
+    pub name: String,
+    pub primitives: usize,
+    pub bvh_nodes: usize,
+    pub lipschitz: f32,
+    pub views: usize,
+    pub rays: u64,
+    pub hits: u64,
+    pub steps: u64,
+    pub plan: Plan,
+    pub written: Vec<Written>,
+    /// (stage, seconds)
+    pub stages: Vec<(String, f64)>,
+}
+
+/// Options a caller can set on top of the scene file.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct RunOptions {
+    /// Overrides every render's `size`.
+    pub size: Option<(u32, u32)>,
+    /// Evaluate unions without BVH culling (for comparisons).
+    pub no_cull: bool,
+}
+
+/// The file name for view `k` of `n`: `{view}` is replaced by the padded
+/// index; otherwise `_NN` is added before the extension when `n > 1`.
+pub fn view_path(path: &Path, k: usize, n: usize) -> PathBuf {
+    let digits = (n.max(2) - 1).to_string().len().max(2);
+    let idx = format!("{k:0digits$}");
+    let s = path.to_string_lossy();
+    if s.contains("{view}") {
+        return PathBuf::from(s.replace("{view}", &idx));
+    }
+    if n == 1 {
+        return path.to_path_buf();
+    }
+    let stem = path
+        .file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    let ext = path
+        .extension()
+        .map(|e| format!(".{}", e.to_string_lossy()))
+        .unwrap_or_default();
+    path.with_file_name(format!("{stem}_{idx}{ext}"))
+}
+
+/// Run one render job, writing its outputs under `out_dir`.
+pub fn run_job(
+    job: &RenderJob,
+    out_dir: &Path,
+    options: RunOptions,
+    progress: &(dyn Fn(u64) + Sync),
+) -> std::io::Result<JobReport> {
+    let t0 = Instant::now();
+    let scene = Lowered::new(
+        &job.scene,
+        LowerOptions {
+            cull: !options.no_cull,
+            ..Default::default()
+        },
+    );
+    let lower_s = t0.elapsed().as_secs_f64();
+    let plan = Plan::of(job);
+    let needs = Needs::from(&plan);
+    let (width, height) = options.size.unwrap_or((job.width, job.height));
+    let views = job.cameras.len();
+    let mut gifs = Vec::new();
+    for o in &job.outputs {
+        if let OutputKind::Gif { fps } = o.kind {
+            gifs.push((
+                GifWriter::create(&out_dir.join(&o.path), fps)?,
+                o.path.clone(),
+            ));
+        }
+    }
+    let mut written = Vec::new();
+    let (mut trace_s, mut encode_s) = (0.0, 0.0);
+    let (mut hits, mut steps) = (0, 0);
+    for (k, cam) in job.cameras.iter().enumerate() {
+        let t = Instant::now();
+        let view = render_view(&scene, job, cam, (width, height), needs, progress);
+        trace_s += t.elapsed().as_secs_f64();
+        hits += view.hits;
+        steps += view.steps;
+        let t = Instant::now();
+        for o in &job.outputs {
+            let rel = view_path(&o.path, k, views);
+            let path = out_dir.join(&rel);
+            let (kind, rgb): (&'static str, Option<Vec<u8>>) = match o.kind {
+                OutputKind::Gif { .. } => continue,
+                OutputKind::Image => ("image", view.color.clone()),
+                OutputKind::Normals => ("normal_map", view.normals.clone()),
+                OutputKind::Mask => (
+                    "mask",
+                    view.mask
+                        .as_ref()
+                        .map(|m| m.iter().flat_map(|v| [*v; 3]).collect()),
+                ),
+                OutputKind::Depth => ("depth", view.depth.as_ref().map(|d| depth_image(d))),
+            };
+            let rgb = rgb.expect("the plan computes what every output needs");
+            write_png(&path, width, height, &rgb)?;
+            written.push(Written {
+                path: rel,
+                kind,
+                width,
+                height,
+                frames: 1,
+            });
+        }
+        for (g, _) in &mut gifs {
+            g.push(
+                width,
+                height,
+                view.color.as_deref().expect("gif outputs plan colour"),
+            )?;
+        }
+        encode_s += t.elapsed().as_secs_f64();
+    }
+    let t = Instant::now();
+    for (g, rel) in gifs {
+        let frames = g.frames;
+        g.finish()?;
+        written.push(Written {
+            path: rel,
+            kind: "gif",
+            width,
+            height,
+            frames,
+        });
+    }
+    encode_s += t.elapsed().as_secs_f64();
+    Ok(JobReport {
+        name: job.name.clone(),
+        primitives: job.scene.primitive_count(),
+        bvh_nodes: scene.bvh_nodes,
+        lipschitz: scene.lipschitz,
+        views,
+        rays: width as u64 * height as u64 * views as u64,
+        hits,
+        steps,
+        plan,
+        written,
+        stages: vec![
+            ("lower".into(), lower_s),
+            ("trace".into(), trace_s),
+            ("encode".into(), encode_s),
+        ],
+    })
+}
+
+/// Depth normalised by its maximum over hits and colour-mapped; misses black.
+pub fn depth_image(depth: &[f32]) -> Vec<u8> {
+    let max = depth
+        .iter()
+        .copied()
+        .filter(|d| *d > 0.0)
+        .fold(0.0f32, f32::max);
+    depth
+        .iter()
+        .flat_map(|d| {
+            if *d > 0.0 && max > 0.0 {
+                colormap(d / max)
+            } else {
+                [0, 0, 0]
+            }
+        })
+        .collect()
+}

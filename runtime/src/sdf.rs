@@ -1,0 +1,968 @@
+//! Lowering of the shape IR to a fast f32 evaluator.
+//!
+//! A [`Shape`] is lowered once into a tree of trait objects (a closure tree
+//! with two entry points: the distance, and the distance with the id of the
+//! primitive that attains it). Transforms are pushed down into the leaves as
+//! one world→local affine map each, nested unions are flattened, and a union
+//! of many bounded members gets a BVH over their bounding boxes, traversed
+//! branch-and-bound: a subtree is skipped when the signed distance to its box
+//! is not below the best distance found so far. Because every shape's value
+//! is at least the signed distance to its bounds (see `sdfl_stdlib::shape`),
+//! a skipped member can never be the minimum: the culled union equals the
+//! naive minimum. Tests check that against the f64 reference for every
+//! evaluator.
+
+use std::sync::Arc;
+
+use glam::{Affine3A, DAffine3, DQuat, DVec3, Vec3A};
+use sdfl_stdlib::material::Material;
+use sdfl_stdlib::shape::{Aabb, Shape};
+
+/// One lowered node: a signed distance (or bound) in world units.
+pub trait Node: Send + Sync {
+    fn dist(&self, p: Vec3A) -> f32;
+    /// The distance and the id of the primitive attaining it.
+    fn dist_id(&self, p: Vec3A) -> (f32, u32);
+}
+
+/// What a primitive id stands for, for shading.
+#[derive(Debug, Clone)]
+pub struct PrimInfo {
+    /// World-space centre (the rainbow material's `c`).
+    pub center: DVec3,
+    /// The material painted on it, if any (else the render's material).
+    pub material: Option<Arc<Material>>,
+    pub kind: &'static str,
+}
+
+/// Options of lowering.
+#[derive(Debug, Clone, Copy)]
+pub struct LowerOptions {
+    /// Build BVHs over large unions (otherwise a union is a plain minimum).
+    pub cull: bool,
+    /// Unions with at least this many bounded members get a BVH.
+    pub bvh_threshold: usize,
+}
+
+impl Default for LowerOptions {
+    fn default() -> Self {
+        LowerOptions {
+            cull: true,
+            bvh_threshold: 16,
+        }
+    }
+}
+
+/// A lowered scene: evaluator, Lipschitz bound and primitive table.
+pub struct Lowered {
+    pub root: Box<dyn Node>,
+    pub lipschitz: f32,
+    pub prims: Vec<PrimInfo>,
+    pub bvh_nodes: usize,
+}
+
+impl Lowered {
+    pub fn new(shape: &Shape, options: LowerOptions) -> Self {
+        let mut cx = Lowering {
+            options,
+            prims: Vec::new(),
+            bvh_nodes: 0,
+        };
+        let root = cx.lower(shape, &Frame::identity());
+        Lowered {
+            root,
+            lipschitz: shape.lipschitz().max(1.0) as f32,
+            prims: cx.prims,
+            bvh_nodes: cx.bvh_nodes,
+        }
+    }
+
+    pub fn dist(&self, p: Vec3A) -> f32 {
+        self.root.dist(p)
+    }
+
+    /// Distances of a batch of points.
+    pub fn eval_batch(&self, points: &[Vec3A], out: &mut [f32]) {
+        for (p, o) in points.iter().zip(out.iter_mut()) {
+            *o = self.root.dist(*p);
+        }
+    }
+}
+
+/// The accumulated transform from world space to a node's local space.
+#[derive(Clone)]
+struct Frame {
+    /// World → local.
+    to_local: DAffine3,
+    /// Local distances are multiplied by this to give world distances.
+    scale: f64,
+    material: Option<Arc<Material>>,
+}
+
+impl Frame {
+    fn identity() -> Self {
+        Frame {
+            to_local: DAffine3::IDENTITY,
+            scale: 1.0,
+            material: None,
+        }
+    }
+    fn then(&self, local_step: DAffine3, scale: f64) -> Frame {
+        Frame {
+            to_local: local_step * self.to_local,
+            scale: self.scale * scale,
+            material: self.material.clone(),
+        }
+    }
+    fn xform(&self) -> Xform {
+        if self.to_local == DAffine3::IDENTITY {
+            Xform::Identity
+        } else {
+            Xform::Affine(Affine3A::from_cols(
+                self.to_local.matrix3.x_axis.as_vec3().into(),
+                self.to_local.matrix3.y_axis.as_vec3().into(),
+                self.to_local.matrix3.z_axis.as_vec3().into(),
+                self.to_local.translation.as_vec3().into(),
+            ))
+        }
+    }
+    /// World-space box of a local-space box.
+    fn world_box(&self, local: Aabb) -> Aabb {
+        let to_world = self.to_local.inverse();
+        local.transformed(|c| to_world.transform_point3(c))
+    }
+}
+
+#[derive(Clone, Copy)]
+enum Xform {
+    Identity,
+    Affine(Affine3A),
+}
+
+impl Xform {
+    #[inline(always)]
+    fn apply(&self, p: Vec3A) -> Vec3A {
+        match self {
+            Xform::Identity => p,
+            Xform::Affine(a) => a.transform_point3a(p),
+        }
+    }
+}
+
+// ---------------------------------------------------------------- primitives
+
+trait Prim: Send + Sync + 'static {
+    fn local(&self, p: Vec3A) -> f32;
+}
+
+struct Sphere {
+    c: Vec3A,
+    r: f32,
+}
+impl Prim for Sphere {
+    #[inline(always)]
+    fn local(&self, p: Vec3A) -> f32 {
+        (p - self.c).length() - self.r
+    }
+}
+
+#[inline(always)]
+fn box_sd(q: Vec3A, half: Vec3A) -> f32 {
+    let q = q.abs() - half;
+    q.max(Vec3A::ZERO).length() + q.max_element().min(0.0)
+}
+
+struct BoxPrim {
+    c: Vec3A,
+    half: Vec3A,
+}
+impl Prim for BoxPrim {
+    #[inline(always)]
+    fn local(&self, p: Vec3A) -> f32 {
+        box_sd(p - self.c, self.half)
+    }
+}
+
+struct BoxFrame {
+    c: Vec3A,
+    half: Vec3A,
+    /// Half the edge width (Quilez's `e`).
+    e: f32,
+}
+impl Prim for BoxFrame {
+    #[inline(always)]
+    fn local(&self, p: Vec3A) -> f32 {
+        let p = (p - self.c).abs() - self.half;
+        let q = (p + Vec3A::splat(self.e)).abs() - Vec3A::splat(self.e);
+        let part = |v: Vec3A| v.max(Vec3A::ZERO).length() + v.max_element().min(0.0);
+        part(Vec3A::new(p.x, q.y, q.z))
+            .min(part(Vec3A::new(q.x, p.y, q.z)))
+            .min(part(Vec3A::new(q.x, q.y, p.z)))
+    }
+}
+
+struct Torus {
+    c: Vec3A,
+    major: f32,
+    minor: f32,
+}
+impl Prim for Torus {
+    #[inline(always)]
+    fn local(&self, p: Vec3A) -> f32 {
+        let q = p - self.c;
+        let a = (q.x * q.x + q.y * q.y).sqrt() - self.major;
+        (a * a + q.z * q.z).sqrt() - self.minor
+    }
+}
+
+struct Capsule {
+    a: Vec3A,
+    ba: Vec3A,
+    inv_len2: f32,
+    r: f32,
+}
+impl Prim for Capsule {
+    #[inline(always)]
+    fn local(&self, p: Vec3A) -> f32 {
+        let pa = p - self.a;
+        let h = (pa.dot(self.ba) * self.inv_len2).clamp(0.0, 1.0);
+        (pa - self.ba * h).length() - self.r
+    }
+}
+
+struct Cylinder {
+    c: Vec3A,
+    r: f32,
+    half_h: f32,
+}
+impl Prim for Cylinder {
+    #[inline(always)]
+    fn local(&self, p: Vec3A) -> f32 {
+        let q = p - self.c;
+        let dx = (q.x * q.x + q.y * q.y).sqrt() - self.r;
+        let dz = q.z.abs() - self.half_h;
+        dx.max(dz).min(0.0) + (dx.max(0.0) * dx.max(0.0) + dz.max(0.0) * dz.max(0.0)).sqrt()
+    }
+}
+
+struct Plane {
+    n: Vec3A,
+    h: f32,
+}
+impl Prim for Plane {
+    #[inline(always)]
+    fn local(&self, p: Vec3A) -> f32 {
+        p.dot(self.n) - self.h
+    }
+}
+
+/// A primitive placed in the world.
+struct Leaf<P> {
+    prim: P,
+    xform: Xform,
+    scale: f32,
+    id: u32,
+}
+
+impl<P: Prim> Node for Leaf<P> {
+    #[inline(always)]
+    fn dist(&self, p: Vec3A) -> f32 {
+        self.prim.local(self.xform.apply(p)) * self.scale
+    }
+    fn dist_id(&self, p: Vec3A) -> (f32, u32) {
+        (self.dist(p), self.id)
+    }
+}
+
+// ---------------------------------------------------------------- combinators
+
+struct Union(Vec<Box<dyn Node>>);
+impl Node for Union {
+    fn dist(&self, p: Vec3A) -> f32 {
+        self.0.iter().fold(f32::INFINITY, |m, c| m.min(c.dist(p)))
+    }
+    fn dist_id(&self, p: Vec3A) -> (f32, u32) {
+        self.0.iter().fold((f32::INFINITY, u32::MAX), |best, c| {
+            let d = c.dist_id(p);
+            if d.0 < best.0 {
+                d
+            } else {
+                best
+            }
+        })
+    }
+}
+
+struct Intersection(Vec<Box<dyn Node>>);
+impl Node for Intersection {
+    fn dist(&self, p: Vec3A) -> f32 {
+        self.0
+            .iter()
+            .fold(f32::NEG_INFINITY, |m, c| m.max(c.dist(p)))
+    }
+    fn dist_id(&self, p: Vec3A) -> (f32, u32) {
+        self.0
+            .iter()
+            .fold((f32::NEG_INFINITY, u32::MAX), |best, c| {
+                let d = c.dist_id(p);
+                if d.0 > best.0 {
+                    d
+                } else {
+                    best
+                }
+            })
+    }
+}
+
+#[derive(Clone, Copy)]
+enum SmoothOp {
+    Union,
+    Intersection,
+    Subtraction,
+}
+
+/// `Subtraction` with `k = 0` is the sharp `max(a, -b)`.
+struct Binary {
+    a: Box<dyn Node>,
+    b: Box<dyn Node>,
+    op: SmoothOp,
+    k: f32,
+}
+
+#[inline(always)]
+fn smin(a: f32, b: f32, k: f32) -> f32 {
+    if k <= 0.0 {
+        return a.min(b);
+    }
+    let h = (k - (a - b).abs()).max(0.0) / k;
+    a.min(b) - h * h * k * 0.25
+}
+
+impl Binary {
+    #[inline(always)]
+    fn combine(&self, a: f32, b: f32) -> f32 {
+        match self.op {
+            SmoothOp::Union => smin(a, b, self.k),
+            SmoothOp::Intersection => -smin(-a, -b, self.k),
+            SmoothOp::Subtraction => -smin(-a, b, self.k),
+        }
+    }
+}
+
+impl Node for Binary {
+    fn dist(&self, p: Vec3A) -> f32 {
+        self.combine(self.a.dist(p), self.b.dist(p))
+    }
+    fn dist_id(&self, p: Vec3A) -> (f32, u32) {
+        let (a, ia) = self.a.dist_id(p);
+        let (b, ib) = self.b.dist_id(p);
+        let id = match self.op {
+            SmoothOp::Union => {
+                if a <= b {
+                    ia
+                } else {
+                    ib
+                }
+            }
+            SmoothOp::Intersection => {
+                if a >= b {
+                    ia
+                } else {
+                    ib
+                }
+            }
+            // The cut surface belongs to the shape being cut.
+            SmoothOp::Subtraction => ia,
+        };
+        (self.combine(a, b), id)
+    }
+}
+
+struct Displace {
+    inner: Box<dyn Node>,
+    xform: Xform,
+    amplitude: f32,
+    frequency: f32,
+}
+impl Displace {
+    #[inline(always)]
+    fn offset(&self, p: Vec3A) -> f32 {
+        let q = self.xform.apply(p) * self.frequency;
+        self.amplitude * q.x.sin() * q.y.sin() * q.z.sin()
+    }
+}
+impl Node for Displace {
+    fn dist(&self, p: Vec3A) -> f32 {
+        self.inner.dist(p) + self.offset(p)
+    }
+    fn dist_id(&self, p: Vec3A) -> (f32, u32) {
+        let (d, id) = self.inner.dist_id(p);
+        (d + self.offset(p), id)
+    }
+}
+
+// ----------------------------------------------------------------------- BVH
+
+#[derive(Clone, Copy)]
+struct BvhNode {
+    center: Vec3A,
+    half: Vec3A,
+    /// Leaf: `count > 0`, members `first..first + count`. Inner: children
+    /// at `first` and `first + 1`.
+    first: u32,
+    count: u32,
+}
+
+/// A union culled with a bounding volume hierarchy, and a grid of cells
+/// each listing the only members that can attain the minimum inside it.
+struct BvhUnion {
+    nodes: Vec<BvhNode>,
+    members: Vec<Box<dyn Node>>,
+    /// Each member's world box as (centre, half extents).
+    boxes: Vec<(Vec3A, Vec3A)>,
+    /// Members without bounds (planes): always evaluated.
+    unbounded: Vec<Box<dyn Node>>,
+    grid: Option<CellGrid>,
+}
+
+const LEAF_SIZE: usize = 4;
+const STACK: usize = 64;
+
+/// Candidate lists per cell of a regular grid over the union's bounds.
+///
+/// For a cell with centre `c` and half-diagonal `r`, the minimum over the
+/// members anywhere in the cell is at most `m + L·r`, where `m` is the
+/// minimum at `c` and `L` the largest member Lipschitz bound. A member whose
+/// box is farther than that from the cell is never below the minimum there
+/// (its value is at least the distance to its box), so only the others are
+/// listed, and the union evaluated over a point's list is exact.
+struct CellGrid {
+    min: Vec3A,
+    inv_size: Vec3A,
+    res: [usize; 3],
+    /// (start, count) into `candidates`; `count == FALLBACK`: use the BVH.
+    cells: Vec<(u32, u32)>,
+    candidates: Vec<u32>,
+}
+
+const FALLBACK: u32 = u32::MAX;
+/// Longest candidate list kept; cells needing more fall back to the BVH.
+const MAX_CANDIDATES: usize = 32;
+/// How far the grid extends past the union's bounds, per side, as a
+/// fraction of their size.
+const GRID_MARGIN: f32 = 0.5;
+/// Most grid cells.
+const MAX_CELLS: usize = 262_144;
+
+impl CellGrid {
+    #[inline(always)]
+    fn lookup(&self, p: Vec3A) -> Option<&[u32]> {
+        let q = (p - self.min) * self.inv_size;
+        // NaN or outside: no cell.
+        if !(q.cmpge(Vec3A::ZERO).all()) {
+            return None;
+        }
+        let (i, j, k) = (q.x as usize, q.y as usize, q.z as usize);
+        if i >= self.res[0] || j >= self.res[1] || k >= self.res[2] {
+            return None;
+        }
+        let (start, count) = self.cells[(k * self.res[1] + j) * self.res[0] + i];
+        (count != FALLBACK).then(|| &self.candidates[start as usize..(start + count) as usize])
+    }
+}
+
+/// Euclidean gap between two boxes given as (centre, half extents); 0 when
+/// they overlap.
+#[inline(always)]
+fn box_gap(ca: Vec3A, ha: Vec3A, cb: Vec3A, hb: Vec3A) -> f32 {
+    ((ca - cb).abs() - ha - hb).max(Vec3A::ZERO).length()
+}
+
+impl BvhUnion {
+    fn build(items: Vec<(Box<dyn Node>, Aabb, f32)>, unbounded: Vec<Box<dyn Node>>) -> Self {
+        let lipschitz = items.iter().map(|i| i.2).fold(1.0f32, f32::max);
+        let mut items: Vec<(Box<dyn Node>, Aabb, DVec3)> = items
+            .into_iter()
+            .map(|(n, b, _)| (n, b, b.center()))
+            .collect();
+        let mut nodes = vec![BvhNode {
+            center: Vec3A::ZERO,
+            half: Vec3A::ZERO,
+            first: 0,
+            count: 0,
+        }];
+        // Work list of (node index, range of items); items are reordered in
+        // place so each leaf's members are contiguous.
+        let mut work = vec![(0usize, 0usize, items.len())];
+        while let Some((ni, lo, hi)) = work.pop() {
+            let bounds = items[lo..hi]
+                .iter()
+                .map(|i| i.1)
+                .reduce(Aabb::union)
+                .expect("nonempty range");
+            let (center, half) = padded(bounds);
+            nodes[ni].center = center;
+            nodes[ni].half = half;
+            if hi - lo <= LEAF_SIZE {
+                nodes[ni].first = lo as u32;
+                nodes[ni].count = (hi - lo) as u32;
+                continue;
+            }
+            // Median split along the widest axis of the member centres.
+            let (cmin, cmax) = items[lo..hi]
+                .iter()
+                .fold((DVec3::INFINITY, DVec3::NEG_INFINITY), |(a, b), i| {
+                    (a.min(i.2), b.max(i.2))
+                });
+            let ext = cmax - cmin;
+            let axis = if ext.x >= ext.y && ext.x >= ext.z {
+                0
+            } else if ext.y >= ext.z {
+                1
+            } else {
+                2
+            };
+            let mid = (lo + hi) / 2;
+            items[lo..hi].select_nth_unstable_by(mid - lo, |a, b| a.2[axis].total_cmp(&b.2[axis]));
+            let left = nodes.len();
+            nodes.push(BvhNode {
+                center: Vec3A::ZERO,
+                half: Vec3A::ZERO,
+                first: 0,
+                count: 0,
+            });
+            nodes.push(BvhNode {
+                center: Vec3A::ZERO,
+                half: Vec3A::ZERO,
+                first: 0,
+                count: 0,
+            });
+            nodes[ni].first = left as u32;
+            work.push((left, lo, mid));
+            work.push((left + 1, mid, hi));
+        }
+        let boxes = items.iter().map(|i| padded(i.1)).collect();
+        let mut union = BvhUnion {
+            nodes,
+            members: items.into_iter().map(|i| i.0).collect(),
+            boxes,
+            unbounded,
+            grid: None,
+        };
+        union.grid = Some(union.build_grid(lipschitz));
+        union
+    }
+
+    fn build_grid(&self, lipschitz: f32) -> CellGrid {
+        use rayon::prelude::*;
+        // The grid reaches past the bounds by half their size on each side,
+        // where rays approaching the scene spend most of their steps.
+        let root = self.nodes[0];
+        let half_ext = root.half.max(Vec3A::splat(1e-6)) * (1.0 + 2.0 * GRID_MARGIN);
+        let (lo, ext) = (root.center - half_ext, half_ext * 2.0);
+        let target = (self.members.len() * 32).clamp(4096, MAX_CELLS) as f32;
+        let size = (ext.x * ext.y * ext.z / target).cbrt().max(1e-6);
+        let res = [ext.x, ext.y, ext.z].map(|e| ((e / size).ceil() as usize).clamp(1, 128));
+        let cell = ext / Vec3A::new(res[0] as f32, res[1] as f32, res[2] as f32);
+        let half = cell * 0.5;
+        let radius = half.length();
+        let lists: Vec<Option<Vec<u32>>> = (0..res[0] * res[1] * res[2])
+            .into_par_iter()
+            .map(|idx| {
+                let (i, j, k) = (
+                    idx % res[0],
+                    (idx / res[0]) % res[1],
+                    idx / (res[0] * res[1]),
+                );
+                let c = lo + cell * Vec3A::new(i as f32 + 0.5, j as f32 + 0.5, k as f32 + 0.5);
+                let m = self.search(c, f32::INFINITY, |m, best| {
+                    best.min(self.members[m].dist(c))
+                });
+                // Slack for f32 rounding of the member values.
+                let bound = m + lipschitz * radius + 1e-4 * (1.0 + m.abs());
+                self.candidates(c, half, bound)
+            })
+            .collect();
+        let mut cells = Vec::with_capacity(lists.len());
+        let mut candidates = Vec::new();
+        for list in lists {
+            match list {
+                Some(l) => {
+                    cells.push((candidates.len() as u32, l.len() as u32));
+                    candidates.extend(l);
+                }
+                None => cells.push((0, FALLBACK)),
+            }
+        }
+        CellGrid {
+            min: lo,
+            inv_size: Vec3A::ONE / cell,
+            res,
+            cells,
+            candidates,
+        }
+    }
+
+    /// Members that may be below `bound` somewhere in the cell: those whose
+    /// box overlaps it or lies within `bound` of it. `None` past the limit.
+    fn candidates(&self, c: Vec3A, h: Vec3A, bound: f32) -> Option<Vec<u32>> {
+        let mut out = Vec::new();
+        let mut stack = vec![0usize];
+        while let Some(n) = stack.pop() {
+            let node = self.nodes[n];
+            let gap = box_gap(c, h, node.center, node.half);
+            if gap > 0.0 && gap > bound {
+                continue;
+            }
+            if node.count == 0 {
+                stack.push(node.first as usize);
+                stack.push(node.first as usize + 1);
+                continue;
+            }
+            for m in node.first..node.first + node.count {
+                let (bc, bh) = self.boxes[m as usize];
+                let gap = box_gap(c, h, bc, bh);
+                if gap == 0.0 || gap <= bound {
+                    out.push(m);
+                    if out.len() > MAX_CANDIDATES {
+                        return None;
+                    }
+                }
+            }
+        }
+        Some(out)
+    }
+
+    #[inline(always)]
+    fn lower_bound(&self, n: usize, p: Vec3A) -> f32 {
+        box_sd(p - self.nodes[n].center, self.nodes[n].half)
+    }
+
+    /// Branch-and-bound minimum; `visit` evaluates a member, returning its
+    /// distance, and may record more (the id).
+    #[inline(always)]
+    fn search(&self, p: Vec3A, mut best: f32, mut visit: impl FnMut(usize, f32) -> f32) -> f32 {
+        let mut stack = [0u32; STACK];
+        let mut top = 0;
+        if self.lower_bound(0, p) < best {
+            stack[0] = 0;
+            top = 1;
+        }
+        while top > 0 {
+            top -= 1;
+            let node = self.nodes[stack[top] as usize];
+            if node.count > 0 {
+                for m in node.first..node.first + node.count {
+                    let (bc, bh) = self.boxes[m as usize];
+                    if box_sd(p - bc, bh) < best {
+                        best = visit(m as usize, best);
+                    }
+                }
+                continue;
+            }
+            let (l, r) = (node.first as usize, node.first as usize + 1);
+            let (dl, dr) = (self.lower_bound(l, p), self.lower_bound(r, p));
+            // Visit the nearer child first: push it last.
+            let (near, dn, far, df) = if dl <= dr {
+                (l, dl, r, dr)
+            } else {
+                (r, dr, l, dl)
+            };
+            if df < best && top < STACK {
+                stack[top] = far as u32;
+                top += 1;
+            }
+            if dn < best && top < STACK {
+                stack[top] = near as u32;
+                top += 1;
+            }
+        }
+        best
+    }
+}
+
+/// A box as (centre, half extents) in f32, padded by a relative epsilon so
+/// rounding never makes the box distance exceed a member's distance.
+fn padded(b: Aabb) -> (Vec3A, Vec3A) {
+    let pad = 1e-5
+        * (b.max - b.min)
+            .max_element()
+            .max(b.center().abs().max_element())
+            .max(1.0);
+    let b = b.expand(pad);
+    (
+        b.center().as_vec3().into(),
+        ((b.max - b.min) * 0.5).as_vec3().into(),
+    )
+}
+
+impl Node for BvhUnion {
+    fn dist(&self, p: Vec3A) -> f32 {
+        let best = self
+            .unbounded
+            .iter()
+            .fold(f32::INFINITY, |m, c| m.min(c.dist(p)));
+        if let Some(list) = self.grid.as_ref().and_then(|g| g.lookup(p)) {
+            return list
+                .iter()
+                .fold(best, |m, i| m.min(self.members[*i as usize].dist(p)));
+        }
+        self.search(p, best, |m, best| best.min(self.members[m].dist(p)))
+    }
+    fn dist_id(&self, p: Vec3A) -> (f32, u32) {
+        let mut best = (f32::INFINITY, u32::MAX);
+        for c in &self.unbounded {
+            let d = c.dist_id(p);
+            if d.0 < best.0 {
+                best = d;
+            }
+        }
+        if let Some(list) = self.grid.as_ref().and_then(|g| g.lookup(p)) {
+            for i in list {
+                let d = self.members[*i as usize].dist_id(p);
+                if d.0 < best.0 {
+                    best = d;
+                }
+            }
+            return best;
+        }
+        let mut id = best.1;
+        let d = self.search(p, best.0, |m, cur| {
+            let (d, i) = self.members[m].dist_id(p);
+            if d < cur {
+                id = i;
+                d
+            } else {
+                cur
+            }
+        });
+        (d, id)
+    }
+}
+
+// ------------------------------------------------------------------ lowering
+
+struct Lowering {
+    options: LowerOptions,
+    prims: Vec<PrimInfo>,
+    bvh_nodes: usize,
+}
+
+fn v(p: DVec3) -> Vec3A {
+    p.as_vec3().into()
+}
+
+impl Lowering {
+    fn leaf<P: Prim>(&mut self, prim: P, shape: &Shape, frame: &Frame) -> Box<dyn Node> {
+        let id = self.prims.len() as u32;
+        let local_center = shape.primitive_center().unwrap_or(DVec3::ZERO);
+        self.prims.push(PrimInfo {
+            center: frame.to_local.inverse().transform_point3(local_center),
+            material: frame.material.clone(),
+            kind: shape.name(),
+        });
+        Box::new(Leaf {
+            prim,
+            xform: frame.xform(),
+            scale: frame.scale as f32,
+            id,
+        })
+    }
+
+    fn lower(&mut self, shape: &Shape, frame: &Frame) -> Box<dyn Node> {
+        match shape {
+            Shape::Sphere { center, radius } => self.leaf(
+                Sphere {
+                    c: v(*center),
+                    r: *radius as f32,
+                },
+                shape,
+                frame,
+            ),
+            Shape::Box { center, size } => self.leaf(
+                BoxPrim {
+                    c: v(*center),
+                    half: v(*size * 0.5),
+                },
+                shape,
+                frame,
+            ),
+            Shape::BoxFrame {
+                center,
+                size,
+                thickness,
+            } => self.leaf(
+                BoxFrame {
+                    c: v(*center),
+                    half: v(*size * 0.5),
+                    e: (*thickness * 0.5) as f32,
+                },
+                shape,
+                frame,
+            ),
+            Shape::Torus {
+                center,
+                major,
+                minor,
+            } => self.leaf(
+                Torus {
+                    c: v(*center),
+                    major: *major as f32,
+                    minor: *minor as f32,
+                },
+                shape,
+                frame,
+            ),
+            Shape::Capsule { a, b, radius } => {
+                let ba = *b - *a;
+                let len2 = ba.length_squared();
+                let inv = if len2 > 0.0 { 1.0 / len2 } else { 0.0 };
+                self.leaf(
+                    Capsule {
+                        a: v(*a),
+                        ba: v(ba),
+                        inv_len2: inv as f32,
+                        r: *radius as f32,
+                    },
+                    shape,
+                    frame,
+                )
+            }
+            Shape::Cylinder {
+                center,
+                radius,
+                height,
+            } => self.leaf(
+                Cylinder {
+                    c: v(*center),
+                    r: *radius as f32,
+                    half_h: (*height * 0.5) as f32,
+                },
+                shape,
+                frame,
+            ),
+            Shape::Plane { normal, height } => self.leaf(
+                Plane {
+                    n: v(*normal),
+                    h: *height as f32,
+                },
+                shape,
+                frame,
+            ),
+            Shape::Union(_) => {
+                let mut members = Vec::new();
+                self.union_members(shape, frame, &mut members);
+                self.union(members)
+            }
+            Shape::Intersection(children) => Box::new(Intersection(
+                children.iter().map(|c| self.lower(c, frame)).collect(),
+            )),
+            Shape::Subtraction(a, b) => self.binary(a, b, SmoothOp::Subtraction, 0.0, frame),
+            Shape::SmoothUnion(a, b, k) => self.binary(a, b, SmoothOp::Union, *k, frame),
+            Shape::SmoothIntersection(a, b, k) => {
+                self.binary(a, b, SmoothOp::Intersection, *k, frame)
+            }
+            Shape::SmoothSubtraction(a, b, k) => {
+                self.binary(a, b, SmoothOp::Subtraction, *k, frame)
+            }
+            Shape::Translate(s, by) => {
+                self.lower(s, &frame.then(DAffine3::from_translation(-*by), 1.0))
+            }
+            Shape::Rotate(s, q) => self.lower(s, &frame.then(rotation(q.inverse()), 1.0)),
+            Shape::Scale(s, f) => self.lower(
+                s,
+                &frame.then(DAffine3::from_scale(DVec3::splat(1.0 / f)), *f),
+            ),
+            Shape::Displace {
+                shape: s,
+                amplitude,
+                frequency,
+            } => Box::new(Displace {
+                inner: self.lower(s, frame),
+                xform: frame.xform(),
+                amplitude: (*amplitude * frame.scale) as f32,
+                frequency: *frequency as f32,
+            }),
+            Shape::Paint(s, m) => {
+                let mut painted = frame.clone();
+                painted.material = Some(m.clone());
+                self.lower(s, &painted)
+            }
+        }
+    }
+
+    fn binary(
+        &mut self,
+        a: &Shape,
+        b: &Shape,
+        op: SmoothOp,
+        k: f64,
+        frame: &Frame,
+    ) -> Box<dyn Node> {
+        Box::new(Binary {
+            a: self.lower(a, frame),
+            b: self.lower(b, frame),
+            op,
+            k: (k * frame.scale) as f32,
+        })
+    }
+
+    /// Flatten nested unions (through transforms and paint, which do not
+    /// change the minimum's structure) into one list of (shape, frame).
+    fn union_members<'s>(
+        &mut self,
+        shape: &'s Shape,
+        frame: &Frame,
+        out: &mut Vec<(&'s Shape, Frame)>,
+    ) {
+        match shape {
+            Shape::Union(children) => {
+                for c in children {
+                    self.union_members(c, frame, out);
+                }
+            }
+            Shape::Translate(s, by) if matches!(**s, Shape::Union(_)) => {
+                self.union_members(s, &frame.then(DAffine3::from_translation(-*by), 1.0), out)
+            }
+            Shape::Rotate(s, q) if matches!(**s, Shape::Union(_)) => {
+                self.union_members(s, &frame.then(rotation(q.inverse()), 1.0), out)
+            }
+            Shape::Scale(s, f) if matches!(**s, Shape::Union(_)) => self.union_members(
+                s,
+                &frame.then(DAffine3::from_scale(DVec3::splat(1.0 / f)), *f),
+                out,
+            ),
+            Shape::Paint(s, m) if matches!(**s, Shape::Union(_)) => {
+                let mut painted = frame.clone();
+                painted.material = Some(m.clone());
+                self.union_members(s, &painted, out)
+            }
+            other => out.push((other, frame.clone())),
+        }
+    }
+
+    fn union(&mut self, members: Vec<(&Shape, Frame)>) -> Box<dyn Node> {
+        let bounded = members.iter().filter(|(s, _)| s.bounds().is_some()).count();
+        if !self.options.cull || bounded < self.options.bvh_threshold {
+            return Box::new(Union(
+                members.iter().map(|(s, f)| self.lower(s, f)).collect(),
+            ));
+        }
+        let mut items = Vec::with_capacity(bounded);
+        let mut unbounded = Vec::new();
+        for (s, f) in &members {
+            let node = self.lower(s, f);
+            match s.bounds() {
+                Some(b) => items.push((node, f.world_box(b), s.lipschitz() as f32)),
+                None => unbounded.push(node),
+            }
+        }
+        let bvh = BvhUnion::build(items, unbounded);
+        self.bvh_nodes += bvh.nodes.len();
+        Box::new(bvh)
+    }
+}
+
+fn rotation(q: DQuat) -> DAffine3 {
+    DAffine3::from_quat(q)
+}
