@@ -1,0 +1,185 @@
+//! Sphere tracer hard cases: misses, grazing rays, rays starting inside,
+//! normals at singular points, and bound SDFs with Lipschitz constant > 1
+//! that must not tunnel through thin parts.
+
+use std::sync::Arc;
+
+use glam::{DVec3, Vec3A};
+use sdfl_runtime::render::{render_view, Needs, Plan};
+use sdfl_runtime::trace::{normal, sphere_trace, TraceSettings};
+use sdfl_runtime::{LowerOptions, Lowered};
+use sdfl_stdlib::camera::Camera;
+use sdfl_stdlib::material::Material;
+use sdfl_stdlib::shape::Shape;
+use sdfl_stdlib::{Output, OutputKind, RenderJob};
+
+fn lower(s: &Shape) -> Lowered {
+    Lowered::new(s, LowerOptions::default())
+}
+
+fn settings(l: &Lowered) -> TraceSettings {
+    TraceSettings { near: 0.0, far: 20.0, max_steps: 256, epsilon: 1e-5, lipschitz: l.lipschitz }
+}
+
+fn unit_sphere() -> Shape {
+    Shape::Sphere { center: DVec3::ZERO, radius: 1.0 }
+}
+
+#[test]
+fn misses_end_finite_and_bounded() {
+    let l = lower(&unit_sphere());
+    let s = settings(&l);
+    let h = sphere_trace(&*l.root, Vec3A::new(0.0, 0.0, -5.0), Vec3A::new(0.0, 0.0, -1.0), &s);
+    assert!(!h.hit && h.t.is_finite() && h.steps <= s.max_steps);
+}
+
+#[test]
+fn grazing_rays_at_the_silhouette() {
+    let l = lower(&unit_sphere());
+    let s = settings(&l);
+    for (offset, expect_hit) in [(-1e-3f32, true), (1e-3, false), (0.0, true)] {
+        let o = Vec3A::new(-5.0, 1.0 + offset, 0.0);
+        let h = sphere_trace(&*l.root, o, Vec3A::X, &s);
+        assert!(h.t.is_finite() && h.steps <= s.max_steps, "{h:?}");
+        if offset != 0.0 {
+            assert_eq!(h.hit, expect_hit, "offset {offset}: {h:?}");
+        }
+        if h.hit {
+            let p = o + Vec3A::X * h.t;
+            assert!(l.dist(p).abs() < 1e-4, "hit point off the surface: {p}");
+        }
+    }
+}
+
+#[test]
+fn rays_starting_inside_hit_at_once() {
+    let l = lower(&unit_sphere());
+    let h = sphere_trace(&*l.root, Vec3A::ZERO, Vec3A::Y, &settings(&l));
+    assert!(h.hit && h.t == 0.0 && h.steps == 1, "{h:?}");
+}
+
+#[test]
+fn rays_parallel_to_a_plane_stay_bounded() {
+    let l = lower(&Shape::Plane { normal: DVec3::Y, height: 0.0 });
+    let s = TraceSettings { max_steps: 64, ..settings(&l) };
+    let h = sphere_trace(&*l.root, Vec3A::new(0.0, 1e-3, 0.0), Vec3A::X, &s);
+    assert!(h.t.is_finite() && h.steps <= 64 && !h.hit);
+}
+
+#[test]
+fn normals_are_finite_at_singular_points() {
+    let fallback = Vec3A::new(0.0, 0.0, -1.0);
+    let sphere = lower(&unit_sphere());
+    // The gradient of |p| - r is undefined at the centre.
+    let n = normal(&*sphere.root, Vec3A::ZERO, 5e-4, fallback);
+    assert!(n.is_finite() && (n.length() - 1.0).abs() < 1e-5, "{n}");
+    let cube = lower(&Shape::Box { center: DVec3::ZERO, size: DVec3::ONE });
+    for p in [
+        Vec3A::new(0.5, 0.5, 0.5),   // corner
+        Vec3A::new(0.5, 0.5, 0.0),   // edge
+        Vec3A::new(0.0, 0.0, 0.0),   // centre: all faces equally near
+        Vec3A::new(0.5, 0.0, 0.0),   // face
+    ] {
+        let n = normal(&*cube.root, p, 5e-4, fallback);
+        assert!(n.is_finite() && (n.length() - 1.0).abs() < 1e-5, "{p}: {n}");
+    }
+    // On a smooth surface the normal is the analytic one.
+    let p = Vec3A::new(0.6, 0.0, 0.8);
+    assert!((normal(&*sphere.root, p, 5e-4, fallback) - p).length() < 1e-3);
+}
+
+/// First crossing of the f64 reference along a ray, by dense marching.
+fn first_crossing(shape: &Shape, o: DVec3, d: DVec3, far: f64) -> Option<f64> {
+    let step = 1e-4;
+    let mut t = 0.0;
+    while t < far {
+        if shape.distance(o + d * t) < 0.0 {
+            return Some(t);
+        }
+        t += step;
+    }
+    None
+}
+
+#[test]
+fn lipschitz_scaled_steps_do_not_tunnel_through_thin_bound_shapes() {
+    // A thin sheet with a strong displacement: gradient up to 1 + √3·a·f.
+    let sheet = Shape::Displace {
+        shape: Arc::new(Shape::Box { center: DVec3::ZERO, size: DVec3::new(8.0, 0.02, 8.0) }),
+        amplitude: 0.15,
+        frequency: 12.0,
+    };
+    let l = lower(&sheet);
+    assert!(l.lipschitz > 4.0);
+    let scaled = TraceSettings { max_steps: 2000, epsilon: 1e-5, ..settings(&l) };
+    let unscaled = TraceSettings { lipschitz: 1.0, ..scaled };
+    let mut tunnelled_without_scaling = 0;
+    for k in 0..60 {
+        let x = -1.5 + 3.0 * k as f64 / 59.0;
+        let o = DVec3::new(x, 1.0, 0.37 * x);
+        let d = DVec3::new(0.6, -1.0, 0.2).normalize();
+        let expected = first_crossing(&sheet, o, d, 4.0).expect("the ray crosses the sheet");
+        let (of, df): (Vec3A, Vec3A) = (o.as_vec3().into(), d.as_vec3().into());
+        let h = sphere_trace(&*l.root, of, df, &scaled);
+        assert!(h.hit, "ray {k} missed");
+        assert!((h.t as f64 - expected).abs() < 2e-3, "ray {k}: hit at {} but the surface is first crossed at {expected}", h.t);
+        let u = sphere_trace(&*l.root, of, df, &unscaled);
+        if !u.hit || (u.t as f64 - expected).abs() > 2e-3 {
+            tunnelled_without_scaling += 1;
+        }
+    }
+    // The scaling is what makes this work: unit steps overshoot.
+    assert!(tunnelled_without_scaling > 0);
+}
+
+fn job(material: Material, outputs: Vec<OutputKind>) -> RenderJob {
+    RenderJob {
+        name: "t".into(),
+        scene: Arc::new(unit_sphere()),
+        material: Arc::new(material),
+        cameras: vec![Camera::look_at(DVec3::new(0.0, 0.0, -3.0), DVec3::ZERO, DVec3::Y, 1.0)],
+        width: 32,
+        height: 32,
+        near: 0.0,
+        far: 5.0,
+        iterations: 64,
+        epsilon: 1e-5,
+        background: DVec3::ZERO,
+        outputs: outputs.into_iter().map(|kind| Output { kind, path: "x.png".into() }).collect(),
+    }
+}
+
+#[test]
+fn only_requested_quantities_are_computed() {
+    let j = job(Material::Rainbow, vec![OutputKind::Image]);
+    let plan = Plan::of(&j);
+    assert!(plan.depth.is_empty() && plan.normals.is_empty() && plan.mask.is_empty());
+    let l = lower(&j.scene);
+    let v = render_view(&l, &j, &j.cameras[0], (32, 32), Needs::from(&plan), &|_| {});
+    assert!(v.color.is_some() && v.depth.is_none() && v.normals.is_none() && v.mask.is_none());
+
+    let j = job(Material::Normals, vec![OutputKind::Depth]);
+    let plan = Plan::of(&j);
+    // No colour output: the material's normals are not needed either.
+    assert!(plan.color.is_empty() && plan.normals.is_empty() && !plan.depth.is_empty());
+
+    let j = job(Material::Normals, vec![OutputKind::Gif { fps: 10.0 }]);
+    assert_eq!(Plan::of(&j).normals.len(), 1, "shading needs normals");
+}
+
+#[test]
+fn depth_is_zero_exactly_on_misses_and_the_hit_distance_elsewhere() {
+    let j = job(Material::Rainbow, vec![OutputKind::Depth, OutputKind::Mask]);
+    let l = lower(&j.scene);
+    let v = render_view(&l, &j, &j.cameras[0], (32, 32), Needs::from(&Plan::of(&j)), &|_| {});
+    let (depth, mask) = (v.depth.unwrap(), v.mask.unwrap());
+    assert!(v.hits > 0 && v.hits < 32 * 32);
+    for (d, m) in depth.iter().zip(&mask) {
+        if *m == 255 {
+            // The nearest point of the unit sphere is 2 away from the eye.
+            assert!(*d >= 2.0 - 1e-4 && *d < 3.0, "{d}");
+        } else {
+            assert_eq!(*d, 0.0);
+        }
+    }
+}
