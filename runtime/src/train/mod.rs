@@ -5,6 +5,10 @@ pub mod box_fit;
 pub mod box_graph;
 pub mod params;
 
+pub use box_fit::{
+    assignment_cameras, fit_box, fit_box_with, BoxFitConfig, BoxFitResult, FitBackend, FitView,
+};
+
 pub use params::{Adam, ParamId, ParamStore};
 
 /// Errors from training.
