@@ -11,7 +11,7 @@ use rayon::prelude::*;
 use sdfl_stdlib::camera::Camera;
 
 use super::composite::Composite;
-use super::density::{sdf_log_keep_grad, sdf_opacity_grad};
+use super::density::sdf_opacity_parts;
 use super::rays::{for_each_ray_chunk, ImageSize, Ray, Stratified};
 use super::shapes::{box_sdf_grad, rainbow_grad};
 use super::VolumeError;
@@ -110,28 +110,32 @@ impl<F: Float> Params<F> {
     }
 }
 
-/// Forward pass of one ray; fills `cache` (one entry per depth) and returns
-/// the composite.
+/// Forward pass of one ray; fills `cache` and returns the composite and the
+/// number of samples used. Transmittance is the running product of the kept
+/// fractions `1 − o` (computed without cancellation, see
+/// [`sdf_opacity_parts`]); once it is exactly 0 every later weight and every
+/// later gradient term is exactly 0 too, so the march stops there.
 fn ray_forward<F: Float + Default>(
     p: &Params<F>,
     t: &[F],
     o: [F; 3],
     d: [F; 3],
     cache: &mut [SampleCache<F>],
-) -> Composite<F> {
-    let mut lt = F::zero();
+) -> (Composite<F>, usize) {
+    let mut trans = F::one();
     let mut colour = [F::zero(); 3];
     let mut depth = F::zero();
     let mut acc = F::zero();
+    let mut used = 0;
     for (k, &tk) in t.iter().enumerate() {
+        if trans == F::zero() {
+            break;
+        }
         let x = [o[0] + tk * d[0], o[1] + tk * d[1], o[2] + tk * d[2]];
         let g = box_sdf_grad(x, p.center, p.sides);
-        let (op, do_dsdf) = sdf_opacity_grad(g.sdf, p.alpha, p.beta);
-        let (lk, dl_dsdf) = sdf_log_keep_grad(g.sdf, p.alpha, p.beta);
+        let op = sdf_opacity_parts(g.sdf, p.alpha, p.beta);
         let (col, dcol_dc) = rainbow_grad(x, p.center);
-        let trans = lt.exp();
-        let w = trans * op;
-        lt = lt + lk;
+        let w = trans * op.opacity;
         for i in 0..3 {
             colour[i] = colour[i] + w * col[i];
         }
@@ -144,15 +148,20 @@ fn ray_forward<F: Float + Default>(
             dcol_dc,
             dsdf_dp: g.d_p,
             dsdf_ds: g.d_s,
-            do_dsdf,
-            dl_dsdf,
+            do_dsdf: op.d_opacity,
+            dl_dsdf: op.d_log_keep,
         };
+        trans = trans * op.keep;
+        used = k + 1;
     }
-    Composite {
-        colour,
-        depth,
-        opacity: acc,
-    }
+    (
+        Composite {
+            colour,
+            depth,
+            opacity: acc,
+        },
+        used,
+    )
 }
 
 /// Backward pass of one ray given `g = ∂L/∂colour`; accumulates into `grad`.
@@ -193,14 +202,14 @@ pub(crate) fn loss_and_grad_generic<F: Float + Default + Send + Sync>(
             let mut grad = BoxGrad::default();
             let mut loss = F::zero();
             for (r, tgt) in rs.iter().zip(ts) {
-                let c = ray_forward(p, t, r.origin.map(cv), r.dir.map(cv), &mut cache);
+                let (c, used) = ray_forward(p, t, r.origin.map(cv), r.dir.map(cv), &mut cache);
                 let mut g = [F::zero(); 3];
                 for i in 0..3 {
                     let e = c.colour[i] - cv(tgt[i]);
                     loss = loss + e * e * scale;
                     g[i] = two * e * scale;
                 }
-                ray_backward(g, &cache, &mut grad);
+                ray_backward(g, &cache[..used], &mut grad);
             }
             (loss, grad)
         })
@@ -257,7 +266,7 @@ pub fn render_box_rays(
         .flat_map_iter(|rs| {
             let mut cache = vec![SampleCache::default(); t.len()];
             rs.iter()
-                .map(|r| ray_forward(&p, &t, r.origin, r.dir, &mut cache))
+                .map(|r| ray_forward(&p, &t, r.origin, r.dir, &mut cache).0)
                 .collect::<Vec<_>>()
         })
         .collect())
@@ -293,7 +302,7 @@ pub fn render_box_image(
     for_each_ray_chunk(cam, size, 1024, &mut out, |rays, o| {
         let mut cache = vec![SampleCache::default(); t.len()];
         for (r, c) in rays.iter().zip(o) {
-            *c = ray_forward(&p, &t, r.origin, r.dir, &mut cache);
+            *c = ray_forward(&p, &t, r.origin, r.dir, &mut cache).0;
         }
     })?;
     Ok(RenderedImage {

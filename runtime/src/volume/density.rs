@@ -75,6 +75,52 @@ pub fn sdf_log_keep_grad<F: Float>(sdf: F, alpha: F, beta: F) -> (F, F) {
     }
 }
 
+/// Everything the fused compositing kernels need from one `exp`: the
+/// opacity `o = α·Ψ_β(−sdf)`, the kept fraction `1 − o` computed without
+/// cancellation (inside with α = 1 it is `e/2` exactly, not `1 − (1 − e/2)`),
+/// `do/dsdf`, and `d ln(1 − o)/dsdf`. Needs `0 < α ≤ 1`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct OpacityParts<F> {
+    pub opacity: F,
+    pub keep: F,
+    pub d_opacity: F,
+    pub d_log_keep: F,
+}
+
+/// See [`OpacityParts`].
+#[inline]
+pub fn sdf_opacity_parts<F: Float>(sdf: F, alpha: F, beta: F) -> OpacityParts<F> {
+    let h = half::<F>();
+    let e = (-sdf.abs() / beta).exp();
+    let ae = alpha * h * e;
+    let num = ae / beta;
+    if sdf >= F::zero() {
+        let keep = F::one() - ae;
+        OpacityParts {
+            opacity: ae,
+            keep,
+            d_opacity: -num,
+            d_log_keep: num / keep,
+        }
+    } else if alpha == F::one() {
+        OpacityParts {
+            opacity: F::one() - ae,
+            keep: ae,
+            d_opacity: -num,
+            // num/keep = 1/β, also where e underflows to 0.
+            d_log_keep: F::one() / beta,
+        }
+    } else {
+        let keep = F::one() - alpha + ae;
+        OpacityParts {
+            opacity: alpha - ae,
+            keep,
+            d_opacity: -num,
+            d_log_keep: num / keep,
+        }
+    }
+}
+
 /// VolSDF density `σ = α·Ψ_β(−sdf)` (α is a density scale here, any α > 0).
 #[inline]
 pub fn volsdf_density<F: Float>(sdf: F, alpha: F, beta: F) -> F {
@@ -232,6 +278,24 @@ mod tests {
         assert_eq!(sdf_opacity(-1e3f32, 1.0, 1e-4), 1.0);
         let l = sdf_log_keep(-1e3f32, 1.0, 1e-4);
         assert!((l / (-1e7) - 1.0).abs() < 1e-5);
+        for &sdf in &[-1e3f32, -0.3, -1e-3, 0.0, 2e-3, 0.4, 1e3] {
+            for &(alpha, beta) in &[(1.0f32, 1e-4f32), (1.0, 0.05), (0.6, 0.05), (0.6, 1e-4)] {
+                let p = sdf_opacity_parts(sdf, alpha, beta);
+                let (o, d_o) = sdf_opacity_grad(sdf, alpha, beta);
+                let (l, d_l) = sdf_log_keep_grad(sdf, alpha, beta);
+                assert!(
+                    (p.opacity - o).abs() <= 1e-6 && (p.d_opacity - d_o).abs() <= 1e-6 * d_o.abs()
+                );
+                assert!((p.d_log_keep - d_l).abs() <= 1e-6 * d_l.abs());
+                assert!(p.keep.is_finite() && p.d_log_keep.is_finite());
+                if l > -80.0 {
+                    assert!(
+                        (p.keep.ln() - l).abs() <= 1e-6 + 1e-5 * l.abs(),
+                        "{sdf} {alpha}"
+                    );
+                }
+            }
+        }
         for &x in &[-1e30f32, -100.0, 100.0, 1e30] {
             assert!(softplus(x).is_finite() && softplus_grad(x).is_finite());
         }

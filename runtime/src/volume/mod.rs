@@ -3,6 +3,7 @@
 //! density transforms, and the assignment's box volume with a fused
 //! forward/backward kernel.
 
+pub mod bench;
 pub mod box_volume;
 pub mod composite;
 pub mod density;
