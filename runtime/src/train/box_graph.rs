@@ -2,27 +2,18 @@
 //! `α·Ψ_β(−sdf)` (and `ln(1 − opacity)`) → weights → rainbow colour → MSE.
 //!
 //! It is the reference autodiff path (and the template for the language's
-//! lowering); the fused kernel in [`crate::volume::box_volume`] is checked
-//! against it. dfdx has no cumsum, so the exclusive prefix sum of
-//! `ln(1 − o)` is a matmul with a strictly upper-triangular ones matrix.
-//! Where a quantity has a sign-dependent formula, the sign is taken from the
-//! forward values as a constant tensor and only finite expressions built on
-//! the single `exp(−|sdf|/β)` are blended, so no masked branch can overflow.
+//! lowering), composed from [`super::graph_ops`]; the fused kernel in
+//! [`crate::volume::box_volume`] is checked against it.
 
 use dfdx::prelude::*;
 
+use super::graph_ops::{again, sdf_opacity, weights_from_log_keep};
 use super::params::{ParamId, ParamStore};
 use super::TrainError;
 use crate::volume::rays::Ray;
 use crate::volume::shapes::{RAINBOW_HI, RAINBOW_LO};
 
 type Traced<S> = Tensor<S, f32, Cpu, OwnedTape<f32, Cpu>>;
-
-fn again<S: Shape>(t: &Traced<S>) -> Traced<S> {
-    // Same tensor id with an empty tape: a second use whose gradient the
-    // merged tape accumulates into the same entry.
-    t.retaped::<OwnedTape<f32, Cpu>>()
-}
 
 /// The box volume's MSE loss over `rays` (targets one colour each), sampled
 /// at depths `t`, with gradients for the `center` and `sides` parameters
@@ -87,47 +78,8 @@ pub fn box_loss_graph(
     let inside = -(-q.max::<(usize, usize), Axis<2>>()).relu();
     let sdf = outside + inside;
 
-    let sdf_v = dev.tensor_to_vec(&sdf);
-    let sg: Vec<f32> = sdf_v
-        .iter()
-        .map(|&v| if v >= 0.0 { 1.0 } else { -1.0 })
-        .collect();
-    let neg: Vec<f32> = sdf_v
-        .iter()
-        .map(|&v| if v >= 0.0 { 0.0 } else { 1.0 })
-        .collect();
-    let pos: Vec<f32> = neg.iter().map(|v| 1.0 - v).collect();
-    let sg = dev.tensor_from_vec(sg, (r, n));
-    let neg = dev.tensor_from_vec(neg, (r, n));
-    let pos = dev.tensor_from_vec(pos, (r, n));
-
-    let abs_sdf = sdf * sg.clone();
-    let e = (again(&abs_sdf) * (-1.0 / beta)).exp();
-    // Each traced tensor's own tape must reach the loss exactly once (`e` via
-    // the opacity, `abs_sdf` via l_in); further uses go through `again`.
-    // ln(1 − opacity): outside ln(1 − α e/2) ≥ ln ½; inside, for α = 1,
-    // ln(e/2) = ln ½ − |sdf|/β, otherwise ln(1 − α + α e/2) ≥ ln(1 − α).
-    let l_out = (again(&e) * (-0.5 * alpha) + 1.0).ln();
-    let l_in = if alpha == 1.0 {
-        abs_sdf * (-1.0 / beta) + 0.5f32.ln()
-    } else {
-        // abs_sdf's tape still has to reach the loss: fold it in with weight 0.
-        (again(&e) * (0.5 * alpha) + (1.0 - alpha)).ln() + abs_sdf * 0.0
-    };
-    // opacity = α·e/2 outside, α·(1 − e/2) inside.
-    let opacity = e * sg * (0.5 * alpha) + neg.clone() * alpha;
-    let log_keep = l_out * pos + l_in * neg;
-
-    // Exclusive prefix sum along samples: U[j, k] = 1 for j < k.
-    let mut u = vec![0f32; n * n];
-    for j in 0..n {
-        for k in (j + 1)..n {
-            u[j * n + k] = 1.0;
-        }
-    }
-    let u = dev.tensor_from_vec(u, (n, n));
-    let trans = log_keep.matmul(u).exp();
-    let w = trans * opacity;
+    let (opacity, log_keep) = sdf_opacity(sdf, alpha, beta);
+    let w = weights_from_log_keep(log_keep, opacity);
 
     let col = a.clamp(RAINBOW_LO as f32, RAINBOW_HI as f32);
     let rgb = (w.broadcast_like::<_, Axis<2>>(&shape3) * col).sum::<(usize, usize), Axis<1>>();
@@ -166,6 +118,8 @@ mod tests {
             assert!(((loss - fl) / fl).abs() < 1e-4, "{loss} vs {fl}");
             let c64 = c0.map(|x| x as f64);
             let s64 = s0.map(|x| x as f64);
+            let r = reference_loss(c64, s64, alpha as f64, beta as f64, &t64, &rays, &targets);
+            assert!(((loss as f64 - r) / r).abs() < 1e-4, "{loss} vs f64 {r}");
             let h = 1e-6;
             for k in 0..6 {
                 let eval = |dh: f64| {
