@@ -80,6 +80,7 @@ def main():
         if k:
             times.append(time.perf_counter() - t0)
     step_ms = sorted(times)[len(times) // 2] * 1e3
+    step_min = min(times) * 1e3
 
     o0, d0 = rays[0]
     times = []
@@ -90,9 +91,10 @@ def main():
         if k:
             times.append(time.perf_counter() - t0)
     render_ms = sorted(times)[len(times) // 2] * 1e3
+    render_min = min(times) * 1e3
     print(f"torch {torch.__version__}, threads {torch.get_num_threads()}")
-    print(f"train step (4096x64)   : {step_ms:8.2f} ms")
-    print(f"render 256x256x64      : {render_ms:8.2f} ms")
+    print(f"train step (4096x64)   : {step_ms:8.2f} ms median {step_min:8.2f} ms min")
+    print(f"render 256x256x64      : {render_ms:8.2f} ms median {render_min:8.2f} ms min")
 
 
 if __name__ == "__main__":

@@ -15,7 +15,9 @@ fn main() {
             std::process::exit(1)
         });
     println!("threads                : {}", rayon::current_num_threads());
-    println!("fused step (4096x64)   : {:8.2} ms", t.fused_step_s * 1e3);
-    println!("dfdx graph step        : {:8.2} ms", t.dfdx_step_s * 1e3);
-    println!("render 256x256x64      : {:8.2} ms", t.render_s * 1e3);
+    let ms =
+        |(med, min): (f64, f64)| format!("{:8.2} ms median {:8.2} ms min", med * 1e3, min * 1e3);
+    println!("fused step (4096x64)   : {}", ms(t.fused_step_s));
+    println!("dfdx graph step        : {}", ms(t.dfdx_step_s));
+    println!("render 256x256x64      : {}", ms(t.render_s));
 }

@@ -194,7 +194,7 @@ mod tests {
         b.extend_from_slice(&[1, 0]);
         b.extend_from_slice(&(h.len() as u16).to_le_bytes());
         b.extend_from_slice(h.as_bytes());
-        b.extend(std::iter::repeat(0u8).take(data_len));
+        b.extend(std::iter::repeat_n(0u8, data_len));
         b
     }
 

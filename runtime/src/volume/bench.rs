@@ -9,25 +9,25 @@ use crate::train::box_fit::assignment_cameras;
 use crate::train::box_graph::box_loss_graph;
 use crate::train::{Adam, ParamStore, TrainError};
 
-/// Median seconds of the measured operations.
+/// `(median, minimum)` seconds of each measured operation.
 #[derive(Debug, Clone, Copy)]
 pub struct BoxBenchTimes {
     /// Fused kernel: loss + gradient + Adam update for one batch.
-    pub fused_step_s: f64,
+    pub fused_step_s: (f64, f64),
     /// dfdx graph: forward + backward + Adam update for one batch.
-    pub dfdx_step_s: f64,
+    pub dfdx_step_s: (f64, f64),
     /// Full image render (forward only, fused kernel).
-    pub render_s: f64,
+    pub render_s: (f64, f64),
 }
 
-fn median(mut v: Vec<f64>) -> f64 {
+fn median(mut v: Vec<f64>) -> (f64, f64) {
     v.sort_by(|a, b| a.total_cmp(b));
-    v[v.len() / 2]
+    (v[v.len() / 2], v[0])
 }
 
 /// Times the box fit step (`rays` rays × `samples` samples on [0, 5], the
 /// assignment's cameras and box) and a `res`×`res` render, `reps` times each
-/// after one warm-up; returns medians.
+/// after one warm-up; returns medians and minima.
 pub fn bench_box_volume(
     rays: usize,
     samples: usize,

@@ -169,14 +169,15 @@ fn ray_forward<F: Float + Default>(
 /// With `a_k = g·c_k`: `∂L/∂o_j = T_j a_j`, `∂L/∂ln(1−o_j) = Σ_{k>j} a_k w_k`
 /// (every later weight carries the factor `exp(ln(1−o_j))`), and
 /// `∂L/∂c_j = g w_j`; the chain then goes through the SDF and the colour.
+#[allow(clippy::needless_range_loop)] // indexes five arrays in step
 fn ray_backward<F: Float>(g: [F; 3], cache: &[SampleCache<F>], grad: &mut BoxGrad<F>) {
     let mut suffix = F::zero();
     for s in cache.iter().rev() {
         let a = g[0] * s.col[0] + g[1] * s.col[1] + g[2] * s.col[2];
-        let dl_dsdf = s.trans * a * s.do_dsdf + suffix * s.dl_dsdf;
+        let dloss_dsdf = s.trans * a * s.do_dsdf + suffix * s.dl_dsdf;
         for i in 0..3 {
-            grad.center[i] = grad.center[i] - dl_dsdf * s.dsdf_dp[i] + s.w * g[i] * s.dcol_dc[i];
-            grad.sides[i] = grad.sides[i] + dl_dsdf * s.dsdf_ds[i];
+            grad.center[i] = grad.center[i] - dloss_dsdf * s.dsdf_dp[i] + s.w * g[i] * s.dcol_dc[i];
+            grad.sides[i] = grad.sides[i] + dloss_dsdf * s.dsdf_ds[i];
         }
         suffix = suffix + a * s.w;
     }

@@ -166,7 +166,8 @@ pub struct Stratified {
 
 impl Stratified {
     pub fn new(n: usize, near: f32, far: f32) -> Result<Self, VolumeError> {
-        if n < 2 || !(near.is_finite() && far.is_finite()) || !(far > near) || near < 0.0 {
+        let ordered = near.is_finite() && far.is_finite() && near >= 0.0 && far > near;
+        if n < 2 || !ordered {
             return Err(VolumeError::Invalid(format!(
                 "sampler needs n ≥ 2 and 0 ≤ near < far (got n={n}, near={near}, far={far})"
             )));
