@@ -11,7 +11,7 @@ use rayon::prelude::*;
 use sdfl_stdlib::camera::Camera;
 
 use super::composite::Composite;
-use super::density::sdf_opacity_parts;
+use super::density::sdf_opacity_parts_inv;
 use super::rays::{for_each_ray_chunk, ImageSize, Ray, Stratified};
 use super::shapes::{box_sdf_grad, rainbow_grad};
 use super::VolumeError;
@@ -113,9 +113,10 @@ impl<F: Float> Params<F> {
 /// Forward pass of one ray; fills `cache` and returns the composite and the
 /// number of samples used. Transmittance is the running product of the kept
 /// fractions `1 − o` (computed without cancellation, see
-/// [`sdf_opacity_parts`]); once it is exactly 0 every later weight and every
+/// [`crate::volume::density::sdf_opacity_parts`]); once it is exactly 0 every later weight and every
 /// later gradient term is exactly 0 too, so the march stops there.
-fn ray_forward<F: Float + Default>(
+/// With `CACHE = false` (rendering) nothing is stored.
+fn ray_forward<F: Float + Default, const CACHE: bool>(
     p: &Params<F>,
     t: &[F],
     o: [F; 3],
@@ -127,13 +128,14 @@ fn ray_forward<F: Float + Default>(
     let mut depth = F::zero();
     let mut acc = F::zero();
     let mut used = 0;
+    let inv_beta = F::one() / p.beta;
     for (k, &tk) in t.iter().enumerate() {
         if trans == F::zero() {
             break;
         }
         let x = [o[0] + tk * d[0], o[1] + tk * d[1], o[2] + tk * d[2]];
         let g = box_sdf_grad(x, p.center, p.sides);
-        let op = sdf_opacity_parts(g.sdf, p.alpha, p.beta);
+        let op = sdf_opacity_parts_inv(g.sdf, p.alpha, inv_beta);
         let (col, dcol_dc) = rainbow_grad(x, p.center);
         let w = trans * op.opacity;
         for i in 0..3 {
@@ -141,16 +143,18 @@ fn ray_forward<F: Float + Default>(
         }
         depth = depth + w * tk;
         acc = acc + w;
-        cache[k] = SampleCache {
-            trans,
-            w,
-            col,
-            dcol_dc,
-            dsdf_dp: g.d_p,
-            dsdf_ds: g.d_s,
-            do_dsdf: op.d_opacity,
-            dl_dsdf: op.d_log_keep,
-        };
+        if CACHE {
+            cache[k] = SampleCache {
+                trans,
+                w,
+                col,
+                dcol_dc,
+                dsdf_dp: g.d_p,
+                dsdf_ds: g.d_s,
+                do_dsdf: op.d_opacity,
+                dl_dsdf: op.d_log_keep,
+            };
+        }
         trans = trans * op.keep;
         used = k + 1;
     }
@@ -203,7 +207,8 @@ pub(crate) fn loss_and_grad_generic<F: Float + Default + Send + Sync>(
             let mut grad = BoxGrad::default();
             let mut loss = F::zero();
             for (r, tgt) in rs.iter().zip(ts) {
-                let (c, used) = ray_forward(p, t, r.origin.map(cv), r.dir.map(cv), &mut cache);
+                let (c, used) =
+                    ray_forward::<F, true>(p, t, r.origin.map(cv), r.dir.map(cv), &mut cache);
                 let mut g = [F::zero(); 3];
                 for i in 0..3 {
                     let e = c.colour[i] - cv(tgt[i]);
@@ -265,9 +270,8 @@ pub fn render_box_rays(
     Ok(rays
         .par_chunks(256)
         .flat_map_iter(|rs| {
-            let mut cache = vec![SampleCache::default(); t.len()];
             rs.iter()
-                .map(|r| ray_forward(&p, &t, r.origin, r.dir, &mut cache).0)
+                .map(|r| ray_forward::<f32, false>(&p, &t, r.origin, r.dir, &mut []).0)
                 .collect::<Vec<_>>()
         })
         .collect())
@@ -301,9 +305,8 @@ pub fn render_box_image(
         size.pixels()
     ];
     for_each_ray_chunk(cam, size, 1024, &mut out, |rays, o| {
-        let mut cache = vec![SampleCache::default(); t.len()];
         for (r, c) in rays.iter().zip(o) {
-            *c = ray_forward(&p, &t, r.origin, r.dir, &mut cache).0;
+            *c = ray_forward::<f32, false>(&p, &t, r.origin, r.dir, &mut []).0;
         }
     })?;
     Ok(RenderedImage {

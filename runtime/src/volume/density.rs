@@ -90,10 +90,16 @@ pub struct OpacityParts<F> {
 /// See [`OpacityParts`].
 #[inline]
 pub fn sdf_opacity_parts<F: Float>(sdf: F, alpha: F, beta: F) -> OpacityParts<F> {
+    sdf_opacity_parts_inv(sdf, alpha, F::one() / beta)
+}
+
+/// [`sdf_opacity_parts`] with `1/β` precomputed (hot loops avoid divisions).
+#[inline]
+pub fn sdf_opacity_parts_inv<F: Float>(sdf: F, alpha: F, inv_beta: F) -> OpacityParts<F> {
     let h = half::<F>();
-    let e = (-sdf.abs() / beta).exp();
+    let e = (-sdf.abs() * inv_beta).exp();
     let ae = alpha * h * e;
-    let num = ae / beta;
+    let num = ae * inv_beta;
     if sdf >= F::zero() {
         let keep = F::one() - ae;
         OpacityParts {
@@ -108,7 +114,7 @@ pub fn sdf_opacity_parts<F: Float>(sdf: F, alpha: F, beta: F) -> OpacityParts<F>
             keep: ae,
             d_opacity: -num,
             // num/keep = 1/β, also where e underflows to 0.
-            d_log_keep: F::one() / beta,
+            d_log_keep: inv_beta,
         }
     } else {
         let keep = F::one() - alpha + ae;
