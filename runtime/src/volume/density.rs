@@ -289,10 +289,10 @@ mod tests {
                 let p = sdf_opacity_parts(sdf, alpha, beta);
                 let (o, d_o) = sdf_opacity_grad(sdf, alpha, beta);
                 let (l, d_l) = sdf_log_keep_grad(sdf, alpha, beta);
-                assert!(
-                    (p.opacity - o).abs() <= 1e-6 && (p.d_opacity - d_o).abs() <= 1e-6 * d_o.abs()
-                );
-                assert!((p.d_log_keep - d_l).abs() <= 1e-6 * d_l.abs());
+                // Same values up to rounding (1/β is premultiplied).
+                assert!((p.opacity - o).abs() <= 1e-6);
+                assert!((p.d_opacity - d_o).abs() <= 1e-5 * d_o.abs());
+                assert!((p.d_log_keep - d_l).abs() <= 1e-5 * d_l.abs());
                 assert!(p.keep.is_finite() && p.d_log_keep.is_finite());
                 if l > -80.0 {
                     assert!(
