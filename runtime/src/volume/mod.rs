@@ -8,6 +8,7 @@ pub mod box_volume;
 pub mod composite;
 pub mod density;
 pub mod rays;
+pub mod render;
 pub mod shapes;
 
 pub use box_volume::{
@@ -15,6 +16,7 @@ pub use box_volume::{
 };
 pub use composite::Composite;
 pub use rays::{camera_rays, random_rays, ImageSize, Ray, SplitMix64, Stratified};
+pub use render::{render_field_image, DensityModel};
 
 /// Errors from invalid volume-rendering inputs.
 #[derive(Debug, Clone, PartialEq)]
