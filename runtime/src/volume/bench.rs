@@ -1,5 +1,10 @@
 //! Timings of the box volume for benchmarks (never asserted in tests):
 //! one training step of the box fit and one full-image render.
+//!
+//! Measured on the 2-core dev VM (AMD EPYC, best of 15, other jobs running):
+//! fused step 4096×64 ≈ 3.8 ms, dfdx graph step ≈ 48 ms, 256×256×64 render
+//! ≈ 30 ms; PyTorch 2.x CPU (`bench/pytorch/box_volume_bench.py`) ≈ 19 ms
+//! per step and ≈ 200 ms per render.
 
 use std::time::Instant;
 

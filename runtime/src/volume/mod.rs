@@ -1,7 +1,21 @@
 //! Differentiable volume rendering of analytic SDF volumes (CONVENTIONS.md,
-//! "Volume rendering"): rays and stratified samples, compositing, SDF →
-//! density transforms, and the assignment's box volume with a fused
-//! forward/backward kernel.
+//! "Volume rendering").
+//!
+//! * [`rays`]: per-pixel and seeded random rays ([`Ray`] knows its view and
+//!   pixel), the linspace/jittered [`Stratified`] sampler, chunked iteration.
+//! * [`composite`]: weights from densities (log-space transmittance), from
+//!   opacities (may be exactly 1) or from `ln(1 − o)`; colour/depth aggregation.
+//! * [`density`]: Laplace CDF, the assignment's opacity and its `ln(1 − o)`,
+//!   VolSDF, NeuS, softplus — values and derivatives finite for β ≥ 1e-4 and
+//!   any |sdf|.
+//! * [`shapes`]: box SDF and rainbow colour with derivatives.
+//! * [`box_volume`]: the assignment's box volume with a fused f32
+//!   forward/backward kernel (rayon over rays) and image rendering.
+//! * [`render`]: forward rendering of any `point → (sdf, colour)` field.
+//! * [`mod@bench`]: timings for a `bench` subcommand.
+//!
+//! The dfdx side (parameter store, Adam, graph ops, box fit) is in
+//! [`crate::train`].
 
 pub mod bench;
 pub mod box_volume;
