@@ -14,7 +14,10 @@ use dfdx::tensor::{Cache, Storage};
 
 use super::TrainError;
 
-/// Handle of a parameter in a [`ParamStore`].
+/// Handle of a parameter in a [`ParamStore`]. Only the store that issued it
+/// accepts it: the accessors index with it and panic on a foreign handle (a
+/// programming error, like an out-of-range slice index); the Adam updates
+/// check it and return an error.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub struct ParamId(usize);
 
@@ -147,30 +150,30 @@ impl Adam {
         self.step
     }
 
-    /// One update from dfdx gradients (as returned by `backward()`): every
-    /// trainable parameter must have a finite gradient in `grads`.
+    /// One update from dfdx gradients (as returned by `backward()`). A
+    /// trainable parameter absent from `grads` counts as a zero gradient
+    /// (dfdx's public API cannot tell the two apart; its moments still
+    /// decay). Any non-finite gradient is an error and then nothing changes.
     pub fn update(
         &mut self,
         store: &mut ParamStore,
         grads: &mut Gradients<f32, Cpu>,
     ) -> Result<(), TrainError> {
-        self.step += 1;
-        for p in store.params.iter_mut().filter(|p| p.trainable) {
-            // Occupied entries are returned as-is; a missing one would be
-            // allocated as zeros, which we report instead of silently using.
-            let g = grads.get_or_alloc_mut(&p.tensor)?;
-            if g.iter().all(|&x| x == 0.0) {
-                return Err(TrainError::Gradient(format!(
-                    "'{}' got no gradient",
-                    p.name
-                )));
-            }
-            if !g.iter().all(|x| x.is_finite()) {
+        for p in store.params.iter().filter(|p| p.trainable) {
+            if !grads
+                .get_or_alloc_mut(&p.tensor)?
+                .iter()
+                .all(|x| x.is_finite())
+            {
                 return Err(TrainError::Gradient(format!(
                     "'{}' has a non-finite gradient",
                     p.name
                 )));
             }
+        }
+        self.step += 1;
+        for p in store.params.iter_mut().filter(|p| p.trainable) {
+            let g = grads.get_or_alloc_mut(&p.tensor)?;
             self.cfg
                 .try_update(self.step, &mut p.tensor, &mut p.m, &mut p.v, g)?;
         }
@@ -184,18 +187,18 @@ impl Adam {
         store: &mut ParamStore,
         grads: &[(ParamId, &[f32])],
     ) -> Result<(), TrainError> {
-        self.step += 1;
+        // Validate everything first so that an error changes nothing.
         for &(id, g) in grads {
-            let p = &mut store.params[id.0];
-            if !p.trainable {
-                continue;
-            }
-            if g.len() != store.dev.len(&p.m) {
+            let p = store
+                .params
+                .get(id.0)
+                .ok_or_else(|| TrainError::Invalid(format!("no parameter #{}", id.0)))?;
+            let n = store.dev.len(&p.m);
+            if g.len() != n {
                 return Err(TrainError::Invalid(format!(
-                    "gradient of '{}' has {} values, parameter has {}",
+                    "gradient of '{}' has {} values, parameter has {n}",
                     p.name,
-                    g.len(),
-                    store.dev.len(&p.m)
+                    g.len()
                 )));
             }
             if !g.iter().all(|x| x.is_finite()) {
@@ -204,10 +207,16 @@ impl Adam {
                     p.name
                 )));
             }
-            let mut buf = store.dev.try_alloc_len(g.len())?;
-            buf.copy_from_slice(g);
-            self.cfg
-                .try_update(self.step, &mut p.tensor, &mut p.m, &mut p.v, &buf)?;
+        }
+        self.step += 1;
+        for &(id, g) in grads {
+            let p = &mut store.params[id.0];
+            if p.trainable {
+                let mut buf = store.dev.try_alloc_len(g.len())?;
+                buf.copy_from_slice(g);
+                self.cfg
+                    .try_update(self.step, &mut p.tensor, &mut p.m, &mut p.v, &buf)?;
+            }
         }
         Ok(())
     }
@@ -272,7 +281,12 @@ mod tests {
         }
         let got = store.values(x);
         assert!((got[0] as f64 - p[0]).abs() < 1e-6 && (got[1] as f64 - p[1]).abs() < 1e-6);
+        let before = store.values(x);
         assert!(opt.update_from_slices(&mut store, &[(x, &[1.0])]).is_err());
+        assert!(opt
+            .update_from_slices(&mut store, &[(ParamId(7), &[1.0])])
+            .is_err());
+        assert_eq!(store.values(x), before);
         assert!(opt
             .update_from_slices(&mut store, &[(x, &[f32::NAN, 0.0])])
             .is_err());

@@ -242,6 +242,7 @@ pub fn box_loss_and_grad(
     targets: &[[f32; 3]],
 ) -> Result<(f32, BoxGrad<f32>), VolumeError> {
     vol.validate()?;
+    sampler.validate()?;
     if rays.len() != targets.len() {
         return Err(VolumeError::Invalid(format!(
             "{} rays but {} target colours",
@@ -265,6 +266,7 @@ pub fn render_box_rays(
     rays: &[Ray],
 ) -> Result<Vec<Composite<f32>>, VolumeError> {
     vol.validate()?;
+    sampler.validate()?;
     let t = sampler.depths();
     let p = Params::from_volume(vol);
     Ok(rays
@@ -294,6 +296,7 @@ pub fn render_box_image(
     size: ImageSize,
 ) -> Result<RenderedImage, VolumeError> {
     vol.validate()?;
+    sampler.validate()?;
     let t = sampler.depths();
     let p = Params::from_volume(vol);
     let mut out = vec![

@@ -166,13 +166,22 @@ pub struct Stratified {
 
 impl Stratified {
     pub fn new(n: usize, near: f32, far: f32) -> Result<Self, VolumeError> {
+        let s = Stratified { n, near, far };
+        s.validate()?;
+        Ok(s)
+    }
+
+    /// Checks `n ≥ 2` and `0 ≤ near < far`, both finite (the fields are public,
+    /// so every consumer re-checks).
+    pub fn validate(&self) -> Result<(), VolumeError> {
+        let (n, near, far) = (self.n, self.near, self.far);
         let ordered = near.is_finite() && far.is_finite() && near >= 0.0 && far > near;
         if n < 2 || !ordered {
             return Err(VolumeError::Invalid(format!(
                 "sampler needs n ≥ 2 and 0 ≤ near < far (got n={n}, near={near}, far={far})"
             )));
         }
-        Ok(Stratified { n, near, far })
+        Ok(())
     }
 
     /// The linspace depths, computed in f64 and rounded once.

@@ -92,6 +92,7 @@ where
     Fld: Fn([f32; 3]) -> (f32, [f32; 3]) + Sync,
 {
     model.validate()?;
+    sampler.validate()?;
     let t = sampler.depths();
     let mut delta = vec![0f32; t.len()];
     intervals(&t, &mut delta);
@@ -208,5 +209,21 @@ mod tests {
             beta: 0.05,
         };
         assert!(render_field_image(sphere, bad, &s, &cam, size).is_err());
+        let bad_sampler = Stratified {
+            n: 1,
+            near: 0.0,
+            far: 1.0,
+        };
+        assert!(render_field_image(
+            sphere,
+            DensityModel::Neus {
+                alpha: 1.0,
+                beta: 0.1
+            },
+            &bad_sampler,
+            &cam,
+            size
+        )
+        .is_err());
     }
 }
