@@ -19,5 +19,6 @@ fn main() {
         |(med, min): (f64, f64)| format!("{:8.2} ms median {:8.2} ms min", med * 1e3, min * 1e3);
     println!("fused step (4096x64)   : {}", ms(t.fused_step_s));
     println!("dfdx graph step        : {}", ms(t.dfdx_step_s));
+    println!("dfdx + fused op step   : {}", ms(t.fused_op_step_s));
     println!("render 256x256x64      : {}", ms(t.render_s));
 }

@@ -5,7 +5,10 @@ use std::ops::ControlFlow;
 
 use sdfl_stdlib::camera::Camera;
 
+use dfdx::prelude::*;
+
 use super::box_graph::box_loss_graph;
+use super::box_op::box_volume_colours;
 use super::params::{Adam, ParamStore};
 use super::TrainError;
 use crate::data::npy::RgbImage;
@@ -26,6 +29,9 @@ pub enum FitBackend {
     Fused,
     /// The dfdx autodiff graph of [`super::box_graph`].
     Dfdx,
+    /// A dfdx graph whose colours come from the fused kernel as one op
+    /// ([`super::box_op`]); the MSE and the backward run through dfdx.
+    FusedOp,
 }
 
 /// Settings of a box fit.
@@ -168,6 +174,23 @@ pub fn fit_box_with(
                 opt.update(&mut store, &mut grads)?;
                 loss
             }
+            FitBackend::FusedOp => {
+                let a = cfg.start;
+                let rgb = box_volume_colours(
+                    store.tensor(center).leaky_trace(),
+                    store.tensor(sides).leaky_trace(),
+                    a.alpha,
+                    a.beta,
+                    &sampler,
+                    &rays,
+                )?;
+                let flat: Vec<f32> = targets.iter().flatten().copied().collect();
+                let tgt = store.device().tensor_from_vec(flat, (rays.len(), 3usize));
+                let loss = (rgb - tgt).square().mean();
+                let value = loss.array();
+                opt.update(&mut store, &mut loss.backward())?;
+                value
+            }
         };
         losses.push(loss);
         let vol = current(&store);
@@ -288,6 +311,20 @@ mod tests {
             },
         )
         .unwrap();
+        let op = fit_box(
+            &views,
+            &BoxFitConfig {
+                backend: FitBackend::FusedOp,
+                ..cfg.clone()
+            },
+        )
+        .unwrap();
+        // The op computes the same f32 numbers as the fused path up to the
+        // summation order of the MSE.
+        for i in 0..3 {
+            assert!((a.volume.center[i] - op.volume.center[i]).abs() < 1e-4);
+            assert!((a.volume.sides[i] - op.volume.sides[i]).abs() < 1e-4);
+        }
         // Same batches and gradients equal to ~1e-4 relative, but Adam
         // normalises near-zero gradient components (centre z here), so the
         // trajectories agree to a fraction of the distance travelled (≤ 0.02).

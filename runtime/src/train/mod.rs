@@ -3,6 +3,7 @@
 
 pub mod box_fit;
 pub mod box_graph;
+pub mod box_op;
 pub mod graph_ops;
 pub mod params;
 

@@ -11,7 +11,10 @@ use std::time::Instant;
 use super::rays::{random_rays, ImageSize, SplitMix64, Stratified};
 use super::{box_loss_and_grad, render_box_image, BoxVolume, VolumeError};
 use crate::train::box_fit::assignment_cameras;
+use dfdx::prelude::*;
+
 use crate::train::box_graph::box_loss_graph;
+use crate::train::box_op::box_volume_colours;
 use crate::train::{Adam, ParamStore, TrainError};
 
 /// `(median, minimum)` seconds of each measured operation.
@@ -21,6 +24,8 @@ pub struct BoxBenchTimes {
     pub fused_step_s: (f64, f64),
     /// dfdx graph: forward + backward + Adam update for one batch.
     pub dfdx_step_s: (f64, f64),
+    /// dfdx graph around the fused colour op (MSE and Adam through dfdx).
+    pub fused_op_step_s: (f64, f64),
     /// Full image render (forward only, fused kernel).
     pub render_s: (f64, f64),
 }
@@ -81,6 +86,25 @@ pub fn bench_box_volume(
             graph.push(t0.elapsed().as_secs_f64());
         }
     }
+    let mut op = Vec::new();
+    let tgt: Vec<f32> = targets.iter().flatten().copied().collect();
+    for k in 0..=reps {
+        let t0 = Instant::now();
+        let rgb = box_volume_colours(
+            store.tensor(c).leaky_trace(),
+            store.tensor(s).leaky_trace(),
+            1.0,
+            0.05,
+            &sampler,
+            &batch,
+        )?;
+        let target = store.device().tensor_from_vec(tgt.clone(), (rays, 3usize));
+        let loss = (rgb - target).square().mean();
+        opt.update(&mut store, &mut loss.backward())?;
+        if k > 0 {
+            op.push(t0.elapsed().as_secs_f64());
+        }
+    }
     let mut render = Vec::new();
     for k in 0..=reps {
         let t0 = Instant::now();
@@ -94,6 +118,7 @@ pub fn bench_box_volume(
     Ok(BoxBenchTimes {
         fused_step_s: median(fused),
         dfdx_step_s: median(graph),
+        fused_op_step_s: median(op),
         render_s: median(render),
     })
 }

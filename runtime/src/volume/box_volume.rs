@@ -232,6 +232,40 @@ pub(crate) fn loss_and_grad_generic<F: Float + Default + Send + Sync>(
         )
 }
 
+/// Gradient of `Σ_r g_r · colour_r` with respect to centre and sides, given
+/// `g_r = ∂L/∂colour_r` for each ray (the backward of a colour op inside a
+/// larger graph). Recomputes each ray's forward pass, so no per-sample state
+/// outlives a ray.
+pub(crate) fn colour_backward_generic<F: Float + Default + Send + Sync>(
+    p: &Params<F>,
+    t: &[F],
+    rays: &[Ray],
+    g: &[[F; 3]],
+) -> BoxGrad<F> {
+    const CHUNK: usize = 64;
+    let cv = |x: f32| F::from(x).unwrap();
+    rays.par_chunks(CHUNK)
+        .zip(g.par_chunks(CHUNK))
+        .map(|(rs, gs)| {
+            let mut cache = vec![SampleCache::default(); t.len()];
+            let mut grad = BoxGrad::default();
+            for (r, gr) in rs.iter().zip(gs) {
+                let (_, used) =
+                    ray_forward::<F, true>(p, t, r.origin.map(cv), r.dir.map(cv), &mut cache);
+                ray_backward(*gr, &cache[..used], &mut grad);
+            }
+            grad
+        })
+        .reduce(BoxGrad::default, |a, b| {
+            let mut g = a;
+            for i in 0..3 {
+                g.center[i] = g.center[i] + b.center[i];
+                g.sides[i] = g.sides[i] + b.sides[i];
+            }
+            g
+        })
+}
+
 /// MSE loss and its exact gradient with respect to centre and sides, for
 /// `rays` with `targets` (one colour per ray), sampled at `sampler`'s
 /// linspace depths. Fused f32 kernel, parallel over rays.
