@@ -1,5 +1,11 @@
-//! Training: a runtime-sized parameter store updated with dfdx's Adam kernel,
-//! the box volume as a dfdx graph, and the assignment's box fit.
+//! Training on dfdx 0.13 (CPU):
+//!
+//! * [`params`]: runtime-sized named parameters, Adam through dfdx's kernel.
+//! * [`graph_ops`]: differentiable compositing and SDF densities on
+//!   `[rays, samples]` tensors (cumsum as a triangular matmul).
+//! * [`box_graph`]: the assignment's box volume as a pure dfdx graph.
+//! * [`box_op`]: the same as one dfdx op backed by the fused kernel.
+//! * [`box_fit`]: the assignment's part 2 fit.
 
 pub mod box_fit;
 pub mod box_graph;

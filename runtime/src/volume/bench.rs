@@ -1,10 +1,16 @@
 //! Timings of the box volume for benchmarks (never asserted in tests):
 //! one training step of the box fit and one full-image render.
 //!
-//! Measured on the 2-core dev VM (AMD EPYC, best of 15, other jobs running):
-//! fused step 4096×64 ≈ 3.8 ms, dfdx graph step ≈ 48 ms, 256×256×64 render
-//! ≈ 30 ms; PyTorch 2.x CPU (`bench/pytorch/box_volume_bench.py`) ≈ 19 ms
-//! per step and ≈ 200 ms per render.
+//! Measured on the 2-core dev VM (AMD EPYC; another engineer's builds
+//! running, so minima of 10–15 runs), PyTorch 2.15 CPU running
+//! `bench/pytorch/box_volume_bench.py` (same computation, stable log-keep form):
+//!
+//! | 4096×64 step / 256×256×64 render | 2 threads      | 1 thread       |
+//! |----------------------------------|----------------|----------------|
+//! | sdfl fused kernel                | 3.8 / 30 ms    | 7.3 / 60 ms    |
+//! | sdfl dfdx graph + fused op       | ≈ 11 ms        | 11 ms          |
+//! | sdfl pure dfdx graph             | 48 ms          | 48 ms          |
+//! | PyTorch                          | 19 / 200 ms    | 29 / 345 ms    |
 
 use std::time::Instant;
 
