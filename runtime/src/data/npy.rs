@@ -1,6 +1,6 @@
-//! Minimal NumPy `.npy` reader/writer for RGB float32 images (the
-//! assignment's `box_*.npy`): format version 1.0, little-endian `<f4`,
-//! C order, shape `(H, W, 3)`. Anything else is rejected with an error.
+//! Minimal NumPy `.npy`/`.npz` reader for float32 arrays (the assignment's
+//! `box_*.npy` images and `bunny_pointcloud.npz`): format version 1.0,
+//! little-endian `<f4`, C order. Anything else is rejected with an error.
 
 use std::fmt;
 use std::path::Path;
@@ -23,6 +23,8 @@ pub enum NpyError {
     Format(String),
     /// A valid `.npy` file this reader does not accept (dtype, order, shape, version).
     Unsupported(String),
+    /// An `.npz` archive without the requested array.
+    MissingKey(String),
 }
 
 impl fmt::Display for NpyError {
@@ -31,6 +33,7 @@ impl fmt::Display for NpyError {
             NpyError::Io(e) => write!(f, "cannot read .npy file: {e}"),
             NpyError::Format(m) => write!(f, "malformed .npy file: {m}"),
             NpyError::Unsupported(m) => write!(f, "unsupported .npy file: {m}"),
+            NpyError::MissingKey(k) => write!(f, ".npz archive has no array '{k}'"),
         }
     }
 }
@@ -72,8 +75,15 @@ fn dict_value<'a>(header: &'a str, key: &str) -> Result<&'a str, NpyError> {
     Err(NpyError::Format(format!("unterminated value of '{key}'")))
 }
 
-/// Parses the bytes of an `(H, W, 3)` float32 `.npy` v1 file.
-pub fn parse_rgb_f32(bytes: &[u8]) -> Result<RgbImage, NpyError> {
+/// A float32 array of any shape, C order.
+#[derive(Debug, Clone, PartialEq)]
+pub struct F32Array {
+    pub shape: Vec<usize>,
+    pub data: Vec<f32>,
+}
+
+/// Parses the bytes of a float32 `.npy` v1 file of any shape.
+pub fn parse_f32(bytes: &[u8]) -> Result<F32Array, NpyError> {
     if bytes.len() < 10 || &bytes[..6] != MAGIC {
         return Err(NpyError::Format("missing \\x93NUMPY magic".into()));
     }
@@ -99,8 +109,8 @@ pub fn parse_rgb_f32(bytes: &[u8]) -> Result<RgbImage, NpyError> {
     if dict_value(header, "fortran_order")? != "False" {
         return Err(NpyError::Unsupported("Fortran order (only C order)".into()));
     }
-    let shape = dict_value(header, "shape")?;
-    let dims: Vec<usize> = shape
+    let shape_text = dict_value(header, "shape")?;
+    let shape: Vec<usize> = shape_text
         .trim_start_matches('(')
         .trim_end_matches(')')
         .split(',')
@@ -108,41 +118,72 @@ pub fn parse_rgb_f32(bytes: &[u8]) -> Result<RgbImage, NpyError> {
         .filter(|s| !s.is_empty())
         .map(|s| {
             s.parse::<usize>()
-                .map_err(|_| NpyError::Format(format!("bad shape {shape}")))
+                .map_err(|_| NpyError::Format(format!("bad shape {shape_text}")))
         })
         .collect::<Result<_, _>>()?;
-    let (h, w) = match dims[..] {
-        [h, w, 3] if h > 0 && w > 0 && h <= u32::MAX as usize && w <= u32::MAX as usize => (h, w),
-        _ => {
-            return Err(NpyError::Unsupported(format!(
-                "shape {shape} (only (H, W, 3))"
-            )))
-        }
-    };
-    let n = h
-        .checked_mul(w)
-        .and_then(|v| v.checked_mul(3))
+    let n = shape
+        .iter()
+        .try_fold(1usize, |a, &d| a.checked_mul(d))
+        .and_then(|n| n.checked_mul(4).map(|_| n))
         .ok_or_else(|| NpyError::Format("shape overflows".into()))?;
     let data = &bytes[data_start..];
     if data.len() != n * 4 {
         return Err(NpyError::Format(format!(
-            "expected {} data bytes for shape {shape}, found {}",
+            "expected {} data bytes for shape {shape_text}, found {}",
             n * 4,
             data.len()
         )));
     }
-    let pixels = data
-        .chunks_exact(12)
-        .map(|px| {
-            let f = |k: usize| f32::from_le_bytes([px[k], px[k + 1], px[k + 2], px[k + 3]]);
-            [f(0), f(4), f(8)]
-        })
-        .collect();
+    Ok(F32Array {
+        shape,
+        data: data
+            .chunks_exact(4)
+            .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+            .collect(),
+    })
+}
+
+/// Parses the bytes of an `(H, W, 3)` float32 `.npy` v1 file.
+pub fn parse_rgb_f32(bytes: &[u8]) -> Result<RgbImage, NpyError> {
+    let a = parse_f32(bytes)?;
+    let (h, w) = match a.shape[..] {
+        [h, w, 3] if h > 0 && w > 0 && h <= u32::MAX as usize && w <= u32::MAX as usize => (h, w),
+        _ => {
+            return Err(NpyError::Unsupported(format!(
+                "shape {:?} (only (H, W, 3))",
+                a.shape
+            )))
+        }
+    };
     Ok(RgbImage {
         width: w as u32,
         height: h as u32,
-        pixels,
+        pixels: a.data.chunks_exact(3).map(|p| [p[0], p[1], p[2]]).collect(),
     })
+}
+
+/// Reads array `key` (without `.npy`) from an `.npz` archive (stored or
+/// deflated, as `np.savez`/`np.savez_compressed` write them).
+pub fn read_npz_f32(path: impl AsRef<Path>, key: &str) -> Result<F32Array, NpyError> {
+    parse_npz_f32(&std::fs::read(path)?, key)
+}
+
+/// [`read_npz_f32`] on the archive's bytes.
+pub fn parse_npz_f32(bytes: &[u8], key: &str) -> Result<F32Array, NpyError> {
+    use std::io::Read;
+    let mut zip = zip::ZipArchive::new(std::io::Cursor::new(bytes))
+        .map_err(|e| NpyError::Format(format!("not a zip archive: {e}")))?;
+    let name = format!("{key}.npy");
+    let mut entry = match zip.by_name(&name) {
+        Ok(e) => e,
+        Err(zip::result::ZipError::FileNotFound) => return Err(NpyError::MissingKey(key.into())),
+        Err(e) => return Err(NpyError::Format(format!("bad archive entry {name}: {e}"))),
+    };
+    let mut buf = Vec::with_capacity(entry.size().min(1 << 30) as usize);
+    entry
+        .read_to_end(&mut buf)
+        .map_err(|e| NpyError::Format(format!("cannot inflate {name}: {e}")))?;
+    parse_f32(&buf)
 }
 
 /// Serialises an image as an `(H, W, 3)` `<f4` `.npy` v1 file.
@@ -227,5 +268,51 @@ mod tests {
             read_rgb_f32("/nonexistent/x.npy"),
             Err(NpyError::Io(_))
         ));
+    }
+
+    fn npz(entries: &[(&str, &[u8])], method: zip::CompressionMethod) -> Vec<u8> {
+        use std::io::Write;
+        let mut w = zip::ZipWriter::new(std::io::Cursor::new(Vec::new()));
+        let opts = zip::write::SimpleFileOptions::default().compression_method(method);
+        for (name, data) in entries {
+            w.start_file(*name, opts).unwrap();
+            w.write_all(data).unwrap();
+        }
+        w.finish().unwrap().into_inner()
+    }
+
+    #[test]
+    fn npz_stored_and_deflated() {
+        let img = encode_rgb_f32(&sample());
+        for m in [
+            zip::CompressionMethod::Stored,
+            zip::CompressionMethod::Deflated,
+        ] {
+            let z = npz(&[("other.npy", b"junk"), ("verts.npy", &img)], m);
+            let a = parse_npz_f32(&z, "verts").unwrap();
+            assert_eq!(a.shape, vec![2, 3, 3]);
+            assert_eq!(a.data[3], 1.0);
+            assert!(matches!(
+                parse_npz_f32(&z, "nope"),
+                Err(NpyError::MissingKey(_))
+            ));
+            assert!(parse_npz_f32(&z, "other").is_err());
+        }
+        assert!(parse_npz_f32(b"not a zip", "verts").is_err());
+    }
+
+    #[test]
+    fn reads_the_assignment_bunny_when_present() {
+        // Reads ../shared/data/assignment3 (from the repository root) only
+        // where it exists.
+        let p = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../../shared/data/assignment3/bunny_pointcloud.npz");
+        if !p.is_file() {
+            eprintln!("note: {} not found; skipping", p.display());
+            return;
+        }
+        let a = read_npz_f32(&p, "verts").unwrap();
+        assert_eq!(a.shape, vec![10000, 3]);
+        assert!(a.data.iter().all(|v| v.is_finite()));
     }
 }
