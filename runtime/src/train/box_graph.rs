@@ -79,7 +79,7 @@ pub fn box_loss_graph(
     let sdf = outside + inside;
 
     let (opacity, log_keep) = sdf_opacity(sdf, alpha, beta);
-    let w = weights_from_log_keep(log_keep, opacity);
+    let w = weights_from_log_keep(log_keep, opacity)?;
 
     let col = a.clamp(RAINBOW_LO as f32, RAINBOW_HI as f32);
     let rgb = (w.broadcast_like::<_, Axis<2>>(&shape3) * col).sum::<(usize, usize), Axis<1>>();

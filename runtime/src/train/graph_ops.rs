@@ -12,6 +12,8 @@
 
 use dfdx::prelude::*;
 
+use super::TrainError;
+
 /// A `[rays, samples]` tensor on the CPU that records gradients.
 pub type Traced2 = Tensor<(usize, usize), f32, Cpu, OwnedTape<f32, Cpu>>;
 
@@ -39,17 +41,32 @@ pub fn exclusive_cumsum(x: Traced2) -> Traced2 {
 /// Weights `T_k·(1 − exp(−σ_kΔ_k))`, `T_k = exp(−Σ_{j<k} σ_jΔ_j)`, from
 /// densities and (constant) intervals. `σΔ` is clamped to `[0, 1e30]`, so
 /// even infinite densities give finite weights and gradients.
-pub fn weights_from_density(sigma: Traced2, delta: &Tensor<(usize, usize), f32, Cpu>) -> Traced2 {
+pub fn weights_from_density(
+    sigma: Traced2,
+    delta: &Tensor<(usize, usize), f32, Cpu>,
+) -> Result<Traced2, TrainError> {
+    same_shape(sigma.shape(), delta.shape())?;
     let tau = (sigma * delta.clone()).clamp(0.0, 1e30);
     let trans = (-exclusive_cumsum(again(&tau))).exp();
     // 1 − exp(−τ): its derivative exp(−τ) is bounded.
-    trans * (-(-tau).exp() + 1.0)
+    Ok(trans * (-(-tau).exp() + 1.0))
+}
+
+fn same_shape(a: &(usize, usize), b: &(usize, usize)) -> Result<(), TrainError> {
+    if a == b {
+        Ok(())
+    } else {
+        Err(TrainError::Invalid(format!(
+            "shapes differ: {a:?} vs {b:?}"
+        )))
+    }
 }
 
 /// Weights `T_k·o_k` with `T_k = exp(Σ_{j<k} ln(1 − o_j))` from `ln(1 − o)`
 /// and `o` (see [`sdf_opacity`]); finite where `o` rounds to 1.
-pub fn weights_from_log_keep(log_keep: Traced2, opacity: Traced2) -> Traced2 {
-    exclusive_cumsum(log_keep).exp() * opacity
+pub fn weights_from_log_keep(log_keep: Traced2, opacity: Traced2) -> Result<Traced2, TrainError> {
+    same_shape(log_keep.shape(), opacity.shape())?;
+    Ok(exclusive_cumsum(log_keep).exp() * opacity)
 }
 
 /// Constant sign tensors of `x`: (`+1` where `x ≥ 0` else `−1`, `[x < 0]`, `[x ≥ 0]`).
@@ -211,14 +228,22 @@ mod tests {
             }
             out
         };
-        check_grad(&sigma, |s| weights_from_density(s, &dt), reference, 2e-4);
+        check_grad(
+            &sigma,
+            |s| weights_from_density(s, &dt).unwrap(),
+            reference,
+            2e-4,
+        );
         // Same as the f32 slice implementation.
-        let w = dev().tensor_to_vec(&weights_from_density(
-            dev().tensor_from_vec(sigma.clone(), (R, N)).leaky_trace(),
-            &dt,
-        ));
+        let w = dev().tensor_to_vec(
+            &weights_from_density(
+                dev().tensor_from_vec(sigma.clone(), (R, N)).leaky_trace(),
+                &dt,
+            )
+            .unwrap(),
+        );
         let mut w2 = vec![0f32; N];
-        composite::weights_from_density(&sigma[..N], &delta[..N], &mut w2);
+        composite::weights_from_density(&sigma[..N], &delta[..N], &mut w2).unwrap();
         for k in 0..N {
             assert!((w[k] - w2[k]).abs() < 1e-6);
         }
@@ -244,7 +269,7 @@ mod tests {
                 &sdf_values(),
                 |s| {
                     let (o, l) = sdf_opacity(s, alpha, beta);
-                    weights_from_log_keep(l, o)
+                    weights_from_log_keep(l, o).unwrap()
                 },
                 reference,
                 2e-4,
@@ -297,7 +322,7 @@ mod tests {
             for alpha in [1.0f32, 0.5] {
                 let xt = dev.tensor_from_vec(x.clone(), (R, N));
                 let (o, l) = sdf_opacity(xt.leaky_trace(), alpha, beta);
-                let w = weights_from_log_keep(l, o);
+                let w = weights_from_log_keep(l, o).unwrap();
                 let wv = dev.tensor_to_vec(&w);
                 assert!(wv.iter().all(|v| v.is_finite()));
                 for r in 0..R {
@@ -324,7 +349,9 @@ mod tests {
             (R, N),
         );
         let st = dev.tensor_from_vec(s, (R, N));
-        let w = weights_from_density(st.leaky_trace(), &d);
+        let w = weights_from_density(st.leaky_trace(), &d).unwrap();
+        let short = dev.tensor_from_vec(vec![1.0f32; R * (N - 1)], (R, N - 1));
+        assert!(weights_from_density(st.leaky_trace(), &short).is_err());
         let wv = dev.tensor_to_vec(&w);
         assert!(wv.iter().all(|v| v.is_finite()) && wv[..N].iter().sum::<f32>() <= 1.0 + 1e-6);
         let g = w.sum().backward().get(&st).as_vec();

@@ -345,6 +345,7 @@ pub fn render_box_image(
         for (r, c) in rays.iter().zip(o) {
             *c = ray_forward::<f32, false>(&p, &t, r.origin, r.dir, &mut []).0;
         }
+        Ok(())
     })?;
     Ok(RenderedImage {
         size,

@@ -62,14 +62,15 @@ fn check_camera(cam: &Camera, size: ImageSize) -> Result<(), VolumeError> {
 }
 
 /// Calls `f(rays, out_chunk)` for consecutive chunks of at most `chunk` pixels
-/// of the image, in parallel, with `out` holding one element per pixel.
-/// Rays are generated per chunk, so memory beyond `out` is O(chunk) per thread.
+/// of the image, in parallel, with `out` holding one element per pixel; stops
+/// at an error `f` returns. Rays are generated per chunk, so memory beyond
+/// `out` is O(chunk) per thread.
 pub fn for_each_ray_chunk<T: Send>(
     cam: &Camera,
     size: ImageSize,
     chunk: usize,
     out: &mut [T],
-    f: impl Fn(&[Ray], &mut [T]) + Sync,
+    f: impl Fn(&[Ray], &mut [T]) -> Result<(), VolumeError> + Sync,
 ) -> Result<(), VolumeError> {
     check_camera(cam, size)?;
     if out.len() != size.pixels() {
@@ -80,14 +81,15 @@ pub fn for_each_ray_chunk<T: Send>(
         )));
     }
     let chunk = chunk.max(1);
-    out.par_chunks_mut(chunk).enumerate().for_each(|(c, o)| {
-        let start = (c * chunk) as u32;
-        let rays: Vec<Ray> = (0..o.len() as u32)
-            .map(|k| pixel_ray(cam, size, 0, start + k))
-            .collect();
-        f(&rays, o);
-    });
-    Ok(())
+    out.par_chunks_mut(chunk)
+        .enumerate()
+        .try_for_each(|(c, o)| {
+            let start = (c * chunk) as u32;
+            let rays: Vec<Ray> = (0..o.len() as u32)
+                .map(|k| pixel_ray(cam, size, 0, start + k))
+                .collect();
+            f(&rays, o)
+        })
 }
 
 /// A small, fast, seedable generator (SplitMix64). Deterministic across
@@ -195,9 +197,16 @@ impl Stratified {
     /// Jittered depths for training: each depth is drawn uniformly in its
     /// stratum `[mid_{k−1}, mid_k]` (mid = midpoints of the linspace, the ends
     /// clamped to near/far), so they stay sorted within `[near, far]`.
-    pub fn jittered_into(&self, rng: &mut SplitMix64, out: &mut [f32]) {
+    pub fn jittered_into(&self, rng: &mut SplitMix64, out: &mut [f32]) -> Result<(), VolumeError> {
+        self.validate()?;
+        if out.len() != self.n {
+            return Err(VolumeError::Invalid(format!(
+                "jittered_into: {} slots for {} depths",
+                out.len(),
+                self.n
+            )));
+        }
         let t = self.depths();
-        assert_eq!(out.len(), self.n);
         for k in 0..self.n {
             let lo = if k == 0 {
                 t[0]
@@ -211,6 +220,7 @@ impl Stratified {
             };
             out[k] = lo + (hi - lo) * rng.next_f32();
         }
+        Ok(())
     }
 }
 
@@ -267,10 +277,13 @@ mod tests {
             for (r, v) in rays.iter().zip(o) {
                 *v = r.pixel;
             }
+            Ok(())
         })
         .unwrap();
         assert!(out.iter().enumerate().all(|(k, &p)| p == k as u32));
-        assert!(for_each_ray_chunk(&cam(), size, 50, &mut out[1..], |_, _| {}).is_err());
+        assert!(for_each_ray_chunk(&cam(), size, 50, &mut out[1..], |_, _| Ok(())).is_err());
+        let failing = |_: &[Ray], _: &mut [u32]| Err(VolumeError::Invalid("x".into()));
+        assert!(for_each_ray_chunk(&cam(), size, 50, &mut out, failing).is_err());
     }
 
     #[test]
@@ -307,7 +320,8 @@ mod tests {
         assert!((t[1] - 5.0 / 63.0).abs() < 1e-7);
         let mut j = vec![0f32; 64];
         let mut rng = SplitMix64::new(3);
-        s.jittered_into(&mut rng, &mut j);
+        s.jittered_into(&mut rng, &mut j).unwrap();
+        assert!(s.jittered_into(&mut rng, &mut j[1..]).is_err());
         assert!(j.windows(2).all(|w| w[0] <= w[1]));
         assert!(j.iter().all(|&v| (0.0..=5.0).contains(&v)));
         assert!(j.iter().zip(&t).any(|(a, b)| a != b));

@@ -56,7 +56,7 @@ fn render_ray<Fld: Fn([f32; 3]) -> (f32, [f32; 3])>(
     w: &mut [f32],
     sigma: &mut [f32],
     cols: &mut [[f32; 3]],
-) -> Composite<f32> {
+) -> Result<Composite<f32>, VolumeError> {
     let mut trans = 1.0f32;
     for (k, &tk) in t.iter().enumerate() {
         let x = [0, 1, 2].map(|i| ray.origin[i] + tk * ray.dir[i]);
@@ -75,7 +75,7 @@ fn render_ray<Fld: Fn([f32; 3]) -> (f32, [f32; 3])>(
         }
     }
     if !matches!(model, DensityModel::SdfOpacity { .. }) {
-        weights_from_density(sigma, delta, w);
+        weights_from_density(sigma, delta, w)?;
     }
     aggregate(w, cols, t)
 }
@@ -95,7 +95,7 @@ where
     sampler.validate()?;
     let t = sampler.depths();
     let mut delta = vec![0f32; t.len()];
-    intervals(&t, &mut delta);
+    intervals(&t, &mut delta)?;
     let zero = Composite {
         colour: [0f32; 3],
         depth: 0.0,
@@ -106,8 +106,9 @@ where
         let n = t.len();
         let (mut w, mut sigma, mut cols) = (vec![0f32; n], vec![0f32; n], vec![[0f32; 3]; n]);
         for (r, c) in rays.iter().zip(o) {
-            *c = render_ray(&field, model, &t, &delta, r, &mut w, &mut sigma, &mut cols);
+            *c = render_ray(&field, model, &t, &delta, r, &mut w, &mut sigma, &mut cols)?;
         }
+        Ok(())
     })?;
     Ok(RenderedImage {
         size,
