@@ -1,10 +1,13 @@
 //! The sdfl runtime: lowering of scenes to fast evaluators, sphere tracing,
-//! rendering jobs and writing their outputs.
+//! volume rendering, dfdx training, data sets, and writing outputs.
 
+pub mod data;
 pub mod output;
 pub mod render;
 pub mod sdf;
 pub mod trace;
+pub mod train;
+pub mod volume;
 
 pub use render::{run_job, JobReport, Plan, RunOptions};
 pub use sdf::{LowerOptions, Lowered};

@@ -1,0 +1,3 @@
+//! Readers for input data sets.
+
+pub mod npy;

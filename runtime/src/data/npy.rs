@@ -1,0 +1,318 @@
+//! Minimal NumPy `.npy`/`.npz` reader for float32 arrays (the assignment's
+//! `box_*.npy` images and `bunny_pointcloud.npz`): format version 1.0,
+//! little-endian `<f4`, C order. Anything else is rejected with an error.
+
+use std::fmt;
+use std::path::Path;
+
+const MAGIC: &[u8] = b"\x93NUMPY";
+
+/// An RGB float image, row-major from the top-left pixel.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RgbImage {
+    pub width: u32,
+    pub height: u32,
+    pub pixels: Vec<[f32; 3]>,
+}
+
+/// Why a `.npy` file could not be read.
+#[derive(Debug)]
+pub enum NpyError {
+    Io(std::io::Error),
+    /// Not a `.npy` file, or a malformed header.
+    Format(String),
+    /// A valid `.npy` file this reader does not accept (dtype, order, shape, version).
+    Unsupported(String),
+    /// An `.npz` archive without the requested array.
+    MissingKey(String),
+}
+
+impl fmt::Display for NpyError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            NpyError::Io(e) => write!(f, "cannot read .npy file: {e}"),
+            NpyError::Format(m) => write!(f, "malformed .npy file: {m}"),
+            NpyError::Unsupported(m) => write!(f, "unsupported .npy file: {m}"),
+            NpyError::MissingKey(k) => write!(f, ".npz archive has no array '{k}'"),
+        }
+    }
+}
+
+impl std::error::Error for NpyError {}
+
+impl From<std::io::Error> for NpyError {
+    fn from(e: std::io::Error) -> Self {
+        NpyError::Io(e)
+    }
+}
+
+/// Reads an `(H, W, 3)` little-endian float32 C-order `.npy` v1 file.
+pub fn read_rgb_f32(path: impl AsRef<Path>) -> Result<RgbImage, NpyError> {
+    parse_rgb_f32(&std::fs::read(path)?)
+}
+
+/// Value of `key` in the header dict: the text after `'key':` up to the
+/// next top-level `,` or `}` (parentheses are kept together).
+fn dict_value<'a>(header: &'a str, key: &str) -> Result<&'a str, NpyError> {
+    let pat = format!("'{key}':");
+    let start = header
+        .find(&pat)
+        .ok_or_else(|| NpyError::Format(format!("header has no '{key}'")))?
+        + pat.len();
+    let rest = &header[start..];
+    let mut depth = 0i32;
+    for (i, ch) in rest.char_indices() {
+        match ch {
+            '(' => depth += 1,
+            ')' => depth -= 1,
+            ',' | '}' if depth == 0 => return Ok(rest[..i].trim()),
+            _ => {}
+        }
+        if depth < 0 {
+            break;
+        }
+    }
+    Err(NpyError::Format(format!("unterminated value of '{key}'")))
+}
+
+/// A float32 array of any shape, C order.
+#[derive(Debug, Clone, PartialEq)]
+pub struct F32Array {
+    pub shape: Vec<usize>,
+    pub data: Vec<f32>,
+}
+
+/// Parses the bytes of a float32 `.npy` v1 file of any shape.
+pub fn parse_f32(bytes: &[u8]) -> Result<F32Array, NpyError> {
+    if bytes.len() < 10 || &bytes[..6] != MAGIC {
+        return Err(NpyError::Format("missing \\x93NUMPY magic".into()));
+    }
+    if bytes[6] != 1 {
+        return Err(NpyError::Unsupported(format!(
+            "format version {}.{} (only 1.0)",
+            bytes[6], bytes[7]
+        )));
+    }
+    let hlen = u16::from_le_bytes([bytes[8], bytes[9]]) as usize;
+    let data_start = 10 + hlen;
+    if bytes.len() < data_start {
+        return Err(NpyError::Format("truncated header".into()));
+    }
+    let header = std::str::from_utf8(&bytes[10..data_start])
+        .map_err(|_| NpyError::Format("header is not ASCII".into()))?;
+    let descr = dict_value(header, "descr")?.trim_matches(|c| c == '\'' || c == '"');
+    if descr != "<f4" {
+        return Err(NpyError::Unsupported(format!(
+            "dtype {descr} (only little-endian float32 '<f4')"
+        )));
+    }
+    if dict_value(header, "fortran_order")? != "False" {
+        return Err(NpyError::Unsupported("Fortran order (only C order)".into()));
+    }
+    let shape_text = dict_value(header, "shape")?;
+    let shape: Vec<usize> = shape_text
+        .trim_start_matches('(')
+        .trim_end_matches(')')
+        .split(',')
+        .map(str::trim)
+        .filter(|s| !s.is_empty())
+        .map(|s| {
+            s.parse::<usize>()
+                .map_err(|_| NpyError::Format(format!("bad shape {shape_text}")))
+        })
+        .collect::<Result<_, _>>()?;
+    let n = shape
+        .iter()
+        .try_fold(1usize, |a, &d| a.checked_mul(d))
+        .and_then(|n| n.checked_mul(4).map(|_| n))
+        .ok_or_else(|| NpyError::Format("shape overflows".into()))?;
+    let data = &bytes[data_start..];
+    if data.len() != n * 4 {
+        return Err(NpyError::Format(format!(
+            "expected {} data bytes for shape {shape_text}, found {}",
+            n * 4,
+            data.len()
+        )));
+    }
+    Ok(F32Array {
+        shape,
+        data: data
+            .chunks_exact(4)
+            .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+            .collect(),
+    })
+}
+
+/// Parses the bytes of an `(H, W, 3)` float32 `.npy` v1 file.
+pub fn parse_rgb_f32(bytes: &[u8]) -> Result<RgbImage, NpyError> {
+    let a = parse_f32(bytes)?;
+    let (h, w) = match a.shape[..] {
+        [h, w, 3] if h > 0 && w > 0 && h <= u32::MAX as usize && w <= u32::MAX as usize => (h, w),
+        _ => {
+            return Err(NpyError::Unsupported(format!(
+                "shape {:?} (only (H, W, 3))",
+                a.shape
+            )))
+        }
+    };
+    Ok(RgbImage {
+        width: w as u32,
+        height: h as u32,
+        pixels: a.data.chunks_exact(3).map(|p| [p[0], p[1], p[2]]).collect(),
+    })
+}
+
+/// Reads array `key` (without `.npy`) from an `.npz` archive (stored or
+/// deflated, as `np.savez`/`np.savez_compressed` write them).
+pub fn read_npz_f32(path: impl AsRef<Path>, key: &str) -> Result<F32Array, NpyError> {
+    parse_npz_f32(&std::fs::read(path)?, key)
+}
+
+/// [`read_npz_f32`] on the archive's bytes.
+pub fn parse_npz_f32(bytes: &[u8], key: &str) -> Result<F32Array, NpyError> {
+    use std::io::Read;
+    let mut zip = zip::ZipArchive::new(std::io::Cursor::new(bytes))
+        .map_err(|e| NpyError::Format(format!("not a zip archive: {e}")))?;
+    let name = format!("{key}.npy");
+    let mut entry = match zip.by_name(&name) {
+        Ok(e) => e,
+        Err(zip::result::ZipError::FileNotFound) => return Err(NpyError::MissingKey(key.into())),
+        Err(e) => return Err(NpyError::Format(format!("bad archive entry {name}: {e}"))),
+    };
+    let mut buf = Vec::with_capacity(entry.size().min(1 << 30) as usize);
+    entry
+        .read_to_end(&mut buf)
+        .map_err(|e| NpyError::Format(format!("cannot inflate {name}: {e}")))?;
+    parse_f32(&buf)
+}
+
+/// Serialises an image as an `(H, W, 3)` `<f4` `.npy` v1 file.
+pub fn encode_rgb_f32(img: &RgbImage) -> Vec<u8> {
+    let mut header = format!(
+        "{{'descr': '<f4', 'fortran_order': False, 'shape': ({}, {}, 3), }}",
+        img.height, img.width
+    );
+    // Pad with spaces so that the data starts at a multiple of 64, ending in '\n'.
+    while (10 + header.len() + 1) % 64 != 0 {
+        header.push(' ');
+    }
+    header.push('\n');
+    let mut out = Vec::with_capacity(10 + header.len() + img.pixels.len() * 12);
+    out.extend_from_slice(MAGIC);
+    out.extend_from_slice(&[1, 0]);
+    out.extend_from_slice(&(header.len() as u16).to_le_bytes());
+    out.extend_from_slice(header.as_bytes());
+    for p in &img.pixels {
+        for v in p {
+            out.extend_from_slice(&v.to_le_bytes());
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn sample() -> RgbImage {
+        RgbImage {
+            width: 3,
+            height: 2,
+            pixels: (0..6).map(|k| [k as f32, 0.5, -1.25 * k as f32]).collect(),
+        }
+    }
+
+    #[test]
+    fn round_trip() {
+        let img = sample();
+        let bytes = encode_rgb_f32(&img);
+        assert_eq!(bytes.len() % 4, 0);
+        assert_eq!(parse_rgb_f32(&bytes).unwrap(), img);
+    }
+
+    fn with_header(h: &str, data_len: usize) -> Vec<u8> {
+        let mut b = MAGIC.to_vec();
+        b.extend_from_slice(&[1, 0]);
+        b.extend_from_slice(&(h.len() as u16).to_le_bytes());
+        b.extend_from_slice(h.as_bytes());
+        b.extend(std::iter::repeat_n(0u8, data_len));
+        b
+    }
+
+    #[test]
+    fn rejects_everything_else() {
+        let bad = [
+            with_header("{'descr': '>f4', 'fortran_order': False, 'shape': (2, 3, 3), }", 72),
+            with_header("{'descr': '<f8', 'fortran_order': False, 'shape': (2, 3, 3), }", 144),
+            with_header("{'descr': '<f4', 'fortran_order': True, 'shape': (2, 3, 3), }", 72),
+            with_header("{'descr': '<f4', 'fortran_order': False, 'shape': (2, 3), }", 24),
+            with_header("{'descr': '<f4', 'fortran_order': False, 'shape': (2, 3, 4), }", 96),
+            with_header("{'descr': '<f4', 'fortran_order': False, 'shape': (2, 3, 3), }", 71),
+            with_header("{'descr': '<f4', 'fortran_order': False, 'shape': (2, x, 3), }", 72),
+            with_header("{'descr': '<f4', 'fortran_order': False, 'shape': (0, 3, 3), }", 0),
+            with_header("{'descr': '<f4', 'shape': (2, 3, 3), }", 72),
+            with_header("{'descr': '<f4', 'fortran_order': False, 'shape': (99999999999, 99999999999, 3), }", 0),
+            b"NUMPY".to_vec(),
+            Vec::new(),
+        ];
+        for b in &bad {
+            assert!(parse_rgb_f32(b).is_err());
+        }
+        let mut v2 = encode_rgb_f32(&sample());
+        v2[6] = 2;
+        assert!(matches!(parse_rgb_f32(&v2), Err(NpyError::Unsupported(_))));
+        let mut trunc = encode_rgb_f32(&sample());
+        trunc.truncate(20);
+        assert!(parse_rgb_f32(&trunc).is_err());
+        assert!(matches!(
+            read_rgb_f32("/nonexistent/x.npy"),
+            Err(NpyError::Io(_))
+        ));
+    }
+
+    fn npz(entries: &[(&str, &[u8])], method: zip::CompressionMethod) -> Vec<u8> {
+        use std::io::Write;
+        let mut w = zip::ZipWriter::new(std::io::Cursor::new(Vec::new()));
+        let opts = zip::write::SimpleFileOptions::default().compression_method(method);
+        for (name, data) in entries {
+            w.start_file(*name, opts).unwrap();
+            w.write_all(data).unwrap();
+        }
+        w.finish().unwrap().into_inner()
+    }
+
+    #[test]
+    fn npz_stored_and_deflated() {
+        let img = encode_rgb_f32(&sample());
+        for m in [
+            zip::CompressionMethod::Stored,
+            zip::CompressionMethod::Deflated,
+        ] {
+            let z = npz(&[("other.npy", b"junk"), ("verts.npy", &img)], m);
+            let a = parse_npz_f32(&z, "verts").unwrap();
+            assert_eq!(a.shape, vec![2, 3, 3]);
+            assert_eq!(a.data[3], 1.0);
+            assert!(matches!(
+                parse_npz_f32(&z, "nope"),
+                Err(NpyError::MissingKey(_))
+            ));
+            assert!(parse_npz_f32(&z, "other").is_err());
+        }
+        assert!(parse_npz_f32(b"not a zip", "verts").is_err());
+    }
+
+    #[test]
+    fn reads_the_assignment_bunny_when_present() {
+        // Reads ../shared/data/assignment3 (from the repository root) only
+        // where it exists.
+        let p = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../../shared/data/assignment3/bunny_pointcloud.npz");
+        if !p.is_file() {
+            eprintln!("note: {} not found; skipping", p.display());
+            return;
+        }
+        let a = read_npz_f32(&p, "verts").unwrap();
+        assert_eq!(a.shape, vec![10000, 3]);
+        assert!(a.data.iter().all(|v| v.is_finite()));
+    }
+}

@@ -1,0 +1,332 @@
+//! Rays for pixels of the conventions' cameras, seeded random ray batches,
+//! stratified depth samples, and chunked iteration over an image's rays.
+
+use rayon::prelude::*;
+use sdfl_stdlib::camera::{pixel_ndc, Camera};
+
+use super::VolumeError;
+
+/// One camera ray: origin, unit direction, and the view and pixel
+/// (`row·width + column`) it came from.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Ray {
+    pub origin: [f32; 3],
+    pub dir: [f32; 3],
+    pub view: u32,
+    pub pixel: u32,
+}
+
+/// An image size; pixel `(i, j)` is column `i` from the left, row `j` from the top.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ImageSize {
+    pub width: u32,
+    pub height: u32,
+}
+
+impl ImageSize {
+    pub fn pixels(&self) -> usize {
+        self.width as usize * self.height as usize
+    }
+}
+
+/// The ray through pixel `pixel = j·W + i` of `cam`, per CONVENTIONS.md.
+pub fn pixel_ray(cam: &Camera, size: ImageSize, view: u32, pixel: u32) -> Ray {
+    let i = pixel % size.width;
+    let j = pixel / size.width;
+    let (x, y) = pixel_ndc(i, j, size.width, size.height);
+    let d = cam.ray_direction(x, y);
+    Ray {
+        origin: cam.eye.to_array().map(|v| v as f32),
+        dir: d.to_array().map(|v| v as f32),
+        view,
+        pixel,
+    }
+}
+
+/// All rays of a camera, row-major from the top-left pixel.
+pub fn camera_rays(cam: &Camera, size: ImageSize) -> Result<Vec<Ray>, VolumeError> {
+    check_camera(cam, size)?;
+    Ok((0..size.pixels() as u32)
+        .map(|p| pixel_ray(cam, size, 0, p))
+        .collect())
+}
+
+fn check_camera(cam: &Camera, size: ImageSize) -> Result<(), VolumeError> {
+    if !cam.is_valid() {
+        return Err(VolumeError::InvalidCamera);
+    }
+    if size.width == 0 || size.height == 0 {
+        return Err(VolumeError::Invalid("image size must be non-zero".into()));
+    }
+    Ok(())
+}
+
+/// Calls `f(rays, out_chunk)` for consecutive chunks of at most `chunk` pixels
+/// of the image, in parallel, with `out` holding one element per pixel; stops
+/// at an error `f` returns. Rays are generated per chunk, so memory beyond
+/// `out` is O(chunk) per thread.
+pub fn for_each_ray_chunk<T: Send>(
+    cam: &Camera,
+    size: ImageSize,
+    chunk: usize,
+    out: &mut [T],
+    f: impl Fn(&[Ray], &mut [T]) -> Result<(), VolumeError> + Sync,
+) -> Result<(), VolumeError> {
+    check_camera(cam, size)?;
+    if out.len() != size.pixels() {
+        return Err(VolumeError::Invalid(format!(
+            "output holds {} pixels, image has {}",
+            out.len(),
+            size.pixels()
+        )));
+    }
+    let chunk = chunk.max(1);
+    out.par_chunks_mut(chunk)
+        .enumerate()
+        .try_for_each(|(c, o)| {
+            let start = (c * chunk) as u32;
+            let rays: Vec<Ray> = (0..o.len() as u32)
+                .map(|k| pixel_ray(cam, size, 0, start + k))
+                .collect();
+            f(&rays, o)
+        })
+}
+
+/// A small, fast, seedable generator (SplitMix64). Deterministic across
+/// platforms and versions, which is all the samplers need.
+#[derive(Debug, Clone)]
+pub struct SplitMix64(u64);
+
+impl SplitMix64 {
+    pub fn new(seed: u64) -> Self {
+        SplitMix64(seed)
+    }
+    pub fn next_u64(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^ (z >> 31)
+    }
+    /// Uniform in `[0, 1)`.
+    pub fn next_f32(&mut self) -> f32 {
+        (self.next_u64() >> 40) as f32 * (1.0 / (1u64 << 24) as f32)
+    }
+    /// Uniform in `0..n` (n > 0), without modulo bias worth mentioning for n ≪ 2⁶⁴.
+    pub fn below(&mut self, n: u64) -> u64 {
+        ((self.next_u64() as u128 * n as u128) >> 64) as u64
+    }
+}
+
+/// `count` distinct rays drawn uniformly from all pixels of all `cams`
+/// (each of image size `size`), reproducibly from `rng`. Floyd's algorithm
+/// draws the subset without materialising all pixel indices.
+pub fn random_rays(
+    cams: &[Camera],
+    size: ImageSize,
+    count: usize,
+    rng: &mut SplitMix64,
+) -> Result<Vec<Ray>, VolumeError> {
+    if cams.is_empty() {
+        return Err(VolumeError::Invalid("no views to sample rays from".into()));
+    }
+    for c in cams {
+        check_camera(c, size)?;
+    }
+    let per_view = size.pixels() as u64;
+    let total = per_view * cams.len() as u64;
+    if count as u64 > total {
+        return Err(VolumeError::Invalid(format!(
+            "asked for {count} rays, the views have {total} pixels"
+        )));
+    }
+    let mut chosen = std::collections::HashSet::with_capacity(count);
+    let mut order = Vec::with_capacity(count);
+    for j in (total - count as u64)..total {
+        let t = rng.below(j + 1);
+        let pick = if chosen.insert(t) { t } else { j };
+        chosen.insert(pick);
+        order.push(pick);
+    }
+    Ok(order
+        .into_iter()
+        .map(|idx| {
+            let view = (idx / per_view) as u32;
+            pixel_ray(&cams[view as usize], size, view, (idx % per_view) as u32)
+        })
+        .collect())
+}
+
+/// Stratified depth sampler: `n` depths evenly spaced from `near` to `far`
+/// inclusive (linspace).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Stratified {
+    pub n: usize,
+    pub near: f32,
+    pub far: f32,
+}
+
+impl Stratified {
+    pub fn new(n: usize, near: f32, far: f32) -> Result<Self, VolumeError> {
+        let s = Stratified { n, near, far };
+        s.validate()?;
+        Ok(s)
+    }
+
+    /// Checks `n ≥ 2` and `0 ≤ near < far`, both finite (the fields are public,
+    /// so every consumer re-checks).
+    pub fn validate(&self) -> Result<(), VolumeError> {
+        let (n, near, far) = (self.n, self.near, self.far);
+        let ordered = near.is_finite() && far.is_finite() && near >= 0.0 && far > near;
+        if n < 2 || !ordered {
+            return Err(VolumeError::Invalid(format!(
+                "sampler needs n ≥ 2 and 0 ≤ near < far (got n={n}, near={near}, far={far})"
+            )));
+        }
+        Ok(())
+    }
+
+    /// The linspace depths, computed in f64 and rounded once.
+    pub fn depths(&self) -> Vec<f32> {
+        let (a, b) = (self.near as f64, self.far as f64);
+        (0..self.n)
+            .map(|k| (a + (b - a) * k as f64 / (self.n - 1) as f64) as f32)
+            .collect()
+    }
+
+    /// Jittered depths for training: each depth is drawn uniformly in its
+    /// stratum `[mid_{k−1}, mid_k]` (mid = midpoints of the linspace, the ends
+    /// clamped to near/far), so they stay sorted within `[near, far]`.
+    pub fn jittered_into(&self, rng: &mut SplitMix64, out: &mut [f32]) -> Result<(), VolumeError> {
+        self.validate()?;
+        if out.len() != self.n {
+            return Err(VolumeError::Invalid(format!(
+                "jittered_into: {} slots for {} depths",
+                out.len(),
+                self.n
+            )));
+        }
+        let t = self.depths();
+        for k in 0..self.n {
+            let lo = if k == 0 {
+                t[0]
+            } else {
+                0.5 * (t[k - 1] + t[k])
+            };
+            let hi = if k + 1 == self.n {
+                t[k]
+            } else {
+                0.5 * (t[k] + t[k + 1])
+            };
+            out[k] = lo + (hi - lo) * rng.next_f32();
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use glam::DVec3;
+
+    fn cam() -> Camera {
+        Camera::look_at(DVec3::new(-1.0, 0.0, -2.2), DVec3::ZERO, DVec3::Y, 1.0)
+    }
+
+    #[test]
+    fn rays_match_camera_model() {
+        let size = ImageSize {
+            width: 5,
+            height: 4,
+        };
+        let rays = camera_rays(&cam(), size).unwrap();
+        assert_eq!(rays.len(), 20);
+        for r in &rays {
+            let n: f32 = r.dir.iter().map(|v| v * v).sum();
+            assert!((n - 1.0).abs() < 1e-6);
+            let (i, j) = (r.pixel % 5, r.pixel / 5);
+            let (x, y) = pixel_ndc(i, j, 5, 4);
+            let d = cam().ray_direction(x, y);
+            for k in 0..3 {
+                assert!((r.dir[k] as f64 - d[k]).abs() < 1e-7);
+            }
+        }
+        // The centre-most ray of an odd image looks at the target.
+        let size = ImageSize {
+            width: 3,
+            height: 3,
+        };
+        let r = camera_rays(&cam(), size).unwrap()[4];
+        let want = (DVec3::ZERO - cam().eye).normalize();
+        assert!((r.dir[0] as f64 - want.x).abs() < 1e-7);
+        assert!(camera_rays(
+            &Camera::look_at(DVec3::ZERO, DVec3::ZERO, DVec3::Y, 1.0),
+            size
+        )
+        .is_err());
+    }
+
+    #[test]
+    fn chunks_cover_every_pixel_once() {
+        let size = ImageSize {
+            width: 37,
+            height: 11,
+        };
+        let mut out = vec![u32::MAX; size.pixels()];
+        for_each_ray_chunk(&cam(), size, 50, &mut out, |rays, o| {
+            for (r, v) in rays.iter().zip(o) {
+                *v = r.pixel;
+            }
+            Ok(())
+        })
+        .unwrap();
+        assert!(out.iter().enumerate().all(|(k, &p)| p == k as u32));
+        assert!(for_each_ray_chunk(&cam(), size, 50, &mut out[1..], |_, _| Ok(())).is_err());
+        let failing = |_: &[Ray], _: &mut [u32]| Err(VolumeError::Invalid("x".into()));
+        assert!(for_each_ray_chunk(&cam(), size, 50, &mut out, failing).is_err());
+    }
+
+    #[test]
+    fn random_rays_are_distinct_seeded_and_in_range() {
+        let cams = [cam(), cam()];
+        let size = ImageSize {
+            width: 8,
+            height: 8,
+        };
+        let a = random_rays(&cams, size, 100, &mut SplitMix64::new(7)).unwrap();
+        let b = random_rays(&cams, size, 100, &mut SplitMix64::new(7)).unwrap();
+        assert_eq!(a, b);
+        let mut ids: Vec<u32> = a.iter().map(|r| r.view * 64 + r.pixel).collect();
+        ids.sort();
+        ids.dedup();
+        assert_eq!(ids.len(), 100);
+        assert!(a.iter().all(|r| r.view < 2 && r.pixel < 64));
+        // All pixels: a permutation.
+        let all = random_rays(&cams, size, 128, &mut SplitMix64::new(1)).unwrap();
+        let mut ids: Vec<u32> = all.iter().map(|r| r.view * 64 + r.pixel).collect();
+        ids.sort();
+        assert_eq!(ids, (0..128).collect::<Vec<_>>());
+        assert!(random_rays(&cams, size, 129, &mut SplitMix64::new(1)).is_err());
+        assert!(random_rays(&[], size, 1, &mut SplitMix64::new(1)).is_err());
+    }
+
+    #[test]
+    fn stratified_depths() {
+        let s = Stratified::new(64, 0.0, 5.0).unwrap();
+        let t = s.depths();
+        assert_eq!(t.len(), 64);
+        assert_eq!(t[0], 0.0);
+        assert_eq!(t[63], 5.0);
+        assert!((t[1] - 5.0 / 63.0).abs() < 1e-7);
+        let mut j = vec![0f32; 64];
+        let mut rng = SplitMix64::new(3);
+        s.jittered_into(&mut rng, &mut j).unwrap();
+        assert!(s.jittered_into(&mut rng, &mut j[1..]).is_err());
+        assert!(j.windows(2).all(|w| w[0] <= w[1]));
+        assert!(j.iter().all(|&v| (0.0..=5.0).contains(&v)));
+        assert!(j.iter().zip(&t).any(|(a, b)| a != b));
+        assert!(Stratified::new(1, 0.0, 1.0).is_err());
+        assert!(Stratified::new(4, 2.0, 1.0).is_err());
+        assert!(Stratified::new(4, 0.0, f32::NAN).is_err());
+    }
+}
