@@ -6,7 +6,7 @@ use std::time::Instant;
 
 use glam::{DVec3, Vec3A};
 use rayon::prelude::*;
-use sdfl_stdlib::camera::{pixel_ndc, Camera};
+use sdfl_stdlib::camera::Camera;
 use sdfl_stdlib::{OutputKind, RenderJob};
 use serde::Serialize;
 
@@ -58,7 +58,7 @@ fn any_painted_needs_normal(job: &RenderJob) -> bool {
             | SmoothUnion(a, b, _)
             | SmoothIntersection(a, b, _)
             | SmoothSubtraction(a, b, _) => walk(a) || walk(b),
-            Translate(s, _) | Rotate(s, _) | Scale(s, _) => walk(s),
+            Translate(s, _) | Rotate(s, _) | Scale(s, _) | Trainable(s, _) => walk(s),
             Displace { shape, .. } => walk(shape),
             _ => false,
         }
@@ -150,7 +150,7 @@ pub fn render_view(
             let nrows = rows.len();
             for (r, j) in rows.enumerate() {
                 for i in 0..w {
-                    let (xn, yn) = pixel_ndc(i as u32, j as u32, width, height);
+                    let (xn, yn) = cam.pixel_ndc(i as u32, j as u32, width, height);
                     let d64 = (ax * (xn / cam.focal) + ay * (yn / cam.focal) + az).normalize();
                     let dir: Vec3A = d64.as_vec3().into();
                     let hit = sphere_trace(&*scene.root, origin, dir, &settings);

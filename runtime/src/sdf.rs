@@ -883,6 +883,7 @@ impl Lowering {
                 amplitude: (*amplitude * frame.scale) as f32,
                 frequency: *frequency as f32,
             }),
+            Shape::Trainable(s, _) => self.lower(s, frame),
             Shape::Paint(s, m) => {
                 let mut painted = frame.clone();
                 painted.material = Some(m.clone());

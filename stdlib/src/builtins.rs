@@ -14,13 +14,21 @@ use sdfl_lang::Span;
 use crate::camera::{Camera, OrbitUp};
 use crate::eval::describe;
 use crate::material::Material;
-use crate::shape::Shape;
-use crate::value::{Output, OutputKind, RenderJob, Value};
+use crate::shape::{Shape, TrainParam};
+use crate::value::{
+    Dataset, DensityKind, Field, Optimizer, Output, OutputKind, RenderJob, Sampler, TrainJob, Value, VolumeJob,
+};
 
 pub const SHAPE: Type = Type::Named("shape");
 pub const MATERIAL: Type = Type::Named("material");
 pub const CAMERA: Type = Type::Named("camera");
 pub const OUTPUT: Type = Type::Named("output");
+pub const FIELD: Type = Type::Named("field");
+pub const SAMPLER: Type = Type::Named("sampler");
+pub const DATASET: Type = Type::Named("data set");
+pub const OPTIMIZER: Type = Type::Named("optimizer");
+/// Most samples per ray.
+pub const MAX_SAMPLES: u64 = 4096;
 
 /// Largest image side in pixels.
 pub const MAX_IMAGE_SIDE: u32 = 16_384;
@@ -77,8 +85,38 @@ impl Args {
     pub fn number(&self, name: &str) -> Result<f64, Diag> {
         match self.get(name) {
             (Value::Number(x), _) => Ok(*x),
+            (Value::Param(_), s) => Err(not_trainable(s, name)),
             (v, s) => Err(type_error(s, "number", v)),
         }
+    }
+
+    /// Whether the argument was marked trainable with `param(...)`.
+    pub fn is_param(&self, name: &str) -> bool {
+        matches!(self.named.get(name), Some((Value::Param(_), _)))
+    }
+
+    /// The same arguments with `param(...)` wrappers removed, and the
+    /// trainable ones among `allowed` listed.
+    fn unwrap_params(&self, allowed: &[&'static str]) -> Result<(Args, Vec<TrainParam>), Diag> {
+        let mut plain = Args::new(self.span);
+        plain.rest = self.rest.clone();
+        let mut params = Vec::new();
+        for (name, (v, span)) in &self.named {
+            match v {
+                Value::Param(inner) => {
+                    if !allowed.contains(name) {
+                        return Err(not_trainable(*span, name));
+                    }
+                    params.push(TrainParam { name, span: *span });
+                    plain.named.insert(name, ((**inner).clone(), *span));
+                }
+                _ => {
+                    plain.named.insert(name, (v.clone(), *span));
+                }
+            }
+        }
+        params.sort_by_key(|p| p.span.start);
+        Ok((plain, params))
     }
 
     /// A finite number `> 0`.
@@ -114,6 +152,7 @@ impl Args {
         let (v, s) = self.get(name);
         match v {
             Value::Number(x) => Ok(DVec3::splat(*x)),
+            Value::Param(_) => Err(not_trainable(s, name)),
             _ => v
                 .as_vec3()
                 .ok_or_else(|| type_error(s, "vector [x, y, z]", v)),
@@ -196,6 +235,12 @@ impl Args {
     }
 }
 
+fn not_trainable(span: Span, name: &str) -> Diag {
+    Diag::new(codes::VALUE, span, format!("`{name}` cannot be trained here"))
+        .label("marked with `param`")
+        .help("trainable so far: the `center` and `size` of a `box` inside `sdf_volume`; drop `param(...)` here")
+}
+
 fn colour(c: DVec3, span: Span) -> Result<DVec3, Diag> {
     if c.min_element() >= 0.0 && c.max_element() <= 1.0 {
         Ok(c)
@@ -241,7 +286,7 @@ impl StdEnv {
             StdEnv {
                 builtins,
                 index,
-                blocks: vec![render_sig()],
+                blocks: vec![render_sig(), train_sig()],
                 constants: vec![("pi", std::f64::consts::PI), ("tau", std::f64::consts::TAU)],
             }
         })
@@ -412,7 +457,11 @@ fn table() -> Vec<Builtin> {
             "A box with full side lengths `size` (exact).",
             vec![opt("size", num_or_vec(), "[1, 1, 1]", "side lengths (> 0); a number for a cube"), center()],
             SHAPE,
-            |a| shape(Shape::Box { center: a.vec3("center")?, size: a.positive_vec3("size")? }),
+            |a| {
+                let (plain, params) = a.unwrap_params(&["center", "size"])?;
+                let b = Shape::Box { center: plain.vec3("center")?, size: plain.positive_vec3("size")? };
+                shape(if params.is_empty() { b } else { Shape::Trainable(Arc::new(b), params) })
+            },
         ),
         func(
             "box_frame",
@@ -682,6 +731,109 @@ fn table() -> Vec<Builtin> {
             out(a, OutputKind::Normals, "png")
         }),
         output("mask", "Hit mask as PNG per view: white hit, black miss.", |a| out(a, OutputKind::Mask, "png")),
+        // ---- volumes, sampling, data, training
+        func(
+            "param",
+            "Marks a number or vector as trainable; `train` fits it (so far: a box's `center` and `size`).",
+            vec![req("value", Type::OneOf(vec![Type::Number, Type::Vec3]), "the initial value")],
+            Type::Any,
+            |a| Ok(Value::Param(Arc::new(a.get("value").0.clone()))),
+        ),
+        volume_fn("sdf_volume", "An SDF as a volume, the assignment's form: per-sample opacity `alpha·Ψ_β(-sdf)` (Laplace CDF), 0 < alpha ≤ 1.", DensityKind::Opacity, "1"),
+        volume_fn("volsdf", "An SDF as a VolSDF volume: density `σ = alpha·Ψ_β(-sdf)`.", DensityKind::VolSdf, "10"),
+        volume_fn("neus", "An SDF as a NeuS-style volume: logistic density `alpha·(1/β)·s(1-s)`, `s = sigmoid(-sdf/β)`.", DensityKind::Neus, "1"),
+        func(
+            "stratified",
+            "`samples` depths evenly spaced from `near` to `far` inclusive; `jitter` moves each within its interval while training.",
+            vec![
+                opt("samples", Type::Number, "64", "samples per ray"),
+                opt("near", Type::Number, "0", "first depth (≥ 0)"),
+                opt("far", Type::Number, "5", "last depth (> near)"),
+                opt("jitter", Type::Bool, "false", "jitter samples during training"),
+            ],
+            SAMPLER,
+            |a| {
+                let samples = a.count("samples", 2, MAX_SAMPLES)? as usize;
+                let (near, far) = (a.number("near")?, a.number("far")?);
+                check_range(a, near, far)?;
+                let jitter = matches!(a.get("jitter").0, Value::Bool(true));
+                Ok(Value::Sampler(Sampler { samples, near, far, jitter }))
+            },
+        ),
+        func(
+            "views",
+            "Training views from image files (`.npy` float32 H×W×3, or PNG), paths relative to the scene file, one camera each.",
+            vec![
+                req("images", Type::list(Type::Str), "image files"),
+                req("cameras", Type::list(CAMERA), "the camera of each image"),
+            ],
+            DATASET,
+            |a| {
+                let (images_v, images_span) = a.get("images");
+                let cameras = camera_list(a, "cameras")?;
+                let Value::List(items) = images_v else { return Err(type_error(images_span, "list of file names", images_v)) };
+                let mut images = Vec::new();
+                for item in items.iter() {
+                    match item {
+                        Value::Str(p) => images.push(std::path::PathBuf::from(p.as_ref())),
+                        other => return Err(type_error(images_span, "list of file names", other)),
+                    }
+                }
+                if images.len() != cameras.len() || images.is_empty() {
+                    return Err(value_error(
+                        images_span,
+                        format!("{} images but {} cameras", images.len(), cameras.len()),
+                        "counts differ",
+                        "give one camera per image, in the same order",
+                    ));
+                }
+                Ok(Value::Dataset(Arc::new(Dataset::Files { images, cameras })))
+            },
+        ),
+        func(
+            "render_views",
+            "Training views rendered by sdfl itself from a field (self-contained, with known ground truth).",
+            vec![
+                req("field", FIELD, "the field to render"),
+                req("cameras", Type::list(CAMERA), "one camera per view"),
+                opt("size", Type::list(Type::Number), "[128, 128]", "image width and height"),
+                opt("sampler", SAMPLER, "stratified()", "depth samples"),
+            ],
+            DATASET,
+            |a| {
+                let Value::Field(field) = a.get("field").0 else { return Err(type_error(a.get("field").1, "field", a.get("field").0)) };
+                let (width, height) = image_size(a, "size")?;
+                let Value::Sampler(sampler) = a.get("sampler").0 else { return Err(type_error(a.get("sampler").1, "sampler", a.get("sampler").0)) };
+                Ok(Value::Dataset(Arc::new(Dataset::Rendered {
+                    field: field.clone(),
+                    cameras: camera_list(a, "cameras")?,
+                    width,
+                    height,
+                    sampler: *sampler,
+                })))
+            },
+        ),
+        func(
+            "adam",
+            "The Adam optimizer; the learning rate is multiplied by `decay` every `decay_every` iterations (0: never).",
+            vec![
+                opt("lr", Type::Number, "5e-4", "learning rate (> 0)"),
+                opt("decay", Type::Number, "1", "learning-rate factor (0 < decay ≤ 1)"),
+                opt("decay_every", Type::Number, "0", "iterations between decays"),
+            ],
+            OPTIMIZER,
+            |a| {
+                let decay = a.positive("decay")?;
+                if decay > 1.0 {
+                    return Err(value_error(a.get("decay").1, format!("`decay` must be at most 1, got {decay}"), "grows the rate", "use a factor such as 0.8"));
+                }
+                Ok(Value::Optimizer(Optimizer { lr: a.positive("lr")?, decay, decay_every: a.count("decay_every", 0, u32::MAX as u64)? as usize }))
+            },
+        ),
+        output("grid_image", "The assignment's xy-grid visual check as PNG (NDC x, y as red, green).", |a| out(a, OutputKind::Grid, "png")),
+        output("rays_image", "The assignment's ray-direction visual check as PNG (|direction| as RGB).", |a| out(a, OutputKind::Rays, "png")),
+        output("sample_points", "The sample points along the first camera's rays, seen from the side, as PNG.", |a| out(a, OutputKind::SamplePoints, "png")),
+        output("loss_curve", "The training loss per iteration as a PNG plot.", |a| out(a, OutputKind::LossCurve, "png")),
         // ---- math
         math1("sin", "Sine (radians).", |a| finite(a.number("x")?.sin(), a, "sin")),
         math1("cos", "Cosine (radians).", |a| finite(a.number("x")?.cos(), a, "cos")),
@@ -704,6 +856,114 @@ fn table() -> Vec<Builtin> {
             Ok(Value::Number(a.number("a")?.max(a.number("b")?)))
         }),
     ]
+}
+
+fn volume_fn(name: &'static str, doc: &'static str, density: DensityKind, alpha_default: &'static str) -> Builtin {
+    let eval: EvalFn = match density {
+        DensityKind::Opacity => |a| field(a, DensityKind::Opacity),
+        DensityKind::VolSdf => |a| field(a, DensityKind::VolSdf),
+        DensityKind::Neus => |a| field(a, DensityKind::Neus),
+    };
+    func(
+        name,
+        doc,
+        vec![
+            req("shape", SHAPE, "the signed distance function"),
+            opt("alpha", Type::Number, alpha_default, "density scale (> 0)"),
+            opt("beta", Type::Number, "0.05", "sharpness: the Laplace/logistic scale (> 0; smaller is sharper)"),
+            opt("color", Type::OneOf(vec![MATERIAL, Type::Vec3]), "rainbow()", "colour of the volume (rainbow or constant)"),
+        ],
+        FIELD,
+        eval,
+    )
+}
+
+fn field(a: &Args, density: DensityKind) -> Result<Value, Diag> {
+    let alpha = a.positive("alpha")?;
+    if density == DensityKind::Opacity && alpha > 1.0 {
+        return Err(value_error(
+            a.get("alpha").1,
+            format!("`alpha` is an opacity here and must be at most 1, got {alpha}"),
+            "above 1",
+            "use `volsdf` for a density scale above 1",
+        ));
+    }
+    let color = a.material("color")?;
+    if color.needs_normal() {
+        return Err(value_error(a.get("color").1, "volume colours cannot use normals", "needs a normal", "use `rainbow()` or a constant colour"));
+    }
+    Ok(Value::Field(Arc::new(Field { shape: a.shape("shape")?, density, alpha, beta: a.positive("beta")?, color })))
+}
+
+fn check_range(a: &Args, near: f64, far: f64) -> Result<(), Diag> {
+    if near < 0.0 {
+        return Err(value_error(a.get("near").1, format!("`near` must be ≥ 0, got {near}"), "negative", "rays start at the camera or in front of it"));
+    }
+    if far <= near {
+        return Err(value_error(
+            a.get("far").1,
+            format!("`far` ({far}) must be greater than `near` ({near})"),
+            "not beyond near",
+            "rays march from near to far: make far larger",
+        ));
+    }
+    Ok(())
+}
+
+fn camera_list(a: &Args, name: &str) -> Result<Vec<Camera>, Diag> {
+    let (v, s) = a.get(name);
+    let cams: Option<Vec<Camera>> = match v {
+        Value::Camera(c) => Some(vec![*c]),
+        Value::List(items) => items.iter().map(|i| if let Value::Camera(c) = i { Some(*c) } else { None }).collect(),
+        _ => None,
+    };
+    match cams {
+        Some(c) if c.is_empty() => Err(value_error(s, "no camera views", "empty list", "give at least one camera")),
+        Some(c) if c.len() > MAX_VIEWS => {
+            Err(value_error(s, format!("{} views (at most {MAX_VIEWS})", c.len()), "too many views", "use fewer views"))
+        }
+        Some(c) => Ok(c),
+        None => Err(type_error(s, "camera or list of cameras", v)),
+    }
+}
+
+fn image_size(a: &Args, name: &str) -> Result<(u32, u32), Diag> {
+    let (size, size_span) = a.get(name);
+    let dims: Option<Vec<f64>> = match size {
+        Value::List(items) => items.iter().map(|i| if let Value::Number(x) = i { Some(*x) } else { None }).collect(),
+        _ => None,
+    };
+    match dims.as_deref() {
+        Some([w, h])
+            if w.fract() == 0.0
+                && h.fract() == 0.0
+                && (1.0..=MAX_IMAGE_SIDE as f64).contains(w)
+                && (1.0..=MAX_IMAGE_SIDE as f64).contains(h) =>
+        {
+            Ok((*w as u32, *h as u32))
+        }
+        _ => Err(value_error(
+            size_span,
+            format!("`{name}` must be [width, height] in whole pixels from 1 to {MAX_IMAGE_SIDE}"),
+            "invalid image size",
+            "for example `size: [256, 256]`",
+        )),
+    }
+}
+
+fn outputs(a: &Args, name: &str, allow_empty: bool) -> Result<Vec<Output>, Diag> {
+    match a.get(name) {
+        (Value::List(items), s) => {
+            let outs: Option<Vec<Output>> =
+                items.iter().map(|i| if let Value::Output(o) = i { Some((**o).clone()) } else { None }).collect();
+            match outs {
+                Some(o) if !o.is_empty() || allow_empty => Ok(o),
+                Some(_) => Err(value_error(s, "no outputs requested", "empty", "ask for e.g. `outputs: [image(\"out.png\")]`")),
+                None => Err(type_error(s, "list of outputs", a.get(name).0)),
+            }
+        }
+        (v, s) => Err(type_error(s, "list of outputs", v)),
+    }
 }
 
 fn out(a: &Args, kind: OutputKind, ext: &str) -> Result<Value, Diag> {
@@ -742,7 +1002,7 @@ fn render_sig() -> BlockSig {
         kind: "render",
         doc: "Sphere-traces `scene` from each camera and writes the requested outputs.",
         fields: vec![
-            req("scene", SHAPE, "the shape to render"),
+            req("scene", Type::OneOf(vec![SHAPE, FIELD]), "a shape (sphere-traced) or a field (volume-rendered)"),
             req(
                 "camera",
                 Type::OneOf(vec![CAMERA, Type::list(CAMERA)]),
@@ -785,11 +1045,20 @@ fn render_sig() -> BlockSig {
                 "[0, 0, 0]",
                 "colour of rays that miss",
             ),
+            opt("sampler", SAMPLER, "stratified()", "depth samples along each ray (fields only)"),
         ],
     }
 }
 
 pub(crate) fn render_block(name: &str, a: &Args) -> Result<RenderJob, Diag> {
+    if let Some(o) = outputs(a, "outputs", false)?.iter().find(|o| matches!(o.kind, OutputKind::SamplePoints | OutputKind::LossCurve)) {
+        return Err(value_error(
+            a.get("outputs").1,
+            format!("`{}` needs a volume render or a training run", o.path.display()),
+            "not a sphere-tracing output",
+            "sample points exist for fields; loss curves for `train`",
+        ));
+    }
     let cameras = match a.get("camera") {
         (Value::Camera(c), _) => vec![*c],
         (Value::List(items), s) => {
@@ -926,4 +1195,93 @@ pub(crate) fn render_block(name: &str, a: &Args) -> Result<RenderJob, Diag> {
         background: colour(bg, bg_span)?,
         outputs,
     })
+}
+
+// ------------------------------------------------- train and volume blocks
+
+fn train_sig() -> BlockSig {
+    BlockSig {
+        kind: "train",
+        doc: "Fits the trainable parameters (`param(...)`) of `model` to `data` with Adam on an MSE loss, then reports them.",
+        fields: vec![
+            req("model", FIELD, "the field to fit; its `param(...)` arguments are trained"),
+            req("data", DATASET, "the training views"),
+            opt("sampler", SAMPLER, "stratified()", "depth samples along each ray"),
+            opt("rays", Type::Number, "4096", "rays per batch"),
+            opt("optimizer", OPTIMIZER, "adam()", "the optimizer"),
+            opt("iterations", Type::Number, "1000", "training iterations"),
+            opt("seed", Type::Number, "0", "seed of the ray batches"),
+            opt("backend", Type::Str, "\"fused\"", "\"fused\" (hand-written backward) or \"dfdx\" (autodiff graph)"),
+            opt("views", Type::OneOf(vec![CAMERA, Type::list(CAMERA)]), "orbit()", "cameras of the before/after outputs"),
+            opt("size", Type::list(Type::Number), "[128, 128]", "size of the before/after outputs"),
+            opt("before", Type::list(OUTPUT), "[]", "outputs rendered from the starting model"),
+            opt("after", Type::list(OUTPUT), "[]", "outputs rendered from the trained model (and `loss_curve`)"),
+            opt("checkpoint", Type::Str, "\"\"", "file (in the output directory) to keep a resumable checkpoint in"),
+        ],
+    }
+}
+
+pub(crate) fn train_block(name: &str, a: &Args) -> Result<TrainJob, Diag> {
+    let (model_v, model_span) = a.get("model");
+    let Value::Field(model) = model_v else { return Err(type_error(model_span, "field", model_v)) };
+    let trainable = match &*model.shape {
+        Shape::Trainable(inner, params) if matches!(**inner, Shape::Box { .. }) => params.len() == 2,
+        _ => false,
+    };
+    if model.density != DensityKind::Opacity || !trainable {
+        return Err(value_error(
+            model_span,
+            "this model has nothing sdfl can train yet",
+            "no trainable box",
+            "training fits `sdf_volume(box(center: param([...]), size: param([...])))`; mark both with `param`",
+        ));
+    }
+    let Value::Dataset(data) = a.get("data").0 else { return Err(type_error(a.get("data").1, "data set", a.get("data").0)) };
+    let Value::Sampler(sampler) = a.get("sampler").0 else {
+        return Err(type_error(a.get("sampler").1, "sampler", a.get("sampler").0));
+    };
+    let Value::Optimizer(optimizer) = a.get("optimizer").0 else {
+        return Err(type_error(a.get("optimizer").1, "optimizer", a.get("optimizer").0));
+    };
+    let (backend, backend_span) = a.string("backend")?;
+    if !matches!(&*backend, "fused" | "dfdx") {
+        return Err(value_error(backend_span, format!("unknown backend `{backend}`"), "not a backend", "use \"fused\" or \"dfdx\""));
+    }
+    let (checkpoint, cp_span) = a.string("checkpoint")?;
+    let checkpoint = if checkpoint.is_empty() { None } else { Some(safe_output_path(&checkpoint, cp_span)?) };
+    let (width, height) = image_size(a, "size")?;
+    Ok(TrainJob {
+        name: name.to_string(),
+        model: model.clone(),
+        data: data.clone(),
+        sampler: *sampler,
+        rays: a.count("rays", 1, 1 << 20)? as usize,
+        optimizer: *optimizer,
+        iterations: a.count("iterations", 0, 10_000_000)? as usize,
+        seed: a.count("seed", 0, u32::MAX as u64)?,
+        backend: backend.to_string(),
+        views: camera_list(a, "views")?,
+        width,
+        height,
+        before: outputs(a, "before", true)?,
+        after: outputs(a, "after", true)?,
+        checkpoint,
+    })
+}
+
+pub(crate) fn volume_block(name: &str, a: &Args, field: Arc<Field>) -> Result<VolumeJob, Diag> {
+    let (width, height) = image_size(a, "size")?;
+    let Value::Sampler(sampler) = a.get("sampler").0 else {
+        return Err(type_error(a.get("sampler").1, "sampler", a.get("sampler").0));
+    };
+    let outputs = outputs(a, "outputs", false)?;
+    if let Some(o) = outputs.iter().find(|o| matches!(o.kind, OutputKind::Normals | OutputKind::Mask | OutputKind::LossCurve)) {
+        return Err(value_error(
+            a.get("outputs").1,
+            format!("`{}` cannot be made by volume rendering", o.path.display()),
+            "not a volume output",
+            "volume renders write image, gif, depth, grid_image, rays_image and sample_points",
+        ));
+    }
+    Ok(VolumeJob { name: name.to_string(), field, cameras: camera_list(a, "camera")?, width, height, sampler: *sampler, outputs })
 }

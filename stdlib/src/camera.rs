@@ -12,6 +12,20 @@ pub struct Camera {
     pub up: DVec3,
     /// Focal length in NDC units.
     pub focal: f64,
+    pub pixel_centers: PixelCenters,
+}
+
+/// Where pixel centres sit in NDC.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum PixelCenters {
+    /// CONVENTIONS.md: `x = 1 - 2i/(W-1)`; the corner pixels' centres sit
+    /// exactly at ±1.
+    #[default]
+    Corners,
+    /// `x = 1 - (2i+1)/W`: pixels tile [-1, 1] and centres sit half a pixel
+    /// in. The assignment's own `box_*.npy` renders were made this way.
+    Half,
 }
 
 /// The up axis of an orbit: the two orbits of the conventions.
@@ -23,7 +37,24 @@ pub enum OrbitUp {
 
 impl Camera {
     pub fn look_at(eye: DVec3, at: DVec3, up: DVec3, focal: f64) -> Self {
-        Camera { eye, at, up, focal }
+        Camera { eye, at, up, focal, pixel_centers: PixelCenters::Corners }
+    }
+
+    pub fn with_pixel_centers(mut self, pixel_centers: PixelCenters) -> Self {
+        self.pixel_centers = pixel_centers;
+        self
+    }
+
+    /// NDC of the centre of pixel `(i, j)` of a `w × h` image, by this
+    /// camera's pixel-centre convention.
+    pub fn pixel_ndc(&self, i: u32, j: u32, w: u32, h: u32) -> (f64, f64) {
+        match self.pixel_centers {
+            PixelCenters::Corners => pixel_ndc(i, j, w, h),
+            PixelCenters::Half => {
+                let axis = |k: u32, n: u32| 1.0 - (2.0 * k as f64 + 1.0) / n as f64;
+                (axis(i, w), axis(j, h))
+            }
+        }
     }
 
     /// The camera axes `(x, y, z)`: the columns of `R`.

@@ -36,7 +36,7 @@ fn deeper_than(v: &Value, limit: usize) -> bool {
             | SmoothUnion(a, b, _)
             | SmoothIntersection(a, b, _)
             | SmoothSubtraction(a, b, _) => shape(a, limit - 1) || shape(b, limit - 1),
-            Translate(s, _) | Rotate(s, _) | Scale(s, _) | Paint(s, _) => shape(s, limit - 1),
+            Translate(s, _) | Rotate(s, _) | Scale(s, _) | Paint(s, _) | Trainable(s, _) => shape(s, limit - 1),
             Displace { shape: s, .. } => shape(s, limit - 1),
             _ => false,
         }
@@ -87,10 +87,8 @@ impl<'e> Evaluator<'e> {
                     self.globals.insert(l.name.name.clone(), v);
                 }
                 Item::Block(b) => {
-                    let index = program.renders.len();
-                    if let Some(job) = self.block(b, index) {
-                        program.renders.push(job);
-                    }
+                    let index = program.renders.len() + program.volumes.len() + program.trains.len();
+                    self.block(b, index, &mut program);
                 }
             }
         }
@@ -123,8 +121,8 @@ impl<'e> Evaluator<'e> {
         !self.aborted
     }
 
-    fn block(&mut self, b: &Block, index: usize) -> Option<crate::value::RenderJob> {
-        let sig = self.env.block_sig(&b.kind.name)?;
+    fn block(&mut self, b: &Block, index: usize, program: &mut Program) {
+        let Some(sig) = self.env.block_sig(&b.kind.name) else { return };
         let mut args = Args::new(b.kind.span);
         for f in &b.fields {
             let v = self.expr(&f.value);
@@ -139,18 +137,18 @@ impl<'e> Evaluator<'e> {
             }
         }
         if args.named.values().any(|(v, _)| v.is_poison()) {
-            return None;
+            return;
         }
-        let name = b
-            .name
-            .as_ref()
-            .map_or_else(|| format!("{}{index}", b.kind.name), |n| n.name.clone());
-        match crate::builtins::render_block(&name, &args) {
-            Ok(job) => Some(job),
-            Err(d) => {
-                self.diags.push(d);
-                None
+        let name = b.name.as_ref().map_or_else(|| format!("{}{index}", b.kind.name), |n| n.name.clone());
+        let result = match (sig.kind, args.named.get("scene")) {
+            ("train", _) => crate::builtins::train_block(&name, &args).map(|j| program.trains.push(j)),
+            (_, Some((Value::Field(f), _))) => {
+                crate::builtins::volume_block(&name, &args, f.clone()).map(|j| program.volumes.push(j))
             }
+            _ => crate::builtins::render_block(&name, &args).map(|j| program.renders.push(j)),
+        };
+        if let Err(d) = result {
+            self.diags.push(d);
         }
     }
 

@@ -127,6 +127,15 @@ pub enum Shape {
     },
     /// Gives its primitives a material.
     Paint(Arc<Shape>, Arc<Material>),
+    /// A primitive some of whose arguments are trainable (`param(...)`).
+    Trainable(Arc<Shape>, Vec<TrainParam>),
+}
+
+/// An argument marked trainable, and where.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TrainParam {
+    pub name: &'static str,
+    pub span: sdfl_lang::Span,
 }
 
 /// Polynomial smooth minimum; deviates from `min` by at most `k/4`.
@@ -224,7 +233,7 @@ impl Shape {
                 amplitude,
                 frequency,
             } => shape.distance(p) + displacement(p, *amplitude, *frequency),
-            Shape::Paint(s, _) => s.distance(p),
+            Shape::Paint(s, _) | Shape::Trainable(s, _) => s.distance(p),
         }
     }
 
@@ -250,7 +259,8 @@ impl Shape {
             Shape::Translate(s, _)
             | Shape::Rotate(s, _)
             | Shape::Scale(s, _)
-            | Shape::Paint(s, _) => s.exactness(),
+            | Shape::Paint(s, _)
+            | Shape::Trainable(s, _) => s.exactness(),
         }
     }
 
@@ -267,7 +277,8 @@ impl Shape {
             Shape::Translate(s, _)
             | Shape::Rotate(s, _)
             | Shape::Scale(s, _)
-            | Shape::Paint(s, _) => s.lipschitz(),
+            | Shape::Paint(s, _)
+            | Shape::Trainable(s, _) => s.lipschitz(),
             Shape::Displace {
                 shape,
                 amplitude,
@@ -325,13 +336,14 @@ impl Shape {
             Shape::Displace {
                 shape, amplitude, ..
             } => shape.bounds().map(|b| b.expand(amplitude.abs())),
-            Shape::Paint(s, _) => s.bounds(),
+            Shape::Paint(s, _) | Shape::Trainable(s, _) => s.bounds(),
         }
     }
 
     /// The centre used by the rainbow material, for primitives.
     pub fn primitive_center(&self) -> Option<DVec3> {
         match self {
+            Shape::Trainable(s, _) => s.primitive_center(),
             Shape::Sphere { center, .. }
             | Shape::Box { center, .. }
             | Shape::BoxFrame { center, .. }
@@ -354,7 +366,8 @@ impl Shape {
             Shape::Translate(s, _)
             | Shape::Rotate(s, _)
             | Shape::Scale(s, _)
-            | Shape::Paint(s, _) => s.primitive_count(),
+            | Shape::Paint(s, _)
+            | Shape::Trainable(s, _) => s.primitive_count(),
             Shape::Displace { shape, .. } => shape.primitive_count(),
             _ => 1,
         }
@@ -380,6 +393,7 @@ impl Shape {
             Shape::Scale(..) => "scale",
             Shape::Displace { .. } => "displace",
             Shape::Paint(..) => "paint",
+            Shape::Trainable(s, _) => s.name(),
         }
     }
 }

@@ -19,6 +19,12 @@ pub enum Value {
     Material(Arc<Material>),
     Camera(Camera),
     Output(Arc<Output>),
+    /// A number or vector marked trainable with `param(...)`.
+    Param(Arc<Value>),
+    Field(Arc<Field>),
+    Sampler(Sampler),
+    Dataset(Arc<Dataset>),
+    Optimizer(Optimizer),
     /// The value of an expression that already produced a diagnostic.
     /// Anything computed from it is poison too, silently.
     Poison,
@@ -35,6 +41,11 @@ impl Value {
             Value::Material(_) => "material",
             Value::Camera(_) => "camera",
             Value::Output(_) => "output",
+            Value::Param(_) => "trainable parameter",
+            Value::Field(_) => "field",
+            Value::Sampler(_) => "sampler",
+            Value::Dataset(_) => "data set",
+            Value::Optimizer(_) => "optimizer",
             Value::Poison => "invalid value",
         }
     }
@@ -43,6 +54,7 @@ impl Value {
         match self {
             Value::Poison => true,
             Value::List(items) => items.iter().any(Value::is_poison),
+            Value::Param(v) => v.is_poison(),
             _ => false,
         }
     }
@@ -85,6 +97,14 @@ pub enum OutputKind {
     Normals,
     /// White where the ray hit, black where it missed, PNG per view.
     Mask,
+    /// The assignment's visual check: NDC x, y as red and green.
+    Grid,
+    /// The assignment's visual check: |ray direction| as RGB.
+    Rays,
+    /// The sample points along one camera's rays, seen from the side.
+    SamplePoints,
+    /// The loss curve of a training run.
+    LossCurve,
 }
 
 /// A requested output file, relative to the output directory.
@@ -111,8 +131,103 @@ pub struct RenderJob {
     pub outputs: Vec<Output>,
 }
 
-/// Everything a scene file asks for, in file order.
+/// How an SDF becomes absorption in a volume.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum DensityKind {
+    /// The assignment's opacity form `α·Ψ_β(-sdf)` per sample (parts 1–2).
+    Opacity,
+    /// VolSDF: density `σ = α·Ψ_β(-sdf)` (part 7).
+    VolSdf,
+    /// NeuS-style logistic density (part 8.3).
+    Neus,
+}
+
+/// A field: an SDF seen as a volume with a colour.
+#[derive(Debug, Clone)]
+pub struct Field {
+    pub shape: Arc<Shape>,
+    pub density: DensityKind,
+    pub alpha: f64,
+    pub beta: f64,
+    pub color: Arc<Material>,
+}
+
+/// Stratified depth samples: `samples` evenly spaced from near to far
+/// (inclusive), optionally jittered within each interval while training.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct Sampler {
+    pub samples: usize,
+    pub near: f64,
+    pub far: f64,
+    pub jitter: bool,
+}
+
+/// Training views: images with their cameras.
+#[derive(Debug, Clone)]
+pub enum Dataset {
+    /// Images read from files (`.npy` float32 H×W×3, or PNG).
+    Files { images: Vec<std::path::PathBuf>, cameras: Vec<Camera> },
+    /// Views rendered by sdfl from a field: self-contained, with ground truth.
+    Rendered { field: Arc<Field>, cameras: Vec<Camera>, width: u32, height: u32, sampler: Sampler },
+}
+
+impl Dataset {
+    pub fn cameras(&self) -> &[Camera] {
+        match self {
+            Dataset::Files { cameras, .. } | Dataset::Rendered { cameras, .. } => cameras,
+        }
+    }
+}
+
+/// Adam with a learning rate multiplied by `decay` every `decay_every`
+/// iterations (0: never).
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct Optimizer {
+    pub lr: f64,
+    pub decay: f64,
+    pub decay_every: usize,
+}
+
+/// A `render` statement whose scene is a field: volume rendering.
+#[derive(Debug, Clone)]
+pub struct VolumeJob {
+    pub name: String,
+    pub field: Arc<Field>,
+    pub cameras: Vec<Camera>,
+    pub width: u32,
+    pub height: u32,
+    pub sampler: Sampler,
+    pub outputs: Vec<Output>,
+}
+
+/// A `train` statement.
+#[derive(Debug, Clone)]
+pub struct TrainJob {
+    pub name: String,
+    pub model: Arc<Field>,
+    pub data: Arc<Dataset>,
+    pub sampler: Sampler,
+    pub rays: usize,
+    pub optimizer: Optimizer,
+    pub iterations: usize,
+    pub seed: u64,
+    /// "fused" (hand-written backward) or "dfdx" (autodiff graph).
+    pub backend: String,
+    /// Cameras and size for the before/after outputs.
+    pub views: Vec<Camera>,
+    pub width: u32,
+    pub height: u32,
+    pub before: Vec<Output>,
+    pub after: Vec<Output>,
+    /// Where to keep a resumable checkpoint (relative to the output dir).
+    pub checkpoint: Option<std::path::PathBuf>,
+}
+
+/// Everything a scene file asks for, by kind, each in file order.
 #[derive(Debug, Clone, Default)]
 pub struct Program {
     pub renders: Vec<RenderJob>,
+    pub volumes: Vec<VolumeJob>,
+    pub trains: Vec<TrainJob>,
 }

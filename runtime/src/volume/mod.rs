@@ -21,6 +21,7 @@ pub mod bench;
 pub mod box_volume;
 pub mod composite;
 pub mod density;
+pub mod figures;
 pub mod rays;
 pub mod render;
 pub mod shapes;

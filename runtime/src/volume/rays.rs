@@ -2,7 +2,7 @@
 //! stratified depth samples, and chunked iteration over an image's rays.
 
 use rayon::prelude::*;
-use sdfl_stdlib::camera::{pixel_ndc, Camera};
+use sdfl_stdlib::camera::Camera;
 
 use super::VolumeError;
 
@@ -33,7 +33,7 @@ impl ImageSize {
 pub fn pixel_ray(cam: &Camera, size: ImageSize, view: u32, pixel: u32) -> Ray {
     let i = pixel % size.width;
     let j = pixel / size.width;
-    let (x, y) = pixel_ndc(i, j, size.width, size.height);
+    let (x, y) = cam.pixel_ndc(i, j, size.width, size.height);
     let d = cam.ray_direction(x, y);
     Ray {
         origin: cam.eye.to_array().map(|v| v as f32),
@@ -245,7 +245,7 @@ mod tests {
             let n: f32 = r.dir.iter().map(|v| v * v).sum();
             assert!((n - 1.0).abs() < 1e-6);
             let (i, j) = (r.pixel % 5, r.pixel / 5);
-            let (x, y) = pixel_ndc(i, j, 5, 4);
+            let (x, y) = sdfl_stdlib::camera::pixel_ndc(i, j, 5, 4);
             let d = cam().ray_direction(x, y);
             for k in 0..3 {
                 assert!((r.dir[k] as f64 - d[k]).abs() < 1e-7);

@@ -1,0 +1,1197 @@
+//! Diagnostic figures as RGB8 pixel buffers (row-major from the top-left,
+//! 3 bytes a pixel): the assignment's "xy grid" and "rays" checks
+//! (CONVENTIONS.md), a side view of one camera's sample points, the part-0
+//! transmittance figure, and simple line plots for loss curves and sweeps.
+//! All are pure; writing files is [`crate::output::write_png`]'s job.
+//!
+//! Text uses a built-in 3×5 pixel font (digits, A–Z, a little punctuation;
+//! lower case is drawn as upper case), so no font dependency is needed.
+
+use glam::DVec3;
+use sdfl_stdlib::camera::{pixel_ndc, Camera};
+
+use super::composite::transmittance;
+use super::rays::{camera_rays, pixel_ray, ImageSize, Stratified};
+use crate::output::{colormap, to_u8};
+
+/// The "xy grid" check: RGB = `((x_ndc+1)/2.001, (y_ndc+1)/2.001, 0)`.
+/// The top-left pixel is yellow, the bottom-right black.
+pub fn xy_grid_image(width: u32, height: u32) -> Vec<u8> {
+    let mut out = Vec::with_capacity(width as usize * height as usize * 3);
+    for j in 0..height {
+        for i in 0..width {
+            let (x, y) = pixel_ndc(i, j, width, height);
+            out.extend_from_slice(&[to_u8((x + 1.0) / 2.001), to_u8((y + 1.0) / 2.001), 0]);
+        }
+    }
+    out
+}
+
+/// The "rays" check: RGB = `|direction|` componentwise, the directions being
+/// the runtime's own camera rays. An invalid camera gives a black image.
+pub fn rays_image(cam: &Camera, width: u32, height: u32) -> Vec<u8> {
+    let size = ImageSize { width, height };
+    match camera_rays(cam, size) {
+        Ok(rays) => rays
+            .iter()
+            .flat_map(|r| r.dir.map(|d| to_u8(d.abs() as f64)))
+            .collect(),
+        Err(_) => vec![0; size.pixels() * 3],
+    }
+}
+
+/// More sample points than this are thinned by coarsening the ray stride,
+/// so a large image at stride 1 stays quick and bounded in memory.
+const MAX_POINTS: u64 = 1 << 22;
+
+/// Colour of a sample at depth `t`: the colour map from 0.2 up, because its
+/// low end is nearly black and would vanish on the black background.
+fn depth_colour(t: f64, near: f64, far: f64) -> [u8; 3] {
+    let u = if far > near {
+        (t - near) / (far - near)
+    } else {
+        0.0
+    };
+    colormap((0.2 + 0.8 * u.clamp(0.0, 1.0)) as f32)
+}
+
+/// The sample points `eye + t_k·d` of every `rays_stride`-th pixel (in both
+/// directions, from the top-left) of a `width × height` image of `cam`, seen
+/// from an oblique viewpoint beside the frustum so their spacing along each
+/// ray is visible. The view is chosen from the camera pose and near/far and
+/// fitted to the frame: the camera's up stays up, the frustum (grey) and the
+/// eye (white) are drawn, points are coloured by depth (dark purple at near
+/// to yellow at far) and splatted with a z-buffer onto black.
+///
+/// An invalid camera gives a black image; an invalid sampler draws the
+/// frustum to depth 1 without points.
+#[allow(clippy::too_many_arguments)]
+pub fn sample_points_image(
+    cam: &Camera,
+    sampler: &Stratified,
+    width: u32,
+    height: u32,
+    rays_stride: u32,
+    out_width: u32,
+    out_height: u32,
+) -> Vec<u8> {
+    let mut cv = Canvas::new(out_width, out_height, [0; 3]);
+    if cv.px.is_empty() || !cam.is_valid() {
+        return cv.px;
+    }
+    let valid = sampler.validate().is_ok();
+    let depths: Vec<f64> = if valid {
+        sampler.depths().iter().map(|&t| t as f64).collect()
+    } else {
+        Vec::new()
+    };
+    let (near, far) = if valid {
+        (sampler.near as f64, sampler.far as f64)
+    } else {
+        (0.0, 1.0)
+    };
+    let size = ImageSize { width, height };
+    // Pixel indices are u32 in the runtime's rays; beyond that, draw no rays.
+    let indexable = size.pixels() as u64 <= u32::MAX as u64;
+    let dir = |i: u32, j: u32| {
+        let r = pixel_ray(cam, size, 0, j * width + i);
+        DVec3::new(r.dir[0] as f64, r.dir[1] as f64, r.dir[2] as f64)
+    };
+
+    let mut stride = rays_stride.max(1) as u64;
+    let count =
+        |s: u64| (width as u64).div_ceil(s) * (height as u64).div_ceil(s) * depths.len() as u64;
+    while count(stride) > MAX_POINTS {
+        stride *= 2;
+    }
+    let mut points: Vec<(DVec3, f64)> = Vec::new();
+    if indexable {
+        for j in (0..height as u64).step_by(stride as usize) {
+            for i in (0..width as u64).step_by(stride as usize) {
+                let d = dir(i as u32, j as u32);
+                points.extend(depths.iter().map(|&t| (cam.eye + d * t, t)));
+            }
+        }
+    }
+
+    // Frustum: the corner rays, cut at near and far.
+    let corners: Vec<DVec3> = if indexable && width > 0 && height > 0 {
+        let (r, b) = (width - 1, height - 1);
+        [(0, 0), (r, 0), (r, b), (0, b)]
+            .iter()
+            .map(|&(i, j)| dir(i, j))
+            .collect()
+    } else {
+        Vec::new()
+    };
+    let far_pts: Vec<DVec3> = corners.iter().map(|&d| cam.eye + d * far).collect();
+    let near_pts: Vec<DVec3> = corners.iter().map(|&d| cam.eye + d * near).collect();
+
+    // Viewer: beside the camera (along its x), a little above and ahead, far
+    // enough back that everything lies in front of it.
+    let (ax, ay, az) = cam.axes();
+    let mid = cam.eye + az * (0.5 * (near + far));
+    let radius = std::iter::once(cam.eye)
+        .chain(std::iter::once(cam.eye + az * far))
+        .chain(far_pts.iter().copied())
+        .chain(points.iter().map(|p| p.0))
+        .map(|p| (p - mid).length())
+        .filter(|r| r.is_finite())
+        .fold(0.0f64, f64::max);
+    let radius = if radius > 0.0 { radius } else { 1.0 };
+    let side = (ax + ay * 0.6 + az * 0.25).normalize();
+    let viewer = Camera::look_at(mid + side * (3.0 * radius), mid, ay, 1.0);
+    let min_depth = radius * 1e-9;
+    let project = |p: DVec3| {
+        let c = viewer.to_camera(p);
+        (c.z > min_depth).then(|| (c.x / c.z, c.y / c.z, c.z))
+    };
+
+    // Fit the projected extent into the frame, keeping the aspect ratio.
+    let (mut x0, mut x1, mut y0, mut y1) = (f64::MAX, f64::MIN, f64::MAX, f64::MIN);
+    let all = std::iter::once(cam.eye)
+        .chain(far_pts.iter().copied())
+        .chain(near_pts.iter().copied())
+        .chain(points.iter().map(|p| p.0));
+    for (x, y, _) in all.filter_map(project) {
+        x0 = x0.min(x);
+        x1 = x1.max(x);
+        y0 = y0.min(y);
+        y1 = y1.max(y);
+    }
+    let (w, h) = ((out_width - 1) as f64, (out_height - 1) as f64);
+    let fits = [(w, x1 - x0), (h, y1 - y0)]
+        .iter()
+        .filter(|(_, span)| *span > 0.0)
+        .map(|(n, span)| n / span)
+        .fold(f64::INFINITY, f64::min);
+    let scale = if fits.is_finite() { 0.9 * fits } else { 1.0 };
+    let (xm, ym) = (0.5 * (x0 + x1), 0.5 * (y0 + y1));
+    // NDC +x points left and +y up.
+    let to_px =
+        |(x, y, z): (f64, f64, f64)| (0.5 * w - (x - xm) * scale, 0.5 * h - (y - ym) * scale, z);
+
+    let thick = (out_width.min(out_height) as i64 / 512).max(0);
+    let grey = [110, 110, 110];
+    let seg = |cv: &mut Canvas, a: DVec3, b: DVec3, c: [u8; 3]| {
+        if let (Some(p), Some(q)) = (project(a).map(to_px), project(b).map(to_px)) {
+            cv.line((p.0, p.1), (q.0, q.1), thick, c);
+        }
+    };
+    for k in 0..far_pts.len() {
+        let next = (k + 1) % far_pts.len();
+        seg(&mut cv, cam.eye, far_pts[k], grey);
+        seg(&mut cv, far_pts[k], far_pts[next], grey);
+        if near > 0.0 {
+            seg(&mut cv, near_pts[k], near_pts[next], grey);
+        }
+    }
+
+    let splat = if out_width.min(out_height) >= 256 {
+        1
+    } else {
+        0
+    };
+    let mut zbuf = vec![f64::INFINITY; out_width as usize * out_height as usize];
+    for &(p, t) in &points {
+        let Some((px, py, z)) = project(p).map(to_px) else {
+            continue;
+        };
+        let c = depth_colour(t, near, far);
+        let (cx, cy) = (px.round() as i64, py.round() as i64);
+        for y in cy - splat..=cy + splat {
+            for x in cx - splat..=cx + splat {
+                if let Some(k) = cv.index(x, y) {
+                    if z < zbuf[k / 3] {
+                        zbuf[k / 3] = z;
+                        cv.px[k..k + 3].copy_from_slice(&c);
+                    }
+                }
+            }
+        }
+    }
+    if let Some((px, py, _)) = project(cam.eye).map(to_px) {
+        cv.dot(px, py, 1 + 2 * splat, [255, 255, 255]);
+    }
+    cv.px
+}
+
+/// The assignment's part 0: a ray from y4 back to the eye at x through
+/// x–y1 empty (1 m), y1–y2 2 m σ=1, y2–y3 1 m σ=0.5, y3–y4 3 m σ=10.
+/// Returns the plot and `[T(y1,y2), T(y2,y4), T(x,y4), T(x,y3)]`, computed
+/// in f32 with the runtime's [`transmittance`]
+/// (≈ e^-2, e^-30.5, e^-32.5, e^-2.5).
+///
+/// The plot has the distance from the eye horizontally, the slabs as bands
+/// whose height and shade grow with σ (σ written on each), and `T(x, s)` on a
+/// log scale from 1 down to 1e-15 with markers at x, y1..y4.
+pub fn transmittance_figure(width: u32, height: u32) -> (Vec<u8>, [f64; 4]) {
+    let sigma = [0.0f32, 1.0, 0.5, 10.0];
+    let delta = [1.0f32, 2.0, 1.0, 3.0];
+    let starts = [0.0f32, 1.0, 3.0, 4.0];
+    let t = |a: usize, b: usize| {
+        transmittance(&sigma[a..b], &delta[a..b]).map_or(f64::NAN, |v| v as f64)
+    };
+    let values = [t(1, 2), t(2, 4), t(0, 4), t(0, 3)];
+    // T(x, s): the slabs cut off at distance s from the eye.
+    let t_at = |s: f64| {
+        let cut: Vec<f32> = (0..4)
+            .map(|k| (s as f32 - starts[k]).clamp(0.0, delta[k]))
+            .collect();
+        transmittance(&sigma, &cut).map_or(f64::NAN, |v| v as f64)
+    };
+
+    let xr = Range { lo: -0.3, hi: 7.3 };
+    let yr = Range { lo: -15.5, hi: 0.5 };
+    let yticks: Vec<(f64, String)> = (0..=15)
+        .map(|k| {
+            let e = -(k as i64);
+            let label = if k % 3 == 0 {
+                decade_label(e)
+            } else {
+                String::new()
+            };
+            (e as f64, label)
+        })
+        .collect();
+    let names = ["X", "Y1", "Y2", "Y3", "Y4"];
+    let marks = [0.0, 1.0, 3.0, 4.0, 7.0];
+    let xticks: Vec<(f64, String)> = marks
+        .iter()
+        .zip(names)
+        .map(|(&s, n)| (s, n.to_string()))
+        .collect();
+    let mut cv = Canvas::new(width, height, WHITE);
+    if cv.px.is_empty() {
+        return (cv.px, values);
+    }
+    let (fr, st) = make_frame(width, height, xr, yr, &yticks, true);
+
+    // Bands: height and shade by ln(1 + σ), so σ = 0.5 and 1 stay visible
+    // beside σ = 10.
+    let smax = (1.0 + 10.0f64).ln();
+    for k in 1..4 {
+        let g = (1.0 + sigma[k] as f64).ln() / smax;
+        let (a, _) = fr.px(starts[k] as f64, 0.0);
+        let (b, _) = fr.px((starts[k] + delta[k]) as f64, 0.0);
+        let top = fr.b - (0.15 + 0.8 * g) * (fr.b - fr.t);
+        let shade = mix(WHITE, [70, 110, 190], 0.2 + 0.5 * g);
+        cv.fill(
+            a.round() as i64,
+            top.round() as i64,
+            b.round() as i64,
+            fr.b as i64,
+            shade,
+        );
+        if st.labels {
+            let label = format!("{}", sigma[k]);
+            let tw = text_width(&label, st.scale);
+            let cx = (0.5 * (a + b)).round() as i64;
+            let ty = top.round() as i64 - 7 * st.scale;
+            cv.text(cx - tw / 2, ty, &label, st.scale, [30, 50, 110]);
+        }
+    }
+    draw_grid(&mut cv, &fr, &[], &yticks);
+    for &s in &marks {
+        let (x, _) = fr.px(s, 0.0);
+        cv.dashed_vline(x.round() as i64, fr.t as i64, fr.b as i64, [150, 150, 150]);
+    }
+    let red = [200, 30, 30];
+    let n = ((fr.r - fr.l).max(1.0) as usize).max(2) * 2;
+    let mut prev: Option<(f64, f64)> = None;
+    for k in 0..=n {
+        let s = 7.0 * k as f64 / n as f64;
+        let p = fr.px(s, t_at(s).log10());
+        if let Some(q) = prev {
+            cv.line(q, p, st.scale / 2, red);
+        }
+        prev = Some(p);
+    }
+    for &s in &marks {
+        let (x, y) = fr.px(s, t_at(s).log10());
+        cv.dot(x, y, st.scale + 1, red);
+    }
+    draw_axes(&mut cv, &fr, &st, &xticks, &yticks);
+    if st.labels {
+        cv.text(
+            fr.l as i64,
+            2 * st.scale,
+            "T(X,S)  LOG SCALE",
+            st.scale,
+            AXIS,
+        );
+    }
+    (cv.px, values)
+}
+
+/// A line plot of `(name, points)` series with axes, tick marks, numeric tick
+/// labels and a legend (the last two when the image is large enough).
+/// Each series has its own colour; non-finite points (and, with `log_y`,
+/// non-positive y) break the line. Isolated points, and all points of short
+/// series, get markers. Empty, constant or extreme data do not panic.
+pub fn line_plot(
+    width: u32,
+    height: u32,
+    series: &[(&str, &[(f64, f64)])],
+    log_y: bool,
+) -> Vec<u8> {
+    let mut cv = Canvas::new(width, height, WHITE);
+    if cv.px.is_empty() {
+        return cv.px;
+    }
+    let ty = |y: f64| {
+        if !log_y {
+            y
+        } else if y > 0.0 {
+            y.log10()
+        } else {
+            f64::NAN
+        }
+    };
+    let valid = |&(x, y): &(f64, f64)| {
+        let y = ty(y);
+        (x.is_finite() && y.is_finite()).then_some((x, y))
+    };
+    let pts = || series.iter().flat_map(|s| s.1.iter().filter_map(valid));
+    let xr = Range::of(pts().map(|p| p.0), 0.03);
+    let yr = Range::of(pts().map(|p| p.1), 0.06);
+    let xticks = linear_ticks(xr, 6.0);
+    let yticks = if log_y {
+        log_ticks(yr)
+    } else {
+        linear_ticks(yr, 5.0)
+    };
+    let (fr, st) = make_frame(width, height, xr, yr, &yticks, false);
+    draw_grid(&mut cv, &fr, &xticks, &yticks);
+
+    let lw = st.scale / 2;
+    for (k, (_, data)) in series.iter().enumerate() {
+        let c = PALETTE[k % PALETTE.len()];
+        let ok: Vec<Option<(f64, f64)>> = data
+            .iter()
+            .map(|p| valid(p).map(|(x, y)| fr.px(x, y)))
+            .collect();
+        let markers = ok.iter().flatten().count() <= 60;
+        for i in 0..ok.len() {
+            let Some(p) = ok[i] else { continue };
+            let before = i > 0 && ok[i - 1].is_some();
+            let after = ok.get(i + 1).is_some_and(|q| q.is_some());
+            if before {
+                cv.line(ok[i - 1].unwrap_or(p), p, lw, c);
+            }
+            if markers || !(before || after) {
+                cv.dot(p.0, p.1, st.scale, c);
+            }
+        }
+    }
+    draw_axes(&mut cv, &fr, &st, &xticks, &yticks);
+    let entries: Vec<(String, [u8; 3])> = series
+        .iter()
+        .enumerate()
+        .map(|(k, s)| (s.0.chars().take(24).collect(), PALETTE[k % PALETTE.len()]))
+        .collect();
+    draw_legend(&mut cv, &fr, &st, &entries);
+    cv.px
+}
+
+// ---------------------------------------------------------------------------
+// Drawing
+
+const WHITE: [u8; 3] = [255, 255, 255];
+const AXIS: [u8; 3] = [40, 40, 40];
+const GRID: [u8; 3] = [226, 226, 226];
+/// Matplotlib's "tab10": distinct, and readable on white.
+const PALETTE: [[u8; 3]; 10] = [
+    [31, 119, 180],
+    [255, 127, 14],
+    [44, 160, 44],
+    [214, 39, 40],
+    [148, 103, 189],
+    [140, 86, 75],
+    [227, 119, 194],
+    [127, 127, 127],
+    [188, 189, 34],
+    [23, 190, 207],
+];
+
+fn mix(a: [u8; 3], b: [u8; 3], t: f64) -> [u8; 3] {
+    let t = t.clamp(0.0, 1.0);
+    [0, 1, 2].map(|i| (a[i] as f64 * (1.0 - t) + b[i] as f64 * t).round() as u8)
+}
+
+/// An RGB8 image; every write is clipped to it.
+struct Canvas {
+    w: i64,
+    h: i64,
+    px: Vec<u8>,
+}
+
+impl Canvas {
+    fn new(w: u32, h: u32, bg: [u8; 3]) -> Canvas {
+        let n = w as usize * h as usize;
+        Canvas {
+            w: w as i64,
+            h: h as i64,
+            px: bg.iter().copied().cycle().take(n * 3).collect(),
+        }
+    }
+
+    fn index(&self, x: i64, y: i64) -> Option<usize> {
+        (x >= 0 && y >= 0 && x < self.w && y < self.h).then(|| (y * self.w + x) as usize * 3)
+    }
+
+    /// Fills the rectangle between two corners, inclusive.
+    fn fill(&mut self, x0: i64, y0: i64, x1: i64, y1: i64, c: [u8; 3]) {
+        let (xa, xb) = (x0.min(x1).max(0), x0.max(x1).min(self.w - 1));
+        let (ya, yb) = (y0.min(y1).max(0), y0.max(y1).min(self.h - 1));
+        for y in ya..=yb {
+            for x in xa..=xb {
+                if let Some(k) = self.index(x, y) {
+                    self.px[k..k + 3].copy_from_slice(&c);
+                }
+            }
+        }
+    }
+
+    /// A square of half-width `r` centred at a (sub)pixel position.
+    fn dot(&mut self, x: f64, y: f64, r: i64, c: [u8; 3]) {
+        if x.is_finite() && y.is_finite() {
+            let (x, y) = (x.round() as i64, y.round() as i64);
+            self.fill(x - r, y - r, x + r, y + r, c);
+        }
+    }
+
+    /// A segment of half-width `r`, clipped to the image first so that far
+    /// off-screen ends cost nothing.
+    fn line(&mut self, a: (f64, f64), b: (f64, f64), r: i64, c: [u8; 3]) {
+        let m = (r + 1) as f64;
+        let Some((a, b)) = clip(
+            a,
+            b,
+            -m,
+            self.w as f64 - 1.0 + m,
+            -m,
+            self.h as f64 - 1.0 + m,
+        ) else {
+            return;
+        };
+        let (dx, dy) = (b.0 - a.0, b.1 - a.1);
+        let n = dx.abs().max(dy.abs()).ceil() as i64;
+        for k in 0..=n {
+            let t = if n == 0 { 0.0 } else { k as f64 / n as f64 };
+            self.dot(a.0 + t * dx, a.1 + t * dy, r, c);
+        }
+    }
+
+    fn dashed_vline(&mut self, x: i64, y0: i64, y1: i64, c: [u8; 3]) {
+        for y in y0.min(y1)..=y0.max(y1) {
+            if y.rem_euclid(6) < 3 {
+                self.fill(x, y, x, y, c);
+            }
+        }
+    }
+
+    /// Draws `s` with its top-left corner at `(x, y)`.
+    fn text(&mut self, x: i64, y: i64, s: &str, scale: i64, c: [u8; 3]) {
+        for (n, ch) in s.chars().enumerate() {
+            let g = glyph(ch);
+            let gx = x + n as i64 * 4 * scale;
+            for row in 0..5 {
+                for col in 0..3 {
+                    if g >> (14 - (row * 3 + col)) & 1 == 1 {
+                        let (px, py) = (gx + col * scale, y + row * scale);
+                        self.fill(px, py, px + scale - 1, py + scale - 1, c);
+                    }
+                }
+            }
+        }
+    }
+}
+
+fn text_width(s: &str, scale: i64) -> i64 {
+    (s.chars().count() as i64 * 4 * scale - scale).max(0)
+}
+
+/// Liang–Barsky clipping of a segment to a rectangle; `None` when it misses
+/// or is not finite.
+fn clip(
+    a: (f64, f64),
+    b: (f64, f64),
+    xmin: f64,
+    xmax: f64,
+    ymin: f64,
+    ymax: f64,
+) -> Option<((f64, f64), (f64, f64))> {
+    if ![a.0, a.1, b.0, b.1].iter().all(|v| v.is_finite()) {
+        return None;
+    }
+    let (dx, dy) = (b.0 - a.0, b.1 - a.1);
+    if !(dx.is_finite() && dy.is_finite()) {
+        return None;
+    }
+    let (mut t0, mut t1) = (0.0f64, 1.0f64);
+    for (p, q) in [
+        (-dx, a.0 - xmin),
+        (dx, xmax - a.0),
+        (-dy, a.1 - ymin),
+        (dy, ymax - a.1),
+    ] {
+        if p == 0.0 {
+            if q < 0.0 {
+                return None;
+            }
+        } else {
+            let r = q / p;
+            if p < 0.0 {
+                t0 = t0.max(r);
+            } else {
+                t1 = t1.min(r);
+            }
+        }
+    }
+    (t0 <= t1).then(|| {
+        (
+            (a.0 + t0 * dx, a.1 + t0 * dy),
+            (a.0 + t1 * dx, a.1 + t1 * dy),
+        )
+    })
+}
+
+/// 3×5 glyphs, row-major from the top, most significant bit first.
+fn glyph(c: char) -> u16 {
+    match c.to_ascii_uppercase() {
+        '0' => 0b111_101_101_101_111,
+        '1' => 0b010_110_010_010_111,
+        '2' => 0b111_001_111_100_111,
+        '3' => 0b111_001_111_001_111,
+        '4' => 0b101_101_111_001_001,
+        '5' => 0b111_100_111_001_111,
+        '6' => 0b111_100_111_101_111,
+        '7' => 0b111_001_001_001_001,
+        '8' => 0b111_101_111_101_111,
+        '9' => 0b111_101_111_001_111,
+        'A' => 0b010_101_111_101_101,
+        'B' => 0b110_101_110_101_110,
+        'C' => 0b011_100_100_100_011,
+        'D' => 0b110_101_101_101_110,
+        'E' => 0b111_100_110_100_111,
+        'F' => 0b111_100_110_100_100,
+        'G' => 0b011_100_101_101_011,
+        'H' => 0b101_101_111_101_101,
+        'I' => 0b111_010_010_010_111,
+        'J' => 0b001_001_001_101_010,
+        'K' => 0b101_101_110_101_101,
+        'L' => 0b100_100_100_100_111,
+        'M' => 0b101_111_111_101_101,
+        'N' => 0b110_101_101_101_101,
+        'O' => 0b010_101_101_101_010,
+        'P' => 0b110_101_110_100_100,
+        'Q' => 0b010_101_101_110_011,
+        'R' => 0b110_101_110_101_101,
+        'S' => 0b011_100_010_001_110,
+        'T' => 0b111_010_010_010_010,
+        'U' => 0b101_101_101_101_111,
+        'V' => 0b101_101_101_101_010,
+        'W' => 0b101_101_111_111_101,
+        'X' => 0b101_101_010_101_101,
+        'Y' => 0b101_101_010_010_010,
+        'Z' => 0b111_001_010_100_111,
+        '-' => 0b000_000_111_000_000,
+        '+' => 0b000_010_111_010_000,
+        '.' => 0b000_000_000_000_010,
+        ',' => 0b000_000_000_010_100,
+        ':' => 0b000_010_000_010_000,
+        '_' => 0b000_000_000_000_111,
+        '=' => 0b000_111_000_111_000,
+        '/' => 0b001_001_010_100_100,
+        '%' => 0b101_001_010_100_101,
+        '(' => 0b010_100_100_100_010,
+        ')' => 0b010_001_001_001_010,
+        '[' => 0b110_100_100_100_110,
+        ']' => 0b011_001_001_001_011,
+        _ => 0,
+    }
+}
+
+// ---------------------------------------------------------------------------
+// Axes
+
+/// A data interval mapped onto the plot area.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Range {
+    lo: f64,
+    hi: f64,
+}
+
+impl Range {
+    /// The range of the finite values, padded by `pad` of its span each
+    /// side; empty data give [0, 1], constant data a range around the value.
+    fn of(vals: impl Iterator<Item = f64>, pad: f64) -> Range {
+        let (lo, hi) = vals
+            .filter(|v| v.is_finite())
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| {
+                (a.min(v), b.max(v))
+            });
+        if lo > hi {
+            return Range { lo: 0.0, hi: 1.0 };
+        }
+        // Halves: `hi - lo` itself may overflow for data near ±f64::MAX.
+        let half = hi * 0.5 - lo * 0.5;
+        let widen = if half > 0.0 {
+            half * 2.0 * pad
+        } else {
+            let m = lo.abs().max(hi.abs()) * 0.1;
+            if m >= f64::MIN_POSITIVE {
+                m
+            } else {
+                1.0
+            }
+        };
+        Range {
+            lo: (lo - widen).max(-f64::MAX),
+            hi: (hi + widen).min(f64::MAX),
+        }
+    }
+
+    /// `v`'s position in the range, 0 at `lo` and 1 at `hi`; 0.5 when the
+    /// range is degenerate.
+    fn unit(&self, v: f64) -> f64 {
+        let d = self.hi * 0.5 - self.lo * 0.5;
+        if d > 0.0 && d.is_finite() {
+            (v * 0.5 - self.lo * 0.5) / d
+        } else {
+            0.5
+        }
+    }
+}
+
+/// The plot area in pixels (left, top, right, bottom) and its data ranges.
+struct Frame {
+    l: f64,
+    t: f64,
+    r: f64,
+    b: f64,
+    xr: Range,
+    yr: Range,
+}
+
+impl Frame {
+    fn px(&self, x: f64, y: f64) -> (f64, f64) {
+        (
+            self.l + self.xr.unit(x) * (self.r - self.l),
+            self.b - self.yr.unit(y) * (self.b - self.t),
+        )
+    }
+}
+
+struct Style {
+    /// Font pixel size and line width unit.
+    scale: i64,
+    /// Whether the image is large enough for text.
+    labels: bool,
+}
+
+/// Margins sized to the y tick labels, so they never overlap the plot.
+fn make_frame(
+    w: u32,
+    h: u32,
+    xr: Range,
+    yr: Range,
+    yticks: &[(f64, String)],
+    title: bool,
+) -> (Frame, Style) {
+    let scale = (w.min(h) as i64 / 240).clamp(1, 8);
+    let labels = w >= 64 && h >= 48;
+    let tick = 3 * scale;
+    let (w, h) = (w as i64, h as i64);
+    let (left, right, top, bottom) = if labels {
+        let yw = yticks
+            .iter()
+            .map(|t| text_width(&t.1, scale))
+            .max()
+            .unwrap_or(0);
+        let top = if title { 10 * scale } else { 4 * scale };
+        (
+            (yw + tick + 3 * scale + 1).min(w / 2),
+            8 * scale + 2,
+            top + 2,
+            tick + 8 * scale + 1,
+        )
+    } else {
+        (1, 1, 1, 1)
+    };
+    let l = left.min(w - 1);
+    let t = top.min(h - 1);
+    let r = (w - 1 - right).max(l);
+    let b = (h - 1 - bottom).max(t);
+    let fr = Frame {
+        l: l as f64,
+        t: t as f64,
+        r: r as f64,
+        b: b as f64,
+        xr,
+        yr,
+    };
+    (fr, Style { scale, labels })
+}
+
+/// Steps of 1, 2 or 5 × 10^k giving about `target` ticks over a span of
+/// `2·half_span` (halved to stay finite near ±f64::MAX).
+fn nice_step(half_span: f64, target: f64) -> Option<f64> {
+    let raw = half_span / (0.5 * target);
+    if !(raw > 0.0 && raw.is_finite()) {
+        return None;
+    }
+    let mag = 10f64.powf(raw.log10().floor());
+    if !(mag > 0.0 && mag.is_finite()) {
+        return None;
+    }
+    let n = raw / mag;
+    let m = if n <= 1.0 {
+        1.0
+    } else if n <= 2.0 {
+        2.0
+    } else if n <= 5.0 {
+        5.0
+    } else {
+        10.0
+    };
+    Some(m * mag).filter(|s| s.is_finite())
+}
+
+/// Multiples of `step` inside the range (at most 64, distinct).
+fn tick_values(r: Range, step: f64) -> Vec<f64> {
+    let k0 = (r.lo / step).ceil();
+    let mut out: Vec<f64> = Vec::new();
+    if !k0.is_finite() {
+        return out;
+    }
+    for k in 0..64 {
+        let v = (k0 + k as f64) * step;
+        if !(v <= r.hi) {
+            break;
+        }
+        if v >= r.lo && out.last() != Some(&v) {
+            out.push(v);
+        }
+    }
+    out
+}
+
+fn linear_ticks(r: Range, target: f64) -> Vec<(f64, String)> {
+    let Some(step) = nice_step(r.hi * 0.5 - r.lo * 0.5, target) else {
+        return Vec::new();
+    };
+    tick_values(r, step)
+        .into_iter()
+        .map(|v| (v, fmt_tick(v, step)))
+        .collect()
+}
+
+/// Ticks of a log10 axis: whole decades when it spans one or more, else
+/// linear steps of the exponent labelled with their values.
+fn log_ticks(r: Range) -> Vec<(f64, String)> {
+    let half = r.hi * 0.5 - r.lo * 0.5;
+    if half >= 0.5 {
+        let Some(step) = nice_step(half, 6.0) else {
+            return Vec::new();
+        };
+        tick_values(r, step.max(1.0).round())
+            .into_iter()
+            .map(|v| (v, decade_label(v as i64)))
+            .collect()
+    } else {
+        let Some(step) = nice_step(half, 5.0) else {
+            return Vec::new();
+        };
+        tick_values(r, step)
+            .into_iter()
+            .map(|v| (v, fmt_sig(10f64.powf(v))))
+            .collect()
+    }
+}
+
+/// `10^e` as "0.001" … "10000", else "1e-14".
+fn decade_label(e: i64) -> String {
+    match e {
+        0..=4 => format!("1{}", "0".repeat(e as usize)),
+        -3..=-1 => format!("0.{}1", "0".repeat((-e - 1) as usize)),
+        _ => format!("1e{e}"),
+    }
+}
+
+/// Enough decimals to tell ticks `step` apart; exponent form when large or
+/// small.
+fn fmt_tick(v: f64, step: f64) -> String {
+    let a = v.abs();
+    if a < step * 1e-6 {
+        return "0".into();
+    }
+    if !(1e-3..1e5).contains(&a) {
+        let p = (a.log10().floor() - step.log10().floor()).clamp(0.0, 4.0) as usize;
+        format!("{v:.p$e}")
+    } else {
+        let p = (-step.log10().floor()).clamp(0.0, 6.0) as usize;
+        format!("{v:.p$}")
+    }
+}
+
+/// Two significant digits.
+fn fmt_sig(v: f64) -> String {
+    let a = v.abs();
+    if (1e-3..1e5).contains(&a) {
+        let p = (1.0 - a.log10().floor()).max(0.0) as usize;
+        format!("{v:.p$}")
+    } else {
+        format!("{v:.1e}")
+    }
+}
+
+fn draw_grid(cv: &mut Canvas, fr: &Frame, xt: &[(f64, String)], yt: &[(f64, String)]) {
+    for (x, _) in xt {
+        let (px, _) = fr.px(*x, 0.0);
+        cv.line((px, fr.t), (px, fr.b), 0, GRID);
+    }
+    for (y, _) in yt {
+        let (_, py) = fr.px(0.0, *y);
+        cv.line((fr.l, py), (fr.r, py), 0, GRID);
+    }
+}
+
+/// The frame box, outward tick marks and their labels; a label that would
+/// overlap one already drawn is left out.
+fn draw_axes(cv: &mut Canvas, fr: &Frame, st: &Style, xt: &[(f64, String)], yt: &[(f64, String)]) {
+    let (l, t, r, b) = (fr.l, fr.t, fr.r, fr.b);
+    for (p, q) in [
+        ((l, t), (r, t)),
+        ((r, t), (r, b)),
+        ((l, b), (r, b)),
+        ((l, t), (l, b)),
+    ] {
+        cv.line(p, q, 0, AXIS);
+    }
+    let s = st.scale;
+    let tick = 3 * s;
+    let mut drawn: Vec<[i64; 4]> = Vec::new();
+    let mut label = |cv: &mut Canvas, x: i64, y: i64, text: &str| {
+        let bx = [x - s, y - s, x + text_width(text, s) + s, y + 6 * s];
+        let free = drawn
+            .iter()
+            .all(|d| bx[2] < d[0] || d[2] < bx[0] || bx[3] < d[1] || d[3] < bx[1]);
+        if free && !text.is_empty() {
+            cv.text(x, y, text, s, AXIS);
+            drawn.push(bx);
+        }
+    };
+    for (x, text) in xt {
+        let (px, _) = fr.px(*x, 0.0);
+        cv.line((px, b), (px, b + tick as f64), s / 2, AXIS);
+        if st.labels {
+            let x0 = px.round() as i64 - text_width(text, s) / 2;
+            label(cv, x0, b as i64 + tick + 2 * s, text);
+        }
+    }
+    for (y, text) in yt {
+        let (_, py) = fr.px(0.0, *y);
+        let len = if text.is_empty() { tick / 2 + 1 } else { tick };
+        cv.line((l - len as f64, py), (l, py), s / 2, AXIS);
+        if st.labels {
+            let x0 = l as i64 - tick - 2 * s - text_width(text, s);
+            label(cv, x0, py.round() as i64 - 2 * s, text);
+        }
+    }
+}
+
+/// Swatches and names in the top-right corner, if there is room.
+fn draw_legend(cv: &mut Canvas, fr: &Frame, st: &Style, entries: &[(String, [u8; 3])]) {
+    if !st.labels || entries.iter().all(|e| e.0.is_empty()) {
+        return;
+    }
+    let s = st.scale;
+    let (sw, row) = (8 * s, 7 * s);
+    let tw = entries
+        .iter()
+        .map(|e| text_width(&e.0, s))
+        .max()
+        .unwrap_or(0);
+    let (bw, bh) = (sw + tw + 7 * s, entries.len() as i64 * row + 3 * s);
+    let (pw, ph) = ((fr.r - fr.l) as i64, (fr.b - fr.t) as i64);
+    if bw > pw * 2 / 3 || bh > ph * 2 / 3 {
+        return;
+    }
+    let x0 = fr.r as i64 - bw - 2 * s;
+    let y0 = fr.t as i64 + 2 * s;
+    cv.fill(x0, y0, x0 + bw, y0 + bh, WHITE);
+    let frame = [(x0, y0), (x0 + bw, y0), (x0 + bw, y0 + bh), (x0, y0 + bh)];
+    for k in 0..4 {
+        let (p, q) = (frame[k], frame[(k + 1) % 4]);
+        cv.line(
+            (p.0 as f64, p.1 as f64),
+            (q.0 as f64, q.1 as f64),
+            0,
+            [170, 170, 170],
+        );
+    }
+    for (k, (name, c)) in entries.iter().enumerate() {
+        let y = y0 + 2 * s + k as i64 * row;
+        let mid = (y + 2 * s) as f64;
+        let xs = (x0 + 2 * s) as f64;
+        cv.line((xs, mid), (xs + sw as f64 - s as f64, mid), s / 2, *c);
+        cv.text(x0 + 3 * s + sw, y, name, s, AXIS);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn pixel(img: &[u8], w: u32, i: u32, j: u32) -> [u8; 3] {
+        let k = (j * w + i) as usize * 3;
+        [img[k], img[k + 1], img[k + 2]]
+    }
+
+    fn colours(img: &[u8]) -> std::collections::HashSet<[u8; 3]> {
+        img.chunks_exact(3).map(|p| [p[0], p[1], p[2]]).collect()
+    }
+
+    #[test]
+    fn xy_grid_corners() {
+        let img = xy_grid_image(64, 48);
+        assert_eq!(img.len(), 64 * 48 * 3);
+        assert_eq!(pixel(&img, 64, 0, 0), [255, 255, 0]);
+        assert_eq!(pixel(&img, 64, 63, 47), [0, 0, 0]);
+        // Top-right: x_ndc = -1, y_ndc = 1 → green; bottom-left red.
+        assert_eq!(pixel(&img, 64, 63, 0), [0, 255, 0]);
+        assert_eq!(pixel(&img, 64, 0, 47), [255, 0, 0]);
+        assert!(xy_grid_image(0, 5).is_empty());
+        assert_eq!(xy_grid_image(1, 1), vec![127, 127, 0]);
+    }
+
+    #[test]
+    fn rays_image_matches_hand_computation() {
+        // Eye on -x looking at the origin, up +y: z = (1,0,0),
+        // x = cross(y, z) = (0,0,-1), y = (0,1,0). With f = 2 the top-left
+        // pixel (NDC (1, 1)) looks along x/2 + y/2 + z = (1, 0.5, -0.5),
+        // whose unit vector is (0.8165, 0.4082, 0.4082) → (208, 104, 104).
+        let cam = Camera::look_at(DVec3::new(-2.5, 0.0, 0.0), DVec3::ZERO, DVec3::Y, 2.0);
+        let img = rays_image(&cam, 5, 3);
+        assert_eq!(img.len(), 5 * 3 * 3);
+        assert_eq!(pixel(&img, 5, 0, 0), [208, 104, 104]);
+        // The centre pixel looks straight at the target, along +x.
+        assert_eq!(pixel(&img, 5, 2, 1), [255, 0, 0]);
+        let bad = Camera::look_at(DVec3::ZERO, DVec3::ZERO, DVec3::Y, 1.0);
+        assert_eq!(rays_image(&bad, 4, 4), vec![0; 48]);
+        assert!(rays_image(&cam, 0, 4).is_empty());
+    }
+
+    fn nerf_cam() -> Camera {
+        Camera::look_at(DVec3::new(0.0, 4.0, 2.0), DVec3::ZERO, DVec3::Z, 2.0)
+    }
+
+    #[test]
+    fn sample_points_show_near_and_far() {
+        let s = Stratified::new(32, 2.0, 6.0).unwrap();
+        let img = sample_points_image(&nerf_cam(), &s, 32, 32, 8, 200, 150);
+        assert_eq!(img.len(), 200 * 150 * 3);
+        let cs = colours(&img);
+        assert!(img.iter().any(|&v| v > 0));
+        let (near, far) = (depth_colour(2.0, 2.0, 6.0), depth_colour(6.0, 2.0, 6.0));
+        assert_ne!(near, far);
+        assert!(cs.contains(&near) && cs.contains(&far), "{cs:?}");
+        assert!(cs.contains(&[255, 255, 255]), "the eye is drawn");
+        // Points fill a fair part of the frame: the fit works.
+        let lit = img.chunks_exact(3).filter(|p| p != &[0, 0, 0]).count();
+        assert!(lit > 200, "{lit}");
+    }
+
+    #[test]
+    fn sample_points_edge_cases() {
+        let s = Stratified::new(16, 0.0, 5.0).unwrap();
+        let cam = nerf_cam();
+        for stride in [0, 1, 3, u32::MAX] {
+            let img = sample_points_image(&cam, &s, 20, 10, stride, 64, 40);
+            assert_eq!(img.len(), 64 * 40 * 3);
+            assert!(img.iter().any(|&v| v > 0), "stride {stride}");
+        }
+        // Stride 1 on a large image is thinned, not slow or huge.
+        let big = Stratified::new(128, 2.0, 6.0).unwrap();
+        let img = sample_points_image(&cam, &big, 1024, 1024, 1, 32, 32);
+        assert_eq!(img.len(), 32 * 32 * 3);
+        assert!(sample_points_image(&cam, &s, 20, 10, 1, 0, 40).is_empty());
+        assert_eq!(sample_points_image(&cam, &s, 20, 10, 1, 1, 1).len(), 3);
+        assert!(sample_points_image(&cam, &s, 0, 0, 1, 16, 16)
+            .iter()
+            .any(|&v| v > 0));
+        let bad = Camera::look_at(DVec3::ZERO, DVec3::ZERO, DVec3::Y, 1.0);
+        assert_eq!(sample_points_image(&bad, &s, 8, 8, 1, 4, 4), vec![0; 48]);
+        let invalid = Stratified {
+            n: 1,
+            near: 3.0,
+            far: 1.0,
+        };
+        let img = sample_points_image(&cam, &invalid, 8, 8, 1, 32, 32);
+        assert_eq!(img.len(), 32 * 32 * 3);
+    }
+
+    #[test]
+    fn transmittance_values_match_assignment() {
+        let (img, t) = transmittance_figure(480, 320);
+        assert_eq!(img.len(), 480 * 320 * 3);
+        let want = [-2.0f64, -30.5, -32.5, -2.5].map(f64::exp);
+        for (got, want) in t.iter().zip(want) {
+            assert!(((got - want) / want).abs() < 1e-3, "{got} vs {want}");
+        }
+        let cs = colours(&img);
+        assert!(cs.contains(&[200, 30, 30]), "the curve is drawn");
+        assert!(cs.len() > 5, "bands, axes and curve");
+        for (w, h) in [(0, 0), (1, 1), (10, 7), (2000, 40)] {
+            let (img, v) = transmittance_figure(w, h);
+            assert_eq!(img.len(), (w * h * 3) as usize);
+            assert_eq!(v, t);
+        }
+    }
+
+    #[test]
+    fn line_plot_draws_series_in_distinct_colours() {
+        let a: Vec<(f64, f64)> = (0..100)
+            .map(|k| (k as f64, (-0.05 * k as f64).exp()))
+            .collect();
+        let b: Vec<(f64, f64)> = (0..100).map(|k| (k as f64, 0.5)).collect();
+        for log_y in [false, true] {
+            let img = line_plot(320, 240, &[("loss", &a), ("val", &b)], log_y);
+            assert_eq!(img.len(), 320 * 240 * 3);
+            let cs = colours(&img);
+            assert!(cs.contains(&PALETTE[0]) && cs.contains(&PALETTE[1]));
+            assert!(cs.contains(&AXIS));
+        }
+    }
+
+    #[test]
+    fn line_plot_hard_cases() {
+        let nan = f64::NAN;
+        let inf = f64::INFINITY;
+        let empty: &[(f64, f64)] = &[];
+        let constant = [(0.0, 3.0), (1.0, 3.0), (2.0, 3.0)];
+        let single = [(5.0, 5.0)];
+        let broken = [(0.0, 1.0), (1.0, nan), (2.0, 2.0), (inf, 3.0), (4.0, -inf)];
+        let nonpos = [(0.0, 0.0), (1.0, -1.0), (2.0, 1e-300), (3.0, 5e-324)];
+        let huge = [(-f64::MAX, f64::MAX), (f64::MAX, -f64::MAX), (0.0, 0.0)];
+        let tiny = [(0.0, 5e-324), (1.0, 5e-324), (1e-310, 1e-320)];
+        let same_x = [(1.0, 0.0), (1.0, 1.0), (1.0, 2.0)];
+        let all_nan = [(nan, nan), (nan, 1.0)];
+        let cases: Vec<Vec<(&str, &[(f64, f64)])>> = vec![
+            vec![],
+            vec![("", empty)],
+            vec![("c", &constant)],
+            vec![("single", &single)],
+            vec![("broken", &broken), ("nonpos", &nonpos)],
+            vec![("huge", &huge)],
+            vec![("tiny", &tiny)],
+            vec![("same x", &same_x)],
+            vec![("nan", &all_nan), ("", empty)],
+        ];
+        for series in &cases {
+            for log_y in [false, true] {
+                for (w, h) in [(0, 0), (1, 1), (3, 2), (50, 30), (320, 240), (900, 60)] {
+                    let img = line_plot(w, h, series, log_y);
+                    assert_eq!(img.len(), (w * h * 3) as usize);
+                }
+            }
+        }
+        // A constant series is drawn (in the middle), and a lone point shows.
+        let img = line_plot(200, 100, &[("c", &constant)], false);
+        assert!(colours(&img).contains(&PALETTE[0]));
+        let img = line_plot(200, 100, &[("", empty), ("one", &single)], true);
+        assert!(colours(&img).contains(&PALETTE[1]));
+        // Many series cycle the palette rather than running out.
+        let many: Vec<(&str, &[(f64, f64)])> = (0..13).map(|_| ("s", &constant[..])).collect();
+        assert_eq!(line_plot(100, 80, &many, false).len(), 100 * 80 * 3);
+    }
+
+    #[test]
+    fn ranges_and_ticks() {
+        let r = Range::of([3.0, 3.0].into_iter(), 0.05);
+        assert!(r.lo < 3.0 && r.hi > 3.0);
+        assert_eq!(
+            Range::of(std::iter::empty(), 0.05),
+            Range { lo: 0.0, hi: 1.0 }
+        );
+        let r = Range::of([-f64::MAX, f64::MAX].into_iter(), 0.05);
+        assert!(r.lo.is_finite() && r.hi.is_finite());
+        assert!((r.unit(0.0) - 0.5).abs() < 1e-12 && r.unit(f64::MAX) <= 1.0);
+        let t = linear_ticks(Range { lo: 0.0, hi: 10.0 }, 5.0);
+        let v: Vec<f64> = t.iter().map(|p| p.0).collect();
+        assert_eq!(v, [0.0, 2.0, 4.0, 6.0, 8.0, 10.0]);
+        assert_eq!(t[1].1, "2");
+        let t = linear_ticks(Range { lo: 0.0, hi: 0.3 }, 5.0);
+        assert_eq!(t[1].1, "0.05");
+        assert_eq!(fmt_tick(2e5, 2e5), "2e5");
+        assert_eq!(fmt_tick(-0.0, 1.0), "0");
+        assert_eq!(decade_label(-3), "0.001");
+        assert_eq!(decade_label(2), "100");
+        assert_eq!(decade_label(-14), "1e-14");
+        let t = log_ticks(Range { lo: -15.5, hi: 0.5 });
+        assert!(t.iter().all(|p| p.0.fract() == 0.0) && !t.is_empty());
+        assert!(!log_ticks(Range { lo: 0.1, hi: 0.5 }).is_empty());
+        assert!(linear_ticks(Range { lo: 1.0, hi: 1.0 }, 5.0).is_empty());
+    }
+
+    #[test]
+    fn clipping_and_text_stay_in_bounds() {
+        let mut cv = Canvas::new(10, 10, WHITE);
+        cv.line((-1e300, 5.0), (1e300, 5.0), 1, AXIS);
+        cv.line((f64::NAN, 0.0), (3.0, 3.0), 0, AXIS);
+        cv.line((-50.0, -50.0), (-20.0, -1.0), 0, AXIS);
+        cv.text(-3, 8, "1E-14 ?", 2, AXIS);
+        cv.dot(f64::INFINITY, 2.0, 3, AXIS);
+        assert_eq!(cv.px.len(), 300);
+        assert_eq!(&cv.px[(5 * 10 + 9) * 3..][..3], &AXIS);
+        assert_eq!(
+            clip((0.0, 0.0), (20.0, 0.0), 0.0, 9.0, 0.0, 9.0),
+            Some(((0.0, 0.0), (9.0, 0.0)))
+        );
+    }
+
+    /// Writes the figures as PNGs for a look: `cargo test -p sdfl-runtime
+    /// figures -- --ignored`; they land in `$TMPDIR/sdfl-figures`.
+    #[test]
+    #[ignore]
+    fn write_figures_for_inspection() {
+        use crate::output::write_png;
+        let dir = std::env::temp_dir().join("sdfl-figures");
+        let cam = Camera::look_at(DVec3::new(-1.0, 0.0, -2.2), DVec3::ZERO, DVec3::Y, 1.0);
+        write_png(&dir.join("xy_grid.png"), 256, 256, &xy_grid_image(256, 256)).unwrap();
+        write_png(&dir.join("rays.png"), 256, 256, &rays_image(&cam, 256, 256)).unwrap();
+        let s = Stratified::new(64, 0.0, 5.0).unwrap();
+        let img = sample_points_image(&cam, &s, 256, 256, 32, 512, 512);
+        write_png(&dir.join("sample_points.png"), 512, 512, &img).unwrap();
+        let s = Stratified::new(128, 2.0, 6.0).unwrap();
+        let img = sample_points_image(&nerf_cam(), &s, 128, 128, 16, 400, 300);
+        write_png(&dir.join("sample_points_nerf.png"), 400, 300, &img).unwrap();
+        let (img, _) = transmittance_figure(640, 400);
+        write_png(&dir.join("transmittance.png"), 640, 400, &img).unwrap();
+        let a: Vec<(f64, f64)> = (0..300)
+            .map(|k| (k as f64, 0.5 * (-0.02 * k as f64).exp() + 0.01))
+            .collect();
+        let b: Vec<(f64, f64)> = (0..300)
+            .map(|k| (k as f64, 0.3 / (1.0 + k as f64)))
+            .collect();
+        let c = [(10.0, 0.2), (50.0, 0.05), (120.0, 0.02), (250.0, 0.015)];
+        let series: [(&str, &[(f64, f64)]); 3] = [("train loss", &a), ("val", &b), ("sweep", &c)];
+        write_png(
+            &dir.join("plot.png"),
+            480,
+            320,
+            &line_plot(480, 320, &series, false),
+        )
+        .unwrap();
+        write_png(
+            &dir.join("plot_log.png"),
+            480,
+            320,
+            &line_plot(480, 320, &series, true),
+        )
+        .unwrap();
+        eprintln!("figures in {}", dir.display());
+    }
+}
