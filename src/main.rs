@@ -8,7 +8,7 @@ use std::time::Instant;
 use clap::{Parser, Subcommand};
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use sdfl_lang::SourceFile;
-use sdfl_runtime::{run_job, JobReport, Plan, RunOptions};
+use sdfl_runtime::{jobs, run_job, Plan, RunOptions};
 
 /// The scene `sdfl run` renders when given no file.
 const SHOWCASE: &str = include_str!("../examples/large_scene.sdfl");
@@ -53,6 +53,27 @@ enum Command {
     },
     /// Show what each statement of a file will compute, and why.
     Plan { file: PathBuf },
+    /// Re-run a file over settings of a top-level `let` and tabulate time
+    /// against error (PSNR against the last setting's images, or parameter
+    /// distance for training); writes sweep.csv, sweep.md and sweep.png.
+    /// Each setting runs from scratch in OUT/NAME=VALUE/, emptied first.
+    Sweep {
+        file: PathBuf,
+        /// NAME=V1,V2,...: the values of `let NAME`; the last is the reference.
+        #[arg(long, value_parser = parse_set)]
+        set: (String, Vec<f64>),
+        #[arg(long, default_value = "out/sweep")]
+        out: PathBuf,
+        /// Override every image size, as WIDTHxHEIGHT.
+        #[arg(long, value_parser = parse_size)]
+        size: Option<(u32, u32)>,
+    },
+    /// The assignment's part 0: transmittance through three slabs; prints
+    /// the four transmittances and writes the figure.
+    Transmittance {
+        #[arg(long, default_value = "out")]
+        out: PathBuf,
+    },
     /// List the built-in functions and statements, or describe one.
     Docs { name: Option<String> },
 }
@@ -68,6 +89,16 @@ fn parse_size(s: &str) -> Result<(u32, u32), String> {
         return Err(format!("width and height must be 1 to {max}"));
     }
     Ok((w, h))
+}
+
+fn parse_set(s: &str) -> Result<(String, Vec<f64>), String> {
+    let (name, values) = s.split_once('=').ok_or("expected NAME=V1,V2,...")?;
+    let values: Result<Vec<f64>, _> = values.split(',').map(|v| v.trim().parse::<f64>()).collect();
+    let values = values.map_err(|e| format!("bad value: {e}"))?;
+    if values.len() < 2 || values.iter().any(|v| !v.is_finite()) {
+        return Err("give at least two finite values".into());
+    }
+    Ok((name.trim().to_string(), values))
 }
 
 fn main() -> ExitCode {
@@ -110,12 +141,44 @@ fn main() -> ExitCode {
             let Ok(program) = read(&file).and_then(|s| load(&s)) else {
                 return ExitCode::FAILURE;
             };
-            for job in &program.renders {
-                print_plan(job);
-            }
+            print!("{}", plan_text(&program));
             ExitCode::SUCCESS
         }
+        Command::Sweep {
+            file,
+            set,
+            out,
+            size,
+        } => sweep(&file, &set.0, &set.1, &out, size),
         Command::Docs { name } => docs(name.as_deref()),
+        Command::Transmittance { out } => {
+            let (w, h) = (640, 360);
+            let (rgb, t) = sdfl_runtime::volume::figures::transmittance_figure(w, h);
+            let names = ["T(y1, y2)", "T(y2, y4)", "T(x, y4)", "T(x, y3)"];
+            let exact = [
+                (-2.0f64).exp(),
+                (-30.5f64).exp(),
+                (-32.5f64).exp(),
+                (-2.5f64).exp(),
+            ];
+            for ((n, v), e) in names.iter().zip(t).zip(exact) {
+                println!(
+                    "{n:<10} = {v:.4e}   (exact {e:.4e}, relative error {:.1e})",
+                    (v - e).abs() / e
+                );
+            }
+            let path = out.join("transmittance.png");
+            match sdfl_runtime::output::write_png(&path, w, h, &rgb) {
+                Ok(()) => {
+                    println!("{}", path.display());
+                    ExitCode::SUCCESS
+                }
+                Err(e) => {
+                    eprintln!("error[sdfl::io]: writing {}: {e}", path.display());
+                    ExitCode::FAILURE
+                }
+            }
+        }
     }
 }
 
@@ -141,6 +204,80 @@ fn load(src: &SourceFile) -> Result<sdfl_stdlib::Program, ()> {
     })
 }
 
+/// Run every statement of a program, returning one JSON report per job.
+fn execute(
+    program: &sdfl_stdlib::Program,
+    out: &Path,
+    options: RunOptions,
+    base: &Path,
+    bar: &ProgressBar,
+) -> Result<Vec<serde_json::Value>, String> {
+    let mut reports = Vec::new();
+    let io = |name: &str, e: std::io::Error| format!("error[sdfl::io]: `{name}`: {e}");
+    for job in &program.renders {
+        bar.set_message(job.name.clone());
+        let r = run_job(job, out, options, &|n| bar.inc(n)).map_err(|e| io(&job.name, e))?;
+        reports.push(serde_json::json!({"kind": "render", "report": r}));
+    }
+    for job in &program.volumes {
+        bar.set_message(job.name.clone());
+        let r = jobs::run_volume_job(job, out, options.size, &|n| bar.inc(n))
+            .map_err(|e| io(&job.name, e))?;
+        reports.push(serde_json::json!({"kind": "volume", "report": r}));
+    }
+    for job in &program.trains {
+        bar.set_message(job.name.clone());
+        let r = jobs::run_train_job(job, out, base, options.size, &|n| bar.inc(n))
+            .map_err(|e| io(&job.name, e))?;
+        reports.push(serde_json::json!({"kind": "train", "report": r}));
+    }
+    Ok(reports)
+}
+
+/// Pixels and iterations of a program, for the progress bar.
+fn work(program: &sdfl_stdlib::Program, size: Option<(u32, u32)>) -> u64 {
+    let px = |w: u32, h: u32, n: usize| {
+        let (w, h) = size.unwrap_or((w, h));
+        w as u64 * h as u64 * n as u64
+    };
+    program
+        .renders
+        .iter()
+        .map(|j| px(j.width, j.height, j.cameras.len()))
+        .sum::<u64>()
+        + program
+            .volumes
+            .iter()
+            .map(|j| px(j.width, j.height, j.cameras.len()))
+            .sum::<u64>()
+        + program
+            .trains
+            .iter()
+            .map(|j| j.iterations as u64)
+            .sum::<u64>()
+}
+
+fn progress_bar(total: u64, hidden: bool) -> ProgressBar {
+    let bar = ProgressBar::new(total);
+    if hidden || !std::io::stderr().is_terminal() {
+        bar.set_draw_target(ProgressDrawTarget::hidden());
+    }
+    bar.set_style(
+        ProgressStyle::with_template(
+            "{msg:>12} [{bar:40}] {percent:>3}% {elapsed_precise} eta {eta}",
+        )
+        .expect("valid template")
+        .progress_chars("=> "),
+    );
+    bar
+}
+
+fn base_dir(file: Option<&Path>) -> PathBuf {
+    file.and_then(Path::parent)
+        .map(Path::to_path_buf)
+        .unwrap_or_default()
+}
+
 fn run(file: Option<&Path>, out: &Path, options: RunOptions, json: bool) -> ExitCode {
     let t0 = Instant::now();
     let src = match file {
@@ -154,41 +291,15 @@ fn run(file: Option<&Path>, out: &Path, options: RunOptions, json: bool) -> Exit
         return ExitCode::FAILURE;
     };
     let load_s = t0.elapsed().as_secs_f64();
-    let total: u64 = program
-        .renders
-        .iter()
-        .map(|j| {
-            let (w, h) = options.size.unwrap_or((j.width, j.height));
-            w as u64 * h as u64 * j.cameras.len() as u64
-        })
-        .sum();
-    let bar = ProgressBar::new(total);
-    if json || !std::io::stderr().is_terminal() {
-        bar.set_draw_target(ProgressDrawTarget::hidden());
-    }
-    bar.set_style(
-        ProgressStyle::with_template(
-            "{msg:>12} [{bar:40}] {percent:>3}% {elapsed_precise} eta {eta}",
-        )
-        .expect("valid template")
-        .progress_chars("=> "),
-    );
-    let mut reports: Vec<JobReport> = Vec::new();
-    for job in &program.renders {
-        bar.set_message(job.name.clone());
-        match run_job(job, out, options, &|n| bar.inc(n)) {
-            Ok(r) => reports.push(r),
-            Err(e) => {
-                bar.abandon();
-                eprintln!(
-                    "error[sdfl::io]: writing the outputs of `{}` under {}: {e}",
-                    job.name,
-                    out.display()
-                );
-                return ExitCode::FAILURE;
-            }
+    let bar = progress_bar(work(&program, options.size), json);
+    let reports = match execute(&program, out, options, &base_dir(file), &bar) {
+        Ok(r) => r,
+        Err(e) => {
+            bar.abandon();
+            eprintln!("{e}");
+            return ExitCode::FAILURE;
         }
-    }
+    };
     bar.finish_and_clear();
     if json {
         let summary = serde_json::json!({
@@ -202,61 +313,410 @@ fn run(file: Option<&Path>, out: &Path, options: RunOptions, json: bool) -> Exit
             "{}",
             serde_json::to_string_pretty(&summary).expect("serialisable")
         );
-    } else {
-        for r in &reports {
-            let stages: Vec<String> = r
-                .stages
-                .iter()
-                .map(|(n, s)| format!("{n} {:.3}s", s))
-                .collect();
-            eprintln!(
-                "{}: {} primitives, {} views, {} rays ({:.1}% hit, {:.1} steps/ray); {}",
-                r.name,
-                r.primitives,
-                r.views,
-                r.rays,
-                100.0 * r.hits as f64 / r.rays.max(1) as f64,
-                r.steps as f64 / r.rays.max(1) as f64,
-                stages.join(", ")
-            );
-            for w in &r.written {
-                println!("{}", out.join(&w.path).display());
-            }
-        }
+        return ExitCode::SUCCESS;
+    }
+    for r in &reports {
+        summarise(r, out);
     }
     ExitCode::SUCCESS
 }
 
-fn print_plan(job: &sdfl_stdlib::RenderJob) {
-    let plan = Plan::of(job);
-    println!("render {}", job.name);
-    println!(
-        "  scene      {} primitives, {:?}, Lipschitz bound {}",
-        job.scene.primitive_count(),
-        job.scene.exactness(),
-        job.scene.lipschitz()
-    );
-    println!(
-        "  rays       {} views x {}x{}, sphere trace near {} far {}, <= {} steps, epsilon {}",
-        job.cameras.len(),
-        job.width,
-        job.height,
-        job.near,
-        job.far,
-        job.iterations,
-        job.epsilon
-    );
-    let row = |what: &str, who: &[String]| {
-        if who.is_empty() {
-            println!("  {what:<10} skipped (no output needs it)");
-        } else {
-            println!("  {what:<10} computed for {}", who.join(", "));
+/// A human summary of one job's JSON report on stderr; written paths on stdout.
+fn summarise(r: &serde_json::Value, out: &Path) {
+    let rep = &r["report"];
+    let stages: Vec<String> = rep["stages"]
+        .as_array()
+        .map(|a| {
+            a.iter()
+                .map(|s| {
+                    format!(
+                        "{} {:.3}s",
+                        s[0].as_str().unwrap_or("?"),
+                        s[1].as_f64().unwrap_or(0.0)
+                    )
+                })
+                .collect()
+        })
+        .unwrap_or_default();
+    let name = rep["name"].as_str().unwrap_or("?");
+    match r["kind"].as_str() {
+        Some("render") => {
+            let rays = rep["rays"].as_f64().unwrap_or(0.0).max(1.0);
+            eprintln!(
+                "{name}: {} primitives, {} views, {rays} rays ({:.1}% hit, {:.1} steps/ray); {}",
+                rep["primitives"],
+                rep["views"],
+                100.0 * rep["hits"].as_f64().unwrap_or(0.0) / rays,
+                rep["steps"].as_f64().unwrap_or(0.0) / rays,
+                stages.join(", ")
+            );
         }
+        Some("volume") => eprintln!(
+            "{name}: volume, {} views, {} samples/ray; {}",
+            rep["views"],
+            rep["samples_per_ray"],
+            stages.join(", ")
+        ),
+        Some("train") => {
+            eprintln!(
+                "{name}: {} iterations{}, final loss {:.3e}, {:.2} ms/step; {}",
+                rep["iterations"],
+                rep["resumed_from"]
+                    .as_u64()
+                    .map(|k| format!(" (resumed at {k})"))
+                    .unwrap_or_default(),
+                rep["final_loss"].as_f64().unwrap_or(f64::NAN),
+                rep["seconds_per_step"].as_f64().unwrap_or(0.0) * 1e3,
+                stages.join(", ")
+            );
+            for p in rep["params"].as_array().into_iter().flatten() {
+                let vals: Vec<String> = p[1]
+                    .as_array()
+                    .into_iter()
+                    .flatten()
+                    .map(|v| format!("{:.4}", v.as_f64().unwrap_or(f64::NAN)))
+                    .collect();
+                eprintln!(
+                    "  {:<12} ({})",
+                    p[0].as_str().unwrap_or("?"),
+                    vals.join(", ")
+                );
+            }
+        }
+        _ => {}
+    }
+    for w in rep["written"].as_array().into_iter().flatten() {
+        println!("{}", out.join(w["path"].as_str().unwrap_or("")).display());
+    }
+}
+
+fn plan_text(program: &sdfl_stdlib::Program) -> String {
+    use std::fmt::Write;
+    let mut o = String::new();
+    let row = |o: &mut String, what: &str, who: &[String]| {
+        let _ = if who.is_empty() {
+            writeln!(o, "  {what:<14} skipped (no output needs it)")
+        } else {
+            writeln!(o, "  {what:<14} computed for {}", who.join(", "))
+        };
     };
-    row("colour", &plan.color);
-    row("depth", &plan.depth);
-    row("normals", &plan.normals);
-    row("hit mask", &plan.mask);
+    for job in &program.renders {
+        let plan = Plan::of(job);
+        let _ = writeln!(o, "render {} (sphere tracing)", job.name);
+        let _ = writeln!(
+            o,
+            "  scene          {} primitives, {:?}, Lipschitz bound {}",
+            job.scene.primitive_count(),
+            job.scene.exactness(),
+            job.scene.lipschitz()
+        );
+        let _ = writeln!(
+            o,
+            "  rays           {} views x {}x{}, near {} far {}, <= {} steps, epsilon {}",
+            job.cameras.len(),
+            job.width,
+            job.height,
+            job.near,
+            job.far,
+            job.iterations,
+            job.epsilon
+        );
+        row(&mut o, "colour", &plan.color);
+        row(&mut o, "depth", &plan.depth);
+        row(&mut o, "normals", &plan.normals);
+        row(&mut o, "hit mask", &plan.mask);
+        let _ = writeln!(o, "  gradient tape  none (not training)");
+    }
+    for job in &program.volumes {
+        let names = |pred: &dyn Fn(&sdfl_stdlib::OutputKind) -> bool| -> Vec<String> {
+            job.outputs
+                .iter()
+                .filter(|x| pred(&x.kind))
+                .map(|x| x.path.display().to_string())
+                .collect()
+        };
+        use sdfl_stdlib::OutputKind as K;
+        let _ = writeln!(o, "render {} (volume rendering)", job.name);
+        let _ = writeln!(
+            o,
+            "  field          {:?} density, alpha {}, beta {}, {} primitives",
+            job.field.density,
+            job.field.alpha,
+            job.field.beta,
+            job.field.shape.primitive_count()
+        );
+        let _ = writeln!(
+            o,
+            "  samples        {} per ray, stratified {}..{}, {} views x {}x{}",
+            job.sampler.samples,
+            job.sampler.near,
+            job.sampler.far,
+            job.cameras.len(),
+            job.width,
+            job.height
+        );
+        row(
+            &mut o,
+            "composite",
+            &names(&|k| matches!(k, K::Image | K::Gif { .. } | K::Depth)),
+        );
+        row(&mut o, "depth", &names(&|k| matches!(k, K::Depth)));
+        row(&mut o, "view branch", &[]);
+        row(
+            &mut o,
+            "visual checks",
+            &names(&|k| matches!(k, K::Grid | K::Rays | K::SamplePoints)),
+        );
+        let _ = writeln!(o, "  gradient tape  none (not training)");
+    }
+    for job in &program.trains {
+        let _ = writeln!(o, "train {}", job.name);
+        let _ = writeln!(
+            o,
+            "  model          {:?} density, alpha {}, beta {}",
+            job.model.density, job.model.alpha, job.model.beta
+        );
+        let params: Vec<String> = match &*job.model.shape {
+            sdfl_stdlib::shape::Shape::Trainable(s, ps) => ps
+                .iter()
+                .map(|p| format!("{}.{}", s.name(), p.name))
+                .collect(),
+            _ => Vec::new(),
+        };
+        let _ = writeln!(
+            o,
+            "  trainable      {} (gradients only for these)",
+            params.join(", ")
+        );
+        let data = match &*job.data {
+            sdfl_stdlib::value::Dataset::Files { images, .. } => {
+                format!("{} image files", images.len())
+            }
+            sdfl_stdlib::value::Dataset::Rendered {
+                cameras,
+                width,
+                height,
+                ..
+            } => {
+                format!(
+                    "{} views rendered by sdfl at {width}x{height}",
+                    cameras.len()
+                )
+            }
+        };
+        let _ = writeln!(o, "  data           {data}");
+        let _ = writeln!(
+            o,
+            "  step           {} rays x {} samples, MSE on colour, Adam lr {} (x{} every {}), {} iterations",
+            job.rays, job.sampler.samples, job.optimizer.lr, job.optimizer.decay, job.optimizer.decay_every, job.iterations
+        );
+        let _ = writeln!(
+            o,
+            "  gradient tape  {}",
+            if job.backend == "dfdx" {
+                "dfdx autodiff graph"
+            } else {
+                "fused kernel with hand-written backward (checked against dfdx)"
+            }
+        );
+        let _ = writeln!(o, "  depth          skipped (the loss uses colour only)");
+        let _ = writeln!(
+            o,
+            "  outputs        {} before, {} after",
+            job.before.len(),
+            job.after.len()
+        );
+    }
+    o
+}
+
+/// Mean squared error of two 8-bit images of the same size.
+fn mse(a: &Path, b: &Path) -> Option<f64> {
+    let (a, b) = (
+        image::open(a).ok()?.to_rgb8(),
+        image::open(b).ok()?.to_rgb8(),
+    );
+    if a.dimensions() != b.dimensions() {
+        return None;
+    }
+    let n = a.as_raw().len() as f64;
+    Some(
+        a.as_raw()
+            .iter()
+            .zip(b.as_raw())
+            .map(|(x, y)| (*x as f64 - *y as f64).powi(2))
+            .sum::<f64>()
+            / n,
+    )
+}
+
+/// Peak signal-to-noise ratio in dB of a mean squared error on 0..255.
+fn psnr(mse: f64) -> f64 {
+    if mse == 0.0 {
+        f64::INFINITY
+    } else {
+        10.0 * (255.0f64 * 255.0 / mse).log10()
+    }
+}
+
+/// Written colour images of a report set, by relative path.
+fn images_of(reports: &[serde_json::Value]) -> Vec<String> {
+    reports
+        .iter()
+        .flat_map(|r| {
+            r["report"]["written"]
+                .as_array()
+                .cloned()
+                .unwrap_or_default()
+        })
+        .filter(|w| w["kind"] == "image")
+        .filter_map(|w| w["path"].as_str().map(str::to_string))
+        .collect()
+}
+
+fn params_of(reports: &[serde_json::Value]) -> Vec<f64> {
+    reports
+        .iter()
+        .flat_map(|r| {
+            r["report"]["params"]
+                .as_array()
+                .cloned()
+                .unwrap_or_default()
+        })
+        .flat_map(|p| p[1].as_array().cloned().unwrap_or_default())
+        .filter_map(|v| v.as_f64())
+        .collect()
+}
+
+fn sweep(
+    file: &Path,
+    name: &str,
+    values: &[f64],
+    out: &Path,
+    size: Option<(u32, u32)>,
+) -> ExitCode {
+    let Ok(src) = read(file) else {
+        return ExitCode::FAILURE;
+    };
+    let mut rows = Vec::new();
+    for v in values {
+        let program = match sdfl_stdlib::load_with(&src, &[(name.to_string(), *v)]) {
+            Ok(p) => p,
+            Err(d) => {
+                eprint!(
+                    "{}",
+                    sdfl_lang::render(&src, &d, std::io::stderr().is_terminal())
+                );
+                return ExitCode::FAILURE;
+            }
+        };
+        // Each setting runs from scratch: its folder (made by sdfl) is
+        // emptied first, so no checkpoint of an earlier sweep is resumed.
+        let dir = out.join(format!("{name}={v}"));
+        if dir.exists() {
+            if let Err(e) = std::fs::remove_dir_all(&dir) {
+                eprintln!("error[sdfl::io]: cannot clear {}: {e}", dir.display());
+                return ExitCode::FAILURE;
+            }
+        }
+        let bar = progress_bar(work(&program, size), false);
+        bar.set_message(format!("{name}={v}"));
+        let t = Instant::now();
+        match execute(
+            &program,
+            &dir,
+            RunOptions {
+                size,
+                no_cull: false,
+            },
+            &base_dir(Some(file)),
+            &bar,
+        ) {
+            Ok(reports) => {
+                bar.finish_and_clear();
+                rows.push((*v, t.elapsed().as_secs_f64(), dir, reports));
+            }
+            Err(e) => {
+                bar.abandon();
+                eprintln!("{e}");
+                return ExitCode::FAILURE;
+            }
+        }
+    }
+    let (_, _, ref_dir, ref_reports) = rows.last().expect("at least two settings");
+    let ref_images = images_of(ref_reports);
+    let ref_params = params_of(ref_reports);
+    let mut table = format!("| {name} | seconds | PSNR vs {name}={} (dB) | max parameter error |\n|---:|---:|---:|---:|\n", values[values.len() - 1]);
+    let mut csv = format!("{name},seconds,psnr_db,param_error\n");
+    let mut points = Vec::new();
+    for (v, secs, dir, reports) in &rows {
+        // PSNR of the mean squared error over all images of the run.
+        let errors: Vec<f64> = ref_images
+            .iter()
+            .filter_map(|rel| mse(&dir.join(rel), &ref_dir.join(rel)))
+            .collect();
+        let mean_psnr =
+            (!errors.is_empty()).then(|| psnr(errors.iter().sum::<f64>() / errors.len() as f64));
+        let params = params_of(reports);
+        let perr = (!params.is_empty() && params.len() == ref_params.len()).then(|| {
+            params
+                .iter()
+                .zip(&ref_params)
+                .map(|(a, b)| (a - b).abs())
+                .fold(0.0, f64::max)
+        });
+        let fmt = |x: Option<f64>, prec: usize| {
+            x.map_or("-".to_string(), |x| {
+                if x.is_infinite() {
+                    "ref".into()
+                } else {
+                    format!("{x:.prec$}")
+                }
+            })
+        };
+        table.push_str(&format!(
+            "| {v} | {secs:.3} | {} | {} |\n",
+            fmt(mean_psnr, 2),
+            fmt(perr, 5)
+        ));
+        csv.push_str(&format!(
+            "{v},{secs},{},{}\n",
+            mean_psnr.map_or(String::new(), |x| x.to_string()),
+            perr.map_or(String::new(), |x| x.to_string())
+        ));
+        // The plot: error against time (PSNR where images exist, else parameter error).
+        if let Some(y) = mean_psnr.filter(|p| p.is_finite()).or(perr) {
+            points.push((*secs, y));
+        }
+    }
+    print!("{table}");
+    let write = |rel: &str, bytes: &[u8]| -> std::io::Result<()> {
+        let mut f = sdfl_runtime::output::Atomic::create(&out.join(rel))?;
+        std::io::Write::write_all(f.writer(), bytes)?;
+        f.commit()
+    };
+    let log_y = ref_images.is_empty();
+    let png =
+        sdfl_runtime::volume::figures::line_plot(640, 400, &[("error vs seconds", &points)], log_y);
+    let result = write("sweep.csv", csv.as_bytes())
+        .and_then(|_| write("sweep.md", table.as_bytes()))
+        .and_then(|_| sdfl_runtime::output::write_png(&out.join("sweep.png"), 640, 400, &png));
+    match result {
+        Ok(()) => {
+            eprintln!(
+                "wrote {0}/sweep.csv, {0}/sweep.md and {0}/sweep.png",
+                out.display()
+            );
+            ExitCode::SUCCESS
+        }
+        Err(e) => {
+            eprintln!(
+                "error[sdfl::io]: writing the sweep results under {}: {e}",
+                out.display()
+            );
+            ExitCode::FAILURE
+        }
+    }
 }
 
 fn docs(name: Option<&str>) -> ExitCode {

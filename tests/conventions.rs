@@ -13,7 +13,11 @@ fn sub(a: V, b: V) -> V {
     [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
 }
 fn cross(a: V, b: V) -> V {
-    [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+    [
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    ]
 }
 fn norm(a: V) -> V {
     let l = (a[0] * a[0] + a[1] * a[1] + a[2] * a[2]).sqrt();
@@ -33,12 +37,23 @@ fn torus_views_follow_the_conventions() {
     let job = &program.renders[0];
     let (w, h) = (64u32, 64u32);
     let out = std::env::temp_dir().join(format!("sdfl-conv-{}", std::process::id()));
-    run_job(job, &out, RunOptions { size: Some((w, h)), no_cull: false }, &|_| {}).unwrap();
+    run_job(
+        job,
+        &out,
+        RunOptions {
+            size: Some((w, h)),
+            no_cull: false,
+        },
+        &|_| {},
+    )
+    .unwrap();
     let n = 20;
     let mut mismatched = 0;
     let mut hits = 0;
     for view in [0usize, 3, 11] {
-        let img = image::open(out.join(format!("torus_{view:02}.png"))).unwrap().to_rgb8();
+        let img = image::open(out.join(format!("torus_{view:02}.png")))
+            .unwrap()
+            .to_rgb8();
         // Orbit, up +z: θ = 2πk/n, eye = (r·cos(θ+π/2), r·sin(θ+π/2), 2).
         let a = std::f64::consts::TAU * view as f64 / n as f64 + std::f64::consts::FRAC_PI_2;
         let eye = [3.0 * a.cos(), 3.0 * a.sin(), 2.0];
@@ -68,7 +83,10 @@ fn torus_views_follow_the_conventions() {
                     None => [0, 0, 0],
                 };
                 hits += hit.is_some() as u32;
-                let off = (0..3).map(|c| (px[c] as i32 - expected[c]).abs()).max().unwrap();
+                let off = (0..3)
+                    .map(|c| (px[c] as i32 - expected[c]).abs())
+                    .max()
+                    .unwrap();
                 // Marching resolution 2e-3 allows a few levels of colour error.
                 if off > 3 {
                     mismatched += 1;
@@ -79,5 +97,8 @@ fn torus_views_follow_the_conventions() {
     let _ = std::fs::remove_dir_all(&out);
     assert!(hits > 300, "the torus must be in view ({hits} hit pixels)");
     // Pixels at the silhouette may flip between hit and miss.
-    assert!(mismatched <= 12, "{mismatched} pixels disagree with the conventions");
+    assert!(
+        mismatched <= 12,
+        "{mismatched} pixels disagree with the conventions"
+    );
 }

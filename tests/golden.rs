@@ -48,13 +48,36 @@ fn examples_match_their_golden_images() {
     let mut failures = Vec::new();
     for file in examples() {
         let name = file.file_stem().unwrap().to_string_lossy().into_owned();
-        let src = SourceFile::new(file.display().to_string(), std::fs::read_to_string(&file).unwrap());
-        let program = sdfl_stdlib::load(&src).unwrap_or_else(|d| panic!("{}", sdfl_lang::render(&src, &d, false)));
+        let src = SourceFile::new(
+            file.display().to_string(),
+            std::fs::read_to_string(&file).unwrap(),
+        );
+        let program = sdfl_stdlib::load(&src)
+            .unwrap_or_else(|d| panic!("{}", sdfl_lang::render(&src, &d, false)));
         let out = std::env::temp_dir().join(format!("sdfl-golden-{}-{name}", std::process::id()));
         let _ = std::fs::remove_dir_all(&out);
+        // Sphere-traced and volume renders (training is checked end to end
+        // by tests/train.rs).
+        let mut reports = Vec::new();
         for job in &program.renders {
-            let report = run_job(job, &out, RunOptions { size: Some(SIZE), no_cull: false }, &|_| {}).unwrap();
-            for w in report.written.iter().filter(|w| w.kind != "gif") {
+            let r = run_job(
+                job,
+                &out,
+                RunOptions {
+                    size: Some(SIZE),
+                    no_cull: false,
+                },
+                &|_| {},
+            )
+            .unwrap();
+            reports.push((r.written, job.cameras.len()));
+        }
+        for job in &program.volumes {
+            let r = sdfl_runtime::jobs::run_volume_job(job, &out, Some(SIZE), &|_| {}).unwrap();
+            reports.push((r.written, job.cameras.len()));
+        }
+        for (written, views) in reports {
+            for w in written.iter().filter(|w| w.kind != "gif") {
                 let file_name = w.path.to_string_lossy().into_owned();
                 if !is_first_view(&file_name) {
                     continue;
@@ -67,24 +90,35 @@ fn examples_match_their_golden_images() {
                     continue;
                 }
                 let Ok(expected) = image::open(&golden) else {
-                    failures.push(format!("{}: no golden image (run with SDFL_BLESS=1)", golden.display()));
+                    failures.push(format!(
+                        "{}: no golden image (run with SDFL_BLESS=1)",
+                        golden.display()
+                    ));
                     continue;
                 };
                 let got = image::open(&produced).unwrap().to_rgb8();
                 let (mean, frac) = compare(&got, &expected.to_rgb8());
                 compared += 1;
                 if mean > 1.0 || frac > 0.01 {
-                    failures.push(format!("{}: mean diff {mean:.3}, {:.2}% pixels differ", golden.display(), frac * 100.0));
+                    failures.push(format!(
+                        "{}: mean diff {mean:.3}, {:.2}% pixels differ",
+                        golden.display(),
+                        frac * 100.0
+                    ));
                 }
             }
             // Every GIF has one frame per view.
-            for w in report.written.iter().filter(|w| w.kind == "gif") {
-                assert_eq!(w.frames, job.cameras.len());
+            for w in written.iter().filter(|w| w.kind == "gif") {
+                assert_eq!(w.frames, views);
                 assert!(out.join(&w.path).metadata().unwrap().len() > 0);
             }
         }
         let _ = std::fs::remove_dir_all(&out);
     }
-    assert!(failures.is_empty(), "golden mismatches:\n{}", failures.join("\n"));
+    assert!(
+        failures.is_empty(),
+        "golden mismatches:\n{}",
+        failures.join("\n")
+    );
     assert!(bless || compared >= 8, "only {compared} images compared");
 }

@@ -9,6 +9,27 @@ use crate::diag::{codes, suggest, Diag, Diagnostics};
 use crate::span::Span;
 use crate::types::{Env, Param, Type};
 
+/// Deepest nesting of lists (as `[[[1]]]`) a file may build. Brackets
+/// alone cannot nest deeper than the parser's limit, but chains of `let`s
+/// can (`let a1 = [a0]`, `let a2 = [a1]`, ...): 100k of them built a value
+/// whose tree walkers and `Drop` overflowed the stack, and whose type took
+/// quadratic time to check.
+pub const MAX_LIST_NESTING: usize = 64;
+
+/// After this many diagnostics, unknown names get no "did you mean"
+/// suggestion: each one compares the name against every visible name, which
+/// is quadratic over a file of thousands of mistakes.
+const MAX_SUGGESTIONS: usize = 100;
+
+/// How many lists deep a type is (`list of list of number`: 2).
+fn list_depth(t: &Type) -> usize {
+    match t {
+        Type::List(e) => 1 + list_depth(e),
+        Type::OneOf(options) => options.iter().map(list_depth).max().unwrap_or(0),
+        _ => 0,
+    }
+}
+
 /// Check a file. Returns the diagnostics (empty when the file is fine).
 pub fn check(file: &File, env: &dyn Env) -> Diagnostics {
     let mut c = Checker {
@@ -16,6 +37,7 @@ pub fn check(file: &File, env: &dyn Env) -> Diagnostics {
         globals: HashMap::new(),
         locals: Vec::new(),
         diags: Diagnostics::default(),
+        deep_list_reported: false,
     };
     let mut blocks: HashMap<(String, String), Span> = HashMap::new();
     for item in &file.items {
@@ -68,6 +90,9 @@ struct Checker<'e> {
     globals: HashMap<String, (Type, Span)>,
     locals: Vec<HashMap<String, Type>>,
     diags: Diagnostics,
+    /// Whether lists nested too deep were reported (once is enough: the
+    /// file is not evaluated after a check error).
+    deep_list_reported: bool,
 }
 
 impl Checker<'_> {
@@ -156,7 +181,10 @@ impl Checker<'_> {
                         format!("`{}` needs the field `{}`", sig.kind, p.name),
                     )
                     .label(format!("`{}` is missing", p.name))
-                    .help(format!("add `{}: ...` ({}: {})", p.name, p.ty, p.doc)),
+                    .help(format!(
+                        "add `{}: ...` to `{}`: {}",
+                        p.name, sig.kind, p.doc
+                    )),
                 );
             }
         }
@@ -164,16 +192,58 @@ impl Checker<'_> {
 
     fn expect_type(&mut self, param: &Param, actual: &Type, span: Span) {
         if !param.ty.accepts(actual) {
+            // A single item where a list of such items is wanted.
+            let options = match &param.ty {
+                Type::OneOf(options) => options.as_slice(),
+                t => std::slice::from_ref(t),
+            };
+            let wants_list_of_it = options
+                .iter()
+                .any(|o| matches!(o, Type::List(e) if e.accepts(actual)));
+            let help = if wants_list_of_it {
+                format!(
+                    "put it in a list: `[...]` (`{}`: {})",
+                    param.name, param.doc
+                )
+            } else {
+                format!("`{}`: {}", param.name, param.doc)
+            };
             self.diags.push(
                 Diag::new(
                     codes::TYPE,
                     span,
-                    format!("`{}` must be a {}, not a {actual}", param.name, param.ty),
+                    format!(
+                        "`{}` must be {}, not {}",
+                        param.name,
+                        param.ty.with_article(),
+                        actual.with_article()
+                    ),
                 )
-                .label(format!("this is a {actual}"))
-                .help(format!("`{}`: {}", param.name, param.doc)),
+                .label(format!("this is {}", actual.with_article()))
+                .help(help),
             );
         }
+    }
+
+    /// `t`, or [`Type::Any`] (after a diagnostic) when it is a list nested
+    /// deeper than [`MAX_LIST_NESTING`].
+    fn nesting_checked(&mut self, t: Type, span: Span) -> Type {
+        if list_depth(&t) <= MAX_LIST_NESTING {
+            return t;
+        }
+        if !self.deep_list_reported {
+            self.deep_list_reported = true;
+            self.diags.push(
+                Diag::new(
+                    codes::TOO_LARGE,
+                    span,
+                    format!("lists nested more than {MAX_LIST_NESTING} deep"),
+                )
+                .label("too deep")
+                .help("a list of a list of ... this deep comes from a chain of `let`s; build flat lists with `for`"),
+            );
+        }
+        Type::Any
     }
 
     fn expr(&mut self, e: &Expr) -> Type {
@@ -188,11 +258,14 @@ impl Checker<'_> {
                     return Type::Vec3;
                 }
                 let first = types.iter().find(|t| !matches!(t, Type::Any)).cloned();
-                match first {
+                let t = match first {
                     None => Type::list(Type::Any),
                     Some(t) if types.iter().all(|u| t.accepts(u) && u.accepts(&t)) => Type::list(t),
+                    // Mixed items: typed `list of any value`, so nesting
+                    // through them is not counted here.
                     Some(_) => Type::list(Type::Any),
-                }
+                };
+                self.nesting_checked(t, e.span)
             }
             ExprKind::Call { callee, args, .. } => self.call(callee, args, e.span),
             ExprKind::Member(recv, name) => {
@@ -214,9 +287,9 @@ impl Checker<'_> {
                         Diag::new(
                             codes::TYPE,
                             recv.span,
-                            format!("`.{}` needs a vector, not a {t}", name.name),
+                            format!("`.{}` needs a vector, not {}", name.name, t.with_article()),
                         )
-                        .label(format!("this is a {t}"))
+                        .label(format!("this is {}", t.with_article()))
                         .help("only vectors `[x, y, z]` have components"),
                     );
                     return Type::Any;
@@ -227,9 +300,13 @@ impl Checker<'_> {
                 let t = self.expr(inner);
                 if !t.is_numeric() {
                     self.diags.push(
-                        Diag::new(codes::TYPE, inner.span, format!("cannot negate a {t}"))
-                            .label(format!("this is a {t}"))
-                            .help("`-` applies to numbers and vectors"),
+                        Diag::new(
+                            codes::TYPE,
+                            inner.span,
+                            format!("cannot negate {}", t.with_article()),
+                        )
+                        .label(format!("this is {}", t.with_article()))
+                        .help("`-` applies to numbers and vectors"),
                     );
                     return Type::Any;
                 }
@@ -243,9 +320,13 @@ impl Checker<'_> {
                             Diag::new(
                                 codes::TYPE,
                                 side.span,
-                                format!("`{}` needs numbers or vectors, not a {t}", op.symbol()),
+                                format!(
+                                    "`{}` needs numbers or vectors, not {}",
+                                    op.symbol(),
+                                    t.with_article()
+                                ),
                             )
-                            .label(format!("this is a {t}"))
+                            .label(format!("this is {}", t.with_article()))
                             .help("arithmetic applies to numbers and vectors; shapes are combined with `union`, `intersection`, `subtraction`"),
                         );
                         return Type::Any;
@@ -269,9 +350,12 @@ impl Checker<'_> {
                                         Diag::new(
                                             codes::TYPE,
                                             bound.span,
-                                            format!("range bounds must be numbers, not a {t}"),
+                                            format!(
+                                                "range bounds must be numbers, not {}",
+                                                t.with_article()
+                                            ),
                                         )
-                                        .label(format!("this is a {t}"))
+                                        .label(format!("this is {}", t.with_article()))
                                         .help("write ranges as `0..n` with whole numbers"),
                                     );
                                 }
@@ -287,9 +371,9 @@ impl Checker<'_> {
                                     Diag::new(
                                         codes::TYPE,
                                         list.span,
-                                        format!("cannot loop over a {t}"),
+                                        format!("cannot loop over {}", t.with_article()),
                                     )
-                                    .label(format!("this is a {t}"))
+                                    .label(format!("this is {}", t.with_article()))
                                     .help("loop over a range `0..n` or a list `[...]`"),
                                 );
                                 Type::Any
@@ -310,7 +394,7 @@ impl Checker<'_> {
                 }
                 let t = self.expr(&body.value);
                 self.locals.pop();
-                Type::list(t)
+                self.nesting_checked(Type::list(t), e.span)
             }
         }
     }
@@ -330,6 +414,8 @@ impl Checker<'_> {
                 "`{0}` is a built-in function: call it as `{0}(...)`",
                 id.name
             ));
+        } else if self.diags.len() >= MAX_SUGGESTIONS {
+            d = d.help("define it first with `let name = ...`");
         } else {
             let names = self.visible_names();
             d = match suggest(&id.name, names.iter().copied()) {

@@ -135,6 +135,11 @@ fn floor_char_boundary(s: &str, mut i: usize) -> usize {
 /// otherwise be printed whole); the location is given as line:column instead.
 const MAX_QUOTED_LINE: usize = 400;
 
+/// Most diagnostics rendered in full; the rest are counted. (Each report
+/// scans the source for its lines: 100k errors in a large file took minutes,
+/// and no one reads past the first screenfuls.)
+pub const MAX_RENDERED: usize = 50;
+
 /// A diagnostic joined with its source, as miette wants it.
 struct Located<'a> {
     diag: &'a Diag,
@@ -200,7 +205,7 @@ pub fn render(source: &SourceFile, diags: &Diagnostics, color: bool) -> String {
         .with_width(100)
         .with_links(false);
     let mut out = String::new();
-    for diag in &diags.diags {
+    for diag in diags.diags.iter().take(MAX_RENDERED) {
         let (line, col) = source.line_col(diag.span.start);
         let quotable = [diag.span.start, diag.span.end]
             .into_iter()
@@ -215,6 +220,17 @@ pub fn render(source: &SourceFile, diags: &Diagnostics, color: bool) -> String {
         let _ = handler.render_report(&mut out, &located);
     }
     let n = diags.len();
+    if n > MAX_RENDERED {
+        let rest = n - MAX_RENDERED;
+        let codes: std::collections::BTreeSet<&str> =
+            diags.diags[MAX_RENDERED..].iter().map(|d| d.code).collect();
+        let codes: Vec<&str> = codes.into_iter().collect();
+        out.push_str(&format!(
+            "... and {rest} more error{} not shown ({})\n",
+            if rest == 1 { "" } else { "s" },
+            codes.join(", ")
+        ));
+    }
     if n > 0 {
         out.push_str(&format!(
             "{n} error{} in {}\n",
@@ -238,7 +254,9 @@ pub fn suggest<'a>(name: &str, candidates: impl IntoIterator<Item = &'a str>) ->
     candidates
         .into_iter()
         .map(|c| (strsim::damerau_levenshtein(name, c), c))
-        .filter(|(d, c)| *d <= (name.len().max(c.len()) / 3).max(1))
+        // Close enough, and not a rewrite of the whole name (`i` is no typo
+        // of `a`).
+        .filter(|(d, c)| *d <= (name.len().max(c.len()) / 3).max(1) && *d < name.len().min(c.len()))
         .min_by_key(|(d, c)| (*d, *c))
         .map(|(_, c)| c)
 }

@@ -3,7 +3,11 @@
 //!
 //! Hostile input is handled before pest sees it: nesting deeper than
 //! [`MAX_NESTING`] (which would overflow the recursive-descent parser's stack)
-//! and overlong operator chains are rejected with diagnostics.
+//! is rejected with a diagnostic. While the AST is built, overlong operator
+//! chains and expression trees taller than [`MAX_DEPTH`] (method chains,
+//! operators inside brackets, many loop bindings) are rejected too, so the
+//! recursive tree walkers after the parser (checker, evaluator, `Drop`)
+//! cannot overflow their stacks either.
 
 use std::f64::consts::PI;
 
@@ -21,8 +25,12 @@ use crate::span::Span;
 #[grammar = "sdfl.pest"]
 struct SdflParser;
 
-/// Deepest bracket nesting accepted.
+/// Deepest bracket nesting accepted (a `for` whose body has not started
+/// yet counts as one more level: `for a in for b in ...` nests too).
 pub const MAX_NESTING: usize = 64;
+/// Tallest expression tree accepted. Every operator, call, method, member
+/// access and `for` binding adds a level; tree walkers recurse this deep.
+pub const MAX_DEPTH: usize = 640;
 /// Most binary operators in one expression (a left-deep tree this tall is
 /// walked recursively later).
 pub const MAX_OPERATORS: usize = 512;
@@ -58,6 +66,15 @@ pub fn parse(text: &str) -> Result<File, Diagnostics> {
                         InputLocation::Span((s, _)) => s,
                     };
                 diags.push(syntax_error(text, pos, &e.variant));
+                // An error at the start of a line that starts an item (the
+                // line before was incomplete): parsing resumes right there.
+                let item_here = pos > offset
+                    && (pos == 0 || text[..pos].ends_with('\n'))
+                    && text[pos..].starts_with(|c: char| c.is_ascii_alphabetic() || c == '_');
+                if item_here {
+                    offset = pos;
+                    continue;
+                }
                 match next_item_start(text, pos) {
                     Some(next) => offset = next,
                     None => break,
@@ -89,11 +106,39 @@ fn next_item_start(text: &str, pos: usize) -> Option<usize> {
 fn prescan(text: &str) -> Option<Diag> {
     let bytes = text.as_bytes();
     let mut depth = 0usize;
+    // `for`s whose body `{` has not been seen: each is a level of nesting
+    // that no bracket shows (`for a in for b in [1] { 1 } { 2 }`).
+    let mut open_fors = 0usize;
     let mut minus_run = 0usize;
     let mut i = 0;
+    let is_ident = |b: u8| b.is_ascii_alphanumeric() || b == b'_';
     while i < bytes.len() {
         let c = bytes[i];
         match c {
+            b'f' if bytes[i..].starts_with(b"for")
+                && (i == 0 || !is_ident(bytes[i - 1]))
+                && !bytes.get(i + 3).is_some_and(|b| is_ident(*b)) =>
+            {
+                open_fors += 1;
+                if depth + open_fors > MAX_NESTING {
+                    return Some(
+                        Diag::new(
+                            codes::NESTING,
+                            Span::new(i, i + 3),
+                            format!("`for` loops and brackets nested more than {MAX_NESTING} deep"),
+                        )
+                        .label("too deep")
+                        .help("bind inner loops to names with `let` to flatten the expression"),
+                    );
+                }
+                i += 2;
+            }
+            b'a'..=b'z' | b'A'..=b'Z' | b'_' | b'0'..=b'9' => {
+                // Skip the rest of a name, so `xfor` or `for_x` is no `for`.
+                while bytes.get(i + 1).is_some_and(|b| is_ident(*b)) {
+                    i += 1;
+                }
+            }
             b'"' => {
                 i += 1;
                 while i < bytes.len() && bytes[i] != b'"' && bytes[i] != b'\n' {
@@ -113,8 +158,11 @@ fn prescan(text: &str) -> Option<Diag> {
                 i += 1;
             }
             b'(' | b'[' | b'{' => {
+                if c == b'{' {
+                    open_fors = open_fors.saturating_sub(1);
+                }
                 depth += 1;
-                if depth > MAX_NESTING {
+                if depth + open_fors > MAX_NESTING {
                     return Some(
                         Diag::new(
                             codes::NESTING,
@@ -161,7 +209,7 @@ fn describe_rule(rule: Rule) -> &'static str {
         Rule::list => "a list",
         Rule::for_expr => "`for`",
         Rule::binding => "a loop binding (`i in 0..n`)",
-        Rule::range => "a range (`0..n`)",
+        Rule::range_end => "a range (`0..n`)",
         Rule::body => "`{`",
         Rule::number | Rule::number_value => "a number",
         Rule::unit => "a unit (`deg`)",
@@ -195,6 +243,9 @@ fn describe_rule(rule: Rule) -> &'static str {
 }
 
 fn syntax_error(text: &str, pos: usize, variant: &ErrorVariant<Rule>) -> Diag {
+    if let Some(d) = unterminated(text, pos) {
+        return d;
+    }
     let mut expected: Vec<&str> = match variant {
         ErrorVariant::ParsingError { positives, .. } => {
             positives.iter().map(|r| describe_rule(*r)).collect()
@@ -203,40 +254,95 @@ fn syntax_error(text: &str, pos: usize, variant: &ErrorVariant<Rule>) -> Diag {
     };
     expected.sort_unstable();
     expected.dedup();
-    // "an operator" is always possible after an operand and rarely the point.
-    if expected.len() > 1 {
-        expected.retain(|e| *e != "an operator");
+    // An operator, a method (`.`) or a unit is always possible after an
+    // operand and rarely the point; a minus sign is one way to start an
+    // expression.
+    for noise in ["an operator", "`.`", "a unit (`deg`)"] {
+        if expected.len() > 1 {
+            expected.retain(|e| *e != noise);
+        }
+    }
+    if expected.contains(&"an expression") {
+        expected.retain(|e| *e != "`-`");
     }
     let found = text[pos..].chars().next();
-    let found_desc = match found {
-        None => "end of file".to_string(),
+    let token: String = text[pos..]
+        .chars()
+        .take_while(|c| c.is_alphanumeric() || *c == '_')
+        .take(24)
+        .collect();
+    let (found_desc, end) = match found {
+        None => ("end of file".to_string(), pos),
         Some(c) if c.is_control() || !c.is_ascii() && !c.is_alphanumeric() => {
-            format!("character U+{:04X}", c as u32)
+            (format!("character U+{:04X}", c as u32), pos + c.len_utf8())
         }
-        Some(_) => {
-            let token: String = text[pos..]
-                .chars()
-                .take_while(|c| c.is_alphanumeric() || *c == '_')
-                .take(24)
-                .collect();
-            if token.is_empty() {
-                format!("`{}`", found.unwrap())
-            } else {
-                format!("`{token}`")
-            }
-        }
+        Some(c) if token.is_empty() => (format!("`{c}`"), pos + c.len_utf8()),
+        Some(_) => (format!("`{token}`"), pos + token.len()),
     };
     let expected_desc = match expected.len() {
         0 => "something else".to_string(),
         1 => expected[0].to_string(),
         n => format!("{} or {}", expected[..n - 1].join(", "), expected[n - 1]),
     };
-    let end = pos + found.map_or(0, char::len_utf8);
+    let line_of = |at: usize| text[..at].matches('\n').count() + 1;
+    let at_line_start = text[..pos]
+        .rsplit('\n')
+        .next()
+        .is_some_and(|before| before.trim().is_empty());
+    // The innermost bracket still open, if the parser wanted it closed and
+    // it was opened on an earlier line: the usual cause of an error at the
+    // start of the next statement.
+    let unclosed = innermost_unclosed(text, pos).filter(|(at, open)| {
+        let close = match open {
+            '(' => "`)`",
+            '[' => "`]`",
+            _ => "`}`",
+        };
+        expected.contains(&close) && (found.is_none() || line_of(*at) < line_of(pos))
+    });
+    let closer_of = |open: char| match open {
+        '(' => ')',
+        '[' => ']',
+        _ => '}',
+    };
+    // A closing bracket the parser did not want: one too many, or the
+    // wrong kind for the bracket that is open.
+    let stray_closer = found
+        .filter(|c| matches!(c, ')' | ']' | '}'))
+        .filter(|c| !expected.contains(&format!("`{c}`").as_str()));
+    let mut note = None;
     let help = match found {
+        Some(c) if stray_closer.is_some() => match innermost_unclosed(text, pos) {
+            Some((at, open)) if closer_of(open) != c => {
+                note = Some((Span::new(at, at + 1), format!("this `{open}` is open")));
+                format!(
+                    "the `{open}` on line {} is closed with `{}`, not `{c}`",
+                    line_of(at),
+                    closer_of(open)
+                )
+            }
+            _ => format!("this `{c}` closes no bracket: remove it, or open one before it"),
+        },
+        _ if unclosed.is_some() => {
+            let (at, open) = unclosed.expect("checked");
+            let close = closer_of(open);
+            note = Some((
+                Span::new(at, at + 1),
+                format!("this `{open}` is not closed"),
+            ));
+            format!(
+                "the `{open}` on line {} is never closed: add `{close}` where it ends",
+                line_of(at)
+            )
+        }
         Some('=') if expected.contains(&"`:`") => {
             "fields and named arguments are written `name: value`".to_string()
         }
-        Some(c) if c.is_ascii_alphabetic() && expected.contains(&"`,`") => {
+        Some(_) if at_line_start && expected.contains(&"an expression") => {
+            "the line before ends in the middle of an expression: is something missing there?"
+                .to_string()
+        }
+        Some(c) if c.is_ascii_alphanumeric() && expected.contains(&"`,`") => {
             "separate arguments and list elements with `,`".to_string()
         }
         None => "the file ended early: is a bracket or brace left open?".to_string(),
@@ -248,13 +354,114 @@ fn syntax_error(text: &str, pos: usize, variant: &ErrorVariant<Rule>) -> Diag {
         }
         _ => "see the language tour in README.md for the syntax".to_string(),
     };
-    Diag::new(
-        codes::SYNTAX,
-        Span::new(pos, end),
-        format!("expected {expected_desc}, found {found_desc}"),
-    )
-    .label(format!("expected {expected_desc}"))
-    .help(help)
+    let (message, label) = if let Some(c) = stray_closer {
+        (
+            format!("unexpected `{c}`"),
+            format!("expected {expected_desc}"),
+        )
+    } else if expected.is_empty() {
+        (
+            format!("unexpected {found_desc}"),
+            "unexpected here".to_string(),
+        )
+    } else {
+        (
+            format!("expected {expected_desc}, found {found_desc}"),
+            format!("expected {expected_desc}"),
+        )
+    };
+    let d = Diag::new(codes::SYNTAX, Span::new(pos, end), message)
+        .label(label)
+        .help(help);
+    match note {
+        Some((span, text)) => d.note(span, text),
+        None => d,
+    }
+}
+
+/// A string or block comment left open at `pos`, where the parser stopped:
+/// pest reports only the `"` or the `*` it could not use.
+fn unterminated(text: &str, pos: usize) -> Option<Diag> {
+    let rest = &text[pos..];
+    if rest.starts_with('"') {
+        let line_end = rest.find('\n').unwrap_or(rest.len());
+        let line = &rest[1..line_end];
+        let mut escaped = false;
+        let closed = line.chars().any(|c| {
+            let quote = c == '"' && !escaped;
+            escaped = c == '\\' && !escaped;
+            quote
+        });
+        if !closed {
+            return Some(
+                Diag::new(
+                    codes::SYNTAX,
+                    Span::new(pos, pos + 1),
+                    "string is not closed",
+                )
+                .label("this string has no closing `\"`")
+                .help("end the string with `\"` on the same line: strings cannot span lines"),
+            );
+        }
+    }
+    let comment_at = if rest.starts_with("/*") {
+        Some(pos)
+    } else if rest.starts_with('*') && text[..pos].ends_with('/') {
+        Some(pos - 1)
+    } else {
+        None
+    };
+    if let Some(at) = comment_at {
+        if !text[at + 2..].contains("*/") {
+            return Some(
+                Diag::new(
+                    codes::SYNTAX,
+                    Span::new(at, at + 2),
+                    "block comment is not closed",
+                )
+                .label("this comment has no closing `*/`")
+                .help("end the comment with `*/` (block comments do not nest)"),
+            );
+        }
+    }
+    None
+}
+
+/// The innermost bracket opened before `pos` and not closed there, with its
+/// offset (strings and comments skipped, as the parser does).
+fn innermost_unclosed(text: &str, pos: usize) -> Option<(usize, char)> {
+    let bytes = &text.as_bytes()[..pos];
+    let mut stack = Vec::new();
+    let mut i = 0;
+    while i < bytes.len() {
+        match bytes[i] {
+            b'"' => {
+                i += 1;
+                while i < bytes.len() && bytes[i] != b'"' && bytes[i] != b'\n' {
+                    i += if bytes[i] == b'\\' { 2 } else { 1 };
+                }
+            }
+            b'/' if bytes.get(i + 1) == Some(&b'/') => {
+                while i < bytes.len() && bytes[i] != b'\n' {
+                    i += 1;
+                }
+            }
+            b'/' if bytes.get(i + 1) == Some(&b'*') => {
+                i += 2;
+                while i + 1 < bytes.len() && !(bytes[i] == b'*' && bytes[i + 1] == b'/') {
+                    i += 1;
+                }
+                i += 1;
+            }
+            c @ (b'(' | b'[' | b'{') => stack.push((i, c as char)),
+            b')' | b']' | b'}' => {
+                stack.pop();
+            }
+            _ => {}
+        }
+        i += 1;
+    }
+    stack.pop()
 }
 
 // ------------------------------------------------------------- AST building
@@ -293,7 +500,7 @@ fn children(pair: Pair<Rule>) -> impl Iterator<Item = Pair<Rule>> {
 fn build_file(pair: Pair<Rule>, diags: &mut Diagnostics) -> File {
     let items = children(pair)
         .map(|p| match p.as_rule() {
-            Rule::let_stmt => Item::Let(build_let(p, diags)),
+            Rule::let_stmt => Item::Let(build_let(p, diags).0),
             Rule::block => Item::Block(build_block(p, diags)),
             r => unreachable!("grammar: item cannot be {r:?}"),
         })
@@ -308,12 +515,53 @@ fn build_ident(pair: Pair<Rule>) -> Ident {
     }
 }
 
-fn build_let(pair: Pair<Rule>, diags: &mut Diagnostics) -> Let {
+/// A built expression (or part of one) with the height of its tree.
+type Built<T> = (T, usize);
+
+/// Returns the `let` and the height of its value.
+fn build_let(pair: Pair<Rule>, diags: &mut Diagnostics) -> Built<Let> {
     let span = span_of(&pair);
     let mut it = children(pair);
     let name = build_ident(it.next().expect("let has a name"));
-    let value = build_expr(it.next().expect("let has a value"), diags);
-    Let { name, value, span }
+    let (value, depth) = build_expr(it.next().expect("let has a value"), diags);
+    (Let { name, value, span }, depth)
+}
+
+/// The diagnostic for an expression taller than [`MAX_DEPTH`], and the
+/// placeholder that replaces it (so enclosing expressions are not reported
+/// again, and the tall tree is dropped while it is still shallow enough).
+/// The diagnostic is left out when one was already given inside `whole`.
+fn too_deep(at: Span, whole: Span, diags: &mut Diagnostics) -> Built<Expr> {
+    let inner_reported = diags.diags.iter().any(|d| {
+        d.code == codes::NESTING && whole.start <= d.span.start && d.span.end <= whole.end
+    });
+    if !inner_reported {
+        diags.push(
+            Diag::new(
+                codes::NESTING,
+                at,
+                format!("expression nested more than {MAX_DEPTH} levels deep"),
+            )
+            .label("too deep")
+            .help(
+                "every operator, call, method, `.x` and loop binding adds a level: \
+             split the expression into parts bound with `let`",
+            ),
+        );
+    }
+    let placeholder = Expr {
+        kind: ExprKind::Number(0.0),
+        span: at,
+    };
+    (placeholder, 1)
+}
+
+/// The span of the first line of a pair's text (a whole multi-line
+/// expression would be quoted in full).
+fn first_line_span(pair: &Pair<Rule>) -> Span {
+    let span = span_of(pair);
+    let len = pair.as_str().find('\n').unwrap_or(span.len());
+    Span::new(span.start, span.start + len)
 }
 
 fn build_block(pair: Pair<Rule>, diags: &mut Diagnostics) -> Block {
@@ -328,7 +576,7 @@ fn build_block(pair: Pair<Rule>, diags: &mut Diagnostics) -> Block {
             Rule::field => {
                 let mut it = children(p);
                 let fname = build_ident(it.next().expect("field has a name"));
-                let value = build_expr(it.next().expect("field has a value"), diags);
+                let (value, _) = build_expr(it.next().expect("field has a value"), diags);
                 fields.push(Field { name: fname, value });
             }
             r => unreachable!("grammar: block cannot contain {r:?}"),
@@ -355,9 +603,10 @@ fn pratt() -> &'static PrattParser<Rule> {
     })
 }
 
-fn build_expr(pair: Pair<Rule>, diags: &mut Diagnostics) -> Expr {
+fn build_expr(pair: Pair<Rule>, diags: &mut Diagnostics) -> Built<Expr> {
     debug_assert_eq!(pair.as_rule(), Rule::expr);
     let span = span_of(&pair);
+    let first_line = first_line_span(&pair);
     let operators = pair
         .clone()
         .into_inner()
@@ -377,27 +626,40 @@ fn build_expr(pair: Pair<Rule>, diags: &mut Diagnostics) -> Expr {
         diags.push(
             Diag::new(
                 codes::NESTING,
-                span,
+                first_line,
                 format!("expression has {operators} operators (at most {MAX_OPERATORS})"),
             )
             .label("too long")
             .help("split it into parts bound with `let`, or build the values with a `for`"),
         );
-        return Expr {
+        let placeholder = Expr {
             kind: ExprKind::Number(0.0),
             span,
         };
+        return (placeholder, 1);
     }
-    // The Pratt callbacks cannot borrow `diags` mutably together, so
-    // conversion errors are gathered in a RefCell.
-    let sink = std::cell::RefCell::new(std::mem::take(diags));
-    let expr = pratt()
-        .map_primary(|p| build_postfixed(p, &mut sink.borrow_mut()))
-        .map_prefix(|op, rhs| Expr {
-            span: span_of(&op).to(rhs.span),
-            kind: ExprKind::Neg(Box::new(rhs)),
+    // The operands are built first, each checked for height on its own;
+    // the Pratt parser then only combines them. (Building them from inside
+    // the Pratt callbacks nested the parser's recursion for `^` chains
+    // inside that of every enclosing bracket: 60 brackets of 500 `^` each
+    // overflowed the stack before any height was known.)
+    let mut operands = Vec::new();
+    for p in pair.clone().into_inner() {
+        if p.as_rule() == Rule::postfixed {
+            operands.push(build_postfixed(p, diags));
+        }
+    }
+    let mut operands = operands.into_iter();
+    let (expr, depth) = pratt()
+        .map_primary(|_| operands.next().expect("one operand per primary"))
+        .map_prefix(|op, (rhs, depth): Built<Expr>| {
+            let expr = Expr {
+                span: span_of(&op).to(rhs.span),
+                kind: ExprKind::Neg(Box::new(rhs)),
+            };
+            (expr, depth + 1)
         })
-        .map_infix(|lhs, op, rhs| {
+        .map_infix(|(lhs, l), op, (rhs, r)| {
             let bin = match op.as_rule() {
                 Rule::op_add => BinOp::Add,
                 Rule::op_sub => BinOp::Sub,
@@ -407,21 +669,25 @@ fn build_expr(pair: Pair<Rule>, diags: &mut Diagnostics) -> Expr {
                 Rule::op_pow => BinOp::Pow,
                 r => unreachable!("grammar: {r:?} is not an infix operator"),
             };
-            Expr {
+            let expr = Expr {
                 span: lhs.span.to(rhs.span),
                 kind: ExprKind::Binary(bin, Box::new(lhs), Box::new(rhs)),
-            }
+            };
+            (expr, l.max(r) + 1)
         })
         .parse(pair.into_inner());
-    *diags = sink.into_inner();
-    expr
+    if depth > MAX_DEPTH {
+        return too_deep(first_line, span, diags);
+    }
+    (expr, depth)
 }
 
-fn build_postfixed(pair: Pair<Rule>, diags: &mut Diagnostics) -> Expr {
+fn build_postfixed(pair: Pair<Rule>, diags: &mut Diagnostics) -> Built<Expr> {
     let mut it = children(pair);
-    let mut expr = build_primary(it.next().expect("postfixed has an operand"), diags);
+    let (mut expr, mut depth) = build_primary(it.next().expect("postfixed has an operand"), diags);
     for suffix in it {
-        let span = expr.span.to(span_of(&suffix));
+        let suffix_span = span_of(&suffix);
+        let span = expr.span.to(suffix_span);
         match suffix.as_rule() {
             Rule::method => {
                 let mut parts = children(suffix);
@@ -430,7 +696,11 @@ fn build_postfixed(pair: Pair<Rule>, diags: &mut Diagnostics) -> Expr {
                     name: None,
                     value: expr,
                 }];
-                args.extend(parts.map(|a| build_arg(a, diags)));
+                for a in parts {
+                    let (arg, d) = build_arg(a, diags);
+                    depth = depth.max(d);
+                    args.push(arg);
+                }
                 expr = Expr {
                     kind: ExprKind::Call {
                         callee,
@@ -449,11 +719,17 @@ fn build_postfixed(pair: Pair<Rule>, diags: &mut Diagnostics) -> Expr {
             }
             r => unreachable!("grammar: {r:?} is not a postfix"),
         }
+        depth += 1;
+        // Checked per suffix: a chain of 100k methods must not be built
+        // whole (dropping it would recurse 100k deep).
+        if depth > MAX_DEPTH {
+            return too_deep(suffix_span, span, diags);
+        }
     }
-    expr
+    (expr, depth)
 }
 
-fn build_arg(pair: Pair<Rule>, diags: &mut Diagnostics) -> Arg {
+fn build_arg(pair: Pair<Rule>, diags: &mut Diagnostics) -> Built<Arg> {
     let mut name = None;
     let mut value = None;
     for p in children(pair) {
@@ -463,34 +739,51 @@ fn build_arg(pair: Pair<Rule>, diags: &mut Diagnostics) -> Arg {
             r => unreachable!("grammar: arg cannot contain {r:?}"),
         }
     }
-    Arg {
-        name,
-        value: value.expect("arg has a value"),
-    }
+    let (value, depth) = value.expect("arg has a value");
+    (Arg { name, value }, depth)
 }
 
-fn build_primary(pair: Pair<Rule>, diags: &mut Diagnostics) -> Expr {
+fn build_primary(pair: Pair<Rule>, diags: &mut Diagnostics) -> Built<Expr> {
     let span = span_of(&pair);
+    let mut depth = 0;
     let kind = match pair.as_rule() {
         Rule::number => build_number(pair, diags),
         Rule::string => build_string(pair, diags),
         Rule::boolean => ExprKind::Bool(pair.as_str() == "true"),
         Rule::ident => ExprKind::Var(build_ident(pair)),
         Rule::expr => return build_expr(pair, diags),
-        Rule::list => ExprKind::List(children(pair).map(|p| build_expr(p, diags)).collect()),
+        Rule::list => {
+            let mut items = Vec::new();
+            for p in children(pair) {
+                let (item, d) = build_expr(p, diags);
+                depth = depth.max(d);
+                items.push(item);
+            }
+            ExprKind::List(items)
+        }
         Rule::call => {
             let mut it = children(pair);
             let callee = build_ident(it.next().expect("call has a callee"));
+            let mut args = Vec::new();
+            for a in it {
+                let (arg, d) = build_arg(a, diags);
+                depth = depth.max(d);
+                args.push(arg);
+            }
             ExprKind::Call {
                 callee,
-                args: it.map(|a| build_arg(a, diags)).collect(),
+                args,
                 method: false,
             }
         }
-        Rule::for_expr => build_for(pair, diags),
+        Rule::for_expr => {
+            let (kind, d) = build_for(pair, diags);
+            depth = d;
+            kind
+        }
         r => unreachable!("grammar: {r:?} is not a primary"),
     };
-    Expr { kind, span }
+    (Expr { kind, span }, depth + 1)
 }
 
 fn build_number(pair: Pair<Rule>, diags: &mut Diagnostics) -> ExprKind {
@@ -549,29 +842,32 @@ fn build_string(pair: Pair<Rule>, diags: &mut Diagnostics) -> ExprKind {
     ExprKind::Str(out)
 }
 
-fn build_for(pair: Pair<Rule>, diags: &mut Diagnostics) -> ExprKind {
+/// Returns the loop and its height: the evaluator recurses once per
+/// binding, so each binding counts as a level.
+fn build_for(pair: Pair<Rule>, diags: &mut Diagnostics) -> Built<ExprKind> {
     let mut bindings = Vec::new();
     let mut body = None;
+    let mut depth = 0;
     for p in children(pair) {
         match p.as_rule() {
             Rule::binding => {
                 let mut it = children(p);
                 let var = build_ident(it.next().expect("binding has a variable"));
-                let src = it.next().expect("binding has a source");
-                let source = match src.as_rule() {
-                    Rule::range => {
-                        let mut r = children(src);
-                        let start = build_expr(r.next().expect("range start"), diags);
+                let (first, d) = build_expr(it.next().expect("binding has a source"), diags);
+                depth = depth.max(d);
+                let source = match it.next() {
+                    Some(range_end) => {
+                        let mut r = children(range_end);
                         let op = r.next().expect("range operator");
-                        let end = build_expr(r.next().expect("range end"), diags);
+                        let (end, d) = build_expr(r.next().expect("range end"), diags);
+                        depth = depth.max(d);
                         Source::Range {
-                            start,
+                            start: first,
                             end,
                             inclusive: op.as_rule() == Rule::range_inclusive,
                         }
                     }
-                    Rule::expr => Source::List(build_expr(src, diags)),
-                    r => unreachable!("grammar: binding source cannot be {r:?}"),
+                    None => Source::List(first),
                 };
                 bindings.push(Binding { var, source });
             }
@@ -580,8 +876,16 @@ fn build_for(pair: Pair<Rule>, diags: &mut Diagnostics) -> ExprKind {
                 let mut value = None;
                 for b in children(p) {
                     match b.as_rule() {
-                        Rule::let_stmt => lets.push(build_let(b, diags)),
-                        Rule::expr => value = Some(build_expr(b, diags)),
+                        Rule::let_stmt => {
+                            let (l, d) = build_let(b, diags);
+                            depth = depth.max(d);
+                            lets.push(l);
+                        }
+                        Rule::expr => {
+                            let (v, d) = build_expr(b, diags);
+                            depth = depth.max(d);
+                            value = Some(v);
+                        }
                         r => unreachable!("grammar: body cannot contain {r:?}"),
                     }
                 }
@@ -593,10 +897,12 @@ fn build_for(pair: Pair<Rule>, diags: &mut Diagnostics) -> ExprKind {
             r => unreachable!("grammar: for cannot contain {r:?}"),
         }
     }
-    ExprKind::For {
+    let depth = depth + bindings.len();
+    let kind = ExprKind::For {
         bindings,
         body: body.expect("for has a body"),
-    }
+    };
+    (kind, depth)
 }
 
 #[cfg(test)]
@@ -698,6 +1004,63 @@ mod tests {
         let src = format!("let a = {}1{}", "(".repeat(100_000), ")".repeat(100_000));
         let d = parse(&src).unwrap_err();
         assert_eq!(d.diags[0].code, codes::NESTING);
+    }
+
+    #[test]
+    fn tall_expressions_are_one_diagnostic() {
+        let bindings: Vec<String> = (0..5000).map(|i| format!("i{i} in [1]")).collect();
+        for src in [
+            format!("let a = sphere(){}", ".scale(1)".repeat(100_000)),
+            format!("let a = v{}", ".x".repeat(100_000)),
+            format!("let a = for {} {{ 1 }}", bindings.join(", ")),
+            format!(
+                "let a = {}1{}",
+                "(1^".repeat(60).replace('^', &"1^".repeat(500)),
+                ")".repeat(60)
+            ),
+            format!(
+                "let a = {}[1]{}",
+                "for x in ".repeat(100),
+                " {1}".repeat(100)
+            ),
+        ] {
+            let d = parse(&src).unwrap_err();
+            assert_eq!(d.len(), 1, "{d:?}");
+            assert_eq!(d.diags[0].code, codes::NESTING);
+        }
+        // As deep as allowed is fine.
+        let src = format!("let a = sphere(){}", ".scale(1)".repeat(MAX_DEPTH - 2));
+        assert!(parse(&src).is_ok());
+    }
+
+    #[test]
+    fn nested_loop_sources_parse_in_linear_time() {
+        // Trying `start..end` before a list parsed each source twice: 2^30.
+        let mut e = String::from("[1]");
+        for i in 0..30 {
+            e = format!("[for i{i} in {e} {{ 1 }}]");
+        }
+        assert!(parse(&format!("let a = {e}")).is_ok());
+        let f = parse("let a = for i in 1..=3, j in [1, 2] { i }").unwrap();
+        let Item::Let(l) = &f.items[0] else { panic!() };
+        let ExprKind::For { bindings, .. } = &l.value.kind else {
+            panic!()
+        };
+        assert!(matches!(
+            bindings[0].source,
+            Source::Range {
+                inclusive: true,
+                ..
+            }
+        ));
+        assert!(matches!(bindings[1].source, Source::List(_)));
+    }
+
+    #[test]
+    fn an_error_at_the_start_of_an_item_resumes_there() {
+        // The second `let` starts where the first one's error is found.
+        let d = parse("let a = 1 +\nlet b = [1 2]\n").unwrap_err();
+        assert_eq!(d.len(), 2, "{d:?}");
     }
 
     #[test]

@@ -39,6 +39,19 @@ impl Type {
         }
     }
 
+    /// The type with an indefinite article, for messages: "a number", "an
+    /// output", "any value".
+    pub fn with_article(&self) -> String {
+        let name = self.to_string();
+        if matches!(self, Type::Any) {
+            name
+        } else if name.starts_with(['a', 'e', 'i', 'o', 'u']) {
+            format!("an {name}")
+        } else {
+            format!("a {name}")
+        }
+    }
+
     pub fn is_numeric(&self) -> bool {
         matches!(self, Type::Number | Type::Vec3 | Type::Any)
             || matches!(self, Type::List(e) if e.is_numeric())
@@ -165,5 +178,12 @@ mod tests {
         ]);
         assert!(cam.accepts(&Type::list(Type::Named("camera"))));
         assert!(!cam.accepts(&Type::Number));
+    }
+
+    #[test]
+    fn articles() {
+        assert_eq!(Type::Number.with_article(), "a number");
+        assert_eq!(Type::Named("output").with_article(), "an output");
+        assert_eq!(Type::Any.with_article(), "any value");
     }
 }

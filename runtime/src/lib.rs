@@ -2,6 +2,7 @@
 //! volume rendering, dfdx training, data sets, and writing outputs.
 
 pub mod data;
+pub mod jobs;
 pub mod output;
 pub mod render;
 pub mod sdf;

@@ -37,6 +37,12 @@ impl Plan {
                 OutputKind::Depth => plan.depth.push(who),
                 OutputKind::Normals => plan.normals.push(who),
                 OutputKind::Mask => plan.mask.push(who),
+                // Camera visual checks need no tracing; sample points and
+                // loss curves are refused for renders when evaluated.
+                OutputKind::Grid
+                | OutputKind::Rays
+                | OutputKind::SamplePoints
+                | OutputKind::LossCurve => {}
             }
         }
         if !plan.color.is_empty() && (job.material.needs_normal() || any_painted_needs_normal(job))
@@ -320,7 +326,6 @@ pub fn run_job(
         let t = Instant::now();
         for o in &job.outputs {
             let rel = view_path(&o.path, k, views);
-            let path = out_dir.join(&rel);
             let (kind, rgb): (&'static str, Option<Vec<u8>>) = match o.kind {
                 OutputKind::Gif { .. } => continue,
                 OutputKind::Image => ("image", view.color.clone()),
@@ -332,7 +337,26 @@ pub fn run_job(
                         .map(|m| m.iter().flat_map(|v| [*v; 3]).collect()),
                 ),
                 OutputKind::Depth => ("depth", view.depth.as_ref().map(|d| depth_image(d))),
+                OutputKind::Rays if k == 0 => (
+                    "rays_image",
+                    Some(crate::volume::figures::rays_image(cam, width, height)),
+                ),
+                OutputKind::Grid if k == 0 => (
+                    "grid_image",
+                    Some(crate::volume::figures::xy_grid_image(width, height)),
+                ),
+                OutputKind::Grid
+                | OutputKind::Rays
+                | OutputKind::SamplePoints
+                | OutputKind::LossCurve => continue,
             };
+            // The camera checks are written once, for the first view.
+            let rel = if matches!(o.kind, OutputKind::Grid | OutputKind::Rays) {
+                o.path.clone()
+            } else {
+                rel
+            };
+            let path = out_dir.join(&rel);
             let rgb = rgb.expect("the plan computes what every output needs");
             write_png(&path, width, height, &rgb)?;
             written.push(Written {

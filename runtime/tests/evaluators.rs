@@ -12,7 +12,10 @@ use sdfl_stdlib::shape::Shape;
 struct Lcg(u64);
 impl Lcg {
     fn next(&mut self) -> f64 {
-        self.0 = self.0.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        self.0 = self
+            .0
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
         (self.0 >> 11) as f64 / (1u64 << 53) as f64
     }
     fn range(&mut self, lo: f64, hi: f64) -> f64 {
@@ -26,14 +29,43 @@ impl Lcg {
 fn primitive(rng: &mut Lcg) -> Shape {
     let c = rng.v3(2.0);
     match (rng.next() * 7.0) as u32 {
-        0 => Shape::Sphere { center: c, radius: rng.range(0.05, 0.4) },
-        1 => Shape::Box { center: c, size: DVec3::new(rng.range(0.1, 0.6), rng.range(0.1, 0.6), rng.range(0.1, 0.6)) },
-        2 => Shape::BoxFrame { center: c, size: DVec3::splat(rng.range(0.4, 0.8)), thickness: 0.05 },
-        3 => Shape::Torus { center: c, major: rng.range(0.2, 0.4), minor: rng.range(0.03, 0.1) },
-        4 => Shape::Capsule { a: c, b: c + rng.v3(0.3), radius: rng.range(0.03, 0.2) },
-        5 => Shape::Cylinder { center: c, radius: rng.range(0.05, 0.3), height: rng.range(0.1, 0.6) },
+        0 => Shape::Sphere {
+            center: c,
+            radius: rng.range(0.05, 0.4),
+        },
+        1 => Shape::Box {
+            center: c,
+            size: DVec3::new(
+                rng.range(0.1, 0.6),
+                rng.range(0.1, 0.6),
+                rng.range(0.1, 0.6),
+            ),
+        },
+        2 => Shape::BoxFrame {
+            center: c,
+            size: DVec3::splat(rng.range(0.4, 0.8)),
+            thickness: 0.05,
+        },
+        3 => Shape::Torus {
+            center: c,
+            major: rng.range(0.2, 0.4),
+            minor: rng.range(0.03, 0.1),
+        },
+        4 => Shape::Capsule {
+            a: c,
+            b: c + rng.v3(0.3),
+            radius: rng.range(0.03, 0.2),
+        },
+        5 => Shape::Cylinder {
+            center: c,
+            radius: rng.range(0.05, 0.3),
+            height: rng.range(0.1, 0.6),
+        },
         _ => Shape::Rotate(
-            Arc::new(Shape::Box { center: DVec3::ZERO, size: DVec3::splat(rng.range(0.1, 0.5)) }),
+            Arc::new(Shape::Box {
+                center: DVec3::ZERO,
+                size: DVec3::splat(rng.range(0.1, 0.5)),
+            }),
             DQuat::from_axis_angle(rng.v3(1.0).normalize(), rng.range(-3.0, 3.0)),
         ),
     }
@@ -49,20 +81,48 @@ fn random_scene(seed: u64, n: usize, with_bounds_ops: bool) -> Shape {
         members.push(Arc::new(Shape::SmoothUnion(a.clone(), b.clone(), 0.2)));
         members.push(Arc::new(Shape::Subtraction(a.clone(), b.clone())));
         members.push(Arc::new(Shape::Intersection(vec![a.clone(), b])));
-        members.push(Arc::new(Shape::Displace { shape: a.clone(), amplitude: 0.03, frequency: 8.0 }));
-        members.push(Arc::new(Shape::Scale(Arc::new(Shape::Translate(a, rng.v3(1.0))), 1.7)));
+        members.push(Arc::new(Shape::Displace {
+            shape: a.clone(),
+            amplitude: 0.03,
+            frequency: 8.0,
+        }));
+        members.push(Arc::new(Shape::Scale(
+            Arc::new(Shape::Translate(a, rng.v3(1.0))),
+            1.7,
+        )));
         // A nested union under a transform gets flattened into the BVH.
         let inner: Vec<Arc<Shape>> = (0..20).map(|_| Arc::new(primitive(&mut rng))).collect();
-        members.push(Arc::new(Shape::Translate(Arc::new(Shape::Union(inner)), DVec3::new(0.3, 0.0, -0.2))));
+        members.push(Arc::new(Shape::Translate(
+            Arc::new(Shape::Union(inner)),
+            DVec3::new(0.3, 0.0, -0.2),
+        )));
     }
     Shape::Union(members)
 }
 
 fn evaluators(shape: &Shape) -> Vec<(&'static str, Lowered)> {
     vec![
-        ("naive", Lowered::new(shape, LowerOptions { cull: false, ..Default::default() })),
+        (
+            "naive",
+            Lowered::new(
+                shape,
+                LowerOptions {
+                    cull: false,
+                    ..Default::default()
+                },
+            ),
+        ),
         ("culled", Lowered::new(shape, LowerOptions::default())),
-        ("culled-bvh-everywhere", Lowered::new(shape, LowerOptions { cull: true, bvh_threshold: 2 })),
+        (
+            "culled-bvh-everywhere",
+            Lowered::new(
+                shape,
+                LowerOptions {
+                    cull: true,
+                    bvh_threshold: 2,
+                },
+            ),
+        ),
     ]
 }
 
@@ -76,10 +136,16 @@ fn check_scene(shape: &Shape, seed: u64) {
         for (name, e) in &evals {
             let d = e.dist(pf) as f64;
             let tol = 2e-5 * (1.0 + reference.abs() + p.length());
-            assert!((d - reference).abs() <= tol, "{name}: {d} vs reference {reference} at {p}");
+            assert!(
+                (d - reference).abs() <= tol,
+                "{name}: {d} vs reference {reference} at {p}"
+            );
             let (did, id) = e.root.dist_id(pf);
             assert_eq!(did, e.dist(pf), "{name}: dist_id disagrees with dist");
-            assert!((id as usize) < e.prims.len(), "{name}: id {id} out of range");
+            assert!(
+                (id as usize) < e.prims.len(),
+                "{name}: id {id} out of range"
+            );
         }
     }
 }
@@ -102,7 +168,10 @@ fn unions_with_bounds_transforms_and_nesting() {
 fn planes_are_never_culled() {
     let mut rng = Lcg(5);
     let mut members: Vec<Arc<Shape>> = (0..100).map(|_| Arc::new(primitive(&mut rng))).collect();
-    members.push(Arc::new(Shape::Plane { normal: DVec3::Y, height: -2.5 }));
+    members.push(Arc::new(Shape::Plane {
+        normal: DVec3::Y,
+        height: -2.5,
+    }));
     check_scene(&Shape::Union(members), 5);
 }
 
@@ -110,7 +179,9 @@ fn planes_are_never_culled() {
 fn ids_name_the_primitive_attaining_the_minimum() {
     let shape = random_scene(21, 200, false);
     let culled = Lowered::new(&shape, LowerOptions::default());
-    let Shape::Union(members) = &shape else { unreachable!() };
+    let Shape::Union(members) = &shape else {
+        unreachable!()
+    };
     let mut rng = Lcg(77);
     for _ in 0..500 {
         let p = rng.v3(2.5);

@@ -18,18 +18,32 @@ fn lower(s: &Shape) -> Lowered {
 }
 
 fn settings(l: &Lowered) -> TraceSettings {
-    TraceSettings { near: 0.0, far: 20.0, max_steps: 256, epsilon: 1e-5, lipschitz: l.lipschitz }
+    TraceSettings {
+        near: 0.0,
+        far: 20.0,
+        max_steps: 256,
+        epsilon: 1e-5,
+        lipschitz: l.lipschitz,
+    }
 }
 
 fn unit_sphere() -> Shape {
-    Shape::Sphere { center: DVec3::ZERO, radius: 1.0 }
+    Shape::Sphere {
+        center: DVec3::ZERO,
+        radius: 1.0,
+    }
 }
 
 #[test]
 fn misses_end_finite_and_bounded() {
     let l = lower(&unit_sphere());
     let s = settings(&l);
-    let h = sphere_trace(&*l.root, Vec3A::new(0.0, 0.0, -5.0), Vec3A::new(0.0, 0.0, -1.0), &s);
+    let h = sphere_trace(
+        &*l.root,
+        Vec3A::new(0.0, 0.0, -5.0),
+        Vec3A::new(0.0, 0.0, -1.0),
+        &s,
+    );
     assert!(!h.hit && h.t.is_finite() && h.steps <= s.max_steps);
 }
 
@@ -60,8 +74,14 @@ fn rays_starting_inside_hit_at_once() {
 
 #[test]
 fn rays_parallel_to_a_plane_stay_bounded() {
-    let l = lower(&Shape::Plane { normal: DVec3::Y, height: 0.0 });
-    let s = TraceSettings { max_steps: 64, ..settings(&l) };
+    let l = lower(&Shape::Plane {
+        normal: DVec3::Y,
+        height: 0.0,
+    });
+    let s = TraceSettings {
+        max_steps: 64,
+        ..settings(&l)
+    };
     let h = sphere_trace(&*l.root, Vec3A::new(0.0, 1e-3, 0.0), Vec3A::X, &s);
     assert!(h.t.is_finite() && h.steps <= 64 && !h.hit);
 }
@@ -73,12 +93,15 @@ fn normals_are_finite_at_singular_points() {
     // The gradient of |p| - r is undefined at the centre.
     let n = normal(&*sphere.root, Vec3A::ZERO, 5e-4, fallback);
     assert!(n.is_finite() && (n.length() - 1.0).abs() < 1e-5, "{n}");
-    let cube = lower(&Shape::Box { center: DVec3::ZERO, size: DVec3::ONE });
+    let cube = lower(&Shape::Box {
+        center: DVec3::ZERO,
+        size: DVec3::ONE,
+    });
     for p in [
-        Vec3A::new(0.5, 0.5, 0.5),   // corner
-        Vec3A::new(0.5, 0.5, 0.0),   // edge
-        Vec3A::new(0.0, 0.0, 0.0),   // centre: all faces equally near
-        Vec3A::new(0.5, 0.0, 0.0),   // face
+        Vec3A::new(0.5, 0.5, 0.5), // corner
+        Vec3A::new(0.5, 0.5, 0.0), // edge
+        Vec3A::new(0.0, 0.0, 0.0), // centre: all faces equally near
+        Vec3A::new(0.5, 0.0, 0.0), // face
     ] {
         let n = normal(&*cube.root, p, 5e-4, fallback);
         assert!(n.is_finite() && (n.length() - 1.0).abs() < 1e-5, "{p}: {n}");
@@ -105,14 +128,24 @@ fn first_crossing(shape: &Shape, o: DVec3, d: DVec3, far: f64) -> Option<f64> {
 fn lipschitz_scaled_steps_do_not_tunnel_through_thin_bound_shapes() {
     // A thin sheet with a strong displacement: gradient up to 1 + √3·a·f.
     let sheet = Shape::Displace {
-        shape: Arc::new(Shape::Box { center: DVec3::ZERO, size: DVec3::new(8.0, 0.02, 8.0) }),
+        shape: Arc::new(Shape::Box {
+            center: DVec3::ZERO,
+            size: DVec3::new(8.0, 0.02, 8.0),
+        }),
         amplitude: 0.15,
         frequency: 12.0,
     };
     let l = lower(&sheet);
     assert!(l.lipschitz > 4.0);
-    let scaled = TraceSettings { max_steps: 2000, epsilon: 1e-5, ..settings(&l) };
-    let unscaled = TraceSettings { lipschitz: 1.0, ..scaled };
+    let scaled = TraceSettings {
+        max_steps: 2000,
+        epsilon: 1e-5,
+        ..settings(&l)
+    };
+    let unscaled = TraceSettings {
+        lipschitz: 1.0,
+        ..scaled
+    };
     let mut tunnelled_without_scaling = 0;
     for k in 0..60 {
         let x = -1.5 + 3.0 * k as f64 / 59.0;
@@ -122,7 +155,11 @@ fn lipschitz_scaled_steps_do_not_tunnel_through_thin_bound_shapes() {
         let (of, df): (Vec3A, Vec3A) = (o.as_vec3().into(), d.as_vec3().into());
         let h = sphere_trace(&*l.root, of, df, &scaled);
         assert!(h.hit, "ray {k} missed");
-        assert!((h.t as f64 - expected).abs() < 2e-3, "ray {k}: hit at {} but the surface is first crossed at {expected}", h.t);
+        assert!(
+            (h.t as f64 - expected).abs() < 2e-3,
+            "ray {k}: hit at {} but the surface is first crossed at {expected}",
+            h.t
+        );
         let u = sphere_trace(&*l.root, of, df, &unscaled);
         if !u.hit || (u.t as f64 - expected).abs() > 2e-3 {
             tunnelled_without_scaling += 1;
@@ -137,7 +174,12 @@ fn job(material: Material, outputs: Vec<OutputKind>) -> RenderJob {
         name: "t".into(),
         scene: Arc::new(unit_sphere()),
         material: Arc::new(material),
-        cameras: vec![Camera::look_at(DVec3::new(0.0, 0.0, -3.0), DVec3::ZERO, DVec3::Y, 1.0)],
+        cameras: vec![Camera::look_at(
+            DVec3::new(0.0, 0.0, -3.0),
+            DVec3::ZERO,
+            DVec3::Y,
+            1.0,
+        )],
         width: 32,
         height: 32,
         near: 0.0,
@@ -145,7 +187,13 @@ fn job(material: Material, outputs: Vec<OutputKind>) -> RenderJob {
         iterations: 64,
         epsilon: 1e-5,
         background: DVec3::ZERO,
-        outputs: outputs.into_iter().map(|kind| Output { kind, path: "x.png".into() }).collect(),
+        outputs: outputs
+            .into_iter()
+            .map(|kind| Output {
+                kind,
+                path: "x.png".into(),
+            })
+            .collect(),
     }
 }
 
@@ -171,7 +219,14 @@ fn only_requested_quantities_are_computed() {
 fn depth_is_zero_exactly_on_misses_and_the_hit_distance_elsewhere() {
     let j = job(Material::Rainbow, vec![OutputKind::Depth, OutputKind::Mask]);
     let l = lower(&j.scene);
-    let v = render_view(&l, &j, &j.cameras[0], (32, 32), Needs::from(&Plan::of(&j)), &|_| {});
+    let v = render_view(
+        &l,
+        &j,
+        &j.cameras[0],
+        (32, 32),
+        Needs::from(&Plan::of(&j)),
+        &|_| {},
+    );
     let (depth, mask) = (v.depth.unwrap(), v.mask.unwrap());
     assert!(v.hits > 0 && v.hits < 32 * 32);
     for (d, m) in depth.iter().zip(&mask) {

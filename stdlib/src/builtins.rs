@@ -11,12 +11,13 @@ use sdfl_lang::diag::{codes, Diag};
 use sdfl_lang::types::{BlockSig, Env, Param, Signature, Type};
 use sdfl_lang::Span;
 
-use crate::camera::{Camera, OrbitUp};
+use crate::camera::{Camera, OrbitUp, PixelCenters};
 use crate::eval::describe;
 use crate::material::Material;
 use crate::shape::{Shape, TrainParam};
 use crate::value::{
-    Dataset, DensityKind, Field, Optimizer, Output, OutputKind, RenderJob, Sampler, TrainJob, Value, VolumeJob,
+    Dataset, DensityKind, Field, Optimizer, Output, OutputKind, RenderJob, Sampler, TrainJob,
+    Value, VolumeJob,
 };
 
 pub const SHAPE: Type = Type::Named("shape");
@@ -669,10 +670,20 @@ fn table() -> Vec<Builtin> {
                 opt("at", Type::Vec3, "[0, 0, 0]", "point looked at"),
                 opt("up", Type::Vec3, "[0, 1, 0]", "up direction"),
                 opt("focal", Type::Number, "1", "focal length in NDC units (> 0)"),
+                opt("pixel_centers", Type::Str, "\"corners\"", "\"corners\" (CONVENTIONS.md: corner pixel centres at ±1) or \"half\" (centres half a pixel in, as the assignment's box_*.npy were rendered)"),
             ],
             CAMERA,
             |a| {
-                let cam = Camera::look_at(a.vec3("eye")?, a.vec3("at")?, a.vec3("up")?, a.positive("focal")?);
+                let (centers, centers_span) = a.string("pixel_centers")?;
+                let centers = match &*centers {
+                    "corners" => PixelCenters::Corners,
+                    "half" => PixelCenters::Half,
+                    other => {
+                        return Err(value_error(centers_span, format!("unknown pixel-centre convention `{other}`"), "not a convention", "use \"corners\" or \"half\""))
+                    }
+                };
+                let cam = Camera::look_at(a.vec3("eye")?, a.vec3("at")?, a.vec3("up")?, a.positive("focal")?)
+                    .with_pixel_centers(centers);
                 if !cam.is_valid() {
                     return Err(value_error(a.span, "camera has no well-defined orientation", "eye equals `at`, or `up` is parallel to the view", "move `eye` away from `at` and pick an `up` not along the view direction"));
                 }
@@ -858,7 +869,12 @@ fn table() -> Vec<Builtin> {
     ]
 }
 
-fn volume_fn(name: &'static str, doc: &'static str, density: DensityKind, alpha_default: &'static str) -> Builtin {
+fn volume_fn(
+    name: &'static str,
+    doc: &'static str,
+    density: DensityKind,
+    alpha_default: &'static str,
+) -> Builtin {
     let eval: EvalFn = match density {
         DensityKind::Opacity => |a| field(a, DensityKind::Opacity),
         DensityKind::VolSdf => |a| field(a, DensityKind::VolSdf),
@@ -870,8 +886,18 @@ fn volume_fn(name: &'static str, doc: &'static str, density: DensityKind, alpha_
         vec![
             req("shape", SHAPE, "the signed distance function"),
             opt("alpha", Type::Number, alpha_default, "density scale (> 0)"),
-            opt("beta", Type::Number, "0.05", "sharpness: the Laplace/logistic scale (> 0; smaller is sharper)"),
-            opt("color", Type::OneOf(vec![MATERIAL, Type::Vec3]), "rainbow()", "colour of the volume (rainbow or constant)"),
+            opt(
+                "beta",
+                Type::Number,
+                "0.05",
+                "sharpness: the Laplace/logistic scale (> 0; smaller is sharper)",
+            ),
+            opt(
+                "color",
+                Type::OneOf(vec![MATERIAL, Type::Vec3]),
+                "rainbow()",
+                "colour of the volume (rainbow or constant)",
+            ),
         ],
         FIELD,
         eval,
@@ -890,14 +916,30 @@ fn field(a: &Args, density: DensityKind) -> Result<Value, Diag> {
     }
     let color = a.material("color")?;
     if color.needs_normal() {
-        return Err(value_error(a.get("color").1, "volume colours cannot use normals", "needs a normal", "use `rainbow()` or a constant colour"));
+        return Err(value_error(
+            a.get("color").1,
+            "volume colours cannot use normals",
+            "needs a normal",
+            "use `rainbow()` or a constant colour",
+        ));
     }
-    Ok(Value::Field(Arc::new(Field { shape: a.shape("shape")?, density, alpha, beta: a.positive("beta")?, color })))
+    Ok(Value::Field(Arc::new(Field {
+        shape: a.shape("shape")?,
+        density,
+        alpha,
+        beta: a.positive("beta")?,
+        color,
+    })))
 }
 
 fn check_range(a: &Args, near: f64, far: f64) -> Result<(), Diag> {
     if near < 0.0 {
-        return Err(value_error(a.get("near").1, format!("`near` must be ≥ 0, got {near}"), "negative", "rays start at the camera or in front of it"));
+        return Err(value_error(
+            a.get("near").1,
+            format!("`near` must be ≥ 0, got {near}"),
+            "negative",
+            "rays start at the camera or in front of it",
+        ));
     }
     if far <= near {
         return Err(value_error(
@@ -914,14 +956,31 @@ fn camera_list(a: &Args, name: &str) -> Result<Vec<Camera>, Diag> {
     let (v, s) = a.get(name);
     let cams: Option<Vec<Camera>> = match v {
         Value::Camera(c) => Some(vec![*c]),
-        Value::List(items) => items.iter().map(|i| if let Value::Camera(c) = i { Some(*c) } else { None }).collect(),
+        Value::List(items) => items
+            .iter()
+            .map(|i| {
+                if let Value::Camera(c) = i {
+                    Some(*c)
+                } else {
+                    None
+                }
+            })
+            .collect(),
         _ => None,
     };
     match cams {
-        Some(c) if c.is_empty() => Err(value_error(s, "no camera views", "empty list", "give at least one camera")),
-        Some(c) if c.len() > MAX_VIEWS => {
-            Err(value_error(s, format!("{} views (at most {MAX_VIEWS})", c.len()), "too many views", "use fewer views"))
-        }
+        Some(c) if c.is_empty() => Err(value_error(
+            s,
+            "no camera views",
+            "empty list",
+            "give at least one camera",
+        )),
+        Some(c) if c.len() > MAX_VIEWS => Err(value_error(
+            s,
+            format!("{} views (at most {MAX_VIEWS})", c.len()),
+            "too many views",
+            "use fewer views",
+        )),
         Some(c) => Ok(c),
         None => Err(type_error(s, "camera or list of cameras", v)),
     }
@@ -930,7 +989,16 @@ fn camera_list(a: &Args, name: &str) -> Result<Vec<Camera>, Diag> {
 fn image_size(a: &Args, name: &str) -> Result<(u32, u32), Diag> {
     let (size, size_span) = a.get(name);
     let dims: Option<Vec<f64>> = match size {
-        Value::List(items) => items.iter().map(|i| if let Value::Number(x) = i { Some(*x) } else { None }).collect(),
+        Value::List(items) => items
+            .iter()
+            .map(|i| {
+                if let Value::Number(x) = i {
+                    Some(*x)
+                } else {
+                    None
+                }
+            })
+            .collect(),
         _ => None,
     };
     match dims.as_deref() {
@@ -954,11 +1022,24 @@ fn image_size(a: &Args, name: &str) -> Result<(u32, u32), Diag> {
 fn outputs(a: &Args, name: &str, allow_empty: bool) -> Result<Vec<Output>, Diag> {
     match a.get(name) {
         (Value::List(items), s) => {
-            let outs: Option<Vec<Output>> =
-                items.iter().map(|i| if let Value::Output(o) = i { Some((**o).clone()) } else { None }).collect();
+            let outs: Option<Vec<Output>> = items
+                .iter()
+                .map(|i| {
+                    if let Value::Output(o) = i {
+                        Some((**o).clone())
+                    } else {
+                        None
+                    }
+                })
+                .collect();
             match outs {
                 Some(o) if !o.is_empty() || allow_empty => Ok(o),
-                Some(_) => Err(value_error(s, "no outputs requested", "empty", "ask for e.g. `outputs: [image(\"out.png\")]`")),
+                Some(_) => Err(value_error(
+                    s,
+                    "no outputs requested",
+                    "empty",
+                    "ask for e.g. `outputs: [image(\"out.png\")]`",
+                )),
                 None => Err(type_error(s, "list of outputs", a.get(name).0)),
             }
         }
@@ -1002,7 +1083,11 @@ fn render_sig() -> BlockSig {
         kind: "render",
         doc: "Sphere-traces `scene` from each camera and writes the requested outputs.",
         fields: vec![
-            req("scene", Type::OneOf(vec![SHAPE, FIELD]), "a shape (sphere-traced) or a field (volume-rendered)"),
+            req(
+                "scene",
+                Type::OneOf(vec![SHAPE, FIELD]),
+                "a shape (sphere-traced) or a field (volume-rendered)",
+            ),
             req(
                 "camera",
                 Type::OneOf(vec![CAMERA, Type::list(CAMERA)]),
@@ -1045,16 +1130,27 @@ fn render_sig() -> BlockSig {
                 "[0, 0, 0]",
                 "colour of rays that miss",
             ),
-            opt("sampler", SAMPLER, "stratified()", "depth samples along each ray (fields only)"),
+            opt(
+                "sampler",
+                SAMPLER,
+                "stratified()",
+                "depth samples along each ray (fields only)",
+            ),
         ],
     }
 }
 
 pub(crate) fn render_block(name: &str, a: &Args) -> Result<RenderJob, Diag> {
-    if let Some(o) = outputs(a, "outputs", false)?.iter().find(|o| matches!(o.kind, OutputKind::SamplePoints | OutputKind::LossCurve)) {
+    if let Some(o) = outputs(a, "outputs", false)?
+        .iter()
+        .find(|o| matches!(o.kind, OutputKind::SamplePoints | OutputKind::LossCurve))
+    {
         return Err(value_error(
             a.get("outputs").1,
-            format!("`{}` needs a volume render or a training run", o.path.display()),
+            format!(
+                "`{}` needs a volume render or a training run",
+                o.path.display()
+            ),
             "not a sphere-tracing output",
             "sample points exist for fields; loss curves for `train`",
         ));
@@ -1223,9 +1319,13 @@ fn train_sig() -> BlockSig {
 
 pub(crate) fn train_block(name: &str, a: &Args) -> Result<TrainJob, Diag> {
     let (model_v, model_span) = a.get("model");
-    let Value::Field(model) = model_v else { return Err(type_error(model_span, "field", model_v)) };
+    let Value::Field(model) = model_v else {
+        return Err(type_error(model_span, "field", model_v));
+    };
     let trainable = match &*model.shape {
-        Shape::Trainable(inner, params) if matches!(**inner, Shape::Box { .. }) => params.len() == 2,
+        Shape::Trainable(inner, params) if matches!(**inner, Shape::Box { .. }) => {
+            params.len() == 2
+        }
         _ => false,
     };
     if model.density != DensityKind::Opacity || !trainable {
@@ -1236,19 +1336,38 @@ pub(crate) fn train_block(name: &str, a: &Args) -> Result<TrainJob, Diag> {
             "training fits `sdf_volume(box(center: param([...]), size: param([...])))`; mark both with `param`",
         ));
     }
-    let Value::Dataset(data) = a.get("data").0 else { return Err(type_error(a.get("data").1, "data set", a.get("data").0)) };
+    let Value::Dataset(data) = a.get("data").0 else {
+        return Err(type_error(a.get("data").1, "data set", a.get("data").0));
+    };
     let Value::Sampler(sampler) = a.get("sampler").0 else {
-        return Err(type_error(a.get("sampler").1, "sampler", a.get("sampler").0));
+        return Err(type_error(
+            a.get("sampler").1,
+            "sampler",
+            a.get("sampler").0,
+        ));
     };
     let Value::Optimizer(optimizer) = a.get("optimizer").0 else {
-        return Err(type_error(a.get("optimizer").1, "optimizer", a.get("optimizer").0));
+        return Err(type_error(
+            a.get("optimizer").1,
+            "optimizer",
+            a.get("optimizer").0,
+        ));
     };
     let (backend, backend_span) = a.string("backend")?;
     if !matches!(&*backend, "fused" | "dfdx") {
-        return Err(value_error(backend_span, format!("unknown backend `{backend}`"), "not a backend", "use \"fused\" or \"dfdx\""));
+        return Err(value_error(
+            backend_span,
+            format!("unknown backend `{backend}`"),
+            "not a backend",
+            "use \"fused\" or \"dfdx\"",
+        ));
     }
     let (checkpoint, cp_span) = a.string("checkpoint")?;
-    let checkpoint = if checkpoint.is_empty() { None } else { Some(safe_output_path(&checkpoint, cp_span)?) };
+    let checkpoint = if checkpoint.is_empty() {
+        None
+    } else {
+        Some(safe_output_path(&checkpoint, cp_span)?)
+    };
     let (width, height) = image_size(a, "size")?;
     Ok(TrainJob {
         name: name.to_string(),
@@ -1272,10 +1391,19 @@ pub(crate) fn train_block(name: &str, a: &Args) -> Result<TrainJob, Diag> {
 pub(crate) fn volume_block(name: &str, a: &Args, field: Arc<Field>) -> Result<VolumeJob, Diag> {
     let (width, height) = image_size(a, "size")?;
     let Value::Sampler(sampler) = a.get("sampler").0 else {
-        return Err(type_error(a.get("sampler").1, "sampler", a.get("sampler").0));
+        return Err(type_error(
+            a.get("sampler").1,
+            "sampler",
+            a.get("sampler").0,
+        ));
     };
     let outputs = outputs(a, "outputs", false)?;
-    if let Some(o) = outputs.iter().find(|o| matches!(o.kind, OutputKind::Normals | OutputKind::Mask | OutputKind::LossCurve)) {
+    if let Some(o) = outputs.iter().find(|o| {
+        matches!(
+            o.kind,
+            OutputKind::Normals | OutputKind::Mask | OutputKind::LossCurve
+        )
+    }) {
         return Err(value_error(
             a.get("outputs").1,
             format!("`{}` cannot be made by volume rendering", o.path.display()),
@@ -1283,5 +1411,13 @@ pub(crate) fn volume_block(name: &str, a: &Args, field: Arc<Field>) -> Result<Vo
             "volume renders write image, gif, depth, grid_image, rays_image and sample_points",
         ));
     }
-    Ok(VolumeJob { name: name.to_string(), field, cameras: camera_list(a, "camera")?, width, height, sampler: *sampler, outputs })
+    Ok(VolumeJob {
+        name: name.to_string(),
+        field,
+        cameras: camera_list(a, "camera")?,
+        width,
+        height,
+        sampler: *sampler,
+        outputs,
+    })
 }

@@ -37,7 +37,13 @@ pub enum OrbitUp {
 
 impl Camera {
     pub fn look_at(eye: DVec3, at: DVec3, up: DVec3, focal: f64) -> Self {
-        Camera { eye, at, up, focal, pixel_centers: PixelCenters::Corners }
+        Camera {
+            eye,
+            at,
+            up,
+            focal,
+            pixel_centers: PixelCenters::Corners,
+        }
     }
 
     pub fn with_pixel_centers(mut self, pixel_centers: PixelCenters) -> Self {

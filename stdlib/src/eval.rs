@@ -36,7 +36,9 @@ fn deeper_than(v: &Value, limit: usize) -> bool {
             | SmoothUnion(a, b, _)
             | SmoothIntersection(a, b, _)
             | SmoothSubtraction(a, b, _) => shape(a, limit - 1) || shape(b, limit - 1),
-            Translate(s, _) | Rotate(s, _) | Scale(s, _) | Paint(s, _) | Trainable(s, _) => shape(s, limit - 1),
+            Translate(s, _) | Rotate(s, _) | Scale(s, _) | Paint(s, _) | Trainable(s, _) => {
+                shape(s, limit - 1)
+            }
             Displace { shape: s, .. } => shape(s, limit - 1),
             _ => false,
         }
@@ -59,6 +61,8 @@ pub struct Evaluator<'e> {
     work: u64,
     aborted: bool,
     defaults: HashMap<(&'static str, &'static str), Value>,
+    /// Values replacing top-level `let`s (for sweeps).
+    overrides: HashMap<String, Value>,
 }
 
 impl<'e> Evaluator<'e> {
@@ -71,7 +75,14 @@ impl<'e> Evaluator<'e> {
             work: 0,
             aborted: false,
             defaults: HashMap::new(),
+            overrides: HashMap::new(),
         }
+    }
+
+    /// Replace the value of top-level `let NAME = ...` bindings.
+    pub fn with_overrides(mut self, overrides: HashMap<String, Value>) -> Self {
+        self.overrides = overrides;
+        self
     }
 
     /// Evaluate a checked file.
@@ -83,11 +94,15 @@ impl<'e> Evaluator<'e> {
             }
             match item {
                 Item::Let(l) => {
-                    let v = self.expr(&l.value);
+                    let v = match self.overrides.get(&l.name.name) {
+                        Some(v) => v.clone(),
+                        None => self.expr(&l.value),
+                    };
                     self.globals.insert(l.name.name.clone(), v);
                 }
                 Item::Block(b) => {
-                    let index = program.renders.len() + program.volumes.len() + program.trains.len();
+                    let index =
+                        program.renders.len() + program.volumes.len() + program.trains.len();
                     self.block(b, index, &mut program);
                 }
             }
@@ -122,7 +137,9 @@ impl<'e> Evaluator<'e> {
     }
 
     fn block(&mut self, b: &Block, index: usize, program: &mut Program) {
-        let Some(sig) = self.env.block_sig(&b.kind.name) else { return };
+        let Some(sig) = self.env.block_sig(&b.kind.name) else {
+            return;
+        };
         let mut args = Args::new(b.kind.span);
         for f in &b.fields {
             let v = self.expr(&f.value);
@@ -139,11 +156,17 @@ impl<'e> Evaluator<'e> {
         if args.named.values().any(|(v, _)| v.is_poison()) {
             return;
         }
-        let name = b.name.as_ref().map_or_else(|| format!("{}{index}", b.kind.name), |n| n.name.clone());
+        let name = b
+            .name
+            .as_ref()
+            .map_or_else(|| format!("{}{index}", b.kind.name), |n| n.name.clone());
         let result = match (sig.kind, args.named.get("scene")) {
-            ("train", _) => crate::builtins::train_block(&name, &args).map(|j| program.trains.push(j)),
+            ("train", _) => {
+                crate::builtins::train_block(&name, &args).map(|j| program.trains.push(j))
+            }
             (_, Some((Value::Field(f), _))) => {
-                crate::builtins::volume_block(&name, &args, f.clone()).map(|j| program.volumes.push(j))
+                crate::builtins::volume_block(&name, &args, f.clone())
+                    .map(|j| program.volumes.push(j))
             }
             _ => crate::builtins::render_block(&name, &args).map(|j| program.renders.push(j)),
         };

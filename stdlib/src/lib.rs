@@ -28,6 +28,37 @@ pub fn load(source: &SourceFile) -> Result<Program, Diagnostics> {
     eval::Evaluator::new(env).run(&file)
 }
 
+/// [`load`] with top-level `let` bindings replaced by the given numbers
+/// (`sdfl sweep`). Names that no top-level `let` binds are reported.
+pub fn load_with(source: &SourceFile, overrides: &[(String, f64)]) -> Result<Program, Diagnostics> {
+    let file = sdfl_lang::parse::parse(&source.text)?;
+    let env = StdEnv::get();
+    let diags = sdfl_lang::check::check(&file, env);
+    if !diags.is_empty() {
+        return Err(diags);
+    }
+    let mut map = std::collections::HashMap::new();
+    let mut missing = Diagnostics::default();
+    for (name, v) in overrides {
+        let bound = file
+            .items
+            .iter()
+            .any(|i| matches!(i, sdfl_lang::ast::Item::Let(l) if &l.name.name == name));
+        if !bound {
+            missing.push(
+                sdfl_lang::Diag::new(sdfl_lang::codes::UNKNOWN_NAME, sdfl_lang::Span::new(0, 0), format!("no top-level `let {name}` to set"))
+                    .label("the file starts here")
+                    .help(format!("sweeps replace `let` bindings: add `let {name} = ...` and use `{name}` where it matters")),
+            );
+        }
+        map.insert(name.clone(), Value::Number(*v));
+    }
+    if !missing.is_empty() {
+        return Err(missing);
+    }
+    eval::Evaluator::new(env).with_overrides(map).run(&file)
+}
+
 /// Parse and check only (no evaluation): what `sdfl check` needs for
 /// syntax and names. Value errors are found by [`load`].
 pub fn check(source: &SourceFile) -> Result<(), Diagnostics> {

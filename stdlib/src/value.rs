@@ -167,9 +167,18 @@ pub struct Sampler {
 #[derive(Debug, Clone)]
 pub enum Dataset {
     /// Images read from files (`.npy` float32 H×W×3, or PNG).
-    Files { images: Vec<std::path::PathBuf>, cameras: Vec<Camera> },
+    Files {
+        images: Vec<std::path::PathBuf>,
+        cameras: Vec<Camera>,
+    },
     /// Views rendered by sdfl from a field: self-contained, with ground truth.
-    Rendered { field: Arc<Field>, cameras: Vec<Camera>, width: u32, height: u32, sampler: Sampler },
+    Rendered {
+        field: Arc<Field>,
+        cameras: Vec<Camera>,
+        width: u32,
+        height: u32,
+        sampler: Sampler,
+    },
 }
 
 impl Dataset {

@@ -22,17 +22,23 @@ fn every_default_evaluates() {
             .filter(|p| p.default.is_none())
             .map(|p| {
                 use sdfl_lang::types::Type;
-                let v = if p.ty.accepts(&Type::Named("shape")) {
-                    "sphere()"
-                } else if p.ty.accepts(&Type::Named("material")) {
-                    "rainbow()"
-                } else if p.ty.accepts(&Type::Str) {
-                    "\"x.png\""
-                } else if p.ty.accepts(&Type::Vec3) && !p.ty.accepts(&Type::Number) {
-                    "[1, 2, 3]"
-                } else {
-                    "1"
-                };
+                // The first placeholder whose type the parameter accepts.
+                let candidates = [
+                    (Type::Named("shape"), "sphere()"),
+                    (Type::Named("material"), "rainbow()"),
+                    (Type::Named("field"), "sdf_volume(sphere())"),
+                    (Type::Named("sampler"), "stratified()"),
+                    (Type::Named("camera"), "look_at([0, 0, 3])"),
+                    (Type::list(Type::Named("camera")), "[look_at([0, 0, 3])]"),
+                    (Type::list(Type::Str), "[\"x.npy\"]"),
+                    (Type::Str, "\"x.png\""),
+                    (Type::Number, "1"),
+                    (Type::Vec3, "[1, 2, 3]"),
+                ];
+                let v = candidates
+                    .iter()
+                    .find(|(t, _)| p.ty.accepts(t))
+                    .map_or("1", |c| c.1);
                 format!("{}: {v}", p.name)
             })
             .collect();

@@ -43,6 +43,10 @@ pub struct BoxFitConfig {
     /// Rays per batch, drawn without replacement from all pixels of all views.
     pub batch_rays: usize,
     pub lr: f64,
+    /// The learning rate is multiplied by this every `decay_every`
+    /// iterations (`decay_every == 0`: constant).
+    pub lr_decay: f64,
+    pub decay_every: usize,
     pub iterations: usize,
     pub seed: u64,
     pub backend: FitBackend,
@@ -67,6 +71,8 @@ impl BoxFitConfig {
             },
             batch_rays: 4096,
             lr: 5e-4,
+            lr_decay: 1.0,
+            decay_every: 0,
             iterations: Self::ASSIGNMENT_ITERATIONS,
             seed: 0,
             backend: FitBackend::Fused,
@@ -156,6 +162,9 @@ pub fn fit_box_with(
         }
     };
     for it in 0..cfg.iterations {
+        if cfg.decay_every > 0 {
+            opt.cfg.lr = cfg.lr * cfg.lr_decay.powi((it / cfg.decay_every) as i32);
+        }
         let rays = random_rays(&cams, size, cfg.batch_rays, &mut rng)?;
         let targets: Vec<[f32; 3]> = rays
             .iter()

@@ -287,8 +287,10 @@ pub fn transmittance_figure(width: u32, height: u32) -> (Vec<u8>, [f64; 4]) {
             let label = format!("{}", sigma[k]);
             let tw = text_width(&label, st.scale);
             let cx = (0.5 * (a + b)).round() as i64;
-            let ty = top.round() as i64 - 7 * st.scale;
-            cv.text(cx - tw / 2, ty, &label, st.scale, [30, 50, 110]);
+            // Inside the band's top: the densest band reaches the frame top.
+            let ty = top.round() as i64 + 3 * st.scale;
+            let ink = if g > 0.5 { WHITE } else { [30, 50, 110] };
+            cv.text(cx - tw / 2, ty, &label, st.scale, ink);
         }
     }
     draw_grid(&mut cv, &fr, &[], &yticks);
@@ -316,7 +318,7 @@ pub fn transmittance_figure(width: u32, height: u32) -> (Vec<u8>, [f64; 4]) {
         cv.text(
             fr.l as i64,
             2 * st.scale,
-            "T(X,S)  LOG SCALE",
+            "T(X,S), LOG SCALE.  BANDS: DENSITY",
             st.scale,
             AXIS,
         );
@@ -512,49 +514,54 @@ fn text_width(s: &str, scale: i64) -> i64 {
     (s.chars().count() as i64 * 4 * scale - scale).max(0)
 }
 
-/// Liang–Barsky clipping of a segment to a rectangle; `None` when it misses
-/// or is not finite.
+/// Cohen–Sutherland clipping of a segment to a rectangle; `None` when it
+/// misses or is not finite. Each cut sets the crossed coordinate exactly, so
+/// very long segments keep their position (a parametric clip loses it).
 fn clip(
-    a: (f64, f64),
-    b: (f64, f64),
+    mut a: (f64, f64),
+    mut b: (f64, f64),
     xmin: f64,
     xmax: f64,
     ymin: f64,
     ymax: f64,
 ) -> Option<((f64, f64), (f64, f64))> {
-    if ![a.0, a.1, b.0, b.1].iter().all(|v| v.is_finite()) {
-        return None;
-    }
-    let (dx, dy) = (b.0 - a.0, b.1 - a.1);
-    if !(dx.is_finite() && dy.is_finite()) {
-        return None;
-    }
-    let (mut t0, mut t1) = (0.0f64, 1.0f64);
-    for (p, q) in [
-        (-dx, a.0 - xmin),
-        (dx, xmax - a.0),
-        (-dy, a.1 - ymin),
-        (dy, ymax - a.1),
-    ] {
-        if p == 0.0 {
-            if q < 0.0 {
-                return None;
-            }
+    let finite = |p: (f64, f64)| p.0.is_finite() && p.1.is_finite();
+    let code = |p: (f64, f64)| {
+        (p.0 < xmin) as u8
+            | ((p.0 > xmax) as u8) << 1
+            | ((p.1 < ymin) as u8) << 2
+            | ((p.1 > ymax) as u8) << 3
+    };
+    // `u + d·r`, d given halved, with every partial sum finite for r in [0, 1].
+    let lerp = |u: f64, d_half: f64, r: f64| u + d_half * r + d_half * r;
+    for _ in 0..16 {
+        if !(finite(a) && finite(b)) {
+            return None;
+        }
+        let (ca, cb) = (code(a), code(b));
+        if ca | cb == 0 {
+            return Some((a, b));
+        }
+        if ca & cb != 0 {
+            return None;
+        }
+        let c = if ca != 0 { ca } else { cb };
+        // Halves: differences of coordinates near ±f64::MAX overflow.
+        let (dx, dy) = (b.0 * 0.5 - a.0 * 0.5, b.1 * 0.5 - a.1 * 0.5);
+        let p = if c & 3 != 0 {
+            let x = if c & 1 != 0 { xmin } else { xmax };
+            (x, lerp(a.1, dy, (x * 0.5 - a.0 * 0.5) / dx))
         } else {
-            let r = q / p;
-            if p < 0.0 {
-                t0 = t0.max(r);
-            } else {
-                t1 = t1.min(r);
-            }
+            let y = if c & 4 != 0 { ymin } else { ymax };
+            (lerp(a.0, dx, (y * 0.5 - a.1 * 0.5) / dy), y)
+        };
+        if ca != 0 {
+            a = p;
+        } else {
+            b = p;
         }
     }
-    (t0 <= t1).then(|| {
-        (
-            (a.0 + t0 * dx, a.1 + t0 * dy),
-            (a.0 + t1 * dx, a.1 + t1 * dy),
-        )
-    })
+    None
 }
 
 /// 3×5 glyphs, row-major from the top, most significant bit first.
@@ -768,7 +775,7 @@ fn tick_values(r: Range, step: f64) -> Vec<f64> {
     }
     for k in 0..64 {
         let v = (k0 + k as f64) * step;
-        if !(v <= r.hi) {
+        if v.is_nan() || v > r.hi {
             break;
         }
         if v >= r.lo && out.last() != Some(&v) {
@@ -1079,7 +1086,8 @@ mod tests {
         let tiny = [(0.0, 5e-324), (1.0, 5e-324), (1e-310, 1e-320)];
         let same_x = [(1.0, 0.0), (1.0, 1.0), (1.0, 2.0)];
         let all_nan = [(nan, nan), (nan, 1.0)];
-        let cases: Vec<Vec<(&str, &[(f64, f64)])>> = vec![
+        type Series<'a> = (&'a str, &'a [(f64, f64)]);
+        let cases: Vec<Vec<Series>> = vec![
             vec![],
             vec![("", empty)],
             vec![("c", &constant)],
@@ -1123,7 +1131,7 @@ mod tests {
         let v: Vec<f64> = t.iter().map(|p| p.0).collect();
         assert_eq!(v, [0.0, 2.0, 4.0, 6.0, 8.0, 10.0]);
         assert_eq!(t[1].1, "2");
-        let t = linear_ticks(Range { lo: 0.0, hi: 0.3 }, 5.0);
+        let t = linear_ticks(Range { lo: 0.0, hi: 0.2 }, 5.0);
         assert_eq!(t[1].1, "0.05");
         assert_eq!(fmt_tick(2e5, 2e5), "2e5");
         assert_eq!(fmt_tick(-0.0, 1.0), "0");
@@ -1150,13 +1158,19 @@ mod tests {
             clip((0.0, 0.0), (20.0, 0.0), 0.0, 9.0, 0.0, 9.0),
             Some(((0.0, 0.0), (9.0, 0.0)))
         );
+        let m = f64::MAX;
+        let c = clip((-m, -m), (m, m), 0.0, 9.0, 0.0, 9.0).unwrap();
+        assert!((c.0 .0 - c.0 .1).abs() < 1e-9 && (c.1 .0 - 9.0).abs() < 1e-9);
+        assert_eq!(clip((-m, 20.0), (m, 20.0), 0.0, 9.0, 0.0, 9.0), None);
     }
 
-    /// Writes the figures as PNGs for a look: `cargo test -p sdfl-runtime
-    /// figures -- --ignored`; they land in `$TMPDIR/sdfl-figures`.
+    /// Writes the figures as PNGs for a look: `SDFL_WRITE_FIGURES=1 cargo test -p sdfl-runtime
+    /// figures`; they land in `$TMPDIR/sdfl-figures`.
     #[test]
-    #[ignore]
     fn write_figures_for_inspection() {
+        if std::env::var_os("SDFL_WRITE_FIGURES").is_none() {
+            return;
+        }
         use crate::output::write_png;
         let dir = std::env::temp_dir().join("sdfl-figures");
         let cam = Camera::look_at(DVec3::new(-1.0, 0.0, -2.2), DVec3::ZERO, DVec3::Y, 1.0);
