@@ -227,8 +227,10 @@ fn execute(
     }
     for job in &program.trains {
         bar.set_message(job.name.clone());
-        let r = jobs::run_train_job(job, out, base, options.size, &|n| bar.inc(n))
-            .map_err(|e| io(&job.name, e))?;
+        let r = jobs::run_train_job(job, out, base, options.size, &|n| bar.inc(n), &|m| {
+            bar.set_message(m.to_string())
+        })
+        .map_err(|e| io(&job.name, e))?;
         reports.push(serde_json::json!({"kind": "train", "report": r}));
     }
     Ok(reports)

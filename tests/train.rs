@@ -48,7 +48,7 @@ fn train_box_recovers_the_box_and_resumes() {
     let program = sdfl_stdlib::load(&src).unwrap();
     let job = &program.trains[0];
     let out = temp("box");
-    let r = run_train_job(job, &out, &base, Some((32, 32)), &|_| {}).unwrap();
+    let r = run_train_job(job, &out, &base, Some((32, 32)), &|_| {}, &|_| {}).unwrap();
     assert_eq!(r.iterations, job.iterations);
     assert!(max_error(&r.params) < 0.01, "{:?}", r.params);
     assert!(r.written.iter().any(|w| w.kind == "loss_curve"));
@@ -56,7 +56,7 @@ fn train_box_recovers_the_box_and_resumes() {
     // The checkpoint holds the final state; a second run resumes from it.
     let cp = Checkpoint::read(&out.join("train_box.checkpoint.json")).unwrap();
     assert_eq!(cp.iteration, job.iterations);
-    let again = run_train_job(job, &out, &base, Some((16, 16)), &|_| {}).unwrap();
+    let again = run_train_job(job, &out, &base, Some((16, 16)), &|_| {}, &|_| {}).unwrap();
     assert_eq!(again.resumed_from, Some(job.iterations));
     assert_eq!(again.params, r.params);
     let _ = std::fs::remove_dir_all(&out);
@@ -72,7 +72,15 @@ fn train_box_from_the_assignment_data() {
     let (src, base) = example("train_box_assignment.sdfl");
     let program = sdfl_stdlib::load(&src).unwrap();
     let out = temp("assignment");
-    let r = run_train_job(&program.trains[0], &out, &base, Some((16, 16)), &|_| {}).unwrap();
+    let r = run_train_job(
+        &program.trains[0],
+        &out,
+        &base,
+        Some((16, 16)),
+        &|_| {},
+        &|_| {},
+    )
+    .unwrap();
     assert!(max_error(&r.params) < 0.01, "{:?}", r.params);
     let _ = std::fs::remove_dir_all(&out);
 }
@@ -93,9 +101,16 @@ fn divergence_stops_with_the_checkpoint_kept() {
     "#;
     let program = sdfl_stdlib::load(&SourceFile::new("blowup.sdfl", src)).unwrap();
     let out = temp("blowup");
-    let err = run_train_job(&program.trains[0], &out, Path::new("."), None, &|_| {})
-        .unwrap_err()
-        .to_string();
+    let err = run_train_job(
+        &program.trains[0],
+        &out,
+        Path::new("."),
+        None,
+        &|_| {},
+        &|_| {},
+    )
+    .unwrap_err()
+    .to_string();
     assert!(
         err.contains("blowup") && err.contains("checkpoint is kept"),
         "{err}"

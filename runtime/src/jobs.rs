@@ -19,7 +19,7 @@ use crate::render::{view_path, Written};
 use crate::sdf::{LowerOptions, Lowered};
 use crate::train::box_fit::{fit_box_with, BoxFitConfig, FitBackend, FitView};
 use crate::volume::figures;
-use crate::volume::render::{render_field_image, DensityModel};
+use crate::volume::render::{render_field_image_with, DensityModel};
 use crate::volume::{BoxVolume, ImageSize, Stratified};
 
 fn invalid(e: impl std::fmt::Display) -> io::Error {
@@ -81,20 +81,15 @@ fn render_field(
     model: DensityModel,
     sampler: &Stratified,
     cam: &Camera,
-    w: u32,
-    h: u32,
+    (w, h): (u32, u32),
+    want_depth: bool,
 ) -> io::Result<(Vec<[f32; 3]>, Vec<f32>)> {
-    let img = render_field_image(
-        |p| field.eval(p),
-        model,
-        sampler,
-        cam,
-        ImageSize {
-            width: w,
-            height: h,
-        },
-    )
-    .map_err(invalid)?;
+    let size = ImageSize {
+        width: w,
+        height: h,
+    };
+    let img = render_field_image_with(|p| field.eval(p), model, sampler, cam, size, want_depth)
+        .map_err(invalid)?;
     Ok((img.colour, img.depth))
 }
 
@@ -159,6 +154,7 @@ pub fn write_volume_outputs(
             ));
         }
     }
+    let wants_depth = outputs.iter().any(|o| o.kind == OutputKind::Depth);
     let needs_render = outputs.iter().any(|o| {
         matches!(
             o.kind,
@@ -169,7 +165,7 @@ pub fn write_volume_outputs(
     for (k, cam) in cameras.iter().enumerate() {
         let t = Instant::now();
         let (colour, depth) = if needs_render {
-            render_field(&lowered, model, &strat, cam, w, h)?
+            render_field(&lowered, model, &strat, cam, (w, h), wants_depth)?
         } else {
             (Vec::new(), Vec::new())
         };
@@ -365,8 +361,14 @@ pub fn load_views(data: &Dataset, base: &Path) -> io::Result<Vec<FitView>> {
             cameras
                 .iter()
                 .map(|c| {
-                    let (colour, _) =
-                        render_field(&lowered, density_model(field), &strat, c, *width, *height)?;
+                    let (colour, _) = render_field(
+                        &lowered,
+                        density_model(field),
+                        &strat,
+                        c,
+                        (*width, *height),
+                        false,
+                    )?;
                     Ok(FitView {
                         camera: *c,
                         image: RgbImage {
@@ -390,6 +392,7 @@ pub fn run_train_job(
     base: &Path,
     size: Option<(u32, u32)>,
     progress: &(dyn Fn(u64) + Sync),
+    status: &dyn Fn(&str),
 ) -> io::Result<TrainReport> {
     let wh = size.unwrap_or((job.width, job.height));
     let mut written = Vec::new();
@@ -470,6 +473,9 @@ pub fn run_train_job(
     let result = fit_box_with(&views, &cfg, |it, vol, loss| {
         progress(1);
         let iteration = done + it;
+        if iteration % 10 == 0 {
+            status(&format!("{} loss {loss:.3e}", job.name));
+        }
         if !loss.is_finite() || !vol.center.iter().chain(&vol.sides).all(|x| x.is_finite()) {
             diverged = Some(iteration);
             return ControlFlow::Break(());

@@ -56,6 +56,7 @@ fn render_ray<Fld: Fn([f32; 3]) -> (f32, [f32; 3])>(
     w: &mut [f32],
     sigma: &mut [f32],
     cols: &mut [[f32; 3]],
+    want_depth: bool,
 ) -> Result<Composite<f32>, VolumeError> {
     let mut trans = 1.0f32;
     for (k, &tk) in t.iter().enumerate() {
@@ -77,16 +78,49 @@ fn render_ray<Fld: Fn([f32; 3]) -> (f32, [f32; 3])>(
     if !matches!(model, DensityModel::SdfOpacity { .. }) {
         weights_from_density(sigma, delta, w)?;
     }
-    aggregate(w, cols, t)
+    if want_depth {
+        return aggregate(w, cols, t);
+    }
+    // Colour and opacity only: no output asked for depth.
+    let mut colour = [0f32; 3];
+    let mut opacity = 0f32;
+    for (wk, ck) in w.iter().zip(cols.iter()) {
+        for i in 0..3 {
+            colour[i] += wk * ck[i];
+        }
+        opacity += wk;
+    }
+    Ok(Composite {
+        colour,
+        depth: 0.0,
+        opacity,
+    })
 }
 
-/// Renders a full image of an SDF field with colour under `model`.
+/// Renders a full image of an SDF field with colour under `model`,
+/// with depth.
 pub fn render_field_image<Fld>(
     field: Fld,
     model: DensityModel,
     sampler: &Stratified,
     cam: &Camera,
     size: ImageSize,
+) -> Result<RenderedImage, VolumeError>
+where
+    Fld: Fn([f32; 3]) -> (f32, [f32; 3]) + Sync,
+{
+    render_field_image_with(field, model, sampler, cam, size, true)
+}
+
+/// [`render_field_image`], computing depth only when `want_depth`; without
+/// it the returned depth is empty.
+pub fn render_field_image_with<Fld>(
+    field: Fld,
+    model: DensityModel,
+    sampler: &Stratified,
+    cam: &Camera,
+    size: ImageSize,
+    want_depth: bool,
 ) -> Result<RenderedImage, VolumeError>
 where
     Fld: Fn([f32; 3]) -> (f32, [f32; 3]) + Sync,
@@ -106,20 +140,51 @@ where
         let n = t.len();
         let (mut w, mut sigma, mut cols) = (vec![0f32; n], vec![0f32; n], vec![[0f32; 3]; n]);
         for (r, c) in rays.iter().zip(o) {
-            *c = render_ray(&field, model, &t, &delta, r, &mut w, &mut sigma, &mut cols)?;
+            *c = render_ray(
+                &field, model, &t, &delta, r, &mut w, &mut sigma, &mut cols, want_depth,
+            )?;
         }
         Ok(())
     })?;
     Ok(RenderedImage {
         size,
         colour: out.iter().map(|c| c.colour).collect(),
-        depth: out.iter().map(|c| c.depth).collect(),
+        depth: if want_depth {
+            out.iter().map(|c| c.depth).collect()
+        } else {
+            Vec::new()
+        },
     })
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn depth_is_computed_only_when_asked() {
+        let cam = Camera::orbit(3.0, sdfl_stdlib::camera::OrbitUp::Y, 1.0, 1)[0];
+        let s = Stratified::new(32, 0.0, 5.0).unwrap();
+        let size = ImageSize {
+            width: 16,
+            height: 16,
+        };
+        let field = |p: [f32; 3]| {
+            (
+                crate::volume::shapes::box_sdf(p, [0.0; 3], [1.75; 3]),
+                [0.5, 0.2, 0.9],
+            )
+        };
+        let model = DensityModel::SdfOpacity {
+            alpha: 1.0,
+            beta: 0.05,
+        };
+        let with = render_field_image_with(field, model, &s, &cam, size, true).unwrap();
+        let without = render_field_image_with(field, model, &s, &cam, size, false).unwrap();
+        assert_eq!(with.colour, without.colour);
+        assert_eq!(with.depth.len(), 256);
+        assert!(without.depth.is_empty());
+    }
     use crate::volume::shapes::{box_sdf, rainbow};
     use crate::volume::{render_box_image, BoxVolume};
     use sdfl_stdlib::camera::OrbitUp;

@@ -1,0 +1,183 @@
+//! The `sdfl` binary end to end: check, run (with --json), plan, sweep and
+//! transmittance, as a user calls them.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+fn sdfl(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_sdfl"))
+        .args(args)
+        .output()
+        .expect("sdfl runs")
+}
+
+fn temp(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("sdfl-cli-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+fn example(name: &str) -> String {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("examples")
+        .join(name)
+        .display()
+        .to_string()
+}
+
+#[test]
+fn check_accepts_every_example_and_rejects_mistakes() {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("examples");
+    let mut files: Vec<String> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().path().display().to_string())
+        .collect();
+    files.retain(|f| f.ends_with(".sdfl"));
+    let mut args = vec!["check"];
+    args.extend(files.iter().map(String::as_str));
+    let out = sdfl(&args);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+
+    let tmp = temp("check");
+    let bad = tmp.join("bad.sdfl");
+    std::fs::write(
+        &bad,
+        "let s = sphre(1)\nrender r { scene: s, camera: look_at([0, 0, 3]), outputs: [] }\n",
+    )
+    .unwrap();
+    let out = sdfl(&["check", bad.to_str().unwrap()]);
+    assert_eq!(out.status.code(), Some(1));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("sdfl::name::unknown-function") && err.contains("did you mean `sphere`?"),
+        "{err}"
+    );
+}
+
+#[test]
+fn run_writes_outputs_and_a_json_summary() {
+    let tmp = temp("run");
+    let out = sdfl(&[
+        "run",
+        "--size",
+        "16x16",
+        "--json",
+        "--out",
+        tmp.to_str().unwrap(),
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let json: serde_json::Value = serde_json::from_slice(&out.stdout).expect("valid JSON");
+    let job = &json["jobs"][0];
+    assert_eq!(job["kind"], "render");
+    let written = job["report"]["written"].as_array().unwrap();
+    assert!(!written.is_empty());
+    for w in written {
+        assert!(tmp.join(w["path"].as_str().unwrap()).is_file(), "{w}");
+    }
+    let stages: Vec<&str> = job["report"]["stages"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|s| s[0].as_str().unwrap())
+        .collect();
+    assert_eq!(stages, ["lower", "trace", "encode"]);
+    // No temporary files are left behind.
+    assert!(std::fs::read_dir(&tmp).unwrap().all(|e| !e
+        .unwrap()
+        .file_name()
+        .to_string_lossy()
+        .ends_with(".tmp")));
+}
+
+#[test]
+fn plan_names_what_each_output_needs() {
+    let out = sdfl(&["plan", &example("volume_box.sdfl")]);
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        text.contains("render volume_box (volume rendering)"),
+        "{text}"
+    );
+    assert!(
+        text.contains("depth          computed for volume_box_depth.png"),
+        "{text}"
+    );
+    assert!(text.contains("gradient tape  none"), "{text}");
+    let out = sdfl(&["plan", &example("torus.sdfl")]);
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(text.contains("depth          skipped"), "{text}");
+    assert!(text.contains("normals        skipped"), "{text}");
+    let out = sdfl(&["plan", &example("train_box.sdfl")]);
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        text.contains("trainable      box.size, box.center"),
+        "{text}"
+    );
+}
+
+#[test]
+fn sweep_tabulates_time_and_error() {
+    let tmp = temp("sweep");
+    let scene = tmp.join("scene.sdfl");
+    std::fs::write(
+        &scene,
+        "let samples = 8\nrender v { scene: sdf_volume(box(size: 1.5)), camera: look_at([0, 0, -3]),\n\
+         sampler: stratified(samples: samples), outputs: [image(\"v.png\")] }\n",
+    )
+    .unwrap();
+    let out_dir = tmp.join("out");
+    let out = sdfl(&[
+        "sweep",
+        scene.to_str().unwrap(),
+        "--set",
+        "samples=4,8,32",
+        "--size",
+        "12x12",
+        "--out",
+        out_dir.to_str().unwrap(),
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let csv = std::fs::read_to_string(out_dir.join("sweep.csv")).unwrap();
+    let rows: Vec<&str> = csv.lines().collect();
+    assert_eq!(rows.len(), 4, "{csv}");
+    assert!(
+        rows[3].contains(",inf,"),
+        "the last setting is the reference: {csv}"
+    );
+    assert!(out_dir.join("sweep.png").is_file());
+    // Setting a name no `let` binds is a diagnostic.
+    let out = sdfl(&[
+        "sweep",
+        scene.to_str().unwrap(),
+        "--set",
+        "nope=1,2",
+        "--out",
+        out_dir.to_str().unwrap(),
+    ]);
+    assert_eq!(out.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("no top-level `let nope`"));
+}
+
+#[test]
+fn transmittance_prints_the_four_values() {
+    let tmp = temp("transmittance");
+    let out = sdfl(&["transmittance", "--out", tmp.to_str().unwrap()]);
+    assert!(out.status.success());
+    let text = String::from_utf8_lossy(&out.stdout);
+    for v in ["1.3534e-1", "5.6757e-14", "7.6812e-15", "8.2085e-2"] {
+        assert!(text.contains(v), "{text}");
+    }
+    assert!(tmp.join("transmittance.png").is_file());
+}
