@@ -14,7 +14,7 @@ use sdfl_stdlib::OutputKind;
 use serde::{Deserialize, Serialize};
 
 use crate::data::npy::{read_rgb_f32, RgbImage};
-use crate::output::{colormap, to_u8, write_png, Atomic, GifWriter};
+use crate::output::{to_u8, write_png, Atomic, GifWriter};
 use crate::render::{view_path, Written};
 use crate::sdf::{LowerOptions, Lowered};
 use crate::train::box_fit::{fit_box_with, BoxFitConfig, FitBackend, FitView};
@@ -100,25 +100,6 @@ fn rgb8(colour: &[[f32; 3]]) -> Vec<u8> {
         .collect()
 }
 
-/// Depth normalised by its maximum, colour-mapped; zero depth stays black.
-fn depth_rgb(depth: &[f32]) -> Vec<u8> {
-    let max = depth
-        .iter()
-        .copied()
-        .filter(|d| d.is_finite())
-        .fold(0.0f32, f32::max);
-    depth
-        .iter()
-        .flat_map(|d| {
-            if *d > 0.0 && max > 0.0 {
-                colormap(d / max)
-            } else {
-                [0, 0, 0]
-            }
-        })
-        .collect()
-}
-
 /// What a volume or training job did.
 #[derive(Debug, Clone, Serialize)]
 pub struct VolumeReport {
@@ -189,7 +170,7 @@ pub fn write_volume_outputs(
                 | OutputKind::Normals
                 | OutputKind::Mask => continue,
                 OutputKind::Image => ("image", rgb8(&colour), (w, h)),
-                OutputKind::Depth => ("depth", depth_rgb(&depth), (w, h)),
+                OutputKind::Depth => ("depth", crate::render::depth_image(&depth), (w, h)),
                 OutputKind::Grid => ("grid_image", figures::xy_grid_image(w, h), (w, h)),
                 OutputKind::Rays => ("rays_image", figures::rays_image(cam, w, h), (w, h)),
                 OutputKind::SamplePoints => {

@@ -413,7 +413,7 @@ pub fn depth_image(depth: &[f32]) -> Vec<u8> {
     let max = depth
         .iter()
         .copied()
-        .filter(|d| *d > 0.0)
+        .filter(|d| *d > 0.0 && d.is_finite())
         .fold(0.0f32, f32::max);
     depth
         .iter()

@@ -1141,7 +1141,8 @@ fn render_sig() -> BlockSig {
 }
 
 pub(crate) fn render_block(name: &str, a: &Args) -> Result<RenderJob, Diag> {
-    if let Some(o) = outputs(a, "outputs", false)?
+    let outputs = outputs(a, "outputs", false)?;
+    if let Some(o) = outputs
         .iter()
         .find(|o| matches!(o.kind, OutputKind::SamplePoints | OutputKind::LossCurve))
     {
@@ -1155,133 +1156,15 @@ pub(crate) fn render_block(name: &str, a: &Args) -> Result<RenderJob, Diag> {
             "sample points exist for fields; loss curves for `train`",
         ));
     }
-    let cameras = match a.get("camera") {
-        (Value::Camera(c), _) => vec![*c],
-        (Value::List(items), s) => {
-            let cams: Option<Vec<Camera>> = items
-                .iter()
-                .map(|i| {
-                    if let Value::Camera(c) = i {
-                        Some(*c)
-                    } else {
-                        None
-                    }
-                })
-                .collect();
-            match cams {
-                Some(c) if !c.is_empty() && c.len() <= MAX_VIEWS => c,
-                Some(c) if c.is_empty() => {
-                    return Err(value_error(
-                        s,
-                        "no camera views",
-                        "empty list",
-                        "give at least one camera",
-                    ))
-                }
-                Some(c) => {
-                    return Err(value_error(
-                        s,
-                        format!("{} views (at most {MAX_VIEWS})", c.len()),
-                        "too many views",
-                        "render fewer views",
-                    ))
-                }
-                None => {
-                    return Err(type_error(
-                        s,
-                        "camera or list of cameras",
-                        a.get("camera").0,
-                    ))
-                }
-            }
-        }
-        (v, s) => return Err(type_error(s, "camera or list of cameras", v)),
-    };
-    let (size, size_span) = a.get("size");
-    let dims: Option<Vec<f64>> = match size {
-        Value::List(items) => items
-            .iter()
-            .map(|i| {
-                if let Value::Number(x) = i {
-                    Some(*x)
-                } else {
-                    None
-                }
-            })
-            .collect(),
-        _ => None,
-    };
-    let (width, height) = match dims.as_deref() {
-        Some([w, h])
-            if w.fract() == 0.0
-                && h.fract() == 0.0
-                && (1.0..=MAX_IMAGE_SIDE as f64).contains(w)
-                && (1.0..=MAX_IMAGE_SIDE as f64).contains(h) =>
-        {
-            (*w as u32, *h as u32)
-        }
-        _ => {
-            return Err(value_error(
-                size_span,
-                format!(
-                    "`size` must be [width, height] in whole pixels from 1 to {MAX_IMAGE_SIDE}"
-                ),
-                "invalid image size",
-                "for example `size: [256, 256]`",
-            ))
-        }
-    };
-    let near = a.number("near")?;
-    let far = a.number("far")?;
-    if near < 0.0 {
-        return Err(value_error(
-            a.get("near").1,
-            format!("`near` must be ≥ 0, got {near}"),
-            "negative",
-            "rays start at the camera or in front of it",
-        ));
-    }
-    if far <= near {
-        return Err(value_error(
-            a.get("far").1,
-            format!("`far` ({far}) must be greater than `near` ({near})"),
-            "not beyond near",
-            "rays march from near to far: make far larger",
-        ));
-    }
-    let outputs = match a.get("outputs") {
-        (Value::List(items), s) => {
-            let outs: Option<Vec<Output>> = items
-                .iter()
-                .map(|i| {
-                    if let Value::Output(o) = i {
-                        Some((**o).clone())
-                    } else {
-                        None
-                    }
-                })
-                .collect();
-            match outs {
-                Some(o) if !o.is_empty() => o,
-                Some(_) => {
-                    return Err(value_error(
-                        s,
-                        "no outputs requested",
-                        "empty",
-                        "ask for e.g. `outputs: [image(\"out.png\")]`",
-                    ))
-                }
-                None => return Err(type_error(s, "list of outputs", a.get("outputs").0)),
-            }
-        }
-        (v, s) => return Err(type_error(s, "list of outputs", v)),
-    };
+    let (width, height) = image_size(a, "size")?;
+    let (near, far) = (a.number("near")?, a.number("far")?);
+    check_range(a, near, far)?;
     let (bg, bg_span) = (a.vec3("background")?, a.get("background").1);
     Ok(RenderJob {
         name: name.to_string(),
         scene: a.shape("scene")?,
         material: a.material("material")?,
-        cameras,
+        cameras: camera_list(a, "camera")?,
         width,
         height,
         near,
