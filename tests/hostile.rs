@@ -371,7 +371,6 @@ fn hundred_thousand_chained_lets_of_loops() {
 }
 
 #[test]
-#[ignore = "stdlib bug (reported): values nested through mixed lists are not depth-limited"]
 fn hundred_thousand_chained_lets_of_mixed_lists() {
     hostile(
         "chained_mixed_lists",
@@ -381,7 +380,6 @@ fn hundred_thousand_chained_lets_of_mixed_lists() {
 }
 
 #[test]
-#[ignore = "stdlib bug (reported): values nested through `param` are not depth-limited"]
 fn hundred_thousand_chained_params() {
     hostile(
         "chained_params",

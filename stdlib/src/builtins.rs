@@ -748,7 +748,14 @@ fn table() -> Vec<Builtin> {
             "Marks a number or vector as trainable; `train` fits it (so far: a box's `center` and `size`).",
             vec![req("value", Type::OneOf(vec![Type::Number, Type::Vec3]), "the initial value")],
             Type::Any,
-            |a| Ok(Value::Param(Arc::new(a.get("value").0.clone()))),
+            |a| {
+                let (v, span) = a.get("value");
+                // Only plain numbers and vectors are trainable values.
+                if !matches!(v, Value::Number(_)) && v.as_vec3().is_none() {
+                    return Err(type_error(span, "number or vector [x, y, z]", v));
+                }
+                Ok(Value::Param(Arc::new(v.clone())))
+            },
         ),
         volume_fn("sdf_volume", "An SDF as a volume, the assignment's form: per-sample opacity `alpha·Ψ_β(-sdf)` (Laplace CDF), 0 < alpha ≤ 1.", DensityKind::Opacity, "1"),
         volume_fn("volsdf", "An SDF as a VolSDF volume: density `σ = alpha·Ψ_β(-sdf)`.", DensityKind::VolSdf, "10"),

@@ -49,6 +49,7 @@ fn deeper_than(v: &Value, limit: usize) -> bool {
     match v {
         Value::List(items) => items.iter().any(|i| deeper_than(i, limit - 1)),
         Value::Shape(s) => shape(s, limit),
+        Value::Param(v) => deeper_than(v, limit - 1),
         _ => false,
     }
 }
@@ -230,7 +231,13 @@ impl<'e> Evaluator<'e> {
             // the file was not checked, which is poison rather than a panic.
             ExprKind::Var(id) => self.lookup(&id.name).unwrap_or(Value::Poison),
             ExprKind::List(items) => {
-                Value::List(Arc::new(items.iter().map(|i| self.expr(i)).collect()))
+                let items: Vec<Value> = items.iter().map(|i| self.expr(i)).collect();
+                // A list holding poison is poison: the depth of what was
+                // already reported must not keep growing unchecked.
+                if items.iter().any(|i| matches!(i, Value::Poison)) {
+                    return Value::Poison;
+                }
+                self.depth_checked(Value::List(Arc::new(items)), e.span)
             }
             ExprKind::Call { callee, args, .. } => self.call(callee, args, e.span),
             ExprKind::Member(recv, name) => {

@@ -10,8 +10,10 @@
 //!   built-in and parameter names, numbers, strings, punctuation);
 //! - mutations (byte and token deletions, insertions, swaps) of the example
 //!   scenes in `examples/`;
-//! - well-formed programs of random built-in calls with random arguments,
-//!   which get past the parser and checker to the evaluator's value checks.
+//! - well-typed programs generated from the built-ins' signatures (random
+//!   calls, arguments, loops and blocks, with out-of-range values now and
+//!   then), which get past the parser and checker to the evaluator's value
+//!   checks.
 //!
 //! Each property runs 256 cases by default; set `PROPTEST_CASES` for more
 //! (`PROPTEST_CASES=20000 cargo test -p sdfl-stdlib --test fuzz`).
