@@ -119,3 +119,50 @@ fn divergence_stops_with_the_checkpoint_kept() {
     assert!(cp.center.iter().chain(&cp.sides).all(|x| x.is_finite()));
     let _ = std::fs::remove_dir_all(&out);
 }
+
+#[test]
+fn png_views_load_as_linear_floats() {
+    let dir = temp("png");
+    std::fs::create_dir_all(&dir).unwrap();
+    let mut img = image::RgbImage::new(3, 2);
+    for (i, p) in img.pixels_mut().enumerate() {
+        *p = image::Rgb([(i * 40) as u8, 255 - (i * 40) as u8, 128]);
+    }
+    img.save(dir.join("view.png")).unwrap();
+    let cam = sdfl_stdlib::camera::Camera::look_at(
+        glam::DVec3::new(0.0, 0.0, -3.0),
+        glam::DVec3::ZERO,
+        glam::DVec3::Y,
+        1.0,
+    );
+    let data = sdfl_stdlib::value::Dataset::Files {
+        images: vec!["view.png".into()],
+        cameras: vec![cam],
+    };
+    let views = sdfl_runtime::jobs::load_views(&data, &dir).unwrap();
+    assert_eq!((views[0].image.width, views[0].image.height), (3, 2));
+    for (i, p) in views[0].image.pixels.iter().enumerate() {
+        let want = [
+            (i * 40) as f32 / 255.0,
+            (255 - i * 40) as f32 / 255.0,
+            128.0 / 255.0,
+        ];
+        for c in 0..3 {
+            assert!(
+                (p[c] - want[c]).abs() < 1e-6,
+                "pixel {i}: {p:?} vs {want:?}"
+            );
+        }
+    }
+    // A missing file is an error naming it, not a panic.
+    let missing = sdfl_stdlib::value::Dataset::Files {
+        images: vec!["nope.npy".into()],
+        cameras: vec![cam],
+    };
+    let err = sdfl_runtime::jobs::load_views(&missing, &dir)
+        .err()
+        .expect("missing file fails")
+        .to_string();
+    assert!(err.contains("nope.npy"), "{err}");
+    let _ = std::fs::remove_dir_all(&dir);
+}

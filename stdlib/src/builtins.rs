@@ -1236,6 +1236,14 @@ pub(crate) fn train_block(name: &str, a: &Args) -> Result<TrainJob, Diag> {
             a.get("sampler").0,
         ));
     };
+    if sampler.jitter {
+        return Err(value_error(
+            a.get("sampler").1,
+            "jittered samples are not used by training yet",
+            "`jitter: true`",
+            "train with `jitter: false` (the assignment's fixed linspace depths)",
+        ));
+    }
     let Value::Optimizer(optimizer) = a.get("optimizer").0 else {
         return Err(type_error(
             a.get("optimizer").1,
