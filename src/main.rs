@@ -425,7 +425,11 @@ fn plan_text(program: &sdfl_stdlib::Program) -> String {
         );
         row(&mut o, "colour", &plan.color);
         row(&mut o, "depth", &plan.depth);
-        row(&mut o, "normals", &plan.normals);
+        let mut normals = plan.normals.clone();
+        if plan.shading_normals {
+            normals.push("shading (the material uses normals)".into());
+        }
+        row(&mut o, "normals", &normals);
         row(&mut o, "hit mask", &plan.mask);
         let _ = writeln!(o, "  gradient tape  none (not training)");
     }

@@ -14,8 +14,8 @@ use sdfl_stdlib::OutputKind;
 use serde::{Deserialize, Serialize};
 
 use crate::data::npy::{read_rgb_f32, RgbImage};
-use crate::output::{to_u8, write_png, Atomic, GifWriter};
-use crate::render::{view_path, Written};
+use crate::output::{to_u8, write_png, Atomic};
+use crate::render::{view_path, Gifs, Written};
 use crate::sdf::{LowerOptions, Lowered};
 use crate::train::box_fit::{fit_box_with, BoxFitConfig, FitBackend, FitView};
 use crate::volume::figures;
@@ -121,20 +121,11 @@ pub fn write_volume_outputs(
     out_dir: &Path,
     progress: &(dyn Fn(u64) + Sync),
 ) -> io::Result<VolumeReport> {
-    let t0 = Instant::now();
     let lowered = LoweredField::new(field);
     let model = density_model(field);
     let strat = stratified(sampler)?;
     let mut written = Vec::new();
-    let mut gifs = Vec::new();
-    for o in outputs {
-        if let OutputKind::Gif { fps } = o.kind {
-            gifs.push((
-                GifWriter::create(&out_dir.join(&o.path), fps)?,
-                o.path.clone(),
-            ));
-        }
-    }
+    let mut gifs = Gifs::open(outputs, out_dir)?;
     let wants_depth = outputs.iter().any(|o| o.kind == OutputKind::Depth);
     let needs_render = outputs.iter().any(|o| {
         matches!(
@@ -192,25 +183,11 @@ pub fn write_volume_outputs(
             });
         }
         if !gifs.is_empty() {
-            let frame = rgb8(&colour);
-            for (g, _) in &mut gifs {
-                g.push(w, h, &frame)?;
-            }
+            gifs.push(w, h, &rgb8(&colour))?;
         }
         encode_s += t.elapsed().as_secs_f64();
     }
-    for (g, rel) in gifs {
-        let frames = g.frames;
-        g.finish()?;
-        written.push(Written {
-            path: rel,
-            kind: "gif",
-            width: w,
-            height: h,
-            frames,
-        });
-    }
-    let _ = t0;
+    written.extend(gifs.finish(w, h)?);
     Ok(VolumeReport {
         name: name.to_string(),
         views: cameras.len(),

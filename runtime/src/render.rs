@@ -25,6 +25,9 @@ pub struct Plan {
     pub depth: Vec<String>,
     pub normals: Vec<String>,
     pub mask: Vec<String>,
+    /// Shading needs normals at hit points (a material uses them); they are
+    /// then computed per hit, not stored.
+    pub shading_normals: bool,
 }
 
 impl Plan {
@@ -45,29 +48,16 @@ impl Plan {
                 | OutputKind::LossCurve => {}
             }
         }
-        if !plan.color.is_empty() && (job.material.needs_normal() || any_painted_needs_normal(job))
-        {
-            plan.normals
-                .push("shading (the material uses normals)".into());
-        }
+        plan.shading_normals = !plan.color.is_empty()
+            && (job.material.needs_normal() || any_painted_needs_normal(job));
         plan
     }
 }
 
 fn any_painted_needs_normal(job: &RenderJob) -> bool {
     fn walk(s: &sdfl_stdlib::shape::Shape) -> bool {
-        use sdfl_stdlib::shape::Shape::*;
-        match s {
-            Paint(inner, m) => m.needs_normal() || walk(inner),
-            Union(c) | Intersection(c) => c.iter().any(|c| walk(c)),
-            Subtraction(a, b)
-            | SmoothUnion(a, b, _)
-            | SmoothIntersection(a, b, _)
-            | SmoothSubtraction(a, b, _) => walk(a) || walk(b),
-            Translate(s, _) | Rotate(s, _) | Scale(s, _) | Trainable(s, _) => walk(s),
-            Displace { shape, .. } => walk(shape),
-            _ => false,
-        }
+        let painted = matches!(s, sdfl_stdlib::shape::Shape::Paint(_, m) if m.needs_normal());
+        painted || s.children().into_iter().any(|c| walk(c))
     }
     walk(&job.scene)
 }
@@ -99,7 +89,7 @@ impl From<&Plan> for Needs {
         Needs {
             color: !p.color.is_empty(),
             depth: !p.depth.is_empty(),
-            normals: p.normals.iter().any(|n| !n.starts_with("shading")),
+            normals: !p.normals.is_empty(),
             mask: !p.mask.is_empty(),
         }
     }
@@ -236,6 +226,52 @@ pub struct Written {
     pub frames: usize,
 }
 
+/// The GIF outputs of a job, open for one frame per view.
+pub(crate) struct Gifs(Vec<(GifWriter, PathBuf)>);
+
+impl Gifs {
+    pub(crate) fn open(outputs: &[sdfl_stdlib::Output], out_dir: &Path) -> std::io::Result<Gifs> {
+        let mut gifs = Vec::new();
+        for o in outputs {
+            if let OutputKind::Gif { fps } = o.kind {
+                gifs.push((
+                    GifWriter::create(&out_dir.join(&o.path), fps)?,
+                    o.path.clone(),
+                ));
+            }
+        }
+        Ok(Gifs(gifs))
+    }
+
+    pub(crate) fn is_empty(&self) -> bool {
+        self.0.is_empty()
+    }
+
+    pub(crate) fn push(&mut self, width: u32, height: u32, rgb: &[u8]) -> std::io::Result<()> {
+        self.0
+            .iter_mut()
+            .try_for_each(|(g, _)| g.push(width, height, rgb))
+    }
+
+    /// Write every GIF (atomically) and report it.
+    pub(crate) fn finish(self, width: u32, height: u32) -> std::io::Result<Vec<Written>> {
+        self.0
+            .into_iter()
+            .map(|(g, path)| {
+                let frames = g.frames;
+                g.finish()?;
+                Ok(Written {
+                    path,
+                    kind: "gif",
+                    width,
+                    height,
+                    frames,
+                })
+            })
+            .collect()
+    }
+}
+
 /// What a job did and how long each stage took.
 #[derive(Debug, Clone, Serialize)]
 pub struct JobReport {
@@ -305,15 +341,7 @@ pub fn run_job(
     let needs = Needs::from(&plan);
     let (width, height) = options.size.unwrap_or((job.width, job.height));
     let views = job.cameras.len();
-    let mut gifs = Vec::new();
-    for o in &job.outputs {
-        if let OutputKind::Gif { fps } = o.kind {
-            gifs.push((
-                GifWriter::create(&out_dir.join(&o.path), fps)?,
-                o.path.clone(),
-            ));
-        }
-    }
+    let mut gifs = Gifs::open(&job.outputs, out_dir)?;
     let mut written = Vec::new();
     let (mut trace_s, mut encode_s) = (0.0, 0.0);
     let (mut hits, mut steps) = (0, 0);
@@ -367,8 +395,8 @@ pub fn run_job(
                 frames: 1,
             });
         }
-        for (g, _) in &mut gifs {
-            g.push(
+        if !gifs.is_empty() {
+            gifs.push(
                 width,
                 height,
                 view.color.as_deref().expect("gif outputs plan colour"),
@@ -377,17 +405,7 @@ pub fn run_job(
         encode_s += t.elapsed().as_secs_f64();
     }
     let t = Instant::now();
-    for (g, rel) in gifs {
-        let frames = g.frames;
-        g.finish()?;
-        written.push(Written {
-            path: rel,
-            kind: "gif",
-            width,
-            height,
-            frames,
-        });
-    }
+    written.extend(gifs.finish(width, height)?);
     encode_s += t.elapsed().as_secs_f64();
     Ok(JobReport {
         name: job.name.clone(),

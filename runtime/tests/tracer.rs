@@ -209,10 +209,30 @@ fn only_requested_quantities_are_computed() {
     let j = job(Material::Normals, vec![OutputKind::Depth]);
     let plan = Plan::of(&j);
     // No colour output: the material's normals are not needed either.
-    assert!(plan.color.is_empty() && plan.normals.is_empty() && !plan.depth.is_empty());
+    assert!(
+        plan.color.is_empty()
+            && plan.normals.is_empty()
+            && !plan.shading_normals
+            && !plan.depth.is_empty()
+    );
 
     let j = job(Material::Normals, vec![OutputKind::Gif { fps: 10.0 }]);
-    assert_eq!(Plan::of(&j).normals.len(), 1, "shading needs normals");
+    let plan = Plan::of(&j);
+    assert!(
+        plan.shading_normals && plan.normals.is_empty(),
+        "shading needs normals, no buffer"
+    );
+    // With a normal-map output the buffer is computed too.
+    let j = job(Material::Rainbow, vec![OutputKind::Normals]);
+    let v = render_view(
+        &lower(&j.scene),
+        &j,
+        &j.cameras[0],
+        (32, 32),
+        Needs::from(&Plan::of(&j)),
+        &|_| {},
+    );
+    assert!(v.normals.is_some() && v.color.is_none());
 }
 
 #[test]

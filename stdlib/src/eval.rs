@@ -26,22 +26,7 @@ pub const MAX_DEPTH: usize = 200;
 /// Whether a value nests deeper than `limit` (visits at most `limit` levels).
 fn deeper_than(v: &Value, limit: usize) -> bool {
     fn shape(s: &crate::shape::Shape, limit: usize) -> bool {
-        use crate::shape::Shape::*;
-        if limit == 0 {
-            return true;
-        }
-        match s {
-            Union(c) | Intersection(c) => c.iter().any(|c| shape(c, limit - 1)),
-            Subtraction(a, b)
-            | SmoothUnion(a, b, _)
-            | SmoothIntersection(a, b, _)
-            | SmoothSubtraction(a, b, _) => shape(a, limit - 1) || shape(b, limit - 1),
-            Translate(s, _) | Rotate(s, _) | Scale(s, _) | Paint(s, _) | Trainable(s, _) => {
-                shape(s, limit - 1)
-            }
-            Displace { shape: s, .. } => shape(s, limit - 1),
-            _ => false,
-        }
+        limit == 0 || s.children().into_iter().any(|c| shape(c, limit - 1))
     }
     if limit == 0 {
         return true;

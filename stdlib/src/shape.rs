@@ -340,6 +340,31 @@ impl Shape {
         }
     }
 
+    /// The shapes this one is built from (none for primitives): the one
+    /// place that knows the tree's structure, for walks over it.
+    pub fn children(&self) -> Vec<&Arc<Shape>> {
+        match self {
+            Shape::Union(c) | Shape::Intersection(c) => c.iter().collect(),
+            Shape::Subtraction(a, b)
+            | Shape::SmoothUnion(a, b, _)
+            | Shape::SmoothIntersection(a, b, _)
+            | Shape::SmoothSubtraction(a, b, _) => vec![a, b],
+            Shape::Translate(s, _)
+            | Shape::Rotate(s, _)
+            | Shape::Scale(s, _)
+            | Shape::Paint(s, _)
+            | Shape::Trainable(s, _)
+            | Shape::Displace { shape: s, .. } => vec![s],
+            Shape::Sphere { .. }
+            | Shape::Box { .. }
+            | Shape::BoxFrame { .. }
+            | Shape::Torus { .. }
+            | Shape::Capsule { .. }
+            | Shape::Cylinder { .. }
+            | Shape::Plane { .. } => Vec::new(),
+        }
+    }
+
     /// The centre used by the rainbow material, for primitives.
     pub fn primitive_center(&self) -> Option<DVec3> {
         match self {

@@ -401,15 +401,7 @@ pub(crate) mod tests {
     }
 
     pub(crate) fn target_cams() -> Vec<Camera> {
-        [
-            (-2.5, 0.0, 0.0),
-            (-1.0, 0.0, -2.2),
-            (0.0, 0.0, -2.5),
-            (1.0, 0.0, -2.2),
-        ]
-        .iter()
-        .map(|&(x, y, z)| Camera::look_at(DVec3::new(x, y, z), DVec3::ZERO, DVec3::Y, 1.0))
-        .collect()
+        crate::train::box_fit::assignment_cameras()
     }
 
     /// A small batch of rays with targets rendered from a different box.
