@@ -45,6 +45,9 @@ enum Command {
         /// Evaluate unions without BVH culling (for comparisons).
         #[arg(long)]
         no_cull: bool,
+        /// Start training over instead of resuming a checkpoint.
+        #[arg(long)]
+        restart: bool,
     },
     /// Check files for errors without running them; exits non-zero on error.
     Check {
@@ -111,6 +114,7 @@ fn main() -> ExitCode {
             threads,
             json,
             no_cull,
+            restart,
         } => {
             if let Some(n) = threads {
                 if let Err(e) = rayon::ThreadPoolBuilder::new()
@@ -121,7 +125,16 @@ fn main() -> ExitCode {
                     return ExitCode::FAILURE;
                 }
             }
-            run(file.as_deref(), &out, RunOptions { size, no_cull }, json)
+            run(
+                file.as_deref(),
+                &out,
+                RunOptions {
+                    size,
+                    no_cull,
+                    restart,
+                },
+                json,
+            )
         }
         Command::Check { files } => {
             let mut ok = true;
@@ -227,7 +240,10 @@ fn execute(
     }
     for job in &program.trains {
         bar.set_message(job.name.clone());
-        let r = jobs::run_train_job(job, out, base, options.size, &|n| bar.inc(n), &|m| {
+        let train = jobs::TrainOptions {
+            restart: options.restart,
+        };
+        let r = jobs::run_train_job(job, out, base, options.size, train, &|n| bar.inc(n), &|m| {
             bar.set_message(m.to_string())
         })
         .map_err(|e| io(&job.name, e))?;
@@ -447,8 +463,8 @@ fn plan_text(program: &sdfl_stdlib::Program) -> String {
             o,
             "  field          {:?} density, alpha {}, beta {}, {} primitives",
             job.field.density,
-            job.field.alpha,
-            job.field.beta,
+            job.field.alpha.value,
+            job.field.beta.value,
             job.field.shape.primitive_count()
         );
         let _ = writeln!(
@@ -480,15 +496,14 @@ fn plan_text(program: &sdfl_stdlib::Program) -> String {
         let _ = writeln!(
             o,
             "  model          {:?} density, alpha {}, beta {}",
-            job.model.density, job.model.alpha, job.model.beta
+            job.model.density, job.model.alpha.value, job.model.beta.value
         );
-        let params: Vec<String> = match &*job.model.shape {
-            sdfl_stdlib::shape::Shape::Trainable(s, ps) => ps
-                .iter()
-                .map(|p| format!("{}.{}", s.name(), p.name))
-                .collect(),
-            _ => Vec::new(),
-        };
+        let model = sdfl_runtime::train::TrainModel::new(job.model.clone());
+        let params: Vec<String> = model
+            .params
+            .iter()
+            .map(|p| format!("{} ({})", p.name, p.len))
+            .collect();
         let _ = writeln!(
             o,
             "  trainable      {} (gradients only for these)",
@@ -513,16 +528,34 @@ fn plan_text(program: &sdfl_stdlib::Program) -> String {
         let _ = writeln!(o, "  data           {data}");
         let _ = writeln!(
             o,
-            "  step           {} rays x {} samples, MSE on colour, Adam lr {} (x{} every {}), {} iterations",
-            job.rays, job.sampler.samples, job.optimizer.lr, job.optimizer.decay, job.optimizer.decay_every, job.iterations
+            "  step           {} rays x {} samples{}, {} on colour, Adam lr {} ({:?}), {}",
+            job.rays,
+            job.sampler.samples,
+            if job.sampler.jitter {
+                " (jittered)"
+            } else {
+                ""
+            },
+            job.losses
+                .iter()
+                .map(|l| format!("{:?} x{}", l.kind, l.weight))
+                .collect::<Vec<_>>()
+                .join(" + "),
+            job.optimizer.lr,
+            job.optimizer.schedule,
+            match job.epochs {
+                Some(e) => format!("{e} epochs"),
+                None => format!("{} iterations", job.iterations),
+            }
         );
         let _ = writeln!(
             o,
             "  gradient tape  {}",
-            if job.backend == "dfdx" {
-                "dfdx autodiff graph"
-            } else {
-                "fused kernel with hand-written backward (checked against dfdx)"
+            match job.backend {
+                sdfl_stdlib::value::Backend::Dfdx =>
+                    "dfdx autodiff graph (not available for analytic fields yet)",
+                sdfl_stdlib::value::Backend::Fused =>
+                    "fused per-ray kernel: forward-mode tangents for each parameter, no tape",
             }
         );
         let _ = writeln!(o, "  depth          skipped (the loss uses colour only)");
@@ -634,6 +667,7 @@ fn sweep(
             RunOptions {
                 size,
                 no_cull: false,
+                restart: true,
             },
             &base_dir(Some(file)),
             &bar,

@@ -1,4 +1,5 @@
-//! Running volume renders and training statements.
+//! Running volume renders and training statements: loading data,
+//! checkpoints (refused when from another run), reports and outputs.
 
 use std::io;
 use std::ops::ControlFlow;
@@ -8,19 +9,22 @@ use std::time::Instant;
 use glam::Vec3A;
 use sdfl_stdlib::camera::Camera;
 use sdfl_stdlib::material::Material;
-use sdfl_stdlib::shape::Shape;
-use sdfl_stdlib::value::{Dataset, DensityKind, Field, Output, Sampler, TrainJob, VolumeJob};
+use sdfl_stdlib::num::{Dual, V3};
+use sdfl_stdlib::shape::{ArgSource, Fixed};
+use sdfl_stdlib::value::{Backend, Dataset, Field, Output, Sampler, TrainJob, VolumeJob};
 use sdfl_stdlib::OutputKind;
-use serde::{Deserialize, Serialize};
+use serde::Serialize;
 
 use crate::data::npy::{read_rgb_f32, RgbImage};
-use crate::output::{to_u8, write_png, Atomic};
+use crate::output::{to_u8, write_png};
 use crate::render::{view_path, Gifs, Written};
 use crate::sdf::{LowerOptions, Lowered};
-use crate::train::box_fit::{fit_box_with, BoxFitConfig, FitBackend, FitView};
+use crate::train::checkpoint::{Checkpoint, Fnv};
+use crate::train::fused::field_at;
+use crate::train::{Run, TrainError, TrainModel, TrainSetup, TrainView};
 use crate::volume::figures;
 use crate::volume::render::{render_field_image_with, DensityModel};
-use crate::volume::{BoxVolume, ImageSize, Stratified};
+use crate::volume::{ImageSize, Stratified};
 
 fn invalid(e: impl std::fmt::Display) -> io::Error {
     io::Error::new(io::ErrorKind::InvalidInput, e.to_string())
@@ -30,16 +34,17 @@ fn stratified(s: &Sampler) -> io::Result<Stratified> {
     Stratified::new(s.samples, s.near as f32, s.far as f32).map_err(invalid)
 }
 
-fn density_model(f: &Field) -> DensityModel {
-    let (alpha, beta) = (f.alpha as f32, f.beta as f32);
-    match f.density {
-        DensityKind::Opacity => DensityModel::SdfOpacity { alpha, beta },
-        DensityKind::VolSdf => DensityModel::VolSdf { alpha, beta },
-        DensityKind::Neus => DensityModel::Neus { alpha, beta },
+/// A field's density at its arguments' values.
+fn density_model(f: &Field, sampler: &Sampler) -> DensityModel {
+    DensityModel {
+        kind: f.density,
+        alpha: f.alpha.value as f32,
+        beta: f.beta.value as f32,
+        last_interval: sampler.last_interval,
     }
 }
 
-/// A field lowered for rendering: the SDF evaluator and the colour rule.
+/// A field lowered for rendering: the culled SDF evaluator and the colour.
 struct LoweredField {
     sdf: Lowered,
     color: Material,
@@ -56,28 +61,26 @@ impl LoweredField {
     #[inline]
     fn eval(&self, p: [f32; 3]) -> (f32, [f32; 3]) {
         let pv = Vec3A::from(p);
-        match &self.color {
-            // Rainbow needs the centre of the primitive attaining the minimum.
-            Material::Rainbow => {
-                let (d, id) = self.sdf.root.dist_id(pv);
-                let c = self
-                    .sdf
-                    .prims
-                    .get(id as usize)
-                    .map_or(Vec3A::ZERO, |i| i.center.as_vec3().into());
-                let rgb = (pv - c).abs().clamp(Vec3A::splat(0.02), Vec3A::splat(0.98));
-                (d, rgb.to_array())
-            }
-            Material::Constant(c) => (self.sdf.dist(pv), c.as_vec3().to_array()),
-            // Fields reject materials that need normals when evaluated.
-            _ => (self.sdf.dist(pv), [0.5; 3]),
-        }
+        let (d, id) = self.sdf.root.dist_id(pv);
+        let info = self.sdf.prims.get(id as usize);
+        let material = info
+            .and_then(|i| i.material.as_deref())
+            .unwrap_or(&self.color);
+        let c = info.map_or(V3::splat(0.0), |i| V3::lit(i.center.to_array()));
+        // Fields refuse materials that need normals; a painted one shades grey.
+        let rgb = material
+            .unlit_color(V3::from_array(p), c, &Fixed)
+            .unwrap_or(V3::splat(0.5));
+        (d, rgb.to_array())
     }
 }
 
+/// A field to render: point → (signed distance, colour).
+pub type FieldFn<'a> = &'a (dyn Fn([f32; 3]) -> (f32, [f32; 3]) + Sync);
+
 /// Colour (and depth) of one view of a field.
 fn render_field(
-    field: &LoweredField,
+    field: FieldFn,
     model: DensityModel,
     sampler: &Stratified,
     cam: &Camera,
@@ -88,8 +91,8 @@ fn render_field(
         width: w,
         height: h,
     };
-    let img = render_field_image_with(|p| field.eval(p), model, sampler, cam, size, want_depth)
-        .map_err(invalid)?;
+    let img =
+        render_field_image_with(field, model, sampler, cam, size, want_depth).map_err(invalid)?;
     Ok((img.colour, img.depth))
 }
 
@@ -111,9 +114,11 @@ pub struct VolumeReport {
 }
 
 /// Render a field from each camera and write the outputs.
+#[allow(clippy::too_many_arguments)]
 pub fn write_volume_outputs(
     name: &str,
-    field: &Field,
+    field: FieldFn,
+    model: DensityModel,
     cameras: &[Camera],
     (w, h): (u32, u32),
     sampler: &Sampler,
@@ -121,8 +126,6 @@ pub fn write_volume_outputs(
     out_dir: &Path,
     progress: &(dyn Fn(u64) + Sync),
 ) -> io::Result<VolumeReport> {
-    let lowered = LoweredField::new(field);
-    let model = density_model(field);
     let strat = stratified(sampler)?;
     let mut written = Vec::new();
     let mut gifs = Gifs::open(outputs, out_dir)?;
@@ -137,7 +140,7 @@ pub fn write_volume_outputs(
     for (k, cam) in cameras.iter().enumerate() {
         let t = Instant::now();
         let (colour, depth) = if needs_render {
-            render_field(&lowered, model, &strat, cam, (w, h), wants_depth)?
+            render_field(field, model, &strat, cam, (w, h), wants_depth)?
         } else {
             (Vec::new(), Vec::new())
         };
@@ -207,9 +210,11 @@ pub fn run_volume_job(
     progress: &(dyn Fn(u64) + Sync),
 ) -> io::Result<VolumeReport> {
     let wh = size.unwrap_or((job.width, job.height));
+    let lowered = LoweredField::new(&job.field);
     write_volume_outputs(
         &job.name,
-        &job.field,
+        &|p| lowered.eval(p),
+        density_model(&job.field, &job.sampler),
         &job.cameras,
         wh,
         &job.sampler,
@@ -221,62 +226,19 @@ pub fn run_volume_job(
 
 // ------------------------------------------------------------------ training
 
-/// A resumable training state, written atomically as JSON.
-#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
-pub struct Checkpoint {
-    pub iteration: usize,
-    pub center: [f32; 3],
-    pub sides: [f32; 3],
-    pub losses: Vec<f32>,
-}
-
-impl Checkpoint {
-    pub fn write(&self, path: &Path) -> io::Result<()> {
-        let mut f = Atomic::create(path)?;
-        serde_json::to_writer_pretty(f.writer(), self).map_err(io::Error::other)?;
-        f.commit()
-    }
-    pub fn read(path: &Path) -> io::Result<Checkpoint> {
-        serde_json::from_slice(&std::fs::read(path)?).map_err(invalid)
-    }
-}
-
 /// The learned parameters and how training went.
 #[derive(Debug, Clone, Serialize)]
 pub struct TrainReport {
     pub name: String,
+    /// Steps done in all (a resumed run counts the earlier ones).
     pub iterations: usize,
     pub resumed_from: Option<usize>,
     pub final_loss: f32,
     pub seconds_per_step: f64,
-    /// Learned values by parameter name (`box.center`, `box.size`).
+    /// Learned values by parameter name (`box.center`, or a `let` name).
     pub params: Vec<(String, Vec<f32>)>,
     pub written: Vec<Written>,
     pub stages: Vec<(String, f64)>,
-}
-
-/// The box a model trains, as (centre, size).
-fn model_box(field: &Field) -> io::Result<([f32; 3], [f32; 3])> {
-    match &*field.shape {
-        Shape::Trainable(inner, _) => match &**inner {
-            Shape::Box { center, size } => {
-                Ok((center.as_vec3().to_array(), size.as_vec3().to_array()))
-            }
-            _ => Err(invalid("the model's trainable shape is not a box")),
-        },
-        _ => Err(invalid("the model has no trainable parameters")),
-    }
-}
-
-fn with_box(field: &Field, center: [f32; 3], sides: [f32; 3]) -> Field {
-    let b = Shape::Box {
-        center: glam::Vec3::from(center).as_dvec3(),
-        size: glam::Vec3::from(sides).as_dvec3(),
-    };
-    Field {
-        shape: std::sync::Arc::new(b),
-        ..field.clone()
-    }
 }
 
 fn load_image(path: &Path) -> io::Result<RgbImage> {
@@ -295,18 +257,23 @@ fn load_image(path: &Path) -> io::Result<RgbImage> {
 }
 
 /// The training views: read from files (relative to `base`) or rendered.
-pub fn load_views(data: &Dataset, base: &Path) -> io::Result<Vec<FitView>> {
-    match data {
+/// Every pixel must be a finite colour; the first that is not is named.
+pub fn load_views(data: &Dataset, base: &Path) -> io::Result<Vec<TrainView>> {
+    let views: Vec<(TrainView, String)> = match data {
         Dataset::Files { images, cameras } => images
             .iter()
             .zip(cameras)
             .map(|(p, c)| {
-                Ok(FitView {
-                    camera: *c,
-                    image: load_image(&base.join(p))?,
-                })
+                let path = base.join(p);
+                Ok((
+                    TrainView {
+                        camera: *c,
+                        image: load_image(&path)?,
+                    },
+                    path.display().to_string(),
+                ))
             })
-            .collect(),
+            .collect::<io::Result<_>>()?,
         Dataset::Rendered {
             field,
             cameras,
@@ -318,136 +285,235 @@ pub fn load_views(data: &Dataset, base: &Path) -> io::Result<Vec<FitView>> {
             let strat = stratified(sampler)?;
             cameras
                 .iter()
-                .map(|c| {
+                .enumerate()
+                .map(|(k, c)| {
                     let (colour, _) = render_field(
-                        &lowered,
-                        density_model(field),
+                        &|p| lowered.eval(p),
+                        density_model(field, sampler),
                         &strat,
                         c,
                         (*width, *height),
                         false,
                     )?;
-                    Ok(FitView {
-                        camera: *c,
-                        image: RgbImage {
-                            width: *width,
-                            height: *height,
-                            pixels: colour,
-                        },
-                    })
+                    let image = RgbImage {
+                        width: *width,
+                        height: *height,
+                        pixels: colour,
+                    };
+                    Ok((
+                        TrainView { camera: *c, image },
+                        format!("rendered view {k}"),
+                    ))
                 })
-                .collect()
+                .collect::<io::Result<_>>()?
+        }
+    };
+    for (v, origin) in &views {
+        if let Some(i) = v
+            .image
+            .pixels
+            .iter()
+            .position(|p| !p.iter().all(|x| x.is_finite()))
+        {
+            let w = v.image.width.max(1) as usize;
+            return Err(invalid(format!(
+                "{origin}: pixel (column {}, row {}) is {:?}, not a finite colour",
+                i % w,
+                i / w,
+                v.image.pixels[i]
+            )));
         }
     }
+    Ok(views.into_iter().map(|(v, _)| v).collect())
 }
 
 /// How often a checkpoint is written.
 const CHECKPOINT_EVERY: usize = 100;
 
+/// Bytes a training step holds beyond the data: per ray its description,
+/// target and (when jittered) its own depths.
+pub fn step_memory(job: &TrainJob) -> u64 {
+    let per_ray = 48
+        + if job.sampler.jitter {
+            4 * job.sampler.samples as u64
+        } else {
+            0
+        };
+    job.rays as u64 * per_ray
+}
+
+/// Memory this process may use: what the system says is available, or
+/// 8 GiB where it cannot tell.
+fn available_memory() -> u64 {
+    std::fs::read_to_string("/proc/meminfo")
+        .ok()
+        .and_then(|m| {
+            m.lines()
+                .find(|l| l.starts_with("MemAvailable:"))
+                .and_then(|l| l.split_whitespace().nth(1)?.parse::<u64>().ok())
+        })
+        .map_or(8 << 30, |kib| kib * 1024)
+}
+
+/// The fingerprint of what a run depends on: one hash per
+/// [`checkpoint::PARTS`] entry (not the step count, so a run can be
+/// continued for longer).
+pub fn fingerprint(job: &TrainJob, views: &[TrainView]) -> [String; 4] {
+    let mut data = Fnv::default();
+    for v in views {
+        data.str(&format!("{:?}", v.camera))
+            .f32s(&[v.image.width as f32, v.image.height as f32]);
+        for p in &v.image.pixels {
+            data.f32s(p);
+        }
+    }
+    [
+        Fnv::default().str(&format!("{:?}", job.model)).finish(),
+        data.finish(),
+        Fnv::default().str(&format!("{:?}", job.sampler)).finish(),
+        Fnv::default()
+            .str(&format!(
+                "{:?} {:?} rays {} seed {} {:?}",
+                job.optimizer, job.losses, job.rays, job.seed, job.backend
+            ))
+            .finish(),
+    ]
+}
+
+/// Options of a training run that are not in the file.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct TrainOptions {
+    /// Start over instead of resuming an existing checkpoint.
+    pub restart: bool,
+}
+
+#[allow(clippy::too_many_arguments)]
 pub fn run_train_job(
     job: &TrainJob,
     out_dir: &Path,
     base: &Path,
     size: Option<(u32, u32)>,
+    options: TrainOptions,
     progress: &(dyn Fn(u64) + Sync),
     status: &dyn Fn(&str),
 ) -> io::Result<TrainReport> {
     let wh = size.unwrap_or((job.width, job.height));
     let mut written = Vec::new();
     let mut stages = Vec::new();
+    if job.backend == Backend::Dfdx {
+        return Err(invalid(format!(
+            "training `{}`: the dfdx graph backend does not lower analytic fields yet; use `backend: \"fused\"`",
+            job.name
+        )));
+    }
+    let need = step_memory(job);
+    let have = available_memory();
+    if need > have / 2 {
+        return Err(invalid(format!(
+            "training `{}` would hold about {:.1} GiB per step ({} rays × {} samples), more than half of the {:.1} GiB available: use fewer `rays`, fewer samples, or no jitter",
+            job.name,
+            need as f64 / (1u64 << 30) as f64,
+            job.rays,
+            job.sampler.samples,
+            have as f64 / (1u64 << 30) as f64
+        )));
+    }
 
     let t = Instant::now();
     let views = load_views(&job.data, base)?;
     stages.push(("load data".to_string(), t.elapsed().as_secs_f64()));
 
-    let (mut center, mut sides) = model_box(&job.model)?;
+    let model = TrainModel::new(job.model.clone());
+    let setup = TrainSetup {
+        views: &views,
+        sampler: job.sampler,
+        rays: job.rays,
+        optimizer: job.optimizer,
+        losses: &job.losses,
+        seed: job.seed,
+    };
+    let steps = match job.epochs {
+        Some(e) => e.saturating_mul(setup.steps_per_epoch()),
+        None => job.iterations,
+    };
+    let fail = |e: TrainError| io::Error::other(format!("training `{}`: {e}", job.name));
+    let mut run = Run::new(&model, job.optimizer.lr).map_err(fail)?;
+    let fp = fingerprint(job, &views);
     let checkpoint_path: Option<PathBuf> = job.checkpoint.as_ref().map(|c| out_dir.join(c));
-    let mut losses = Vec::new();
     let mut resumed_from = None;
-    if let Some(cp) = checkpoint_path.as_ref().filter(|p| p.exists()) {
-        let state = Checkpoint::read(cp)?;
-        (center, sides, losses) = (state.center, state.sides, state.losses);
-        resumed_from = Some(state.iteration);
+    if let Some(cp) = checkpoint_path
+        .as_ref()
+        .filter(|p| p.exists() && !options.restart)
+    {
+        let ck = Checkpoint::read(cp)?;
+        let differs = ck.differences(&fp);
+        if !differs.is_empty() {
+            return Err(invalid(format!(
+                "checkpoint {} is from another run: its {} differ{}; run with --restart to start over, or name another `checkpoint`",
+                cp.display(),
+                differs.join(", "),
+                if differs.len() == 1 { "s" } else { "" }
+            )));
+        }
+        run.resume(&ck).map_err(|e| {
+            invalid(format!(
+                "checkpoint {}: {e}; run with --restart to start over",
+                cp.display()
+            ))
+        })?;
+        resumed_from = Some(run.step);
     }
-    let done = resumed_from.unwrap_or(0).min(job.iterations);
     // A checkpoint exists from the start, so a run that diverges at once
     // still leaves a good state to resume from.
     if let (Some(cp), None) = (&checkpoint_path, resumed_from) {
-        Checkpoint {
-            iteration: 0,
-            center,
-            sides,
-            losses: Vec::new(),
-        }
-        .write(cp)?;
+        run.checkpoint(fp.clone()).write(cp)?;
     }
 
-    if !job.before.is_empty() {
-        let start = with_box(&job.model, center, sides);
+    let render_at = |values: &[f32], outputs: &[Output]| -> io::Result<Vec<Written>> {
+        let args = model.plain(values);
+        let f = &model.field;
+        let density = DensityModel {
+            kind: f.density,
+            alpha: args.scalar(&f.alpha).v,
+            beta: args.scalar(&f.beta).v,
+            last_interval: job.sampler.last_interval,
+        };
+        let eval = |p: [f32; 3]| {
+            let q = V3::from_array(p.map(Dual::constant));
+            let (d, c) = field_at(&model, &args, q);
+            (d.v, [c.x.v, c.y.v, c.z.v])
+        };
         let r = write_volume_outputs(
             &job.name,
-            &start,
+            &eval,
+            density,
             &job.views,
             wh,
             &job.sampler,
-            &job.before,
+            outputs,
             out_dir,
             &|_| {},
         )?;
-        written.extend(r.written);
+        Ok(r.written)
+    };
+    if !job.before.is_empty() {
+        written.extend(render_at(&run.values(), &job.before)?);
     }
 
-    let cfg = BoxFitConfig {
-        start: BoxVolume::new(center, sides, job.model.alpha as f32, job.model.beta as f32)
-            .map_err(invalid)?,
-        sampler: stratified(&job.sampler)?,
-        batch_rays: job.rays,
-        lr: job.optimizer.lr
-            * job.optimizer.decay.powi(if job.optimizer.decay_every > 0 {
-                (done / job.optimizer.decay_every) as i32
-            } else {
-                0
-            }),
-        lr_decay: job.optimizer.decay,
-        decay_every: job.optimizer.decay_every,
-        iterations: job.iterations - done,
-        // A different stream after a resume, so batches are not repeated.
-        seed: job.seed.wrapping_add(done as u64),
-        backend: if job.backend == "dfdx" {
-            FitBackend::Dfdx
-        } else {
-            FitBackend::Fused
-        },
-    };
     let t = Instant::now();
-    let mut last_good = Checkpoint {
-        iteration: done,
-        center,
-        sides,
-        losses: losses.clone(),
-    };
-    let mut diverged = None;
+    let done_before = run.step;
+    let mut last_good = run.checkpoint(fp.clone());
     let mut io_error = None;
-    let result = fit_box_with(&views, &cfg, |it, vol, loss| {
+    let result = run.run_to(&setup, steps, |r, loss| {
         progress(1);
-        let iteration = done + it;
-        if iteration % 10 == 0 {
+        if r.step % 10 == 0 {
             status(&format!("{} loss {loss:.3e}", job.name));
         }
-        if !loss.is_finite() || !vol.center.iter().chain(&vol.sides).all(|x| x.is_finite()) {
-            diverged = Some(iteration);
-            return ControlFlow::Break(());
-        }
-        last_good.losses.push(loss);
-        last_good.iteration = iteration;
-        last_good.center = vol.center;
-        last_good.sides = vol.sides;
-        if let Some(cp) = &checkpoint_path {
-            if iteration % CHECKPOINT_EVERY == 0 {
-                if let Err(e) = last_good.write(cp) {
-                    io_error = Some(e);
-                    return ControlFlow::Break(());
-                }
+        if checkpoint_path.is_some() && r.step % CHECKPOINT_EVERY == 0 {
+            last_good = r.checkpoint(fp.clone());
+            if let Err(e) = last_good.write(checkpoint_path.as_ref().expect("checked")) {
+                io_error = Some(e);
+                return ControlFlow::Break(());
             }
         }
         ControlFlow::Continue(())
@@ -457,26 +523,28 @@ pub fn run_train_job(
     if let Some(e) = io_error {
         return Err(e);
     }
-    let kept = checkpoint_path
-        .as_ref()
-        .map(|p| format!("; the last good checkpoint is kept at {}", p.display()))
-        .unwrap_or_default();
-    if let Some(it) = diverged {
+    if let Err(e) = result {
+        let kept = checkpoint_path
+            .as_ref()
+            .map(|p| {
+                format!(
+                    "; the last good checkpoint (step {}) is kept at {}",
+                    last_good.step,
+                    p.display()
+                )
+            })
+            .unwrap_or_default();
         return Err(io::Error::other(format!(
-            "training `{}` diverged at iteration {it}: the loss or a parameter is not finite{kept}",
-            job.name
+            "training `{}` stopped at step {}: {e}{kept}",
+            job.name,
+            run.step + 1
         )));
     }
-    let result = result
-        .map_err(|e| io::Error::other(format!("training `{}` failed: {e}{kept}", job.name)))?;
     if let Some(cp) = &checkpoint_path {
-        last_good.write(cp)?;
+        run.checkpoint(fp.clone()).write(cp)?;
     }
-    let (center, sides) = (result.volume.center, result.volume.sides);
-    let all_losses = last_good.losses.clone();
 
     let t = Instant::now();
-    let trained = with_box(&job.model, center, sides);
     let volume_outputs: Vec<Output> = job
         .after
         .iter()
@@ -484,20 +552,11 @@ pub fn run_train_job(
         .cloned()
         .collect();
     if !volume_outputs.is_empty() {
-        let r = write_volume_outputs(
-            &job.name,
-            &trained,
-            &job.views,
-            wh,
-            &job.sampler,
-            &volume_outputs,
-            out_dir,
-            &|_| {},
-        )?;
-        written.extend(r.written);
+        written.extend(render_at(&run.values(), &volume_outputs)?);
     }
     for o in job.after.iter().filter(|o| o.kind == OutputKind::LossCurve) {
-        let pts: Vec<(f64, f64)> = all_losses
+        let pts: Vec<(f64, f64)> = run
+            .losses
             .iter()
             .enumerate()
             .map(|(i, l)| ((i + 1) as f64, *l as f64))
@@ -518,17 +577,14 @@ pub fn run_train_job(
         });
     }
     stages.push(("outputs".to_string(), t.elapsed().as_secs_f64()));
-    let steps = result.iterations.max(1);
+    let steps_run = (run.step - done_before).max(1);
     Ok(TrainReport {
         name: job.name.clone(),
-        iterations: done + result.iterations,
+        iterations: run.step,
         resumed_from,
-        final_loss: all_losses.last().copied().unwrap_or(f32::NAN),
-        seconds_per_step: train_s / steps as f64,
-        params: vec![
-            ("box.center".into(), center.to_vec()),
-            ("box.size".into(), sides.to_vec()),
-        ],
+        final_loss: run.losses.last().copied().unwrap_or(f32::NAN),
+        seconds_per_step: train_s / steps_run as f64,
+        params: run.named_values(),
         written,
         stages,
     })

@@ -296,6 +296,8 @@ pub struct RunOptions {
     pub size: Option<(u32, u32)>,
     /// Evaluate unions without BVH culling (for comparisons).
     pub no_cull: bool,
+    /// Training starts over instead of resuming its checkpoint.
+    pub restart: bool,
 }
 
 /// The file name for view `k` of `n`: `{view}` is replaced by the padded

@@ -16,6 +16,9 @@ use std::sync::Arc;
 
 use glam::{Affine3A, DAffine3, DQuat, DVec3, Vec3A};
 use sdfl_stdlib::material::Material;
+use sdfl_stdlib::num::V3;
+use sdfl_stdlib::param::Arg;
+use sdfl_stdlib::sdf;
 use sdfl_stdlib::shape::{Aabb, Shape};
 
 /// One lowered node: a signed distance (or bound) in world units.
@@ -155,104 +158,91 @@ trait Prim: Send + Sync + 'static {
     fn local(&self, p: Vec3A) -> f32;
 }
 
+#[inline(always)]
+fn v3(p: Vec3A) -> V3<f32> {
+    V3::new(p.x, p.y, p.z)
+}
+
+// Each primitive evaluates the one formula in `sdfl_stdlib::sdf`, in f32.
+
 struct Sphere {
-    c: Vec3A,
+    c: V3<f32>,
     r: f32,
 }
 impl Prim for Sphere {
     #[inline(always)]
     fn local(&self, p: Vec3A) -> f32 {
-        (p - self.c).length() - self.r
+        sdf::sphere(v3(p), self.c, self.r)
     }
 }
 
-#[inline(always)]
-fn box_sd(q: Vec3A, half: Vec3A) -> f32 {
-    let q = q.abs() - half;
-    q.max(Vec3A::ZERO).length() + q.max_element().min(0.0)
-}
-
 struct BoxPrim {
-    c: Vec3A,
-    half: Vec3A,
+    c: V3<f32>,
+    size: V3<f32>,
 }
 impl Prim for BoxPrim {
     #[inline(always)]
     fn local(&self, p: Vec3A) -> f32 {
-        box_sd(p - self.c, self.half)
+        sdf::cuboid(v3(p), self.c, self.size)
     }
 }
 
 struct BoxFrame {
-    c: Vec3A,
-    half: Vec3A,
-    /// Half the edge width (Quilez's `e`).
-    e: f32,
+    c: V3<f32>,
+    size: V3<f32>,
+    thickness: f32,
 }
 impl Prim for BoxFrame {
     #[inline(always)]
     fn local(&self, p: Vec3A) -> f32 {
-        let p = (p - self.c).abs() - self.half;
-        let q = (p + Vec3A::splat(self.e)).abs() - Vec3A::splat(self.e);
-        let part = |v: Vec3A| v.max(Vec3A::ZERO).length() + v.max_element().min(0.0);
-        part(Vec3A::new(p.x, q.y, q.z))
-            .min(part(Vec3A::new(q.x, p.y, q.z)))
-            .min(part(Vec3A::new(q.x, q.y, p.z)))
+        sdf::box_frame(v3(p), self.c, self.size, self.thickness)
     }
 }
 
 struct Torus {
-    c: Vec3A,
+    c: V3<f32>,
     major: f32,
     minor: f32,
 }
 impl Prim for Torus {
     #[inline(always)]
     fn local(&self, p: Vec3A) -> f32 {
-        let q = p - self.c;
-        let a = (q.x * q.x + q.y * q.y).sqrt() - self.major;
-        (a * a + q.z * q.z).sqrt() - self.minor
+        sdf::torus(v3(p), self.c, self.major, self.minor)
     }
 }
 
 struct Capsule {
-    a: Vec3A,
-    ba: Vec3A,
-    inv_len2: f32,
+    a: V3<f32>,
+    b: V3<f32>,
     r: f32,
 }
 impl Prim for Capsule {
     #[inline(always)]
     fn local(&self, p: Vec3A) -> f32 {
-        let pa = p - self.a;
-        let h = (pa.dot(self.ba) * self.inv_len2).clamp(0.0, 1.0);
-        (pa - self.ba * h).length() - self.r
+        sdf::capsule(v3(p), self.a, self.b, self.r)
     }
 }
 
 struct Cylinder {
-    c: Vec3A,
+    c: V3<f32>,
     r: f32,
-    half_h: f32,
+    height: f32,
 }
 impl Prim for Cylinder {
     #[inline(always)]
     fn local(&self, p: Vec3A) -> f32 {
-        let q = p - self.c;
-        let dx = (q.x * q.x + q.y * q.y).sqrt() - self.r;
-        let dz = q.z.abs() - self.half_h;
-        dx.max(dz).min(0.0) + (dx.max(0.0) * dx.max(0.0) + dz.max(0.0) * dz.max(0.0)).sqrt()
+        sdf::cylinder(v3(p), self.c, self.r, self.height)
     }
 }
 
 struct Plane {
-    n: Vec3A,
+    n: V3<f32>,
     h: f32,
 }
 impl Prim for Plane {
     #[inline(always)]
     fn local(&self, p: Vec3A) -> f32 {
-        p.dot(self.n) - self.h
+        sdf::plane(v3(p), self.n, self.h)
     }
 }
 
@@ -329,22 +319,13 @@ struct Binary {
     k: f32,
 }
 
-#[inline(always)]
-fn smin(a: f32, b: f32, k: f32) -> f32 {
-    if k <= 0.0 {
-        return a.min(b);
-    }
-    let h = (k - (a - b).abs()).max(0.0) / k;
-    a.min(b) - h * h * k * 0.25
-}
-
 impl Binary {
     #[inline(always)]
     fn combine(&self, a: f32, b: f32) -> f32 {
         match self.op {
-            SmoothOp::Union => smin(a, b, self.k),
-            SmoothOp::Intersection => -smin(-a, -b, self.k),
-            SmoothOp::Subtraction => -smin(-a, b, self.k),
+            SmoothOp::Union => sdf::smooth_min(a, b, self.k),
+            SmoothOp::Intersection => sdf::smooth_max(a, b, self.k),
+            SmoothOp::Subtraction => sdf::smooth_max(a, -b, self.k),
         }
     }
 }
@@ -387,8 +368,7 @@ struct Displace {
 impl Displace {
     #[inline(always)]
     fn offset(&self, p: Vec3A) -> f32 {
-        let q = self.xform.apply(p) * self.frequency;
-        self.amplitude * q.x.sin() * q.y.sin() * q.z.sin()
+        sdf::displacement(v3(self.xform.apply(p)), self.amplitude, self.frequency)
     }
 }
 impl Node for Displace {
@@ -402,6 +382,14 @@ impl Node for Displace {
 }
 
 // ----------------------------------------------------------------------- BVH
+
+/// Signed distance to an axis-aligned box (centre offset `q`, half extents
+/// `half`): the culling bound, in SIMD lanes.
+#[inline(always)]
+fn box_sd(q: Vec3A, half: Vec3A) -> f32 {
+    let q = q.abs() - half;
+    q.max(Vec3A::ZERO).length() + q.max_element().min(0.0)
+}
 
 #[derive(Clone, Copy)]
 struct BvhNode {
@@ -748,10 +736,6 @@ struct Lowering {
     bvh_nodes: usize,
 }
 
-fn v(p: DVec3) -> Vec3A {
-    p.as_vec3().into()
-}
-
 impl Lowering {
     fn leaf<P: Prim>(&mut self, prim: P, shape: &Shape, frame: &Frame) -> Box<dyn Node> {
         let id = self.prims.len() as u32;
@@ -770,19 +754,21 @@ impl Lowering {
     }
 
     fn lower(&mut self, shape: &Shape, frame: &Frame) -> Box<dyn Node> {
+        let f = |a: &Arg<f64>| a.value as f32;
+        let c = |a: &Arg<DVec3>| V3::lit(a.value.to_array());
         match shape {
             Shape::Sphere { center, radius } => self.leaf(
                 Sphere {
-                    c: v(*center),
-                    r: *radius as f32,
+                    c: c(center),
+                    r: f(radius),
                 },
                 shape,
                 frame,
             ),
             Shape::Box { center, size } => self.leaf(
                 BoxPrim {
-                    c: v(*center),
-                    half: v(*size * 0.5),
+                    c: c(center),
+                    size: c(size),
                 },
                 shape,
                 frame,
@@ -793,9 +779,9 @@ impl Lowering {
                 thickness,
             } => self.leaf(
                 BoxFrame {
-                    c: v(*center),
-                    half: v(*size * 0.5),
-                    e: (*thickness * 0.5) as f32,
+                    c: c(center),
+                    size: c(size),
+                    thickness: f(thickness),
                 },
                 shape,
                 frame,
@@ -806,45 +792,39 @@ impl Lowering {
                 minor,
             } => self.leaf(
                 Torus {
-                    c: v(*center),
-                    major: *major as f32,
-                    minor: *minor as f32,
+                    c: c(center),
+                    major: f(major),
+                    minor: f(minor),
                 },
                 shape,
                 frame,
             ),
-            Shape::Capsule { a, b, radius } => {
-                let ba = *b - *a;
-                let len2 = ba.length_squared();
-                let inv = if len2 > 0.0 { 1.0 / len2 } else { 0.0 };
-                self.leaf(
-                    Capsule {
-                        a: v(*a),
-                        ba: v(ba),
-                        inv_len2: inv as f32,
-                        r: *radius as f32,
-                    },
-                    shape,
-                    frame,
-                )
-            }
+            Shape::Capsule { a, b, radius } => self.leaf(
+                Capsule {
+                    a: c(a),
+                    b: c(b),
+                    r: f(radius),
+                },
+                shape,
+                frame,
+            ),
             Shape::Cylinder {
                 center,
                 radius,
                 height,
             } => self.leaf(
                 Cylinder {
-                    c: v(*center),
-                    r: *radius as f32,
-                    half_h: (*height * 0.5) as f32,
+                    c: c(center),
+                    r: f(radius),
+                    height: f(height),
                 },
                 shape,
                 frame,
             ),
             Shape::Plane { normal, height } => self.leaf(
                 Plane {
-                    n: v(*normal),
-                    h: *height as f32,
+                    n: V3::lit(normal.to_array()),
+                    h: f(height),
                 },
                 shape,
                 frame,
@@ -858,21 +838,17 @@ impl Lowering {
                 children.iter().map(|c| self.lower(c, frame)).collect(),
             )),
             Shape::Subtraction(a, b) => self.binary(a, b, SmoothOp::Subtraction, 0.0, frame),
-            Shape::SmoothUnion(a, b, k) => self.binary(a, b, SmoothOp::Union, *k, frame),
+            Shape::SmoothUnion(a, b, k) => self.binary(a, b, SmoothOp::Union, k.value, frame),
             Shape::SmoothIntersection(a, b, k) => {
-                self.binary(a, b, SmoothOp::Intersection, *k, frame)
+                self.binary(a, b, SmoothOp::Intersection, k.value, frame)
             }
             Shape::SmoothSubtraction(a, b, k) => {
-                self.binary(a, b, SmoothOp::Subtraction, *k, frame)
+                self.binary(a, b, SmoothOp::Subtraction, k.value, frame)
             }
-            Shape::Translate(s, by) => {
-                self.lower(s, &frame.then(DAffine3::from_translation(-*by), 1.0))
+            Shape::Translate(..) | Shape::Rotate { .. } | Shape::Scale(..) => {
+                let (s, step, scale) = transform(shape).expect("a transform");
+                self.lower(s, &frame.then(step, scale))
             }
-            Shape::Rotate(s, q) => self.lower(s, &frame.then(rotation(q.inverse()), 1.0)),
-            Shape::Scale(s, f) => self.lower(
-                s,
-                &frame.then(DAffine3::from_scale(DVec3::splat(1.0 / f)), *f),
-            ),
             Shape::Displace {
                 shape: s,
                 amplitude,
@@ -880,10 +856,9 @@ impl Lowering {
             } => Box::new(Displace {
                 inner: self.lower(s, frame),
                 xform: frame.xform(),
-                amplitude: (*amplitude * frame.scale) as f32,
-                frequency: *frequency as f32,
+                amplitude: (amplitude.value * frame.scale) as f32,
+                frequency: frequency.value as f32,
             }),
-            Shape::Trainable(s, _) => self.lower(s, frame),
             Shape::Paint(s, m) => {
                 let mut painted = frame.clone();
                 painted.material = Some(m.clone());
@@ -922,17 +897,12 @@ impl Lowering {
                     self.union_members(c, frame, out);
                 }
             }
-            Shape::Translate(s, by) if matches!(**s, Shape::Union(_)) => {
-                self.union_members(s, &frame.then(DAffine3::from_translation(-*by), 1.0), out)
+            Shape::Translate(..) | Shape::Rotate { .. } | Shape::Scale(..)
+                if matches!(transform(shape), Some((Shape::Union(_), ..))) =>
+            {
+                let (s, step, scale) = transform(shape).expect("a transform");
+                self.union_members(s, &frame.then(step, scale), out)
             }
-            Shape::Rotate(s, q) if matches!(**s, Shape::Union(_)) => {
-                self.union_members(s, &frame.then(rotation(q.inverse()), 1.0), out)
-            }
-            Shape::Scale(s, f) if matches!(**s, Shape::Union(_)) => self.union_members(
-                s,
-                &frame.then(DAffine3::from_scale(DVec3::splat(1.0 / f)), *f),
-                out,
-            ),
             Shape::Paint(s, m) if matches!(**s, Shape::Union(_)) => {
                 let mut painted = frame.clone();
                 painted.material = Some(m.clone());
@@ -964,6 +934,20 @@ impl Lowering {
     }
 }
 
-fn rotation(q: DQuat) -> DAffine3 {
-    DAffine3::from_quat(q)
+/// A transform's child, its world → local step and its distance scale.
+fn transform(shape: &Shape) -> Option<(&Shape, DAffine3, f64)> {
+    match shape {
+        Shape::Translate(s, by) => Some((s, DAffine3::from_translation(-by.value), 1.0)),
+        Shape::Rotate { shape, axis, angle } => Some((
+            shape,
+            DAffine3::from_quat(DQuat::from_axis_angle(*axis, -angle.value)),
+            1.0,
+        )),
+        Shape::Scale(s, f) => Some((
+            s,
+            DAffine3::from_scale(DVec3::splat(1.0 / f.value)),
+            f.value,
+        )),
+        _ => None,
+    }
 }

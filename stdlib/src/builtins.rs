@@ -6,7 +6,7 @@ use std::collections::HashMap;
 use std::path::{Component, Path, PathBuf};
 use std::sync::{Arc, OnceLock};
 
-use glam::{DQuat, DVec3};
+use glam::DVec3;
 use sdfl_lang::diag::{codes, Diag};
 use sdfl_lang::types::{BlockSig, Env, Param, Signature, Type};
 use sdfl_lang::Span;
@@ -14,10 +14,11 @@ use sdfl_lang::Span;
 use crate::camera::{Camera, OrbitUp, PixelCenters};
 use crate::eval::describe;
 use crate::material::Material;
-use crate::shape::{Shape, TrainParam};
+use crate::param::{Arg, Bound, ParamDecl, ParamInit, ParamUse, MIN_BETA, MIN_LENGTH};
+use crate::shape::Shape;
 use crate::value::{
-    Dataset, DensityKind, Field, Optimizer, Output, OutputKind, RenderJob, Sampler, TrainJob,
-    Value, VolumeJob,
+    Backend, Dataset, DensityKind, Field, LastInterval, Loss, LossKind, Optimizer, Output,
+    OutputKind, RenderJob, Sampler, Schedule, TrainJob, Value, VolumeJob,
 };
 
 pub const SHAPE: Type = Type::Named("shape");
@@ -28,6 +29,7 @@ pub const FIELD: Type = Type::Named("field");
 pub const SAMPLER: Type = Type::Named("sampler");
 pub const DATASET: Type = Type::Named("data set");
 pub const OPTIMIZER: Type = Type::Named("optimizer");
+pub const LOSS: Type = Type::Named("loss");
 /// Most samples per ray.
 pub const MAX_SAMPLES: u64 = 4096;
 
@@ -44,6 +46,9 @@ pub struct Args {
     pub named: HashMap<&'static str, (Value, Span)>,
     pub rest: Vec<(Value, Span)>,
     pub span: Span,
+    /// The built-in or block the arguments are for (names trainable
+    /// arguments, `torus.major`).
+    pub owner: &'static str,
 }
 
 fn value_error(
@@ -73,6 +78,7 @@ impl Args {
             named: HashMap::new(),
             rest: Vec::new(),
             span,
+            owner: "",
         }
     }
 
@@ -91,33 +97,54 @@ impl Args {
         }
     }
 
-    /// Whether the argument was marked trainable with `param(...)`.
-    pub fn is_param(&self, name: &str) -> bool {
-        matches!(self.named.get(name), Some((Value::Param(_), _)))
+    /// A number argument that may be trainable, checked against `bound`
+    /// (its initial value when trainable).
+    pub fn scalar_arg(&self, name: &str, bound: Bound) -> Result<Arg<f64>, Diag> {
+        let (v, span) = self.get(name);
+        let (value, param) = match v {
+            Value::Number(x) => (*x, None),
+            Value::Param(d) => match d.init {
+                ParamInit::Scalar(x) => (x, Some(self.param_use(d, name, bound))),
+                ParamInit::Vec3(_) => return Err(type_error(span, "number", v)),
+            },
+            _ => return Err(type_error(span, "number", v)),
+        };
+        check_bound(value, bound, name, span)?;
+        Ok(Arg { value, param })
     }
 
-    /// The same arguments with `param(...)` wrappers removed, and the
-    /// trainable ones among `allowed` listed.
-    fn unwrap_params(&self, allowed: &[&'static str]) -> Result<(Args, Vec<TrainParam>), Diag> {
-        let mut plain = Args::new(self.span);
-        plain.rest = self.rest.clone();
-        let mut params = Vec::new();
-        for (name, (v, span)) in &self.named {
-            match v {
-                Value::Param(inner) => {
-                    if !allowed.contains(name) {
-                        return Err(not_trainable(*span, name));
-                    }
-                    params.push(TrainParam { name, span: *span });
-                    plain.named.insert(name, ((**inner).clone(), *span));
-                }
-                _ => {
-                    plain.named.insert(name, (v.clone(), *span));
-                }
+    /// A vector argument (a number means all three components) that may be
+    /// trainable, each component checked against `bound`.
+    pub fn vec3_arg(&self, name: &str, bound: Bound) -> Result<Arg<DVec3>, Diag> {
+        let (v, span) = self.get(name);
+        let (value, param) = match v {
+            Value::Param(d) => {
+                let value = match d.init {
+                    ParamInit::Scalar(x) => DVec3::splat(x),
+                    ParamInit::Vec3(v) => v,
+                };
+                (value, Some(self.param_use(d, name, bound)))
             }
+            _ => (self.vec3(name)?, None),
+        };
+        for x in value.to_array() {
+            check_bound(x, bound, name, span)?;
         }
-        params.sort_by_key(|p| p.span.start);
-        Ok((plain, params))
+        Ok(Arg { value, param })
+    }
+
+    fn param_use(&self, decl: &Arc<ParamDecl>, name: &str, bound: Bound) -> ParamUse {
+        ParamUse {
+            decl: decl.clone(),
+            bound,
+            site: format!("{}.{name}", self.owner),
+        }
+    }
+
+    /// A positive number argument that may be trainable (trained values
+    /// stay at least [`MIN_LENGTH`]).
+    pub fn length_arg(&self, name: &str) -> Result<Arg<f64>, Diag> {
+        self.scalar_arg(name, Bound::AtLeast(MIN_LENGTH))
     }
 
     /// A finite number `> 0`.
@@ -160,24 +187,6 @@ impl Args {
         }
     }
 
-    /// A vector whose components are all positive.
-    pub fn positive_vec3(&self, name: &str) -> Result<DVec3, Diag> {
-        let v = self.vec3(name)?;
-        if v.min_element() > 0.0 {
-            Ok(v)
-        } else {
-            Err(value_error(
-                self.get(name).1,
-                format!(
-                    "every component of `{name}` must be positive, got [{}, {}, {}]",
-                    v.x, v.y, v.z
-                ),
-                "not all > 0",
-                format!("give `{name}` positive components"),
-            ))
-        }
-    }
-
     /// A nonzero vector, normalised.
     pub fn direction(&self, name: &str) -> Result<DVec3, Diag> {
         let v = self.vec3(name)?;
@@ -208,15 +217,27 @@ impl Args {
         }
     }
 
-    /// A material, or a colour `[r, g, b]` meaning a constant material.
+    /// A material, or a colour `[r, g, b]` (possibly `param(...)`) meaning
+    /// a constant material.
     pub fn material(&self, name: &str) -> Result<Arc<Material>, Diag> {
         match self.get(name) {
             (Value::Material(m), _) => Ok(m.clone()),
-            (v, s) => match v.as_vec3() {
-                Some(c) => Ok(Arc::new(Material::Constant(colour(c, s)?))),
-                None => Err(type_error(s, "material", v)),
-            },
+            (v, _) if matches!(v, Value::Param(_)) || v.as_vec3().is_some() => {
+                Ok(Arc::new(Material::Constant(self.color_arg(name)?)))
+            }
+            (v, s) => Err(type_error(s, "material", v)),
         }
+    }
+
+    /// A colour `[r, g, b]` in 0..1, possibly trainable (kept in 0..1).
+    pub fn color_arg(&self, name: &str) -> Result<Arg<DVec3>, Diag> {
+        let c = self.vec3_arg(name, Bound::Free)?;
+        colour(c.value, self.get(name).1)?;
+        let param = c.param.map(|u| ParamUse {
+            bound: Bound::Within(0.0, 1.0),
+            ..u
+        });
+        Ok(Arg { param, ..c })
     }
 
     /// The rest arguments, with lists flattened, as shapes.
@@ -237,9 +258,30 @@ impl Args {
 }
 
 fn not_trainable(span: Span, name: &str) -> Diag {
-    Diag::new(codes::VALUE, span, format!("`{name}` cannot be trained here"))
+    Diag::new(codes::VALUE, span, format!("`{name}` cannot be trained"))
         .label("marked with `param`")
-        .help("trainable so far: the `center` and `size` of a `box` inside `sdf_volume`; drop `param(...)` here")
+        .help("`param(...)` marks numeric arguments of shapes, transforms, blends, colours and fields; cameras, samplers and settings are fixed: drop `param(...)` here")
+}
+
+/// `x` within `bound`, or a diagnostic naming the argument.
+fn check_bound(x: f64, bound: Bound, name: &str, span: Span) -> Result<(), Diag> {
+    match bound {
+        Bound::Free => Ok(()),
+        Bound::AtLeast(_) if x > 0.0 => Ok(()),
+        Bound::AtLeast(_) => Err(value_error(
+            span,
+            format!("`{name}` must be positive, got {x}"),
+            "not > 0",
+            format!("give `{name}` a value greater than zero"),
+        )),
+        Bound::Within(lo, hi) if (lo..=hi).contains(&x) => Ok(()),
+        Bound::Within(lo, hi) => Err(value_error(
+            span,
+            format!("`{name}` must be in {lo}..{hi}, got {x}"),
+            format!("out of {lo}..{hi}"),
+            format!("give `{name}` a value from {lo} to {hi}"),
+        )),
+    }
 }
 
 fn colour(c: DVec3, span: Span) -> Result<DVec3, Diag> {
@@ -451,18 +493,14 @@ fn table() -> Vec<Builtin> {
             "A sphere: `|p - center| - radius` (exact).",
             vec![opt("radius", Type::Number, "1", "radius (> 0)"), center()],
             SHAPE,
-            |a| shape(Shape::Sphere { center: a.vec3("center")?, radius: a.positive("radius")? }),
+            |a| shape(Shape::Sphere { center: a.vec3_arg("center", Bound::Free)?, radius: a.length_arg("radius")? }),
         ),
         func(
             "box",
             "A box with full side lengths `size` (exact).",
             vec![opt("size", num_or_vec(), "[1, 1, 1]", "side lengths (> 0); a number for a cube"), center()],
             SHAPE,
-            |a| {
-                let (plain, params) = a.unwrap_params(&["center", "size"])?;
-                let b = Shape::Box { center: plain.vec3("center")?, size: plain.positive_vec3("size")? };
-                shape(if params.is_empty() { b } else { Shape::Trainable(Arc::new(b), params) })
-            },
+            |a| shape(Shape::Box { center: a.vec3_arg("center", Bound::Free)?, size: a.vec3_arg("size", Bound::AtLeast(MIN_LENGTH))? }),
         ),
         func(
             "box_frame",
@@ -474,17 +512,17 @@ fn table() -> Vec<Builtin> {
             ],
             SHAPE,
             |a| {
-                let size = a.positive_vec3("size")?;
-                let thickness = a.positive("thickness")?;
-                if thickness >= size.min_element() * 0.5 {
+                let size = a.vec3_arg("size", Bound::AtLeast(MIN_LENGTH))?;
+                let thickness = a.length_arg("thickness")?;
+                if thickness.value >= size.value.min_element() * 0.5 {
                     return Err(value_error(
                         a.get("thickness").1,
-                        format!("`thickness` {thickness} is not below half the smallest side {}", size.min_element()),
+                        format!("`thickness` {} is not below half the smallest side {}", thickness.value, size.value.min_element()),
                         "too thick",
                         "a frame this thick is a solid box: use `box`, or thinner edges",
                     ));
                 }
-                shape(Shape::BoxFrame { center: a.vec3("center")?, size, thickness })
+                shape(Shape::BoxFrame { center: a.vec3_arg("center", Bound::Free)?, size, thickness })
             },
         ),
         func(
@@ -496,7 +534,7 @@ fn table() -> Vec<Builtin> {
                 center(),
             ],
             SHAPE,
-            |a| shape(Shape::Torus { center: a.vec3("center")?, major: a.positive("major")?, minor: a.positive("minor")? }),
+            |a| shape(Shape::Torus { center: a.vec3_arg("center", Bound::Free)?, major: a.length_arg("major")?, minor: a.length_arg("minor")? }),
         ),
         func(
             "capsule",
@@ -507,7 +545,7 @@ fn table() -> Vec<Builtin> {
                 opt("radius", Type::Number, "0.25", "radius (> 0)"),
             ],
             SHAPE,
-            |a| shape(Shape::Capsule { a: a.vec3("a")?, b: a.vec3("b")?, radius: a.positive("radius")? }),
+            |a| shape(Shape::Capsule { a: a.vec3_arg("a", Bound::Free)?, b: a.vec3_arg("b", Bound::Free)?, radius: a.length_arg("radius")? }),
         ),
         func(
             "cylinder",
@@ -518,7 +556,7 @@ fn table() -> Vec<Builtin> {
                 center(),
             ],
             SHAPE,
-            |a| shape(Shape::Cylinder { center: a.vec3("center")?, radius: a.positive("radius")?, height: a.positive("height")? }),
+            |a| shape(Shape::Cylinder { center: a.vec3_arg("center", Bound::Free)?, radius: a.length_arg("radius")?, height: a.length_arg("height")? }),
         ),
         func(
             "plane",
@@ -528,7 +566,7 @@ fn table() -> Vec<Builtin> {
                 opt("height", Type::Number, "0", "offset along the normal"),
             ],
             SHAPE,
-            |a| shape(Shape::Plane { normal: a.direction("normal")?, height: a.number("height")? }),
+            |a| shape(Shape::Plane { normal: a.direction("normal")?, height: a.scalar_arg("height", Bound::Free)? }),
         ),
         // ---- combinators
         variadic(
@@ -565,13 +603,13 @@ fn table() -> Vec<Builtin> {
             |a| shape(Shape::Subtraction(a.shape("a")?, a.shape("b")?)),
         ),
         smooth("smooth_union", "Union blended over radius `k` (polynomial smooth minimum; a bound).", |a| {
-            shape(Shape::SmoothUnion(a.shape("a")?, a.shape("b")?, a.positive("k")?))
+            shape(Shape::SmoothUnion(a.shape("a")?, a.shape("b")?, a.length_arg("k")?))
         }),
         smooth("smooth_intersection", "Intersection blended over radius `k` (a bound).", |a| {
-            shape(Shape::SmoothIntersection(a.shape("a")?, a.shape("b")?, a.positive("k")?))
+            shape(Shape::SmoothIntersection(a.shape("a")?, a.shape("b")?, a.length_arg("k")?))
         }),
         smooth("smooth_subtraction", "`a` minus `b`, blended over radius `k` (a bound).", |a| {
-            shape(Shape::SmoothSubtraction(a.shape("a")?, a.shape("b")?, a.positive("k")?))
+            shape(Shape::SmoothSubtraction(a.shape("a")?, a.shape("b")?, a.length_arg("k")?))
         }),
         // ---- transforms
         func(
@@ -579,7 +617,7 @@ fn table() -> Vec<Builtin> {
             "Moves a shape by `by`.",
             vec![req("shape", SHAPE, "the shape"), req("by", Type::Vec3, "offset")],
             SHAPE,
-            |a| shape(Shape::Translate(a.shape("shape")?, a.vec3("by")?)),
+            |a| shape(Shape::Translate(a.shape("shape")?, a.vec3_arg("by", Bound::Free)?)),
         ),
         func(
             "rotate",
@@ -591,8 +629,11 @@ fn table() -> Vec<Builtin> {
             ],
             SHAPE,
             |a| {
-                let q = DQuat::from_axis_angle(a.direction("axis")?, a.number("angle")?);
-                shape(Shape::Rotate(a.shape("shape")?, q))
+                shape(Shape::Rotate {
+                    shape: a.shape("shape")?,
+                    axis: a.direction("axis")?,
+                    angle: a.scalar_arg("angle", Bound::Free)?,
+                })
             },
         ),
         func(
@@ -600,7 +641,7 @@ fn table() -> Vec<Builtin> {
             "Scales a shape uniformly about the origin (keeps exactness).",
             vec![req("shape", SHAPE, "the shape"), req("factor", Type::Number, "scale factor (> 0)")],
             SHAPE,
-            |a| shape(Shape::Scale(a.shape("shape")?, a.positive("factor")?)),
+            |a| shape(Shape::Scale(a.shape("shape")?, a.length_arg("factor")?)),
         ),
         func(
             "displace",
@@ -614,8 +655,8 @@ fn table() -> Vec<Builtin> {
             |a| {
                 shape(Shape::Displace {
                     shape: a.shape("shape")?,
-                    amplitude: a.positive("amplitude")?,
-                    frequency: a.positive("frequency")?,
+                    amplitude: a.length_arg("amplitude")?,
+                    frequency: a.length_arg("frequency")?,
                 })
             },
         ),
@@ -635,7 +676,7 @@ fn table() -> Vec<Builtin> {
             "One colour everywhere.",
             vec![req("color", Type::Vec3, "linear RGB in 0..1")],
             MATERIAL,
-            |a| Ok(Value::Material(Arc::new(Material::Constant(colour(a.vec3("color")?, a.get("color").1)?)))),
+            |a| Ok(Value::Material(Arc::new(Material::Constant(a.color_arg("color")?)))),
         ),
         func(
             "lambert",
@@ -745,7 +786,7 @@ fn table() -> Vec<Builtin> {
         // ---- volumes, sampling, data, training
         func(
             "param",
-            "Marks a number or vector as trainable; `train` fits it (so far: a box's `center` and `size`).",
+            "Marks a number or vector as trainable: `train` fits it wherever it is used (shape, transform and blend arguments, colours, a field's `alpha` and `beta`). One `param` bound to a `let` and used twice is one parameter.",
             vec![req("value", Type::OneOf(vec![Type::Number, Type::Vec3]), "the initial value")],
             Type::Any,
             |a| {
@@ -754,7 +795,12 @@ fn table() -> Vec<Builtin> {
                 if !matches!(v, Value::Number(_)) && v.as_vec3().is_none() {
                     return Err(type_error(span, "number or vector [x, y, z]", v));
                 }
-                Ok(Value::Param(Arc::new(v.clone())))
+                let init = match v {
+                    Value::Number(x) => ParamInit::Scalar(*x),
+                    _ => ParamInit::Vec3(v.as_vec3().expect("checked above")),
+                };
+                // The evaluator numbers it.
+                Ok(Value::Param(Arc::new(ParamDecl { id: 0, init, span, binding: None })))
             },
         ),
         volume_fn("sdf_volume", "An SDF as a volume, the assignment's form: per-sample opacity `alpha·Ψ_β(-sdf)` (Laplace CDF), 0 < alpha ≤ 1.", DensityKind::Opacity, "1"),
@@ -767,7 +813,8 @@ fn table() -> Vec<Builtin> {
                 opt("samples", Type::Number, "64", "samples per ray"),
                 opt("near", Type::Number, "0", "first depth (≥ 0)"),
                 opt("far", Type::Number, "5", "last depth (> near)"),
-                opt("jitter", Type::Bool, "false", "jitter samples during training"),
+                opt("jitter", Type::Bool, "false", "jitter samples during training (a seeded, resumable stream)"),
+                opt("last_interval", Type::Str, "\"zero\"", "\"zero\": nothing absorbs beyond `far`; \"infinite\": the last sample's interval is 1e10, as the reference assignment's code (its images then depend on `far`)"),
             ],
             SAMPLER,
             |a| {
@@ -775,7 +822,15 @@ fn table() -> Vec<Builtin> {
                 let (near, far) = (a.number("near")?, a.number("far")?);
                 check_range(a, near, far)?;
                 let jitter = matches!(a.get("jitter").0, Value::Bool(true));
-                Ok(Value::Sampler(Sampler { samples, near, far, jitter }))
+                let (last, last_span) = a.string("last_interval")?;
+                let last_interval = match &*last {
+                    "zero" => LastInterval::Zero,
+                    "infinite" => LastInterval::Infinite,
+                    other => {
+                        return Err(value_error(last_span, format!("unknown last interval `{other}`"), "not a choice", "use \"zero\" or \"infinite\""))
+                    }
+                };
+                Ok(Value::Sampler(Sampler { samples, near, far, jitter, last_interval }))
             },
         ),
         func(
@@ -833,11 +888,12 @@ fn table() -> Vec<Builtin> {
         ),
         func(
             "adam",
-            "The Adam optimizer; the learning rate is multiplied by `decay` every `decay_every` iterations (0: never).",
+            "The Adam optimizer; the learning rate is multiplied by `decay` every `decay_every` steps (`schedule: \"step\"`), or smoothly, `lr·decay^(step/decay_every)` (`\"exponential\"`).",
             vec![
                 opt("lr", Type::Number, "5e-4", "learning rate (> 0)"),
                 opt("decay", Type::Number, "1", "learning-rate factor (0 < decay ≤ 1)"),
-                opt("decay_every", Type::Number, "0", "iterations between decays"),
+                opt("decay_every", Type::Number, "0", "steps between decays (0: never)"),
+                opt("schedule", Type::Str, "\"step\"", "\"step\" or \"exponential\""),
             ],
             OPTIMIZER,
             |a| {
@@ -845,8 +901,26 @@ fn table() -> Vec<Builtin> {
                 if decay > 1.0 {
                     return Err(value_error(a.get("decay").1, format!("`decay` must be at most 1, got {decay}"), "grows the rate", "use a factor such as 0.8"));
                 }
-                Ok(Value::Optimizer(Optimizer { lr: a.positive("lr")?, decay, decay_every: a.count("decay_every", 0, u32::MAX as u64)? as usize }))
+                let every = a.count("decay_every", 0, u32::MAX as u64)? as usize;
+                let (kind, kind_span) = a.string("schedule")?;
+                let schedule = match (&*kind, every) {
+                    (_, 0) => Schedule::Constant,
+                    _ if decay == 1.0 => Schedule::Constant,
+                    ("step", _) => Schedule::Step { factor: decay, every },
+                    ("exponential", _) => Schedule::Exponential { factor: decay, every },
+                    (other, _) => {
+                        return Err(value_error(kind_span, format!("unknown schedule `{other}`"), "not a schedule", "use \"step\" or \"exponential\""))
+                    }
+                };
+                Ok(Value::Optimizer(Optimizer { lr: a.positive("lr")?, schedule }))
             },
+        ),
+        func(
+            "mse",
+            "Mean squared error of rendered against true pixel colours, times `weight`.",
+            vec![opt("weight", Type::Number, "1", "weight of this term (> 0)")],
+            LOSS,
+            |a| Ok(Value::Loss(Loss { kind: LossKind::Mse, weight: a.positive("weight")? })),
         ),
         output("grid_image", "The assignment's xy-grid visual check as PNG (NDC x, y as red, green).", |a| out(a, OutputKind::Grid, "png")),
         output("rays_image", "The assignment's ray-direction visual check as PNG (|direction| as RGB).", |a| out(a, OutputKind::Rays, "png")),
@@ -912,15 +986,31 @@ fn volume_fn(
 }
 
 fn field(a: &Args, density: DensityKind) -> Result<Value, Diag> {
-    let alpha = a.positive("alpha")?;
-    if density == DensityKind::Opacity && alpha > 1.0 {
+    // α is an opacity (at most 1) in the assignment's form, a density scale
+    // otherwise; trained values stay in range.
+    let alpha_bound = match density {
+        DensityKind::Opacity => Bound::Within(1e-6, 1.0),
+        DensityKind::VolSdf | DensityKind::Neus => Bound::AtLeast(1e-6),
+    };
+    let alpha = a.scalar_arg("alpha", Bound::AtLeast(1e-6))?;
+    if density == DensityKind::Opacity && alpha.value > 1.0 {
         return Err(value_error(
             a.get("alpha").1,
-            format!("`alpha` is an opacity here and must be at most 1, got {alpha}"),
+            format!(
+                "`alpha` is an opacity here and must be at most 1, got {}",
+                alpha.value
+            ),
             "above 1",
             "use `volsdf` for a density scale above 1",
         ));
     }
+    let alpha = Arg {
+        param: alpha.param.map(|u| ParamUse {
+            bound: alpha_bound,
+            ..u
+        }),
+        ..alpha
+    };
     let color = a.material("color")?;
     if color.needs_normal() {
         return Err(value_error(
@@ -934,7 +1024,7 @@ fn field(a: &Args, density: DensityKind) -> Result<Value, Diag> {
         shape: a.shape("shape")?,
         density,
         alpha,
-        beta: a.positive("beta")?,
+        beta: a.scalar_arg("beta", Bound::AtLeast(MIN_BETA))?,
         color,
     })))
 }
@@ -1194,15 +1284,17 @@ fn train_sig() -> BlockSig {
             req("data", DATASET, "the training views"),
             opt("sampler", SAMPLER, "stratified()", "depth samples along each ray"),
             opt("rays", Type::Number, "4096", "rays per batch"),
-            opt("optimizer", OPTIMIZER, "adam()", "the optimizer"),
-            opt("iterations", Type::Number, "1000", "training iterations"),
-            opt("seed", Type::Number, "0", "seed of the ray batches"),
-            opt("backend", Type::Str, "\"fused\"", "\"fused\" (hand-written backward) or \"dfdx\" (autodiff graph)"),
+            opt("optimizer", OPTIMIZER, "adam()", "the optimizer and its learning-rate schedule"),
+            opt("losses", Type::list(LOSS), "[mse()]", "the weighted terms of the objective"),
+            opt("iterations", Type::Number, "1000", "optimizer steps (unless `epochs` is given)"),
+            opt("epochs", Type::Number, "0", "passes over all training pixels (0: use `iterations`)"),
+            opt("seed", Type::Number, "0", "seed of the ray batches and jitter"),
+            opt("backend", Type::Str, "\"fused\"", "\"fused\" (one kernel per ray, hand-written backward) or \"dfdx\" (an autodiff graph)"),
             opt("views", Type::OneOf(vec![CAMERA, Type::list(CAMERA)]), "orbit()", "cameras of the before/after outputs"),
             opt("size", Type::list(Type::Number), "[128, 128]", "size of the before/after outputs"),
             opt("before", Type::list(OUTPUT), "[]", "outputs rendered from the starting model"),
             opt("after", Type::list(OUTPUT), "[]", "outputs rendered from the trained model (and `loss_curve`)"),
-            opt("checkpoint", Type::Str, "\"\"", "file (in the output directory) to keep a resumable checkpoint in"),
+            opt("checkpoint", Type::Str, "\"\"", "file (in the output directory) to keep a resumable checkpoint in (safetensors)"),
         ],
     }
 }
@@ -1212,18 +1304,14 @@ pub(crate) fn train_block(name: &str, a: &Args) -> Result<TrainJob, Diag> {
     let Value::Field(model) = model_v else {
         return Err(type_error(model_span, "field", model_v));
     };
-    let trainable = match &*model.shape {
-        Shape::Trainable(inner, params) if matches!(**inner, Shape::Box { .. }) => {
-            params.len() == 2
-        }
-        _ => false,
-    };
-    if model.density != DensityKind::Opacity || !trainable {
+    let mut trainable = 0;
+    model.visit_params(&mut |_| trainable += 1);
+    if trainable == 0 {
         return Err(value_error(
             model_span,
-            "this model has nothing sdfl can train yet",
-            "no trainable box",
-            "training fits `sdf_volume(box(center: param([...]), size: param([...])))`; mark both with `param`",
+            "this model has nothing to train",
+            "no `param(...)` in it",
+            "mark the arguments to fit with `param(...)`, e.g. `sphere(radius: param(0.5))`",
         ));
     }
     let Value::Dataset(data) = a.get("data").0 else {
@@ -1236,14 +1324,6 @@ pub(crate) fn train_block(name: &str, a: &Args) -> Result<TrainJob, Diag> {
             a.get("sampler").0,
         ));
     };
-    if sampler.jitter {
-        return Err(value_error(
-            a.get("sampler").1,
-            "jittered samples are not used by training yet",
-            "`jitter: true`",
-            "train with `jitter: false` (the assignment's fixed linspace depths)",
-        ));
-    }
     let Value::Optimizer(optimizer) = a.get("optimizer").0 else {
         return Err(type_error(
             a.get("optimizer").1,
@@ -1251,22 +1331,65 @@ pub(crate) fn train_block(name: &str, a: &Args) -> Result<TrainJob, Diag> {
             a.get("optimizer").0,
         ));
     };
-    let (backend, backend_span) = a.string("backend")?;
-    if !matches!(&*backend, "fused" | "dfdx") {
-        return Err(value_error(
-            backend_span,
-            format!("unknown backend `{backend}`"),
-            "not a backend",
-            "use \"fused\" or \"dfdx\"",
-        ));
-    }
+    let (losses_v, losses_span) = a.get("losses");
+    let losses: Option<Vec<Loss>> = match losses_v {
+        Value::List(items) => items
+            .iter()
+            .map(|i| match i {
+                Value::Loss(l) => Some(*l),
+                _ => None,
+            })
+            .collect(),
+        _ => None,
+    };
+    let losses = match losses {
+        Some(l) if !l.is_empty() => l,
+        Some(_) => {
+            return Err(value_error(
+                losses_span,
+                "no loss terms",
+                "empty",
+                "train on at least `[mse()]`",
+            ))
+        }
+        None => return Err(type_error(losses_span, "list of losses", losses_v)),
+    };
+    let (backend_name, backend_span) = a.string("backend")?;
+    let backend = match &*backend_name {
+        "fused" => Backend::Fused,
+        "dfdx" => Backend::Dfdx,
+        other => {
+            return Err(value_error(
+                backend_span,
+                format!("unknown backend `{other}`"),
+                "not a backend",
+                "use \"fused\" or \"dfdx\"",
+            ))
+        }
+    };
     let (checkpoint, cp_span) = a.string("checkpoint")?;
     let checkpoint = if checkpoint.is_empty() {
         None
     } else {
         Some(safe_output_path(&checkpoint, cp_span)?)
     };
+    let before = outputs(a, "before", true)?;
+    let after = outputs(a, "after", true)?;
+    if let Some(cp) = &checkpoint {
+        if before.iter().chain(&after).any(|o| &o.path == cp) {
+            return Err(value_error(
+                cp_span,
+                format!(
+                    "the checkpoint `{}` is also an output of this statement",
+                    cp.display()
+                ),
+                "written twice",
+                "give the checkpoint its own file name, e.g. `fit.ckpt`",
+            ));
+        }
+    }
     let (width, height) = image_size(a, "size")?;
+    let epochs = a.count("epochs", 0, 1_000_000)? as usize;
     Ok(TrainJob {
         name: name.to_string(),
         model: model.clone(),
@@ -1274,14 +1397,16 @@ pub(crate) fn train_block(name: &str, a: &Args) -> Result<TrainJob, Diag> {
         sampler: *sampler,
         rays: a.count("rays", 1, 1 << 20)? as usize,
         optimizer: *optimizer,
+        losses,
         iterations: a.count("iterations", 0, 10_000_000)? as usize,
+        epochs: (epochs > 0).then_some(epochs),
         seed: a.count("seed", 0, u32::MAX as u64)?,
-        backend: backend.to_string(),
+        backend,
         views: camera_list(a, "views")?,
         width,
         height,
-        before: outputs(a, "before", true)?,
-        after: outputs(a, "after", true)?,
+        before,
+        after,
         checkpoint,
     })
 }

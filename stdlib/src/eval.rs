@@ -34,7 +34,6 @@ fn deeper_than(v: &Value, limit: usize) -> bool {
     match v {
         Value::List(items) => items.iter().any(|i| deeper_than(i, limit - 1)),
         Value::Shape(s) => shape(s, limit),
-        Value::Param(v) => deeper_than(v, limit - 1),
         _ => false,
     }
 }
@@ -49,6 +48,8 @@ pub struct Evaluator<'e> {
     defaults: HashMap<(&'static str, &'static str), Value>,
     /// Values replacing top-level `let`s (for sweeps).
     overrides: HashMap<String, Value>,
+    /// `param(...)` calls evaluated so far (their ids).
+    params: usize,
 }
 
 impl<'e> Evaluator<'e> {
@@ -62,6 +63,7 @@ impl<'e> Evaluator<'e> {
             aborted: false,
             defaults: HashMap::new(),
             overrides: HashMap::new(),
+            params: 0,
         }
     }
 
@@ -80,10 +82,11 @@ impl<'e> Evaluator<'e> {
             }
             match item {
                 Item::Let(l) => {
-                    let v = match self.overrides.get(&l.name.name) {
+                    let mut v = match self.overrides.get(&l.name.name) {
                         Some(v) => v.clone(),
                         None => self.expr(&l.value),
                     };
+                    name_param(&mut v, &l.name.name);
                     self.globals.insert(l.name.name.clone(), v);
                 }
                 Item::Block(b) => {
@@ -127,6 +130,7 @@ impl<'e> Evaluator<'e> {
             return;
         };
         let mut args = Args::new(b.kind.span);
+        args.owner = sig.kind;
         for f in &b.fields {
             let v = self.expr(&f.value);
             if let Some(p) = sig.fields.iter().find(|p| p.name == f.name.name) {
@@ -441,6 +445,7 @@ impl<'e> Evaluator<'e> {
         };
         let sig = &builtin.sig;
         let mut bound = Args::new(span);
+        bound.owner = sig.name;
         let mut poisoned = false;
         for (i, a) in args.iter().enumerate() {
             let v = self.expr(&a.value);
@@ -466,6 +471,11 @@ impl<'e> Evaluator<'e> {
             }
         }
         match (builtin.eval)(&bound) {
+            Ok(Value::Param(mut decl)) => {
+                Arc::make_mut(&mut decl).id = self.params;
+                self.params += 1;
+                Value::Param(decl)
+            }
             Ok(v) => self.depth_checked(v, span),
             Err(d) => self.error(d),
         }
@@ -484,6 +494,15 @@ impl<'e> Evaluator<'e> {
             .label("too deep")
             .help("build long sequences with `for` and `union` instead of chaining `let`s"),
         )
+    }
+}
+
+/// A `param(...)` bound directly to a `let` takes the binding's name.
+fn name_param(v: &mut Value, name: &str) {
+    if let Value::Param(decl) = v {
+        if decl.binding.is_none() {
+            Arc::make_mut(decl).binding = Some(name.to_string());
+        }
     }
 }
 

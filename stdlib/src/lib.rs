@@ -9,6 +9,9 @@ pub mod builtins;
 pub mod camera;
 pub mod eval;
 pub mod material;
+pub mod num;
+pub mod param;
+pub mod sdf;
 pub mod shape;
 pub mod value;
 

@@ -1,6 +1,7 @@
 //! The shape IR: analytic SDF primitives, combinators and transforms, with
 //! an f64 reference evaluator. Runtime evaluators are checked against
-//! [`Shape::distance`].
+//! [`Shape::distance`]. Every formula lives once in [`crate::sdf`]; this
+//! file knows the tree: how combinators and transforms compose them.
 //!
 //! Invariant (relied on by BVH culling and tested by property tests): every
 //! shape with bounds `B` satisfies `distance(p) ≥ signed_distance_to_box(B, p)`
@@ -10,9 +11,12 @@
 
 use std::sync::Arc;
 
-use glam::{DQuat, DVec2, DVec3};
+use glam::DVec3;
 
 use crate::material::Material;
+use crate::num::{Real, V3};
+use crate::param::{Arg, ParamUse};
+use crate::sdf;
 
 /// An axis-aligned box.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -73,167 +77,305 @@ pub enum Exactness {
 #[derive(Debug, Clone, PartialEq)]
 pub enum Shape {
     Sphere {
-        center: DVec3,
-        radius: f64,
+        center: Arg<DVec3>,
+        radius: Arg<f64>,
     },
     /// `size` holds the full side lengths.
     Box {
-        center: DVec3,
-        size: DVec3,
+        center: Arg<DVec3>,
+        size: Arg<DVec3>,
     },
     BoxFrame {
-        center: DVec3,
-        size: DVec3,
-        thickness: f64,
+        center: Arg<DVec3>,
+        size: Arg<DVec3>,
+        thickness: Arg<f64>,
     },
     /// In the XY plane around the Z axis.
     Torus {
-        center: DVec3,
-        major: f64,
-        minor: f64,
+        center: Arg<DVec3>,
+        major: Arg<f64>,
+        minor: Arg<f64>,
     },
     Capsule {
-        a: DVec3,
-        b: DVec3,
-        radius: f64,
+        a: Arg<DVec3>,
+        b: Arg<DVec3>,
+        radius: Arg<f64>,
     },
     /// Capped, along the Z axis.
     Cylinder {
-        center: DVec3,
-        radius: f64,
-        height: f64,
+        center: Arg<DVec3>,
+        radius: Arg<f64>,
+        height: Arg<f64>,
     },
     /// `dot(p, normal) - height`; `normal` is unit length.
     Plane {
         normal: DVec3,
-        height: f64,
+        height: Arg<f64>,
     },
     Union(Vec<Arc<Shape>>),
     Intersection(Vec<Arc<Shape>>),
     /// The first shape minus the second.
     Subtraction(Arc<Shape>, Arc<Shape>),
-    SmoothUnion(Arc<Shape>, Arc<Shape>, f64),
-    SmoothIntersection(Arc<Shape>, Arc<Shape>, f64),
-    SmoothSubtraction(Arc<Shape>, Arc<Shape>, f64),
-    Translate(Arc<Shape>, DVec3),
-    /// Rotation of the shape (points are rotated back by the inverse).
-    Rotate(Arc<Shape>, DQuat),
-    Scale(Arc<Shape>, f64),
+    SmoothUnion(Arc<Shape>, Arc<Shape>, Arg<f64>),
+    SmoothIntersection(Arc<Shape>, Arc<Shape>, Arg<f64>),
+    SmoothSubtraction(Arc<Shape>, Arc<Shape>, Arg<f64>),
+    Translate(Arc<Shape>, Arg<DVec3>),
+    /// Rotation of the shape by `angle` around the unit `axis` through the
+    /// origin (points are rotated back by `-angle`).
+    Rotate {
+        shape: Arc<Shape>,
+        axis: DVec3,
+        angle: Arg<f64>,
+    },
+    Scale(Arc<Shape>, Arg<f64>),
     /// Adds `amplitude·sin(fx)·sin(fy)·sin(fz)`: a bound, Lipschitz `1 + √3·a·f`.
     Displace {
         shape: Arc<Shape>,
-        amplitude: f64,
-        frequency: f64,
+        amplitude: Arg<f64>,
+        frequency: Arg<f64>,
     },
     /// Gives its primitives a material.
     Paint(Arc<Shape>, Arc<Material>),
-    /// A primitive some of whose arguments are trainable (`param(...)`).
-    Trainable(Arc<Shape>, Vec<TrainParam>),
 }
 
-/// An argument marked trainable, and where.
-#[derive(Debug, Clone, PartialEq)]
-pub struct TrainParam {
-    pub name: &'static str,
-    pub span: sdfl_lang::Span,
+/// Where the numeric arguments of a shape come from when it is evaluated:
+/// their fixed values ([`Fixed`]), or trainable values with tangents.
+pub trait ArgSource<T: Real> {
+    fn scalar(&self, a: &Arg<f64>) -> T;
+    fn vector(&self, a: &Arg<DVec3>) -> V3<T>;
 }
 
-/// Polynomial smooth minimum; deviates from `min` by at most `k/4`.
-pub fn smooth_min(a: f64, b: f64, k: f64) -> f64 {
-    let h = (k - (a - b).abs()).max(0.0) / k;
-    a.min(b) - h * h * k * 0.25
+/// Every argument at its value (no parameters): the reference evaluator.
+pub struct Fixed;
+
+impl<T: Real> ArgSource<T> for Fixed {
+    #[inline(always)]
+    fn scalar(&self, a: &Arg<f64>) -> T {
+        T::lit(a.value)
+    }
+    #[inline(always)]
+    fn vector(&self, a: &Arg<DVec3>) -> V3<T> {
+        V3::lit(a.value.to_array())
+    }
 }
 
-pub fn smooth_max(a: f64, b: f64, k: f64) -> f64 {
-    -smooth_min(-a, -b, k)
+/// A shape evaluated at a point: the distance, and the centre and material
+/// of the primitive that attains it (what the rainbow colour needs).
+#[derive(Debug, Clone, Copy)]
+pub struct Sample<'s, T> {
+    pub d: T,
+    /// World-space centre of the attaining primitive.
+    pub center: V3<T>,
+    /// The innermost `paint` over that primitive, if any.
+    pub material: Option<&'s Arc<Material>>,
 }
 
-pub fn box_distance(p: DVec3, half: DVec3) -> f64 {
-    let q = p.abs() - half;
-    q.max(DVec3::ZERO).length() + q.max_element().min(0.0)
+impl<'s, T: Real> Sample<'s, T> {
+    fn prim(d: T, center: V3<T>) -> Self {
+        Sample {
+            d,
+            center,
+            material: None,
+        }
+    }
+    fn with_d(self, d: T) -> Self {
+        Sample { d, ..self }
+    }
 }
 
-/// Inigo Quilez's exact box frame with `half` extents and edges of full
-/// width `thickness` (his formula's `e` is half the edge width).
-pub fn box_frame_distance(p: DVec3, half: DVec3, thickness: f64) -> f64 {
-    let e = thickness * 0.5;
-    let p = p.abs() - half;
-    let q = (p + DVec3::splat(e)).abs() - DVec3::splat(e);
-    let part = |v: DVec3| v.max(DVec3::ZERO).length() + v.max_element().min(0.0);
-    part(DVec3::new(p.x, q.y, q.z))
-        .min(part(DVec3::new(q.x, p.y, q.z)))
-        .min(part(DVec3::new(q.x, q.y, p.z)))
-}
-
-pub fn torus_distance(p: DVec3, major: f64, minor: f64) -> f64 {
-    DVec2::new(DVec2::new(p.x, p.y).length() - major, p.z).length() - minor
-}
-
-pub fn capsule_distance(p: DVec3, a: DVec3, b: DVec3, r: f64) -> f64 {
-    let pa = p - a;
-    let ba = b - a;
-    let len2 = ba.length_squared();
-    let h = if len2 > 0.0 {
-        (pa.dot(ba) / len2).clamp(0.0, 1.0)
-    } else {
-        0.0
-    };
-    (pa - ba * h).length() - r
-}
-
-pub fn cylinder_distance(p: DVec3, radius: f64, height: f64) -> f64 {
-    let d = DVec2::new(DVec2::new(p.x, p.y).length(), p.z).abs() - DVec2::new(radius, height * 0.5);
-    d.x.max(d.y).min(0.0) + d.max(DVec2::ZERO).length()
-}
-
-pub fn displacement(p: DVec3, amplitude: f64, frequency: f64) -> f64 {
-    amplitude * (frequency * p.x).sin() * (frequency * p.y).sin() * (frequency * p.z).sin()
+/// Rotation by `angle` about `axis` for the generic evaluator.
+fn rot<T: Real>(p: V3<T>, axis: DVec3, angle: T) -> V3<T> {
+    sdf::rotate(p, V3::lit(axis.to_array()), angle)
 }
 
 impl Shape {
     /// The signed distance (or bound) at `p`, evaluated directly in f64.
     pub fn distance(&self, p: DVec3) -> f64 {
+        self.sample(p.into(), &Fixed).d
+    }
+
+    /// The shape at `p` in any number type, its arguments read from `args`:
+    /// the one walk of the tree that every non-culled evaluator shares.
+    pub fn sample<'s, T: Real, A: ArgSource<T>>(&'s self, p: V3<T>, args: &A) -> Sample<'s, T> {
         match self {
-            Shape::Sphere { center, radius } => (p - *center).length() - radius,
-            Shape::Box { center, size } => box_distance(p - *center, *size * 0.5),
+            Shape::Sphere { center, radius } => {
+                let c = args.vector(center);
+                Sample::prim(sdf::sphere(p, c, args.scalar(radius)), c)
+            }
+            Shape::Box { center, size } => {
+                let c = args.vector(center);
+                Sample::prim(sdf::cuboid(p, c, args.vector(size)), c)
+            }
             Shape::BoxFrame {
                 center,
                 size,
                 thickness,
-            } => box_frame_distance(p - *center, *size * 0.5, *thickness),
+            } => {
+                let c = args.vector(center);
+                let d = sdf::box_frame(p, c, args.vector(size), args.scalar(thickness));
+                Sample::prim(d, c)
+            }
             Shape::Torus {
                 center,
                 major,
                 minor,
-            } => torus_distance(p - *center, *major, *minor),
-            Shape::Capsule { a, b, radius } => capsule_distance(p, *a, *b, *radius),
+            } => {
+                let c = args.vector(center);
+                let d = sdf::torus(p, c, args.scalar(major), args.scalar(minor));
+                Sample::prim(d, c)
+            }
+            Shape::Capsule { a, b, radius } => {
+                let (a, b) = (args.vector(a), args.vector(b));
+                let d = sdf::capsule(p, a, b, args.scalar(radius));
+                Sample::prim(d, (a + b) * T::lit(0.5))
+            }
             Shape::Cylinder {
                 center,
                 radius,
                 height,
-            } => cylinder_distance(p - *center, *radius, *height),
-            Shape::Plane { normal, height } => p.dot(*normal) - height,
+            } => {
+                let c = args.vector(center);
+                let d = sdf::cylinder(p, c, args.scalar(radius), args.scalar(height));
+                Sample::prim(d, c)
+            }
+            Shape::Plane { normal, height } => {
+                let n = V3::lit(normal.to_array());
+                let h = args.scalar(height);
+                Sample::prim(sdf::plane(p, n, h), n * h)
+            }
+            // Ties go to the first child, as in the lowered evaluators.
             Shape::Union(children) => children
                 .iter()
-                .map(|c| c.distance(p))
-                .fold(f64::INFINITY, f64::min),
+                .map(|c| c.sample(p, args))
+                .reduce(|best, s| if s.d.val() < best.d.val() { s } else { best })
+                .expect("unions have children"),
             Shape::Intersection(children) => children
                 .iter()
-                .map(|c| c.distance(p))
-                .fold(f64::NEG_INFINITY, f64::max),
-            Shape::Subtraction(a, b) => a.distance(p).max(-b.distance(p)),
-            Shape::SmoothUnion(a, b, k) => smooth_min(a.distance(p), b.distance(p), *k),
-            Shape::SmoothIntersection(a, b, k) => smooth_max(a.distance(p), b.distance(p), *k),
-            Shape::SmoothSubtraction(a, b, k) => smooth_max(a.distance(p), -b.distance(p), *k),
-            Shape::Translate(s, v) => s.distance(p - *v),
-            Shape::Rotate(s, q) => s.distance(q.inverse() * p),
-            Shape::Scale(s, f) => s.distance(p / *f) * f,
+                .map(|c| c.sample(p, args))
+                .reduce(|best, s| if s.d.val() > best.d.val() { s } else { best })
+                .expect("intersections have children"),
+            Shape::Subtraction(a, b) => {
+                let (sa, sb) = (a.sample(p, args), b.sample(p, args));
+                // The cut surface belongs to the shape being cut.
+                sa.with_d(sa.d.max(-sb.d))
+            }
+            Shape::SmoothUnion(a, b, k) => {
+                let (sa, sb) = (a.sample(p, args), b.sample(p, args));
+                let d = sdf::smooth_min(sa.d, sb.d, args.scalar(k));
+                if sa.d.val() <= sb.d.val() { sa } else { sb }.with_d(d)
+            }
+            Shape::SmoothIntersection(a, b, k) => {
+                let (sa, sb) = (a.sample(p, args), b.sample(p, args));
+                let d = sdf::smooth_max(sa.d, sb.d, args.scalar(k));
+                if sa.d.val() >= sb.d.val() { sa } else { sb }.with_d(d)
+            }
+            Shape::SmoothSubtraction(a, b, k) => {
+                let (sa, sb) = (a.sample(p, args), b.sample(p, args));
+                sa.with_d(sdf::smooth_max(sa.d, -sb.d, args.scalar(k)))
+            }
+            Shape::Translate(s, by) => {
+                let by = args.vector(by);
+                let inner = s.sample(p - by, args);
+                Sample {
+                    center: inner.center + by,
+                    ..inner
+                }
+            }
+            Shape::Rotate { shape, axis, angle } => {
+                let angle = args.scalar(angle);
+                let inner = shape.sample(rot(p, *axis, -angle), args);
+                Sample {
+                    center: rot(inner.center, *axis, angle),
+                    ..inner
+                }
+            }
+            Shape::Scale(s, f) => {
+                let f = args.scalar(f);
+                let inner = s.sample(p * (T::one() / f), args);
+                Sample {
+                    d: inner.d * f,
+                    center: inner.center * f,
+                    ..inner
+                }
+            }
             Shape::Displace {
                 shape,
                 amplitude,
                 frequency,
-            } => shape.distance(p) + displacement(p, *amplitude, *frequency),
-            Shape::Paint(s, _) | Shape::Trainable(s, _) => s.distance(p),
+            } => {
+                let inner = shape.sample(p, args);
+                let off = sdf::displacement(p, args.scalar(amplitude), args.scalar(frequency));
+                inner.with_d(inner.d + off)
+            }
+            Shape::Paint(s, m) => {
+                let inner = s.sample(p, args);
+                Sample {
+                    material: inner.material.or(Some(m)),
+                    ..inner
+                }
+            }
+        }
+    }
+
+    /// Every trainable argument in the tree (materials of `paint` included),
+    /// in a fixed order: children after their parent, left to right.
+    pub fn visit_params<'s>(&'s self, f: &mut dyn FnMut(&'s ParamUse)) {
+        let mut s1 = |a: &'s Arg<f64>| {
+            if let Some(u) = &a.param {
+                f(u)
+            }
+        };
+        match self {
+            Shape::Sphere { radius, .. } => s1(radius),
+            Shape::BoxFrame { thickness, .. } => s1(thickness),
+            Shape::Torus { major, minor, .. } => {
+                s1(major);
+                s1(minor)
+            }
+            Shape::Capsule { radius, .. } => s1(radius),
+            Shape::Cylinder { radius, height, .. } => {
+                s1(radius);
+                s1(height)
+            }
+            Shape::Plane { height, .. } => s1(height),
+            Shape::SmoothUnion(_, _, k)
+            | Shape::SmoothIntersection(_, _, k)
+            | Shape::SmoothSubtraction(_, _, k) => s1(k),
+            Shape::Rotate { angle, .. } => s1(angle),
+            Shape::Scale(_, f) => s1(f),
+            Shape::Displace {
+                amplitude,
+                frequency,
+                ..
+            } => {
+                s1(amplitude);
+                s1(frequency)
+            }
+            _ => {}
+        }
+        let mut v3 = |a: &'s Arg<DVec3>| {
+            if let Some(u) = &a.param {
+                f(u)
+            }
+        };
+        match self {
+            Shape::Sphere { center, .. }
+            | Shape::Torus { center, .. }
+            | Shape::Cylinder { center, .. } => v3(center),
+            Shape::Box { center, size } | Shape::BoxFrame { center, size, .. } => {
+                v3(center);
+                v3(size)
+            }
+            Shape::Capsule { a, b, .. } => {
+                v3(a);
+                v3(b)
+            }
+            Shape::Translate(_, by) => v3(by),
+            Shape::Paint(_, m) => m.visit_params(f),
+            _ => {}
+        }
+        for c in self.children() {
+            c.visit_params(f);
         }
     }
 
@@ -257,10 +399,9 @@ impl Shape {
             | Shape::SmoothSubtraction(..)
             | Shape::Displace { .. } => Exactness::Bound,
             Shape::Translate(s, _)
-            | Shape::Rotate(s, _)
+            | Shape::Rotate { shape: s, .. }
             | Shape::Scale(s, _)
-            | Shape::Paint(s, _)
-            | Shape::Trainable(s, _) => s.exactness(),
+            | Shape::Paint(s, _) => s.exactness(),
         }
     }
 
@@ -275,15 +416,14 @@ impl Shape {
             | Shape::SmoothIntersection(a, b, _)
             | Shape::SmoothSubtraction(a, b, _) => a.lipschitz().max(b.lipschitz()),
             Shape::Translate(s, _)
-            | Shape::Rotate(s, _)
+            | Shape::Rotate { shape: s, .. }
             | Shape::Scale(s, _)
-            | Shape::Paint(s, _)
-            | Shape::Trainable(s, _) => s.lipschitz(),
+            | Shape::Paint(s, _) => s.lipschitz(),
             Shape::Displace {
                 shape,
                 amplitude,
                 frequency,
-            } => shape.lipschitz() + 3f64.sqrt() * amplitude.abs() * frequency.abs(),
+            } => shape.lipschitz() + 3f64.sqrt() * amplitude.value.abs() * frequency.value.abs(),
             _ => 1.0,
         }
     }
@@ -292,28 +432,30 @@ impl Shape {
     /// `None` for unbounded shapes (planes).
     pub fn bounds(&self) -> Option<Aabb> {
         match self {
-            Shape::Sphere { center, radius } => Some(Aabb::around(*center, DVec3::splat(*radius))),
+            Shape::Sphere { center, radius } => {
+                Some(Aabb::around(center.value, DVec3::splat(radius.value)))
+            }
             Shape::Box { center, size } | Shape::BoxFrame { center, size, .. } => {
-                Some(Aabb::around(*center, *size * 0.5))
+                Some(Aabb::around(center.value, size.value * 0.5))
             }
             Shape::Torus {
                 center,
                 major,
                 minor,
-            } => Some(Aabb::around(
-                *center,
-                DVec3::new(major + minor, major + minor, *minor),
-            )),
+            } => {
+                let (r, m) = (major.value, minor.value);
+                Some(Aabb::around(center.value, DVec3::new(r + m, r + m, m)))
+            }
             Shape::Capsule { a, b, radius } => {
-                Some(Aabb::new(a.min(*b), a.max(*b)).expand(*radius))
+                Some(Aabb::new(a.value.min(b.value), a.value.max(b.value)).expand(radius.value))
             }
             Shape::Cylinder {
                 center,
                 radius,
                 height,
             } => Some(Aabb::around(
-                *center,
-                DVec3::new(*radius, *radius, height * 0.5),
+                center.value,
+                DVec3::new(radius.value, radius.value, height.value * 0.5),
             )),
             Shape::Plane { .. } => None,
             Shape::Union(children) => {
@@ -329,14 +471,25 @@ impl Shape {
                 smallest([a.bounds(), b.bounds()].into_iter().flatten())
             }
             Shape::Subtraction(a, _) | Shape::SmoothSubtraction(a, _, _) => a.bounds(),
-            Shape::SmoothUnion(a, b, k) => Some(a.bounds()?.union(b.bounds()?).expand(k * 0.25)),
-            Shape::Translate(s, v) => s.bounds().map(|b| Aabb::new(b.min + *v, b.max + *v)),
-            Shape::Rotate(s, q) => s.bounds().map(|b| b.transformed(|c| *q * c)),
-            Shape::Scale(s, f) => s.bounds().map(|b| Aabb::new(b.min * *f, b.max * *f)),
+            Shape::SmoothUnion(a, b, k) => {
+                Some(a.bounds()?.union(b.bounds()?).expand(k.value * 0.25))
+            }
+            Shape::Translate(s, v) => {
+                let v = v.value;
+                s.bounds().map(|b| Aabb::new(b.min + v, b.max + v))
+            }
+            Shape::Rotate { shape, axis, angle } => {
+                let q = glam::DQuat::from_axis_angle(*axis, angle.value);
+                shape.bounds().map(|b| b.transformed(|c| q * c))
+            }
+            Shape::Scale(s, f) => {
+                let f = f.value;
+                s.bounds().map(|b| Aabb::new(b.min * f, b.max * f))
+            }
             Shape::Displace {
                 shape, amplitude, ..
-            } => shape.bounds().map(|b| b.expand(amplitude.abs())),
-            Shape::Paint(s, _) | Shape::Trainable(s, _) => s.bounds(),
+            } => shape.bounds().map(|b| b.expand(amplitude.value.abs())),
+            Shape::Paint(s, _) => s.bounds(),
         }
     }
 
@@ -350,10 +503,9 @@ impl Shape {
             | Shape::SmoothIntersection(a, b, _)
             | Shape::SmoothSubtraction(a, b, _) => vec![a, b],
             Shape::Translate(s, _)
-            | Shape::Rotate(s, _)
+            | Shape::Rotate { shape: s, .. }
             | Shape::Scale(s, _)
             | Shape::Paint(s, _)
-            | Shape::Trainable(s, _)
             | Shape::Displace { shape: s, .. } => vec![s],
             Shape::Sphere { .. }
             | Shape::Box { .. }
@@ -365,36 +517,28 @@ impl Shape {
         }
     }
 
-    /// The centre used by the rainbow material, for primitives.
+    /// The centre used by the rainbow material, for primitives (in the
+    /// primitive's own frame).
     pub fn primitive_center(&self) -> Option<DVec3> {
         match self {
-            Shape::Trainable(s, _) => s.primitive_center(),
             Shape::Sphere { center, .. }
             | Shape::Box { center, .. }
             | Shape::BoxFrame { center, .. }
             | Shape::Torus { center, .. }
-            | Shape::Cylinder { center, .. } => Some(*center),
-            Shape::Capsule { a, b, .. } => Some((*a + *b) * 0.5),
-            Shape::Plane { normal, height } => Some(*normal * *height),
+            | Shape::Cylinder { center, .. } => Some(center.value),
+            Shape::Capsule { a, b, .. } => Some((a.value + b.value) * 0.5),
+            Shape::Plane { normal, height } => Some(*normal * height.value),
             _ => None,
         }
     }
 
     /// Number of primitives (leaves).
     pub fn primitive_count(&self) -> usize {
-        match self {
-            Shape::Union(c) | Shape::Intersection(c) => c.iter().map(|s| s.primitive_count()).sum(),
-            Shape::Subtraction(a, b)
-            | Shape::SmoothUnion(a, b, _)
-            | Shape::SmoothIntersection(a, b, _)
-            | Shape::SmoothSubtraction(a, b, _) => a.primitive_count() + b.primitive_count(),
-            Shape::Translate(s, _)
-            | Shape::Rotate(s, _)
-            | Shape::Scale(s, _)
-            | Shape::Paint(s, _)
-            | Shape::Trainable(s, _) => s.primitive_count(),
-            Shape::Displace { shape, .. } => shape.primitive_count(),
-            _ => 1,
+        let children = self.children();
+        if children.is_empty() {
+            1
+        } else {
+            children.iter().map(|s| s.primitive_count()).sum()
         }
     }
 
@@ -414,11 +558,10 @@ impl Shape {
             Shape::SmoothIntersection(..) => "smooth_intersection",
             Shape::SmoothSubtraction(..) => "smooth_subtraction",
             Shape::Translate(..) => "translate",
-            Shape::Rotate(..) => "rotate",
+            Shape::Rotate { .. } => "rotate",
             Shape::Scale(..) => "scale",
             Shape::Displace { .. } => "displace",
             Shape::Paint(..) => "paint",
-            Shape::Trainable(s, _) => s.name(),
         }
     }
 }

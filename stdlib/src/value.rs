@@ -7,6 +7,7 @@ use glam::DVec3;
 
 use crate::camera::Camera;
 use crate::material::Material;
+use crate::param::{Arg, ParamDecl};
 use crate::shape::Shape;
 
 #[derive(Debug, Clone)]
@@ -20,7 +21,9 @@ pub enum Value {
     Camera(Camera),
     Output(Arc<Output>),
     /// A number or vector marked trainable with `param(...)`.
-    Param(Arc<Value>),
+    Param(Arc<ParamDecl>),
+    /// A training objective term.
+    Loss(Loss),
     Field(Arc<Field>),
     Sampler(Sampler),
     Dataset(Arc<Dataset>),
@@ -42,6 +45,7 @@ impl Value {
             Value::Camera(_) => "camera",
             Value::Output(_) => "output",
             Value::Param(_) => "trainable parameter",
+            Value::Loss(_) => "loss",
             Value::Field(_) => "field",
             Value::Sampler(_) => "sampler",
             Value::Dataset(_) => "data set",
@@ -54,7 +58,6 @@ impl Value {
         match self {
             Value::Poison => true,
             Value::List(items) => items.iter().any(Value::is_poison),
-            Value::Param(v) => v.is_poison(),
             _ => false,
         }
     }
@@ -148,9 +151,23 @@ pub enum DensityKind {
 pub struct Field {
     pub shape: Arc<Shape>,
     pub density: DensityKind,
-    pub alpha: f64,
-    pub beta: f64,
+    pub alpha: Arg<f64>,
+    pub beta: Arg<f64>,
     pub color: Arc<Material>,
+}
+
+impl Field {
+    /// Every trainable argument of the field (shape, colour, α, β), in a
+    /// fixed order; a parameter used twice appears twice.
+    pub fn visit_params<'s>(&'s self, f: &mut dyn FnMut(&'s crate::param::ParamUse)) {
+        self.shape.visit_params(f);
+        self.color.visit_params(f);
+        for a in [&self.alpha, &self.beta] {
+            if let Some(u) = &a.param {
+                f(u);
+            }
+        }
+    }
 }
 
 /// Stratified depth samples: `samples` evenly spaced from near to far
@@ -161,6 +178,20 @@ pub struct Sampler {
     pub near: f64,
     pub far: f64,
     pub jitter: bool,
+    pub last_interval: LastInterval,
+}
+
+/// The length given to the last sample's interval, which has no next
+/// sample to end it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum LastInterval {
+    /// Nothing beyond `far`: the last sample absorbs nothing, so images do
+    /// not depend on where `far` is.
+    Zero,
+    /// 1e10, as the reference assignment's code does: a density of ~1e-8 at
+    /// the far sample makes a pixel opaque. For reproducing its images.
+    Infinite,
 }
 
 /// Training views: images with their cameras.
@@ -189,13 +220,71 @@ impl Dataset {
     }
 }
 
-/// Adam with a learning rate multiplied by `decay` every `decay_every`
-/// iterations (0: never).
+/// Adam with a learning-rate schedule.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
 pub struct Optimizer {
     pub lr: f64,
-    pub decay: f64,
-    pub decay_every: usize,
+    pub schedule: Schedule,
+}
+
+/// How the learning rate changes with the step.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Schedule {
+    Constant,
+    /// Multiplied by `factor` every `every` steps.
+    Step {
+        factor: f64,
+        every: usize,
+    },
+    /// `lr·factor^(step/every)`: the same decay as `Step`, spread smoothly.
+    Exponential {
+        factor: f64,
+        every: usize,
+    },
+}
+
+impl Optimizer {
+    /// The learning rate of step `step` (counted from 0).
+    pub fn lr_at(&self, step: usize) -> f64 {
+        match self.schedule {
+            Schedule::Constant => self.lr,
+            Schedule::Step { factor, every } if every > 0 => {
+                self.lr * factor.powi((step / every) as i32)
+            }
+            Schedule::Step { .. } => self.lr,
+            Schedule::Exponential { factor, every } => {
+                self.lr * factor.powf(step as f64 / every.max(1) as f64)
+            }
+        }
+    }
+}
+
+/// A term of a training objective.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum LossKind {
+    /// Mean squared error of rendered against true pixel colours.
+    Mse,
+}
+
+/// A weighted loss term.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct Loss {
+    pub kind: LossKind,
+    pub weight: f64,
+}
+
+/// How a training step computes its gradient.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Backend {
+    /// One fused kernel per ray: forward-mode parameter tangents through the
+    /// field, a hand-written backward through compositing.
+    Fused,
+    /// A dfdx autodiff graph over `[rays, samples]` tensors, the field as a
+    /// custom op.
+    Dfdx,
 }
 
 /// A `render` statement whose scene is a field: volume rendering.
@@ -219,10 +308,13 @@ pub struct TrainJob {
     pub sampler: Sampler,
     pub rays: usize,
     pub optimizer: Optimizer,
+    pub losses: Vec<Loss>,
+    /// Optimiser steps, unless `epochs` is given.
     pub iterations: usize,
+    /// Passes over all training pixels: steps = epochs × ⌈pixels / rays⌉.
+    pub epochs: Option<usize>,
     pub seed: u64,
-    /// "fused" (hand-written backward) or "dfdx" (autodiff graph).
-    pub backend: String,
+    pub backend: Backend,
     /// Cameras and size for the before/after outputs.
     pub views: Vec<Camera>,
     pub width: u32,

@@ -1,23 +1,28 @@
-//! Training on dfdx 0.13 (CPU):
+//! Training on dfdx 0.13 (CPU), for any field whose arguments are marked
+//! `param(...)`:
 //!
+//! * [`model`]: a field's distinct parameters, their names, ranges and flat
+//!   layout, read as forward-mode dual numbers.
+//! * [`fused`]: the fused per-ray kernel (loss and exact gradient in one
+//!   forward pass, ordered parallel reduction).
+//! * [`trainer`]: seeded batches, the step (Adam through dfdx's kernel,
+//!   projection into range), the loop.
+//! * [`checkpoint`]: safetensors checkpoints with a fingerprint of the run.
 //! * [`params`]: runtime-sized named parameters, Adam through dfdx's kernel.
-//! * [`graph_ops`]: differentiable compositing and SDF densities on
-//!   `[rays, samples]` tensors (cumsum as a triangular matmul).
-//! * [`box_graph`]: the assignment's box volume as a pure dfdx graph.
-//! * [`box_op`]: the same as one dfdx op backed by the fused kernel.
-//! * [`box_fit`]: the assignment's part 2 fit.
+//! * [`graph_ops`]: differentiable compositing and SDF densities as dfdx
+//!   graph ops on `[rays, samples]` tensors (cumsum as a triangular matmul),
+//!   for fields whose evaluation is itself a dfdx graph.
 
-pub mod box_fit;
-pub mod box_graph;
-pub mod box_op;
+pub mod checkpoint;
+pub mod fused;
 pub mod graph_ops;
+pub mod model;
 pub mod params;
+pub mod trainer;
 
-pub use box_fit::{
-    assignment_cameras, fit_box, fit_box_with, BoxFitConfig, BoxFitResult, FitBackend, FitView,
-};
-
+pub use model::TrainModel;
 pub use params::{Adam, ParamId, ParamStore};
+pub use trainer::{Run, TrainSetup, TrainView};
 
 /// Errors from training.
 #[derive(Debug, Clone, PartialEq)]

@@ -115,6 +115,44 @@ impl ParamStore {
         self.params[id.0].trainable = trainable;
     }
 
+    /// Replaces a parameter's values (e.g. projected back into range).
+    pub fn set_values(&mut self, id: ParamId, values: &[f32]) -> Result<(), TrainError> {
+        let p = &mut self.params[id.0];
+        if values.len() != self.dev.len(&p.m) {
+            return Err(TrainError::Invalid(format!("'{}': wrong length", p.name)));
+        }
+        p.tensor = self.dev.tensor_from_vec(values.to_vec(), (values.len(),));
+        Ok(())
+    }
+
+    /// Adam's first and second moments of a parameter.
+    pub fn moments(&self, id: ParamId) -> (Vec<f32>, Vec<f32>) {
+        let p = &self.params[id.0];
+        (p.m.to_vec(), p.v.to_vec())
+    }
+
+    /// Restores a parameter's values and Adam moments (resuming a run).
+    pub fn restore(
+        &mut self,
+        id: ParamId,
+        values: &[f32],
+        m: &[f32],
+        v: &[f32],
+    ) -> Result<(), TrainError> {
+        let n = self.dev.len(&self.params[id.0].m);
+        if m.len() != n || v.len() != n {
+            return Err(TrainError::Invalid(format!(
+                "'{}': moments of the wrong length",
+                self.params[id.0].name
+            )));
+        }
+        self.set_values(id, values)?;
+        let p = &mut self.params[id.0];
+        p.m.copy_from_slice(m);
+        p.v.copy_from_slice(v);
+        Ok(())
+    }
+
     /// All parameter handles in insertion order.
     pub fn ids(&self) -> impl Iterator<Item = ParamId> {
         (0..self.params.len()).map(ParamId)
@@ -148,6 +186,11 @@ impl Adam {
     /// Number of updates applied so far.
     pub fn steps(&self) -> i32 {
         self.step
+    }
+
+    /// Continues from `steps` updates (resuming a run).
+    pub fn set_steps(&mut self, steps: i32) {
+        self.step = steps;
     }
 
     /// One update from dfdx gradients (as returned by `backward()`). A

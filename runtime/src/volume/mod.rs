@@ -8,30 +8,22 @@
 //! * [`density`]: Laplace CDF, the assignment's opacity and its `ln(1 − o)`,
 //!   VolSDF, NeuS, softplus — values and derivatives finite for β ≥ 1e-4 and
 //!   any |sdf|.
-//! * [`shapes`]: box SDF and rainbow colour with derivatives.
-//! * [`box_volume`]: the assignment's box volume with a fused f32
-//!   forward/backward kernel (rayon over rays) and image rendering.
+//! * [`march`]: one ray through a field, generic over the number type: f32
+//!   rendering and forward-mode training gradients share it.
 //! * [`render`]: forward rendering of any `point → (sdf, colour)` field.
-//! * [`mod@bench`]: timings for a `bench` subcommand.
 //!
-//! The dfdx side (parameter store, Adam, graph ops, box fit) is in
-//! [`crate::train`].
+//! Training (parameters, the fused kernel, Adam) is in [`crate::train`].
 
-pub mod bench;
-pub mod box_volume;
 pub mod composite;
 pub mod density;
 pub mod figures;
+pub mod march;
 pub mod rays;
 pub mod render;
-pub mod shapes;
 
-pub use box_volume::{
-    box_loss_and_grad, render_box_image, render_box_rays, BoxGrad, BoxVolume, RenderedImage,
-};
 pub use composite::Composite;
 pub use rays::{camera_rays, random_rays, ImageSize, Ray, SplitMix64, Stratified};
-pub use render::{render_field_image, DensityModel};
+pub use render::{render_field_image, DensityModel, RenderedImage};
 
 /// Errors from invalid volume-rendering inputs.
 #[derive(Debug, Clone, PartialEq)]

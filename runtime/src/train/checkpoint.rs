@@ -1,0 +1,217 @@
+//! Resumable training state as a safetensors file: every parameter, Adam's
+//! moments and step count, the loss history, the step reached, and a
+//! fingerprint of what the run depends on (model, data, sampler, optimiser
+//! and objective). A resumed run continues the same run; a checkpoint whose
+//! fingerprint differs is refused, naming what changed.
+
+use std::collections::HashMap;
+use std::io;
+use std::path::Path;
+
+use safetensors::tensor::{Dtype, SafeTensors, TensorView};
+
+use crate::output::Atomic;
+
+/// What changed between a checkpoint and the current run, part by part.
+pub const PARTS: [&str; 4] = ["model", "data", "sampler", "optimizer and objective"];
+
+const FORMAT: &str = "sdfl-train-checkpoint-1";
+
+/// A 64-bit FNV-1a hash: stable across platforms, versions and runs.
+#[derive(Debug, Clone, Copy)]
+pub struct Fnv(u64);
+
+impl Default for Fnv {
+    fn default() -> Self {
+        Fnv(0xcbf2_9ce4_8422_2325)
+    }
+}
+
+impl Fnv {
+    pub fn bytes(&mut self, b: &[u8]) -> &mut Self {
+        for &x in b {
+            self.0 ^= x as u64;
+            self.0 = self.0.wrapping_mul(0x0000_0100_0000_01b3);
+        }
+        self
+    }
+    pub fn str(&mut self, s: &str) -> &mut Self {
+        self.bytes(s.as_bytes()).bytes(&[0xff])
+    }
+    pub fn f32s(&mut self, v: &[f32]) -> &mut Self {
+        for x in v {
+            self.bytes(&x.to_bits().to_le_bytes());
+        }
+        self
+    }
+    pub fn finish(&self) -> String {
+        format!("{:016x}", self.0)
+    }
+}
+
+/// One parameter's state.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ParamState {
+    pub name: String,
+    pub values: Vec<f32>,
+    pub adam_m: Vec<f32>,
+    pub adam_v: Vec<f32>,
+}
+
+/// Everything needed to continue a run exactly.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Checkpoint {
+    /// Steps done.
+    pub step: usize,
+    /// Adam's update count (its bias correction).
+    pub adam_steps: i32,
+    pub params: Vec<ParamState>,
+    pub losses: Vec<f32>,
+    /// One hash per entry of [`PARTS`].
+    pub fingerprint: [String; 4],
+}
+
+fn f32_bytes(v: &[f32]) -> Vec<u8> {
+    v.iter().flat_map(|x| x.to_le_bytes()).collect()
+}
+
+fn invalid(path: &Path, what: impl std::fmt::Display) -> io::Error {
+    io::Error::new(
+        io::ErrorKind::InvalidData,
+        format!("checkpoint {}: {what}", path.display()),
+    )
+}
+
+impl Checkpoint {
+    pub fn write(&self, path: &Path) -> io::Result<()> {
+        let mut buffers: Vec<(String, Vec<u8>, usize)> = Vec::new();
+        for (i, p) in self.params.iter().enumerate() {
+            for (kind, v) in [
+                ("value", &p.values),
+                ("adam_m", &p.adam_m),
+                ("adam_v", &p.adam_v),
+            ] {
+                buffers.push((format!("{kind}.{i}"), f32_bytes(v), v.len()));
+            }
+        }
+        buffers.push(("losses".into(), f32_bytes(&self.losses), self.losses.len()));
+        let views = buffers
+            .iter()
+            .map(|(n, b, len)| Ok((n.clone(), TensorView::new(Dtype::F32, vec![*len], b)?)))
+            .collect::<Result<Vec<_>, safetensors::SafeTensorError>>()
+            .map_err(|e| invalid(path, e))?;
+        let mut meta = HashMap::new();
+        meta.insert("format".to_string(), FORMAT.to_string());
+        meta.insert("step".to_string(), self.step.to_string());
+        meta.insert("adam_steps".to_string(), self.adam_steps.to_string());
+        let names: Vec<&str> = self.params.iter().map(|p| p.name.as_str()).collect();
+        meta.insert(
+            "names".to_string(),
+            serde_json::to_string(&names).unwrap_or_default(),
+        );
+        for (part, fp) in PARTS.iter().zip(&self.fingerprint) {
+            meta.insert(format!("fingerprint.{part}"), fp.clone());
+        }
+        let bytes = safetensors::serialize(views, &Some(meta)).map_err(|e| invalid(path, e))?;
+        let mut f = Atomic::create(path)?;
+        io::Write::write_all(f.writer(), &bytes)?;
+        f.commit()
+    }
+
+    pub fn read(path: &Path) -> io::Result<Checkpoint> {
+        let bytes = std::fs::read(path)
+            .map_err(|e| io::Error::new(e.kind(), format!("checkpoint {}: {e}", path.display())))?;
+        let (_, header) = SafeTensors::read_metadata(&bytes).map_err(|e| invalid(path, e))?;
+        let meta = header
+            .metadata()
+            .clone()
+            .ok_or_else(|| invalid(path, "no metadata: not an sdfl checkpoint"))?;
+        let get = |k: &str| {
+            meta.get(k)
+                .cloned()
+                .ok_or_else(|| invalid(path, format!("no `{k}`: not an sdfl checkpoint")))
+        };
+        if get("format")? != FORMAT {
+            return Err(invalid(path, "written by another version of sdfl"));
+        }
+        let num = |k: &str| -> io::Result<i64> {
+            get(k)?
+                .parse()
+                .map_err(|_| invalid(path, format!("bad `{k}`")))
+        };
+        let names: Vec<String> =
+            serde_json::from_str(&get("names")?).map_err(|_| invalid(path, "bad `names`"))?;
+        let tensors = SafeTensors::deserialize(&bytes).map_err(|e| invalid(path, e))?;
+        let read = |name: &str| -> io::Result<Vec<f32>> {
+            let t = tensors.tensor(name).map_err(|e| invalid(path, e))?;
+            if t.dtype() != Dtype::F32 {
+                return Err(invalid(path, format!("`{name}` is not f32")));
+            }
+            Ok(t.data()
+                .chunks_exact(4)
+                .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+                .collect())
+        };
+        let mut params = Vec::new();
+        for (i, name) in names.into_iter().enumerate() {
+            params.push(ParamState {
+                name,
+                values: read(&format!("value.{i}"))?,
+                adam_m: read(&format!("adam_m.{i}"))?,
+                adam_v: read(&format!("adam_v.{i}"))?,
+            });
+        }
+        let fp = |i: usize| get(&format!("fingerprint.{}", PARTS[i]));
+        Ok(Checkpoint {
+            step: usize::try_from(num("step")?).map_err(|_| invalid(path, "bad step"))?,
+            adam_steps: i32::try_from(num("adam_steps")?).map_err(|_| invalid(path, "bad step"))?,
+            params,
+            losses: read("losses")?,
+            fingerprint: [fp(0)?, fp(1)?, fp(2)?, fp(3)?],
+        })
+    }
+
+    /// The parts of the run that differ from `fingerprint` (empty: same run).
+    pub fn differences(&self, fingerprint: &[String; 4]) -> Vec<&'static str> {
+        PARTS
+            .iter()
+            .zip(self.fingerprint.iter().zip(fingerprint))
+            .filter(|(_, (a, b))| a != b)
+            .map(|(p, _)| *p)
+            .collect()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn round_trips_and_rejects_foreign_files() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("ck.safetensors");
+        let ck = Checkpoint {
+            step: 200,
+            adam_steps: 200,
+            params: vec![ParamState {
+                name: "torus.major".into(),
+                values: vec![1.0, 2.0],
+                adam_m: vec![0.1, -0.2],
+                adam_v: vec![1e-3, 2e-3],
+            }],
+            losses: vec![0.5, 0.25],
+            fingerprint: ["a".into(), "b".into(), "c".into(), "d".into()],
+        };
+        ck.write(&path).unwrap();
+        let back = Checkpoint::read(&path).unwrap();
+        assert_eq!(back, ck);
+        let other = ["a".to_string(), "x".into(), "c".into(), "y".into()];
+        assert_eq!(
+            back.differences(&other),
+            vec!["data", "optimizer and objective"]
+        );
+        std::fs::write(&path, b"{\"iteration\": 3}").unwrap();
+        let e = Checkpoint::read(&path).unwrap_err().to_string();
+        assert!(e.contains("ck.safetensors"), "{e}");
+    }
+}

@@ -1,0 +1,171 @@
+//! A field prepared for training: its distinct parameters (one per
+//! `param(...)` call, however often used), their names, ranges and places
+//! in one flat vector, and the argument source that reads them as
+//! forward-mode [`Dual`] numbers.
+
+use std::sync::Arc;
+
+use glam::DVec3;
+use sdfl_stdlib::num::{Dual, Real, V3};
+use sdfl_stdlib::param::{Arg, Bound, ParamDecl, ParamInit};
+use sdfl_stdlib::shape::ArgSource;
+use sdfl_stdlib::value::Field;
+
+/// One trainable parameter.
+#[derive(Debug, Clone)]
+pub struct ModelParam {
+    pub decl: Arc<ParamDecl>,
+    /// Its `let` name, or where it is first used (`torus.major`), made
+    /// unique with `#2`, `#3`….
+    pub name: String,
+    /// The ranges of all its uses at once.
+    pub bound: Bound,
+    /// First scalar in the flat vector.
+    pub offset: usize,
+    pub len: usize,
+}
+
+/// A field and its parameters.
+#[derive(Debug, Clone)]
+pub struct TrainModel {
+    pub field: Arc<Field>,
+    pub params: Vec<ModelParam>,
+    /// Flat offset of each `ParamDecl::id`, `usize::MAX` for parameters of
+    /// the file that this model does not use.
+    offsets: Vec<usize>,
+    /// Number of scalars.
+    pub scalars: usize,
+}
+
+impl TrainModel {
+    pub fn new(field: Arc<Field>) -> Self {
+        let mut params: Vec<ModelParam> = Vec::new();
+        let mut scalars = 0;
+        field.visit_params(&mut |u| {
+            if let Some(p) = params.iter_mut().find(|p| Arc::ptr_eq(&p.decl, &u.decl)) {
+                p.bound = p.bound.and(u.bound);
+                return;
+            }
+            let len = u.decl.init.len();
+            params.push(ModelParam {
+                decl: u.decl.clone(),
+                name: u.decl.binding.clone().unwrap_or_else(|| u.site.clone()),
+                bound: u.bound,
+                offset: scalars,
+                len,
+            });
+            scalars += len;
+        });
+        // Unique names: a second `sphere.center` becomes `sphere.center#2`.
+        for i in 0..params.len() {
+            let same = params[..i]
+                .iter()
+                .filter(|p| p.name == params[i].name)
+                .count();
+            if same > 0 {
+                params[i].name = format!("{}#{}", params[i].name, same + 1);
+            }
+        }
+        let max_id = params.iter().map(|p| p.decl.id).max().map_or(0, |m| m + 1);
+        let mut offsets = vec![usize::MAX; max_id];
+        for p in &params {
+            offsets[p.decl.id] = p.offset;
+        }
+        TrainModel {
+            field,
+            params,
+            offsets,
+            scalars,
+        }
+    }
+
+    /// The starting values, projected into their ranges.
+    pub fn initial_values(&self) -> Vec<f64> {
+        let mut v = vec![0.0; self.scalars];
+        for p in &self.params {
+            let init = match p.decl.init {
+                ParamInit::Scalar(x) => vec![x],
+                ParamInit::Vec3(x) => x.to_array().to_vec(),
+            };
+            for (k, x) in init.into_iter().enumerate() {
+                v[p.offset + k] = p.bound.project(x);
+            }
+        }
+        v
+    }
+
+    /// Projects every value into its parameter's range (after a step).
+    pub fn project(&self, values: &mut [f32]) {
+        for p in &self.params {
+            for x in &mut values[p.offset..p.offset + p.len] {
+                *x = p.bound.project(*x as f64) as f32;
+            }
+        }
+    }
+
+    fn offset(&self, decl: &ParamDecl) -> usize {
+        self.offsets.get(decl.id).copied().unwrap_or(usize::MAX)
+    }
+
+    /// The arguments at `values`, with tangents for the `N` scalars from
+    /// `first` on.
+    pub fn args<'a, F: Real, const N: usize>(
+        &'a self,
+        values: &'a [F],
+        first: usize,
+    ) -> DualArgs<'a, F, N> {
+        DualArgs {
+            model: self,
+            values,
+            first,
+        }
+    }
+
+    /// The arguments at `values` as plain numbers (rendering a trained field).
+    pub fn plain<'a, F: Real>(&'a self, values: &'a [F]) -> DualArgs<'a, F, 0> {
+        self.args(values, 0)
+    }
+}
+
+/// A [`TrainModel`]'s arguments at given values, as [`Dual`]s whose tangent
+/// `i` is the derivative with respect to scalar `first + i`.
+pub struct DualArgs<'a, F, const N: usize> {
+    model: &'a TrainModel,
+    values: &'a [F],
+    first: usize,
+}
+
+impl<F: Real, const N: usize> DualArgs<'_, F, N> {
+    #[inline(always)]
+    fn scalar_at(&self, i: usize) -> Dual<F, N> {
+        Dual::seed(self.values[i], i.wrapping_sub(self.first))
+    }
+}
+
+impl<F: Real, const N: usize> ArgSource<Dual<F, N>> for DualArgs<'_, F, N> {
+    #[inline(always)]
+    fn scalar(&self, a: &Arg<f64>) -> Dual<F, N> {
+        match &a.param {
+            None => Dual::lit(a.value),
+            Some(u) => match self.model.offset(&u.decl) {
+                usize::MAX => Dual::lit(a.value),
+                o => self.scalar_at(o),
+            },
+        }
+    }
+    #[inline(always)]
+    fn vector(&self, a: &Arg<DVec3>) -> V3<Dual<F, N>> {
+        match &a.param {
+            None => V3::lit(a.value.to_array()),
+            Some(u) => match (self.model.offset(&u.decl), u.decl.init) {
+                (usize::MAX, _) => V3::lit(a.value.to_array()),
+                (o, ParamInit::Scalar(_)) => V3::splat(self.scalar_at(o)),
+                (o, ParamInit::Vec3(_)) => V3::new(
+                    self.scalar_at(o),
+                    self.scalar_at(o + 1),
+                    self.scalar_at(o + 2),
+                ),
+            },
+        }
+    }
+}

@@ -1,0 +1,430 @@
+//! The small numeric trait every distance function is written against, so
+//! one definition serves the f64 reference, the f32 tracer and forward-mode
+//! gradients ([`Dual`]) for training.
+//!
+//! Non-smooth points take a fixed one-sided derivative (`abs` at 0 is `+1`,
+//! `max`/`min` follow the first argument on ties, `sqrt` at 0 has derivative
+//! 0), so gradients are finite everywhere, including exactly on a box edge.
+
+use std::ops::{Add, Div, Mul, Neg, Sub};
+
+/// A real number type: `f32`, `f64` or a [`Dual`] over one of them.
+pub trait Real:
+    Copy
+    + Send
+    + Sync
+    + 'static
+    + Add<Output = Self>
+    + Sub<Output = Self>
+    + Mul<Output = Self>
+    + Div<Output = Self>
+    + Neg<Output = Self>
+{
+    /// A constant (no derivative).
+    fn lit(x: f64) -> Self;
+    /// The value, for comparisons and branches.
+    fn val(self) -> f64;
+    fn sqrt(self) -> Self;
+    fn abs(self) -> Self;
+    fn exp(self) -> Self;
+    fn ln(self) -> Self;
+    fn ln_1p(self) -> Self;
+    /// `exp(x) − 1` without cancellation near 0.
+    fn exp_m1(self) -> Self;
+    fn sin(self) -> Self;
+    fn cos(self) -> Self;
+    /// The larger of the two (the first on ties).
+    fn max(self, o: Self) -> Self;
+    /// The smaller of the two (the first on ties).
+    fn min(self, o: Self) -> Self;
+    #[inline(always)]
+    fn clamp(self, lo: f64, hi: f64) -> Self {
+        self.max(Self::lit(lo)).min(Self::lit(hi))
+    }
+    #[inline(always)]
+    fn zero() -> Self {
+        Self::lit(0.0)
+    }
+    #[inline(always)]
+    fn one() -> Self {
+        Self::lit(1.0)
+    }
+}
+
+macro_rules! real_float {
+    ($t:ty) => {
+        impl Real for $t {
+            #[inline(always)]
+            fn lit(x: f64) -> Self {
+                x as $t
+            }
+            #[inline(always)]
+            fn val(self) -> f64 {
+                self as f64
+            }
+            #[inline(always)]
+            fn sqrt(self) -> Self {
+                <$t>::sqrt(self)
+            }
+            #[inline(always)]
+            fn abs(self) -> Self {
+                <$t>::abs(self)
+            }
+            #[inline(always)]
+            fn exp(self) -> Self {
+                <$t>::exp(self)
+            }
+            #[inline(always)]
+            fn ln(self) -> Self {
+                <$t>::ln(self)
+            }
+            #[inline(always)]
+            fn ln_1p(self) -> Self {
+                <$t>::ln_1p(self)
+            }
+            #[inline(always)]
+            fn exp_m1(self) -> Self {
+                <$t>::exp_m1(self)
+            }
+            #[inline(always)]
+            fn sin(self) -> Self {
+                <$t>::sin(self)
+            }
+            #[inline(always)]
+            fn cos(self) -> Self {
+                <$t>::cos(self)
+            }
+            #[inline(always)]
+            fn max(self, o: Self) -> Self {
+                if o > self {
+                    o
+                } else {
+                    self
+                }
+            }
+            #[inline(always)]
+            fn min(self, o: Self) -> Self {
+                if o < self {
+                    o
+                } else {
+                    self
+                }
+            }
+        }
+    };
+}
+real_float!(f32);
+real_float!(f64);
+
+/// A value with `N` forward-mode tangents over the base type `F`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Dual<F, const N: usize> {
+    pub v: F,
+    pub d: [F; N],
+}
+
+impl<F: Real, const N: usize> Dual<F, N> {
+    /// A constant.
+    #[inline(always)]
+    pub fn constant(v: F) -> Self {
+        Dual {
+            v,
+            d: [F::zero(); N],
+        }
+    }
+    /// An input seeded with tangent `e_i` (no tangent if `i ≥ N`).
+    #[inline(always)]
+    pub fn seed(v: F, i: usize) -> Self {
+        let mut d = [F::zero(); N];
+        if i < N {
+            d[i] = F::one();
+        }
+        Dual { v, d }
+    }
+    /// `f(v)` with derivative `df` (chain rule on every tangent).
+    #[inline(always)]
+    fn chain(self, v: F, df: F) -> Self {
+        let mut d = self.d;
+        for x in d.iter_mut() {
+            *x = *x * df;
+        }
+        Dual { v, d }
+    }
+}
+
+impl<F: Real, const N: usize> Add for Dual<F, N> {
+    type Output = Self;
+    #[inline(always)]
+    fn add(self, o: Self) -> Self {
+        let mut d = self.d;
+        for i in 0..N {
+            d[i] = d[i] + o.d[i];
+        }
+        Dual { v: self.v + o.v, d }
+    }
+}
+impl<F: Real, const N: usize> Sub for Dual<F, N> {
+    type Output = Self;
+    #[inline(always)]
+    fn sub(self, o: Self) -> Self {
+        let mut d = self.d;
+        for i in 0..N {
+            d[i] = d[i] - o.d[i];
+        }
+        Dual { v: self.v - o.v, d }
+    }
+}
+impl<F: Real, const N: usize> Mul for Dual<F, N> {
+    type Output = Self;
+    #[inline(always)]
+    fn mul(self, o: Self) -> Self {
+        let mut d = self.d;
+        for i in 0..N {
+            d[i] = d[i] * o.v + self.v * o.d[i];
+        }
+        Dual { v: self.v * o.v, d }
+    }
+}
+impl<F: Real, const N: usize> Div for Dual<F, N> {
+    type Output = Self;
+    #[inline(always)]
+    fn div(self, o: Self) -> Self {
+        let inv = F::one() / o.v;
+        let q = self.v * inv;
+        let mut d = self.d;
+        for i in 0..N {
+            d[i] = (d[i] - q * o.d[i]) * inv;
+        }
+        Dual { v: q, d }
+    }
+}
+impl<F: Real, const N: usize> Neg for Dual<F, N> {
+    type Output = Self;
+    #[inline(always)]
+    fn neg(self) -> Self {
+        let mut d = self.d;
+        for x in d.iter_mut() {
+            *x = -*x;
+        }
+        Dual { v: -self.v, d }
+    }
+}
+
+impl<F: Real, const N: usize> Real for Dual<F, N> {
+    #[inline(always)]
+    fn lit(x: f64) -> Self {
+        Dual::constant(F::lit(x))
+    }
+    #[inline(always)]
+    fn val(self) -> f64 {
+        self.v.val()
+    }
+    #[inline(always)]
+    fn sqrt(self) -> Self {
+        let s = self.v.sqrt();
+        // The subgradient 0 at 0 (e.g. the outside length of a box at a
+        // point inside it): finite, and exact where the value stays 0.
+        let df = if s.val() > 0.0 {
+            F::lit(0.5) / s
+        } else {
+            F::zero()
+        };
+        self.chain(s, df)
+    }
+    #[inline(always)]
+    fn abs(self) -> Self {
+        if self.v.val() < 0.0 {
+            -self
+        } else {
+            self
+        }
+    }
+    #[inline(always)]
+    fn exp(self) -> Self {
+        let e = self.v.exp();
+        self.chain(e, e)
+    }
+    #[inline(always)]
+    fn ln(self) -> Self {
+        self.chain(self.v.ln(), F::one() / self.v)
+    }
+    #[inline(always)]
+    fn ln_1p(self) -> Self {
+        self.chain(self.v.ln_1p(), F::one() / (F::one() + self.v))
+    }
+    #[inline(always)]
+    fn exp_m1(self) -> Self {
+        self.chain(self.v.exp_m1(), self.v.exp())
+    }
+    #[inline(always)]
+    fn sin(self) -> Self {
+        self.chain(self.v.sin(), self.v.cos())
+    }
+    #[inline(always)]
+    fn cos(self) -> Self {
+        self.chain(self.v.cos(), -self.v.sin())
+    }
+    #[inline(always)]
+    fn max(self, o: Self) -> Self {
+        if o.v.val() > self.v.val() {
+            o
+        } else {
+            self
+        }
+    }
+    #[inline(always)]
+    fn min(self, o: Self) -> Self {
+        if o.v.val() < self.v.val() {
+            o
+        } else {
+            self
+        }
+    }
+}
+
+/// A 3-vector over any [`Real`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct V3<T> {
+    pub x: T,
+    pub y: T,
+    pub z: T,
+}
+
+impl<T: Real> V3<T> {
+    #[inline(always)]
+    pub fn new(x: T, y: T, z: T) -> Self {
+        V3 { x, y, z }
+    }
+    #[inline(always)]
+    pub fn splat(v: T) -> Self {
+        V3 { x: v, y: v, z: v }
+    }
+    #[inline(always)]
+    pub fn lit(v: [f64; 3]) -> Self {
+        V3::new(T::lit(v[0]), T::lit(v[1]), T::lit(v[2]))
+    }
+    #[inline(always)]
+    pub fn map(self, f: impl Fn(T) -> T) -> Self {
+        V3::new(f(self.x), f(self.y), f(self.z))
+    }
+    #[inline(always)]
+    pub fn zip(self, o: Self, f: impl Fn(T, T) -> T) -> Self {
+        V3::new(f(self.x, o.x), f(self.y, o.y), f(self.z, o.z))
+    }
+    #[inline(always)]
+    pub fn dot(self, o: Self) -> T {
+        self.x * o.x + self.y * o.y + self.z * o.z
+    }
+    #[inline(always)]
+    pub fn length(self) -> T {
+        self.dot(self).sqrt()
+    }
+    #[inline(always)]
+    pub fn abs(self) -> Self {
+        self.map(T::abs)
+    }
+    /// Componentwise `max(v, s)`.
+    #[inline(always)]
+    pub fn max_s(self, s: T) -> Self {
+        self.map(|v| v.max(s))
+    }
+    #[inline(always)]
+    pub fn max_element(self) -> T {
+        self.x.max(self.y).max(self.z)
+    }
+    #[inline(always)]
+    pub fn min_element(self) -> T {
+        self.x.min(self.y).min(self.z)
+    }
+    #[inline(always)]
+    pub fn cross(self, o: Self) -> Self {
+        V3::new(
+            self.y * o.z - self.z * o.y,
+            self.z * o.x - self.x * o.z,
+            self.x * o.y - self.y * o.x,
+        )
+    }
+    #[inline(always)]
+    pub fn to_array(self) -> [T; 3] {
+        [self.x, self.y, self.z]
+    }
+    #[inline(always)]
+    pub fn from_array(a: [T; 3]) -> Self {
+        V3::new(a[0], a[1], a[2])
+    }
+}
+
+impl<T: Real> Add for V3<T> {
+    type Output = Self;
+    #[inline(always)]
+    fn add(self, o: Self) -> Self {
+        self.zip(o, |a, b| a + b)
+    }
+}
+impl<T: Real> Sub for V3<T> {
+    type Output = Self;
+    #[inline(always)]
+    fn sub(self, o: Self) -> Self {
+        self.zip(o, |a, b| a - b)
+    }
+}
+impl<T: Real> Mul<T> for V3<T> {
+    type Output = Self;
+    #[inline(always)]
+    fn mul(self, s: T) -> Self {
+        self.map(|a| a * s)
+    }
+}
+impl<T: Real> Neg for V3<T> {
+    type Output = Self;
+    #[inline(always)]
+    fn neg(self) -> Self {
+        self.map(|a| -a)
+    }
+}
+
+impl From<glam::DVec3> for V3<f64> {
+    fn from(v: glam::DVec3) -> Self {
+        V3::new(v.x, v.y, v.z)
+    }
+}
+impl From<V3<f64>> for glam::DVec3 {
+    fn from(v: V3<f64>) -> Self {
+        glam::DVec3::new(v.x, v.y, v.z)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Central differences of an f64 function against the dual tangent.
+    fn check(f: impl Fn(Dual<f64, 1>) -> Dual<f64, 1>, x: f64) {
+        let h = 1e-6;
+        let g = f(Dual::seed(x, 0)).d[0];
+        let fd = (f(Dual::constant(x + h)).v - f(Dual::constant(x - h)).v) / (2.0 * h);
+        assert!(
+            (g - fd).abs() < 1e-6 * (1.0 + fd.abs()),
+            "x {x}: {g} vs {fd}"
+        );
+    }
+
+    #[test]
+    fn dual_derivatives_match_finite_differences() {
+        for x in [0.3, 1.7, 2.5] {
+            check(|v| v * v * v - v / (v + Dual::lit(1.0)), x);
+            check(|v| v.sqrt() + v.ln() + v.ln_1p(), x);
+            check(|v| v.sin() * v.cos() + (-v).exp() + v.exp_m1(), x);
+            check(|v| (v - Dual::lit(1.0)).abs().max(Dual::lit(0.5)), x);
+        }
+    }
+
+    #[test]
+    fn non_smooth_points_have_finite_derivatives() {
+        let z = Dual::<f64, 2>::seed(0.0, 0);
+        assert_eq!(z.sqrt().d, [0.0, 0.0]);
+        assert_eq!(z.abs().d, [1.0, 0.0]);
+        let v = V3::new(z, Dual::seed(0.0, 1), Dual::lit(0.0));
+        assert!(v.length().d.iter().all(|d| d.is_finite()));
+    }
+}
