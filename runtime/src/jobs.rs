@@ -331,15 +331,18 @@ pub fn load_views(data: &Dataset, base: &Path) -> io::Result<Vec<TrainView>> {
 const CHECKPOINT_EVERY: usize = 100;
 
 /// Bytes a training step holds beyond the data: per ray its description,
-/// target and (when jittered) its own depths.
+/// target and (when jittered) its own depths; the dfdx graph also holds
+/// every sample's intermediates and the samples × samples cumsum matrix.
 pub fn step_memory(job: &TrainJob) -> u64 {
-    let per_ray = 48
-        + if job.sampler.jitter {
-            4 * job.sampler.samples as u64
-        } else {
-            0
-        };
-    job.rays as u64 * per_ray
+    let (rays, samples) = (job.rays as u64, job.sampler.samples as u64);
+    let jitter = if job.sampler.jitter { 4 * samples } else { 0 };
+    let graph = match job.backend {
+        Backend::Fused => 0,
+        Backend::Dfdx => {
+            rays * samples * crate::train::graph::BYTES_PER_SAMPLE + 4 * samples * samples
+        }
+    };
+    rays * (48 + jitter) + graph
 }
 
 /// Memory this process may use: what the system says is available, or
@@ -400,17 +403,11 @@ pub fn run_train_job(
     let wh = size.unwrap_or((job.width, job.height));
     let mut written = Vec::new();
     let mut stages = Vec::new();
-    if job.backend == Backend::Dfdx {
-        return Err(invalid(format!(
-            "training `{}`: the dfdx graph backend does not lower analytic fields yet; use `backend: \"fused\"`",
-            job.name
-        )));
-    }
     let need = step_memory(job);
     let have = available_memory();
     if need > have / 2 {
         return Err(invalid(format!(
-            "training `{}` would hold about {:.1} GiB per step ({} rays × {} samples), more than half of the {:.1} GiB available: use fewer `rays`, fewer samples, or no jitter",
+            "training `{}` would hold about {:.1} GiB per step ({} rays × {} samples), more than half of the {:.1} GiB available: use fewer `rays`, fewer samples, no jitter, or the fused backend",
             job.name,
             need as f64 / (1u64 << 30) as f64,
             job.rays,
@@ -431,6 +428,7 @@ pub fn run_train_job(
         optimizer: job.optimizer,
         losses: &job.losses,
         seed: job.seed,
+        backend: job.backend,
     };
     let steps = match job.epochs {
         Some(e) => e.saturating_mul(setup.steps_per_epoch()),

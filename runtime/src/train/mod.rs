@@ -7,6 +7,8 @@
 //!   forward pass, ordered parallel reduction).
 //! * [`trainer`]: seeded batches, the step (Adam through dfdx's kernel,
 //!   projection into range), the loop.
+//! * [`graph`]: the `dfdx` backend: the field as a custom dfdx op, the
+//!   compositing and loss as a dfdx autodiff graph.
 //! * [`checkpoint`]: safetensors checkpoints with a fingerprint of the run.
 //! * [`params`]: runtime-sized named parameters, Adam through dfdx's kernel.
 //! * [`graph_ops`]: differentiable compositing and SDF densities as dfdx
@@ -15,6 +17,7 @@
 
 pub mod checkpoint;
 pub mod fused;
+pub mod graph;
 pub mod graph_ops;
 pub mod model;
 pub mod params;

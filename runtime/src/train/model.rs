@@ -57,13 +57,11 @@ impl TrainModel {
             scalars += len;
         });
         // Unique names: a second `sphere.center` becomes `sphere.center#2`.
+        let base: Vec<String> = params.iter().map(|p| p.name.clone()).collect();
         for i in 0..params.len() {
-            let same = params[..i]
-                .iter()
-                .filter(|p| p.name == params[i].name)
-                .count();
+            let same = base[..i].iter().filter(|b| **b == base[i]).count();
             if same > 0 {
-                params[i].name = format!("{}#{}", params[i].name, same + 1);
+                params[i].name = format!("{}#{}", base[i], same + 1);
             }
         }
         let max_id = params.iter().map(|p| p.decl.id).max().map_or(0, |m| m + 1);

@@ -10,7 +10,7 @@
 use std::ops::ControlFlow;
 
 use sdfl_stdlib::camera::Camera;
-use sdfl_stdlib::value::{Loss, LossKind, Optimizer, Sampler};
+use sdfl_stdlib::value::{Backend, Loss, LossKind, Optimizer, Sampler};
 
 use super::checkpoint::{Checkpoint, ParamState};
 use super::fused::{loss_and_grad, Batch};
@@ -35,6 +35,7 @@ pub struct TrainSetup<'a> {
     pub optimizer: Optimizer,
     pub losses: &'a [Loss],
     pub seed: u64,
+    pub backend: Backend,
 }
 
 impl TrainSetup<'_> {
@@ -208,7 +209,13 @@ impl<'m> Run<'m> {
             })
             .sum();
         let values = self.values();
-        let lg = loss_and_grad::<f32>(self.model, &values, &batch, weight);
+        let lg = match setup.backend {
+            Backend::Fused => loss_and_grad::<f32>(self.model, &values, &batch, weight),
+            Backend::Dfdx => {
+                let dev = self.store.device().clone();
+                super::graph::loss_and_grad(&dev, self.model, &values, &batch, weight)?
+            }
+        };
         if !lg.loss.is_finite() {
             return Err(TrainError::Gradient(format!(
                 "the loss is {} at step {}",

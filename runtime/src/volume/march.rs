@@ -61,6 +61,27 @@ pub fn absorption<T: Real>(
     }
 }
 
+/// `ln(1 − a)` of [`absorption`], finite wherever the kept fraction
+/// underflows: inside a shape with α = 1 the opacity form keeps `e/2`, whose
+/// logarithm is `ln ½ − |sdf|/β` exactly; the density forms keep `exp(−σΔ)`.
+#[inline(always)]
+pub fn log_keep<T: Real>(kind: DensityKind, sdf: T, alpha: T, beta: T, delta: T) -> T {
+    match kind {
+        DensityKind::Opacity => {
+            let half = T::lit(0.5);
+            let x = -sdf.abs() / beta;
+            if sdf.val() >= 0.0 {
+                (-(alpha * x.exp() * half)).ln_1p()
+            } else if alpha.val() == 1.0 {
+                T::lit(0.5f64.ln()) + x
+            } else {
+                ((T::one() - alpha) + alpha * x.exp() * half).ln()
+            }
+        }
+        DensityKind::VolSdf | DensityKind::Neus => -(density(kind, sdf, alpha, beta) * delta),
+    }
+}
+
 /// The density `σ` of the VolSDF and NeuS forms (the opacity form has none).
 #[inline(always)]
 pub fn density<T: Real>(kind: DensityKind, sdf: T, alpha: T, beta: T) -> T {

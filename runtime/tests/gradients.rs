@@ -1,0 +1,261 @@
+//! Gradient conformance: for every primitive, operator, transform, density
+//! model and colour, the fused kernel's gradient of a batch of rendered
+//! pixels' loss with respect to each parameter agrees with central finite
+//! differences of the same loss in f64. A new primitive joins `CASES` in
+//! one line. Hard cases (β = 1e-4, grazing rays, points on a box's edge)
+//! must give finite values and gradients.
+
+use sdfl_lang::SourceFile;
+use sdfl_runtime::train::fused::{field_at, loss_and_grad, Batch};
+use sdfl_runtime::train::TrainModel;
+use sdfl_runtime::volume::{camera_rays, ImageSize, Stratified};
+use sdfl_stdlib::camera::Camera;
+use sdfl_stdlib::num::{Dual, Real, V3};
+use sdfl_stdlib::value::LastInterval;
+
+/// Models, each with every argument that can be trained marked `param`.
+const CASES: &[(&str, &str)] = &[
+    ("sphere", "sdf_volume(sphere(param(0.9), center: param([0.1, -0.1, 0.2])), color: param([0.3, 0.5, 0.7]))"),
+    ("box", "sdf_volume(box(size: param([1.2, 1.0, 0.8]), center: param([0.1, 0.05, -0.1])))"),
+    ("box_frame", "sdf_volume(box_frame(size: param([1.5, 1.4, 1.3]), thickness: param(0.25), center: param([0.05, 0.02, 0])))"),
+    ("torus", "sdf_volume(torus(major: param(0.9), minor: param(0.3), center: param([0.02, 0.1, 0])))"),
+    ("capsule", "sdf_volume(capsule(a: param([-0.5, 0, 0]), b: param([0.5, 0.2, 0.1]), radius: param(0.3)))"),
+    ("cylinder", "sdf_volume(cylinder(radius: param(0.6), height: param(1.2), center: param([0.03, 0, 0.1])))"),
+    ("plane", "sdf_volume(intersection(plane(normal: [0.1, 1, 0], height: param(0.2)), sphere(1.2)))"),
+    ("union", "sdf_volume(union(sphere(param(0.5), center: [-0.5, 0, 0]), sphere(param(0.55), center: [0.5, 0.1, 0])))"),
+    ("subtraction", "sdf_volume(subtraction(box(size: param([1.4, 1.2, 1.2])), sphere(param(0.7), center: [0.2, 0.1, -0.5])))"),
+    ("smooth_union", "sdf_volume(smooth_union(sphere(0.6, center: [-0.4, 0, 0]), sphere(0.6, center: [0.4, 0.1, 0]), k: param(0.3)))"),
+    ("smooth_intersection", "sdf_volume(smooth_intersection(sphere(0.8, center: [-0.3, 0, 0]), sphere(0.8, center: [0.3, 0.1, 0]), k: param(0.3)))"),
+    ("smooth_subtraction", "sdf_volume(smooth_subtraction(sphere(0.9), sphere(0.5, center: [0.2, 0.1, -0.6]), k: param(0.3)))"),
+    ("translate", "sdf_volume(translate(box(size: [1, 0.9, 0.8]), param([0.1, 0.2, 0.05])))"),
+    ("rotate", "sdf_volume(rotate(box(size: [1.2, 0.8, 0.6]), param(0.4), axis: [0.3, 1, 0.2]))"),
+    ("scale", "sdf_volume(scale(torus(major: 0.8, minor: 0.3), param(1.1)))"),
+    ("displace", "sdf_volume(displace(sphere(0.9), amplitude: param(0.05), frequency: param(6)))"),
+    ("paint", "sdf_volume(union(paint(sphere(0.5, center: [-0.5, 0, 0]), param([0.9, 0.1, 0.1])), sphere(0.5, center: [0.5, 0, 0])))"),
+    ("constant", "sdf_volume(sphere(0.9), color: constant(param([0.2, 0.3, 0.4])))"),
+    ("opacity", "sdf_volume(sphere(0.9), alpha: param(0.9), beta: param(0.06))"),
+    ("volsdf", "volsdf(sphere(0.9), alpha: param(8), beta: param(0.08), color: param([0.2, 0.4, 0.6]))"),
+    ("neus", "neus(sphere(0.9), alpha: param(20), beta: param(0.07))"),
+];
+
+fn model(field: &str) -> TrainModel {
+    let src = format!(
+        "let cams = [look_at(eye: [0, 0, -3])]\n\
+         train t {{ model: {field}, data: render_views(sdf_volume(sphere()), cameras: cams, size: [4, 4]) }}"
+    );
+    let program = sdfl_stdlib::load(&SourceFile::new("case.sdfl", src))
+        .unwrap_or_else(|e| panic!("{field}: {e:?}"));
+    TrainModel::new(program.trains[0].model.clone())
+}
+
+/// A 6×6 view from (0.3, 0.4, −3) with 48 samples from 0 to 6, grey targets.
+fn batch(eye: [f64; 3], last: LastInterval) -> Batch {
+    let cam = Camera::look_at(eye.into(), glam::DVec3::ZERO, glam::DVec3::Y, 1.0);
+    let rays = camera_rays(
+        &cam,
+        ImageSize {
+            width: 6,
+            height: 6,
+        },
+    )
+    .unwrap();
+    let n = rays.len();
+    Batch {
+        rays,
+        targets: (0..n).map(|k| [0.5, 0.3 + 0.01 * k as f32, 0.2]).collect(),
+        depths: Stratified::new(48, 0.0, 6.0).unwrap().depths(),
+        samples: 48,
+        shared: true,
+        last_interval: Some(last),
+    }
+}
+
+#[test]
+fn every_parameter_gradient_matches_finite_differences() {
+    let b = batch([0.3, 0.4, -3.0], LastInterval::Zero);
+    let h = 1e-6;
+    for (name, src) in CASES {
+        let m = model(src);
+        assert!(m.scalars > 0, "{name}: no parameters");
+        let v0 = m.initial_values();
+        let g = loss_and_grad::<f64>(&m, &v0, &b, 1.0).grad;
+        let loss = |v: &[f64]| loss_and_grad::<f64>(&m, v, &b, 1.0).loss;
+        for i in 0..m.scalars {
+            let (mut up, mut down) = (v0.clone(), v0.clone());
+            up[i] += h;
+            down[i] -= h;
+            let fd = (loss(&up) - loss(&down)) / (2.0 * h);
+            assert!(
+                (g[i] - fd).abs() <= 1e-7 + 1e-4 * fd.abs(),
+                "{name}, scalar {i}: kernel {} vs finite differences {fd}",
+                g[i]
+            );
+        }
+        // Every parameter matters to these pixels (a test that can fail).
+        assert!(
+            g.iter().any(|x| x.abs() > 1e-6),
+            "{name}: all gradients are 0"
+        );
+    }
+}
+
+#[test]
+fn f32_kernel_matches_f64() {
+    let b = batch([0.3, 0.4, -3.0], LastInterval::Zero);
+    for (name, src) in CASES {
+        let m = model(src);
+        let v64 = m.initial_values();
+        let v32: Vec<f32> = v64.iter().map(|&x| x as f32).collect();
+        let (a, r) = (
+            loss_and_grad::<f32>(&m, &v32, &b, 1.0),
+            loss_and_grad::<f64>(&m, &v64, &b, 1.0),
+        );
+        assert!(
+            (a.loss - r.loss).abs() <= 1e-5 * (1.0 + r.loss.abs()),
+            "{name}"
+        );
+        let scale = r.grad.iter().fold(1e-3f64, |m, x| m.max(x.abs()));
+        for (x, y) in a.grad.iter().zip(&r.grad) {
+            assert!((x - y).abs() <= 2e-3 * scale, "{name}: {x} vs {y}");
+        }
+    }
+}
+
+#[test]
+fn hard_cases_have_finite_values_and_gradients() {
+    // Tiny β, huge α and the assignment's infinite last interval.
+    let tiny = [
+        "volsdf(sphere(param(0.9)), alpha: param(1e4), beta: param(1e-4))",
+        "neus(sphere(param(0.9)), alpha: param(1e4), beta: param(1e-4))",
+        "sdf_volume(sphere(param(0.9)), alpha: param(1), beta: param(1e-4))",
+    ];
+    // A ray grazing the unit sphere: the eye 3 away, looking along a tangent.
+    let grazing = batch([1.0, 0.0, -3.0], LastInterval::Infinite);
+    for src in tiny.iter().chain(CASES.iter().map(|c| &c.1)) {
+        let m = model(src);
+        let v = m.initial_values();
+        for b in [
+            batch([0.3, 0.4, -3.0], LastInterval::Infinite),
+            grazing.clone(),
+        ] {
+            let lg = loss_and_grad::<f32>(
+                &m,
+                &v.iter().map(|&x| x as f32).collect::<Vec<_>>(),
+                &b,
+                1.0,
+            );
+            assert!(
+                lg.loss.is_finite() && lg.grad.iter().all(|g| g.is_finite()),
+                "{src}: {lg:?}"
+            );
+        }
+    }
+    // Points exactly on a box's edge and corner, and at its centre.
+    let m = model("sdf_volume(box(size: param([1, 1, 1]), center: param([0, 0, 0])))");
+    let v: Vec<f64> = m.initial_values();
+    let args = m.args::<f64, 6>(&v, 0);
+    for p in [
+        [0.5, 0.5, 0.0],
+        [0.5, 0.5, 0.5],
+        [0.0, 0.0, 0.0],
+        [0.5, 0.0, 0.0],
+    ] {
+        let (d, c) = field_at(&m, &args, V3::from_array(p.map(Dual::<f64, 6>::lit)));
+        for x in [d, c.x, c.y, c.z] {
+            assert!(
+                x.v.is_finite() && x.d.iter().all(|g| g.is_finite()),
+                "{p:?}: {x:?}"
+            );
+        }
+    }
+}
+
+#[test]
+fn a_parameter_used_twice_is_one_parameter_named_by_its_let() {
+    let src = "let cams = [look_at(eye: [0, 0, -3])]\n\
+               let c = param([0.1, 0, 0])\n\
+               train t { model: sdf_volume(union(sphere(0.3, center: c), box(center: c, size: param(0.4)), sphere(param(0.2)))), \
+               data: render_views(sdf_volume(sphere()), cameras: cams, size: [4, 4]) }";
+    let program = sdfl_stdlib::load(&SourceFile::new("shared.sdfl", src)).unwrap();
+    let m = TrainModel::new(program.trains[0].model.clone());
+    let names: Vec<&str> = m.params.iter().map(|p| p.name.as_str()).collect();
+    assert_eq!(names, ["c", "box.size", "sphere.radius"]);
+    assert_eq!(m.scalars, 5);
+    // Its gradient is the sum over both uses: equal to finite differences.
+    let b = batch([0.3, 0.4, -3.0], LastInterval::Zero);
+    let v0 = m.initial_values();
+    let g = loss_and_grad::<f64>(&m, &v0, &b, 1.0).grad;
+    let h = 1e-6;
+    let (mut up, mut down) = (v0.clone(), v0.clone());
+    up[0] += h;
+    down[0] -= h;
+    let fd = (loss_and_grad::<f64>(&m, &up, &b, 1.0).loss
+        - loss_and_grad::<f64>(&m, &down, &b, 1.0).loss)
+        / (2.0 * h);
+    assert!(
+        (g[0] - fd).abs() <= 1e-7 + 1e-4 * fd.abs(),
+        "{} vs {fd}",
+        g[0]
+    );
+}
+
+#[test]
+fn many_parameters_take_several_tangent_passes() {
+    // 20 spheres × 4 scalars: more than one chunk of tangents.
+    let spheres: Vec<String> = (0..20)
+        .map(|k| {
+            let x = -1.0 + 0.1 * k as f64;
+            format!(
+                "sphere(param(0.12), center: param([{x}, {}, 0]))",
+                0.05 * (k % 3) as f64
+            )
+        })
+        .collect();
+    let m = model(&format!("sdf_volume(union({}))", spheres.join(", ")));
+    assert_eq!(m.scalars, 80);
+    let b = batch([0.3, 0.4, -3.0], LastInterval::Zero);
+    let v0 = m.initial_values();
+    let g = loss_and_grad::<f64>(&m, &v0, &b, 1.0).grad;
+    let h = 1e-6;
+    for i in [0, 17, 40, 79] {
+        let (mut up, mut down) = (v0.clone(), v0.clone());
+        up[i] += h;
+        down[i] -= h;
+        let fd = (loss_and_grad::<f64>(&m, &up, &b, 1.0).loss
+            - loss_and_grad::<f64>(&m, &down, &b, 1.0).loss)
+            / (2.0 * h);
+        assert!(
+            (g[i] - fd).abs() <= 1e-7 + 1e-4 * fd.abs(),
+            "scalar {i}: {} vs {fd}",
+            g[i]
+        );
+    }
+}
+
+#[test]
+fn dfdx_graph_backend_matches_the_fused_kernel() {
+    let dev = dfdx::prelude::Cpu::default();
+    for last in [LastInterval::Zero, LastInterval::Infinite] {
+        let b = batch([0.3, 0.4, -3.0], last);
+        for (name, src) in CASES {
+            let m = model(src);
+            let v64 = m.initial_values();
+            let v32: Vec<f32> = v64.iter().map(|&x| x as f32).collect();
+            let g = sdfl_runtime::train::graph::loss_and_grad(&dev, &m, &v32, &b, 1.0).unwrap();
+            let r = loss_and_grad::<f64>(&m, &v64, &b, 1.0);
+            assert!(
+                (g.loss - r.loss).abs() <= 1e-5 * (1.0 + r.loss.abs()),
+                "{name}: {} vs {}",
+                g.loss,
+                r.loss
+            );
+            let scale = r.grad.iter().fold(1e-3f64, |m, x| m.max(x.abs()));
+            for (x, y) in g.grad.iter().zip(&r.grad) {
+                assert!(
+                    (x - y).abs() <= 2e-3 * scale,
+                    "{name}: graph {x} vs fused {y}"
+                );
+            }
+        }
+    }
+}
