@@ -118,7 +118,7 @@ fn plan_names_what_each_output_needs() {
     let out = sdfl(&["plan", &example("train_box.sdfl")]);
     let text = String::from_utf8_lossy(&out.stdout);
     assert!(
-        text.contains("trainable      box.size, box.center"),
+        text.contains("trainable      box.center (3), box.size (3)"),
         "{text}"
     );
 }

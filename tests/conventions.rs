@@ -43,6 +43,7 @@ fn torus_views_follow_the_conventions() {
         RunOptions {
             size: Some((w, h)),
             no_cull: false,
+            restart: false,
         },
         &|_| {},
     )

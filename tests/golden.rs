@@ -66,6 +66,7 @@ fn examples_match_their_golden_images() {
                 RunOptions {
                     size: Some(SIZE),
                     no_cull: false,
+                    restart: false,
                 },
                 &|_| {},
             )

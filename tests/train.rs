@@ -91,26 +91,44 @@ fn train_box_from_the_assignment_data() {
     let _ = std::fs::remove_dir_all(&out);
 }
 
+/// A float32 `.npy` image of `h × w × 3` values.
+fn write_npy(path: &Path, h: usize, w: usize, value: impl Fn(usize) -> f32) {
+    let header = format!("{{'descr': '<f4', 'fortran_order': False, 'shape': ({h}, {w}, 3), }}");
+    let mut hdr = header;
+    while (10 + hdr.len() + 1) % 64 != 0 {
+        hdr.push(' ');
+    }
+    hdr.push('\n');
+    let mut bytes = b"\x93NUMPY\x01\x00".to_vec();
+    bytes.extend((hdr.len() as u16).to_le_bytes());
+    bytes.extend(hdr.as_bytes());
+    for k in 0..h * w * 3 {
+        bytes.extend(value(k).to_le_bytes());
+    }
+    std::fs::write(path, bytes).unwrap();
+}
+
 #[test]
 fn divergence_stops_with_the_checkpoint_kept() {
+    // Finite pixels whose squared error overflows f32: the loss becomes
+    // infinite at the first step.
+    let out = temp("blowup");
+    std::fs::create_dir_all(&out).unwrap();
+    write_npy(&out.join("huge.npy"), 8, 8, |_| 1e30);
     let src = r#"
-        let cams = [look_at(eye: [-2.5, 0, 0]), look_at(eye: [0, 0, -2.5])]
-        let target = sdf_volume(box(size: [2, 1.5, 1.5], center: [0.25, 0.25, 0]))
         train blowup {
           model: sdf_volume(box(size: param([1.5, 1.5, 1.5]), center: param([0, 0, 0]))),
-          data: render_views(target, cameras: cams, size: [16, 16]),
-          optimizer: adam(lr: 1e6),
+          data: views(images: ["huge.npy"], cameras: [look_at(eye: [-2.5, 0, 0])]),
           rays: 64,
           iterations: 50,
           checkpoint: "blowup.ckpt",
         }
     "#;
     let program = sdfl_stdlib::load(&SourceFile::new("blowup.sdfl", src)).unwrap();
-    let out = temp("blowup");
     let err = run_train_job(
         &program.trains[0],
         &out,
-        Path::new("."),
+        &out,
         None,
         RESUME,
         &|_| {},
@@ -119,7 +137,9 @@ fn divergence_stops_with_the_checkpoint_kept() {
     .unwrap_err()
     .to_string();
     assert!(
-        err.contains("blowup") && err.contains("checkpoint is kept"),
+        err.contains("blowup")
+            && err.contains("loss is inf")
+            && err.contains("checkpoint (step 0) is kept"),
         "{err}"
     );
     let cp = Checkpoint::read(&out.join("blowup.ckpt")).unwrap();
@@ -338,21 +358,14 @@ fn a_checkpoint_from_another_run_is_refused() {
 fn a_non_finite_pixel_is_named_with_its_file() {
     let dir = temp("nanpixel");
     std::fs::create_dir_all(&dir).unwrap();
-    // A 2×2 float32 .npy with a NaN at row 1, column 0.
-    let header = "{'descr': '<f4', 'fortran_order': False, 'shape': (2, 2, 3), }";
-    let mut h = header.to_string();
-    while (10 + h.len() + 1) % 64 != 0 {
-        h.push(' ');
-    }
-    h.push('\n');
-    let mut bytes = b"\x93NUMPY\x01\x00".to_vec();
-    bytes.extend((h.len() as u16).to_le_bytes());
-    bytes.extend(h.as_bytes());
-    for k in 0..12 {
-        let v = if k == 6 { f32::NAN } else { 0.5 };
-        bytes.extend(v.to_le_bytes());
-    }
-    std::fs::write(dir.join("bad.npy"), bytes).unwrap();
+    // A 2×2 image with a NaN at row 1, column 0.
+    write_npy(&dir.join("bad.npy"), 2, 2, |k| {
+        if k == 6 {
+            f32::NAN
+        } else {
+            0.5
+        }
+    });
     let cam = sdfl_stdlib::camera::Camera::look_at(
         glam::DVec3::new(0.0, 0.0, -3.0),
         glam::DVec3::ZERO,

@@ -51,8 +51,8 @@ fn scene(spheres: &[(DVec3, f64)]) -> Shape {
             .iter()
             .map(|(c, r)| {
                 Arc::new(Shape::Sphere {
-                    center: *c,
-                    radius: *r,
+                    center: (*c).into(),
+                    radius: (*r).into(),
                 })
             })
             .collect(),

@@ -5,7 +5,7 @@
 
 use std::sync::Arc;
 
-use glam::{DQuat, DVec3, Vec3A};
+use glam::{DVec3, Vec3A};
 use sdfl_runtime::{LowerOptions, Lowered};
 use sdfl_stdlib::shape::Shape;
 
@@ -30,44 +30,47 @@ fn primitive(rng: &mut Lcg) -> Shape {
     let c = rng.v3(2.0);
     match (rng.next() * 7.0) as u32 {
         0 => Shape::Sphere {
-            center: c,
-            radius: rng.range(0.05, 0.4),
+            center: c.into(),
+            radius: rng.range(0.05, 0.4).into(),
         },
         1 => Shape::Box {
-            center: c,
+            center: c.into(),
             size: DVec3::new(
                 rng.range(0.1, 0.6),
                 rng.range(0.1, 0.6),
                 rng.range(0.1, 0.6),
-            ),
+            )
+            .into(),
         },
         2 => Shape::BoxFrame {
-            center: c,
-            size: DVec3::splat(rng.range(0.4, 0.8)),
-            thickness: 0.05,
+            center: c.into(),
+            size: DVec3::splat(rng.range(0.4, 0.8)).into(),
+            thickness: 0.05.into(),
         },
         3 => Shape::Torus {
-            center: c,
-            major: rng.range(0.2, 0.4),
-            minor: rng.range(0.03, 0.1),
+            center: c.into(),
+            major: rng.range(0.2, 0.4).into(),
+            minor: rng.range(0.03, 0.1).into(),
         },
         4 => Shape::Capsule {
-            a: c,
-            b: c + rng.v3(0.3),
-            radius: rng.range(0.03, 0.2),
+            a: c.into(),
+            b: (c + rng.v3(0.3)).into(),
+            radius: rng.range(0.03, 0.2).into(),
         },
         5 => Shape::Cylinder {
-            center: c,
-            radius: rng.range(0.05, 0.3),
-            height: rng.range(0.1, 0.6),
+            center: c.into(),
+            radius: rng.range(0.05, 0.3).into(),
+            height: rng.range(0.1, 0.6).into(),
         },
-        _ => Shape::Rotate(
-            Arc::new(Shape::Box {
-                center: DVec3::ZERO,
-                size: DVec3::splat(rng.range(0.1, 0.5)),
+        // Fields evaluate in the order written: the random draws keep their order.
+        _ => Shape::Rotate {
+            shape: Arc::new(Shape::Box {
+                center: DVec3::ZERO.into(),
+                size: DVec3::splat(rng.range(0.1, 0.5)).into(),
             }),
-            DQuat::from_axis_angle(rng.v3(1.0).normalize(), rng.range(-3.0, 3.0)),
-        ),
+            axis: rng.v3(1.0).normalize(),
+            angle: rng.range(-3.0, 3.0).into(),
+        },
     }
 }
 
@@ -78,23 +81,27 @@ fn random_scene(seed: u64, n: usize, with_bounds_ops: bool) -> Shape {
         // Mix in combinators and transforms that make members bounds.
         let a = Arc::new(primitive(&mut rng));
         let b = Arc::new(primitive(&mut rng));
-        members.push(Arc::new(Shape::SmoothUnion(a.clone(), b.clone(), 0.2)));
+        members.push(Arc::new(Shape::SmoothUnion(
+            a.clone(),
+            b.clone(),
+            0.2.into(),
+        )));
         members.push(Arc::new(Shape::Subtraction(a.clone(), b.clone())));
         members.push(Arc::new(Shape::Intersection(vec![a.clone(), b])));
         members.push(Arc::new(Shape::Displace {
             shape: a.clone(),
-            amplitude: 0.03,
-            frequency: 8.0,
+            amplitude: 0.03.into(),
+            frequency: 8.0.into(),
         }));
         members.push(Arc::new(Shape::Scale(
-            Arc::new(Shape::Translate(a, rng.v3(1.0))),
-            1.7,
+            Arc::new(Shape::Translate(a, rng.v3(1.0).into())),
+            1.7.into(),
         )));
         // A nested union under a transform gets flattened into the BVH.
         let inner: Vec<Arc<Shape>> = (0..20).map(|_| Arc::new(primitive(&mut rng))).collect();
         members.push(Arc::new(Shape::Translate(
             Arc::new(Shape::Union(inner)),
-            DVec3::new(0.3, 0.0, -0.2),
+            DVec3::new(0.3, 0.0, -0.2).into(),
         )));
     }
     Shape::Union(members)
@@ -170,7 +177,7 @@ fn planes_are_never_culled() {
     let mut members: Vec<Arc<Shape>> = (0..100).map(|_| Arc::new(primitive(&mut rng))).collect();
     members.push(Arc::new(Shape::Plane {
         normal: DVec3::Y,
-        height: -2.5,
+        height: (-2.5).into(),
     }));
     check_scene(&Shape::Union(members), 5);
 }

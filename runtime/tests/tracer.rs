@@ -29,8 +29,8 @@ fn settings(l: &Lowered) -> TraceSettings {
 
 fn unit_sphere() -> Shape {
     Shape::Sphere {
-        center: DVec3::ZERO,
-        radius: 1.0,
+        center: DVec3::ZERO.into(),
+        radius: 1.0.into(),
     }
 }
 
@@ -76,7 +76,7 @@ fn rays_starting_inside_hit_at_once() {
 fn rays_parallel_to_a_plane_stay_bounded() {
     let l = lower(&Shape::Plane {
         normal: DVec3::Y,
-        height: 0.0,
+        height: 0.0.into(),
     });
     let s = TraceSettings {
         max_steps: 64,
@@ -94,8 +94,8 @@ fn normals_are_finite_at_singular_points() {
     let n = normal(&*sphere.root, Vec3A::ZERO, 5e-4, fallback);
     assert!(n.is_finite() && (n.length() - 1.0).abs() < 1e-5, "{n}");
     let cube = lower(&Shape::Box {
-        center: DVec3::ZERO,
-        size: DVec3::ONE,
+        center: DVec3::ZERO.into(),
+        size: DVec3::ONE.into(),
     });
     for p in [
         Vec3A::new(0.5, 0.5, 0.5), // corner
@@ -129,11 +129,11 @@ fn lipschitz_scaled_steps_do_not_tunnel_through_thin_bound_shapes() {
     // A thin sheet with a strong displacement: gradient up to 1 + √3·a·f.
     let sheet = Shape::Displace {
         shape: Arc::new(Shape::Box {
-            center: DVec3::ZERO,
-            size: DVec3::new(8.0, 0.02, 8.0),
+            center: DVec3::ZERO.into(),
+            size: DVec3::new(8.0, 0.02, 8.0).into(),
         }),
-        amplitude: 0.15,
-        frequency: 12.0,
+        amplitude: 0.15.into(),
+        frequency: 12.0.into(),
     };
     let l = lower(&sheet);
     assert!(l.lipschitz > 4.0);

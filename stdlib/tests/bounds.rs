@@ -3,7 +3,7 @@
 
 use std::sync::Arc;
 
-use glam::{DQuat, DVec3};
+use glam::DVec3;
 use proptest::prelude::*;
 use sdfl_stdlib::shape::Shape;
 
@@ -13,29 +13,33 @@ fn v3(r: f64) -> impl Strategy<Value = DVec3> {
 
 fn leaf() -> impl Strategy<Value = Shape> {
     prop_oneof![
-        (v3(1.0), 0.05..1.0).prop_map(|(c, r)| Shape::Sphere {
-            center: c,
-            radius: r
+        (v3(1.0), 0.05f64..1.0).prop_map(|(c, r)| Shape::Sphere {
+            center: c.into(),
+            radius: r.into()
         }),
         (v3(1.0), v3(1.0)).prop_map(|(c, s)| Shape::Box {
-            center: c,
-            size: s.abs() + DVec3::splat(0.05)
+            center: c.into(),
+            size: (s.abs() + DVec3::splat(0.05)).into()
         }),
         (v3(1.0), v3(1.0)).prop_map(|(c, s)| Shape::BoxFrame {
-            center: c,
-            size: s.abs() + DVec3::splat(0.3),
-            thickness: 0.05
+            center: c.into(),
+            size: (s.abs() + DVec3::splat(0.3)).into(),
+            thickness: 0.05.into()
         }),
-        (v3(1.0), 0.3..1.0, 0.05..0.25).prop_map(|(c, a, b)| Shape::Torus {
-            center: c,
-            major: a,
-            minor: b
+        (v3(1.0), 0.3f64..1.0, 0.05f64..0.25).prop_map(|(c, a, b)| Shape::Torus {
+            center: c.into(),
+            major: a.into(),
+            minor: b.into()
         }),
-        (v3(1.0), v3(1.0), 0.05..0.5).prop_map(|(a, b, r)| Shape::Capsule { a, b, radius: r }),
-        (v3(1.0), 0.05..1.0, 0.05..1.0).prop_map(|(c, r, h)| Shape::Cylinder {
-            center: c,
-            radius: r,
-            height: h
+        (v3(1.0), v3(1.0), 0.05f64..0.5).prop_map(|(a, b, r)| Shape::Capsule {
+            a: a.into(),
+            b: b.into(),
+            radius: r.into()
+        }),
+        (v3(1.0), 0.05f64..1.0, 0.05f64..1.0).prop_map(|(c, r, h)| Shape::Cylinder {
+            center: c.into(),
+            radius: r.into(),
+            height: h.into()
         }),
     ]
 }
@@ -47,23 +51,31 @@ fn tree() -> impl Strategy<Value = Shape> {
             prop::collection::vec(a(), 1..4).prop_map(Shape::Union),
             prop::collection::vec(a(), 1..3).prop_map(Shape::Intersection),
             (a(), a()).prop_map(|(x, y)| Shape::Subtraction(x, y)),
-            (a(), a(), 0.01..0.5).prop_map(|(x, y, k)| Shape::SmoothUnion(x, y, k)),
-            (a(), a(), 0.01..0.5).prop_map(|(x, y, k)| Shape::SmoothIntersection(x, y, k)),
-            (a(), a(), 0.01..0.5).prop_map(|(x, y, k)| Shape::SmoothSubtraction(x, y, k)),
-            (a(), v3(2.0)).prop_map(|(x, t)| Shape::Translate(x, t)),
-            (a(), v3(1.0), -3.0..3.0).prop_map(|(x, ax, ang)| {
+            (a(), a(), 0.01f64..0.5).prop_map(|(x, y, k)| Shape::SmoothUnion(x, y, k.into())),
+            (a(), a(), 0.01f64..0.5).prop_map(|(x, y, k)| Shape::SmoothIntersection(
+                x,
+                y,
+                k.into()
+            )),
+            (a(), a(), 0.01f64..0.5).prop_map(|(x, y, k)| Shape::SmoothSubtraction(x, y, k.into())),
+            (a(), v3(2.0)).prop_map(|(x, t)| Shape::Translate(x, t.into())),
+            (a(), v3(1.0), -3.0f64..3.0).prop_map(|(x, ax, ang)| {
                 let axis = if ax.length() > 1e-3 {
                     ax.normalize()
                 } else {
                     DVec3::Z
                 };
-                Shape::Rotate(x, DQuat::from_axis_angle(axis, ang))
+                Shape::Rotate {
+                    shape: x,
+                    axis,
+                    angle: ang.into(),
+                }
             }),
-            (a(), 0.2..3.0).prop_map(|(x, s)| Shape::Scale(x, s)),
-            (a(), 0.01..0.2, 1.0..20.0).prop_map(|(x, amp, f)| Shape::Displace {
+            (a(), 0.2f64..3.0).prop_map(|(x, s)| Shape::Scale(x, s.into())),
+            (a(), 0.01f64..0.2, 1.0f64..20.0).prop_map(|(x, amp, f)| Shape::Displace {
                 shape: x,
-                amplitude: amp,
-                frequency: f
+                amplitude: amp.into(),
+                frequency: f.into()
             }),
         ]
     })

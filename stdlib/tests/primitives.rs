@@ -93,8 +93,8 @@ fn sphere() {
         .collect();
     check(
         &Shape::Sphere {
-            center: c,
-            radius: r,
+            center: c.into(),
+            radius: r.into(),
         },
         &surface,
         |p| (p - c).length() < r,
@@ -107,7 +107,15 @@ fn box_() {
     let (c, size) = (DVec3::new(0.1, 0.2, -0.3), DVec3::new(1.0, 0.6, 0.8));
     let surface = box_surface(c, size / 2.0, 0.01);
     let inside = |p: DVec3| ((p - c).abs() - size / 2.0).max_element() < 0.0;
-    check(&Shape::Box { center: c, size }, &surface, inside, 0.01);
+    check(
+        &Shape::Box {
+            center: c.into(),
+            size: size.into(),
+        },
+        &surface,
+        inside,
+        0.01,
+    );
 }
 
 #[test]
@@ -140,9 +148,9 @@ fn box_frame() {
     let inside = |p: DVec3| edges.iter().any(|e| inside_edge(p, *e));
     check(
         &Shape::BoxFrame {
-            center: c,
-            size,
-            thickness: e,
+            center: c.into(),
+            size: size.into(),
+            thickness: e.into(),
         },
         &surface,
         inside,
@@ -169,9 +177,9 @@ fn torus() {
     };
     check(
         &Shape::Torus {
-            center: c,
-            major: big,
-            minor: small,
+            center: c.into(),
+            major: big.into(),
+            minor: small.into(),
         },
         &surface,
         inside,
@@ -209,7 +217,16 @@ fn capsule() {
         let h = ((p - a).dot(b - a) / (b - a).length_squared()).clamp(0.0, 1.0);
         (p - a - (b - a) * h).length() < r
     };
-    check(&Shape::Capsule { a, b, radius: r }, &surface, inside, 0.012);
+    check(
+        &Shape::Capsule {
+            a: a.into(),
+            b: b.into(),
+            radius: r.into(),
+        },
+        &surface,
+        inside,
+        0.012,
+    );
 }
 
 #[test]
@@ -238,9 +255,9 @@ fn cylinder() {
     };
     check(
         &Shape::Cylinder {
-            center: c,
-            radius: r,
-            height: h,
+            center: c.into(),
+            radius: r.into(),
+            height: h.into(),
         },
         &surface,
         inside,
@@ -251,20 +268,22 @@ fn cylinder() {
 #[test]
 fn rotated_scaled_translated_box_stays_exact() {
     let size = DVec3::new(1.0, 0.5, 0.7);
-    let q = DQuat::from_axis_angle(DVec3::new(1.0, 2.0, 0.5).normalize(), 0.7);
+    let (axis, angle) = (DVec3::new(1.0, 2.0, 0.5).normalize(), 0.7);
+    let q = DQuat::from_axis_angle(axis, angle);
     let (s, t) = (1.3, DVec3::new(0.2, -0.1, 0.4));
     let shape = Shape::Translate(
         Arc::new(Shape::Scale(
-            Arc::new(Shape::Rotate(
-                Arc::new(Shape::Box {
-                    center: DVec3::ZERO,
-                    size,
+            Arc::new(Shape::Rotate {
+                shape: Arc::new(Shape::Box {
+                    center: DVec3::ZERO.into(),
+                    size: size.into(),
                 }),
-                q,
-            )),
-            s,
+                axis,
+                angle: angle.into(),
+            }),
+            s.into(),
         )),
-        t,
+        t.into(),
     );
     let surface: Vec<DVec3> = box_surface(DVec3::ZERO, size / 2.0, 0.006)
         .into_iter()
@@ -282,7 +301,7 @@ fn plane_is_signed_distance_to_the_plane() {
     let n = DVec3::new(1.0, 2.0, 2.0) / 3.0;
     let plane = Shape::Plane {
         normal: n,
-        height: 0.5,
+        height: 0.5.into(),
     };
     let mut rng = Lcg(7);
     for _ in 0..100 {
