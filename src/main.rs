@@ -689,7 +689,8 @@ fn sweep(
     let mut table = format!("| {name} | seconds | PSNR vs {name}={} (dB) | max parameter error |\n|---:|---:|---:|---:|\n", values[values.len() - 1]);
     let mut csv = format!("{name},seconds,psnr_db,param_error\n");
     let mut points = Vec::new();
-    for (v, secs, dir, reports) in &rows {
+    for (row, (v, secs, dir, reports)) in rows.iter().enumerate() {
+        let is_ref = row + 1 == rows.len();
         // PSNR of the mean squared error over all images of the run.
         let errors: Vec<f64> = ref_images
             .iter()
@@ -705,10 +706,14 @@ fn sweep(
                 .map(|(a, b)| (a - b).abs())
                 .fold(0.0, f64::max)
         });
+        // Only the reference row is "ref"; another run whose images equal
+        // the reference's has an infinite PSNR and says so.
         let fmt = |x: Option<f64>, prec: usize| {
             x.map_or("-".to_string(), |x| {
-                if x.is_infinite() {
+                if is_ref {
                     "ref".into()
+                } else if x.is_infinite() {
+                    "identical (∞)".into()
                 } else {
                     format!("{x:.prec$}")
                 }

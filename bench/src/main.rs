@@ -6,6 +6,8 @@
 //! throughput (points/s, one thread) and 512×512 frame time (all threads),
 //! naive min-union against BVH-culled, and the same expression evaluated by
 //! the fidget crate's JIT in the same run; it prints a Markdown table.
+//! `cargo run --release -p sdfl-bench -- train` times training steps instead
+//! (see `train.rs`).
 
 use std::time::Instant;
 
@@ -19,6 +21,7 @@ use sdfl_stdlib::RenderJob;
 use std::sync::Arc;
 
 mod peer;
+mod train;
 
 /// Deterministic uniform numbers in [0, 1).
 pub struct Lcg(pub u64);
@@ -112,6 +115,13 @@ fn frame_time(lowered: &Lowered, shape: &Shape, reps: usize) -> f64 {
 }
 
 fn main() {
+    if std::env::args().nth(1).as_deref() == Some("train") {
+        let reps = std::env::args()
+            .nth(2)
+            .and_then(|r| r.parse().ok())
+            .unwrap_or(20);
+        return train::main(reps);
+    }
     let sizes: Vec<usize> = std::env::args()
         .nth(1)
         .map(|s| s.split(',').filter_map(|x| x.parse().ok()).collect())

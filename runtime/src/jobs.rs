@@ -505,7 +505,13 @@ pub fn run_train_job(
     let result = run.run_to(&setup, steps, |r, loss| {
         progress(1);
         if r.step % 10 == 0 {
-            status(&format!("{} loss {loss:.3e}", job.name));
+            // The same names as the report, the JSON and the checkpoint.
+            let mut line = format!("{} loss {loss:.3e}", job.name);
+            for (name, v) in r.named_values().iter().take(4) {
+                let v: Vec<String> = v.iter().map(|x| format!("{x:.3}")).collect();
+                line += &format!("  {name} {}", v.join(","));
+            }
+            status(&line);
         }
         if checkpoint_path.is_some() && r.step % CHECKPOINT_EVERY == 0 {
             last_good = r.checkpoint(fp.clone());

@@ -1,0 +1,82 @@
+//! Training-step benchmark: `cargo run --release -p sdfl-bench -- train [reps]`.
+//!
+//! One optimiser step (4096 random rays × 64 samples, MSE, Adam) of the box
+//! fit (the assignment's part 2: four cameras, 128² views) and of a torus
+//! fit (centre and both radii, six views at 96²), with the fused kernel and
+//! the dfdx graph backend, at 1 thread and at all threads. Compare with
+//! `bench/pytorch/torus_fit_bench.py` (same computation) run right after.
+
+use std::time::Instant;
+
+use sdfl_lang::SourceFile;
+use sdfl_runtime::jobs::load_views;
+use sdfl_runtime::train::{Run, TrainModel, TrainSetup};
+use sdfl_stdlib::value::Backend;
+
+const BOX: &str = r#"
+let cameras = [look_at(eye: [-2.5, 0, 0]), look_at(eye: [-1.0, 0, -2.2]), look_at(eye: [0, 0, -2.5]), look_at(eye: [1.0, 0, -2.2])]
+let sampler = stratified(samples: 64, near: 0, far: 5)
+train box_fit {
+  model: sdf_volume(box(size: param([1.5, 1.5, 1.5]), center: param([0, 0, 0]))),
+  data: render_views(sdf_volume(box(size: [2, 1.5, 1.5], center: [0.25, 0.25, 0])), cameras: cameras, size: [128, 128], sampler: sampler),
+  sampler: sampler, rays: 4096, optimizer: adam(lr: 5e-4),
+}
+"#;
+
+const TORUS: &str = r#"
+let cameras = for eye in [[0, 0, -3], [2.6, 0, -1.5], [0, 2.6, -1.5], [-2.6, 0, 1.5], [0, -2.6, 1.5], [0, 0, 3]] { look_at(eye: eye) }
+let sampler = stratified(samples: 64, near: 0, far: 6)
+train torus_fit {
+  model: sdf_volume(torus(major: param(0.8), minor: param(0.35), center: param([0.1, 0, 0])), color: [0.9, 0.5, 0.2]),
+  data: render_views(sdf_volume(torus(major: 1.0, minor: 0.25, center: [0, 0.1, -0.1]), color: [0.9, 0.5, 0.2]), cameras: cameras, size: [96, 96], sampler: sampler),
+  sampler: sampler, rays: 4096, optimizer: adam(lr: 5e-3),
+}
+"#;
+
+/// (median, minimum) milliseconds of `reps` steps after two warm-up steps.
+fn time_steps(src: &str, backend: Backend, reps: usize) -> (f64, f64) {
+    let program = sdfl_stdlib::load(&SourceFile::new("bench.sdfl", src)).expect("bench scene");
+    let job = &program.trains[0];
+    let views = load_views(&job.data, std::path::Path::new(".")).expect("views");
+    let model = TrainModel::new(job.model.clone());
+    let setup = TrainSetup {
+        views: &views,
+        sampler: job.sampler,
+        rays: job.rays,
+        optimizer: job.optimizer,
+        losses: &job.losses,
+        seed: 0,
+        backend,
+    };
+    let mut run = Run::new(&model, job.optimizer.lr).expect("run");
+    for _ in 0..2 {
+        run.advance(&setup).expect("step");
+    }
+    let mut ms: Vec<f64> = (0..reps)
+        .map(|_| {
+            let t = Instant::now();
+            run.advance(&setup).expect("step");
+            t.elapsed().as_secs_f64() * 1e3
+        })
+        .collect();
+    ms.sort_by(f64::total_cmp);
+    (ms[ms.len() / 2], ms[0])
+}
+
+pub fn main(reps: usize) {
+    let all = rayon::current_num_threads();
+    println!("| fit | backend | threads | step ms (median) | step ms (min) |");
+    println!("|---|---|---:|---:|---:|");
+    for (name, src) in [("box", BOX), ("torus", TORUS)] {
+        for backend in [Backend::Fused, Backend::Dfdx] {
+            for threads in [1, all] {
+                let pool = rayon::ThreadPoolBuilder::new()
+                    .num_threads(threads)
+                    .build()
+                    .expect("thread pool");
+                let (med, min) = pool.install(|| time_steps(src, backend, reps));
+                println!("| {name} | {backend:?} | {threads} | {med:.2} | {min:.2} |");
+            }
+        }
+    }
+}
