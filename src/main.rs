@@ -528,7 +528,7 @@ fn plan_text(program: &sdfl_stdlib::Program) -> String {
         let _ = writeln!(o, "  data           {data}");
         let _ = writeln!(
             o,
-            "  step           {} rays x {} samples{}, {} on colour, Adam lr {} ({:?}), {}",
+            "  step           {} rays x {} samples{}, {} on colour, Adam lr {} ({}), {}",
             job.rays,
             job.sampler.samples,
             if job.sampler.jitter {
@@ -538,11 +538,22 @@ fn plan_text(program: &sdfl_stdlib::Program) -> String {
             },
             job.losses
                 .iter()
-                .map(|l| format!("{:?} x{}", l.kind, l.weight))
+                .map(|l| match l.kind {
+                    sdfl_stdlib::value::LossKind::Mse if l.weight == 1.0 => "MSE".to_string(),
+                    sdfl_stdlib::value::LossKind::Mse => format!("{} x MSE", l.weight),
+                })
                 .collect::<Vec<_>>()
                 .join(" + "),
             job.optimizer.lr,
-            job.optimizer.schedule,
+            match job.optimizer.schedule {
+                sdfl_stdlib::value::Schedule::Constant => "constant".to_string(),
+                sdfl_stdlib::value::Schedule::Step { factor, every } => {
+                    format!("x{factor} every {every} steps")
+                }
+                sdfl_stdlib::value::Schedule::Exponential { factor, every } => {
+                    format!("x{factor} per {every} steps, smoothly")
+                }
+            },
             match job.epochs {
                 Some(e) => format!("{e} epochs"),
                 None => format!("{} iterations", job.iterations),
