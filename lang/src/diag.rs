@@ -35,6 +35,33 @@ pub mod codes {
     pub const TOO_LARGE: &str = "sdfl::limit::too-large";
     pub const PATH: &str = "sdfl::path::escape";
     pub const IO: &str = "sdfl::io";
+    /// Two outputs (or an output and a checkpoint) write the same file.
+    pub const OUTPUT_COLLISION: &str = "sdfl::path::collision";
+    /// A number that the f32 runtime would flush to zero or overflow.
+    pub const PRECISION: &str = "sdfl::value::precision";
+    /// A run whose estimated work or memory is beyond what sdfl accepts.
+    pub const WORK: &str = "sdfl::limit::work";
+    /// A warning: the camera cannot reach the scene within `far`.
+    pub const MISSES_SCENE: &str = "sdfl::warn::misses-scene";
+}
+
+/// A number in a message: plain when short, otherwise in short scientific
+/// form (`1e308`, not 309 digits; `1e-46`, not 47 zeros).
+pub fn fmt_num(x: f64) -> String {
+    if x == 0.0 || !x.is_finite() || (1e-4..1e9).contains(&x.abs()) {
+        format!("{x}")
+    } else {
+        format!("{x:e}")
+    }
+}
+
+/// How bad a diagnostic is: errors fail the command, warnings are printed
+/// and the command goes on.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Severity {
+    #[default]
+    Error,
+    Warning,
 }
 
 /// One diagnostic: what went wrong, where, and what to do about it.
@@ -47,6 +74,7 @@ pub struct Diag {
     pub help: Option<String>,
     /// Secondary spans, e.g. the earlier definition of a duplicate name.
     pub notes: Vec<(Span, String)>,
+    pub severity: Severity,
 }
 
 impl Diag {
@@ -58,7 +86,13 @@ impl Diag {
             label: String::new(),
             help: None,
             notes: Vec::new(),
+            severity: Severity::Error,
         }
+    }
+    /// A warning rather than an error.
+    pub fn warning(mut self) -> Self {
+        self.severity = Severity::Warning;
+        self
     }
     pub fn label(mut self, label: impl Into<String>) -> Self {
         self.label = label.into();
@@ -86,6 +120,10 @@ impl Diagnostics {
     }
     pub fn is_empty(&self) -> bool {
         self.diags.is_empty()
+    }
+    /// Whether any diagnostic is an error (not only warnings).
+    pub fn has_errors(&self) -> bool {
+        self.diags.iter().any(|d| d.severity == Severity::Error)
     }
     pub fn len(&self) -> usize {
         self.diags.len()
@@ -169,6 +207,12 @@ impl miette::Diagnostic for Located<'_> {
     fn code<'b>(&'b self) -> Option<Box<dyn fmt::Display + 'b>> {
         Some(Box::new(self.diag.code))
     }
+    fn severity(&self) -> Option<miette::Severity> {
+        Some(match self.diag.severity {
+            Severity::Error => miette::Severity::Error,
+            Severity::Warning => miette::Severity::Warning,
+        })
+    }
     fn help<'b>(&'b self) -> Option<Box<dyn fmt::Display + 'b>> {
         self.diag
             .help
@@ -226,15 +270,27 @@ pub fn render(source: &SourceFile, diags: &Diagnostics, color: bool) -> String {
             diags.diags[MAX_RENDERED..].iter().map(|d| d.code).collect();
         let codes: Vec<&str> = codes.into_iter().collect();
         out.push_str(&format!(
-            "... and {rest} more error{} not shown ({})\n",
+            "... and {rest} more diagnostic{} not shown ({})\n",
             if rest == 1 { "" } else { "s" },
             codes.join(", ")
         ));
     }
-    if n > 0 {
+    let warnings = diags
+        .diags
+        .iter()
+        .filter(|d| d.severity == Severity::Warning)
+        .count();
+    let errors = n - warnings;
+    if errors > 0 {
         out.push_str(&format!(
-            "{n} error{} in {}\n",
-            if n == 1 { "" } else { "s" },
+            "{errors} error{} in {}\n",
+            if errors == 1 { "" } else { "s" },
+            source.name
+        ));
+    } else if warnings > 0 {
+        out.push_str(&format!(
+            "{warnings} warning{} in {}\n",
+            if warnings == 1 { "" } else { "s" },
             source.name
         ));
     }
