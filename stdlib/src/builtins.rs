@@ -57,6 +57,41 @@ fn value_error(
         .help(help)
 }
 
+/// Magnitudes the f32 runtime represents with room to spare: beyond them a
+/// value would flush to zero or overflow (an all-black image, not an error).
+pub const F32_SAFE: (f64, f64) = (1e-30, 1e18);
+
+/// `x`, unless it is a nonzero number outside [`F32_SAFE`].
+fn f32_range(x: f64, span: Span, name: &str) -> Result<f64, Diag> {
+    let (lo, hi) = F32_SAFE;
+    if x == 0.0 || (lo..=hi).contains(&x.abs()) {
+        return Ok(x);
+    }
+    let (what, becomes) = if x.abs() < lo {
+        ("small", "zero")
+    } else {
+        ("large", "infinity")
+    };
+    Err(Diag::new(
+        codes::PRECISION,
+        span,
+        format!(
+            "`{name}` is {}, too {what} for the renderer's 32-bit floats",
+            sdfl_lang::fmt_num(x)
+        ),
+    )
+    .label(format!("would become {becomes}"))
+    .help(format!(
+        "use 0 or a magnitude from {} to {}",
+        sdfl_lang::fmt_num(lo),
+        sdfl_lang::fmt_num(hi)
+    )))
+}
+
+/// Smallest `beta` of a density: below it the density is a step function
+/// whose gradients vanish in f32.
+pub const MIN_BETA: f64 = 1e-6;
+
 fn type_error(span: Span, want: &str, got: &Value) -> Diag {
     Diag::new(
         codes::TYPE,
@@ -85,7 +120,7 @@ impl Args {
 
     pub fn number(&self, name: &str) -> Result<f64, Diag> {
         match self.get(name) {
-            (Value::Number(x), _) => Ok(*x),
+            (Value::Number(x), s) => f32_range(*x, s, name),
             (Value::Param(_), s) => Err(not_trainable(s, name)),
             (v, s) => Err(type_error(s, "number", v)),
         }
@@ -128,7 +163,7 @@ impl Args {
         } else {
             Err(value_error(
                 self.get(name).1,
-                format!("`{name}` must be positive, got {x}"),
+                format!("`{name}` must be positive, got {}", sdfl_lang::fmt_num(x)),
                 "not > 0",
                 format!("give `{name}` a value greater than zero"),
             ))
@@ -141,7 +176,10 @@ impl Args {
         if x.fract() != 0.0 || x < lo as f64 || x > hi as f64 {
             return Err(value_error(
                 self.get(name).1,
-                format!("`{name}` must be a whole number from {lo} to {hi}, got {x}"),
+                format!(
+                    "`{name}` must be a whole number from {lo} to {hi}, got {}",
+                    sdfl_lang::fmt_num(x)
+                ),
                 "out of range",
                 format!("use a whole number between {lo} and {hi}"),
             ));
@@ -152,11 +190,17 @@ impl Args {
     pub fn vec3(&self, name: &str) -> Result<DVec3, Diag> {
         let (v, s) = self.get(name);
         match v {
-            Value::Number(x) => Ok(DVec3::splat(*x)),
+            Value::Number(x) => Ok(DVec3::splat(f32_range(*x, s, name)?)),
             Value::Param(_) => Err(not_trainable(s, name)),
-            _ => v
-                .as_vec3()
-                .ok_or_else(|| type_error(s, "vector [x, y, z]", v)),
+            _ => {
+                let p = v
+                    .as_vec3()
+                    .ok_or_else(|| type_error(s, "vector [x, y, z]", v))?;
+                p.to_array()
+                    .iter()
+                    .try_for_each(|x| f32_range(*x, s, name).map(drop))?;
+                Ok(p)
+            }
         }
     }
 
@@ -934,7 +978,24 @@ fn field(a: &Args, density: DensityKind) -> Result<Value, Diag> {
         shape: a.shape("shape")?,
         density,
         alpha,
-        beta: a.positive("beta")?,
+        beta: match a.positive("beta")? {
+            b if b < MIN_BETA => {
+                return Err(value_error(
+                    a.get("beta").1,
+                    format!(
+                        "`beta` is {}, below {}",
+                        sdfl_lang::fmt_num(b),
+                        sdfl_lang::fmt_num(MIN_BETA)
+                    ),
+                    "too sharp for f32",
+                    format!(
+                        "use `beta` ≥ {} (0.05 is typical)",
+                        sdfl_lang::fmt_num(MIN_BETA)
+                    ),
+                ))
+            }
+            b => b,
+        },
         color,
     })))
 }
@@ -1065,17 +1126,31 @@ fn out(a: &Args, kind: OutputKind, ext: &str) -> Result<Value, Diag> {
             format!("name the file `something.{ext}`"),
         ));
     }
-    Ok(Value::Output(Arc::new(Output { kind, path })))
+    Ok(Value::Output(Arc::new(Output {
+        kind,
+        path,
+        span: a.span,
+    })))
 }
 
 /// Output names must stay inside the output directory: relative, no `..`.
 pub fn safe_output_path(p: &str, span: Span) -> Result<PathBuf, Diag> {
     let path = Path::new(p);
+    // A trailing `/` names a directory, which an output cannot be.
     let ok = !p.is_empty()
         && path.components().all(|c| matches!(c, Component::Normal(_)))
-        && !p.contains('\0');
+        && !p.contains('\0')
+        && !p.ends_with('/');
     if ok {
         Ok(path.to_path_buf())
+    } else if p.ends_with('/') && !p.starts_with('/') && !p.contains("..") {
+        Err(Diag::new(
+            codes::PATH,
+            span,
+            format!("output path `{p}` names a directory"),
+        )
+        .label("ends with `/`")
+        .help("name a file, e.g. `dir/name.png`"))
     } else {
         Err(Diag::new(codes::PATH, span, format!("output path `{p}` leaves the output directory"))
             .label("not a plain relative path")

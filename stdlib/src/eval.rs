@@ -8,34 +8,149 @@ use std::collections::HashMap;
 use std::sync::Arc;
 
 use sdfl_lang::ast::*;
-use sdfl_lang::diag::{codes, Diag, Diagnostics};
+use sdfl_lang::diag::{codes, fmt_num, Diag, Diagnostics};
 use sdfl_lang::Span;
 
 use crate::builtins::{Args, StdEnv};
+use crate::shape::Shape;
 use crate::value::{Program, Value};
 
 /// Most iterations of one `for` binding.
 pub const MAX_LOOP: u64 = 1_000_000;
 /// Most loop iterations and calls in a whole file: a bound on evaluation
-/// time and memory (a few hundred bytes per shape).
+/// time.
 pub const MAX_WORK: u64 = 2_000_000;
 /// Deepest nesting of shapes and lists (built through chains of `let`s,
 /// which brackets do not limit): tree walkers recurse this deep.
 pub const MAX_DEPTH: usize = 200;
+/// Most primitives one value may hold once expanded. Values are DAGs
+/// (`union(a, a)` shares `a`), but lowering and tracing copy every use, so
+/// this bounds lowering time and memory (see [`BYTES_PER_PRIMITIVE`]).
+pub const MAX_PRIMITIVES: u64 = 2_000_000;
+/// Most nodes (list items, shape nodes, transforms) one value may hold
+/// once expanded: what tree walks over it visit.
+pub const MAX_NODES: u64 = 16_000_000;
+/// Memory one lowered primitive takes, measured with a few primitive kinds
+/// (evaluator leaf, BVH box and node, primitive table, shape IR); for the
+/// estimates printed in diagnostics.
+pub const BYTES_PER_PRIMITIVE: u64 = 400;
 
-/// Whether a value nests deeper than `limit` (visits at most `limit` levels).
-fn deeper_than(v: &Value, limit: usize) -> bool {
-    fn shape(s: &crate::shape::Shape, limit: usize) -> bool {
-        limit == 0 || s.children().into_iter().any(|c| shape(c, limit - 1))
+/// The expanded size of a value: what walking it as a tree would visit.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Size {
+    /// All nodes: list items, shape nodes, scalars.
+    pub nodes: u64,
+    /// Primitive shapes (leaves of shape trees).
+    pub primitives: u64,
+    /// Nodes on the longest path from the root (a scalar is 1).
+    pub depth: usize,
+}
+
+impl Size {
+    const SCALAR: Size = Size {
+        nodes: 1,
+        primitives: 0,
+        depth: 1,
+    };
+    /// A node over `children` (saturating: expanded sizes of shared values
+    /// grow exponentially with the sharing depth).
+    fn node(children: impl IntoIterator<Item = Size>, primitive: bool) -> Size {
+        let mut s = Size {
+            nodes: 1,
+            primitives: primitive as u64,
+            depth: 0,
+        };
+        for c in children {
+            s.nodes = s.nodes.saturating_add(c.nodes);
+            s.primitives = s.primitives.saturating_add(c.primitives);
+            s.depth = s.depth.max(c.depth);
+        }
+        s.depth = s.depth.saturating_add(1);
+        s
     }
-    if limit == 0 {
-        return true;
+}
+
+/// Expanded sizes of values, memoised by `Arc` identity so a DAG is
+/// measured in time linear in its distinct nodes. The memo keeps each
+/// measured `Arc` alive so its address is never reused by another value.
+#[derive(Default)]
+pub struct Sizes {
+    shapes: HashMap<usize, (Arc<Shape>, Size)>,
+    lists: HashMap<usize, (Arc<Vec<Value>>, Size)>,
+}
+
+/// Recursion guard for values built outside the evaluator (never reached
+/// for evaluated values, whose parts were measured when built).
+const MEASURE_LIMIT: usize = MAX_DEPTH + 8;
+
+impl Sizes {
+    pub fn of(&mut self, v: &Value) -> Size {
+        self.value(v, 0)
     }
-    match v {
-        Value::List(items) => items.iter().any(|i| deeper_than(i, limit - 1)),
-        Value::Shape(s) => shape(s, limit),
-        Value::Param(v) => deeper_than(v, limit - 1),
-        _ => false,
+
+    fn value(&mut self, v: &Value, level: usize) -> Size {
+        if level > MEASURE_LIMIT {
+            return Size {
+                depth: MEASURE_LIMIT,
+                ..Size::SCALAR
+            };
+        }
+        match v {
+            Value::List(items) => {
+                let key = Arc::as_ptr(items) as usize;
+                if let Some((_, s)) = self.lists.get(&key) {
+                    return *s;
+                }
+                let sizes: Vec<Size> = items.iter().map(|i| self.value(i, level + 1)).collect();
+                let s = Size::node(sizes, false);
+                self.lists.insert(key, (items.clone(), s));
+                s
+            }
+            Value::Shape(sh) => self.shape(sh, level),
+            Value::Field(f) => Size::node([self.shape(&f.shape, level + 1)], false),
+            Value::Param(inner) => Size::node([self.value(inner, level + 1)], false),
+            _ => Size::SCALAR,
+        }
+    }
+
+    pub fn shape(&mut self, sh: &Arc<Shape>, level: usize) -> Size {
+        let key = Arc::as_ptr(sh) as usize;
+        if let Some((_, s)) = self.shapes.get(&key) {
+            return *s;
+        }
+        if level > MEASURE_LIMIT {
+            return Size {
+                depth: MEASURE_LIMIT,
+                ..Size::SCALAR
+            };
+        }
+        let children = sh.children();
+        let leaf = children.is_empty();
+        let sizes: Vec<Size> = children
+            .into_iter()
+            .map(|c| self.shape(c, level + 1))
+            .collect();
+        let s = Size::node(sizes, leaf);
+        self.shapes.insert(key, (sh.clone(), s));
+        s
+    }
+}
+
+/// Bytes as a short human figure (`1.5 GB`).
+pub fn fmt_bytes(b: f64) -> String {
+    const UNITS: [&str; 5] = ["bytes", "kB", "MB", "GB", "TB"];
+    let mut x = b;
+    let mut u = 0;
+    while x >= 1000.0 && u < UNITS.len() - 1 {
+        x /= 1000.0;
+        u += 1;
+    }
+    if u == 0 {
+        format!("{x:.0} bytes")
+    } else if x >= 1000.0 {
+        format!("{} {}", fmt_num(x.round()), UNITS[u])
+    } else {
+        format!("{x:.1} {}", UNITS[u])
     }
 }
 
@@ -49,6 +164,9 @@ pub struct Evaluator<'e> {
     defaults: HashMap<(&'static str, &'static str), Value>,
     /// Values replacing top-level `let`s (for sweeps).
     overrides: HashMap<String, Value>,
+    sizes: Sizes,
+    /// Every file the program writes so far, for collisions.
+    files: crate::outputs::Files,
 }
 
 impl<'e> Evaluator<'e> {
@@ -62,6 +180,8 @@ impl<'e> Evaluator<'e> {
             aborted: false,
             defaults: HashMap::new(),
             overrides: HashMap::new(),
+            sizes: Sizes::default(),
+            files: crate::outputs::Files::default(),
         }
     }
 
@@ -72,7 +192,13 @@ impl<'e> Evaluator<'e> {
     }
 
     /// Evaluate a checked file.
-    pub fn run(mut self, file: &File) -> Result<Program, Diagnostics> {
+    pub fn run(self, file: &File) -> Result<Program, Diagnostics> {
+        self.run_warned(file).map(|(p, _)| p)
+    }
+
+    /// Evaluate a checked file; with the warnings when it has no errors.
+    /// (When it has, the warnings are reported with the errors.)
+    pub fn run_warned(mut self, file: &File) -> Result<(Program, Diagnostics), Diagnostics> {
         let mut program = Program::default();
         for item in &file.items {
             if self.aborted {
@@ -93,10 +219,10 @@ impl<'e> Evaluator<'e> {
                 }
             }
         }
-        if self.diags.is_empty() {
-            Ok(program)
-        } else {
+        if self.diags.has_errors() {
             Err(self.diags.sorted())
+        } else {
+            Ok((program, self.diags.sorted()))
         }
     }
 
@@ -139,7 +265,8 @@ impl<'e> Evaluator<'e> {
                 args.named.insert(p.name, (v, b.kind.span));
             }
         }
-        if args.named.values().any(|(v, _)| v.is_poison()) {
+        // Shallow: lists holding poison are poison themselves (see `expr`).
+        if args.named.values().any(|(v, _)| matches!(v, Value::Poison)) {
             return;
         }
         let name = b
@@ -157,6 +284,61 @@ impl<'e> Evaluator<'e> {
             _ => crate::builtins::render_block(&name, &args).map(|j| program.renders.push(j)),
         };
         if let Err(d) = result {
+            self.diags.push(d);
+            return;
+        }
+        let field = |name: &str| args.named.get(name).map_or(b.kind.span, |(_, s)| *s);
+        let kind = match (sig.kind, args.named.get("scene")) {
+            ("train", _) => "train",
+            (_, Some((Value::Field(_), _))) => "volume",
+            _ => "render",
+        };
+        let mut found = crate::outputs::check_job(program, kind, &mut self.files, &field);
+        use crate::work;
+        let span = b
+            .name
+            .as_ref()
+            .map_or(b.kind.span, |n| b.kind.span.to(n.span));
+        match kind {
+            "train" => {
+                let j = program.trains.last().expect("just added");
+                found.extend(work::refuse(
+                    work::train_work(j, None),
+                    span,
+                    "iterations or rays",
+                ));
+            }
+            "volume" => {
+                let j = program.volumes.last().expect("just added");
+                found.extend(work::refuse(work::volume_work(j, None), span, "samples"));
+                found.extend(work::reach_warning(
+                    j.field.shape.bounds(),
+                    &j.cameras,
+                    j.sampler.near,
+                    j.sampler.far,
+                    field("camera"),
+                    (field("sampler"), "the sampler's `far` ends the rays"),
+                ));
+            }
+            _ => {
+                let j = program.renders.last().expect("just added");
+                found.extend(work::refuse(work::render_work(j, None), span, "iterations"));
+                let default_far = format!("`far` is {} unless given", fmt_num(j.far));
+                found.extend(work::reach_warning(
+                    j.scene.bounds(),
+                    &j.cameras,
+                    j.near,
+                    j.far,
+                    field("camera"),
+                    if field("far") == b.kind.span {
+                        (b.kind.span, default_far.as_str())
+                    } else {
+                        (field("far"), "rays end here")
+                    },
+                ));
+            }
+        }
+        for d in found {
             self.diags.push(d);
         }
     }
@@ -218,16 +400,17 @@ impl<'e> Evaluator<'e> {
             ExprKind::List(items) => {
                 let items: Vec<Value> = items.iter().map(|i| self.expr(i)).collect();
                 // A list holding poison is poison: the depth of what was
-                // already reported must not keep growing unchecked.
+                // already reported must not keep growing unchecked, and
+                // poison is then found without walking into lists.
                 if items.iter().any(|i| matches!(i, Value::Poison)) {
                     return Value::Poison;
                 }
-                self.depth_checked(Value::List(Arc::new(items)), e.span)
+                self.size_checked(Value::List(Arc::new(items)), e.span)
             }
             ExprKind::Call { callee, args, .. } => self.call(callee, args, e.span),
             ExprKind::Member(recv, name) => {
                 let v = self.expr(recv);
-                if v.is_poison() {
+                if matches!(v, Value::Poison) {
                     return Value::Poison;
                 }
                 let idx = match name.name.as_str() {
@@ -261,10 +444,10 @@ impl<'e> Evaluator<'e> {
                 self.locals.push(HashMap::new());
                 self.comprehension(bindings, body, e.span, &mut out);
                 self.locals.pop();
-                if out.iter().any(Value::is_poison) {
+                if out.iter().any(|i| matches!(i, Value::Poison)) {
                     return Value::Poison;
                 }
-                Value::List(Arc::new(out))
+                self.size_checked(Value::List(Arc::new(out)), e.span)
             }
         }
     }
@@ -312,7 +495,10 @@ impl<'e> Evaluator<'e> {
                         Diag::new(
                             codes::TOO_LARGE,
                             span,
-                            format!("range has {count:.0} values (at most {MAX_LOOP})"),
+                            format!(
+                                "range has {} values (at most {MAX_LOOP})",
+                                fmt_count(count.min(u64::MAX as f64) as u64)
+                            ),
                         )
                         .label("too many iterations")
                         .help("sdfl scenes are meant to stay below a million primitives"),
@@ -380,7 +566,7 @@ impl<'e> Evaluator<'e> {
                 _ => None,
             }
         };
-        if l.is_poison() || r.is_poison() {
+        if matches!(l, Value::Poison) || matches!(r, Value::Poison) {
             return Value::Poison;
         }
         let (Some(a), Some(b)) = (nums(&l), nums(&r)) else {
@@ -419,9 +605,13 @@ impl<'e> Evaluator<'e> {
                     .label("this is zero")
                     .help("guard the divisor, e.g. `max(x, 1e-6)`")
             } else {
-                Diag::new(codes::ARITHMETIC, span, format!("arithmetic gives {bad}"))
-                    .label("not a finite number")
-                    .help("check the operands: results must be finite numbers")
+                Diag::new(
+                    codes::ARITHMETIC,
+                    span,
+                    format!("arithmetic gives {}", fmt_num(*bad)),
+                )
+                .label("not a finite number")
+                .help("check the operands: results must be finite numbers")
             };
             return self.error(d);
         }
@@ -444,7 +634,7 @@ impl<'e> Evaluator<'e> {
         let mut poisoned = false;
         for (i, a) in args.iter().enumerate() {
             let v = self.expr(&a.value);
-            poisoned |= v.is_poison();
+            poisoned |= matches!(v, Value::Poison);
             let slot = match &a.name {
                 Some(n) => sig.params.iter().find(|p| p.name == n.name).map(|p| p.name),
                 None => sig.params.get(i).map(|p| p.name),
@@ -466,31 +656,84 @@ impl<'e> Evaluator<'e> {
             }
         }
         match (builtin.eval)(&bound) {
-            Ok(v) => self.depth_checked(v, span),
+            Ok(v) => self.size_checked(v, span),
             Err(d) => self.error(d),
         }
     }
 
-    fn depth_checked(&mut self, v: Value, span: Span) -> Value {
-        if !deeper_than(&v, MAX_DEPTH) {
-            return v;
+    /// The value, or poison with a diagnostic when it nests too deep or
+    /// expands to more than the scene limits (measured as a DAG).
+    fn size_checked(&mut self, v: Value, span: Span) -> Value {
+        let size = self.sizes.of(&v);
+        if size.depth > MAX_DEPTH {
+            return self.error(
+                Diag::new(
+                    codes::TOO_LARGE,
+                    span,
+                    format!("value nested more than {MAX_DEPTH} levels deep"),
+                )
+                .label("too deep")
+                .help("build long sequences with `for` and `union` instead of chaining `let`s"),
+            );
         }
-        self.error(
-            Diag::new(
-                codes::TOO_LARGE,
-                span,
-                format!("value nested more than {MAX_DEPTH} levels deep"),
-            )
-            .label("too deep")
-            .help("build long sequences with `for` and `union` instead of chaining `let`s"),
-        )
+        if size.primitives > MAX_PRIMITIVES {
+            let bytes = size.primitives as f64 * BYTES_PER_PRIMITIVE as f64;
+            return self.error(
+                Diag::new(
+                    codes::TOO_LARGE,
+                    span,
+                    format!(
+                        "this scene would have {} primitives once expanded (at most {})",
+                        fmt_count(size.primitives),
+                        fmt_count(MAX_PRIMITIVES)
+                    ),
+                )
+                .label(format!(
+                    "{} primitives, about {} to lower",
+                    fmt_count(size.primitives),
+                    fmt_bytes(bytes)
+                ))
+                .help(
+                    "every use of a shape is a copy when rendered (`union(a, a)` holds `a` twice): \
+                     reduce the loop counts or the repetition",
+                ),
+            );
+        }
+        if size.nodes > MAX_NODES {
+            return self.error(
+                Diag::new(
+                    codes::TOO_LARGE,
+                    span,
+                    format!(
+                        "this value would have {} items once expanded (at most {})",
+                        fmt_count(size.nodes),
+                        fmt_count(MAX_NODES)
+                    ),
+                )
+                .label("too many items")
+                .help("every use of a list or shape is a copy: reduce the loop counts or the repetition"),
+            );
+        }
+        v
+    }
+}
+
+/// A count in a message: exact below a billion, else short scientific
+/// (saturated counts of shared values are astronomically large).
+pub fn fmt_count(n: u64) -> String {
+    if n < 1_000_000_000 {
+        n.to_string()
+    } else if n == u64::MAX {
+        "more than 1.8e19".into()
+    } else {
+        fmt_num(n as f64)
     }
 }
 
 /// A short description of a value for messages.
 pub(crate) fn describe(v: &Value) -> String {
     match v {
-        Value::Number(x) => format!("number {x}"),
+        Value::Number(x) => format!("number {}", fmt_num(*x)),
         Value::List(items) => format!("list of {} items", items.len()),
         other => other.type_name().to_string(),
     }
