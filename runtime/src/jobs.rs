@@ -13,7 +13,7 @@ use sdfl_stdlib::value::{Dataset, DensityKind, Field, Output, Sampler, TrainJob,
 use sdfl_stdlib::OutputKind;
 use serde::{Deserialize, Serialize};
 
-use crate::data::npy::{read_rgb_f32, RgbImage};
+use crate::data::npy::RgbImage;
 use crate::output::{to_u8, write_png, Atomic};
 use crate::render::{view_path, Gifs, Written};
 use crate::sdf::{LowerOptions, Lowered};
@@ -237,7 +237,7 @@ impl Checkpoint {
         f.commit()
     }
     pub fn read(path: &Path) -> io::Result<Checkpoint> {
-        serde_json::from_slice(&std::fs::read(path)?).map_err(invalid)
+        crate::data::image::read_checkpoint(path)
     }
 }
 
@@ -280,33 +280,25 @@ fn with_box(field: &Field, center: [f32; 3], sides: [f32; 3]) -> Field {
 }
 
 fn load_image(path: &Path) -> io::Result<RgbImage> {
-    let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("");
-    if ext.eq_ignore_ascii_case("npy") {
-        return read_rgb_f32(path).map_err(|e| invalid(format!("{}: {e}", path.display())));
-    }
-    let img = image::open(path)
-        .map_err(|e| invalid(format!("{}: {e}", path.display())))?
-        .to_rgb32f();
-    Ok(RgbImage {
-        width: img.width(),
-        height: img.height(),
-        pixels: img.pixels().map(|p| p.0).collect(),
-    })
+    crate::data::image::read_rgb_image(path)
 }
 
 /// The training views: read from files (relative to `base`) or rendered.
 pub fn load_views(data: &Dataset, base: &Path) -> io::Result<Vec<FitView>> {
     match data {
-        Dataset::Files { images, cameras } => images
-            .iter()
-            .zip(cameras)
-            .map(|(p, c)| {
-                Ok(FitView {
-                    camera: *c,
-                    image: load_image(&base.join(p))?,
+        Dataset::Files { images, cameras } => {
+            crate::data::image::check_dataset(images.iter().map(|p| base.join(p)))?;
+            images
+                .iter()
+                .zip(cameras)
+                .map(|(p, c)| {
+                    Ok(FitView {
+                        camera: *c,
+                        image: load_image(&base.join(p))?,
+                    })
                 })
-            })
-            .collect(),
+                .collect()
+        }
         Dataset::Rendered {
             field,
             cameras,
