@@ -601,7 +601,7 @@ fn nested_loops_count_primitives_not_calls() {
     for o in hostile("loops_of_unions", text, Expect::Error) {
         quick("loops of unions", &o);
         assert!(
-            o.stderr.contains("1e9 primitives") && o.stderr.contains("GB to lower"),
+            o.stderr.contains("1e9 primitives") && o.stderr.contains("GB of memory"),
             "{}",
             head(&o.stderr)
         );

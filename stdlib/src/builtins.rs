@@ -1004,7 +1004,7 @@ fn check_range(a: &Args, near: f64, far: f64) -> Result<(), Diag> {
     if near < 0.0 {
         return Err(value_error(
             a.get("near").1,
-            format!("`near` must be ≥ 0, got {near}"),
+            format!("`near` must be ≥ 0, got {}", sdfl_lang::fmt_num(near)),
             "negative",
             "rays start at the camera or in front of it",
         ));
@@ -1012,7 +1012,11 @@ fn check_range(a: &Args, near: f64, far: f64) -> Result<(), Diag> {
     if far <= near {
         return Err(value_error(
             a.get("far").1,
-            format!("`far` ({far}) must be greater than `near` ({near})"),
+            format!(
+                "`far` ({}) must be greater than `near` ({})",
+                sdfl_lang::fmt_num(far),
+                sdfl_lang::fmt_num(near)
+            ),
             "not beyond near",
             "rays march from near to far: make far larger",
         ));
