@@ -132,6 +132,18 @@ pub fn read_rgb_image(path: &Path) -> io::Result<RgbImage> {
 pub fn read_checkpoint<T: serde::de::DeserializeOwned>(path: &Path) -> io::Result<T> {
     use std::io::Read;
     const MAX: u64 = 64 << 20;
+    // Checkpoints live in the output directory, which is never read or
+    // written through a link (see `output`).
+    let mut at = std::path::PathBuf::new();
+    for c in path.components() {
+        at.push(c);
+        if std::fs::symlink_metadata(&at).is_ok_and(|m| m.file_type().is_symlink()) {
+            return Err(invalid(
+                path,
+                format!("{} is a symbolic link", at.display()),
+            ));
+        }
+    }
     let mut bytes = Vec::new();
     open_regular(path)?
         .take(MAX + 1)
@@ -205,6 +217,29 @@ mod tests {
         assert_eq!(image_dimensions(&big).unwrap(), (12_000, 12_000));
         let e = check_dataset([&big, &big]).unwrap_err().to_string();
         assert!(e.contains("at most"), "{e}");
+    }
+
+    #[test]
+    fn checkpoints_are_read_from_real_files_only() {
+        let d = dir("checkpoint");
+        std::fs::write(d.join("bad.json"), "{ not json").unwrap();
+        let e = read_checkpoint::<serde_json::Value>(&d.join("bad.json"))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("bad.json") && e.contains("not a checkpoint"),
+            "{e}"
+        );
+        std::fs::write(d.join("good.json"), "{}").unwrap();
+        assert!(read_checkpoint::<serde_json::Value>(&d.join("good.json")).is_ok());
+        #[cfg(unix)]
+        {
+            std::os::unix::fs::symlink(d.join("good.json"), d.join("link.json")).unwrap();
+            let e = read_checkpoint::<serde_json::Value>(&d.join("link.json"))
+                .unwrap_err()
+                .to_string();
+            assert!(e.contains("symbolic link"), "{e}");
+        }
     }
 
     #[test]
