@@ -57,9 +57,8 @@ pub fn fmt_num(x: f64) -> String {
 
 /// How bad a diagnostic is: errors fail the command, warnings are printed
 /// and the command goes on.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Severity {
-    #[default]
     Error,
     Warning,
 }
@@ -74,7 +73,6 @@ pub struct Diag {
     pub help: Option<String>,
     /// Secondary spans, e.g. the earlier definition of a duplicate name.
     pub notes: Vec<(Span, String)>,
-    pub severity: Severity,
 }
 
 impl Diag {
@@ -86,13 +84,16 @@ impl Diag {
             label: String::new(),
             help: None,
             notes: Vec::new(),
-            severity: Severity::Error,
         }
     }
-    /// A warning rather than an error.
-    pub fn warning(mut self) -> Self {
-        self.severity = Severity::Warning;
-        self
+    /// Warnings are the codes under `sdfl::warn::` (kept in the code, so a
+    /// diagnostic's severity is as stable as its code).
+    pub fn severity(&self) -> Severity {
+        if self.code.starts_with("sdfl::warn::") {
+            Severity::Warning
+        } else {
+            Severity::Error
+        }
     }
     pub fn label(mut self, label: impl Into<String>) -> Self {
         self.label = label.into();
@@ -123,7 +124,7 @@ impl Diagnostics {
     }
     /// Whether any diagnostic is an error (not only warnings).
     pub fn has_errors(&self) -> bool {
-        self.diags.iter().any(|d| d.severity == Severity::Error)
+        self.diags.iter().any(|d| d.severity() == Severity::Error)
     }
     pub fn len(&self) -> usize {
         self.diags.len()
@@ -208,7 +209,7 @@ impl miette::Diagnostic for Located<'_> {
         Some(Box::new(self.diag.code))
     }
     fn severity(&self) -> Option<miette::Severity> {
-        Some(match self.diag.severity {
+        Some(match self.diag.severity() {
             Severity::Error => miette::Severity::Error,
             Severity::Warning => miette::Severity::Warning,
         })
@@ -278,7 +279,7 @@ pub fn render(source: &SourceFile, diags: &Diagnostics, color: bool) -> String {
     let warnings = diags
         .diags
         .iter()
-        .filter(|d| d.severity == Severity::Warning)
+        .filter(|d| d.severity() == Severity::Warning)
         .count();
     let errors = n - warnings;
     if errors > 0 {

@@ -1017,7 +1017,7 @@ impl Lowering {
 /// and the ids it reports are unchanged; coincident copies would otherwise
 /// defeat every bound (none is ever below another) and make each
 /// evaluation visit all of them. O(n log n).
-fn dedup_primitives<'s>(members: Vec<(&'s Shape, Frame)>) -> Vec<(&'s Shape, Frame)> {
+fn dedup_primitives(members: Vec<(&Shape, Frame)>) -> Vec<(&Shape, Frame)> {
     if members.len() < 2 {
         return members;
     }

@@ -211,8 +211,7 @@ pub fn reach_warning(
         Diag::new(codes::MISSES_SCENE, span, message)
             .label("these views see only the background")
             .note(far_span, far_note)
-            .help(help)
-            .warning(),
+            .help(help),
     )
 }
 
