@@ -1011,8 +1011,11 @@ impl Lowering {
     }
 }
 
-/// The members of a union without exact repeats of a primitive (same
-/// shape, transform and material), keeping the first of each. The minimum
+/// The members of a union without exact repeats (same shape, transform
+/// and material), keeping the first of each. Only members with equal keys
+/// (kind, transform, bounds) are compared, at most 8 per key, and the
+/// shapes compared are within the expanded-size budget, so this is
+/// O(n log n) plus a bounded number of comparisons. The minimum
 /// of equal values is that value, and the first attains it, so the union
 /// and the ids it reports are unchanged; coincident copies would otherwise
 /// defeat every bound (none is ever below another) and make each
@@ -1050,7 +1053,6 @@ fn dedup_primitives(members: Vec<(&Shape, Frame)>) -> Vec<(&Shape, Frame)> {
     let mut order: Vec<(usize, (&'static str, Vec<u64>))> = members
         .iter()
         .enumerate()
-        .filter(|(_, m)| m.0.children().is_empty())
         .map(|(i, m)| (i, key(m)))
         .collect();
     order.sort_by(|a, b| a.1.cmp(&b.1).then(a.0.cmp(&b.0)));
@@ -1064,7 +1066,7 @@ fn dedup_primitives(members: Vec<(&Shape, Frame)>) -> Vec<(&Shape, Frame)> {
         let same = |j: &usize| {
             let (a, fa) = &members[*j];
             let (b, fb) = &members[i];
-            a == b
+            (std::ptr::eq(*a, *b) || a == b)
                 && fa.to_local == fb.to_local
                 && fa.scale == fb.scale
                 && match (&fa.material, &fb.material) {
