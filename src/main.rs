@@ -437,6 +437,8 @@ fn run(file: Option<&Path>, out: &Path, options: RunOptions, json: bool) -> Exit
         eprintln!("error[{}]: {e}", sdfl_lang::codes::WORK);
         return ExitCode::FAILURE;
     }
+    // Written under the canonical directory, reported as the user named it.
+    let shown = out;
     let Ok(out) = out_dir(out) else {
         return ExitCode::FAILURE;
     };
@@ -455,7 +457,7 @@ fn run(file: Option<&Path>, out: &Path, options: RunOptions, json: bool) -> Exit
     if json {
         let summary = serde_json::json!({
             "file": src.name,
-            "out_dir": out,
+            "out_dir": shown,
             "load_seconds": load_s,
             "total_seconds": t0.elapsed().as_secs_f64(),
             "jobs": reports,
@@ -465,7 +467,7 @@ fn run(file: Option<&Path>, out: &Path, options: RunOptions, json: bool) -> Exit
     }
     let mut stdout = Stdout::new();
     for r in &reports {
-        summarise(r, out, &mut stdout);
+        summarise(r, shown, &mut stdout);
     }
     ExitCode::SUCCESS
 }
