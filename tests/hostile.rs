@@ -1006,3 +1006,25 @@ fn io_errors_name_the_path_and_the_statement() {
     assert!(o.stderr.contains("sdfl::path"), "{}", head(&o.stderr));
     assert!(!dir.join("out").exists() || fs::read_dir(dir.join("out")).expect("dir").count() == 0);
 }
+
+#[test]
+fn total_work_is_bounded_over_the_whole_file() {
+    // Each statement is within the limits; together they would lower the
+    // same 250 000-primitive scene 100 times.
+    let mut text = String::from(
+        "let s = union(for i in 0..500, j in 0..500 { sphere(0.01, center: [i, j, 0]) })\n",
+    );
+    for k in 0..100 {
+        text += &format!(
+            "render r{k} {{ scene: s, camera: look_at([0, 0, -3]), outputs: [image(\"r{k}.png\")] }}\n"
+        );
+    }
+    for o in hostile("many_statements", &text, Expect::Error) {
+        quick("many statements", &o);
+        assert!(
+            o.stderr.contains("sdfl::limit::work") && o.stderr.contains("primitives to lower"),
+            "{}",
+            head(&o.stderr)
+        );
+    }
+}

@@ -176,6 +176,9 @@ pub struct Evaluator<'e> {
     /// Values replacing top-level `let`s (for sweeps).
     overrides: HashMap<String, Value>,
     sizes: Sizes,
+    /// Estimated evaluations and primitives of the statements so far.
+    total_evaluations: f64,
+    total_primitives: u64,
     /// Every file the program writes so far, for collisions.
     files: crate::outputs::Files,
 }
@@ -192,6 +195,8 @@ impl<'e> Evaluator<'e> {
             defaults: HashMap::new(),
             overrides: HashMap::new(),
             sizes: Sizes::default(),
+            total_evaluations: 0.0,
+            total_primitives: 0,
             files: crate::outputs::Files::default(),
         }
     }
@@ -310,44 +315,65 @@ impl<'e> Evaluator<'e> {
             .name
             .as_ref()
             .map_or(b.kind.span, |n| b.kind.span.to(n.span));
-        match kind {
+        let default_far;
+        let (w, what, scene, reach) = match kind {
             "train" => {
                 let j = program.trains.last().expect("just added");
-                found.extend(work::refuse(
-                    work::train_work(j, None),
-                    span,
-                    "iterations or rays",
-                ));
+                let w = work::train_work(j, None);
+                (w, "iterations or rays", j.model.shape.clone(), None)
             }
             "volume" => {
                 let j = program.volumes.last().expect("just added");
-                found.extend(work::refuse(work::volume_work(j, None), span, "samples"));
-                found.extend(work::reach_warning(
-                    j.field.shape.bounds(),
+                let reach = (
                     &j.cameras,
                     j.sampler.near,
                     j.sampler.far,
-                    field("camera"),
                     (field("sampler"), "the sampler's `far` ends the rays"),
-                ));
+                );
+                (
+                    work::volume_work(j, None),
+                    "samples",
+                    j.field.shape.clone(),
+                    Some(reach),
+                )
             }
             _ => {
                 let j = program.renders.last().expect("just added");
-                found.extend(work::refuse(work::render_work(j, None), span, "iterations"));
-                let default_far = format!("`far` is {} unless given", fmt_num(j.far));
-                found.extend(work::reach_warning(
-                    j.scene.bounds(),
-                    &j.cameras,
-                    j.near,
-                    j.far,
-                    field("camera"),
-                    if field("far") == b.kind.span {
-                        (b.kind.span, default_far.as_str())
-                    } else {
-                        (field("far"), "rays end here")
-                    },
-                ));
+                let prims = self.sizes.shape(&j.scene, 0).primitives;
+                default_far = format!("`far` is {} unless given", fmt_num(j.far));
+                let far_note = if field("far") == b.kind.span {
+                    (b.kind.span, default_far.as_str())
+                } else {
+                    (field("far"), "rays end here")
+                };
+                let reach = (&j.cameras, j.near, j.far, far_note);
+                let w = work::render_work_of(j, None, prims);
+                (w, "iterations", j.scene.clone(), Some(reach))
             }
+        };
+        found.extend(work::refuse(w, span, what));
+        let size = self.sizes.shape(&scene, 0);
+        // Bounds are an expanded walk: worth it for a warning only on
+        // scenes of ordinary size.
+        if let Some((cameras, near, far, note)) = reach.filter(|_| size.nodes <= 1_000_000) {
+            found.extend(work::reach_warning(
+                scene.bounds(),
+                cameras,
+                near,
+                far,
+                field("camera"),
+                note,
+            ));
+        }
+        // Totals over the file: each statement runs, one after another.
+        self.total_evaluations += w.evaluations;
+        self.total_primitives = self.total_primitives.saturating_add(size.primitives);
+        if found.is_empty() {
+            found.extend(work::refuse_total(
+                self.total_evaluations,
+                self.total_primitives,
+                span,
+            ));
         }
         for d in found {
             self.diags.push(d);

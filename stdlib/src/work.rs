@@ -69,12 +69,58 @@ fn bytes_per_pixel(kinds: impl Iterator<Item = OutputKind>, volume: bool) -> f64
 }
 
 pub fn render_work(j: &RenderJob, size: Option<(u32, u32)>) -> Work {
+    render_work_of(j, size, j.scene.primitive_count() as u64)
+}
+
+/// [`render_work`] with the scene's expanded primitive count known.
+pub fn render_work_of(j: &RenderJob, size: Option<(u32, u32)>, primitives: u64) -> Work {
     let px = pixels((j.width, j.height), size);
     Work {
         evaluations: px * j.cameras.len() as f64 * j.iterations as f64,
-        memory: j.scene.primitive_count() as f64 * BYTES_PER_PRIMITIVE as f64
+        memory: primitives as f64 * BYTES_PER_PRIMITIVE as f64
             + px * bytes_per_pixel(j.outputs.iter().map(|o| o.kind.clone()), false),
     }
+}
+
+/// Most evaluations of all statements of a file together.
+pub const MAX_FILE_EVALUATIONS: f64 = 4.0 * MAX_EVALUATIONS;
+/// Most primitives lowered by all statements of a file together (each
+/// statement lowers its scene again).
+pub const MAX_FILE_PRIMITIVES: u64 = 10 * crate::eval::MAX_PRIMITIVES;
+
+/// The diagnostic for a statement that takes a file's totals past the
+/// limits.
+pub fn refuse_total(evaluations: f64, primitives: u64, span: Span) -> Option<Diag> {
+    let (what, help) = if evaluations > MAX_FILE_EVALUATIONS {
+        (
+            format!(
+                "{} SDF evaluations (at most {})",
+                approx(evaluations),
+                fmt_num(MAX_FILE_EVALUATIONS)
+            ),
+            "lower image sizes, views or steps, or split the file",
+        )
+    } else if primitives > MAX_FILE_PRIMITIVES {
+        (
+            format!(
+                "{} primitives to lower (at most {})",
+                approx(primitives as f64),
+                approx(MAX_FILE_PRIMITIVES as f64)
+            ),
+            "render large scenes in fewer statements (several cameras make several views), or split the file",
+        )
+    } else {
+        return None;
+    };
+    Some(
+        Diag::new(
+            codes::WORK,
+            span,
+            format!("with this statement the file would need {what}"),
+        )
+        .label("the statements up to here add up to too much")
+        .help(help),
+    )
 }
 
 pub fn volume_work(j: &VolumeJob, size: Option<(u32, u32)>) -> Work {
