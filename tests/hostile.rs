@@ -1026,5 +1026,7 @@ fn total_work_is_bounded_over_the_whole_file() {
             "{}",
             head(&o.stderr)
         );
+        // Reported once, at the statement that goes over.
+        assert_eq!(o.stderr.matches("sdfl::limit::work").count(), 1);
     }
 }

@@ -179,6 +179,7 @@ pub struct Evaluator<'e> {
     /// Estimated evaluations and primitives of the statements so far.
     total_evaluations: f64,
     total_primitives: u64,
+    total_refused: bool,
     /// Every file the program writes so far, for collisions.
     files: crate::outputs::Files,
 }
@@ -197,6 +198,7 @@ impl<'e> Evaluator<'e> {
             sizes: Sizes::default(),
             total_evaluations: 0.0,
             total_primitives: 0,
+            total_refused: false,
             files: crate::outputs::Files::default(),
         }
     }
@@ -368,12 +370,11 @@ impl<'e> Evaluator<'e> {
         // Totals over the file: each statement runs, one after another.
         self.total_evaluations += w.evaluations;
         self.total_primitives = self.total_primitives.saturating_add(size.primitives);
-        if found.is_empty() {
-            found.extend(work::refuse_total(
-                self.total_evaluations,
-                self.total_primitives,
-                span,
-            ));
+        if found.is_empty() && !self.total_refused {
+            let refused = work::refuse_total(self.total_evaluations, self.total_primitives, span);
+            // Once: every later statement is over too.
+            self.total_refused = refused.is_some();
+            found.extend(refused);
         }
         for d in found {
             self.diags.push(d);
