@@ -601,7 +601,9 @@ fn nested_loops_count_primitives_not_calls() {
     for o in hostile("loops_of_unions", text, Expect::Error) {
         quick("loops of unions", &o);
         assert!(
-            o.stderr.contains("1e9 primitives") && o.stderr.contains("GB of memory"),
+            o.stderr
+                .contains("this loop would make more than 2000000 primitives")
+                && o.stderr.contains("GB of memory"),
             "{}",
             head(&o.stderr)
         );
@@ -1028,5 +1030,34 @@ fn total_work_is_bounded_over_the_whole_file() {
         );
         // Reported once, at the statement that goes over.
         assert_eq!(o.stderr.matches("sdfl::limit::work").count(), 1);
+    }
+}
+
+#[test]
+fn loops_over_big_values_are_charged_for_them() {
+    // A million iterations, each walking a million-item value: 10 GB in
+    // 20 s before (the work budget counted the iteration, not the walk).
+    for (name, text) in [
+        (
+            "arithmetic_on_big_lists",
+            "let big = for i in 0..999999 { i }\nlet x = for i in 0..999999 { big + 1 }\n",
+        ),
+        (
+            "union_of_a_big_list_in_a_loop",
+            "let big = for i in 0..500000 { sphere(0.1, center: [i, 0, 0]) }\nlet x = for i in 0..1000000 { union(big) }\n",
+        ),
+        (
+            "many_cameras_in_a_loop",
+            "let cams = orbit(radius: 3, views: 10000)\nlet x = for i in 0..1000000 { render_views(sdf_volume(sphere()), cameras: cams) }\n",
+        ),
+        (
+            "loop_of_shared_scenes",
+            "let a = union(for i in 0..1000 { sphere(0.1, center: [i, 0, 0]) })\nlet x = for i in 0..1000000 { a.translate([0, i, 0]) }\n",
+        ),
+    ] {
+        for o in hostile(name, text, Expect::Error) {
+            quick(name, &o);
+            assert!(o.stderr.contains("sdfl::limit::too-large"), "{name}: {}", head(&o.stderr));
+        }
     }
 }

@@ -44,6 +44,9 @@ pub struct Size {
     pub primitives: u64,
     /// Nodes on the longest path from the root (a scalar is 1).
     pub depth: usize,
+    /// Items of lists, nested lists included (not what shapes hold): what
+    /// a builtin flattening a list argument walks.
+    pub items: u64,
 }
 
 impl Size {
@@ -51,6 +54,7 @@ impl Size {
         nodes: 1,
         primitives: 0,
         depth: 1,
+        items: 0,
     };
     /// A node over `children` (saturating: expanded sizes of shared values
     /// grow exponentially with the sharing depth).
@@ -59,11 +63,13 @@ impl Size {
             nodes: 1,
             primitives: primitive as u64,
             depth: 0,
+            items: 0,
         };
         for c in children {
             s.nodes = s.nodes.saturating_add(c.nodes);
             s.primitives = s.primitives.saturating_add(c.primitives);
             s.depth = s.depth.max(c.depth);
+            s.items = s.items.saturating_add(c.items);
         }
         s.depth = s.depth.saturating_add(1);
         s
@@ -105,7 +111,8 @@ impl Sizes {
                     return *s;
                 }
                 let sizes: Vec<Size> = items.iter().map(|i| self.value(i, level + 1)).collect();
-                let s = Size::node(sizes, false);
+                let mut s = Size::node(sizes, false);
+                s.items = s.items.saturating_add(items.len() as u64);
                 // Short lists of scalars (vectors) are cheaper to measure
                 // again than to keep alive in the memo.
                 if items.len() > SMALL_LIST || s.depth > 2 {
@@ -114,7 +121,10 @@ impl Sizes {
                 s
             }
             Value::Shape(sh) => self.shape(sh, level),
-            Value::Field(f) => Size::node([self.shape(&f.shape, level + 1)], false),
+            Value::Field(f) => Size {
+                items: 0,
+                ..Size::node([self.shape(&f.shape, level + 1)], false)
+            },
             Value::Param(inner) => Size::node([self.value(inner, level + 1)], false),
             _ => Size::SCALAR,
         }
@@ -250,7 +260,15 @@ impl<'e> Evaluator<'e> {
     }
 
     fn spend(&mut self, span: Span) -> bool {
-        self.work += 1;
+        self.spend_n(1, span)
+    }
+
+    /// Spends `n` units of work: a loop iteration or call is one, and the
+    /// items of lists passed to calls or combined by arithmetic one each
+    /// (builtins and arithmetic walk them; a loop over `union(big)` costs
+    /// the size of `big` every time).
+    fn spend_n(&mut self, n: u64, span: Span) -> bool {
+        self.work = self.work.saturating_add(n);
         if self.work > MAX_WORK && !self.aborted {
             self.aborted = true;
             self.diags.push(
@@ -260,7 +278,7 @@ impl<'e> Evaluator<'e> {
                     format!("the scene needs more than {MAX_WORK} loop iterations and calls"),
                 )
                 .label("evaluation stopped here")
-                .help("reduce the loop counts; sdfl scenes are meant to stay below a million primitives"),
+                .help("reduce the loop counts (lists passed to calls count one per item); sdfl scenes are meant to stay below a million primitives"),
             );
         }
         !self.aborted
@@ -480,7 +498,8 @@ impl<'e> Evaluator<'e> {
             ExprKind::For { bindings, body } => {
                 let mut out = Vec::new();
                 self.locals.push(HashMap::new());
-                self.comprehension(bindings, body, e.span, &mut out);
+                let mut acc = Size::node([], false);
+                self.comprehension(bindings, body, e.span, &mut out, &mut acc);
                 self.locals.pop();
                 if out.iter().any(|i| matches!(i, Value::Poison)) {
                     return Value::Poison;
@@ -490,13 +509,17 @@ impl<'e> Evaluator<'e> {
         }
     }
 
+    /// Unrolls a loop into `out`; false once it must stop. `acc` is the
+    /// expanded size of `out` so far: a loop is stopped as soon as its
+    /// list grows past the limits, before it holds terabytes.
     fn comprehension(
         &mut self,
         bindings: &[Binding],
         body: &Body,
         span: Span,
         out: &mut Vec<Value>,
-    ) {
+        acc: &mut Size,
+    ) -> bool {
         let Some((first, rest)) = bindings.split_first() else {
             self.locals.push(HashMap::new());
             for l in &body.lets {
@@ -506,9 +529,33 @@ impl<'e> Evaluator<'e> {
                     .expect("pushed")
                     .insert(l.name.name.clone(), v);
             }
-            out.push(self.expr(&body.value));
+            let v = self.expr(&body.value);
             self.locals.pop();
-            return;
+            let size = self.sizes.of(&v);
+            *acc = Size::node([*acc, size], false);
+            if let Some(mut d) = size_error(*acc, span) {
+                // Stopped early: the whole loop would be larger still.
+                let what = if acc.primitives > MAX_PRIMITIVES {
+                    format!("{} primitives", fmt_count(MAX_PRIMITIVES))
+                } else {
+                    format!("{} items", fmt_count(MAX_NODES))
+                };
+                d.message = format!("this loop would make more than {what} once expanded");
+                d.label = format!(
+                    "{} primitives and {} items after {} iterations, about {} of memory",
+                    fmt_count(acc.primitives),
+                    fmt_count(acc.nodes),
+                    out.len() + 1,
+                    fmt_bytes(
+                        acc.primitives as f64 * BYTES_PER_PRIMITIVE as f64
+                            + acc.nodes as f64 * 32.0
+                    )
+                );
+                out.push(self.error(d));
+                return false;
+            }
+            out.push(v);
+            return true;
         };
         let items: Vec<Value> = match &first.source {
             Source::Range {
@@ -519,7 +566,7 @@ impl<'e> Evaluator<'e> {
                 let (s, t) = (self.expr(start), self.expr(end));
                 let (Value::Number(s), Value::Number(t)) = (s, t) else {
                     out.push(Value::Poison);
-                    return;
+                    return false;
                 };
                 let count = if *inclusive {
                     (t - s).floor() + 1.0
@@ -542,7 +589,7 @@ impl<'e> Evaluator<'e> {
                         .help("sdfl scenes are meant to stay below a million primitives"),
                     );
                     out.push(Value::Poison);
-                    return;
+                    return false;
                 }
                 (0..count as u64)
                     .map(|k| Value::Number(s + k as f64))
@@ -552,7 +599,7 @@ impl<'e> Evaluator<'e> {
                 Value::List(items) => items.as_ref().clone(),
                 Value::Poison => {
                     out.push(Value::Poison);
-                    return;
+                    return false;
                 }
                 other => {
                     let d = Diag::new(
@@ -563,20 +610,23 @@ impl<'e> Evaluator<'e> {
                     .label("not a list")
                     .help("loop over a range `0..n` or a list `[...]`");
                     out.push(self.error(d));
-                    return;
+                    return false;
                 }
             },
         };
         for item in items {
             if !self.spend(span) {
-                return;
+                return false;
             }
             self.locals
                 .last_mut()
                 .expect("pushed by caller")
                 .insert(first.var.name.clone(), item);
-            self.comprehension(rest, body, span, out);
+            if !self.comprehension(rest, body, span, out, acc) {
+                return false;
+            }
         }
+        true
     }
 
     fn arith(&mut self, op: BinOp, l: Value, r: Value, span: Span, rhs_span: Span) -> Value {
@@ -617,6 +667,9 @@ impl<'e> Evaluator<'e> {
             .help("arithmetic applies to numbers and vectors");
             return self.error(d);
         };
+        if !self.spend_n(a.len().max(b.len()) as u64 - 1, span) {
+            return Value::Poison;
+        }
         let scalar = matches!((&l, &r), (Value::Number(_), Value::Number(_)));
         let result: Vec<f64> = match (a.len(), b.len()) {
             _ if scalar => vec![apply(a[0], b[0])],
@@ -687,6 +740,15 @@ impl<'e> Evaluator<'e> {
         if poisoned {
             return Value::Poison;
         }
+        let walked: u64 = bound
+            .named
+            .values()
+            .chain(&bound.rest)
+            .map(|(v, _)| self.sizes.of(v).items)
+            .fold(0, u64::saturating_add);
+        if !self.spend_n(walked, span) {
+            return Value::Poison;
+        }
         for p in &sig.params {
             if let (false, Some(src)) = (bound.named.contains_key(p.name), p.default) {
                 let v = self.default_value(sig.name, p.name, src);
@@ -714,46 +776,56 @@ impl<'e> Evaluator<'e> {
                 .help("build long sequences with `for` and `union` instead of chaining `let`s"),
             );
         }
-        if size.primitives > MAX_PRIMITIVES {
-            let bytes = size.primitives as f64 * BYTES_PER_PRIMITIVE as f64;
-            return self.error(
-                Diag::new(
-                    codes::TOO_LARGE,
-                    span,
-                    format!(
-                        "this scene would have {} primitives once expanded (at most {})",
-                        fmt_count(size.primitives),
-                        fmt_count(MAX_PRIMITIVES)
-                    ),
-                )
-                .label(format!(
-                    "{} primitives, about {} of memory",
-                    fmt_count(size.primitives),
-                    fmt_bytes(bytes)
-                ))
-                .help(
-                    "every use of a shape is a copy when rendered (`union(a, a)` holds `a` twice): \
-                     reduce the loop counts or the repetition",
-                ),
-            );
+        match size_error(size, span) {
+            Some(d) => self.error(d),
+            None => v,
         }
-        if size.nodes > MAX_NODES {
-            return self.error(
-                Diag::new(
-                    codes::TOO_LARGE,
-                    span,
-                    format!(
-                        "this value would have {} items once expanded (at most {})",
-                        fmt_count(size.nodes),
-                        fmt_count(MAX_NODES)
-                    ),
-                )
-                .label("too many items")
-                .help("every use of a list or shape is a copy: reduce the loop counts or the repetition"),
-            );
-        }
-        v
     }
+}
+
+/// The diagnostic for a value whose expanded size is over the limits.
+fn size_error(size: Size, span: Span) -> Option<Diag> {
+    if size.primitives > MAX_PRIMITIVES {
+        let bytes = size.primitives as f64 * BYTES_PER_PRIMITIVE as f64;
+        return Some(
+            Diag::new(
+                codes::TOO_LARGE,
+                span,
+                format!(
+                    "this scene would have {} primitives once expanded (at most {})",
+                    fmt_count(size.primitives),
+                    fmt_count(MAX_PRIMITIVES)
+                ),
+            )
+            .label(format!(
+                "{} primitives, about {} of memory",
+                fmt_count(size.primitives),
+                fmt_bytes(bytes)
+            ))
+            .help(
+                "every use of a shape is a copy when rendered (`union(a, a)` holds `a` twice): \
+                     reduce the loop counts or the repetition",
+            ),
+        );
+    }
+    if size.nodes > MAX_NODES {
+        return Some(
+            Diag::new(
+                codes::TOO_LARGE,
+                span,
+                format!(
+                    "this value would have {} items once expanded (at most {})",
+                    fmt_count(size.nodes),
+                    fmt_count(MAX_NODES)
+                ),
+            )
+            .label("too many items")
+            .help(
+                "every use of a list or shape is a copy: reduce the loop counts or the repetition",
+            ),
+        );
+    }
+    None
 }
 
 /// A count in a message: exact below a billion, else short scientific
