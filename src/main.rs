@@ -234,14 +234,31 @@ fn main() -> ExitCode {
     }
 }
 
+/// Largest scene file read (a megabyte of source is already extreme).
+const MAX_SOURCE_BYTES: u64 = 64 << 20;
+
+/// Reads a scene file: a regular file (not a FIFO or `/dev/zero`, which
+/// would block or never end) of at most [`MAX_SOURCE_BYTES`].
 fn read(path: &Path) -> Result<SourceFile, ()> {
-    match std::fs::read(path) {
+    use std::io::Read;
+    let bytes = sdfl_runtime::data::image::open_regular(path).and_then(|f| {
+        let mut bytes = Vec::new();
+        f.take(MAX_SOURCE_BYTES + 1).read_to_end(&mut bytes)?;
+        if bytes.len() as u64 > MAX_SOURCE_BYTES {
+            return Err(std::io::Error::other(format!(
+                "{}: larger than {MAX_SOURCE_BYTES} bytes",
+                path.display()
+            )));
+        }
+        Ok(bytes)
+    });
+    match bytes {
         Ok(bytes) => {
             let text = String::from_utf8_lossy(&bytes).into_owned();
             Ok(SourceFile::new(path.display().to_string(), text))
         }
         Err(e) => {
-            eprintln!("error[sdfl::io]: cannot read {}: {e}", path.display());
+            eprintln!("error[sdfl::io]: cannot read the scene file: {e}\n  help: give the path of a .sdfl file");
             Err(())
         }
     }

@@ -1061,3 +1061,44 @@ fn loops_over_big_values_are_charged_for_them() {
         }
     }
 }
+
+#[cfg(unix)]
+#[test]
+fn special_scene_files_are_refused() {
+    // `sdfl check /dev/zero` read forever; a FIFO blocked.
+    let dir = case_dir("special_scene");
+    let fifo = dir.join("fifo.sdfl");
+    let mut cases = vec![PathBuf::from("/dev/zero")];
+    if Command::new("mkfifo")
+        .arg(&fifo)
+        .status()
+        .is_ok_and(|s| s.success())
+    {
+        cases.push(fifo);
+    }
+    for case in cases {
+        for cmd in ["check", "run"] {
+            let o = sdfl(&dir, &[cmd, case.to_str().expect("UTF-8")]);
+            assert_outcome(cmd, &o, Expect::Error);
+            quick(cmd, &o);
+            assert!(
+                o.stderr.contains("not a regular file"),
+                "{}",
+                head(&o.stderr)
+            );
+        }
+    }
+}
+
+#[test]
+fn output_names_too_long_for_the_file_system_are_refused_early() {
+    let long = "a".repeat(300);
+    let text = render_with("").replace("r.png", &format!("{long}.png"));
+    for o in hostile("long_output_name", &text, Expect::Error) {
+        assert!(
+            o.stderr.contains("sdfl::path::escape"),
+            "{}",
+            head(&o.stderr)
+        );
+    }
+}

@@ -15,6 +15,10 @@ use crate::value::{Output, OutputKind, Program};
 
 /// Most files one scene file may write (all statements, all views).
 pub const MAX_FILES: u64 = 100_000;
+/// Longest file or directory name, and whole relative path, of an output
+/// (the usual file system limits are 255 and 4096).
+pub const MAX_NAME_BYTES: usize = 255;
+pub const MAX_PATH_BYTES: usize = 1024;
 
 /// The file name for view `k` of `n`: `{view}` is replaced by the padded
 /// index; otherwise `_NN` is added before the extension when `n > 1`.
@@ -229,6 +233,24 @@ pub fn check_job(
         )
         .label("one file per output and view")
         .help("use fewer views, or a `gif(...)` output, which holds every view in one file")];
+    }
+    // Names the file system refuses fail here, not after rendering.
+    if let Some((path, span, _)) = claims.iter().find(|(p, _, _)| {
+        p.as_os_str().len() > MAX_PATH_BYTES
+            || p.components().any(|c| c.as_os_str().len() > MAX_NAME_BYTES)
+    }) {
+        return vec![Diag::new(
+            codes::PATH,
+            *span,
+            format!(
+                "output path of {} bytes is too long",
+                path.as_os_str().len()
+            ),
+        )
+        .label("too long a name")
+        .help(format!(
+            "keep each name within {MAX_NAME_BYTES} bytes and the whole path within {MAX_PATH_BYTES}"
+        ))];
     }
     // One diagnostic per pair of clashing outputs, not one per view.
     let mut seen = std::collections::HashSet::new();
