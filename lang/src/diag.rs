@@ -317,3 +317,39 @@ pub fn suggest<'a>(name: &str, candidates: impl IntoIterator<Item = &'a str>) ->
         .min_by_key(|(d, c)| (*d, *c))
         .map(|(_, c)| c)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn numbers_print_short() {
+        assert_eq!(fmt_num(1e308), "1e308");
+        assert_eq!(fmt_num(-1e-46), "-1e-46");
+        assert_eq!(fmt_num(0.25), "0.25");
+        assert_eq!(fmt_num(1_000_000.0), "1000000");
+        assert_eq!(fmt_num(2.5e9), "2.5e9");
+        assert_eq!(fmt_num(0.0), "0");
+        assert_eq!(fmt_num(f64::INFINITY), "inf");
+    }
+
+    #[test]
+    fn warnings_do_not_count_as_errors() {
+        let mut d = Diagnostics::default();
+        d.push(
+            Diag::new(codes::MISSES_SCENE, Span::new(0, 1), "w")
+                .label("l")
+                .help("h"),
+        );
+        assert!(!d.has_errors());
+        let src = SourceFile::new("f", "x");
+        assert!(render(&src, &d, false).ends_with("1 warning in f\n"));
+        d.push(
+            Diag::new(codes::VALUE, Span::new(0, 1), "e")
+                .label("l")
+                .help("h"),
+        );
+        assert!(d.has_errors());
+        assert!(render(&src, &d, false).ends_with("1 error in f\n"));
+    }
+}

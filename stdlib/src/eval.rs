@@ -142,8 +142,7 @@ impl Sizes {
             };
         }
         let children = sh.children();
-        let leaf = children.is_empty();
-        if leaf {
+        if children.is_empty() {
             // Measured in O(1); not kept alive by the memo.
             return Size::node([], true);
         }
@@ -151,7 +150,7 @@ impl Sizes {
             .into_iter()
             .map(|c| self.shape(c, level + 1))
             .collect();
-        let s = Size::node(sizes, leaf);
+        let s = Size::node(sizes, false);
         self.shapes.insert(key, (sh.clone(), s));
         s
     }
