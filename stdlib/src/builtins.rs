@@ -14,6 +14,7 @@ use sdfl_lang::Span;
 use crate::camera::{Camera, OrbitUp, PixelCenters};
 use crate::eval::describe;
 use crate::material::Material;
+use crate::precision::{beta, f32_range};
 use crate::shape::{Shape, TrainParam};
 use crate::value::{
     Dataset, DensityKind, Field, Optimizer, Output, OutputKind, RenderJob, Sampler, TrainJob,
@@ -56,41 +57,6 @@ fn value_error(
         .label(label)
         .help(help)
 }
-
-/// Magnitudes the f32 runtime represents with room to spare: beyond them a
-/// value would flush to zero or overflow (an all-black image, not an error).
-pub const F32_SAFE: (f64, f64) = (1e-30, 1e18);
-
-/// `x`, unless it is a nonzero number outside [`F32_SAFE`].
-fn f32_range(x: f64, span: Span, name: &str) -> Result<f64, Diag> {
-    let (lo, hi) = F32_SAFE;
-    if x == 0.0 || (lo..=hi).contains(&x.abs()) {
-        return Ok(x);
-    }
-    let (what, becomes) = if x.abs() < lo {
-        ("small", "zero")
-    } else {
-        ("large", "infinity")
-    };
-    Err(Diag::new(
-        codes::PRECISION,
-        span,
-        format!(
-            "`{name}` is {}, too {what} for the renderer's 32-bit floats",
-            sdfl_lang::fmt_num(x)
-        ),
-    )
-    .label(format!("would become {becomes}"))
-    .help(format!(
-        "use 0 or a magnitude from {} to {}",
-        sdfl_lang::fmt_num(lo),
-        sdfl_lang::fmt_num(hi)
-    )))
-}
-
-/// Smallest `beta` of a density: below it the density is a step function
-/// whose gradients vanish in f32.
-pub const MIN_BETA: f64 = 1e-6;
 
 fn type_error(span: Span, want: &str, got: &Value) -> Diag {
     Diag::new(
@@ -978,24 +944,7 @@ fn field(a: &Args, density: DensityKind) -> Result<Value, Diag> {
         shape: a.shape("shape")?,
         density,
         alpha,
-        beta: match a.positive("beta")? {
-            b if b < MIN_BETA => {
-                return Err(value_error(
-                    a.get("beta").1,
-                    format!(
-                        "`beta` is {}, below {}",
-                        sdfl_lang::fmt_num(b),
-                        sdfl_lang::fmt_num(MIN_BETA)
-                    ),
-                    "too sharp for f32",
-                    format!(
-                        "use `beta` ≥ {} (0.05 is typical)",
-                        sdfl_lang::fmt_num(MIN_BETA)
-                    ),
-                ))
-            }
-            b => b,
-        },
+        beta: beta(a.positive("beta")?, a.get("beta").1)?,
         color,
     })))
 }

@@ -10,6 +10,7 @@ pub mod camera;
 pub mod eval;
 pub mod material;
 pub mod outputs;
+pub mod precision;
 pub mod shape;
 pub mod value;
 pub mod work;
