@@ -81,6 +81,53 @@ enum Command {
     Docs { name: Option<String> },
 }
 
+/// Most worker threads per core: more only spend time spawning and
+/// switching (100 000 threads took a minute to start).
+const THREADS_PER_CORE: usize = 4;
+
+/// `--threads`, clamped to 1..=THREADS_PER_CORE × cores with a warning.
+fn clamp_threads(n: usize) -> usize {
+    let cores = std::thread::available_parallelism().map_or(1, |c| c.get());
+    let max = cores * THREADS_PER_CORE;
+    if n == 0 || n > max {
+        let to = n.clamp(1, max);
+        eprintln!(
+            "warning[sdfl::arg::threads]: --threads {n} is outside 1..={max} ({THREADS_PER_CORE} per core on {cores} cores); using {to}"
+        );
+        to
+    } else {
+        n
+    }
+}
+
+/// Lines on stdout. A closed pipe (`sdfl run | head -0`) is a normal end:
+/// the reader wants no more, so the rest is dropped and sdfl exits 0.
+struct Stdout {
+    closed: bool,
+}
+
+impl Stdout {
+    fn new() -> Self {
+        Stdout { closed: false }
+    }
+    fn print(&mut self, text: &str) {
+        use std::io::Write;
+        if self.closed {
+            return;
+        }
+        let mut out = std::io::stdout().lock();
+        if let Err(e) = out.write_all(text.as_bytes()).and_then(|_| out.flush()) {
+            if e.kind() != std::io::ErrorKind::BrokenPipe {
+                eprintln!("warning[sdfl::io]: cannot write to stdout: {e}");
+            }
+            self.closed = true;
+        }
+    }
+    fn line(&mut self, text: &str) {
+        self.print(&format!("{text}\n"));
+    }
+}
+
 fn parse_size(s: &str) -> Result<(u32, u32), String> {
     let (w, h) = s
         .split_once(['x', 'X'])
@@ -117,8 +164,9 @@ fn main() -> ExitCode {
             restart,
         } => {
             if let Some(n) = threads {
+                let n = clamp_threads(n);
                 if let Err(e) = rayon::ThreadPoolBuilder::new()
-                    .num_threads(n.max(1))
+                    .num_threads(n)
                     .build_global()
                 {
                     eprintln!("error[sdfl::io]: cannot set up {n} threads: {e}");
@@ -154,7 +202,7 @@ fn main() -> ExitCode {
             let Ok(program) = read(&file).and_then(|s| load(&s)) else {
                 return ExitCode::FAILURE;
             };
-            print!("{}", plan_text(&program));
+            Stdout::new().print(&plan_text(&program));
             ExitCode::SUCCESS
         }
         Command::Sweep {
@@ -174,20 +222,24 @@ fn main() -> ExitCode {
                 (-32.5f64).exp(),
                 (-2.5f64).exp(),
             ];
+            let mut stdout = Stdout::new();
             for ((n, v), e) in names.iter().zip(t).zip(exact) {
-                println!(
+                stdout.line(&format!(
                     "{n:<10} = {v:.4e}   (exact {e:.4e}, relative error {:.1e})",
                     (v - e).abs() / e
-                );
+                ));
             }
+            let Ok(out) = out_dir(&out) else {
+                return ExitCode::FAILURE;
+            };
             let path = out.join("transmittance.png");
             match sdfl_runtime::output::write_png(&path, w, h, &rgb) {
                 Ok(()) => {
-                    println!("{}", path.display());
+                    stdout.line(&path.display().to_string());
                     ExitCode::SUCCESS
                 }
                 Err(e) => {
-                    eprintln!("error[sdfl::io]: writing {}: {e}", path.display());
+                    eprintln!("error[sdfl::io]: {e}");
                     ExitCode::FAILURE
                 }
             }
@@ -195,26 +247,132 @@ fn main() -> ExitCode {
     }
 }
 
+/// Largest scene file read (a megabyte of source is already extreme).
+const MAX_SOURCE_BYTES: u64 = 64 << 20;
+
+/// Reads a scene file: a regular file (not a FIFO or `/dev/zero`, which
+/// would block or never end) of at most [`MAX_SOURCE_BYTES`].
 fn read(path: &Path) -> Result<SourceFile, ()> {
-    match std::fs::read(path) {
+    use std::io::Read;
+    let bytes = sdfl_runtime::data::image::open_regular(path).and_then(|f| {
+        let mut bytes = Vec::new();
+        f.take(MAX_SOURCE_BYTES + 1).read_to_end(&mut bytes)?;
+        if bytes.len() as u64 > MAX_SOURCE_BYTES {
+            return Err(std::io::Error::other(format!(
+                "{}: larger than {MAX_SOURCE_BYTES} bytes",
+                path.display()
+            )));
+        }
+        Ok(bytes)
+    });
+    match bytes {
         Ok(bytes) => {
             let text = String::from_utf8_lossy(&bytes).into_owned();
             Ok(SourceFile::new(path.display().to_string(), text))
         }
         Err(e) => {
-            eprintln!("error[sdfl::io]: cannot read {}: {e}", path.display());
+            eprintln!("error[sdfl::io]: cannot read the scene file: {e}\n  help: give the path of a .sdfl file");
             Err(())
         }
     }
 }
 
+/// Loads a file, printing its diagnostics: errors fail, warnings do not.
 fn load(src: &SourceFile) -> Result<sdfl_stdlib::Program, ()> {
-    sdfl_stdlib::load(src).map_err(|diags| {
-        eprint!(
-            "{}",
-            sdfl_lang::render(src, &diags, std::io::stderr().is_terminal())
-        );
-    })
+    let color = std::io::stderr().is_terminal();
+    match sdfl_stdlib::load_warned(src) {
+        Ok((program, warnings)) => {
+            if !warnings.is_empty() {
+                eprint!("{}", sdfl_lang::render(src, &warnings, color));
+            }
+            Ok(program)
+        }
+        Err(diags) => {
+            eprint!("{}", sdfl_lang::render(src, &diags, color));
+            Err(())
+        }
+    }
+}
+
+/// Creates the output directory and returns its canonical path: outputs
+/// are confined to it (no link inside it is followed; see
+/// `sdfl_runtime::output`).
+fn out_dir(out: &Path) -> Result<PathBuf, ()> {
+    let made = sdfl_runtime::output::ensure_dir(out).or_else(|e| {
+        // `--out` itself may be a link the user chose; follow that one.
+        if out.is_dir() {
+            Ok(())
+        } else {
+            Err(e)
+        }
+    });
+    match made.and_then(|()| std::fs::canonicalize(out)) {
+        Ok(p) => Ok(p),
+        Err(e) => {
+            eprintln!(
+                "error[sdfl::io]: cannot use {} as the output directory: {e}\n  help: give `--out` a directory that can be created and written",
+                out.display()
+            );
+            Err(())
+        }
+    }
+}
+
+/// A run-time error as a diagnostic at the statement that failed.
+fn runtime_error(src: &SourceFile, job: &str, e: &std::io::Error) -> String {
+    use std::io::ErrorKind as K;
+    let help = match e.kind() {
+        K::PermissionDenied => {
+            "check that the output directory (`--out`) is writable and holds no symbolic links"
+        }
+        K::AlreadyExists => "something else is in the way: choose another `--out`, or move it",
+        K::InvalidData | K::InvalidInput => "check the files this statement reads",
+        K::NotFound => {
+            "check that the files this statement reads exist (paths are relative to the scene file)"
+        }
+        _ => "the message names the file concerned",
+    };
+    let span = statement_span(src, job);
+    let diag = sdfl_lang::Diag::new(
+        sdfl_lang::codes::IO,
+        span.unwrap_or_default(),
+        e.to_string(),
+    )
+    .label(format!("while running `{job}`"))
+    .help(help);
+    let mut diags = sdfl_lang::Diagnostics::default();
+    diags.push(diag);
+    if span.is_some() {
+        sdfl_lang::render(src, &diags, std::io::stderr().is_terminal())
+    } else {
+        format!(
+            "error[{}]: `{job}`: {e}\n  help: {help}\n",
+            sdfl_lang::codes::IO
+        )
+    }
+}
+
+/// The span of the statement named `job` (as `stdlib::eval` names them:
+/// its name, or its kind and index).
+fn statement_span(src: &SourceFile, job: &str) -> Option<sdfl_lang::Span> {
+    let file = sdfl_lang::parse::parse(&src.text).ok()?;
+    file.items
+        .iter()
+        .filter_map(|i| match i {
+            sdfl_lang::ast::Item::Block(b) => Some(b),
+            _ => None,
+        })
+        .enumerate()
+        .find(|(k, b)| {
+            b.name
+                .as_ref()
+                .map_or_else(|| format!("{}{k}", b.kind.name) == job, |n| n.name == job)
+        })
+        .map(|(_, b)| {
+            b.name
+                .as_ref()
+                .map_or(b.kind.span, |n| b.kind.span.to(n.span))
+        })
 }
 
 /// Run every statement of a program, returning one JSON report per job.
@@ -224,9 +382,9 @@ fn execute(
     options: RunOptions,
     base: &Path,
     bar: &ProgressBar,
-) -> Result<Vec<serde_json::Value>, String> {
+) -> Result<Vec<serde_json::Value>, (String, std::io::Error)> {
     let mut reports = Vec::new();
-    let io = |name: &str, e: std::io::Error| format!("error[sdfl::io]: `{name}`: {e}");
+    let io = |name: &str, e: std::io::Error| (name.to_string(), e);
     for job in &program.renders {
         bar.set_message(job.name.clone());
         let r = run_job(job, out, options, &|n| bar.inc(n)).map_err(|e| io(&job.name, e))?;
@@ -308,13 +466,23 @@ fn run(file: Option<&Path>, out: &Path, options: RunOptions, json: bool) -> Exit
     let Ok(program) = load(&src) else {
         return ExitCode::FAILURE;
     };
+    if let Err(e) = sdfl_stdlib::work::check_program(&program, options.size) {
+        eprintln!("error[{}]: {e}", sdfl_lang::codes::WORK);
+        return ExitCode::FAILURE;
+    }
+    // Written under the canonical directory, reported as the user named it.
+    let shown = out;
+    let Ok(out) = out_dir(out) else {
+        return ExitCode::FAILURE;
+    };
+    let out = out.as_path();
     let load_s = t0.elapsed().as_secs_f64();
     let bar = progress_bar(work(&program, options.size), json);
     let reports = match execute(&program, out, options, &base_dir(file), &bar) {
         Ok(r) => r,
-        Err(e) => {
+        Err((job, e)) => {
             bar.abandon();
-            eprintln!("{e}");
+            eprint!("{}", runtime_error(&src, &job, &e));
             return ExitCode::FAILURE;
         }
     };
@@ -322,25 +490,23 @@ fn run(file: Option<&Path>, out: &Path, options: RunOptions, json: bool) -> Exit
     if json {
         let summary = serde_json::json!({
             "file": src.name,
-            "out_dir": out,
+            "out_dir": shown,
             "load_seconds": load_s,
             "total_seconds": t0.elapsed().as_secs_f64(),
             "jobs": reports,
         });
-        println!(
-            "{}",
-            serde_json::to_string_pretty(&summary).expect("serialisable")
-        );
+        Stdout::new().line(&serde_json::to_string_pretty(&summary).expect("serialisable"));
         return ExitCode::SUCCESS;
     }
+    let mut stdout = Stdout::new();
     for r in &reports {
-        summarise(r, out);
+        summarise(r, shown, &mut stdout);
     }
     ExitCode::SUCCESS
 }
 
 /// A human summary of one job's JSON report on stderr; written paths on stdout.
-fn summarise(r: &serde_json::Value, out: &Path) {
+fn summarise(r: &serde_json::Value, out: &Path, stdout: &mut Stdout) {
     let rep = &r["report"];
     let stages: Vec<String> = rep["stages"]
         .as_array()
@@ -404,7 +570,11 @@ fn summarise(r: &serde_json::Value, out: &Path) {
         _ => {}
     }
     for w in rep["written"].as_array().into_iter().flatten() {
-        println!("{}", out.join(w["path"].as_str().unwrap_or("")).display());
+        stdout.line(
+            &out.join(w["path"].as_str().unwrap_or(""))
+                .display()
+                .to_string(),
+        );
     }
 }
 
@@ -448,6 +618,11 @@ fn plan_text(program: &sdfl_stdlib::Program) -> String {
         row(&mut o, "normals", &normals);
         row(&mut o, "hit mask", &plan.mask);
         let _ = writeln!(o, "  gradient tape  none (not training)");
+        let _ = writeln!(
+            o,
+            "  work           {}",
+            sdfl_stdlib::work::render_work(job, None).describe()
+        );
     }
     for job in &program.volumes {
         let names = |pred: &dyn Fn(&sdfl_stdlib::OutputKind) -> bool| -> Vec<String> {
@@ -490,6 +665,11 @@ fn plan_text(program: &sdfl_stdlib::Program) -> String {
             &names(&|k| matches!(k, K::Grid | K::Rays | K::SamplePoints)),
         );
         let _ = writeln!(o, "  gradient tape  none (not training)");
+        let _ = writeln!(
+            o,
+            "  work           {}",
+            sdfl_stdlib::work::volume_work(job, None).describe()
+        );
     }
     for job in &program.trains {
         let _ = writeln!(o, "train {}", job.name);
@@ -576,6 +756,11 @@ fn plan_text(program: &sdfl_stdlib::Program) -> String {
             job.before.len(),
             job.after.len()
         );
+        let _ = writeln!(
+            o,
+            "  work           {}",
+            sdfl_stdlib::work::train_work(job, None).describe()
+        );
     }
     o
 }
@@ -648,6 +833,10 @@ fn sweep(
     let Ok(src) = read(file) else {
         return ExitCode::FAILURE;
     };
+    let Ok(out) = out_dir(out) else {
+        return ExitCode::FAILURE;
+    };
+    let out = out.as_path();
     let mut rows = Vec::new();
     for v in values {
         let program = match sdfl_stdlib::load_with(&src, &[(name.to_string(), *v)]) {
@@ -687,9 +876,9 @@ fn sweep(
                 bar.finish_and_clear();
                 rows.push((*v, t.elapsed().as_secs_f64(), dir, reports));
             }
-            Err(e) => {
+            Err((job, e)) => {
                 bar.abandon();
-                eprintln!("{e}");
+                eprint!("{}", runtime_error(&src, &job, &e));
                 return ExitCode::FAILURE;
             }
         }
@@ -745,7 +934,7 @@ fn sweep(
             points.push((*secs, y));
         }
     }
-    print!("{table}");
+    Stdout::new().print(&table);
     let write = |rel: &str, bytes: &[u8]| -> std::io::Result<()> {
         let mut f = sdfl_runtime::output::Atomic::create(&out.join(rel))?;
         std::io::Write::write_all(f.writer(), bytes)?;
@@ -777,32 +966,33 @@ fn sweep(
 
 fn docs(name: Option<&str>) -> ExitCode {
     let env = sdfl_stdlib::StdEnv::get();
+    let mut o = Stdout::new();
     match name {
         None => {
             for b in env.blocks() {
-                println!("{:<20} statement: {}", b.kind, b.doc);
+                o.line(&format!("{:<20} statement: {}", b.kind, b.doc));
             }
             for b in env.builtins() {
-                println!("{:<20} {}", b.sig.name, b.sig.doc);
+                o.line(&format!("{:<20} {}", b.sig.name, b.sig.doc));
             }
             ExitCode::SUCCESS
         }
         Some(n) => {
             if let Some(b) = env.builtin(n) {
-                println!("{}\n\n{}\n", b.sig.synopsis(), b.sig.doc);
+                o.line(&format!("{}\n\n{}\n", b.sig.synopsis(), b.sig.doc));
                 for p in &b.sig.params {
-                    println!("  {:<12} {}", p.name, p.doc);
+                    o.line(&format!("  {:<12} {}", p.name, p.doc));
                 }
                 return ExitCode::SUCCESS;
             }
             if let Some(b) = env.block_sig(n) {
-                println!("{} name {{ ... }}\n\n{}\n", b.kind, b.doc);
+                o.line(&format!("{} name {{ ... }}\n\n{}\n", b.kind, b.doc));
                 for p in &b.fields {
                     let d = p
                         .default
                         .map(|d| format!(" (default {d})"))
                         .unwrap_or_default();
-                    println!("  {:<12} {}{d}", p.name, p.doc);
+                    o.line(&format!("  {:<12} {}{d}", p.name, p.doc));
                 }
                 return ExitCode::SUCCESS;
             }

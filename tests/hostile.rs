@@ -535,3 +535,570 @@ fn billion_iteration_loops() {
         );
     }
 }
+
+// ------------------------------------------------- issue 9: a hostile user
+
+/// Runs `sdfl run FILE --out OUT` (plus `extra`) on `text` in a fresh case
+/// directory; returns the outcome and the directory.
+fn run_in(name: &str, text: &str, extra: &[&str]) -> (Outcome, PathBuf) {
+    let dir = case_dir(name);
+    let file = dir.join("f.sdfl");
+    fs::write(&file, text).expect("case file is writable");
+    let out = dir.join("out");
+    let mut args = vec![
+        "run",
+        file.to_str().expect("UTF-8"),
+        "--out",
+        out.to_str().expect("UTF-8"),
+    ];
+    args.extend_from_slice(extra);
+    (sdfl(&dir, &args), dir)
+}
+
+/// A file that used to hang finishes, or is refused, in under 5 s.
+fn quick(what: &str, o: &Outcome) {
+    assert!(
+        o.elapsed < Duration::from_secs(5),
+        "{what} took {:?}",
+        o.elapsed
+    );
+}
+
+#[test]
+fn shared_values_are_measured_as_dags() {
+    // 2^40 primitives from 41 lines: minutes of re-walking before.
+    let mut text = String::from("let a0 = sphere(0.1)\n");
+    for k in 1..=40 {
+        text += &format!("let a{k} = union(a{}, a{})\n", k - 1, k - 1);
+    }
+    text += "render r { scene: a40, camera: look_at([0, 0, -3]), outputs: [image(\"r.png\")] }\n";
+    for o in hostile("shared_chain", &text, Expect::Error) {
+        quick("shared chain", &o);
+        assert!(
+            o.stderr.contains("sdfl::limit::too-large") && o.stderr.contains("2097152 primitives"),
+            "{}",
+            head(&o.stderr)
+        );
+    }
+    // Shared lists too: each list holds the last twice.
+    let mut text = String::from("let l0 = [1, 2, 3]\n");
+    for k in 1..=60 {
+        text += &format!("let l{k} = [l{}, l{}]\n", k - 1, k - 1);
+    }
+    text += "let n = for x in l60 { x }\n";
+    for o in hostile("shared_lists", &text, Expect::Error) {
+        quick("shared lists", &o);
+    }
+}
+
+#[test]
+fn nested_loops_count_primitives_not_calls() {
+    // 6 000 calls, 10^9 primitives: lowering tried to allocate 16 GB.
+    let text = "let a = for i in 0..1000 { sphere(0.1, center: [i, 0, 0]) }\n\
+                let b = for j in 0..1000 { union(a) }\n\
+                let c = for k in 0..1000 { union(b) }\n\
+                render r { scene: union(c), camera: look_at([0, 0, -3]), outputs: [image(\"r.png\")] }\n";
+    for o in hostile("loops_of_unions", text, Expect::Error) {
+        quick("loops of unions", &o);
+        assert!(
+            o.stderr
+                .contains("this loop would make more than 2000000 primitives")
+                && o.stderr.contains("GB of memory"),
+            "{}",
+            head(&o.stderr)
+        );
+    }
+}
+
+#[test]
+fn coincident_primitives_lower_in_near_linear_time() {
+    // 25 000 identical spheres took 56 s to lower (the grid searched every
+    // member for every cell); 250 000 now take well under a second.
+    for (name, center) in [
+        ("identical", "[0, 0, 0]"),
+        ("almost_identical", "[i * 1e-9, 0, 0]"),
+    ] {
+        let n = if name == "identical" { 250_000 } else { 50_000 };
+        let text = format!(
+            "let s = for i in 0..{n} {{ sphere(0.5, center: {center}) }}\n\
+             render r {{ scene: union(s), camera: look_at([0, 0, -3]), outputs: [image(\"r.png\")] }}\n"
+        );
+        let (o, _) = run_in(&format!("coincident_{name}"), &text, &["--size", "8x8"]);
+        assert_outcome(name, &o, Expect::Ok);
+        quick(name, &o);
+    }
+}
+
+/// A valid PNG header declaring `w`×`h` pixels, with no image data: a few
+/// dozen bytes that claim gigabytes.
+fn png_header(w: u32, h: u32) -> Vec<u8> {
+    fn crc32(data: &[u8]) -> u32 {
+        let mut c = 0xffff_ffffu32;
+        for &byte in data {
+            c ^= byte as u32;
+            for _ in 0..8 {
+                c = if c & 1 != 0 {
+                    0xedb8_8320 ^ (c >> 1)
+                } else {
+                    c >> 1
+                };
+            }
+        }
+        !c
+    }
+    let mut b = b"\x89PNG\r\n\x1a\n".to_vec();
+    let mut ihdr = b"IHDR".to_vec();
+    ihdr.extend_from_slice(&w.to_be_bytes());
+    ihdr.extend_from_slice(&h.to_be_bytes());
+    ihdr.extend_from_slice(&[8, 2, 0, 0, 0]);
+    b.extend_from_slice(&13u32.to_be_bytes());
+    b.extend_from_slice(&ihdr);
+    b.extend_from_slice(&crc32(&ihdr).to_be_bytes());
+    // An empty IDAT chunk: decoders read the header up to the first one.
+    b.extend_from_slice(&0u32.to_be_bytes());
+    b.extend_from_slice(b"IDAT");
+    b.extend_from_slice(&crc32(b"IDAT").to_be_bytes());
+    b
+}
+
+fn train_on(images: &[&str]) -> String {
+    let list: Vec<String> = images.iter().map(|i| format!("\"{i}\"")).collect();
+    let cams: Vec<&str> = images.iter().map(|_| "look_at([0, 0, -3])").collect();
+    format!(
+        "train t {{\n  model: sdf_volume(box(center: param([0, 0, 0]), size: param([1, 1, 1]))),\n  \
+         data: views(images: [{}], cameras: [{}]),\n  iterations: 1,\n}}\n",
+        list.join(", "),
+        cams.join(", ")
+    )
+}
+
+#[test]
+fn data_images_are_checked_before_decoding() {
+    // Six 12000x12000 images (a few bytes each as files) reached 11.8 GB.
+    let dir = case_dir("data_big");
+    fs::write(dir.join("big.png"), png_header(12_000, 12_000)).expect("writable");
+    fs::write(dir.join("huge.png"), png_header(40_000, 8)).expect("writable");
+    let file = dir.join("f.sdfl");
+    let out = dir.join("out");
+    for (images, expect) in [
+        (vec!["big.png"; 6], "at most"),
+        (vec!["huge.png"], "40000x8"),
+    ] {
+        fs::write(&file, train_on(&images)).expect("writable");
+        let o = sdfl(
+            &dir,
+            &[
+                "run",
+                file.to_str().expect("UTF-8"),
+                "--out",
+                out.to_str().expect("UTF-8"),
+            ],
+        );
+        assert_outcome("big data", &o, Expect::Error);
+        quick("big data", &o);
+        assert!(o.stderr.contains(expect), "{}", head(&o.stderr));
+    }
+}
+
+#[cfg(unix)]
+#[test]
+fn special_files_are_never_read_as_data() {
+    let dir = case_dir("data_special");
+    std::os::unix::fs::symlink("/dev/zero", dir.join("zero.npy")).expect("symlink");
+    std::os::unix::fs::symlink("/dev/zero", dir.join("zero.png")).expect("symlink");
+    let fifo = dir.join("fifo.png");
+    let made = Command::new("mkfifo").arg(&fifo).status();
+    let mut cases = vec!["zero.npy", "zero.png"];
+    if made.is_ok_and(|s| s.success()) {
+        cases.push("fifo.png"); // opening it would block forever
+    }
+    let file = dir.join("f.sdfl");
+    let out = dir.join("out");
+    for case in cases {
+        fs::write(&file, train_on(&[case])).expect("writable");
+        let o = sdfl(
+            &dir,
+            &[
+                "run",
+                file.to_str().expect("UTF-8"),
+                "--out",
+                out.to_str().expect("UTF-8"),
+            ],
+        );
+        assert_outcome(case, &o, Expect::Error);
+        quick(case, &o);
+        assert!(
+            o.stderr.contains("not a regular file") && o.stderr.contains(case),
+            "{case}: {}",
+            head(&o.stderr)
+        );
+    }
+}
+
+#[test]
+fn absurd_total_work_is_refused() {
+    let text = "render huge {\n  scene: sdf_volume(sphere()),\n  camera: orbit(radius: 3, views: 10000),\n  \
+                size: [16384, 16384],\n  sampler: stratified(samples: 4096),\n  outputs: [gif(\"huge.gif\")],\n}\n";
+    for o in hostile("absurd_work", text, Expect::Error) {
+        quick("absurd work", &o);
+        assert!(
+            o.stderr.contains("sdfl::limit::work"),
+            "{}",
+            head(&o.stderr)
+        );
+    }
+    // `sdfl plan` prints the estimate of a sane file.
+    let dir = case_dir("plan_work");
+    let file = dir.join("f.sdfl");
+    fs::write(&file, render_with("")).expect("writable");
+    let o = sdfl(&dir, &["plan", file.to_str().expect("UTF-8")]);
+    assert_outcome("plan", &o, Expect::Ok);
+    let stdout = fs::read_to_string(dir.join("stdout.txt")).expect("stdout");
+    assert!(stdout.contains("SDF evaluations"), "{stdout}");
+}
+
+#[test]
+fn absurd_thread_counts_are_clamped() {
+    // --threads 100000 spent a minute spawning threads.
+    let (o, _) = run_in(
+        "threads",
+        &render_with(""),
+        &["--size", "8x8", "--threads", "100000"],
+    );
+    assert_outcome("threads", &o, Expect::Ok);
+    quick("threads", &o);
+    assert!(o.stderr.contains("--threads 100000"), "{}", head(&o.stderr));
+}
+
+#[cfg(unix)]
+#[test]
+fn links_in_the_output_directory_are_never_followed() {
+    let dir = case_dir("out_links");
+    let out = dir.join("out");
+    let elsewhere = dir.join("elsewhere");
+    fs::create_dir_all(&out).expect("mkdir");
+    fs::create_dir_all(&elsewhere).expect("mkdir");
+    // A directory link inside --out.
+    std::os::unix::fs::symlink(&elsewhere, out.join("sub")).expect("symlink");
+    // A link at an output's own name: replaced, never written through.
+    let victim = dir.join("victim.txt");
+    fs::write(&victim, "precious").expect("writable");
+    std::os::unix::fs::symlink(&victim, out.join("r.png")).expect("symlink");
+    let file = dir.join("f.sdfl");
+    let args = [
+        "run",
+        file.to_str().expect("UTF-8"),
+        "--out",
+        out.to_str().expect("UTF-8"),
+        "--size",
+        "8x8",
+    ];
+
+    fs::write(&file, render_with("").replace("r.png", "sub/x.png")).expect("writable");
+    let o = sdfl(&dir, &args);
+    assert_outcome("dir link", &o, Expect::Error);
+    assert!(o.stderr.contains("symbolic link"), "{}", head(&o.stderr));
+    assert_eq!(fs::read_dir(&elsewhere).expect("readable").count(), 0);
+
+    fs::write(&file, render_with("")).expect("writable");
+    let o = sdfl(&dir, &args);
+    assert_outcome("file link", &o, Expect::Ok);
+    assert_eq!(fs::read_to_string(&victim).expect("readable"), "precious");
+    assert!(!fs::symlink_metadata(out.join("r.png"))
+        .expect("written")
+        .file_type()
+        .is_symlink());
+    // No temporary file is left behind, and none has a guessable name.
+    let names: Vec<String> = fs::read_dir(&out)
+        .expect("readable")
+        .map(|e| e.expect("entry").file_name().to_string_lossy().into_owned())
+        .collect();
+    assert!(names.iter().all(|n| !n.ends_with(".tmp")), "{names:?}");
+}
+
+#[test]
+fn outputs_never_overwrite_each_other() {
+    for (name, outputs) in [
+        ("same_name", "[image(\"a.png\"), depth(\"a.png\")]"),
+        ("frame_names", "[image(\"x.png\"), mask(\"x_{view}.png\")]"),
+    ] {
+        let text = format!(
+            "render r {{\n  scene: sphere(),\n  camera: orbit(radius: 3, views: 3),\n  outputs: {outputs},\n}}\n"
+        );
+        for o in hostile(name, &text, Expect::Error) {
+            assert!(
+                o.stderr.contains("sdfl::path::collision"),
+                "{}",
+                head(&o.stderr)
+            );
+        }
+    }
+    let text = "train t {\n  model: sdf_volume(box(center: param([0, 0, 0]), size: param([1, 1, 1]))),\n  \
+                data: render_views(sdf_volume(sphere()), cameras: [look_at([0, 0, -3])], size: [8, 8]),\n  \
+                iterations: 1,\n  after: [loss_curve(\"ck.png\")],\n  checkpoint: \"ck.png\",\n}\n";
+    for o in hostile("checkpoint_clash", text, Expect::Error) {
+        assert!(
+            o.stderr.contains("sdfl::path::collision"),
+            "{}",
+            head(&o.stderr)
+        );
+    }
+}
+
+#[test]
+fn numbers_beyond_f32_are_refused_where_written() {
+    for (name, text) in [
+        (
+            "tiny_focal",
+            render_with("").replace("eye: [0, 0, -3]", "eye: [0, 0, -3], focal: 1e-46"),
+        ),
+        (
+            "huge_k",
+            render_with("").replace("sphere()", "smooth_union(sphere(), box(), k: 1e300)"),
+        ),
+        ("huge_near", render_with("  near: 1e300,")),
+        (
+            "tiny_beta",
+            "let f = sdf_volume(sphere(), beta: 1e-300)\n".to_string(),
+        ),
+    ] {
+        // `check` fails too (beta used to pass it and fail at run time).
+        for o in hostile(name, &text, Expect::Error) {
+            assert!(
+                o.stderr.contains("sdfl::value::precision"),
+                "{name}: {}",
+                head(&o.stderr)
+            );
+            // Short numbers: 1e300, never 301 digits.
+            assert!(
+                !o.stderr.contains("0000000000"),
+                "{name}: {}",
+                head(&o.stderr)
+            );
+        }
+    }
+}
+
+#[test]
+fn a_camera_beyond_far_warns() {
+    let text = render_with("").replace("eye: [0, 0, -3]", "eye: [0, 0, -8]");
+    for o in hostile("beyond_far", &text, Expect::Ok) {
+        assert!(
+            o.stderr.contains("sdfl::warn::misses-scene") && o.stderr.contains("at least"),
+            "{}",
+            head(&o.stderr)
+        );
+    }
+}
+
+#[test]
+fn a_closed_stdout_is_a_normal_end() {
+    // `sdfl run FILE | head -0` panicked with "failed printing to stdout".
+    let dir = case_dir("closed_stdout");
+    let file = dir.join("f.sdfl");
+    fs::write(&file, render_with("")).expect("writable");
+    let out = dir.join("out");
+    let mut child = Command::new(env!("CARGO_BIN_EXE_sdfl"))
+        .args([
+            "run",
+            file.to_str().expect("UTF-8"),
+            "--out",
+            out.to_str().expect("UTF-8"),
+            "--size",
+            "8x8",
+        ])
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("starts");
+    drop(child.stdout.take()); // the reader goes away at once
+    let o = child.wait_with_output().expect("waits");
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(0), "{stderr}");
+    assert!(!stderr.contains("panicked"), "{stderr}");
+}
+
+#[test]
+fn io_errors_name_the_path_and_the_statement() {
+    // --out is a file: was a bare "File exists (os error 17)".
+    let dir = case_dir("out_is_file");
+    let out = dir.join("out");
+    fs::write(&out, "not a directory").expect("writable");
+    let file = dir.join("f.sdfl");
+    fs::write(&file, render_with("")).expect("writable");
+    let o = sdfl(
+        &dir,
+        &[
+            "run",
+            file.to_str().expect("UTF-8"),
+            "--out",
+            out.to_str().expect("UTF-8"),
+        ],
+    );
+    assert_outcome("out is a file", &o, Expect::Error);
+    assert!(
+        o.stderr.contains(out.to_str().expect("UTF-8")),
+        "{}",
+        head(&o.stderr)
+    );
+
+    // A directory where an output goes: the statement is shown.
+    let (o, _) = {
+        let dir = case_dir("output_is_dir");
+        fs::create_dir_all(dir.join("out/r.png")).expect("mkdir");
+        let file = dir.join("f.sdfl");
+        fs::write(&file, render_with("")).expect("writable");
+        let out = dir.join("out");
+        (
+            sdfl(
+                &dir,
+                &[
+                    "run",
+                    file.to_str().expect("UTF-8"),
+                    "--out",
+                    out.to_str().expect("UTF-8"),
+                    "--size",
+                    "8x8",
+                ],
+            ),
+            dir,
+        )
+    };
+    assert_outcome("output is a directory", &o, Expect::Error);
+    assert!(
+        o.stderr.contains("r.png") && o.stderr.contains("while running `r`"),
+        "{}",
+        head(&o.stderr)
+    );
+
+    // A corrupt checkpoint names its file.
+    let text = "train t {\n  model: sdf_volume(box(center: param([0, 0, 0]), size: param([1, 1, 1]))),\n  \
+                data: render_views(sdf_volume(sphere()), cameras: [look_at([0, 0, -3])], size: [8, 8]),\n  \
+                iterations: 1,\n  checkpoint: \"ck.json\",\n}\n";
+    let dir = case_dir("bad_checkpoint");
+    fs::create_dir_all(dir.join("out")).expect("mkdir");
+    fs::write(dir.join("out/ck.json"), "{ not json").expect("writable");
+    let file = dir.join("f.sdfl");
+    fs::write(&file, text).expect("writable");
+    let out = dir.join("out");
+    let o = sdfl(
+        &dir,
+        &[
+            "run",
+            file.to_str().expect("UTF-8"),
+            "--out",
+            out.to_str().expect("UTF-8"),
+        ],
+    );
+    assert_outcome("bad checkpoint", &o, Expect::Error);
+    assert!(
+        o.stderr.contains("ck.json") && o.stderr.contains("while running `t`"),
+        "{}",
+        head(&o.stderr)
+    );
+
+    // A trailing slash is refused when evaluated, and leaves no file.
+    let (o, dir) = run_in(
+        "trailing_slash",
+        &render_with("").replace("r.png", "r.png/"),
+        &["--size", "8x8"],
+    );
+    assert_outcome("trailing slash", &o, Expect::Error);
+    assert!(o.stderr.contains("sdfl::path"), "{}", head(&o.stderr));
+    assert!(!dir.join("out").exists() || fs::read_dir(dir.join("out")).expect("dir").count() == 0);
+}
+
+#[test]
+fn total_work_is_bounded_over_the_whole_file() {
+    // Each statement is within the limits; together they would lower the
+    // same 250 000-primitive scene 100 times.
+    let mut text = String::from(
+        "let s = union(for i in 0..500, j in 0..500 { sphere(0.01, center: [i, j, 0]) })\n",
+    );
+    for k in 0..100 {
+        text += &format!(
+            "render r{k} {{ scene: s, camera: look_at([0, 0, -3]), outputs: [image(\"r{k}.png\")] }}\n"
+        );
+    }
+    for o in hostile("many_statements", &text, Expect::Error) {
+        quick("many statements", &o);
+        assert!(
+            o.stderr.contains("sdfl::limit::work") && o.stderr.contains("primitives to lower"),
+            "{}",
+            head(&o.stderr)
+        );
+        // Reported once, at the statement that goes over.
+        assert_eq!(o.stderr.matches("sdfl::limit::work").count(), 1);
+    }
+}
+
+#[test]
+fn loops_over_big_values_are_charged_for_them() {
+    // A million iterations, each walking a million-item value: 10 GB in
+    // 20 s before (the work budget counted the iteration, not the walk).
+    for (name, text) in [
+        (
+            "arithmetic_on_big_lists",
+            "let big = for i in 0..999999 { i }\nlet x = for i in 0..999999 { big + 1 }\n",
+        ),
+        (
+            "union_of_a_big_list_in_a_loop",
+            "let big = for i in 0..500000 { sphere(0.1, center: [i, 0, 0]) }\nlet x = for i in 0..1000000 { union(big) }\n",
+        ),
+        (
+            "many_cameras_in_a_loop",
+            "let cams = orbit(radius: 3, views: 10000)\nlet x = for i in 0..1000000 { render_views(sdf_volume(sphere()), cameras: cams) }\n",
+        ),
+        (
+            "loop_of_shared_scenes",
+            "let a = union(for i in 0..1000 { sphere(0.1, center: [i, 0, 0]) })\nlet x = for i in 0..1000000 { a.translate([0, i, 0]) }\n",
+        ),
+    ] {
+        for o in hostile(name, text, Expect::Error) {
+            quick(name, &o);
+            assert!(o.stderr.contains("sdfl::limit::too-large"), "{name}: {}", head(&o.stderr));
+        }
+    }
+}
+
+#[cfg(unix)]
+#[test]
+fn special_scene_files_are_refused() {
+    // `sdfl check /dev/zero` read forever; a FIFO blocked.
+    let dir = case_dir("special_scene");
+    let fifo = dir.join("fifo.sdfl");
+    let mut cases = vec![PathBuf::from("/dev/zero")];
+    if Command::new("mkfifo")
+        .arg(&fifo)
+        .status()
+        .is_ok_and(|s| s.success())
+    {
+        cases.push(fifo);
+    }
+    for case in cases {
+        for cmd in ["check", "run"] {
+            let o = sdfl(&dir, &[cmd, case.to_str().expect("UTF-8")]);
+            assert_outcome(cmd, &o, Expect::Error);
+            quick(cmd, &o);
+            assert!(
+                o.stderr.contains("not a regular file"),
+                "{}",
+                head(&o.stderr)
+            );
+        }
+    }
+}
+
+#[test]
+fn output_names_too_long_for_the_file_system_are_refused_early() {
+    let long = "a".repeat(300);
+    let text = render_with("").replace("r.png", &format!("{long}.png"));
+    for o in hostile("long_output_name", &text, Expect::Error) {
+        assert!(
+            o.stderr.contains("sdfl::path::escape"),
+            "{}",
+            head(&o.stderr)
+        );
+    }
+}

@@ -35,6 +35,32 @@ pub mod codes {
     pub const TOO_LARGE: &str = "sdfl::limit::too-large";
     pub const PATH: &str = "sdfl::path::escape";
     pub const IO: &str = "sdfl::io";
+    /// Two outputs (or an output and a checkpoint) write the same file.
+    pub const OUTPUT_COLLISION: &str = "sdfl::path::collision";
+    /// A number that the f32 runtime would flush to zero or overflow.
+    pub const PRECISION: &str = "sdfl::value::precision";
+    /// A run whose estimated work or memory is beyond what sdfl accepts.
+    pub const WORK: &str = "sdfl::limit::work";
+    /// A warning: the camera cannot reach the scene within `far`.
+    pub const MISSES_SCENE: &str = "sdfl::warn::misses-scene";
+}
+
+/// A number in a message: plain when short, otherwise in short scientific
+/// form (`1e308`, not 309 digits; `1e-46`, not 47 zeros).
+pub fn fmt_num(x: f64) -> String {
+    if x == 0.0 || !x.is_finite() || (1e-4..1e9).contains(&x.abs()) {
+        format!("{x}")
+    } else {
+        format!("{x:e}")
+    }
+}
+
+/// How bad a diagnostic is: errors fail the command, warnings are printed
+/// and the command goes on.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Severity {
+    Error,
+    Warning,
 }
 
 /// One diagnostic: what went wrong, where, and what to do about it.
@@ -58,6 +84,15 @@ impl Diag {
             label: String::new(),
             help: None,
             notes: Vec::new(),
+        }
+    }
+    /// Warnings are the codes under `sdfl::warn::` (kept in the code, so a
+    /// diagnostic's severity is as stable as its code).
+    pub fn severity(&self) -> Severity {
+        if self.code.starts_with("sdfl::warn::") {
+            Severity::Warning
+        } else {
+            Severity::Error
         }
     }
     pub fn label(mut self, label: impl Into<String>) -> Self {
@@ -86,6 +121,10 @@ impl Diagnostics {
     }
     pub fn is_empty(&self) -> bool {
         self.diags.is_empty()
+    }
+    /// Whether any diagnostic is an error (not only warnings).
+    pub fn has_errors(&self) -> bool {
+        self.diags.iter().any(|d| d.severity() == Severity::Error)
     }
     pub fn len(&self) -> usize {
         self.diags.len()
@@ -169,6 +208,12 @@ impl miette::Diagnostic for Located<'_> {
     fn code<'b>(&'b self) -> Option<Box<dyn fmt::Display + 'b>> {
         Some(Box::new(self.diag.code))
     }
+    fn severity(&self) -> Option<miette::Severity> {
+        Some(match self.diag.severity() {
+            Severity::Error => miette::Severity::Error,
+            Severity::Warning => miette::Severity::Warning,
+        })
+    }
     fn help<'b>(&'b self) -> Option<Box<dyn fmt::Display + 'b>> {
         self.diag
             .help
@@ -226,15 +271,27 @@ pub fn render(source: &SourceFile, diags: &Diagnostics, color: bool) -> String {
             diags.diags[MAX_RENDERED..].iter().map(|d| d.code).collect();
         let codes: Vec<&str> = codes.into_iter().collect();
         out.push_str(&format!(
-            "... and {rest} more error{} not shown ({})\n",
+            "... and {rest} more diagnostic{} not shown ({})\n",
             if rest == 1 { "" } else { "s" },
             codes.join(", ")
         ));
     }
-    if n > 0 {
+    let warnings = diags
+        .diags
+        .iter()
+        .filter(|d| d.severity() == Severity::Warning)
+        .count();
+    let errors = n - warnings;
+    if errors > 0 {
         out.push_str(&format!(
-            "{n} error{} in {}\n",
-            if n == 1 { "" } else { "s" },
+            "{errors} error{} in {}\n",
+            if errors == 1 { "" } else { "s" },
+            source.name
+        ));
+    } else if warnings > 0 {
+        out.push_str(&format!(
+            "{warnings} warning{} in {}\n",
+            if warnings == 1 { "" } else { "s" },
             source.name
         ));
     }
@@ -259,4 +316,40 @@ pub fn suggest<'a>(name: &str, candidates: impl IntoIterator<Item = &'a str>) ->
         .filter(|(d, c)| *d <= (name.len().max(c.len()) / 3).max(1) && *d < name.len().min(c.len()))
         .min_by_key(|(d, c)| (*d, *c))
         .map(|(_, c)| c)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn numbers_print_short() {
+        assert_eq!(fmt_num(1e308), "1e308");
+        assert_eq!(fmt_num(-1e-46), "-1e-46");
+        assert_eq!(fmt_num(0.25), "0.25");
+        assert_eq!(fmt_num(1_000_000.0), "1000000");
+        assert_eq!(fmt_num(2.5e9), "2.5e9");
+        assert_eq!(fmt_num(0.0), "0");
+        assert_eq!(fmt_num(f64::INFINITY), "inf");
+    }
+
+    #[test]
+    fn warnings_do_not_count_as_errors() {
+        let mut d = Diagnostics::default();
+        d.push(
+            Diag::new(codes::MISSES_SCENE, Span::new(0, 1), "w")
+                .label("l")
+                .help("h"),
+        );
+        assert!(!d.has_errors());
+        let src = SourceFile::new("f", "x");
+        assert!(render(&src, &d, false).ends_with("1 warning in f\n"));
+        d.push(
+            Diag::new(codes::VALUE, Span::new(0, 1), "e")
+                .label("l")
+                .help("h"),
+        );
+        assert!(d.has_errors());
+        assert!(render(&src, &d, false).ends_with("1 error in f\n"));
+    }
 }

@@ -15,7 +15,7 @@ use sdfl_stdlib::value::{Backend, Dataset, Field, Output, Sampler, TrainJob, Vol
 use sdfl_stdlib::OutputKind;
 use serde::Serialize;
 
-use crate::data::npy::{read_rgb_f32, RgbImage};
+use crate::data::npy::RgbImage;
 use crate::output::{to_u8, write_png};
 use crate::render::{view_path, Gifs, Written};
 use crate::sdf::{LowerOptions, Lowered};
@@ -242,38 +242,30 @@ pub struct TrainReport {
 }
 
 fn load_image(path: &Path) -> io::Result<RgbImage> {
-    let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("");
-    if ext.eq_ignore_ascii_case("npy") {
-        return read_rgb_f32(path).map_err(|e| invalid(format!("{}: {e}", path.display())));
-    }
-    let img = image::open(path)
-        .map_err(|e| invalid(format!("{}: {e}", path.display())))?
-        .to_rgb32f();
-    Ok(RgbImage {
-        width: img.width(),
-        height: img.height(),
-        pixels: img.pixels().map(|p| p.0).collect(),
-    })
+    crate::data::image::read_rgb_image(path)
 }
 
 /// The training views: read from files (relative to `base`) or rendered.
 /// Every pixel must be a finite colour; the first that is not is named.
 pub fn load_views(data: &Dataset, base: &Path) -> io::Result<Vec<TrainView>> {
     let views: Vec<(TrainView, String)> = match data {
-        Dataset::Files { images, cameras } => images
-            .iter()
-            .zip(cameras)
-            .map(|(p, c)| {
-                let path = base.join(p);
-                Ok((
-                    TrainView {
-                        camera: *c,
-                        image: load_image(&path)?,
-                    },
-                    path.display().to_string(),
-                ))
-            })
-            .collect::<io::Result<_>>()?,
+        Dataset::Files { images, cameras } => {
+            crate::data::image::check_dataset(images.iter().map(|p| base.join(p)))?;
+            images
+                .iter()
+                .zip(cameras)
+                .map(|(p, c)| {
+                    let path = base.join(p);
+                    Ok((
+                        TrainView {
+                            camera: *c,
+                            image: load_image(&path)?,
+                        },
+                        path.display().to_string(),
+                    ))
+                })
+                .collect::<io::Result<_>>()?
+        }
         Dataset::Rendered {
             field,
             cameras,

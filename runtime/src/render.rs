@@ -300,28 +300,9 @@ pub struct RunOptions {
     pub restart: bool,
 }
 
-/// The file name for view `k` of `n`: `{view}` is replaced by the padded
-/// index; otherwise `_NN` is added before the extension when `n > 1`.
-pub fn view_path(path: &Path, k: usize, n: usize) -> PathBuf {
-    let digits = (n.max(2) - 1).to_string().len().max(2);
-    let idx = format!("{k:0digits$}");
-    let s = path.to_string_lossy();
-    if s.contains("{view}") {
-        return PathBuf::from(s.replace("{view}", &idx));
-    }
-    if n == 1 {
-        return path.to_path_buf();
-    }
-    let stem = path
-        .file_stem()
-        .map(|s| s.to_string_lossy().into_owned())
-        .unwrap_or_default();
-    let ext = path
-        .extension()
-        .map(|e| format!(".{}", e.to_string_lossy()))
-        .unwrap_or_default();
-    path.with_file_name(format!("{stem}_{idx}{ext}"))
-}
+/// The file name for view `k` of `n` (shared with the evaluator, which
+/// checks every name for collisions before anything runs).
+pub use sdfl_stdlib::outputs::view_path;
 
 /// Run one render job, writing its outputs under `out_dir`.
 pub fn run_job(

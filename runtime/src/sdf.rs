@@ -436,6 +436,10 @@ struct CellGrid {
 const FALLBACK: u32 = u32::MAX;
 /// Longest candidate list kept; cells needing more fall back to the BVH.
 const MAX_CANDIDATES: usize = 32;
+/// Most BVH nodes visited to list one cell's candidates.
+const MAX_CANDIDATE_VISITS: usize = 16 * MAX_CANDIDATES;
+/// Members evaluated for a cell's upper bound.
+const UPPER_BOUND_MEMBERS: usize = 8;
 /// How far the grid extends past the union's bounds, per side, as a
 /// fraction of their size.
 const GRID_MARGIN: f32 = 0.5;
@@ -563,9 +567,7 @@ impl BvhUnion {
                     idx / (res[0] * res[1]),
                 );
                 let c = lo + cell * Vec3A::new(i as f32 + 0.5, j as f32 + 0.5, k as f32 + 0.5);
-                let m = self.search(c, f32::INFINITY, |m, best| {
-                    best.min(self.members[m].dist(c))
-                });
+                let m = self.upper_bound(c);
                 // Slack for f32 rounding of the member values.
                 let bound = m + lipschitz * radius + 1e-4 * (1.0 + m.abs());
                 self.candidates(c, half, bound)
@@ -591,12 +593,52 @@ impl BvhUnion {
         }
     }
 
+    /// An upper bound on the union's minimum at `p`: the least value of the
+    /// members in the first few leaves nearest `p`. The exact minimum (a
+    /// full branch-and-bound search) costs O(n) per cell when members
+    /// overlap (coincident primitives prune nothing), and any upper bound
+    /// keeps the candidate lists exact: it only makes them longer.
+    fn upper_bound(&self, p: Vec3A) -> f32 {
+        let mut best = f32::INFINITY;
+        let mut leaves = 0;
+        let mut n = 0usize;
+        // Descend to the nearer child, then scan a few leaves in order.
+        loop {
+            let node = self.nodes[n];
+            if node.count > 0 {
+                break;
+            }
+            let (l, r) = (node.first as usize, node.first as usize + 1);
+            n = if self.lower_bound(l, p) <= self.lower_bound(r, p) {
+                l
+            } else {
+                r
+            };
+        }
+        let start = self.nodes[n].first as usize;
+        for m in start..self.members.len() {
+            best = best.min(self.members[m].dist(p));
+            leaves += 1;
+            if leaves >= UPPER_BOUND_MEMBERS {
+                break;
+            }
+        }
+        best
+    }
+
     /// Members that may be below `bound` somewhere in the cell: those whose
-    /// box overlaps it or lies within `bound` of it. `None` past the limit.
+    /// box overlaps it or lies within `bound` of it. `None` past the limit,
+    /// or when the search visits too many nodes (the BVH is then used for
+    /// the cell, which is exact too): each cell costs O(log n) at most.
     fn candidates(&self, c: Vec3A, h: Vec3A, bound: f32) -> Option<Vec<u32>> {
         let mut out = Vec::new();
         let mut stack = vec![0usize];
+        let mut visited = 0;
         while let Some(n) = stack.pop() {
+            visited += 1;
+            if visited > MAX_CANDIDATE_VISITS {
+                return None;
+            }
             let node = self.nodes[n];
             let gap = box_gap(c, h, node.center, node.half);
             if gap > 0.0 && gap > bound {
@@ -913,6 +955,11 @@ impl Lowering {
     }
 
     fn union(&mut self, members: Vec<(&Shape, Frame)>) -> Box<dyn Node> {
+        let members = if self.options.cull {
+            dedup_primitives(members)
+        } else {
+            members
+        };
         let bounded = members.iter().filter(|(s, _)| s.bounds().is_some()).count();
         if !self.options.cull || bounded < self.options.bvh_threshold {
             return Box::new(Union(
@@ -950,4 +997,81 @@ fn transform(shape: &Shape) -> Option<(&Shape, DAffine3, f64)> {
         )),
         _ => None,
     }
+}
+
+/// The members of a union without exact repeats (same shape, transform
+/// and material), keeping the first of each. Only members with equal keys
+/// (kind, transform, bounds) are compared, at most 8 per key, and the
+/// shapes compared are within the expanded-size budget, so this is
+/// O(n log n) plus a bounded number of comparisons. The minimum
+/// of equal values is that value, and the first attains it, so the union
+/// and the ids it reports are unchanged; coincident copies would otherwise
+/// defeat every bound (none is ever below another) and make each
+/// evaluation visit all of them. O(n log n).
+fn dedup_primitives(members: Vec<(&Shape, Frame)>) -> Vec<(&Shape, Frame)> {
+    if members.len() < 2 {
+        return members;
+    }
+    // A cheap key (kind and transform bits) sorts candidates together;
+    // equality is then decided exactly.
+    let key = |(s, f): &(&Shape, Frame)| {
+        let mut k: Vec<u64> = f
+            .to_local
+            .to_cols_array()
+            .iter()
+            .map(|x| x.to_bits())
+            .collect();
+        k.push(f.scale.to_bits());
+        k.push(
+            f.material
+                .as_ref()
+                .map_or(0, |m| Arc::as_ptr(m) as usize as u64),
+        );
+        if let Some(b) = s.bounds() {
+            k.extend(
+                b.min
+                    .to_array()
+                    .iter()
+                    .chain(&b.max.to_array())
+                    .map(|x| x.to_bits()),
+            );
+        }
+        (s.name(), k)
+    };
+    let mut order: Vec<(usize, (&'static str, Vec<u64>))> = members
+        .iter()
+        .enumerate()
+        .map(|(i, m)| (i, key(m)))
+        .collect();
+    order.sort_by(|a, b| a.1.cmp(&b.1).then(a.0.cmp(&b.0)));
+    let mut drop = vec![false; members.len()];
+    let mut kept: Vec<usize> = Vec::new();
+    for w in 0..order.len() {
+        if w > 0 && order[w].1 != order[w - 1].1 {
+            kept.clear();
+        }
+        let i = order[w].0;
+        let same = |j: &usize| {
+            let (a, fa) = &members[*j];
+            let (b, fb) = &members[i];
+            (std::ptr::eq(*a, *b) || a == b)
+                && fa.to_local == fb.to_local
+                && fa.scale == fb.scale
+                && match (&fa.material, &fb.material) {
+                    (None, None) => true,
+                    (Some(x), Some(y)) => Arc::ptr_eq(x, y),
+                    _ => false,
+                }
+        };
+        if kept.iter().any(same) {
+            drop[i] = true;
+        } else if kept.len() < 8 {
+            kept.push(i);
+        }
+    }
+    members
+        .into_iter()
+        .zip(drop)
+        .filter_map(|(m, d)| (!d).then_some(m))
+        .collect()
 }

@@ -213,3 +213,39 @@ fn batch_matches_single_points() {
         assert_eq!(*d, e.dist(*p));
     }
 }
+
+#[test]
+fn degenerate_unions_stay_exact() {
+    // Coincident copies (dropped when lowering), copies a hair apart (kept:
+    // no bound separates them), and copies under different transforms or
+    // materials, mixed with distinct members: culled equals naive.
+    let mut rng = Lcg(41);
+    let sphere = Arc::new(Shape::Sphere {
+        center: DVec3::new(0.3, -0.2, 0.1),
+        radius: 0.6,
+    });
+    let mut members: Vec<Arc<Shape>> = vec![sphere.clone(); 300];
+    members.extend((0..300).map(|i| {
+        Arc::new(Shape::Box {
+            center: DVec3::new(i as f64 * 1e-9, 0.0, 0.0),
+            size: DVec3::splat(0.8),
+        })
+    }));
+    members.extend((0..50).map(|_| Arc::new(Shape::Translate(sphere.clone(), DVec3::X))));
+    members.extend((0..50).map(|_| Arc::new(Shape::Scale(sphere.clone(), 0.5))));
+    members.extend((0..100).map(|_| Arc::new(primitive(&mut rng))));
+    let shape = Shape::Union(members);
+    check_scene(&shape, 41);
+    // The repeats are lowered once each: 1 sphere, 300 boxes, the two
+    // transformed spheres, 100 random primitives.
+    let culled = Lowered::new(&shape, LowerOptions::default());
+    assert_eq!(culled.prims.len(), 1 + 300 + 2 + 100);
+    let naive = Lowered::new(
+        &shape,
+        LowerOptions {
+            cull: false,
+            ..Default::default()
+        },
+    );
+    assert_eq!(naive.prims.len(), 800);
+}

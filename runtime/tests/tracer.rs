@@ -192,6 +192,7 @@ fn job(material: Material, outputs: Vec<OutputKind>) -> RenderJob {
             .map(|kind| Output {
                 kind,
                 path: "x.png".into(),
+                span: Default::default(),
             })
             .collect(),
     }

@@ -15,6 +15,7 @@ use crate::camera::{Camera, OrbitUp, PixelCenters};
 use crate::eval::describe;
 use crate::material::Material;
 use crate::param::{Arg, Bound, ParamDecl, ParamInit, ParamUse, MIN_BETA, MIN_LENGTH};
+use crate::precision::{beta, f32_range};
 use crate::shape::Shape;
 use crate::value::{
     Backend, Dataset, DensityKind, Field, LastInterval, Loss, LossKind, Optimizer, Output,
@@ -91,7 +92,7 @@ impl Args {
 
     pub fn number(&self, name: &str) -> Result<f64, Diag> {
         match self.get(name) {
-            (Value::Number(x), _) => Ok(*x),
+            (Value::Number(x), s) => f32_range(*x, s, name),
             (Value::Param(_), s) => Err(not_trainable(s, name)),
             (v, s) => Err(type_error(s, "number", v)),
         }
@@ -102,9 +103,12 @@ impl Args {
     pub fn scalar_arg(&self, name: &str, bound: Bound) -> Result<Arg<f64>, Diag> {
         let (v, span) = self.get(name);
         let (value, param) = match v {
-            Value::Number(x) => (*x, None),
+            Value::Number(x) => (f32_range(*x, span, name)?, None),
             Value::Param(d) => match d.init {
-                ParamInit::Scalar(x) => (x, Some(self.param_use(d, name, bound))),
+                ParamInit::Scalar(x) => (
+                    f32_range(x, span, name)?,
+                    Some(self.param_use(d, name, bound)),
+                ),
                 ParamInit::Vec3(_) => return Err(type_error(span, "number", v)),
             },
             _ => return Err(type_error(span, "number", v)),
@@ -123,6 +127,9 @@ impl Args {
                     ParamInit::Scalar(x) => DVec3::splat(x),
                     ParamInit::Vec3(v) => v,
                 };
+                for x in value.to_array() {
+                    f32_range(x, span, name)?;
+                }
                 (value, Some(self.param_use(d, name, bound)))
             }
             _ => (self.vec3(name)?, None),
@@ -155,7 +162,7 @@ impl Args {
         } else {
             Err(value_error(
                 self.get(name).1,
-                format!("`{name}` must be positive, got {x}"),
+                format!("`{name}` must be positive, got {}", sdfl_lang::fmt_num(x)),
                 "not > 0",
                 format!("give `{name}` a value greater than zero"),
             ))
@@ -168,7 +175,10 @@ impl Args {
         if x.fract() != 0.0 || x < lo as f64 || x > hi as f64 {
             return Err(value_error(
                 self.get(name).1,
-                format!("`{name}` must be a whole number from {lo} to {hi}, got {x}"),
+                format!(
+                    "`{name}` must be a whole number from {lo} to {hi}, got {}",
+                    sdfl_lang::fmt_num(x)
+                ),
                 "out of range",
                 format!("use a whole number between {lo} and {hi}"),
             ));
@@ -179,11 +189,17 @@ impl Args {
     pub fn vec3(&self, name: &str) -> Result<DVec3, Diag> {
         let (v, s) = self.get(name);
         match v {
-            Value::Number(x) => Ok(DVec3::splat(*x)),
+            Value::Number(x) => Ok(DVec3::splat(f32_range(*x, s, name)?)),
             Value::Param(_) => Err(not_trainable(s, name)),
-            _ => v
-                .as_vec3()
-                .ok_or_else(|| type_error(s, "vector [x, y, z]", v)),
+            _ => {
+                let p = v
+                    .as_vec3()
+                    .ok_or_else(|| type_error(s, "vector [x, y, z]", v))?;
+                p.to_array()
+                    .iter()
+                    .try_for_each(|x| f32_range(*x, s, name).map(drop))?;
+                Ok(p)
+            }
         }
     }
 
@@ -1024,7 +1040,11 @@ fn field(a: &Args, density: DensityKind) -> Result<Value, Diag> {
         shape: a.shape("shape")?,
         density,
         alpha,
-        beta: a.scalar_arg("beta", Bound::AtLeast(MIN_BETA))?,
+        beta: {
+            let b = a.scalar_arg("beta", Bound::AtLeast(MIN_BETA))?;
+            beta(b.value, a.get("beta").1)?;
+            b
+        },
         color,
     })))
 }
@@ -1033,7 +1053,7 @@ fn check_range(a: &Args, near: f64, far: f64) -> Result<(), Diag> {
     if near < 0.0 {
         return Err(value_error(
             a.get("near").1,
-            format!("`near` must be ≥ 0, got {near}"),
+            format!("`near` must be ≥ 0, got {}", sdfl_lang::fmt_num(near)),
             "negative",
             "rays start at the camera or in front of it",
         ));
@@ -1041,7 +1061,11 @@ fn check_range(a: &Args, near: f64, far: f64) -> Result<(), Diag> {
     if far <= near {
         return Err(value_error(
             a.get("far").1,
-            format!("`far` ({far}) must be greater than `near` ({near})"),
+            format!(
+                "`far` ({}) must be greater than `near` ({})",
+                sdfl_lang::fmt_num(far),
+                sdfl_lang::fmt_num(near)
+            ),
             "not beyond near",
             "rays march from near to far: make far larger",
         ));
@@ -1155,17 +1179,31 @@ fn out(a: &Args, kind: OutputKind, ext: &str) -> Result<Value, Diag> {
             format!("name the file `something.{ext}`"),
         ));
     }
-    Ok(Value::Output(Arc::new(Output { kind, path })))
+    Ok(Value::Output(Arc::new(Output {
+        kind,
+        path,
+        span: a.span,
+    })))
 }
 
 /// Output names must stay inside the output directory: relative, no `..`.
 pub fn safe_output_path(p: &str, span: Span) -> Result<PathBuf, Diag> {
     let path = Path::new(p);
+    // A trailing `/` names a directory, which an output cannot be.
     let ok = !p.is_empty()
         && path.components().all(|c| matches!(c, Component::Normal(_)))
-        && !p.contains('\0');
+        && !p.contains('\0')
+        && !p.ends_with('/');
     if ok {
         Ok(path.to_path_buf())
+    } else if p.ends_with('/') && !p.starts_with('/') && !p.contains("..") {
+        Err(Diag::new(
+            codes::PATH,
+            span,
+            format!("output path `{p}` names a directory"),
+        )
+        .label("ends with `/`")
+        .help("name a file, e.g. `dir/name.png`"))
     } else {
         Err(Diag::new(codes::PATH, span, format!("output path `{p}` leaves the output directory"))
             .label("not a plain relative path")

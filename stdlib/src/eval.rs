@@ -8,33 +8,168 @@ use std::collections::HashMap;
 use std::sync::Arc;
 
 use sdfl_lang::ast::*;
-use sdfl_lang::diag::{codes, Diag, Diagnostics};
+use sdfl_lang::diag::{codes, fmt_num, Diag, Diagnostics};
 use sdfl_lang::Span;
 
 use crate::builtins::{Args, StdEnv};
+use crate::shape::Shape;
 use crate::value::{Program, Value};
 
 /// Most iterations of one `for` binding.
 pub const MAX_LOOP: u64 = 1_000_000;
 /// Most loop iterations and calls in a whole file: a bound on evaluation
-/// time and memory (a few hundred bytes per shape).
+/// time.
 pub const MAX_WORK: u64 = 2_000_000;
 /// Deepest nesting of shapes and lists (built through chains of `let`s,
 /// which brackets do not limit): tree walkers recurse this deep.
 pub const MAX_DEPTH: usize = 200;
+/// Most primitives one value may hold once expanded. Values are DAGs
+/// (`union(a, a)` shares `a`), but lowering and tracing copy every use, so
+/// this bounds lowering time and memory (see [`BYTES_PER_PRIMITIVE`]).
+pub const MAX_PRIMITIVES: u64 = 2_000_000;
+/// Most nodes (list items, shape nodes, transforms) one value may hold
+/// once expanded: what tree walks over it visit.
+pub const MAX_NODES: u64 = 16_000_000;
+/// Peak memory per primitive of evaluating and lowering a scene, measured
+/// (a million spheres: 567 MB at peak, scene IR, evaluator leaves, BVH
+/// and primitive table); for the estimates printed in diagnostics.
+pub const BYTES_PER_PRIMITIVE: u64 = 570;
 
-/// Whether a value nests deeper than `limit` (visits at most `limit` levels).
-fn deeper_than(v: &Value, limit: usize) -> bool {
-    fn shape(s: &crate::shape::Shape, limit: usize) -> bool {
-        limit == 0 || s.children().into_iter().any(|c| shape(c, limit - 1))
+/// The expanded size of a value: what walking it as a tree would visit.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Size {
+    /// All nodes: list items, shape nodes, scalars.
+    pub nodes: u64,
+    /// Primitive shapes (leaves of shape trees).
+    pub primitives: u64,
+    /// Nodes on the longest path from the root (a scalar is 1).
+    pub depth: usize,
+    /// Items of lists, nested lists included (not what shapes hold): what
+    /// a builtin flattening a list argument walks.
+    pub items: u64,
+}
+
+impl Size {
+    const SCALAR: Size = Size {
+        nodes: 1,
+        primitives: 0,
+        depth: 1,
+        items: 0,
+    };
+    /// A node over `children` (saturating: expanded sizes of shared values
+    /// grow exponentially with the sharing depth).
+    fn node(children: impl IntoIterator<Item = Size>, primitive: bool) -> Size {
+        let mut s = Size {
+            nodes: 1,
+            primitives: primitive as u64,
+            depth: 0,
+            items: 0,
+        };
+        for c in children {
+            s.nodes = s.nodes.saturating_add(c.nodes);
+            s.primitives = s.primitives.saturating_add(c.primitives);
+            s.depth = s.depth.max(c.depth);
+            s.items = s.items.saturating_add(c.items);
+        }
+        s.depth = s.depth.saturating_add(1);
+        s
     }
-    if limit == 0 {
-        return true;
+}
+
+/// Expanded sizes of values, memoised by `Arc` identity so a DAG is
+/// measured in time linear in its distinct nodes. The memo keeps each
+/// measured `Arc` alive so its address is never reused by another value.
+#[derive(Default)]
+pub struct Sizes {
+    shapes: HashMap<usize, (Arc<Shape>, Size)>,
+    lists: HashMap<usize, (Arc<Vec<Value>>, Size)>,
+}
+
+/// Lists of scalars up to this long are not memoised.
+const SMALL_LIST: usize = 16;
+
+/// Recursion guard for values built outside the evaluator (never reached
+/// for evaluated values, whose parts were measured when built).
+const MEASURE_LIMIT: usize = MAX_DEPTH + 8;
+
+impl Sizes {
+    pub fn of(&mut self, v: &Value) -> Size {
+        self.value(v, 0)
     }
-    match v {
-        Value::List(items) => items.iter().any(|i| deeper_than(i, limit - 1)),
-        Value::Shape(s) => shape(s, limit),
-        _ => false,
+
+    fn value(&mut self, v: &Value, level: usize) -> Size {
+        if level > MEASURE_LIMIT {
+            return Size {
+                depth: MEASURE_LIMIT,
+                ..Size::SCALAR
+            };
+        }
+        match v {
+            Value::List(items) => {
+                let key = Arc::as_ptr(items) as usize;
+                if let Some((_, s)) = self.lists.get(&key) {
+                    return *s;
+                }
+                let sizes: Vec<Size> = items.iter().map(|i| self.value(i, level + 1)).collect();
+                let mut s = Size::node(sizes, false);
+                s.items = s.items.saturating_add(items.len() as u64);
+                // Short lists of scalars (vectors) are cheaper to measure
+                // again than to keep alive in the memo.
+                if items.len() > SMALL_LIST || s.depth > 2 {
+                    self.lists.insert(key, (items.clone(), s));
+                }
+                s
+            }
+            Value::Shape(sh) => self.shape(sh, level),
+            Value::Field(f) => Size {
+                items: 0,
+                ..Size::node([self.shape(&f.shape, level + 1)], false)
+            },
+            _ => Size::SCALAR,
+        }
+    }
+
+    pub fn shape(&mut self, sh: &Arc<Shape>, level: usize) -> Size {
+        let key = Arc::as_ptr(sh) as usize;
+        if let Some((_, s)) = self.shapes.get(&key) {
+            return *s;
+        }
+        if level > MEASURE_LIMIT {
+            return Size {
+                depth: MEASURE_LIMIT,
+                ..Size::SCALAR
+            };
+        }
+        let children = sh.children();
+        if children.is_empty() {
+            // Measured in O(1); not kept alive by the memo.
+            return Size::node([], true);
+        }
+        let sizes: Vec<Size> = children
+            .into_iter()
+            .map(|c| self.shape(c, level + 1))
+            .collect();
+        let s = Size::node(sizes, false);
+        self.shapes.insert(key, (sh.clone(), s));
+        s
+    }
+}
+
+/// Bytes as a short human figure (`1.5 GB`).
+pub fn fmt_bytes(b: f64) -> String {
+    const UNITS: [&str; 5] = ["bytes", "kB", "MB", "GB", "TB"];
+    let mut x = b;
+    let mut u = 0;
+    while x >= 1000.0 && u < UNITS.len() - 1 {
+        x /= 1000.0;
+        u += 1;
+    }
+    if u == 0 {
+        format!("{x:.0} bytes")
+    } else if x >= 1000.0 {
+        format!("{} {}", fmt_num(x.round()), UNITS[u])
+    } else {
+        format!("{x:.1} {}", UNITS[u])
     }
 }
 
@@ -50,6 +185,13 @@ pub struct Evaluator<'e> {
     overrides: HashMap<String, Value>,
     /// `param(...)` calls evaluated so far (their ids).
     params: usize,
+    sizes: Sizes,
+    /// Estimated evaluations and primitives of the statements so far.
+    total_evaluations: f64,
+    total_primitives: u64,
+    total_refused: bool,
+    /// Every file the program writes so far, for collisions.
+    files: crate::outputs::Files,
 }
 
 impl<'e> Evaluator<'e> {
@@ -64,6 +206,11 @@ impl<'e> Evaluator<'e> {
             defaults: HashMap::new(),
             overrides: HashMap::new(),
             params: 0,
+            sizes: Sizes::default(),
+            total_evaluations: 0.0,
+            total_primitives: 0,
+            total_refused: false,
+            files: crate::outputs::Files::default(),
         }
     }
 
@@ -74,7 +221,13 @@ impl<'e> Evaluator<'e> {
     }
 
     /// Evaluate a checked file.
-    pub fn run(mut self, file: &File) -> Result<Program, Diagnostics> {
+    pub fn run(self, file: &File) -> Result<Program, Diagnostics> {
+        self.run_warned(file).map(|(p, _)| p)
+    }
+
+    /// Evaluate a checked file; with the warnings when it has no errors.
+    /// (When it has, the warnings are reported with the errors.)
+    pub fn run_warned(mut self, file: &File) -> Result<(Program, Diagnostics), Diagnostics> {
         let mut program = Program::default();
         for item in &file.items {
             if self.aborted {
@@ -96,10 +249,10 @@ impl<'e> Evaluator<'e> {
                 }
             }
         }
-        if self.diags.is_empty() {
-            Ok(program)
-        } else {
+        if self.diags.has_errors() {
             Err(self.diags.sorted())
+        } else {
+            Ok((program, self.diags.sorted()))
         }
     }
 
@@ -109,7 +262,15 @@ impl<'e> Evaluator<'e> {
     }
 
     fn spend(&mut self, span: Span) -> bool {
-        self.work += 1;
+        self.spend_n(1, span)
+    }
+
+    /// Spends `n` units of work: a loop iteration or call is one, and the
+    /// items of lists passed to calls or combined by arithmetic one each
+    /// (builtins and arithmetic walk them; a loop over `union(big)` costs
+    /// the size of `big` every time).
+    fn spend_n(&mut self, n: u64, span: Span) -> bool {
+        self.work = self.work.saturating_add(n);
         if self.work > MAX_WORK && !self.aborted {
             self.aborted = true;
             self.diags.push(
@@ -119,7 +280,7 @@ impl<'e> Evaluator<'e> {
                     format!("the scene needs more than {MAX_WORK} loop iterations and calls"),
                 )
                 .label("evaluation stopped here")
-                .help("reduce the loop counts; sdfl scenes are meant to stay below a million primitives"),
+                .help("reduce the loop counts (lists passed to calls count one per item); sdfl scenes are meant to stay below a million primitives"),
             );
         }
         !self.aborted
@@ -143,7 +304,8 @@ impl<'e> Evaluator<'e> {
                 args.named.insert(p.name, (v, b.kind.span));
             }
         }
-        if args.named.values().any(|(v, _)| v.is_poison()) {
+        // Shallow: lists holding poison are poison themselves (see `expr`).
+        if args.named.values().any(|(v, _)| matches!(v, Value::Poison)) {
             return;
         }
         let name = b
@@ -161,6 +323,81 @@ impl<'e> Evaluator<'e> {
             _ => crate::builtins::render_block(&name, &args).map(|j| program.renders.push(j)),
         };
         if let Err(d) = result {
+            self.diags.push(d);
+            return;
+        }
+        let field = |name: &str| args.named.get(name).map_or(b.kind.span, |(_, s)| *s);
+        let kind = match (sig.kind, args.named.get("scene")) {
+            ("train", _) => "train",
+            (_, Some((Value::Field(_), _))) => "volume",
+            _ => "render",
+        };
+        let mut found = crate::outputs::check_job(program, kind, &mut self.files, &field);
+        use crate::work;
+        let span = b
+            .name
+            .as_ref()
+            .map_or(b.kind.span, |n| b.kind.span.to(n.span));
+        let default_far;
+        let (w, what, scene, reach) = match kind {
+            "train" => {
+                let j = program.trains.last().expect("just added");
+                let w = work::train_work(j, None);
+                (w, "iterations or rays", j.model.shape.clone(), None)
+            }
+            "volume" => {
+                let j = program.volumes.last().expect("just added");
+                let reach = (
+                    &j.cameras,
+                    j.sampler.near,
+                    j.sampler.far,
+                    (field("sampler"), "the sampler's `far` ends the rays"),
+                );
+                (
+                    work::volume_work(j, None),
+                    "samples",
+                    j.field.shape.clone(),
+                    Some(reach),
+                )
+            }
+            _ => {
+                let j = program.renders.last().expect("just added");
+                let prims = self.sizes.shape(&j.scene, 0).primitives;
+                default_far = format!("`far` is {} unless given", fmt_num(j.far));
+                let far_note = if field("far") == b.kind.span {
+                    (b.kind.span, default_far.as_str())
+                } else {
+                    (field("far"), "rays end here")
+                };
+                let reach = (&j.cameras, j.near, j.far, far_note);
+                let w = work::render_work_of(j, None, prims);
+                (w, "iterations", j.scene.clone(), Some(reach))
+            }
+        };
+        found.extend(work::refuse(w, span, what));
+        let size = self.sizes.shape(&scene, 0);
+        // Bounds are an expanded walk: worth it for a warning only on
+        // scenes of ordinary size.
+        if let Some((cameras, near, far, note)) = reach.filter(|_| size.nodes <= 1_000_000) {
+            found.extend(work::reach_warning(
+                scene.bounds(),
+                cameras,
+                near,
+                far,
+                field("camera"),
+                note,
+            ));
+        }
+        // Totals over the file: each statement runs, one after another.
+        self.total_evaluations += w.evaluations;
+        self.total_primitives = self.total_primitives.saturating_add(size.primitives);
+        if found.is_empty() && !self.total_refused {
+            let refused = work::refuse_total(self.total_evaluations, self.total_primitives, span);
+            // Once: every later statement is over too.
+            self.total_refused = refused.is_some();
+            found.extend(refused);
+        }
+        for d in found {
             self.diags.push(d);
         }
     }
@@ -222,16 +459,17 @@ impl<'e> Evaluator<'e> {
             ExprKind::List(items) => {
                 let items: Vec<Value> = items.iter().map(|i| self.expr(i)).collect();
                 // A list holding poison is poison: the depth of what was
-                // already reported must not keep growing unchecked.
+                // already reported must not keep growing unchecked, and
+                // poison is then found without walking into lists.
                 if items.iter().any(|i| matches!(i, Value::Poison)) {
                     return Value::Poison;
                 }
-                self.depth_checked(Value::List(Arc::new(items)), e.span)
+                self.size_checked(Value::List(Arc::new(items)), e.span)
             }
             ExprKind::Call { callee, args, .. } => self.call(callee, args, e.span),
             ExprKind::Member(recv, name) => {
                 let v = self.expr(recv);
-                if v.is_poison() {
+                if matches!(v, Value::Poison) {
                     return Value::Poison;
                 }
                 let idx = match name.name.as_str() {
@@ -263,23 +501,28 @@ impl<'e> Evaluator<'e> {
             ExprKind::For { bindings, body } => {
                 let mut out = Vec::new();
                 self.locals.push(HashMap::new());
-                self.comprehension(bindings, body, e.span, &mut out);
+                let mut acc = Size::node([], false);
+                self.comprehension(bindings, body, e.span, &mut out, &mut acc);
                 self.locals.pop();
-                if out.iter().any(Value::is_poison) {
+                if out.iter().any(|i| matches!(i, Value::Poison)) {
                     return Value::Poison;
                 }
-                Value::List(Arc::new(out))
+                self.size_checked(Value::List(Arc::new(out)), e.span)
             }
         }
     }
 
+    /// Unrolls a loop into `out`; false once it must stop. `acc` is the
+    /// expanded size of `out` so far: a loop is stopped as soon as its
+    /// list grows past the limits, before it holds terabytes.
     fn comprehension(
         &mut self,
         bindings: &[Binding],
         body: &Body,
         span: Span,
         out: &mut Vec<Value>,
-    ) {
+        acc: &mut Size,
+    ) -> bool {
         let Some((first, rest)) = bindings.split_first() else {
             self.locals.push(HashMap::new());
             for l in &body.lets {
@@ -289,9 +532,33 @@ impl<'e> Evaluator<'e> {
                     .expect("pushed")
                     .insert(l.name.name.clone(), v);
             }
-            out.push(self.expr(&body.value));
+            let v = self.expr(&body.value);
             self.locals.pop();
-            return;
+            let size = self.sizes.of(&v);
+            *acc = Size::node([*acc, size], false);
+            if let Some(mut d) = size_error(*acc, span) {
+                // Stopped early: the whole loop would be larger still.
+                let what = if acc.primitives > MAX_PRIMITIVES {
+                    format!("{} primitives", fmt_count(MAX_PRIMITIVES))
+                } else {
+                    format!("{} items", fmt_count(MAX_NODES))
+                };
+                d.message = format!("this loop would make more than {what} once expanded");
+                d.label = format!(
+                    "{} primitives and {} items after {} iterations, about {} of memory",
+                    fmt_count(acc.primitives),
+                    fmt_count(acc.nodes),
+                    out.len() + 1,
+                    fmt_bytes(
+                        acc.primitives as f64 * BYTES_PER_PRIMITIVE as f64
+                            + acc.nodes as f64 * 32.0
+                    )
+                );
+                out.push(self.error(d));
+                return false;
+            }
+            out.push(v);
+            return true;
         };
         let items: Vec<Value> = match &first.source {
             Source::Range {
@@ -302,7 +569,7 @@ impl<'e> Evaluator<'e> {
                 let (s, t) = (self.expr(start), self.expr(end));
                 let (Value::Number(s), Value::Number(t)) = (s, t) else {
                     out.push(Value::Poison);
-                    return;
+                    return false;
                 };
                 let count = if *inclusive {
                     (t - s).floor() + 1.0
@@ -316,13 +583,16 @@ impl<'e> Evaluator<'e> {
                         Diag::new(
                             codes::TOO_LARGE,
                             span,
-                            format!("range has {count:.0} values (at most {MAX_LOOP})"),
+                            format!(
+                                "range has {} values (at most {MAX_LOOP})",
+                                fmt_count(count.min(u64::MAX as f64) as u64)
+                            ),
                         )
                         .label("too many iterations")
                         .help("sdfl scenes are meant to stay below a million primitives"),
                     );
                     out.push(Value::Poison);
-                    return;
+                    return false;
                 }
                 (0..count as u64)
                     .map(|k| Value::Number(s + k as f64))
@@ -332,7 +602,7 @@ impl<'e> Evaluator<'e> {
                 Value::List(items) => items.as_ref().clone(),
                 Value::Poison => {
                     out.push(Value::Poison);
-                    return;
+                    return false;
                 }
                 other => {
                     let d = Diag::new(
@@ -343,20 +613,23 @@ impl<'e> Evaluator<'e> {
                     .label("not a list")
                     .help("loop over a range `0..n` or a list `[...]`");
                     out.push(self.error(d));
-                    return;
+                    return false;
                 }
             },
         };
         for item in items {
             if !self.spend(span) {
-                return;
+                return false;
             }
             self.locals
                 .last_mut()
                 .expect("pushed by caller")
                 .insert(first.var.name.clone(), item);
-            self.comprehension(rest, body, span, out);
+            if !self.comprehension(rest, body, span, out, acc) {
+                return false;
+            }
         }
+        true
     }
 
     fn arith(&mut self, op: BinOp, l: Value, r: Value, span: Span, rhs_span: Span) -> Value {
@@ -384,7 +657,7 @@ impl<'e> Evaluator<'e> {
                 _ => None,
             }
         };
-        if l.is_poison() || r.is_poison() {
+        if matches!(l, Value::Poison) || matches!(r, Value::Poison) {
             return Value::Poison;
         }
         let (Some(a), Some(b)) = (nums(&l), nums(&r)) else {
@@ -397,6 +670,9 @@ impl<'e> Evaluator<'e> {
             .help("arithmetic applies to numbers and vectors");
             return self.error(d);
         };
+        if !self.spend_n(a.len().max(b.len()) as u64 - 1, span) {
+            return Value::Poison;
+        }
         let scalar = matches!((&l, &r), (Value::Number(_), Value::Number(_)));
         let result: Vec<f64> = match (a.len(), b.len()) {
             _ if scalar => vec![apply(a[0], b[0])],
@@ -423,9 +699,13 @@ impl<'e> Evaluator<'e> {
                     .label("this is zero")
                     .help("guard the divisor, e.g. `max(x, 1e-6)`")
             } else {
-                Diag::new(codes::ARITHMETIC, span, format!("arithmetic gives {bad}"))
-                    .label("not a finite number")
-                    .help("check the operands: results must be finite numbers")
+                Diag::new(
+                    codes::ARITHMETIC,
+                    span,
+                    format!("arithmetic gives {}", fmt_num(*bad)),
+                )
+                .label("not a finite number")
+                .help("check the operands: results must be finite numbers")
             };
             return self.error(d);
         }
@@ -449,7 +729,7 @@ impl<'e> Evaluator<'e> {
         let mut poisoned = false;
         for (i, a) in args.iter().enumerate() {
             let v = self.expr(&a.value);
-            poisoned |= v.is_poison();
+            poisoned |= matches!(v, Value::Poison);
             let slot = match &a.name {
                 Some(n) => sig.params.iter().find(|p| p.name == n.name).map(|p| p.name),
                 None => sig.params.get(i).map(|p| p.name),
@@ -464,6 +744,15 @@ impl<'e> Evaluator<'e> {
         if poisoned {
             return Value::Poison;
         }
+        let walked: u64 = bound
+            .named
+            .values()
+            .chain(&bound.rest)
+            .map(|(v, _)| self.sizes.of(v).items)
+            .fold(0, u64::saturating_add);
+        if !self.spend_n(walked, span) {
+            return Value::Poison;
+        }
         for p in &sig.params {
             if let (false, Some(src)) = (bound.named.contains_key(p.name), p.default) {
                 let v = self.default_value(sig.name, p.name, src);
@@ -476,24 +765,87 @@ impl<'e> Evaluator<'e> {
                 self.params += 1;
                 Value::Param(decl)
             }
-            Ok(v) => self.depth_checked(v, span),
+            Ok(v) => self.size_checked(v, span),
             Err(d) => self.error(d),
         }
     }
 
-    fn depth_checked(&mut self, v: Value, span: Span) -> Value {
-        if !deeper_than(&v, MAX_DEPTH) {
-            return v;
+    /// The value, or poison with a diagnostic when it nests too deep or
+    /// expands to more than the scene limits (measured as a DAG).
+    fn size_checked(&mut self, v: Value, span: Span) -> Value {
+        let size = self.sizes.of(&v);
+        if size.depth > MAX_DEPTH {
+            return self.error(
+                Diag::new(
+                    codes::TOO_LARGE,
+                    span,
+                    format!("value nested more than {MAX_DEPTH} levels deep"),
+                )
+                .label("too deep")
+                .help("build long sequences with `for` and `union` instead of chaining `let`s"),
+            );
         }
-        self.error(
+        match size_error(size, span) {
+            Some(d) => self.error(d),
+            None => v,
+        }
+    }
+}
+
+/// The diagnostic for a value whose expanded size is over the limits.
+fn size_error(size: Size, span: Span) -> Option<Diag> {
+    if size.primitives > MAX_PRIMITIVES {
+        let bytes = size.primitives as f64 * BYTES_PER_PRIMITIVE as f64;
+        return Some(
             Diag::new(
                 codes::TOO_LARGE,
                 span,
-                format!("value nested more than {MAX_DEPTH} levels deep"),
+                format!(
+                    "this scene would have {} primitives once expanded (at most {})",
+                    fmt_count(size.primitives),
+                    fmt_count(MAX_PRIMITIVES)
+                ),
             )
-            .label("too deep")
-            .help("build long sequences with `for` and `union` instead of chaining `let`s"),
-        )
+            .label(format!(
+                "{} primitives, about {} of memory",
+                fmt_count(size.primitives),
+                fmt_bytes(bytes)
+            ))
+            .help(
+                "every use of a shape is a copy when rendered (`union(a, a)` holds `a` twice): \
+                     reduce the loop counts or the repetition",
+            ),
+        );
+    }
+    if size.nodes > MAX_NODES {
+        return Some(
+            Diag::new(
+                codes::TOO_LARGE,
+                span,
+                format!(
+                    "this value would have {} items once expanded (at most {})",
+                    fmt_count(size.nodes),
+                    fmt_count(MAX_NODES)
+                ),
+            )
+            .label("too many items")
+            .help(
+                "every use of a list or shape is a copy: reduce the loop counts or the repetition",
+            ),
+        );
+    }
+    None
+}
+
+/// A count in a message: exact below a billion, else short scientific
+/// (saturated counts of shared values are astronomically large).
+pub fn fmt_count(n: u64) -> String {
+    if n < 1_000_000_000 {
+        n.to_string()
+    } else if n == u64::MAX {
+        "more than 1.8e19".into()
+    } else {
+        fmt_num(n as f64)
     }
 }
 
@@ -509,7 +861,7 @@ fn name_param(v: &mut Value, name: &str) {
 /// A short description of a value for messages.
 pub(crate) fn describe(v: &Value) -> String {
     match v {
-        Value::Number(x) => format!("number {x}"),
+        Value::Number(x) => format!("number {}", fmt_num(*x)),
         Value::List(items) => format!("list of {} items", items.len()),
         other => other.type_name().to_string(),
     }

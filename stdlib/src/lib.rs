@@ -10,10 +10,13 @@ pub mod camera;
 pub mod eval;
 pub mod material;
 pub mod num;
+pub mod outputs;
 pub mod param;
+pub mod precision;
 pub mod sdf;
 pub mod shape;
 pub mod value;
+pub mod work;
 
 pub use builtins::StdEnv;
 pub use value::{Output, OutputKind, Program, RenderJob, Value};
@@ -22,13 +25,19 @@ use sdfl_lang::{Diagnostics, SourceFile};
 
 /// Parse, check and evaluate a scene file.
 pub fn load(source: &SourceFile) -> Result<Program, Diagnostics> {
+    load_warned(source).map(|(p, _)| p)
+}
+
+/// [`load`], with the warnings of a file that has no errors (a file with
+/// errors reports its warnings among them).
+pub fn load_warned(source: &SourceFile) -> Result<(Program, Diagnostics), Diagnostics> {
     let file = sdfl_lang::parse::parse(&source.text)?;
     let env = StdEnv::get();
     let diags = sdfl_lang::check::check(&file, env);
     if !diags.is_empty() {
         return Err(diags);
     }
-    eval::Evaluator::new(env).run(&file)
+    eval::Evaluator::new(env).run_warned(&file)
 }
 
 /// [`load`] with top-level `let` bindings replaced by the given numbers

@@ -115,6 +115,9 @@ pub enum OutputKind {
 pub struct Output {
     pub kind: OutputKind,
     pub path: PathBuf,
+    /// The call that asked for it (for diagnostics about its files).
+    #[serde(skip)]
+    pub span: sdfl_lang::Span,
 }
 
 /// One `render` statement, fully evaluated and validated.

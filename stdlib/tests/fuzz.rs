@@ -599,6 +599,109 @@ fn program() -> impl Strategy<Value = String> {
     prop::collection::vec(any::<u32>(), 0..2000).prop_map(|c| gen_program(&c))
 }
 
+// ------------------------------------------------- sharing and loop bombs
+
+/// A chain of `let`s where each value uses earlier ones several times
+/// (`let a5 = union(a4, a4, a2)`): tiny files whose values expand
+/// exponentially, which evaluation must measure without expanding.
+fn sharing_program() -> impl Strategy<Value = String> {
+    (
+        1usize..70,
+        0usize..4,
+        prop::collection::vec((0usize..6, 0usize..3, 1usize..4), 70),
+        any::<bool>(),
+    )
+        .prop_map(|(n, base, steps, render)| {
+            let mut text = format!(
+                "let a0 = {}\n",
+                ["sphere(0.1)", "[1, 2, 3]", "box()", "[sphere(), box()]"][base]
+            );
+            for (k, (op, back, copies)) in steps.iter().take(n).enumerate() {
+                let k = k + 1;
+                let prev = format!("a{}", k - 1);
+                let older = format!("a{}", (k - 1).saturating_sub(*back));
+                let mut args = vec![prev.clone(); *copies];
+                args.push(older);
+                let args = args.join(", ");
+                let expr = match op {
+                    0 => format!("union({args})"),
+                    1 => format!("[{args}]"),
+                    2 => format!("for i in 0..{copies} {{ {prev} }}"),
+                    3 => format!("smooth_union({prev}, {prev}, k: 0.1)"),
+                    4 => format!("{prev}.translate([1, 0, 0])"),
+                    _ => format!("intersection({args})"),
+                };
+                text += &format!("let a{k} = {expr}\n");
+            }
+            if render {
+                text += &format!(
+                    "render r {{ scene: a{n}, camera: look_at([0, 0, -3]), outputs: [image(\"r.png\")] }}\n"
+                );
+            }
+            text
+        })
+}
+
+/// Nested loops over unions and lists with counts from 1 to beyond the
+/// limits: a few calls that ask for up to 10^18 primitives.
+fn loop_program() -> impl Strategy<Value = String> {
+    let count = select(vec![1u64, 3, 10, 100, 1000, 3000, 100_000, 2_000_000]);
+    (prop::collection::vec((count, 0usize..3), 1..4), any::<bool>()).prop_map(|(levels, render)| {
+        let mut text = String::from("let l0 = sphere(0.1)\n");
+        for (k, (n, wrap)) in levels.iter().enumerate() {
+            let prev = format!("l{k}");
+            let body = match wrap {
+                0 => format!("union({prev})"),
+                1 => format!("{prev}.translate([i, 0, 0])"),
+                _ => format!("[{prev}, {prev}]"),
+            };
+            text += &format!("let l{} = for i in 0..{n} {{ {body} }}\n", k + 1);
+        }
+        if render {
+            text += &format!(
+                "render r {{ scene: union(l{}), camera: look_at([0, 0, -3]), outputs: [image(\"r.png\")] }}\n",
+                levels.len()
+            );
+        }
+        text
+    })
+}
+
+/// Loads a bomb: well formed as any input, quick, and when accepted every
+/// statement's scene is within the primitive budget once expanded.
+fn check_bomb(text: &str) -> Result<(), TestCaseError> {
+    let t0 = Instant::now();
+    check_source(text)?;
+    let src = SourceFile::new("bomb.sdfl", text);
+    if let Ok(program) = sdfl_stdlib::load(&src) {
+        for job in &program.renders {
+            let n = job.scene.primitive_count() as u64;
+            prop_assert!(
+                n <= sdfl_stdlib::eval::MAX_PRIMITIVES,
+                "{n} primitives accepted in {text:?}"
+            );
+        }
+    }
+    let elapsed = t0.elapsed();
+    prop_assert!(elapsed < Duration::from_secs(5), "{elapsed:?} on {text:?}");
+    Ok(())
+}
+
+proptest! {
+    // Few cases: the largest accepted loops take a second each.
+    #![proptest_config(ProptestConfig { cases: 24, ..config() })]
+
+    #[test]
+    fn sharing_bombs(text in sharing_program()) {
+        check_bomb(&text)?;
+    }
+
+    #[test]
+    fn loop_bombs(text in loop_program()) {
+        check_bomb(&text)?;
+    }
+}
+
 // ---------------------------------------------------------------- properties
 
 proptest! {

@@ -1,3 +1,4 @@
 //! Readers for input data sets.
 
+pub mod image;
 pub mod npy;

@@ -48,42 +48,140 @@ impl From<std::io::Error> for NpyError {
 
 /// Reads an `(H, W, 3)` little-endian float32 C-order `.npy` v1 file.
 pub fn read_rgb_f32(path: impl AsRef<Path>) -> Result<RgbImage, NpyError> {
-    parse_rgb_f32(&std::fs::read(path)?)
+    parse_rgb_f32(&read_limited(path.as_ref())?)
 }
 
-/// Value of `key` in the header dict: the text after `'key':` up to the
-/// next top-level `,` or `}` (parentheses are kept together).
-fn dict_value<'a>(header: &'a str, key: &str) -> Result<&'a str, NpyError> {
-    let pat = format!("'{key}':");
-    let start = header
-        .find(&pat)
-        .ok_or_else(|| NpyError::Format(format!("header has no '{key}'")))?
-        + pat.len();
-    let rest = &header[start..];
-    let mut depth = 0i32;
-    for (i, ch) in rest.char_indices() {
-        match ch {
-            '(' => depth += 1,
-            ')' => depth -= 1,
-            ',' | '}' if depth == 0 => return Ok(rest[..i].trim()),
-            _ => {}
-        }
-        if depth < 0 {
-            break;
+/// The bytes of a regular file no larger than an array may be.
+fn read_limited(path: &Path) -> Result<Vec<u8>, NpyError> {
+    use std::io::Read;
+    let file = super::image::open_regular(path)?;
+    let limit = MAX_ARRAY_BYTES + 10 + u16::MAX as u64;
+    let mut buf = Vec::new();
+    file.take(limit + 1).read_to_end(&mut buf)?;
+    if buf.len() as u64 > limit {
+        return Err(NpyError::Unsupported(format!(
+            "file larger than {limit} bytes"
+        )));
+    }
+    Ok(buf)
+}
+
+/// Largest array the readers accept, in data bytes: an `.npy` header or
+/// an `.npz` entry may declare any size, so it is checked before reading.
+pub const MAX_ARRAY_BYTES: u64 = 2_000_000_000;
+
+/// A value of the header dict (a Python literal).
+#[derive(Debug, Clone, PartialEq)]
+enum HeaderValue {
+    Str(String),
+    Bool(bool),
+    Tuple(Vec<usize>),
+}
+
+/// Parses the header, a Python dict literal such as
+/// `{'descr': '<f4', 'fortran_order': False, 'shape': (2, 3, 3), }`,
+/// with a small tokenizer: keys are found only as keys, never inside a
+/// string value.
+fn parse_header(h: &str) -> Result<std::collections::HashMap<String, HeaderValue>, NpyError> {
+    #[derive(Debug, PartialEq)]
+    enum Tok {
+        Punct(char),
+        Str(String),
+        Word(String),
+    }
+    let bad = |m: &str| NpyError::Format(format!("bad header: {m}"));
+    let mut toks = Vec::new();
+    let mut chars = h.char_indices().peekable();
+    while let Some((_, c)) = chars.next() {
+        match c {
+            c if c.is_whitespace() => {}
+            '{' | '}' | '(' | ')' | ':' | ',' => toks.push(Tok::Punct(c)),
+            '\'' | '"' => {
+                let mut s = String::new();
+                loop {
+                    match chars.next() {
+                        Some((_, ch)) if ch == c => break,
+                        Some((_, '\\')) => match chars.next() {
+                            Some((_, e)) => s.push(e),
+                            None => return Err(bad("unterminated string")),
+                        },
+                        Some((_, ch)) => s.push(ch),
+                        None => return Err(bad("unterminated string")),
+                    }
+                }
+                toks.push(Tok::Str(s));
+            }
+            c if c.is_ascii_alphanumeric() || c == '_' => {
+                let mut w = c.to_string();
+                while let Some(&(_, n)) = chars.peek() {
+                    if n.is_ascii_alphanumeric() || n == '_' {
+                        w.push(n);
+                        chars.next();
+                    } else {
+                        break;
+                    }
+                }
+                toks.push(Tok::Word(w));
+            }
+            other => return Err(bad(&format!("unexpected `{other}`"))),
         }
     }
-    Err(NpyError::Format(format!("unterminated value of '{key}'")))
+    let mut it = toks.into_iter().peekable();
+    if it.next() != Some(Tok::Punct('{')) {
+        return Err(bad("not a dict"));
+    }
+    let mut dict = std::collections::HashMap::new();
+    loop {
+        let key = match it.next() {
+            Some(Tok::Punct('}')) => break,
+            Some(Tok::Str(k)) => k,
+            _ => return Err(bad("expected a quoted key")),
+        };
+        if it.next() != Some(Tok::Punct(':')) {
+            return Err(bad("expected `:`"));
+        }
+        let value = match it.next() {
+            Some(Tok::Str(s)) => HeaderValue::Str(s),
+            Some(Tok::Word(w)) if w == "True" => HeaderValue::Bool(true),
+            Some(Tok::Word(w)) if w == "False" => HeaderValue::Bool(false),
+            Some(Tok::Punct('(')) => {
+                let mut dims = Vec::new();
+                loop {
+                    match it.next() {
+                        Some(Tok::Punct(')')) => break,
+                        Some(Tok::Word(w)) => {
+                            dims.push(w.parse::<usize>().map_err(|_| bad("bad shape"))?);
+                            match it.next() {
+                                Some(Tok::Punct(',')) => {}
+                                Some(Tok::Punct(')')) => break,
+                                _ => return Err(bad("bad shape")),
+                            }
+                        }
+                        _ => return Err(bad("bad shape")),
+                    }
+                }
+                HeaderValue::Tuple(dims)
+            }
+            _ => return Err(bad(&format!("bad value of '{key}'"))),
+        };
+        if dict.insert(key.clone(), value).is_some() {
+            return Err(bad(&format!("'{key}' given twice")));
+        }
+        match it.next() {
+            Some(Tok::Punct(',')) => {}
+            Some(Tok::Punct('}')) => break,
+            _ => return Err(bad("expected `,` or `}`")),
+        }
+    }
+    if it.next().is_some() {
+        return Err(bad("text after the dict"));
+    }
+    Ok(dict)
 }
 
-/// A float32 array of any shape, C order.
-#[derive(Debug, Clone, PartialEq)]
-pub struct F32Array {
-    pub shape: Vec<usize>,
-    pub data: Vec<f32>,
-}
-
-/// Parses the bytes of a float32 `.npy` v1 file of any shape.
-pub fn parse_f32(bytes: &[u8]) -> Result<F32Array, NpyError> {
+/// The checked header of a float32 C-order `.npy` v1 file: its shape, and
+/// where the data starts.
+fn header_shape(bytes: &[u8]) -> Result<(Vec<usize>, usize), NpyError> {
     if bytes.len() < 10 || &bytes[..6] != MAGIC {
         return Err(NpyError::Format("missing \\x93NUMPY magic".into()));
     }
@@ -100,32 +198,64 @@ pub fn parse_f32(bytes: &[u8]) -> Result<F32Array, NpyError> {
     }
     let header = std::str::from_utf8(&bytes[10..data_start])
         .map_err(|_| NpyError::Format("header is not ASCII".into()))?;
-    let descr = dict_value(header, "descr")?.trim_matches(|c| c == '\'' || c == '"');
-    if descr != "<f4" {
+    let dict = parse_header(header)?;
+    match dict.get("descr") {
+        Some(HeaderValue::Str(d)) if d == "<f4" => {}
+        Some(HeaderValue::Str(d)) => {
+            return Err(NpyError::Unsupported(format!(
+                "dtype {d} (only little-endian float32 '<f4')"
+            )))
+        }
+        _ => return Err(NpyError::Format("header has no 'descr' string".into())),
+    }
+    match dict.get("fortran_order") {
+        Some(HeaderValue::Bool(false)) => {}
+        Some(HeaderValue::Bool(true)) => {
+            return Err(NpyError::Unsupported("Fortran order (only C order)".into()))
+        }
+        _ => return Err(NpyError::Format("header has no 'fortran_order'".into())),
+    }
+    let Some(HeaderValue::Tuple(shape)) = dict.get("shape") else {
+        return Err(NpyError::Format("header has no 'shape' tuple".into()));
+    };
+    // The declared shape is checked before anything is allocated for it.
+    let fits = shape
+        .iter()
+        .try_fold(4u64, |a, &d| a.checked_mul(d as u64))
+        .is_some_and(|b| b <= MAX_ARRAY_BYTES);
+    if !fits {
         return Err(NpyError::Unsupported(format!(
-            "dtype {descr} (only little-endian float32 '<f4')"
+            "shape {shape:?} holds more than {MAX_ARRAY_BYTES} bytes"
         )));
     }
-    if dict_value(header, "fortran_order")? != "False" {
-        return Err(NpyError::Unsupported("Fortran order (only C order)".into()));
+    Ok((shape.clone(), data_start))
+}
+
+/// The shape declared by a `.npy` file's header, reading only the header.
+pub fn read_shape(path: impl AsRef<Path>) -> Result<Vec<usize>, NpyError> {
+    use std::io::Read;
+    let file = super::image::open_regular(path.as_ref())?;
+    let mut head = Vec::new();
+    file.take(10 + u16::MAX as u64).read_to_end(&mut head)?;
+    if head.len() >= 10 {
+        let hlen = u16::from_le_bytes([head[8], head[9]]) as usize;
+        head.truncate(10 + hlen);
     }
-    let shape_text = dict_value(header, "shape")?;
-    let shape: Vec<usize> = shape_text
-        .trim_start_matches('(')
-        .trim_end_matches(')')
-        .split(',')
-        .map(str::trim)
-        .filter(|s| !s.is_empty())
-        .map(|s| {
-            s.parse::<usize>()
-                .map_err(|_| NpyError::Format(format!("bad shape {shape_text}")))
-        })
-        .collect::<Result<_, _>>()?;
-    let n = shape
-        .iter()
-        .try_fold(1usize, |a, &d| a.checked_mul(d))
-        .and_then(|n| n.checked_mul(4).map(|_| n))
-        .ok_or_else(|| NpyError::Format("shape overflows".into()))?;
+    header_shape(&head).map(|(s, _)| s)
+}
+
+/// A float32 array of any shape, C order.
+#[derive(Debug, Clone, PartialEq)]
+pub struct F32Array {
+    pub shape: Vec<usize>,
+    pub data: Vec<f32>,
+}
+
+/// Parses the bytes of a float32 `.npy` v1 file of any shape.
+pub fn parse_f32(bytes: &[u8]) -> Result<F32Array, NpyError> {
+    let (shape, data_start) = header_shape(bytes)?;
+    let shape_text = format!("{shape:?}");
+    let n: usize = shape.iter().product();
     let data = &bytes[data_start..];
     if data.len() != n * 4 {
         return Err(NpyError::Format(format!(
@@ -165,7 +295,7 @@ pub fn parse_rgb_f32(bytes: &[u8]) -> Result<RgbImage, NpyError> {
 /// Reads array `key` (without `.npy`) from an `.npz` archive (stored or
 /// deflated, as `np.savez`/`np.savez_compressed` write them).
 pub fn read_npz_f32(path: impl AsRef<Path>, key: &str) -> Result<F32Array, NpyError> {
-    parse_npz_f32(&std::fs::read(path)?, key)
+    parse_npz_f32(&read_limited(path.as_ref())?, key)
 }
 
 /// [`read_npz_f32`] on the archive's bytes.
@@ -179,10 +309,18 @@ pub fn parse_npz_f32(bytes: &[u8], key: &str) -> Result<F32Array, NpyError> {
         Err(zip::result::ZipError::FileNotFound) => return Err(NpyError::MissingKey(key.into())),
         Err(e) => return Err(NpyError::Format(format!("bad archive entry {name}: {e}"))),
     };
-    let mut buf = Vec::with_capacity(entry.size().min(1 << 30) as usize);
-    entry
+    // The declared size may lie (a zip bomb): read at most the limit.
+    let limit = MAX_ARRAY_BYTES + 10 + u16::MAX as u64;
+    let mut buf = Vec::with_capacity(entry.size().min(1 << 24) as usize);
+    (&mut entry)
+        .take(limit + 1)
         .read_to_end(&mut buf)
         .map_err(|e| NpyError::Format(format!("cannot inflate {name}: {e}")))?;
+    if buf.len() as u64 > limit {
+        return Err(NpyError::Unsupported(format!(
+            "{name} inflates to more than {limit} bytes"
+        )));
+    }
     parse_f32(&buf)
 }
 
@@ -268,6 +406,39 @@ mod tests {
             read_rgb_f32("/nonexistent/x.npy"),
             Err(NpyError::Io(_))
         ));
+    }
+
+    #[test]
+    fn header_keys_are_never_read_from_inside_strings() {
+        // The old scan found `'descr':` inside the string value first and
+        // read 8-byte floats as float32.
+        let h = "{'note': \"'descr': '<f4', \", 'descr': '<f8', 'fortran_order': False, 'shape': (2, 3, 3), }";
+        assert!(matches!(
+            parse_rgb_f32(&with_header(h, 144)),
+            Err(NpyError::Unsupported(_))
+        ));
+        // Keys twice, text after the dict, and unterminated strings are malformed.
+        for h in [
+            "{'descr': '<f4', 'descr': '<f4', 'fortran_order': False, 'shape': (2, 3, 3), }",
+            "{'descr': '<f4', 'fortran_order': False, 'shape': (2, 3, 3), } x",
+            "{'descr': '<f4, 'fortran_order': False, 'shape': (2, 3, 3), }",
+            "{'descr': '<f4', 'fortran_order': 'False', 'shape': (2, 3, 3), }",
+        ] {
+            assert!(
+                matches!(parse_rgb_f32(&with_header(h, 72)), Err(NpyError::Format(_))),
+                "{h}"
+            );
+        }
+        // Other spacing and a one-element tuple are fine.
+        let h = "{ \"descr\":'<f4','fortran_order':False,'shape':(6,) }";
+        assert_eq!(parse_f32(&with_header(h, 24)).unwrap().shape, vec![6]);
+    }
+
+    #[test]
+    fn declared_sizes_are_capped_before_reading() {
+        let h = "{'descr': '<f4', 'fortran_order': False, 'shape': (100000, 100000, 3), }";
+        let e = parse_rgb_f32(&with_header(h, 0)).unwrap_err().to_string();
+        assert!(e.contains("more than"), "{e}");
     }
 
     fn npz(entries: &[(&str, &[u8])], method: zip::CompressionMethod) -> Vec<u8> {

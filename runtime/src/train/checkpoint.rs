@@ -119,8 +119,7 @@ impl Checkpoint {
     }
 
     pub fn read(path: &Path) -> io::Result<Checkpoint> {
-        let bytes = std::fs::read(path)
-            .map_err(|e| io::Error::new(e.kind(), format!("checkpoint {}: {e}", path.display())))?;
+        let bytes = crate::data::image::read_checkpoint_bytes(path)?;
         let (_, header) = SafeTensors::read_metadata(&bytes).map_err(|e| invalid(path, e))?;
         let meta = header
             .metadata()

@@ -1,0 +1,256 @@
+//! Reading training images (PNG and other formats `image` decodes, or
+//! `.npy`) with their sizes checked before anything is decoded: a small
+//! compressed file may declare an enormous image. Only regular files are
+//! read (a FIFO would block forever, `/dev/zero` never ends), whatever
+//! links lead to them.
+
+use std::fs::File;
+use std::io::{self, BufReader};
+use std::path::Path;
+
+use super::npy::{read_rgb_f32, read_shape, RgbImage};
+
+/// Largest image side accepted for data, as for rendered images.
+pub const MAX_SIDE: u32 = sdfl_stdlib::builtins::MAX_IMAGE_SIDE;
+/// Most decoded bytes of one data set (f32 RGB, 12 bytes a pixel): about
+/// 40 views of 2048×2048.
+pub const MAX_DATASET_BYTES: u64 = 2_000_000_000;
+
+fn invalid(path: &Path, m: impl std::fmt::Display) -> io::Error {
+    io::Error::new(
+        io::ErrorKind::InvalidData,
+        format!("{}: {m}", path.display()),
+    )
+}
+
+/// Opens `path` for reading if, after following links, it is a regular file.
+pub fn open_regular(path: &Path) -> io::Result<File> {
+    let named = |e: io::Error| io::Error::new(e.kind(), format!("{}: {e}", path.display()));
+    // Checked before opening: opening a FIFO for reading blocks.
+    let meta = std::fs::metadata(path).map_err(named)?;
+    if !meta.is_file() {
+        return Err(invalid(path, "not a regular file"));
+    }
+    let file = File::open(path).map_err(named)?;
+    // And again on what was opened, in case it changed in between.
+    if !file.metadata().map_err(named)?.is_file() {
+        return Err(invalid(path, "not a regular file"));
+    }
+    Ok(file)
+}
+
+fn is_npy(path: &Path) -> bool {
+    path.extension()
+        .and_then(|e| e.to_str())
+        .is_some_and(|e| e.eq_ignore_ascii_case("npy"))
+}
+
+fn limits() -> image::Limits {
+    let mut l = image::Limits::default();
+    l.max_image_width = Some(MAX_SIDE);
+    l.max_image_height = Some(MAX_SIDE);
+    // The decoded 8- or 16-bit image; the f32 copy is counted by the caller.
+    l.max_alloc = Some(MAX_SIDE as u64 * MAX_SIDE as u64 * 8);
+    l
+}
+
+/// A reader of `path`; `decode` sets the limits (for the header alone,
+/// the sizes are checked here, with a message naming them).
+fn reader(path: &Path, decode: bool) -> io::Result<image::ImageReader<BufReader<File>>> {
+    let mut r = image::ImageReader::new(BufReader::new(open_regular(path)?))
+        .with_guessed_format()
+        .map_err(|e| invalid(path, e))?;
+    if decode {
+        r.limits(limits());
+    }
+    Ok(r)
+}
+
+/// The declared width and height of an image file, read from its header.
+pub fn image_dimensions(path: &Path) -> io::Result<(u32, u32)> {
+    let (w, h) = if is_npy(path) {
+        match read_shape(path).map_err(|e| invalid(path, e))?[..] {
+            [h, w, 3] if h > 0 && w > 0 => (
+                u32::try_from(w).unwrap_or(u32::MAX),
+                u32::try_from(h).unwrap_or(u32::MAX),
+            ),
+            ref s => return Err(invalid(path, format!("shape {s:?} (only (H, W, 3))"))),
+        }
+    } else {
+        reader(path, false)?
+            .into_dimensions()
+            .map_err(|e| invalid(path, e))?
+    };
+    if w > MAX_SIDE || h > MAX_SIDE {
+        return Err(invalid(
+            path,
+            format!("declares {w}x{h} pixels (at most {MAX_SIDE} a side)"),
+        ));
+    }
+    Ok((w, h))
+}
+
+/// Checks a data set's declared sizes before any image is decoded: each
+/// within the side limit, all together within [`MAX_DATASET_BYTES`].
+pub fn check_dataset<P: AsRef<Path>>(paths: impl IntoIterator<Item = P>) -> io::Result<()> {
+    let mut total = 0u64;
+    for p in paths {
+        let (w, h) = image_dimensions(p.as_ref())?;
+        total = total.saturating_add(w as u64 * h as u64 * 12);
+        if total > MAX_DATASET_BYTES {
+            return Err(invalid(
+                p.as_ref(),
+                format!(
+                    "the data set up to this image decodes to {total} bytes (at most {MAX_DATASET_BYTES}); use fewer or smaller images"
+                ),
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// Reads an RGB image as f32 (`.npy`: `(H, W, 3)` float32; otherwise any
+/// format `image` decodes, scaled to 0..1), its size checked first.
+pub fn read_rgb_image(path: &Path) -> io::Result<RgbImage> {
+    image_dimensions(path)?;
+    if is_npy(path) {
+        return read_rgb_f32(path).map_err(|e| invalid(path, e));
+    }
+    let img = reader(path, true)?
+        .decode()
+        .map_err(|e| invalid(path, e))?
+        .to_rgb32f();
+    Ok(RgbImage {
+        width: img.width(),
+        height: img.height(),
+        pixels: img.pixels().map(|p| p.0).collect(),
+    })
+}
+
+/// The bytes of a checkpoint: a regular file of at most 1 GiB, never read
+/// through a symbolic link; every error names the path.
+pub fn read_checkpoint_bytes(path: &Path) -> io::Result<Vec<u8>> {
+    use std::io::Read;
+    const MAX: u64 = 1 << 30;
+    // Checkpoints live in the output directory, which is never read or
+    // written through a link (see `output`).
+    let mut at = std::path::PathBuf::new();
+    for c in path.components() {
+        at.push(c);
+        if std::fs::symlink_metadata(&at).is_ok_and(|m| m.file_type().is_symlink()) {
+            return Err(invalid(
+                path,
+                format!("{} is a symbolic link", at.display()),
+            ));
+        }
+    }
+    let mut bytes = Vec::new();
+    open_regular(path)?
+        .take(MAX + 1)
+        .read_to_end(&mut bytes)
+        .map_err(|e| invalid(path, e))?;
+    if bytes.len() as u64 > MAX {
+        return Err(invalid(path, "checkpoint larger than 1 GiB"));
+    }
+    Ok(bytes)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn dir(name: &str) -> std::path::PathBuf {
+        let d = std::env::temp_dir().join(format!("sdfl-data-image-{name}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&d);
+        std::fs::create_dir_all(&d).unwrap();
+        d
+    }
+
+    /// A valid PNG header declaring `w`×`h` (followed by no image data).
+    fn png_header(w: u32, h: u32) -> Vec<u8> {
+        let mut b = b"\x89PNG\r\n\x1a\n".to_vec();
+        let mut ihdr = b"IHDR".to_vec();
+        ihdr.extend_from_slice(&w.to_be_bytes());
+        ihdr.extend_from_slice(&h.to_be_bytes());
+        ihdr.extend_from_slice(&[8, 2, 0, 0, 0]);
+        b.extend_from_slice(&13u32.to_be_bytes());
+        b.extend_from_slice(&ihdr);
+        b.extend_from_slice(&crc32(&ihdr).to_be_bytes());
+        // An empty IDAT chunk: decoders read the header up to the first one.
+        b.extend_from_slice(&0u32.to_be_bytes());
+        b.extend_from_slice(b"IDAT");
+        b.extend_from_slice(&crc32(b"IDAT").to_be_bytes());
+        b
+    }
+
+    fn crc32(data: &[u8]) -> u32 {
+        let mut c = 0xffff_ffffu32;
+        for &byte in data {
+            c ^= byte as u32;
+            for _ in 0..8 {
+                c = if c & 1 != 0 {
+                    0xedb8_8320 ^ (c >> 1)
+                } else {
+                    c >> 1
+                };
+            }
+        }
+        !c
+    }
+
+    #[test]
+    fn declared_sizes_are_checked_before_decoding() {
+        let d = dir("sizes");
+        let huge = d.join("huge.png");
+        std::fs::write(&huge, png_header(20_000, 10)).unwrap();
+        let e = image_dimensions(&huge).unwrap_err().to_string();
+        assert!(e.contains("huge.png") && e.contains("20000x10"), "{e}");
+        assert!(read_rgb_image(&huge).is_err());
+        // Each fits, together they do not.
+        let big = d.join("big.png");
+        std::fs::write(&big, png_header(12_000, 12_000)).unwrap();
+        assert_eq!(image_dimensions(&big).unwrap(), (12_000, 12_000));
+        let e = check_dataset([&big, &big]).unwrap_err().to_string();
+        assert!(e.contains("at most"), "{e}");
+    }
+
+    #[test]
+    fn checkpoints_are_read_from_real_files_only() {
+        let d = dir("checkpoint");
+        std::fs::write(d.join("good.ckpt"), "bytes").unwrap();
+        assert_eq!(
+            read_checkpoint_bytes(&d.join("good.ckpt")).unwrap(),
+            b"bytes"
+        );
+        let e = read_checkpoint_bytes(&d.join("missing.ckpt"))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("missing.ckpt"), "{e}");
+        #[cfg(unix)]
+        {
+            std::os::unix::fs::symlink(d.join("good.ckpt"), d.join("link.ckpt")).unwrap();
+            let e = read_checkpoint_bytes(&d.join("link.ckpt"))
+                .unwrap_err()
+                .to_string();
+            assert!(e.contains("symbolic link"), "{e}");
+        }
+    }
+
+    #[test]
+    fn special_files_are_refused() {
+        let e = read_rgb_image(Path::new("/dev/zero"))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("not a regular file"), "{e}");
+        let d = dir("special");
+        #[cfg(unix)]
+        {
+            let link = d.join("zero.npy");
+            std::os::unix::fs::symlink("/dev/zero", &link).unwrap();
+            let e = read_rgb_image(&link).unwrap_err().to_string();
+            assert!(e.contains("not a regular file"), "{e}");
+        }
+        let e = read_rgb_image(&d).unwrap_err().to_string();
+        assert!(e.contains("not a regular file"), "{e}");
+    }
+}

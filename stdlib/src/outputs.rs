@@ -1,0 +1,263 @@
+//! Which files a program writes, decided when the file is evaluated: every
+//! output of every statement (one file per view where outputs are per
+//! view) and checkpoints. Two writers of one file, or a file where another
+//! output needs a directory, are diagnostics with both spans, before
+//! anything runs. The runtime names files with the same [`view_path`], so
+//! both sides agree on every name.
+
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+
+use sdfl_lang::diag::{codes, Diag};
+use sdfl_lang::Span;
+
+use crate::value::{Output, OutputKind, Program};
+
+/// Most files one scene file may write (all statements, all views).
+pub const MAX_FILES: u64 = 100_000;
+/// Longest file or directory name, and whole relative path, of an output
+/// (the usual file system limits are 255 and 4096).
+pub const MAX_NAME_BYTES: usize = 255;
+pub const MAX_PATH_BYTES: usize = 1024;
+
+/// The file name for view `k` of `n`: `{view}` is replaced by the padded
+/// index; otherwise `_NN` is added before the extension when `n > 1`.
+pub fn view_path(path: &Path, k: usize, n: usize) -> PathBuf {
+    let digits = (n.max(2) - 1).to_string().len().max(2);
+    let idx = format!("{k:0digits$}");
+    let s = path.to_string_lossy();
+    if s.contains("{view}") {
+        return PathBuf::from(s.replace("{view}", &idx));
+    }
+    if n == 1 {
+        return path.to_path_buf();
+    }
+    let stem = path
+        .file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    let ext = path
+        .extension()
+        .map(|e| format!(".{}", e.to_string_lossy()))
+        .unwrap_or_default();
+    path.with_file_name(format!("{stem}_{idx}{ext}"))
+}
+
+/// Whether an output kind is written once per view (else once per job).
+pub fn per_view(kind: &OutputKind) -> bool {
+    matches!(
+        kind,
+        OutputKind::Image | OutputKind::Depth | OutputKind::Normals | OutputKind::Mask
+    )
+}
+
+/// Whether the runtime writes this output for a job of this kind at all
+/// (evaluation refuses the others, so this only mirrors it).
+fn written_by(kind: &OutputKind, job: JobKind) -> bool {
+    match job {
+        JobKind::Render => !matches!(kind, OutputKind::SamplePoints | OutputKind::LossCurve),
+        JobKind::Volume => !matches!(
+            kind,
+            OutputKind::LossCurve | OutputKind::Normals | OutputKind::Mask
+        ),
+        JobKind::TrainBefore => !matches!(
+            kind,
+            OutputKind::LossCurve | OutputKind::Normals | OutputKind::Mask
+        ),
+        JobKind::TrainAfter => !matches!(kind, OutputKind::Normals | OutputKind::Mask),
+    }
+}
+
+#[derive(Clone, Copy, PartialEq)]
+enum JobKind {
+    Render,
+    Volume,
+    TrainBefore,
+    TrainAfter,
+}
+
+/// Files claimed so far, with who writes each, and the directories they
+/// need.
+#[derive(Default)]
+pub struct Files {
+    files: HashMap<PathBuf, (Span, String)>,
+    dirs: HashMap<PathBuf, (Span, String)>,
+}
+
+/// The built-in that asks for an output of this kind.
+pub fn kind_name(kind: &OutputKind) -> &'static str {
+    match kind {
+        OutputKind::Image => "image",
+        OutputKind::Gif { .. } => "gif",
+        OutputKind::Depth => "depth",
+        OutputKind::Normals => "normal_map",
+        OutputKind::Mask => "mask",
+        OutputKind::Grid => "grid",
+        OutputKind::Rays => "rays",
+        OutputKind::SamplePoints => "sample_points",
+        OutputKind::LossCurve => "loss_curve",
+    }
+}
+
+fn describe(o: &Output, k: usize, n: usize) -> String {
+    let what = kind_name(&o.kind);
+    if per_view(&o.kind) && n > 1 {
+        format!("`{what}` writes it (view {k} of {n})")
+    } else {
+        format!("`{what}` writes it")
+    }
+}
+
+impl Files {
+    /// Claims `path` for `who` at `span`; a diagnostic when it is taken.
+    fn claim(&mut self, path: PathBuf, span: Span, who: String) -> Option<Diag> {
+        let clash = |first: &(Span, String), what: &str| {
+            Diag::new(
+                codes::OUTPUT_COLLISION,
+                span,
+                format!("`{}` {what}", path.display()),
+            )
+            .label(who.clone())
+            .note(first.0, format!("{} first", first.1))
+            .help("give each output its own file name; outputs with several views add `_NN` to theirs")
+        };
+        if let Some(first) = self.files.get(&path) {
+            return Some(clash(first, "is written twice"));
+        }
+        if let Some(first) = self.dirs.get(&path) {
+            return Some(clash(
+                first,
+                "is a file here but a directory for another output",
+            ));
+        }
+        for dir in path.ancestors().skip(1) {
+            if dir.as_os_str().is_empty() {
+                break;
+            }
+            if let Some(first) = self.files.get(dir) {
+                return Some(clash(
+                    first,
+                    "needs a directory where another output writes a file",
+                ));
+            }
+            self.dirs
+                .entry(dir.to_path_buf())
+                .or_insert_with(|| (span, who.clone()));
+        }
+        self.files.insert(path, (span, who));
+        None
+    }
+}
+
+/// The files of `outputs` for `views` cameras, with who writes each.
+fn output_files(outputs: &[Output], views: usize, job: JobKind) -> Vec<(PathBuf, Span, String)> {
+    let mut out = Vec::new();
+    for o in outputs.iter().filter(|o| written_by(&o.kind, job)) {
+        if per_view(&o.kind) {
+            for k in 0..views {
+                out.push((view_path(&o.path, k, views), o.span, describe(o, k, views)));
+            }
+        } else {
+            out.push((o.path.clone(), o.span, describe(o, 0, 1)));
+        }
+    }
+    out
+}
+
+fn file_count(outputs: &[Output], views: usize) -> u64 {
+    outputs
+        .iter()
+        .map(|o| if per_view(&o.kind) { views as u64 } else { 1 })
+        .sum()
+}
+
+/// Checks the files of the job a statement just added to `program` (the
+/// last one of its kind; `kind` is the statement's keyword) against those
+/// of earlier statements. `field` gives the span of a statement field.
+pub fn check_job(
+    program: &Program,
+    kind: &str,
+    files: &mut Files,
+    field: &dyn Fn(&str) -> Span,
+) -> Vec<Diag> {
+    let mut claims = Vec::new();
+    let count;
+    match kind {
+        "train" => {
+            let Some(j) = program.trains.last() else {
+                return Vec::new();
+            };
+            count = file_count(&j.before, j.views.len()) + file_count(&j.after, j.views.len());
+            if count <= MAX_FILES {
+                claims = output_files(&j.before, j.views.len(), JobKind::TrainBefore);
+                claims.extend(output_files(&j.after, j.views.len(), JobKind::TrainAfter));
+                if let Some(c) = &j.checkpoint {
+                    claims.push((
+                        c.clone(),
+                        field("checkpoint"),
+                        "the checkpoint is kept in it".to_string(),
+                    ));
+                }
+            }
+        }
+        "volume" => {
+            let Some(j) = program.volumes.last() else {
+                return Vec::new();
+            };
+            count = file_count(&j.outputs, j.cameras.len());
+            if count <= MAX_FILES {
+                claims = output_files(&j.outputs, j.cameras.len(), JobKind::Volume);
+            }
+        }
+        _ => {
+            let Some(j) = program.renders.last() else {
+                return Vec::new();
+            };
+            count = file_count(&j.outputs, j.cameras.len());
+            if count <= MAX_FILES {
+                claims = output_files(&j.outputs, j.cameras.len(), JobKind::Render);
+            }
+        }
+    }
+    let total = count + files.files.len() as u64;
+    if total > MAX_FILES {
+        let span = if kind == "train" {
+            field("after")
+        } else {
+            field("outputs")
+        };
+        return vec![Diag::new(
+            codes::TOO_LARGE,
+            span,
+            format!("the file would write {total} files (at most {MAX_FILES})"),
+        )
+        .label("one file per output and view")
+        .help("use fewer views, or a `gif(...)` output, which holds every view in one file")];
+    }
+    // Names the file system refuses fail here, not after rendering.
+    if let Some((path, span, _)) = claims.iter().find(|(p, _, _)| {
+        p.as_os_str().len() > MAX_PATH_BYTES
+            || p.components().any(|c| c.as_os_str().len() > MAX_NAME_BYTES)
+    }) {
+        return vec![Diag::new(
+            codes::PATH,
+            *span,
+            format!(
+                "output path of {} bytes is too long",
+                path.as_os_str().len()
+            ),
+        )
+        .label("too long a name")
+        .help(format!(
+            "keep each name within {MAX_NAME_BYTES} bytes and the whole path within {MAX_PATH_BYTES}"
+        ))];
+    }
+    // One diagnostic per pair of clashing outputs, not one per view.
+    let mut seen = std::collections::HashSet::new();
+    claims
+        .into_iter()
+        .filter_map(|(path, span, who)| files.claim(path, span, who))
+        .filter(|d| seen.insert((d.span, d.notes.first().map(|n| n.0))))
+        .take(10)
+        .collect()
+}

@@ -1,0 +1,297 @@
+//! What a statement will cost to run, estimated when the file is evaluated:
+//! point evaluations (rays × steps or samples) and peak memory. Absurd
+//! estimates are refused before anything runs; `sdfl plan` prints them.
+//! Also the warning for cameras that cannot reach the scene.
+
+use glam::DVec3;
+use sdfl_lang::diag::{codes, fmt_num, Diag};
+use sdfl_lang::Span;
+
+use crate::camera::Camera;
+use crate::eval::{fmt_bytes, BYTES_PER_PRIMITIVE};
+use crate::shape::Aabb;
+use crate::value::{Dataset, OutputKind, Program, RenderJob, TrainJob, VolumeJob};
+
+/// Most SDF (or density) evaluations one statement may ask for: about an
+/// hour of tracing on a few cores. The examples need 1e7 to 1e9.
+pub const MAX_EVALUATIONS: f64 = 1e12;
+/// Largest estimated peak memory of one statement.
+pub const MAX_MEMORY: f64 = 8e9;
+
+/// The estimated cost of one statement.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Work {
+    /// SDF or density evaluations, at most (every ray takes every step).
+    pub evaluations: f64,
+    /// Peak bytes: the lowered scene and one view's buffers.
+    pub memory: f64,
+}
+
+impl Work {
+    pub fn describe(&self) -> String {
+        format!(
+            "at most {} SDF evaluations, about {} of memory",
+            approx(self.evaluations),
+            fmt_bytes(self.memory)
+        )
+    }
+}
+
+/// An estimate, to two significant figures past a billion.
+fn approx(x: f64) -> String {
+    if x < 1e9 {
+        format!("{x:.0}")
+    } else {
+        format!("{x:.1e}")
+    }
+}
+
+fn pixels(size: (u32, u32), override_size: Option<(u32, u32)>) -> f64 {
+    let (w, h) = override_size.unwrap_or(size);
+    w as f64 * h as f64
+}
+
+/// Bytes per pixel of the per-view buffers the outputs need, plus a GIF
+/// frame (RGBA) while it is encoded.
+fn bytes_per_pixel(kinds: impl Iterator<Item = OutputKind>, volume: bool) -> f64 {
+    let mut b: f64 = if volume { 16.0 } else { 0.0 };
+    for k in kinds {
+        b += match k {
+            OutputKind::Image => 3.0,
+            OutputKind::Gif { .. } => 7.0,
+            OutputKind::Depth => 7.0,
+            OutputKind::Normals => 3.0,
+            OutputKind::Mask => 4.0,
+            _ => 3.0,
+        };
+    }
+    b.max(3.0)
+}
+
+pub fn render_work(j: &RenderJob, size: Option<(u32, u32)>) -> Work {
+    render_work_of(j, size, j.scene.primitive_count() as u64)
+}
+
+/// [`render_work`] with the scene's expanded primitive count known.
+pub fn render_work_of(j: &RenderJob, size: Option<(u32, u32)>, primitives: u64) -> Work {
+    let px = pixels((j.width, j.height), size);
+    Work {
+        evaluations: px * j.cameras.len() as f64 * j.iterations as f64,
+        memory: primitives as f64 * BYTES_PER_PRIMITIVE as f64
+            + px * bytes_per_pixel(j.outputs.iter().map(|o| o.kind.clone()), false),
+    }
+}
+
+/// Most evaluations of all statements of a file together.
+pub const MAX_FILE_EVALUATIONS: f64 = 4.0 * MAX_EVALUATIONS;
+/// Most primitives lowered by all statements of a file together (each
+/// statement lowers its scene again).
+pub const MAX_FILE_PRIMITIVES: u64 = 10 * crate::eval::MAX_PRIMITIVES;
+
+/// The diagnostic for a statement that takes a file's totals past the
+/// limits.
+pub fn refuse_total(evaluations: f64, primitives: u64, span: Span) -> Option<Diag> {
+    let (what, help) = if evaluations > MAX_FILE_EVALUATIONS {
+        (
+            format!(
+                "{} SDF evaluations (at most {})",
+                approx(evaluations),
+                fmt_num(MAX_FILE_EVALUATIONS)
+            ),
+            "lower image sizes, views or steps, or split the file",
+        )
+    } else if primitives > MAX_FILE_PRIMITIVES {
+        (
+            format!(
+                "{} primitives to lower (at most {})",
+                approx(primitives as f64),
+                approx(MAX_FILE_PRIMITIVES as f64)
+            ),
+            "render large scenes in fewer statements (several cameras make several views), or split the file",
+        )
+    } else {
+        return None;
+    };
+    Some(
+        Diag::new(
+            codes::WORK,
+            span,
+            format!("with this statement the file would need {what}"),
+        )
+        .label("the statements up to here add up to too much")
+        .help(help),
+    )
+}
+
+pub fn volume_work(j: &VolumeJob, size: Option<(u32, u32)>) -> Work {
+    let px = pixels((j.width, j.height), size);
+    Work {
+        evaluations: px * j.cameras.len() as f64 * j.sampler.samples as f64,
+        memory: px * bytes_per_pixel(j.outputs.iter().map(|o| o.kind.clone()), true),
+    }
+}
+
+pub fn train_work(j: &TrainJob, size: Option<(u32, u32)>) -> Work {
+    let samples = j.sampler.samples as f64;
+    let steps = j.iterations as f64 * j.rays as f64 * samples;
+    let (data_evals, data_bytes) = match &*j.data {
+        Dataset::Rendered {
+            cameras,
+            width,
+            height,
+            sampler,
+            ..
+        } => {
+            let px = *width as f64 * *height as f64 * cameras.len() as f64;
+            (px * sampler.samples as f64, px * 12.0)
+        }
+        // Files are checked against their declared sizes when read.
+        Dataset::Files { .. } => (0.0, 0.0),
+    };
+    let px = pixels((j.width, j.height), size);
+    let views = j.views.len() as f64;
+    let outputs = (j.before.len() + j.after.len()) as f64;
+    Work {
+        evaluations: steps + data_evals + outputs.min(1.0) * 2.0 * px * views * samples,
+        // Per-ray buffers of a batch (samples, weights, gradients).
+        memory: data_bytes + j.rays as f64 * samples * 64.0 + px * 16.0,
+    }
+}
+
+/// The diagnostic for a statement whose estimate is beyond the limits.
+pub fn refuse(work: Work, span: Span, what: &str) -> Option<Diag> {
+    let (too, fix) = if work.evaluations > MAX_EVALUATIONS {
+        (
+            format!(
+                "{} SDF evaluations (at most {})",
+                approx(work.evaluations),
+                fmt_num(MAX_EVALUATIONS)
+            ),
+            format!("lower the image size, the number of views or the {what}"),
+        )
+    } else if work.memory > MAX_MEMORY {
+        (
+            format!(
+                "about {} of memory (at most {})",
+                fmt_bytes(work.memory),
+                fmt_bytes(MAX_MEMORY)
+            ),
+            "lower the image size or the number of primitives".to_string(),
+        )
+    } else {
+        return None;
+    };
+    Some(
+        Diag::new(
+            codes::WORK,
+            span,
+            format!("this statement would need {too}"),
+        )
+        .label(work.describe())
+        .help(format!(
+            "{fix}; `sdfl plan` prints the estimate (sizes can also be lowered with `--size`)"
+        )),
+    )
+}
+
+/// Distance from `p` to the box (0 inside) and to its farthest corner.
+fn box_distances(b: &Aabb, p: DVec3) -> (f64, f64) {
+    let near = (b.min - p).max(p - b.max).max(DVec3::ZERO).length();
+    let far = (b.min - p).abs().max((b.max - p).abs()).length();
+    (near, far)
+}
+
+/// A warning when no ray of some views can reach the scene: the camera is
+/// farther from the scene's bounds than `far`, or the whole scene is
+/// nearer than `near`. Such views are the background colour only.
+pub fn reach_warning(
+    bounds: Option<Aabb>,
+    cameras: &[Camera],
+    near: f64,
+    far: f64,
+    span: Span,
+    (far_span, far_note): (Span, &str),
+) -> Option<Diag> {
+    let b = bounds?;
+    if !(b.min.is_finite() && b.max.is_finite()) {
+        return None;
+    }
+    let dists: Vec<(f64, f64)> = cameras.iter().map(|c| box_distances(&b, c.eye)).collect();
+    let missing: Vec<&(f64, f64)> = dists
+        .iter()
+        .filter(|(d, farthest)| *d >= far || *farthest <= near)
+        .collect();
+    let first = missing.first()?;
+    let needed = dists.iter().map(|d| d.1).fold(0.0, f64::max);
+    let views = if missing.len() == cameras.len() {
+        if cameras.len() == 1 {
+            "the camera".to_string()
+        } else {
+            format!("all {} views", cameras.len())
+        }
+    } else {
+        format!("{} of {} views", missing.len(), cameras.len())
+    };
+    let (message, help) = if first.0 >= far {
+        (
+            format!(
+                "{views} cannot reach the scene: it is {} away, beyond `far` = {}",
+                fmt_num(round3(first.0)),
+                fmt_num(far)
+            ),
+            format!(
+                "set `far` to at least {} (the farthest corner of the scene's bounds) to see all of it",
+                fmt_num(round3(needed * 1.01))
+            ),
+        )
+    } else {
+        (
+            format!(
+                "{views} cannot reach the scene: all of it is nearer than `near` = {}",
+                fmt_num(near)
+            ),
+            "lower `near`".to_string(),
+        )
+    };
+    Some(
+        Diag::new(codes::MISSES_SCENE, span, message)
+            .label("these views see only the background")
+            .note(far_span, far_note)
+            .help(help),
+    )
+}
+
+fn round3(x: f64) -> f64 {
+    (x * 1000.0).round() / 1000.0
+}
+
+/// Estimates for every statement of a program with a size override (the
+/// CLI's `--size`): the first refusal, as a message without a span.
+pub fn check_program(program: &Program, size: Option<(u32, u32)>) -> Result<(), String> {
+    let works = program
+        .renders
+        .iter()
+        .map(|j| (&j.name, render_work(j, size), "steps"))
+        .chain(
+            program
+                .volumes
+                .iter()
+                .map(|j| (&j.name, volume_work(j, size), "samples")),
+        )
+        .chain(
+            program
+                .trains
+                .iter()
+                .map(|j| (&j.name, train_work(j, size), "iterations")),
+        );
+    for (name, w, what) in works {
+        if let Some(d) = refuse(w, Span::default(), what) {
+            return Err(format!(
+                "`{name}`: {} with this --size; {}",
+                d.message,
+                d.help.unwrap_or_default()
+            ));
+        }
+    }
+    Ok(())
+}
