@@ -63,11 +63,54 @@ fn time_steps(src: &str, backend: Backend, reps: usize) -> (f64, f64) {
     (ms[ms.len() / 2], ms[0])
 }
 
+/// (median, minimum) milliseconds of a forward-only pass over one batch.
+fn time_forward(src: &str, reps: usize) -> (f64, f64) {
+    let program = sdfl_stdlib::load(&SourceFile::new("bench.sdfl", src)).expect("bench scene");
+    let job = &program.trains[0];
+    let views = load_views(&job.data, std::path::Path::new(".")).expect("views");
+    let model = TrainModel::new(job.model.clone());
+    let setup = TrainSetup {
+        views: &views,
+        sampler: job.sampler,
+        rays: job.rays,
+        optimizer: job.optimizer,
+        losses: &job.losses,
+        seed: 0,
+        backend: Backend::Fused,
+    };
+    let batch = setup.batch(0).expect("batch");
+    let values: Vec<f32> = model.initial_values().iter().map(|&x| x as f32).collect();
+    let mut ms: Vec<f64> = (0..reps)
+        .map(|_| {
+            let t = Instant::now();
+            let r = sdfl_runtime::train::fused::render_rays(
+                &model,
+                &values,
+                &batch.rays,
+                &batch.depths,
+                job.sampler.last_interval,
+            );
+            std::hint::black_box(r);
+            t.elapsed().as_secs_f64() * 1e3
+        })
+        .collect();
+    ms.sort_by(f64::total_cmp);
+    (ms[ms.len() / 2], ms[0])
+}
+
 pub fn main(reps: usize) {
     let all = rayon::current_num_threads();
     println!("| fit | backend | threads | step ms (median) | step ms (min) |");
     println!("|---|---|---:|---:|---:|");
     for (name, src) in [("box", BOX), ("torus", TORUS)] {
+        for threads in [1, all] {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .expect("thread pool");
+            let (med, min) = pool.install(|| time_forward(src, reps));
+            println!("| {name} | forward only | {threads} | {med:.2} | {min:.2} |");
+        }
         for backend in [Backend::Fused, Backend::Dfdx] {
             for threads in [1, all] {
                 let pool = rayon::ThreadPoolBuilder::new()

@@ -221,18 +221,18 @@ fn degenerate_unions_stay_exact() {
     // materials, mixed with distinct members: culled equals naive.
     let mut rng = Lcg(41);
     let sphere = Arc::new(Shape::Sphere {
-        center: DVec3::new(0.3, -0.2, 0.1),
-        radius: 0.6,
+        center: DVec3::new(0.3, -0.2, 0.1).into(),
+        radius: 0.6.into(),
     });
     let mut members: Vec<Arc<Shape>> = vec![sphere.clone(); 300];
     members.extend((0..300).map(|i| {
         Arc::new(Shape::Box {
-            center: DVec3::new(i as f64 * 1e-9, 0.0, 0.0),
-            size: DVec3::splat(0.8),
+            center: DVec3::new(i as f64 * 1e-9, 0.0, 0.0).into(),
+            size: DVec3::splat(0.8).into(),
         })
     }));
-    members.extend((0..50).map(|_| Arc::new(Shape::Translate(sphere.clone(), DVec3::X))));
-    members.extend((0..50).map(|_| Arc::new(Shape::Scale(sphere.clone(), 0.5))));
+    members.extend((0..50).map(|_| Arc::new(Shape::Translate(sphere.clone(), DVec3::X.into()))));
+    members.extend((0..50).map(|_| Arc::new(Shape::Scale(sphere.clone(), 0.5.into()))));
     members.extend((0..100).map(|_| Arc::new(primitive(&mut rng))));
     let shape = Shape::Union(members);
     check_scene(&shape, 41);

@@ -1413,19 +1413,6 @@ pub(crate) fn train_block(name: &str, a: &Args) -> Result<TrainJob, Diag> {
     };
     let before = outputs(a, "before", true)?;
     let after = outputs(a, "after", true)?;
-    if let Some(cp) = &checkpoint {
-        if before.iter().chain(&after).any(|o| &o.path == cp) {
-            return Err(value_error(
-                cp_span,
-                format!(
-                    "the checkpoint `{}` is also an output of this statement",
-                    cp.display()
-                ),
-                "written twice",
-                "give the checkpoint its own file name, e.g. `fit.ckpt`",
-            ));
-        }
-    }
     let (width, height) = image_size(a, "size")?;
     let epochs = a.count("epochs", 0, 1_000_000)? as usize;
     Ok(TrainJob {

@@ -43,7 +43,8 @@ fn for_each_sample<F: Real, const N: usize>(
 ) {
     let args = model.args::<F, N>(values, first);
     let f = &model.field;
-    let (alpha, beta) = (args.scalar(&f.alpha), args.scalar(&f.beta));
+    let alpha = args.scalar(&f.alpha);
+    let inv_beta = Dual::one() / args.scalar(&f.beta);
     let r = &batch.rays[ray];
     let t = if batch.shared {
         &batch.depths[..batch.samples]
@@ -62,9 +63,9 @@ fn for_each_sample<F: Real, const N: usize>(
         let p = o + d * Dual::lit(tk as f64);
         let (sdf, c) = field_at(model, &args, p);
         let dk = Dual::lit(dk as f64);
-        let a = absorption(f.density, sdf, alpha, beta, dk);
+        let a = absorption(f.density, sdf, alpha, inv_beta, dk);
         // Clamped so that exp(cumsum) never meets −∞·0 in the matmul.
-        let lk = log_keep(f.density, sdf, alpha, beta, dk).max(Dual::lit(-1e4));
+        let lk = log_keep(f.density, sdf, alpha, inv_beta, dk).max(Dual::lit(-1e4));
         each(k, [a.opacity, lk, c.x, c.y, c.z]);
     }
 }

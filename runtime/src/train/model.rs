@@ -101,6 +101,13 @@ impl TrainModel {
         }
     }
 
+    /// The flat index of a scalar argument's parameter, if it has one in
+    /// this model.
+    pub fn scalar_index(&self, a: &Arg<f64>) -> Option<usize> {
+        let u = a.param.as_ref()?;
+        Some(self.offset(&u.decl)).filter(|&o| o != usize::MAX)
+    }
+
     fn offset(&self, decl: &ParamDecl) -> usize {
         self.offsets.get(decl.id).copied().unwrap_or(usize::MAX)
     }

@@ -20,7 +20,8 @@ pub struct Absorption<T> {
 }
 
 /// The absorption of one sample with signed distance `sdf` over an interval
-/// of length `delta` (unused by the per-sample opacity form).
+/// of length `delta` (unused by the per-sample opacity form), given `1/β`
+/// (computed once per ray, so hot loops do not divide).
 ///
 /// Every form evaluates one `exp(−|x|) ∈ [0, 1]`, so no branch can overflow
 /// and tiny β and huge |sdf| give finite values and derivatives.
@@ -29,14 +30,14 @@ pub fn absorption<T: Real>(
     kind: DensityKind,
     sdf: T,
     alpha: T,
-    beta: T,
+    inv_beta: T,
     delta: T,
 ) -> Absorption<T> {
     let half = T::lit(0.5);
     match kind {
         DensityKind::Opacity => {
             // o = α·Ψ_β(−sdf); keep = 1 − o, formed so it is exact at α = 1.
-            let e = (-sdf.abs() / beta).exp();
+            let e = (-sdf.abs() * inv_beta).exp();
             if sdf.val() >= 0.0 {
                 let o = alpha * e * half;
                 Absorption {
@@ -51,7 +52,7 @@ pub fn absorption<T: Real>(
             }
         }
         DensityKind::VolSdf | DensityKind::Neus => {
-            let sigma = density(kind, sdf, alpha, beta);
+            let sigma = density(kind, sdf, alpha, inv_beta);
             let tau = sigma * delta;
             Absorption {
                 opacity: -(-tau).exp_m1(),
@@ -65,11 +66,11 @@ pub fn absorption<T: Real>(
 /// underflows: inside a shape with α = 1 the opacity form keeps `e/2`, whose
 /// logarithm is `ln ½ − |sdf|/β` exactly; the density forms keep `exp(−σΔ)`.
 #[inline(always)]
-pub fn log_keep<T: Real>(kind: DensityKind, sdf: T, alpha: T, beta: T, delta: T) -> T {
+pub fn log_keep<T: Real>(kind: DensityKind, sdf: T, alpha: T, inv_beta: T, delta: T) -> T {
     match kind {
         DensityKind::Opacity => {
             let half = T::lit(0.5);
-            let x = -sdf.abs() / beta;
+            let x = -sdf.abs() * inv_beta;
             if sdf.val() >= 0.0 {
                 (-(alpha * x.exp() * half)).ln_1p()
             } else if alpha.val() == 1.0 {
@@ -78,18 +79,18 @@ pub fn log_keep<T: Real>(kind: DensityKind, sdf: T, alpha: T, beta: T, delta: T)
                 ((T::one() - alpha) + alpha * x.exp() * half).ln()
             }
         }
-        DensityKind::VolSdf | DensityKind::Neus => -(density(kind, sdf, alpha, beta) * delta),
+        DensityKind::VolSdf | DensityKind::Neus => -(density(kind, sdf, alpha, inv_beta) * delta),
     }
 }
 
 /// The density `σ` of the VolSDF and NeuS forms (the opacity form has none).
 #[inline(always)]
-pub fn density<T: Real>(kind: DensityKind, sdf: T, alpha: T, beta: T) -> T {
+pub fn density<T: Real>(kind: DensityKind, sdf: T, alpha: T, inv_beta: T) -> T {
     let half = T::lit(0.5);
     match kind {
         // σ = α·Ψ_β(−sdf).
         DensityKind::VolSdf | DensityKind::Opacity => {
-            let e = (-sdf.abs() / beta).exp();
+            let e = (-sdf.abs() * inv_beta).exp();
             if sdf.val() >= 0.0 {
                 alpha * e * half
             } else {
@@ -98,9 +99,9 @@ pub fn density<T: Real>(kind: DensityKind, sdf: T, alpha: T, beta: T) -> T {
         }
         // (α/β)·s(1 − s), s = sigmoid(−sdf/β), as e/(1 + e)² with e = exp(−|sdf|/β).
         DensityKind::Neus => {
-            let e = (-sdf.abs() / beta).exp();
+            let e = (-sdf.abs() * inv_beta).exp();
             let one_e = T::one() + e;
-            alpha / beta * e / (one_e * one_e)
+            alpha * inv_beta * e / (one_e * one_e)
         }
     }
 }
@@ -153,6 +154,7 @@ pub fn march<T: Real>(
     let mut colour = V3::splat(T::zero());
     let mut depth = T::zero();
     let mut acc = T::zero();
+    let inv_beta = T::one() / beta;
     for (&tk, &dk) in depths.t.iter().zip(depths.delta) {
         // Every later weight is exactly 0 from here on, and so is every
         // later derivative (each is a multiple of the transmittance's).
@@ -161,7 +163,7 @@ pub fn march<T: Real>(
         }
         let t = T::lit(tk as f64);
         let (sdf, c) = field(o + d * t);
-        let a = absorption(kind, sdf, alpha, beta, T::lit(dk as f64));
+        let a = absorption(kind, sdf, alpha, inv_beta, T::lit(dk as f64));
         let w = trans * a.opacity;
         colour = colour + c * w;
         acc = acc + w;
@@ -218,7 +220,7 @@ mod tests {
             );
             let sig: Vec<f64> = t
                 .iter()
-                .map(|&z| density(kind, sdf(z as f64), alpha, beta))
+                .map(|&z| density(kind, sdf(z as f64), alpha, 1.0 / beta))
                 .collect();
             let d64: Vec<f64> = delta.iter().map(|&d| d as f64).collect();
             let c: Vec<f64> = t.iter().map(|&z| z as f64 / 4.0).collect();
