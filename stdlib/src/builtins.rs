@@ -721,13 +721,13 @@ fn table() -> Vec<Builtin> {
         // ---- cameras
         func(
             "look_at",
-            "A camera at `eye` looking at `at` (PyTorch3D conventions, see CONVENTIONS.md).",
+            "A camera at `eye` looking at `at` (PyTorch3D conventions, see docs/conventions.md).",
             vec![
                 req("eye", Type::Vec3, "camera position"),
                 opt("at", Type::Vec3, "[0, 0, 0]", "point looked at"),
                 opt("up", Type::Vec3, "[0, 1, 0]", "up direction"),
                 opt("focal", Type::Number, "1", "focal length in NDC units (> 0)"),
-                opt("pixel_centers", Type::Str, "\"corners\"", "\"corners\" (CONVENTIONS.md: corner pixel centres at ±1) or \"half\" (centres half a pixel in, as the assignment's box_*.npy were rendered)"),
+                opt("pixel_centers", Type::Str, "\"corners\"", "\"corners\" (docs/conventions.md: corner pixel centres at ±1) or \"half\" (centres half a pixel in, as the assignment's box_*.npy were rendered)"),
             ],
             CAMERA,
             |a| {
