@@ -64,7 +64,7 @@ fn time_steps(src: &str, backend: Backend, reps: usize) -> (f64, f64) {
 }
 
 /// (median, minimum) milliseconds of a forward-only pass over one batch.
-fn time_forward(src: &str, reps: usize) -> (f64, f64) {
+fn time_forward(name: &str, src: &str, reps: usize) -> (f64, f64) {
     let program = sdfl_stdlib::load(&SourceFile::new("bench.sdfl", src)).expect("bench scene");
     let job = &program.trains[0];
     let views = load_views(&job.data, std::path::Path::new(".")).expect("views");
@@ -79,6 +79,20 @@ fn time_forward(src: &str, reps: usize) -> (f64, f64) {
         backend: Backend::Fused,
     };
     let batch = setup.batch(0).expect("batch");
+    let mut drawing: Vec<f64> = (0..reps)
+        .map(|k| {
+            let t = Instant::now();
+            std::hint::black_box(setup.batch(k).expect("batch"));
+            t.elapsed().as_secs_f64() * 1e3
+        })
+        .collect();
+    drawing.sort_by(f64::total_cmp);
+    println!(
+        "| {name} | drawing the batch only | {} | {:.2} | {:.2} |",
+        rayon::current_num_threads(),
+        drawing[drawing.len() / 2],
+        drawing[0]
+    );
     let values: Vec<f32> = model.initial_values().iter().map(|&x| x as f32).collect();
     let mut ms: Vec<f64> = (0..reps)
         .map(|_| {
@@ -108,7 +122,7 @@ pub fn main(reps: usize) {
                 .num_threads(threads)
                 .build()
                 .expect("thread pool");
-            let (med, min) = pool.install(|| time_forward(src, reps));
+            let (med, min) = pool.install(|| time_forward(name, src, reps));
             println!("| {name} | forward only | {threads} | {med:.2} | {min:.2} |");
         }
         for backend in [Backend::Fused, Backend::Dfdx] {
