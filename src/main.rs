@@ -534,6 +534,12 @@ fn summarise(r: &serde_json::Value, out: &Path, stdout: &mut Stdout) {
                 rep["steps"].as_f64().unwrap_or(0.0) / rays,
                 stages.join(", ")
             );
+            let undecided = rep["undecided"].as_u64().unwrap_or(0);
+            if undecided > 0 {
+                eprintln!(
+                    "  {undecided} rays ran out of steps before they hit or passed `far` and are drawn as misses: raise `iterations` (with `hit_tolerance: \"absolute\"`, rays grazing a surface need many)"
+                );
+            }
         }
         Some("volume") => eprintln!(
             "{name}: volume, {} views, {} samples/ray; {}",

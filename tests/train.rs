@@ -385,3 +385,32 @@ fn a_non_finite_pixel_is_named_with_its_file() {
     );
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+#[test]
+fn edits_that_do_not_change_the_run_still_resume() {
+    // A comment above the model and a longer `iterations` shift every span
+    // below them; the run is the same run.
+    let out = temp("edits");
+    let run = |src: String| {
+        let program = sdfl_stdlib::load(&SourceFile::new("small.sdfl", src)).unwrap();
+        run_train_job(
+            &program.trains[0],
+            &out,
+            Path::new("."),
+            None,
+            RESUME,
+            &|_| {},
+            &|_| {},
+        )
+        .unwrap()
+    };
+    run(SMALL_FIT.replace("ITERATIONS", "5"));
+    let edited = format!(
+        "// tuned by hand\n\n{}",
+        SMALL_FIT.replace("ITERATIONS", "12")
+    );
+    let r = run(edited);
+    assert_eq!(r.resumed_from, Some(5));
+    assert_eq!(r.iterations, 12);
+    let _ = std::fs::remove_dir_all(&out);
+}

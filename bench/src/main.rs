@@ -100,6 +100,7 @@ fn frame_time(lowered: &Lowered, shape: &Shape, reps: usize) -> f64 {
         far: 8.0,
         iterations: 128,
         epsilon: 1e-4,
+        hit_tolerance: sdfl_stdlib::value::HitTolerance::Absolute,
         background: DVec3::ZERO,
         outputs: vec![],
     };

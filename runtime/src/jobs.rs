@@ -354,6 +354,7 @@ fn available_memory() -> u64 {
 /// [`checkpoint::PARTS`] entry (not the step count, so a run can be
 /// continued for longer).
 pub fn fingerprint(job: &TrainJob, views: &[TrainView]) -> [String; 4] {
+    use std::fmt::Write;
     let mut data = Fnv::default();
     for v in views {
         data.str(&format!("{:?}", v.camera))
@@ -362,16 +363,16 @@ pub fn fingerprint(job: &TrainJob, views: &[TrainView]) -> [String; 4] {
             data.f32s(p);
         }
     }
+    let hash = |value: &dyn std::fmt::Debug| {
+        let mut h = Fnv::default();
+        let _ = write!(h, "{value:?}");
+        h.finish()
+    };
     [
-        Fnv::default().str(&format!("{:?}", job.model)).finish(),
+        hash(&job.model),
         data.finish(),
-        Fnv::default().str(&format!("{:?}", job.sampler)).finish(),
-        Fnv::default()
-            .str(&format!(
-                "{:?} {:?} rays {} seed {} {:?}",
-                job.optimizer, job.losses, job.rays, job.seed, job.backend
-            ))
-            .finish(),
+        hash(&job.sampler),
+        hash(&(job.optimizer, &job.losses, job.rays, job.seed, job.backend)),
     ]
 }
 
@@ -428,7 +429,12 @@ pub fn run_train_job(
     };
     let fail = |e: TrainError| io::Error::other(format!("training `{}`: {e}", job.name));
     let mut run = Run::new(&model, job.optimizer.lr).map_err(fail)?;
-    let fp = fingerprint(job, &views);
+    // Only a checkpoint needs the fingerprint (it walks the whole model).
+    let fp = if job.checkpoint.is_some() {
+        fingerprint(job, &views)
+    } else {
+        Default::default()
+    };
     let checkpoint_path: Option<PathBuf> = job.checkpoint.as_ref().map(|c| out_dir.join(c));
     let mut resumed_from = None;
     if let Some(cp) = checkpoint_path

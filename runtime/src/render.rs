@@ -7,6 +7,7 @@ use std::time::Instant;
 use glam::{DVec3, Vec3A};
 use rayon::prelude::*;
 use sdfl_stdlib::camera::Camera;
+use sdfl_stdlib::value::HitTolerance;
 use sdfl_stdlib::{OutputKind, RenderJob};
 use serde::Serialize;
 
@@ -73,6 +74,8 @@ pub struct ViewBuffers {
     pub mask: Option<Vec<u8>>,
     pub hits: u64,
     pub steps: u64,
+    /// Rays whose steps ran out before they hit or passed `far`.
+    pub undecided: u64,
 }
 
 /// Which quantities to compute for each pixel.
@@ -105,11 +108,18 @@ pub fn render_view(
     progress: &(dyn Fn(u64) + Sync),
 ) -> ViewBuffers {
     let (w, h) = (width as usize, height as usize);
+    // Half a pixel's width per unit of distance, in the image's NDC.
+    let footprint = match job.hit_tolerance {
+        HitTolerance::Pixel => 1.0 / ((width.max(height).max(2) - 1) as f64 * cam.focal) as f32,
+        HitTolerance::Absolute => 0.0,
+    };
     let settings = TraceSettings {
         near: job.near as f32,
         far: job.far as f32,
         max_steps: job.iterations,
         epsilon: job.epsilon as f32,
+        footprint,
+        relax: job.hit_tolerance == HitTolerance::Pixel,
         lipschitz: scene.lipschitz,
     };
     let (ax, ay, az) = cam.axes();
@@ -138,10 +148,10 @@ pub fn render_view(
             )
         })
         .collect();
-    let (hits, steps) = work
+    let (hits, steps, undecided) = work
         .into_par_iter()
         .map(|(band, mut col, mut dep, mut nor, mut msk)| {
-            let (mut hits, mut steps) = (0u64, 0u64);
+            let (mut hits, mut steps, mut undecided) = (0u64, 0u64, 0u64);
             let rows = (band * BAND_ROWS)..((band + 1) * BAND_ROWS).min(h);
             let nrows = rows.len();
             for (r, j) in rows.enumerate() {
@@ -151,6 +161,7 @@ pub fn render_view(
                     let dir: Vec3A = d64.as_vec3().into();
                     let hit = sphere_trace(&*scene.root, origin, dir, &settings);
                     steps += hit.steps as u64;
+                    undecided += hit.undecided as u64;
                     let k = r * w + i;
                     if !hit.hit {
                         if let Some(c) = col.as_deref_mut() {
@@ -194,9 +205,9 @@ pub fn render_view(
                 }
             }
             progress((nrows * w) as u64);
-            (hits, steps)
+            (hits, steps, undecided)
         })
-        .reduce(|| (0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
+        .reduce(|| (0, 0, 0), |a, b| (a.0 + b.0, a.1 + b.1, a.2 + b.2));
     ViewBuffers {
         width,
         height,
@@ -206,6 +217,7 @@ pub fn render_view(
         mask,
         hits,
         steps,
+        undecided,
     }
 }
 
@@ -283,6 +295,9 @@ pub struct JobReport {
     pub rays: u64,
     pub hits: u64,
     pub steps: u64,
+    /// Rays whose steps ran out before they hit or passed `far` (shown as
+    /// misses: more `iterations` or `hit_tolerance: "pixel"` decide them).
+    pub undecided: u64,
     pub plan: Plan,
     pub written: Vec<Written>,
     /// (stage, seconds)
@@ -327,13 +342,14 @@ pub fn run_job(
     let mut gifs = Gifs::open(&job.outputs, out_dir)?;
     let mut written = Vec::new();
     let (mut trace_s, mut encode_s) = (0.0, 0.0);
-    let (mut hits, mut steps) = (0, 0);
+    let (mut hits, mut steps, mut undecided) = (0, 0, 0);
     for (k, cam) in job.cameras.iter().enumerate() {
         let t = Instant::now();
         let view = render_view(&scene, job, cam, (width, height), needs, progress);
         trace_s += t.elapsed().as_secs_f64();
         hits += view.hits;
         steps += view.steps;
+        undecided += view.undecided;
         let t = Instant::now();
         for o in &job.outputs {
             let rel = view_path(&o.path, k, views);
@@ -399,6 +415,7 @@ pub fn run_job(
         rays: width as u64 * height as u64 * views as u64,
         hits,
         steps,
+        undecided,
         plan,
         written,
         stages: vec![

@@ -10,7 +10,15 @@ pub struct TraceSettings {
     pub near: f32,
     pub far: f32,
     pub max_steps: u32,
+    /// A ray hits where the distance falls below `max(epsilon, footprint·t)`.
     pub epsilon: f32,
+    /// Half a pixel's width per unit of distance (0: the absolute `epsilon`
+    /// only): a hit is decided at the resolution of the image, so rays
+    /// grazing a surface end instead of creeping along it.
+    pub footprint: f32,
+    /// Over-relaxed steps (ω = 1.6), falling back to plain steps where the
+    /// bounding spheres of two steps stop overlapping.
+    pub relax: bool,
     /// Lipschitz bound of the SDF: steps are `d / lipschitz`, so bound SDFs
     /// with a steeper gradient never step through thin parts.
     pub lipschitz: f32,
@@ -23,44 +31,120 @@ pub struct Hit {
     pub t: f32,
     pub hit: bool,
     pub steps: u32,
+    /// The steps ran out before the ray hit or passed `far`.
+    pub undecided: bool,
 }
 
-/// March from `near` until the distance is below epsilon (a hit, also when
-/// the ray starts inside a shape), `t` passes `far`, or the steps run out
-/// (a miss). Always returns finite values within `max_steps` steps.
+/// The over-relaxation factor of relaxed tracing.
+const OMEGA: f32 = 1.6;
+
+/// March from `near` until the distance is below the hit tolerance (a hit,
+/// also when the ray starts inside a shape), `t` passes `far`, or the steps
+/// run out: then, with a pixel footprint, a ray that came within two
+/// footprints of a surface hits where it came closest, and any other is an
+/// undecided miss. Always returns finite values within `max_steps` steps.
+///
+/// Relaxed steps are `ω·d`; where the sphere of radius `d` around the new
+/// point and the previous one do not overlap, the step may have skipped a
+/// surface, so the trace returns to the previous point and steps `d` from
+/// there, unrelaxed for the rest of the ray (enhanced sphere tracing).
 #[inline]
 pub fn sphere_trace(sdf: &dyn Node, origin: Vec3A, dir: Vec3A, s: &TraceSettings) -> Hit {
     let inv_l = 1.0 / s.lipschitz;
+    let mut omega = if s.relax { OMEGA } else { 1.0 };
     let mut t = s.near;
+    let (mut prev_t, mut prev_r, mut step_len) = (t, 0.0f32, 0.0f32);
+    // The point that came closest relative to the pixel footprint.
+    let (mut best_err, mut best_t) = (f32::INFINITY, t);
     for step in 0..s.max_steps {
-        let d = sdf.dist(origin + dir * t);
-        if d < s.epsilon {
+        let r = sdf.dist(origin + dir * t) * inv_l;
+        // A NaN or infinite distance (which valid scenes never produce)
+        // ends as a miss rather than poisoning t.
+        if !r.is_finite() && !(r < 0.0) {
+            return Hit {
+                t: t.min(s.far),
+                hit: false,
+                steps: step + 1,
+                undecided: false,
+            };
+        }
+        if omega > 1.0 && step > 0 && r.abs() + prev_r < step_len {
+            omega = 1.0;
+            step_len = prev_r;
+            t = prev_t + prev_r;
+            continue;
+        }
+        if r < s.epsilon.max(s.footprint * t) {
+            let (t, extra) = refine(sdf, origin, dir, t, r, inv_l, s.epsilon);
             return Hit {
                 t,
                 hit: true,
-                steps: step + 1,
+                steps: step + 1 + extra,
+                undecided: false,
             };
         }
-        // A NaN distance (which valid scenes never produce) ends as a miss
-        // rather than poisoning t.
-        if !d.is_finite() {
-            break;
+        if t > 0.0 && r / t < best_err {
+            (best_err, best_t) = (r / t, t);
         }
-        t += d * inv_l;
+        (prev_t, prev_r) = (t, r);
+        step_len = omega * r;
+        t += step_len;
         if t > s.far {
             return Hit {
                 t: s.far,
                 hit: false,
                 steps: step + 1,
+                undecided: false,
             };
         }
+    }
+    // Out of steps: a ray that came within two footprints of a surface
+    // (creeping along it at a grazing angle) is decided at pixel resolution
+    // as a hit there; any other is undecided.
+    if best_err < 2.0 * s.footprint {
+        return Hit {
+            t: best_t,
+            hit: true,
+            steps: s.max_steps,
+            undecided: false,
+        };
     }
     Hit {
         t: t.min(s.far),
         hit: false,
         steps: s.max_steps,
+        undecided: true,
     }
 }
+
+/// Plain steps from a hit decided at the pixel footprint towards the
+/// surface, so depth and normals are as accurate as with the absolute ε:
+/// at most [`REFINE_STEPS`], stopping below `epsilon` or where the distance
+/// stops shrinking (a ray grazing past keeps its footprint hit). Returns the
+/// refined `t` and the steps taken.
+fn refine(
+    sdf: &dyn Node,
+    origin: Vec3A,
+    dir: Vec3A,
+    mut t: f32,
+    mut r: f32,
+    inv_l: f32,
+    epsilon: f32,
+) -> (f32, u32) {
+    let mut steps = 0;
+    while r >= epsilon && steps < REFINE_STEPS {
+        let next = sdf.dist(origin + dir * (t + r)) * inv_l;
+        steps += 1;
+        if !(next < r) {
+            break;
+        }
+        (t, r) = (t + r, next);
+    }
+    (t, steps)
+}
+
+/// Most refinement steps after a footprint hit.
+const REFINE_STEPS: u32 = 16;
 
 /// Unit surface normal at `p` by tetrahedral central differences. Where the
 /// gradient vanishes or is undefined (a sphere's centre, symmetric points

@@ -34,6 +34,7 @@ const CASES: &[(&str, &str)] = &[
     ("paint", "sdf_volume(union(paint(sphere(0.5, center: [-0.5, 0, 0]), param([0.9, 0.1, 0.1])), sphere(0.5, center: [0.5, 0, 0])))"),
     ("constant", "sdf_volume(sphere(0.9), color: constant(param([0.2, 0.3, 0.4])))"),
     ("opacity", "sdf_volume(sphere(0.9), alpha: param(0.9), beta: param(0.06))"),
+    ("opacity at α = 1", "sdf_volume(sphere(0.9), alpha: param(1), beta: param(0.2))"),
     ("volsdf", "volsdf(sphere(0.9), alpha: param(8), beta: param(0.08), color: param([0.2, 0.4, 0.6]))"),
     ("neus", "neus(sphere(0.9), alpha: param(20), beta: param(0.07))"),
 ];

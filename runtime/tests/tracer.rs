@@ -23,6 +23,8 @@ fn settings(l: &Lowered) -> TraceSettings {
         far: 20.0,
         max_steps: 256,
         epsilon: 1e-5,
+        footprint: 0.0,
+        relax: false,
         lipschitz: l.lipschitz,
     }
 }
@@ -186,6 +188,7 @@ fn job(material: Material, outputs: Vec<OutputKind>) -> RenderJob {
         far: 5.0,
         iterations: 64,
         epsilon: 1e-5,
+        hit_tolerance: sdfl_stdlib::value::HitTolerance::Absolute,
         background: DVec3::ZERO,
         outputs: outputs
             .into_iter()
@@ -258,4 +261,52 @@ fn depth_is_zero_exactly_on_misses_and_the_hit_distance_elsewhere() {
             assert_eq!(*d, 0.0);
         }
     }
+}
+
+/// The grazing scene of a new user: a ground plane and a sphere on it, seen
+/// from just above the plane. Rays a few pixels below the horizon approach
+/// the plane geometrically; with an absolute ε they run out of steps
+/// (undecided, drawn as misses); with the pixel footprint and relaxed steps
+/// every ray below the horizon is decided. (From 1e-4 above the plane, rays
+/// that leave it at a shallow angle still need more than 64 steps to get
+/// away from it: not yet solved.)
+#[test]
+fn grazing_rays_are_decided_at_the_pixel_footprint() {
+    let src = |eye_y: f64, tolerance: &str| {
+        format!(
+            "render r {{ scene: union(plane(), sphere(0.5, center: [0, 0.5, 3])),              camera: look_at(eye: [0, {eye_y}, 0], at: [0, {eye_y}, 1]), size: [128, 128],              near: 0, far: 100, iterations: 64, hit_tolerance: \"{tolerance}\", outputs: [mask(\"m.png\")] }}"
+        )
+    };
+    let view = |eye_y: f64, tolerance: &str| {
+        let program = sdfl_stdlib::load(&sdfl_lang::SourceFile::new(
+            "grazing.sdfl",
+            src(eye_y, tolerance),
+        ))
+        .unwrap_or_else(|e| panic!("{e:?}"));
+        let job = &program.renders[0];
+        let scene = Lowered::new(&job.scene, Default::default());
+        let needs = Needs {
+            color: false,
+            depth: false,
+            normals: false,
+            mask: true,
+        };
+        render_view(&scene, job, &job.cameras[0], (128, 128), needs, &|_| {})
+    };
+    // Below the horizon is the lower half of the image (the camera looks level).
+    let below = |v: &sdfl_runtime::render::ViewBuffers| {
+        let m = v.mask.as_ref().unwrap();
+        m[64 * 128..].iter().filter(|&&x| x == 0).count()
+    };
+    let absolute = view(0.3, "absolute");
+    assert!(
+        absolute.undecided > 500 && below(&absolute) > 500,
+        "the defect: {}",
+        absolute.undecided
+    );
+    let pixel = view(0.3, "pixel");
+    assert_eq!(below(&pixel), 0, "{} undecided", pixel.undecided);
+    // The sphere's centre (y_ndc = 0.5/3, row 53) is hit.
+    let m = pixel.mask.as_ref().unwrap();
+    assert_eq!(m[53 * 128 + 64], 255);
 }

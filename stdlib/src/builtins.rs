@@ -18,8 +18,8 @@ use crate::param::{Arg, Bound, ParamDecl, ParamInit, ParamUse, MIN_BETA, MIN_LEN
 use crate::precision::{beta, f32_range};
 use crate::shape::Shape;
 use crate::value::{
-    Backend, Dataset, DensityKind, Field, LastInterval, Loss, LossKind, Optimizer, Output,
-    OutputKind, RenderJob, Sampler, Schedule, TrainJob, Value, VolumeJob,
+    Backend, Dataset, DensityKind, Field, HitTolerance, LastInterval, Loss, LossKind, Optimizer,
+    Output, OutputKind, RenderJob, Sampler, Schedule, TrainJob, Value, VolumeJob,
 };
 
 pub const SHAPE: Type = Type::Named("shape");
@@ -1028,6 +1028,15 @@ fn field(a: &Args, density: DensityKind) -> Result<Value, Diag> {
         ..alpha
     };
     let color = a.material("color")?;
+    let shape = a.shape("shape")?;
+    if paints_with_normals(&shape) {
+        return Err(value_error(
+            a.get("shape").1,
+            "a volume's shape cannot be painted with a material that needs normals",
+            "painted with `lambert` or `normals`",
+            "paint volume parts with `rainbow()` or a constant colour",
+        ));
+    }
     if color.needs_normal() {
         return Err(value_error(
             a.get("color").1,
@@ -1037,7 +1046,7 @@ fn field(a: &Args, density: DensityKind) -> Result<Value, Diag> {
         ));
     }
     Ok(Value::Field(Arc::new(Field {
-        shape: a.shape("shape")?,
+        shape,
         density,
         alpha,
         beta: {
@@ -1047,6 +1056,13 @@ fn field(a: &Args, density: DensityKind) -> Result<Value, Diag> {
         },
         color,
     })))
+}
+
+/// Whether any `paint` in the tree uses a material that needs normals
+/// (volumes have none to give).
+fn paints_with_normals(s: &Shape) -> bool {
+    matches!(s, Shape::Paint(_, m) if m.needs_normal())
+        || s.children().into_iter().any(|c| paints_with_normals(c))
 }
 
 fn check_range(a: &Args, near: f64, far: f64) -> Result<(), Diag> {
@@ -1260,6 +1276,12 @@ fn render_sig() -> BlockSig {
                 "a ray hits when the distance falls below this",
             ),
             opt(
+                "hit_tolerance",
+                Type::Str,
+                "\"pixel\"",
+                "\"pixel\": a hit within half a pixel's width (at least `epsilon`), over-relaxed steps, so grazing rays are decided; \"absolute\": within `epsilon`, plain steps (the reference assignment's tracer)",
+            ),
+            opt(
                 "background",
                 Type::Vec3,
                 "[0, 0, 0]",
@@ -1306,6 +1328,21 @@ pub(crate) fn render_block(name: &str, a: &Args) -> Result<RenderJob, Diag> {
         far,
         iterations: a.count("iterations", 1, MAX_ITERATIONS as u64)? as u32,
         epsilon: a.positive("epsilon")?,
+        hit_tolerance: {
+            let (mode, span) = a.string("hit_tolerance")?;
+            match &*mode {
+                "pixel" => HitTolerance::Pixel,
+                "absolute" => HitTolerance::Absolute,
+                other => {
+                    return Err(value_error(
+                        span,
+                        format!("unknown hit tolerance `{other}`"),
+                        "not a choice",
+                        "use \"pixel\" or \"absolute\"",
+                    ))
+                }
+            }
+        },
         background: colour(bg, bg_span)?,
         outputs,
     })

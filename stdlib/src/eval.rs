@@ -567,9 +567,26 @@ impl<'e> Evaluator<'e> {
                 inclusive,
             } => {
                 let (s, t) = (self.expr(start), self.expr(end));
-                let (Value::Number(s), Value::Number(t)) = (s, t) else {
-                    out.push(Value::Poison);
-                    return false;
+                let (s, t) = match (s, t) {
+                    (Value::Number(s), Value::Number(t)) => (s, t),
+                    (s, t) => {
+                        // A value the checker let through (a `param`, typed
+                        // "any") is an error here; poison was reported already.
+                        for (v, e) in [(&s, start), (&t, end)] {
+                            if !v.is_poison() && !matches!(v, Value::Number(_)) {
+                                let d = Diag::new(
+                                    codes::TYPE,
+                                    e.span,
+                                    format!("a range bound must be a number, not a {}", v.type_name()),
+                                )
+                                .label("not a number")
+                                .help("ranges count with plain numbers; a `param` is trained, not looped over");
+                                self.error(d);
+                            }
+                        }
+                        out.push(Value::Poison);
+                        return false;
+                    }
                 };
                 let count = if *inclusive {
                     (t - s).floor() + 1.0

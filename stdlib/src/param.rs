@@ -40,7 +40,7 @@ impl ParamInit {
 }
 
 /// One `param(...)` call.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Clone, PartialEq)]
 pub struct ParamDecl {
     /// Dense number within the file, in evaluation order (indexes tables).
     pub id: usize,
@@ -49,6 +49,18 @@ pub struct ParamDecl {
     pub span: Span,
     /// The `let` it was bound to, if any: its name in reports.
     pub binding: Option<String>,
+}
+
+/// What the parameter is, not where it was written: its `Debug` form (which
+/// run fingerprints hash) leaves out the span and the evaluation number, so
+/// a comment or an unrelated line above it changes nothing.
+impl std::fmt::Debug for ParamDecl {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("ParamDecl")
+            .field("init", &self.init)
+            .field("binding", &self.binding)
+            .finish()
+    }
 }
 
 /// The range an argument must stay in.

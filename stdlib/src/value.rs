@@ -133,8 +133,22 @@ pub struct RenderJob {
     pub far: f64,
     pub iterations: u32,
     pub epsilon: f64,
+    pub hit_tolerance: HitTolerance,
     pub background: DVec3,
     pub outputs: Vec<Output>,
+}
+
+/// When a sphere-traced ray counts as a hit.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum HitTolerance {
+    /// Below `max(epsilon, half a pixel's width at that distance)`, with
+    /// over-relaxed steps: rays grazing a surface are decided at the
+    /// image's resolution.
+    Pixel,
+    /// Below `epsilon`, with plain steps: exactly the reference
+    /// assignment's tracer.
+    Absolute,
 }
 
 /// How an SDF becomes absorption in a volume.

@@ -133,7 +133,30 @@ pub fn volume_work(j: &VolumeJob, size: Option<(u32, u32)>) -> Work {
 
 pub fn train_work(j: &TrainJob, size: Option<(u32, u32)>) -> Work {
     let samples = j.sampler.samples as f64;
-    let steps = j.iterations as f64 * j.rays as f64 * samples;
+    let pixels_of_data = match &*j.data {
+        Dataset::Rendered {
+            cameras,
+            width,
+            height,
+            ..
+        } => Some(*width as f64 * *height as f64 * cameras.len() as f64),
+        Dataset::Files { .. } => None,
+    };
+    let iterations = match (j.epochs, pixels_of_data) {
+        (Some(e), Some(px)) => e as f64 * (px / j.rays.max(1) as f64).ceil(),
+        // Read files' sizes are known only when read; a 16 384² view each.
+        (Some(e), None) => {
+            let px = j.data.cameras().len() as f64 * 16_384.0 * 16_384.0;
+            e as f64 * (px / j.rays.max(1) as f64).ceil()
+        }
+        (None, _) => j.iterations as f64,
+    };
+    // Training walks the whole model at every sample (no culling), once for
+    // values and once per 16 parameters for tangents.
+    let mut scalars = 0usize;
+    j.model.visit_params(&mut |u| scalars += u.decl.init.len());
+    let per_sample = j.model.shape.primitive_count() as f64 * (1.0 + scalars.div_ceil(16) as f64);
+    let steps = iterations * j.rays as f64 * samples * per_sample;
     let (data_evals, data_bytes) = match &*j.data {
         Dataset::Rendered {
             cameras,

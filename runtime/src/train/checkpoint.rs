@@ -49,6 +49,15 @@ impl Fnv {
     }
 }
 
+/// Formatting straight into the hash, so a large value's description is
+/// never held in memory.
+impl std::fmt::Write for Fnv {
+    fn write_str(&mut self, s: &str) -> std::fmt::Result {
+        self.bytes(s.as_bytes());
+        Ok(())
+    }
+}
+
 /// One parameter's state.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ParamState {

@@ -3,6 +3,7 @@
 //! in one flat vector, and the argument source that reads them as
 //! forward-mode [`Dual`] numbers.
 
+use std::collections::HashMap;
 use std::sync::Arc;
 
 use glam::DVec3;
@@ -40,12 +41,15 @@ pub struct TrainModel {
 impl TrainModel {
     pub fn new(field: Arc<Field>) -> Self {
         let mut params: Vec<ModelParam> = Vec::new();
+        // Each `param(...)` call once, however often it is used.
+        let mut seen: HashMap<*const ParamDecl, usize> = HashMap::new();
         let mut scalars = 0;
         field.visit_params(&mut |u| {
-            if let Some(p) = params.iter_mut().find(|p| Arc::ptr_eq(&p.decl, &u.decl)) {
-                p.bound = p.bound.and(u.bound);
+            if let Some(&i) = seen.get(&Arc::as_ptr(&u.decl)) {
+                params[i].bound = params[i].bound.and(u.bound);
                 return;
             }
+            seen.insert(Arc::as_ptr(&u.decl), params.len());
             let len = u.decl.init.len();
             params.push(ModelParam {
                 decl: u.decl.clone(),
@@ -57,11 +61,12 @@ impl TrainModel {
             scalars += len;
         });
         // Unique names: a second `sphere.center` becomes `sphere.center#2`.
-        let base: Vec<String> = params.iter().map(|p| p.name.clone()).collect();
-        for i in 0..params.len() {
-            let same = base[..i].iter().filter(|b| **b == base[i]).count();
-            if same > 0 {
-                params[i].name = format!("{}#{}", base[i], same + 1);
+        let mut count: HashMap<String, usize> = HashMap::new();
+        for p in &mut params {
+            let n = count.entry(p.name.clone()).or_insert(0);
+            *n += 1;
+            if *n > 1 {
+                p.name = format!("{}#{}", p.name, n);
             }
         }
         let max_id = params.iter().map(|p| p.decl.id).max().map_or(0, |m| m + 1);

@@ -74,7 +74,11 @@ pub fn log_keep<T: Real>(kind: DensityKind, sdf: T, alpha: T, inv_beta: T, delta
             if sdf.val() >= 0.0 {
                 (-(alpha * x.exp() * half)).ln_1p()
             } else if alpha.val() == 1.0 {
-                T::lit(0.5f64.ln()) + x
+                // ln(e/2) without forming e/2, which may underflow; the
+                // second term is 0 at α = 1 but carries ∂/∂α = 1 − 2/e (e
+                // floored so that the tangent stays finite in f32).
+                let e = x.exp().max(T::lit(1e-20));
+                T::lit(0.5f64.ln()) + x + (alpha - T::one()) * (T::one() - T::lit(2.0) / e)
             } else {
                 ((T::one() - alpha) + alpha * x.exp() * half).ln()
             }
