@@ -199,6 +199,17 @@ impl Prim for BoxFrame {
     }
 }
 
+struct Ellipsoid {
+    c: V3<f32>,
+    radii: V3<f32>,
+}
+impl Prim for Ellipsoid {
+    #[inline(always)]
+    fn local(&self, p: Vec3A) -> f32 {
+        sdf::ellipsoid(v3(p), self.c, self.radii)
+    }
+}
+
 struct Torus {
     c: V3<f32>,
     major: f32,
@@ -356,6 +367,44 @@ impl Node for Binary {
             SmoothOp::Subtraction => ia,
         };
         (self.combine(a, b), id)
+    }
+}
+
+/// `d − by` (grown), or `|d| − by` (a shell).
+struct Offset {
+    inner: Box<dyn Node>,
+    by: f32,
+    shell: bool,
+}
+impl Offset {
+    #[inline(always)]
+    fn apply(&self, d: f32) -> f32 {
+        if self.shell {
+            d.abs() - self.by
+        } else {
+            d - self.by
+        }
+    }
+}
+impl Node for Offset {
+    fn dist(&self, p: Vec3A) -> f32 {
+        self.apply(self.inner.dist(p))
+    }
+    fn dist_id(&self, p: Vec3A) -> (f32, u32) {
+        let (d, id) = self.inner.dist_id(p);
+        (self.apply(d), id)
+    }
+}
+
+/// Inside exactly one of the two; the nearer surface owns the point.
+struct Xor(Box<dyn Node>, Box<dyn Node>);
+impl Node for Xor {
+    fn dist(&self, p: Vec3A) -> f32 {
+        sdf::xor(self.0.dist(p), self.1.dist(p))
+    }
+    fn dist_id(&self, p: Vec3A) -> (f32, u32) {
+        let ((a, ia), (b, ib)) = (self.0.dist_id(p), self.1.dist_id(p));
+        (sdf::xor(a, b), if a.abs() <= b.abs() { ia } else { ib })
     }
 }
 
@@ -906,6 +955,26 @@ impl Lowering {
                 painted.material = Some(m.clone());
                 self.lower(s, &painted)
             }
+            Shape::Ellipsoid { center, radii } => self.leaf(
+                Ellipsoid {
+                    c: c(center),
+                    radii: c(radii),
+                },
+                shape,
+                frame,
+            ),
+            // Offsets are in the shape's units: scaled like its distances.
+            Shape::Round(s, r) => Box::new(Offset {
+                inner: self.lower(s, frame),
+                by: (r.value * frame.scale) as f32,
+                shell: false,
+            }),
+            Shape::Onion(s, t) => Box::new(Offset {
+                inner: self.lower(s, frame),
+                by: (t.value * frame.scale) as f32,
+                shell: true,
+            }),
+            Shape::Xor(a, b) => Box::new(Xor(self.lower(a, frame), self.lower(b, frame))),
         }
     }
 

@@ -103,6 +103,16 @@ fn random_scene(seed: u64, n: usize, with_bounds_ops: bool) -> Shape {
             Arc::new(Shape::Union(inner)),
             DVec3::new(0.3, 0.0, -0.2).into(),
         )));
+        // Offsets, shells, xor and an ellipsoid (drawn last, so the draws
+        // above keep their order).
+        let (c, d) = (Arc::new(primitive(&mut rng)), Arc::new(primitive(&mut rng)));
+        members.push(Arc::new(Shape::Round(c.clone(), 0.07.into())));
+        members.push(Arc::new(Shape::Onion(d.clone(), 0.03.into())));
+        members.push(Arc::new(Shape::Xor(c, d)));
+        members.push(Arc::new(Shape::Ellipsoid {
+            center: rng.v3(2.0).into(),
+            radii: DVec3::new(0.5, 0.1, 0.2).into(),
+        }));
     }
     Shape::Union(members)
 }

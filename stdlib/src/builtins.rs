@@ -542,6 +542,13 @@ fn table() -> Vec<Builtin> {
             },
         ),
         func(
+            "ellipsoid",
+            "An ellipsoid with semi-axes `radii` (a bound with Lipschitz constant 1).",
+            vec![opt("radii", num_or_vec(), "[1, 0.5, 0.5]", "semi-axes (> 0); a number for a sphere"), center()],
+            SHAPE,
+            |a| shape(Shape::Ellipsoid { center: a.vec3_arg("center", Bound::Free)?, radii: a.vec3_arg("radii", Bound::AtLeast(MIN_LENGTH))? }),
+        ),
+        func(
             "torus",
             "A torus in the XY plane around the Z axis (exact).",
             vec![
@@ -675,6 +682,27 @@ fn table() -> Vec<Builtin> {
                     frequency: a.length_arg("frequency")?,
                 })
             },
+        ),
+        func(
+            "round",
+            "The shape grown by `radius`, `d - radius`: rounds its edges (a box of side s rounded by r spans s + 2r). Exact outside an exact convex shape, a bound elsewhere.",
+            vec![req("shape", SHAPE, "the shape"), opt("radius", Type::Number, "0.1", "how far to grow (> 0)")],
+            SHAPE,
+            |a| shape(Shape::Round(a.shape("shape")?, a.length_arg("radius")?)),
+        ),
+        func(
+            "onion",
+            "A shell of `thickness` around the shape's surface, `|d| - thickness` (a bound).",
+            vec![req("shape", SHAPE, "the shape"), opt("thickness", Type::Number, "0.05", "half the shell's width (> 0)")],
+            SHAPE,
+            |a| shape(Shape::Onion(a.shape("shape")?, a.length_arg("thickness")?)),
+        ),
+        func(
+            "xor",
+            "Inside exactly one of `a` and `b`: `max(min(a, b), -max(a, b))` (a bound).",
+            vec![req("a", SHAPE, "first shape"), req("b", SHAPE, "second shape")],
+            SHAPE,
+            |a| shape(Shape::Xor(a.shape("a")?, a.shape("b")?)),
         ),
         func(
             "paint",

@@ -31,6 +31,18 @@ pub fn box_frame<T: Real>(p: V3<T>, center: V3<T>, size: V3<T>, thickness: T) ->
         .min(part(V3::new(q.x, q.y, p.z)))
 }
 
+/// Ellipsoid with semi-axes `radii`: a bound, the larger of
+/// `(|q/r| − 1)·min(r)` (gradient at most 1) and the distance to its
+/// circumscribed sphere `|q| − max(r)`, so far away it grows like a true
+/// distance (which keeps culling by bounding boxes exact).
+#[inline(always)]
+pub fn ellipsoid<T: Real>(p: V3<T>, center: V3<T>, radii: V3<T>) -> T {
+    let q = p - center;
+    let scaled = V3::new(q.x / radii.x, q.y / radii.y, q.z / radii.z);
+    let inner = (scaled.length() - T::one()) * radii.min_element();
+    inner.max(q.length() - radii.max_element())
+}
+
 /// Torus in the XY plane around the Z axis.
 #[inline(always)]
 pub fn torus<T: Real>(p: V3<T>, center: V3<T>, major: T, minor: T) -> T {
@@ -83,6 +95,12 @@ pub fn smooth_min<T: Real>(a: T, b: T, k: T) -> T {
 #[inline(always)]
 pub fn smooth_max<T: Real>(a: T, b: T, k: T) -> T {
     -smooth_min(-a, -b, k)
+}
+
+/// Exclusive or: inside exactly one of the two.
+#[inline(always)]
+pub fn xor<T: Real>(a: T, b: T) -> T {
+    a.min(b).max(-a.max(b))
 }
 
 /// `amplitude·sin(f·x)·sin(f·y)·sin(f·z)`.

@@ -90,6 +90,11 @@ pub enum Shape {
         size: Arg<DVec3>,
         thickness: Arg<f64>,
     },
+    /// Semi-axes `radii` (a bound).
+    Ellipsoid {
+        center: Arg<DVec3>,
+        radii: Arg<DVec3>,
+    },
     /// In the XY plane around the Z axis.
     Torus {
         center: Arg<DVec3>,
@@ -136,6 +141,12 @@ pub enum Shape {
     },
     /// Gives its primitives a material.
     Paint(Arc<Shape>, Arc<Material>),
+    /// The shape grown by `radius` (`d − r`): rounded edges.
+    Round(Arc<Shape>, Arg<f64>),
+    /// A shell of `thickness` around the surface (`|d| − t`).
+    Onion(Arc<Shape>, Arg<f64>),
+    /// Inside exactly one of the two shapes.
+    Xor(Arc<Shape>, Arc<Shape>),
 }
 
 /// Where the numeric arguments of a shape come from when it is evaluated:
@@ -214,6 +225,10 @@ impl Shape {
                 let c = args.vector(center);
                 let d = sdf::box_frame(p, c, args.vector(size), args.scalar(thickness));
                 Sample::prim(d, c)
+            }
+            Shape::Ellipsoid { center, radii } => {
+                let c = args.vector(center);
+                Sample::prim(sdf::ellipsoid(p, c, args.vector(radii)), c)
             }
             Shape::Torus {
                 center,
@@ -314,6 +329,25 @@ impl Shape {
                     ..inner
                 }
             }
+            Shape::Round(s, r) => {
+                let inner = s.sample(p, args);
+                inner.with_d(inner.d - args.scalar(r))
+            }
+            Shape::Onion(s, t) => {
+                let inner = s.sample(p, args);
+                inner.with_d(inner.d.abs() - args.scalar(t))
+            }
+            Shape::Xor(a, b) => {
+                let (sa, sb) = (a.sample(p, args), b.sample(p, args));
+                // The surface nearer the point owns it.
+                let d = sdf::xor(sa.d, sb.d);
+                if sa.d.abs().val() <= sb.d.abs().val() {
+                    sa
+                } else {
+                    sb
+                }
+                .with_d(d)
+            }
         }
     }
 
@@ -342,7 +376,7 @@ impl Shape {
             | Shape::SmoothIntersection(_, _, k)
             | Shape::SmoothSubtraction(_, _, k) => s1(k),
             Shape::Rotate { angle, .. } => s1(angle),
-            Shape::Scale(_, f) => s1(f),
+            Shape::Scale(_, f) | Shape::Round(_, f) | Shape::Onion(_, f) => s1(f),
             Shape::Displace {
                 amplitude,
                 frequency,
@@ -366,6 +400,10 @@ impl Shape {
                 v3(center);
                 v3(size)
             }
+            Shape::Ellipsoid { center, radii } => {
+                v3(center);
+                v3(radii)
+            }
             Shape::Capsule { a, b, .. } => {
                 v3(a);
                 v3(b)
@@ -388,6 +426,11 @@ impl Shape {
             | Shape::Capsule { .. }
             | Shape::Cylinder { .. }
             | Shape::Plane { .. } => Exactness::Exact,
+            // Offsets of exact distances are exact outside; inside (and
+            // for a shell, on both sides) only a bound in general.
+            Shape::Ellipsoid { .. } | Shape::Round(..) | Shape::Onion(..) | Shape::Xor(..) => {
+                Exactness::Bound
+            }
             // A union of exact SDFs is exact outside but only a bound inside.
             Shape::Union(c) if c.len() == 1 => c[0].exactness(),
             Shape::Intersection(c) if c.len() == 1 => c[0].exactness(),
@@ -414,11 +457,14 @@ impl Shape {
             Shape::Subtraction(a, b)
             | Shape::SmoothUnion(a, b, _)
             | Shape::SmoothIntersection(a, b, _)
-            | Shape::SmoothSubtraction(a, b, _) => a.lipschitz().max(b.lipschitz()),
+            | Shape::SmoothSubtraction(a, b, _)
+            | Shape::Xor(a, b) => a.lipschitz().max(b.lipschitz()),
             Shape::Translate(s, _)
             | Shape::Rotate { shape: s, .. }
             | Shape::Scale(s, _)
-            | Shape::Paint(s, _) => s.lipschitz(),
+            | Shape::Paint(s, _)
+            | Shape::Round(s, _)
+            | Shape::Onion(s, _) => s.lipschitz(),
             Shape::Displace {
                 shape,
                 amplitude,
@@ -438,6 +484,12 @@ impl Shape {
             Shape::Box { center, size } | Shape::BoxFrame { center, size, .. } => {
                 Some(Aabb::around(center.value, size.value * 0.5))
             }
+            // The circumscribed sphere's cube: the bound grows like a
+            // distance only beyond that sphere.
+            Shape::Ellipsoid { center, radii } => Some(Aabb::around(
+                center.value,
+                DVec3::splat(radii.value.max_element()),
+            )),
             Shape::Torus {
                 center,
                 major,
@@ -490,6 +542,10 @@ impl Shape {
                 shape, amplitude, ..
             } => shape.bounds().map(|b| b.expand(amplitude.value.abs())),
             Shape::Paint(s, _) => s.bounds(),
+            // Growing by r moves the surface out by at most r/L ≤ r.
+            Shape::Round(s, r) => s.bounds().map(|b| b.expand(r.value)),
+            Shape::Onion(s, t) => s.bounds().map(|b| b.expand(t.value)),
+            Shape::Xor(a, b) => Some(a.bounds()?.union(b.bounds()?)),
         }
     }
 
@@ -501,13 +557,17 @@ impl Shape {
             Shape::Subtraction(a, b)
             | Shape::SmoothUnion(a, b, _)
             | Shape::SmoothIntersection(a, b, _)
-            | Shape::SmoothSubtraction(a, b, _) => vec![a, b],
+            | Shape::SmoothSubtraction(a, b, _)
+            | Shape::Xor(a, b) => vec![a, b],
             Shape::Translate(s, _)
             | Shape::Rotate { shape: s, .. }
             | Shape::Scale(s, _)
             | Shape::Paint(s, _)
+            | Shape::Round(s, _)
+            | Shape::Onion(s, _)
             | Shape::Displace { shape: s, .. } => vec![s],
             Shape::Sphere { .. }
+            | Shape::Ellipsoid { .. }
             | Shape::Box { .. }
             | Shape::BoxFrame { .. }
             | Shape::Torus { .. }
@@ -525,7 +585,8 @@ impl Shape {
             | Shape::Box { center, .. }
             | Shape::BoxFrame { center, .. }
             | Shape::Torus { center, .. }
-            | Shape::Cylinder { center, .. } => Some(center.value),
+            | Shape::Cylinder { center, .. }
+            | Shape::Ellipsoid { center, .. } => Some(center.value),
             Shape::Capsule { a, b, .. } => Some((a.value + b.value) * 0.5),
             Shape::Plane { normal, height } => Some(*normal * height.value),
             _ => None,
@@ -562,6 +623,10 @@ impl Shape {
             Shape::Scale(..) => "scale",
             Shape::Displace { .. } => "displace",
             Shape::Paint(..) => "paint",
+            Shape::Ellipsoid { .. } => "ellipsoid",
+            Shape::Round(..) => "round",
+            Shape::Onion(..) => "onion",
+            Shape::Xor(..) => "xor",
         }
     }
 }

@@ -31,6 +31,10 @@ fn leaf() -> impl Strategy<Value = Shape> {
             major: a.into(),
             minor: b.into()
         }),
+        (v3(1.0), v3(1.0)).prop_map(|(c, r)| Shape::Ellipsoid {
+            center: c.into(),
+            radii: (r.abs() + DVec3::splat(0.02)).into()
+        }),
         (v3(1.0), v3(1.0), 0.05f64..0.5).prop_map(|(a, b, r)| Shape::Capsule {
             a: a.into(),
             b: b.into(),
@@ -72,6 +76,9 @@ fn tree() -> impl Strategy<Value = Shape> {
                 }
             }),
             (a(), 0.2f64..3.0).prop_map(|(x, s)| Shape::Scale(x, s.into())),
+            (a(), 0.01f64..0.5).prop_map(|(x, r)| Shape::Round(x, r.into())),
+            (a(), 0.01f64..0.5).prop_map(|(x, t)| Shape::Onion(x, t.into())),
+            (a(), a()).prop_map(|(x, y)| Shape::Xor(x, y)),
             (a(), 0.01f64..0.2, 1.0f64..20.0).prop_map(|(x, amp, f)| Shape::Displace {
                 shape: x,
                 amplitude: amp.into(),

@@ -313,3 +313,51 @@ fn plane_is_signed_distance_to_the_plane() {
         assert!((d.abs() - (p - foot).length()).abs() < 1e-12);
     }
 }
+
+/// The ellipsoid is a bound: it never exceeds the distance to a dense
+/// sample of its surface, has the right sign, and is within a factor of the
+/// axes' ratio of the truth.
+#[test]
+fn ellipsoid_bound_never_overestimates() {
+    let (c, r) = (DVec3::new(0.2, -0.1, 0.3), DVec3::new(1.0, 0.3, 0.6));
+    let shape = Shape::Ellipsoid {
+        center: c.into(),
+        radii: r.into(),
+    };
+    let mut surface = Vec::new();
+    let n = 240;
+    for i in 0..n {
+        for j in 0..=n / 2 {
+            let (u, v) = (
+                TAU * i as f64 / n as f64,
+                std::f64::consts::PI * j as f64 / (n / 2) as f64,
+            );
+            surface.push(
+                c + DVec3::new(
+                    r.x * u.cos() * v.sin(),
+                    r.y * u.sin() * v.sin(),
+                    r.z * v.cos(),
+                ),
+            );
+        }
+    }
+    let mut rng = Lcg(7);
+    let b = shape.bounds().unwrap().expand(1.0);
+    for _ in 0..400 {
+        let p = rng.in_box(b.min, b.max);
+        let brute = surface
+            .iter()
+            .map(|s| (p - *s).length())
+            .fold(f64::INFINITY, f64::min);
+        let d = shape.distance(p);
+        assert!(d.abs() <= brute + 1e-9, "|f| {d} > {brute} at {p}");
+        let q = (p - c) / r;
+        if brute > 0.02 {
+            assert_eq!(d < 0.0, q.length() < 1.0, "sign at {p}");
+            assert!(
+                d.abs() >= brute * 0.3 / 1.0 - 0.02,
+                "too loose: {d} vs {brute}"
+            );
+        }
+    }
+}
