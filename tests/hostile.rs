@@ -1102,3 +1102,23 @@ fn output_names_too_long_for_the_file_system_are_refused_early() {
         );
     }
 }
+
+/// A training step that cannot fit in memory (a million rays × 4096
+/// jittered samples through the dfdx graph: hundreds of GB) is refused with
+/// its estimate, never allocated; so is a run whose epochs make the work
+/// absurd.
+#[test]
+fn training_beyond_memory_or_time_is_refused() {
+    let data = "data: render_views(sdf_volume(sphere()), cameras: [look_at(eye: [0, 0, -3])], size: [1024, 1024])";
+    let huge_step = format!(
+        "train t {{ model: sdf_volume(sphere(param(0.8))), {data}, \
+         sampler: stratified(samples: 4096, jitter: true), rays: 1048576, backend: \"dfdx\", iterations: 1 }}"
+    );
+    let o = hostile("training_memory", huge_step, Expect::Error);
+    assert!(o[1].stderr.contains("GB"), "{}", head(&o[1].stderr));
+    let endless = format!(
+        "train t {{ model: sdf_volume(sphere(param(0.8))), {data}, \
+         sampler: stratified(samples: 4096), rays: 1, epochs: 1000000 }}"
+    );
+    hostile("training_epochs", endless, Expect::Error);
+}

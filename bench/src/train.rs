@@ -10,8 +10,8 @@ use std::time::Instant;
 
 use sdfl_lang::SourceFile;
 use sdfl_runtime::jobs::load_views;
-use sdfl_runtime::train::{Run, TrainModel, TrainSetup};
-use sdfl_stdlib::value::Backend;
+use sdfl_runtime::train::{Run, TrainModel, TrainSetup, TrainView};
+use sdfl_stdlib::value::{Backend, TrainJob};
 
 const BOX: &str = r#"
 let cameras = [look_at(eye: [-2.5, 0, 0]), look_at(eye: [-1.0, 0, -2.2]), look_at(eye: [0, 0, -2.5]), look_at(eye: [1.0, 0, -2.2])]
@@ -33,29 +33,20 @@ train torus_fit {
 }
 "#;
 
-/// (median, minimum) milliseconds of `reps` steps after two warm-up steps.
-fn time_steps(src: &str, backend: Backend, reps: usize) -> (f64, f64) {
+/// A benchmark scene's training job and its views.
+fn prepare(src: &str) -> (TrainJob, Vec<TrainView>) {
     let program = sdfl_stdlib::load(&SourceFile::new("bench.sdfl", src)).expect("bench scene");
-    let job = &program.trains[0];
+    let job = program.trains[0].clone();
     let views = load_views(&job.data, std::path::Path::new(".")).expect("views");
-    let model = TrainModel::new(job.model.clone());
-    let setup = TrainSetup {
-        views: &views,
-        sampler: job.sampler,
-        rays: job.rays,
-        optimizer: job.optimizer,
-        losses: &job.losses,
-        seed: 0,
-        backend,
-    };
-    let mut run = Run::new(&model, job.optimizer.lr).expect("run");
-    for _ in 0..2 {
-        run.advance(&setup).expect("step");
-    }
+    (job, views)
+}
+
+/// (median, minimum) of `reps` timings of `f`, in milliseconds.
+fn timed(reps: usize, mut f: impl FnMut(usize)) -> (f64, f64) {
     let mut ms: Vec<f64> = (0..reps)
-        .map(|_| {
+        .map(|k| {
             let t = Instant::now();
-            run.advance(&setup).expect("step");
+            f(k);
             t.elapsed().as_secs_f64() * 1e3
         })
         .collect();
@@ -63,53 +54,43 @@ fn time_steps(src: &str, backend: Backend, reps: usize) -> (f64, f64) {
     (ms[ms.len() / 2], ms[0])
 }
 
-/// (median, minimum) milliseconds of a forward-only pass over one batch.
-fn time_forward(name: &str, src: &str, reps: usize) -> (f64, f64) {
-    let program = sdfl_stdlib::load(&SourceFile::new("bench.sdfl", src)).expect("bench scene");
-    let job = &program.trains[0];
-    let views = load_views(&job.data, std::path::Path::new(".")).expect("views");
+/// Milliseconds of `reps` optimiser steps after two warm-up steps.
+fn time_steps(src: &str, backend: Backend, reps: usize) -> (f64, f64) {
+    let (mut job, views) = prepare(src);
+    job.backend = backend;
     let model = TrainModel::new(job.model.clone());
-    let setup = TrainSetup {
-        views: &views,
-        sampler: job.sampler,
-        rays: job.rays,
-        optimizer: job.optimizer,
-        losses: &job.losses,
-        seed: 0,
-        backend: Backend::Fused,
-    };
+    let setup = TrainSetup::of(&job, &views);
+    let mut run = Run::new(&model, job.optimizer.lr).expect("run");
+    for _ in 0..2 {
+        run.advance(&setup).expect("step");
+    }
+    timed(reps, |_| {
+        run.advance(&setup).expect("step");
+    })
+}
+
+/// Milliseconds of a forward-only pass over one batch; prints the time to
+/// draw a batch.
+fn time_forward(name: &str, src: &str, reps: usize) -> (f64, f64) {
+    let (job, views) = prepare(src);
+    let model = TrainModel::new(job.model.clone());
+    let setup = TrainSetup::of(&job, &views);
+    let (med, min) = timed(reps, |k| {
+        std::hint::black_box(setup.batch(k).expect("batch"));
+    });
+    let threads = rayon::current_num_threads();
+    println!("| {name} | drawing the batch only | {threads} | {med:.2} | {min:.2} |");
     let batch = setup.batch(0).expect("batch");
-    let mut drawing: Vec<f64> = (0..reps)
-        .map(|k| {
-            let t = Instant::now();
-            std::hint::black_box(setup.batch(k).expect("batch"));
-            t.elapsed().as_secs_f64() * 1e3
-        })
-        .collect();
-    drawing.sort_by(f64::total_cmp);
-    println!(
-        "| {name} | drawing the batch only | {} | {:.2} | {:.2} |",
-        rayon::current_num_threads(),
-        drawing[drawing.len() / 2],
-        drawing[0]
-    );
     let values: Vec<f32> = model.initial_values().iter().map(|&x| x as f32).collect();
-    let mut ms: Vec<f64> = (0..reps)
-        .map(|_| {
-            let t = Instant::now();
-            let r = sdfl_runtime::train::fused::render_rays(
-                &model,
-                &values,
-                &batch.rays,
-                &batch.depths,
-                job.sampler.last_interval,
-            );
-            std::hint::black_box(r);
-            t.elapsed().as_secs_f64() * 1e3
-        })
-        .collect();
-    ms.sort_by(f64::total_cmp);
-    (ms[ms.len() / 2], ms[0])
+    timed(reps, |_| {
+        std::hint::black_box(sdfl_runtime::train::fused::render_rays(
+            &model,
+            &values,
+            &batch.rays,
+            &batch.depths,
+            job.sampler.last_interval,
+        ));
+    })
 }
 
 pub fn main(reps: usize) {

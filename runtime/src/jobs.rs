@@ -414,15 +414,7 @@ pub fn run_train_job(
     stages.push(("load data".to_string(), t.elapsed().as_secs_f64()));
 
     let model = TrainModel::new(job.model.clone());
-    let setup = TrainSetup {
-        views: &views,
-        sampler: job.sampler,
-        rays: job.rays,
-        optimizer: job.optimizer,
-        losses: &job.losses,
-        seed: job.seed,
-        backend: job.backend,
-    };
+    let setup = TrainSetup::of(job, &views);
     let steps = match job.epochs {
         Some(e) => e.saturating_mul(setup.steps_per_epoch()),
         None => job.iterations,

@@ -38,7 +38,20 @@ pub struct TrainSetup<'a> {
     pub backend: Backend,
 }
 
-impl TrainSetup<'_> {
+impl<'a> TrainSetup<'a> {
+    /// A `train` statement's setup over its loaded views.
+    pub fn of(job: &'a sdfl_stdlib::value::TrainJob, views: &'a [TrainView]) -> Self {
+        TrainSetup {
+            views,
+            sampler: job.sampler,
+            rays: job.rays,
+            optimizer: job.optimizer,
+            losses: &job.losses,
+            seed: job.seed,
+            backend: job.backend,
+        }
+    }
+
     /// Steps of one pass over every training pixel.
     pub fn steps_per_epoch(&self) -> usize {
         let pixels: usize = self.views.iter().map(|v| v.image.pixels.len()).sum();
