@@ -43,6 +43,9 @@ pub mod codes {
     pub const WORK: &str = "sdfl::limit::work";
     /// A warning: the camera cannot reach the scene within `far`.
     pub const MISSES_SCENE: &str = "sdfl::warn::misses-scene";
+    /// A warning: a `param(...)` where nothing trains it (a render, or the
+    /// data of a `train`): it keeps its starting value.
+    pub const UNTRAINED_PARAM: &str = "sdfl::warn::untrained-param";
 }
 
 /// A number in a message: plain when short, otherwise in short scientific

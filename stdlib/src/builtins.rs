@@ -114,6 +114,9 @@ impl Args {
             _ => return Err(type_error(span, "number", v)),
         };
         check_bound(value, bound, name, span)?;
+        if param.is_some() {
+            check_floor(value, bound, name, span)?;
+        }
         Ok(Arg { value, param })
     }
 
@@ -136,6 +139,9 @@ impl Args {
         };
         for x in value.to_array() {
             check_bound(x, bound, name, span)?;
+            if param.is_some() {
+                check_floor(x, bound, name, span)?;
+            }
         }
         Ok(Arg { value, param })
     }
@@ -191,6 +197,15 @@ impl Args {
         match v {
             Value::Number(x) => Ok(DVec3::splat(f32_range(*x, s, name)?)),
             Value::Param(_) => Err(not_trainable(s, name)),
+            Value::List(items) if items.iter().any(|i| matches!(i, Value::Param(_))) => {
+                Err(Diag::new(
+                    codes::TYPE,
+                    s,
+                    format!("a `param` cannot be one component of `{name}`"),
+                )
+                .label("a list holding a `param`")
+                .help("make the whole vector trainable instead: `param([x, y, z])`"))
+            }
             _ => {
                 let p = v
                     .as_vec3()
@@ -277,6 +292,24 @@ fn not_trainable(span: Span, name: &str) -> Diag {
     Diag::new(codes::VALUE, span, format!("`{name}` cannot be trained"))
         .label("marked with `param`")
         .help("`param(...)` marks numeric arguments of shapes, transforms, blends, colours and fields; cameras, samplers and settings are fixed: drop `param(...)` here")
+}
+
+/// A trainable value starts where training keeps it: at least the floor of
+/// its range (which is above 0 for lengths and β).
+fn check_floor(x: f64, bound: Bound, name: &str, span: Span) -> Result<(), Diag> {
+    match bound {
+        Bound::AtLeast(lo) if x < lo => Err(value_error(
+            span,
+            format!(
+                "a trained `{name}` starts at {}, below {}, the smallest value training keeps",
+                sdfl_lang::diag::fmt_num(x),
+                sdfl_lang::diag::fmt_num(lo)
+            ),
+            "too small to train",
+            format!("start `{name}` at {} or more", sdfl_lang::diag::fmt_num(lo)),
+        )),
+        _ => Ok(()),
+    }
 }
 
 /// `x` within `bound`, or a diagnostic naming the argument.
@@ -1480,6 +1513,15 @@ pub(crate) fn train_block(name: &str, a: &Args) -> Result<TrainJob, Diag> {
     let after = outputs(a, "after", true)?;
     let (width, height) = image_size(a, "size")?;
     let epochs = a.count("epochs", 0, 1_000_000)? as usize;
+    // Defaults carry the block's span: a different span was written.
+    if epochs > 0 && a.get("iterations").1 != a.span {
+        return Err(value_error(
+            a.get("epochs").1,
+            "`epochs` and `iterations` both say how long to train",
+            "and `iterations` is given too",
+            "keep one of them: `epochs` counts passes over every training pixel",
+        ));
+    }
     Ok(TrainJob {
         name: name.to_string(),
         model: model.clone(),

@@ -332,6 +332,40 @@ impl<'e> Evaluator<'e> {
             (_, Some((Value::Field(_), _))) => "volume",
             _ => "render",
         };
+        // A `param` outside a `train` model keeps its starting value.
+        let untrained = match kind {
+            "render" => program.renders.last().and_then(|j| {
+                let mut first = None;
+                j.scene.visit_params(&mut |u| {
+                    first.get_or_insert(u.decl.span);
+                });
+                first.map(|s| (s, "this render draws it at its starting value"))
+            }),
+            "volume" => program.volumes.last().and_then(|j| {
+                let mut first = None;
+                j.field.visit_params(&mut |u| {
+                    first.get_or_insert(u.decl.span);
+                });
+                first.map(|s| (s, "this render draws it at its starting value"))
+            }),
+            _ => program.trains.last().and_then(|j| match &*j.data {
+                crate::value::Dataset::Rendered { field, .. } => {
+                    let mut first = None;
+                    field.visit_params(&mut |u| {
+                        first.get_or_insert(u.decl.span);
+                    });
+                    first.map(|s| (s, "the training data is rendered at its starting value"))
+                }
+                crate::value::Dataset::Files { .. } => None,
+            }),
+        };
+        if let Some((span, what)) = untrained {
+            self.diags.push(
+                Diag::new(codes::UNTRAINED_PARAM, span, "this `param` is not trained here")
+                    .label(what)
+                    .help("`param(...)` is fitted only inside a `train` statement's `model`; write the number itself here"),
+            );
+        }
         let mut found = crate::outputs::check_job(program, kind, &mut self.files, &field);
         use crate::work;
         let span = b
