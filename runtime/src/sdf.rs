@@ -199,6 +199,30 @@ impl Prim for BoxFrame {
     }
 }
 
+struct Octahedron {
+    c: V3<f32>,
+    size: f32,
+}
+impl Prim for Octahedron {
+    #[inline(always)]
+    fn local(&self, p: Vec3A) -> f32 {
+        sdf::octahedron(v3(p), self.c, self.size)
+    }
+}
+
+struct CappedCone {
+    c: V3<f32>,
+    height: f32,
+    bottom: f32,
+    top: f32,
+}
+impl Prim for CappedCone {
+    #[inline(always)]
+    fn local(&self, p: Vec3A) -> f32 {
+        sdf::capped_cone(v3(p), self.c, self.height, self.bottom, self.top)
+    }
+}
+
 struct Ellipsoid {
     c: V3<f32>,
     radii: V3<f32>,
@@ -955,6 +979,29 @@ impl Lowering {
                 painted.material = Some(m.clone());
                 self.lower(s, &painted)
             }
+            Shape::Octahedron { center, size } => self.leaf(
+                Octahedron {
+                    c: c(center),
+                    size: f(size),
+                },
+                shape,
+                frame,
+            ),
+            Shape::CappedCone {
+                center,
+                height,
+                bottom,
+                top,
+            } => self.leaf(
+                CappedCone {
+                    c: c(center),
+                    height: f(height),
+                    bottom: f(bottom),
+                    top: f(top),
+                },
+                shape,
+                frame,
+            ),
             Shape::Ellipsoid { center, radii } => self.leaf(
                 Ellipsoid {
                     c: c(center),

@@ -113,6 +113,16 @@ fn random_scene(seed: u64, n: usize, with_bounds_ops: bool) -> Shape {
             center: rng.v3(2.0).into(),
             radii: DVec3::new(0.5, 0.1, 0.2).into(),
         }));
+        members.push(Arc::new(Shape::Octahedron {
+            center: rng.v3(2.0).into(),
+            size: 0.3.into(),
+        }));
+        members.push(Arc::new(Shape::CappedCone {
+            center: rng.v3(2.0).into(),
+            height: 0.5.into(),
+            bottom: 0.25.into(),
+            top: 0.05.into(),
+        }));
     }
     Shape::Union(members)
 }

@@ -31,6 +31,8 @@ const CASES: &[(&str, &str)] = &[
     ("rotate", "sdf_volume(rotate(box(size: [1.2, 0.8, 0.6]), param(0.4), axis: [0.3, 1, 0.2]))"),
     ("scale", "sdf_volume(scale(torus(major: 0.8, minor: 0.3), param(1.1)))"),
     ("displace", "sdf_volume(displace(sphere(0.9), amplitude: param(0.05), frequency: param(6)))"),
+    ("octahedron", "sdf_volume(octahedron(size: param(0.9), center: param([0.05, 0.1, 0])))"),
+    ("capped_cone", "sdf_volume(capped_cone(height: param(1.2), bottom: param(0.6), top: param(0.25), center: param([0.05, 0.02, 0])))"),
     ("ellipsoid", "sdf_volume(ellipsoid(radii: param([1.0, 0.6, 0.7]), center: param([0.05, 0.1, 0])))"),
     ("round", "sdf_volume(round(box(size: [1, 0.8, 0.7]), param(0.15)))"),
     ("onion", "sdf_volume(onion(sphere(0.8), param(0.1)))"),

@@ -582,6 +582,32 @@ fn table() -> Vec<Builtin> {
             |a| shape(Shape::Ellipsoid { center: a.vec3_arg("center", Bound::Free)?, radii: a.vec3_arg("radii", Bound::AtLeast(MIN_LENGTH))? }),
         ),
         func(
+            "octahedron",
+            "An octahedron with vertices at `±size` on each axis (a bound with Lipschitz constant 1).",
+            vec![opt("size", Type::Number, "1", "distance from the centre to a vertex (> 0)"), center()],
+            SHAPE,
+            |a| shape(Shape::Octahedron { center: a.vec3_arg("center", Bound::Free)?, size: a.length_arg("size")? }),
+        ),
+        func(
+            "capped_cone",
+            "A cone cut at both ends, along the Z axis: radius `bottom` at z = -height/2, `top` at +height/2 (exact; `top: 0` is a cone).",
+            vec![
+                opt("height", Type::Number, "1", "full height (> 0)"),
+                opt("bottom", Type::Number, "0.5", "radius of the lower cap (≥ 0)"),
+                opt("top", Type::Number, "0.2", "radius of the upper cap (≥ 0)"),
+                center(),
+            ],
+            SHAPE,
+            |a| {
+                let radius = |name| a.scalar_arg(name, Bound::Within(0.0, f64::MAX));
+                let (bottom, top) = (radius("bottom")?, radius("top")?);
+                if bottom.value <= 0.0 && top.value <= 0.0 {
+                    return Err(value_error(a.span, "a cone with no radius at either end", "both radii 0", "give `bottom` or `top` a radius above 0"));
+                }
+                shape(Shape::CappedCone { center: a.vec3_arg("center", Bound::Free)?, height: a.length_arg("height")?, bottom, top })
+            },
+        ),
+        func(
             "torus",
             "A torus in the XY plane around the Z axis (exact).",
             vec![

@@ -43,6 +43,40 @@ pub fn ellipsoid<T: Real>(p: V3<T>, center: V3<T>, radii: V3<T>) -> T {
     inner.max(q.length() - radii.max_element())
 }
 
+/// Octahedron with vertices at `±size` on each axis: a bound, the larger of
+/// the distance to its face planes `(|x| + |y| + |z| − s)/√3` and to its
+/// circumscribed sphere.
+#[inline(always)]
+pub fn octahedron<T: Real>(p: V3<T>, center: V3<T>, size: T) -> T {
+    let q = (p - center).abs();
+    let faces = (q.x + q.y + q.z - size) * T::lit(1.0 / 3f64.sqrt());
+    faces.max(q.length() - size)
+}
+
+/// Capped cone along Z, full `height`, radius `bottom` at `z = −height/2`
+/// and `top` at `+height/2` (Inigo Quilez's exact formula).
+#[inline(always)]
+pub fn capped_cone<T: Real>(p: V3<T>, center: V3<T>, height: T, bottom: T, top: T) -> T {
+    let d = p - center;
+    let h = height * T::lit(0.5);
+    let (qx, qy) = ((d.x * d.x + d.y * d.y).sqrt(), d.z);
+    // The nearer cap's radius, and the slanted side as a segment.
+    let cap = if qy.val() < 0.0 { bottom } else { top };
+    let ca = (qx - qx.min(cap), qy.abs() - h);
+    let (k1x, k1y) = (top, h);
+    let (k2x, k2y) = (top - bottom, h * T::lit(2.0));
+    let t = (((k1x - qx) * k2x + (k1y - qy) * k2y) / (k2x * k2x + k2y * k2y)).clamp(0.0, 1.0);
+    let cb = (qx - k1x + k2x * t, qy - k1y + k2y * t);
+    let inside = cb.0.val() < 0.0 && ca.1.val() < 0.0;
+    let d2 = (ca.0 * ca.0 + ca.1 * ca.1).min(cb.0 * cb.0 + cb.1 * cb.1);
+    let dist = d2.sqrt();
+    if inside {
+        -dist
+    } else {
+        dist
+    }
+}
+
 /// Torus in the XY plane around the Z axis.
 #[inline(always)]
 pub fn torus<T: Real>(p: V3<T>, center: V3<T>, major: T, minor: T) -> T {

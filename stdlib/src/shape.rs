@@ -90,6 +90,18 @@ pub enum Shape {
         size: Arg<DVec3>,
         thickness: Arg<f64>,
     },
+    /// Vertices at `±size` on each axis (a bound).
+    Octahedron {
+        center: Arg<DVec3>,
+        size: Arg<f64>,
+    },
+    /// Along Z: full `height`, radius `bottom` at the lower cap, `top` at the upper.
+    CappedCone {
+        center: Arg<DVec3>,
+        height: Arg<f64>,
+        bottom: Arg<f64>,
+        top: Arg<f64>,
+    },
     /// Semi-axes `radii` (a bound).
     Ellipsoid {
         center: Arg<DVec3>,
@@ -229,6 +241,20 @@ impl Shape {
             Shape::Ellipsoid { center, radii } => {
                 let c = args.vector(center);
                 Sample::prim(sdf::ellipsoid(p, c, args.vector(radii)), c)
+            }
+            Shape::Octahedron { center, size } => {
+                let c = args.vector(center);
+                Sample::prim(sdf::octahedron(p, c, args.scalar(size)), c)
+            }
+            Shape::CappedCone {
+                center,
+                height,
+                bottom,
+                top,
+            } => {
+                let c = args.vector(center);
+                let (h, b, t) = (args.scalar(height), args.scalar(bottom), args.scalar(top));
+                Sample::prim(sdf::capped_cone(p, c, h, b, t), c)
             }
             Shape::Torus {
                 center,
@@ -372,6 +398,17 @@ impl Shape {
                 s1(height)
             }
             Shape::Plane { height, .. } => s1(height),
+            Shape::Octahedron { size, .. } => s1(size),
+            Shape::CappedCone {
+                height,
+                bottom,
+                top,
+                ..
+            } => {
+                s1(height);
+                s1(bottom);
+                s1(top)
+            }
             Shape::SmoothUnion(_, _, k)
             | Shape::SmoothIntersection(_, _, k)
             | Shape::SmoothSubtraction(_, _, k) => s1(k),
@@ -395,7 +432,9 @@ impl Shape {
         match self {
             Shape::Sphere { center, .. }
             | Shape::Torus { center, .. }
-            | Shape::Cylinder { center, .. } => v3(center),
+            | Shape::Cylinder { center, .. }
+            | Shape::Octahedron { center, .. }
+            | Shape::CappedCone { center, .. } => v3(center),
             Shape::Box { center, size } | Shape::BoxFrame { center, size, .. } => {
                 v3(center);
                 v3(size)
@@ -425,12 +464,15 @@ impl Shape {
             | Shape::Torus { .. }
             | Shape::Capsule { .. }
             | Shape::Cylinder { .. }
+            | Shape::CappedCone { .. }
             | Shape::Plane { .. } => Exactness::Exact,
             // Offsets of exact distances are exact outside; inside (and
             // for a shell, on both sides) only a bound in general.
-            Shape::Ellipsoid { .. } | Shape::Round(..) | Shape::Onion(..) | Shape::Xor(..) => {
-                Exactness::Bound
-            }
+            Shape::Ellipsoid { .. }
+            | Shape::Octahedron { .. }
+            | Shape::Round(..)
+            | Shape::Onion(..)
+            | Shape::Xor(..) => Exactness::Bound,
             // A union of exact SDFs is exact outside but only a bound inside.
             Shape::Union(c) if c.len() == 1 => c[0].exactness(),
             Shape::Intersection(c) if c.len() == 1 => c[0].exactness(),
@@ -509,6 +551,21 @@ impl Shape {
                 center.value,
                 DVec3::new(radius.value, radius.value, height.value * 0.5),
             )),
+            Shape::Octahedron { center, size } => {
+                Some(Aabb::around(center.value, DVec3::splat(size.value)))
+            }
+            Shape::CappedCone {
+                center,
+                height,
+                bottom,
+                top,
+            } => {
+                let r = bottom.value.max(top.value);
+                Some(Aabb::around(
+                    center.value,
+                    DVec3::new(r, r, height.value * 0.5),
+                ))
+            }
             Shape::Plane { .. } => None,
             Shape::Union(children) => {
                 let mut acc: Option<Aabb> = None;
@@ -568,6 +625,8 @@ impl Shape {
             | Shape::Displace { shape: s, .. } => vec![s],
             Shape::Sphere { .. }
             | Shape::Ellipsoid { .. }
+            | Shape::Octahedron { .. }
+            | Shape::CappedCone { .. }
             | Shape::Box { .. }
             | Shape::BoxFrame { .. }
             | Shape::Torus { .. }
@@ -586,7 +645,9 @@ impl Shape {
             | Shape::BoxFrame { center, .. }
             | Shape::Torus { center, .. }
             | Shape::Cylinder { center, .. }
-            | Shape::Ellipsoid { center, .. } => Some(center.value),
+            | Shape::Ellipsoid { center, .. }
+            | Shape::Octahedron { center, .. }
+            | Shape::CappedCone { center, .. } => Some(center.value),
             Shape::Capsule { a, b, .. } => Some((a.value + b.value) * 0.5),
             Shape::Plane { normal, height } => Some(*normal * height.value),
             _ => None,
@@ -624,6 +685,8 @@ impl Shape {
             Shape::Displace { .. } => "displace",
             Shape::Paint(..) => "paint",
             Shape::Ellipsoid { .. } => "ellipsoid",
+            Shape::Octahedron { .. } => "octahedron",
+            Shape::CappedCone { .. } => "capped_cone",
             Shape::Round(..) => "round",
             Shape::Onion(..) => "onion",
             Shape::Xor(..) => "xor",

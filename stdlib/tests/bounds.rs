@@ -31,6 +31,18 @@ fn leaf() -> impl Strategy<Value = Shape> {
             major: a.into(),
             minor: b.into()
         }),
+        (v3(1.0), 0.05f64..1.0).prop_map(|(c, s)| Shape::Octahedron {
+            center: c.into(),
+            size: s.into()
+        }),
+        (v3(1.0), 0.05f64..1.0, 0.0f64..0.6, 0.0f64..0.6).prop_map(|(c, h, b, t)| {
+            Shape::CappedCone {
+                center: c.into(),
+                height: h.into(),
+                bottom: (b + 0.01).into(),
+                top: t.into(),
+            }
+        }),
         (v3(1.0), v3(1.0)).prop_map(|(c, r)| Shape::Ellipsoid {
             center: c.into(),
             radii: (r.abs() + DVec3::splat(0.02)).into()

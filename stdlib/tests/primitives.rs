@@ -361,3 +361,47 @@ fn ellipsoid_bound_never_overestimates() {
         }
     }
 }
+
+#[test]
+fn capped_cone_is_exact() {
+    let c = DVec3::new(0.1, 0.2, -0.1);
+    let (h, r1, r2) = (1.2, 0.6, 0.25);
+    for (bottom, top) in [(r1, r2), (r2, r1), (r1, 0.0)] {
+        let shape = Shape::CappedCone {
+            center: c.into(),
+            height: h.into(),
+            bottom: bottom.into(),
+            top: top.into(),
+        };
+        let spacing = 0.01;
+        let radius_at = |z: f64| bottom + (top - bottom) * (z / h + 0.5);
+        let mut surface = Vec::new();
+        // Caps as filled disks, the side as a ruled surface.
+        for (z, r) in [(-h / 2.0, bottom), (h / 2.0, top)] {
+            let rings = (r / spacing).ceil() as usize;
+            for i in 0..=rings {
+                let rho = r * i as f64 / rings.max(1) as f64;
+                let n = ((TAU * rho / spacing).ceil() as usize).max(1);
+                for k in 0..n {
+                    let a = TAU * k as f64 / n as f64;
+                    surface.push(c + DVec3::new(rho * a.cos(), rho * a.sin(), z));
+                }
+            }
+        }
+        let rows = (h / spacing).ceil() as usize;
+        for i in 0..=rows {
+            let z = -h / 2.0 + h * i as f64 / rows as f64;
+            let r = radius_at(z);
+            let n = ((TAU * r / spacing).ceil() as usize).max(1);
+            for k in 0..n {
+                let a = TAU * k as f64 / n as f64;
+                surface.push(c + DVec3::new(r * a.cos(), r * a.sin(), z));
+            }
+        }
+        let inside = |p: DVec3| {
+            let q = p - c;
+            q.z.abs() <= h / 2.0 && q.truncate().length() <= radius_at(q.z)
+        };
+        check(&shape, &surface, inside, 2.0 * spacing);
+    }
+}
