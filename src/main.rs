@@ -9,6 +9,7 @@ use clap::{Parser, Subcommand};
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use sdfl_lang::SourceFile;
 use sdfl_runtime::{jobs, run_job, Plan, RunOptions};
+use sdfl_stdlib::value::Statement;
 
 /// The scene `sdfl run` renders when given no file.
 const SHOWCASE: &str = include_str!("../examples/large_scene.sdfl");
@@ -385,27 +386,42 @@ fn execute(
 ) -> Result<Vec<serde_json::Value>, (String, std::io::Error)> {
     let mut reports = Vec::new();
     let io = |name: &str, e: std::io::Error| (name.to_string(), e);
-    for job in &program.renders {
-        bar.set_message(job.name.clone());
-        let r = run_job(job, out, options, &|n| bar.inc(n)).map_err(|e| io(&job.name, e))?;
-        reports.push(serde_json::json!({"kind": "render", "report": r}));
-    }
-    for job in &program.volumes {
-        bar.set_message(job.name.clone());
-        let r = jobs::run_volume_job(job, out, options.size, &|n| bar.inc(n))
-            .map_err(|e| io(&job.name, e))?;
-        reports.push(serde_json::json!({"kind": "volume", "report": r}));
-    }
-    for job in &program.trains {
-        bar.set_message(job.name.clone());
-        let train = jobs::TrainOptions {
-            restart: options.restart,
-        };
-        let r = jobs::run_train_job(job, out, base, options.size, train, &|n| bar.inc(n), &|m| {
-            bar.set_message(m.to_string())
-        })
-        .map_err(|e| io(&job.name, e))?;
-        reports.push(serde_json::json!({"kind": "train", "report": r}));
+    // In file order: a render after a `train` may read what it wrote.
+    for statement in &program.order {
+        match *statement {
+            Statement::Render(i) => {
+                let job = &program.renders[i];
+                bar.set_message(job.name.clone());
+                let r =
+                    run_job(job, out, options, &|n| bar.inc(n)).map_err(|e| io(&job.name, e))?;
+                reports.push(serde_json::json!({"kind": "render", "report": r}));
+            }
+            Statement::Volume(i) => {
+                let job = &program.volumes[i];
+                bar.set_message(job.name.clone());
+                let r = jobs::run_volume_job(job, out, options.size, &|n| bar.inc(n))
+                    .map_err(|e| io(&job.name, e))?;
+                reports.push(serde_json::json!({"kind": "volume", "report": r}));
+            }
+            Statement::Train(i) => {
+                let job = &program.trains[i];
+                bar.set_message(job.name.clone());
+                let train = jobs::TrainOptions {
+                    restart: options.restart,
+                };
+                let r = jobs::run_train_job(
+                    job,
+                    out,
+                    base,
+                    options.size,
+                    train,
+                    &|n| bar.inc(n),
+                    &|m| bar.set_message(m.to_string()),
+                )
+                .map_err(|e| io(&job.name, e))?;
+                reports.push(serde_json::json!({"kind": "train", "report": r}));
+            }
+        }
     }
     Ok(reports)
 }

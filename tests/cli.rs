@@ -181,3 +181,38 @@ fn transmittance_prints_the_four_values() {
     }
     assert!(tmp.join("transmittance.png").is_file());
 }
+
+#[test]
+fn statements_run_in_file_order() {
+    let tmp = temp("order");
+    std::fs::create_dir_all(&tmp).unwrap();
+    let file = tmp.join("order.sdfl");
+    std::fs::write(
+        &file,
+        "let cams = [look_at(eye: [0, 0, -3])]\n\
+         render first { scene: sphere(), camera: cams, outputs: [image(\"a.png\")], size: [8, 8] }\n\
+         train fit { model: sdf_volume(sphere(param(0.8))), data: render_views(sdf_volume(sphere()), cameras: cams, size: [4, 4]), iterations: 2 }\n\
+         render last { scene: sphere(), camera: cams, outputs: [image(\"b.png\")], size: [8, 8] }\n",
+    )
+    .unwrap();
+    let out = sdfl(&[
+        "run",
+        file.to_str().unwrap(),
+        "--json",
+        "--out",
+        tmp.join("out").to_str().unwrap(),
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let json: serde_json::Value = serde_json::from_slice(&out.stdout).expect("valid JSON");
+    let names: Vec<&str> = json["jobs"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|j| j["report"]["name"].as_str().unwrap())
+        .collect();
+    assert_eq!(names, ["first", "fit", "last"]);
+}

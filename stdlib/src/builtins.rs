@@ -1036,6 +1036,55 @@ fn table() -> Vec<Builtin> {
         math1("sqrt", "Square root (of a number ≥ 0).", |a| finite(a.number("x")?.sqrt(), a, "sqrt")),
         math1("abs", "Absolute value.", |a| finite(a.number("x")?.abs(), a, "abs")),
         math1("floor", "Largest whole number ≤ x.", |a| finite(a.number("x")?.floor(), a, "floor")),
+        math1("fract", "The fractional part `x - floor(x)`.", |a| {
+            let x = a.number("x")?;
+            finite(x - x.floor(), a, "fract")
+        }),
+        math1("exp", "e to the power x.", |a| finite(a.number("x")?.exp(), a, "exp")),
+        math1("log", "Natural logarithm (of a number > 0).", |a| finite(a.number("x")?.ln(), a, "log")),
+        func(
+            "clamp",
+            "`x` limited to `lo..hi`.",
+            vec![req("x", Type::Number, "the value"), req("lo", Type::Number, "lower limit"), req("hi", Type::Number, "upper limit (≥ lo)")],
+            Type::Number,
+            |a| {
+                let (x, lo, hi) = (a.number("x")?, a.number("lo")?, a.number("hi")?);
+                if lo > hi {
+                    return Err(value_error(a.get("hi").1, format!("`hi` ({hi}) is below `lo` ({lo})"), "below lo", "give the limits in order"));
+                }
+                Ok(Value::Number(x.clamp(lo, hi)))
+            },
+        ),
+        func(
+            "mix",
+            "Linear interpolation `a + (b - a)·t`.",
+            vec![req("a", Type::Number, "value at t = 0"), req("b", Type::Number, "value at t = 1"), req("t", Type::Number, "the fraction")],
+            Type::Number,
+            |a| {
+                let (x, y, t) = (a.number("a")?, a.number("b")?, a.number("t")?);
+                finite(x + (y - x) * t, a, "mix")
+            },
+        ),
+        func("length", "Length of a vector.", vec![req("v", Type::Vec3, "the vector")], Type::Number, |a| {
+            finite(a.vec3("v")?.length(), a, "length")
+        }),
+        func(
+            "dot",
+            "Dot product of two vectors.",
+            vec![req("a", Type::Vec3, "first vector"), req("b", Type::Vec3, "second vector")],
+            Type::Number,
+            |a| finite(a.vec3("a")?.dot(a.vec3("b")?), a, "dot"),
+        ),
+        func(
+            "cross",
+            "Cross product of two vectors.",
+            vec![req("a", Type::Vec3, "first vector"), req("b", Type::Vec3, "second vector")],
+            Type::Vec3,
+            |a| Ok(Value::from_vec3(a.vec3("a")?.cross(a.vec3("b")?))),
+        ),
+        func("normalize", "The vector scaled to length 1 (nonzero).", vec![req("v", Type::Vec3, "the vector")], Type::Vec3, |a| {
+            Ok(Value::from_vec3(a.direction("v")?))
+        }),
         math1("radians", "Degrees to radians.", |a| finite(a.number("x")?.to_radians(), a, "radians")),
         func(
             "atan2",

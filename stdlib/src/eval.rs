@@ -332,6 +332,11 @@ impl<'e> Evaluator<'e> {
             (_, Some((Value::Field(_), _))) => "volume",
             _ => "render",
         };
+        program.order.push(match kind {
+            "train" => crate::value::Statement::Train(program.trains.len() - 1),
+            "volume" => crate::value::Statement::Volume(program.volumes.len() - 1),
+            _ => crate::value::Statement::Render(program.renders.len() - 1),
+        });
         // A `param` outside a `train` model keeps its starting value.
         let untrained = match kind {
             "render" => program.renders.last().and_then(|j| {

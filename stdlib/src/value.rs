@@ -348,4 +348,14 @@ pub struct Program {
     pub renders: Vec<RenderJob>,
     pub volumes: Vec<VolumeJob>,
     pub trains: Vec<TrainJob>,
+    /// Every statement in file order (statements run in this order).
+    pub order: Vec<Statement>,
+}
+
+/// A statement of a [`Program`]: which list, and where in it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Statement {
+    Render(usize),
+    Volume(usize),
+    Train(usize),
 }

@@ -125,3 +125,44 @@ fn deep_let_chains_are_refused() {
         "{c:?}"
     );
 }
+
+/// The value of a sphere's radius computed by `expr`.
+fn radius_of(expr: &str) -> f64 {
+    let src = format!(
+        "render r {{ scene: sphere({expr}), camera: look_at(eye: [0, 0, -3]), outputs: [image(\"a.png\")] }}"
+    );
+    let program =
+        load(&SourceFile::new("math.sdfl", src)).unwrap_or_else(|d| panic!("{expr}: {d:?}"));
+    match &*program.renders[0].scene {
+        sdfl_stdlib::shape::Shape::Sphere { radius, .. } => radius.value,
+        other => panic!("{other:?}"),
+    }
+}
+
+#[test]
+fn math_builtins_compute_what_they_say() {
+    let cases = [
+        ("clamp(3, 0, 1)", 1.0),
+        ("clamp(-1, 0.5, 1)", 0.5),
+        ("mix(2, 10, 0.25)", 4.0),
+        ("fract(2.75)", 0.75),
+        ("fract(-0.25)", 0.75),
+        ("exp(1)", std::f64::consts::E),
+        ("log(exp(2))", 2.0),
+        ("length([3, 4, 0])", 5.0),
+        ("dot([1, 2, 3], [4, 5, 6])", 32.0),
+        ("length(cross([1, 0, 0], [0, 2, 0]))", 2.0),
+        ("dot(cross([1, 0, 0], [0, 1, 0]), [0, 0, 1])", 1.0),
+        ("length(normalize([3, 0, 4])) * 0.5", 0.5),
+    ];
+    for (expr, want) in cases {
+        let got = radius_of(expr);
+        assert!((got - want).abs() < 1e-12, "{expr}: {got}, want {want}");
+    }
+    for bad in ["log(0)", "clamp(1, 2, 0)", "normalize([0, 0, 0])"] {
+        assert!(
+            !codes_of(&format!("let x = {bad}")).is_empty(),
+            "{bad} is accepted"
+        );
+    }
+}
