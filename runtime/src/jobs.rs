@@ -67,7 +67,7 @@ impl LoweredField {
             .and_then(|i| i.material.as_deref())
             .unwrap_or(&self.color);
         let c = info.map_or(V3::splat(0.0), |i| V3::lit(i.center.to_array()));
-        // Fields refuse materials that need normals; a painted one shades grey.
+        // Fields refuse materials that need normals (painted ones too).
         let rgb = material
             .unlit_color(V3::from_array(p), c, &Fixed)
             .unwrap_or(V3::splat(0.5));

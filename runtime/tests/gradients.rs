@@ -73,7 +73,7 @@ fn batch(eye: [f64; 3], last: LastInterval) -> Batch {
         depths: Stratified::new(48, 0.0, 6.0).unwrap().depths(),
         samples: 48,
         shared: true,
-        last_interval: Some(last),
+        last_interval: last,
     }
 }
 

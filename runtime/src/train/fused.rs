@@ -24,7 +24,7 @@ pub const CHUNK: usize = 16;
 const BLOCK: usize = 64;
 
 /// A batch of rays with their target colours and sample depths.
-#[derive(Debug, Clone, Default)]
+#[derive(Debug, Clone)]
 pub struct Batch {
     pub rays: Vec<Ray>,
     pub targets: Vec<[f32; 3]>,
@@ -32,7 +32,7 @@ pub struct Batch {
     pub depths: Vec<f32>,
     pub samples: usize,
     pub shared: bool,
-    pub last_interval: Option<LastInterval>,
+    pub last_interval: LastInterval,
 }
 
 impl Batch {
@@ -61,7 +61,7 @@ pub fn field_at<T: Real, A: sdfl_stdlib::shape::ArgSource<T>>(
 ) -> (T, V3<T>) {
     let s = model.field.shape.sample(p, args);
     let material = s.material.unwrap_or(&model.field.color);
-    // Fields refuse materials that need normals; a painted one shades grey.
+    // Fields refuse materials that need normals (painted ones too).
     let c = material
         .unlit_color(p, s.center, args)
         .unwrap_or(V3::splat(T::lit(0.5)));
@@ -212,7 +212,7 @@ fn pass<F: Real, const N: usize>(
     batch: &Batch,
     weight: f64,
 ) -> (f64, [f64; N], f64, f64) {
-    let last = batch.last_interval.unwrap_or(LastInterval::Zero);
+    let last = batch.last_interval;
     let scale = F::lit(weight / (3 * batch.rays.len().max(1)) as f64);
     let blocks: Vec<(f64, [f64; N], f64, f64)> = (0..batch.rays.len())
         .collect::<Vec<_>>()

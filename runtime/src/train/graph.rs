@@ -15,7 +15,6 @@ use dfdx::prelude::*;
 use rayon::prelude::*;
 use sdfl_stdlib::num::{Dual, Real, V3};
 use sdfl_stdlib::shape::ArgSource;
-use sdfl_stdlib::value::LastInterval;
 
 use super::fused::{field_at, Batch, LossGrad, CHUNK};
 use super::graph_ops::weights_from_log_keep;
@@ -52,11 +51,7 @@ fn for_each_sample<F: Real, const N: usize>(
         &batch.depths[ray * batch.samples..(ray + 1) * batch.samples]
     };
     let mut delta = Vec::with_capacity(t.len());
-    intervals_into(
-        t,
-        batch.last_interval.unwrap_or(LastInterval::Zero),
-        &mut delta,
-    );
+    intervals_into(t, batch.last_interval, &mut delta);
     let o = V3::lit(r.origin.map(f64::from));
     let d = V3::lit(r.dir.map(f64::from));
     for (k, (&tk, &dk)) in t.iter().zip(&delta).enumerate() {

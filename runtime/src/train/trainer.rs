@@ -112,7 +112,7 @@ impl<'a> TrainSetup<'a> {
             depths,
             samples: s.samples,
             shared: !s.jitter,
-            last_interval: Some(s.last_interval),
+            last_interval: s.last_interval,
         })
     }
 }
