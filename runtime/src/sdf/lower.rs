@@ -1,0 +1,350 @@
+use super::*;
+
+// ------------------------------------------------------------------ lowering
+
+pub(super) struct Lowering {
+    pub(super) options: LowerOptions,
+    pub(super) prims: Vec<PrimInfo>,
+    pub(super) bvh_nodes: usize,
+}
+
+impl Lowering {
+    pub(super) fn leaf<P: Prim>(&mut self, prim: P, shape: &Shape, frame: &Frame) -> Box<dyn Node> {
+        let id = self.prims.len() as u32;
+        let local_center = shape.primitive_center().unwrap_or(DVec3::ZERO);
+        self.prims.push(PrimInfo {
+            center: frame.to_local.inverse().transform_point3(local_center),
+            material: frame.material.clone(),
+            kind: shape.name(),
+        });
+        Box::new(Leaf {
+            prim,
+            xform: frame.xform(),
+            scale: frame.scale as f32,
+            id,
+        })
+    }
+
+    pub(super) fn lower(&mut self, shape: &Shape, frame: &Frame) -> Box<dyn Node> {
+        let f = |a: &Arg<f64>| a.value as f32;
+        let c = |a: &Arg<DVec3>| V3::lit(a.value.to_array());
+        match shape {
+            Shape::Sphere { center, radius } => self.leaf(
+                Sphere {
+                    c: c(center),
+                    r: f(radius),
+                },
+                shape,
+                frame,
+            ),
+            Shape::Box { center, size } => self.leaf(
+                BoxPrim {
+                    c: c(center),
+                    size: c(size),
+                },
+                shape,
+                frame,
+            ),
+            Shape::BoxFrame {
+                center,
+                size,
+                thickness,
+            } => self.leaf(
+                BoxFrame {
+                    c: c(center),
+                    size: c(size),
+                    thickness: f(thickness),
+                },
+                shape,
+                frame,
+            ),
+            Shape::Torus {
+                center,
+                major,
+                minor,
+            } => self.leaf(
+                Torus {
+                    c: c(center),
+                    major: f(major),
+                    minor: f(minor),
+                },
+                shape,
+                frame,
+            ),
+            Shape::Capsule { a, b, radius } => self.leaf(
+                Capsule {
+                    a: c(a),
+                    b: c(b),
+                    r: f(radius),
+                },
+                shape,
+                frame,
+            ),
+            Shape::Cylinder {
+                center,
+                radius,
+                height,
+            } => self.leaf(
+                Cylinder {
+                    c: c(center),
+                    r: f(radius),
+                    height: f(height),
+                },
+                shape,
+                frame,
+            ),
+            Shape::Plane { normal, height } => self.leaf(
+                Plane {
+                    n: V3::lit(normal.to_array()),
+                    h: f(height),
+                },
+                shape,
+                frame,
+            ),
+            Shape::Union(_) => {
+                let mut members = Vec::new();
+                self.union_members(shape, frame, &mut members);
+                self.union(members)
+            }
+            Shape::Intersection(children) => Box::new(Intersection(
+                children.iter().map(|c| self.lower(c, frame)).collect(),
+            )),
+            Shape::Subtraction(a, b) => self.binary(a, b, SmoothOp::Subtraction, 0.0, frame),
+            Shape::SmoothUnion(a, b, k) => self.binary(a, b, SmoothOp::Union, k.value, frame),
+            Shape::SmoothIntersection(a, b, k) => {
+                self.binary(a, b, SmoothOp::Intersection, k.value, frame)
+            }
+            Shape::SmoothSubtraction(a, b, k) => {
+                self.binary(a, b, SmoothOp::Subtraction, k.value, frame)
+            }
+            Shape::Translate(..) | Shape::Rotate { .. } | Shape::Scale(..) => {
+                let (s, step, scale) = transform(shape).expect("a transform");
+                self.lower(s, &frame.then(step, scale))
+            }
+            Shape::Displace {
+                shape: s,
+                amplitude,
+                frequency,
+            } => Box::new(Displace {
+                inner: self.lower(s, frame),
+                xform: frame.xform(),
+                amplitude: (amplitude.value * frame.scale) as f32,
+                frequency: frequency.value as f32,
+            }),
+            Shape::Paint(s, m) => {
+                let mut painted = frame.clone();
+                painted.material = Some(m.clone());
+                self.lower(s, &painted)
+            }
+            Shape::Octahedron { center, size } => self.leaf(
+                Octahedron {
+                    c: c(center),
+                    size: f(size),
+                },
+                shape,
+                frame,
+            ),
+            Shape::CappedCone {
+                center,
+                height,
+                bottom,
+                top,
+            } => self.leaf(
+                CappedCone {
+                    c: c(center),
+                    height: f(height),
+                    bottom: f(bottom),
+                    top: f(top),
+                },
+                shape,
+                frame,
+            ),
+            Shape::Ellipsoid { center, radii } => self.leaf(
+                Ellipsoid {
+                    c: c(center),
+                    radii: c(radii),
+                },
+                shape,
+                frame,
+            ),
+            // Offsets are in the shape's units: scaled like its distances.
+            Shape::Round(s, r) => Box::new(Offset {
+                inner: self.lower(s, frame),
+                by: (r.value * frame.scale) as f32,
+                shell: false,
+            }),
+            Shape::Onion(s, t) => Box::new(Offset {
+                inner: self.lower(s, frame),
+                by: (t.value * frame.scale) as f32,
+                shell: true,
+            }),
+            Shape::Xor(a, b) => Box::new(Xor(self.lower(a, frame), self.lower(b, frame))),
+        }
+    }
+
+    pub(super) fn binary(
+        &mut self,
+        a: &Shape,
+        b: &Shape,
+        op: SmoothOp,
+        k: f64,
+        frame: &Frame,
+    ) -> Box<dyn Node> {
+        Box::new(Binary {
+            a: self.lower(a, frame),
+            b: self.lower(b, frame),
+            op,
+            k: (k * frame.scale) as f32,
+        })
+    }
+
+    /// Flatten nested unions (through transforms and paint, which do not
+    /// change the minimum's structure) into one list of (shape, frame).
+    pub(super) fn union_members<'s>(
+        &mut self,
+        shape: &'s Shape,
+        frame: &Frame,
+        out: &mut Vec<(&'s Shape, Frame)>,
+    ) {
+        match shape {
+            Shape::Union(children) => {
+                for c in children {
+                    self.union_members(c, frame, out);
+                }
+            }
+            Shape::Translate(..) | Shape::Rotate { .. } | Shape::Scale(..)
+                if matches!(transform(shape), Some((Shape::Union(_), ..))) =>
+            {
+                let (s, step, scale) = transform(shape).expect("a transform");
+                self.union_members(s, &frame.then(step, scale), out)
+            }
+            Shape::Paint(s, m) if matches!(**s, Shape::Union(_)) => {
+                let mut painted = frame.clone();
+                painted.material = Some(m.clone());
+                self.union_members(s, &painted, out)
+            }
+            other => out.push((other, frame.clone())),
+        }
+    }
+
+    pub(super) fn union(&mut self, members: Vec<(&Shape, Frame)>) -> Box<dyn Node> {
+        let members = if self.options.cull {
+            dedup_primitives(members)
+        } else {
+            members
+        };
+        let bounded = members.iter().filter(|(s, _)| s.bounds().is_some()).count();
+        if !self.options.cull || bounded < self.options.bvh_threshold {
+            return Box::new(Union(
+                members.iter().map(|(s, f)| self.lower(s, f)).collect(),
+            ));
+        }
+        let mut items = Vec::with_capacity(bounded);
+        let mut unbounded = Vec::new();
+        for (s, f) in &members {
+            let node = self.lower(s, f);
+            match s.bounds() {
+                Some(b) => items.push((node, f.world_box(b), s.lipschitz() as f32)),
+                None => unbounded.push(node),
+            }
+        }
+        let bvh = BvhUnion::build(items, unbounded);
+        self.bvh_nodes += bvh.nodes.len();
+        Box::new(bvh)
+    }
+}
+
+/// A transform's child, its world → local step and its distance scale.
+pub(super) fn transform(shape: &Shape) -> Option<(&Shape, DAffine3, f64)> {
+    match shape {
+        Shape::Translate(s, by) => Some((s, DAffine3::from_translation(-by.value), 1.0)),
+        Shape::Rotate { shape, axis, angle } => Some((
+            shape,
+            DAffine3::from_quat(DQuat::from_axis_angle(*axis, -angle.value)),
+            1.0,
+        )),
+        Shape::Scale(s, f) => Some((
+            s,
+            DAffine3::from_scale(DVec3::splat(1.0 / f.value)),
+            f.value,
+        )),
+        _ => None,
+    }
+}
+
+/// The members of a union without exact repeats (same shape, transform
+/// and material), keeping the first of each. Only members with equal keys
+/// (kind, transform, bounds) are compared, at most 8 per key, and the
+/// shapes compared are within the expanded-size budget, so this is
+/// O(n log n) plus a bounded number of comparisons. The minimum
+/// of equal values is that value, and the first attains it, so the union
+/// and the ids it reports are unchanged; coincident copies would otherwise
+/// defeat every bound (none is ever below another) and make each
+/// evaluation visit all of them. O(n log n).
+pub(super) fn dedup_primitives(members: Vec<(&Shape, Frame)>) -> Vec<(&Shape, Frame)> {
+    if members.len() < 2 {
+        return members;
+    }
+    // A cheap key (kind and transform bits) sorts candidates together;
+    // equality is then decided exactly.
+    let key = |(s, f): &(&Shape, Frame)| {
+        let mut k: Vec<u64> = f
+            .to_local
+            .to_cols_array()
+            .iter()
+            .map(|x| x.to_bits())
+            .collect();
+        k.push(f.scale.to_bits());
+        k.push(
+            f.material
+                .as_ref()
+                .map_or(0, |m| Arc::as_ptr(m) as usize as u64),
+        );
+        if let Some(b) = s.bounds() {
+            k.extend(
+                b.min
+                    .to_array()
+                    .iter()
+                    .chain(&b.max.to_array())
+                    .map(|x| x.to_bits()),
+            );
+        }
+        (s.name(), k)
+    };
+    let mut order: Vec<(usize, (&'static str, Vec<u64>))> = members
+        .iter()
+        .enumerate()
+        .map(|(i, m)| (i, key(m)))
+        .collect();
+    order.sort_by(|a, b| a.1.cmp(&b.1).then(a.0.cmp(&b.0)));
+    let mut drop = vec![false; members.len()];
+    let mut kept: Vec<usize> = Vec::new();
+    for w in 0..order.len() {
+        if w > 0 && order[w].1 != order[w - 1].1 {
+            kept.clear();
+        }
+        let i = order[w].0;
+        let same = |j: &usize| {
+            let (a, fa) = &members[*j];
+            let (b, fb) = &members[i];
+            (std::ptr::eq(*a, *b) || a == b)
+                && fa.to_local == fb.to_local
+                && fa.scale == fb.scale
+                && match (&fa.material, &fb.material) {
+                    (None, None) => true,
+                    (Some(x), Some(y)) => Arc::ptr_eq(x, y),
+                    _ => false,
+                }
+        };
+        if kept.iter().any(same) {
+            drop[i] = true;
+        } else if kept.len() < 8 {
+            kept.push(i);
+        }
+    }
+    members
+        .into_iter()
+        .zip(drop)
+        .filter_map(|(m, d)| (!d).then_some(m))
+        .collect()
+}
