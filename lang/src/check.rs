@@ -472,7 +472,7 @@ impl Checker<'_> {
                         );
                         continue;
                     }
-                    match sig.params.get(i) {
+                    match sig.positional(i) {
                         Some(p) => p,
                         None => match &sig.rest {
                             Some(rest) => {

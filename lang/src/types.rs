@@ -129,18 +129,26 @@ pub struct Signature {
 
 impl Signature {
     /// `name(a: number, b: shape = ...)`, for help texts.
+    /// The parameter a positional argument at `index` binds to: none for a
+    /// function with rest arguments, whose positional arguments are all
+    /// rest and whose parameters are named only (`smooth_union(a, b, c, k: 0.2)`).
+    pub fn positional(&self, index: usize) -> Option<&Param> {
+        if self.rest.is_some() {
+            None
+        } else {
+            self.params.get(index)
+        }
+    }
+
     pub fn synopsis(&self) -> String {
-        let mut parts: Vec<String> = self
-            .params
-            .iter()
-            .map(|p| match p.default {
-                Some(d) => format!("{}: {} = {d}", p.name, p.ty),
-                None => format!("{}: {}", p.name, p.ty),
-            })
-            .collect();
+        let mut parts: Vec<String> = Vec::new();
         if let Some(r) = &self.rest {
             parts.push(format!("{}: {}...", r.name, r.ty));
         }
+        parts.extend(self.params.iter().map(|p| match p.default {
+            Some(d) => format!("{}: {} = {d}", p.name, p.ty),
+            None => format!("{}: {}", p.name, p.ty),
+        }));
         format!("{}({})", self.name, parts.join(", "))
     }
 }

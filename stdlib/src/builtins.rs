@@ -509,18 +509,21 @@ fn finite(x: f64, args: &Args, what: &str) -> Result<Value, Diag> {
 
 fn table() -> Vec<Builtin> {
     let center = || opt("center", Type::Vec3, "[0, 0, 0]", "centre of the shape");
-    let smooth = |name: &'static str, doc: &'static str, eval: EvalFn| {
-        func(
+    // Any number of shapes (lists flattened), blended pairwise in order;
+    // `k` is named.
+    let smooth = |name: &'static str, doc: &'static str, eval: EvalFn| Builtin {
+        sig: Signature {
             name,
+            params: vec![opt("k", Type::Number, "0.25", "blend radius (> 0)")],
+            rest: Some(req(
+                "shapes",
+                SHAPE,
+                "two or more shapes, or lists of shapes (the blend radius is named: `k: 0.2`)",
+            )),
+            returns: SHAPE,
             doc,
-            vec![
-                req("a", SHAPE, "first shape"),
-                req("b", SHAPE, "second shape"),
-                opt("k", Type::Number, "0.25", "blend radius (> 0)"),
-            ],
-            SHAPE,
-            eval,
-        )
+        },
+        eval,
     };
     let output = |name: &'static str, doc: &'static str, eval: EvalFn| {
         func(
@@ -684,14 +687,14 @@ fn table() -> Vec<Builtin> {
             SHAPE,
             |a| shape(Shape::Subtraction(a.shape("a")?, a.shape("b")?)),
         ),
-        smooth("smooth_union", "Union blended over radius `k` (polynomial smooth minimum; a bound).", |a| {
-            shape(Shape::SmoothUnion(a.shape("a")?, a.shape("b")?, a.length_arg("k")?))
+        smooth("smooth_union", "Union of any number of shapes, blended over radius `k` (polynomial smooth minimum, applied in order; a bound).", |a| {
+            blend(a, |x, y, k| Shape::SmoothUnion(x, y, k))
         }),
-        smooth("smooth_intersection", "Intersection blended over radius `k` (a bound).", |a| {
-            shape(Shape::SmoothIntersection(a.shape("a")?, a.shape("b")?, a.length_arg("k")?))
+        smooth("smooth_intersection", "Intersection of any number of shapes, blended over radius `k` (a bound).", |a| {
+            blend(a, |x, y, k| Shape::SmoothIntersection(x, y, k))
         }),
-        smooth("smooth_subtraction", "`a` minus `b`, blended over radius `k` (a bound).", |a| {
-            shape(Shape::SmoothSubtraction(a.shape("a")?, a.shape("b")?, a.length_arg("k")?))
+        smooth("smooth_subtraction", "The first shape minus each of the others, blended over radius `k` (a bound).", |a| {
+            blend(a, |x, y, k| Shape::SmoothSubtraction(x, y, k))
         }),
         // ---- transforms
         func(
@@ -1199,6 +1202,26 @@ fn field(a: &Args, density: DensityKind) -> Result<Value, Diag> {
 fn paints_with_normals(s: &Shape) -> bool {
     matches!(s, Shape::Paint(_, m) if m.needs_normal())
         || s.children().into_iter().any(|c| paints_with_normals(c))
+}
+
+/// A smooth operator over the rest shapes, applied left to right.
+fn blend(a: &Args, op: fn(Arc<Shape>, Arc<Shape>, Arg<f64>) -> Shape) -> Result<Value, Diag> {
+    let shapes = a.rest_shapes()?;
+    let k = a.length_arg("k")?;
+    let mut it = shapes.into_iter();
+    let Some(first) = it.next() else {
+        return Err(value_error(
+            a.span,
+            "a blend of no shapes",
+            "empty",
+            "give at least two shapes",
+        ));
+    };
+    let mut acc = first;
+    for s in it {
+        acc = Arc::new(op(acc, s, k.clone()));
+    }
+    Ok(Value::Shape(acc))
 }
 
 fn check_range(a: &Args, near: f64, far: f64) -> Result<(), Diag> {

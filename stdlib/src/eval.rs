@@ -788,7 +788,7 @@ impl<'e> Evaluator<'e> {
             poisoned |= matches!(v, Value::Poison);
             let slot = match &a.name {
                 Some(n) => sig.params.iter().find(|p| p.name == n.name).map(|p| p.name),
-                None => sig.params.get(i).map(|p| p.name),
+                None => sig.positional(i).map(|p| p.name),
             };
             match slot {
                 Some(name) => {

@@ -166,3 +166,34 @@ fn math_builtins_compute_what_they_say() {
         );
     }
 }
+
+#[test]
+fn smooth_operators_take_any_number_of_shapes() {
+    let scene = |expr: &str| {
+        let src = format!(
+            "render r {{ scene: {expr}, camera: look_at(eye: [0, 0, -3]), outputs: [image(\"a.png\")] }}"
+        );
+        load(&SourceFile::new("blend.sdfl", src))
+            .unwrap_or_else(|d| panic!("{expr}: {d:?}"))
+            .renders[0]
+            .scene
+            .clone()
+    };
+    let (a, b, c) = (
+        "sphere(0.5, center: [-0.6, 0, 0])",
+        "sphere(0.4)",
+        "box(center: [0.6, 0, 0])",
+    );
+    for op in ["smooth_union", "smooth_intersection", "smooth_subtraction"] {
+        let flat = scene(&format!("{op}({a}, {b}, {c}, k: 0.2)"));
+        let nested = scene(&format!("{op}({op}({a}, {b}, k: 0.2), {c}, k: 0.2)"));
+        let listed = scene(&format!("{op}([{a}, {b}], {c}, k: 0.2)"));
+        assert_eq!(flat, nested, "{op}");
+        assert_eq!(flat, listed, "{op}");
+    }
+    // A positional blend radius is a shape slot: a type error, not a silent k.
+    assert_eq!(
+        codes_of("let s = smooth_union(sphere(), box(), 0.3)"),
+        [codes::TYPE]
+    );
+}
