@@ -57,8 +57,8 @@ pub(super) const FALLBACK: u32 = u32::MAX;
 pub(super) const MAX_CANDIDATES: usize = 32;
 /// Most BVH nodes visited to list one cell's candidates.
 pub(super) const MAX_CANDIDATE_VISITS: usize = 16 * MAX_CANDIDATES;
-/// Members evaluated for a cell's upper bound.
-pub(super) const UPPER_BOUND_MEMBERS: usize = 8;
+/// Most BVH nodes visited for a cell's upper bound.
+pub(super) const UPPER_BOUND_VISITS: usize = 256;
 /// How far the grid extends past the union's bounds, per side, as a
 /// fraction of their size.
 pub(super) const GRID_MARGIN: f32 = 0.5;
@@ -215,34 +215,46 @@ impl BvhUnion {
         }
     }
 
-    /// An upper bound on the union's minimum at `p`: the least value of the
-    /// members in the first few leaves nearest `p`. The exact minimum (a
-    /// full branch-and-bound search) costs O(n) per cell when members
-    /// overlap (coincident primitives prune nothing), and any upper bound
-    /// keeps the candidate lists exact: it only makes them longer.
+    /// An upper bound on the union's minimum at `p`: a branch-and-bound
+    /// search, nearer children first, that stops after
+    /// [`UPPER_BOUND_VISITS`] nodes. In ordinary scenes it finishes and the
+    /// bound is the exact minimum (the tightest candidate lists); where
+    /// members overlap so that nothing prunes (coincident primitives) it
+    /// stops early, so a cell costs O(log n) whatever the input. Any upper
+    /// bound keeps the candidate lists exact: a looser one only lengthens
+    /// them.
     pub(super) fn upper_bound(&self, p: Vec3A) -> f32 {
         let mut best = f32::INFINITY;
-        let mut leaves = 0;
-        let mut n = 0usize;
-        // Descend to the nearer child, then scan a few leaves in order.
-        loop {
-            let node = self.nodes[n];
+        let mut stack = [0u32; STACK];
+        let mut top = 1;
+        let mut visits = 0;
+        while top > 0 && visits < UPPER_BOUND_VISITS {
+            visits += 1;
+            top -= 1;
+            let node = self.nodes[stack[top] as usize];
             if node.count > 0 {
-                break;
+                for m in node.first..node.first + node.count {
+                    let (bc, bh) = self.boxes[m as usize];
+                    if box_sd(p - bc, bh) < best {
+                        best = best.min(self.members[m as usize].dist(p));
+                    }
+                }
+                continue;
             }
             let (l, r) = (node.first as usize, node.first as usize + 1);
-            n = if self.lower_bound(l, p) <= self.lower_bound(r, p) {
-                l
+            let (dl, dr) = (self.lower_bound(l, p), self.lower_bound(r, p));
+            let (near, dn, far, df) = if dl <= dr {
+                (l, dl, r, dr)
             } else {
-                r
+                (r, dr, l, dl)
             };
-        }
-        let start = self.nodes[n].first as usize;
-        for m in start..self.members.len() {
-            best = best.min(self.members[m].dist(p));
-            leaves += 1;
-            if leaves >= UPPER_BOUND_MEMBERS {
-                break;
+            if df < best && top < STACK {
+                stack[top] = far as u32;
+                top += 1;
+            }
+            if dn < best && top < STACK {
+                stack[top] = near as u32;
+                top += 1;
             }
         }
         best
