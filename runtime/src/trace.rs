@@ -83,8 +83,8 @@ pub fn sphere_trace(sdf: &dyn Node, origin: Vec3A, dir: Vec3A, s: &TraceSettings
                 undecided: false,
             };
         }
-        if t > 0.0 && r / t < best_err {
-            (best_err, best_t) = (r / t, t);
+        if s.footprint > 0.0 && r < best_err * t {
+            (best_err, best_t) = (r / t.max(f32::MIN_POSITIVE), t);
         }
         (prev_t, prev_r) = (t, r);
         step_len = omega * r;
