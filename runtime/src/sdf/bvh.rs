@@ -224,40 +224,9 @@ impl BvhUnion {
     /// bound keeps the candidate lists exact: a looser one only lengthens
     /// them.
     pub(super) fn upper_bound(&self, p: Vec3A) -> f32 {
-        let mut best = f32::INFINITY;
-        let mut stack = [0u32; STACK];
-        let mut top = 1;
-        let mut visits = 0;
-        while top > 0 && visits < UPPER_BOUND_VISITS {
-            visits += 1;
-            top -= 1;
-            let node = self.nodes[stack[top] as usize];
-            if node.count > 0 {
-                for m in node.first..node.first + node.count {
-                    let (bc, bh) = self.boxes[m as usize];
-                    if box_sd(p - bc, bh) < best {
-                        best = best.min(self.members[m as usize].dist(p));
-                    }
-                }
-                continue;
-            }
-            let (l, r) = (node.first as usize, node.first as usize + 1);
-            let (dl, dr) = (self.lower_bound(l, p), self.lower_bound(r, p));
-            let (near, dn, far, df) = if dl <= dr {
-                (l, dl, r, dr)
-            } else {
-                (r, dr, l, dl)
-            };
-            if df < best && top < STACK {
-                stack[top] = far as u32;
-                top += 1;
-            }
-            if dn < best && top < STACK {
-                stack[top] = near as u32;
-                top += 1;
-            }
-        }
-        best
+        self.search_within::<true>(p, f32::INFINITY, |m, best| {
+            best.min(self.members[m].dist(p))
+        })
     }
 
     /// Members that may be below `bound` somewhere in the cell: those whose
@@ -305,7 +274,14 @@ impl BvhUnion {
     /// Branch-and-bound minimum; `visit` evaluates a member, returning its
     /// distance, and may record more (the id).
     #[inline(always)]
-    pub(super) fn search(
+    pub(super) fn search(&self, p: Vec3A, best: f32, visit: impl FnMut(usize, f32) -> f32) -> f32 {
+        self.search_within::<false>(p, best, visit)
+    }
+
+    /// [`Self::search`], stopping after [`UPPER_BOUND_VISITS`] nodes when
+    /// `CAPPED` (the result is then an upper bound on the minimum).
+    #[inline(always)]
+    fn search_within<const CAPPED: bool>(
         &self,
         p: Vec3A,
         mut best: f32,
@@ -313,11 +289,18 @@ impl BvhUnion {
     ) -> f32 {
         let mut stack = [0u32; STACK];
         let mut top = 0;
+        let mut visits = 0;
         if self.lower_bound(0, p) < best {
             stack[0] = 0;
             top = 1;
         }
         while top > 0 {
+            if CAPPED {
+                visits += 1;
+                if visits > UPPER_BOUND_VISITS {
+                    break;
+                }
+            }
             top -= 1;
             let node = self.nodes[stack[top] as usize];
             if node.count > 0 {
