@@ -1,0 +1,292 @@
+//! The statements: `render` (sphere-traced or volume-rendered) and `train`.
+
+use super::*;
+
+// ------------------------------------------------------------ render block
+
+pub(crate) fn render_sig() -> BlockSig {
+    BlockSig {
+        kind: "render",
+        doc: "Sphere-traces `scene` from each camera and writes the requested outputs.",
+        fields: vec![
+            req(
+                "scene",
+                Type::OneOf(vec![SHAPE, FIELD]),
+                "a shape (sphere-traced) or a field (volume-rendered)",
+            ),
+            req(
+                "camera",
+                Type::OneOf(vec![CAMERA, Type::list(CAMERA)]),
+                "a camera or a list of cameras (views)",
+            ),
+            req(
+                "outputs",
+                Type::list(OUTPUT),
+                "what to write: image, gif, depth, normal_map, mask",
+            ),
+            opt(
+                "material",
+                Type::OneOf(vec![MATERIAL, Type::Vec3]),
+                "rainbow()",
+                "how hit points are coloured",
+            ),
+            opt(
+                "size",
+                Type::list(Type::Number),
+                "[256, 256]",
+                "image width and height in pixels",
+            ),
+            opt("near", Type::Number, "0", "where rays start (≥ 0)"),
+            opt("far", Type::Number, "5", "where rays give up (> near)"),
+            opt(
+                "iterations",
+                Type::Number,
+                "64",
+                "most sphere-tracing steps per ray",
+            ),
+            opt(
+                "epsilon",
+                Type::Number,
+                "1e-5",
+                "a ray hits when the distance falls below this",
+            ),
+            opt(
+                "hit_tolerance",
+                Type::Str,
+                "\"pixel\"",
+                "\"pixel\": a hit within half a pixel's width (at least `epsilon`), over-relaxed steps, so grazing rays are decided; \"absolute\": within `epsilon`, plain steps (the reference assignment's tracer)",
+            ),
+            opt(
+                "background",
+                Type::Vec3,
+                "[0, 0, 0]",
+                "colour of rays that miss",
+            ),
+            opt(
+                "sampler",
+                SAMPLER,
+                "stratified()",
+                "depth samples along each ray (fields only)",
+            ),
+        ],
+    }
+}
+
+pub(crate) fn render_block(name: &str, a: &Args) -> Result<RenderJob, Diag> {
+    let outputs = outputs(a, "outputs", false)?;
+    if let Some(o) = outputs
+        .iter()
+        .find(|o| matches!(o.kind, OutputKind::SamplePoints | OutputKind::LossCurve))
+    {
+        return Err(value_error(
+            a.get("outputs").1,
+            format!(
+                "`{}` needs a volume render or a training run",
+                o.path.display()
+            ),
+            "not a sphere-tracing output",
+            "sample points exist for fields; loss curves for `train`",
+        ));
+    }
+    let (width, height) = image_size(a, "size")?;
+    let (near, far) = (a.number("near")?, a.number("far")?);
+    check_range(a, near, far)?;
+    let (bg, bg_span) = (a.vec3("background")?, a.get("background").1);
+    Ok(RenderJob {
+        name: name.to_string(),
+        scene: a.shape("scene")?,
+        material: a.material("material")?,
+        cameras: camera_list(a, "camera")?,
+        width,
+        height,
+        near,
+        far,
+        iterations: a.count("iterations", 1, MAX_ITERATIONS as u64)? as u32,
+        epsilon: a.positive("epsilon")?,
+        hit_tolerance: {
+            let (mode, span) = a.string("hit_tolerance")?;
+            match &*mode {
+                "pixel" => HitTolerance::Pixel,
+                "absolute" => HitTolerance::Absolute,
+                other => {
+                    return Err(value_error(
+                        span,
+                        format!("unknown hit tolerance `{other}`"),
+                        "not a choice",
+                        "use \"pixel\" or \"absolute\"",
+                    ))
+                }
+            }
+        },
+        background: colour(bg, bg_span)?,
+        outputs,
+    })
+}
+
+// ------------------------------------------------- train and volume blocks
+
+pub(crate) fn train_sig() -> BlockSig {
+    BlockSig {
+        kind: "train",
+        doc: "Fits the trainable parameters (`param(...)`) of `model` to `data` with Adam on an MSE loss, then reports them.",
+        fields: vec![
+            req("model", FIELD, "the field to fit; its `param(...)` arguments are trained"),
+            req("data", DATASET, "the training views"),
+            opt("sampler", SAMPLER, "stratified()", "depth samples along each ray"),
+            opt("rays", Type::Number, "4096", "rays per batch"),
+            opt("optimizer", OPTIMIZER, "adam()", "the optimizer and its learning-rate schedule"),
+            opt("losses", Type::list(LOSS), "[mse()]", "the weighted terms of the objective"),
+            opt("iterations", Type::Number, "1000", "optimizer steps (unless `epochs` is given)"),
+            opt("epochs", Type::Number, "0", "passes over all training pixels (0: use `iterations`)"),
+            opt("seed", Type::Number, "0", "seed of the ray batches and jitter"),
+            opt("backend", Type::Str, "\"fused\"", "\"fused\" (one kernel per ray, hand-written backward) or \"dfdx\" (an autodiff graph)"),
+            opt("views", Type::OneOf(vec![CAMERA, Type::list(CAMERA)]), "orbit()", "cameras of the before/after outputs"),
+            opt("size", Type::list(Type::Number), "[128, 128]", "size of the before/after outputs"),
+            opt("before", Type::list(OUTPUT), "[]", "outputs rendered from the starting model"),
+            opt("after", Type::list(OUTPUT), "[]", "outputs rendered from the trained model (and `loss_curve`)"),
+            opt("checkpoint", Type::Str, "\"\"", "file (in the output directory) to keep a resumable checkpoint in (safetensors)"),
+        ],
+    }
+}
+
+pub(crate) fn train_block(name: &str, a: &Args) -> Result<TrainJob, Diag> {
+    let (model_v, model_span) = a.get("model");
+    let Value::Field(model) = model_v else {
+        return Err(type_error(model_span, "field", model_v));
+    };
+    let mut trainable = 0;
+    model.visit_params(&mut |_| trainable += 1);
+    if trainable == 0 {
+        return Err(value_error(
+            model_span,
+            "this model has nothing to train",
+            "no `param(...)` in it",
+            "mark the arguments to fit with `param(...)`, e.g. `sphere(radius: param(0.5))`",
+        ));
+    }
+    let Value::Dataset(data) = a.get("data").0 else {
+        return Err(type_error(a.get("data").1, "data set", a.get("data").0));
+    };
+    let Value::Sampler(sampler) = a.get("sampler").0 else {
+        return Err(type_error(
+            a.get("sampler").1,
+            "sampler",
+            a.get("sampler").0,
+        ));
+    };
+    let Value::Optimizer(optimizer) = a.get("optimizer").0 else {
+        return Err(type_error(
+            a.get("optimizer").1,
+            "optimizer",
+            a.get("optimizer").0,
+        ));
+    };
+    let (losses_v, losses_span) = a.get("losses");
+    let losses: Option<Vec<Loss>> = match losses_v {
+        Value::List(items) => items
+            .iter()
+            .map(|i| match i {
+                Value::Loss(l) => Some(*l),
+                _ => None,
+            })
+            .collect(),
+        _ => None,
+    };
+    let losses = match losses {
+        Some(l) if !l.is_empty() => l,
+        Some(_) => {
+            return Err(value_error(
+                losses_span,
+                "no loss terms",
+                "empty",
+                "train on at least `[mse()]`",
+            ))
+        }
+        None => return Err(type_error(losses_span, "list of losses", losses_v)),
+    };
+    let (backend_name, backend_span) = a.string("backend")?;
+    let backend = match &*backend_name {
+        "fused" => Backend::Fused,
+        "dfdx" => Backend::Dfdx,
+        other => {
+            return Err(value_error(
+                backend_span,
+                format!("unknown backend `{other}`"),
+                "not a backend",
+                "use \"fused\" or \"dfdx\"",
+            ))
+        }
+    };
+    let (checkpoint, cp_span) = a.string("checkpoint")?;
+    let checkpoint = if checkpoint.is_empty() {
+        None
+    } else {
+        Some(safe_output_path(&checkpoint, cp_span)?)
+    };
+    let before = outputs(a, "before", true)?;
+    let after = outputs(a, "after", true)?;
+    let (width, height) = image_size(a, "size")?;
+    let epochs = a.count("epochs", 0, 1_000_000)? as usize;
+    // Defaults carry the block's span: a different span was written.
+    if epochs > 0 && a.get("iterations").1 != a.span {
+        return Err(value_error(
+            a.get("epochs").1,
+            "`epochs` and `iterations` both say how long to train",
+            "and `iterations` is given too",
+            "keep one of them: `epochs` counts passes over every training pixel",
+        ));
+    }
+    Ok(TrainJob {
+        name: name.to_string(),
+        model: model.clone(),
+        data: data.clone(),
+        sampler: *sampler,
+        rays: a.count("rays", 1, 1 << 20)? as usize,
+        optimizer: *optimizer,
+        losses,
+        iterations: a.count("iterations", 0, 10_000_000)? as usize,
+        epochs: (epochs > 0).then_some(epochs),
+        seed: a.count("seed", 0, u32::MAX as u64)?,
+        backend,
+        views: camera_list(a, "views")?,
+        width,
+        height,
+        before,
+        after,
+        checkpoint,
+    })
+}
+
+pub(crate) fn volume_block(name: &str, a: &Args, field: Arc<Field>) -> Result<VolumeJob, Diag> {
+    let (width, height) = image_size(a, "size")?;
+    let Value::Sampler(sampler) = a.get("sampler").0 else {
+        return Err(type_error(
+            a.get("sampler").1,
+            "sampler",
+            a.get("sampler").0,
+        ));
+    };
+    let outputs = outputs(a, "outputs", false)?;
+    if let Some(o) = outputs.iter().find(|o| {
+        matches!(
+            o.kind,
+            OutputKind::Normals | OutputKind::Mask | OutputKind::LossCurve
+        )
+    }) {
+        return Err(value_error(
+            a.get("outputs").1,
+            format!("`{}` cannot be made by volume rendering", o.path.display()),
+            "not a volume output",
+            "volume renders write image, gif, depth, grid_image, rays_image and sample_points",
+        ));
+    }
+    Ok(VolumeJob {
+        name: name.to_string(),
+        field,
+        cameras: camera_list(a, "camera")?,
+        width,
+        height,
+        sampler: *sampler,
+        outputs,
+    })
+}
