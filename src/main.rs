@@ -152,6 +152,47 @@ fn parse_set(s: &str) -> Result<(String, Vec<f64>), String> {
     Ok((name.trim().to_string(), values))
 }
 
+/// One line on what a field is and what it will compute.
+fn describe_field(field: &sdfl_stdlib::value::Field) -> String {
+    use sdfl_stdlib::value::{Encoding, Field};
+    let enc = |e: &Encoding| match e {
+        Encoding::Harmonic(h) => format!(
+            "harmonic({}{})",
+            h.freqs,
+            if h.include_input { "" } else { ", no input" }
+        ),
+    };
+    match field {
+        Field::Sdf(f) => format!(
+            "{:?} density, alpha {}, beta {}, {} primitives",
+            f.density,
+            f.alpha.value,
+            f.beta.value,
+            f.shape.primitive_count()
+        ),
+        Field::Nerf(n) => format!(
+            "NeRF: {} position, {}x{} ReLU trunk{}, {}; {} multiply-adds per sample",
+            enc(&n.position),
+            n.layers,
+            n.width,
+            if n.skips.is_empty() {
+                String::new()
+            } else {
+                format!(" (position again at layers {:?})", n.skips)
+            },
+            match &n.direction {
+                Some(d) => format!(
+                    "view-dependent colour ({} direction, {}-wide branch)",
+                    enc(d),
+                    n.color_width
+                ),
+                None => "colour without the view direction (no direction branch built)".into(),
+            },
+            n.multiply_adds_per_sample()
+        ),
+    }
+}
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
     match cli.command {
@@ -656,14 +697,7 @@ fn plan_text(program: &sdfl_stdlib::Program) -> String {
         };
         use sdfl_stdlib::OutputKind as K;
         let _ = writeln!(o, "render {} (volume rendering)", job.name);
-        let _ = writeln!(
-            o,
-            "  field          {:?} density, alpha {}, beta {}, {} primitives",
-            job.field.density,
-            job.field.alpha.value,
-            job.field.beta.value,
-            job.field.shape.primitive_count()
-        );
+        let _ = writeln!(o, "  field          {}", describe_field(&job.field));
         let _ = writeln!(
             o,
             "  samples        {} per ray, stratified {}..{}, {} views x {}x{}",
@@ -695,22 +729,27 @@ fn plan_text(program: &sdfl_stdlib::Program) -> String {
     }
     for job in &program.trains {
         let _ = writeln!(o, "train {}", job.name);
-        let _ = writeln!(
-            o,
-            "  model          {:?} density, alpha {}, beta {}",
-            job.model.density, job.model.alpha.value, job.model.beta.value
-        );
-        let model = sdfl_runtime::train::TrainModel::new(job.model.clone());
-        let params: Vec<String> = model
-            .params
-            .iter()
-            .map(|p| format!("{} ({})", p.name, p.len))
-            .collect();
-        let _ = writeln!(
-            o,
-            "  trainable      {} (gradients only for these)",
-            params.join(", ")
-        );
+        let _ = writeln!(o, "  model          {}", describe_field(&job.model));
+        let trainable = match &*job.model {
+            sdfl_stdlib::value::Field::Sdf(f) => {
+                let model = sdfl_runtime::train::TrainModel::new(f);
+                let params: Vec<String> = model
+                    .params
+                    .iter()
+                    .map(|p| format!("{} ({})", p.name, p.len))
+                    .collect();
+                format!("{} (gradients only for these)", params.join(", "))
+            }
+            sdfl_stdlib::value::Field::Nerf(n) => {
+                let net = sdfl_runtime::neural::nerf::NerfNet::new(n);
+                format!(
+                    "all {} network weights in {} layers",
+                    net.len,
+                    net.layers().len()
+                )
+            }
+        };
+        let _ = writeln!(o, "  trainable      {trainable}");
         let data = match &*job.data {
             sdfl_stdlib::value::Dataset::Files { images, .. } => {
                 format!("{} image files", images.len())

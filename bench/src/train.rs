@@ -10,7 +10,7 @@ use std::time::Instant;
 
 use sdfl_lang::SourceFile;
 use sdfl_runtime::jobs::load_views;
-use sdfl_runtime::train::{Run, TrainModel, TrainSetup, TrainView};
+use sdfl_runtime::train::{FieldObjective, Run, TrainModel, TrainSetup, TrainView};
 use sdfl_stdlib::value::{Backend, TrainJob};
 
 const BOX: &str = r#"
@@ -58,9 +58,10 @@ fn timed(reps: usize, mut f: impl FnMut(usize)) -> (f64, f64) {
 fn time_steps(src: &str, backend: Backend, reps: usize) -> (f64, f64) {
     let (mut job, views) = prepare(src);
     job.backend = backend;
-    let model = TrainModel::new(job.model.clone());
+    let model = TrainModel::new(job.model.as_sdf().expect("an analytic field"));
     let setup = TrainSetup::of(&job, &views);
-    let mut run = Run::new(&model, job.optimizer.lr).expect("run");
+    let objective = Box::new(FieldObjective::new(&model, job.backend));
+    let mut run = Run::of(objective, job.optimizer.lr).expect("run");
     for _ in 0..2 {
         run.advance(&setup).expect("step");
     }
@@ -73,7 +74,7 @@ fn time_steps(src: &str, backend: Backend, reps: usize) -> (f64, f64) {
 /// draw a batch.
 fn time_forward(name: &str, src: &str, reps: usize) -> (f64, f64) {
     let (job, views) = prepare(src);
-    let model = TrainModel::new(job.model.clone());
+    let model = TrainModel::new(job.model.as_sdf().expect("an analytic field"));
     let setup = TrainSetup::of(&job, &views);
     let (med, min) = timed(reps, |k| {
         std::hint::black_box(setup.batch(k).expect("batch"));

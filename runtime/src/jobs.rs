@@ -11,17 +11,19 @@ use sdfl_stdlib::camera::Camera;
 use sdfl_stdlib::material::Material;
 use sdfl_stdlib::num::{Dual, V3};
 use sdfl_stdlib::shape::{ArgSource, Fixed};
-use sdfl_stdlib::value::{Backend, Dataset, Field, Output, Sampler, TrainJob, VolumeJob};
+use sdfl_stdlib::value::{Backend, Dataset, Field, Output, Sampler, SdfField, TrainJob, VolumeJob};
 use sdfl_stdlib::OutputKind;
 use serde::Serialize;
 
 use crate::data::npy::RgbImage;
+use crate::neural::field::{render_nerf_view, NerfObjective};
+use crate::neural::nerf::NerfNet;
 use crate::output::{to_u8, write_png};
 use crate::render::{view_path, Gifs, Written};
 use crate::sdf::{LowerOptions, Lowered};
 use crate::train::checkpoint::{Checkpoint, Fnv};
 use crate::train::fused::field_at;
-use crate::train::{Run, TrainError, TrainModel, TrainSetup, TrainView};
+use crate::train::{FieldObjective, Objective, Run, TrainError, TrainModel, TrainSetup, TrainView};
 use crate::volume::figures;
 use crate::volume::render::{render_field_image_with, DensityModel};
 use crate::volume::{ImageSize, Stratified};
@@ -35,7 +37,7 @@ fn stratified(s: &Sampler) -> io::Result<Stratified> {
 }
 
 /// A field's density at its arguments' values.
-fn density_model(f: &Field, sampler: &Sampler) -> DensityModel {
+fn density_model(f: &SdfField, sampler: &Sampler) -> DensityModel {
     DensityModel {
         kind: f.density,
         alpha: f.alpha.value as f32,
@@ -51,7 +53,7 @@ struct LoweredField {
 }
 
 impl LoweredField {
-    fn new(field: &Field) -> Self {
+    fn new(field: &SdfField) -> Self {
         LoweredField {
             sdf: Lowered::new(&field.shape, LowerOptions::default()),
             color: (*field.color).clone(),
@@ -77,6 +79,64 @@ impl LoweredField {
 
 /// A field to render: point → (signed distance, colour).
 pub type FieldFn<'a> = &'a (dyn Fn([f32; 3]) -> (f32, [f32; 3]) + Sync);
+
+/// Renders one view of a field: colour and, when asked, depth per pixel.
+pub type ViewFn<'a> =
+    &'a (dyn Fn(&Camera, (u32, u32), bool) -> io::Result<(Vec<[f32; 3]>, Vec<f32>)> + Sync);
+
+/// A field as it is rendered from its file's values (a NeRF from its
+/// initial weights).
+fn field_view<'a>(
+    field: &'a Field,
+    sampler: &'a Sampler,
+) -> io::Result<
+    Box<dyn Fn(&Camera, (u32, u32), bool) -> io::Result<(Vec<[f32; 3]>, Vec<f32>)> + Sync + 'a>,
+> {
+    let strat = stratified(sampler)?;
+    Ok(match field {
+        Field::Sdf(f) => {
+            let lowered = LoweredField::new(f);
+            let model = density_model(f, sampler);
+            Box::new(move |cam: &Camera, wh, want_depth| {
+                render_field(&|p| lowered.eval(p), model, &strat, cam, wh, want_depth)
+            })
+        }
+        Field::Nerf(n) => {
+            let net = NerfNet::new(n);
+            let params = net.init(n.seed);
+            let bg = n.background.map(|x| x as f32);
+            Box::new(move |cam: &Camera, wh, _| {
+                nerf_view(&net, &params, bg, &strat, sampler, cam, wh)
+            })
+        }
+    })
+}
+
+fn nerf_view(
+    net: &NerfNet,
+    params: &[f32],
+    background: [f32; 3],
+    strat: &Stratified,
+    sampler: &Sampler,
+    cam: &Camera,
+    (w, h): (u32, u32),
+) -> io::Result<(Vec<[f32; 3]>, Vec<f32>)> {
+    let size = ImageSize {
+        width: w,
+        height: h,
+    };
+    let v = render_nerf_view(
+        net,
+        params,
+        background,
+        strat,
+        sampler.last_interval,
+        cam,
+        size,
+    )
+    .map_err(invalid)?;
+    Ok((v.colour, v.depth))
+}
 
 /// Colour (and depth) of one view of a field.
 fn render_field(
@@ -117,8 +177,7 @@ pub struct VolumeReport {
 #[allow(clippy::too_many_arguments)]
 pub fn write_volume_outputs(
     name: &str,
-    field: FieldFn,
-    model: DensityModel,
+    render: ViewFn,
     cameras: &[Camera],
     (w, h): (u32, u32),
     sampler: &Sampler,
@@ -140,7 +199,7 @@ pub fn write_volume_outputs(
     for (k, cam) in cameras.iter().enumerate() {
         let t = Instant::now();
         let (colour, depth) = if needs_render {
-            render_field(field, model, &strat, cam, (w, h), wants_depth)?
+            render(cam, (w, h), wants_depth)?
         } else {
             (Vec::new(), Vec::new())
         };
@@ -210,11 +269,10 @@ pub fn run_volume_job(
     progress: &(dyn Fn(u64) + Sync),
 ) -> io::Result<VolumeReport> {
     let wh = size.unwrap_or((job.width, job.height));
-    let lowered = LoweredField::new(&job.field);
+    let render = field_view(&job.field, &job.sampler)?;
     write_volume_outputs(
         &job.name,
-        &|p| lowered.eval(p),
-        density_model(&job.field, &job.sampler),
+        &*render,
         &job.cameras,
         wh,
         &job.sampler,
@@ -235,8 +293,12 @@ pub struct TrainReport {
     pub resumed_from: Option<usize>,
     pub final_loss: f32,
     pub seconds_per_step: f64,
-    /// Learned values by parameter name (`box.center`, or a `let` name).
+    /// Learned values by parameter name (`box.center`, or a `let` name);
+    /// empty for a neural field (its weights are in the checkpoint).
     pub params: Vec<(String, Vec<f32>)>,
+    /// Weights of a neural field.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub network_weights: Option<usize>,
     pub written: Vec<Written>,
     pub stages: Vec<(String, f64)>,
 }
@@ -273,20 +335,12 @@ pub fn load_views(data: &Dataset, base: &Path) -> io::Result<Vec<TrainView>> {
             height,
             sampler,
         } => {
-            let lowered = LoweredField::new(field);
-            let strat = stratified(sampler)?;
+            let render = field_view(field, sampler)?;
             cameras
                 .iter()
                 .enumerate()
                 .map(|(k, c)| {
-                    let (colour, _) = render_field(
-                        &|p| lowered.eval(p),
-                        density_model(field, sampler),
-                        &strat,
-                        c,
-                        (*width, *height),
-                        false,
-                    )?;
+                    let (colour, _) = render(c, (*width, *height), false)?;
                     let image = RgbImage {
                         width: *width,
                         height: *height,
@@ -413,14 +467,20 @@ pub fn run_train_job(
     let views = load_views(&job.data, base)?;
     stages.push(("load data".to_string(), t.elapsed().as_secs_f64()));
 
-    let model = TrainModel::new(job.model.clone());
+    // The analytic model outlives the run that borrows it.
+    let analytic = job.model.as_sdf().map(TrainModel::new);
+    let objective: Box<dyn Objective> = match (&*job.model, &analytic) {
+        (Field::Nerf(n), _) => Box::new(NerfObjective::new(n)),
+        (Field::Sdf(_), Some(model)) => Box::new(FieldObjective::new(model, job.backend)),
+        (Field::Sdf(_), None) => unreachable!("an analytic field has a model"),
+    };
     let setup = TrainSetup::of(job, &views);
     let steps = match job.epochs {
         Some(e) => e.saturating_mul(setup.steps_per_epoch()),
         None => job.iterations,
     };
     let fail = |e: TrainError| io::Error::other(format!("training `{}`: {e}", job.name));
-    let mut run = Run::new(&model, job.optimizer.lr).map_err(fail)?;
+    let mut run = Run::of(objective, job.optimizer.lr).map_err(fail)?;
     // Only a checkpoint needs the fingerprint (it walks the whole model).
     let fp = if job.checkpoint.is_some() {
         fingerprint(job, &views)
@@ -457,24 +517,33 @@ pub fn run_train_job(
         run.checkpoint(fp.clone()).write(cp)?;
     }
 
+    let strat = stratified(&job.sampler)?;
     let render_at = |values: &[f32], outputs: &[Output]| -> io::Result<Vec<Written>> {
-        let args = model.plain(values);
-        let f = &model.field;
-        let density = DensityModel {
-            kind: f.density,
-            alpha: args.scalar(&f.alpha).v,
-            beta: args.scalar(&f.beta).v,
-            last_interval: job.sampler.last_interval,
-        };
-        let eval = |p: [f32; 3]| {
-            let q = V3::from_array(p.map(Dual::constant));
-            let (d, c) = field_at(&model, &args, q);
-            (d.v, [c.x.v, c.y.v, c.z.v])
+        let view = |cam: &Camera, wh: (u32, u32), want_depth: bool| match (&*job.model, &analytic) {
+            (Field::Nerf(n), _) => {
+                let bg = n.background.map(|x| x as f32);
+                nerf_view(&NerfNet::new(n), values, bg, &strat, &job.sampler, cam, wh)
+            }
+            (Field::Sdf(f), Some(model)) => {
+                let args = model.plain(values);
+                let density = DensityModel {
+                    kind: f.density,
+                    alpha: args.scalar(&f.alpha).v,
+                    beta: args.scalar(&f.beta).v,
+                    last_interval: job.sampler.last_interval,
+                };
+                let eval = |p: [f32; 3]| {
+                    let q = V3::from_array(p.map(Dual::constant));
+                    let (d, c) = field_at(model, &args, q);
+                    (d.v, [c.x.v, c.y.v, c.z.v])
+                };
+                render_field(&eval, density, &strat, cam, wh, want_depth)
+            }
+            (Field::Sdf(_), None) => unreachable!("an analytic field has a model"),
         };
         let r = write_volume_outputs(
             &job.name,
-            &eval,
-            density,
+            &view,
             &job.views,
             wh,
             &job.sampler,
@@ -497,7 +566,8 @@ pub fn run_train_job(
         if r.step % 10 == 0 {
             // The same names as the report, the JSON and the checkpoint.
             let mut line = format!("{} loss {loss:.3e}", job.name);
-            for (name, v) in r.named_values().iter().take(4) {
+            let shown = if analytic.is_some() { 4 } else { 0 };
+            for (name, v) in r.named_values().iter().take(shown) {
                 let v: Vec<String> = v.iter().map(|x| format!("{x:.3}")).collect();
                 line += &format!("  {name} {}", v.join(","));
             }
@@ -578,7 +648,12 @@ pub fn run_train_job(
         resumed_from,
         final_loss: run.losses.last().copied().unwrap_or(f32::NAN),
         seconds_per_step: train_s / steps_run as f64,
-        params: run.named_values(),
+        params: if analytic.is_some() {
+            run.named_values()
+        } else {
+            Vec::new()
+        },
+        network_weights: analytic.is_none().then(|| run.values().len()),
         written,
         stages,
     })

@@ -52,7 +52,7 @@ fn model(field: &str) -> TrainModel {
     );
     let program = sdfl_stdlib::load(&SourceFile::new("case.sdfl", src))
         .unwrap_or_else(|e| panic!("{field}: {e:?}"));
-    TrainModel::new(program.trains[0].model.clone())
+    TrainModel::new(program.trains[0].model.as_sdf().expect("analytic"))
 }
 
 /// A 6×6 view from (0.3, 0.4, −3) with 48 samples from 0 to 6, grey targets.
@@ -184,7 +184,7 @@ fn a_parameter_used_twice_is_one_parameter_named_by_its_let() {
                train t { model: sdf_volume(union(sphere(0.3, center: c), box(center: c, size: param(0.4)), sphere(param(0.2)))), \
                data: render_views(sdf_volume(sphere()), cameras: cams, size: [4, 4]) }";
     let program = sdfl_stdlib::load(&SourceFile::new("shared.sdfl", src)).unwrap();
-    let m = TrainModel::new(program.trains[0].model.clone());
+    let m = TrainModel::new(program.trains[0].model.as_sdf().expect("analytic"));
     let names: Vec<&str> = m.params.iter().map(|p| p.name.as_str()).collect();
     assert_eq!(names, ["c", "box.size", "sphere.radius"]);
     assert_eq!(m.scalars, 5);

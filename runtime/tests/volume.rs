@@ -22,7 +22,7 @@ fn centre_opacity(far: f64, last: &str) -> f64 {
         .collect();
     let mut delta = Vec::new();
     intervals_into(&t, s.last_interval, &mut delta);
-    let f = &job.field;
+    let f = job.field.as_sdf().expect("an analytic field");
     march::<f64>(
         |p| (f.shape.distance(p.into()), V3::splat(1.0)),
         f.density,

@@ -13,7 +13,7 @@ use sdfl_lang::Span;
 
 use crate::builtins::{Args, StdEnv};
 use crate::shape::Shape;
-use crate::value::{Program, Value};
+use crate::value::{Field, Program, Value};
 
 /// Most iterations of one `for` binding.
 pub const MAX_LOOP: u64 = 1_000_000;
@@ -121,9 +121,12 @@ impl Sizes {
                 s
             }
             Value::Shape(sh) => self.shape(sh, level),
-            Value::Field(f) => Size {
-                items: 0,
-                ..Size::node([self.shape(&f.shape, level + 1)], false)
+            Value::Field(f) => match &**f {
+                Field::Sdf(f) => Size {
+                    items: 0,
+                    ..Size::node([self.shape(&f.shape, level + 1)], false)
+                },
+                Field::Nerf(_) => Size::SCALAR,
             },
             _ => Size::SCALAR,
         }
@@ -382,7 +385,8 @@ impl<'e> Evaluator<'e> {
             "train" => {
                 let j = program.trains.last().expect("just added");
                 let w = work::train_work(j, None);
-                (w, "iterations or rays", j.model.shape.clone(), None)
+                let scene = j.model.as_sdf().map(|f| f.shape.clone());
+                (w, "iterations or rays", scene, None)
             }
             "volume" => {
                 let j = program.volumes.last().expect("just added");
@@ -395,7 +399,7 @@ impl<'e> Evaluator<'e> {
                 (
                     work::volume_work(j, None),
                     "samples",
-                    j.field.shape.clone(),
+                    j.field.as_sdf().map(|f| f.shape.clone()),
                     Some(reach),
                 )
             }
@@ -410,14 +414,18 @@ impl<'e> Evaluator<'e> {
                 };
                 let reach = (&j.cameras, j.near, j.far, far_note);
                 let w = work::render_work_of(j, None, prims);
-                (w, "iterations", j.scene.clone(), Some(reach))
+                (w, "iterations", Some(j.scene.clone()), Some(reach))
             }
         };
         found.extend(work::refuse(w, span, what));
-        let size = self.sizes.shape(&scene, 0);
+        let size = scene
+            .as_ref()
+            .map_or(Size::SCALAR, |s| self.sizes.shape(s, 0));
         // Bounds are an expanded walk: worth it for a warning only on
-        // scenes of ordinary size.
-        if let Some((cameras, near, far, note)) = reach.filter(|_| size.nodes <= 1_000_000) {
+        // scenes of ordinary size. (A neural field has no bounds to check.)
+        if let (Some((cameras, near, far, note)), Some(scene)) =
+            (reach.filter(|_| size.nodes <= 1_000_000), &scene)
+        {
             found.extend(work::reach_warning(
                 scene.bounds(),
                 cameras,

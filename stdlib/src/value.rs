@@ -28,6 +28,7 @@ pub enum Value {
     Sampler(Sampler),
     Dataset(Arc<Dataset>),
     Optimizer(Optimizer),
+    Encoding(Encoding),
     /// The value of an expression that already produced a diagnostic.
     /// Anything computed from it is poison too, silently.
     Poison,
@@ -50,6 +51,7 @@ impl Value {
             Value::Sampler(_) => "sampler",
             Value::Dataset(_) => "data set",
             Value::Optimizer(_) => "optimizer",
+            Value::Encoding(_) => "encoding",
             Value::Poison => "invalid value",
         }
     }
@@ -163,9 +165,37 @@ pub enum DensityKind {
     Neus,
 }
 
-/// A field: an SDF seen as a volume with a colour.
+/// A field: something a ray marches through, with density and colour.
 #[derive(Debug, Clone)]
-pub struct Field {
+pub enum Field {
+    /// An analytic SDF seen as a volume.
+    Sdf(SdfField),
+    /// A neural radiance field.
+    Nerf(Nerf),
+}
+
+impl Field {
+    /// Every trainable `param(...)` argument of the field, in a fixed
+    /// order; a parameter used twice appears twice. (A neural field's
+    /// weights are not `param`s: they are trained whenever it is a model.)
+    pub fn visit_params<'s>(&'s self, f: &mut dyn FnMut(&'s crate::param::ParamUse)) {
+        match self {
+            Field::Sdf(s) => s.visit_params(f),
+            Field::Nerf(_) => {}
+        }
+    }
+
+    pub fn as_sdf(&self) -> Option<&SdfField> {
+        match self {
+            Field::Sdf(s) => Some(s),
+            Field::Nerf(_) => None,
+        }
+    }
+}
+
+/// An SDF seen as a volume with a colour.
+#[derive(Debug, Clone)]
+pub struct SdfField {
     pub shape: Arc<Shape>,
     pub density: DensityKind,
     pub alpha: Arg<f64>,
@@ -173,7 +203,7 @@ pub struct Field {
     pub color: Arc<Material>,
 }
 
-impl Field {
+impl SdfField {
     /// Every trainable argument of the field (shape, colour, α, β), in a
     /// fixed order; a parameter used twice appears twice.
     pub fn visit_params<'s>(&'s self, f: &mut dyn FnMut(&'s crate::param::ParamUse)) {
@@ -184,6 +214,65 @@ impl Field {
                 f(u);
             }
         }
+    }
+}
+
+/// NeRF's harmonic embedding: `sin(2^k·x)`, `cos(2^k·x)` for
+/// `k < freqs`, and `x` itself when `include_input`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+pub struct Harmonic {
+    pub freqs: usize,
+    pub include_input: bool,
+}
+
+/// An input encoding of a neural field.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Encoding {
+    Harmonic(Harmonic),
+}
+
+/// A neural radiance field: an MLP from the encoded position to density
+/// (ReLU) and colour (sigmoid); with a direction encoding, colour also
+/// sees the view direction through a narrower branch, density never does.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct Nerf {
+    pub position: Encoding,
+    /// `Some` for a view-dependent colour.
+    pub direction: Option<Encoding>,
+    /// Hidden layers of the trunk and their width.
+    pub layers: usize,
+    pub width: usize,
+    /// Trunk layers whose input is the previous layer and the encoded
+    /// position again.
+    pub skips: Vec<usize>,
+    /// Width of the colour branch.
+    pub color_width: usize,
+    /// Colour seen where a ray leaves the volume.
+    pub background: [f64; 3],
+    /// Seed of the initial weights.
+    pub seed: u64,
+}
+
+impl Encoding {
+    /// Features of a 3-vector's encoding.
+    pub fn width(&self) -> usize {
+        match self {
+            Encoding::Harmonic(h) => 3 * 2 * h.freqs + if h.include_input { 3 } else { 0 },
+        }
+    }
+}
+
+impl Nerf {
+    /// Multiply-adds of one sample's forward pass.
+    pub fn multiply_adds_per_sample(&self) -> usize {
+        let (w, enc) = (self.width, self.position.width());
+        let mut macs = enc * w + (self.layers - 1) * w * w + self.skips.len() * enc * w + w;
+        macs += match self.direction {
+            Some(d) => w * w + (w + d.width()) * self.color_width,
+            None => w * self.color_width,
+        };
+        macs + self.color_width * 3
     }
 }
 

@@ -10,7 +10,7 @@ use sdfl_lang::Span;
 use crate::camera::Camera;
 use crate::eval::{fmt_bytes, BYTES_PER_PRIMITIVE};
 use crate::shape::Aabb;
-use crate::value::{Dataset, OutputKind, Program, RenderJob, TrainJob, VolumeJob};
+use crate::value::{Dataset, Field, OutputKind, Program, RenderJob, TrainJob, VolumeJob};
 
 /// Most SDF (or density) evaluations one statement may ask for: about an
 /// hour of tracing on a few cores. The examples need 1e7 to 1e9.
@@ -155,7 +155,12 @@ pub fn train_work(j: &TrainJob, size: Option<(u32, u32)>) -> Work {
     // values and once per 16 parameters for tangents.
     let mut scalars = 0usize;
     j.model.visit_params(&mut |u| scalars += u.decl.init.len());
-    let per_sample = j.model.shape.primitive_count() as f64 * (1.0 + scalars.div_ceil(16) as f64);
+    let per_sample = match &*j.model {
+        Field::Sdf(f) => f.shape.primitive_count() as f64 * (1.0 + scalars.div_ceil(16) as f64),
+        // Forward and backward through the network, in units of about
+        // 10 000 multiply-adds (a few hundred primitive evaluations).
+        Field::Nerf(n) => 3.0 * n.multiply_adds_per_sample() as f64 / 10_000.0,
+    };
     let steps = iterations * j.rays as f64 * samples * per_sample;
     let (data_evals, data_bytes) = match &*j.data {
         Dataset::Rendered {

@@ -36,7 +36,7 @@ pub struct Batch {
 }
 
 impl Batch {
-    fn depths_of(&self, ray: usize) -> &[f32] {
+    pub fn depths_of(&self, ray: usize) -> &[f32] {
         if self.shared {
             &self.depths[..self.samples]
         } else {

@@ -20,10 +20,12 @@ pub mod fused;
 pub mod graph;
 pub mod graph_ops;
 pub mod model;
+pub mod objective;
 pub mod params;
 pub mod trainer;
 
 pub use model::TrainModel;
+pub use objective::{FieldObjective, Objective, TensorSpec};
 pub use params::{Adam, ParamId, ParamStore};
 pub use trainer::{Run, TrainSetup, TrainView};
 

@@ -10,7 +10,7 @@ use glam::DVec3;
 use sdfl_stdlib::num::{Dual, Real, V3};
 use sdfl_stdlib::param::{Arg, Bound, ParamDecl, ParamInit};
 use sdfl_stdlib::shape::ArgSource;
-use sdfl_stdlib::value::Field;
+use sdfl_stdlib::value::SdfField;
 
 /// One trainable parameter.
 #[derive(Debug, Clone)]
@@ -29,7 +29,7 @@ pub struct ModelParam {
 /// A field and its parameters.
 #[derive(Debug, Clone)]
 pub struct TrainModel {
-    pub field: Arc<Field>,
+    pub field: SdfField,
     pub params: Vec<ModelParam>,
     /// Flat offset of each `ParamDecl::id`, `usize::MAX` for parameters of
     /// the file that this model does not use.
@@ -39,7 +39,7 @@ pub struct TrainModel {
 }
 
 impl TrainModel {
-    pub fn new(field: Arc<Field>) -> Self {
+    pub fn new(field: &SdfField) -> Self {
         let mut params: Vec<ModelParam> = Vec::new();
         // Each `param(...)` call once, however often it is used.
         let mut seen: HashMap<*const ParamDecl, usize> = HashMap::new();
@@ -75,7 +75,7 @@ impl TrainModel {
             offsets[p.decl.id] = p.offset;
         }
         TrainModel {
-            field,
+            field: field.clone(),
             params,
             offsets,
             scalars,

@@ -10,11 +10,11 @@
 use std::ops::ControlFlow;
 
 use sdfl_stdlib::camera::Camera;
-use sdfl_stdlib::value::{Backend, Loss, LossKind, Optimizer, Sampler};
+use sdfl_stdlib::value::{Loss, LossKind, Optimizer, Sampler};
 
 use super::checkpoint::{Checkpoint, ParamState};
-use super::fused::{loss_and_grad, Batch};
-use super::model::TrainModel;
+use super::fused::Batch;
+use super::objective::{Objective, TensorSpec};
 use super::{Adam, ParamId, ParamStore, TrainError};
 use crate::data::npy::RgbImage;
 use crate::volume::{random_rays, ImageSize, SplitMix64, Stratified};
@@ -35,7 +35,6 @@ pub struct TrainSetup<'a> {
     pub optimizer: Optimizer,
     pub losses: &'a [Loss],
     pub seed: u64,
-    pub backend: Backend,
 }
 
 impl<'a> TrainSetup<'a> {
@@ -48,7 +47,6 @@ impl<'a> TrainSetup<'a> {
             optimizer: job.optimizer,
             losses: &job.losses,
             seed: job.seed,
-            backend: job.backend,
         }
     }
 
@@ -117,35 +115,35 @@ impl<'a> TrainSetup<'a> {
     }
 }
 
-/// The state of a run: parameters in the store, Adam, losses so far.
+/// The state of a run: the model, its parameters in the store, Adam,
+/// losses so far.
 pub struct Run<'m> {
-    pub model: &'m TrainModel,
+    pub objective: Box<dyn Objective + 'm>,
+    tensors: Vec<TensorSpec>,
     store: ParamStore,
     ids: Vec<ParamId>,
     adam: Adam,
+    /// Reused each step.
+    grad: Vec<f32>,
     /// Steps done.
     pub step: usize,
     pub losses: Vec<f32>,
 }
 
 impl<'m> Run<'m> {
-    /// A fresh run at the model's starting values.
-    pub fn new(model: &'m TrainModel, lr: f64) -> Result<Self, TrainError> {
+    /// A fresh run of any model at its starting values.
+    pub fn of(objective: Box<dyn Objective + 'm>, lr: f64) -> Result<Self, TrainError> {
         let mut store = ParamStore::new();
-        let init = model.initial_values();
-        let ids = model
-            .params
+        let init = objective.initial();
+        let tensors = objective.tensors();
+        let ids = tensors
             .iter()
-            .map(|p| {
-                let v: Vec<f32> = init[p.offset..p.offset + p.len]
-                    .iter()
-                    .map(|&x| x as f32)
-                    .collect();
-                store.add(&p.name, &v, true)
-            })
+            .map(|p| store.add(&p.name, &init[p.offset..p.offset + p.len], true))
             .collect::<Result<_, _>>()?;
         Ok(Run {
-            model,
+            grad: vec![0.0; init.len()],
+            objective,
+            tensors,
             store,
             ids,
             adam: Adam::new(lr)?,
@@ -156,11 +154,32 @@ impl<'m> Run<'m> {
 
     /// Continues from a checkpoint of the same model.
     pub fn resume(&mut self, ck: &Checkpoint) -> Result<(), TrainError> {
-        let names: Vec<&str> = ck.params.iter().map(|p| p.name.as_str()).collect();
-        let ours: Vec<&str> = self.model.params.iter().map(|p| p.name.as_str()).collect();
-        if names != ours {
+        let theirs: Vec<(&str, usize)> = ck
+            .params
+            .iter()
+            .map(|p| (p.name.as_str(), p.values.len()))
+            .collect();
+        let ours: Vec<(&str, usize)> = self
+            .tensors
+            .iter()
+            .map(|p| (p.name.as_str(), p.len))
+            .collect();
+        if theirs != ours {
+            let names = |v: &[(&str, usize)]| {
+                let mut s: Vec<String> = v
+                    .iter()
+                    .take(8)
+                    .map(|(n, l)| format!("{n} ({l})"))
+                    .collect();
+                if v.len() > 8 {
+                    s.push(format!("… {} more", v.len() - 8));
+                }
+                s.join(", ")
+            };
             return Err(TrainError::Invalid(format!(
-                "the checkpoint holds parameters {names:?}, the model has {ours:?}"
+                "the checkpoint holds parameters [{}], the model has [{}]",
+                names(&theirs),
+                names(&ours)
             )));
         }
         for (id, p) in self.ids.iter().zip(&ck.params) {
@@ -222,43 +241,28 @@ impl<'m> Run<'m> {
             })
             .sum();
         let values = self.values();
-        let lg = match setup.backend {
-            Backend::Fused => loss_and_grad::<f32>(self.model, &values, &batch, weight),
-            Backend::Dfdx => {
-                let dev = self.store.device().clone();
-                super::graph::loss_and_grad(&dev, self.model, &values, &batch, weight)?
-            }
-        };
-        if !lg.loss.is_finite() {
+        self.grad.iter_mut().for_each(|g| *g = 0.0);
+        let loss = self
+            .objective
+            .loss_and_grad(&values, &batch, weight, &mut self.grad)?;
+        if !loss.is_finite() {
             return Err(TrainError::Gradient(format!(
-                "the loss is {} at step {}",
-                lg.loss,
+                "the loss is {loss} at step {}",
                 self.step + 1
             )));
         }
-        let grads: Vec<Vec<f32>> = self
-            .model
-            .params
-            .iter()
-            .map(|p| {
-                lg.grad[p.offset..p.offset + p.len]
-                    .iter()
-                    .map(|&g| g as f32)
-                    .collect()
-            })
-            .collect();
         let pairs: Vec<(ParamId, &[f32])> = self
             .ids
             .iter()
-            .zip(&grads)
-            .map(|(id, g)| (*id, g.as_slice()))
+            .zip(&self.tensors)
+            .map(|(id, p)| (*id, &self.grad[p.offset..p.offset + p.len]))
             .collect();
         self.adam.cfg.lr = setup.optimizer.lr_at(self.step);
         self.adam.update_from_slices(&mut self.store, &pairs)?;
         // Back into range: a radius stays positive, a colour in 0..1.
         let mut v = self.values();
-        self.model.project(&mut v);
-        for (id, p) in self.ids.iter().zip(&self.model.params) {
+        self.objective.project(&mut v);
+        for (id, p) in self.ids.iter().zip(&self.tensors) {
             self.store.set_values(*id, &v[p.offset..p.offset + p.len])?;
         }
         if !v.iter().all(|x| x.is_finite()) {
@@ -268,8 +272,8 @@ impl<'m> Run<'m> {
             )));
         }
         self.step += 1;
-        self.losses.push(lg.loss as f32);
-        Ok(lg.loss as f32)
+        self.losses.push(loss as f32);
+        Ok(loss as f32)
     }
 
     /// Steps until `steps` are done or `each` breaks; `each` sees every

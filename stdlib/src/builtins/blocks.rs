@@ -156,7 +156,9 @@ pub(crate) fn train_block(name: &str, a: &Args) -> Result<TrainJob, Diag> {
     };
     let mut trainable = 0;
     model.visit_params(&mut |_| trainable += 1);
-    if trainable == 0 {
+    // A neural field's weights are always trained; an analytic one needs
+    // something marked.
+    if trainable == 0 && model.as_sdf().is_some() {
         return Err(value_error(
             model_span,
             "this model has nothing to train",

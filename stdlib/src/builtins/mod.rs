@@ -18,8 +18,9 @@ use crate::param::{Arg, Bound, ParamDecl, ParamInit, ParamUse, MIN_BETA, MIN_LEN
 use crate::precision::{beta, f32_range};
 use crate::shape::Shape;
 use crate::value::{
-    Backend, Dataset, DensityKind, Field, HitTolerance, LastInterval, Loss, LossKind, Optimizer,
-    Output, OutputKind, RenderJob, Sampler, Schedule, TrainJob, Value, VolumeJob,
+    Backend, Dataset, DensityKind, Encoding, Field, Harmonic, HitTolerance, LastInterval, Loss,
+    LossKind, Nerf, Optimizer, Output, OutputKind, RenderJob, Sampler, Schedule, SdfField,
+    TrainJob, Value, VolumeJob,
 };
 
 pub const SHAPE: Type = Type::Named("shape");
@@ -31,6 +32,7 @@ pub const SAMPLER: Type = Type::Named("sampler");
 pub const DATASET: Type = Type::Named("data set");
 pub const OPTIMIZER: Type = Type::Named("optimizer");
 pub const LOSS: Type = Type::Named("loss");
+pub const ENCODING: Type = Type::Named("encoding");
 /// Most samples per ray.
 pub const MAX_SAMPLES: u64 = 4096;
 
@@ -672,6 +674,77 @@ fn table() -> Vec<Builtin> {
             },
         ),
         func(
+            "harmonic",
+            "NeRF's harmonic embedding of a point or direction: `sin(2^k·x)` and `cos(2^k·x)` for `k < freqs`, and `x` itself when `include_input`.",
+            vec![
+                opt("freqs", Type::Number, "6", "frequencies 1, 2, 4, … 2^(freqs-1)"),
+                opt("include_input", Type::Bool, "true", "append the input itself"),
+            ],
+            ENCODING,
+            |a| {
+                Ok(Value::Encoding(Encoding::Harmonic(Harmonic {
+                    freqs: a.count("freqs", 0, 16)? as usize,
+                    include_input: matches!(a.get("include_input").0, Value::Bool(true)),
+                })))
+            },
+        ),
+        func(
+            "nerf",
+            "A neural radiance field (Mildenhall et al.): an MLP from the encoded position to density (ReLU) and colour (sigmoid). `view_dependent` adds a colour branch that sees the encoded view direction; density never does. Weights start as PyTorch's default initialisation, seeded. Trained as a `train` statement's model.",
+            vec![
+                opt("position", ENCODING, "harmonic(freqs: 6)", "encoding of the sample position"),
+                opt("direction", ENCODING, "harmonic(freqs: 2)", "encoding of the view direction (used when `view_dependent`)"),
+                opt("view_dependent", Type::Bool, "true", "whether colour depends on the view direction"),
+                opt("layers", Type::Number, "6", "hidden layers of the trunk"),
+                opt("width", Type::Number, "128", "width of the hidden layers"),
+                opt("skips", Type::list(Type::Number), "[3]", "trunk layers (from 0) that see the encoded position again"),
+                opt("color_width", Type::Number, "64", "width of the colour branch"),
+                opt("background", Type::Vec3, "[0, 0, 0]", "colour where a ray leaves the volume"),
+                opt("seed", Type::Number, "0", "seed of the initial weights"),
+            ],
+            FIELD,
+            |a| {
+                let encoding = |name: &str| match a.get(name).0 {
+                    Value::Encoding(e) => Ok(*e),
+                    other => Err(type_error(a.get(name).1, "encoding", other)),
+                };
+                let layers = a.count("layers", 1, 32)? as usize;
+                let (skips_v, skips_span) = a.get("skips");
+                let mut skips = Vec::new();
+                if let Value::List(items) = skips_v {
+                    for item in items.iter() {
+                        match item {
+                            Value::Number(x) if x.fract() == 0.0 && *x >= 1.0 && (*x as usize) < layers => {
+                                skips.push(*x as usize)
+                            }
+                            _ => {
+                                return Err(value_error(
+                                    skips_span,
+                                    format!("a skip must name a trunk layer from 1 to {}", layers - 1),
+                                    "not a later trunk layer",
+                                    "layer 0 sees the encoding already; e.g. `skips: [3]` for 6 layers",
+                                ))
+                            }
+                        }
+                    }
+                }
+                skips.sort_unstable();
+                skips.dedup();
+                let (bg, bg_span) = (a.vec3("background")?, a.get("background").1);
+                let view_dependent = matches!(a.get("view_dependent").0, Value::Bool(true));
+                Ok(Value::Field(Arc::new(Field::Nerf(Nerf {
+                    position: encoding("position")?,
+                    direction: if view_dependent { Some(encoding("direction")?) } else { None },
+                    layers,
+                    width: a.count("width", 1, 4096)? as usize,
+                    skips,
+                    color_width: a.count("color_width", 1, 4096)? as usize,
+                    background: colour(bg, bg_span)?.to_array(),
+                    seed: a.count("seed", 0, u32::MAX as u64)?,
+                }))))
+            },
+        ),
+        func(
             "render_views",
             "Training views rendered by sdfl itself from a field (self-contained, with known ground truth).",
             vec![
@@ -886,7 +959,7 @@ fn field(a: &Args, density: DensityKind) -> Result<Value, Diag> {
             "use `rainbow()` or a constant colour",
         ));
     }
-    Ok(Value::Field(Arc::new(Field {
+    Ok(Value::Field(Arc::new(Field::Sdf(SdfField {
         shape,
         density,
         alpha,
@@ -896,7 +969,7 @@ fn field(a: &Args, density: DensityKind) -> Result<Value, Diag> {
             b
         },
         color,
-    })))
+    }))))
 }
 
 /// Whether any `paint` in the tree uses a material that needs normals

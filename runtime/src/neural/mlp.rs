@@ -1,0 +1,588 @@
+//! Fully connected layers as fused CPU kernels over row-major batches.
+//!
+//! A [`Dense`] layer maps `rows × Σ parts` inputs to `rows × out` outputs,
+//! `y = act(Σ_p x_p·W_p + b)`: its input may come in several parts (a skip
+//! connection appends the encoded position to a hidden layer) without
+//! copying them into one matrix. The forward pass runs the matrix product
+//! and the bias and activation per block of rows while the block is in
+//! cache; the backward pass turns the output's adjoint into the
+//! pre-activation adjoint in place, then computes the inputs' adjoints per
+//! block of rows and the weight gradient per block of columns (an `Xᵀ·dZ`
+//! product over all rows), so every gradient is reduced in a fixed order:
+//! results are bit-identical whatever the thread count.
+//!
+//! Weights are stored `in × out` (row `i` holds input `i`'s weights), so
+//! `x·W` needs no transpose; PyTorch's `out × in` is the same numbers
+//! transposed.
+
+use rayon::prelude::*;
+
+use crate::volume::SplitMix64;
+
+/// Rows per block of the forward and input-adjoint passes.
+const ROW_BLOCK: usize = 256;
+/// Columns per block of the weight-gradient pass.
+const COL_BLOCK: usize = 16;
+
+/// A pointwise nonlinearity after a layer.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Activation {
+    Identity,
+    Relu,
+    Sigmoid,
+    /// `ln(1 + e^(βx))/β`, computed without overflow.
+    Softplus {
+        beta: f32,
+    },
+}
+
+impl Activation {
+    #[inline(always)]
+    fn apply(self, z: f32) -> f32 {
+        match self {
+            Activation::Identity => z,
+            Activation::Relu => z.max(0.0),
+            Activation::Sigmoid => sigmoid(z),
+            Activation::Softplus { beta } => softplus(z, beta),
+        }
+    }
+
+    /// `act'(z)` from the output `y = act(z)` alone, so the backward pass
+    /// needs no pre-activations: for softplus `σ(βz) = 1 − e^{−βy}`
+    /// (through `exp_m1`, exact for tiny `y`).
+    #[inline(always)]
+    fn slope(self, y: f32) -> f32 {
+        match self {
+            Activation::Identity => 1.0,
+            Activation::Relu => {
+                if y > 0.0 {
+                    1.0
+                } else {
+                    0.0
+                }
+            }
+            Activation::Sigmoid => y * (1.0 - y),
+            Activation::Softplus { beta } => -(-beta * y).exp_m1(),
+        }
+    }
+}
+
+/// The logistic function, exact to f32 rounding for every input.
+#[inline(always)]
+pub fn sigmoid(z: f32) -> f32 {
+    if z >= 0.0 {
+        1.0 / (1.0 + (-z).exp())
+    } else {
+        let e = z.exp();
+        e / (1.0 + e)
+    }
+}
+
+/// `ln(1 + e^(βz))/β` without overflow for large `βz`.
+#[inline(always)]
+pub fn softplus(z: f32, beta: f32) -> f32 {
+    let x = beta * z;
+    (x.max(0.0) + (-x.abs()).exp().ln_1p()) / beta
+}
+
+/// One layer's shape and where its weights live in the flat parameters.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Dense {
+    /// Widths of the input parts, in order.
+    pub parts: Vec<usize>,
+    pub out: usize,
+    pub act: Activation,
+    /// Offset of `W` (`Σ parts × out`) in the flat parameters; `b` follows.
+    pub offset: usize,
+}
+
+impl Dense {
+    pub fn new(parts: &[usize], out: usize, act: Activation, offset: usize) -> Self {
+        Dense {
+            parts: parts.to_vec(),
+            out,
+            act,
+            offset,
+        }
+    }
+
+    pub fn fan_in(&self) -> usize {
+        self.parts.iter().sum()
+    }
+
+    /// Scalars of `W` and `b`.
+    pub fn len(&self) -> usize {
+        (self.fan_in() + 1) * self.out
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// Offset just past this layer's parameters.
+    pub fn end(&self) -> usize {
+        self.offset + self.len()
+    }
+
+    fn weights<'p>(&self, params: &'p [f32]) -> &'p [f32] {
+        &params[self.offset..self.offset + self.fan_in() * self.out]
+    }
+
+    fn bias<'p>(&self, params: &'p [f32]) -> &'p [f32] {
+        &params[self.offset + self.fan_in() * self.out..self.end()]
+    }
+
+    /// PyTorch's default initialisation of `nn.Linear`: `W` and `b` uniform
+    /// in `±1/√fan_in`, written into `params`.
+    pub fn init(&self, params: &mut [f32], rng: &mut SplitMix64) {
+        let bound = 1.0 / (self.fan_in().max(1) as f32).sqrt();
+        for p in &mut params[self.offset..self.end()] {
+            *p = (2.0 * rng.next_f32() - 1.0) * bound;
+        }
+    }
+
+    /// `out = act(Σ x_p·W_p + b)` for `rows` rows; `inputs[p]` is
+    /// `rows × parts[p]`.
+    pub fn forward(&self, params: &[f32], inputs: &[&[f32]], out: &mut [f32]) {
+        let n = self.out;
+        let rows = out.len() / n;
+        self.check(inputs, rows);
+        let (w, b) = (self.weights(params), self.bias(params));
+        out.par_chunks_mut(ROW_BLOCK * n)
+            .enumerate()
+            .for_each(|(blk, y)| {
+                let r0 = blk * ROW_BLOCK;
+                let m = y.len() / n;
+                let mut w_row = 0;
+                for (p, (&k, x)) in self.parts.iter().zip(inputs).enumerate() {
+                    // SAFETY: x holds rows × k, w rows w_row..w_row+k of
+                    // n columns, y m × n; all row-major, bounds checked above.
+                    unsafe {
+                        matrixmultiply::sgemm(
+                            m,
+                            k,
+                            n,
+                            1.0,
+                            x[r0 * k..].as_ptr(),
+                            k as isize,
+                            1,
+                            w[w_row * n..].as_ptr(),
+                            n as isize,
+                            1,
+                            if p == 0 { 0.0 } else { 1.0 },
+                            y.as_mut_ptr(),
+                            n as isize,
+                            1,
+                        );
+                    }
+                    w_row += k;
+                }
+                for yr in y.chunks_mut(n) {
+                    for (yv, bv) in yr.iter_mut().zip(b) {
+                        *yv = self.act.apply(*yv + bv);
+                    }
+                }
+            });
+    }
+
+    fn check(&self, inputs: &[&[f32]], rows: usize) {
+        assert_eq!(inputs.len(), self.parts.len(), "input parts");
+        for (x, &k) in inputs.iter().zip(&self.parts) {
+            assert_eq!(x.len(), rows * k, "input part of width {k}");
+        }
+    }
+
+    /// The backward pass. `d_out` holds `∂L/∂out` and is overwritten with
+    /// the pre-activation adjoint; `out` is the forward pass's. Each `d_inputs[p]` that is given
+    /// receives `∂L/∂x_p`, added to what it holds when `accumulate`; `grad`
+    /// (the flat gradient of all parameters) gets this layer's `∂L/∂W`,
+    /// `∂L/∂b` added.
+    #[allow(clippy::too_many_arguments)]
+    pub fn backward(
+        &self,
+        params: &[f32],
+        inputs: &[&[f32]],
+        out: &[f32],
+        d_out: &mut [f32],
+        d_inputs: &mut [Option<&mut [f32]>],
+        accumulate: bool,
+        grad: &mut [f32],
+    ) {
+        let n = self.out;
+        let rows = out.len() / n;
+        self.check(inputs, rows);
+        assert_eq!(d_out.len(), out.len());
+        assert_eq!(d_inputs.len(), self.parts.len());
+        let act = self.act;
+        let w = self.weights(params);
+        // dZ = dY ⊙ act'(z), in place.
+        if act != Activation::Identity {
+            d_out
+                .par_chunks_mut(ROW_BLOCK * n)
+                .zip(out.par_chunks(ROW_BLOCK * n))
+                .for_each(|(dz, y)| {
+                    for (d, &yv) in dz.iter_mut().zip(y) {
+                        *d *= act.slope(yv);
+                    }
+                });
+        }
+        let dz: &[f32] = d_out;
+        // ∂L/∂x_p = dZ·W_pᵀ, per block of rows.
+        let mut w_row = 0;
+        for (p, &k) in self.parts.iter().enumerate() {
+            if let Some(dx) = d_inputs[p].as_deref_mut() {
+                assert_eq!(dx.len(), rows * k);
+                let wp = &w[w_row * n..(w_row + k) * n];
+                dx.par_chunks_mut(ROW_BLOCK * k)
+                    .enumerate()
+                    .for_each(|(blk, dxb)| {
+                        let m = dxb.len() / k;
+                        // SAFETY: dz rows from blk·ROW_BLOCK, m × n; wp is
+                        // k × n read transposed (n × k); dxb m × k.
+                        unsafe {
+                            matrixmultiply::sgemm(
+                                m,
+                                n,
+                                k,
+                                1.0,
+                                dz[blk * ROW_BLOCK * n..].as_ptr(),
+                                n as isize,
+                                1,
+                                wp.as_ptr(),
+                                1,
+                                n as isize,
+                                if accumulate { 1.0 } else { 0.0 },
+                                dxb.as_mut_ptr(),
+                                k as isize,
+                                1,
+                            );
+                        }
+                    });
+            }
+            w_row += k;
+        }
+        // ∂L/∂W_p = x_pᵀ·dZ and ∂L/∂b = Σ_rows dZ, per block of columns.
+        let fan_in = self.fan_in();
+        let (gw, gb) = grad[self.offset..self.end()].split_at_mut(fan_in * n);
+        let col_blocks: Vec<usize> = (0..n).step_by(COL_BLOCK).collect();
+        // Each column block writes a disjoint set of columns of gW.
+        let gw_ptr = SendPtr(gw.as_mut_ptr());
+        let bias: Vec<(usize, Vec<f64>)> = col_blocks
+            .par_iter()
+            .map(|&c0| {
+                let nc = COL_BLOCK.min(n - c0);
+                let gw = gw_ptr;
+                let mut w_row = 0;
+                for (&k, x) in self.parts.iter().zip(inputs) {
+                    // SAFETY: x is rows × k read transposed (k × rows); dz
+                    // columns c0..c0+nc of rows × n; gW rows w_row..w_row+k,
+                    // columns c0..c0+nc, which no other block touches.
+                    unsafe {
+                        matrixmultiply::sgemm(
+                            k,
+                            rows,
+                            nc,
+                            1.0,
+                            x.as_ptr(),
+                            1,
+                            k as isize,
+                            dz[c0..].as_ptr(),
+                            n as isize,
+                            1,
+                            1.0,
+                            gw.0.add(w_row * n + c0),
+                            n as isize,
+                            1,
+                        );
+                    }
+                    w_row += k;
+                }
+                let mut sums = vec![0f64; nc];
+                for r in dz.chunks(n) {
+                    for (s, &v) in sums.iter_mut().zip(&r[c0..c0 + nc]) {
+                        *s += v as f64;
+                    }
+                }
+                (c0, sums)
+            })
+            .collect();
+        for (c0, sums) in bias {
+            for (g, s) in gb[c0..].iter_mut().zip(sums) {
+                *g += s as f32;
+            }
+        }
+    }
+}
+
+#[derive(Clone, Copy)]
+struct SendPtr(*mut f32);
+// SAFETY: used only to write disjoint column blocks from parallel tasks.
+unsafe impl Send for SendPtr {}
+unsafe impl Sync for SendPtr {}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The layer in f64, textbook loops.
+    fn reference(layer: &Dense, params: &[f32], inputs: &[&[f32]], rows: usize) -> Vec<f64> {
+        let n = layer.out;
+        let fan_in = layer.fan_in();
+        let w = &params[layer.offset..];
+        let mut out = vec![0f64; rows * n];
+        for r in 0..rows {
+            for j in 0..n {
+                let mut z = params[layer.offset + fan_in * n + j] as f64;
+                let mut i = 0;
+                for (x, &k) in inputs.iter().zip(&layer.parts) {
+                    for c in 0..k {
+                        z += x[r * k + c] as f64 * w[(i + c) * n + j] as f64;
+                    }
+                    i += k;
+                }
+                out[r * n + j] = match layer.act {
+                    Activation::Identity => z,
+                    Activation::Relu => z.max(0.0),
+                    Activation::Sigmoid => 1.0 / (1.0 + (-z).exp()),
+                    Activation::Softplus { beta } => {
+                        let b = beta as f64;
+                        (1.0 + (b * z).exp()).ln() / b
+                    }
+                };
+            }
+        }
+        out
+    }
+
+    fn random(n: usize, rng: &mut SplitMix64) -> Vec<f32> {
+        (0..n).map(|_| 2.0 * rng.next_f32() - 1.0).collect()
+    }
+
+    fn layers() -> Vec<Dense> {
+        vec![
+            Dense::new(&[7], 5, Activation::Relu, 3),
+            Dense::new(&[6, 4], 9, Activation::Sigmoid, 0),
+            Dense::new(&[33], 17, Activation::Softplus { beta: 10.0 }, 1),
+            Dense::new(&[5, 2, 3], 1, Activation::Identity, 0),
+        ]
+    }
+
+    #[test]
+    fn forward_matches_f64_reference() {
+        let mut rng = SplitMix64::new(1);
+        for layer in layers() {
+            // More rows than one block, not a multiple of it.
+            let rows = ROW_BLOCK * 2 + 37;
+            let mut params = vec![0.0; layer.end()];
+            layer.init(&mut params, &mut rng);
+            let xs: Vec<Vec<f32>> = layer
+                .parts
+                .iter()
+                .map(|&k| random(rows * k, &mut rng))
+                .collect();
+            let inputs: Vec<&[f32]> = xs.iter().map(|x| x.as_slice()).collect();
+            let mut out = vec![0.0; rows * layer.out];
+            layer.forward(&params, &inputs, &mut out);
+            let want = reference(&layer, &params, &inputs, rows);
+            for (a, b) in out.iter().zip(&want) {
+                assert!((*a as f64 - b).abs() < 1e-5, "{layer:?}: {a} vs {b}");
+            }
+        }
+    }
+
+    /// The loss `Σ c ⊙ out` for fixed random `c`, in f64.
+    fn loss(layer: &Dense, params: &[f32], inputs: &[&[f32]], c: &[f32], rows: usize) -> f64 {
+        reference(layer, params, inputs, rows)
+            .iter()
+            .zip(c)
+            .map(|(o, c)| o * *c as f64)
+            .sum()
+    }
+
+    #[test]
+    fn backward_matches_finite_differences() {
+        let mut rng = SplitMix64::new(2);
+        for layer in layers() {
+            // Few rows for ReLU, so that most columns keep clear of the kink.
+            let rows = if layer.act == Activation::Relu { 6 } else { 300 };
+            let mut params = vec![0.0; layer.end()];
+            layer.init(&mut params, &mut rng);
+            let mut xs: Vec<Vec<f32>> = layer
+                .parts
+                .iter()
+                .map(|&k| random(rows * k, &mut rng))
+                .collect();
+            let c = random(rows * layer.out, &mut rng);
+            let inputs: Vec<&[f32]> = xs.iter().map(|x| x.as_slice()).collect();
+            let mut out = vec![0.0; rows * layer.out];
+            layer.forward(&params, &inputs, &mut out);
+            // Pre-activations, for the kink test below.
+            let pre: Vec<f32> = reference(
+                &Dense {
+                    act: Activation::Identity,
+                    ..layer.clone()
+                },
+                &params,
+                &inputs,
+                rows,
+            )
+            .iter()
+            .map(|&z| z as f32)
+            .collect();
+            let mut d_out = c.clone();
+            let mut dxs: Vec<Vec<f32>> = xs.iter().map(|x| vec![0.5; x.len()]).collect();
+            let mut grad = vec![0.25; params.len()];
+            {
+                let mut d_in: Vec<Option<&mut [f32]>> =
+                    dxs.iter_mut().map(|d| Some(d.as_mut_slice())).collect();
+                layer.backward(
+                    &params, &inputs, &out, &mut d_out, &mut d_in, true, &mut grad,
+                );
+            }
+            let h = 1e-3f32;
+            // A ReLU's kink inside ±h makes the difference quotient
+            // meaningless: skip entries whose pre-activations come that
+            // close to 0 (they are few; the rest must match).
+            let n = layer.out;
+            let fan_in = layer.fan_in();
+            let margin = |zs: Vec<f32>, scale: f32| {
+                layer.act != Activation::Relu || zs.iter().all(|z| z.abs() > 4.0 * h * scale)
+            };
+            let max_x = xs.iter().flatten().fold(0f32, |m, v| m.max(v.abs())) + 1.0;
+            let max_w = params.iter().fold(0f32, |m, v| m.max(v.abs()));
+            let mut checked = 0;
+            // Every parameter of this layer (those before its offset untouched).
+            for i in 0..params.len() {
+                if i >= layer.offset {
+                    let col = if i < layer.offset + fan_in * n {
+                        (i - layer.offset) % n
+                    } else {
+                        i - layer.offset - fan_in * n
+                    };
+                    if !margin((0..rows).map(|r| pre[r * n + col]).collect(), max_x) {
+                        continue;
+                    }
+                }
+                checked += 1;
+                let fd = {
+                    let mut p = params.clone();
+                    p[i] += h;
+                    let up = loss(&layer, &p, &inputs, &c, rows);
+                    p[i] -= 2.0 * h;
+                    let down = loss(&layer, &p, &inputs, &c, rows);
+                    (up - down) / (2.0 * h as f64)
+                };
+                let got = grad[i] as f64 - 0.25;
+                assert!(
+                    (got - fd).abs() < 2e-3 * (1.0 + fd.abs()),
+                    "{layer:?} param {i}: {got} vs {fd}"
+                );
+            }
+            assert!(
+                checked * 10 > params.len() * 8,
+                "{layer:?}: {checked} of {}",
+                params.len()
+            );
+            // A sample of input entries, accumulated onto 0.5.
+            for p in 0..xs.len() {
+                let k = layer.parts[p];
+                for i in (0..xs[p].len()).step_by(37) {
+                    let r = i / k;
+                    if !margin((0..n).map(|j| pre[r * n + j]).collect(), max_w * fan_in as f32) {
+                        continue;
+                    }
+                    let orig = xs[p][i];
+                    xs[p][i] = orig + h;
+                    let up = loss(
+                        &layer,
+                        &params,
+                        &xs.iter().map(|x| x.as_slice()).collect::<Vec<_>>(),
+                        &c,
+                        rows,
+                    );
+                    xs[p][i] = orig - h;
+                    let down = loss(
+                        &layer,
+                        &params,
+                        &xs.iter().map(|x| x.as_slice()).collect::<Vec<_>>(),
+                        &c,
+                        rows,
+                    );
+                    xs[p][i] = orig;
+                    let fd = (up - down) / (2.0 * h as f64);
+                    let got = dxs[p][i] as f64 - 0.5;
+                    assert!(
+                        (got - fd).abs() < 2e-3 * (1.0 + fd.abs()),
+                        "{layer:?} x{p}[{i}]: {got} vs {fd}"
+                    );
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn backward_is_identical_at_any_thread_count() {
+        let layer = Dense::new(&[40, 8], 24, Activation::Relu, 0);
+        let rows = 3000;
+        let mut rng = SplitMix64::new(3);
+        let mut params = vec![0.0; layer.end()];
+        layer.init(&mut params, &mut rng);
+        let xs: Vec<Vec<f32>> = layer
+            .parts
+            .iter()
+            .map(|&k| random(rows * k, &mut rng))
+            .collect();
+        let c = random(rows * layer.out, &mut rng);
+        let run = |threads: usize| {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap();
+            pool.install(|| {
+                let inputs: Vec<&[f32]> = xs.iter().map(|x| x.as_slice()).collect();
+                let mut out = vec![0.0; rows * layer.out];
+                layer.forward(&params, &inputs, &mut out);
+                let mut d_out = c.clone();
+                let mut dx = vec![0.0; rows * 40];
+                let mut grad = vec![0.0; params.len()];
+                let mut d_in = vec![Some(dx.as_mut_slice()), None];
+                layer.backward(
+                    &params, &inputs, &out, &mut d_out, &mut d_in, false, &mut grad,
+                );
+                (out, dx, grad)
+            })
+        };
+        assert_eq!(run(1), run(3));
+    }
+
+    #[test]
+    fn activations_are_finite_at_extremes() {
+        for z in [-1e30f32, -100.0, -1e-30, 0.0, 1e-30, 100.0, 1e30] {
+            for act in [
+                Activation::Relu,
+                Activation::Sigmoid,
+                Activation::Softplus { beta: 100.0 },
+            ] {
+                let y = act.apply(z);
+                let s = act.slope(y);
+                assert!(y.is_finite() && s.is_finite(), "{act:?} at {z}: {y}, {s}");
+                assert!((0.0..=1.0).contains(&s));
+            }
+        }
+        assert_eq!(sigmoid(-1e30), 0.0);
+        assert_eq!(sigmoid(1e30), 1.0);
+        assert!((softplus(0.0, 100.0) - std::f32::consts::LN_2 / 100.0).abs() < 1e-9);
+    }
+
+    #[test]
+    fn init_is_pytorchs_bound_and_seeded() {
+        let layer = Dense::new(&[100], 50, Activation::Relu, 0);
+        let mut a = vec![0.0; layer.end()];
+        let mut b = vec![0.0; layer.end()];
+        layer.init(&mut a, &mut SplitMix64::new(9));
+        layer.init(&mut b, &mut SplitMix64::new(9));
+        assert_eq!(a, b);
+        assert!(a.iter().all(|v| v.abs() <= 0.1));
+        assert!(a.iter().any(|v| v.abs() > 0.09));
+    }
+}

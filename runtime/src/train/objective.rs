@@ -1,0 +1,105 @@
+//! What the trainer fits: any model whose parameters are named tensors in
+//! one flat vector, with a loss and its exact gradient on a batch of rays.
+//! The loop ([`super::Run`]), Adam, checkpoints and resumption are written
+//! once over this trait; analytic fields and neural fields implement it.
+
+use dfdx::tensor::Cache;
+use sdfl_stdlib::value::Backend;
+
+use super::fused::{loss_and_grad, Batch};
+use super::model::TrainModel;
+use super::TrainError;
+
+/// One named tensor of a model's flat parameter vector.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TensorSpec {
+    pub name: String,
+    pub offset: usize,
+    pub len: usize,
+}
+
+/// A trainable model.
+pub trait Objective {
+    /// The tensors, in order, covering the flat vector.
+    fn tensors(&self) -> Vec<TensorSpec>;
+    /// The starting values.
+    fn initial(&self) -> Vec<f32>;
+    /// The weighted loss of `batch` at `values`; `grad` (zeroed, as long as
+    /// `values`) receives its gradient. Must be a function of its inputs
+    /// only (no state that changes results between calls), so that
+    /// resumed runs are the same run.
+    fn loss_and_grad(
+        &mut self,
+        values: &[f32],
+        batch: &Batch,
+        weight: f64,
+        grad: &mut [f32],
+    ) -> Result<f64, TrainError>;
+    /// Puts values back into their ranges after a step.
+    fn project(&self, _values: &mut [f32]) {}
+}
+
+/// An analytic field's `param(...)` arguments, fitted through the fused
+/// kernel or the dfdx graph.
+pub struct FieldObjective<'m> {
+    pub model: &'m TrainModel,
+    pub backend: Backend,
+    dev: dfdx::prelude::Cpu,
+}
+
+impl<'m> FieldObjective<'m> {
+    pub fn new(model: &'m TrainModel, backend: Backend) -> Self {
+        let dev = dfdx::prelude::Cpu::default();
+        dev.enable_cache();
+        FieldObjective {
+            model,
+            backend,
+            dev,
+        }
+    }
+}
+
+impl Objective for FieldObjective<'_> {
+    fn tensors(&self) -> Vec<TensorSpec> {
+        self.model
+            .params
+            .iter()
+            .map(|p| TensorSpec {
+                name: p.name.clone(),
+                offset: p.offset,
+                len: p.len,
+            })
+            .collect()
+    }
+
+    fn initial(&self) -> Vec<f32> {
+        self.model
+            .initial_values()
+            .iter()
+            .map(|&x| x as f32)
+            .collect()
+    }
+
+    fn loss_and_grad(
+        &mut self,
+        values: &[f32],
+        batch: &Batch,
+        weight: f64,
+        grad: &mut [f32],
+    ) -> Result<f64, TrainError> {
+        let lg = match self.backend {
+            Backend::Fused => loss_and_grad::<f32>(self.model, values, batch, weight),
+            Backend::Dfdx => {
+                super::graph::loss_and_grad(&self.dev, self.model, values, batch, weight)?
+            }
+        };
+        for (g, v) in grad.iter_mut().zip(&lg.grad) {
+            *g = *v as f32;
+        }
+        Ok(lg.loss)
+    }
+
+    fn project(&self, values: &mut [f32]) {
+        self.model.project(values);
+    }
+}
