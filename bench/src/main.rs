@@ -7,7 +7,7 @@
 //! naive min-union against BVH-culled, and the same expression evaluated by
 //! the fidget crate's JIT in the same run; it prints a Markdown table.
 //! `cargo run --release -p sdfl-bench -- train` times training steps instead
-//! (see `train.rs`).
+//! (see `train.rs`); `-- nerf` times NeRF steps (see `nerf.rs`).
 
 use std::time::Instant;
 
@@ -21,6 +21,7 @@ use sdfl_stdlib::RenderJob;
 use std::sync::Arc;
 
 mod peer;
+mod nerf;
 mod train;
 
 /// Deterministic uniform numbers in [0, 1).
@@ -122,6 +123,13 @@ fn main() {
             .and_then(|r| r.parse().ok())
             .unwrap_or(20);
         return train::main(reps);
+    }
+    if std::env::args().nth(1).as_deref() == Some("nerf") {
+        let reps = std::env::args()
+            .nth(2)
+            .and_then(|r| r.parse().ok())
+            .unwrap_or(10);
+        return nerf::main(reps);
     }
     let sizes: Vec<usize> = std::env::args()
         .nth(1)

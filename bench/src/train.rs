@@ -34,7 +34,7 @@ train torus_fit {
 "#;
 
 /// A benchmark scene's training job and its views.
-fn prepare(src: &str) -> (TrainJob, Vec<TrainView>) {
+pub(crate) fn prepare(src: &str) -> (TrainJob, Vec<TrainView>) {
     let program = sdfl_stdlib::load(&SourceFile::new("bench.sdfl", src)).expect("bench scene");
     let job = program.trains[0].clone();
     let views = load_views(&job.data, std::path::Path::new(".")).expect("views");

@@ -17,7 +17,7 @@ use serde::Serialize;
 
 use crate::data::npy::RgbImage;
 use crate::neural::field::{render_nerf_view, NerfObjective};
-use crate::neural::nerf::NerfNet;
+use crate::neural::nerf::{NerfNet, NerfWork};
 use crate::output::{to_u8, write_png};
 use crate::render::{view_path, Gifs, Written};
 use crate::sdf::{LowerOptions, Lowered};
@@ -382,9 +382,15 @@ const CHECKPOINT_EVERY: usize = 100;
 pub fn step_memory(job: &TrainJob) -> u64 {
     let (rays, samples) = (job.rays as u64, job.sampler.samples as u64);
     let jitter = if job.sampler.jitter { 4 * samples } else { 0 };
-    let graph = match job.backend {
-        Backend::Fused => 0,
-        Backend::Dfdx => {
+    let graph = match (&*job.model, job.backend) {
+        // Every layer's activations and two adjoint buffers per sample,
+        // the sample points, and the optimiser's copies of the weights.
+        (Field::Nerf(n), _) => {
+            let net = NerfNet::new(n);
+            NerfWork::bytes_for(&net, (rays * samples) as usize) + rays * samples * 40 + 24 * net.len as u64
+        }
+        (Field::Sdf(_), Backend::Fused) => 0,
+        (Field::Sdf(_), Backend::Dfdx) => {
             rays * samples * crate::train::graph::BYTES_PER_SAMPLE + 4 * samples * samples
         }
     };
@@ -454,7 +460,7 @@ pub fn run_train_job(
     let have = available_memory();
     if need > have / 2 {
         return Err(invalid(format!(
-            "training `{}` would hold about {:.1} GiB per step ({} rays × {} samples), more than half of the {:.1} GiB available: use fewer `rays`, fewer samples, no jitter, or the fused backend",
+            "training `{}` would hold about {:.1} GiB per step ({} rays × {} samples), more than half of the {:.1} GiB available: use fewer `rays` or samples (or, for an analytic field, no jitter or the fused backend)",
             job.name,
             need as f64 / (1u64 << 30) as f64,
             job.rays,

@@ -1,0 +1,92 @@
+//! NeRF step benchmark: `cargo run --release -p sdfl-bench -- nerf [reps]`.
+//!
+//! One optimiser step of `nerf()` with its defaults (the network
+//! `bench/pytorch/nerf_bench.py` builds in PyTorch): 1024 random rays × 64
+//! samples on [2, 6], compositing, MSE, backward, Adam, through the real
+//! training loop (`Run` over a `TrainSetup`). Prints the step's GFLOP/s
+//! (3 × 2 × multiply-adds per sample × samples) and this machine's dense
+//! throughput through the same layer kernel (65536 × 128 × 128), at 1 thread
+//! and at all threads.
+
+use std::time::Instant;
+
+use sdfl_runtime::neural::field::NerfObjective;
+use sdfl_runtime::neural::mlp::{Activation, Dense};
+use sdfl_runtime::train::{Run, TrainSetup};
+use sdfl_runtime::volume::SplitMix64;
+use sdfl_stdlib::value::Field;
+
+const SCENE: &str = r#"
+let sampler = stratified(samples: 64, near: 2, far: 6)
+let cameras = orbit(radius: 4, up: [0, 0, 1], focal: 2, views: 16)
+train nerf_step {
+  model: nerf(),
+  data: render_views(volsdf(sphere(radius: 1)), cameras: cameras, size: [64, 64], sampler: sampler),
+  sampler: sampler, rays: 1024, optimizer: adam(lr: 5e-4),
+}
+"#;
+
+fn median_min(mut ms: Vec<f64>) -> (f64, f64) {
+    ms.sort_by(f64::total_cmp);
+    (ms[ms.len() / 2], ms[0])
+}
+
+/// GFLOP/s of a 65536 × 128 × 128 product through [`Dense::forward`].
+fn dense_throughput(reps: usize) -> f64 {
+    let (rows, k, n) = (65536, 128, 128);
+    let layer = Dense::new(&[k], n, Activation::Identity, 0);
+    let mut params = vec![0.0; layer.end()];
+    layer.init(&mut params, &mut SplitMix64::new(1));
+    let mut rng = SplitMix64::new(2);
+    let x: Vec<f32> = (0..rows * k).map(|_| rng.next_f32()).collect();
+    let mut y = vec![0.0; rows * n];
+    layer.forward(&params, &[&x], &mut y);
+    let ms: Vec<f64> = (0..reps.max(5) * 2)
+        .map(|_| {
+            let t = Instant::now();
+            layer.forward(&params, &[&x], &mut y);
+            t.elapsed().as_secs_f64() * 1e3
+        })
+        .collect();
+    let (med, _) = median_min(ms);
+    2.0 * (rows * k * n) as f64 / (med * 1e-3) / 1e9
+}
+
+pub fn main(reps: usize) {
+    let (job, views) = crate::train::prepare(SCENE);
+    let Field::Nerf(spec) = &*job.model else {
+        panic!("not a nerf")
+    };
+    let setup = TrainSetup::of(&job, &views);
+    let macs = sdfl_runtime::neural::nerf::NerfNet::new(spec).multiply_adds();
+    let flop = 3.0 * 2.0 * macs as f64 * 1024.0 * 64.0;
+    println!("| implementation | threads | step ms (median) | step ms (min) | step GFLOP/s | dense GFLOP/s | step / dense |");
+    println!("|---|---:|---:|---:|---:|---:|---:|");
+    let all = rayon::current_num_threads();
+    for threads in [1, all] {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .expect("thread pool");
+        pool.install(|| {
+            let gemm = dense_throughput(reps);
+            let mut run = Run::of(Box::new(NerfObjective::new(spec)), 5e-4).expect("run");
+            for _ in 0..2 {
+                run.advance(&setup).expect("step");
+            }
+            let ms: Vec<f64> = (0..reps)
+                .map(|_| {
+                    let t = Instant::now();
+                    run.advance(&setup).expect("step");
+                    t.elapsed().as_secs_f64() * 1e3
+                })
+                .collect();
+            let (med, min) = median_min(ms);
+            let gflops = flop / (med * 1e-3) / 1e9;
+            println!(
+                "| sdfl (fused layers) | {threads} | {med:.1} | {min:.1} | {gflops:.1} | {gemm:.1} | {:.0}% |",
+                100.0 * gflops / gemm
+            );
+        });
+    }
+}
