@@ -24,6 +24,7 @@ use crate::sdf::{LowerOptions, Lowered};
 use crate::train::checkpoint::{Checkpoint, Fnv};
 use crate::train::fused::field_at;
 use crate::train::{FieldObjective, Objective, Run, TrainError, TrainModel, TrainSetup, TrainView};
+use crate::metrics;
 use crate::volume::figures;
 use crate::volume::render::{render_field_image_with, DensityModel};
 use crate::volume::{ImageSize, Stratified};
@@ -220,6 +221,8 @@ pub fn write_volume_outputs(
             let (kind, rgb, (pw, ph)) = match o.kind {
                 OutputKind::Gif { .. }
                 | OutputKind::LossCurve
+                | OutputKind::PsnrCurve
+                | OutputKind::Comparison
                 | OutputKind::Normals
                 | OutputKind::Mask => continue,
                 OutputKind::Image => ("image", rgb8(&colour), (w, h)),
@@ -299,8 +302,47 @@ pub struct TrainReport {
     /// Weights of a neural field.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub network_weights: Option<usize>,
+    /// Held-out quality during and after training (empty without test views).
+    pub held_out: Vec<HeldOut>,
     pub written: Vec<Written>,
     pub stages: Vec<(String, f64)>,
+}
+
+/// Quality on the held-out views at a step.
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct HeldOut {
+    pub step: usize,
+    /// Seconds of training so far (evaluation excluded).
+    pub seconds: f64,
+    /// Mean over the views of each view's PSNR (dB).
+    pub psnr: f64,
+    pub ssim: f64,
+}
+
+/// Each held-out view as a row: truth | render | |error|×4.
+fn comparison_image(views: &[TrainView], renders: &[Vec<[f32; 3]>]) -> (u32, u32, Vec<u8>) {
+    let w = views.iter().map(|v| v.image.width).max().unwrap_or(1);
+    let h: u32 = views.iter().map(|v| v.image.height).sum::<u32>().max(1);
+    let mut out = vec![0u8; (3 * w * h * 3) as usize];
+    let mut y0 = 0;
+    for (v, r) in views.iter().zip(renders) {
+        let (vw, vh) = (v.image.width, v.image.height);
+        for y in 0..vh {
+            for x in 0..vw {
+                let i = (y * vw + x) as usize;
+                let (t, c) = (v.image.pixels[i], r[i]);
+                let err = [0, 1, 2].map(|k| (4.0 * (t[k] - c[k]).abs()).min(1.0));
+                for (panel, px) in [t, c, err].iter().enumerate() {
+                    let o = 3 * (((y0 + y) * 3 * w) + panel as u32 * w + x) as usize;
+                    for k in 0..3 {
+                        out[o + k] = to_u8(px[k] as f64);
+                    }
+                }
+            }
+        }
+        y0 += vh;
+    }
+    (3 * w, h, out)
 }
 
 fn load_image(path: &Path) -> io::Result<RgbImage> {
@@ -471,6 +513,7 @@ pub fn run_train_job(
 
     let t = Instant::now();
     let views = load_views(&job.data, base)?;
+    let test_views: Vec<TrainView> = Vec::new();
     stages.push(("load data".to_string(), t.elapsed().as_secs_f64()));
 
     // The analytic model outlives the run that borrows it.
@@ -524,28 +567,35 @@ pub fn run_train_job(
     }
 
     let strat = stratified(&job.sampler)?;
+    // One view of the model at `values`, however it is defined.
+    let render_view = |values: &[f32], cam: &Camera, wh: (u32, u32), want_depth: bool| match (
+        &*job.model,
+        &analytic,
+    ) {
+        (Field::Nerf(n), _) => {
+            let bg = n.background.map(|x| x as f32);
+            nerf_view(&NerfNet::new(n), values, bg, &strat, &job.sampler, cam, wh)
+        }
+        (Field::Sdf(f), Some(model)) => {
+            let args = model.plain(values);
+            let density = DensityModel {
+                kind: f.density,
+                alpha: args.scalar(&f.alpha).v,
+                beta: args.scalar(&f.beta).v,
+                last_interval: job.sampler.last_interval,
+            };
+            let eval = |p: [f32; 3]| {
+                let q = V3::from_array(p.map(Dual::constant));
+                let (d, c) = field_at(model, &args, q);
+                (d.v, [c.x.v, c.y.v, c.z.v])
+            };
+            render_field(&eval, density, &strat, cam, wh, want_depth)
+        }
+        (Field::Sdf(_), None) => unreachable!("an analytic field has a model"),
+    };
     let render_at = |values: &[f32], outputs: &[Output]| -> io::Result<Vec<Written>> {
-        let view = |cam: &Camera, wh: (u32, u32), want_depth: bool| match (&*job.model, &analytic) {
-            (Field::Nerf(n), _) => {
-                let bg = n.background.map(|x| x as f32);
-                nerf_view(&NerfNet::new(n), values, bg, &strat, &job.sampler, cam, wh)
-            }
-            (Field::Sdf(f), Some(model)) => {
-                let args = model.plain(values);
-                let density = DensityModel {
-                    kind: f.density,
-                    alpha: args.scalar(&f.alpha).v,
-                    beta: args.scalar(&f.beta).v,
-                    last_interval: job.sampler.last_interval,
-                };
-                let eval = |p: [f32; 3]| {
-                    let q = V3::from_array(p.map(Dual::constant));
-                    let (d, c) = field_at(model, &args, q);
-                    (d.v, [c.x.v, c.y.v, c.z.v])
-                };
-                render_field(&eval, density, &strat, cam, wh, want_depth)
-            }
-            (Field::Sdf(_), None) => unreachable!("an analytic field has a model"),
+        let view = |cam: &Camera, wh: (u32, u32), want_depth: bool| {
+            render_view(values, cam, wh, want_depth)
         };
         let r = write_volume_outputs(
             &job.name,
@@ -559,6 +609,19 @@ pub fn run_train_job(
         )?;
         Ok(r.written)
     };
+    // The held-out views rendered at `values`, with their mean PSNR and SSIM.
+    let evaluate = |values: &[f32]| -> io::Result<(f64, f64, Vec<Vec<[f32; 3]>>)> {
+        let (mut psnr, mut ssim, mut renders) = (0.0, 0.0, Vec::new());
+        for v in &test_views {
+            let (w, h) = (v.image.width, v.image.height);
+            let (colour, _) = render_view(values, &v.camera, (w, h), false)?;
+            psnr += metrics::psnr(&colour, &v.image.pixels);
+            ssim += metrics::ssim(&colour, &v.image.pixels, w as usize, h as usize);
+            renders.push(colour);
+        }
+        let n = test_views.len().max(1) as f64;
+        Ok((psnr / n, ssim / n, renders))
+    };
     if !job.before.is_empty() {
         written.extend(render_at(&run.values(), &job.before)?);
     }
@@ -567,11 +630,33 @@ pub fn run_train_job(
     let done_before = run.step;
     let mut last_good = run.checkpoint(fp.clone());
     let mut io_error = None;
+    let mut held_out: Vec<HeldOut> = Vec::new();
+    // Seconds spent evaluating, left out of the training time.
+    let mut eval_s = 0.0;
     let result = run.run_to(&setup, steps, |r, loss| {
         progress(1);
+        if job.eval_every > 0 && !test_views.is_empty() && r.step % job.eval_every == 0 {
+            let te = Instant::now();
+            match evaluate(&r.values()) {
+                Ok((psnr, ssim, _)) => held_out.push(HeldOut {
+                    step: r.step,
+                    seconds: t.elapsed().as_secs_f64() - eval_s,
+                    psnr,
+                    ssim,
+                }),
+                Err(e) => {
+                    io_error = Some(e);
+                    return ControlFlow::Break(());
+                }
+            }
+            eval_s += te.elapsed().as_secs_f64();
+        }
         if r.step % 10 == 0 {
             // The same names as the report, the JSON and the checkpoint.
             let mut line = format!("{} loss {loss:.3e}", job.name);
+            if let Some(h) = held_out.last() {
+                line += &format!("  held-out PSNR {:.2} dB (step {})", h.psnr, h.step);
+            }
             let shown = if analytic.is_some() { 4 } else { 0 };
             for (name, v) in r.named_values().iter().take(shown) {
                 let v: Vec<String> = v.iter().map(|x| format!("{x:.3}")).collect();
@@ -588,8 +673,11 @@ pub fn run_train_job(
         }
         ControlFlow::Continue(())
     });
-    let train_s = t.elapsed().as_secs_f64();
+    let train_s = t.elapsed().as_secs_f64() - eval_s;
     stages.push(("train".to_string(), train_s));
+    if eval_s > 0.0 {
+        stages.push(("held-out evaluation".to_string(), eval_s));
+    }
     if let Some(e) = io_error {
         return Err(e);
     }
@@ -646,6 +734,47 @@ pub fn run_train_job(
             frames: 1,
         });
     }
+    if !test_views.is_empty() {
+        let values = run.values();
+        let (psnr, ssim, renders) = evaluate(&values)?;
+        if held_out.last().map(|h| h.step) != Some(run.step) {
+            held_out.push(HeldOut {
+                step: run.step,
+                seconds: train_s,
+                psnr,
+                ssim,
+            });
+        }
+        for o in &job.after {
+            let (pw, ph, rgb) = match o.kind {
+                OutputKind::PsnrCurve => {
+                    let pts: Vec<(f64, f64)> =
+                        held_out.iter().map(|h| (h.seconds, h.psnr)).collect();
+                    let (pw, ph) = (512, 320);
+                    (pw, ph, figures::line_plot(pw, ph, &[("held-out PSNR (dB) vs s", &pts)], false))
+                }
+                OutputKind::Comparison => comparison_image(&test_views, &renders),
+                _ => continue,
+            };
+            write_png(&out_dir.join(&o.path), pw, ph, &rgb)?;
+            written.push(Written {
+                path: o.path.clone(),
+                kind: sdfl_stdlib::outputs::kind_name(&o.kind),
+                width: pw,
+                height: ph,
+                frames: 1,
+            });
+        }
+    } else if let Some(o) = job
+        .after
+        .iter()
+        .find(|o| matches!(o.kind, OutputKind::PsnrCurve | OutputKind::Comparison))
+    {
+        return Err(invalid(format!(
+            "`{}` needs held-out views: give the data set `test_views`",
+            o.path.display()
+        )));
+    }
     stages.push(("outputs".to_string(), t.elapsed().as_secs_f64()));
     let steps_run = (run.step - done_before).max(1);
     Ok(TrainReport {
@@ -660,6 +789,7 @@ pub fn run_train_job(
             Vec::new()
         },
         network_weights: analytic.is_none().then(|| run.values().len()),
+        held_out,
         written,
         stages,
     })

@@ -46,7 +46,9 @@ impl Plan {
                 OutputKind::Grid
                 | OutputKind::Rays
                 | OutputKind::SamplePoints
-                | OutputKind::LossCurve => {}
+                | OutputKind::LossCurve
+                | OutputKind::PsnrCurve
+                | OutputKind::Comparison => {}
             }
         }
         plan.shading_normals = !plan.color.is_empty()
@@ -375,7 +377,9 @@ pub fn run_job(
                 OutputKind::Grid
                 | OutputKind::Rays
                 | OutputKind::SamplePoints
-                | OutputKind::LossCurve => continue,
+                | OutputKind::LossCurve
+                | OutputKind::PsnrCurve
+                | OutputKind::Comparison => continue,
             };
             // The camera checks are written once, for the first view.
             let rel = if matches!(o.kind, OutputKind::Grid | OutputKind::Rays) {

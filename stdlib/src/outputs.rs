@@ -55,15 +55,10 @@ pub fn per_view(kind: &OutputKind) -> bool {
 /// (evaluation refuses the others, so this only mirrors it).
 fn written_by(kind: &OutputKind, job: JobKind) -> bool {
     match job {
-        JobKind::Render => !matches!(kind, OutputKind::SamplePoints | OutputKind::LossCurve),
-        JobKind::Volume => !matches!(
-            kind,
-            OutputKind::LossCurve | OutputKind::Normals | OutputKind::Mask
-        ),
-        JobKind::TrainBefore => !matches!(
-            kind,
-            OutputKind::LossCurve | OutputKind::Normals | OutputKind::Mask
-        ),
+        JobKind::Render => !matches!(kind, OutputKind::SamplePoints) && !kind.training_only(),
+        JobKind::Volume | JobKind::TrainBefore => {
+            !matches!(kind, OutputKind::Normals | OutputKind::Mask) && !kind.training_only()
+        }
         JobKind::TrainAfter => !matches!(kind, OutputKind::Normals | OutputKind::Mask),
     }
 }
@@ -96,6 +91,8 @@ pub fn kind_name(kind: &OutputKind) -> &'static str {
         OutputKind::Rays => "rays",
         OutputKind::SamplePoints => "sample_points",
         OutputKind::LossCurve => "loss_curve",
+        OutputKind::PsnrCurve => "psnr_curve",
+        OutputKind::Comparison => "comparison",
     }
 }
 

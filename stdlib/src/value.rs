@@ -110,6 +110,20 @@ pub enum OutputKind {
     SamplePoints,
     /// The loss curve of a training run.
     LossCurve,
+    /// Held-out PSNR of a training run against seconds.
+    PsnrCurve,
+    /// Each held-out view: truth | render | error, stacked.
+    Comparison,
+}
+
+impl OutputKind {
+    /// Whether only a finished training run can write it.
+    pub fn training_only(&self) -> bool {
+        matches!(
+            self,
+            OutputKind::LossCurve | OutputKind::PsnrCurve | OutputKind::Comparison
+        )
+    }
 }
 
 /// A requested output file, relative to the output directory.
@@ -429,6 +443,8 @@ pub struct TrainJob {
     pub after: Vec<Output>,
     /// Where to keep a resumable checkpoint (relative to the output dir).
     pub checkpoint: Option<std::path::PathBuf>,
+    /// Steps between held-out evaluations (0: at the end only).
+    pub eval_every: usize,
 }
 
 /// Everything a scene file asks for, by kind, each in file order.

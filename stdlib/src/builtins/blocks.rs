@@ -76,7 +76,7 @@ pub(crate) fn render_block(name: &str, a: &Args) -> Result<RenderJob, Diag> {
     let outputs = outputs(a, "outputs", false)?;
     if let Some(o) = outputs
         .iter()
-        .find(|o| matches!(o.kind, OutputKind::SamplePoints | OutputKind::LossCurve))
+        .find(|o| o.kind == OutputKind::SamplePoints || o.kind.training_only())
     {
         return Err(value_error(
             a.get("outputs").1,
@@ -85,7 +85,7 @@ pub(crate) fn render_block(name: &str, a: &Args) -> Result<RenderJob, Diag> {
                 o.path.display()
             ),
             "not a sphere-tracing output",
-            "sample points exist for fields; loss curves for `train`",
+            "sample points exist for fields; loss curves, PSNR curves and comparisons for `train`",
         ));
     }
     let (width, height) = image_size(a, "size")?;
@@ -143,7 +143,8 @@ pub(crate) fn train_sig() -> BlockSig {
             opt("views", Type::OneOf(vec![CAMERA, Type::list(CAMERA)]), "orbit()", "cameras of the before/after outputs"),
             opt("size", Type::list(Type::Number), "[128, 128]", "size of the before/after outputs"),
             opt("before", Type::list(OUTPUT), "[]", "outputs rendered from the starting model"),
-            opt("after", Type::list(OUTPUT), "[]", "outputs rendered from the trained model (and `loss_curve`)"),
+            opt("after", Type::list(OUTPUT), "[]", "outputs rendered from the trained model, and `loss_curve`, `psnr_curve` and `comparison` (the last two need held-out views)"),
+            opt("eval_every", Type::Number, "0", "steps between held-out evaluations (PSNR, SSIM on the data's test views; 0: at the end only)"),
             opt("checkpoint", Type::Str, "\"\"", "file (in the output directory) to keep a resumable checkpoint in (safetensors)"),
         ],
     }
@@ -256,6 +257,7 @@ pub(crate) fn train_block(name: &str, a: &Args) -> Result<TrainJob, Diag> {
         before,
         after,
         checkpoint,
+        eval_every: a.count("eval_every", 0, 10_000_000)? as usize,
     })
 }
 
@@ -269,12 +271,10 @@ pub(crate) fn volume_block(name: &str, a: &Args, field: Arc<Field>) -> Result<Vo
         ));
     };
     let outputs = outputs(a, "outputs", false)?;
-    if let Some(o) = outputs.iter().find(|o| {
-        matches!(
-            o.kind,
-            OutputKind::Normals | OutputKind::Mask | OutputKind::LossCurve
-        )
-    }) {
+    if let Some(o) = outputs
+        .iter()
+        .find(|o| matches!(o.kind, OutputKind::Normals | OutputKind::Mask) || o.kind.training_only())
+    {
         return Err(value_error(
             a.get("outputs").1,
             format!("`{}` cannot be made by volume rendering", o.path.display()),

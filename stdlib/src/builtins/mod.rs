@@ -807,6 +807,8 @@ fn table() -> Vec<Builtin> {
         output("rays_image", "The assignment's ray-direction visual check as PNG (|direction| as RGB).", |a| out(a, OutputKind::Rays, "png")),
         output("sample_points", "The sample points along the first camera's rays, seen from the side, as PNG.", |a| out(a, OutputKind::SamplePoints, "png")),
         output("loss_curve", "The training loss per iteration as a PNG plot.", |a| out(a, OutputKind::LossCurve, "png")),
+        output("psnr_curve", "Held-out PSNR of a training run against seconds of training, as a PNG plot (needs test views).", |a| out(a, OutputKind::PsnrCurve, "png")),
+        output("comparison", "Every held-out view after training: truth | render | error (×4), one row each, as a PNG (needs test views).", |a| out(a, OutputKind::Comparison, "png")),
         // ---- math
         math1("sin", "Sine (radians).", |a| finite(a.number("x")?.sin(), a, "sin")),
         math1("cos", "Cosine (radians).", |a| finite(a.number("x")?.cos(), a, "cos")),
