@@ -20,8 +20,8 @@ use sdfl_stdlib::shape::Shape;
 use sdfl_stdlib::RenderJob;
 use std::sync::Arc;
 
-mod peer;
 mod nerf;
+mod peer;
 mod train;
 
 /// Deterministic uniform numbers in [0, 1).

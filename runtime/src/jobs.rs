@@ -16,6 +16,7 @@ use sdfl_stdlib::OutputKind;
 use serde::Serialize;
 
 use crate::data::npy::RgbImage;
+use crate::metrics;
 use crate::neural::field::{render_nerf_view, NerfObjective};
 use crate::neural::nerf::{NerfNet, NerfWork};
 use crate::output::{to_u8, write_png};
@@ -24,7 +25,6 @@ use crate::sdf::{LowerOptions, Lowered};
 use crate::train::checkpoint::{Checkpoint, Fnv};
 use crate::train::fused::field_at;
 use crate::train::{FieldObjective, Objective, Run, TrainError, TrainModel, TrainSetup, TrainView};
-use crate::metrics;
 use crate::volume::figures;
 use crate::volume::render::{render_field_image_with, DensityModel};
 use crate::volume::{ImageSize, Stratified};
@@ -429,7 +429,9 @@ pub fn step_memory(job: &TrainJob) -> u64 {
         // the sample points, and the optimiser's copies of the weights.
         (Field::Nerf(n), _) => {
             let net = NerfNet::new(n);
-            NerfWork::bytes_for(&net, (rays * samples) as usize) + rays * samples * 40 + 24 * net.len as u64
+            NerfWork::bytes_for(&net, (rays * samples) as usize)
+                + rays * samples * 40
+                + 24 * net.len as u64
         }
         (Field::Sdf(_), Backend::Fused) => 0,
         (Field::Sdf(_), Backend::Dfdx) => {
@@ -751,7 +753,11 @@ pub fn run_train_job(
                     let pts: Vec<(f64, f64)> =
                         held_out.iter().map(|h| (h.seconds, h.psnr)).collect();
                     let (pw, ph) = (512, 320);
-                    (pw, ph, figures::line_plot(pw, ph, &[("held-out PSNR (dB) vs s", &pts)], false))
+                    (
+                        pw,
+                        ph,
+                        figures::line_plot(pw, ph, &[("held-out PSNR (dB) vs s", &pts)], false),
+                    )
                 }
                 OutputKind::Comparison => comparison_image(&test_views, &renders),
                 _ => continue,

@@ -83,7 +83,10 @@ mod tests {
     use super::*;
 
     fn image(w: usize, h: usize, f: impl Fn(usize, usize) -> [f32; 3]) -> Vec<[f32; 3]> {
-        (0..h).flat_map(|y| (0..w).map(move |x| (x, y))).map(|(x, y)| f(x, y)).collect()
+        (0..h)
+            .flat_map(|y| (0..w).map(move |x| (x, y)))
+            .map(|(x, y)| f(x, y))
+            .collect()
     }
 
     #[test]
@@ -135,8 +138,20 @@ mod tests {
     #[test]
     fn ssim_matches_its_definition() {
         let (w, h) = (23, 17);
-        let a = image(w, h, |x, y| [((x * 7 + y * 3) % 11) as f32 / 10.0, (x as f32 / w as f32), 0.3]);
-        let b = image(w, h, |x, y| [((x * 5 + y * 3) % 11) as f32 / 10.0, (y as f32 / h as f32), 0.35]);
+        let a = image(w, h, |x, y| {
+            [
+                ((x * 7 + y * 3) % 11) as f32 / 10.0,
+                (x as f32 / w as f32),
+                0.3,
+            ]
+        });
+        let b = image(w, h, |x, y| {
+            [
+                ((x * 5 + y * 3) % 11) as f32 / 10.0,
+                (y as f32 / h as f32),
+                0.35,
+            ]
+        });
         assert!((ssim(&a, &a, w, h) - 1.0).abs() < 1e-9);
         let got = ssim(&a, &b, w, h);
         let want = ssim_reference(&a, &b, w, h);

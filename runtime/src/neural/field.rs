@@ -210,3 +210,91 @@ pub fn render_nerf_view(
     }
     Ok(view)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::neural::mlp::Activation;
+    use crate::volume::SplitMix64;
+    use sdfl_stdlib::value::{Encoding, Harmonic};
+
+    #[test]
+    fn objective_gradient_matches_finite_differences() {
+        let spec = Nerf {
+            position: Encoding::Harmonic(Harmonic {
+                freqs: 2,
+                include_input: true,
+            }),
+            direction: Some(Encoding::Harmonic(Harmonic {
+                freqs: 1,
+                include_input: true,
+            })),
+            layers: 3,
+            width: 12,
+            skips: vec![1],
+            color_width: 6,
+            background: [0.3, 0.6, 0.9],
+            seed: 4,
+        };
+        let mut obj = NerfObjective::new(&spec);
+        // Smooth activations so differences see no kinks; same wiring.
+        let smooth = Activation::Softplus { beta: 1.0 };
+        let net = &mut obj.net;
+        for d in net
+            .trunk
+            .iter_mut()
+            .chain([&mut net.density, &mut net.color_hidden])
+        {
+            d.act = smooth;
+        }
+        let mut rng = SplitMix64::new(8);
+        let rays: Vec<Ray> = (0..9)
+            .map(|k| Ray {
+                origin: [0.1 * k as f32, -0.2, -2.0],
+                dir: [0.1, 0.05 * k as f32, 1.0],
+                view: 0,
+                pixel: k,
+            })
+            .collect();
+        let samples = 7;
+        let depths: Vec<f32> = (0..rays.len() * samples)
+            .map(|i| 1.0 + 0.4 * (i % samples) as f32 + 0.1 * rng.next_f32())
+            .collect();
+        let batch = Batch {
+            targets: rays
+                .iter()
+                .map(|_| [rng.next_f32(), rng.next_f32(), rng.next_f32()])
+                .collect(),
+            rays,
+            depths,
+            samples,
+            shared: false,
+            last_interval: LastInterval::Zero,
+        };
+        let values = obj.initial();
+        let mut grad = vec![0.0; values.len()];
+        obj.loss_and_grad(&values, &batch, 2.0, &mut grad).unwrap();
+        let mut loss_at = |v: &[f32]| {
+            let mut g = vec![0.0; v.len()];
+            obj.loss_and_grad(v, &batch, 2.0, &mut g).unwrap()
+        };
+        let tensors = NerfObjective::new(&spec).tensors();
+        for t in &tensors {
+            for i in [t.offset, t.offset + t.len / 2, t.offset + t.len - 1] {
+                let h = 1e-2;
+                let mut v = values.clone();
+                v[i] += h;
+                let up = loss_at(&v);
+                v[i] -= 2.0 * h;
+                let down = loss_at(&v);
+                let fd = (up - down) / (2.0 * h as f64);
+                let got = grad[i] as f64;
+                assert!(
+                    (got - fd).abs() < 2e-2 * fd.abs().max(got.abs()) + 2e-5,
+                    "{} [{i}]: {got} vs {fd}",
+                    t.name
+                );
+            }
+        }
+    }
+}

@@ -404,7 +404,11 @@ mod tests {
         let mut rng = SplitMix64::new(2);
         for layer in layers() {
             // Few rows for ReLU, so that most columns keep clear of the kink.
-            let rows = if layer.act == Activation::Relu { 6 } else { 300 };
+            let rows = if layer.act == Activation::Relu {
+                6
+            } else {
+                300
+            };
             let mut params = vec![0.0; layer.end()];
             layer.init(&mut params, &mut rng);
             let mut xs: Vec<Vec<f32>> = layer
@@ -488,7 +492,10 @@ mod tests {
                 let k = layer.parts[p];
                 for i in (0..xs[p].len()).step_by(37) {
                     let r = i / k;
-                    if !margin((0..n).map(|j| pre[r * n + j]).collect(), max_w * fan_in as f32) {
+                    if !margin(
+                        (0..n).map(|j| pre[r * n + j]).collect(),
+                        max_w * fan_in as f32,
+                    ) {
                         continue;
                     }
                     let orig = xs[p][i];

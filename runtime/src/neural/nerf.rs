@@ -225,15 +225,8 @@ impl NerfNet {
                 grad,
             ),
         }
-        self.density.backward(
-            params,
-            &[h],
-            sigma,
-            d_sigma,
-            &mut [Some(d_a)],
-            true,
-            grad,
-        );
+        self.density
+            .backward(params, &[h], sigma, d_sigma, &mut [Some(d_a)], true, grad);
         // Down the trunk, ping-ponging the adjoint between d_a and d_b.
         for i in (0..self.trunk.len()).rev() {
             let d = &self.trunk[i];

@@ -271,10 +271,9 @@ pub(crate) fn volume_block(name: &str, a: &Args, field: Arc<Field>) -> Result<Vo
         ));
     };
     let outputs = outputs(a, "outputs", false)?;
-    if let Some(o) = outputs
-        .iter()
-        .find(|o| matches!(o.kind, OutputKind::Normals | OutputKind::Mask) || o.kind.training_only())
-    {
+    if let Some(o) = outputs.iter().find(|o| {
+        matches!(o.kind, OutputKind::Normals | OutputKind::Mask) || o.kind.training_only()
+    }) {
         return Err(value_error(
             a.get("outputs").1,
             format!("`{}` cannot be made by volume rendering", o.path.display()),
