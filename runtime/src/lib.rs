@@ -3,6 +3,7 @@
 
 pub mod data;
 pub mod jobs;
+pub mod neural;
 pub mod output;
 pub mod render;
 pub mod sdf;
