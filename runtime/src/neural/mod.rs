@@ -1,1 +1,2 @@
 pub mod hashgrid;
+pub mod occupancy;
