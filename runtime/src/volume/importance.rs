@@ -407,6 +407,38 @@ mod tests {
     }
 
     #[test]
+    fn throughput() {
+        let (rays, n, m) = (65536, 64, 128);
+        let mut rng = SplitMix64::new(4);
+        let (mut t, mut w) = (Vec::new(), Vec::new());
+        for _ in 0..rays {
+            let (a, b) = random_ray(&mut rng, n, false);
+            t.extend(a);
+            w.extend(b);
+        }
+        let mut fine = vec![0f32; rays * m];
+        let mut merged = vec![0f32; rays * (n + m)];
+        let best = |f: &mut dyn FnMut()| {
+            (0..5)
+                .map(|_| {
+                    let start = std::time::Instant::now();
+                    f();
+                    start.elapsed().as_secs_f64()
+                })
+                .fold(f64::INFINITY, f64::min)
+        };
+        let sample =
+            best(&mut || sample_pdf(&t, &w, n, m, Spacing::Jittered(1), &mut fine).unwrap());
+        let merge = best(&mut || merge_depths(&t, n, &fine, m, &mut merged).unwrap());
+        println!(
+            "importance sampling, {rays} rays, n={n} → m={m}, {} threads: sample_pdf {:.2} M rays/s, merge {:.2} M rays/s",
+            rayon::current_num_threads(),
+            rays as f64 / sample / 1e6,
+            rays as f64 / merge / 1e6
+        );
+    }
+
+    #[test]
     fn merge_is_the_sorted_union() {
         let mut rng = SplitMix64::new(8);
         let (rays, n, m) = (50, 9, 14);
