@@ -273,6 +273,7 @@ impl HashGrid {
     }
 
     #[inline(always)]
+    #[allow(clippy::manual_clamp)]
     fn normalise(&self, p: [f32; 3]) -> [f32; 3] {
         // `max` then `min`, not `clamp`: `max` maps NaN to 0.
         std::array::from_fn(|a| {

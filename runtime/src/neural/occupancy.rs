@@ -78,6 +78,9 @@ pub struct RaySamples {
     pub dt: Vec<f32>,
 }
 
+/// Densities at points, written into the second slice (one per point).
+pub type DensityFn<'a> = dyn FnMut(&[[f32; 3]], &mut [f32]) + 'a;
+
 /// Rays per parallel task of [`OccupancyGrid::march_rays`].
 const RAY_CHUNK: usize = 256;
 
@@ -244,7 +247,7 @@ impl OccupancyGrid {
         b[0] + nb * (b[1] + nb * b[2])
     }
     pub fn occupied_count(&self) -> usize {
-        (0..self.cells()).filter(|&c| self.is_occupied(c)).count()
+        self.blocks.iter().map(|&n| n as usize).sum()
     }
 
     /// The cell holding `p` (f32 arithmetic, the one test [`Self::march`]
@@ -269,12 +272,7 @@ impl OccupancyGrid {
     /// `ema = max(decay·ema, σ)` and its bit. NaN densities count as 0,
     /// +∞ as `f32::MAX`. The jitter comes from one draw of `rng`, so the
     /// result depends only on the grid, `step`, the draw and the densities.
-    pub fn update(
-        &mut self,
-        step: u64,
-        density: &mut dyn FnMut(&[[f32; 3]], &mut [f32]),
-        rng: &mut SplitMix64,
-    ) {
+    pub fn update(&mut self, step: u64, density: &mut DensityFn, rng: &mut SplitMix64) {
         let key = rng.next_u64();
         let (first, stride) = if step < self.cfg.warmup || self.cfg.subsets == 1 {
             (0, 1)
@@ -395,7 +393,9 @@ impl OccupancyGrid {
         step: f32,
         out: &mut RaySamples,
     ) -> Result<(), VolumeError> {
-        let parts: Vec<Result<(Vec<usize>, Vec<f32>), VolumeError>> = rays
+        // Per chunk: sample counts per ray and the depths.
+        type Part = Result<(Vec<usize>, Vec<f32>), VolumeError>;
+        let parts: Vec<Part> = rays
             .par_chunks(RAY_CHUNK)
             .map(|chunk| {
                 let (mut counts, mut all) = (Vec::with_capacity(chunk.len()), Vec::new());

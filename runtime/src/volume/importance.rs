@@ -85,21 +85,23 @@ fn sample_unchecked(t: &[f32], w: &[f32], mut rng: Option<&mut SplitMix64>, out:
     let bins = t.len() - 1;
     let mass = |k: usize| clean(w[k]) + WEIGHT_EPS;
     let total: f64 = (0..bins).map(mass).sum();
-    let m = out.len() as f64;
-    // Bin `j` holds cumulative mass `[below, below + mj)`.
+    let per_stratum = total / out.len() as f64;
+    // Bin `j` holds cumulative mass `[below, below + mj)`; mj ≥ ε > 0.
     let (mut j, mut below, mut mj) = (0, 0.0f64, mass(0));
+    let mut inv_mj = 1.0 / mj;
     for (i, o) in out.iter_mut().enumerate() {
         let xi = match rng.as_deref_mut() {
             Some(r) => r.next_f32() as f64,
             None => 0.5,
         };
-        let target = (i as f64 + xi) / m * total;
+        let target = (i as f64 + xi) * per_stratum;
         while j + 1 < bins && below + mj <= target {
             below += mj;
             j += 1;
             mj = mass(j);
+            inv_mj = 1.0 / mj;
         }
-        let frac = ((target - below) / mj).clamp(0.0, 1.0);
+        let frac = ((target - below) * inv_mj).clamp(0.0, 1.0);
         let (a, b) = (t[j] as f64, t[j + 1] as f64);
         // The clamp keeps rounding from crossing into the next bin, so the
         // output stays sorted.
@@ -147,9 +149,14 @@ pub fn sample_pdf(
 }
 
 /// Merges one ray's sorted `coarse` and `fine` depths into `out` (sorted;
-/// on ties the coarse depth comes first).
+/// on ties the coarse depth comes first). Panics unless `out` holds exactly
+/// both (a caller bug; [`merge_depths`] checks its sizes).
 pub fn merge_ray(coarse: &[f32], fine: &[f32], out: &mut [f32]) {
-    debug_assert_eq!(out.len(), coarse.len() + fine.len());
+    assert_eq!(
+        out.len(),
+        coarse.len() + fine.len(),
+        "merge_ray: output size"
+    );
     let (mut i, mut j) = (0, 0);
     for o in out.iter_mut() {
         let take_coarse = j == fine.len() || (i < coarse.len() && coarse[i] <= fine[j]);
