@@ -432,7 +432,9 @@ impl HashGrid {
     /// One Adam step (`step ≥ 1`, bias-corrected) on the touched rows only,
     /// then clears their gradient and `touched`, ready for the next
     /// backward. Untouched rows keep their params *and* moments (no decay
-    /// while unseen), as instant-ngp does; the work is O(touched rows).
+    /// while unseen; instant-ngp's optimiser likewise skips entries without
+    /// gradient), and the work is O(touched rows). A touched row whose
+    /// gradient summed to 0 still takes a step (its moments decay).
     #[allow(clippy::too_many_arguments)] // the optimiser state is what it is
     pub fn sparse_adam_update(
         &self,

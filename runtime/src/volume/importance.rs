@@ -11,8 +11,9 @@
 //!   weights sample each bin equally (uniform in depth for even bins).
 //! * `u` is stratified, `u_i = (i + ξ_i)/m`: `ξ = ½` for rendering, `ξ`
 //!   uniform from a [`SplitMix64`] for training. Stratified `u` are sorted,
-//!   so the depths come out sorted without a sort, and with equal bins the
-//!   counts per bin differ from `m·p` by at most one.
+//!   so the depths come out sorted without a sort, and the count in a bin
+//!   of probability `p` is within 2 of `m·p` (only the strata at its two
+//!   ends are shared).
 //! * Masses are summed in f64 (weights up to `f32::MAX` cannot overflow);
 //!   NaN and negative weights count as 0, +∞ as `f32::MAX`.
 //! * The fine depths are not differentiated (stop-gradient, as in NeRF), so
