@@ -1,10 +1,14 @@
 //! Neural fields on the CPU: fused dense layers ([`mlp`]), input
-//! encodings ([`encoding`]), the NeRF network ([`nerf`]), compositing of
-//! densities with its reverse sweep ([`composite`]), and the NeRF as a
-//! trainable model and a renderable field ([`field`]).
+//! encodings ([`encoding`], the multiresolution hash grid [`hashgrid`]),
+//! the NeRF network ([`nerf`]), compositing of densities with its reverse
+//! sweep ([`composite`]), the NeRF as a trainable model and a renderable
+//! field ([`field`]), and the occupancy grid that skips empty space
+//! ([`occupancy`]).
 
 pub mod composite;
 pub mod encoding;
 pub mod field;
+pub mod hashgrid;
 pub mod mlp;
 pub mod nerf;
+pub mod occupancy;

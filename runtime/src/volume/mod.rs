@@ -17,6 +17,7 @@
 pub mod composite;
 pub mod density;
 pub mod figures;
+pub mod importance;
 pub mod march;
 pub mod rays;
 pub mod render;

@@ -1,0 +1,943 @@
+//! Occupancy grid (instant-ngp / nerfacc): a coarse `R³` grid over the
+//! scene's box remembering where density was seen, so the fixed-step
+//! sampler skips empty space.
+//!
+//! * Each cell holds an EMA of density; it is occupied when
+//!   `ema · step_size > threshold`: the opacity one sample of the renderer's
+//!   step would roughly get (`1 − e^{−σδ} ≈ σδ`) exceeds `threshold` (0.01).
+//! * Cells are half-open, `[min + i·h, min + (i+1)·h)` per axis, so a point
+//!   belongs to exactly one cell; the box's max faces are outside.
+//! * Until the first [`OccupancyGrid::update`] every cell is occupied.
+//! * [`OccupancyGrid::march`] emits exactly the fixed-step samples
+//!   `t_k = near + (k + ½)·step` ([`fixed_step`]) whose point (computed in
+//!   f32) lies in an occupied cell ([`OccupancyGrid::cell_of`]); runs of
+//!   samples in an empty cell are skipped by jumping to the cell's exit, less
+//!   a slack that covers f32 rounding. So with every cell occupied it gives
+//!   the plain sampler's samples inside the box, bit for bit. Empty 8³
+//!   blocks are skipped whole the same way.
+//! * [`OccupancyGrid::march_rays`] marches a batch in parallel into
+//!   [`RaySamples`] (offsets per ray), identical for any thread count.
+
+use rayon::prelude::*;
+
+use crate::volume::{Ray, SplitMix64, VolumeError};
+
+/// Most fixed-step samples a ray may have between near and far.
+pub const MAX_SAMPLES: usize = 1 << 20;
+/// Cells per side of a block.
+const BLOCK: u32 = 8;
+/// Points per call of the density function in [`OccupancyGrid::update`].
+const UPDATE_CHUNK: usize = 1 << 16;
+
+/// An occupancy grid's shape and update rule.
+#[derive(Debug, Clone, PartialEq)]
+pub struct OccupancyConfig {
+    /// R, cells per axis (≤ 512).
+    pub res: u32,
+    pub bbox_min: [f32; 3],
+    pub bbox_max: [f32; 3],
+    /// Occupied when `ema · step_size > threshold`.
+    pub threshold: f32,
+    /// The renderer's step, which makes the threshold an opacity.
+    pub step_size: f32,
+    /// EMA decay per update of a cell.
+    pub decay: f32,
+    /// Updates before `step = warmup` evaluate every cell; later ones only the
+    /// cells with `index ≡ step (mod subsets)` (and decay only those), which
+    /// spreads the cost. `subsets = 1`: every cell every update.
+    pub warmup: u64,
+    pub subsets: u32,
+}
+
+impl OccupancyConfig {
+    /// Defaults over a box: R = 128, threshold 0.01, decay 0.95, the step
+    /// instant-ngp uses (`√3·extent/1024`), every cell every update.
+    pub fn new(bbox_min: [f32; 3], bbox_max: [f32; 3]) -> Self {
+        let ext = (0..3)
+            .map(|a| bbox_max[a] - bbox_min[a])
+            .fold(0.0f32, f32::max);
+        OccupancyConfig {
+            res: 128,
+            bbox_min,
+            bbox_max,
+            threshold: 0.01,
+            step_size: 3f32.sqrt() * ext / 1024.0,
+            decay: 0.95,
+            warmup: 256,
+            subsets: 1,
+        }
+    }
+}
+
+/// Samples of many rays: ray `r`'s depths are `t[offsets[r]..offsets[r + 1]]`,
+/// each with its interval in `dt`.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct RaySamples {
+    pub offsets: Vec<usize>,
+    pub t: Vec<f32>,
+    pub dt: Vec<f32>,
+}
+
+/// Densities at points, written into the second slice (one per point).
+pub type DensityFn<'a> = dyn FnMut(&[[f32; 3]], &mut [f32]) + 'a;
+
+/// Rays per parallel task of [`OccupancyGrid::march_rays`].
+const RAY_CHUNK: usize = 256;
+
+/// The grid: EMA per cell and the occupied bits derived from it.
+#[derive(Debug, Clone)]
+pub struct OccupancyGrid {
+    cfg: OccupancyConfig,
+    enabled: bool,
+    ema: Vec<f32>,
+    bits: Vec<u64>,
+    /// Occupied cells per block of `BLOCK³` cells: march skips an empty
+    /// block at once instead of cell by cell.
+    blocks: Vec<u32>,
+    /// `R / extent` per axis (f32: the cell test), cell size in f64 (exits).
+    scale: [f32; 3],
+    cell: [f64; 3],
+    points: Vec<[f32; 3]>,
+    density: Vec<f32>,
+}
+
+/// The plain fixed-step sampler: `t_k = near + (k + ½)·step` (in f32, this
+/// exact expression) for every `k` with `t_k < far`, each with interval
+/// `step`. Appends to `t` and `dt` after clearing them.
+pub fn fixed_step(
+    near: f32,
+    far: f32,
+    step: f32,
+    t: &mut Vec<f32>,
+    dt: &mut Vec<f32>,
+) -> Result<(), VolumeError> {
+    let count = check_range(near, far, step)?;
+    t.clear();
+    dt.clear();
+    for k in 0..count {
+        let tk = sample_t(near, step, k);
+        if tk >= far {
+            break;
+        }
+        t.push(tk);
+        dt.push(step);
+    }
+    Ok(())
+}
+
+#[inline(always)]
+fn sample_t(near: f32, step: f32, k: usize) -> f32 {
+    near + (k as f32 + 0.5) * step
+}
+
+/// An upper bound on the samples of `[near, far)`, or an error for a bad range.
+fn check_range(near: f32, far: f32, step: f32) -> Result<usize, VolumeError> {
+    if !(near.is_finite() && far.is_finite() && near <= far && step > 0.0 && step.is_finite()) {
+        return Err(VolumeError::Invalid(format!(
+            "fixed-step sampling needs finite near ≤ far and step > 0 (got {near}, {far}, {step})"
+        )));
+    }
+    let n = ((far as f64 - near as f64) / step as f64).ceil() + 2.0;
+    if n > MAX_SAMPLES as f64 {
+        return Err(VolumeError::Invalid(format!(
+            "fixed-step sampling: more than {MAX_SAMPLES} samples per ray (step {step})"
+        )));
+    }
+    Ok(n as usize)
+}
+
+impl OccupancyGrid {
+    /// An enabled grid with every cell occupied.
+    pub fn new(cfg: OccupancyConfig) -> Result<Self, String> {
+        if !(1..=512).contains(&cfg.res) {
+            return Err(format!(
+                "occupancy grid: resolution {} not in 1..=512",
+                cfg.res
+            ));
+        }
+        let ok = |v: f32| v.is_finite() && v >= 0.0;
+        if !(ok(cfg.threshold) && ok(cfg.step_size) && (0.0..=1.0).contains(&cfg.decay))
+            || cfg.subsets == 0
+        {
+            return Err(
+                "occupancy grid: threshold, step size ≥ 0, decay in [0, 1], subsets ≥ 1".into(),
+            );
+        }
+        let mut scale = [0f32; 3];
+        let mut cell = [0f64; 3];
+        for a in 0..3 {
+            let (lo, hi) = (cfg.bbox_min[a], cfg.bbox_max[a]);
+            let ext = hi - lo;
+            if !(lo.is_finite() && hi.is_finite() && ext > 0.0 && ext.is_finite()) {
+                return Err(format!(
+                    "occupancy grid: box axis {a} is empty or not finite"
+                ));
+            }
+            scale[a] = cfg.res as f32 / ext;
+            cell[a] = (hi as f64 - lo as f64) / cfg.res as f64;
+        }
+        let cells = (cfg.res as usize).pow(3);
+        let mut grid = OccupancyGrid {
+            enabled: true,
+            ema: vec![0.0; cells],
+            bits: vec![0; cells.div_ceil(64)],
+            blocks: vec![0; (cfg.res.div_ceil(BLOCK) as usize).pow(3)],
+            scale,
+            cell,
+            cfg,
+            points: Vec::new(),
+            density: Vec::new(),
+        };
+        grid.fill(true);
+        Ok(grid)
+    }
+
+    pub fn config(&self) -> &OccupancyConfig {
+        &self.cfg
+    }
+    /// A disabled grid skips nothing: [`Self::march`] is [`fixed_step`].
+    pub fn set_enabled(&mut self, on: bool) {
+        self.enabled = on;
+    }
+    pub fn is_enabled(&self) -> bool {
+        self.enabled
+    }
+    pub fn cells(&self) -> usize {
+        self.ema.len()
+    }
+    pub fn ema(&self) -> &[f32] {
+        &self.ema
+    }
+    /// Cell index `x + R·(y + R·z)`.
+    pub fn index(&self, cell: [u32; 3]) -> usize {
+        let r = self.cfg.res as usize;
+        cell[0] as usize + r * (cell[1] as usize + r * cell[2] as usize)
+    }
+    pub fn is_occupied(&self, index: usize) -> bool {
+        self.bits[index / 64] >> (index % 64) & 1 == 1
+    }
+    /// Sets a cell's bit directly (its EMA is left alone).
+    pub fn set_occupied(&mut self, index: usize, on: bool) {
+        let (w, b) = (index / 64, 1u64 << (index % 64));
+        if (self.bits[w] & b != 0) == on {
+            return;
+        }
+        self.bits[w] ^= b;
+        let r = self.cfg.res as usize;
+        let block = self.block_of([index % r, index / r % r, index / (r * r)].map(|v| v as u32));
+        if on {
+            self.blocks[block] += 1;
+        } else {
+            self.blocks[block] -= 1;
+        }
+    }
+    /// Every bit at once.
+    pub fn fill(&mut self, on: bool) {
+        self.bits.iter_mut().for_each(|w| *w = 0);
+        self.blocks.iter_mut().for_each(|n| *n = 0);
+        if on {
+            for c in 0..self.cells() {
+                self.set_occupied(c, true);
+            }
+        }
+    }
+    fn block_of(&self, c: [u32; 3]) -> usize {
+        let nb = self.cfg.res.div_ceil(BLOCK) as usize;
+        let b = c.map(|v| (v / BLOCK) as usize);
+        b[0] + nb * (b[1] + nb * b[2])
+    }
+    pub fn occupied_count(&self) -> usize {
+        self.blocks.iter().map(|&n| n as usize).sum()
+    }
+
+    /// The cell holding `p` (f32 arithmetic, the one test [`Self::march`]
+    /// uses), or `None` outside the box (or NaN).
+    #[inline(always)]
+    pub fn cell_of(&self, p: [f32; 3]) -> Option<[u32; 3]> {
+        let r = self.cfg.res as f32;
+        let mut c = [0u32; 3];
+        for a in 0..3 {
+            let u = (p[a] - self.cfg.bbox_min[a]) * self.scale[a];
+            if !(u >= 0.0 && u < r) {
+                return None;
+            }
+            c[a] = (u as u32).min(self.cfg.res - 1);
+        }
+        Some(c)
+    }
+
+    /// Re-evaluates density at one jittered point per cell (all cells, or one
+    /// subset after warm-up, see [`OccupancyConfig`]), in order, in calls of
+    /// at most 65 536 points; each evaluated cell gets
+    /// `ema = max(decay·ema, σ)` and its bit. NaN densities count as 0,
+    /// +∞ as `f32::MAX`. The jitter comes from one draw of `rng`, so the
+    /// result depends only on the grid, `step`, the draw and the densities.
+    pub fn update(&mut self, step: u64, density: &mut DensityFn, rng: &mut SplitMix64) {
+        let key = rng.next_u64();
+        let (first, stride) = if step < self.cfg.warmup || self.cfg.subsets == 1 {
+            (0, 1)
+        } else {
+            let s = self.cfg.subsets as u64;
+            ((step % s) as usize, s as usize)
+        };
+        let r = self.cfg.res as usize;
+        let cells = self.cells();
+        let mut start = first;
+        while start < cells {
+            let n = (cells - start).div_ceil(stride).min(UPDATE_CHUNK);
+            self.points.resize(n, [0.0; 3]);
+            self.density.resize(n, 0.0);
+            let (min, cell) = (self.cfg.bbox_min, self.cell);
+            self.points.par_iter_mut().enumerate().for_each(|(i, p)| {
+                let c = start + i * stride;
+                // Hashed per cell: consecutive SplitMix64 seeds would share draws.
+                let mut g = SplitMix64::new(SplitMix64::new(key ^ c as u64).next_u64());
+                let ijk = [c % r, c / r % r, c / (r * r)];
+                *p = std::array::from_fn(|a| {
+                    let x = ijk[a] as f64 + g.next_f32() as f64;
+                    (min[a] as f64 + x * cell[a]) as f32
+                });
+            });
+            density(&self.points, &mut self.density);
+            let (decay, thr, dt) = (self.cfg.decay, self.cfg.threshold, self.cfg.step_size);
+            for i in 0..n {
+                let c = start + i * stride;
+                let e = (self.ema[c] * decay).max(self.density[i].min(f32::MAX));
+                self.ema[c] = e;
+                self.set_occupied(c, e * dt > thr);
+            }
+            start += n * stride;
+        }
+    }
+
+    /// Sample depths of the ray `origin + t·dir` in `[near, far)` at fixed
+    /// `step` that fall in occupied cells (see the module doc), each with
+    /// interval `step`, into `t` and `dt` (cleared first). A ray missing the
+    /// box gives none. Errors: non-finite or zero `dir`, bad range, more
+    /// than [`MAX_SAMPLES`] candidates.
+    #[allow(clippy::too_many_arguments)] // a ray, its range, and two outputs
+    pub fn march(
+        &self,
+        origin: [f32; 3],
+        dir: [f32; 3],
+        near: f32,
+        far: f32,
+        step: f32,
+        t: &mut Vec<f32>,
+        dt: &mut Vec<f32>,
+    ) -> Result<(), VolumeError> {
+        if !self.enabled {
+            return fixed_step(near, far, step, t, dt);
+        }
+        let count = check_range(near, far, step)?;
+        let finite = origin.iter().chain(&dir).all(|v| v.is_finite());
+        if !finite || dir == [0.0; 3] {
+            return Err(VolumeError::Invalid(format!(
+                "occupancy march: origin {origin:?} and direction {dir:?} must be finite, direction non-zero"
+            )));
+        }
+        t.clear();
+        dt.clear();
+        let ray = RayCtx::new(self, origin, dir);
+        let Some((enter, exit)) = ray.box_span(self) else {
+            return Ok(());
+        };
+        let (near64, step64) = (near as f64, step as f64);
+        let k_of = |tt: f64| ((tt - near64) / step64 - 0.5).floor();
+        let mut k = k_of(enter).max(0.0) as usize;
+        let mut inside = false;
+        while k < count {
+            let tk = sample_t(near, step, k);
+            if tk >= far || tk as f64 > exit {
+                break;
+            }
+            let p: [f32; 3] = std::array::from_fn(|a| origin[a] + tk * dir[a]);
+            let Some(c) = self.cell_of(p) else {
+                // Each coordinate moves monotonically with k (rounding is
+                // monotone), so once out of the box, out for good.
+                if inside {
+                    break;
+                }
+                k += 1;
+                continue;
+            };
+            inside = true;
+            if self.is_occupied(self.index(c)) {
+                t.push(tk);
+                dt.push(step);
+                k += 1;
+                continue;
+            }
+            // The samples in an empty cell (or block) are consecutive: jump
+            // to the first that may be past its exit.
+            let leave = if self.blocks[self.block_of(c)] == 0 {
+                ray.exit(self, c.map(|v| v / BLOCK * BLOCK), BLOCK)
+            } else {
+                ray.exit(self, c, 1)
+            };
+            k = (k + 1).max((k_of(leave) + 1.0).max(0.0) as usize);
+        }
+        Ok(())
+    }
+}
+
+impl OccupancyGrid {
+    /// [`Self::march`] for every ray, in parallel over chunks of rays and
+    /// concatenated in ray order (so the same whatever the thread count);
+    /// the first failing ray's error.
+    pub fn march_rays(
+        &self,
+        rays: &[Ray],
+        near: f32,
+        far: f32,
+        step: f32,
+        out: &mut RaySamples,
+    ) -> Result<(), VolumeError> {
+        // Per chunk: sample counts per ray and the depths.
+        type Part = Result<(Vec<usize>, Vec<f32>), VolumeError>;
+        let parts: Vec<Part> = rays
+            .par_chunks(RAY_CHUNK)
+            .map(|chunk| {
+                let (mut counts, mut all) = (Vec::with_capacity(chunk.len()), Vec::new());
+                let (mut t, mut dt) = (Vec::new(), Vec::new());
+                for r in chunk {
+                    self.march(r.origin, r.dir, near, far, step, &mut t, &mut dt)?;
+                    counts.push(t.len());
+                    all.extend_from_slice(&t);
+                }
+                Ok((counts, all))
+            })
+            .collect();
+        out.offsets.clear();
+        out.t.clear();
+        out.offsets.push(0);
+        for part in parts {
+            let (counts, t) = part?;
+            let mut at = out.t.len();
+            for n in counts {
+                at += n;
+                out.offsets.push(at);
+            }
+            out.t.extend(t);
+        }
+        out.dt.clear();
+        out.dt.resize(out.t.len(), step);
+        Ok(())
+    }
+}
+
+/// A ray's constants for exits, in f64.
+struct RayCtx {
+    o: [f64; 3],
+    d: [f64; 3],
+    inv: [f64; 3],
+    /// `|o| + |box min| + extent` per axis: the magnitudes the f32 point
+    /// and cell test round, besides `|t·d|`.
+    mag: [f64; 3],
+}
+
+impl RayCtx {
+    fn new(g: &OccupancyGrid, origin: [f32; 3], dir: [f32; 3]) -> Self {
+        let o = origin.map(f64::from);
+        let d = dir.map(f64::from);
+        RayCtx {
+            o,
+            d,
+            inv: d.map(|v| 1.0 / v),
+            mag: std::array::from_fn(|a| {
+                o[a].abs() + (g.cfg.bbox_min[a] as f64).abs() + g.cell[a] * g.cfg.res as f64
+            }),
+        }
+    }
+
+    /// Bound on how far (in t) the f32 sample point and cell test may stray
+    /// from exact arithmetic at a face of axis `a` crossed at `tt`: 8× a few
+    /// ulps of every term, over the speed along `a`.
+    #[inline(always)]
+    fn slack(&self, a: usize, tt: f64) -> f64 {
+        1e-6 * (tt.abs() + (self.mag[a] + (tt * self.d[a]).abs()) * self.inv[a].abs())
+    }
+
+    /// The widened `[enter, exit]` of the ray in the box, or `None` when it
+    /// misses (an axis with zero direction is decided by the exact f32 test).
+    fn box_span(&self, g: &OccupancyGrid) -> Option<(f64, f64)> {
+        let (mut enter, mut exit) = (f64::NEG_INFINITY, f64::INFINITY);
+        let r = g.cfg.res as f32;
+        for a in 0..3 {
+            if self.d[a] == 0.0 {
+                let u = (self.o[a] as f32 - g.cfg.bbox_min[a]) * g.scale[a];
+                if !(u >= 0.0 && u < r) {
+                    return None;
+                }
+                continue;
+            }
+            let lo = g.cfg.bbox_min[a] as f64;
+            let hi = lo + g.cell[a] * g.cfg.res as f64;
+            let (t0, t1) = (
+                (lo - self.o[a]) * self.inv[a],
+                (hi - self.o[a]) * self.inv[a],
+            );
+            let (t0, t1) = (t0.min(t1), t0.max(t1));
+            enter = enter.max(t0 - self.slack(a, t0));
+            exit = exit.min(t1 + self.slack(a, t1));
+        }
+        (enter <= exit).then_some((enter, exit))
+    }
+
+    /// Where the ray leaves the cube of `size` cells from cell `lo`, less the
+    /// slack: no sample before it can lie beyond the cube.
+    #[inline(always)]
+    fn exit(&self, g: &OccupancyGrid, lo: [u32; 3], size: u32) -> f64 {
+        let mut best = f64::INFINITY;
+        for a in 0..3 {
+            if self.d[a] == 0.0 {
+                continue;
+            }
+            let face = lo[a] + if self.d[a] > 0.0 { size } else { 0 };
+            let x = g.cfg.bbox_min[a] as f64 + face as f64 * g.cell[a];
+            let ta = (x - self.o[a]) * self.inv[a];
+            best = best.min(ta - self.slack(a, ta));
+        }
+        best
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn grid(res: u32) -> OccupancyGrid {
+        let mut c = OccupancyConfig::new([-1.0, -0.5, 0.0], [1.0, 1.5, 3.0]);
+        c.res = res;
+        OccupancyGrid::new(c).unwrap()
+    }
+
+    fn random_ray(rng: &mut SplitMix64) -> ([f32; 3], [f32; 3]) {
+        let o = std::array::from_fn(|_| rng.next_f32() * 8.0 - 4.0);
+        let target: [f32; 3] = [
+            rng.next_f32() * 2.0 - 1.0,
+            rng.next_f32() * 2.0 - 0.5,
+            rng.next_f32() * 3.0,
+        ];
+        let d: [f32; 3] = std::array::from_fn(|a| target[a] - o[a]);
+        let n = d.iter().map(|v| v * v).sum::<f32>().sqrt();
+        (o, d.map(|v| v / n))
+    }
+
+    /// Fixed-step samples kept by `keep(cell)`, testing every sample.
+    fn brute(
+        g: &OccupancyGrid,
+        o: [f32; 3],
+        d: [f32; 3],
+        near: f32,
+        far: f32,
+        step: f32,
+        keep: impl Fn(Option<[u32; 3]>) -> bool,
+    ) -> Vec<f32> {
+        let (mut t, mut dt) = (Vec::new(), Vec::new());
+        fixed_step(near, far, step, &mut t, &mut dt).unwrap();
+        t.into_iter()
+            .filter(|&tk| keep(g.cell_of(std::array::from_fn(|a| o[a] + tk * d[a]))))
+            .collect()
+    }
+
+    #[test]
+    fn all_occupied_equals_fixed_step() {
+        let mut g = grid(16);
+        let mut rng = SplitMix64::new(1);
+        let (mut t, mut dt) = (Vec::new(), Vec::new());
+        let (mut ft, mut fdt) = (Vec::new(), Vec::new());
+        for i in 0..300 {
+            let (o, d) = random_ray(&mut rng);
+            let step = [0.01, 0.0371, 0.3][i % 3];
+            // Inside the box: exactly the plain sampler's samples.
+            let o_in = [0.1, 0.2, 1.5];
+            g.march(o_in, d, 0.0, 0.45, step, &mut t, &mut dt).unwrap();
+            fixed_step(0.0, 0.45, step, &mut ft, &mut fdt).unwrap();
+            assert_eq!((&t, &dt), (&ft, &fdt));
+            // Through the box: the plain samples inside it.
+            g.march(o, d, 0.5, 12.0, step, &mut t, &mut dt).unwrap();
+            let want = brute(&g, o, d, 0.5, 12.0, step, |c| c.is_some());
+            assert_eq!(t, want);
+            assert!(!t.is_empty());
+            assert!(dt.iter().all(|&v| v == step));
+            // Disabled: the plain sampler, box or not.
+            g.set_enabled(false);
+            g.march(o, d, 0.5, 12.0, step, &mut t, &mut dt).unwrap();
+            fixed_step(0.5, 12.0, step, &mut ft, &mut fdt).unwrap();
+            assert_eq!((&t, &dt), (&ft, &fdt));
+            g.set_enabled(true);
+        }
+    }
+
+    #[test]
+    fn one_occupied_cell_emits_only_inside_it() {
+        let mut g = grid(8);
+        g.fill(false);
+        let target = [3u32, 4, 2];
+        g.set_occupied(g.index(target), true);
+        let (lo, hi) = ([-1.0f64, -0.5, 0.0], [1.0f64, 1.5, 3.0]);
+        let cell: [(f64, f64); 3] = std::array::from_fn(|a| {
+            let h = (hi[a] - lo[a]) / 8.0;
+            (
+                lo[a] + target[a] as f64 * h,
+                lo[a] + (target[a] + 1) as f64 * h,
+            )
+        });
+        let inside = |p: [f64; 3], margin: f64| {
+            (0..3).all(|a| p[a] >= cell[a].0 - margin && p[a] < cell[a].1 + margin)
+        };
+        let mut rng = SplitMix64::new(2);
+        let (mut t, mut dt) = (Vec::new(), Vec::new());
+        let mut hits = 0;
+        for i in 0..2000 {
+            // Aim at the cell half the time.
+            let (mut o, mut d) = random_ray(&mut rng);
+            if i % 2 == 0 {
+                let c: [f64; 3] = std::array::from_fn(|a| {
+                    cell[a].0 + rng.next_f32() as f64 * (cell[a].1 - cell[a].0)
+                });
+                let v: [f32; 3] = std::array::from_fn(|a| (c[a] - o[a] as f64) as f32);
+                let n = v.iter().map(|x| x * x).sum::<f32>().sqrt();
+                d = v.map(|x| x / n);
+            }
+            if i % 7 == 0 {
+                o = [0.0, 0.0, 1.0];
+            }
+            let step = [0.003, 0.02, 0.11][i % 3];
+            g.march(o, d, 0.0, 10.0, step, &mut t, &mut dt).unwrap();
+            let want = brute(&g, o, d, 0.0, 10.0, step, |c| c == Some(target));
+            assert_eq!(t, want, "ray {i}");
+            hits += t.len();
+            for &tk in &t {
+                let p = std::array::from_fn(|a| o[a] as f64 + tk as f64 * d[a] as f64);
+                assert!(inside(p, 1e-5), "{p:?}");
+            }
+            // Brute force in f64: samples clearly inside are all emitted.
+            let (mut all, mut adt) = (Vec::new(), Vec::new());
+            fixed_step(0.0, 10.0, step, &mut all, &mut adt).unwrap();
+            for &tk in &all {
+                let p = std::array::from_fn(|a| o[a] as f64 + tk as f64 * d[a] as f64);
+                if inside(p, -1e-5) {
+                    assert!(t.contains(&tk));
+                }
+            }
+        }
+        assert!(hits > 1000, "{hits}");
+    }
+
+    #[test]
+    fn sparse_grids_match_brute_force() {
+        // Dense and sparse occupancy (empty blocks), R a multiple of the
+        // block or not, occupied cells scattered or in one clump.
+        let mut rng = SplitMix64::new(3);
+        let mut kept = 0;
+        for (res, p, clump) in [(32, 0.08, false), (37, 0.002, false), (64, 0.3, true)] {
+            let mut g = grid(res);
+            for c in 0..g.cells() {
+                let r = res as usize;
+                let near_centre = [c % r, c / r % r, c / (r * r)]
+                    .iter()
+                    .all(|&v| v.abs_diff(r / 2) < 4);
+                let on = rng.next_f32() < p && (!clump || near_centre);
+                g.set_occupied(c, on);
+            }
+            check_blocks(&g);
+            let (mut t, mut dt) = (Vec::new(), Vec::new());
+            for i in 0..1000 {
+                let (o, d) = random_ray(&mut rng);
+                let step = [0.001, 0.013, 0.2][i % 3];
+                g.march(o, d, 0.2, 11.0, step, &mut t, &mut dt).unwrap();
+                let want = brute(&g, o, d, 0.2, 11.0, step, |c| {
+                    c.is_some_and(|c| g.is_occupied(g.index(c)))
+                });
+                assert_eq!(t, want, "R {res} ray {i}");
+                kept += t.len();
+            }
+        }
+        assert!(kept > 10_000, "{kept}");
+    }
+
+    /// The block counts agree with the bits.
+    fn check_blocks(g: &OccupancyGrid) {
+        let mut want = vec![0u32; g.blocks.len()];
+        let r = g.cfg.res as usize;
+        for c in 0..g.cells() {
+            if g.is_occupied(c) {
+                want[g.block_of([c % r, c / r % r, c / (r * r)].map(|v| v as u32))] += 1;
+            }
+        }
+        assert_eq!(want, g.blocks);
+    }
+
+    #[test]
+    fn batches_match_single_rays_for_any_thread_count() {
+        let mut g = grid(40);
+        let mut rng = SplitMix64::new(6);
+        for c in 0..g.cells() {
+            g.set_occupied(c, rng.next_f32() < 0.05);
+        }
+        let rays: Vec<Ray> = (0..3000)
+            .map(|k| {
+                let (origin, dir) = random_ray(&mut rng);
+                Ray {
+                    origin,
+                    dir,
+                    view: 0,
+                    pixel: k,
+                }
+            })
+            .collect();
+        let run = |threads| {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap();
+            let mut out = RaySamples::default();
+            pool.install(|| g.march_rays(&rays, 0.1, 12.0, 0.01, &mut out))
+                .unwrap();
+            out
+        };
+        let one = run(1);
+        assert_eq!(one, run(3));
+        assert_eq!(one.offsets.len(), rays.len() + 1);
+        let (mut t, mut dt) = (Vec::new(), Vec::new());
+        for (r, ray) in rays.iter().enumerate() {
+            g.march(ray.origin, ray.dir, 0.1, 12.0, 0.01, &mut t, &mut dt)
+                .unwrap();
+            assert_eq!(t, one.t[one.offsets[r]..one.offsets[r + 1]]);
+            assert_eq!(dt, one.dt[one.offsets[r]..one.offsets[r + 1]]);
+        }
+        let mut bad = rays.clone();
+        bad[2000].dir = [0.0; 3];
+        let mut out = RaySamples::default();
+        assert!(g.march_rays(&bad, 0.1, 12.0, 0.01, &mut out).is_err());
+    }
+
+    #[test]
+    fn grazing_rays_and_misses() {
+        let mut g = grid(8);
+        let mut rng = SplitMix64::new(4);
+        for c in 0..g.cells() {
+            g.set_occupied(c, rng.next_f32() < 0.3);
+        }
+        let (mut t, mut dt) = (Vec::new(), Vec::new());
+        let occupied = |c: Option<[u32; 3]>| c.is_some_and(|c| g.is_occupied(g.index(c)));
+        // Rays in the planes of cell faces (y = −0.5 + j/4, z = 3k/8),
+        // along axes and diagonals within the plane, and along edges.
+        let mut n = 0;
+        for j in 0..=8 {
+            for k in 0..=8 {
+                let y = -0.5 + j as f32 * 0.25;
+                let z = k as f32 * 0.375;
+                for d in [
+                    [1.0, 0.0, 0.0],
+                    [-1.0, 0.0, 0.0],
+                    [0.6, 0.0, 0.8],
+                    [0.0, 0.0, -1.0],
+                ] {
+                    let o = [
+                        -3.0 * d[0],
+                        y,
+                        if d[2] == 0.0 { z } else { 1.5 - 3.0 * d[2] },
+                    ];
+                    for step in [0.01, 0.25] {
+                        g.march(o, d, 0.0, 8.0, step, &mut t, &mut dt).unwrap();
+                        assert_eq!(t, brute(&g, o, d, 0.0, 8.0, step, occupied));
+                        n += t.len();
+                    }
+                }
+            }
+        }
+        assert!(n > 0);
+        // The max faces are outside: a ray along y = 1.5 gets nothing.
+        g.fill(true);
+        g.march(
+            [-2.0, 1.5, 1.0],
+            [1.0, 0.0, 0.0],
+            0.0,
+            5.0,
+            0.01,
+            &mut t,
+            &mut dt,
+        )
+        .unwrap();
+        assert!(t.is_empty());
+        g.march(
+            [-2.0, -0.5, 0.0],
+            [1.0, 0.0, 0.0],
+            0.0,
+            5.0,
+            0.01,
+            &mut t,
+            &mut dt,
+        )
+        .unwrap();
+        assert_eq!(t.len(), 200);
+        // Misses: beside the box, pointing away, parallel outside.
+        for (o, d) in [
+            ([-2.0, 5.0, 1.0], [1.0, 0.0, 0.0]),
+            ([0.0, 0.0, -1.0], [0.0, 0.0, -1.0]),
+            ([3.0, 3.0, 5.0], [0.577, 0.577, 0.577]),
+        ] {
+            g.march(o, d, 0.0, 50.0, 0.01, &mut t, &mut dt).unwrap();
+            assert!(t.is_empty() && dt.is_empty());
+        }
+        // Refused: NaN, zero direction, reversed range, zero step, too many.
+        let o = [0.0; 3];
+        let x = [1.0, 0.0, 0.0];
+        assert!(g
+            .march([f32::NAN, 0.0, 0.0], x, 0.0, 1.0, 0.1, &mut t, &mut dt)
+            .is_err());
+        assert!(g
+            .march(o, [0.0; 3], 0.0, 1.0, 0.1, &mut t, &mut dt)
+            .is_err());
+        assert!(g.march(o, x, 1.0, 0.5, 0.1, &mut t, &mut dt).is_err());
+        assert!(g.march(o, x, 0.0, 1.0, 0.0, &mut t, &mut dt).is_err());
+        assert!(g.march(o, x, 0.0, 1e6, 1e-3, &mut t, &mut dt).is_err());
+        assert!(g
+            .march(o, x, 0.0, f32::INFINITY, 0.1, &mut t, &mut dt)
+            .is_err());
+        g.march(o, x, 1.0, 1.0, 0.1, &mut t, &mut dt).unwrap();
+        assert!(t.is_empty());
+    }
+
+    #[test]
+    fn update_tracks_a_moving_sphere() {
+        let mut cfg = OccupancyConfig::new([-1.0; 3], [1.0; 3]);
+        cfg.res = 16;
+        // Density threshold 1 (0.01 / 0.01).
+        cfg.step_size = 0.01;
+        let mut g = OccupancyGrid::new(cfg).unwrap();
+        assert_eq!(g.occupied_count(), g.cells());
+        let sphere = |c: [f32; 3], r: f32| {
+            move |p: &[[f32; 3]], out: &mut [f32]| {
+                for (q, o) in p.iter().zip(out.iter_mut()) {
+                    let d2: f32 = (0..3).map(|a| (q[a] - c[a]).powi(2)).sum();
+                    *o = if d2 < r * r { 10.0 } else { 0.0 };
+                }
+            }
+        };
+        let h = 2.0 / 16.0;
+        let centre = |ijk: [usize; 3]| -> [f32; 3] {
+            std::array::from_fn(|a| -1.0 + (ijk[a] as f32 + 0.5) * h)
+        };
+        // Distance from a cell's centre to the sphere's centre, and the cell's
+        // half-diagonal: fully inside or fully outside decides its bit.
+        let half_diag = 3f32.sqrt() * h / 2.0;
+        let classify = |g: &OccupancyGrid, c: [f32; 3], r: f32| {
+            let (mut inside, mut outside) = (0, 0);
+            for z in 0..16 {
+                for y in 0..16 {
+                    for x in 0..16 {
+                        let p = centre([x, y, z]);
+                        let d = (0..3).map(|a| (p[a] - c[a]).powi(2)).sum::<f32>().sqrt();
+                        let occ = g.is_occupied(g.index([x as u32, y as u32, z as u32]));
+                        if d + half_diag < r {
+                            assert!(occ, "{x} {y} {z} inside");
+                            inside += 1;
+                        } else if d - half_diag > r {
+                            assert!(!occ, "{x} {y} {z} outside");
+                            outside += 1;
+                        }
+                    }
+                }
+            }
+            assert!(inside > 10 && outside > 100);
+        };
+        let mut rng = SplitMix64::new(5);
+        let a = [-0.4, 0.0, 0.0];
+        g.update(0, &mut sphere(a, 0.5), &mut rng);
+        classify(&g, a, 0.5);
+        let first = g.ema().to_vec();
+        // The sphere moves: new cells at once, old ones after decaying below
+        // the threshold (10·0.95^k ≤ 1 from k = 45 on).
+        let b = [0.4, 0.0, 0.0];
+        let only_a = g.index([3, 8, 8]); // centre −0.5625: in a, not in b.
+        assert!(g.is_occupied(only_a));
+        for k in 1..=45 {
+            g.update(k, &mut sphere(b, 0.5), &mut rng);
+            assert_eq!(g.is_occupied(only_a), k < 45, "update {k}");
+        }
+        classify(&g, b, 0.5);
+        check_blocks(&g);
+        // Same draws, same grid.
+        let mut again = OccupancyGrid::new(g.config().clone()).unwrap();
+        again.update(0, &mut sphere(a, 0.5), &mut SplitMix64::new(5));
+        assert_eq!(again.ema(), &first[..]);
+        // NaN and infinite densities stay finite / occupied.
+        again.update(
+            1,
+            &mut |_: &[[f32; 3]], o: &mut [f32]| o.fill(f32::NAN),
+            &mut rng,
+        );
+        assert!(again.ema().iter().all(|v| v.is_finite()));
+        again.update(
+            2,
+            &mut |_: &[[f32; 3]], o: &mut [f32]| o.fill(f32::INFINITY),
+            &mut rng,
+        );
+        assert!(again.ema().iter().all(|v| v.is_finite()));
+        assert_eq!(again.occupied_count(), again.cells());
+    }
+
+    #[test]
+    fn subsets_after_warmup_update_a_stride() {
+        let mut cfg = OccupancyConfig::new([-1.0; 3], [1.0; 3]);
+        cfg.res = 8;
+        cfg.warmup = 2;
+        cfg.subsets = 4;
+        cfg.step_size = 0.01;
+        let mut g = OccupancyGrid::new(cfg).unwrap();
+        let mut rng = SplitMix64::new(1);
+        let mut one = |_: &[[f32; 3]], o: &mut [f32]| o.fill(1.0);
+        g.update(0, &mut one, &mut rng);
+        assert!(g.ema().iter().all(|&v| v == 1.0));
+        let mut zero = |_: &[[f32; 3]], o: &mut [f32]| o.fill(0.0);
+        g.update(6, &mut zero, &mut rng);
+        for (c, &v) in g.ema().iter().enumerate() {
+            assert_eq!(v, if c % 4 == 2 { 0.95 } else { 1.0 });
+        }
+    }
+
+    #[test]
+    fn march_throughput() {
+        let mut cfg = OccupancyConfig::new([-1.0; 3], [1.0; 3]);
+        cfg.step_size = 0.01;
+        let mut g = OccupancyGrid::new(cfg).unwrap();
+        let start = std::time::Instant::now();
+        g.update(
+            0,
+            &mut |p: &[[f32; 3]], o: &mut [f32]| {
+                for (q, o) in p.iter().zip(o.iter_mut()) {
+                    let r = (q[0] * q[0] + q[1] * q[1] + q[2] * q[2]).sqrt();
+                    *o = if (r - 0.5).abs() < 0.05 { 10.0 } else { 0.0 };
+                }
+            },
+            &mut SplitMix64::new(1),
+        );
+        let update = start.elapsed().as_secs_f64();
+        let mut rng = SplitMix64::new(2);
+        let rays: Vec<_> = (0..20_000).map(|_| random_ray(&mut rng)).collect();
+        let step = 3f32.sqrt() * 2.0 / 1024.0;
+        let (mut t, mut dt) = (Vec::new(), Vec::new());
+        let time = |g: &OccupancyGrid, t: &mut Vec<f32>, dt: &mut Vec<f32>| {
+            let start = std::time::Instant::now();
+            let mut n = 0;
+            for (o, d) in &rays {
+                g.march(*o, *d, 0.0, 12.0, step, t, dt).unwrap();
+                n += t.len();
+            }
+            (start.elapsed().as_secs_f64(), n)
+        };
+        let (skip, n) = time(&g, &mut t, &mut dt);
+        g.set_enabled(false);
+        let (plain, m) = time(&g, &mut t, &mut dt);
+        println!(
+            "occupancy march (R=128, shell, step {step:.4}, one thread): {:.2} M rays/s, {n} samples kept of {m}; plain sampler {:.2} M rays/s; update of 128³ cells {:.0} ms",
+            rays.len() as f64 / skip / 1e6,
+            rays.len() as f64 / plain / 1e6,
+            update * 1e3
+        );
+    }
+}

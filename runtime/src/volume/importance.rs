@@ -1,0 +1,476 @@
+//! Hierarchical (importance) sampling by inverse CDF, as the NeRF paper's
+//! `sample_pdf`: fine depths drawn where the coarse pass found weight.
+//!
+//! * Bins are the coarse *intervals* `[t_k, t_{k+1}]` (n − 1 bins), bin `k`
+//!   weighted by `w_k + WEIGHT_EPS`. That is the interval sample `k`'s
+//!   compositing weight stands for (`Δ_k = t_{k+1} − t_k`), and it works for
+//!   n = 2, where NeRF's midpoint bins would leave no interior weight. The
+//!   last weight (its interval has no far end) is unused.
+//! * The PDF is constant within a bin, so the CDF is piecewise linear and is
+//!   inverted exactly. The epsilon gives every bin some mass: all-zero
+//!   weights sample each bin equally (uniform in depth for even bins).
+//! * `u` is stratified, `u_i = (i + ξ_i)/m`: `ξ = ½` for rendering, `ξ`
+//!   uniform from a [`SplitMix64`] for training. Stratified `u` are sorted,
+//!   so the depths come out sorted without a sort, and the count in a bin
+//!   of probability `p` is within 2 of `m·p` (only the strata at its two
+//!   ends are shared).
+//! * Masses are summed in f64 (weights up to `f32::MAX` cannot overflow);
+//!   NaN and negative weights count as 0, +∞ as `f32::MAX`.
+//! * The fine depths are not differentiated (stop-gradient, as in NeRF), so
+//!   there is no backward pass.
+//!
+//! Batches are flat slices, `n` coarse and `m` fine depths per ray, in
+//! parallel over rays; the jitter of ray `r` comes from [`ray_rng`] of
+//! `(seed, r)`, so results do not depend on the thread count.
+
+use rayon::prelude::*;
+
+use super::{SplitMix64, VolumeError};
+
+/// Added to every bin's weight (NeRF's 1e-5).
+pub const WEIGHT_EPS: f64 = 1e-5;
+
+/// How the `u` of the inverse CDF are placed in their strata.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Spacing {
+    /// Stratum midpoints `(i + ½)/m` (rendering).
+    Even,
+    /// Uniform in each stratum, from [`ray_rng`]`(seed, ray)` (training).
+    Jittered(u64),
+}
+
+/// The generator of ray `ray` of a batch drawn with `seed`: the seed is
+/// hashed with the ray index, since consecutive SplitMix64 seeds would give
+/// shifted copies of one stream.
+pub fn ray_rng(seed: u64, ray: u64) -> SplitMix64 {
+    let k = SplitMix64::new(ray ^ 0xD1B5_4A32_D192_ED03).next_u64();
+    SplitMix64::new(SplitMix64::new(seed ^ k).next_u64())
+}
+
+#[inline]
+fn clean(w: f32) -> f64 {
+    // `w > 0` is false for NaN.
+    if w > 0.0 {
+        w.min(f32::MAX) as f64
+    } else {
+        0.0
+    }
+}
+
+fn check_depths(t: &[f32]) -> bool {
+    t.iter().all(|v| v.is_finite()) && t.windows(2).all(|p| p[0] <= p[1])
+}
+
+/// Fine depths of one ray into `out` (`m = out.len()`, sorted), from coarse
+/// depths `t` (finite, non-decreasing, n ≥ 2) and their weights `w`;
+/// `rng = None` gives even spacing.
+pub fn sample_pdf_ray(
+    t: &[f32],
+    w: &[f32],
+    rng: Option<&mut SplitMix64>,
+    out: &mut [f32],
+) -> Result<(), VolumeError> {
+    if t.len() < 2 || w.len() != t.len() || !check_depths(t) {
+        return Err(VolumeError::Invalid(format!(
+            "sample_pdf: needs ≥ 2 finite sorted depths and as many weights (got {} and {})",
+            t.len(),
+            w.len()
+        )));
+    }
+    sample_unchecked(t, w, rng, out);
+    Ok(())
+}
+
+/// One pass over bins and sorted `u` together: no CDF buffer.
+fn sample_unchecked(t: &[f32], w: &[f32], mut rng: Option<&mut SplitMix64>, out: &mut [f32]) {
+    let bins = t.len() - 1;
+    let mass = |k: usize| clean(w[k]) + WEIGHT_EPS;
+    let total: f64 = (0..bins).map(mass).sum();
+    let per_stratum = total / out.len() as f64;
+    // Bin `j` holds cumulative mass `[below, below + mj)`; mj ≥ ε > 0.
+    let (mut j, mut below, mut mj) = (0, 0.0f64, mass(0));
+    let mut inv_mj = 1.0 / mj;
+    for (i, o) in out.iter_mut().enumerate() {
+        let xi = match rng.as_deref_mut() {
+            Some(r) => r.next_f32() as f64,
+            None => 0.5,
+        };
+        let target = (i as f64 + xi) * per_stratum;
+        while j + 1 < bins && below + mj <= target {
+            below += mj;
+            j += 1;
+            mj = mass(j);
+            inv_mj = 1.0 / mj;
+        }
+        let frac = ((target - below) * inv_mj).clamp(0.0, 1.0);
+        let (a, b) = (t[j] as f64, t[j + 1] as f64);
+        // The clamp keeps rounding from crossing into the next bin, so the
+        // output stays sorted.
+        *o = (a + frac * (b - a)).clamp(a, b) as f32;
+    }
+}
+
+/// Fine depths for a batch: `t` and `w` hold `n` coarse depths and weights
+/// per ray, `out` receives `m` sorted fine depths per ray.
+pub fn sample_pdf(
+    t: &[f32],
+    w: &[f32],
+    n: usize,
+    m: usize,
+    spacing: Spacing,
+    out: &mut [f32],
+) -> Result<(), VolumeError> {
+    if n < 2 || t.len() != w.len() || t.len() % n != 0 || out.len() != t.len() / n * m {
+        return Err(VolumeError::Invalid(format!(
+            "sample_pdf: n={n} ≥ 2 coarse depths per ray, {} depths, {} weights, {} slots for m={m}",
+            t.len(),
+            w.len(),
+            out.len()
+        )));
+    }
+    if !t.par_chunks(n).all(check_depths) {
+        return Err(VolumeError::Invalid(
+            "sample_pdf: coarse depths must be finite and sorted per ray".into(),
+        ));
+    }
+    if m == 0 {
+        return Ok(());
+    }
+    out.par_chunks_mut(m)
+        .zip(t.par_chunks(n).zip(w.par_chunks(n)))
+        .enumerate()
+        .with_min_len(64)
+        .for_each(|(r, (o, (t, w)))| match spacing {
+            Spacing::Even => sample_unchecked(t, w, None, o),
+            Spacing::Jittered(seed) => {
+                sample_unchecked(t, w, Some(&mut ray_rng(seed, r as u64)), o)
+            }
+        });
+    Ok(())
+}
+
+/// Merges one ray's sorted `coarse` and `fine` depths into `out` (sorted;
+/// on ties the coarse depth comes first). Panics unless `out` holds exactly
+/// both (a caller bug; [`merge_depths`] checks its sizes).
+pub fn merge_ray(coarse: &[f32], fine: &[f32], out: &mut [f32]) {
+    assert_eq!(
+        out.len(),
+        coarse.len() + fine.len(),
+        "merge_ray: output size"
+    );
+    let (mut i, mut j) = (0, 0);
+    for o in out.iter_mut() {
+        let take_coarse = j == fine.len() || (i < coarse.len() && coarse[i] <= fine[j]);
+        if take_coarse {
+            *o = coarse[i];
+            i += 1;
+        } else {
+            *o = fine[j];
+            j += 1;
+        }
+    }
+}
+
+/// The union of each ray's `n` coarse and `m` fine depths (both sorted per
+/// ray), `n + m` sorted depths per ray into `out`: what the fine network
+/// evaluates.
+pub fn merge_depths(
+    coarse: &[f32],
+    n: usize,
+    fine: &[f32],
+    m: usize,
+    out: &mut [f32],
+) -> Result<(), VolumeError> {
+    let rays = if n == 0 { 0 } else { coarse.len() / n };
+    let ok =
+        n > 0 && coarse.len() % n == 0 && fine.len() == rays * m && out.len() == rays * (n + m);
+    if !ok {
+        return Err(VolumeError::Invalid(format!(
+            "merge_depths: {} coarse (n={n}), {} fine (m={m}), {} slots",
+            coarse.len(),
+            fine.len(),
+            out.len()
+        )));
+    }
+    out.par_chunks_mut(n + m)
+        .enumerate()
+        .with_min_len(64)
+        .for_each(|(r, o)| merge_ray(&coarse[r * n..][..n], &fine[r * m..][..m], o));
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The CDF in f64, written from its definition (mass of every bin up to
+    /// `x`, linear inside a bin, a step for a zero-width bin).
+    fn cdf(t: &[f64], w: &[f64], x: f64) -> f64 {
+        let mass: Vec<f64> = w[..t.len() - 1]
+            .iter()
+            .map(|&v| v.max(0.0) + WEIGHT_EPS)
+            .collect();
+        let total: f64 = mass.iter().sum();
+        let mut f = 0.0;
+        for k in 0..t.len() - 1 {
+            let part = if t[k + 1] > t[k] {
+                ((x - t[k]) / (t[k + 1] - t[k])).clamp(0.0, 1.0)
+            } else if x >= t[k] {
+                1.0
+            } else {
+                0.0
+            };
+            f += mass[k] * part;
+        }
+        f / total
+    }
+
+    /// The smallest `x` with `cdf(x) ≥ u`, by bisection.
+    fn inverse(t: &[f64], w: &[f64], u: f64) -> f64 {
+        let (mut lo, mut hi) = (t[0], t[t.len() - 1]);
+        for _ in 0..200 {
+            let mid = 0.5 * (lo + hi);
+            if cdf(t, w, mid) >= u {
+                hi = mid;
+            } else {
+                lo = mid;
+            }
+        }
+        hi
+    }
+
+    fn random_ray(rng: &mut SplitMix64, n: usize, zero_widths: bool) -> (Vec<f32>, Vec<f32>) {
+        let mut t = vec![0.5f32 + rng.next_f32()];
+        for _ in 1..n {
+            let gap = if zero_widths && rng.next_f32() < 0.3 {
+                0.0
+            } else {
+                0.01 + rng.next_f32()
+            };
+            t.push(t[t.len() - 1] + gap);
+        }
+        let w = (0..n)
+            .map(|_| {
+                let r = rng.next_f32();
+                if r < 0.3 {
+                    0.0
+                } else {
+                    r * r * r
+                }
+            })
+            .collect();
+        (t, w)
+    }
+
+    #[test]
+    fn matches_f64_inverse_cdf() {
+        let mut rng = SplitMix64::new(11);
+        for case in 0..60 {
+            let n = 2 + case % 17;
+            let m = 1 + (case * 7) % 40;
+            let (t, w) = random_ray(&mut rng, n, case % 3 == 0);
+            let t64: Vec<f64> = t.iter().map(|&v| v as f64).collect();
+            let w64: Vec<f64> = w.iter().map(|&v| v as f64).collect();
+            let scale = t64[n - 1] - t64[0] + 1.0;
+            for jitter in [None, Some(case as u64)] {
+                let mut out = vec![0f32; m];
+                let mut r = jitter.map(SplitMix64::new);
+                sample_pdf_ray(&t, &w, r.as_mut(), &mut out).unwrap();
+                let mut r = jitter.map(SplitMix64::new);
+                for (i, &o) in out.iter().enumerate() {
+                    let xi = r.as_mut().map_or(0.5, |r| r.next_f32() as f64);
+                    let want = inverse(&t64, &w64, (i as f64 + xi) / m as f64);
+                    assert!(
+                        (o as f64 - want).abs() <= 1e-5 * scale,
+                        "case {case} i {i}: {o} vs {want}"
+                    );
+                }
+                assert!(out.windows(2).all(|p| p[0] <= p[1]));
+            }
+        }
+    }
+
+    #[test]
+    fn histogram_matches_weights() {
+        let t: Vec<f32> = (0..9).map(|k| k as f32 * 0.5).collect();
+        let w = [0.0f32, 0.1, 0.5, 2.0, 0.0, 0.3, 0.05, 1.0, 7.0];
+        let mass: Vec<f64> = w[..8].iter().map(|&v| v as f64 + WEIGHT_EPS).collect();
+        let total: f64 = mass.iter().sum();
+        let bin_of = |x: f32| ((x / 0.5) as usize).min(7);
+        // One ray, many stratified samples: every count within one of m·p.
+        let m = 100_000;
+        let mut out = vec![0f32; m];
+        sample_pdf_ray(&t, &w, Some(&mut SplitMix64::new(5)), &mut out).unwrap();
+        let mut count = [0f64; 8];
+        out.iter().for_each(|&x| count[bin_of(x)] += 1.0);
+        for k in 0..8 {
+            assert!(
+                (count[k] - m as f64 * mass[k] / total).abs() <= 2.0,
+                "bin {k}"
+            );
+        }
+        // Many rays, few jittered samples each: the pooled histogram within
+        // 4σ of the weights.
+        let rays = 20_000;
+        let (m, n) = (3, 9);
+        let tt: Vec<f32> = t.iter().copied().cycle().take(rays * n).collect();
+        let ww: Vec<f32> = w.iter().copied().cycle().take(rays * n).collect();
+        let mut out = vec![0f32; rays * m];
+        sample_pdf(&tt, &ww, n, m, Spacing::Jittered(9), &mut out).unwrap();
+        let mut count = [0f64; 8];
+        out.iter().for_each(|&x| count[bin_of(x)] += 1.0);
+        let all = (rays * m) as f64;
+        for k in 0..8 {
+            let p = mass[k] / total;
+            let sigma = (all * p * (1.0 - p)).sqrt().max(1.0);
+            assert!((count[k] - all * p).abs() <= 4.0 * sigma, "bin {k}");
+        }
+    }
+
+    #[test]
+    fn zero_weights_are_uniform() {
+        let n = 11;
+        let t: Vec<f32> = (0..n).map(|k| 2.0 + k as f32 * 0.25).collect();
+        let m = 40;
+        let mut out = vec![0f32; m];
+        sample_pdf_ray(&t, &[0.0; 11], None, &mut out).unwrap();
+        for (i, &o) in out.iter().enumerate() {
+            let want = 2.0 + (i as f64 + 0.5) / m as f64 * 2.5;
+            assert!((o as f64 - want).abs() < 1e-6, "{i}: {o} vs {want}");
+        }
+    }
+
+    #[test]
+    fn hard_cases_stay_finite_sorted_and_in_range() {
+        let big = [f32::MAX, f32::INFINITY, f32::NAN, -1.0, 1e38, 0.0, f32::MAX];
+        let t: Vec<f32> = (0..7).map(|k| k as f32).collect();
+        let mut out = vec![0f32; 64];
+        for jitter in [None, Some(SplitMix64::new(1))] {
+            let mut j = jitter;
+            sample_pdf_ray(&t, &big, j.as_mut(), &mut out).unwrap();
+            assert!(out.iter().all(|v| v.is_finite() && (0.0..=6.0).contains(v)));
+            assert!(out.windows(2).all(|p| p[0] <= p[1]));
+            // NaN, negative and 0 weights get (almost) nothing.
+            assert!(out.iter().all(|&v| !(2.0..4.0).contains(&v) || v == 2.0));
+        }
+        // Coincident depths: every sample is that depth.
+        sample_pdf_ray(&[3.0; 5], &[1.0, 0.0, 5.0, 2.0, 1.0], None, &mut out).unwrap();
+        assert!(out.iter().all(|&v| v == 3.0));
+        // Zero-width bins holding most of the weight put samples on them.
+        let t = [0.0, 1.0, 1.0, 2.0];
+        sample_pdf_ray(&t, &[0.0, 1e6, 0.0, 0.0], None, &mut out).unwrap();
+        assert!(out.iter().all(|&v| v == 1.0));
+        // n = 2, m = 1 and m = 0.
+        let mut one = [0f32];
+        sample_pdf_ray(&[1.0, 3.0], &[0.0, 0.0], None, &mut one).unwrap();
+        assert_eq!(one[0], 2.0);
+        sample_pdf_ray(&[1.0, 3.0], &[0.0, 0.0], None, &mut []).unwrap();
+        // Refused: too few depths, unsorted or NaN depths, mismatched sizes.
+        assert!(sample_pdf_ray(&[1.0], &[1.0], None, &mut one).is_err());
+        assert!(sample_pdf_ray(&[2.0, 1.0], &[1.0, 1.0], None, &mut one).is_err());
+        assert!(sample_pdf_ray(&[0.0, f32::NAN], &[1.0, 1.0], None, &mut one).is_err());
+        assert!(sample_pdf_ray(&[0.0, 1.0], &[1.0], None, &mut one).is_err());
+        assert!(sample_pdf(&[0.0, 1.0, 2.0], &[1.0; 3], 2, 1, Spacing::Even, &mut one).is_err());
+        assert!(sample_pdf(&[0.0, 1.0], &[1.0; 2], 2, 2, Spacing::Even, &mut one).is_err());
+        assert!(sample_pdf(&[1.0, 0.0], &[1.0; 2], 2, 1, Spacing::Even, &mut one).is_err());
+    }
+
+    #[test]
+    fn batches_match_single_rays_for_any_thread_count() {
+        let mut rng = SplitMix64::new(3);
+        let (rays, n, m) = (500, 12, 20);
+        let (mut t, mut w) = (Vec::new(), Vec::new());
+        for _ in 0..rays {
+            let (a, b) = random_ray(&mut rng, n, true);
+            t.extend(a);
+            w.extend(b);
+        }
+        let run = |threads: usize, spacing: Spacing| {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap();
+            let mut out = vec![0f32; rays * m];
+            pool.install(|| sample_pdf(&t, &w, n, m, spacing, &mut out).unwrap());
+            out
+        };
+        for spacing in [Spacing::Even, Spacing::Jittered(77)] {
+            let one = run(1, spacing);
+            assert_eq!(one, run(2, spacing));
+            assert_eq!(one, run(3, spacing));
+            for r in 0..rays {
+                let mut o = vec![0f32; m];
+                let mut g = ray_rng(77, r as u64);
+                let g = matches!(spacing, Spacing::Jittered(_)).then_some(&mut g);
+                sample_pdf_ray(&t[r * n..][..n], &w[r * n..][..n], g, &mut o).unwrap();
+                assert_eq!(o, one[r * m..][..m]);
+            }
+        }
+        // Jitter differs between rays with identical inputs.
+        let tt: Vec<f32> = t[..n].iter().copied().cycle().take(2 * n).collect();
+        let ww: Vec<f32> = w[..n].iter().copied().cycle().take(2 * n).collect();
+        let mut out = vec![0f32; 2 * m];
+        sample_pdf(&tt, &ww, n, m, Spacing::Jittered(1), &mut out).unwrap();
+        assert_ne!(out[..m], out[m..]);
+    }
+
+    #[test]
+    fn throughput() {
+        let (rays, n, m) = (65536, 64, 128);
+        let mut rng = SplitMix64::new(4);
+        let (mut t, mut w) = (Vec::new(), Vec::new());
+        for _ in 0..rays {
+            let (a, b) = random_ray(&mut rng, n, false);
+            t.extend(a);
+            w.extend(b);
+        }
+        let mut fine = vec![0f32; rays * m];
+        let mut merged = vec![0f32; rays * (n + m)];
+        let best = |f: &mut dyn FnMut()| {
+            (0..5)
+                .map(|_| {
+                    let start = std::time::Instant::now();
+                    f();
+                    start.elapsed().as_secs_f64()
+                })
+                .fold(f64::INFINITY, f64::min)
+        };
+        let sample =
+            best(&mut || sample_pdf(&t, &w, n, m, Spacing::Jittered(1), &mut fine).unwrap());
+        let merge = best(&mut || merge_depths(&t, n, &fine, m, &mut merged).unwrap());
+        println!(
+            "importance sampling, {rays} rays, n={n} → m={m}, {} threads: sample_pdf {:.2} M rays/s, merge {:.2} M rays/s",
+            rayon::current_num_threads(),
+            rays as f64 / sample / 1e6,
+            rays as f64 / merge / 1e6
+        );
+    }
+
+    #[test]
+    fn merge_is_the_sorted_union() {
+        let mut rng = SplitMix64::new(8);
+        let (rays, n, m) = (50, 9, 14);
+        let mut coarse = Vec::new();
+        let mut fine = vec![0f32; rays * m];
+        let mut w = Vec::new();
+        for _ in 0..rays {
+            let (a, b) = random_ray(&mut rng, n, true);
+            coarse.extend(a);
+            w.extend(b);
+        }
+        sample_pdf(&coarse, &w, n, m, Spacing::Jittered(2), &mut fine).unwrap();
+        let mut out = vec![0f32; rays * (n + m)];
+        merge_depths(&coarse, n, &fine, m, &mut out).unwrap();
+        for r in 0..rays {
+            let mut want: Vec<f32> = coarse[r * n..][..n].to_vec();
+            want.extend(&fine[r * m..][..m]);
+            want.sort_by(f32::total_cmp);
+            assert_eq!(want, out[r * (n + m)..][..n + m]);
+        }
+        assert!(merge_depths(&coarse, n, &fine[1..], m, &mut out).is_err());
+        assert!(merge_depths(&coarse, 0, &fine, m, &mut out).is_err());
+        let mut o = [0f32; 3];
+        merge_depths(&[1.0, 2.0, 3.0], 3, &[], 0, &mut o).unwrap();
+        assert_eq!(o, [1.0, 2.0, 3.0]);
+    }
+}
