@@ -11,7 +11,9 @@ use sdfl_stdlib::camera::Camera;
 use sdfl_stdlib::material::Material;
 use sdfl_stdlib::num::{Dual, V3};
 use sdfl_stdlib::shape::{ArgSource, Fixed};
-use sdfl_stdlib::value::{Backend, Dataset, Field, Output, Sampler, SdfField, TrainJob, VolumeJob};
+use sdfl_stdlib::value::{
+    Backend, Dataset, Field, Nerf, Output, Sampler, SdfField, TrainJob, VolumeJob,
+};
 use sdfl_stdlib::OutputKind;
 use serde::Serialize;
 
@@ -103,20 +105,19 @@ fn field_view<'a>(
             })
         }
         Field::Nerf(n) => {
-            let net = NerfNet::new(n);
-            let params = net.init(n.seed);
-            let bg = n.background.map(|x| x as f32);
+            let model = NerfObjective::new(n);
+            let params = model.initial();
             Box::new(move |cam: &Camera, wh, _| {
-                nerf_view(&net, &params, bg, &strat, sampler, cam, wh)
+                nerf_view(n, &model, &params, &strat, sampler, cam, wh)
             })
         }
     })
 }
 
 fn nerf_view(
-    net: &NerfNet,
+    spec: &Nerf,
+    model: &NerfObjective,
     params: &[f32],
-    background: [f32; 3],
     strat: &Stratified,
     sampler: &Sampler,
     cam: &Camera,
@@ -127,9 +128,10 @@ fn nerf_view(
         height: h,
     };
     let v = render_nerf_view(
-        net,
+        &model.net,
+        model.fine.as_ref().map(|(f, m)| (f, *m)),
         params,
-        background,
+        spec.background.map(|x| x as f32),
         strat,
         sampler.last_interval,
         cam,
@@ -429,9 +431,17 @@ pub fn step_memory(job: &TrainJob) -> u64 {
         // the sample points, and the optimiser's copies of the weights.
         (Field::Nerf(n), _) => {
             let net = NerfNet::new(n);
-            NerfWork::bytes_for(&net, (rays * samples) as usize)
-                + rays * samples * 40
-                + 24 * net.len as u64
+            // The fine network sees the coarse and the fine samples.
+            let per_ray = samples
+                + if n.fine > 0 {
+                    samples + n.fine as u64
+                } else {
+                    0
+                };
+            let weights = net.len as u64 * if n.fine > 0 { 2 } else { 1 };
+            NerfWork::bytes_for(&net, (rays * per_ray) as usize)
+                + rays * per_ray * 40
+                + 24 * weights
         }
         (Field::Sdf(_), Backend::Fused) => 0,
         (Field::Sdf(_), Backend::Dfdx) => {
@@ -520,6 +530,11 @@ pub fn run_train_job(
 
     // The analytic model outlives the run that borrows it.
     let analytic = job.model.as_sdf().map(TrainModel::new);
+    // A second copy of a neural model's layout, for rendering.
+    let nerf_model = match &*job.model {
+        Field::Nerf(n) => Some(NerfObjective::new(n)),
+        Field::Sdf(_) => None,
+    };
     let objective: Box<dyn Objective> = match (&*job.model, &analytic) {
         (Field::Nerf(n), _) => Box::new(NerfObjective::new(n)),
         (Field::Sdf(_), Some(model)) => Box::new(FieldObjective::new(model, job.backend)),
@@ -574,10 +589,15 @@ pub fn run_train_job(
         &*job.model,
         &analytic,
     ) {
-        (Field::Nerf(n), _) => {
-            let bg = n.background.map(|x| x as f32);
-            nerf_view(&NerfNet::new(n), values, bg, &strat, &job.sampler, cam, wh)
-        }
+        (Field::Nerf(n), _) => nerf_view(
+            n,
+            nerf_model.as_ref().expect("a neural model"),
+            values,
+            &strat,
+            &job.sampler,
+            cam,
+            wh,
+        ),
         (Field::Sdf(f), Some(model)) => {
             let args = model.plain(values);
             let density = DensityModel {

@@ -74,6 +74,7 @@ fn batch(eye: [f64; 3], last: LastInterval) -> Batch {
         samples: 48,
         shared: true,
         last_interval: last,
+        seed: 0,
     }
 }
 

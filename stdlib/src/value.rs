@@ -262,6 +262,9 @@ pub struct Nerf {
     pub skips: Vec<usize>,
     /// Width of the colour branch.
     pub color_width: usize,
+    /// Fine samples per ray drawn from the coarse network's weights and
+    /// evaluated by a second network (0: no fine network).
+    pub fine: usize,
     /// Colour seen where a ray leaves the volume.
     pub background: [f64; 3],
     /// Seed of the initial weights.

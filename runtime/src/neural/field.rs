@@ -1,6 +1,12 @@
 //! A NeRF as a model the trainer fits ([`NerfObjective`]) and as a field to
 //! render ([`render_nerf_view`]): samples along rays → the network over the
-//! whole batch → compositing per ray → MSE, and back.
+//! whole batch → compositing per ray → MSE, and back. With `fine` samples,
+//! a coarse network's compositing weights place the fine samples by inverse
+//! CDF (not differentiated, as in NeRF) and a second network evaluates the
+//! union of both; the loss is the sum of both networks' losses.
+//!
+//! Samples are ragged (each ray has its own count) so that samplers which
+//! skip empty space plug in unchanged.
 
 use rayon::prelude::*;
 use sdfl_stdlib::camera::Camera;
@@ -10,6 +16,7 @@ use super::composite::{composite, composite_backward};
 use super::nerf::{NerfNet, NerfWork};
 use crate::train::fused::Batch;
 use crate::train::{Objective, TensorSpec, TrainError};
+use crate::volume::importance::{merge_depths, sample_pdf, Spacing};
 use crate::volume::march::intervals_into;
 use crate::volume::{camera_rays, ImageSize, Ray, Stratified, VolumeError};
 
@@ -19,11 +26,78 @@ const RAY_BLOCK: usize = 64;
 /// Samples per network pass when rendering (bounds the buffers).
 const RENDER_ROWS: usize = 1 << 16;
 
-/// A NeRF being trained.
-pub struct NerfObjective {
-    pub net: NerfNet,
-    seed: u64,
-    background: [f32; 3],
+/// The samples of a batch of rays: ray `r`'s depths are
+/// `t[offsets[r]..offsets[r + 1]]`, each with its interval in `delta`.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Samples {
+    pub offsets: Vec<usize>,
+    pub t: Vec<f32>,
+    pub delta: Vec<f32>,
+}
+
+impl Samples {
+    /// `n` depths per ray from `depth_of(ray)`, intervals per `last`.
+    pub fn fixed<'d>(
+        &mut self,
+        rays: usize,
+        n: usize,
+        depth_of: impl Fn(usize) -> &'d [f32],
+        last: LastInterval,
+    ) {
+        self.offsets.clear();
+        self.offsets.extend((0..=rays).map(|r| r * n));
+        self.t.clear();
+        self.delta.clear();
+        let mut d = Vec::with_capacity(n);
+        for r in 0..rays {
+            let t = depth_of(r);
+            intervals_into(t, last, &mut d);
+            self.t.extend_from_slice(t);
+            self.delta.extend_from_slice(&d);
+        }
+    }
+
+    pub fn rays(&self) -> usize {
+        self.offsets.len().saturating_sub(1)
+    }
+
+    fn range(&self, r: usize) -> std::ops::Range<usize> {
+        self.offsets[r]..self.offsets[r + 1]
+    }
+
+    /// Positions and directions of every sample.
+    fn points(&self, rays: &[Ray], points: &mut Vec<f32>, dirs: &mut Vec<f32>) {
+        let n = self.t.len();
+        points.resize(n * 3, 0.0);
+        dirs.resize(n * 3, 0.0);
+        // Fixed chunks of samples, each finding its rays: parallel whatever
+        // the counts per ray.
+        let ray_of = |k: usize| self.offsets.partition_point(|&o| o <= k) - 1;
+        points
+            .par_chunks_mut(3 * 1024)
+            .zip(dirs.par_chunks_mut(3 * 1024))
+            .enumerate()
+            .for_each(|(c, (p, d))| {
+                let k0 = c * 1024;
+                let mut r = ray_of(k0);
+                for (j, (p, d)) in p.chunks_mut(3).zip(d.chunks_mut(3)).enumerate() {
+                    let k = k0 + j;
+                    while self.offsets[r + 1] <= k {
+                        r += 1;
+                    }
+                    let ray = &rays[r];
+                    for i in 0..3 {
+                        p[i] = ray.origin[i] + self.t[k] * ray.dir[i];
+                        d[i] = ray.dir[i];
+                    }
+                }
+            });
+    }
+}
+
+/// One network's buffers.
+#[derive(Default)]
+struct Pass {
     work: NerfWork,
     points: Vec<f32>,
     dirs: Vec<f32>,
@@ -31,72 +105,189 @@ pub struct NerfObjective {
     d_rgb: Vec<f32>,
 }
 
+/// The weighted MSE of `net` on `samples` of `rays` against `targets`,
+/// its gradient added into `grad`; `weights` (when given) receives each
+/// sample's compositing weight.
+#[allow(clippy::too_many_arguments)]
+fn fit_pass(
+    net: &NerfNet,
+    values: &[f32],
+    rays: &[Ray],
+    targets: &[[f32; 3]],
+    samples: &Samples,
+    background: [f32; 3],
+    scale: f32,
+    pass: &mut Pass,
+    grad: &mut [f32],
+    mut weights: Option<&mut Vec<f32>>,
+) -> f64 {
+    samples.points(rays, &mut pass.points, &mut pass.dirs);
+    net.forward(values, &pass.points, &pass.dirs, &mut pass.work);
+    let n = samples.t.len();
+    pass.d_sigma.resize(n, 0.0);
+    pass.d_rgb.resize(3 * n, 0.0);
+    if let Some(w) = weights.as_deref_mut() {
+        w.resize(n, 0.0);
+    }
+    let (sigma, rgb) = (&pass.work.sigma, &pass.work.rgb);
+    // Each block of rays owns its samples' slices of the adjoints.
+    let blocks: Vec<usize> = (0..rays.len()).step_by(RAY_BLOCK).collect();
+    let d_sigma = SharedSlice(pass.d_sigma.as_mut_ptr());
+    let d_rgb = SharedSlice(pass.d_rgb.as_mut_ptr());
+    let w_out = weights.map(|w| SharedSlice(w.as_mut_ptr()));
+    let losses: Vec<f64> = blocks
+        .par_iter()
+        .map(|&r0| {
+            let (d_sigma, d_rgb, w_out) = (d_sigma, d_rgb, w_out);
+            let mut trans = Vec::new();
+            let mut loss = 0f64;
+            for r in r0..(r0 + RAY_BLOCK).min(rays.len()) {
+                let k = samples.range(r);
+                let (sg, c) = (&sigma[k.clone()], &rgb[3 * k.start..3 * k.end]);
+                let (t, delta) = (&samples.t[k.clone()], &samples.delta[k.clone()]);
+                let out = composite(sg, c, t, delta, background);
+                let mut g = [0f32; 3];
+                for i in 0..3 {
+                    let e = out.colour[i] - targets[r][i];
+                    loss += (e * e * scale) as f64;
+                    g[i] = 2.0 * e * scale;
+                }
+                // SAFETY: ray r's samples k belong to this block alone.
+                let (ds, dc) = unsafe {
+                    (
+                        std::slice::from_raw_parts_mut(d_sigma.0.add(k.start), k.len()),
+                        std::slice::from_raw_parts_mut(d_rgb.0.add(3 * k.start), 3 * k.len()),
+                    )
+                };
+                composite_backward(sg, c, delta, background, g, ds, dc, &mut trans);
+                if let Some(w) = w_out {
+                    // SAFETY: as above.
+                    let w = unsafe { std::slice::from_raw_parts_mut(w.0.add(k.start), k.len()) };
+                    // trans[j] is the transmittance before sample j.
+                    for (j, wj) in w.iter_mut().enumerate() {
+                        *wj = trans[j] * -(-(sg[j] * delta[j])).exp_m1();
+                    }
+                }
+            }
+            loss
+        })
+        .collect();
+    net.backward(
+        values,
+        &mut pass.work,
+        &mut pass.d_sigma,
+        &mut pass.d_rgb,
+        grad,
+    );
+    losses.iter().sum()
+}
+
+#[derive(Clone, Copy)]
+struct SharedSlice(*mut f32);
+// SAFETY: only ever used to write disjoint ranges from parallel tasks.
+unsafe impl Send for SharedSlice {}
+unsafe impl Sync for SharedSlice {}
+
+/// A NeRF being trained: the coarse network, and the fine one with its
+/// sample count when hierarchical.
+pub struct NerfObjective {
+    pub net: NerfNet,
+    pub fine: Option<(NerfNet, usize)>,
+    seed: u64,
+    background: [f32; 3],
+    coarse_pass: Pass,
+    fine_pass: Pass,
+    samples: Samples,
+    fine_samples: Samples,
+    weights: Vec<f32>,
+    fine_t: Vec<f32>,
+}
+
 impl NerfObjective {
     pub fn new(spec: &Nerf) -> Self {
+        let net = NerfNet::new(spec);
+        let fine = (spec.fine > 0).then(|| (NerfNet::new_at(spec, net.len), spec.fine));
         NerfObjective {
-            net: NerfNet::new(spec),
+            net,
+            fine,
             seed: spec.seed,
             background: spec.background.map(|x| x as f32),
-            work: NerfWork::default(),
-            points: Vec::new(),
-            dirs: Vec::new(),
-            d_sigma: Vec::new(),
-            d_rgb: Vec::new(),
+            coarse_pass: Pass::default(),
+            fine_pass: Pass::default(),
+            samples: Samples::default(),
+            fine_samples: Samples::default(),
+            weights: Vec::new(),
+            fine_t: Vec::new(),
+        }
+    }
+
+    fn networks(&self) -> Vec<(&'static str, &NerfNet)> {
+        match &self.fine {
+            None => vec![("", &self.net)],
+            Some((f, _)) => vec![("coarse.", &self.net), ("fine.", f)],
         }
     }
 }
 
-/// Sample positions and directions of `rays`, `samples` per ray, with
-/// depths `depth_of(ray)`.
-fn sample_points<'d>(
-    rays: &[Ray],
-    samples: usize,
-    depth_of: impl Fn(usize) -> &'d [f32] + Sync,
-    points: &mut Vec<f32>,
-    dirs: &mut Vec<f32>,
-) {
-    points.resize(rays.len() * samples * 3, 0.0);
-    dirs.resize(rays.len() * samples * 3, 0.0);
-    points
-        .par_chunks_mut(samples * 3)
-        .zip(dirs.par_chunks_mut(samples * 3))
-        .enumerate()
-        .for_each(|(r, (p, d))| {
-            let ray = &rays[r];
-            for (k, &t) in depth_of(r).iter().enumerate() {
-                for i in 0..3 {
-                    p[3 * k + i] = ray.origin[i] + t * ray.dir[i];
-                    d[3 * k + i] = ray.dir[i];
-                }
-            }
-        });
+/// Fine samples for rays with `n` coarse samples each and their weights:
+/// `m` depths by inverse CDF merged with the coarse ones (`n + m` per ray).
+#[allow(clippy::too_many_arguments)]
+fn fine_samples(
+    coarse: &Samples,
+    n: usize,
+    weights: &[f32],
+    m: usize,
+    spacing: Spacing,
+    last: LastInterval,
+    fine_t: &mut Vec<f32>,
+    out: &mut Samples,
+) -> Result<(), VolumeError> {
+    let rays = coarse.rays();
+    fine_t.resize(rays * m, 0.0);
+    sample_pdf(&coarse.t, weights, n, m, spacing, fine_t)?;
+    let mut merged = vec![0.0; rays * (n + m)];
+    merge_depths(&coarse.t, n, fine_t, m, &mut merged)?;
+    out.fixed(
+        rays,
+        n + m,
+        |r| &merged[r * (n + m)..(r + 1) * (n + m)],
+        last,
+    );
+    Ok(())
 }
 
 impl Objective for NerfObjective {
     fn tensors(&self) -> Vec<TensorSpec> {
-        self.net
-            .layers()
+        self.networks()
             .into_iter()
-            .flat_map(|(name, d)| {
-                let w = d.fan_in() * d.out;
-                [
-                    TensorSpec {
-                        name: format!("{name}.weight"),
-                        offset: d.offset,
-                        len: w,
-                    },
-                    TensorSpec {
-                        name: format!("{name}.bias"),
-                        offset: d.offset + w,
-                        len: d.out,
-                    },
-                ]
+            .flat_map(|(prefix, net)| {
+                net.layers().into_iter().flat_map(move |(name, d)| {
+                    let w = d.fan_in() * d.out;
+                    [
+                        TensorSpec {
+                            name: format!("{prefix}{name}.weight"),
+                            offset: d.offset,
+                            len: w,
+                        },
+                        TensorSpec {
+                            name: format!("{prefix}{name}.bias"),
+                            offset: d.offset + w,
+                            len: d.out,
+                        },
+                    ]
+                })
             })
             .collect()
     }
 
     fn initial(&self) -> Vec<f32> {
-        self.net.init(self.seed)
+        let mut v = self.net.init(self.seed);
+        if let Some((f, _)) = &self.fine {
+            v.resize(v.len() + f.len, 0.0);
+            // The fine network starts from its own draw.
+            f.init_into(self.seed.wrapping_add(1), &mut v);
+        }
+        v
     }
 
     fn loss_and_grad(
@@ -106,66 +297,73 @@ impl Objective for NerfObjective {
         weight: f64,
         grad: &mut [f32],
     ) -> Result<f64, TrainError> {
-        let (rays, s) = (batch.rays.len(), batch.samples);
-        sample_points(
-            &batch.rays,
-            s,
-            |r| batch.depths_of(r),
-            &mut self.points,
-            &mut self.dirs,
-        );
-        self.net
-            .forward(values, &self.points, &self.dirs, &mut self.work);
-        self.d_sigma.resize(rays * s, 0.0);
-        self.d_rgb.resize(rays * s * 3, 0.0);
+        let rays = batch.rays.len();
         let scale = (weight / (3 * rays.max(1)) as f64) as f32;
-        let (sigma, rgb, bg) = (&self.work.sigma, &self.work.rgb, self.background);
-        let last = batch.last_interval;
-        let block_losses: Vec<f64> = self
-            .d_sigma
-            .par_chunks_mut(RAY_BLOCK * s)
-            .zip(self.d_rgb.par_chunks_mut(RAY_BLOCK * s * 3))
-            .enumerate()
-            .map(|(blk, (ds, dc))| {
-                let (mut delta, mut trans) = (Vec::with_capacity(s), Vec::with_capacity(s + 1));
-                let mut loss = 0f64;
-                for (j, (ds, dc)) in ds.chunks_mut(s).zip(dc.chunks_mut(3 * s)).enumerate() {
-                    let r = blk * RAY_BLOCK + j;
-                    let t = batch.depths_of(r);
-                    intervals_into(t, last, &mut delta);
-                    let (sg, c) = (&sigma[r * s..(r + 1) * s], &rgb[3 * r * s..3 * (r + 1) * s]);
-                    let out = composite(sg, c, t, &delta, bg);
-                    let mut g = [0f32; 3];
-                    for i in 0..3 {
-                        let e = out.colour[i] - batch.targets[r][i];
-                        loss += (e * e * scale) as f64;
-                        g[i] = 2.0 * e * scale;
-                    }
-                    composite_backward(sg, c, &delta, bg, g, ds, dc, &mut trans);
-                }
-                loss
-            })
-            .collect();
-        self.net.backward(
-            values,
-            &mut self.work,
-            &mut self.d_sigma,
-            &mut self.d_rgb,
-            grad,
+        self.samples.fixed(
+            rays,
+            batch.samples,
+            |r| batch.depths_of(r),
+            batch.last_interval,
         );
-        Ok(block_losses.iter().sum())
+        let want_weights = self.fine.is_some().then_some(&mut self.weights);
+        let mut loss = fit_pass(
+            &self.net,
+            values,
+            &batch.rays,
+            &batch.targets,
+            &self.samples,
+            self.background,
+            scale,
+            &mut self.coarse_pass,
+            grad,
+            want_weights,
+        );
+        if let Some((fine, m)) = &self.fine {
+            // Jittered like the coarse samples, from the batch's own seed.
+            let spacing = if batch.shared {
+                Spacing::Even
+            } else {
+                Spacing::Jittered(batch.seed)
+            };
+            fine_samples(
+                &self.samples,
+                batch.samples,
+                &self.weights,
+                *m,
+                spacing,
+                batch.last_interval,
+                &mut self.fine_t,
+                &mut self.fine_samples,
+            )?;
+            loss += fit_pass(
+                fine,
+                values,
+                &batch.rays,
+                &batch.targets,
+                &self.fine_samples,
+                self.background,
+                scale,
+                &mut self.fine_pass,
+                grad,
+                None,
+            );
+        }
+        Ok(loss)
     }
 }
 
-/// A rendered view: colour and (when asked) expected depth per pixel.
+/// A rendered view: colour and expected depth per pixel.
 pub struct NerfView {
     pub colour: Vec<[f32; 3]>,
     pub depth: Vec<f32>,
 }
 
-/// Renders one view of a NeRF with stratified (unjittered) samples.
+/// Renders one view of a NeRF with stratified (unjittered) samples, through
+/// the fine network when there is one.
+#[allow(clippy::too_many_arguments)]
 pub fn render_nerf_view(
     net: &NerfNet,
+    fine: Option<(&NerfNet, usize)>,
     params: &[f32],
     background: [f32; 3],
     sampler: &Stratified,
@@ -176,32 +374,64 @@ pub fn render_nerf_view(
     sampler.validate()?;
     let rays = camera_rays(cam, size)?;
     let t = sampler.depths();
-    let s = t.len();
-    let mut delta = Vec::new();
-    intervals_into(&t, last, &mut delta);
+    let n = t.len();
     let mut view = NerfView {
         colour: vec![[0.0; 3]; rays.len()],
         depth: vec![0.0; rays.len()],
     };
-    let (mut work, mut points, mut dirs) = (NerfWork::default(), Vec::new(), Vec::new());
-    let per_pass = (RENDER_ROWS / s.max(1)).max(1);
+    let per_sample = n + fine.map_or(0, |(_, m)| n + m);
+    let per_pass = (RENDER_ROWS / per_sample.max(1)).max(1);
+    let (mut pass, mut samples, mut fine_s) =
+        (Pass::default(), Samples::default(), Samples::default());
+    let (mut weights, mut fine_t) = (Vec::new(), Vec::new());
     for (chunk, (colour, depth)) in rays.chunks(per_pass).zip(
         view.colour
             .chunks_mut(per_pass)
             .zip(view.depth.chunks_mut(per_pass)),
     ) {
-        sample_points(chunk, s, |_| &t, &mut points, &mut dirs);
-        net.forward(params, &points, &dirs, &mut work);
+        samples.fixed(chunk.len(), n, |_| &t, last);
+        samples.points(chunk, &mut pass.points, &mut pass.dirs);
+        net.forward(params, &pass.points, &pass.dirs, &mut pass.work);
+        let used = match fine {
+            None => &samples,
+            Some((f, m)) => {
+                weights.resize(samples.t.len(), 0.0);
+                let (sigma, delta) = (&pass.work.sigma, &samples.delta);
+                weights.par_chunks_mut(n).enumerate().for_each(|(r, w)| {
+                    let mut trans = 1.0f32;
+                    for (j, wj) in w.iter_mut().enumerate() {
+                        let keep = (-(sigma[r * n + j] * delta[r * n + j])).exp();
+                        *wj = trans * (1.0 - keep);
+                        trans *= keep;
+                    }
+                });
+                fine_samples(
+                    &samples,
+                    n,
+                    &weights,
+                    m,
+                    Spacing::Even,
+                    last,
+                    &mut fine_t,
+                    &mut fine_s,
+                )?;
+                fine_s.points(chunk, &mut pass.points, &mut pass.dirs);
+                f.forward(params, &pass.points, &pass.dirs, &mut pass.work);
+                &fine_s
+            }
+        };
+        let work = &pass.work;
         colour
             .par_iter_mut()
             .zip(depth.par_iter_mut())
             .enumerate()
             .for_each(|(r, (c, d))| {
+                let k = used.range(r);
                 let out = composite(
-                    &work.sigma[r * s..(r + 1) * s],
-                    &work.rgb[3 * r * s..3 * (r + 1) * s],
-                    &t,
-                    &delta,
+                    &work.sigma[k.clone()],
+                    &work.rgb[3 * k.start..3 * k.end],
+                    &used.t[k.clone()],
+                    &used.delta[k.clone()],
                     background,
                 );
                 *c = out.colour;
@@ -233,6 +463,7 @@ mod tests {
             width: 12,
             skips: vec![1],
             color_width: 6,
+            fine: 0,
             background: [0.3, 0.6, 0.9],
             seed: 4,
         };
@@ -270,6 +501,7 @@ mod tests {
             samples,
             shared: false,
             last_interval: LastInterval::Zero,
+            seed: 5,
         };
         let values = obj.initial();
         let mut grad = vec![0.0; values.len()];

@@ -37,16 +37,23 @@ pub struct NerfNet {
     pub feature: Option<Dense>,
     pub color_hidden: Dense,
     pub color_out: Dense,
-    /// Scalars of all layers.
+    /// Where its parameters start in the flat vector, and how many.
+    pub first: usize,
     pub len: usize,
 }
 
 impl NerfNet {
     pub fn new(spec: &Nerf) -> Self {
+        Self::new_at(spec, 0)
+    }
+
+    /// The network with its parameters from `first` on in a flat vector
+    /// holding others too (the coarse and fine networks of one model).
+    pub fn new_at(spec: &Nerf, first: usize) -> Self {
         let position = harmonic(&spec.position);
         let direction = spec.direction.as_ref().map(harmonic);
         let (enc, w) = (position.width(), spec.width);
-        let mut offset = 0;
+        let mut offset = first;
         let mut layer = |parts: &[usize], out: usize, act: Activation| {
             let d = Dense::new(parts, out, act, offset);
             offset = d.end();
@@ -81,7 +88,8 @@ impl NerfNet {
             feature,
             color_hidden,
             color_out,
-            len: offset,
+            first,
+            len: offset - first,
         }
     }
 
@@ -104,12 +112,17 @@ impl NerfNet {
 
     /// PyTorch's default initialisation, layer by layer from one seed.
     pub fn init(&self, seed: u64) -> Vec<f32> {
-        let mut params = vec![0.0; self.len];
+        let mut params = vec![0.0; self.first + self.len];
+        self.init_into(seed, &mut params);
+        params
+    }
+
+    /// Writes the initial weights into `params[first..first + len]`.
+    pub fn init_into(&self, seed: u64, params: &mut [f32]) {
         let mut rng = SplitMix64::new(seed ^ 0x6E65_7266);
         for (_, d) in self.layers() {
-            d.init(&mut params, &mut rng);
+            d.init(params, &mut rng);
         }
-        params
     }
 
     /// Multiply-adds of one sample's forward pass.
@@ -334,6 +347,7 @@ mod tests {
             width: 16,
             skips: vec![2],
             color_width: 8,
+            fine: 0,
             background: [0.0; 3],
             seed: 0,
         }

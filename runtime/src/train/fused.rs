@@ -33,6 +33,9 @@ pub struct Batch {
     pub samples: usize,
     pub shared: bool,
     pub last_interval: LastInterval,
+    /// The step's seed, for anything else a model draws at random (fine
+    /// samples), so a step stays a function of (seed, step).
+    pub seed: u64,
 }
 
 impl Batch {

@@ -82,11 +82,11 @@ impl<'a> TrainSetup<'a> {
     pub fn batch(&self, step: usize) -> Result<Batch, TrainError> {
         let size = self.size()?;
         let cams: Vec<Camera> = self.views.iter().map(|v| v.camera).collect();
-        let mut rng = SplitMix64::new(
-            self.seed
-                .wrapping_mul(0x9E37_79B9_7F4A_7C15)
-                .wrapping_add(step as u64),
-        );
+        let step_seed = self
+            .seed
+            .wrapping_mul(0x9E37_79B9_7F4A_7C15)
+            .wrapping_add(step as u64);
+        let mut rng = SplitMix64::new(step_seed);
         let total = size.pixels() * cams.len();
         let rays = random_rays(&cams, size, self.rays.min(total), &mut rng)?;
         let targets = rays
@@ -111,6 +111,7 @@ impl<'a> TrainSetup<'a> {
             samples: s.samples,
             shared: !s.jitter,
             last_interval: s.last_interval,
+            seed: step_seed,
         })
     }
 }

@@ -699,6 +699,7 @@ fn table() -> Vec<Builtin> {
                 opt("width", Type::Number, "128", "width of the hidden layers"),
                 opt("skips", Type::list(Type::Number), "[3]", "trunk layers (from 0) that see the encoded position again"),
                 opt("color_width", Type::Number, "64", "width of the colour branch"),
+                opt("fine", Type::Number, "0", "fine samples per ray, drawn by inverse CDF from the coarse network's weights for a second (fine) network of the same shape; 0: one network"),
                 opt("background", Type::Vec3, "[0, 0, 0]", "colour where a ray leaves the volume"),
                 opt("seed", Type::Number, "0", "seed of the initial weights"),
             ],
@@ -739,6 +740,7 @@ fn table() -> Vec<Builtin> {
                     width: a.count("width", 1, 4096)? as usize,
                     skips,
                     color_width: a.count("color_width", 1, 4096)? as usize,
+                    fine: a.count("fine", 0, MAX_SAMPLES)? as usize,
                     background: colour(bg, bg_span)?.to_array(),
                     seed: a.count("seed", 0, u32::MAX as u64)?,
                 }))))
