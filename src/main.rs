@@ -161,6 +161,10 @@ fn describe_field(field: &sdfl_stdlib::value::Field) -> String {
             h.freqs,
             if h.include_input { "" } else { ", no input" }
         ),
+        Encoding::HashGrid(g) => format!(
+            "hashgrid({} levels x {} features, 2^{} rows, {}..{} cells a side)",
+            g.levels, g.features, g.log2_table, g.min_res, g.max_res
+        ),
     };
     match field {
         Field::Sdf(f) => format!(

@@ -239,11 +239,27 @@ pub struct Harmonic {
     pub include_input: bool,
 }
 
+/// A multiresolution hash encoding (Müller et al. 2022): `levels` grids
+/// from `min_res` to `max_res` cells a side over the box `min..max`, each
+/// a table of at most `2^log2_table` rows of `features` trainable numbers,
+/// trilinearly interpolated.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct HashGridSpec {
+    pub levels: u32,
+    pub features: u32,
+    pub log2_table: u32,
+    pub min_res: u32,
+    pub max_res: u32,
+    pub min: [f64; 3],
+    pub max: [f64; 3],
+}
+
 /// An input encoding of a neural field.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Encoding {
     Harmonic(Harmonic),
+    HashGrid(HashGridSpec),
 }
 
 /// A neural radiance field: an MLP from the encoded position to density
@@ -276,6 +292,7 @@ impl Encoding {
     pub fn width(&self) -> usize {
         match self {
             Encoding::Harmonic(h) => 3 * 2 * h.freqs + if h.include_input { 3 } else { 0 },
+            Encoding::HashGrid(g) => (g.levels * g.features) as usize,
         }
     }
 }

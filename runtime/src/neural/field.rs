@@ -13,7 +13,7 @@ use sdfl_stdlib::camera::Camera;
 use sdfl_stdlib::value::{LastInterval, Nerf};
 
 use super::composite::{composite, composite_backward};
-use super::nerf::{NerfNet, NerfWork};
+use super::nerf::{NerfNet, NerfWork, PositionEncoding};
 use crate::train::fused::Batch;
 use crate::train::{Objective, TensorSpec, TrainError};
 use crate::volume::importance::{merge_depths, sample_pdf, Spacing};
@@ -174,6 +174,7 @@ fn fit_pass(
         .collect();
     net.backward(
         values,
+        &pass.points,
         &mut pass.work,
         &mut pass.d_sigma,
         &mut pass.d_rgb,
@@ -261,21 +262,30 @@ impl Objective for NerfObjective {
         self.networks()
             .into_iter()
             .flat_map(|(prefix, net)| {
-                net.layers().into_iter().flat_map(move |(name, d)| {
-                    let w = d.fan_in() * d.out;
-                    [
-                        TensorSpec {
-                            name: format!("{prefix}{name}.weight"),
-                            offset: d.offset,
-                            len: w,
-                        },
-                        TensorSpec {
-                            name: format!("{prefix}{name}.bias"),
-                            offset: d.offset + w,
-                            len: d.out,
-                        },
-                    ]
-                })
+                let grid = match &net.position {
+                    PositionEncoding::Grid { grid, offset } => Some(TensorSpec {
+                        name: format!("{prefix}position.hashgrid"),
+                        offset: *offset,
+                        len: grid.param_count(),
+                    }),
+                    PositionEncoding::Harmonic(_) => None,
+                };
+                grid.into_iter()
+                    .chain(net.layers().into_iter().flat_map(move |(name, d)| {
+                        let w = d.fan_in() * d.out;
+                        [
+                            TensorSpec {
+                                name: format!("{prefix}{name}.weight"),
+                                offset: d.offset,
+                                len: w,
+                            },
+                            TensorSpec {
+                                name: format!("{prefix}{name}.bias"),
+                                offset: d.offset + w,
+                                len: d.out,
+                            },
+                        ]
+                    }))
             })
             .collect()
     }

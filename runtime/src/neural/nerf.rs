@@ -9,27 +9,75 @@
 //! [`NerfWork`] that is reused from step to step (no allocation once it has
 //! grown to the batch).
 
-use sdfl_stdlib::value::{Encoding, Nerf};
+use sdfl_stdlib::value::{Encoding, HashGridSpec, Nerf};
 
 use super::encoding::Harmonic;
+use super::hashgrid::{HashGrid, HashGridConfig, Touched};
 use super::mlp::{Activation, Dense};
 use crate::volume::SplitMix64;
 
-/// A 3-vector encoding as the runtime computes it.
-fn harmonic(e: &Encoding) -> Harmonic {
-    match e {
-        sdfl_stdlib::value::Encoding::Harmonic(h) => Harmonic {
-            dims: 3,
-            freqs: h.freqs,
-            include_input: h.include_input,
-        },
+/// A harmonic 3-vector encoding as the runtime computes it.
+fn harmonic(h: &sdfl_stdlib::value::Harmonic) -> Harmonic {
+    Harmonic {
+        dims: 3,
+        freqs: h.freqs,
+        include_input: h.include_input,
     }
+}
+
+/// How positions are encoded: fixed features, or a trainable hash grid
+/// whose tables come first in the network's parameters.
+#[derive(Debug, Clone)]
+pub enum PositionEncoding {
+    Harmonic(Harmonic),
+    Grid { grid: HashGrid, offset: usize },
+}
+
+impl PositionEncoding {
+    pub fn width(&self) -> usize {
+        match self {
+            PositionEncoding::Harmonic(h) => h.width(),
+            PositionEncoding::Grid { grid, .. } => grid.output_dim(),
+        }
+    }
+
+    /// Trainable scalars of the encoding.
+    pub fn len(&self) -> usize {
+        match self {
+            PositionEncoding::Harmonic(_) => 0,
+            PositionEncoding::Grid { grid, .. } => grid.param_count(),
+        }
+    }
+
+    pub fn is_trainable(&self) -> bool {
+        self.len() > 0
+    }
+}
+
+/// The runtime's hash grid for a spec (the language checked its ranges).
+pub fn hash_grid(g: &HashGridSpec) -> Result<HashGrid, String> {
+    HashGrid::new(HashGridConfig {
+        levels: g.levels,
+        features: g.features,
+        log2_table: g.log2_table,
+        min_res: g.min_res,
+        max_res: g.max_res,
+        bbox_min: g.min.map(|x| x as f32),
+        bbox_max: g.max.map(|x| x as f32),
+    })
+}
+
+/// Rows of 3 floats as points.
+fn as_points(flat: &[f32]) -> &[[f32; 3]] {
+    assert_eq!(flat.len() % 3, 0);
+    // SAFETY: [f32; 3] has the layout and alignment of three f32s.
+    unsafe { std::slice::from_raw_parts(flat.as_ptr().cast(), flat.len() / 3) }
 }
 
 /// The network's layers and where each lives in the flat parameters.
 #[derive(Debug, Clone)]
 pub struct NerfNet {
-    pub position: Harmonic,
+    pub position: PositionEncoding,
     pub direction: Option<Harmonic>,
     pub trunk: Vec<Dense>,
     pub density: Dense,
@@ -43,17 +91,35 @@ pub struct NerfNet {
 }
 
 impl NerfNet {
+    /// Panics on a hash grid the language would have refused; see
+    /// [`Self::try_new_at`].
     pub fn new(spec: &Nerf) -> Self {
         Self::new_at(spec, 0)
     }
 
+    pub fn new_at(spec: &Nerf, first: usize) -> Self {
+        Self::try_new_at(spec, first).expect("a valid hash grid")
+    }
+
     /// The network with its parameters from `first` on in a flat vector
     /// holding others too (the coarse and fine networks of one model).
-    pub fn new_at(spec: &Nerf, first: usize) -> Self {
-        let position = harmonic(&spec.position);
-        let direction = spec.direction.as_ref().map(harmonic);
+    pub fn try_new_at(spec: &Nerf, first: usize) -> Result<Self, String> {
+        let position = match &spec.position {
+            Encoding::Harmonic(h) => PositionEncoding::Harmonic(harmonic(h)),
+            Encoding::HashGrid(g) => PositionEncoding::Grid {
+                grid: hash_grid(g)?,
+                offset: first,
+            },
+        };
+        let direction = match &spec.direction {
+            Some(Encoding::Harmonic(h)) => Some(harmonic(h)),
+            Some(Encoding::HashGrid(_)) => {
+                return Err("a hash grid cannot encode directions".into())
+            }
+            None => None,
+        };
         let (enc, w) = (position.width(), spec.width);
-        let mut offset = first;
+        let mut offset = first + position.len();
         let mut layer = |parts: &[usize], out: usize, act: Activation| {
             let d = Dense::new(parts, out, act, offset);
             offset = d.end();
@@ -80,7 +146,7 @@ impl NerfNet {
             None => (None, layer(&[w], spec.color_width, Activation::Relu)),
         };
         let color_out = layer(&[spec.color_width], 3, Activation::Sigmoid);
-        NerfNet {
+        Ok(NerfNet {
             position,
             direction,
             trunk,
@@ -90,7 +156,7 @@ impl NerfNet {
             color_out,
             first,
             len: offset - first,
-        }
+        })
     }
 
     /// Every layer with a stable name (checkpoints name tensors by it).
@@ -120,6 +186,10 @@ impl NerfNet {
     /// Writes the initial weights into `params[first..first + len]`.
     pub fn init_into(&self, seed: u64, params: &mut [f32]) {
         let mut rng = SplitMix64::new(seed ^ 0x6E65_7266);
+        if let PositionEncoding::Grid { grid, offset } = &self.position {
+            let n = grid.param_count();
+            params[*offset..*offset + n].copy_from_slice(&grid.init(rng.next_u64()));
+        }
         for (_, d) in self.layers() {
             d.init(params, &mut rng);
         }
@@ -147,7 +217,14 @@ impl NerfNet {
             rgb,
             ..
         } = work;
-        self.position.encode(points, enc);
+        match &self.position {
+            PositionEncoding::Harmonic(h) => h.encode(points, enc),
+            PositionEncoding::Grid { grid, offset } => grid.encode(
+                &params[*offset..*offset + grid.param_count()],
+                as_points(points),
+                enc,
+            ),
+        }
         for (i, d) in self.trunk.iter().enumerate() {
             let (before, rest) = hidden.split_at_mut(i);
             let out = &mut rest[0];
@@ -173,10 +250,12 @@ impl NerfNet {
     }
 
     /// Adds `∂L/∂params` to `grad` given `∂L/∂σ` and `∂L/∂rgb` per sample
-    /// (consumed: they are overwritten) after [`Self::forward`] on `work`.
+    /// (consumed: they are overwritten) after [`Self::forward`] of
+    /// `points` on `work`.
     pub fn backward(
         &self,
         params: &[f32],
+        points: &[f32],
         work: &mut NerfWork,
         d_sigma: &mut [f32],
         d_rgb: &mut [f32],
@@ -194,8 +273,16 @@ impl NerfNet {
             d_b,
             d_color_hidden,
             d_feature,
+            d_enc,
+            touched,
             ..
         } = work;
+        let grid = match &self.position {
+            PositionEncoding::Grid { grid, offset } => Some((grid, *offset)),
+            PositionEncoding::Harmonic(_) => None,
+        };
+        // A trainable encoding collects its adjoint from layer 0 and every skip.
+        let mut enc_written = false;
         let h = hidden.last().expect("at least one layer");
         self.color_out.backward(
             params,
@@ -245,23 +332,41 @@ impl NerfNet {
             let d = &self.trunk[i];
             let input: &[f32] = if i == 0 { enc } else { &hidden[i - 1] };
             let (d_out, d_in) = (&mut *d_a, &mut *d_b);
-            let mut d_inputs: Vec<Option<&mut [f32]>> = if i == 0 {
-                vec![None]
-            } else {
-                vec![Some(d_in.as_mut_slice())]
-            };
-            if d.parts.len() == 2 {
-                d_inputs.push(None);
+            let wants_enc = grid.is_some() && (i == 0 || d.parts.len() == 2);
+            let accumulate_enc = enc_written;
+            enc_written |= wants_enc;
+            if i == 0 {
+                let mut d_inputs = [wants_enc.then_some(d_enc.as_mut_slice())];
+                d.backward(
+                    params,
+                    &[input],
+                    &hidden[i],
+                    d_out,
+                    &mut d_inputs,
+                    accumulate_enc,
+                    grad,
+                );
+            } else if d.parts.len() == 2 {
+                // One accumulate flag for both parts: the hidden adjoint is
+                // zeroed first when the encoding's accumulates.
+                if accumulate_enc {
+                    d_in.iter_mut().for_each(|x| *x = 0.0);
+                }
+                let mut d_inputs = [
+                    Some(d_in.as_mut_slice()),
+                    wants_enc.then_some(d_enc.as_mut_slice()),
+                ];
                 d.backward(
                     params,
                     &[input, enc],
                     &hidden[i],
                     d_out,
                     &mut d_inputs,
-                    false,
+                    accumulate_enc,
                     grad,
                 );
             } else {
+                let mut d_inputs = [Some(d_in.as_mut_slice())];
                 d.backward(
                     params,
                     &[input],
@@ -273,6 +378,15 @@ impl NerfNet {
                 );
             }
             std::mem::swap(d_a, d_b);
+        }
+        if let Some((grid, offset)) = grid {
+            touched.get_or_insert_with(|| grid.touched_set()).clear();
+            grid.backward(
+                as_points(points),
+                d_enc,
+                &mut grad[offset..offset + grid.param_count()],
+                touched.as_mut().expect("just made"),
+            );
         }
     }
 }
@@ -291,6 +405,8 @@ pub struct NerfWork {
     d_b: Vec<f32>,
     d_color_hidden: Vec<f32>,
     d_feature: Vec<f32>,
+    d_enc: Vec<f32>,
+    touched: Option<Touched>,
 }
 
 impl NerfWork {
@@ -313,12 +429,16 @@ impl NerfWork {
         }
         set(&mut self.d_a, rows * w);
         set(&mut self.d_b, rows * w);
+        if net.position.is_trainable() {
+            set(&mut self.d_enc, rows * net.position.width());
+        }
     }
 
     /// Bytes held for `rows` samples (for memory estimates).
     pub fn bytes_for(net: &NerfNet, rows: usize) -> u64 {
         let w = net.trunk[0].out;
-        let per_row = net.position.width()
+        let trainable = if net.position.is_trainable() { 2 } else { 1 };
+        let per_row = trainable * net.position.width()
             + net.trunk.len() * w
             + 4
             + 2 * net.color_hidden.out
@@ -331,7 +451,7 @@ impl NerfWork {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use sdfl_stdlib::value::Harmonic as Spec;
+    use sdfl_stdlib::value::{Harmonic as Spec, HashGridSpec};
 
     pub(crate) fn spec(view_dependent: bool) -> Nerf {
         Nerf {
@@ -380,8 +500,17 @@ mod tests {
 
     #[test]
     fn gradient_matches_finite_differences() {
-        for vd in [false, true] {
-            let spec = spec(vd);
+        let mut grid = spec(true);
+        grid.position = Encoding::HashGrid(HashGridSpec {
+            levels: 3,
+            features: 2,
+            log2_table: 6,
+            min_res: 2,
+            max_res: 9,
+            min: [-1.0; 3],
+            max: [1.0; 3],
+        });
+        for (vd, spec) in [(false, spec(false)), (true, spec(true)), (true, grid)] {
             let mut net = NerfNet::new(&spec);
             assert_eq!(net.multiply_adds(), spec.multiply_adds_per_sample());
             // Smooth in place of ReLU, so differences see no kinks (the
@@ -410,8 +539,18 @@ mod tests {
             net.forward(&params, &points, &dirs, &mut work);
             let (mut ds, mut dc) = (a.clone(), b.clone());
             let mut grad = vec![0.0; net.len];
-            net.backward(&params, &mut work, &mut ds, &mut dc, &mut grad);
-            // Every layer's first weights and its bias.
+            net.backward(&params, &points, &mut work, &mut ds, &mut dc, &mut grad);
+            // Every layer's first weights and its bias; the hash tables'
+            // entries with the largest gradients and one without.
+            let mut checks: Vec<(String, usize)> = Vec::new();
+            if let PositionEncoding::Grid { grid, offset } = &net.position {
+                let mut idx: Vec<usize> = (*offset..offset + grid.param_count()).collect();
+                idx.sort_by(|&i, &j| grad[j].abs().total_cmp(&grad[i].abs()));
+                assert!(grad[idx[0]] != 0.0 && grad[*idx.last().unwrap()] == 0.0);
+                for &i in idx.iter().take(6).chain(idx.last()) {
+                    checks.push(("hashgrid".into(), i));
+                }
+            }
             for (name, d) in net.layers() {
                 let bias = d.offset + d.fan_in() * d.out;
                 for i in [
@@ -421,6 +560,11 @@ mod tests {
                     bias,
                     d.end() - 1,
                 ] {
+                    checks.push((name.clone(), i));
+                }
+            }
+            {
+                for (name, i) in checks {
                     let h = 3e-3;
                     let mut p = params.clone();
                     p[i] += h;

@@ -18,9 +18,9 @@ use crate::param::{Arg, Bound, ParamDecl, ParamInit, ParamUse, MIN_BETA, MIN_LEN
 use crate::precision::{beta, f32_range};
 use crate::shape::Shape;
 use crate::value::{
-    Backend, Dataset, DensityKind, Encoding, Field, Harmonic, HitTolerance, LastInterval, Loss,
-    LossKind, Nerf, Optimizer, Output, OutputKind, RenderJob, Sampler, Schedule, SdfField,
-    TrainJob, Value, VolumeJob,
+    Backend, Dataset, DensityKind, Encoding, Field, Harmonic, HashGridSpec, HitTolerance,
+    LastInterval, Loss, LossKind, Nerf, Optimizer, Output, OutputKind, RenderJob, Sampler,
+    Schedule, SdfField, TrainJob, Value, VolumeJob,
 };
 
 pub const SHAPE: Type = Type::Named("shape");
@@ -689,6 +689,50 @@ fn table() -> Vec<Builtin> {
             },
         ),
         func(
+            "hashgrid",
+            "A multiresolution hash encoding of positions (instant-ngp): `levels` grids from `min_res` to `max_res` cells a side over the box `min`..`max` (points outside are clamped onto it), each a table of at most 2^`log2_table` rows of `features` trainable numbers, trilinearly interpolated.",
+            vec![
+                opt("levels", Type::Number, "16", "resolution levels (1..64)"),
+                opt("features", Type::Number, "2", "features per level (1..16)"),
+                opt("log2_table", Type::Number, "17", "log2 of the largest table's rows (1..24)"),
+                opt("min_res", Type::Number, "16", "cells a side of the coarsest level"),
+                opt("max_res", Type::Number, "512", "cells a side of the finest level"),
+                opt("min", Type::Vec3, "[-1.5, -1.5, -1.5]", "lower corner of the encoded box"),
+                opt("max", Type::Vec3, "[1.5, 1.5, 1.5]", "upper corner of the encoded box"),
+            ],
+            ENCODING,
+            |a| {
+                let (min, max) = (a.vec3("min")?, a.vec3("max")?);
+                if !(min.cmplt(max).all()) {
+                    return Err(value_error(
+                        a.get("max").1,
+                        "the encoded box is empty",
+                        "not above `min` on every axis",
+                        "give `max` larger than `min` in x, y and z",
+                    ));
+                }
+                let min_res = a.count("min_res", 1, 1 << 16)? as u32;
+                let max_res = a.count("max_res", 1, 1 << 16)? as u32;
+                if max_res < min_res {
+                    return Err(value_error(
+                        a.get("max_res").1,
+                        "`max_res` is below `min_res`",
+                        "coarser than the coarsest level",
+                        "the finest level needs at least `min_res` cells a side",
+                    ));
+                }
+                Ok(Value::Encoding(Encoding::HashGrid(HashGridSpec {
+                    levels: a.count("levels", 1, 64)? as u32,
+                    features: a.count("features", 1, 16)? as u32,
+                    log2_table: a.count("log2_table", 1, 24)? as u32,
+                    min_res,
+                    max_res,
+                    min: min.to_array(),
+                    max: max.to_array(),
+                })))
+            },
+        ),
+        func(
             "nerf",
             "A neural radiance field (Mildenhall et al.): an MLP from the encoded position to density (ReLU) and colour (sigmoid). `view_dependent` adds a colour branch that sees the encoded view direction; density never does. Weights start as PyTorch's default initialisation, seeded. Trained as a `train` statement's model.",
             vec![
@@ -733,9 +777,18 @@ fn table() -> Vec<Builtin> {
                 skips.dedup();
                 let (bg, bg_span) = (a.vec3("background")?, a.get("background").1);
                 let view_dependent = matches!(a.get("view_dependent").0, Value::Bool(true));
+                let direction = if view_dependent { Some(encoding("direction")?) } else { None };
+                if let Some(Encoding::HashGrid(_)) = direction {
+                    return Err(value_error(
+                        a.get("direction").1,
+                        "a hash grid encodes positions, not directions",
+                        "a hash grid",
+                        "encode the direction with `harmonic(freqs: 2)`",
+                    ));
+                }
                 Ok(Value::Field(Arc::new(Field::Nerf(Nerf {
                     position: encoding("position")?,
-                    direction: if view_dependent { Some(encoding("direction")?) } else { None },
+                    direction,
                     layers,
                     width: a.count("width", 1, 4096)? as usize,
                     skips,
