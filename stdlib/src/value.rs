@@ -285,6 +285,18 @@ pub struct Nerf {
     pub background: [f64; 3],
     /// Seed of the initial weights.
     pub seed: u64,
+    /// How the density head's output becomes a density.
+    pub density: DensityActivation,
+}
+
+/// The density head's activation.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum DensityActivation {
+    /// `max(x, 0)`, as the NeRF paper.
+    Relu,
+    /// `e^min(x, 15)`, as instant-ngp: never zero, so no sample starts dead.
+    Exp,
 }
 
 impl Encoding {

@@ -476,6 +476,7 @@ mod tests {
             fine: 0,
             background: [0.3, 0.6, 0.9],
             seed: 4,
+            density: sdfl_stdlib::value::DensityActivation::Exp,
         };
         let mut obj = NerfObjective::new(&spec);
         // Smooth activations so differences see no kinks; same wiring.

@@ -34,7 +34,13 @@ pub enum Activation {
     Softplus {
         beta: f32,
     },
+    /// `e^min(x, 15)`: a density that never dies at initialisation
+    /// (instant-ngp's truncated exponential); no gradient above the cap.
+    Exp,
 }
+
+/// The cap of [`Activation::Exp`]'s argument.
+const EXP_CAP: f32 = 15.0;
 
 impl Activation {
     #[inline(always)]
@@ -44,6 +50,7 @@ impl Activation {
             Activation::Relu => z.max(0.0),
             Activation::Sigmoid => sigmoid(z),
             Activation::Softplus { beta } => softplus(z, beta),
+            Activation::Exp => z.min(EXP_CAP).exp(),
         }
     }
 
@@ -63,6 +70,13 @@ impl Activation {
             }
             Activation::Sigmoid => y * (1.0 - y),
             Activation::Softplus { beta } => -(-beta * y).exp_m1(),
+            Activation::Exp => {
+                if y < EXP_CAP.exp() {
+                    y
+                } else {
+                    0.0
+                }
+            }
         }
     }
 }
@@ -344,6 +358,7 @@ mod tests {
                     Activation::Identity => z,
                     Activation::Relu => z.max(0.0),
                     Activation::Sigmoid => 1.0 / (1.0 + (-z).exp()),
+                    Activation::Exp => z.min(EXP_CAP as f64).exp(),
                     Activation::Softplus { beta } => {
                         let b = beta as f64;
                         (1.0 + (b * z).exp()).ln() / b
@@ -363,6 +378,7 @@ mod tests {
             Dense::new(&[7], 5, Activation::Relu, 3),
             Dense::new(&[6, 4], 9, Activation::Sigmoid, 0),
             Dense::new(&[33], 17, Activation::Softplus { beta: 10.0 }, 1),
+            Dense::new(&[4], 3, Activation::Exp, 0),
             Dense::new(&[5, 2, 3], 1, Activation::Identity, 0),
         ]
     }

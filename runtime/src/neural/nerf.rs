@@ -9,7 +9,7 @@
 //! [`NerfWork`] that is reused from step to step (no allocation once it has
 //! grown to the batch).
 
-use sdfl_stdlib::value::{Encoding, HashGridSpec, Nerf};
+use sdfl_stdlib::value::{DensityActivation, Encoding, HashGridSpec, Nerf};
 
 use super::encoding::Harmonic;
 use super::hashgrid::{HashGrid, HashGridConfig, Touched};
@@ -136,7 +136,14 @@ impl NerfNet {
                 }
             })
             .collect();
-        let density = layer(&[w], 1, Activation::Relu);
+        let density = layer(
+            &[w],
+            1,
+            match spec.density {
+                DensityActivation::Relu => Activation::Relu,
+                DensityActivation::Exp => Activation::Exp,
+            },
+        );
         let (feature, color_hidden) = match direction {
             Some(d) => {
                 let feature = layer(&[w], w, Activation::Identity);
@@ -470,6 +477,7 @@ mod tests {
             fine: 0,
             background: [0.0; 3],
             seed: 0,
+            density: DensityActivation::Relu,
         }
     }
 

@@ -18,9 +18,9 @@ use crate::param::{Arg, Bound, ParamDecl, ParamInit, ParamUse, MIN_BETA, MIN_LEN
 use crate::precision::{beta, f32_range};
 use crate::shape::Shape;
 use crate::value::{
-    Backend, Dataset, DensityKind, Encoding, Field, Harmonic, HashGridSpec, HitTolerance,
-    LastInterval, Loss, LossKind, Nerf, Optimizer, Output, OutputKind, RenderJob, Sampler,
-    Schedule, SdfField, TrainJob, Value, VolumeJob,
+    Backend, Dataset, DensityActivation, DensityKind, Encoding, Field, Harmonic, HashGridSpec,
+    HitTolerance, LastInterval, Loss, LossKind, Nerf, Optimizer, Output, OutputKind, RenderJob,
+    Sampler, Schedule, SdfField, TrainJob, Value, VolumeJob,
 };
 
 pub const SHAPE: Type = Type::Named("shape");
@@ -746,6 +746,7 @@ fn table() -> Vec<Builtin> {
                 opt("fine", Type::Number, "0", "fine samples per ray, drawn by inverse CDF from the coarse network's weights for a second (fine) network of the same shape; 0: one network"),
                 opt("background", Type::Vec3, "[0, 0, 0]", "colour where a ray leaves the volume"),
                 opt("seed", Type::Number, "0", "seed of the initial weights"),
+                opt("density", Type::Str, "\"relu\"", "density activation: \"relu\" (the NeRF paper) or \"exp\" (instant-ngp's truncated exponential, for hash grids: never zero, so no sample starts dead)"),
             ],
             FIELD,
             |a| {
@@ -796,6 +797,21 @@ fn table() -> Vec<Builtin> {
                     fine: a.count("fine", 0, MAX_SAMPLES)? as usize,
                     background: colour(bg, bg_span)?.to_array(),
                     seed: a.count("seed", 0, u32::MAX as u64)?,
+                    density: {
+                        let (d, span) = a.string("density")?;
+                        match &*d {
+                            "relu" => DensityActivation::Relu,
+                            "exp" => DensityActivation::Exp,
+                            other => {
+                                return Err(value_error(
+                                    span,
+                                    format!("unknown density activation `{other}`"),
+                                    "not a choice",
+                                    "use \"relu\" or \"exp\"",
+                                ))
+                            }
+                        }
+                    },
                 }))))
             },
         ),
