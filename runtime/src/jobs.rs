@@ -13,11 +13,13 @@ use sdfl_stdlib::num::{Dual, V3};
 use sdfl_stdlib::shape::{ArgSource, Fixed};
 use sdfl_stdlib::value::{Backend, Dataset, Field, Output, Sampler, TrainJob, VolumeJob};
 use sdfl_stdlib::OutputKind;
+use sdfl_stdlib::RenderJob;
 use serde::Serialize;
 
+use crate::data::nerf_synthetic::DatasetWriter;
 use crate::data::npy::RgbImage;
 use crate::output::{to_u8, write_png};
-use crate::render::{view_path, Gifs, Written};
+use crate::render::{render_view, view_path, Gifs, Needs, Written};
 use crate::sdf::{LowerOptions, Lowered};
 use crate::train::checkpoint::{Checkpoint, Fnv};
 use crate::train::fused::field_at;
@@ -129,11 +131,16 @@ pub fn write_volume_outputs(
     let strat = stratified(sampler)?;
     let mut written = Vec::new();
     let mut gifs = Gifs::open(outputs, out_dir)?;
+    let mut datasets: Vec<DatasetWriter> = outputs
+        .iter()
+        .filter(|o| o.kind == OutputKind::Dataset)
+        .map(|o| DatasetWriter::new(out_dir, &o.path, (w, h)))
+        .collect();
     let wants_depth = outputs.iter().any(|o| o.kind == OutputKind::Depth);
     let needs_render = outputs.iter().any(|o| {
         matches!(
             o.kind,
-            OutputKind::Image | OutputKind::Gif { .. } | OutputKind::Depth
+            OutputKind::Image | OutputKind::Gif { .. } | OutputKind::Depth | OutputKind::Dataset
         )
     });
     let (mut render_s, mut encode_s) = (0.0, 0.0);
@@ -160,6 +167,7 @@ pub fn write_volume_outputs(
             let rel = if once { o.path.clone() } else { rel };
             let (kind, rgb, (pw, ph)) = match o.kind {
                 OutputKind::Gif { .. }
+                | OutputKind::Dataset
                 | OutputKind::LossCurve
                 | OutputKind::Normals
                 | OutputKind::Mask => continue,
@@ -188,9 +196,16 @@ pub fn write_volume_outputs(
         if !gifs.is_empty() {
             gifs.push(w, h, &rgb8(&colour))?;
         }
+        // Volumes have no hit mask: their views are written opaque.
+        for d in &mut datasets {
+            written.push(d.push(k, cam, &rgb8(&colour), None)?);
+        }
         encode_s += t.elapsed().as_secs_f64();
     }
     written.extend(gifs.finish(w, h)?);
+    for d in datasets {
+        written.push(d.finish()?);
+    }
     Ok(VolumeReport {
         name: name.to_string(),
         views: cameras.len(),
@@ -245,9 +260,18 @@ fn load_image(path: &Path) -> io::Result<RgbImage> {
     crate::data::image::read_rgb_image(path)
 }
 
-/// The training views: read from files (relative to `base`) or rendered.
+/// A data set's views: those to train on and those held out for testing.
+#[derive(Debug, Clone)]
+pub struct Views {
+    pub train: Vec<TrainView>,
+    pub test: Vec<TrainView>,
+}
+
+/// The views of a data set: read from files (relative to `base`),
+/// volume-rendered, sphere-traced (exactly as `render` draws them) or read
+/// from a NeRF-synthetic data set; split into training and test views.
 /// Every pixel must be a finite colour; the first that is not is named.
-pub fn load_views(data: &Dataset, base: &Path) -> io::Result<Vec<TrainView>> {
+pub fn load_views(data: &Dataset, base: &Path) -> io::Result<Views> {
     let views: Vec<(TrainView, String)> = match data {
         Dataset::Files { images, cameras } => {
             crate::data::image::check_dataset(images.iter().map(|p| base.join(p)))?;
@@ -272,6 +296,7 @@ pub fn load_views(data: &Dataset, base: &Path) -> io::Result<Vec<TrainView>> {
             width,
             height,
             sampler,
+            ..
         } => {
             let lowered = LoweredField::new(field);
             let strat = stratified(sampler)?;
@@ -299,8 +324,85 @@ pub fn load_views(data: &Dataset, base: &Path) -> io::Result<Vec<TrainView>> {
                 })
                 .collect::<io::Result<_>>()?
         }
+        Dataset::Traced { job, .. } => traced_views(job)
+            .into_iter()
+            .enumerate()
+            .map(|(k, v)| (v, format!("traced view {k}")))
+            .collect(),
+        Dataset::NerfSynthetic {
+            path,
+            split,
+            test_split,
+            background,
+        } => {
+            use crate::data::nerf_synthetic::{read_split, transforms_path};
+            let dir = base.join(path);
+            let named = |split: &str, views: Vec<TrainView>| {
+                let file = transforms_path(&dir, split).display().to_string();
+                views
+                    .into_iter()
+                    .enumerate()
+                    .map(move |(k, v)| (v, format!("{file} frame {k}")))
+            };
+            let train = named(split, read_split(&dir, split, *background)?);
+            let test = match test_split {
+                Some(t) => named(t, read_split(&dir, t, *background)?).collect(),
+                None => Vec::new(),
+            };
+            check_finite(&test)?;
+            let train: Vec<_> = train.collect();
+            check_finite(&train)?;
+            return Ok(Views {
+                train: train.into_iter().map(|(v, _)| v).collect(),
+                test: test.into_iter().map(|(v, _)| v).collect(),
+            });
+        }
     };
-    for (v, origin) in &views {
+    check_finite(&views)?;
+    let held = data.test_views();
+    let (mut train, mut test) = (Vec::new(), Vec::new());
+    for (k, (v, _)) in views.into_iter().enumerate() {
+        if held.binary_search(&k).is_ok() {
+            test.push(v);
+        } else {
+            train.push(v);
+        }
+    }
+    Ok(Views { train, test })
+}
+
+/// Every view of a sphere-traced data set: the tracer of `render` with the
+/// job's settings, colour quantised to 8 bits as its `image` output writes.
+pub fn traced_views(job: &RenderJob) -> Vec<TrainView> {
+    let scene = Lowered::new(&job.scene, LowerOptions::default());
+    let needs = Needs {
+        color: true,
+        depth: false,
+        normals: false,
+        mask: false,
+    };
+    job.cameras
+        .iter()
+        .map(|c| {
+            let view = render_view(&scene, job, c, (job.width, job.height), needs, &|_| {});
+            let rgb = view.color.expect("colour is asked for");
+            TrainView {
+                camera: *c,
+                image: RgbImage {
+                    width: job.width,
+                    height: job.height,
+                    pixels: rgb
+                        .chunks_exact(3)
+                        .map(|p| [p[0], p[1], p[2]].map(|x| x as f32 / 255.0))
+                        .collect(),
+                },
+            }
+        })
+        .collect()
+}
+
+fn check_finite(views: &[(TrainView, String)]) -> io::Result<()> {
+    for (v, origin) in views {
         if let Some(i) = v
             .image
             .pixels
@@ -316,7 +418,7 @@ pub fn load_views(data: &Dataset, base: &Path) -> io::Result<Vec<TrainView>> {
             )));
         }
     }
-    Ok(views.into_iter().map(|(v, _)| v).collect())
+    Ok(())
 }
 
 /// How often a checkpoint is written.
@@ -410,7 +512,7 @@ pub fn run_train_job(
     }
 
     let t = Instant::now();
-    let views = load_views(&job.data, base)?;
+    let views = load_views(&job.data, base)?.train;
     stages.push(("load data".to_string(), t.elapsed().as_secs_f64()));
 
     let model = TrainModel::new(job.model.clone());

@@ -18,6 +18,8 @@ pub enum Value {
     List(Arc<Vec<Value>>),
     Shape(Arc<Shape>),
     Material(Arc<Material>),
+    /// A directional light of a `phong` material.
+    Light(crate::material::Light),
     Camera(Camera),
     Output(Arc<Output>),
     /// A number or vector marked trainable with `param(...)`.
@@ -42,6 +44,7 @@ impl Value {
             Value::List(_) => "list",
             Value::Shape(_) => "shape",
             Value::Material(_) => "material",
+            Value::Light(_) => "light",
             Value::Camera(_) => "camera",
             Value::Output(_) => "output",
             Value::Param(_) => "trainable parameter",
@@ -108,6 +111,9 @@ pub enum OutputKind {
     SamplePoints,
     /// The loss curve of a training run.
     LossCurve,
+    /// A NeRF-synthetic data set in a directory: `transforms.json` and
+    /// `r_<k>.png` per view (RGBA, alpha = the hit mask).
+    Dataset,
 }
 
 /// A requested output file, relative to the output directory.
@@ -211,7 +217,8 @@ pub enum LastInterval {
     Infinite,
 }
 
-/// Training views: images with their cameras.
+/// Training views: images with their cameras, some possibly held out as
+/// test views.
 #[derive(Debug, Clone)]
 pub enum Dataset {
     /// Images read from files (`.npy` float32 H×W×3, or PNG).
@@ -226,15 +233,71 @@ pub enum Dataset {
         width: u32,
         height: u32,
         sampler: Sampler,
+        /// Indices into `cameras` held out as test views (sorted).
+        test: Vec<usize>,
+    },
+    /// Views of a shape sphere-traced by sdfl: the `render` statement's job
+    /// (its cameras, size, material, background and tracing settings; no
+    /// outputs), so the pixels are exactly what that `render` draws.
+    Traced {
+        job: Arc<RenderJob>,
+        /// Indices into the job's cameras held out as test views (sorted).
+        test: Vec<usize>,
+    },
+    /// A NeRF-synthetic (Blender) data set: `transforms_<split>.json` and
+    /// its RGBA images, composited over `background`. Cameras are known
+    /// once the file is read.
+    NerfSynthetic {
+        /// The directory (relative to the scene file) or a `.json` file.
+        path: std::path::PathBuf,
+        split: String,
+        /// The split read as test views, if any.
+        test_split: Option<String>,
+        background: DVec3,
     },
 }
 
 impl Dataset {
+    /// The cameras known before anything is read (none for NeRF-synthetic
+    /// data, whose cameras are in its files), test views included.
     pub fn cameras(&self) -> &[Camera] {
         match self {
             Dataset::Files { cameras, .. } | Dataset::Rendered { cameras, .. } => cameras,
+            Dataset::Traced { job, .. } => &job.cameras,
+            Dataset::NerfSynthetic { .. } => &[],
         }
     }
+
+    /// Indices of [`Self::cameras`] held out as test views.
+    pub fn test_views(&self) -> &[usize] {
+        match self {
+            Dataset::Rendered { test, .. } | Dataset::Traced { test, .. } => test,
+            Dataset::Files { .. } | Dataset::NerfSynthetic { .. } => &[],
+        }
+    }
+}
+
+/// The `test` of `n` views held out, by a seeded shuffle (SplitMix64 and
+/// Fisher-Yates): the same for the same `(n, test, seed)` on every machine.
+/// Sorted; `test` is at most `n`.
+pub fn held_out(n: usize, test: usize, seed: u64) -> Vec<usize> {
+    let mut state = seed;
+    let mut next = move || {
+        state = state.wrapping_add(0x9e37_79b9_7f4a_7c15);
+        let mut z = state;
+        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+        z ^ (z >> 31)
+    };
+    let mut order: Vec<usize> = (0..n).collect();
+    for i in (1..n).rev() {
+        // Modulo bias is below 2^-40 for n ≤ 10 000 views.
+        let j = (next() % (i as u64 + 1)) as usize;
+        order.swap(i, j);
+    }
+    let mut test: Vec<usize> = order.into_iter().take(test.min(n)).collect();
+    test.sort_unstable();
+    test
 }
 
 /// Adam with a learning-rate schedule.
