@@ -653,6 +653,18 @@ fn plan_text(program: &sdfl_stdlib::Program) -> String {
             );
         }
         row(&mut o, "hit mask", &plan.mask);
+        for d in job
+            .outputs
+            .iter()
+            .filter(|x| x.kind == sdfl_stdlib::OutputKind::Dataset)
+        {
+            let _ = writeln!(
+                o,
+                "  dataset        {}/transforms.json + r_0..r_{}.png (NeRF-synthetic: OpenGL poses, RGBA, alpha = hit mask)",
+                d.path.display(),
+                job.cameras.len() - 1
+            );
+        }
         let _ = writeln!(o, "  gradient tape  none (not training)");
         let _ = writeln!(
             o,

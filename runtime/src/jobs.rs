@@ -346,6 +346,14 @@ pub fn load_views(data: &Dataset, base: &Path) -> io::Result<Views> {
             };
             let train = named(split, read_split(&dir, split, *background)?);
             let test = match test_split {
+                // The lone transforms.json stands in for the training split
+                // only: it never doubles as the test views.
+                Some(t) if transforms_path(&dir, t) == transforms_path(&dir, split) => {
+                    return Err(invalid(format!(
+                        "{}: no transforms_{t}.json for the test split `{t}`",
+                        dir.display()
+                    )))
+                }
                 Some(t) => named(t, read_split(&dir, t, *background)?).collect(),
                 None => Vec::new(),
             };

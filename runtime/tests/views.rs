@@ -347,3 +347,15 @@ fn hostile_transforms_files_are_errors() {
         .to_string();
     assert!(e.contains("not a regular file"), "{e}");
 }
+
+#[test]
+fn dataset_files_are_claimed_before_anything_runs() {
+    let e = load_err(
+        "render r { scene: sphere(), camera: look_at([0, 0, -3]), outputs: [dataset(\"set\"), image(\"set/r_0.png\")] }",
+    );
+    assert!(e.contains("written twice"), "{e}");
+    let e = load_err(
+        "render r { scene: sphere(), camera: look_at([0, 0, -3]), outputs: [image(\"a.png\"), dataset(\"a.png\")] }",
+    );
+    assert!(e.contains("directory"), "{e}");
+}

@@ -62,6 +62,8 @@ fn bytes_per_pixel(kinds: impl Iterator<Item = OutputKind>, volume: bool) -> f64
             OutputKind::Depth => 7.0,
             OutputKind::Normals => 3.0,
             OutputKind::Mask => 4.0,
+            // Colour, mask and the RGBA frame being encoded.
+            OutputKind::Dataset => 8.0,
             _ => 3.0,
         };
     }
