@@ -335,31 +335,39 @@ pub fn load_views(data: &Dataset, base: &Path) -> io::Result<Views> {
             test_split,
             background,
         } => {
-            use crate::data::nerf_synthetic::{read_split, transforms_path};
+            use crate::data::nerf_synthetic::{read_splits, transforms_path};
             let dir = base.join(path);
-            let named = |split: &str, views: Vec<TrainView>| {
+            let mut splits = vec![split.as_str()];
+            if let Some(t) = test_split {
+                // The lone transforms.json stands in for the training split
+                // only: it never doubles as the test views.
+                if transforms_path(&dir, t) == transforms_path(&dir, split) {
+                    return Err(invalid(format!(
+                        "{}: no transforms_{t}.json for the test split `{t}`",
+                        dir.display()
+                    )));
+                }
+                splits.push(t);
+            }
+            let mut read = read_splits(&dir, &splits, *background)?;
+            let test = if read.len() > 1 {
+                read.pop().unwrap_or_default()
+            } else {
+                Vec::new()
+            };
+            let train = read.pop().unwrap_or_default();
+            let named = |split: &str, views: Vec<TrainView>| -> Vec<(TrainView, String)> {
                 let file = transforms_path(&dir, split).display().to_string();
                 views
                     .into_iter()
                     .enumerate()
-                    .map(move |(k, v)| (v, format!("{file} frame {k}")))
+                    .map(|(k, v)| (v, format!("{file} frame {k}")))
+                    .collect()
             };
-            let train = named(split, read_split(&dir, split, *background)?);
-            let test = match test_split {
-                // The lone transforms.json stands in for the training split
-                // only: it never doubles as the test views.
-                Some(t) if transforms_path(&dir, t) == transforms_path(&dir, split) => {
-                    return Err(invalid(format!(
-                        "{}: no transforms_{t}.json for the test split `{t}`",
-                        dir.display()
-                    )))
-                }
-                Some(t) => named(t, read_split(&dir, t, *background)?).collect(),
-                None => Vec::new(),
-            };
-            check_finite(&test)?;
-            let train: Vec<_> = train.collect();
+            let train = named(split, train);
+            let test = named(test_split.as_deref().unwrap_or(""), test);
             check_finite(&train)?;
+            check_finite(&test)?;
             return Ok(Views {
                 train: train.into_iter().map(|(v, _)| v).collect(),
                 test: test.into_iter().map(|(v, _)| v).collect(),

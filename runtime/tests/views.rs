@@ -226,6 +226,25 @@ fn a_written_nerf_synthetic_data_set_reads_back_as_the_render() {
     let again = load_views(dataset(&data), &out).unwrap();
     assert_eq!(again.train.len(), 4);
     assert_eq!(again.train[2].image.pixels, views[2].image.pixels);
+    // A test split comes from its own file, never from the lone
+    // transforms.json that stands in for the training split.
+    let split = |test: &str| {
+        load(&format!(
+            "train t {{ model: sdf_volume(sphere(param(0.8))), iterations: 1, data: nerf_synthetic(\"set\", test_split: \"{test}\") }}"
+        ))
+    };
+    let e = load_views(dataset(&split("test")), &out)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("transforms_test.json"), "{e}");
+    std::fs::copy(
+        out.join("set/transforms.json"),
+        out.join("set/transforms_test.json"),
+    )
+    .unwrap();
+    let both = load_views(dataset(&split("test")), &out).unwrap();
+    assert_eq!((both.train.len(), both.test.len()), (4, 4));
+    assert_eq!(both.test[1].camera, views[1].camera);
 }
 
 #[test]

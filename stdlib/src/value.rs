@@ -422,3 +422,23 @@ pub enum Statement {
     Volume(usize),
     Train(usize),
 }
+
+#[cfg(test)]
+mod tests {
+    use super::held_out;
+
+    #[test]
+    fn held_out_views_are_a_seeded_sorted_subset() {
+        let a = held_out(100, 10, 3);
+        assert_eq!(a, held_out(100, 10, 3));
+        assert_eq!(a.len(), 10);
+        assert!(a.windows(2).all(|w| w[0] < w[1]) && a[9] < 100);
+        assert_ne!(a, held_out(100, 10, 4));
+        // Not simply the first or last views.
+        assert_ne!(a, (0..10).collect::<Vec<_>>());
+        assert_ne!(a, (90..100).collect::<Vec<_>>());
+        assert!(held_out(5, 0, 1).is_empty());
+        assert_eq!(held_out(3, 3, 9), vec![0, 1, 2]);
+        assert!(held_out(0, 2, 0).is_empty());
+    }
+}

@@ -24,8 +24,9 @@ use crate::output::{write_bytes, write_png_rgba};
 use crate::render::Written;
 use crate::train::TrainView;
 
-/// Largest transforms file read (the 400-frame Blender files are ~0.2 MB).
-pub const MAX_JSON_BYTES: u64 = 64 << 20;
+/// Largest transforms file read: the 200-frame Blender files are ~0.1 MB,
+/// 10 000 frames ~6 MB; parsed JSON takes up to ~16× its text.
+pub const MAX_JSON_BYTES: u64 = 16 << 20;
 
 fn invalid(path: &Path, m: impl std::fmt::Display) -> io::Error {
     io::Error::new(
@@ -215,9 +216,31 @@ impl Transforms {
 /// Reads one split's views, composited over `background`: every image the
 /// same size, checked before any is decoded.
 pub fn read_split(path: &Path, split: &str, background: DVec3) -> io::Result<Vec<TrainView>> {
-    let file = transforms_path(path, split);
-    let t = read_transforms(&file)?;
-    check_dataset(t.frames.iter().map(|f| &f.image))?;
+    read_splits(path, &[split], background).map(|mut s| s.remove(0))
+}
+
+/// Reads several splits' views (one list each), every image's declared
+/// size checked (all splits together within the data-set limit) before
+/// any is decoded.
+pub fn read_splits(
+    path: &Path,
+    splits: &[&str],
+    background: DVec3,
+) -> io::Result<Vec<Vec<TrainView>>> {
+    let files: Vec<PathBuf> = splits.iter().map(|s| transforms_path(path, s)).collect();
+    let all = files
+        .iter()
+        .map(|f| read_transforms(f))
+        .collect::<io::Result<Vec<_>>>()?;
+    check_dataset(all.iter().flat_map(|t| t.frames.iter().map(|f| &f.image)))?;
+    files
+        .iter()
+        .zip(&all)
+        .map(|(file, t)| read_frames(file, t, background))
+        .collect()
+}
+
+fn read_frames(file: &Path, t: &Transforms, background: DVec3) -> io::Result<Vec<TrainView>> {
     let mut views = Vec::with_capacity(t.frames.len());
     let mut size = None;
     for (k, f) in t.frames.iter().enumerate() {
@@ -232,7 +255,7 @@ pub fn read_split(path: &Path, split: &str, background: DVec3) -> io::Result<Vec
             }
             Some(_) => {}
         }
-        let (fl_x, fl_y) = t.focal_pixels(w, h, &file)?;
+        let (fl_x, fl_y) = t.focal_pixels(w, h, file)?;
         let camera = Camera::from_opengl(
             &GlPose {
                 c2w: f.pose,
@@ -242,7 +265,7 @@ pub fn read_split(path: &Path, split: &str, background: DVec3) -> io::Result<Vec
             w,
             h,
         )
-        .map_err(|e| invalid(&file, format!("frame {k}: {e}")))?;
+        .map_err(|e| invalid(file, format!("frame {k}: {e}")))?;
         let bg = background.as_vec3().to_array();
         let pixels = rgba
             .iter()
