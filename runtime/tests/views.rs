@@ -378,3 +378,11 @@ fn dataset_files_are_claimed_before_anything_runs() {
     );
     assert!(e.contains("directory"), "{e}");
 }
+
+#[test]
+fn a_dataset_needs_one_focal_length() {
+    let e = load_err(
+        "render r { scene: sphere(), camera: [look_at([0, 0, -3]), look_at([0, 0, 3], focal: 2)], outputs: [dataset(\"set\")] }",
+    );
+    assert!(e.contains("same `focal`"), "{e}");
+}
