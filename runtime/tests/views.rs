@@ -211,9 +211,9 @@ fn a_written_nerf_synthetic_data_set_reads_back_as_the_render() {
         for (a, b) in png.pixels().zip(&v.image.pixels) {
             // Hits are the colour itself; misses the background composited
             // (within 8-bit rounding of the background the image holds).
-            for c in 0..3 {
+            for (x, y) in a.0.iter().zip(b) {
                 assert!(
-                    (a.0[c] as f32 / 255.0 - b[c]).abs() <= 0.5 / 255.0 + 1e-6,
+                    (*x as f32 / 255.0 - y).abs() <= 0.5 / 255.0 + 1e-6,
                     "view {k}"
                 );
             }
