@@ -645,6 +645,14 @@ fn summarise(r: &serde_json::Value, out: &Path, stdout: &mut Stdout) {
     }
 }
 
+/// ", N held out as test views" (empty for none).
+fn held_out(n: usize) -> String {
+    match n {
+        0 => String::new(),
+        n => format!(", {n} held out as test views"),
+    }
+}
+
 fn plan_text(program: &sdfl_stdlib::Program) -> String {
     use std::fmt::Write;
     let mut o = String::new();
@@ -683,7 +691,25 @@ fn plan_text(program: &sdfl_stdlib::Program) -> String {
             normals.push("shading (the material uses normals)".into());
         }
         row(&mut o, "normals", &normals);
+        if plan.shading_view {
+            let _ = writeln!(
+                o,
+                "  view direction used for shading (a specular material: colour depends on the view)"
+            );
+        }
         row(&mut o, "hit mask", &plan.mask);
+        for d in job
+            .outputs
+            .iter()
+            .filter(|x| x.kind == sdfl_stdlib::OutputKind::Dataset)
+        {
+            let _ = writeln!(
+                o,
+                "  dataset        {}/transforms.json + r_0..r_{}.png (NeRF-synthetic: OpenGL poses, RGBA, alpha = hit mask)",
+                d.path.display(),
+                job.cameras.len() - 1
+            );
+        }
         let _ = writeln!(o, "  gradient tape  none (not training)");
         let _ = writeln!(
             o,
@@ -762,13 +788,56 @@ fn plan_text(program: &sdfl_stdlib::Program) -> String {
                 cameras,
                 width,
                 height,
+                test,
                 ..
             } => {
                 format!(
-                    "{} views rendered by sdfl at {width}x{height}",
-                    cameras.len()
+                    "{} views volume-rendered by sdfl at {width}x{height}{}",
+                    cameras.len(),
+                    held_out(test.len())
                 )
             }
+            sdfl_stdlib::value::Dataset::Traced { job, test } => {
+                let plan = Plan::of(&sdfl_stdlib::RenderJob {
+                    outputs: vec![sdfl_stdlib::Output {
+                        kind: sdfl_stdlib::OutputKind::Image,
+                        path: "data".into(),
+                        span: sdfl_lang::Span::default(),
+                    }],
+                    ..(**job).clone()
+                });
+                format!(
+                    "{} views sphere-traced by sdfl at {}x{}, {} primitives{}{}{}",
+                    job.cameras.len(),
+                    job.width,
+                    job.height,
+                    job.scene.primitive_count(),
+                    if plan.shading_normals {
+                        ", shaded with normals"
+                    } else {
+                        ""
+                    },
+                    if plan.shading_view {
+                        " and the view direction (view-dependent colour)"
+                    } else {
+                        ""
+                    },
+                    held_out(test.len())
+                )
+            }
+            sdfl_stdlib::value::Dataset::NerfSynthetic {
+                path,
+                split,
+                test_split,
+                ..
+            } => format!(
+                "NeRF-synthetic data set {}, split `{split}`{}",
+                path.display(),
+                test_split
+                    .as_ref()
+                    .map(|t| format!(", test views from split `{t}`"))
+                    .unwrap_or_default()
+            ),
         };
         let _ = writeln!(o, "  data           {data}");
         let _ = writeln!(

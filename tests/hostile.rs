@@ -1122,3 +1122,51 @@ fn training_beyond_memory_or_time_is_refused() {
     );
     hostile("training_epochs", endless, Expect::Error);
 }
+
+/// NeRF-synthetic data sets that are malformed, hostile or special files
+/// end as an `sdfl::io` diagnostic at the statement, never a panic or hang.
+#[test]
+fn hostile_nerf_synthetic_data_sets_are_diagnostics() {
+    let pose = "[[1,0,0,0],[0,1,0,0],[0,0,1,3],[0,0,0,1]]";
+    let cases: Vec<(&str, String)> = vec![
+        ("nerf_truncated", "{\"camera_angle_x\": 0.7, \"frames\": [".into()),
+        ("nerf_nested", "[".repeat(200_000)),
+        (
+            "nerf_nonfinite",
+            format!("{{\"camera_angle_x\": 0.7, \"frames\": [{{\"file_path\": \"r\", \"transform_matrix\": [[1e999,0,0,0],[0,1,0,0],[0,0,1,3],[0,0,0,1]]}}]}}"),
+        ),
+        (
+            "nerf_escape",
+            format!("{{\"camera_angle_x\": 0.7, \"frames\": [{{\"file_path\": \"../../../etc/passwd\", \"transform_matrix\": {pose}}}]}}"),
+        ),
+        (
+            "nerf_device",
+            format!("{{\"camera_angle_x\": 0.7, \"frames\": [{{\"file_path\": \"zero.png\", \"transform_matrix\": {pose}}}]}}"),
+        ),
+    ];
+    for (name, json) in cases {
+        let dir = case_dir(name);
+        fs::create_dir_all(dir.join("set")).unwrap();
+        fs::write(dir.join("set/transforms_train.json"), json).unwrap();
+        #[cfg(unix)]
+        std::os::unix::fs::symlink("/dev/zero", dir.join("set/zero.png")).unwrap();
+        let file = dir.join("scene.sdfl");
+        fs::write(
+            &file,
+            "train t { model: sdf_volume(sphere(param(0.8))), iterations: 1, data: nerf_synthetic(\"set\") }",
+        )
+        .unwrap();
+        let out = dir.join("out");
+        let o = sdfl(
+            &dir,
+            &[
+                "run",
+                file.to_str().unwrap(),
+                "--out",
+                out.to_str().unwrap(),
+            ],
+        );
+        assert_outcome(name, &o, Expect::Error);
+        assert!(o.stderr.contains("sdfl::io"), "{name}: {}", head(&o.stderr));
+    }
+}

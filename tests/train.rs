@@ -170,7 +170,7 @@ fn png_views_load_as_linear_floats() {
         images: vec!["view.png".into()],
         cameras: vec![cam],
     };
-    let views = sdfl_runtime::jobs::load_views(&data, &dir).unwrap();
+    let views = sdfl_runtime::jobs::load_views(&data, &dir).unwrap().train;
     assert_eq!((views[0].image.width, views[0].image.height), (3, 2));
     for (i, p) in views[0].image.pixels.iter().enumerate() {
         let want = [

@@ -37,7 +37,9 @@ train torus_fit {
 pub(crate) fn prepare(src: &str) -> (TrainJob, Vec<TrainView>) {
     let program = sdfl_stdlib::load(&SourceFile::new("bench.sdfl", src)).expect("bench scene");
     let job = program.trains[0].clone();
-    let views = load_views(&job.data, std::path::Path::new(".")).expect("views");
+    let views = load_views(&job.data, std::path::Path::new("."))
+        .expect("views")
+        .train;
     (job, views)
 }
 

@@ -15,14 +15,16 @@ use sdfl_stdlib::value::{
     Backend, Dataset, Field, Nerf, Output, Sampler, SdfField, TrainJob, VolumeJob,
 };
 use sdfl_stdlib::OutputKind;
+use sdfl_stdlib::RenderJob;
 use serde::Serialize;
 
+use crate::data::nerf_synthetic::DatasetWriter;
 use crate::data::npy::RgbImage;
 use crate::metrics;
 use crate::neural::field::{render_nerf_view, NerfObjective};
 use crate::neural::nerf::{NerfNet, NerfWork};
 use crate::output::{to_u8, write_png};
-use crate::render::{view_path, Gifs, Written};
+use crate::render::{render_view, view_path, Gifs, Needs, Written};
 use crate::sdf::{LowerOptions, Lowered};
 use crate::train::checkpoint::{Checkpoint, Fnv};
 use crate::train::fused::field_at;
@@ -191,11 +193,16 @@ pub fn write_volume_outputs(
     let strat = stratified(sampler)?;
     let mut written = Vec::new();
     let mut gifs = Gifs::open(outputs, out_dir)?;
+    let mut datasets: Vec<DatasetWriter> = outputs
+        .iter()
+        .filter(|o| o.kind == OutputKind::Dataset)
+        .map(|o| DatasetWriter::new(out_dir, &o.path, (w, h)))
+        .collect();
     let wants_depth = outputs.iter().any(|o| o.kind == OutputKind::Depth);
     let needs_render = outputs.iter().any(|o| {
         matches!(
             o.kind,
-            OutputKind::Image | OutputKind::Gif { .. } | OutputKind::Depth
+            OutputKind::Image | OutputKind::Gif { .. } | OutputKind::Depth | OutputKind::Dataset
         )
     });
     let (mut render_s, mut encode_s) = (0.0, 0.0);
@@ -222,6 +229,7 @@ pub fn write_volume_outputs(
             let rel = if once { o.path.clone() } else { rel };
             let (kind, rgb, (pw, ph)) = match o.kind {
                 OutputKind::Gif { .. }
+                | OutputKind::Dataset
                 | OutputKind::LossCurve
                 | OutputKind::PsnrCurve
                 | OutputKind::Comparison
@@ -252,9 +260,16 @@ pub fn write_volume_outputs(
         if !gifs.is_empty() {
             gifs.push(w, h, &rgb8(&colour))?;
         }
+        // Volumes have no hit mask: their views are written opaque.
+        for d in &mut datasets {
+            written.push(d.push(k, cam, &rgb8(&colour), None)?);
+        }
         encode_s += t.elapsed().as_secs_f64();
     }
     written.extend(gifs.finish(w, h)?);
+    for d in datasets {
+        written.push(d.finish()?);
+    }
     Ok(VolumeReport {
         name: name.to_string(),
         views: cameras.len(),
@@ -351,9 +366,18 @@ fn load_image(path: &Path) -> io::Result<RgbImage> {
     crate::data::image::read_rgb_image(path)
 }
 
-/// The training views: read from files (relative to `base`) or rendered.
+/// A data set's views: those to train on and those held out for testing.
+#[derive(Debug, Clone)]
+pub struct Views {
+    pub train: Vec<TrainView>,
+    pub test: Vec<TrainView>,
+}
+
+/// The views of a data set: read from files (relative to `base`),
+/// volume-rendered, sphere-traced (exactly as `render` draws them) or read
+/// from a NeRF-synthetic data set; split into training and test views.
 /// Every pixel must be a finite colour; the first that is not is named.
-pub fn load_views(data: &Dataset, base: &Path) -> io::Result<Vec<TrainView>> {
+pub fn load_views(data: &Dataset, base: &Path) -> io::Result<Views> {
     let views: Vec<(TrainView, String)> = match data {
         Dataset::Files { images, cameras } => {
             crate::data::image::check_dataset(images.iter().map(|p| base.join(p)))?;
@@ -378,6 +402,7 @@ pub fn load_views(data: &Dataset, base: &Path) -> io::Result<Vec<TrainView>> {
             width,
             height,
             sampler,
+            ..
         } => {
             let render = field_view(field, sampler)?;
             cameras
@@ -397,8 +422,101 @@ pub fn load_views(data: &Dataset, base: &Path) -> io::Result<Vec<TrainView>> {
                 })
                 .collect::<io::Result<_>>()?
         }
+        Dataset::Traced { job, .. } => traced_views(job)
+            .into_iter()
+            .enumerate()
+            .map(|(k, v)| (v, format!("traced view {k}")))
+            .collect(),
+        Dataset::NerfSynthetic {
+            path,
+            split,
+            test_split,
+            background,
+        } => {
+            use crate::data::nerf_synthetic::{read_splits, transforms_path};
+            let dir = base.join(path);
+            let mut splits = vec![split.as_str()];
+            if let Some(t) = test_split {
+                // The lone transforms.json stands in for the training split
+                // only: it never doubles as the test views.
+                if transforms_path(&dir, t) == transforms_path(&dir, split) {
+                    return Err(invalid(format!(
+                        "{}: no transforms_{t}.json for the test split `{t}`",
+                        dir.display()
+                    )));
+                }
+                splits.push(t);
+            }
+            let mut read = read_splits(&dir, &splits, *background)?;
+            let test = if read.len() > 1 {
+                read.pop().unwrap_or_default()
+            } else {
+                Vec::new()
+            };
+            let train = read.pop().unwrap_or_default();
+            let named = |split: &str, views: Vec<TrainView>| -> Vec<(TrainView, String)> {
+                let file = transforms_path(&dir, split).display().to_string();
+                views
+                    .into_iter()
+                    .enumerate()
+                    .map(|(k, v)| (v, format!("{file} frame {k}")))
+                    .collect()
+            };
+            let train = named(split, train);
+            let test = named(test_split.as_deref().unwrap_or(""), test);
+            check_finite(&train)?;
+            check_finite(&test)?;
+            return Ok(Views {
+                train: train.into_iter().map(|(v, _)| v).collect(),
+                test: test.into_iter().map(|(v, _)| v).collect(),
+            });
+        }
     };
-    for (v, origin) in &views {
+    check_finite(&views)?;
+    let held = data.test_views();
+    let (mut train, mut test) = (Vec::new(), Vec::new());
+    for (k, (v, _)) in views.into_iter().enumerate() {
+        if held.binary_search(&k).is_ok() {
+            test.push(v);
+        } else {
+            train.push(v);
+        }
+    }
+    Ok(Views { train, test })
+}
+
+/// Every view of a sphere-traced data set: the tracer of `render` with the
+/// job's settings, colour quantised to 8 bits as its `image` output writes.
+pub fn traced_views(job: &RenderJob) -> Vec<TrainView> {
+    let scene = Lowered::new(&job.scene, LowerOptions::default());
+    let needs = Needs {
+        color: true,
+        depth: false,
+        normals: false,
+        mask: false,
+    };
+    job.cameras
+        .iter()
+        .map(|c| {
+            let view = render_view(&scene, job, c, (job.width, job.height), needs, &|_| {});
+            let rgb = view.color.expect("colour is asked for");
+            TrainView {
+                camera: *c,
+                image: RgbImage {
+                    width: job.width,
+                    height: job.height,
+                    pixels: rgb
+                        .chunks_exact(3)
+                        .map(|p| [p[0], p[1], p[2]].map(|x| x as f32 / 255.0))
+                        .collect(),
+                },
+            }
+        })
+        .collect()
+}
+
+fn check_finite(views: &[(TrainView, String)]) -> io::Result<()> {
+    for (v, origin) in views {
         if let Some(i) = v
             .image
             .pixels
@@ -414,7 +532,7 @@ pub fn load_views(data: &Dataset, base: &Path) -> io::Result<Vec<TrainView>> {
             )));
         }
     }
-    Ok(views.into_iter().map(|(v, _)| v).collect())
+    Ok(())
 }
 
 /// How often a checkpoint is written.
@@ -524,8 +642,7 @@ pub fn run_train_job(
     }
 
     let t = Instant::now();
-    let views = load_views(&job.data, base)?;
-    let test_views: Vec<TrainView> = Vec::new();
+    let Views { train: views, test: test_views } = load_views(&job.data, base)?;
     stages.push(("load data".to_string(), t.elapsed().as_secs_f64()));
 
     // The analytic model outlives the run that borrows it.

@@ -150,6 +150,24 @@ pub fn write_png(path: &Path, width: u32, height: u32, rgb: &[u8]) -> io::Result
     out.commit()
 }
 
+/// Write an RGBA8 PNG atomically.
+pub fn write_png_rgba(path: &Path, width: u32, height: u32, rgba: &[u8]) -> io::Result<()> {
+    let mut out = Atomic::create(path)?;
+    image::codecs::png::PngEncoder::new(out.writer())
+        .write_image(rgba, width, height, image::ExtendedColorType::Rgba8)
+        .map_err(|e| with_path(path, io::Error::other(e)))?;
+    out.commit()
+}
+
+/// Write bytes (a JSON file) atomically.
+pub fn write_bytes(path: &Path, bytes: &[u8]) -> io::Result<()> {
+    let mut out = Atomic::create(path)?;
+    out.writer()
+        .write_all(bytes)
+        .map_err(|e| with_path(path, e))?;
+    out.commit()
+}
+
 /// An animated GIF, encoded frame by frame straight into its temporary
 /// file (no frame is kept in memory) and renamed into place by
 /// [`GifWriter::finish`].

@@ -7,10 +7,12 @@ use std::time::Instant;
 use glam::{DVec3, Vec3A};
 use rayon::prelude::*;
 use sdfl_stdlib::camera::Camera;
+use sdfl_stdlib::material::Material;
 use sdfl_stdlib::value::HitTolerance;
 use sdfl_stdlib::{OutputKind, RenderJob};
 use serde::Serialize;
 
+use crate::data::nerf_synthetic::DatasetWriter;
 use crate::output::{colormap, to_u8, write_png, GifWriter};
 use crate::sdf::{LowerOptions, Lowered};
 use crate::trace::{normal, sphere_trace, TraceSettings};
@@ -29,6 +31,9 @@ pub struct Plan {
     /// Shading needs normals at hit points (a material uses them); they are
     /// then computed per hit, not stored.
     pub shading_normals: bool,
+    /// Shading needs the view (ray) direction (a specular material): the
+    /// colour differs between views of one point.
+    pub shading_view: bool,
 }
 
 impl Plan {
@@ -41,6 +46,11 @@ impl Plan {
                 OutputKind::Depth => plan.depth.push(who),
                 OutputKind::Normals => plan.normals.push(who),
                 OutputKind::Mask => plan.mask.push(who),
+                // RGBA: colour, with the hit mask as alpha.
+                OutputKind::Dataset => {
+                    plan.color.push(who.clone());
+                    plan.mask.push(who);
+                }
                 // Camera visual checks need no tracing; sample points and
                 // loss curves are refused for renders when evaluated.
                 OutputKind::Grid
@@ -51,18 +61,22 @@ impl Plan {
                 | OutputKind::Comparison => {}
             }
         }
-        plan.shading_normals = !plan.color.is_empty()
-            && (job.material.needs_normal() || any_painted_needs_normal(job));
+        let shaded = !plan.color.is_empty();
+        plan.shading_normals =
+            shaded && (job.material.needs_normal() || any_painted(job, Material::needs_normal));
+        plan.shading_view =
+            shaded && (job.material.needs_view() || any_painted(job, Material::needs_view));
         plan
     }
 }
 
-fn any_painted_needs_normal(job: &RenderJob) -> bool {
-    fn walk(s: &sdfl_stdlib::shape::Shape) -> bool {
-        let painted = matches!(s, sdfl_stdlib::shape::Shape::Paint(_, m) if m.needs_normal());
-        painted || s.children().into_iter().any(|c| walk(c))
+/// Whether any material painted onto a part of the scene has `property`.
+fn any_painted(job: &RenderJob, property: fn(&Material) -> bool) -> bool {
+    fn walk(s: &sdfl_stdlib::shape::Shape, property: fn(&Material) -> bool) -> bool {
+        let painted = matches!(s, sdfl_stdlib::shape::Shape::Paint(_, m) if property(m));
+        painted || s.children().into_iter().any(|c| walk(c, property))
     }
-    walk(&job.scene)
+    walk(&job.scene, property)
 }
 
 /// Per-view buffers; `None` for quantities the plan does not need.
@@ -190,7 +204,7 @@ pub fn render_view(
                         };
                         let p64 = DVec3::from(p.to_array().map(f64::from));
                         let n64 = DVec3::from(n.to_array().map(f64::from));
-                        let rgb = material.shade(p64, center, n64);
+                        let rgb = material.shade(p64, center, n64, d64);
                         c[k * 3..k * 3 + 3].copy_from_slice(&rgb.to_array().map(to_u8));
                     }
                     if let Some(d) = dep.as_deref_mut() {
@@ -342,6 +356,12 @@ pub fn run_job(
     let (width, height) = options.size.unwrap_or((job.width, job.height));
     let views = job.cameras.len();
     let mut gifs = Gifs::open(&job.outputs, out_dir)?;
+    let mut datasets: Vec<DatasetWriter> = job
+        .outputs
+        .iter()
+        .filter(|o| o.kind == OutputKind::Dataset)
+        .map(|o| DatasetWriter::new(out_dir, &o.path, (width, height)))
+        .collect();
     let mut written = Vec::new();
     let (mut trace_s, mut encode_s) = (0.0, 0.0);
     let (mut hits, mut steps, mut undecided) = (0, 0, 0);
@@ -356,7 +376,7 @@ pub fn run_job(
         for o in &job.outputs {
             let rel = view_path(&o.path, k, views);
             let (kind, rgb): (&'static str, Option<Vec<u8>>) = match o.kind {
-                OutputKind::Gif { .. } => continue,
+                OutputKind::Gif { .. } | OutputKind::Dataset => continue,
                 OutputKind::Image => ("image", view.color.clone()),
                 OutputKind::Normals => ("normal_map", view.normals.clone()),
                 OutputKind::Mask => (
@@ -405,10 +425,17 @@ pub fn run_job(
                 view.color.as_deref().expect("gif outputs plan colour"),
             )?;
         }
+        for d in &mut datasets {
+            let rgb = view.color.as_deref().expect("datasets plan colour");
+            written.push(d.push(k, cam, rgb, view.mask.as_deref())?);
+        }
         encode_s += t.elapsed().as_secs_f64();
     }
     let t = Instant::now();
     written.extend(gifs.finish(width, height)?);
+    for d in datasets {
+        written.push(d.finish()?);
+    }
     encode_s += t.elapsed().as_secs_f64();
     Ok(JobReport {
         name: job.name.clone(),

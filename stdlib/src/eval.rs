@@ -364,7 +364,15 @@ impl<'e> Evaluator<'e> {
                     });
                     first.map(|s| (s, "the training data is rendered at its starting value"))
                 }
-                crate::value::Dataset::Files { .. } => None,
+                crate::value::Dataset::Traced { job, .. } => {
+                    let mut first = None;
+                    job.scene.visit_params(&mut |u| {
+                        first.get_or_insert(u.decl.span);
+                    });
+                    first.map(|s| (s, "the training data is rendered at its starting value"))
+                }
+                crate::value::Dataset::Files { .. }
+                | crate::value::Dataset::NerfSynthetic { .. } => None,
             }),
         };
         if let Some((span, what)) = untrained {

@@ -43,6 +43,15 @@ pub fn view_path(path: &Path, k: usize, n: usize) -> PathBuf {
     path.with_file_name(format!("{stem}_{idx}{ext}"))
 }
 
+/// The files of a `dataset` output in `dir` for `views` views: the
+/// NeRF-synthetic layout, `r_<k>.png` per view and `transforms.json`.
+pub fn dataset_files(dir: &Path, views: usize) -> Vec<PathBuf> {
+    (0..views)
+        .map(|k| dir.join(format!("r_{k}.png")))
+        .chain([dir.join("transforms.json")])
+        .collect()
+}
+
 /// Whether an output kind is written once per view (else once per job).
 pub fn per_view(kind: &OutputKind) -> bool {
     matches!(
@@ -93,6 +102,7 @@ pub fn kind_name(kind: &OutputKind) -> &'static str {
         OutputKind::LossCurve => "loss_curve",
         OutputKind::PsnrCurve => "psnr_curve",
         OutputKind::Comparison => "comparison",
+        OutputKind::Dataset => "dataset",
     }
 }
 
@@ -150,7 +160,16 @@ impl Files {
 fn output_files(outputs: &[Output], views: usize, job: JobKind) -> Vec<(PathBuf, Span, String)> {
     let mut out = Vec::new();
     for o in outputs.iter().filter(|o| written_by(&o.kind, job)) {
-        if per_view(&o.kind) {
+        if o.kind == OutputKind::Dataset {
+            for (k, path) in dataset_files(&o.path, views).into_iter().enumerate() {
+                let who = if k < views {
+                    describe(o, k, views)
+                } else {
+                    "`dataset` writes its transforms.json".to_string()
+                };
+                out.push((path, o.span, who));
+            }
+        } else if per_view(&o.kind) {
             for k in 0..views {
                 out.push((view_path(&o.path, k, views), o.span, describe(o, k, views)));
             }
@@ -164,7 +183,11 @@ fn output_files(outputs: &[Output], views: usize, job: JobKind) -> Vec<(PathBuf,
 fn file_count(outputs: &[Output], views: usize) -> u64 {
     outputs
         .iter()
-        .map(|o| if per_view(&o.kind) { views as u64 } else { 1 })
+        .map(|o| match o.kind {
+            OutputKind::Dataset => views as u64 + 1,
+            _ if per_view(&o.kind) => views as u64,
+            _ => 1,
+        })
         .sum()
 }
 

@@ -18,6 +18,8 @@ pub enum Value {
     List(Arc<Vec<Value>>),
     Shape(Arc<Shape>),
     Material(Arc<Material>),
+    /// A directional light of a `phong` material.
+    Light(crate::material::Light),
     Camera(Camera),
     Output(Arc<Output>),
     /// A number or vector marked trainable with `param(...)`.
@@ -43,6 +45,7 @@ impl Value {
             Value::List(_) => "list",
             Value::Shape(_) => "shape",
             Value::Material(_) => "material",
+            Value::Light(_) => "light",
             Value::Camera(_) => "camera",
             Value::Output(_) => "output",
             Value::Param(_) => "trainable parameter",
@@ -114,6 +117,9 @@ pub enum OutputKind {
     PsnrCurve,
     /// Each held-out view: truth | render | error, stacked.
     Comparison,
+    /// A NeRF-synthetic data set in a directory: `transforms.json` and
+    /// `r_<k>.png` per view (RGBA, alpha = the hit mask).
+    Dataset,
 }
 
 impl OutputKind {
@@ -346,7 +352,8 @@ pub enum LastInterval {
     Infinite,
 }
 
-/// Training views: images with their cameras.
+/// Training views: images with their cameras, some possibly held out as
+/// test views.
 #[derive(Debug, Clone)]
 pub enum Dataset {
     /// Images read from files (`.npy` float32 H×W×3, or PNG).
@@ -361,15 +368,71 @@ pub enum Dataset {
         width: u32,
         height: u32,
         sampler: Sampler,
+        /// Indices into `cameras` held out as test views (sorted).
+        test: Vec<usize>,
+    },
+    /// Views of a shape sphere-traced by sdfl: the `render` statement's job
+    /// (its cameras, size, material, background and tracing settings; no
+    /// outputs), so the pixels are exactly what that `render` draws.
+    Traced {
+        job: Arc<RenderJob>,
+        /// Indices into the job's cameras held out as test views (sorted).
+        test: Vec<usize>,
+    },
+    /// A NeRF-synthetic (Blender) data set: `transforms_<split>.json` and
+    /// its RGBA images, composited over `background`. Cameras are known
+    /// once the file is read.
+    NerfSynthetic {
+        /// The directory (relative to the scene file) or a `.json` file.
+        path: std::path::PathBuf,
+        split: String,
+        /// The split read as test views, if any.
+        test_split: Option<String>,
+        background: DVec3,
     },
 }
 
 impl Dataset {
+    /// The cameras known before anything is read (none for NeRF-synthetic
+    /// data, whose cameras are in its files), test views included.
     pub fn cameras(&self) -> &[Camera] {
         match self {
             Dataset::Files { cameras, .. } | Dataset::Rendered { cameras, .. } => cameras,
+            Dataset::Traced { job, .. } => &job.cameras,
+            Dataset::NerfSynthetic { .. } => &[],
         }
     }
+
+    /// Indices of [`Self::cameras`] held out as test views.
+    pub fn test_views(&self) -> &[usize] {
+        match self {
+            Dataset::Rendered { test, .. } | Dataset::Traced { test, .. } => test,
+            Dataset::Files { .. } | Dataset::NerfSynthetic { .. } => &[],
+        }
+    }
+}
+
+/// The `test` of `n` views held out, by a seeded shuffle (SplitMix64 and
+/// Fisher-Yates): the same for the same `(n, test, seed)` on every machine.
+/// Sorted; `test` is at most `n`.
+pub fn held_out(n: usize, test: usize, seed: u64) -> Vec<usize> {
+    let mut state = seed;
+    let mut next = move || {
+        state = state.wrapping_add(0x9e37_79b9_7f4a_7c15);
+        let mut z = state;
+        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+        z ^ (z >> 31)
+    };
+    let mut order: Vec<usize> = (0..n).collect();
+    for i in (1..n).rev() {
+        // Modulo bias is below 2^-40 for n ≤ 10 000 views.
+        let j = (next() % (i as u64 + 1)) as usize;
+        order.swap(i, j);
+    }
+    let mut test: Vec<usize> = order.into_iter().take(test.min(n)).collect();
+    test.sort_unstable();
+    test
 }
 
 /// Adam with a learning-rate schedule.
@@ -495,4 +558,24 @@ pub enum Statement {
     Render(usize),
     Volume(usize),
     Train(usize),
+}
+
+#[cfg(test)]
+mod tests {
+    use super::held_out;
+
+    #[test]
+    fn held_out_views_are_a_seeded_sorted_subset() {
+        let a = held_out(100, 10, 3);
+        assert_eq!(a, held_out(100, 10, 3));
+        assert_eq!(a.len(), 10);
+        assert!(a.windows(2).all(|w| w[0] < w[1]) && a[9] < 100);
+        assert_ne!(a, held_out(100, 10, 4));
+        // Not simply the first or last views.
+        assert_ne!(a, (0..10).collect::<Vec<_>>());
+        assert_ne!(a, (90..100).collect::<Vec<_>>());
+        assert!(held_out(5, 0, 1).is_empty());
+        assert_eq!(held_out(3, 3, 9), vec![0, 1, 2]);
+        assert!(held_out(0, 2, 0).is_empty());
+    }
 }

@@ -62,6 +62,8 @@ fn bytes_per_pixel(kinds: impl Iterator<Item = OutputKind>, volume: bool) -> f64
             OutputKind::Depth => 7.0,
             OutputKind::Normals => 3.0,
             OutputKind::Mask => 4.0,
+            // Colour, mask and the RGBA frame being encoded.
+            OutputKind::Dataset => 8.0,
             _ => 3.0,
         };
     }
@@ -140,13 +142,21 @@ pub fn train_work(j: &TrainJob, size: Option<(u32, u32)>) -> Work {
             height,
             ..
         } => Some(*width as f64 * *height as f64 * cameras.len() as f64),
-        Dataset::Files { .. } => None,
+        Dataset::Traced { job, .. } => {
+            Some(job.width as f64 * job.height as f64 * job.cameras.len() as f64)
+        }
+        Dataset::Files { .. } | Dataset::NerfSynthetic { .. } => None,
     };
     let iterations = match (j.epochs, pixels_of_data) {
         (Some(e), Some(px)) => e as f64 * (px / j.rays.max(1) as f64).ceil(),
         // Read files' sizes are known only when read; a 16 384² view each.
         (Some(e), None) => {
-            let px = j.data.cameras().len() as f64 * 16_384.0 * 16_384.0;
+            let px = match &*j.data {
+                // Cameras unknown until read: as many pixels as a data set
+                // may decode to (12 bytes each).
+                Dataset::NerfSynthetic { .. } => 2e9 / 12.0,
+                _ => j.data.cameras().len() as f64 * 16_384.0 * 16_384.0,
+            };
             e as f64 * (px / j.rays.max(1) as f64).ceil()
         }
         (None, _) => j.iterations as f64,
@@ -173,8 +183,13 @@ pub fn train_work(j: &TrainJob, size: Option<(u32, u32)>) -> Work {
             let px = *width as f64 * *height as f64 * cameras.len() as f64;
             (px * sampler.samples as f64, px * 12.0)
         }
+        Dataset::Traced { job, .. } => {
+            let w = render_work(job, None);
+            let px = job.width as f64 * job.height as f64 * job.cameras.len() as f64;
+            (w.evaluations, w.memory + px * 12.0)
+        }
         // Files are checked against their declared sizes when read.
-        Dataset::Files { .. } => (0.0, 0.0),
+        Dataset::Files { .. } | Dataset::NerfSynthetic { .. } => (0.0, 0.0),
     };
     let px = pixels((j.width, j.height), size);
     let views = j.views.len() as f64;

@@ -127,6 +127,27 @@ pub fn read_rgb_image(path: &Path) -> io::Result<RgbImage> {
     })
 }
 
+/// Reads an image with its alpha channel as f32 RGBA in 0..1 (opaque where
+/// the file has no alpha), its size checked first. Not `.npy`.
+pub fn read_rgba_image(path: &Path) -> io::Result<(u32, u32, Vec<[f32; 4]>)> {
+    image_dimensions(path)?;
+    if is_npy(path) {
+        return Err(invalid(
+            path,
+            "expected an image with alpha (PNG), not .npy",
+        ));
+    }
+    let img = reader(path, true)?
+        .decode()
+        .map_err(|e| invalid(path, e))?
+        .to_rgba32f();
+    Ok((
+        img.width(),
+        img.height(),
+        img.pixels().map(|p| p.0).collect(),
+    ))
+}
+
 /// The bytes of a checkpoint: a regular file of at most 1 GiB, never read
 /// through a symbolic link; every error names the path.
 pub fn read_checkpoint_bytes(path: &Path) -> io::Result<Vec<u8>> {

@@ -1,4 +1,5 @@
 //! Readers for input data sets.
 
 pub mod image;
+pub mod nerf_synthetic;
 pub mod npy;

@@ -92,11 +92,13 @@ pub(crate) fn render_block(name: &str, a: &Args) -> Result<RenderJob, Diag> {
     let (near, far) = (a.number("near")?, a.number("far")?);
     check_range(a, near, far)?;
     let (bg, bg_span) = (a.vec3("background")?, a.get("background").1);
+    let cameras = camera_list(a, "camera")?;
+    one_intrinsics(a, &outputs, &cameras)?;
     Ok(RenderJob {
         name: name.to_string(),
         scene: a.shape("scene")?,
         material: a.material("material")?,
-        cameras: camera_list(a, "camera")?,
+        cameras,
         width,
         height,
         near,
@@ -121,6 +123,26 @@ pub(crate) fn render_block(name: &str, a: &Args) -> Result<RenderJob, Diag> {
         background: colour(bg, bg_span)?,
         outputs,
     })
+}
+
+/// A `dataset` output (NeRF-synthetic) holds one focal length for all its
+/// views: its cameras must share focal and pixel-centre convention.
+fn one_intrinsics(a: &Args, outputs: &[Output], cameras: &[Camera]) -> Result<(), Diag> {
+    let Some(first) = cameras.first() else {
+        return Ok(());
+    };
+    let differs = cameras
+        .iter()
+        .position(|c| c.focal != first.focal || c.pixel_centers != first.pixel_centers);
+    match (outputs.iter().any(|o| o.kind == OutputKind::Dataset), differs) {
+        (true, Some(k)) => Err(value_error(
+            a.get("camera").1,
+            format!("camera {k} has another focal length or pixel-centre convention than camera 0, but a `dataset` output holds one for all views"),
+            "cameras differ",
+            "give every camera of a `dataset` output the same `focal` and `pixel_centers`",
+        )),
+        _ => Ok(()),
+    }
 }
 
 // ------------------------------------------------- train and volume blocks
@@ -228,6 +250,20 @@ pub(crate) fn train_block(name: &str, a: &Args) -> Result<TrainJob, Diag> {
     };
     let before = outputs(a, "before", true)?;
     let after = outputs(a, "after", true)?;
+    let has_test = !data.test_views().is_empty()
+        || matches!(&**data, Dataset::NerfSynthetic { test_split: Some(_), .. });
+    if let Some(o) = after
+        .iter()
+        .find(|o| matches!(o.kind, OutputKind::PsnrCurve | OutputKind::Comparison))
+        .filter(|_| !has_test)
+    {
+        return Err(value_error(
+            a.get("after").1,
+            format!("`{}` needs held-out views, and the data set has none", o.path.display()),
+            "compares against test views",
+            "hold some views out: `render_views(..., test_views: 5)`",
+        ));
+    }
     let (width, height) = image_size(a, "size")?;
     let epochs = a.count("epochs", 0, 1_000_000)? as usize;
     // Defaults carry the block's span: a different span was written.
@@ -281,10 +317,12 @@ pub(crate) fn volume_block(name: &str, a: &Args, field: Arc<Field>) -> Result<Vo
             "volume renders write image, gif, depth, grid_image, rays_image and sample_points",
         ));
     }
+    let cameras = camera_list(a, "camera")?;
+    one_intrinsics(a, &outputs, &cameras)?;
     Ok(VolumeJob {
         name: name.to_string(),
         field,
-        cameras: camera_list(a, "camera")?,
+        cameras,
         width,
         height,
         sampler: *sampler,

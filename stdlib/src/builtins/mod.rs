@@ -13,7 +13,7 @@ use sdfl_lang::Span;
 
 use crate::camera::{Camera, OrbitUp, PixelCenters};
 use crate::eval::describe;
-use crate::material::Material;
+use crate::material::{Light, Material};
 use crate::param::{Arg, Bound, ParamDecl, ParamInit, ParamUse, MIN_BETA, MIN_LENGTH};
 use crate::precision::{beta, f32_range};
 use crate::shape::Shape;
@@ -33,6 +33,7 @@ pub const DATASET: Type = Type::Named("data set");
 pub const OPTIMIZER: Type = Type::Named("optimizer");
 pub const LOSS: Type = Type::Named("loss");
 pub const ENCODING: Type = Type::Named("encoding");
+pub const LIGHT: Type = Type::Named("light");
 /// Most samples per ray.
 pub const MAX_SAMPLES: u64 = 4096;
 
@@ -509,6 +510,32 @@ fn table() -> Vec<Builtin> {
                 })))
             },
         ),
+        func(
+            "phong",
+            "Blinn-Phong shading under directional lights: `albedo·ambient + Σ color·(albedo·(1 - ambient)·max(0, n·l) + specular·max(0, n·h)^shininess)`, `h = normalize(l - ray direction)`, clamped to 0..1. Depends on the view: highlights move with the camera.",
+            vec![
+                opt("albedo", Type::OneOf(vec![MATERIAL, Type::Vec3]), "rainbow()", "base colour or material (one that needs no view direction)"),
+                opt("lights", Type::list(LIGHT), "[light()]", "directional lights (at least one)"),
+                opt("ambient", Type::Number, "0.1", "light reaching surfaces facing away (0..1)"),
+                opt("specular", Type::Number, "0.5", "strength of the highlight (0..1)"),
+                opt("shininess", Type::Number, "32", "highlight exponent (> 0; larger is a smaller, sharper highlight)"),
+            ],
+            MATERIAL,
+            phong,
+        ),
+        func(
+            "light",
+            "A directional light for `phong`.",
+            vec![
+                opt("direction", Type::Vec3, "[1, 1, 1]", "direction from the surface towards the light (nonzero)"),
+                opt("color", Type::Vec3, "[1, 1, 1]", "linear RGB intensity in 0..1"),
+            ],
+            LIGHT,
+            |a| {
+                let (color, span) = (a.vec3("color")?, a.get("color").1);
+                Ok(Value::Light(Light { direction: a.direction("direction")?, color: colour(color, span)? }))
+            },
+        ),
         func("normals", "The surface normal as a colour, `(n + 1)/2`.", vec![], MATERIAL, |_| {
             Ok(Value::Material(Arc::new(Material::Normals)))
         }),
@@ -593,6 +620,17 @@ fn table() -> Vec<Builtin> {
             out(a, OutputKind::Normals, "png")
         }),
         output("mask", "Hit mask as PNG per view: white hit, black miss.", |a| out(a, OutputKind::Mask, "png")),
+        func(
+            "dataset",
+            "Every view as a NeRF-synthetic data set in directory `path`: `transforms.json` (camera-to-world poses in OpenGL axes, `camera_angle_x`, `fl_x`, `fl_y`) and `r_<k>.png` per view, RGBA with alpha = hit mask (opaque for fields). `nerf_synthetic(...)` reads it back.",
+            vec![req("path", Type::Str, "directory inside the output directory")],
+            OUTPUT,
+            |a| {
+                let (path, span) = a.string("path")?;
+                let path = safe_output_path(&path, span)?;
+                Ok(Value::Output(Arc::new(Output { kind: OutputKind::Dataset, path, span: a.span })))
+            },
+        ),
         // ---- volumes, sampling, data, training
         func(
             "param",
@@ -817,24 +855,76 @@ fn table() -> Vec<Builtin> {
         ),
         func(
             "render_views",
-            "Training views rendered by sdfl itself from a field (self-contained, with known ground truth).",
+            "Views rendered by sdfl itself, with known ground truth: a field is volume-rendered (with `sampler`), a shape sphere-traced exactly as a `render` statement draws it (with `material`, `background`, `near`, `far`, `iterations`). `test_views` of the cameras, picked by a seeded shuffle, are held out as test views.",
             vec![
-                req("field", FIELD, "the field to render"),
+                req("scene", Type::OneOf(vec![SHAPE, FIELD]), "a field (volume-rendered) or a shape (sphere-traced)"),
                 req("cameras", Type::list(CAMERA), "one camera per view"),
                 opt("size", Type::list(Type::Number), "[128, 128]", "image width and height"),
-                opt("sampler", SAMPLER, "stratified()", "depth samples"),
+                opt("sampler", SAMPLER, "stratified()", "depth samples (fields only)"),
+                opt("material", Type::OneOf(vec![MATERIAL, Type::Vec3]), "rainbow()", "how hit points are coloured (shapes only)"),
+                opt("background", Type::Vec3, "[0, 0, 0]", "colour of rays that miss (shapes only)"),
+                opt("near", Type::Number, "0", "where rays start (shapes only, ≥ 0)"),
+                opt("far", Type::Number, "5", "where rays give up (shapes only, > near)"),
+                opt("iterations", Type::Number, "64", "most sphere-tracing steps per ray (shapes only)"),
+                opt("test_views", Type::Number, "0", "how many cameras to hold out as test views (fewer than the cameras)"),
+                opt("split_seed", Type::Number, "0", "seed of the shuffle that picks the test views"),
+            ],
+            DATASET,
+            render_views,
+        ),
+        func(
+            "sphere_views",
+            "`views` cameras spread evenly over a sphere (or the hemisphere above `up`) of `radius` around the origin, looking at it (a Fibonacci lattice: deterministic, no two alike): the usual NeRF camera set.",
+            vec![
+                opt("views", Type::Number, "100", "number of cameras"),
+                opt("radius", Type::Number, "4", "distance from the origin (> 0)"),
+                opt("up", Type::Vec3, "[0, 0, 1]", "the up direction of every camera, and the hemisphere's pole (nonzero)"),
+                opt("focal", Type::Number, "1", "focal length in NDC units (> 0)"),
+                opt("hemisphere", Type::Bool, "false", "only the half above the origin along `up`"),
+            ],
+            Type::list(CAMERA),
+            |a| {
+                let views = a.count("views", 1, MAX_VIEWS as u64)? as usize;
+                let hemisphere = matches!(a.get("hemisphere").0, Value::Bool(true));
+                let cams = Camera::sphere(views, a.positive("radius")?, a.direction("up")?, a.positive("focal")?, hemisphere);
+                Ok(Value::List(Arc::new(cams.into_iter().map(Value::Camera).collect())))
+            },
+        ),
+        func(
+            "nerf_synthetic",
+            "A NeRF-synthetic (Blender) data set: `transforms_<split>.json` (camera-to-world poses in OpenGL axes, `camera_angle_x`) and its RGBA images composited over `background`. `path` is the directory (relative to the scene file; a lone `transforms.json`, as sdfl's `dataset` output writes, is read when the split's file is missing) or a `.json` file.",
+            vec![
+                req("path", Type::Str, "the data set's directory, or its transforms .json file"),
+                opt("split", Type::Str, "\"train\"", "which transforms file holds the training views"),
+                opt("test_split", Type::Str, "\"\"", "which transforms file holds the test views (\"\": none), e.g. \"test\""),
+                opt("background", Type::Vec3, "[1, 1, 1]", "colour behind transparent pixels"),
             ],
             DATASET,
             |a| {
-                let Value::Field(field) = a.get("field").0 else { return Err(type_error(a.get("field").1, "field", a.get("field").0)) };
-                let (width, height) = image_size(a, "size")?;
-                let Value::Sampler(sampler) = a.get("sampler").0 else { return Err(type_error(a.get("sampler").1, "sampler", a.get("sampler").0)) };
-                Ok(Value::Dataset(Arc::new(Dataset::Rendered {
-                    field: field.clone(),
-                    cameras: camera_list(a, "cameras")?,
-                    width,
-                    height,
-                    sampler: *sampler,
+                let (path, path_span) = a.string("path")?;
+                if path.is_empty() || path.contains('\0') {
+                    return Err(Diag::new(codes::PATH, path_span, "not a usable path").label("empty or holds a NUL byte").help("name the data set's directory, e.g. \"data/lego\""));
+                }
+                let split_name = |name: &str| -> Result<Option<String>, Diag> {
+                    let (v, span) = a.string(name)?;
+                    if v.is_empty() {
+                        return Ok(None);
+                    }
+                    if v.len() > 64 || !v.chars().all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-') {
+                        return Err(value_error(span, format!("`{name}` must be a plain name such as \"train\""), "not a plain name", "use letters, digits, `_` and `-` only (it names transforms_<split>.json)"));
+                    }
+                    Ok(Some(v.to_string()))
+                };
+                let Some(split) = split_name("split")? else {
+                    return Err(value_error(a.get("split").1, "`split` is empty", "no split", "name the training split, e.g. \"train\""));
+                };
+                let test_split = split_name("test_split")?;
+                let (bg, bg_span) = (a.vec3("background")?, a.get("background").1);
+                Ok(Value::Dataset(Arc::new(Dataset::NerfSynthetic {
+                    path: PathBuf::from(path.as_ref()),
+                    split,
+                    test_split,
+                    background: colour(bg, bg_span)?,
                 })))
             },
         ),
@@ -951,6 +1041,156 @@ fn table() -> Vec<Builtin> {
             Ok(Value::Number(a.number("a")?.max(a.number("b")?)))
         }),
     ]
+}
+
+fn render_views(a: &Args) -> Result<Value, Diag> {
+    let cameras = camera_list(a, "cameras")?;
+    let (width, height) = image_size(a, "size")?;
+    // Settings of the other kind of scene, given explicitly, would be
+    // silently ignored: refuse them (defaults carry the call's span).
+    let given = |name: &str| a.get(name).1 != a.span;
+    let refuse = |names: &[&str], scene: &str, help: &str| -> Result<(), Diag> {
+        match names.iter().find(|n| given(n)) {
+            Some(n) => Err(value_error(
+                a.get(n).1,
+                format!("`{n}` does not apply to a {scene}"),
+                format!("ignored for a {scene}"),
+                help.to_string(),
+            )),
+            None => Ok(()),
+        }
+    };
+    let tests = a.count("test_views", 0, MAX_VIEWS as u64)? as usize;
+    if tests >= cameras.len() {
+        return Err(value_error(
+            a.get("test_views").1,
+            format!(
+                "holding out {tests} of {} cameras leaves no training view",
+                cameras.len()
+            ),
+            "as many as the cameras",
+            "hold out fewer views than there are cameras",
+        ));
+    }
+    let test = crate::value::held_out(
+        cameras.len(),
+        tests,
+        a.count("split_seed", 0, u32::MAX as u64)?,
+    );
+    let (scene, scene_span) = a.get("scene");
+    let data = match scene {
+        Value::Field(field) => {
+            refuse(
+                &["material", "background", "near", "far", "iterations"],
+                "field",
+                "a field's colour is its `color`; its depth range is the `sampler`'s",
+            )?;
+            let Value::Sampler(sampler) = a.get("sampler").0 else {
+                return Err(type_error(
+                    a.get("sampler").1,
+                    "sampler",
+                    a.get("sampler").0,
+                ));
+            };
+            Dataset::Rendered {
+                field: field.clone(),
+                cameras,
+                width,
+                height,
+                sampler: *sampler,
+                test,
+            }
+        }
+        Value::Shape(shape) => {
+            refuse(
+                &["sampler"],
+                "shape",
+                "shapes are sphere-traced: set `near`, `far` and `iterations` instead",
+            )?;
+            let (near, far) = (a.number("near")?, a.number("far")?);
+            check_range(a, near, far)?;
+            let (bg, bg_span) = (a.vec3("background")?, a.get("background").1);
+            // The `render` statement's defaults for what is not asked here.
+            Dataset::Traced {
+                job: Arc::new(RenderJob {
+                    name: "render_views".to_string(),
+                    scene: shape.clone(),
+                    material: a.material("material")?,
+                    cameras,
+                    width,
+                    height,
+                    near,
+                    far,
+                    iterations: a.count("iterations", 1, MAX_ITERATIONS as u64)? as u32,
+                    epsilon: 1e-5,
+                    hit_tolerance: HitTolerance::Pixel,
+                    background: colour(bg, bg_span)?,
+                    outputs: Vec::new(),
+                }),
+                test,
+            }
+        }
+        other => return Err(type_error(scene_span, "shape or field", other)),
+    };
+    Ok(Value::Dataset(Arc::new(data)))
+}
+
+fn phong(a: &Args) -> Result<Value, Diag> {
+    let fraction = |name: &str| -> Result<f64, Diag> {
+        let x = a.number(name)?;
+        if (0.0..=1.0).contains(&x) {
+            Ok(x)
+        } else {
+            Err(value_error(
+                a.get(name).1,
+                format!("`{name}` must be in 0..1, got {}", sdfl_lang::fmt_num(x)),
+                "out of 0..1",
+                "use a fraction such as 0.5",
+            ))
+        }
+    };
+    let (ambient, specular) = (fraction("ambient")?, fraction("specular")?);
+    let shininess = a.positive("shininess")?;
+    let (lights_v, lights_span) = a.get("lights");
+    let lights: Option<Vec<Light>> = match lights_v {
+        Value::Light(l) => Some(vec![*l]),
+        Value::List(items) => items
+            .iter()
+            .map(|i| match i {
+                Value::Light(l) => Some(*l),
+                _ => None,
+            })
+            .collect(),
+        _ => None,
+    };
+    let lights = match lights {
+        Some(l) if l.is_empty() => {
+            return Err(value_error(
+                lights_span,
+                "a `phong` material with no lights",
+                "empty list",
+                "give at least one light, e.g. `lights: [light(direction: [1, 1, 1])]`",
+            ))
+        }
+        Some(l) => l,
+        None => return Err(type_error(lights_span, "list of lights", lights_v)),
+    };
+    let albedo = a.material("albedo")?;
+    if albedo.needs_view() {
+        return Err(value_error(
+            a.get("albedo").1,
+            "a `phong` albedo cannot itself depend on the view",
+            "a view-dependent material",
+            "use a colour, `rainbow()`, `lambert(...)` or `normals()` as the albedo",
+        ));
+    }
+    Ok(Value::Material(Arc::new(Material::Phong {
+        albedo: Box::new((*albedo).clone()),
+        lights,
+        ambient,
+        specular,
+        shininess,
+    })))
 }
 
 fn volume_fn(
