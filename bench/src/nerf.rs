@@ -70,7 +70,8 @@ pub fn main(reps: usize) {
             .expect("thread pool");
         pool.install(|| {
             let gemm = dense_throughput(reps);
-            let mut run = Run::of(Box::new(NerfObjective::new(spec)), 5e-4).expect("run");
+            let model = NerfObjective::new(spec, &job.sampler).expect("model");
+            let mut run = Run::of(Box::new(model), 5e-4).expect("run");
             for _ in 0..2 {
                 run.advance(&setup).expect("step");
             }

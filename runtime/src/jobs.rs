@@ -11,9 +11,7 @@ use sdfl_stdlib::camera::Camera;
 use sdfl_stdlib::material::Material;
 use sdfl_stdlib::num::{Dual, V3};
 use sdfl_stdlib::shape::{ArgSource, Fixed};
-use sdfl_stdlib::value::{
-    Backend, Dataset, Field, Nerf, Output, Sampler, SdfField, TrainJob, VolumeJob,
-};
+use sdfl_stdlib::value::{Backend, Dataset, Field, Output, Sampler, SdfField, TrainJob, VolumeJob};
 use sdfl_stdlib::OutputKind;
 use sdfl_stdlib::RenderJob;
 use serde::Serialize;
@@ -21,7 +19,7 @@ use serde::Serialize;
 use crate::data::nerf_synthetic::DatasetWriter;
 use crate::data::npy::RgbImage;
 use crate::metrics;
-use crate::neural::field::{render_nerf_view, NerfObjective};
+use crate::neural::field::NerfObjective;
 use crate::neural::nerf::{NerfNet, NerfWork};
 use crate::output::{to_u8, write_png};
 use crate::render::{render_view, view_path, Gifs, Needs, Written};
@@ -107,17 +105,16 @@ fn field_view<'a>(
             })
         }
         Field::Nerf(n) => {
-            let model = NerfObjective::new(n);
+            let model = NerfObjective::new(n, sampler).map_err(invalid)?;
             let params = model.initial();
             Box::new(move |cam: &Camera, wh, _| {
-                nerf_view(n, &model, &params, &strat, sampler, cam, wh)
+                nerf_view(&model, &params, &strat, sampler, cam, wh)
             })
         }
     })
 }
 
 fn nerf_view(
-    spec: &Nerf,
     model: &NerfObjective,
     params: &[f32],
     strat: &Stratified,
@@ -129,17 +126,9 @@ fn nerf_view(
         width: w,
         height: h,
     };
-    let v = render_nerf_view(
-        &model.net,
-        model.fine.as_ref().map(|(f, m)| (f, *m)),
-        params,
-        spec.background.map(|x| x as f32),
-        strat,
-        sampler.last_interval,
-        cam,
-        size,
-    )
-    .map_err(invalid)?;
+    let v = model
+        .render_view(params, strat, sampler.last_interval, cam, size)
+        .map_err(invalid)?;
     Ok((v.colour, v.depth))
 }
 
@@ -642,18 +631,23 @@ pub fn run_train_job(
     }
 
     let t = Instant::now();
-    let Views { train: views, test: test_views } = load_views(&job.data, base)?;
+    let Views {
+        train: views,
+        test: test_views,
+    } = load_views(&job.data, base)?;
     stages.push(("load data".to_string(), t.elapsed().as_secs_f64()));
 
     // The analytic model outlives the run that borrows it.
     let analytic = job.model.as_sdf().map(TrainModel::new);
-    // A second copy of a neural model's layout, for rendering.
+    // A second copy of a neural model, for rendering; its state (an
+    // occupancy grid) is copied from the run's before each use.
     let nerf_model = match &*job.model {
-        Field::Nerf(n) => Some(NerfObjective::new(n)),
+        Field::Nerf(n) => Some(NerfObjective::new(n, &job.sampler).map_err(invalid)?),
         Field::Sdf(_) => None,
     };
+    let nerf_model = std::sync::Mutex::new(nerf_model);
     let objective: Box<dyn Objective> = match (&*job.model, &analytic) {
-        (Field::Nerf(n), _) => Box::new(NerfObjective::new(n)),
+        (Field::Nerf(n), _) => Box::new(NerfObjective::new(n, &job.sampler).map_err(invalid)?),
         (Field::Sdf(_), Some(model)) => Box::new(FieldObjective::new(model, job.backend)),
         (Field::Sdf(_), None) => unreachable!("an analytic field has a model"),
     };
@@ -706,9 +700,12 @@ pub fn run_train_job(
         &*job.model,
         &analytic,
     ) {
-        (Field::Nerf(n), _) => nerf_view(
-            n,
-            nerf_model.as_ref().expect("a neural model"),
+        (Field::Nerf(_), _) => nerf_view(
+            nerf_model
+                .lock()
+                .expect("not poisoned")
+                .as_ref()
+                .expect("a neural model"),
             values,
             &strat,
             &job.sampler,
@@ -761,7 +758,15 @@ pub fn run_train_job(
         let n = test_views.len().max(1) as f64;
         Ok((psnr / n, ssim / n, renders))
     };
+    // The rendering copy takes the run's state (an occupancy grid).
+    let sync = |state: Vec<(String, Vec<f32>)>| -> io::Result<()> {
+        match nerf_model.lock().expect("not poisoned").as_mut() {
+            Some(m) => m.restore_state(&state).map_err(invalid),
+            None => Ok(()),
+        }
+    };
     if !job.before.is_empty() {
+        sync(run.objective.state())?;
         written.extend(render_at(&run.values(), &job.before)?);
     }
 
@@ -776,7 +781,7 @@ pub fn run_train_job(
         progress(1);
         if job.eval_every > 0 && !test_views.is_empty() && r.step % job.eval_every == 0 {
             let te = Instant::now();
-            match evaluate(&r.values()) {
+            match sync(r.objective.state()).and_then(|_| evaluate(&r.values())) {
                 Ok((psnr, ssim, _)) => held_out.push(HeldOut {
                     step: r.step,
                     seconds: t.elapsed().as_secs_f64() - eval_s,
@@ -842,6 +847,7 @@ pub fn run_train_job(
     }
 
     let t = Instant::now();
+    sync(run.objective.state())?;
     let volume_outputs: Vec<Output> = job
         .after
         .iter()

@@ -75,6 +75,7 @@ fn batch(eye: [f64; 3], last: LastInterval) -> Batch {
         shared: true,
         last_interval: last,
         seed: 0,
+        step: 0,
     }
 }
 

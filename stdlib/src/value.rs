@@ -31,6 +31,7 @@ pub enum Value {
     Dataset(Arc<Dataset>),
     Optimizer(Optimizer),
     Encoding(Encoding),
+    Occupancy(OccupancySpec),
     /// The value of an expression that already produced a diagnostic.
     /// Anything computed from it is poison too, silently.
     Poison,
@@ -55,6 +56,7 @@ impl Value {
             Value::Dataset(_) => "data set",
             Value::Optimizer(_) => "optimizer",
             Value::Encoding(_) => "encoding",
+            Value::Occupancy(_) => "occupancy grid",
             Value::Poison => "invalid value",
         }
     }
@@ -293,6 +295,21 @@ pub struct Nerf {
     pub seed: u64,
     /// How the density head's output becomes a density.
     pub density: DensityActivation,
+    /// Empty space skipped by an occupancy grid (coarse network only).
+    pub occupancy: Option<OccupancySpec>,
+}
+
+/// An occupancy grid (nerfacc-style): `resolution`³ cells over `min..max`
+/// holding a decaying maximum of the field's density, refreshed every
+/// `every` steps; samples fall at a fixed step only inside cells whose
+/// density times the step exceeds `threshold`.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct OccupancySpec {
+    pub resolution: u32,
+    pub min: [f64; 3],
+    pub max: [f64; 3],
+    pub threshold: f64,
+    pub every: usize,
 }
 
 /// The density head's activation.

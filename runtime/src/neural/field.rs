@@ -10,15 +10,16 @@
 
 use rayon::prelude::*;
 use sdfl_stdlib::camera::Camera;
-use sdfl_stdlib::value::{LastInterval, Nerf};
+use sdfl_stdlib::value::{LastInterval, Nerf, OccupancySpec, Sampler};
 
 use super::composite::{composite, composite_backward};
 use super::nerf::{NerfNet, NerfWork, PositionEncoding};
+use super::occupancy::{OccupancyConfig, OccupancyGrid, RaySamples};
 use crate::train::fused::Batch;
 use crate::train::{Objective, TensorSpec, TrainError};
 use crate::volume::importance::{merge_depths, sample_pdf, Spacing};
 use crate::volume::march::intervals_into;
-use crate::volume::{camera_rays, ImageSize, Ray, Stratified, VolumeError};
+use crate::volume::{camera_rays, ImageSize, Ray, SplitMix64, Stratified, VolumeError};
 
 /// Rays per block of the compositing pass (the unit of the ordered loss
 /// reduction).
@@ -189,11 +190,67 @@ struct SharedSlice(*mut f32);
 unsafe impl Send for SharedSlice {}
 unsafe impl Sync for SharedSlice {}
 
+/// An occupancy grid in use: the grid, how often it is refreshed, and the
+/// fixed-step range its samples cover.
+pub struct Occupancy {
+    pub grid: OccupancyGrid,
+    every: usize,
+    near: f32,
+    far: f32,
+    step: f32,
+    work: NerfWork,
+    marched: RaySamples,
+}
+
+impl Occupancy {
+    fn new(spec: &OccupancySpec, sampler: &Sampler) -> Result<Self, String> {
+        let step = ((sampler.far - sampler.near) / sampler.samples.max(1) as f64) as f32;
+        let mut cfg = OccupancyConfig::new(spec.min.map(|x| x as f32), spec.max.map(|x| x as f32));
+        cfg.res = spec.resolution;
+        cfg.threshold = spec.threshold as f32;
+        cfg.step_size = step;
+        Ok(Occupancy {
+            grid: OccupancyGrid::new(cfg)?,
+            every: spec.every.max(1),
+            near: sampler.near as f32,
+            far: sampler.far as f32,
+            step,
+            work: NerfWork::default(),
+            marched: RaySamples::default(),
+        })
+    }
+
+    /// The samples of `rays` in occupied cells.
+    fn march(&mut self, rays: &[Ray], out: &mut Samples) -> Result<(), VolumeError> {
+        self.grid
+            .march_rays(rays, self.near, self.far, self.step, &mut self.marched)?;
+        out.offsets.clone_from(&self.marched.offsets);
+        out.t.clone_from(&self.marched.t);
+        out.delta.clone_from(&self.marched.dt);
+        Ok(())
+    }
+
+    /// Refreshes the grid from `net`'s density at `values`.
+    fn update(&mut self, net: &NerfNet, values: &[f32], step: usize, seed: u64) {
+        let work = &mut self.work;
+        let mut dirs = Vec::new();
+        let mut density = |points: &[[f32; 3]], out: &mut [f32]| {
+            let flat: Vec<f32> = points.iter().flatten().copied().collect();
+            dirs.resize(flat.len(), 0.0);
+            net.forward(values, &flat, &dirs, work);
+            out.copy_from_slice(&work.sigma);
+        };
+        let mut rng = SplitMix64::new(seed ^ 0x6F63_6375);
+        self.grid.update(step as u64, &mut density, &mut rng);
+    }
+}
+
 /// A NeRF being trained: the coarse network, and the fine one with its
 /// sample count when hierarchical.
 pub struct NerfObjective {
     pub net: NerfNet,
     pub fine: Option<(NerfNet, usize)>,
+    pub occupancy: Option<Occupancy>,
     seed: u64,
     background: [f32; 3],
     coarse_pass: Pass,
@@ -205,12 +262,23 @@ pub struct NerfObjective {
 }
 
 impl NerfObjective {
-    pub fn new(spec: &Nerf) -> Self {
-        let net = NerfNet::new(spec);
-        let fine = (spec.fine > 0).then(|| (NerfNet::new_at(spec, net.len), spec.fine));
-        NerfObjective {
+    /// The model of `spec` sampled with `sampler` (whose range and count
+    /// set an occupancy grid's fixed step).
+    pub fn new(spec: &Nerf, sampler: &Sampler) -> Result<Self, String> {
+        let net = NerfNet::try_new_at(spec, 0)?;
+        let fine = match spec.fine {
+            0 => None,
+            m => Some((NerfNet::try_new_at(spec, net.len)?, m)),
+        };
+        let occupancy = spec
+            .occupancy
+            .as_ref()
+            .map(|o| Occupancy::new(o, sampler))
+            .transpose()?;
+        Ok(NerfObjective {
             net,
             fine,
+            occupancy,
             seed: spec.seed,
             background: spec.background.map(|x| x as f32),
             coarse_pass: Pass::default(),
@@ -219,7 +287,31 @@ impl NerfObjective {
             fine_samples: Samples::default(),
             weights: Vec::new(),
             fine_t: Vec::new(),
-        }
+        })
+    }
+
+    /// Renders one view at `params` through the fine network when there is
+    /// one, sampling with the occupancy grid when there is one (as trained)
+    /// and stratified depths otherwise.
+    pub fn render_view(
+        &self,
+        params: &[f32],
+        sampler: &Stratified,
+        last: LastInterval,
+        cam: &Camera,
+        size: ImageSize,
+    ) -> Result<NerfView, VolumeError> {
+        render_nerf_view(
+            &self.net,
+            self.fine.as_ref().map(|(f, m)| (f, *m)),
+            self.occupancy.as_ref(),
+            params,
+            self.background,
+            sampler,
+            last,
+            cam,
+            size,
+        )
     }
 
     fn networks(&self) -> Vec<(&'static str, &NerfNet)> {
@@ -290,6 +382,37 @@ impl Objective for NerfObjective {
             .collect()
     }
 
+    fn state(&self) -> Vec<(String, Vec<f32>)> {
+        match &self.occupancy {
+            None => Vec::new(),
+            Some(o) => {
+                let occupied = (0..o.grid.cells())
+                    .map(|i| if o.grid.is_occupied(i) { 1.0 } else { 0.0 })
+                    .collect();
+                vec![
+                    ("occupancy.ema".into(), o.grid.ema().to_vec()),
+                    ("occupancy.occupied".into(), occupied),
+                ]
+            }
+        }
+    }
+
+    fn restore_state(&mut self, state: &[(String, Vec<f32>)]) -> Result<(), TrainError> {
+        let names: Vec<&str> = state.iter().map(|s| s.0.as_str()).collect();
+        match (&mut self.occupancy, names.as_slice()) {
+            (None, []) => Ok(()),
+            (Some(o), ["occupancy.ema", "occupancy.occupied"]) => {
+                let occupied: Vec<bool> = state[1].1.iter().map(|&x| x != 0.0).collect();
+                o.grid
+                    .restore(&state[0].1, &occupied)
+                    .map_err(TrainError::Invalid)
+            }
+            _ => Err(TrainError::Invalid(format!(
+                "the checkpoint holds state {names:?}, which this model does not have"
+            ))),
+        }
+    }
+
     fn initial(&self) -> Vec<f32> {
         let mut v = self.net.init(self.seed);
         if let Some((f, _)) = &self.fine {
@@ -309,12 +432,20 @@ impl Objective for NerfObjective {
     ) -> Result<f64, TrainError> {
         let rays = batch.rays.len();
         let scale = (weight / (3 * rays.max(1)) as f64) as f32;
-        self.samples.fixed(
-            rays,
-            batch.samples,
-            |r| batch.depths_of(r),
-            batch.last_interval,
-        );
+        match &mut self.occupancy {
+            Some(occ) => {
+                if batch.step % occ.every == 0 {
+                    occ.update(&self.net, values, batch.step, batch.seed);
+                }
+                occ.march(&batch.rays, &mut self.samples)?;
+            }
+            None => self.samples.fixed(
+                rays,
+                batch.samples,
+                |r| batch.depths_of(r),
+                batch.last_interval,
+            ),
+        }
         let want_weights = self.fine.is_some().then_some(&mut self.weights);
         let mut loss = fit_pass(
             &self.net,
@@ -369,11 +500,12 @@ pub struct NerfView {
 }
 
 /// Renders one view of a NeRF with stratified (unjittered) samples, through
-/// the fine network when there is one.
+/// the fine network when there is one, or with an occupancy grid's samples.
 #[allow(clippy::too_many_arguments)]
 pub fn render_nerf_view(
     net: &NerfNet,
     fine: Option<(&NerfNet, usize)>,
+    occupancy: Option<&Occupancy>,
     params: &[f32],
     background: [f32; 3],
     sampler: &Stratified,
@@ -399,10 +531,20 @@ pub fn render_nerf_view(
             .chunks_mut(per_pass)
             .zip(view.depth.chunks_mut(per_pass)),
     ) {
-        samples.fixed(chunk.len(), n, |_| &t, last);
+        match occupancy {
+            Some(o) => {
+                let mut marched = RaySamples::default();
+                o.grid
+                    .march_rays(chunk, o.near, o.far, o.step, &mut marched)?;
+                samples.offsets = marched.offsets;
+                samples.t = marched.t;
+                samples.delta = marched.dt;
+            }
+            None => samples.fixed(chunk.len(), n, |_| &t, last),
+        }
         samples.points(chunk, &mut pass.points, &mut pass.dirs);
         net.forward(params, &pass.points, &pass.dirs, &mut pass.work);
-        let used = match fine {
+        let used = match fine.filter(|_| occupancy.is_none()) {
             None => &samples,
             Some((f, m)) => {
                 weights.resize(samples.t.len(), 0.0);
@@ -477,8 +619,16 @@ mod tests {
             background: [0.3, 0.6, 0.9],
             seed: 4,
             density: sdfl_stdlib::value::DensityActivation::Exp,
+            occupancy: None,
         };
-        let mut obj = NerfObjective::new(&spec);
+        let sampler = Sampler {
+            samples: 7,
+            near: 1.0,
+            far: 4.0,
+            jitter: true,
+            last_interval: LastInterval::Zero,
+        };
+        let mut obj = NerfObjective::new(&spec, &sampler).unwrap();
         // Smooth activations so differences see no kinks; same wiring.
         let smooth = Activation::Softplus { beta: 1.0 };
         let net = &mut obj.net;
@@ -513,6 +663,7 @@ mod tests {
             shared: false,
             last_interval: LastInterval::Zero,
             seed: 5,
+            step: 0,
         };
         let values = obj.initial();
         let mut grad = vec![0.0; values.len()];
@@ -521,7 +672,7 @@ mod tests {
             let mut g = vec![0.0; v.len()];
             obj.loss_and_grad(v, &batch, 2.0, &mut g).unwrap()
         };
-        let tensors = NerfObjective::new(&spec).tensors();
+        let tensors = NerfObjective::new(&spec, &sampler).unwrap().tensors();
         for t in &tensors {
             for i in [t.offset, t.offset + t.len / 2, t.offset + t.len - 1] {
                 let h = 1e-2;

@@ -478,6 +478,7 @@ mod tests {
             background: [0.0; 3],
             seed: 0,
             density: DensityActivation::Relu,
+            occupancy: None,
         }
     }
 

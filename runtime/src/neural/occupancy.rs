@@ -231,6 +231,27 @@ impl OccupancyGrid {
             self.blocks[block] -= 1;
         }
     }
+    /// Sets every cell's EMA and bit at once (from a checkpoint), refusing
+    /// lists of another length.
+    pub fn restore(&mut self, ema: &[f32], occupied: &[bool]) -> Result<(), String> {
+        if ema.len() != self.cells() || occupied.len() != self.cells() {
+            return Err(format!(
+                "occupancy grid of {} cells given {} and {} values",
+                self.cells(),
+                ema.len(),
+                occupied.len()
+            ));
+        }
+        self.ema.copy_from_slice(ema);
+        self.fill(false);
+        for (i, &on) in occupied.iter().enumerate() {
+            if on {
+                self.set_occupied(i, true);
+            }
+        }
+        Ok(())
+    }
+
     /// Every bit at once.
     pub fn fill(&mut self, on: bool) {
         let cells = self.cells();

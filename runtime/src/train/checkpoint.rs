@@ -76,6 +76,8 @@ pub struct Checkpoint {
     pub adam_steps: i32,
     pub params: Vec<ParamState>,
     pub losses: Vec<f32>,
+    /// A model's state beyond its parameters (an occupancy grid), by name.
+    pub state: Vec<(String, Vec<f32>)>,
     /// One hash per entry of [`PARTS`].
     pub fingerprint: [String; 4],
 }
@@ -104,6 +106,9 @@ impl Checkpoint {
             }
         }
         buffers.push(("losses".into(), f32_bytes(&self.losses), self.losses.len()));
+        for (i, (_, v)) in self.state.iter().enumerate() {
+            buffers.push((format!("state.{i}"), f32_bytes(v), v.len()));
+        }
         let views = buffers
             .iter()
             .map(|(n, b, len)| Ok((n.clone(), TensorView::new(Dtype::F32, vec![*len], b)?)))
@@ -117,6 +122,11 @@ impl Checkpoint {
         meta.insert(
             "names".to_string(),
             serde_json::to_string(&names).unwrap_or_default(),
+        );
+        let state: Vec<&str> = self.state.iter().map(|s| s.0.as_str()).collect();
+        meta.insert(
+            "state".to_string(),
+            serde_json::to_string(&state).unwrap_or_default(),
         );
         for (part, fp) in PARTS.iter().zip(&self.fingerprint) {
             meta.insert(format!("fingerprint.{part}"), fp.clone());
@@ -169,12 +179,22 @@ impl Checkpoint {
                 adam_v: read(&format!("adam_v.{i}"))?,
             });
         }
+        // Checkpoints of models without state may have no list.
+        let state_names: Vec<String> = match meta.get("state") {
+            Some(s) => serde_json::from_str(s).map_err(|_| invalid(path, "bad `state`"))?,
+            None => Vec::new(),
+        };
+        let mut state = Vec::new();
+        for (i, name) in state_names.into_iter().enumerate() {
+            state.push((name, read(&format!("state.{i}"))?));
+        }
         let fp = |i: usize| get(&format!("fingerprint.{}", PARTS[i]));
         Ok(Checkpoint {
             step: usize::try_from(num("step")?).map_err(|_| invalid(path, "bad step"))?,
             adam_steps: i32::try_from(num("adam_steps")?).map_err(|_| invalid(path, "bad step"))?,
             params,
             losses: read("losses")?,
+            state,
             fingerprint: [fp(0)?, fp(1)?, fp(2)?, fp(3)?],
         })
     }
@@ -208,6 +228,7 @@ mod tests {
                 adam_v: vec![1e-3, 2e-3],
             }],
             losses: vec![0.5, 0.25],
+            state: vec![("occupancy.ema".into(), vec![0.0, 3.5, 1e-30])],
             fingerprint: ["a".into(), "b".into(), "c".into(), "d".into()],
         };
         ck.write(&path).unwrap();

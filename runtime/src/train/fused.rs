@@ -36,6 +36,8 @@ pub struct Batch {
     /// The step's seed, for anything else a model draws at random (fine
     /// samples), so a step stays a function of (seed, step).
     pub seed: u64,
+    /// The step (from 0) this batch is for.
+    pub step: usize,
 }
 
 impl Batch {

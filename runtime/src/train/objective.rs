@@ -37,6 +37,21 @@ pub trait Objective {
     ) -> Result<f64, TrainError>;
     /// Puts values back into their ranges after a step.
     fn project(&self, _values: &mut [f32]) {}
+    /// State that changes with training besides the parameters (an
+    /// occupancy grid), kept in checkpoints.
+    fn state(&self) -> Vec<(String, Vec<f32>)> {
+        Vec::new()
+    }
+    /// Restores what [`Self::state`] gave; refuses state of another shape.
+    fn restore_state(&mut self, state: &[(String, Vec<f32>)]) -> Result<(), TrainError> {
+        if state.is_empty() {
+            Ok(())
+        } else {
+            Err(TrainError::Invalid(
+                "the checkpoint holds state this model does not have".into(),
+            ))
+        }
+    }
 }
 
 /// An analytic field's `param(...)` arguments, fitted through the fused

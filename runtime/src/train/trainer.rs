@@ -112,6 +112,7 @@ impl<'a> TrainSetup<'a> {
             shared: !s.jitter,
             last_interval: s.last_interval,
             seed: step_seed,
+            step,
         })
     }
 }
@@ -186,6 +187,7 @@ impl<'m> Run<'m> {
         for (id, p) in self.ids.iter().zip(&ck.params) {
             self.store.restore(*id, &p.values, &p.adam_m, &p.adam_v)?;
         }
+        self.objective.restore_state(&ck.state)?;
         self.adam.set_steps(ck.adam_steps);
         self.step = ck.step;
         self.losses = ck.losses.clone();
@@ -226,6 +228,7 @@ impl<'m> Run<'m> {
                 })
                 .collect(),
             losses: self.losses.clone(),
+            state: self.objective.state(),
             fingerprint,
         }
     }

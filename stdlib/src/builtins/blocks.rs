@@ -251,7 +251,13 @@ pub(crate) fn train_block(name: &str, a: &Args) -> Result<TrainJob, Diag> {
     let before = outputs(a, "before", true)?;
     let after = outputs(a, "after", true)?;
     let has_test = !data.test_views().is_empty()
-        || matches!(&**data, Dataset::NerfSynthetic { test_split: Some(_), .. });
+        || matches!(
+            &**data,
+            Dataset::NerfSynthetic {
+                test_split: Some(_),
+                ..
+            }
+        );
     if let Some(o) = after
         .iter()
         .find(|o| matches!(o.kind, OutputKind::PsnrCurve | OutputKind::Comparison))
@@ -259,7 +265,10 @@ pub(crate) fn train_block(name: &str, a: &Args) -> Result<TrainJob, Diag> {
     {
         return Err(value_error(
             a.get("after").1,
-            format!("`{}` needs held-out views, and the data set has none", o.path.display()),
+            format!(
+                "`{}` needs held-out views, and the data set has none",
+                o.path.display()
+            ),
             "compares against test views",
             "hold some views out: `render_views(..., test_views: 5)`",
         ));

@@ -19,8 +19,8 @@ use crate::precision::{beta, f32_range};
 use crate::shape::Shape;
 use crate::value::{
     Backend, Dataset, DensityActivation, DensityKind, Encoding, Field, Harmonic, HashGridSpec,
-    HitTolerance, LastInterval, Loss, LossKind, Nerf, Optimizer, Output, OutputKind, RenderJob,
-    Sampler, Schedule, SdfField, TrainJob, Value, VolumeJob,
+    HitTolerance, LastInterval, Loss, LossKind, Nerf, OccupancySpec, Optimizer, Output, OutputKind,
+    RenderJob, Sampler, Schedule, SdfField, TrainJob, Value, VolumeJob,
 };
 
 pub const SHAPE: Type = Type::Named("shape");
@@ -33,6 +33,7 @@ pub const DATASET: Type = Type::Named("data set");
 pub const OPTIMIZER: Type = Type::Named("optimizer");
 pub const LOSS: Type = Type::Named("loss");
 pub const ENCODING: Type = Type::Named("encoding");
+pub const OCCUPANCY: Type = Type::Named("occupancy grid");
 pub const LIGHT: Type = Type::Named("light");
 /// Most samples per ray.
 pub const MAX_SAMPLES: u64 = 4096;
@@ -771,6 +772,40 @@ fn table() -> Vec<Builtin> {
             },
         ),
         func(
+            "occupancy_grid",
+            "An occupancy grid that skips empty space (nerfacc-style) for `nerf(occupancy: ...)`: `resolution`³ cells over `min`..`max` keep a decaying maximum of the density, refreshed every `every` training steps; samples fall at a fixed step, (far − near)/samples, only inside cells whose density × step exceeds `threshold`. `resolution: 0` turns it off.",
+            vec![
+                opt("resolution", Type::Number, "64", "cells a side (0: no grid)"),
+                opt("min", Type::Vec3, "[-1.5, -1.5, -1.5]", "lower corner of the box"),
+                opt("max", Type::Vec3, "[1.5, 1.5, 1.5]", "upper corner of the box"),
+                opt("threshold", Type::Number, "0.01", "occupied when density × step exceeds this"),
+                opt("every", Type::Number, "16", "training steps between refreshes"),
+            ],
+            OCCUPANCY,
+            |a| {
+                let (min, max) = (a.vec3("min")?, a.vec3("max")?);
+                if !(min.cmplt(max).all()) {
+                    return Err(value_error(
+                        a.get("max").1,
+                        "the grid's box is empty",
+                        "not above `min` on every axis",
+                        "give `max` larger than `min` in x, y and z",
+                    ));
+                }
+                let threshold = a.number("threshold")?;
+                if !(threshold >= 0.0 && threshold.is_finite()) {
+                    return Err(value_error(a.get("threshold").1, "the threshold must be a finite number ≥ 0", "out of range", "e.g. `threshold: 0.01`"));
+                }
+                Ok(Value::Occupancy(OccupancySpec {
+                    resolution: a.count("resolution", 0, 512)? as u32,
+                    min: min.to_array(),
+                    max: max.to_array(),
+                    threshold,
+                    every: a.count("every", 1, 1_000_000)? as usize,
+                }))
+            },
+        ),
+        func(
             "nerf",
             "A neural radiance field (Mildenhall et al.): an MLP from the encoded position to density (ReLU) and colour (sigmoid). `view_dependent` adds a colour branch that sees the encoded view direction; density never does. Weights start as PyTorch's default initialisation, seeded. Trained as a `train` statement's model.",
             vec![
@@ -784,6 +819,7 @@ fn table() -> Vec<Builtin> {
                 opt("fine", Type::Number, "0", "fine samples per ray, drawn by inverse CDF from the coarse network's weights for a second (fine) network of the same shape; 0: one network"),
                 opt("background", Type::Vec3, "[0, 0, 0]", "colour where a ray leaves the volume"),
                 opt("seed", Type::Number, "0", "seed of the initial weights"),
+                opt("occupancy", OCCUPANCY, "occupancy_grid(resolution: 0)", "skip empty space with an occupancy grid while training and rendering (resolution 0: none)"),
                 opt("density", Type::Str, "\"relu\"", "density activation: \"relu\" (the NeRF paper) or \"exp\" (instant-ngp's truncated exponential, for hash grids: never zero, so no sample starts dead)"),
             ],
             FIELD,
@@ -817,6 +853,14 @@ fn table() -> Vec<Builtin> {
                 let (bg, bg_span) = (a.vec3("background")?, a.get("background").1);
                 let view_dependent = matches!(a.get("view_dependent").0, Value::Bool(true));
                 let direction = if view_dependent { Some(encoding("direction")?) } else { None };
+                if matches!(a.get("occupancy").0, Value::Occupancy(o) if o.resolution > 0) && a.count("fine", 0, MAX_SAMPLES)? > 0 {
+                    return Err(value_error(
+                        a.get("fine").1,
+                        "fine samples and an occupancy grid both decide where to sample",
+                        "with an occupancy grid",
+                        "use one: `fine: 0`, or `occupancy: occupancy_grid(resolution: 0)`",
+                    ));
+                }
                 if let Some(Encoding::HashGrid(_)) = direction {
                     return Err(value_error(
                         a.get("direction").1,
@@ -835,6 +879,11 @@ fn table() -> Vec<Builtin> {
                     fine: a.count("fine", 0, MAX_SAMPLES)? as usize,
                     background: colour(bg, bg_span)?.to_array(),
                     seed: a.count("seed", 0, u32::MAX as u64)?,
+                    occupancy: match a.get("occupancy").0 {
+                        Value::Occupancy(o) if o.resolution > 0 => Some(*o),
+                        Value::Occupancy(_) => None,
+                        other => return Err(type_error(a.get("occupancy").1, "occupancy grid", other)),
+                    },
                     density: {
                         let (d, span) = a.string("density")?;
                         match &*d {
