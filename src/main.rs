@@ -175,7 +175,7 @@ fn describe_field(field: &sdfl_stdlib::value::Field) -> String {
             f.shape.primitive_count()
         ),
         Field::Nerf(n) => format!(
-            "NeRF: {} position, {}x{} ReLU trunk{}, {}; {} multiply-adds per sample",
+            "NeRF: {} position, {}x{} ReLU trunk{}, {:?} density, {}; {} multiply-adds per sample{}; {}",
             enc(&n.position),
             n.layers,
             n.width,
@@ -184,6 +184,7 @@ fn describe_field(field: &sdfl_stdlib::value::Field) -> String {
             } else {
                 format!(" (position again at layers {:?})", n.skips)
             },
+            n.density,
             match &n.direction {
                 Some(d) => format!(
                     "view-dependent colour ({} direction, {}-wide branch)",
@@ -192,7 +193,18 @@ fn describe_field(field: &sdfl_stdlib::value::Field) -> String {
                 ),
                 None => "colour without the view direction (no direction branch built)".into(),
             },
-            n.multiply_adds_per_sample()
+            n.multiply_adds_per_sample(),
+            match n.fine {
+                0 => " (one network)".to_string(),
+                m => format!(", twice: coarse, and fine on the coarse samples + {m} by inverse CDF"),
+            },
+            match &n.occupancy {
+                Some(o) => format!(
+                    "occupancy grid {}^3 refreshed every {} steps: samples only in occupied cells",
+                    o.resolution, o.every
+                ),
+                None => "every sample evaluated (no occupancy grid)".into(),
+            }
         ),
     }
 }
@@ -771,12 +783,16 @@ fn plan_text(program: &sdfl_stdlib::Program) -> String {
                 format!("{} (gradients only for these)", params.join(", "))
             }
             sdfl_stdlib::value::Field::Nerf(n) => {
-                let net = sdfl_runtime::neural::nerf::NerfNet::new(n);
-                format!(
-                    "all {} network weights in {} layers",
-                    net.len,
-                    net.layers().len()
-                )
+                use sdfl_runtime::train::Objective;
+                match sdfl_runtime::neural::field::NerfObjective::new(n, &job.sampler) {
+                    Ok(m) => format!(
+                        "all {} weights in {} tensors{}",
+                        m.initial().len(),
+                        m.tensors().len(),
+                        if m.fine.is_some() { " (coarse and fine networks)" } else { "" }
+                    ),
+                    Err(e) => format!("none: {e}"),
+                }
             }
         };
         let _ = writeln!(o, "  trainable      {trainable}");
@@ -876,10 +892,12 @@ fn plan_text(program: &sdfl_stdlib::Program) -> String {
         let _ = writeln!(
             o,
             "  gradient tape  {}",
-            match job.backend {
-                sdfl_stdlib::value::Backend::Dfdx =>
-                    "dfdx autodiff graph (not available for analytic fields yet)",
-                sdfl_stdlib::value::Backend::Fused =>
+            match (&*job.model, job.backend) {
+                (sdfl_stdlib::value::Field::Nerf(_), _) =>
+                    "none: fused layer kernels with a hand-written backward through the network and the compositing",
+                (_, sdfl_stdlib::value::Backend::Dfdx) =>
+                    "dfdx autodiff graph over [rays, samples], the field as a custom op",
+                (_, sdfl_stdlib::value::Backend::Fused) =>
                     "fused per-ray kernel: forward-mode tangents for each parameter, no tape",
             }
         );
@@ -957,6 +975,15 @@ fn params_of(reports: &[serde_json::Value]) -> Vec<f64> {
         .collect()
 }
 
+/// The mean over a run's training statements of their last held-out PSNR.
+fn held_out_psnr(reports: &[serde_json::Value]) -> Option<f64> {
+    let last: Vec<f64> = reports
+        .iter()
+        .filter_map(|r| r["report"]["held_out"].as_array()?.last()?["psnr"].as_f64())
+        .collect();
+    (!last.is_empty()).then(|| last.iter().sum::<f64>() / last.len() as f64)
+}
+
 fn sweep(
     file: &Path,
     name: &str,
@@ -1020,8 +1047,9 @@ fn sweep(
     let (_, _, ref_dir, ref_reports) = rows.last().expect("at least two settings");
     let ref_images = images_of(ref_reports);
     let ref_params = params_of(ref_reports);
-    let mut table = format!("| {name} | seconds | PSNR vs {name}={} (dB) | max parameter error |\n|---:|---:|---:|---:|\n", values[values.len() - 1]);
-    let mut csv = format!("{name},seconds,psnr_db,param_error\n");
+    let mut table = format!("| {name} | seconds | PSNR vs {name}={} (dB) | max parameter error | held-out PSNR (dB) |\n|---:|---:|---:|---:|---:|\n", values[values.len() - 1]);
+    let mut csv = format!("{name},seconds,psnr_db,param_error,held_out_psnr_db\n");
+    let held_out_any = rows.iter().any(|r| held_out_psnr(&r.3).is_some());
     let mut points = Vec::new();
     for (row, (v, secs, dir, reports)) in rows.iter().enumerate() {
         let is_ref = row + 1 == rows.len();
@@ -1053,18 +1081,27 @@ fn sweep(
                 }
             })
         };
+        let held = held_out_psnr(reports);
         table.push_str(&format!(
-            "| {v} | {secs:.3} | {} | {} |\n",
+            "| {v} | {secs:.3} | {} | {} | {} |\n",
             fmt(mean_psnr, 2),
-            fmt(perr, 5)
+            fmt(perr, 5),
+            held.map_or("-".to_string(), |x| format!("{x:.2}"))
         ));
         csv.push_str(&format!(
-            "{v},{secs},{},{}\n",
+            "{v},{secs},{},{},{}\n",
             mean_psnr.map_or(String::new(), |x| x.to_string()),
-            perr.map_or(String::new(), |x| x.to_string())
+            perr.map_or(String::new(), |x| x.to_string()),
+            held.map_or(String::new(), |x| x.to_string())
         ));
-        // The plot: error against time (PSNR where images exist, else parameter error).
-        if let Some(y) = mean_psnr.filter(|p| p.is_finite()).or(perr) {
+        // The plot: quality against time: held-out PSNR where training
+        // held views out, else PSNR against the reference, else parameter error.
+        let y = if held_out_any {
+            held
+        } else {
+            mean_psnr.filter(|p| p.is_finite()).or(perr)
+        };
+        if let Some(y) = y {
             points.push((*secs, y));
         }
     }
@@ -1074,9 +1111,21 @@ fn sweep(
         std::io::Write::write_all(f.writer(), bytes)?;
         f.commit()
     };
-    let log_y = ref_images.is_empty();
+    let log_y = ref_images.is_empty() && !held_out_any;
     let png =
-        sdfl_runtime::volume::figures::line_plot(640, 400, &[("error vs seconds", &points)], log_y);
+        sdfl_runtime::volume::figures::line_plot(
+            640,
+            400,
+            &[(
+                if held_out_any {
+                    "held-out PSNR (dB) vs seconds"
+                } else {
+                    "error vs seconds"
+                },
+                &points,
+            )],
+            log_y,
+        );
     let result = write("sweep.csv", csv.as_bytes())
         .and_then(|_| write("sweep.md", table.as_bytes()))
         .and_then(|_| sdfl_runtime::output::write_png(&out.join("sweep.png"), 640, 400, &png));

@@ -95,3 +95,62 @@ fn a_checkpoint_of_another_network_is_refused() {
     );
     let _ = std::fs::remove_dir_all(&out);
 }
+
+const FAST: &str = r#"
+let cams = orbit(radius: 2.5, up: [0, 1, 0], focal: 1, views: 12)
+let truth = volsdf(union(sphere(radius: 0.6, center: [0.3, 0, 0]), box(size: [0.6, 0.6, 0.6], center: [-0.4, 0.1, 0])), alpha: 10, beta: 0.05)
+train fast {
+  model: nerf(
+    position: hashgrid(levels: 6, log2_table: 12, max_res: 64, min: [-1.2, -1.2, -1.2], max: [1.2, 1.2, 1.2]),
+    layers: 1, width: 32, skips: [], view_dependent: false, density: "exp",
+    occupancy: occupancy_grid(resolution: 16, min: [-1.2, -1.2, -1.2], max: [1.2, 1.2, 1.2], every: 4),
+  ),
+  data: render_views(truth, cameras: cams, size: [24, 24], sampler: stratified(samples: 48, near: 1, far: 4), test_views: 2),
+  sampler: stratified(samples: 48, near: 1, far: 4),
+  rays: 512,
+  optimizer: adam(lr: 1e-2),
+  iterations: ITERATIONS,
+  eval_every: 50,
+  checkpoint: "fast.ckpt",
+}
+"#;
+
+fn fast(iterations: usize) -> sdfl_stdlib::value::TrainJob {
+    let src = FAST.replace("ITERATIONS", &iterations.to_string());
+    sdfl_stdlib::load(&SourceFile::new("fast.sdfl", src)).unwrap().trains[0].clone()
+}
+
+#[test]
+fn hash_grid_with_occupancy_learns_and_skips_empty_space() {
+    let out = temp("fast");
+    let r = run(&fast(300), &out).unwrap();
+    let (first, last) = (r.held_out[0], *r.held_out.last().unwrap());
+    assert!(last.step == 300 && last.psnr > 28.0, "held-out PSNR {:?}", r.held_out);
+    assert!(last.psnr > first.psnr, "{:?}", r.held_out);
+    // The grid is in the checkpoint and has emptied cells (those the views
+    // never see keep whatever the network says there).
+    let ck = Checkpoint::read(&out.join("fast.ckpt")).unwrap();
+    let names: Vec<&str> = ck.state.iter().map(|s| s.0.as_str()).collect();
+    assert_eq!(names, ["occupancy.ema", "occupancy.occupied"]);
+    let occupied = ck.state[1].1.iter().filter(|&&x| x != 0.0).count();
+    assert!(occupied * 3 < 4096 * 2, "{occupied} of 4096 cells occupied");
+    let _ = std::fs::remove_dir_all(&out);
+}
+
+#[test]
+fn a_resumed_run_keeps_its_occupancy_grid() {
+    let (whole, parts) = (temp("occ-whole"), temp("occ-parts"));
+    run(&fast(40), &whole).unwrap();
+    run(&fast(21), &parts).unwrap();
+    let resumed = run(&fast(40), &parts).unwrap();
+    assert_eq!(resumed.resumed_from, Some(21));
+    let a = Checkpoint::read(&whole.join("fast.ckpt")).unwrap();
+    let b = Checkpoint::read(&parts.join("fast.ckpt")).unwrap();
+    assert_eq!(a.losses, b.losses);
+    assert_eq!(a.state, b.state);
+    for (p, q) in a.params.iter().zip(&b.params) {
+        assert!(p.values == q.values && p.adam_m == q.adam_m, "{} differs", p.name);
+    }
+    let _ = std::fs::remove_dir_all(&whole);
+    let _ = std::fs::remove_dir_all(&parts);
+}

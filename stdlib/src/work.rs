@@ -196,8 +196,20 @@ pub fn train_work(j: &TrainJob, size: Option<(u32, u32)>) -> Work {
     let outputs = (j.before.len() + j.after.len()) as f64;
     Work {
         evaluations: steps + data_evals + outputs.min(1.0) * 2.0 * px * views * samples,
-        // Per-ray buffers of a batch (samples, weights, gradients).
-        memory: data_bytes + j.rays as f64 * samples * 64.0 + px * 16.0,
+        // Per-ray buffers of a batch (samples, weights, gradients); a
+        // network keeps every layer's activations per sample, twice with a
+        // fine network (which sees the coarse samples too).
+        memory: data_bytes
+            + j.rays as f64 * samples * 64.0
+            + px * 16.0
+            + match &*j.model {
+                Field::Sdf(_) => 0.0,
+                Field::Nerf(n) => {
+                    let per_sample = 4 * (2 * n.position.width() + (n.layers + 4) * n.width + 2 * n.color_width + 16);
+                    let fine = if n.fine > 0 { 2.0 + n.fine as f64 / samples.max(1.0) } else { 0.0 };
+                    j.rays as f64 * samples * per_sample as f64 * (1.0 + fine)
+                }
+            },
     }
 }
 

@@ -242,6 +242,14 @@ pub(crate) fn train_block(name: &str, a: &Args) -> Result<TrainJob, Diag> {
             ))
         }
     };
+    if backend == Backend::Dfdx && model.as_sdf().is_none() {
+        return Err(value_error(
+            backend_span,
+            "a neural field trains through its fused layer kernels only",
+            "no dfdx graph for this model",
+            "drop `backend`, or use \"fused\"",
+        ));
+    }
     let (checkpoint, cp_span) = a.string("checkpoint")?;
     let checkpoint = if checkpoint.is_empty() {
         None
