@@ -320,6 +320,8 @@ pub enum DensityActivation {
     Relu,
     /// `e^min(x, 15)`, as instant-ngp: never zero, so no sample starts dead.
     Exp,
+    /// `ln(1 + e^x)`, as Mip-NeRF: smooth, and its gradient never vanishes.
+    Softplus,
 }
 
 impl Encoding {

@@ -142,6 +142,7 @@ impl NerfNet {
             match spec.density {
                 DensityActivation::Relu => Activation::Relu,
                 DensityActivation::Exp => Activation::Exp,
+                DensityActivation::Softplus => Activation::Softplus { beta: 1.0 },
             },
         );
         let (feature, color_hidden) = match direction {

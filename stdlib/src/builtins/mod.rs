@@ -49,6 +49,7 @@ pub const MAX_ITERATIONS: u32 = 100_000;
 /// (the call's span for defaults).
 mod args;
 mod blocks;
+mod neural;
 
 pub use args::Args;
 pub(crate) use args::*;
@@ -713,196 +714,6 @@ fn table() -> Vec<Builtin> {
             },
         ),
         func(
-            "harmonic",
-            "NeRF's harmonic embedding of a point or direction: `sin(2^k·x)` and `cos(2^k·x)` for `k < freqs`, and `x` itself when `include_input`.",
-            vec![
-                opt("freqs", Type::Number, "6", "frequencies 1, 2, 4, … 2^(freqs-1)"),
-                opt("include_input", Type::Bool, "true", "append the input itself"),
-            ],
-            ENCODING,
-            |a| {
-                Ok(Value::Encoding(Encoding::Harmonic(Harmonic {
-                    freqs: a.count("freqs", 0, 16)? as usize,
-                    include_input: matches!(a.get("include_input").0, Value::Bool(true)),
-                })))
-            },
-        ),
-        func(
-            "hashgrid",
-            "A multiresolution hash encoding of positions (instant-ngp): `levels` grids from `min_res` to `max_res` cells a side over the box `min`..`max` (points outside are clamped onto it), each a table of at most 2^`log2_table` rows of `features` trainable numbers, trilinearly interpolated.",
-            vec![
-                opt("levels", Type::Number, "16", "resolution levels (1..64)"),
-                opt("features", Type::Number, "2", "features per level (1..16)"),
-                opt("log2_table", Type::Number, "17", "log2 of the largest table's rows (1..24)"),
-                opt("min_res", Type::Number, "16", "cells a side of the coarsest level"),
-                opt("max_res", Type::Number, "512", "cells a side of the finest level"),
-                opt("min", Type::Vec3, "[-1.5, -1.5, -1.5]", "lower corner of the encoded box"),
-                opt("max", Type::Vec3, "[1.5, 1.5, 1.5]", "upper corner of the encoded box"),
-            ],
-            ENCODING,
-            |a| {
-                let (min, max) = (a.vec3("min")?, a.vec3("max")?);
-                if !(min.cmplt(max).all()) {
-                    return Err(value_error(
-                        a.get("max").1,
-                        "the encoded box is empty",
-                        "not above `min` on every axis",
-                        "give `max` larger than `min` in x, y and z",
-                    ));
-                }
-                let min_res = a.count("min_res", 1, 1 << 16)? as u32;
-                let max_res = a.count("max_res", 1, 1 << 16)? as u32;
-                if max_res < min_res {
-                    return Err(value_error(
-                        a.get("max_res").1,
-                        "`max_res` is below `min_res`",
-                        "coarser than the coarsest level",
-                        "the finest level needs at least `min_res` cells a side",
-                    ));
-                }
-                Ok(Value::Encoding(Encoding::HashGrid(HashGridSpec {
-                    levels: a.count("levels", 1, 64)? as u32,
-                    features: a.count("features", 1, 16)? as u32,
-                    log2_table: a.count("log2_table", 1, 24)? as u32,
-                    min_res,
-                    max_res,
-                    min: min.to_array(),
-                    max: max.to_array(),
-                })))
-            },
-        ),
-        func(
-            "occupancy_grid",
-            "An occupancy grid that skips empty space (nerfacc-style) for `nerf(occupancy: ...)`: `resolution`³ cells over `min`..`max` keep a decaying maximum of the density, refreshed every `every` training steps; samples fall at a fixed step, (far − near)/samples, only inside cells whose density × step exceeds `threshold`. `resolution: 0` turns it off.",
-            vec![
-                opt("resolution", Type::Number, "64", "cells a side (0: no grid)"),
-                opt("min", Type::Vec3, "[-1.5, -1.5, -1.5]", "lower corner of the box"),
-                opt("max", Type::Vec3, "[1.5, 1.5, 1.5]", "upper corner of the box"),
-                opt("threshold", Type::Number, "0.01", "occupied when density × step exceeds this"),
-                opt("every", Type::Number, "16", "training steps between refreshes"),
-            ],
-            OCCUPANCY,
-            |a| {
-                let (min, max) = (a.vec3("min")?, a.vec3("max")?);
-                if !(min.cmplt(max).all()) {
-                    return Err(value_error(
-                        a.get("max").1,
-                        "the grid's box is empty",
-                        "not above `min` on every axis",
-                        "give `max` larger than `min` in x, y and z",
-                    ));
-                }
-                let threshold = a.number("threshold")?;
-                if !(threshold >= 0.0 && threshold.is_finite()) {
-                    return Err(value_error(a.get("threshold").1, "the threshold must be a finite number ≥ 0", "out of range", "e.g. `threshold: 0.01`"));
-                }
-                Ok(Value::Occupancy(OccupancySpec {
-                    resolution: a.count("resolution", 0, 512)? as u32,
-                    min: min.to_array(),
-                    max: max.to_array(),
-                    threshold,
-                    every: a.count("every", 1, 1_000_000)? as usize,
-                }))
-            },
-        ),
-        func(
-            "nerf",
-            "A neural radiance field (Mildenhall et al.): an MLP from the encoded position to density (ReLU) and colour (sigmoid). `view_dependent` adds a colour branch that sees the encoded view direction; density never does. Weights start as PyTorch's default initialisation, seeded. Trained as a `train` statement's model.",
-            vec![
-                opt("position", ENCODING, "harmonic(freqs: 6)", "encoding of the sample position"),
-                opt("direction", ENCODING, "harmonic(freqs: 2)", "encoding of the view direction (used when `view_dependent`)"),
-                opt("view_dependent", Type::Bool, "true", "whether colour depends on the view direction"),
-                opt("layers", Type::Number, "6", "hidden layers of the trunk"),
-                opt("width", Type::Number, "128", "width of the hidden layers"),
-                opt("skips", Type::list(Type::Number), "[3]", "trunk layers (from 0) that see the encoded position again"),
-                opt("color_width", Type::Number, "64", "width of the colour branch"),
-                opt("fine", Type::Number, "0", "fine samples per ray, drawn by inverse CDF from the coarse network's weights for a second (fine) network of the same shape; 0: one network"),
-                opt("background", Type::Vec3, "[0, 0, 0]", "colour where a ray leaves the volume"),
-                opt("seed", Type::Number, "0", "seed of the initial weights"),
-                opt("occupancy", OCCUPANCY, "occupancy_grid(resolution: 0)", "skip empty space with an occupancy grid while training and rendering (resolution 0: none)"),
-                opt("density", Type::Str, "\"relu\"", "density activation: \"relu\" (the NeRF paper) or \"exp\" (instant-ngp's truncated exponential, for hash grids: never zero, so no sample starts dead)"),
-            ],
-            FIELD,
-            |a| {
-                let encoding = |name: &str| match a.get(name).0 {
-                    Value::Encoding(e) => Ok(*e),
-                    other => Err(type_error(a.get(name).1, "encoding", other)),
-                };
-                let layers = a.count("layers", 1, 32)? as usize;
-                let (skips_v, skips_span) = a.get("skips");
-                let mut skips = Vec::new();
-                if let Value::List(items) = skips_v {
-                    for item in items.iter() {
-                        match item {
-                            Value::Number(x) if x.fract() == 0.0 && *x >= 1.0 && (*x as usize) < layers => {
-                                skips.push(*x as usize)
-                            }
-                            _ => {
-                                return Err(value_error(
-                                    skips_span,
-                                    format!("a skip must name a trunk layer from 1 to {}", layers - 1),
-                                    "not a later trunk layer",
-                                    "layer 0 sees the encoding already; e.g. `skips: [3]` for 6 layers",
-                                ))
-                            }
-                        }
-                    }
-                }
-                skips.sort_unstable();
-                skips.dedup();
-                let (bg, bg_span) = (a.vec3("background")?, a.get("background").1);
-                let view_dependent = matches!(a.get("view_dependent").0, Value::Bool(true));
-                let direction = if view_dependent { Some(encoding("direction")?) } else { None };
-                if matches!(a.get("occupancy").0, Value::Occupancy(o) if o.resolution > 0) && a.count("fine", 0, MAX_SAMPLES)? > 0 {
-                    return Err(value_error(
-                        a.get("fine").1,
-                        "fine samples and an occupancy grid both decide where to sample",
-                        "with an occupancy grid",
-                        "use one: `fine: 0`, or `occupancy: occupancy_grid(resolution: 0)`",
-                    ));
-                }
-                if let Some(Encoding::HashGrid(_)) = direction {
-                    return Err(value_error(
-                        a.get("direction").1,
-                        "a hash grid encodes positions, not directions",
-                        "a hash grid",
-                        "encode the direction with `harmonic(freqs: 2)`",
-                    ));
-                }
-                Ok(Value::Field(Arc::new(Field::Nerf(Nerf {
-                    position: encoding("position")?,
-                    direction,
-                    layers,
-                    width: a.count("width", 1, 4096)? as usize,
-                    skips,
-                    color_width: a.count("color_width", 1, 4096)? as usize,
-                    fine: a.count("fine", 0, MAX_SAMPLES)? as usize,
-                    background: colour(bg, bg_span)?.to_array(),
-                    seed: a.count("seed", 0, u32::MAX as u64)?,
-                    occupancy: match a.get("occupancy").0 {
-                        Value::Occupancy(o) if o.resolution > 0 => Some(*o),
-                        Value::Occupancy(_) => None,
-                        other => return Err(type_error(a.get("occupancy").1, "occupancy grid", other)),
-                    },
-                    density: {
-                        let (d, span) = a.string("density")?;
-                        match &*d {
-                            "relu" => DensityActivation::Relu,
-                            "exp" => DensityActivation::Exp,
-                            other => {
-                                return Err(value_error(
-                                    span,
-                                    format!("unknown density activation `{other}`"),
-                                    "not a choice",
-                                    "use \"relu\" or \"exp\"",
-                                ))
-                            }
-                        }
-                    },
-                }))))
-            },
-        ),
-        func(
             "render_views",
             "Views rendered by sdfl itself, with known ground truth: a field is volume-rendered (with `sampler`), a shape sphere-traced exactly as a `render` statement draws it (with `material`, `background`, `near`, `far`, `iterations`). `test_views` of the cameras, picked by a seeded shuffle, are held out as test views.",
             vec![
@@ -1090,6 +901,9 @@ fn table() -> Vec<Builtin> {
             Ok(Value::Number(a.number("a")?.max(a.number("b")?)))
         }),
     ]
+    .into_iter()
+    .chain(neural::builtins())
+    .collect()
 }
 
 fn render_views(a: &Args) -> Result<Value, Diag> {

@@ -1,0 +1,470 @@
+//! Running volume renders and training statements: loading data,
+//! checkpoints (refused when from another run), reports and outputs.
+
+use std::io;
+use std::ops::ControlFlow;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use glam::Vec3A;
+use sdfl_stdlib::camera::Camera;
+use sdfl_stdlib::material::Material;
+use sdfl_stdlib::num::{Dual, V3};
+use sdfl_stdlib::shape::{ArgSource, Fixed};
+use sdfl_stdlib::value::{Backend, Dataset, Field, Output, Sampler, SdfField, TrainJob, VolumeJob};
+use sdfl_stdlib::OutputKind;
+use sdfl_stdlib::RenderJob;
+use serde::Serialize;
+
+use crate::data::nerf_synthetic::DatasetWriter;
+use crate::data::npy::RgbImage;
+use crate::metrics;
+use crate::neural::field::NerfObjective;
+use crate::neural::nerf::{NerfNet, NerfWork};
+use crate::output::{to_u8, write_png};
+use crate::render::{render_view, view_path, Gifs, Needs, Written};
+use crate::sdf::{LowerOptions, Lowered};
+use crate::train::checkpoint::{Checkpoint, Fnv};
+use crate::train::fused::field_at;
+use crate::train::{FieldObjective, Objective, Run, TrainError, TrainModel, TrainSetup, TrainView};
+use crate::volume::figures;
+use crate::volume::render::{render_field_image_with, DensityModel};
+use crate::volume::{ImageSize, Stratified};
+
+fn invalid(e: impl std::fmt::Display) -> io::Error {
+    io::Error::new(io::ErrorKind::InvalidInput, e.to_string())
+}
+
+fn stratified(s: &Sampler) -> io::Result<Stratified> {
+    Stratified::new(s.samples, s.near as f32, s.far as f32).map_err(invalid)
+}
+
+/// A field's density at its arguments' values.
+fn density_model(f: &SdfField, sampler: &Sampler) -> DensityModel {
+    DensityModel {
+        kind: f.density,
+        alpha: f.alpha.value as f32,
+        beta: f.beta.value as f32,
+        last_interval: sampler.last_interval,
+    }
+}
+
+/// A field lowered for rendering: the culled SDF evaluator and the colour.
+struct LoweredField {
+    sdf: Lowered,
+    color: Material,
+}
+
+impl LoweredField {
+    fn new(field: &SdfField) -> Self {
+        LoweredField {
+            sdf: Lowered::new(&field.shape, LowerOptions::default()),
+            color: (*field.color).clone(),
+        }
+    }
+
+    #[inline]
+    fn eval(&self, p: [f32; 3]) -> (f32, [f32; 3]) {
+        let pv = Vec3A::from(p);
+        let (d, id) = self.sdf.root.dist_id(pv);
+        let info = self.sdf.prims.get(id as usize);
+        let material = info
+            .and_then(|i| i.material.as_deref())
+            .unwrap_or(&self.color);
+        let c = info.map_or(V3::splat(0.0), |i| V3::lit(i.center.to_array()));
+        // Fields refuse materials that need normals (painted ones too).
+        let rgb = material
+            .unlit_color(V3::from_array(p), c, &Fixed)
+            .unwrap_or(V3::splat(0.5));
+        (d, rgb.to_array())
+    }
+}
+
+/// A field to render: point → (signed distance, colour).
+pub type FieldFn<'a> = &'a (dyn Fn([f32; 3]) -> (f32, [f32; 3]) + Sync);
+
+/// Renders one view of a field: colour and, when asked, depth per pixel.
+pub type ViewFn<'a> =
+    &'a (dyn Fn(&Camera, (u32, u32), bool) -> io::Result<(Vec<[f32; 3]>, Vec<f32>)> + Sync);
+
+/// A field as it is rendered from its file's values (a NeRF from its
+/// initial weights).
+fn field_view<'a>(
+    field: &'a Field,
+    sampler: &'a Sampler,
+) -> io::Result<
+    Box<dyn Fn(&Camera, (u32, u32), bool) -> io::Result<(Vec<[f32; 3]>, Vec<f32>)> + Sync + 'a>,
+> {
+    let strat = stratified(sampler)?;
+    Ok(match field {
+        Field::Sdf(f) => {
+            let lowered = LoweredField::new(f);
+            let model = density_model(f, sampler);
+            Box::new(move |cam: &Camera, wh, want_depth| {
+                render_field(&|p| lowered.eval(p), model, &strat, cam, wh, want_depth)
+            })
+        }
+        Field::Nerf(n) => {
+            let model = NerfObjective::new(n, sampler).map_err(invalid)?;
+            let params = model.initial();
+            Box::new(move |cam: &Camera, wh, _| {
+                nerf_view(&model, &params, &strat, sampler, cam, wh)
+            })
+        }
+    })
+}
+
+fn nerf_view(
+    model: &NerfObjective,
+    params: &[f32],
+    strat: &Stratified,
+    sampler: &Sampler,
+    cam: &Camera,
+    (w, h): (u32, u32),
+) -> io::Result<(Vec<[f32; 3]>, Vec<f32>)> {
+    let size = ImageSize {
+        width: w,
+        height: h,
+    };
+    let v = model
+        .render_view(params, strat, sampler.last_interval, cam, size)
+        .map_err(invalid)?;
+    Ok((v.colour, v.depth))
+}
+
+/// Colour (and depth) of one view of a field.
+fn render_field(
+    field: FieldFn,
+    model: DensityModel,
+    sampler: &Stratified,
+    cam: &Camera,
+    (w, h): (u32, u32),
+    want_depth: bool,
+) -> io::Result<(Vec<[f32; 3]>, Vec<f32>)> {
+    let size = ImageSize {
+        width: w,
+        height: h,
+    };
+    let img =
+        render_field_image_with(field, model, sampler, cam, size, want_depth).map_err(invalid)?;
+    Ok((img.colour, img.depth))
+}
+
+fn rgb8(colour: &[[f32; 3]]) -> Vec<u8> {
+    colour
+        .iter()
+        .flat_map(|c| c.map(|x| to_u8(x as f64)))
+        .collect()
+}
+
+/// What a volume or training job did.
+#[derive(Debug, Clone, Serialize)]
+pub struct VolumeReport {
+    pub name: String,
+    pub views: usize,
+    pub samples_per_ray: usize,
+    pub written: Vec<Written>,
+    pub stages: Vec<(String, f64)>,
+}
+
+/// Render a field from each camera and write the outputs.
+#[allow(clippy::too_many_arguments)]
+pub fn write_volume_outputs(
+    name: &str,
+    render: ViewFn,
+    cameras: &[Camera],
+    (w, h): (u32, u32),
+    sampler: &Sampler,
+    outputs: &[Output],
+    out_dir: &Path,
+    progress: &(dyn Fn(u64) + Sync),
+) -> io::Result<VolumeReport> {
+    let strat = stratified(sampler)?;
+    let mut written = Vec::new();
+    let mut gifs = Gifs::open(outputs, out_dir)?;
+    let mut datasets: Vec<DatasetWriter> = outputs
+        .iter()
+        .filter(|o| o.kind == OutputKind::Dataset)
+        .map(|o| DatasetWriter::new(out_dir, &o.path, (w, h)))
+        .collect();
+    let wants_depth = outputs.iter().any(|o| o.kind == OutputKind::Depth);
+    let needs_render = outputs.iter().any(|o| {
+        matches!(
+            o.kind,
+            OutputKind::Image | OutputKind::Gif { .. } | OutputKind::Depth | OutputKind::Dataset
+        )
+    });
+    let (mut render_s, mut encode_s) = (0.0, 0.0);
+    for (k, cam) in cameras.iter().enumerate() {
+        let t = Instant::now();
+        let (colour, depth) = if needs_render {
+            render(cam, (w, h), wants_depth)?
+        } else {
+            (Vec::new(), Vec::new())
+        };
+        render_s += t.elapsed().as_secs_f64();
+        progress(w as u64 * h as u64);
+        let t = Instant::now();
+        for o in outputs {
+            let rel = view_path(&o.path, k, cameras.len());
+            // View-independent checks are written once.
+            let once = matches!(
+                o.kind,
+                OutputKind::Grid | OutputKind::Rays | OutputKind::SamplePoints
+            );
+            if once && k > 0 {
+                continue;
+            }
+            let rel = if once { o.path.clone() } else { rel };
+            let (kind, rgb, (pw, ph)) = match o.kind {
+                OutputKind::Gif { .. }
+                | OutputKind::Dataset
+                | OutputKind::LossCurve
+                | OutputKind::PsnrCurve
+                | OutputKind::Comparison
+                | OutputKind::Normals
+                | OutputKind::Mask => continue,
+                OutputKind::Image => ("image", rgb8(&colour), (w, h)),
+                OutputKind::Depth => ("depth", crate::render::depth_image(&depth), (w, h)),
+                OutputKind::Grid => ("grid_image", figures::xy_grid_image(w, h), (w, h)),
+                OutputKind::Rays => ("rays_image", figures::rays_image(cam, w, h), (w, h)),
+                OutputKind::SamplePoints => {
+                    let stride = (w.max(h) / 16).max(1);
+                    (
+                        "sample_points",
+                        figures::sample_points_image(cam, &strat, w, h, stride, 256, 256),
+                        (256, 256),
+                    )
+                }
+            };
+            write_png(&out_dir.join(&rel), pw, ph, &rgb)?;
+            written.push(Written {
+                path: rel,
+                kind,
+                width: pw,
+                height: ph,
+                frames: 1,
+            });
+        }
+        if !gifs.is_empty() {
+            gifs.push(w, h, &rgb8(&colour))?;
+        }
+        // Volumes have no hit mask: their views are written opaque.
+        for d in &mut datasets {
+            written.push(d.push(k, cam, &rgb8(&colour), None)?);
+        }
+        encode_s += t.elapsed().as_secs_f64();
+    }
+    written.extend(gifs.finish(w, h)?);
+    for d in datasets {
+        written.push(d.finish()?);
+    }
+    Ok(VolumeReport {
+        name: name.to_string(),
+        views: cameras.len(),
+        samples_per_ray: sampler.samples,
+        written,
+        stages: vec![
+            ("volume render".into(), render_s),
+            ("encode".into(), encode_s),
+        ],
+    })
+}
+
+pub fn run_volume_job(
+    job: &VolumeJob,
+    out_dir: &Path,
+    size: Option<(u32, u32)>,
+    progress: &(dyn Fn(u64) + Sync),
+) -> io::Result<VolumeReport> {
+    let wh = size.unwrap_or((job.width, job.height));
+    let render = field_view(&job.field, &job.sampler)?;
+    write_volume_outputs(
+        &job.name,
+        &*render,
+        &job.cameras,
+        wh,
+        &job.sampler,
+        &job.outputs,
+        out_dir,
+        progress,
+    )
+}
+
+fn load_image(path: &Path) -> io::Result<RgbImage> {
+    crate::data::image::read_rgb_image(path)
+}
+
+/// A data set's views: those to train on and those held out for testing.
+#[derive(Debug, Clone)]
+pub struct Views {
+    pub train: Vec<TrainView>,
+    pub test: Vec<TrainView>,
+}
+
+/// The views of a data set: read from files (relative to `base`),
+/// volume-rendered, sphere-traced (exactly as `render` draws them) or read
+/// from a NeRF-synthetic data set; split into training and test views.
+/// Every pixel must be a finite colour; the first that is not is named.
+pub fn load_views(data: &Dataset, base: &Path) -> io::Result<Views> {
+    let views: Vec<(TrainView, String)> = match data {
+        Dataset::Files { images, cameras } => {
+            crate::data::image::check_dataset(images.iter().map(|p| base.join(p)))?;
+            images
+                .iter()
+                .zip(cameras)
+                .map(|(p, c)| {
+                    let path = base.join(p);
+                    Ok((
+                        TrainView {
+                            camera: *c,
+                            image: load_image(&path)?,
+                        },
+                        path.display().to_string(),
+                    ))
+                })
+                .collect::<io::Result<_>>()?
+        }
+        Dataset::Rendered {
+            field,
+            cameras,
+            width,
+            height,
+            sampler,
+            ..
+        } => {
+            let render = field_view(field, sampler)?;
+            cameras
+                .iter()
+                .enumerate()
+                .map(|(k, c)| {
+                    let (colour, _) = render(c, (*width, *height), false)?;
+                    let image = RgbImage {
+                        width: *width,
+                        height: *height,
+                        pixels: colour,
+                    };
+                    Ok((
+                        TrainView { camera: *c, image },
+                        format!("rendered view {k}"),
+                    ))
+                })
+                .collect::<io::Result<_>>()?
+        }
+        Dataset::Traced { job, .. } => traced_views(job)
+            .into_iter()
+            .enumerate()
+            .map(|(k, v)| (v, format!("traced view {k}")))
+            .collect(),
+        Dataset::NerfSynthetic {
+            path,
+            split,
+            test_split,
+            background,
+        } => {
+            use crate::data::nerf_synthetic::{read_splits, transforms_path};
+            let dir = base.join(path);
+            let mut splits = vec![split.as_str()];
+            if let Some(t) = test_split {
+                // The lone transforms.json stands in for the training split
+                // only: it never doubles as the test views.
+                if transforms_path(&dir, t) == transforms_path(&dir, split) {
+                    return Err(invalid(format!(
+                        "{}: no transforms_{t}.json for the test split `{t}`",
+                        dir.display()
+                    )));
+                }
+                splits.push(t);
+            }
+            let mut read = read_splits(&dir, &splits, *background)?;
+            let test = if read.len() > 1 {
+                read.pop().unwrap_or_default()
+            } else {
+                Vec::new()
+            };
+            let train = read.pop().unwrap_or_default();
+            let named = |split: &str, views: Vec<TrainView>| -> Vec<(TrainView, String)> {
+                let file = transforms_path(&dir, split).display().to_string();
+                views
+                    .into_iter()
+                    .enumerate()
+                    .map(|(k, v)| (v, format!("{file} frame {k}")))
+                    .collect()
+            };
+            let train = named(split, train);
+            let test = named(test_split.as_deref().unwrap_or(""), test);
+            check_finite(&train)?;
+            check_finite(&test)?;
+            return Ok(Views {
+                train: train.into_iter().map(|(v, _)| v).collect(),
+                test: test.into_iter().map(|(v, _)| v).collect(),
+            });
+        }
+    };
+    check_finite(&views)?;
+    let held = data.test_views();
+    let (mut train, mut test) = (Vec::new(), Vec::new());
+    for (k, (v, _)) in views.into_iter().enumerate() {
+        if held.binary_search(&k).is_ok() {
+            test.push(v);
+        } else {
+            train.push(v);
+        }
+    }
+    Ok(Views { train, test })
+}
+
+/// Every view of a sphere-traced data set: the tracer of `render` with the
+/// job's settings, colour quantised to 8 bits as its `image` output writes.
+pub fn traced_views(job: &RenderJob) -> Vec<TrainView> {
+    let scene = Lowered::new(&job.scene, LowerOptions::default());
+    let needs = Needs {
+        color: true,
+        depth: false,
+        normals: false,
+        mask: false,
+    };
+    job.cameras
+        .iter()
+        .map(|c| {
+            let view = render_view(&scene, job, c, (job.width, job.height), needs, &|_| {});
+            let rgb = view.color.expect("colour is asked for");
+            TrainView {
+                camera: *c,
+                image: RgbImage {
+                    width: job.width,
+                    height: job.height,
+                    pixels: rgb
+                        .chunks_exact(3)
+                        .map(|p| [p[0], p[1], p[2]].map(|x| x as f32 / 255.0))
+                        .collect(),
+                },
+            }
+        })
+        .collect()
+}
+
+fn check_finite(views: &[(TrainView, String)]) -> io::Result<()> {
+    for (v, origin) in views {
+        if let Some(i) = v
+            .image
+            .pixels
+            .iter()
+            .position(|p| !p.iter().all(|x| x.is_finite()))
+        {
+            let w = v.image.width.max(1) as usize;
+            return Err(invalid(format!(
+                "{origin}: pixel (column {}, row {}) is {:?}, not a finite colour",
+                i % w,
+                i / w,
+                v.image.pixels[i]
+            )));
+        }
+    }
+    Ok(())
+}
+
+
+mod train;
+
+pub use train::{fingerprint, run_train_job, step_memory, HeldOut, TrainOptions, TrainReport};
