@@ -1051,6 +1051,8 @@ fn sweep(
     let mut csv = format!("{name},seconds,psnr_db,param_error,held_out_psnr_db\n");
     let held_out_any = rows.iter().any(|r| held_out_psnr(&r.3).is_some());
     let mut points = Vec::new();
+    // The same quality against the swept value (time may hardly change).
+    let mut by_value = Vec::new();
     for (row, (v, secs, dir, reports)) in rows.iter().enumerate() {
         let is_ref = row + 1 == rows.len();
         // PSNR of the mean squared error over all images of the run.
@@ -1103,6 +1105,7 @@ fn sweep(
         };
         if let Some(y) = y {
             points.push((*secs, y));
+            by_value.push((*v, y));
         }
     }
     Stdout::new().print(&table);
@@ -1126,13 +1129,30 @@ fn sweep(
             )],
             log_y,
         );
+    let value_label = format!(
+        "{} vs {name}",
+        if held_out_any {
+            "held-out PSNR (dB)"
+        } else {
+            "error"
+        }
+    );
+    let value_png = sdfl_runtime::volume::figures::line_plot(
+        640,
+        400,
+        &[(value_label.as_str(), &by_value)],
+        log_y,
+    );
     let result = write("sweep.csv", csv.as_bytes())
         .and_then(|_| write("sweep.md", table.as_bytes()))
-        .and_then(|_| sdfl_runtime::output::write_png(&out.join("sweep.png"), 640, 400, &png));
+        .and_then(|_| sdfl_runtime::output::write_png(&out.join("sweep.png"), 640, 400, &png))
+        .and_then(|_| {
+            sdfl_runtime::output::write_png(&out.join("sweep_value.png"), 640, 400, &value_png)
+        });
     match result {
         Ok(()) => {
             eprintln!(
-                "wrote {0}/sweep.csv, {0}/sweep.md and {0}/sweep.png",
+                "wrote {0}/sweep.csv, {0}/sweep.md, {0}/sweep.png (against seconds) and {0}/sweep_value.png (against the value)",
                 out.display()
             );
             ExitCode::SUCCESS

@@ -156,7 +156,7 @@ fn sweep_tabulates_time_and_error() {
         rows[3].contains(",inf,"),
         "the last setting is the reference: {csv}"
     );
-    assert!(out_dir.join("sweep.png").is_file());
+    assert!(out_dir.join("sweep.png").is_file() && out_dir.join("sweep_value.png").is_file());
     // Setting a name no `let` binds is a diagnostic.
     let out = sdfl(&[
         "sweep",

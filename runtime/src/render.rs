@@ -43,7 +43,7 @@ impl Plan {
             let who = o.path.display().to_string();
             match o.kind {
                 OutputKind::Image | OutputKind::Gif { .. } => plan.color.push(who),
-                OutputKind::Depth => plan.depth.push(who),
+                OutputKind::Depth | OutputKind::DepthGif { .. } => plan.depth.push(who),
                 OutputKind::Normals => plan.normals.push(who),
                 OutputKind::Mask => plan.mask.push(who),
                 // RGBA: colour, with the hit mask as alpha.
@@ -254,19 +254,24 @@ pub struct Written {
     pub frames: usize,
 }
 
-/// The GIF outputs of a job, open for one frame per view.
-pub(crate) struct Gifs(Vec<(GifWriter, PathBuf)>);
+/// The GIF outputs of a job, open for one frame per view; each shows
+/// colour or (colour-mapped) depth.
+pub(crate) struct Gifs(Vec<(GifWriter, PathBuf, bool)>);
 
 impl Gifs {
     pub(crate) fn open(outputs: &[sdfl_stdlib::Output], out_dir: &Path) -> std::io::Result<Gifs> {
         let mut gifs = Vec::new();
         for o in outputs {
-            if let OutputKind::Gif { fps } = o.kind {
-                gifs.push((
-                    GifWriter::create(&out_dir.join(&o.path), fps)?,
-                    o.path.clone(),
-                ));
-            }
+            let (fps, depth) = match o.kind {
+                OutputKind::Gif { fps } => (fps, false),
+                OutputKind::DepthGif { fps } => (fps, true),
+                _ => continue,
+            };
+            gifs.push((
+                GifWriter::create(&out_dir.join(&o.path), fps)?,
+                o.path.clone(),
+                depth,
+            ));
         }
         Ok(Gifs(gifs))
     }
@@ -275,17 +280,31 @@ impl Gifs {
         self.0.is_empty()
     }
 
-    pub(crate) fn push(&mut self, width: u32, height: u32, rgb: &[u8]) -> std::io::Result<()> {
-        self.0
-            .iter_mut()
-            .try_for_each(|(g, _)| g.push(width, height, rgb))
+    /// Whether a GIF shows depth (so the caller colour-maps it).
+    pub(crate) fn wants_depth(&self) -> bool {
+        self.0.iter().any(|g| g.2)
+    }
+
+    /// One frame: the colour, and the colour-mapped depth when
+    /// [`Self::wants_depth`].
+    pub(crate) fn push(
+        &mut self,
+        width: u32,
+        height: u32,
+        colour: Option<&[u8]>,
+        depth: Option<&[u8]>,
+    ) -> std::io::Result<()> {
+        self.0.iter_mut().try_for_each(|(g, _, is_depth)| {
+            let frame = if *is_depth { depth } else { colour };
+            g.push(width, height, frame.expect("the plan computes what every GIF shows"))
+        })
     }
 
     /// Write every GIF (atomically) and report it.
     pub(crate) fn finish(self, width: u32, height: u32) -> std::io::Result<Vec<Written>> {
         self.0
             .into_iter()
-            .map(|(g, path)| {
+            .map(|(g, path, _)| {
                 let frames = g.frames;
                 g.finish()?;
                 Ok(Written {
@@ -376,7 +395,7 @@ pub fn run_job(
         for o in &job.outputs {
             let rel = view_path(&o.path, k, views);
             let (kind, rgb): (&'static str, Option<Vec<u8>>) = match o.kind {
-                OutputKind::Gif { .. } | OutputKind::Dataset => continue,
+                OutputKind::Gif { .. } | OutputKind::DepthGif { .. } | OutputKind::Dataset => continue,
                 OutputKind::Image => ("image", view.color.clone()),
                 OutputKind::Normals => ("normal_map", view.normals.clone()),
                 OutputKind::Mask => (
@@ -419,11 +438,11 @@ pub fn run_job(
             });
         }
         if !gifs.is_empty() {
-            gifs.push(
-                width,
-                height,
-                view.color.as_deref().expect("gif outputs plan colour"),
-            )?;
+            let depth = gifs
+                .wants_depth()
+                .then(|| view.depth.as_ref().map(|d| depth_image(d)))
+                .flatten();
+            gifs.push(width, height, view.color.as_deref(), depth.as_deref())?;
         }
         for d in &mut datasets {
             let rgb = view.color.as_deref().expect("datasets plan colour");

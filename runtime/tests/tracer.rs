@@ -220,6 +220,11 @@ fn only_requested_quantities_are_computed() {
             && !plan.depth.is_empty()
     );
 
+    // A depth GIF needs depth and nothing else.
+    let j = job(Material::Normals, vec![OutputKind::DepthGif { fps: 10.0 }]);
+    let plan = Plan::of(&j);
+    assert!(plan.color.is_empty() && !plan.depth.is_empty() && !plan.shading_normals);
+
     let j = job(Material::Normals, vec![OutputKind::Gif { fps: 10.0 }]);
     let plan = Plan::of(&j);
     assert!(

@@ -93,6 +93,7 @@ pub fn kind_name(kind: &OutputKind) -> &'static str {
     match kind {
         OutputKind::Image => "image",
         OutputKind::Gif { .. } => "gif",
+        OutputKind::DepthGif { .. } => "depth_gif",
         OutputKind::Depth => "depth",
         OutputKind::Normals => "normal_map",
         OutputKind::Mask => "mask",

@@ -101,6 +101,9 @@ pub enum OutputKind {
     Image,
     /// Shaded colour of all views as an animated GIF.
     Gif { fps: f64 },
+    /// Depth of all views, colour-mapped as [`OutputKind::Depth`], as an
+    /// animated GIF.
+    DepthGif { fps: f64 },
     /// Hit depth normalised by its maximum and colour-mapped, PNG per view.
     Depth,
     /// Surface normals as colours, PNG per view.

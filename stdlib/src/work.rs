@@ -58,7 +58,7 @@ fn bytes_per_pixel(kinds: impl Iterator<Item = OutputKind>, volume: bool) -> f64
     for k in kinds {
         b += match k {
             OutputKind::Image => 3.0,
-            OutputKind::Gif { .. } => 7.0,
+            OutputKind::Gif { .. } | OutputKind::DepthGif { .. } => 7.0,
             OutputKind::Depth => 7.0,
             OutputKind::Normals => 3.0,
             OutputKind::Mask => 4.0,

@@ -187,11 +187,17 @@ pub fn write_volume_outputs(
         .filter(|o| o.kind == OutputKind::Dataset)
         .map(|o| DatasetWriter::new(out_dir, &o.path, (w, h)))
         .collect();
-    let wants_depth = outputs.iter().any(|o| o.kind == OutputKind::Depth);
+    let wants_depth = outputs
+        .iter()
+        .any(|o| matches!(o.kind, OutputKind::Depth | OutputKind::DepthGif { .. }));
     let needs_render = outputs.iter().any(|o| {
         matches!(
             o.kind,
-            OutputKind::Image | OutputKind::Gif { .. } | OutputKind::Depth | OutputKind::Dataset
+            OutputKind::Image
+                | OutputKind::Gif { .. }
+                | OutputKind::DepthGif { .. }
+                | OutputKind::Depth
+                | OutputKind::Dataset
         )
     });
     let (mut render_s, mut encode_s) = (0.0, 0.0);
@@ -218,6 +224,7 @@ pub fn write_volume_outputs(
             let rel = if once { o.path.clone() } else { rel };
             let (kind, rgb, (pw, ph)) = match o.kind {
                 OutputKind::Gif { .. }
+                | OutputKind::DepthGif { .. }
                 | OutputKind::Dataset
                 | OutputKind::LossCurve
                 | OutputKind::PsnrCurve
@@ -247,7 +254,10 @@ pub fn write_volume_outputs(
             });
         }
         if !gifs.is_empty() {
-            gifs.push(w, h, &rgb8(&colour))?;
+            let depth = gifs
+                .wants_depth()
+                .then(|| crate::render::depth_image(&depth));
+            gifs.push(w, h, Some(&rgb8(&colour)), depth.as_deref())?;
         }
         // Volumes have no hit mask: their views are written opaque.
         for d in &mut datasets {

@@ -615,6 +615,19 @@ fn table() -> Vec<Builtin> {
                 out(a, OutputKind::Gif { fps }, "gif")
             },
         ),
+        func(
+            "depth_gif",
+            "Depth of all views (colour-mapped as `depth`) as an animated GIF.",
+            vec![
+                req("path", Type::Str, "file name inside the output directory"),
+                opt("fps", Type::Number, "10", "frames per second (> 0)"),
+            ],
+            OUTPUT,
+            |a| {
+                let fps = a.positive("fps")?;
+                out(a, OutputKind::DepthGif { fps }, "gif")
+            },
+        ),
         output("depth", "Hit depth normalised by its maximum, colour-mapped, as PNG per view; misses black.", |a| {
             out(a, OutputKind::Depth, "png")
         }),
