@@ -789,7 +789,11 @@ fn plan_text(program: &sdfl_stdlib::Program) -> String {
                         "all {} weights in {} tensors{}",
                         m.initial().len(),
                         m.tensors().len(),
-                        if m.fine.is_some() { " (coarse and fine networks)" } else { "" }
+                        if m.fine.is_some() {
+                            " (coarse and fine networks)"
+                        } else {
+                            ""
+                        }
                     ),
                     Err(e) => format!("none: {e}"),
                 }
@@ -1115,20 +1119,19 @@ fn sweep(
         f.commit()
     };
     let log_y = ref_images.is_empty() && !held_out_any;
-    let png =
-        sdfl_runtime::volume::figures::line_plot(
-            640,
-            400,
-            &[(
-                if held_out_any {
-                    "held-out PSNR (dB) vs seconds"
-                } else {
-                    "error vs seconds"
-                },
-                &points,
-            )],
-            log_y,
-        );
+    let png = sdfl_runtime::volume::figures::line_plot(
+        640,
+        400,
+        &[(
+            if held_out_any {
+                "held-out PSNR (dB) vs seconds"
+            } else {
+                "error vs seconds"
+            },
+            &points,
+        )],
+        log_y,
+    );
     let value_label = format!(
         "{} vs {name}",
         if held_out_any {

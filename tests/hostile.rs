@@ -1170,3 +1170,36 @@ fn hostile_nerf_synthetic_data_sets_are_diagnostics() {
         assert!(o.stderr.contains("sdfl::io"), "{name}: {}", head(&o.stderr));
     }
 }
+
+/// Neural fields sized to exhaust memory or time are refused when
+/// evaluated, with what they would hold, never allocated: a hash grid of
+/// 64 levels × 2^24 rows × 16 features, a network of 32 layers of 4096, a
+/// NeRF render of a billion samples through the default network, a NeRF
+/// training step of a million rays × 4096 samples.
+#[test]
+fn oversized_neural_fields_are_refused() {
+    let cams = "cameras: [look_at(eye: [0, 0, -3])]";
+    let cases = [
+        (
+            "nerf_huge_grid",
+            "let f = nerf(position: hashgrid(levels: 64, log2_table: 24, features: 16, max_res: 60000))".to_string(),
+        ),
+        ("nerf_huge_net", "let f = nerf(layers: 32, width: 4096)".to_string()),
+        (
+            "nerf_huge_render",
+            "render r { scene: nerf(), camera: look_at(eye: [0, 0, -3]), size: [16384, 16384], sampler: stratified(samples: 4096), outputs: [image(\"r.png\")] }".to_string(),
+        ),
+        (
+            "nerf_huge_step",
+            format!("train t {{ model: nerf(), data: render_views(volsdf(sphere()), {cams}, size: [8, 8]), sampler: stratified(samples: 4096), rays: 1048576, iterations: 1 }}"),
+        ),
+    ];
+    for (name, src) in cases {
+        let o = hostile(name, src, Expect::Error);
+        assert!(
+            o[0].stderr.contains("sdfl::"),
+            "{name}: {}",
+            head(&o[0].stderr)
+        );
+    }
+}

@@ -117,7 +117,10 @@ train fast {
 
 fn fast(iterations: usize) -> sdfl_stdlib::value::TrainJob {
     let src = FAST.replace("ITERATIONS", &iterations.to_string());
-    sdfl_stdlib::load(&SourceFile::new("fast.sdfl", src)).unwrap().trains[0].clone()
+    sdfl_stdlib::load(&SourceFile::new("fast.sdfl", src))
+        .unwrap()
+        .trains[0]
+        .clone()
 }
 
 #[test]
@@ -125,7 +128,11 @@ fn hash_grid_with_occupancy_learns_and_skips_empty_space() {
     let out = temp("fast");
     let r = run(&fast(300), &out).unwrap();
     let (first, last) = (r.held_out[0], *r.held_out.last().unwrap());
-    assert!(last.step == 300 && last.psnr > 28.0, "held-out PSNR {:?}", r.held_out);
+    assert!(
+        last.step == 300 && last.psnr > 28.0,
+        "held-out PSNR {:?}",
+        r.held_out
+    );
     assert!(last.psnr > first.psnr, "{:?}", r.held_out);
     // The grid is in the checkpoint and has emptied cells (those the views
     // never see keep whatever the network says there).
@@ -149,7 +156,11 @@ fn a_resumed_run_keeps_its_occupancy_grid() {
     assert_eq!(a.losses, b.losses);
     assert_eq!(a.state, b.state);
     for (p, q) in a.params.iter().zip(&b.params) {
-        assert!(p.values == q.values && p.adam_m == q.adam_m, "{} differs", p.name);
+        assert!(
+            p.values == q.values && p.adam_m == q.adam_m,
+            "{} differs",
+            p.name
+        );
     }
     let _ = std::fs::remove_dir_all(&whole);
     let _ = std::fs::remove_dir_all(&parts);

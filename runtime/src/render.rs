@@ -296,7 +296,11 @@ impl Gifs {
     ) -> std::io::Result<()> {
         self.0.iter_mut().try_for_each(|(g, _, is_depth)| {
             let frame = if *is_depth { depth } else { colour };
-            g.push(width, height, frame.expect("the plan computes what every GIF shows"))
+            g.push(
+                width,
+                height,
+                frame.expect("the plan computes what every GIF shows"),
+            )
         })
     }
 
@@ -395,7 +399,9 @@ pub fn run_job(
         for o in &job.outputs {
             let rel = view_path(&o.path, k, views);
             let (kind, rgb): (&'static str, Option<Vec<u8>>) = match o.kind {
-                OutputKind::Gif { .. } | OutputKind::DepthGif { .. } | OutputKind::Dataset => continue,
+                OutputKind::Gif { .. } | OutputKind::DepthGif { .. } | OutputKind::Dataset => {
+                    continue
+                }
                 OutputKind::Image => ("image", view.color.clone()),
                 OutputKind::Normals => ("normal_map", view.normals.clone()),
                 OutputKind::Mask => (

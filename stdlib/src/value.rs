@@ -265,6 +265,43 @@ pub struct HashGridSpec {
     pub max: [f64; 3],
 }
 
+/// Each level of a hash grid: its resolution (cells a side) and its table's
+/// rows, dense (`(res + 1)³`) when that fits the table, else `2^log2_table`.
+/// Resolutions grow geometrically from `min_res` to `max_res`, floored (with
+/// 1e-9 forgiven so the top level is exactly `max_res`).
+pub fn hash_grid_levels(
+    levels: u32,
+    min_res: u32,
+    max_res: u32,
+    log2_table: u32,
+) -> Vec<(u32, u64)> {
+    let (lmin, lmax) = ((min_res.max(1) as f64).ln(), (max_res.max(1) as f64).ln());
+    let growth = if levels > 1 {
+        (lmax - lmin) / (levels - 1) as f64
+    } else {
+        0.0
+    };
+    let table = 1u64 << log2_table.min(62);
+    (0..levels)
+        .map(|l| {
+            let x = (lmin + l as f64 * growth).exp();
+            let res = ((x * (1.0 + 1e-9)).floor() as u32).clamp(min_res, max_res);
+            let verts = (res as u64 + 1).pow(3);
+            (res, verts.min(table))
+        })
+        .collect()
+}
+
+impl HashGridSpec {
+    /// Trainable numbers in all tables.
+    pub fn param_count(&self) -> u64 {
+        hash_grid_levels(self.levels, self.min_res, self.max_res, self.log2_table)
+            .iter()
+            .map(|(_, rows)| rows * self.features as u64)
+            .sum()
+    }
+}
+
 /// An input encoding of a neural field.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
 #[serde(rename_all = "snake_case")]
@@ -338,6 +375,17 @@ impl Encoding {
 }
 
 impl Nerf {
+    /// Trainable numbers of one network (the fine one doubles them):
+    /// weights, biases and hash-grid tables.
+    pub fn weights(&self) -> u64 {
+        let grid = match &self.position {
+            Encoding::HashGrid(g) => g.param_count(),
+            Encoding::Harmonic(_) => 0,
+        };
+        let biases = self.layers * self.width + 1 + 2 * self.color_width + 3;
+        grid + (self.multiply_adds_per_sample() + biases) as u64
+    }
+
     /// Multiply-adds of one sample's forward pass.
     pub fn multiply_adds_per_sample(&self) -> usize {
         let (w, enc) = (self.width, self.position.width());

@@ -127,9 +127,19 @@ pub fn refuse_total(evaluations: f64, primitives: u64, span: Span) -> Option<Dia
 
 pub fn volume_work(j: &VolumeJob, size: Option<(u32, u32)>) -> Work {
     let px = pixels((j.width, j.height), size);
+    // A network's sample costs its multiply-adds (in units of about 10 000)
+    // and holds its activations for one pass of 65 536 samples.
+    let (per_sample, network) = match &*j.field {
+        Field::Sdf(_) => (1.0, 0.0),
+        Field::Nerf(n) => (
+            (n.multiply_adds_per_sample() as f64 / 10_000.0).max(1.0),
+            65_536.0 * 4.0 * ((n.layers + 4) * n.width + n.position.width()) as f64
+                + 4.0 * n.weights() as f64,
+        ),
+    };
     Work {
-        evaluations: px * j.cameras.len() as f64 * j.sampler.samples as f64,
-        memory: px * bytes_per_pixel(j.outputs.iter().map(|o| o.kind.clone()), true),
+        evaluations: px * j.cameras.len() as f64 * j.sampler.samples as f64 * per_sample,
+        memory: px * bytes_per_pixel(j.outputs.iter().map(|o| o.kind.clone()), true) + network,
     }
 }
 
@@ -205,9 +215,20 @@ pub fn train_work(j: &TrainJob, size: Option<(u32, u32)>) -> Work {
             + match &*j.model {
                 Field::Sdf(_) => 0.0,
                 Field::Nerf(n) => {
-                    let per_sample = 4 * (2 * n.position.width() + (n.layers + 4) * n.width + 2 * n.color_width + 16);
-                    let fine = if n.fine > 0 { 2.0 + n.fine as f64 / samples.max(1.0) } else { 0.0 };
+                    let per_sample = 4
+                        * (2 * n.position.width()
+                            + (n.layers + 4) * n.width
+                            + 2 * n.color_width
+                            + 16);
+                    let fine = if n.fine > 0 {
+                        2.0 + n.fine as f64 / samples.max(1.0)
+                    } else {
+                        0.0
+                    };
+                    let networks = if n.fine > 0 { 2.0 } else { 1.0 };
+                    // Values, gradient and Adam's two moments of every weight.
                     j.rays as f64 * samples * per_sample as f64 * (1.0 + fine)
+                        + networks * n.weights() as f64 * 16.0
                 }
             },
     }

@@ -474,7 +474,6 @@ fn check_finite(views: &[(TrainView, String)]) -> io::Result<()> {
     Ok(())
 }
 
-
 mod train;
 
 pub use train::{fingerprint, run_train_job, step_memory, HeldOut, TrainOptions, TrainReport};

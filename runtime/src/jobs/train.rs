@@ -4,7 +4,6 @@
 
 use super::*;
 
-
 /// The learned parameters and how training went.
 #[derive(Debug, Clone, Serialize)]
 pub struct TrainReport {
@@ -482,4 +481,3 @@ pub fn run_train_job(
         stages,
     })
 }
-

@@ -190,21 +190,16 @@ impl HashGrid {
             }
             inv_extent[a] = 1.0 / ext;
         }
-        let (lmin, lmax) = ((c.min_res as f64).ln(), (c.max_res as f64).ln());
-        let growth = if c.levels > 1 {
-            (lmax - lmin) / (c.levels - 1) as f64
-        } else {
-            0.0
-        };
-        let table = 1usize << c.log2_table;
+        let table = 1u64 << c.log2_table;
         let mut levels = Vec::with_capacity(c.levels as usize);
         let mut offset = 0usize;
-        for l in 0..c.levels {
-            let x = (lmin + l as f64 * growth).exp();
-            let res = ((x * (1.0 + 1e-9)).floor() as u32).clamp(c.min_res, c.max_res);
+        // The layout is the language's (it checks sizes with the same function).
+        for (res, rows) in
+            sdfl_stdlib::value::hash_grid_levels(c.levels, c.min_res, c.max_res, c.log2_table)
+        {
             let verts = (res as u64 + 1).pow(3);
-            let dense = verts <= table as u64;
-            let rows = if dense { verts as usize } else { table };
+            let dense = verts <= table;
+            let rows = rows as usize;
             levels.push(Level {
                 res,
                 dense,

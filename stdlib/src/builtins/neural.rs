@@ -3,6 +3,13 @@
 
 use super::*;
 
+/// Most trainable numbers in a hash grid's tables (1 GiB with gradient and
+/// Adam's moments).
+const MAX_GRID_PARAMS: u64 = 1 << 26;
+
+/// Most weights in a NeRF network's layers.
+const MAX_NETWORK_WEIGHTS: usize = 1 << 26;
+
 pub(crate) fn builtins() -> Vec<Builtin> {
     vec![
         func(
@@ -45,7 +52,7 @@ pub(crate) fn builtins() -> Vec<Builtin> {
                         "the finest level needs at least `min_res` cells a side",
                     ));
                 }
-                Ok(Value::Encoding(Encoding::HashGrid(HashGridSpec {
+                let spec = HashGridSpec {
                     levels: a.count("levels", 1, 64)? as u32,
                     features: a.count("features", 1, 16)? as u32,
                     log2_table: a.count("log2_table", 1, 24)? as u32,
@@ -53,7 +60,22 @@ pub(crate) fn builtins() -> Vec<Builtin> {
                     max_res,
                     min: min.to_array(),
                     max: max.to_array(),
-                })))
+                };
+                // Tables, their gradient and Adam's two moments: 16 bytes each.
+                if spec.param_count() > MAX_GRID_PARAMS {
+                    return Err(value_error(
+                        a.span,
+                        format!(
+                            "this hash grid holds {} trainable numbers (about {} MB with their gradient and Adam's moments), more than {}",
+                            spec.param_count(),
+                            spec.param_count() * 16 >> 20,
+                            MAX_GRID_PARAMS
+                        ),
+                        "too large",
+                        "lower `log2_table`, `levels` or `features`",
+                    ));
+                }
+                Ok(Value::Encoding(Encoding::HashGrid(spec)))
             },
         ),
         func(
@@ -146,11 +168,20 @@ pub(crate) fn builtins() -> Vec<Builtin> {
                         "encode the direction with `harmonic(freqs: 2)`",
                     ));
                 }
+                let width = a.count("width", 1, 4096)? as usize;
+                if layers * width * width > MAX_NETWORK_WEIGHTS {
+                    return Err(value_error(
+                        a.get("width").1,
+                        format!("{layers} layers of {width} hold about {} weights, more than {MAX_NETWORK_WEIGHTS}", layers * width * width),
+                        "too wide for its depth",
+                        "use fewer or narrower layers",
+                    ));
+                }
                 Ok(Value::Field(Arc::new(Field::Nerf(Nerf {
                     position: encoding("position")?,
                     direction,
                     layers,
-                    width: a.count("width", 1, 4096)? as usize,
+                    width,
                     skips,
                     color_width: a.count("color_width", 1, 4096)? as usize,
                     fine: a.count("fine", 0, MAX_SAMPLES)? as usize,
@@ -197,4 +228,3 @@ fn box_arg(a: &Args) -> Result<(DVec3, DVec3), Diag> {
     }
     Ok((min, max))
 }
-
