@@ -126,7 +126,7 @@ impl Sizes {
                     items: 0,
                     ..Size::node([self.shape(&f.shape, level + 1)], false)
                 },
-                Field::Nerf(_) => Size::SCALAR,
+                Field::Nerf(_) | Field::NeuralSdf(_) => Size::SCALAR,
             },
             _ => Size::SCALAR,
         }
@@ -372,7 +372,8 @@ impl<'e> Evaluator<'e> {
                     first.map(|s| (s, "the training data is rendered at its starting value"))
                 }
                 crate::value::Dataset::Files { .. }
-                | crate::value::Dataset::NerfSynthetic { .. } => None,
+                | crate::value::Dataset::NerfSynthetic { .. }
+                | crate::value::Dataset::Points { .. } => None,
             }),
         };
         if let Some((span, what)) = untrained {

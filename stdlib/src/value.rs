@@ -197,6 +197,25 @@ pub enum Field {
     Sdf(SdfField),
     /// A neural radiance field.
     Nerf(Nerf),
+    /// A neural signed distance function.
+    NeuralSdf(NeuralSdf),
+}
+
+/// A neural signed distance function (IGR; the course assignment's part 6):
+/// the harmonic encoding of the point, `layers` hidden softplus layers of
+/// `width` (the encoding again at the skips), a linear distance; its
+/// weights start as the SDF of a sphere of `radius` (geometric
+/// initialisation).
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct NeuralSdf {
+    pub encoding: Harmonic,
+    pub layers: usize,
+    pub width: usize,
+    pub skips: Vec<usize>,
+    /// Softplus sharpness: large is close to ReLU with smooth curvature.
+    pub beta: f64,
+    pub radius: f64,
+    pub seed: u64,
 }
 
 impl Field {
@@ -206,14 +225,14 @@ impl Field {
     pub fn visit_params<'s>(&'s self, f: &mut dyn FnMut(&'s crate::param::ParamUse)) {
         match self {
             Field::Sdf(s) => s.visit_params(f),
-            Field::Nerf(_) => {}
+            Field::Nerf(_) | Field::NeuralSdf(_) => {}
         }
     }
 
     pub fn as_sdf(&self) -> Option<&SdfField> {
         match self {
             Field::Sdf(s) => Some(s),
-            Field::Nerf(_) => None,
+            Field::Nerf(_) | Field::NeuralSdf(_) => None,
         }
     }
 }
@@ -239,6 +258,19 @@ impl SdfField {
                 f(u);
             }
         }
+    }
+}
+
+impl NeuralSdf {
+    /// Width of the encoded point.
+    pub fn encoding_width(&self) -> usize {
+        3 * 2 * self.encoding.freqs + if self.encoding.include_input { 3 } else { 0 }
+    }
+
+    /// Multiply-adds of one point's distance (its gradient costs three more).
+    pub fn multiply_adds(&self) -> usize {
+        let (e, w) = (self.encoding_width(), self.width);
+        e * w + (self.layers - 1) * w * w + self.skips.len() * e * w + w
     }
 }
 
@@ -449,6 +481,14 @@ pub enum Dataset {
         /// Indices into the job's cameras held out as test views (sorted).
         test: Vec<usize>,
     },
+    /// A point cloud sampled on a surface (for distance fields), read from
+    /// `path` (relative to the scene file); every `every`-th point kept,
+    /// moved to their mean when `center`.
+    Points {
+        path: std::path::PathBuf,
+        every: usize,
+        center: bool,
+    },
     /// A NeRF-synthetic (Blender) data set: `transforms_<split>.json` and
     /// its RGBA images, composited over `background`. Cameras are known
     /// once the file is read.
@@ -469,7 +509,7 @@ impl Dataset {
         match self {
             Dataset::Files { cameras, .. } | Dataset::Rendered { cameras, .. } => cameras,
             Dataset::Traced { job, .. } => &job.cameras,
-            Dataset::NerfSynthetic { .. } => &[],
+            Dataset::NerfSynthetic { .. } | Dataset::Points { .. } => &[],
         }
     }
 
@@ -477,7 +517,7 @@ impl Dataset {
     pub fn test_views(&self) -> &[usize] {
         match self {
             Dataset::Rendered { test, .. } | Dataset::Traced { test, .. } => test,
-            Dataset::Files { .. } | Dataset::NerfSynthetic { .. } => &[],
+            Dataset::Files { .. } | Dataset::NerfSynthetic { .. } | Dataset::Points { .. } => &[],
         }
     }
 }
@@ -551,6 +591,21 @@ impl Optimizer {
 pub enum LossKind {
     /// Mean squared error of rendered against true pixel colours.
     Mse,
+    /// Mean |f| of a distance field at the surface points.
+    Surface,
+    /// Mean (‖∇f‖ − 1)² at the surface and the random points, the gradient
+    /// exact (no finite differences).
+    Eikonal,
+    /// Mean exp(−alpha·|f|) at random points: no surface away from the data.
+    Inter { alpha: f64 },
+}
+
+impl LossKind {
+    /// Whether the term compares rendered colours (else it is a distance
+    /// field's term on points).
+    pub fn on_images(&self) -> bool {
+        matches!(self, LossKind::Mse)
+    }
 }
 
 /// A weighted loss term.
@@ -610,6 +665,8 @@ pub struct TrainJob {
     pub checkpoint: Option<std::path::PathBuf>,
     /// Steps between held-out evaluations (0: at the end only).
     pub eval_every: usize,
+    /// Half-extent of the cube random points are drawn in (distance fields).
+    pub bounds: f64,
 }
 
 /// Everything a scene file asks for, by kind, each in file order.

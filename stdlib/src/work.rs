@@ -136,6 +136,8 @@ pub fn volume_work(j: &VolumeJob, size: Option<(u32, u32)>) -> Work {
             65_536.0 * 4.0 * ((n.layers + 4) * n.width + n.position.width()) as f64
                 + 4.0 * n.weights() as f64,
         ),
+        // Refused as a volume when evaluated; counted like a network.
+        Field::NeuralSdf(n) => ((n.multiply_adds() as f64 / 10_000.0).max(1.0), 0.0),
     };
     Work {
         evaluations: px * j.cameras.len() as f64 * j.sampler.samples as f64 * per_sample,
@@ -155,7 +157,7 @@ pub fn train_work(j: &TrainJob, size: Option<(u32, u32)>) -> Work {
         Dataset::Traced { job, .. } => {
             Some(job.width as f64 * job.height as f64 * job.cameras.len() as f64)
         }
-        Dataset::Files { .. } | Dataset::NerfSynthetic { .. } => None,
+        Dataset::Files { .. } | Dataset::NerfSynthetic { .. } | Dataset::Points { .. } => None,
     };
     let iterations = match (j.epochs, pixels_of_data) {
         (Some(e), Some(px)) => e as f64 * (px / j.rays.max(1) as f64).ceil(),
@@ -180,6 +182,9 @@ pub fn train_work(j: &TrainJob, size: Option<(u32, u32)>) -> Work {
         // Forward and backward through the network, in units of about
         // 10 000 multiply-adds (a few hundred primitive evaluations).
         Field::Nerf(n) => 3.0 * n.multiply_adds_per_sample() as f64 / 10_000.0,
+        // A distance and its three tangents, forward and backward, at a
+        // surface and a random point per ray of the batch (not per sample).
+        Field::NeuralSdf(n) => 2.0 * 12.0 * n.multiply_adds() as f64 / 10_000.0 / samples.max(1.0),
     };
     let steps = iterations * j.rays as f64 * samples * per_sample;
     let (data_evals, data_bytes) = match &*j.data {
@@ -199,7 +204,9 @@ pub fn train_work(j: &TrainJob, size: Option<(u32, u32)>) -> Work {
             (w.evaluations, w.memory + px * 12.0)
         }
         // Files are checked against their declared sizes when read.
-        Dataset::Files { .. } | Dataset::NerfSynthetic { .. } => (0.0, 0.0),
+        Dataset::Files { .. } | Dataset::NerfSynthetic { .. } | Dataset::Points { .. } => {
+            (0.0, 0.0)
+        }
     };
     let px = pixels((j.width, j.height), size);
     let views = j.views.len() as f64;
@@ -214,6 +221,16 @@ pub fn train_work(j: &TrainJob, size: Option<(u32, u32)>) -> Work {
             + px * 16.0
             + match &*j.model {
                 Field::Sdf(_) => 0.0,
+                // Every layer's values and three tangents, forward and back,
+                // for 2 points a ray; weights with gradient and moments.
+                Field::NeuralSdf(n) => {
+                    j.rays as f64
+                        * 2.0
+                        * 8.0
+                        * 4.0
+                        * ((n.layers + 1) * n.width + 4 * n.encoding_width()) as f64
+                        + 16.0 * n.multiply_adds() as f64
+                }
                 Field::Nerf(n) => {
                     let per_sample = 4
                         * (2 * n.position.width()

@@ -3,3 +3,4 @@
 pub mod image;
 pub mod nerf_synthetic;
 pub mod npy;
+pub mod points;

@@ -157,7 +157,8 @@ pub(crate) fn train_sig() -> BlockSig {
             opt("sampler", SAMPLER, "stratified()", "depth samples along each ray"),
             opt("rays", Type::Number, "4096", "rays per batch"),
             opt("optimizer", OPTIMIZER, "adam()", "the optimizer and its learning-rate schedule"),
-            opt("losses", Type::list(LOSS), "[mse()]", "the weighted terms of the objective"),
+            opt("losses", Type::list(LOSS), "[mse()]", "the weighted terms of the objective (a neural SDF's default: `[surface(), eikonal(weight: 0.02), inter(weight: 0.1)]`)"),
+            opt("bounds", Type::Number, "4", "random points of a distance field's eikonal and inter terms are drawn in [-bounds, bounds]³"),
             opt("iterations", Type::Number, "1000", "optimizer steps (unless `epochs` is given)"),
             opt("epochs", Type::Number, "0", "passes over all training pixels (0: use `iterations`)"),
             opt("seed", Type::Number, "0", "seed of the ray batches and jitter"),
@@ -229,6 +230,48 @@ pub(crate) fn train_block(name: &str, a: &Args) -> Result<TrainJob, Diag> {
         }
         None => return Err(type_error(losses_span, "list of losses", losses_v)),
     };
+    // A distance field learns from points with point terms; the others
+    // from images with image terms.
+    let on_points = matches!(&**model, Field::NeuralSdf(_));
+    let (data_v, data_span) = a.get("data");
+    if on_points != matches!(&**data, Dataset::Points { .. }) {
+        return Err(value_error(
+            data_span,
+            if on_points {
+                "a neural SDF learns from a point cloud"
+            } else {
+                "this model learns from images, not points"
+            },
+            format!("a {}", data_v.type_name()),
+            if on_points {
+                "give `data: points(\"cloud.npz\")`"
+            } else {
+                "render or read views: `render_views(...)`, `views(...)`, `nerf_synthetic(...)`"
+            },
+        ));
+    }
+    // Unless given, a distance field trains on the assignment's three terms.
+    let losses = if on_points && a.get("losses").1 == a.span {
+        vec![
+            Loss { kind: LossKind::Surface, weight: 1.0 },
+            Loss { kind: LossKind::Eikonal, weight: 0.02 },
+            Loss { kind: LossKind::Inter { alpha: 100.0 }, weight: 0.1 },
+        ]
+    } else {
+        losses
+    };
+    if let Some(l) = losses.iter().find(|l| l.kind.on_images() == on_points) {
+        return Err(value_error(
+            losses_span,
+            format!("`{}` does not apply to this model", loss_name(l.kind)),
+            "not a term of this model",
+            if on_points {
+                "a neural SDF trains on `surface()`, `eikonal()` and `inter()`"
+            } else {
+                "a field rendered to images trains on `mse()`"
+            },
+        ));
+    }
     let (backend_name, backend_span) = a.string("backend")?;
     let backend = match &*backend_name {
         "fused" => Backend::Fused,
@@ -311,10 +354,14 @@ pub(crate) fn train_block(name: &str, a: &Args) -> Result<TrainJob, Diag> {
         after,
         checkpoint,
         eval_every: a.count("eval_every", 0, 10_000_000)? as usize,
+        bounds: a.positive("bounds")?,
     })
 }
 
 pub(crate) fn volume_block(name: &str, a: &Args, field: Arc<Field>) -> Result<VolumeJob, Diag> {
+    if matches!(*field, Field::NeuralSdf(_)) {
+        return Err(super::not_a_volume(a.get("scene").1));
+    }
     let (width, height) = image_size(a, "size")?;
     let Value::Sampler(sampler) = a.get("sampler").0 else {
         return Err(type_error(
@@ -345,4 +392,14 @@ pub(crate) fn volume_block(name: &str, a: &Args, field: Arc<Field>) -> Result<Vo
         sampler: *sampler,
         outputs,
     })
+}
+
+/// The built-in that makes a loss term.
+fn loss_name(kind: LossKind) -> &'static str {
+    match kind {
+        LossKind::Mse => "mse",
+        LossKind::Surface => "surface",
+        LossKind::Eikonal => "eikonal",
+        LossKind::Inter { .. } => "inter",
+    }
 }

@@ -955,6 +955,9 @@ fn render_views(a: &Args) -> Result<Value, Diag> {
     );
     let (scene, scene_span) = a.get("scene");
     let data = match scene {
+        Value::Field(field) if matches!(**field, Field::NeuralSdf(_)) => {
+            return Err(not_a_volume(scene_span));
+        }
         Value::Field(field) => {
             refuse(
                 &["material", "background", "near", "far", "iterations"],
@@ -1067,6 +1070,16 @@ fn phong(a: &Args) -> Result<Value, Diag> {
         specular,
         shininess,
     })))
+}
+
+/// A neural SDF is fitted to points; rendering one is not built yet.
+pub(crate) fn not_a_volume(span: Span) -> Diag {
+    value_error(
+        span,
+        "a neural SDF cannot be rendered yet",
+        "a neural SDF",
+        "train it from points: `train { model: neural_sdf(), data: points(...) }` reports how well it fits",
+    )
 }
 
 fn volume_fn(

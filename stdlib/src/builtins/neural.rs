@@ -2,6 +2,7 @@
 //! and `nerf` itself.
 
 use super::*;
+use crate::value::NeuralSdf;
 
 /// Most trainable numbers in a hash grid's tables (1 GiB with gradient and
 /// Adam's moments).
@@ -12,6 +13,98 @@ const MAX_NETWORK_WEIGHTS: usize = 1 << 26;
 
 pub(crate) fn builtins() -> Vec<Builtin> {
     vec![
+        func(
+            "neural_sdf",
+            "A neural signed distance function (IGR; the assignment's part 6): the harmonic encoding of the point, `layers` softplus layers of `width` (the encoding again at the `skips`), a linear distance. Its weights start as the SDF of a sphere of `radius` (geometric initialisation). Trained from a point cloud with `surface()`, `eikonal()` and `inter()` losses; the eikonal term uses the exact input gradient.",
+            vec![
+                opt("encoding", ENCODING, "harmonic(freqs: 4)", "encoding of the point (harmonic)"),
+                opt("layers", Type::Number, "6", "hidden layers"),
+                opt("width", Type::Number, "128", "width of the hidden layers"),
+                opt("skips", Type::list(Type::Number), "[3]", "layers (from 1) that see the encoding again"),
+                opt("beta", Type::Number, "100", "softplus sharpness (> 0): large is close to ReLU, with curvature"),
+                opt("radius", Type::Number, "1", "radius of the sphere the weights start as (> 0)"),
+                opt("seed", Type::Number, "0", "seed of the initial weights"),
+            ],
+            FIELD,
+            |a| {
+                let encoding = match a.get("encoding").0 {
+                    Value::Encoding(Encoding::Harmonic(h)) => *h,
+                    Value::Encoding(Encoding::HashGrid(_)) => {
+                        return Err(value_error(
+                            a.get("encoding").1,
+                            "a neural SDF takes a harmonic encoding",
+                            "a hash grid",
+                            "use `harmonic(freqs: 4)`",
+                        ))
+                    }
+                    other => return Err(type_error(a.get("encoding").1, "encoding", other)),
+                };
+                let layers = a.count("layers", 1, 32)? as usize;
+                let width = a.count("width", 1, 4096)? as usize;
+                if layers * width * width > MAX_NETWORK_WEIGHTS {
+                    return Err(value_error(
+                        a.get("width").1,
+                        format!("{layers} layers of {width} hold about {} weights, more than {MAX_NETWORK_WEIGHTS}", layers * width * width),
+                        "too wide for its depth",
+                        "use fewer or narrower layers",
+                    ));
+                }
+                Ok(Value::Field(Arc::new(Field::NeuralSdf(NeuralSdf {
+                    encoding,
+                    layers,
+                    width,
+                    skips: skip_layers(a, layers)?,
+                    beta: a.positive("beta")?,
+                    radius: a.positive("radius")?,
+                    seed: a.count("seed", 0, u32::MAX as u64)?,
+                }))))
+            },
+        ),
+        func(
+            "points",
+            "A point cloud on a surface, to fit a distance field to: `.npz` (array `verts`), `.npy` (N × 3 float32), `.ply` (ASCII or binary) or `.xyz` text, relative to the scene file.",
+            vec![
+                req("path", Type::Str, "the point file"),
+                opt("every", Type::Number, "1", "keep every `every`-th point (the assignment keeps every 2nd)"),
+                opt("center", Type::Bool, "false", "move the points so their mean is the origin"),
+            ],
+            DATASET,
+            |a| {
+                let (path, span) = a.string("path")?;
+                if path.is_empty() {
+                    return Err(value_error(span, "no point file named", "empty", "name a .npz, .npy, .ply or .xyz file"));
+                }
+                Ok(Value::Dataset(Arc::new(Dataset::Points {
+                    path: std::path::PathBuf::from(&*path),
+                    every: a.count("every", 1, 1_000_000)? as usize,
+                    center: matches!(a.get("center").0, Value::Bool(true)),
+                })))
+            },
+        ),
+        func(
+            "surface",
+            "Mean |f| of a distance field at the data's surface points, times `weight`.",
+            vec![opt("weight", Type::Number, "1", "weight of this term (> 0)")],
+            LOSS,
+            |a| Ok(Value::Loss(Loss { kind: LossKind::Surface, weight: a.positive("weight")? })),
+        ),
+        func(
+            "eikonal",
+            "Mean (‖∇f‖ − 1)² at the surface and the random points, times `weight`: a distance field's gradient has unit length. The gradient is exact (forward-mode tangents), not a finite difference.",
+            vec![opt("weight", Type::Number, "0.02", "weight of this term (> 0)")],
+            LOSS,
+            |a| Ok(Value::Loss(Loss { kind: LossKind::Eikonal, weight: a.positive("weight")? })),
+        ),
+        func(
+            "inter",
+            "Mean exp(−alpha·|f|) at random points, times `weight`: keeps the surface away from where there is no data.",
+            vec![
+                opt("weight", Type::Number, "0.1", "weight of this term (> 0)"),
+                opt("alpha", Type::Number, "100", "sharpness (> 0)"),
+            ],
+            LOSS,
+            |a| Ok(Value::Loss(Loss { kind: LossKind::Inter { alpha: a.positive("alpha")? }, weight: a.positive("weight")? })),
+        ),
         func(
             "harmonic",
             "NeRF's harmonic embedding of a point or direction: `sin(2^k·x)` and `cos(2^k·x)` for `k < freqs`, and `x` itself when `include_input`.",
@@ -128,27 +221,7 @@ pub(crate) fn builtins() -> Vec<Builtin> {
                     other => Err(type_error(a.get(name).1, "encoding", other)),
                 };
                 let layers = a.count("layers", 1, 32)? as usize;
-                let (skips_v, skips_span) = a.get("skips");
-                let mut skips = Vec::new();
-                if let Value::List(items) = skips_v {
-                    for item in items.iter() {
-                        match item {
-                            Value::Number(x) if x.fract() == 0.0 && *x >= 1.0 && (*x as usize) < layers => {
-                                skips.push(*x as usize)
-                            }
-                            _ => {
-                                return Err(value_error(
-                                    skips_span,
-                                    format!("a skip must name a trunk layer from 1 to {}", layers - 1),
-                                    "not a later trunk layer",
-                                    "layer 0 sees the encoding already; e.g. `skips: [3]` for 6 layers",
-                                ))
-                            }
-                        }
-                    }
-                }
-                skips.sort_unstable();
-                skips.dedup();
+                let skips = skip_layers(a, layers)?;
                 let (bg, bg_span) = (a.vec3("background")?, a.get("background").1);
                 let view_dependent = matches!(a.get("view_dependent").0, Value::Bool(true));
                 let direction = if view_dependent { Some(encoding("direction")?) } else { None };
@@ -212,6 +285,32 @@ pub(crate) fn builtins() -> Vec<Builtin> {
             },
         ),
     ]
+}
+
+/// The `skips` argument: distinct later layers (1 ≤ k < layers), sorted.
+fn skip_layers(a: &Args, layers: usize) -> Result<Vec<usize>, Diag> {
+    let (skips_v, skips_span) = a.get("skips");
+    let mut skips = Vec::new();
+    if let Value::List(items) = skips_v {
+        for item in items.iter() {
+            match item {
+                Value::Number(x) if x.fract() == 0.0 && *x >= 1.0 && (*x as usize) < layers => {
+                    skips.push(*x as usize)
+                }
+                _ => {
+                    return Err(value_error(
+                        skips_span,
+                        format!("a skip must name a trunk layer from 1 to {}", layers - 1),
+                        "not a later trunk layer",
+                        "layer 0 sees the encoding already; e.g. `skips: [3]` for 6 layers",
+                    ))
+                }
+            }
+        }
+    }
+    skips.sort_unstable();
+    skips.dedup();
+    Ok(skips)
 }
 
 /// The box of a grid from its `min` and `max` arguments: non-empty on
