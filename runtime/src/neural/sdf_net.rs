@@ -73,8 +73,9 @@ pub struct SdfNet {
     pub beta: f32,
     /// Scalars in the flat parameters (they start at 0).
     pub len: usize,
-    /// The hidden layers without activation: the backward pass forms the
-    /// pre-activation adjoints itself and lets `Dense` do the products.
+    /// The hidden layers without activation: softplus and its slope are
+    /// applied together from one exponential, and the backward pass forms
+    /// the pre-activation adjoints itself; `Dense` does the products.
     linear: Vec<Dense>,
 }
 
@@ -273,6 +274,7 @@ impl SdfNet {
         let SdfWork {
             enc,
             hidden,
+            slope,
             pre_tangent,
             out,
             ..
@@ -290,24 +292,32 @@ impl SdfNet {
                 before[i - 1].split_at(rows * w)
             };
             let zt = &mut pre_tangent[i];
+            // z (bias, no activation) into y, and z'.
+            let lin = &self.linear[i];
             if d.parts.len() == 2 {
-                d.forward(params, &[prev_v, enc_v], y);
+                lin.forward(params, &[prev_v, enc_v], y);
                 linear_part(d, params, &[prev_t, enc_t], zt);
             } else {
-                d.forward(params, &[prev_v], y);
+                lin.forward(params, &[prev_v], y);
                 linear_part(d, params, &[prev_t], zt);
             }
-            // y' = act'(z) ⊙ z', act'(z) from y alone.
-            yt.par_chunks_mut(3 * ROW_BLOCK * w)
-                .zip(y.par_chunks(ROW_BLOCK * w))
+            // y = softplus(z) and s = σ(βz) from one exponential (s kept
+            // for the backward pass), then y' = s ⊙ z'.
+            y.par_chunks_mut(ROW_BLOCK * w)
+                .zip(slope[i].par_chunks_mut(ROW_BLOCK * w))
+                .zip(yt.par_chunks_mut(3 * ROW_BLOCK * w))
                 .zip(zt.par_chunks(3 * ROW_BLOCK * w))
-                .for_each(|((yt, y), zt)| {
-                    for ((yt, y), zt) in yt.chunks_mut(3 * w).zip(y.chunks(w)).zip(zt.chunks(3 * w))
+                .for_each(|(((y, s), yt), zt)| {
+                    for (((y, s), yt), zt) in y
+                        .chunks_mut(w)
+                        .zip(s.chunks_mut(w))
+                        .zip(yt.chunks_mut(3 * w))
+                        .zip(zt.chunks(3 * w))
                     {
-                        for (c, &yv) in y.iter().enumerate() {
-                            let s = softplus_slopes(yv, beta).0;
+                        for c in 0..w {
+                            (y[c], s[c]) = softplus_and_slope(y[c], beta);
                             for j in 0..3 {
-                                yt[j * w + c] = s * zt[j * w + c];
+                                yt[j * w + c] = s[c] * zt[j * w + c];
                             }
                         }
                     }
@@ -346,6 +356,7 @@ impl SdfNet {
         let SdfWork {
             enc,
             hidden,
+            slope,
             pre_tangent,
             out,
             d_out,
@@ -373,7 +384,7 @@ impl SdfNet {
         value_bias(&self.output, d_out, rows, bias_keep, bias_sum, grad);
         for i in (0..self.hidden.len()).rev() {
             let d = &self.linear[i];
-            pull_through_softplus(d_a, &hidden[i][..rows * w], &pre_tangent[i], beta, w);
+            pull_through_softplus(d_a, &slope[i], &pre_tangent[i], beta, w);
             keep(d, grad, bias_keep);
             let y = &hidden[i];
             if i == 0 {
@@ -535,13 +546,18 @@ pub fn eikonal_loss(g: &[f32], weight: f32, d_g: &mut [f32]) -> f64 {
     k * sum
 }
 
-/// `(σ(βz), 1 − σ(βz))` from `y = softplus(z)` alone: `1 − σ(βz) = e^{−βy}`,
-/// and `σ(βz)` through `exp_m1` (exact for tiny `y`); each accurate where
-/// it is small.
+/// `softplus(z) = (max(βz, 0) + ln(1 + e^{−|βz|}))/β` (no overflow, as
+/// [`super::mlp::softplus`]) and its slope `σ(βz)`, from one exponential.
 #[inline(always)]
-fn softplus_slopes(y: f32, beta: f32) -> (f32, f32) {
-    let t = -beta * y;
-    (-t.exp_m1(), t.exp())
+fn softplus_and_slope(z: f32, beta: f32) -> (f32, f32) {
+    let t = beta * z;
+    let e = (-t.abs()).exp();
+    let s = if t >= 0.0 {
+        1.0 / (1.0 + e)
+    } else {
+        e / (1.0 + e)
+    };
+    ((t.max(0.0) + e.ln_1p()) / beta, s)
 }
 
 /// Rows `3r + j` of `out` (rows × 3 tangents × width): `∂enc(x_r)/∂x_j`.
@@ -616,28 +632,30 @@ fn linear_part(d: &Dense, params: &[f32], inputs: &[&[f32]], out: &mut [f32]) {
 /// Turns `[dy; dy']` (the adjoints of a softplus layer's values and
 /// tangents) into `[dz; dz']` in place: with `s = σ(βz)`,
 /// `ds = Σ_j dy'_j ⊙ z'_j`, `dz' = s ⊙ dy'` and
-/// `dz = s ⊙ dy + ds ⊙ act''(z)`, `act'' = β·s·(1 − s)`.
-fn pull_through_softplus(d: &mut [f32], y: &[f32], zt: &[f32], beta: f32, w: usize) {
-    let rows = y.len() / w;
+/// `dz = s ⊙ dy + ds ⊙ act''(z)`, `act'' = β·s·(1 − s)` (where `s → 1`
+/// the rounding of `1 − s` is far below f32's resolution of the largest
+/// `act''`, β/4).
+fn pull_through_softplus(d: &mut [f32], slope: &[f32], zt: &[f32], beta: f32, w: usize) {
+    let rows = slope.len() / w;
     let (dv, dt) = d.split_at_mut(rows * w);
     dv.par_chunks_mut(ROW_BLOCK * w)
         .zip(dt.par_chunks_mut(3 * ROW_BLOCK * w))
-        .zip(y.par_chunks(ROW_BLOCK * w))
+        .zip(slope.par_chunks(ROW_BLOCK * w))
         .zip(zt.par_chunks(3 * ROW_BLOCK * w))
-        .for_each(|(((dv, dt), y), zt)| {
-            for (((dv, dt), y), zt) in dv
+        .for_each(|(((dv, dt), s), zt)| {
+            for (((dv, dt), s), zt) in dv
                 .chunks_mut(w)
                 .zip(dt.chunks_mut(3 * w))
-                .zip(y.chunks(w))
+                .zip(s.chunks(w))
                 .zip(zt.chunks(3 * w))
             {
                 for c in 0..w {
-                    let (s, s_bar) = softplus_slopes(y[c], beta);
+                    let s = s[c];
                     let ds = dt[c] * zt[c] + dt[w + c] * zt[w + c] + dt[2 * w + c] * zt[2 * w + c];
                     for j in 0..3 {
                         dt[j * w + c] *= s;
                     }
-                    dv[c] = s * dv[c] + ds * beta * s * s_bar;
+                    dv[c] = s * dv[c] + ds * beta * s * (1.0 - s);
                 }
             }
         });
@@ -693,6 +711,8 @@ pub struct SdfWork {
     enc: Vec<f32>,
     /// Per hidden layer: values (rows × w) then tangents (3·rows × w).
     hidden: Vec<Vec<f32>>,
+    /// Per hidden layer: the slopes `σ(βz)` (rows × w).
+    slope: Vec<Vec<f32>>,
     /// Per hidden layer: pre-activation tangents `z'` (3·rows × w).
     pre_tangent: Vec<Vec<f32>>,
     /// `f` (rows) then `∇f` (rows × 3).
@@ -711,9 +731,16 @@ impl SdfWork {
         let set = |v: &mut Vec<f32>, n: usize| v.resize(n, 0.0);
         set(&mut self.enc, 4 * rows * e);
         self.hidden.resize_with(l, Vec::new);
+        self.slope.resize_with(l, Vec::new);
         self.pre_tangent.resize_with(l, Vec::new);
-        for (h, t) in self.hidden.iter_mut().zip(&mut self.pre_tangent) {
+        for ((h, s), t) in self
+            .hidden
+            .iter_mut()
+            .zip(&mut self.slope)
+            .zip(&mut self.pre_tangent)
+        {
             set(h, 4 * rows * w);
+            set(s, rows * w);
             set(t, 3 * rows * w);
         }
         set(&mut self.out, 4 * rows);
@@ -735,7 +762,7 @@ impl SdfWork {
     /// Bytes held for `rows` points (for memory estimates).
     pub fn bytes_for(net: &SdfNet, rows: usize) -> u64 {
         let (e, w, l) = (net.encoding.width(), net.width(), net.hidden.len());
-        let per_row = 3 + 4 * e + l * 7 * w + 8 + 8 * w;
+        let per_row = 3 + 4 * e + l * 8 * w + 8 + 8 * w;
         (4 * per_row * rows) as u64
     }
 }
