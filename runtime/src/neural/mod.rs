@@ -12,3 +12,4 @@ pub mod hashgrid;
 pub mod mlp;
 pub mod nerf;
 pub mod occupancy;
+pub mod sdf_net;

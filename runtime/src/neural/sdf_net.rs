@@ -1,0 +1,1249 @@
+//! A neural signed distance function trained with an exact eikonal loss
+//! (Gropp et al., *Implicit Geometric Regularization*, 2020).
+//!
+//! The network maps a harmonic encoding of `x` through softplus layers
+//! (smooth, so `f` has useful second derivatives) to one number, `f(x)`.
+//! The eikonal loss needs `∇f`, and its gradient needs `∂∇f/∂params`: a
+//! second derivative. Both are computed exactly, without a tape:
+//!
+//! - Forward: next to each layer's values `y = act(z)` (rows × width) the
+//!   pass carries three tangents per row, `y' = ∂y/∂x_j` (3·rows × width),
+//!   pushed through as ordinary batched products `z' = x'·W` (no bias), then
+//!   `y' = act'(z) ⊙ z'`. Values and tangents of a layer live in one buffer,
+//!   values first, tangent row `3r + j` for point `r`, direction `j`; the
+//!   output's tangent rows are `∇f` as rows × 3.
+//! - Backward: given `∂L/∂f` and `∂L/∂∇f`, the adjoints of both paths are
+//!   formed per layer (`dz' = s ⊙ dy'`, `ds = Σ_j dy'_j ⊙ z'_j`,
+//!   `dz = s ⊙ dy + ds ⊙ act''(z)`, with `s = act'(z)`), and then one
+//!   [`Dense::backward`] over the stacked 4·rows rows forms
+//!   `∂L/∂W = xᵀ·dz + x'ᵀ·dz'` and `[dx; dx'] = [dz; dz']·Wᵀ` together. The
+//!   bias only ever saw the value rows, so its gradient is put right
+//!   afterwards. Every reduction runs in a fixed order: bit-identical at any
+//!   thread count.
+
+use rayon::prelude::*;
+
+use super::encoding::Harmonic;
+use super::mlp::{Activation, Dense};
+use crate::volume::SplitMix64;
+
+/// Points per parallel block of the elementwise passes and tangent products.
+const ROW_BLOCK: usize = 256;
+/// Columns per parallel block of the bias sums.
+const COL_BLOCK: usize = 16;
+
+/// The shape of an [`SdfNet`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct SdfNetSpec {
+    /// Octaves of the harmonic encoding of the position.
+    pub freqs: usize,
+    /// Whether the raw position follows the sines and cosines (the
+    /// geometric initialisation needs it).
+    pub include_input: bool,
+    /// Hidden softplus layers, each `width` wide.
+    pub layers: usize,
+    pub width: usize,
+    /// Hidden layers (in `1..layers`) whose input has the encoding appended.
+    pub skips: Vec<usize>,
+    /// Softplus sharpness β: large is close to ReLU, still smooth.
+    pub beta: f32,
+}
+
+impl Default for SdfNetSpec {
+    /// IGR's network: 6 × 128, β = 100, the encoding again at layer 3.
+    fn default() -> Self {
+        SdfNetSpec {
+            freqs: 4,
+            include_input: true,
+            layers: 6,
+            width: 128,
+            skips: vec![3],
+            beta: 100.0,
+        }
+    }
+}
+
+/// The network's layers and where each lives in one flat parameter vector.
+#[derive(Debug, Clone)]
+pub struct SdfNet {
+    pub encoding: Harmonic,
+    pub hidden: Vec<Dense>,
+    /// Linear, `width → 1`: the signed distance.
+    pub output: Dense,
+    pub beta: f32,
+    /// Scalars in the flat parameters (they start at 0).
+    pub len: usize,
+    /// The hidden layers without activation: softplus and its slope are
+    /// applied together from one exponential, and the backward pass forms
+    /// the pre-activation adjoints itself; `Dense` does the products.
+    linear: Vec<Dense>,
+}
+
+impl SdfNet {
+    /// Panics on a shape no caller should build (no layers, zero width,
+    /// a skip outside `1..layers`, β not positive).
+    pub fn new(spec: &SdfNetSpec) -> Self {
+        assert!(spec.layers >= 1 && spec.width >= 1, "an empty network");
+        assert!(spec.beta > 0.0 && spec.beta.is_finite(), "softplus β > 0");
+        assert!(
+            spec.skips.iter().all(|&s| (1..spec.layers).contains(&s)),
+            "skips name hidden layers 1..{}",
+            spec.layers
+        );
+        let encoding = Harmonic {
+            dims: 3,
+            freqs: spec.freqs,
+            include_input: spec.include_input,
+        };
+        assert!(encoding.width() > 0, "an empty encoding");
+        let (e, w) = (encoding.width(), spec.width);
+        let act = Activation::Softplus { beta: spec.beta };
+        let mut offset = 0;
+        let mut layer = |parts: &[usize], out: usize, act: Activation| {
+            let d = Dense::new(parts, out, act, offset);
+            offset = d.end();
+            d
+        };
+        let hidden: Vec<Dense> = (0..spec.layers)
+            .map(|i| {
+                if i == 0 {
+                    layer(&[e], w, act)
+                } else if spec.skips.contains(&i) {
+                    layer(&[w, e], w, act)
+                } else {
+                    layer(&[w], w, act)
+                }
+            })
+            .collect();
+        let output = layer(&[w], 1, Activation::Identity);
+        let linear = hidden
+            .iter()
+            .map(|d| Dense {
+                act: Activation::Identity,
+                ..d.clone()
+            })
+            .collect();
+        SdfNet {
+            encoding,
+            hidden,
+            output,
+            beta: spec.beta,
+            len: offset,
+            linear,
+        }
+    }
+
+    pub fn width(&self) -> usize {
+        self.hidden[0].out
+    }
+
+    /// Every layer with a stable name.
+    pub fn layers(&self) -> Vec<(String, &Dense)> {
+        let mut v: Vec<(String, &Dense)> = self
+            .hidden
+            .iter()
+            .enumerate()
+            .map(|(i, d)| (format!("hidden.{i}"), d))
+            .collect();
+        v.push(("output".into(), &self.output));
+        v
+    }
+
+    /// PyTorch's default initialisation, layer by layer from one seed.
+    pub fn init_default(&self, seed: u64) -> Vec<f32> {
+        let mut params = vec![0.0; self.len];
+        let mut rng = SplitMix64::new(seed ^ 0x7364_666E);
+        for (_, d) in self.layers() {
+            d.init(&mut params, &mut rng);
+        }
+        params
+    }
+
+    /// The geometric initialisation of Atzmon & Lipman (SAL), as IGR and
+    /// IDR use it with a positional encoding, so that `f(x) ≈ |x| − radius`:
+    ///
+    /// - hidden weights `N(0, 2/width)`, biases 0: with β large, softplus
+    ///   is nearly ReLU, and a ReLU network with He-scaled Gaussian weights
+    ///   and no biases is positively homogeneous and keeps `‖h(x)‖ ≈ |x|`;
+    /// - layer 0 sees only the raw position: the weights of the sines and
+    ///   cosines are 0 (training opens them);
+    /// - a skip layer's encoding part is 0 as a whole, raw position
+    ///   included: IGR divides the concatenation by √2 to keep its norm,
+    ///   these layers do not, so they start as plain hidden layers;
+    /// - output weights `√π/√width` (± `N(0, 1e-5²)`), bias `−radius`: a
+    ///   rectified `N(0, σ²)` unit has mean `σ/√(2π)`, so
+    ///   `Σ_i h_i·√π/√width ≈ ‖h_prev‖ ≈ |x|`;
+    /// - then the output layer is calibrated (see `calibrate_sphere`).
+    ///
+    /// Panics without `include_input` (no raw position to start from) or
+    /// unless `radius > 0`.
+    pub fn init_geometric(&self, seed: u64, radius: f32) -> Vec<f32> {
+        assert!(
+            self.encoding.include_input,
+            "the geometric initialisation needs the raw position in the encoding"
+        );
+        let mut params = vec![0.0; self.len];
+        let mut rng = SplitMix64::new(seed ^ 0x7361_6C69);
+        let raw = 2 * 3 * self.encoding.freqs;
+        for (i, d) in self.hidden.iter().enumerate() {
+            let n = d.out;
+            let std = (2.0 / n as f64).sqrt();
+            let (w, b) = params[d.offset..d.end()].split_at_mut(d.fan_in() * n);
+            for (row, ws) in w.chunks_mut(n).enumerate() {
+                // Rows of the encoding: layer 0's sin/cos, a skip's whole part.
+                let zero = if i == 0 { row < raw } else { row >= d.parts[0] };
+                for v in ws {
+                    *v = if zero {
+                        0.0
+                    } else {
+                        (std * normal(&mut rng)) as f32
+                    };
+                }
+            }
+            b.fill(0.0);
+        }
+        let d = &self.output;
+        let mean = (std::f64::consts::PI / d.fan_in() as f64).sqrt();
+        let (w, b) = params[d.offset..d.end()].split_at_mut(d.fan_in());
+        for v in w {
+            *v = (mean + 1e-5 * normal(&mut rng)) as f32;
+        }
+        b[0] = 0.0;
+        self.calibrate_sphere(&mut params, radius);
+        params
+    }
+
+    /// SAL's argument holds in expectation over the weights; one draw at
+    /// width 128 leaves `f + r ≈ a + b·|x|` with `b` off by up to ±30 %
+    /// and an offset `a` from softplus at small pre-activations (β·σ(z) is
+    /// only ≈ 4 near `|x| = 0.5`). So the output layer (bias 0 on entry)
+    /// is made affine-exact: `a`, `b` are the least-squares line of `f`
+    /// against `|x|` at 512 points (Fibonacci directions, radii
+    /// `0.5r..1.5r`), then `w ← w/b`, `bias ← −a/b − r`. What remains is
+    /// the draw's variation with direction.
+    fn calibrate_sphere(&self, params: &mut [f32], radius: f32) {
+        assert!(radius > 0.0 && radius.is_finite(), "a sphere of radius > 0");
+        let n = 512;
+        let golden = std::f64::consts::PI * (3.0 - 5f64.sqrt());
+        let mut pts = Vec::with_capacity(3 * n);
+        let mut t = Vec::with_capacity(n);
+        for i in 0..n {
+            let z = 1.0 - (2 * i + 1) as f64 / n as f64;
+            let (rho, phi) = ((1.0 - z * z).sqrt(), golden * i as f64);
+            let r = radius as f64 * (0.5 + (i % 8) as f64 / 7.0);
+            pts.extend([r * rho * phi.cos(), r * rho * phi.sin(), r * z].map(|c| c as f32));
+            t.push(r);
+        }
+        let mut work = SdfWork::default();
+        self.forward(params, &pts, &mut work);
+        let u = work.distance();
+        let nf = n as f64;
+        let (mt, mu) = (
+            t.iter().sum::<f64>() / nf,
+            u.iter().map(|&v| v as f64).sum::<f64>() / nf,
+        );
+        let (mut cov, mut var) = (0.0, 0.0);
+        for (&ti, &ui) in t.iter().zip(u) {
+            cov += (ti - mt) * (ui as f64 - mu);
+            var += (ti - mt) * (ti - mt);
+        }
+        let b = cov / var;
+        let a = mu - b * mt;
+        let d = &self.output;
+        let (w, bias) = params[d.offset..d.end()].split_at_mut(d.fan_in());
+        if !(b > 0.0 && b.is_finite() && a.is_finite()) {
+            // A degenerate draw: leave SAL's output as it is.
+            bias[0] = -radius;
+            return;
+        }
+        for v in w {
+            *v = (*v as f64 / b) as f32;
+        }
+        bias[0] = (-a / b - radius as f64) as f32;
+    }
+
+    /// `f` and `∇f` at `points` (rows of 3): in `work.distance()` and
+    /// `work.gradient()` (rows × 3); the intermediates stay in `work` for
+    /// [`Self::backward`].
+    pub fn forward(&self, params: &[f32], points: &[f32], work: &mut SdfWork) {
+        assert_eq!(params.len(), self.len, "parameters");
+        assert_eq!(points.len() % 3, 0, "rows of 3");
+        let rows = points.len() / 3;
+        work.resize(self, rows);
+        let (e, w, beta) = (self.encoding.width(), self.width(), self.beta);
+        let SdfWork {
+            enc,
+            hidden,
+            slope,
+            pre_tangent,
+            out,
+            ..
+        } = work;
+        let (enc_v, enc_t) = enc.split_at_mut(rows * e);
+        self.encoding.encode(points, enc_v);
+        encode_tangents(&self.encoding, points, enc_t);
+        let (enc_v, enc_t) = (&*enc_v, &*enc_t);
+        for (i, d) in self.hidden.iter().enumerate() {
+            let (before, rest) = hidden.split_at_mut(i);
+            let (y, yt) = rest[0].split_at_mut(rows * w);
+            let (prev_v, prev_t) = if i == 0 {
+                (enc_v, enc_t)
+            } else {
+                before[i - 1].split_at(rows * w)
+            };
+            let zt = &mut pre_tangent[i];
+            // z (bias, no activation) into y, and z'.
+            let lin = &self.linear[i];
+            if d.parts.len() == 2 {
+                lin.forward(params, &[prev_v, enc_v], y);
+                linear_part(d, params, &[prev_t, enc_t], zt);
+            } else {
+                lin.forward(params, &[prev_v], y);
+                linear_part(d, params, &[prev_t], zt);
+            }
+            // y = softplus(z) and s = σ(βz) from one exponential (s kept
+            // for the backward pass), then y' = s ⊙ z'.
+            y.par_chunks_mut(ROW_BLOCK * w)
+                .zip(slope[i].par_chunks_mut(ROW_BLOCK * w))
+                .zip(yt.par_chunks_mut(3 * ROW_BLOCK * w))
+                .zip(zt.par_chunks(3 * ROW_BLOCK * w))
+                .for_each(|(((y, s), yt), zt)| {
+                    for (((y, s), yt), zt) in y
+                        .chunks_mut(w)
+                        .zip(s.chunks_mut(w))
+                        .zip(yt.chunks_mut(3 * w))
+                        .zip(zt.chunks(3 * w))
+                    {
+                        for c in 0..w {
+                            (y[c], s[c]) = softplus_and_slope(y[c], beta);
+                            for j in 0..3 {
+                                yt[j * w + c] = s[c] * zt[j * w + c];
+                            }
+                        }
+                    }
+                });
+        }
+        let (hv, ht) = hidden.last().expect("a hidden layer").split_at(rows * w);
+        let (f, g) = out.split_at_mut(rows);
+        self.output.forward(params, &[hv], f);
+        linear_part(&self.output, params, &[ht], g);
+    }
+
+    /// Adds `∂L/∂params` to `grad` given `∂L/∂f` (rows) and `∂L/∂∇f`
+    /// (rows × 3), after [`Self::forward`] on `work`.
+    pub fn backward(
+        &self,
+        params: &[f32],
+        d_f: &[f32],
+        d_grad: &[f32],
+        work: &mut SdfWork,
+        grad: &mut [f32],
+    ) {
+        let rows = work.rows;
+        assert_eq!((d_f.len(), d_grad.len()), (rows, 3 * rows), "adjoints");
+        work.d_out[..rows].copy_from_slice(d_f);
+        work.d_out[rows..].copy_from_slice(d_grad);
+        self.backward_from_work(params, work, grad);
+    }
+
+    /// The backward pass from the adjoints in `work.d_out`.
+    fn backward_from_work(&self, params: &[f32], work: &mut SdfWork, grad: &mut [f32]) {
+        assert_eq!(grad.len(), self.len, "gradient");
+        let (rows, w, beta) = (work.rows, self.width(), self.beta);
+        if rows == 0 {
+            return;
+        }
+        let SdfWork {
+            enc,
+            hidden,
+            slope,
+            pre_tangent,
+            out,
+            d_out,
+            d_a,
+            d_b,
+            bias_keep,
+            bias_sum,
+            ..
+        } = work;
+        let last = hidden.last().expect("a hidden layer");
+        let keep = |d: &Dense, grad: &[f32], bias_keep: &mut Vec<f32>| {
+            bias_keep.clear();
+            bias_keep.extend_from_slice(&grad[d.offset + d.fan_in() * d.out..d.end()]);
+        };
+        keep(&self.output, grad, bias_keep);
+        self.output.backward(
+            params,
+            &[last.as_slice()],
+            out.as_slice(),
+            d_out,
+            &mut [Some(d_a.as_mut_slice())],
+            false,
+            grad,
+        );
+        value_bias(&self.output, d_out, rows, bias_keep, bias_sum, grad);
+        for i in (0..self.hidden.len()).rev() {
+            let d = &self.linear[i];
+            pull_through_softplus(d_a, &slope[i], &pre_tangent[i], beta, w);
+            keep(d, grad, bias_keep);
+            let y = &hidden[i];
+            if i == 0 {
+                d.backward(params, &[enc.as_slice()], y, d_a, &mut [None], false, grad);
+            } else if d.parts.len() == 2 {
+                let mut d_in = [Some(d_b.as_mut_slice()), None];
+                d.backward(
+                    params,
+                    &[hidden[i - 1].as_slice(), enc.as_slice()],
+                    y,
+                    d_a,
+                    &mut d_in,
+                    false,
+                    grad,
+                );
+            } else {
+                let mut d_in = [Some(d_b.as_mut_slice())];
+                d.backward(
+                    params,
+                    &[hidden[i - 1].as_slice()],
+                    y,
+                    d_a,
+                    &mut d_in,
+                    false,
+                    grad,
+                );
+            }
+            value_bias(d, d_a, rows, bias_keep, bias_sum, grad);
+            std::mem::swap(d_a, d_b);
+        }
+    }
+
+    /// The training loss at `surface` points (on the shape) and `random`
+    /// points (in the volume), both rows of 3:
+    /// `surface·mean|f| + eikonal·mean(‖∇f‖ − 1)² + inter·mean e^{−α|f|}`,
+    /// with the eikonal mean over both sets together and the other two over
+    /// their own set. Overwrites `grad` with `∂L/∂params`.
+    pub fn loss_and_grad(
+        &self,
+        params: &[f32],
+        surface: &[f32],
+        random: &[f32],
+        weights: &SdfLoss,
+        work: &mut SdfWork,
+        grad: &mut [f32],
+    ) -> f64 {
+        assert_eq!(grad.len(), self.len, "gradient");
+        assert!(surface.len() % 3 == 0 && random.len() % 3 == 0, "rows of 3");
+        let ns = surface.len() / 3;
+        // One pass over both sets.
+        let mut points = std::mem::take(&mut work.points);
+        points.clear();
+        points.extend_from_slice(surface);
+        points.extend_from_slice(random);
+        self.forward(params, &points, work);
+        work.points = points;
+        let rows = work.rows;
+        let (f, g) = work.out.split_at(rows);
+        let (d_f, d_g) = work.d_out.split_at_mut(rows);
+        let (d_fs, d_fr) = d_f.split_at_mut(ns);
+        let loss = surface_loss(&f[..ns], weights.surface, d_fs)
+            + off_surface_loss(&f[ns..], weights.inter, weights.alpha, d_fr)
+            + eikonal_loss(g, weights.eikonal, d_g);
+        grad.fill(0.0);
+        self.backward_from_work(params, work, grad);
+        loss
+    }
+}
+
+/// The weights of [`SdfNet::loss_and_grad`]'s terms.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SdfLoss {
+    pub surface: f32,
+    pub eikonal: f32,
+    /// Of the off-surface term `e^{−α|f|}`, which keeps `f` away from 0
+    /// off the shape.
+    pub inter: f32,
+    pub alpha: f32,
+}
+
+impl Default for SdfLoss {
+    fn default() -> Self {
+        SdfLoss {
+            surface: 1.0,
+            eikonal: 0.02,
+            inter: 0.1,
+            alpha: 100.0,
+        }
+    }
+}
+
+/// Saturates at the f32 range: a finite loss gives finite adjoints.
+fn to_f32(x: f64) -> f32 {
+    x.clamp(-f32::MAX as f64, f32::MAX as f64) as f32
+}
+
+fn sign(x: f64) -> f64 {
+    if x > 0.0 {
+        1.0
+    } else if x < 0.0 {
+        -1.0
+    } else {
+        0.0
+    }
+}
+
+/// `weight·mean|f|`; writes `∂/∂f = weight·sign(f)/n` (0 at `f = 0`).
+pub fn surface_loss(f: &[f32], weight: f32, d_f: &mut [f32]) -> f64 {
+    assert_eq!(f.len(), d_f.len());
+    let n = f.len().max(1) as f64;
+    let k = weight as f64 / n;
+    let mut sum = 0.0;
+    for (d, &v) in d_f.iter_mut().zip(f) {
+        sum += (v as f64).abs();
+        *d = to_f32(k * sign(v as f64));
+    }
+    k * sum
+}
+
+/// `weight·mean e^{−α|f|}`; writes `∂/∂f = −α·sign(f)·e^{−α|f|}·weight/n`.
+pub fn off_surface_loss(f: &[f32], weight: f32, alpha: f32, d_f: &mut [f32]) -> f64 {
+    assert_eq!(f.len(), d_f.len());
+    let n = f.len().max(1) as f64;
+    let (k, a) = (weight as f64 / n, alpha as f64);
+    let mut sum = 0.0;
+    for (d, &v) in d_f.iter_mut().zip(f) {
+        let v = v as f64;
+        let e = (-a * v.abs()).exp();
+        sum += e;
+        *d = to_f32(-k * a * sign(v) * e);
+    }
+    k * sum
+}
+
+/// `weight·mean(‖g‖ − 1)²` over rows of 3; writes
+/// `∂/∂g = 2·(‖g‖ − 1)·g/‖g‖·weight/n`. Norms in f64, so no f32 input
+/// overflows. At `g = 0` the direction is undefined and the adjoint is 0:
+/// the least-norm element of the Clarke subdifferential there (the ball of
+/// radius 2); the loss is still 1 per row.
+pub fn eikonal_loss(g: &[f32], weight: f32, d_g: &mut [f32]) -> f64 {
+    assert_eq!(g.len(), d_g.len());
+    assert_eq!(g.len() % 3, 0, "rows of 3");
+    let n = (g.len() / 3).max(1) as f64;
+    let k = weight as f64 / n;
+    let mut sum = 0.0;
+    for (d, g) in d_g.chunks_mut(3).zip(g.chunks(3)) {
+        let v = [g[0] as f64, g[1] as f64, g[2] as f64];
+        let norm = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+        sum += (norm - 1.0) * (norm - 1.0);
+        let scale = if norm > 0.0 {
+            2.0 * k * (1.0 - 1.0 / norm)
+        } else {
+            0.0
+        };
+        for (d, v) in d.iter_mut().zip(v) {
+            *d = to_f32(scale * v);
+        }
+    }
+    k * sum
+}
+
+/// `softplus(z) = (max(βz, 0) + ln(1 + e^{−|βz|}))/β` (no overflow, as
+/// [`super::mlp::softplus`]) and its slope `σ(βz)`, from one exponential.
+#[inline(always)]
+fn softplus_and_slope(z: f32, beta: f32) -> (f32, f32) {
+    let t = beta * z;
+    let e = (-t.abs()).exp();
+    let s = if t >= 0.0 {
+        1.0 / (1.0 + e)
+    } else {
+        e / (1.0 + e)
+    };
+    ((t.max(0.0) + e.ln_1p()) / beta, s)
+}
+
+/// Rows `3r + j` of `out` (rows × 3 tangents × width): `∂enc(x_r)/∂x_j`.
+/// Only the features of `x_j` move: `2^k cos`, `−2^k sin`, and 1 for the
+/// raw input.
+fn encode_tangents(h: &Harmonic, points: &[f32], out: &mut [f32]) {
+    let (f, e) = (h.freqs, h.width());
+    assert_eq!(out.len(), points.len() * e);
+    out.par_chunks_mut(ROW_BLOCK * 3 * e)
+        .zip(points.par_chunks(ROW_BLOCK * 3))
+        .for_each(|(o, p)| {
+            for (rows, x) in o.chunks_mut(3 * e).zip(p.chunks(3)) {
+                rows.fill(0.0);
+                for (j, row) in rows.chunks_mut(e).enumerate() {
+                    let mut scale = 1.0f32;
+                    for k in 0..f {
+                        let (s, c) = (x[j] * scale).sin_cos();
+                        row[j * f + k] = scale * c;
+                        row[3 * f + j * f + k] = -scale * s;
+                        scale *= 2.0;
+                    }
+                    if h.include_input {
+                        row[6 * f + j] = 1.0;
+                    }
+                }
+            }
+        });
+}
+
+/// `out = Σ_p x_p·W_p`: a layer without bias or activation, the pushforward
+/// of tangents. Per block of rows, like [`Dense::forward`].
+fn linear_part(d: &Dense, params: &[f32], inputs: &[&[f32]], out: &mut [f32]) {
+    let n = d.out;
+    let rows = out.len() / n;
+    assert_eq!(inputs.len(), d.parts.len());
+    for (x, &k) in inputs.iter().zip(&d.parts) {
+        assert_eq!(x.len(), rows * k, "input part of width {k}");
+    }
+    let w = &params[d.offset..d.offset + d.fan_in() * n];
+    out.par_chunks_mut(ROW_BLOCK * n)
+        .enumerate()
+        .for_each(|(blk, y)| {
+            let r0 = blk * ROW_BLOCK;
+            let m = y.len() / n;
+            let mut w_row = 0;
+            for (p, (&k, x)) in d.parts.iter().zip(inputs).enumerate() {
+                // SAFETY: x holds rows × k (checked), w rows w_row..w_row+k
+                // of n columns, y m × n; all row-major.
+                unsafe {
+                    matrixmultiply::sgemm(
+                        m,
+                        k,
+                        n,
+                        1.0,
+                        x[r0 * k..].as_ptr(),
+                        k as isize,
+                        1,
+                        w[w_row * n..].as_ptr(),
+                        n as isize,
+                        1,
+                        if p == 0 { 0.0 } else { 1.0 },
+                        y.as_mut_ptr(),
+                        n as isize,
+                        1,
+                    );
+                }
+                w_row += k;
+            }
+        });
+}
+
+/// Turns `[dy; dy']` (the adjoints of a softplus layer's values and
+/// tangents) into `[dz; dz']` in place: with `s = σ(βz)`,
+/// `ds = Σ_j dy'_j ⊙ z'_j`, `dz' = s ⊙ dy'` and
+/// `dz = s ⊙ dy + ds ⊙ act''(z)`, `act'' = β·s·(1 − s)` (where `s → 1`
+/// the rounding of `1 − s` is far below f32's resolution of the largest
+/// `act''`, β/4).
+fn pull_through_softplus(d: &mut [f32], slope: &[f32], zt: &[f32], beta: f32, w: usize) {
+    let rows = slope.len() / w;
+    let (dv, dt) = d.split_at_mut(rows * w);
+    dv.par_chunks_mut(ROW_BLOCK * w)
+        .zip(dt.par_chunks_mut(3 * ROW_BLOCK * w))
+        .zip(slope.par_chunks(ROW_BLOCK * w))
+        .zip(zt.par_chunks(3 * ROW_BLOCK * w))
+        .for_each(|(((dv, dt), s), zt)| {
+            for (((dv, dt), s), zt) in dv
+                .chunks_mut(w)
+                .zip(dt.chunks_mut(3 * w))
+                .zip(s.chunks(w))
+                .zip(zt.chunks(3 * w))
+            {
+                for c in 0..w {
+                    let s = s[c];
+                    let ds = dt[c] * zt[c] + dt[w + c] * zt[w + c] + dt[2 * w + c] * zt[2 * w + c];
+                    for j in 0..3 {
+                        dt[j * w + c] *= s;
+                    }
+                    dv[c] = s * dv[c] + ds * beta * s * (1.0 - s);
+                }
+            }
+        });
+}
+
+/// [`Dense::backward`] over the stacked rows added the tangent rows' `dz'`
+/// to `∂L/∂b` too; the bias reaches only the values: `∂L/∂b` becomes what
+/// it held before (`keep`) plus the sum of the value rows' `dz` (in f64,
+/// rows in order, per block of columns).
+fn value_bias(
+    d: &Dense,
+    dz: &[f32],
+    rows: usize,
+    keep: &[f32],
+    sums: &mut Vec<f64>,
+    grad: &mut [f32],
+) {
+    let n = d.out;
+    sums.clear();
+    sums.resize(n, 0.0);
+    sums.par_chunks_mut(COL_BLOCK)
+        .enumerate()
+        .for_each(|(blk, s)| {
+            let c0 = blk * COL_BLOCK;
+            for r in dz[..rows * n].chunks(n) {
+                for (s, &v) in s.iter_mut().zip(&r[c0..]) {
+                    *s += v as f64;
+                }
+            }
+        });
+    let gb = &mut grad[d.offset + d.fan_in() * n..d.end()];
+    for ((g, &k), &s) in gb.iter_mut().zip(keep).zip(sums.iter()) {
+        *g = k + s as f32;
+    }
+}
+
+/// A standard normal sample (Box–Muller).
+fn normal(rng: &mut SplitMix64) -> f64 {
+    let unit = |rng: &mut SplitMix64| (rng.next_u64() >> 11) as f64 / (1u64 << 53) as f64;
+    let u = 1.0 - unit(rng); // in (0, 1]: ln stays finite
+    let v = unit(rng);
+    (-2.0 * u.ln()).sqrt() * (std::f64::consts::TAU * v).cos()
+}
+
+/// Buffers of a forward and backward pass, grown to the largest batch seen
+/// (no allocation once grown).
+#[derive(Debug, Default)]
+pub struct SdfWork {
+    rows: usize,
+    /// Both point sets of a loss, one after the other.
+    points: Vec<f32>,
+    /// Values (rows × e) then tangents (3·rows × e) of the encoding.
+    enc: Vec<f32>,
+    /// Per hidden layer: values (rows × w) then tangents (3·rows × w).
+    hidden: Vec<Vec<f32>>,
+    /// Per hidden layer: the slopes `σ(βz)` (rows × w).
+    slope: Vec<Vec<f32>>,
+    /// Per hidden layer: pre-activation tangents `z'` (3·rows × w).
+    pre_tangent: Vec<Vec<f32>>,
+    /// `f` (rows) then `∇f` (rows × 3).
+    out: Vec<f32>,
+    d_out: Vec<f32>,
+    d_a: Vec<f32>,
+    d_b: Vec<f32>,
+    bias_keep: Vec<f32>,
+    bias_sum: Vec<f64>,
+}
+
+impl SdfWork {
+    fn resize(&mut self, net: &SdfNet, rows: usize) {
+        let (e, w, l) = (net.encoding.width(), net.width(), net.hidden.len());
+        self.rows = rows;
+        let set = |v: &mut Vec<f32>, n: usize| v.resize(n, 0.0);
+        set(&mut self.enc, 4 * rows * e);
+        self.hidden.resize_with(l, Vec::new);
+        self.slope.resize_with(l, Vec::new);
+        self.pre_tangent.resize_with(l, Vec::new);
+        for ((h, s), t) in self
+            .hidden
+            .iter_mut()
+            .zip(&mut self.slope)
+            .zip(&mut self.pre_tangent)
+        {
+            set(h, 4 * rows * w);
+            set(s, rows * w);
+            set(t, 3 * rows * w);
+        }
+        set(&mut self.out, 4 * rows);
+        set(&mut self.d_out, 4 * rows);
+        set(&mut self.d_a, 4 * rows * w);
+        set(&mut self.d_b, 4 * rows * w);
+    }
+
+    /// `f` at the points of the last forward pass.
+    pub fn distance(&self) -> &[f32] {
+        &self.out[..self.rows]
+    }
+
+    /// `∇f` (rows × 3) at the points of the last forward pass.
+    pub fn gradient(&self) -> &[f32] {
+        &self.out[self.rows..4 * self.rows]
+    }
+
+    /// Bytes held for `rows` points (for memory estimates).
+    pub fn bytes_for(net: &SdfNet, rows: usize) -> u64 {
+        let (e, w, l) = (net.encoding.width(), net.width(), net.hidden.len());
+        let per_row = 3 + 4 * e + l * 8 * w + 8 + 8 * w;
+        (4 * per_row * rows) as u64
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn small(beta: f32) -> SdfNetSpec {
+        SdfNetSpec {
+            freqs: 2,
+            include_input: true,
+            layers: 3,
+            width: 12,
+            skips: vec![2],
+            beta,
+        }
+    }
+
+    fn points(n: usize, scale: f32, rng: &mut SplitMix64) -> Vec<f32> {
+        (0..3 * n)
+            .map(|_| scale * (2.0 * rng.next_f32() - 1.0))
+            .collect()
+    }
+
+    fn to64(v: &[f32]) -> Vec<f64> {
+        v.iter().map(|&x| x as f64).collect()
+    }
+
+    fn softplus64(z: f64, beta: f64) -> f64 {
+        let x = beta * z;
+        (x.max(0.0) + (-x.abs()).exp().ln_1p()) / beta
+    }
+
+    /// `f` and `∇f` at one point in f64, from the definitions: the encoding
+    /// and its Jacobian written out, each layer's tangents by the chain rule.
+    fn reference(net: &SdfNet, params: &[f64], x: [f64; 3]) -> (f64, [f64; 3]) {
+        let h = net.encoding;
+        let (f, e) = (h.freqs, h.width());
+        let mut enc = vec![0.0; e];
+        let mut jac = vec![[0.0; 3]; e];
+        for i in 0..3 {
+            for k in 0..f {
+                let s = 2f64.powi(k as i32);
+                enc[i * f + k] = (s * x[i]).sin();
+                jac[i * f + k][i] = s * (s * x[i]).cos();
+                enc[3 * f + i * f + k] = (s * x[i]).cos();
+                jac[3 * f + i * f + k][i] = -s * (s * x[i]).sin();
+            }
+            if h.include_input {
+                enc[6 * f + i] = x[i];
+                jac[6 * f + i][i] = 1.0;
+            }
+        }
+        let beta = net.beta as f64;
+        let layer = |d: &Dense, v: &[f64], t: &[[f64; 3]], smooth: bool| {
+            let (k, n) = (d.fan_in(), d.out);
+            assert_eq!(v.len(), k);
+            let mut nv = vec![0.0; n];
+            let mut nt = vec![[0.0; 3]; n];
+            for j in 0..n {
+                let mut z = params[d.offset + k * n + j];
+                let mut zt = [0.0; 3];
+                for i in 0..k {
+                    let w = params[d.offset + i * n + j];
+                    z += v[i] * w;
+                    for a in 0..3 {
+                        zt[a] += t[i][a] * w;
+                    }
+                }
+                let s = if smooth {
+                    1.0 / (1.0 + (-beta * z).exp())
+                } else {
+                    1.0
+                };
+                nv[j] = if smooth { softplus64(z, beta) } else { z };
+                for a in 0..3 {
+                    nt[j][a] = s * zt[a];
+                }
+            }
+            (nv, nt)
+        };
+        let (mut v, mut t) = (enc.clone(), jac.clone());
+        for d in &net.hidden {
+            if d.parts.len() == 2 {
+                v.extend_from_slice(&enc);
+                t.extend_from_slice(&jac);
+            }
+            (v, t) = layer(d, &v, &t, true);
+        }
+        let (o, ot) = layer(&net.output, &v, &t, false);
+        (o[0], ot[0])
+    }
+
+    fn at(p: &[f32]) -> [f64; 3] {
+        [p[0] as f64, p[1] as f64, p[2] as f64]
+    }
+
+    /// The loss of [`SdfNet::loss_and_grad`] in f64 through [`reference`].
+    fn reference_loss(
+        net: &SdfNet,
+        params: &[f64],
+        surface: &[f32],
+        random: &[f32],
+        w: &SdfLoss,
+    ) -> f64 {
+        let eval = |pts: &[f32]| -> Vec<(f64, [f64; 3])> {
+            pts.chunks(3)
+                .map(|p| reference(net, params, at(p)))
+                .collect()
+        };
+        let (s, r) = (eval(surface), eval(random));
+        let (ns, nr) = (s.len() as f64, r.len() as f64);
+        let eik = s
+            .iter()
+            .chain(&r)
+            .map(|(_, g)| ((g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt() - 1.0).powi(2))
+            .sum::<f64>()
+            / (ns + nr);
+        let alpha = w.alpha as f64;
+        w.surface as f64 * s.iter().map(|(f, _)| f.abs()).sum::<f64>() / ns
+            + w.inter as f64 * r.iter().map(|(f, _)| (-alpha * f.abs()).exp()).sum::<f64>() / nr
+            + w.eikonal as f64 * eik
+    }
+
+    /// Specs and initial parameters covering the paths: skips, no raw
+    /// input, two skips, both initialisations.
+    fn cases() -> Vec<(SdfNet, Vec<f32>)> {
+        let mut v = Vec::new();
+        for spec in [
+            small(100.0),
+            SdfNetSpec {
+                include_input: false,
+                skips: vec![1, 2],
+                ..small(30.0)
+            },
+            SdfNetSpec::default(),
+        ] {
+            let net = SdfNet::new(&spec);
+            v.push((net.clone(), net.init_default(3)));
+            if spec.include_input {
+                v.push((net.clone(), net.init_geometric(4, 0.5)));
+            }
+        }
+        v
+    }
+
+    #[test]
+    fn forward_matches_f64_reference() {
+        let mut rng = SplitMix64::new(1);
+        for (net, params) in cases() {
+            // More points than a block, not a multiple of it.
+            let rows = if net.width() > 32 { 300 } else { 600 };
+            let pts = points(rows, 1.0, &mut rng);
+            let mut work = SdfWork::default();
+            net.forward(&params, &pts, &mut work);
+            let p64 = to64(&params);
+            let close = |a: f32, b: f64| (a as f64 - b).abs() <= 1e-4 * (1.0 + b.abs());
+            for (r, p) in pts.chunks(3).enumerate() {
+                let (f, g) = reference(&net, &p64, at(p));
+                let got = work.distance()[r];
+                assert!(close(got, f), "{:?} f at {p:?}: {got} vs {f}", net.encoding);
+                for j in 0..3 {
+                    let got = work.gradient()[3 * r + j];
+                    assert!(close(got, g[j]), "∇f_{j} at {p:?}: {got} vs {}", g[j]);
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn input_gradient_matches_central_differences() {
+        let mut rng = SplitMix64::new(2);
+        for (net, params) in cases() {
+            let pts = points(60, 1.0, &mut rng);
+            let mut work = SdfWork::default();
+            net.forward(&params, &pts, &mut work);
+            let p64 = to64(&params);
+            for (r, p) in pts.chunks(3).enumerate() {
+                for j in 0..3 {
+                    let h = 1e-5;
+                    let (mut up, mut down) = (at(p), at(p));
+                    up[j] += h;
+                    down[j] -= h;
+                    let fd =
+                        (reference(&net, &p64, up).0 - reference(&net, &p64, down).0) / (2.0 * h);
+                    let got = work.gradient()[3 * r + j] as f64;
+                    assert!(
+                        (got - fd).abs() <= 1e-3 * (1.0 + fd.abs()),
+                        "∂f/∂x_{j} at {p:?}: {got} vs {fd}"
+                    );
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn encoding_tangents_are_the_transpose_of_its_backward() {
+        let h = Harmonic {
+            dims: 3,
+            freqs: 4,
+            include_input: true,
+        };
+        let e = h.width();
+        let mut rng = SplitMix64::new(3);
+        let pts = points(5, 2.0, &mut rng);
+        let g = points(5 * e, 1.0, &mut rng);
+        let mut tangents = vec![f32::NAN; 5 * 3 * e];
+        encode_tangents(&h, &pts, &mut tangents);
+        let mut dx = vec![0.0; 15];
+        h.backward(&pts, &g[..5 * e], &mut dx);
+        for r in 0..5 {
+            for j in 0..3 {
+                let row = &tangents[(3 * r + j) * e..(3 * r + j + 1) * e];
+                let jg: f32 = row.iter().zip(&g[r * e..]).map(|(a, b)| a * b).sum();
+                assert!(
+                    (jg - dx[3 * r + j]).abs() < 1e-5,
+                    "{jg} vs {}",
+                    dx[3 * r + j]
+                );
+            }
+        }
+    }
+
+    /// The loss's gradient is a second derivative (of `∇f`); checked for
+    /// every parameter against central differences of the f64 loss.
+    #[test]
+    fn loss_gradient_matches_finite_differences() {
+        let eikonal_only = SdfLoss {
+            surface: 0.0,
+            eikonal: 1.0,
+            inter: 0.0,
+            ..SdfLoss::default()
+        };
+        let strong_inter = SdfLoss {
+            inter: 1.0,
+            alpha: 5.0,
+            ..SdfLoss::default()
+        };
+        let nets = [small(100.0), small(10.0)].map(|s| SdfNet::new(&s));
+        let two_skips = SdfNet::new(&SdfNetSpec {
+            skips: vec![1, 2],
+            ..small(20.0)
+        });
+        let cases = [
+            (&nets[0], nets[0].init_default(5), SdfLoss::default()),
+            (&nets[1], nets[1].init_geometric(5, 0.5), strong_inter),
+            (&nets[1], nets[1].init_default(6), eikonal_only),
+            (&two_skips, two_skips.init_default(7), eikonal_only),
+        ];
+        let mut rng = SplitMix64::new(4);
+        for (case, (net, params, weights)) in cases.into_iter().enumerate() {
+            let surface = points(20, 0.8, &mut rng);
+            let random = points(20, 1.0, &mut rng);
+            let mut work = SdfWork::default();
+            let mut grad = vec![f32::NAN; net.len];
+            let loss =
+                net.loss_and_grad(&params, &surface, &random, &weights, &mut work, &mut grad);
+            let p64 = to64(&params);
+            let want = reference_loss(net, &p64, &surface, &random, &weights);
+            assert!((loss - want).abs() < 1e-4 * want.abs(), "{loss} vs {want}");
+            let fd: Vec<f64> = (0..net.len)
+                .map(|i| {
+                    let h = 1e-6;
+                    let mut p = p64.clone();
+                    p[i] += h;
+                    let up = reference_loss(net, &p, &surface, &random, &weights);
+                    p[i] -= 2.0 * h;
+                    let down = reference_loss(net, &p, &surface, &random, &weights);
+                    (up - down) / (2.0 * h)
+                })
+                .collect();
+            let max = fd.iter().fold(0f64, |m, v| m.max(v.abs()));
+            let mut worst = 0f64;
+            for (name, d) in net.layers() {
+                for i in d.offset..d.end() {
+                    let err = (grad[i] as f64 - fd[i]).abs();
+                    worst = worst.max(err / (fd[i].abs() + 1e-4 * max));
+                    assert!(
+                        err <= 1e-2 * fd[i].abs() + 1e-5 * max,
+                        "case {case}, {name} param {i}: {} vs {}",
+                        grad[i],
+                        fd[i]
+                    );
+                }
+            }
+            println!("case {case}: worst relative error {worst:.1e}");
+            if weights.surface == 0.0 && weights.inter == 0.0 {
+                // ∇f reaches a hidden bias only through act'' (the slope
+                // s(z) depends on it, the tangents z' do not), so these
+                // gradients are wholly the act'' term: a wrong act'' fails
+                // them. Make sure they are large enough to matter.
+                for d in &net.hidden {
+                    let bias = &fd[d.offset + d.fan_in() * d.out..d.end()];
+                    let big = bias.iter().filter(|v| v.abs() > 1e-2 * max).count();
+                    assert!(
+                        big * 3 >= bias.len(),
+                        "case {case}: {big} of {}",
+                        bias.len()
+                    );
+                }
+                // and not at all the output's bias.
+                assert_eq!(grad[net.output.end() - 1], 0.0);
+            }
+        }
+    }
+
+    #[test]
+    fn losses_are_finite_at_zero_and_huge_values() {
+        let g = [
+            0.0,
+            0.0,
+            0.0,
+            1e30,
+            -1e30,
+            1e30,
+            f32::MAX,
+            f32::MAX,
+            -f32::MAX,
+            0.6,
+            0.8,
+            0.0,
+        ];
+        let mut d = [f32::NAN; 12];
+        let loss = eikonal_loss(&g, 1.0, &mut d);
+        assert!(loss.is_finite() && loss >= 0.25, "{loss}");
+        assert!(d.iter().all(|v| v.is_finite()), "{d:?}");
+        assert_eq!(&d[..3], &[0.0; 3]);
+        assert!(d[9..].iter().all(|v| v.abs() < 1e-6), "{d:?}");
+        let f = [0.0, 1e-30, -1e30, f32::MAX, -f32::MAX, f32::MIN_POSITIVE];
+        let mut d = [f32::NAN; 6];
+        assert!(surface_loss(&f, 1.0, &mut d).is_finite());
+        assert!(d.iter().all(|v| v.is_finite()) && d[0] == 0.0);
+        let mut d = [f32::NAN; 6];
+        assert!(off_surface_loss(&f, 1.0, 100.0, &mut d).is_finite());
+        assert!(d.iter().all(|v| v.is_finite()) && d[0] == 0.0);
+        // A whole step at far and tiny points.
+        let net = SdfNet::new(&small(100.0));
+        let params = net.init_geometric(1, 0.5);
+        let surface = [1e30, -1e30, 1e30, 0.0, 0.0, 0.0, 1e-30, 0.0, -1e-30];
+        let random = [-1e30, 0.0, 1e20, 0.5, 0.0, 0.0];
+        let mut work = SdfWork::default();
+        let mut grad = vec![f32::NAN; net.len];
+        let loss = net.loss_and_grad(
+            &params,
+            &surface,
+            &random,
+            &SdfLoss::default(),
+            &mut work,
+            &mut grad,
+        );
+        assert!(loss.is_finite(), "{loss}");
+        assert!(grad.iter().all(|v| v.is_finite()));
+        // Empty batches are no loss at all.
+        let loss = net.loss_and_grad(&params, &[], &[], &SdfLoss::default(), &mut work, &mut grad);
+        assert_eq!(loss, 0.0);
+        assert!(grad.iter().all(|&v| v == 0.0));
+    }
+
+    #[test]
+    fn identical_at_one_and_two_threads() {
+        let net = SdfNet::new(&SdfNetSpec {
+            freqs: 3,
+            layers: 4,
+            width: 40,
+            skips: vec![2],
+            ..SdfNetSpec::default()
+        });
+        let params = net.init_default(8);
+        let mut rng = SplitMix64::new(5);
+        let (surface, random) = (points(700, 0.8, &mut rng), points(650, 1.0, &mut rng));
+        let (big_s, big_r) = (points(900, 0.8, &mut rng), points(900, 1.0, &mut rng));
+        let run = |threads: usize, warm: bool| {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap();
+            pool.install(|| {
+                let mut work = SdfWork::default();
+                let mut grad = vec![0.0; net.len];
+                let w = SdfLoss::default();
+                if warm {
+                    // A reused work that held a larger batch leaves no trace.
+                    net.loss_and_grad(&params, &big_s, &big_r, &w, &mut work, &mut grad);
+                }
+                let loss = net.loss_and_grad(&params, &surface, &random, &w, &mut work, &mut grad);
+                let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+                (
+                    loss.to_bits(),
+                    bits(&grad),
+                    bits(work.distance()),
+                    bits(work.gradient()),
+                )
+            })
+        };
+        let one = run(1, false);
+        assert_eq!(one, run(2, false));
+        assert_eq!(one, run(2, true));
+    }
+
+    /// Points in uniform directions at radii `r0..r1`.
+    pub(super) fn shell(n: usize, r0: f32, r1: f32, rng: &mut SplitMix64) -> Vec<f32> {
+        let mut v = Vec::with_capacity(3 * n);
+        for _ in 0..n {
+            let d = [normal(rng), normal(rng), normal(rng)];
+            let len = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+            let r = (r0 + (r1 - r0) * rng.next_f32()) as f64;
+            v.extend(d.iter().map(|c| (c / len * r) as f32));
+        }
+        v
+    }
+
+    #[test]
+    fn geometric_init_is_close_to_a_sphere() {
+        let net = SdfNet::new(&SdfNetSpec::default());
+        let radius = 0.5;
+        let pts = shell(2000, 0.3, 0.7, &mut SplitMix64::new(6));
+        // Over the shell: mean and largest |f − (|x| − r)|, mean |‖∇f‖ − 1|,
+        // mean 1 − cos(∇f, x), and the share of points farther than 0.15
+        // from the sphere on the wrong side of f's zero set.
+        let errors = |params: &[f32]| {
+            let mut work = SdfWork::default();
+            net.forward(params, &pts, &mut work);
+            let mut e = [0f32; 5];
+            for (r, p) in pts.chunks(3).enumerate() {
+                let len = (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
+                let g = &work.gradient()[3 * r..3 * r + 3];
+                let gl = (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt();
+                let cos = (g[0] * p[0] + g[1] * p[1] + g[2] * p[2]) / (gl * len);
+                let (f, want) = (work.distance()[r], len - radius);
+                e[0] += (f - want).abs();
+                e[1] = e[1].max((f - want).abs());
+                e[2] += (gl - 1.0).abs();
+                e[3] += 1.0 - cos;
+                e[4] += (want.abs() > 0.15 && f * want <= 0.0) as u8 as f32;
+            }
+            let n = (pts.len() / 3) as f32;
+            [e[0] / n, e[1], e[2] / n, e[3] / n, e[4] / n]
+        };
+        for seed in 0..4 {
+            let e = errors(&net.init_geometric(seed, radius));
+            println!("geometric init, seed {seed}: {e:?}");
+            assert!(
+                e[0] < 0.12 && e[1] < 0.5 && e[2] < 0.35 && e[3] < 0.12 && e[4] < 0.05,
+                "seed {seed}: {e:?}"
+            );
+        }
+        let e = errors(&net.init_default(0));
+        println!("default init: {e:?}");
+        assert!(e[2] > 0.5 && e[3] > 0.5, "{e:?}");
+    }
+
+    /// Not a benchmark (no timed asserts): run with `--nocapture` to see it.
+    #[test]
+    fn time_a_step_of_the_default_network() {
+        let net = SdfNet::new(&SdfNetSpec::default());
+        let params = net.init_geometric(1, 0.5);
+        let mut rng = SplitMix64::new(9);
+        let surface = shell(4096, 0.5, 0.5, &mut rng);
+        let random = points(4096, 1.0, &mut rng);
+        for threads in [1, 2] {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap();
+            pool.install(|| {
+                let mut work = SdfWork::default();
+                let mut grad = vec![0.0; net.len];
+                let w = SdfLoss::default();
+                net.loss_and_grad(&params, &surface, &random, &w, &mut work, &mut grad);
+                let mut best = f64::INFINITY;
+                for _ in 0..3 {
+                    let t = std::time::Instant::now();
+                    net.loss_and_grad(&params, &surface, &random, &w, &mut work, &mut grad);
+                    best = best.min(t.elapsed().as_secs_f64());
+                }
+                println!(
+                    "sdf_net loss_and_grad, 4096 + 4096 points, 6 × 128, {threads} thread(s): {:.1} ms",
+                    best * 1e3
+                );
+            });
+        }
+    }
+}
