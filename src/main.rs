@@ -167,6 +167,19 @@ fn describe_field(field: &sdfl_stdlib::value::Field) -> String {
         ),
     };
     match field {
+        Field::NeuralSdf(n) => format!(
+            "neural SDF: harmonic({}) position, {}x{} softplus(beta {}) layers{}; {} multiply-adds per point and 3x that for its exact gradient",
+            n.encoding.freqs,
+            n.layers,
+            n.width,
+            n.beta,
+            if n.skips.is_empty() {
+                String::new()
+            } else {
+                format!(" (position again at layers {:?})", n.skips)
+            },
+            n.multiply_adds()
+        ),
         Field::Sdf(f) => format!(
             "{:?} density, alpha {}, beta {}, {} primitives",
             f.density,
@@ -632,6 +645,16 @@ fn summarise(r: &serde_json::Value, out: &Path, stdout: &mut Stdout) {
                 rep["seconds_per_step"].as_f64().unwrap_or(0.0) * 1e3,
                 stages.join(", ")
             );
+            if let Some(fit) = rep.get("fit").filter(|f| f.is_object()) {
+                let num = |k: &str| fit[k].as_f64().unwrap_or(f64::NAN);
+                eprintln!(
+                    "  fit: mean |f| at the points {:.2e}, eikonal {:.2e}, Chamfer {:.4} ({} surface samples)",
+                    num("surface_mean_abs"),
+                    num("eikonal"),
+                    num("chamfer"),
+                    fit["surface_samples"]
+                );
+            }
             for p in rep["params"].as_array().into_iter().flatten() {
                 let vals: Vec<String> = p[1]
                     .as_array()
@@ -773,6 +796,13 @@ fn plan_text(program: &sdfl_stdlib::Program) -> String {
         let _ = writeln!(o, "train {}", job.name);
         let _ = writeln!(o, "  model          {}", describe_field(&job.model));
         let trainable = match &*job.model {
+            sdfl_stdlib::value::Field::NeuralSdf(n) => {
+                format!(
+                    "all {} weights, starting as a sphere of radius {}",
+                    sdfl_runtime::neural::distance::sdf_net(n).len,
+                    n.radius
+                )
+            }
             sdfl_stdlib::value::Field::Sdf(f) => {
                 let model = sdfl_runtime::train::TrainModel::new(f);
                 let params: Vec<String> = model
@@ -801,6 +831,20 @@ fn plan_text(program: &sdfl_stdlib::Program) -> String {
         };
         let _ = writeln!(o, "  trainable      {trainable}");
         let data = match &*job.data {
+            sdfl_stdlib::value::Dataset::Points {
+                path,
+                every,
+                center,
+            } => format!(
+                "points of {}{}{}",
+                path.display(),
+                if *every > 1 {
+                    format!(", one in {every}")
+                } else {
+                    String::new()
+                },
+                if *center { ", centred" } else { "" }
+            ),
             sdfl_stdlib::value::Dataset::Files { images, .. } => {
                 format!("{} image files", images.len())
             }
@@ -860,21 +904,41 @@ fn plan_text(program: &sdfl_stdlib::Program) -> String {
             ),
         };
         let _ = writeln!(o, "  data           {data}");
+        let on_points = matches!(&*job.model, sdfl_stdlib::value::Field::NeuralSdf(_));
         let _ = writeln!(
             o,
-            "  step           {} rays x {} samples{}, {} on colour, Adam lr {} ({}), {}",
-            job.rays,
-            job.sampler.samples,
-            if job.sampler.jitter {
-                " (jittered)"
+            "  step           {}, {}, Adam lr {} ({}), {}",
+            if on_points {
+                format!(
+                    "{0} surface points + {0} random points in [-{1}, {1}]^3",
+                    job.rays, job.bounds
+                )
             } else {
-                ""
+                format!(
+                    "{} rays x {} samples{}",
+                    job.rays,
+                    job.sampler.samples,
+                    if job.sampler.jitter { " (jittered)" } else { "" }
+                )
             },
             job.losses
                 .iter()
-                .map(|l| match l.kind {
-                    sdfl_stdlib::value::LossKind::Mse if l.weight == 1.0 => "MSE".to_string(),
-                    sdfl_stdlib::value::LossKind::Mse => format!("{} x MSE", l.weight),
+                .map(|l| {
+                    let name = match l.kind {
+                        sdfl_stdlib::value::LossKind::Mse => "MSE on colour".to_string(),
+                        sdfl_stdlib::value::LossKind::Surface => "mean |f| at the points".into(),
+                        sdfl_stdlib::value::LossKind::Eikonal => {
+                            "eikonal (exact input gradient)".into()
+                        }
+                        sdfl_stdlib::value::LossKind::Inter { alpha } => {
+                            format!("exp(-{alpha}|f|) at random points")
+                        }
+                    };
+                    if l.weight == 1.0 {
+                        name
+                    } else {
+                        format!("{} x {name}", l.weight)
+                    }
                 })
                 .collect::<Vec<_>>()
                 .join(" + "),
@@ -897,6 +961,8 @@ fn plan_text(program: &sdfl_stdlib::Program) -> String {
             o,
             "  gradient tape  {}",
             match (&*job.model, job.backend) {
+                (sdfl_stdlib::value::Field::NeuralSdf(_), _) =>
+                    "none: forward-mode tangents give the exact gradient of f; a hand-written second-order backward",
                 (sdfl_stdlib::value::Field::Nerf(_), _) =>
                     "none: fused layer kernels with a hand-written backward through the network and the compositing",
                 (_, sdfl_stdlib::value::Backend::Dfdx) =>
@@ -905,7 +971,9 @@ fn plan_text(program: &sdfl_stdlib::Program) -> String {
                     "fused per-ray kernel: forward-mode tangents for each parameter, no tape",
             }
         );
-        let _ = writeln!(o, "  depth          skipped (the loss uses colour only)");
+        if !on_points {
+            let _ = writeln!(o, "  depth          skipped (the loss uses colour only)");
+        }
         let _ = writeln!(
             o,
             "  outputs        {} before, {} after",

@@ -76,6 +76,7 @@ fn batch(eye: [f64; 3], last: LastInterval) -> Batch {
         last_interval: last,
         seed: 0,
         step: 0,
+        points: Vec::new(),
     }
 }
 

@@ -97,6 +97,10 @@ fn field_view<'a>(
 > {
     let strat = stratified(sampler)?;
     Ok(match field {
+        // The language refuses to render these; say so if one gets here.
+        Field::NeuralSdf(_) => {
+            return Err(invalid("a neural SDF cannot be rendered yet"));
+        }
         Field::Sdf(f) => {
             let lowered = LoweredField::new(f);
             let model = density_model(f, sampler);
@@ -310,6 +314,8 @@ fn load_image(path: &Path) -> io::Result<RgbImage> {
 pub struct Views {
     pub train: Vec<TrainView>,
     pub test: Vec<TrainView>,
+    /// A point cloud's points (no views then).
+    pub points: Vec<[f32; 3]>,
 }
 
 /// The views of a data set: read from files (relative to `base`),
@@ -318,6 +324,11 @@ pub struct Views {
 /// Every pixel must be a finite colour; the first that is not is named.
 pub fn load_views(data: &Dataset, base: &Path) -> io::Result<Views> {
     let views: Vec<(TrainView, String)> = match data {
+        Dataset::Points {
+            path,
+            every,
+            center,
+        } => return load_points(&base.join(path), *every, *center),
         Dataset::Files { images, cameras } => {
             crate::data::image::check_dataset(images.iter().map(|p| base.join(p)))?;
             images
@@ -408,6 +419,7 @@ pub fn load_views(data: &Dataset, base: &Path) -> io::Result<Views> {
             return Ok(Views {
                 train: train.into_iter().map(|(v, _)| v).collect(),
                 test: test.into_iter().map(|(v, _)| v).collect(),
+                points: Vec::new(),
             });
         }
     };
@@ -421,7 +433,32 @@ pub fn load_views(data: &Dataset, base: &Path) -> io::Result<Views> {
             train.push(v);
         }
     }
-    Ok(Views { train, test })
+    Ok(Views {
+        train,
+        test,
+        points: Vec::new(),
+    })
+}
+
+/// A point cloud: every `every`-th point of the file, moved to their mean
+/// when `center`.
+fn load_points(path: &Path, every: usize, center: bool) -> io::Result<Views> {
+    let all = crate::data::points::read_points(path)?;
+    let mut points: Vec<[f32; 3]> = all.into_iter().step_by(every.max(1)).collect();
+    if center {
+        let n = points.len().max(1) as f64;
+        let mean = [0, 1, 2].map(|k| points.iter().map(|p| p[k] as f64).sum::<f64>() / n);
+        for p in &mut points {
+            for k in 0..3 {
+                p[k] = (p[k] as f64 - mean[k]) as f32;
+            }
+        }
+    }
+    Ok(Views {
+        train: Vec::new(),
+        test: Vec::new(),
+        points,
+    })
 }
 
 /// Every view of a sphere-traced data set: the tracer of `render` with the

@@ -3,6 +3,7 @@
 //! outputs of the trained model.
 
 use super::*;
+use crate::neural::distance::NeuralSdfObjective;
 
 /// The learned parameters and how training went.
 #[derive(Debug, Clone, Serialize)]
@@ -21,6 +22,9 @@ pub struct TrainReport {
     pub network_weights: Option<usize>,
     /// Held-out quality during and after training (empty without test views).
     pub held_out: Vec<HeldOut>,
+    /// How well a distance field fits its points.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub fit: Option<crate::neural::distance::SdfFit>,
     pub written: Vec<Written>,
     pub stages: Vec<(String, f64)>,
 }
@@ -87,6 +91,12 @@ pub fn step_memory(job: &TrainJob) -> u64 {
             NerfWork::bytes_for(&net, (rays * per_ray) as usize)
                 + rays * per_ray * 40
                 + 24 * weights
+        }
+        // Values and three tangents per layer, forward and back, for a
+        // surface and a random point per ray.
+        (Field::NeuralSdf(n), _) => {
+            let net = crate::neural::distance::sdf_net(n);
+            crate::neural::sdf_net::SdfWork::bytes_for(&net, 2 * rays as usize) + 24 * net.len as u64
         }
         (Field::Sdf(_), Backend::Fused) => 0,
         (Field::Sdf(_), Backend::Dfdx) => {
@@ -172,6 +182,7 @@ pub fn run_train_job(
     let Views {
         train: views,
         test: test_views,
+        points,
     } = load_views(&job.data, base)?;
     stages.push(("load data".to_string(), t.elapsed().as_secs_f64()));
 
@@ -181,15 +192,17 @@ pub fn run_train_job(
     // occupancy grid) is copied from the run's before each use.
     let nerf_model = match &*job.model {
         Field::Nerf(n) => Some(NerfObjective::new(n, &job.sampler).map_err(invalid)?),
-        Field::Sdf(_) => None,
+        Field::Sdf(_) | Field::NeuralSdf(_) => None,
     };
     let nerf_model = std::sync::Mutex::new(nerf_model);
     let objective: Box<dyn Objective> = match (&*job.model, &analytic) {
         (Field::Nerf(n), _) => Box::new(NerfObjective::new(n, &job.sampler).map_err(invalid)?),
         (Field::Sdf(_), Some(model)) => Box::new(FieldObjective::new(model, job.backend)),
+        (Field::NeuralSdf(n), _) => Box::new(NeuralSdfObjective::new(n, &job.losses, job.bounds)),
         (Field::Sdf(_), None) => unreachable!("an analytic field has a model"),
     };
-    let setup = TrainSetup::of(job, &views);
+    let mut setup = TrainSetup::of(job, &views);
+    setup.points = &points;
     let steps = match job.epochs {
         Some(e) => e.saturating_mul(setup.steps_per_epoch()),
         None => job.iterations,
@@ -238,6 +251,7 @@ pub fn run_train_job(
         &*job.model,
         &analytic,
     ) {
+        (Field::NeuralSdf(_), _) => Err(invalid("a neural SDF cannot be rendered yet")),
         (Field::Nerf(_), _) => nerf_view(
             nerf_model
                 .lock()
@@ -462,6 +476,16 @@ pub fn run_train_job(
             o.path.display()
         )));
     }
+    let fit = match &*job.model {
+        Field::NeuralSdf(n) => Some(crate::neural::distance::fit(
+            &crate::neural::distance::sdf_net(n),
+            &run.values(),
+            &points,
+            job.bounds as f32,
+            job.seed,
+        )),
+        _ => None,
+    };
     stages.push(("outputs".to_string(), t.elapsed().as_secs_f64()));
     let steps_run = (run.step - done_before).max(1);
     Ok(TrainReport {
@@ -477,6 +501,7 @@ pub fn run_train_job(
         },
         network_weights: analytic.is_none().then(|| run.values().len()),
         held_out,
+        fit,
         written,
         stages,
     })

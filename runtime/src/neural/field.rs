@@ -664,6 +664,7 @@ mod tests {
             last_interval: LastInterval::Zero,
             seed: 5,
             step: 0,
+            points: Vec::new(),
         };
         let values = obj.initial();
         let mut grad = vec![0.0; values.len()];

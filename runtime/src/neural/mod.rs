@@ -12,4 +12,5 @@ pub mod hashgrid;
 pub mod mlp;
 pub mod nerf;
 pub mod occupancy;
+pub mod distance;
 pub mod sdf_net;

@@ -38,6 +38,8 @@ pub struct Batch {
     pub seed: u64,
     /// The step (from 0) this batch is for.
     pub step: usize,
+    /// Surface points of a point-cloud batch (rows of 3; no rays then).
+    pub points: Vec<f32>,
 }
 
 impl Batch {

@@ -10,7 +10,7 @@
 use std::ops::ControlFlow;
 
 use sdfl_stdlib::camera::Camera;
-use sdfl_stdlib::value::{Loss, LossKind, Optimizer, Sampler};
+use sdfl_stdlib::value::{Loss, Optimizer, Sampler};
 
 use super::checkpoint::{Checkpoint, ParamState};
 use super::fused::Batch;
@@ -30,6 +30,8 @@ pub struct TrainView {
 #[derive(Debug, Clone)]
 pub struct TrainSetup<'a> {
     pub views: &'a [TrainView],
+    /// A point cloud: batches are `rays` of its points instead of rays.
+    pub points: &'a [[f32; 3]],
     pub sampler: Sampler,
     pub rays: usize,
     pub optimizer: Optimizer,
@@ -42,6 +44,7 @@ impl<'a> TrainSetup<'a> {
     pub fn of(job: &'a sdfl_stdlib::value::TrainJob, views: &'a [TrainView]) -> Self {
         TrainSetup {
             views,
+            points: &[],
             sampler: job.sampler,
             rays: job.rays,
             optimizer: job.optimizer,
@@ -52,7 +55,7 @@ impl<'a> TrainSetup<'a> {
 
     /// Steps of one pass over every training pixel.
     pub fn steps_per_epoch(&self) -> usize {
-        let pixels: usize = self.views.iter().map(|v| v.image.pixels.len()).sum();
+        let pixels: usize = self.views.iter().map(|v| v.image.pixels.len()).sum::<usize>() + self.points.len();
         pixels.div_ceil(self.rays.max(1)).max(1)
     }
 
@@ -80,12 +83,12 @@ impl<'a> TrainSetup<'a> {
 
     /// The batch of step `step`: a function of the seed and the step only.
     pub fn batch(&self, step: usize) -> Result<Batch, TrainError> {
+        if !self.points.is_empty() {
+            return Ok(self.point_batch(step));
+        }
         let size = self.size()?;
         let cams: Vec<Camera> = self.views.iter().map(|v| v.camera).collect();
-        let step_seed = self
-            .seed
-            .wrapping_mul(0x9E37_79B9_7F4A_7C15)
-            .wrapping_add(step as u64);
+        let step_seed = self.step_seed(step);
         let mut rng = SplitMix64::new(step_seed);
         let total = size.pixels() * cams.len();
         let rays = random_rays(&cams, size, self.rays.min(total), &mut rng)?;
@@ -113,7 +116,36 @@ impl<'a> TrainSetup<'a> {
             last_interval: s.last_interval,
             seed: step_seed,
             step,
+            points: Vec::new(),
         })
+    }
+
+    fn step_seed(&self, step: usize) -> u64 {
+        self.seed
+            .wrapping_mul(0x9E37_79B9_7F4A_7C15)
+            .wrapping_add(step as u64)
+    }
+
+    /// `rays` points of the cloud drawn with replacement: a function of the
+    /// seed and the step only.
+    fn point_batch(&self, step: usize) -> Batch {
+        let seed = self.step_seed(step);
+        let mut rng = SplitMix64::new(seed);
+        let n = self.points.len() as u64;
+        let points = (0..self.rays)
+            .flat_map(|_| self.points[rng.below(n) as usize])
+            .collect();
+        Batch {
+            rays: Vec::new(),
+            targets: Vec::new(),
+            depths: Vec::new(),
+            samples: 0,
+            shared: true,
+            last_interval: self.sampler.last_interval,
+            seed,
+            step,
+            points,
+        }
     }
 }
 
@@ -237,13 +269,14 @@ impl<'m> Run<'m> {
     /// and is an error naming the parameter.
     pub fn advance(&mut self, setup: &TrainSetup) -> Result<f32, TrainError> {
         let batch = setup.batch(self.step)?;
-        let weight: f64 = setup
-            .losses
-            .iter()
-            .map(|l| match l.kind {
-                LossKind::Mse => l.weight,
-            })
-            .sum();
+        // Image terms scale the colour loss; point terms (a distance
+        // field's) are weighed by their objective, so theirs is 1.
+        let image_terms = setup.losses.iter().filter(|l| l.kind.on_images());
+        let weight: f64 = if setup.losses.iter().any(|l| l.kind.on_images()) {
+            image_terms.map(|l| l.weight).sum()
+        } else {
+            1.0
+        };
         let values = self.values();
         self.grad.iter_mut().for_each(|g| *g = 0.0);
         let loss = self

@@ -272,6 +272,23 @@ pub(crate) fn train_block(name: &str, a: &Args) -> Result<TrainJob, Diag> {
             },
         ));
     }
+    if on_points {
+        for field in ["before", "after"] {
+            if let Value::List(items) = a.get(field).0 {
+                if items
+                    .iter()
+                    .any(|o| !matches!(o, Value::Output(o) if o.kind == OutputKind::LossCurve))
+                {
+                    return Err(value_error(
+                        a.get(field).1,
+                        "a neural SDF cannot be rendered yet",
+                        "images of a neural SDF",
+                        "keep `loss_curve(...)`; the report gives the fit (|f| at the points, eikonal term, Chamfer distance)",
+                    ));
+                }
+            }
+        }
+    }
     let (backend_name, backend_span) = a.string("backend")?;
     let backend = match &*backend_name {
         "fused" => Backend::Fused,
