@@ -1215,6 +1215,86 @@ mod tests {
         assert!(e[2] > 0.5 && e[3] > 0.5, "{e:?}");
     }
 
+    #[test]
+    fn backward_from_given_adjoints_is_loss_and_grads() {
+        let net = SdfNet::new(&small(100.0));
+        let params = net.init_default(10);
+        let mut rng = SplitMix64::new(11);
+        let (surface, random) = (points(30, 0.8, &mut rng), points(20, 1.0, &mut rng));
+        let w = SdfLoss::default();
+        let mut work = SdfWork::default();
+        let mut want = vec![0.0; net.len];
+        let loss = net.loss_and_grad(&params, &surface, &random, &w, &mut work, &mut want);
+        let all: Vec<f32> = surface.iter().chain(&random).copied().collect();
+        net.forward(&params, &all, &mut work);
+        let (f, g) = (work.distance().to_vec(), work.gradient().to_vec());
+        let (mut d_f, mut d_g) = (vec![0.0; 50], vec![0.0; 150]);
+        let again = surface_loss(&f[..30], w.surface, &mut d_f[..30])
+            + off_surface_loss(&f[30..], w.inter, w.alpha, &mut d_f[30..])
+            + eikonal_loss(&g, w.eikonal, &mut d_g);
+        assert_eq!(loss, again);
+        // Added to what the gradient holds.
+        let mut grad = vec![1.0; net.len];
+        net.backward(&params, &d_f, &d_g, &mut work, &mut grad);
+        for (a, b) in grad.iter().zip(&want) {
+            assert_eq!(*a, 1.0 + b);
+        }
+    }
+
+    /// End to end: Adam on the loss fits a cube's surface from a sphere.
+    #[test]
+    fn training_fits_a_cube() {
+        let net = SdfNet::new(&SdfNetSpec {
+            freqs: 2,
+            layers: 3,
+            width: 32,
+            skips: vec![2],
+            ..SdfNetSpec::default()
+        });
+        let mut params = net.init_geometric(1, 0.4);
+        let mut rng = SplitMix64::new(12);
+        // Points on the faces of [-0.4, 0.4]³.
+        let surface: Vec<f32> = (0..512)
+            .flat_map(|i| {
+                let mut p = [0.8 * rng.next_f32() - 0.4, 0.8 * rng.next_f32() - 0.4, 0.0];
+                p[2] = if i % 2 == 0 { 0.4 } else { -0.4 };
+                p.rotate_left(i % 3);
+                p
+            })
+            .collect();
+        let random = points(512, 1.0, &mut rng);
+        let w = SdfLoss::default();
+        let mut work = SdfWork::default();
+        let mut grad = vec![0.0; net.len];
+        let (mut m, mut v) = (vec![0.0f32; net.len], vec![0.0f32; net.len]);
+        let (lr, b1, b2) = (1e-3f32, 0.9f32, 0.999f32);
+        let mut losses = Vec::new();
+        for step in 1..=300 {
+            let loss = net.loss_and_grad(&params, &surface, &random, &w, &mut work, &mut grad);
+            losses.push(loss);
+            let (c1, c2) = (1.0 - b1.powi(step), 1.0 - b2.powi(step));
+            for i in 0..net.len {
+                m[i] = b1 * m[i] + (1.0 - b1) * grad[i];
+                v[i] = b2 * v[i] + (1.0 - b2) * grad[i] * grad[i];
+                params[i] -= lr * (m[i] / c1) / ((v[i] / c2).sqrt() + 1e-8);
+            }
+        }
+        // Mean |f| on the surface after training.
+        net.forward(&params, &surface, &mut work);
+        let on = work.distance().iter().map(|f| f.abs()).sum::<f32>() / 512.0;
+        println!(
+            "loss {:.4} → {:.4}, mean |f| on the cube {on:.4}",
+            losses[0], losses[299]
+        );
+        assert!(
+            losses[299] < 0.3 * losses[0],
+            "{} → {}",
+            losses[0],
+            losses[299]
+        );
+        assert!(on < 0.02, "{on}");
+    }
+
     /// Not a benchmark (no timed asserts): run with `--nocapture` to see it.
     #[test]
     fn time_a_step_of_the_default_network() {
