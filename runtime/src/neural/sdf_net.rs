@@ -537,7 +537,8 @@ pub fn off_surface_loss(f: &[f32], weight: f32, alpha: f32, d_f: &mut [f32]) -> 
 /// `∂/∂g = 2·(‖g‖ − 1)·g/‖g‖·weight/n`. Norms in f64, so no f32 input
 /// overflows. At `g = 0` the direction is undefined and the adjoint is 0:
 /// the least-norm element of the Clarke subdifferential there (the ball of
-/// radius 2); the loss is still 1 per row.
+/// radius 2); the loss is still 1 per row. Adjoints saturate at ±f32::MAX
+/// (for `‖g‖` near it), so a finite loss never writes an infinite one.
 pub fn eikonal_loss(g: &[f32], weight: f32, d_g: &mut [f32]) -> f64 {
     assert_eq!(g.len(), d_g.len());
     assert_eq!(g.len() % 3, 0, "rows of 3");
