@@ -918,7 +918,11 @@ fn plan_text(program: &sdfl_stdlib::Program) -> String {
                     "{} rays x {} samples{}",
                     job.rays,
                     job.sampler.samples,
-                    if job.sampler.jitter { " (jittered)" } else { "" }
+                    if job.sampler.jitter {
+                        " (jittered)"
+                    } else {
+                        ""
+                    }
                 )
             },
             job.losses

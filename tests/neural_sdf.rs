@@ -17,6 +17,9 @@ train fit {
   optimizer: adam(lr: 2e-3),
   iterations: ITERATIONS,
   bounds: 1.5,
+  views: look_at(eye: [0, 0, -3]),
+  size: [17, 17],
+  after: [image("fit.png")],
   checkpoint: "fit.ckpt",
 }
 "#;
@@ -45,7 +48,10 @@ fn write_sphere(dir: &Path) {
 
 fn run(iterations: usize, dir: &Path) -> TrainReport {
     let src = SPHERE.replace("ITERATIONS", &iterations.to_string());
-    let job = sdfl_stdlib::load(&SourceFile::new("fit.sdfl", src)).unwrap().trains[0].clone();
+    let job = sdfl_stdlib::load(&SourceFile::new("fit.sdfl", src))
+        .unwrap()
+        .trains[0]
+        .clone();
     let out = dir.join("out");
     let opts = TrainOptions { restart: false };
     run_train_job(&job, &out, dir, None, opts, &|_| {}, &|_| {}).unwrap()
@@ -57,11 +63,24 @@ fn a_small_neural_sdf_finds_the_sphere_of_its_points() {
     write_sphere(&dir);
     let start = run(0, &dir).fit.expect("a fit report");
     let _ = std::fs::remove_dir_all(dir.join("out"));
-    let end = run(300, &dir).fit.expect("a fit report");
+    let report = run(300, &dir);
+    let end = report.fit.expect("a fit report");
+    // Its surface is sphere-traced: the centre pixel hits (a normal as a
+    // colour, facing the camera), the corners miss (black).
+    let png = image::open(dir.join("out/fit.png")).unwrap().to_rgb8();
+    assert_eq!(png.get_pixel(0, 0).0, [0, 0, 0]);
+    assert!(
+        png.get_pixel(8, 8).0 != [0, 0, 0],
+        "{:?}",
+        png.get_pixel(8, 8)
+    );
     // It starts as a sphere of radius 0.5 (0.3 from every point) and ends
     // on the points.
     assert!(start.chamfer > 0.2, "{start:?}");
-    assert!(end.chamfer < 0.05 && end.chamfer < start.chamfer / 5.0, "{end:?}");
+    assert!(
+        end.chamfer < 0.05 && end.chamfer < start.chamfer / 5.0,
+        "{end:?}"
+    );
     assert!(end.surface_mean_abs < 0.02, "{end:?}");
     assert!(end.eikonal < 0.1, "{end:?}");
     let _ = std::fs::remove_dir_all(&dir);
@@ -80,7 +99,11 @@ fn a_resumed_neural_sdf_run_is_the_same_run() {
     let b = Checkpoint::read(&parts.join("out/fit.ckpt")).unwrap();
     assert_eq!(a.losses, b.losses);
     for (p, q) in a.params.iter().zip(&b.params) {
-        assert!(p.values == q.values && p.adam_m == q.adam_m, "{} differs", p.name);
+        assert!(
+            p.values == q.values && p.adam_m == q.adam_m,
+            "{} differs",
+            p.name
+        );
     }
     let _ = std::fs::remove_dir_all(&whole);
     let _ = std::fs::remove_dir_all(&parts);

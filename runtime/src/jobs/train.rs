@@ -96,7 +96,8 @@ pub fn step_memory(job: &TrainJob) -> u64 {
         // surface and a random point per ray.
         (Field::NeuralSdf(n), _) => {
             let net = crate::neural::distance::sdf_net(n);
-            crate::neural::sdf_net::SdfWork::bytes_for(&net, 2 * rays as usize) + 24 * net.len as u64
+            crate::neural::sdf_net::SdfWork::bytes_for(&net, 2 * rays as usize)
+                + 24 * net.len as u64
         }
         (Field::Sdf(_), Backend::Fused) => 0,
         (Field::Sdf(_), Backend::Dfdx) => {
@@ -251,7 +252,26 @@ pub fn run_train_job(
         &*job.model,
         &analytic,
     ) {
-        (Field::NeuralSdf(_), _) => Err(invalid("a neural SDF cannot be rendered yet")),
+        (Field::NeuralSdf(n), _) => {
+            let settings = crate::neural::distance::TraceSettings {
+                far: job.sampler.far as f32,
+                ..Default::default()
+            };
+            let size = ImageSize {
+                width: wh.0,
+                height: wh.1,
+            };
+            let _ = want_depth;
+            crate::neural::distance::trace_view(
+                &crate::neural::distance::sdf_net(n),
+                values,
+                cam,
+                size,
+                settings,
+            )
+            .map(|v| (v.colour, v.depth))
+            .map_err(invalid)
+        }
         (Field::Nerf(_), _) => nerf_view(
             nerf_model
                 .lock()

@@ -2,15 +2,16 @@
 //! encodings ([`encoding`], the multiresolution hash grid [`hashgrid`]),
 //! the NeRF network ([`nerf`]), compositing of densities with its reverse
 //! sweep ([`composite`]), the NeRF as a trainable model and a renderable
-//! field ([`field`]), and the occupancy grid that skips empty space
-//! ([`occupancy`]).
+//! field ([`field`]), the occupancy grid that skips empty space
+//! ([`occupancy`]); the neural SDF with its exact input gradient
+//! ([`sdf_net`]) and as a model fitted to points ([`distance`]).
 
 pub mod composite;
+pub mod distance;
 pub mod encoding;
 pub mod field;
 pub mod hashgrid;
 pub mod mlp;
 pub mod nerf;
 pub mod occupancy;
-pub mod distance;
 pub mod sdf_net;

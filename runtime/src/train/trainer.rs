@@ -55,7 +55,12 @@ impl<'a> TrainSetup<'a> {
 
     /// Steps of one pass over every training pixel.
     pub fn steps_per_epoch(&self) -> usize {
-        let pixels: usize = self.views.iter().map(|v| v.image.pixels.len()).sum::<usize>() + self.points.len();
+        let pixels: usize = self
+            .views
+            .iter()
+            .map(|v| v.image.pixels.len())
+            .sum::<usize>()
+            + self.points.len();
         pixels.div_ceil(self.rays.max(1)).max(1)
     }
 

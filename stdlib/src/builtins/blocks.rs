@@ -253,9 +253,18 @@ pub(crate) fn train_block(name: &str, a: &Args) -> Result<TrainJob, Diag> {
     // Unless given, a distance field trains on the assignment's three terms.
     let losses = if on_points && a.get("losses").1 == a.span {
         vec![
-            Loss { kind: LossKind::Surface, weight: 1.0 },
-            Loss { kind: LossKind::Eikonal, weight: 0.02 },
-            Loss { kind: LossKind::Inter { alpha: 100.0 }, weight: 0.1 },
+            Loss {
+                kind: LossKind::Surface,
+                weight: 1.0,
+            },
+            Loss {
+                kind: LossKind::Eikonal,
+                weight: 0.02,
+            },
+            Loss {
+                kind: LossKind::Inter { alpha: 100.0 },
+                weight: 0.1,
+            },
         ]
     } else {
         losses
@@ -272,18 +281,19 @@ pub(crate) fn train_block(name: &str, a: &Args) -> Result<TrainJob, Diag> {
             },
         ));
     }
+    // A neural SDF is sphere-traced (normals as colours, depth): volume
+    // figures do not apply.
     if on_points {
         for field in ["before", "after"] {
             if let Value::List(items) = a.get(field).0 {
-                if items
-                    .iter()
-                    .any(|o| !matches!(o, Value::Output(o) if o.kind == OutputKind::LossCurve))
-                {
+                if items.iter().any(|o| {
+                    matches!(o, Value::Output(o) if matches!(o.kind, OutputKind::SamplePoints | OutputKind::Dataset))
+                }) {
                     return Err(value_error(
                         a.get(field).1,
-                        "a neural SDF cannot be rendered yet",
-                        "images of a neural SDF",
-                        "keep `loss_curve(...)`; the report gives the fit (|f| at the points, eikonal term, Chamfer distance)",
+                        "a neural SDF is sphere-traced: it has no volume samples or data set to write",
+                        "not an output of a neural SDF",
+                        "write `image`, `gif`, `depth`, `depth_gif` or `loss_curve`",
                     ));
                 }
             }

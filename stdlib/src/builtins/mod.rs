@@ -1076,9 +1076,9 @@ fn phong(a: &Args) -> Result<Value, Diag> {
 pub(crate) fn not_a_volume(span: Span) -> Diag {
     value_error(
         span,
-        "a neural SDF cannot be rendered yet",
+        "a neural SDF is rendered by the `train` statement that fits it",
         "a neural SDF",
-        "train it from points: `train { model: neural_sdf(), data: points(...) }` reports how well it fits",
+        "train it from points and ask for `after: [gif(...)]` there: its surface is sphere-traced",
     )
 }
 
