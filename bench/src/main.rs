@@ -7,7 +7,7 @@
 //! naive min-union against BVH-culled, and the same expression evaluated by
 //! the fidget crate's JIT in the same run; it prints a Markdown table.
 //! `cargo run --release -p sdfl-bench -- train` times training steps instead
-//! (see `train.rs`); `-- nerf` times NeRF steps (see `nerf.rs`).
+//! (see `train.rs`); `-- nerf` times NeRF steps and `-- neural-sdf` neural SDF steps (see `nerf.rs`).
 
 use std::time::Instant;
 
@@ -130,6 +130,13 @@ fn main() {
             .and_then(|r| r.parse().ok())
             .unwrap_or(10);
         return nerf::main(reps);
+    }
+    if std::env::args().nth(1).as_deref() == Some("neural-sdf") {
+        let reps = std::env::args()
+            .nth(2)
+            .and_then(|r| r.parse().ok())
+            .unwrap_or(10);
+        return nerf::neural_sdf_main(reps);
     }
     let sizes: Vec<usize> = std::env::args()
         .nth(1)

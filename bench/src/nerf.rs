@@ -91,3 +91,62 @@ pub fn main(reps: usize) {
         });
     }
 }
+
+const NEURAL_SDF: &str = r#"
+train neural_sdf_step {
+  model: neural_sdf(),
+  data: points("unused.xyz"),
+  rays: 4096, optimizer: adam(lr: 1e-4),
+}
+"#;
+
+/// One step of the assignment's neural SDF (`neural_sdf()` defaults: 4096
+/// surface + 4096 random points, exact eikonal) through the training loop;
+/// compare `bench/pytorch/neural_sdf_bench.py`.
+pub fn neural_sdf_main(reps: usize) {
+    let program = sdfl_stdlib::load(&sdfl_lang::SourceFile::new("bench.sdfl", NEURAL_SDF))
+        .expect("bench scene");
+    let job = program.trains[0].clone();
+    let Field::NeuralSdf(spec) = &*job.model else {
+        panic!("not a neural SDF")
+    };
+    // 10 000 points on a sphere stand in for a scan.
+    let mut rng = SplitMix64::new(4);
+    let points: Vec<[f32; 3]> = (0..10_000)
+        .map(|_| {
+            let v = [0, 1, 2].map(|_| 2.0 * rng.next_f32() - 1.0);
+            let l = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt().max(1e-6);
+            v.map(|x| 0.6 * x / l)
+        })
+        .collect();
+    let mut setup = TrainSetup::of(&job, &[]);
+    setup.points = &points;
+    println!("| implementation | threads | step ms (median) | step ms (min) |");
+    println!("|---|---:|---:|---:|");
+    for threads in [1, rayon::current_num_threads()] {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .expect("thread pool");
+        pool.install(|| {
+            let model = sdfl_runtime::neural::distance::NeuralSdfObjective::new(
+                spec,
+                &job.losses,
+                job.bounds,
+            );
+            let mut run = Run::of(Box::new(model), 1e-4).expect("run");
+            for _ in 0..2 {
+                run.advance(&setup).expect("step");
+            }
+            let ms: Vec<f64> = (0..reps)
+                .map(|_| {
+                    let t = Instant::now();
+                    run.advance(&setup).expect("step");
+                    t.elapsed().as_secs_f64() * 1e3
+                })
+                .collect();
+            let (med, min) = median_min(ms);
+            println!("| sdfl (exact eikonal, fused) | {threads} | {med:.1} | {min:.1} |");
+        });
+    }
+}

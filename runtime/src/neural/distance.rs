@@ -146,6 +146,9 @@ impl Objective for NeuralSdfObjective {
     }
 }
 
+/// Random points projected onto the surface to sample it.
+const PROBES: usize = 65_536;
+
 /// How well a trained distance field fits its points.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
 pub struct SdfFit {
@@ -185,6 +188,10 @@ pub fn fit(net: &SdfNet, params: &[f32], points: &[[f32; 3]], bounds: f32, seed:
     random_points(points.len(), bounds, &mut rng, &mut probe);
     net.forward(params, &probe, &mut work);
     eikonal = (eikonal + eik(work.gradient())) / (2.0 * n);
+    // Many probes, so the surface samples are dense next to the points
+    // (sparse samples would bias the Chamfer distance upwards).
+    random_points(PROBES.max(points.len()), bounds, &mut rng, &mut probe);
+    net.forward(params, &probe, &mut work);
     for _ in 0..8 {
         let (f, g) = (work.distance(), work.gradient());
         for (i, p) in probe.chunks_mut(3).enumerate() {
