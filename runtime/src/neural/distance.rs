@@ -82,21 +82,7 @@ impl Objective for NeuralSdfObjective {
         self.net
             .layers()
             .into_iter()
-            .flat_map(|(name, d)| {
-                let w = d.fan_in() * d.out;
-                [
-                    TensorSpec {
-                        name: format!("{name}.weight"),
-                        offset: d.offset,
-                        len: w,
-                    },
-                    TensorSpec {
-                        name: format!("{name}.bias"),
-                        offset: d.offset + w,
-                        len: d.out,
-                    },
-                ]
-            })
+            .flat_map(|(name, d)| d.tensors(&name))
             .collect()
     }
 

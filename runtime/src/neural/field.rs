@@ -362,22 +362,11 @@ impl Objective for NerfObjective {
                     }),
                     PositionEncoding::Harmonic(_) => None,
                 };
-                grid.into_iter()
-                    .chain(net.layers().into_iter().flat_map(move |(name, d)| {
-                        let w = d.fan_in() * d.out;
-                        [
-                            TensorSpec {
-                                name: format!("{prefix}{name}.weight"),
-                                offset: d.offset,
-                                len: w,
-                            },
-                            TensorSpec {
-                                name: format!("{prefix}{name}.bias"),
-                                offset: d.offset + w,
-                                len: d.out,
-                            },
-                        ]
-                    }))
+                grid.into_iter().chain(
+                    net.layers()
+                        .into_iter()
+                        .flat_map(move |(name, d)| d.tensors(&format!("{prefix}{name}"))),
+                )
             })
             .collect()
     }

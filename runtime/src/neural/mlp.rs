@@ -138,6 +138,23 @@ impl Dense {
         self.offset + self.len()
     }
 
+    /// `W` and `b` as the trainer's named tensors (`name.weight`, `name.bias`).
+    pub fn tensors(&self, name: &str) -> [crate::train::TensorSpec; 2] {
+        let w = self.fan_in() * self.out;
+        [
+            crate::train::TensorSpec {
+                name: format!("{name}.weight"),
+                offset: self.offset,
+                len: w,
+            },
+            crate::train::TensorSpec {
+                name: format!("{name}.bias"),
+                offset: self.offset + w,
+                len: self.out,
+            },
+        ]
+    }
+
     fn weights<'p>(&self, params: &'p [f32]) -> &'p [f32] {
         &params[self.offset..self.offset + self.fan_in() * self.out]
     }
@@ -165,38 +182,55 @@ impl Dense {
         out.par_chunks_mut(ROW_BLOCK * n)
             .enumerate()
             .for_each(|(blk, y)| {
-                let r0 = blk * ROW_BLOCK;
-                let m = y.len() / n;
-                let mut w_row = 0;
-                for (p, (&k, x)) in self.parts.iter().zip(inputs).enumerate() {
-                    // SAFETY: x holds rows × k, w rows w_row..w_row+k of
-                    // n columns, y m × n; all row-major, bounds checked above.
-                    unsafe {
-                        matrixmultiply::sgemm(
-                            m,
-                            k,
-                            n,
-                            1.0,
-                            x[r0 * k..].as_ptr(),
-                            k as isize,
-                            1,
-                            w[w_row * n..].as_ptr(),
-                            n as isize,
-                            1,
-                            if p == 0 { 0.0 } else { 1.0 },
-                            y.as_mut_ptr(),
-                            n as isize,
-                            1,
-                        );
-                    }
-                    w_row += k;
-                }
+                self.product_block(w, inputs, blk * ROW_BLOCK, y);
                 for yr in y.chunks_mut(n) {
                     for (yv, bv) in yr.iter_mut().zip(b) {
                         *yv = self.act.apply(*yv + bv);
                     }
                 }
             });
+    }
+
+    /// `out = Σ_p x_p·W_p`: the layer without bias or activation (the
+    /// pushforward of tangents through it).
+    pub fn linear(&self, params: &[f32], inputs: &[&[f32]], out: &mut [f32]) {
+        let rows = out.len() / self.out;
+        self.check(inputs, rows);
+        let w = self.weights(params);
+        out.par_chunks_mut(ROW_BLOCK * self.out)
+            .enumerate()
+            .for_each(|(blk, y)| self.product_block(w, inputs, blk * ROW_BLOCK, y));
+    }
+
+    /// `y = Σ_p x_p·W_p` for the block of rows from `r0` (`y` holds them).
+    #[inline]
+    fn product_block(&self, w: &[f32], inputs: &[&[f32]], r0: usize, y: &mut [f32]) {
+        let n = self.out;
+        let m = y.len() / n;
+        let mut w_row = 0;
+        for (p, (&k, x)) in self.parts.iter().zip(inputs).enumerate() {
+            // SAFETY: x holds rows × k (checked by the caller), w rows
+            // w_row..w_row+k of n columns, y m × n; all row-major.
+            unsafe {
+                matrixmultiply::sgemm(
+                    m,
+                    k,
+                    n,
+                    1.0,
+                    x[r0 * k..].as_ptr(),
+                    k as isize,
+                    1,
+                    w[w_row * n..].as_ptr(),
+                    n as isize,
+                    1,
+                    if p == 0 { 0.0 } else { 1.0 },
+                    y.as_mut_ptr(),
+                    n as isize,
+                    1,
+                );
+            }
+            w_row += k;
+        }
     }
 
     fn check(&self, inputs: &[&[f32]], rows: usize) {

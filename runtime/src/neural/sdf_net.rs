@@ -603,45 +603,9 @@ fn encode_tangents(h: &Harmonic, points: &[f32], out: &mut [f32]) {
 }
 
 /// `out = Σ_p x_p·W_p`: a layer without bias or activation, the pushforward
-/// of tangents. Per block of rows, like [`Dense::forward`].
+/// of tangents.
 fn linear_part(d: &Dense, params: &[f32], inputs: &[&[f32]], out: &mut [f32]) {
-    let n = d.out;
-    let rows = out.len() / n;
-    assert_eq!(inputs.len(), d.parts.len());
-    for (x, &k) in inputs.iter().zip(&d.parts) {
-        assert_eq!(x.len(), rows * k, "input part of width {k}");
-    }
-    let w = &params[d.offset..d.offset + d.fan_in() * n];
-    out.par_chunks_mut(ROW_BLOCK * n)
-        .enumerate()
-        .for_each(|(blk, y)| {
-            let r0 = blk * ROW_BLOCK;
-            let m = y.len() / n;
-            let mut w_row = 0;
-            for (p, (&k, x)) in d.parts.iter().zip(inputs).enumerate() {
-                // SAFETY: x holds rows × k (checked), w rows w_row..w_row+k
-                // of n columns, y m × n; all row-major.
-                unsafe {
-                    matrixmultiply::sgemm(
-                        m,
-                        k,
-                        n,
-                        1.0,
-                        x[r0 * k..].as_ptr(),
-                        k as isize,
-                        1,
-                        w[w_row * n..].as_ptr(),
-                        n as isize,
-                        1,
-                        if p == 0 { 0.0 } else { 1.0 },
-                        y.as_mut_ptr(),
-                        n as isize,
-                        1,
-                    );
-                }
-                w_row += k;
-            }
-        });
+    d.linear(params, inputs, out);
 }
 
 /// Turns `[dy; dy']` (the adjoints of a softplus layer's values and
