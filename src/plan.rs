@@ -1,0 +1,386 @@
+//! `sdfl plan`: what each statement will compute, and what it will not.
+
+use super::*;
+
+/// One line on what a field is and what it will compute.
+fn describe_field(field: &sdfl_stdlib::value::Field) -> String {
+    use sdfl_stdlib::value::{Encoding, Field};
+    let enc = |e: &Encoding| match e {
+        Encoding::Harmonic(h) => format!(
+            "harmonic({}{})",
+            h.freqs,
+            if h.include_input { "" } else { ", no input" }
+        ),
+        Encoding::HashGrid(g) => format!(
+            "hashgrid({} levels x {} features, 2^{} rows, {}..{} cells a side)",
+            g.levels, g.features, g.log2_table, g.min_res, g.max_res
+        ),
+    };
+    match field {
+        Field::NeuralSdf(n) => format!(
+            "neural SDF: harmonic({}) position, {}x{} softplus(beta {}) layers{}; {} multiply-adds per point and 3x that for its exact gradient",
+            n.encoding.freqs,
+            n.layers,
+            n.width,
+            n.beta,
+            if n.skips.is_empty() {
+                String::new()
+            } else {
+                format!(" (position again at layers {:?})", n.skips)
+            },
+            n.multiply_adds()
+        ),
+        Field::Sdf(f) => format!(
+            "{:?} density, alpha {}, beta {}, {} primitives",
+            f.density,
+            f.alpha.value,
+            f.beta.value,
+            f.shape.primitive_count()
+        ),
+        Field::Nerf(n) => format!(
+            "NeRF: {} position, {}x{} ReLU trunk{}, {:?} density, {}; {} multiply-adds per sample{}; {}",
+            enc(&n.position),
+            n.layers,
+            n.width,
+            if n.skips.is_empty() {
+                String::new()
+            } else {
+                format!(" (position again at layers {:?})", n.skips)
+            },
+            n.density,
+            match &n.direction {
+                Some(d) => format!(
+                    "view-dependent colour ({} direction, {}-wide branch)",
+                    enc(d),
+                    n.color_width
+                ),
+                None => "colour without the view direction (no direction branch built)".into(),
+            },
+            n.multiply_adds_per_sample(),
+            match n.fine {
+                0 => " (one network)".to_string(),
+                m => format!(", twice: coarse, and fine on the coarse samples + {m} by inverse CDF"),
+            },
+            match &n.occupancy {
+                Some(o) => format!(
+                    "occupancy grid {}^3 refreshed every {} steps: samples only in occupied cells",
+                    o.resolution, o.every
+                ),
+                None => "every sample evaluated (no occupancy grid)".into(),
+            }
+        ),
+    }
+}
+
+/// ", N held out as test views" (empty for none).
+fn held_out(n: usize) -> String {
+    match n {
+        0 => String::new(),
+        n => format!(", {n} held out as test views"),
+    }
+}
+
+pub(crate) fn plan_text(program: &sdfl_stdlib::Program) -> String {
+    use std::fmt::Write;
+    let mut o = String::new();
+    let row = |o: &mut String, what: &str, who: &[String]| {
+        let _ = if who.is_empty() {
+            writeln!(o, "  {what:<14} skipped (no output needs it)")
+        } else {
+            writeln!(o, "  {what:<14} computed for {}", who.join(", "))
+        };
+    };
+    for job in &program.renders {
+        let plan = Plan::of(job);
+        let _ = writeln!(o, "render {} (sphere tracing)", job.name);
+        let _ = writeln!(
+            o,
+            "  scene          {} primitives, {:?}, Lipschitz bound {}",
+            job.scene.primitive_count(),
+            job.scene.exactness(),
+            job.scene.lipschitz()
+        );
+        let _ = writeln!(
+            o,
+            "  rays           {} views x {}x{}, near {} far {}, <= {} steps, epsilon {}",
+            job.cameras.len(),
+            job.width,
+            job.height,
+            job.near,
+            job.far,
+            job.iterations,
+            job.epsilon
+        );
+        row(&mut o, "colour", &plan.color);
+        row(&mut o, "depth", &plan.depth);
+        let mut normals = plan.normals.clone();
+        if plan.shading_normals {
+            normals.push("shading (the material uses normals)".into());
+        }
+        row(&mut o, "normals", &normals);
+        if plan.shading_view {
+            let _ = writeln!(
+                o,
+                "  view direction used for shading (a specular material: colour depends on the view)"
+            );
+        }
+        row(&mut o, "hit mask", &plan.mask);
+        for d in job
+            .outputs
+            .iter()
+            .filter(|x| x.kind == sdfl_stdlib::OutputKind::Dataset)
+        {
+            let _ = writeln!(
+                o,
+                "  dataset        {}/transforms.json + r_0..r_{}.png (NeRF-synthetic: OpenGL poses, RGBA, alpha = hit mask)",
+                d.path.display(),
+                job.cameras.len() - 1
+            );
+        }
+        let _ = writeln!(o, "  gradient tape  none (not training)");
+        let _ = writeln!(
+            o,
+            "  work           {}",
+            sdfl_stdlib::work::render_work(job, None).describe()
+        );
+    }
+    for job in &program.volumes {
+        let names = |pred: &dyn Fn(&sdfl_stdlib::OutputKind) -> bool| -> Vec<String> {
+            job.outputs
+                .iter()
+                .filter(|x| pred(&x.kind))
+                .map(|x| x.path.display().to_string())
+                .collect()
+        };
+        use sdfl_stdlib::OutputKind as K;
+        let _ = writeln!(o, "render {} (volume rendering)", job.name);
+        let _ = writeln!(o, "  field          {}", describe_field(&job.field));
+        let _ = writeln!(
+            o,
+            "  samples        {} per ray, stratified {}..{}, {} views x {}x{}",
+            job.sampler.samples,
+            job.sampler.near,
+            job.sampler.far,
+            job.cameras.len(),
+            job.width,
+            job.height
+        );
+        row(
+            &mut o,
+            "composite",
+            &names(&|k| matches!(k, K::Image | K::Gif { .. } | K::Depth)),
+        );
+        row(&mut o, "depth", &names(&|k| matches!(k, K::Depth)));
+        row(&mut o, "view branch", &[]);
+        row(
+            &mut o,
+            "visual checks",
+            &names(&|k| matches!(k, K::Grid | K::Rays | K::SamplePoints)),
+        );
+        let _ = writeln!(o, "  gradient tape  none (not training)");
+        let _ = writeln!(
+            o,
+            "  work           {}",
+            sdfl_stdlib::work::volume_work(job, None).describe()
+        );
+    }
+    for job in &program.trains {
+        let _ = writeln!(o, "train {}", job.name);
+        let _ = writeln!(o, "  model          {}", describe_field(&job.model));
+        let trainable = match &*job.model {
+            sdfl_stdlib::value::Field::NeuralSdf(n) => {
+                format!(
+                    "all {} weights, starting as a sphere of radius {}",
+                    sdfl_runtime::neural::distance::sdf_net(n).len,
+                    n.radius
+                )
+            }
+            sdfl_stdlib::value::Field::Sdf(f) => {
+                let model = sdfl_runtime::train::TrainModel::new(f);
+                let params: Vec<String> = model
+                    .params
+                    .iter()
+                    .map(|p| format!("{} ({})", p.name, p.len))
+                    .collect();
+                format!("{} (gradients only for these)", params.join(", "))
+            }
+            sdfl_stdlib::value::Field::Nerf(n) => {
+                use sdfl_runtime::train::Objective;
+                match sdfl_runtime::neural::field::NerfObjective::new(n, &job.sampler) {
+                    Ok(m) => format!(
+                        "all {} weights in {} tensors{}",
+                        m.initial().len(),
+                        m.tensors().len(),
+                        if m.fine.is_some() {
+                            " (coarse and fine networks)"
+                        } else {
+                            ""
+                        }
+                    ),
+                    Err(e) => format!("none: {e}"),
+                }
+            }
+        };
+        let _ = writeln!(o, "  trainable      {trainable}");
+        let data = match &*job.data {
+            sdfl_stdlib::value::Dataset::Points {
+                path,
+                every,
+                center,
+            } => format!(
+                "points of {}{}{}",
+                path.display(),
+                if *every > 1 {
+                    format!(", one in {every}")
+                } else {
+                    String::new()
+                },
+                if *center { ", centred" } else { "" }
+            ),
+            sdfl_stdlib::value::Dataset::Files { images, .. } => {
+                format!("{} image files", images.len())
+            }
+            sdfl_stdlib::value::Dataset::Rendered {
+                cameras,
+                width,
+                height,
+                test,
+                ..
+            } => {
+                format!(
+                    "{} views volume-rendered by sdfl at {width}x{height}{}",
+                    cameras.len(),
+                    held_out(test.len())
+                )
+            }
+            sdfl_stdlib::value::Dataset::Traced { job, test } => {
+                let plan = Plan::of(&sdfl_stdlib::RenderJob {
+                    outputs: vec![sdfl_stdlib::Output {
+                        kind: sdfl_stdlib::OutputKind::Image,
+                        path: "data".into(),
+                        span: sdfl_lang::Span::default(),
+                    }],
+                    ..(**job).clone()
+                });
+                format!(
+                    "{} views sphere-traced by sdfl at {}x{}, {} primitives{}{}{}",
+                    job.cameras.len(),
+                    job.width,
+                    job.height,
+                    job.scene.primitive_count(),
+                    if plan.shading_normals {
+                        ", shaded with normals"
+                    } else {
+                        ""
+                    },
+                    if plan.shading_view {
+                        " and the view direction (view-dependent colour)"
+                    } else {
+                        ""
+                    },
+                    held_out(test.len())
+                )
+            }
+            sdfl_stdlib::value::Dataset::NerfSynthetic {
+                path,
+                split,
+                test_split,
+                ..
+            } => format!(
+                "NeRF-synthetic data set {}, split `{split}`{}",
+                path.display(),
+                test_split
+                    .as_ref()
+                    .map(|t| format!(", test views from split `{t}`"))
+                    .unwrap_or_default()
+            ),
+        };
+        let _ = writeln!(o, "  data           {data}");
+        let on_points = matches!(&*job.model, sdfl_stdlib::value::Field::NeuralSdf(_));
+        let _ = writeln!(
+            o,
+            "  step           {}, {}, Adam lr {} ({}), {}",
+            if on_points {
+                format!(
+                    "{0} surface points + {0} random points in [-{1}, {1}]^3",
+                    job.rays, job.bounds
+                )
+            } else {
+                format!(
+                    "{} rays x {} samples{}",
+                    job.rays,
+                    job.sampler.samples,
+                    if job.sampler.jitter {
+                        " (jittered)"
+                    } else {
+                        ""
+                    }
+                )
+            },
+            job.losses
+                .iter()
+                .map(|l| {
+                    let name = match l.kind {
+                        sdfl_stdlib::value::LossKind::Mse => "MSE on colour".to_string(),
+                        sdfl_stdlib::value::LossKind::Surface => "mean |f| at the points".into(),
+                        sdfl_stdlib::value::LossKind::Eikonal => {
+                            "eikonal (exact input gradient)".into()
+                        }
+                        sdfl_stdlib::value::LossKind::Inter { alpha } => {
+                            format!("exp(-{alpha}|f|) at random points")
+                        }
+                    };
+                    if l.weight == 1.0 {
+                        name
+                    } else {
+                        format!("{} x {name}", l.weight)
+                    }
+                })
+                .collect::<Vec<_>>()
+                .join(" + "),
+            job.optimizer.lr,
+            match job.optimizer.schedule {
+                sdfl_stdlib::value::Schedule::Constant => "constant".to_string(),
+                sdfl_stdlib::value::Schedule::Step { factor, every } => {
+                    format!("x{factor} every {every} steps")
+                }
+                sdfl_stdlib::value::Schedule::Exponential { factor, every } => {
+                    format!("x{factor} per {every} steps, smoothly")
+                }
+            },
+            match job.epochs {
+                Some(e) => format!("{e} epochs"),
+                None => format!("{} iterations", job.iterations),
+            }
+        );
+        let _ = writeln!(
+            o,
+            "  gradient tape  {}",
+            match (&*job.model, job.backend) {
+                (sdfl_stdlib::value::Field::NeuralSdf(_), _) =>
+                    "none: forward-mode tangents give the exact gradient of f; a hand-written second-order backward",
+                (sdfl_stdlib::value::Field::Nerf(_), _) =>
+                    "none: fused layer kernels with a hand-written backward through the network and the compositing",
+                (_, sdfl_stdlib::value::Backend::Dfdx) =>
+                    "dfdx autodiff graph over [rays, samples], the field as a custom op",
+                (_, sdfl_stdlib::value::Backend::Fused) =>
+                    "fused per-ray kernel: forward-mode tangents for each parameter, no tape",
+            }
+        );
+        if !on_points {
+            let _ = writeln!(o, "  depth          skipped (the loss uses colour only)");
+        }
+        let _ = writeln!(
+            o,
+            "  outputs        {} before, {} after",
+            job.before.len(),
+            job.after.len()
+        );
+        let _ = writeln!(
+            o,
+            "  work           {}",
+            sdfl_stdlib::work::train_work(job, None).describe()
+        );
+    }
+    o
+}

@@ -1,0 +1,253 @@
+//! `sdfl sweep`: a file re-run over values of one `let`, with quality and
+//! time side by side.
+
+use super::*;
+
+/// Mean squared error of two 8-bit images of the same size.
+fn mse(a: &Path, b: &Path) -> Option<f64> {
+    let (a, b) = (
+        image::open(a).ok()?.to_rgb8(),
+        image::open(b).ok()?.to_rgb8(),
+    );
+    if a.dimensions() != b.dimensions() {
+        return None;
+    }
+    let n = a.as_raw().len() as f64;
+    Some(
+        a.as_raw()
+            .iter()
+            .zip(b.as_raw())
+            .map(|(x, y)| (*x as f64 - *y as f64).powi(2))
+            .sum::<f64>()
+            / n,
+    )
+}
+
+/// Peak signal-to-noise ratio in dB of a mean squared error on 0..255.
+fn psnr(mse: f64) -> f64 {
+    if mse == 0.0 {
+        f64::INFINITY
+    } else {
+        10.0 * (255.0f64 * 255.0 / mse).log10()
+    }
+}
+
+/// Written colour images of a report set, by relative path.
+fn images_of(reports: &[serde_json::Value]) -> Vec<String> {
+    reports
+        .iter()
+        .flat_map(|r| {
+            r["report"]["written"]
+                .as_array()
+                .cloned()
+                .unwrap_or_default()
+        })
+        .filter(|w| w["kind"] == "image")
+        .filter_map(|w| w["path"].as_str().map(str::to_string))
+        .collect()
+}
+
+fn params_of(reports: &[serde_json::Value]) -> Vec<f64> {
+    reports
+        .iter()
+        .flat_map(|r| {
+            r["report"]["params"]
+                .as_array()
+                .cloned()
+                .unwrap_or_default()
+        })
+        .flat_map(|p| p[1].as_array().cloned().unwrap_or_default())
+        .filter_map(|v| v.as_f64())
+        .collect()
+}
+
+/// The mean over a run's training statements of their last held-out PSNR.
+fn held_out_psnr(reports: &[serde_json::Value]) -> Option<f64> {
+    let last: Vec<f64> = reports
+        .iter()
+        .filter_map(|r| r["report"]["held_out"].as_array()?.last()?["psnr"].as_f64())
+        .collect();
+    (!last.is_empty()).then(|| last.iter().sum::<f64>() / last.len() as f64)
+}
+
+pub(crate) fn sweep(
+    file: &Path,
+    name: &str,
+    values: &[f64],
+    out: &Path,
+    size: Option<(u32, u32)>,
+) -> ExitCode {
+    let Ok(src) = read(file) else {
+        return ExitCode::FAILURE;
+    };
+    let Ok(out) = out_dir(out) else {
+        return ExitCode::FAILURE;
+    };
+    let out = out.as_path();
+    let mut rows = Vec::new();
+    for v in values {
+        let program = match sdfl_stdlib::load_with(&src, &[(name.to_string(), *v)]) {
+            Ok(p) => p,
+            Err(d) => {
+                eprint!(
+                    "{}",
+                    sdfl_lang::render(&src, &d, std::io::stderr().is_terminal())
+                );
+                return ExitCode::FAILURE;
+            }
+        };
+        // Each setting runs from scratch: its folder (made by sdfl) is
+        // emptied first, so no checkpoint of an earlier sweep is resumed.
+        let dir = out.join(format!("{name}={v}"));
+        if dir.exists() {
+            if let Err(e) = std::fs::remove_dir_all(&dir) {
+                eprintln!("error[sdfl::io]: cannot clear {}: {e}", dir.display());
+                return ExitCode::FAILURE;
+            }
+        }
+        let bar = progress_bar(work(&program, size), false);
+        bar.set_message(format!("{name}={v}"));
+        let t = Instant::now();
+        match execute(
+            &program,
+            &dir,
+            RunOptions {
+                size,
+                no_cull: false,
+                restart: true,
+            },
+            &base_dir(Some(file)),
+            &bar,
+        ) {
+            Ok(reports) => {
+                bar.finish_and_clear();
+                rows.push((*v, t.elapsed().as_secs_f64(), dir, reports));
+            }
+            Err((job, e)) => {
+                bar.abandon();
+                eprint!("{}", runtime_error(&src, &job, &e));
+                return ExitCode::FAILURE;
+            }
+        }
+    }
+    let (_, _, ref_dir, ref_reports) = rows.last().expect("at least two settings");
+    let ref_images = images_of(ref_reports);
+    let ref_params = params_of(ref_reports);
+    let mut table = format!("| {name} | seconds | PSNR vs {name}={} (dB) | max parameter error | held-out PSNR (dB) |\n|---:|---:|---:|---:|---:|\n", values[values.len() - 1]);
+    let mut csv = format!("{name},seconds,psnr_db,param_error,held_out_psnr_db\n");
+    let held_out_any = rows.iter().any(|r| held_out_psnr(&r.3).is_some());
+    let mut points = Vec::new();
+    // The same quality against the swept value (time may hardly change).
+    let mut by_value = Vec::new();
+    for (row, (v, secs, dir, reports)) in rows.iter().enumerate() {
+        let is_ref = row + 1 == rows.len();
+        // PSNR of the mean squared error over all images of the run.
+        let errors: Vec<f64> = ref_images
+            .iter()
+            .filter_map(|rel| mse(&dir.join(rel), &ref_dir.join(rel)))
+            .collect();
+        let mean_psnr =
+            (!errors.is_empty()).then(|| psnr(errors.iter().sum::<f64>() / errors.len() as f64));
+        let params = params_of(reports);
+        let perr = (!params.is_empty() && params.len() == ref_params.len()).then(|| {
+            params
+                .iter()
+                .zip(&ref_params)
+                .map(|(a, b)| (a - b).abs())
+                .fold(0.0, f64::max)
+        });
+        // Only the reference row is "ref"; another run whose images equal
+        // the reference's has an infinite PSNR and says so.
+        let fmt = |x: Option<f64>, prec: usize| {
+            x.map_or("-".to_string(), |x| {
+                if is_ref {
+                    "ref".into()
+                } else if x.is_infinite() {
+                    "identical (∞)".into()
+                } else {
+                    format!("{x:.prec$}")
+                }
+            })
+        };
+        let held = held_out_psnr(reports);
+        table.push_str(&format!(
+            "| {v} | {secs:.3} | {} | {} | {} |\n",
+            fmt(mean_psnr, 2),
+            fmt(perr, 5),
+            held.map_or("-".to_string(), |x| format!("{x:.2}"))
+        ));
+        csv.push_str(&format!(
+            "{v},{secs},{},{},{}\n",
+            mean_psnr.map_or(String::new(), |x| x.to_string()),
+            perr.map_or(String::new(), |x| x.to_string()),
+            held.map_or(String::new(), |x| x.to_string())
+        ));
+        // The plot: quality against time: held-out PSNR where training
+        // held views out, else PSNR against the reference, else parameter error.
+        let y = if held_out_any {
+            held
+        } else {
+            mean_psnr.filter(|p| p.is_finite()).or(perr)
+        };
+        if let Some(y) = y {
+            points.push((*secs, y));
+            by_value.push((*v, y));
+        }
+    }
+    Stdout::new().print(&table);
+    let write = |rel: &str, bytes: &[u8]| -> std::io::Result<()> {
+        let mut f = sdfl_runtime::output::Atomic::create(&out.join(rel))?;
+        std::io::Write::write_all(f.writer(), bytes)?;
+        f.commit()
+    };
+    let log_y = ref_images.is_empty() && !held_out_any;
+    let png = sdfl_runtime::volume::figures::line_plot(
+        640,
+        400,
+        &[(
+            if held_out_any {
+                "held-out PSNR (dB) vs seconds"
+            } else {
+                "error vs seconds"
+            },
+            &points,
+        )],
+        log_y,
+    );
+    let value_label = format!(
+        "{} vs {name}",
+        if held_out_any {
+            "held-out PSNR (dB)"
+        } else {
+            "error"
+        }
+    );
+    let value_png = sdfl_runtime::volume::figures::line_plot(
+        640,
+        400,
+        &[(value_label.as_str(), &by_value)],
+        log_y,
+    );
+    let result = write("sweep.csv", csv.as_bytes())
+        .and_then(|_| write("sweep.md", table.as_bytes()))
+        .and_then(|_| sdfl_runtime::output::write_png(&out.join("sweep.png"), 640, 400, &png))
+        .and_then(|_| {
+            sdfl_runtime::output::write_png(&out.join("sweep_value.png"), 640, 400, &value_png)
+        });
+    match result {
+        Ok(()) => {
+            eprintln!(
+                "wrote {0}/sweep.csv, {0}/sweep.md, {0}/sweep.png (against seconds) and {0}/sweep_value.png (against the value)",
+                out.display()
+            );
+            ExitCode::SUCCESS
+        }
+        Err(e) => {
+            eprintln!(
+                "error[sdfl::io]: writing the sweep results under {}: {e}",
+                out.display()
+            );
+            ExitCode::FAILURE
+        }
+    }
+}
