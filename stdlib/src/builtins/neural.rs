@@ -8,7 +8,7 @@ use crate::value::NeuralSdf;
 /// Adam's moments).
 const MAX_GRID_PARAMS: u64 = 1 << 26;
 
-/// Most weights in a NeRF network's layers.
+/// Most weights in a network's layers.
 const MAX_NETWORK_WEIGHTS: usize = 1 << 26;
 
 pub(crate) fn builtins() -> Vec<Builtin> {
@@ -39,16 +39,7 @@ pub(crate) fn builtins() -> Vec<Builtin> {
                     }
                     other => return Err(type_error(a.get("encoding").1, "encoding", other)),
                 };
-                let layers = a.count("layers", 1, 32)? as usize;
-                let width = a.count("width", 1, 4096)? as usize;
-                if layers * width * width > MAX_NETWORK_WEIGHTS {
-                    return Err(value_error(
-                        a.get("width").1,
-                        format!("{layers} layers of {width} hold about {} weights, more than {MAX_NETWORK_WEIGHTS}", layers * width * width),
-                        "too wide for its depth",
-                        "use fewer or narrower layers",
-                    ));
-                }
+                let (layers, width) = network_size(a)?;
                 Ok(Value::Field(Arc::new(Field::NeuralSdf(NeuralSdf {
                     encoding,
                     layers,
@@ -241,15 +232,7 @@ pub(crate) fn builtins() -> Vec<Builtin> {
                         "encode the direction with `harmonic(freqs: 2)`",
                     ));
                 }
-                let width = a.count("width", 1, 4096)? as usize;
-                if layers * width * width > MAX_NETWORK_WEIGHTS {
-                    return Err(value_error(
-                        a.get("width").1,
-                        format!("{layers} layers of {width} hold about {} weights, more than {MAX_NETWORK_WEIGHTS}", layers * width * width),
-                        "too wide for its depth",
-                        "use fewer or narrower layers",
-                    ));
-                }
+                let (_, width) = network_size(a)?;
                 Ok(Value::Field(Arc::new(Field::Nerf(Nerf {
                     position: encoding("position")?,
                     direction,
@@ -285,6 +268,25 @@ pub(crate) fn builtins() -> Vec<Builtin> {
             },
         ),
     ]
+}
+
+/// The `layers` and `width` of a network, refused past
+/// [`MAX_NETWORK_WEIGHTS`].
+fn network_size(a: &Args) -> Result<(usize, usize), Diag> {
+    let layers = a.count("layers", 1, 32)? as usize;
+    let width = a.count("width", 1, 4096)? as usize;
+    if layers * width * width > MAX_NETWORK_WEIGHTS {
+        return Err(value_error(
+            a.get("width").1,
+            format!(
+                "{layers} layers of {width} hold about {} weights, more than {MAX_NETWORK_WEIGHTS}",
+                layers * width * width
+            ),
+            "too wide for its depth",
+            "use fewer or narrower layers",
+        ));
+    }
+    Ok((layers, width))
 }
 
 /// The `skips` argument: distinct later layers (1 ≤ k < layers), sorted.
