@@ -7,8 +7,9 @@
 //! and the bias and activation per block of rows while the block is in
 //! cache; the backward pass turns the output's adjoint into the
 //! pre-activation adjoint in place, then computes the inputs' adjoints per
-//! block of rows and the weight gradient per block of columns (an `Xᵀ·dZ`
-//! product over all rows), so every gradient is reduced in a fixed order:
+//! block of rows and the weight gradient as partial `Xᵀ·dZ` products over
+//! fixed blocks of rows added in order, so every gradient is reduced in a
+//! fixed order:
 //! results are bit-identical whatever the thread count.
 //!
 //! Weights are stored `in × out` (row `i` holds input `i`'s weights), so
@@ -21,8 +22,9 @@ use crate::volume::SplitMix64;
 
 /// Rows per block of the forward and input-adjoint passes.
 const ROW_BLOCK: usize = 256;
-/// Columns per block of the weight-gradient pass.
-const COL_BLOCK: usize = 16;
+/// Rows per block of the weight-gradient pass (each block's partial sums
+/// are added in block order, so the result does not depend on threads).
+const GRAD_ROWS: usize = 4096;
 
 /// A pointwise nonlinearity after a layer.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -309,64 +311,62 @@ impl Dense {
             }
             w_row += k;
         }
-        // ∂L/∂W_p = x_pᵀ·dZ and ∂L/∂b = Σ_rows dZ, per block of columns.
+        // ∂L/∂W_p = x_pᵀ·dZ and ∂L/∂b = Σ_rows dZ: partial sums over fixed
+        // blocks of rows (each operand packed once), added in block order.
         let fan_in = self.fan_in();
-        let (gw, gb) = grad[self.offset..self.end()].split_at_mut(fan_in * n);
-        let col_blocks: Vec<usize> = (0..n).step_by(COL_BLOCK).collect();
-        // Each column block writes a disjoint set of columns of gW.
-        let gw_ptr = SendPtr(gw.as_mut_ptr());
-        let bias: Vec<(usize, Vec<f64>)> = col_blocks
-            .par_iter()
-            .map(|&c0| {
-                let nc = COL_BLOCK.min(n - c0);
-                let gw = gw_ptr;
+        let len = (fan_in + 1) * n;
+        let partials: Vec<Vec<f32>> = (0..rows.div_ceil(GRAD_ROWS))
+            .into_par_iter()
+            .map(|blk| {
+                let r0 = blk * GRAD_ROWS;
+                let m = GRAD_ROWS.min(rows - r0);
+                let mut part = vec![0f32; len];
                 let mut w_row = 0;
                 for (&k, x) in self.parts.iter().zip(inputs) {
-                    // SAFETY: x is rows × k read transposed (k × rows); dz
-                    // columns c0..c0+nc of rows × n; gW rows w_row..w_row+k,
-                    // columns c0..c0+nc, which no other block touches.
+                    // SAFETY: x rows r0..r0+m (k wide) read transposed
+                    // (k × m); dz rows r0..r0+m of n; part's rows
+                    // w_row..w_row+k of n columns.
                     unsafe {
                         matrixmultiply::sgemm(
                             k,
-                            rows,
-                            nc,
+                            m,
+                            n,
                             1.0,
-                            x.as_ptr(),
+                            x[r0 * k..].as_ptr(),
                             1,
                             k as isize,
-                            dz[c0..].as_ptr(),
+                            dz[r0 * n..].as_ptr(),
                             n as isize,
                             1,
-                            1.0,
-                            gw.0.add(w_row * n + c0),
+                            0.0,
+                            part[w_row * n..].as_mut_ptr(),
                             n as isize,
                             1,
                         );
                     }
                     w_row += k;
                 }
-                let mut sums = vec![0f64; nc];
-                for r in dz.chunks(n) {
-                    for (s, &v) in sums.iter_mut().zip(&r[c0..c0 + nc]) {
-                        *s += v as f64;
+                let bias = &mut part[fan_in * n..];
+                for r in dz[r0 * n..(r0 + m) * n].chunks(n) {
+                    for (s, &v) in bias.iter_mut().zip(r) {
+                        *s += v;
                     }
                 }
-                (c0, sums)
+                part
             })
             .collect();
-        for (c0, sums) in bias {
-            for (g, s) in gb[c0..].iter_mut().zip(sums) {
-                *g += s as f32;
-            }
-        }
+        grad[self.offset..self.end()]
+            .par_chunks_mut(4096)
+            .enumerate()
+            .for_each(|(c, g)| {
+                for (i, gi) in g.iter_mut().enumerate() {
+                    let at = c * 4096 + i;
+                    let sum: f64 = partials.iter().map(|p| p[at] as f64).sum();
+                    *gi += sum as f32;
+                }
+            });
     }
 }
-
-#[derive(Clone, Copy)]
-struct SendPtr(*mut f32);
-// SAFETY: used only to write disjoint column blocks from parallel tasks.
-unsafe impl Send for SendPtr {}
-unsafe impl Sync for SendPtr {}
 
 #[cfg(test)]
 mod tests {
