@@ -572,7 +572,7 @@ fn softplus_and_slope(z: f32, beta: f32) -> (f32, f32) {
     } else {
         e / (1.0 + e)
     };
-    ((t.max(0.0) + e.ln_1p()) / beta, s)
+    ((t.max(0.0) + super::mlp::ln_1p_small(e)) / beta, s)
 }
 
 /// Rows `3r + j` of `out` (rows × 3 tangents × width): `∂enc(x_r)/∂x_j`.
