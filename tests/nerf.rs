@@ -1,8 +1,9 @@
 //! NeRF end to end through the language, small enough for CI: a tiny
-//! network learns a self-rendered scene (loss falls, held-out PSNR rises
-//! well above the untrained model's), a resumed run is the same run (the
-//! checkpoint's weights and Adam moments bit-identical), and a checkpoint of
-//! another architecture is refused.
+//! network learns a self-rendered scene (its loss falls fourfold); a hash
+//! grid with an occupancy grid passes 28 dB on held-out views and empties
+//! cells; resumed runs are the same run (weights, Adam moments and the
+//! occupancy grid bit-identical); a checkpoint of another architecture is
+//! refused.
 
 use std::path::{Path, PathBuf};
 

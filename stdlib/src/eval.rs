@@ -715,20 +715,10 @@ impl<'e> Evaluator<'e> {
             BinOp::Pow => a.powf(b),
         };
         let nums = |v: &Value| -> Option<Vec<f64>> {
-            match v {
-                Value::Number(x) => Some(vec![*x]),
-                Value::List(items) => items
-                    .iter()
-                    .map(|i| {
-                        if let Value::Number(x) = i {
-                            Some(*x)
-                        } else {
-                            None
-                        }
-                    })
-                    .collect(),
+            crate::builtins::one_or_list(v, |v| match v {
+                Value::Number(x) => Some(*x),
                 _ => None,
-            }
+            })
         };
         if matches!(l, Value::Poison) || matches!(r, Value::Poison) {
             return Value::Poison;

@@ -94,11 +94,7 @@ impl NerfNet {
     /// Panics on a hash grid the language would have refused; see
     /// [`Self::try_new_at`].
     pub fn new(spec: &Nerf) -> Self {
-        Self::new_at(spec, 0)
-    }
-
-    pub fn new_at(spec: &Nerf, first: usize) -> Self {
-        Self::try_new_at(spec, first).expect("a valid hash grid")
+        Self::try_new_at(spec, 0).expect("a valid hash grid")
     }
 
     /// The network with its parameters from `first` on in a flat vector

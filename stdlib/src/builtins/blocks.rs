@@ -208,16 +208,11 @@ pub(crate) fn train_block(name: &str, a: &Args) -> Result<TrainJob, Diag> {
         ));
     };
     let (losses_v, losses_span) = a.get("losses");
-    let losses: Option<Vec<Loss>> = match losses_v {
-        Value::List(items) => items
-            .iter()
-            .map(|i| match i {
-                Value::Loss(l) => Some(*l),
-                _ => None,
-            })
-            .collect(),
+    // A list of losses (a single loss is a list of one too).
+    let losses = one_or_list(losses_v, |v| match v {
+        Value::Loss(l) => Some(*l),
         _ => None,
-    };
+    });
     let losses = match losses {
         Some(l) if !l.is_empty() => l,
         Some(_) => {

@@ -1031,17 +1031,10 @@ fn phong(a: &Args) -> Result<Value, Diag> {
     let (ambient, specular) = (fraction("ambient")?, fraction("specular")?);
     let shininess = a.positive("shininess")?;
     let (lights_v, lights_span) = a.get("lights");
-    let lights: Option<Vec<Light>> = match lights_v {
-        Value::Light(l) => Some(vec![*l]),
-        Value::List(items) => items
-            .iter()
-            .map(|i| match i {
-                Value::Light(l) => Some(*l),
-                _ => None,
-            })
-            .collect(),
+    let lights = one_or_list(lights_v, |v| match v {
+        Value::Light(l) => Some(*l),
         _ => None,
-    };
+    });
     let lights = match lights {
         Some(l) if l.is_empty() => {
             return Err(value_error(
@@ -1225,22 +1218,21 @@ fn check_range(a: &Args, near: f64, far: f64) -> Result<(), Diag> {
     Ok(())
 }
 
+/// A value that is one `T` or a list of them (as `pick` reads each), or
+/// `None` if any item is something else.
+pub(crate) fn one_or_list<T>(v: &Value, pick: impl Fn(&Value) -> Option<T>) -> Option<Vec<T>> {
+    match v {
+        Value::List(items) => items.iter().map(&pick).collect(),
+        one => pick(one).map(|t| vec![t]),
+    }
+}
+
 fn camera_list(a: &Args, name: &str) -> Result<Vec<Camera>, Diag> {
     let (v, s) = a.get(name);
-    let cams: Option<Vec<Camera>> = match v {
-        Value::Camera(c) => Some(vec![*c]),
-        Value::List(items) => items
-            .iter()
-            .map(|i| {
-                if let Value::Camera(c) = i {
-                    Some(*c)
-                } else {
-                    None
-                }
-            })
-            .collect(),
+    let cams = one_or_list(v, |v| match v {
+        Value::Camera(c) => Some(*c),
         _ => None,
-    };
+    });
     match cams {
         Some(c) if c.is_empty() => Err(value_error(
             s,
