@@ -591,6 +591,16 @@ fn summarise(r: &serde_json::Value, out: &Path, stdout: &mut Stdout) {
                     fit["surface_samples"]
                 );
             }
+            if let Some(fit) = rep.get("mesh_fit").filter(|f| f.is_object()) {
+                let num = |k: &str| fit[k].as_f64().unwrap_or(f64::NAN);
+                eprintln!(
+                    "  mesh vs the data's {} points: Chamfer {:.4} (points → mesh {:.4}, mesh → points {:.4})",
+                    fit["points"],
+                    num("chamfer"),
+                    num("points_to_mesh"),
+                    num("mesh_to_points")
+                );
+            }
             for p in rep["params"].as_array().into_iter().flatten() {
                 let vals: Vec<String> = p[1]
                     .as_array()
@@ -608,6 +618,18 @@ fn summarise(r: &serde_json::Value, out: &Path, stdout: &mut Stdout) {
         _ => {}
     }
     for w in rep["written"].as_array().into_iter().flatten() {
+        if let Some(m) = w.get("mesh").filter(|m| m.is_object()) {
+            eprintln!(
+                "  {}: {} vertices, {} triangles, area {:.4}, cell {:.4} ({} cells a side), {:.2}s",
+                w["path"].as_str().unwrap_or("?"),
+                m["vertices"],
+                m["triangles"],
+                m["area"].as_f64().unwrap_or(f64::NAN),
+                m["cell"].as_f64().unwrap_or(f64::NAN),
+                m["resolution"],
+                m["seconds"].as_f64().unwrap_or(0.0)
+            );
+        }
         stdout.line(
             &out.join(w["path"].as_str().unwrap_or(""))
                 .display()

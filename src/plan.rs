@@ -80,6 +80,27 @@ fn held_out(n: usize) -> String {
     }
 }
 
+/// A line per `mesh` output: the grid it samples.
+fn mesh_lines(o: &mut String, outputs: &[sdfl_stdlib::Output], default_region: &str) {
+    use std::fmt::Write;
+    for m in outputs {
+        let sdfl_stdlib::OutputKind::Mesh { resolution, region } = m.kind else {
+            continue;
+        };
+        let region = match region {
+            sdfl_stdlib::value::MeshRegion::Auto => default_region.to_string(),
+            sdfl_stdlib::value::MeshRegion::Box { min, max } => format!("{min:?}..{max:?}"),
+        };
+        let n = resolution as u64 + 5;
+        let _ = writeln!(
+            o,
+            "  mesh           {}: surface nets, {resolution} cells along the longest side of {region}, at most {} grid evaluations, two planes in memory",
+            m.path.display(),
+            n * n * n
+        );
+    }
+}
+
 pub(crate) fn plan_text(program: &sdfl_stdlib::Program) -> String {
     use std::fmt::Write;
     let mut o = String::new();
@@ -137,6 +158,7 @@ pub(crate) fn plan_text(program: &sdfl_stdlib::Program) -> String {
                 job.cameras.len() - 1
             );
         }
+        mesh_lines(&mut o, &job.outputs, "the scene's bounds");
         let _ = writeln!(o, "  gradient tape  none (not training)");
         let _ = writeln!(
             o,
@@ -177,6 +199,7 @@ pub(crate) fn plan_text(program: &sdfl_stdlib::Program) -> String {
             "visual checks",
             &names(&|k| matches!(k, K::Grid | K::Rays | K::SamplePoints)),
         );
+        mesh_lines(&mut o, &job.outputs, "the field's bounds");
         let _ = writeln!(o, "  gradient tape  none (not training)");
         let _ = writeln!(
             o,
@@ -376,6 +399,15 @@ pub(crate) fn plan_text(program: &sdfl_stdlib::Program) -> String {
             job.before.len(),
             job.after.len()
         );
+        let region = if on_points {
+            "the points' box grown by a tenth of its diagonal".to_string()
+        } else if matches!(&*job.model, sdfl_stdlib::value::Field::NeuralSdf(_)) {
+            format!("[-{0}, {0}]^3", job.bounds)
+        } else {
+            "the starting bounds grown by half".to_string()
+        };
+        mesh_lines(&mut o, &job.before, &region);
+        mesh_lines(&mut o, &job.after, &region);
         let _ = writeln!(
             o,
             "  work           {}",

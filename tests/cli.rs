@@ -216,3 +216,58 @@ fn statements_run_in_file_order() {
         .collect();
     assert_eq!(names, ["first", "fit", "last"]);
 }
+
+#[test]
+fn meshes_of_a_scene_and_a_field_are_written_with_their_statistics() {
+    let tmp = temp("mesh");
+    let file = tmp.join("mesh.sdfl");
+    std::fs::write(
+        &file,
+        r#"
+let ball = sphere(0.7, center: [0.2, 0, 0])
+render scene {
+  scene: ball,
+  camera: look_at(eye: [0, 0, -3]),
+  size: [8, 8],
+  outputs: [mesh("ball.ply", resolution: 48)],
+}
+render field {
+  scene: volsdf(ball),
+  camera: look_at(eye: [0, 0, -3]),
+  size: [8, 8],
+  outputs: [mesh("field.ply", resolution: 24, bounds: [[-1, -1, -1], [1, 1, 1]])],
+}
+"#,
+    )
+    .unwrap();
+    let out_dir = tmp.join("out");
+    let out = sdfl(&[
+        "run",
+        file.to_str().unwrap(),
+        "--json",
+        "--out",
+        out_dir.to_str().unwrap(),
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let json: serde_json::Value = serde_json::from_slice(&out.stdout).expect("valid JSON");
+    let mesh = |job: usize| json["jobs"][job]["report"]["written"][0].clone();
+    let ball = mesh(0);
+    assert_eq!(ball["kind"], "mesh");
+    assert!(out_dir.join("ball.ply").is_file());
+    // The sphere's area, 4πr², within 2 %.
+    let area = ball["mesh"]["area"].as_f64().unwrap();
+    let exact = 4.0 * std::f64::consts::PI * 0.49;
+    assert!((area / exact - 1.0).abs() < 0.02, "{area} vs {exact}");
+    assert!(ball["mesh"]["triangles"].as_u64().unwrap() > 1000);
+    let field = mesh(1);
+    assert_eq!(field["mesh"]["resolution"], 24);
+    assert!(out_dir.join("field.ply").is_file());
+    // `plan` says what the mesh samples.
+    let plan = sdfl(&["plan", file.to_str().unwrap()]);
+    let text = String::from_utf8_lossy(&plan.stdout);
+    assert!(text.contains("ball.ply: surface nets, 48 cells"), "{text}");
+}

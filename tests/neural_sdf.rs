@@ -19,7 +19,7 @@ train fit {
   bounds: 1.5,
   views: look_at(eye: [0, 0, -3]),
   size: [17, 17],
-  after: [image("fit.png")],
+  after: [image("fit.png"), mesh("fit.ply", resolution: 40)],
   checkpoint: "fit.ckpt",
 }
 "#;
@@ -83,6 +83,18 @@ fn a_small_neural_sdf_finds_the_sphere_of_its_points() {
     );
     assert!(end.surface_mean_abs < 0.02, "{end:?}");
     assert!(end.eikonal < 0.1, "{end:?}");
+    // Its mesh: on the sphere of the points, measured against them.
+    let mesh_fit = report.mesh_fit.expect("a mesh fit");
+    assert!(mesh_fit.chamfer < 0.05, "{mesh_fit:?}");
+    assert_eq!(mesh_fit.points, 2000);
+    let vertices = ply_vertices(&dir.join("out/fit.ply"));
+    assert!(vertices.len() > 500);
+    let radii: Vec<f32> = vertices
+        .iter()
+        .map(|v| v.iter().map(|x| x * x).sum::<f32>().sqrt())
+        .collect();
+    let mean = radii.iter().sum::<f32>() / radii.len() as f32;
+    assert!((mean - 0.8).abs() < 0.03, "mean radius {mean}");
     let _ = std::fs::remove_dir_all(&dir);
 }
 
@@ -107,4 +119,25 @@ fn a_resumed_neural_sdf_run_is_the_same_run() {
     }
     let _ = std::fs::remove_dir_all(&whole);
     let _ = std::fs::remove_dir_all(&parts);
+}
+
+/// The vertex positions of a binary PLY file as sdfl writes it (x y z nx ny
+/// nz floats per vertex).
+fn ply_vertices(path: &Path) -> Vec<[f32; 3]> {
+    let bytes = std::fs::read(path).unwrap();
+    let end = b"end_header\n";
+    let at = bytes.windows(end.len()).position(|w| w == end).unwrap() + end.len();
+    let header = std::str::from_utf8(&bytes[..at]).unwrap();
+    assert!(header.starts_with("ply\nformat binary_little_endian 1.0\n"));
+    let count: usize = header
+        .lines()
+        .find_map(|l| l.strip_prefix("element vertex "))
+        .unwrap()
+        .parse()
+        .unwrap();
+    let float =
+        |i: usize| f32::from_le_bytes(bytes[at + 4 * i..at + 4 * i + 4].try_into().unwrap());
+    (0..count)
+        .map(|v| [float(6 * v), float(6 * v + 1), float(6 * v + 2)])
+        .collect()
 }

@@ -3,6 +3,7 @@
 
 pub mod data;
 pub mod jobs;
+pub mod mesh;
 pub mod metrics;
 pub mod neural;
 pub mod output;

@@ -28,6 +28,8 @@ pub struct Plan {
     pub depth: Vec<String>,
     pub normals: Vec<String>,
     pub mask: Vec<String>,
+    /// Surface meshes (the distance on a grid).
+    pub meshes: Vec<String>,
     /// Shading needs normals at hit points (a material uses them); they are
     /// then computed per hit, not stored.
     pub shading_normals: bool,
@@ -59,6 +61,8 @@ impl Plan {
                 | OutputKind::LossCurve
                 | OutputKind::PsnrCurve
                 | OutputKind::Comparison => {}
+                // Meshes sample the distance on a grid, not along rays.
+                OutputKind::Mesh { .. } => plan.meshes.push(who),
             }
         }
         let shaded = !plan.color.is_empty();
@@ -252,6 +256,9 @@ pub struct Written {
     pub width: u32,
     pub height: u32,
     pub frames: usize,
+    /// What a mesh holds.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub mesh: Option<crate::mesh::MeshStats>,
 }
 
 /// The GIF outputs of a job, open for one frame per view; each shows
@@ -317,6 +324,7 @@ impl Gifs {
                     width,
                     height,
                     frames,
+                    mesh: None,
                 })
             })
             .collect()
@@ -424,7 +432,8 @@ pub fn run_job(
                 | OutputKind::SamplePoints
                 | OutputKind::LossCurve
                 | OutputKind::PsnrCurve
-                | OutputKind::Comparison => continue,
+                | OutputKind::Comparison
+                | OutputKind::Mesh { .. } => continue,
             };
             // The camera checks are written once, for the first view.
             let rel = if matches!(o.kind, OutputKind::Grid | OutputKind::Rays) {
@@ -441,6 +450,7 @@ pub fn run_job(
                 width,
                 height,
                 frames: 1,
+                mesh: None,
             });
         }
         if !gifs.is_empty() {
@@ -462,6 +472,32 @@ pub fn run_job(
         written.push(d.finish()?);
     }
     encode_s += t.elapsed().as_secs_f64();
+    let t = Instant::now();
+    let bounds = job
+        .scene
+        .bounds()
+        .map(|b| (b.min.to_array(), b.max.to_array()));
+    let distance = |p: &[[f32; 3]], out: &mut [f32]| {
+        for (p, o) in p.iter().zip(out) {
+            *o = scene.dist(Vec3A::from(*p));
+        }
+    };
+    for o in job
+        .outputs
+        .iter()
+        .filter(|o| matches!(o.kind, OutputKind::Mesh { .. }))
+    {
+        written.push(crate::mesh::write_mesh(out_dir, o, &distance, bounds)?.0);
+    }
+    let mesh_s = t.elapsed().as_secs_f64();
+    let mut stages = vec![
+        ("lower".into(), lower_s),
+        ("trace".into(), trace_s),
+        ("encode".into(), encode_s),
+    ];
+    if !plan.meshes.is_empty() {
+        stages.push(("mesh".into(), mesh_s));
+    }
     Ok(JobReport {
         name: job.name.clone(),
         primitives: job.scene.primitive_count(),
@@ -474,11 +510,7 @@ pub fn run_job(
         undecided,
         plan,
         written,
-        stages: vec![
-            ("lower".into(), lower_s),
-            ("trace".into(), trace_s),
-            ("encode".into(), encode_s),
-        ],
+        stages,
     })
 }
 

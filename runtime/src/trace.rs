@@ -90,6 +90,13 @@ pub fn sphere_trace(sdf: &dyn Node, origin: Vec3A, dir: Vec3A, s: &TraceSettings
         step_len = omega * r;
         t += step_len;
         if t > s.far {
+            // A relaxed step past `far` may have leapt over a surface just
+            // before it: take the plain step instead, unrelaxed from here.
+            if omega > 1.0 && prev_t + prev_r <= s.far {
+                omega = 1.0;
+                (t, step_len) = (prev_t + prev_r, prev_r);
+                continue;
+            }
             return Hit {
                 t: s.far,
                 hit: false,
@@ -164,5 +171,48 @@ pub fn normal(sdf: &dyn Node, p: Vec3A, h: f32, fallback: Vec3A) -> Vec3A {
         g / len
     } else {
         fallback
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::sdf::{LowerOptions, Lowered};
+    use sdfl_stdlib::param::Arg;
+    use sdfl_stdlib::shape::Shape;
+
+    /// A relaxed step from the camera can pass `far` although the surface is
+    /// nearer: the ray must still find it (it was a miss once).
+    #[test]
+    fn relaxed_steps_never_leap_past_far_over_a_surface() {
+        let torus = Shape::Torus {
+            center: Arg::fixed(glam::DVec3::ZERO),
+            major: Arg::fixed(1.0),
+            minor: Arg::fixed(0.3),
+        };
+        let scene = Lowered::new(&torus, LowerOptions::default());
+        let origin = Vec3A::new(0.0, 0.0, -4.0);
+        for far in [4.0f32, 5.0, 10.0] {
+            for relax in [false, true] {
+                let s = TraceSettings {
+                    near: 0.0,
+                    far,
+                    max_steps: 64,
+                    epsilon: 1e-5,
+                    footprint: 1e-3,
+                    relax,
+                    lipschitz: 1.0,
+                };
+                // Towards the ring: it is 3.7 to 4.3 away.
+                let dir = Vec3A::new(1.0, 0.0, 4.0).normalize();
+                let hit = sphere_trace(&*scene.root, origin, dir, &s);
+                assert!(hit.hit, "far {far}, relaxed {relax}: {hit:?}");
+                let p = origin + dir * hit.t;
+                assert!(scene.dist(p).abs() < 1e-3, "far {far}: off the surface");
+                // Through the hole: a miss, decided.
+                let hit = sphere_trace(&*scene.root, origin, Vec3A::Z, &s);
+                assert!(!hit.hit && !hit.undecided && hit.t.is_finite());
+            }
+        }
     }
 }

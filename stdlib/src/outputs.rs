@@ -104,6 +104,7 @@ pub fn kind_name(kind: &OutputKind) -> &'static str {
         OutputKind::PsnrCurve => "psnr_curve",
         OutputKind::Comparison => "comparison",
         OutputKind::Dataset => "dataset",
+        OutputKind::Mesh { .. } => "mesh",
     }
 }
 

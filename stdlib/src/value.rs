@@ -125,6 +125,25 @@ pub enum OutputKind {
     /// A NeRF-synthetic data set in a directory: `transforms.json` and
     /// `r_<k>.png` per view (RGBA, alpha = the hit mask).
     Dataset,
+    /// The surface (zero level set) as a triangle mesh in a PLY file.
+    Mesh {
+        /// Grid cells along the region's longest side.
+        resolution: u32,
+        region: MeshRegion,
+    },
+}
+
+/// Where a mesh is extracted.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum MeshRegion {
+    /// The shape's bounds; for a neural SDF, its training points' (or the
+    /// training `bounds`).
+    Auto,
+    Box {
+        min: [f64; 3],
+        max: [f64; 3],
+    },
 }
 
 impl OutputKind {

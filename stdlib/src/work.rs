@@ -70,6 +70,34 @@ fn bytes_per_pixel(kinds: impl Iterator<Item = OutputKind>, volume: bool) -> f64
     b.max(3.0)
 }
 
+/// Most vertices a mesh may have (about 2.5 GB with its triangles); a
+/// surface that needs more stops with an error.
+pub const MAX_MESH_VERTICES: usize = 40_000_000;
+
+/// The grid evaluations and peak memory of the meshes among `outputs`, a
+/// grid point costing `per_point` evaluations. A surface is assumed to cross
+/// a few times the cells of one plane; [`MAX_MESH_VERTICES`] bounds the rest.
+fn mesh_work<'a>(outputs: impl Iterator<Item = &'a OutputKind>, per_point: f64) -> Work {
+    let mut w = Work {
+        evaluations: 0.0,
+        memory: 0.0,
+    };
+    for o in outputs {
+        if let OutputKind::Mesh { resolution, .. } = o {
+            // The grid is padded by two cells a side.
+            let n = *resolution as f64 + 5.0;
+            w.evaluations += n * n * n * per_point;
+            // Two planes of points and values, two layers of vertex
+            // numbers, and vertices, normals and triangles of the surface.
+            let surface = 8.0 * n * n;
+            w.memory = w
+                .memory
+                .max(2.0 * n * n * 16.0 + 2.0 * n * n * 4.0 + surface * 48.0);
+        }
+    }
+    w
+}
+
 pub fn render_work(j: &RenderJob, size: Option<(u32, u32)>) -> Work {
     render_work_of(j, size, j.scene.primitive_count() as u64)
 }
@@ -77,10 +105,12 @@ pub fn render_work(j: &RenderJob, size: Option<(u32, u32)>) -> Work {
 /// [`render_work`] with the scene's expanded primitive count known.
 pub fn render_work_of(j: &RenderJob, size: Option<(u32, u32)>, primitives: u64) -> Work {
     let px = pixels((j.width, j.height), size);
+    let mesh = mesh_work(j.outputs.iter().map(|o| &o.kind), 1.0);
     Work {
-        evaluations: px * j.cameras.len() as f64 * j.iterations as f64,
+        evaluations: px * j.cameras.len() as f64 * j.iterations as f64 + mesh.evaluations,
         memory: primitives as f64 * BYTES_PER_PRIMITIVE as f64
-            + px * bytes_per_pixel(j.outputs.iter().map(|o| o.kind.clone()), false),
+            + (px * bytes_per_pixel(j.outputs.iter().map(|o| o.kind.clone()), false))
+                .max(mesh.memory),
     }
 }
 
@@ -139,9 +169,13 @@ pub fn volume_work(j: &VolumeJob, size: Option<(u32, u32)>) -> Work {
         // Refused as a volume when evaluated; counted like a network.
         Field::NeuralSdf(n) => ((n.multiply_adds() as f64 / 10_000.0).max(1.0), 0.0),
     };
+    let mesh = mesh_work(j.outputs.iter().map(|o| &o.kind), per_sample);
     Work {
-        evaluations: px * j.cameras.len() as f64 * j.sampler.samples as f64 * per_sample,
-        memory: px * bytes_per_pixel(j.outputs.iter().map(|o| o.kind.clone()), true) + network,
+        evaluations: px * j.cameras.len() as f64 * j.sampler.samples as f64 * per_sample
+            + mesh.evaluations,
+        memory: (px * bytes_per_pixel(j.outputs.iter().map(|o| o.kind.clone()), true))
+            .max(mesh.memory)
+            + network,
     }
 }
 
@@ -211,14 +245,24 @@ pub fn train_work(j: &TrainJob, size: Option<(u32, u32)>) -> Work {
     let px = pixels((j.width, j.height), size);
     let views = j.views.len() as f64;
     let outputs = (j.before.len() + j.after.len()) as f64;
+    let per_point = match &*j.model {
+        Field::Sdf(f) => f.shape.primitive_count() as f64,
+        Field::Nerf(n) => (n.multiply_adds_per_sample() as f64 / 10_000.0).max(1.0),
+        // A distance and its gradient.
+        Field::NeuralSdf(n) => (4.0 * n.multiply_adds() as f64 / 10_000.0).max(1.0),
+    };
+    let mesh = mesh_work(j.before.iter().chain(&j.after).map(|o| &o.kind), per_point);
     Work {
-        evaluations: steps + data_evals + outputs.min(1.0) * 2.0 * px * views * samples,
+        evaluations: steps
+            + data_evals
+            + outputs.min(1.0) * 2.0 * px * views * samples
+            + mesh.evaluations,
         // Per-ray buffers of a batch (samples, weights, gradients); a
         // network keeps every layer's activations per sample, twice with a
         // fine network (which sees the coarse samples too).
         memory: data_bytes
             + j.rays as f64 * samples * 64.0
-            + px * 16.0
+            + (px * 16.0).max(mesh.memory)
             + match &*j.model {
                 Field::Sdf(_) => 0.0,
                 // Every layer's values and three tangents, forward and back,

@@ -355,6 +355,7 @@ impl DatasetWriter {
             width: w,
             height: h,
             frames: 1,
+            mesh: None,
         })
     }
 
@@ -381,6 +382,7 @@ impl DatasetWriter {
             width: w,
             height: h,
             frames: 0,
+            mesh: None,
         })
     }
 }

@@ -234,7 +234,9 @@ pub fn write_volume_outputs(
                 | OutputKind::PsnrCurve
                 | OutputKind::Comparison
                 | OutputKind::Normals
-                | OutputKind::Mask => continue,
+                | OutputKind::Mask
+                // Written by the job, which knows the field's distance.
+                | OutputKind::Mesh { .. } => continue,
                 OutputKind::Image => ("image", rgb8(&colour), (w, h)),
                 OutputKind::Depth => ("depth", crate::render::depth_image(&depth), (w, h)),
                 OutputKind::Grid => ("grid_image", figures::xy_grid_image(w, h), (w, h)),
@@ -255,6 +257,7 @@ pub fn write_volume_outputs(
                 width: pw,
                 height: ph,
                 frames: 1,
+                mesh: None,
             });
         }
         if !gifs.is_empty() {
@@ -293,7 +296,7 @@ pub fn run_volume_job(
 ) -> io::Result<VolumeReport> {
     let wh = size.unwrap_or((job.width, job.height));
     let render = field_view(&job.field, &job.sampler)?;
-    write_volume_outputs(
+    let mut report = write_volume_outputs(
         &job.name,
         &*render,
         &job.cameras,
@@ -302,7 +305,38 @@ pub fn run_volume_job(
         &job.outputs,
         out_dir,
         progress,
-    )
+    )?;
+    let meshes: Vec<&Output> = job
+        .outputs
+        .iter()
+        .filter(|o| matches!(o.kind, OutputKind::Mesh { .. }))
+        .collect();
+    if !meshes.is_empty() {
+        let t = Instant::now();
+        // Evaluation allows meshes of analytic fields only.
+        let Field::Sdf(f) = &*job.field else {
+            return Err(invalid("only a distance field has a surface to mesh"));
+        };
+        let sdf = Lowered::new(&f.shape, LowerOptions::default());
+        let distance = |p: &[[f32; 3]], out: &mut [f32]| {
+            for (p, o) in p.iter().zip(out) {
+                *o = sdf.dist(Vec3A::from(*p));
+            }
+        };
+        let bounds = f
+            .shape
+            .bounds()
+            .map(|b| (b.min.to_array(), b.max.to_array()));
+        for o in meshes {
+            report
+                .written
+                .push(crate::mesh::write_mesh(out_dir, o, &distance, bounds)?.0);
+        }
+        report
+            .stages
+            .push(("mesh".into(), t.elapsed().as_secs_f64()));
+    }
+    Ok(report)
 }
 
 fn load_image(path: &Path) -> io::Result<RgbImage> {
@@ -316,6 +350,9 @@ pub struct Views {
     pub test: Vec<TrainView>,
     /// A point cloud's points (no views then).
     pub points: Vec<[f32; 3]>,
+    /// All of the file's points in the same frame (`points` may keep only
+    /// every n-th): what a trained surface is measured against.
+    pub all_points: Vec<[f32; 3]>,
 }
 
 /// The views of a data set: read from files (relative to `base`),
@@ -420,6 +457,7 @@ pub fn load_views(data: &Dataset, base: &Path) -> io::Result<Views> {
                 train: train.into_iter().map(|(v, _)| v).collect(),
                 test: test.into_iter().map(|(v, _)| v).collect(),
                 points: Vec::new(),
+                all_points: Vec::new(),
             });
         }
     };
@@ -437,18 +475,19 @@ pub fn load_views(data: &Dataset, base: &Path) -> io::Result<Views> {
         train,
         test,
         points: Vec::new(),
+        all_points: Vec::new(),
     })
 }
 
 /// A point cloud: every `every`-th point of the file, moved to their mean
 /// when `center`.
 fn load_points(path: &Path, every: usize, center: bool) -> io::Result<Views> {
-    let all = crate::data::points::read_points(path)?;
-    let mut points: Vec<[f32; 3]> = all.into_iter().step_by(every.max(1)).collect();
+    let mut all = crate::data::points::read_points(path)?;
+    let mut points: Vec<[f32; 3]> = all.iter().step_by(every.max(1)).copied().collect();
     if center {
         let n = points.len().max(1) as f64;
         let mean = [0, 1, 2].map(|k| points.iter().map(|p| p[k] as f64).sum::<f64>() / n);
-        for p in &mut points {
+        for p in points.iter_mut().chain(&mut all) {
             for k in 0..3 {
                 p[k] = (p[k] as f64 - mean[k]) as f32;
             }
@@ -458,6 +497,7 @@ fn load_points(path: &Path, every: usize, center: bool) -> io::Result<Views> {
         train: Vec::new(),
         test: Vec::new(),
         points,
+        all_points: all,
     })
 }
 

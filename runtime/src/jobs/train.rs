@@ -25,6 +25,9 @@ pub struct TrainReport {
     /// How well a distance field fits its points.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub fit: Option<crate::neural::distance::SdfFit>,
+    /// The first mesh written after training, against all the data's points.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub mesh_fit: Option<crate::neural::distance::MeshFit>,
     pub written: Vec<Written>,
     pub stages: Vec<(String, f64)>,
 }
@@ -184,6 +187,7 @@ pub fn run_train_job(
         train: views,
         test: test_views,
         points,
+        all_points,
     } = load_views(&job.data, base)?;
     stages.push(("load data".to_string(), t.elapsed().as_secs_f64()));
 
@@ -317,6 +321,49 @@ pub fn run_train_job(
         )?;
         Ok(r.written)
     };
+    // The `mesh` outputs among `outputs` of the model at `values`.
+    let write_meshes =
+        |values: &[f32], outputs: &[Output]| -> io::Result<Vec<(Written, crate::mesh::Mesh)>> {
+            let meshes: Vec<&Output> = outputs
+                .iter()
+                .filter(|o| matches!(o.kind, OutputKind::Mesh { .. }))
+                .collect();
+            if meshes.is_empty() {
+                return Ok(Vec::new());
+            }
+            let write = |field: &dyn crate::mesh::DistanceField, auto| {
+                meshes
+                    .iter()
+                    .map(|o| crate::mesh::write_mesh(out_dir, o, field, auto))
+                    .collect::<io::Result<Vec<_>>>()
+            };
+            match (&*job.model, &analytic) {
+                (Field::NeuralSdf(n), _) => {
+                    let net = crate::neural::distance::sdf_net(n);
+                    let field = crate::neural::distance::NetDistance {
+                        net: &net,
+                        params: values,
+                    };
+                    write(&field, Some(mesh_region(&points, job.bounds)))
+                }
+                (Field::Sdf(f), Some(model)) => {
+                    let args = model.plain(values);
+                    let field = |p: &[[f32; 3]], out: &mut [f32]| {
+                        for (p, o) in p.iter().zip(out) {
+                            let q = V3::from_array(p.map(Dual::constant));
+                            *o = field_at(model, &args, q).0.v;
+                        }
+                    };
+                    // The starting bounds, grown: the fit moves the shape.
+                    let auto = f.shape.bounds().map(|b| {
+                        let b = b.expand(0.5 * (b.max - b.min).max_element());
+                        (b.min.to_array(), b.max.to_array())
+                    });
+                    write(&field, auto)
+                }
+                _ => Err(invalid("only a distance field has a surface to mesh")),
+            }
+        };
     // The held-out views rendered at `values`, with their mean PSNR and SSIM.
     let evaluate = |values: &[f32]| -> io::Result<(f64, f64, Vec<Vec<[f32; 3]>>)> {
         let (mut psnr, mut ssim, mut renders) = (0.0, 0.0, Vec::new());
@@ -340,6 +387,11 @@ pub fn run_train_job(
     if !job.before.is_empty() {
         sync(run.objective.state())?;
         written.extend(render_at(&run.values(), &job.before)?);
+        written.extend(
+            write_meshes(&run.values(), &job.before)?
+                .into_iter()
+                .map(|m| m.0),
+        );
     }
 
     let t = Instant::now();
@@ -423,11 +475,23 @@ pub fn run_train_job(
     let volume_outputs: Vec<Output> = job
         .after
         .iter()
-        .filter(|o| o.kind != OutputKind::LossCurve)
+        .filter(|o| !matches!(o.kind, OutputKind::LossCurve | OutputKind::Mesh { .. }))
         .cloned()
         .collect();
     if !volume_outputs.is_empty() {
         written.extend(render_at(&run.values(), &volume_outputs)?);
+    }
+    let mut mesh_fit = None;
+    for (w, mesh) in write_meshes(&run.values(), &job.after)? {
+        // The first mesh against the input points.
+        if mesh_fit.is_none() && !all_points.is_empty() {
+            mesh_fit = Some(crate::neural::distance::mesh_fit(
+                &mesh,
+                &all_points,
+                job.seed,
+            ));
+        }
+        written.push(w);
     }
     for o in job.after.iter().filter(|o| o.kind == OutputKind::LossCurve) {
         let pts: Vec<(f64, f64)> = run
@@ -449,6 +513,7 @@ pub fn run_train_job(
             width: pw,
             height: ph,
             frames: 1,
+            mesh: None,
         });
     }
     if !test_views.is_empty() {
@@ -484,6 +549,7 @@ pub fn run_train_job(
                 width: pw,
                 height: ph,
                 frames: 1,
+                mesh: None,
             });
         }
     } else if let Some(o) = job
@@ -522,7 +588,26 @@ pub fn run_train_job(
         network_weights: analytic.is_none().then(|| run.values().len()),
         held_out,
         fit,
+        mesh_fit,
         written,
         stages,
     })
+}
+
+/// The region a neural SDF's mesh covers by default: its points' box grown
+/// by a tenth of its diagonal, or without points the training `bounds`.
+fn mesh_region(points: &[[f32; 3]], bounds: f64) -> ([f64; 3], [f64; 3]) {
+    if points.is_empty() {
+        return ([-bounds; 3], [bounds; 3]);
+    }
+    let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
+    for p in points {
+        for k in 0..3 {
+            lo[k] = lo[k].min(p[k] as f64);
+            hi[k] = hi[k].max(p[k] as f64);
+        }
+    }
+    let diagonal = (0..3).map(|k| (hi[k] - lo[k]).powi(2)).sum::<f64>().sqrt();
+    let grow = 0.1 * diagonal.max(1e-3);
+    (lo.map(|x| x - grow), hi.map(|x| x + grow))
 }

@@ -208,6 +208,45 @@ pub fn fit(net: &SdfNet, params: &[f32], points: &[[f32; 3]], bounds: f32, seed:
     }
 }
 
+/// A mesh against the points it should pass through.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct MeshFit {
+    /// Symmetric Chamfer distance (mean of both directions' mean nearest
+    /// distance) between area-uniform samples of the mesh and the points.
+    pub chamfer: f64,
+    /// Mean distance from a point to the nearest mesh sample, and back.
+    pub points_to_mesh: f64,
+    pub mesh_to_points: f64,
+    /// Points and mesh samples compared.
+    pub points: usize,
+    pub samples: usize,
+}
+
+/// Most points on each side of a mesh's Chamfer distance (brute force, so
+/// at most 50 000² pairs).
+const MESH_FIT_POINTS: usize = 50_000;
+
+pub fn mesh_fit(mesh: &crate::mesh::Mesh, points: &[[f32; 3]], seed: u64) -> MeshFit {
+    let every = points.len().div_ceil(MESH_FIT_POINTS).max(1);
+    let points: Vec<[f32; 3]> = points.iter().step_by(every).copied().collect();
+    let samples = mesh.sample_surface(MESH_FIT_POINTS.min(4 * points.len()).max(1000), seed);
+    let (to_mesh, to_points) = if samples.is_empty() {
+        (f64::INFINITY, f64::INFINITY)
+    } else {
+        (
+            mean_nearest(&points, &samples),
+            mean_nearest(&samples, &points),
+        )
+    };
+    MeshFit {
+        chamfer: 0.5 * (to_mesh + to_points),
+        points_to_mesh: to_mesh,
+        mesh_to_points: to_points,
+        points: points.len(),
+        samples: samples.len(),
+    }
+}
+
 /// Mean over `a` of the distance to the nearest point of `b` (brute force,
 /// parallel over `a`).
 pub fn mean_nearest(a: &[[f32; 3]], b: &[[f32; 3]]) -> f64 {
@@ -235,6 +274,27 @@ mod tests {
         let b = [[0.0, 0.5, 0.0]];
         assert!((mean_nearest(&a, &b) - (0.5 + 1.25f64.sqrt()) / 2.0).abs() < 1e-6);
         assert!((mean_nearest(&b, &a) - 0.5).abs() < 1e-6);
+    }
+}
+
+/// A network at `params` as a distance field: values alone, or with the
+/// exact gradient.
+pub struct NetDistance<'a> {
+    pub net: &'a SdfNet,
+    pub params: &'a [f32],
+}
+
+impl crate::mesh::DistanceField for NetDistance<'_> {
+    fn distances(&self, points: &[[f32; 3]], out: &mut [f32]) {
+        self.net.distance(self.params, points.as_flattened(), out);
+    }
+
+    fn gradients(&self, points: &[[f32; 3]], _h: f32, f: &mut [f32], g: &mut [[f32; 3]]) {
+        let mut work = SdfWork::default();
+        self.net
+            .forward(self.params, points.as_flattened(), &mut work);
+        f.copy_from_slice(work.distance());
+        g.as_flattened_mut().copy_from_slice(work.gradient());
     }
 }
 

@@ -273,6 +273,34 @@ impl SdfNet {
         bias[0] = (-a / b - radius as f64) as f32;
     }
 
+    /// `f` alone at `points` (rows of 3) into `out`: a quarter of
+    /// [`Self::forward`]'s work (no tangents), for meshing and tracing.
+    pub fn distance(&self, params: &[f32], points: &[f32], out: &mut [f32]) {
+        assert_eq!(params.len(), self.len, "parameters");
+        let rows = points.len() / 3;
+        assert_eq!(out.len(), rows, "one distance a point");
+        let (e, w, beta) = (self.encoding.width(), self.width(), self.beta);
+        let mut enc = vec![0.0; rows * e];
+        self.encoding.encode(points, &mut enc);
+        let (mut prev, mut next) = (vec![0.0; rows * w], vec![0.0; rows * w]);
+        for (i, d) in self.hidden.iter().enumerate() {
+            let input: &[f32] = if i == 0 { &enc } else { &prev };
+            let lin = &self.linear[i];
+            if d.parts.len() == 2 {
+                lin.forward(params, &[input, &enc], &mut next);
+            } else {
+                lin.forward(params, &[input], &mut next);
+            }
+            next.par_chunks_mut(ROW_BLOCK * w).for_each(|y| {
+                for v in y {
+                    *v = softplus_and_slope(*v, beta).0;
+                }
+            });
+            std::mem::swap(&mut prev, &mut next);
+        }
+        self.output.forward(params, &[&prev], out);
+    }
+
     /// `f` and `∇f` at `points` (rows of 3): in `work.distance()` and
     /// `work.gradient()` (rows × 3); the intermediates stay in `work` for
     /// [`Self::backward`].
@@ -909,6 +937,19 @@ mod tests {
                     assert!(close(got, want), "∇f_{j} at {p:?}: {got} vs {want}");
                 }
             }
+        }
+    }
+
+    #[test]
+    fn distance_alone_equals_forward() {
+        let mut rng = SplitMix64::new(5);
+        for (net, params) in cases() {
+            let pts = points(1500, 1.0, &mut rng);
+            let mut work = SdfWork::default();
+            net.forward(&params, &pts, &mut work);
+            let mut alone = vec![0.0; 1500];
+            net.distance(&params, &pts, &mut alone);
+            assert_eq!(alone, work.distance(), "same operations, same order");
         }
     }
 

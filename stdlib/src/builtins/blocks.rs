@@ -88,6 +88,8 @@ pub(crate) fn render_block(name: &str, a: &Args) -> Result<RenderJob, Diag> {
             "sample points exist for fields; loss curves, PSNR curves and comparisons for `train`",
         ));
     }
+    let scene = a.shape("scene")?;
+    check_meshes(&outputs, Some(&scene))?;
     let (width, height) = image_size(a, "size")?;
     let (near, far) = (a.number("near")?, a.number("far")?);
     check_range(a, near, far)?;
@@ -96,7 +98,7 @@ pub(crate) fn render_block(name: &str, a: &Args) -> Result<RenderJob, Diag> {
     one_intrinsics(a, &outputs, &cameras)?;
     Ok(RenderJob {
         name: name.to_string(),
-        scene: a.shape("scene")?,
+        scene,
         material: a.material("material")?,
         cameras,
         width,
@@ -323,6 +325,14 @@ pub(crate) fn train_block(name: &str, a: &Args) -> Result<TrainJob, Diag> {
     };
     let before = outputs(a, "before", true)?;
     let after = outputs(a, "after", true)?;
+    for outputs in [&before, &after] {
+        match &**model {
+            Field::Sdf(f) => check_meshes(outputs, Some(&f.shape))?,
+            // Bounded by its points or the training `bounds`.
+            Field::NeuralSdf(_) => {}
+            Field::Nerf(_) => check_meshes(outputs, None)?,
+        }
+    }
     let has_test = !data.test_views().is_empty()
         || matches!(
             &**data,
@@ -403,6 +413,7 @@ pub(crate) fn volume_block(name: &str, a: &Args, field: Arc<Field>) -> Result<Vo
             "volume renders write image, gif, depth, grid_image, rays_image and sample_points",
         ));
     }
+    check_meshes(&outputs, field.as_sdf().map(|f| &*f.shape))?;
     let cameras = camera_list(a, "camera")?;
     one_intrinsics(a, &outputs, &cameras)?;
     Ok(VolumeJob {
@@ -414,6 +425,33 @@ pub(crate) fn volume_block(name: &str, a: &Args, field: Arc<Field>) -> Result<Vo
         sampler: *sampler,
         outputs,
     })
+}
+
+/// `mesh` outputs need a distance (`shape`; none for a radiance field) and,
+/// for `bounds: "auto"`, a bounded one.
+fn check_meshes(outputs: &[Output], shape: Option<&Shape>) -> Result<(), Diag> {
+    for o in outputs {
+        let OutputKind::Mesh { region, .. } = o.kind else {
+            continue;
+        };
+        let Some(shape) = shape else {
+            return Err(value_error(
+                o.span,
+                "a radiance field has density, not distance: it has no surface to mesh",
+                "no zero level set",
+                "mesh a shape, an SDF field or a neural SDF",
+            ));
+        };
+        if region == MeshRegion::Auto && shape.bounds().is_none() {
+            return Err(value_error(
+                o.span,
+                "the shape is unbounded (a plane, or an infinite repetition), so `bounds: \"auto\"` has no region",
+                "needs a region",
+                "give the region: `mesh(\"scene.ply\", bounds: [[-2, -2, -2], [2, 2, 2]])`",
+            ));
+        }
+    }
+    Ok(())
 }
 
 /// The built-in that makes a loss term.

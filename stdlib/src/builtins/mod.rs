@@ -19,8 +19,8 @@ use crate::precision::{beta, f32_range};
 use crate::shape::Shape;
 use crate::value::{
     Backend, Dataset, DensityActivation, DensityKind, Encoding, Field, Harmonic, HashGridSpec,
-    HitTolerance, LastInterval, Loss, LossKind, Nerf, OccupancySpec, Optimizer, Output, OutputKind,
-    RenderJob, Sampler, Schedule, SdfField, TrainJob, Value, VolumeJob,
+    HitTolerance, LastInterval, Loss, LossKind, MeshRegion, Nerf, OccupancySpec, Optimizer, Output,
+    OutputKind, RenderJob, Sampler, Schedule, SdfField, TrainJob, Value, VolumeJob,
 };
 
 pub const SHAPE: Type = Type::Named("shape");
@@ -644,6 +644,26 @@ fn table() -> Vec<Builtin> {
                 let (path, span) = a.string("path")?;
                 let path = safe_output_path(&path, span)?;
                 Ok(Value::Output(Arc::new(Output { kind: OutputKind::Dataset, path, span: a.span })))
+            },
+        ),
+        func(
+            "mesh",
+            "The surface (where the distance is 0) as a triangle mesh in a binary PLY file with normals, for Blender or MeshLab: surface nets on a grid with `resolution` cells along the longest side, vertices projected onto the surface. Of a render's scene, an SDF field, or a trained SDF or neural SDF.",
+            vec![
+                req("path", Type::Str, "file name inside the output directory (.ply)"),
+                opt("resolution", Type::Number, "128", "grid cells along the region's longest side (8 to 1024)"),
+                opt(
+                    "bounds",
+                    Type::OneOf(vec![Type::Str, Type::list(Type::Vec3)]),
+                    "\"auto\"",
+                    "the region: `[[x0, y0, z0], [x1, y1, z1]]`, or \"auto\" for the shape's bounds (a neural SDF's: its training points', else the training `bounds`)",
+                ),
+            ],
+            OUTPUT,
+            |a| {
+                let resolution = a.count("resolution", 8, MAX_MESH_RESOLUTION as u64)? as u32;
+                let region = mesh_region(a)?;
+                out(a, OutputKind::Mesh { resolution, region }, "ply")
             },
         ),
         // ---- volumes, sampling, data, training
@@ -1328,6 +1348,44 @@ fn out(a: &Args, kind: OutputKind, ext: &str) -> Result<Value, Diag> {
         path,
         span: a.span,
     })))
+}
+
+/// Finest mesh grid: a billion evaluations, planes of a million points.
+pub const MAX_MESH_RESOLUTION: u32 = 1024;
+
+fn mesh_region(a: &Args) -> Result<MeshRegion, Diag> {
+    let (v, span) = a.get("bounds");
+    let wrong = || {
+        value_error(
+            span,
+            "`bounds` is \"auto\" or two corners",
+            "not a region",
+            "write `bounds: [[-1, -1, -1], [1, 1, 1]]` (lower and upper corner) or leave it out",
+        )
+    };
+    match v {
+        Value::Str(s) if &**s == "auto" => Ok(MeshRegion::Auto),
+        Value::List(items) if items.len() == 2 => {
+            let corner = |v: &Value| -> Result<[f64; 3], Diag> {
+                let p = v.as_vec3().ok_or_else(wrong)?.to_array();
+                for x in p {
+                    f32_range(x, span, "bounds")?;
+                }
+                Ok(p)
+            };
+            let (min, max) = (corner(&items[0])?, corner(&items[1])?);
+            if (0..3).any(|k| min[k] >= max[k]) {
+                return Err(value_error(
+                    span,
+                    "the region is empty",
+                    "the second corner is not above the first on every axis",
+                    "give the lower corner first: `[[x0, y0, z0], [x1, y1, z1]]` with x0 < x1, y0 < y1, z0 < z1",
+                ));
+            }
+            Ok(MeshRegion::Box { min, max })
+        }
+        _ => Err(wrong()),
+    }
 }
 
 /// Output names must stay inside the output directory: relative, no `..`.

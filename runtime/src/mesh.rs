@@ -1,0 +1,643 @@
+//! Triangle meshes of a distance field's zero level set (surface nets), PLY
+//! files, and surface samples for geometric error.
+//!
+//! Surface nets: the field is sampled on a grid one plane at a time (memory
+//! grows with the square of the resolution, not its cube); every cell whose
+//! corners change sign gets one vertex at the mean of its edges' crossings,
+//! and every grid edge that changes sign becomes a quad joining the four
+//! cells around it, oriented so that its normal points to positive values
+//! (outside). Vertices are then projected onto the surface along the
+//! gradient (one Newton step, never farther than a cell), which removes most
+//! of the grid's bias at little cost: the surface has far fewer vertices than
+//! the grid has points. A field without holes in the region gives a closed,
+//! consistently oriented mesh (tested through its Euler characteristic).
+
+use std::io::{self, Write};
+use std::path::Path;
+
+use rayon::prelude::*;
+
+use sdfl_stdlib::value::{MeshRegion, Output, OutputKind};
+
+use crate::output::Atomic;
+use crate::render::Written;
+use crate::volume::SplitMix64;
+
+/// What a written mesh holds.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct MeshStats {
+    pub vertices: usize,
+    pub triangles: usize,
+    /// Grid cells along the region's longest side, and their size.
+    pub resolution: u32,
+    pub cell: f64,
+    pub area: f64,
+    pub seconds: f64,
+}
+
+/// Extracts and writes the `mesh` output `o` of `field`. `auto` is the
+/// region `bounds: "auto"` stands for (none for unbounded shapes, which
+/// evaluation refuses).
+pub fn write_mesh(
+    out_dir: &Path,
+    o: &Output,
+    field: &dyn DistanceField,
+    auto: Option<([f64; 3], [f64; 3])>,
+) -> io::Result<(Written, Mesh)> {
+    let t = std::time::Instant::now();
+    let OutputKind::Mesh { resolution, region } = o.kind else {
+        return Err(io::Error::other("not a mesh output"));
+    };
+    let (min, max) = match region {
+        MeshRegion::Box { min, max } => (min, max),
+        MeshRegion::Auto => auto.ok_or_else(|| {
+            io::Error::new(
+                io::ErrorKind::InvalidInput,
+                format!(
+                    "`{}`: the shape is unbounded; give the mesh `bounds`",
+                    o.path.display()
+                ),
+            )
+        })?,
+    };
+    let grid = MeshGrid::covering(min, max, resolution);
+    let mesh = surface_nets(field, &grid, sdfl_stdlib::work::MAX_MESH_VERTICES, &|_| {})
+        .map_err(|e| io::Error::other(format!("`{}`: {e}", o.path.display())))?;
+    mesh.write_ply(&out_dir.join(&o.path))?;
+    let stats = MeshStats {
+        vertices: mesh.vertices.len(),
+        triangles: mesh.triangles.len(),
+        resolution,
+        cell: grid.step,
+        area: mesh.area(),
+        seconds: t.elapsed().as_secs_f64(),
+    };
+    let written = Written {
+        path: o.path.clone(),
+        kind: "mesh",
+        width: 0,
+        height: 0,
+        frames: 0,
+        mesh: Some(stats),
+    };
+    Ok((written, mesh))
+}
+
+/// A signed distance field evaluated in batches.
+pub trait DistanceField: Sync {
+    /// Distances at `points` into `out` (same length).
+    fn distances(&self, points: &[[f32; 3]], out: &mut [f32]);
+
+    /// Distances and gradients at `points`. By default central differences
+    /// with step `h`; fields with an exact gradient override it.
+    fn gradients(&self, points: &[[f32; 3]], h: f32, f: &mut [f32], g: &mut [[f32; 3]]) {
+        self.distances(points, f);
+        let mut probe = Vec::with_capacity(points.len() * 6);
+        for p in points {
+            for axis in 0..3 {
+                for s in [h, -h] {
+                    let mut q = *p;
+                    q[axis] += s;
+                    probe.push(q);
+                }
+            }
+        }
+        let mut d = vec![0.0; probe.len()];
+        self.distances(&probe, &mut d);
+        for (gi, d) in g.iter_mut().zip(d.chunks(6)) {
+            for axis in 0..3 {
+                gi[axis] = (d[2 * axis] - d[2 * axis + 1]) / (2.0 * h);
+            }
+        }
+    }
+}
+
+impl<F: Fn(&[[f32; 3]], &mut [f32]) + Sync> DistanceField for F {
+    fn distances(&self, points: &[[f32; 3]], out: &mut [f32]) {
+        self(points, out)
+    }
+}
+
+/// A triangle mesh with one normal per vertex.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Mesh {
+    pub vertices: Vec<[f32; 3]>,
+    pub normals: Vec<[f32; 3]>,
+    /// Counter-clockwise seen from outside.
+    pub triangles: Vec<[u32; 3]>,
+}
+
+/// The sampling grid: `points` grid points per axis from `min`, `step` apart.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MeshGrid {
+    pub min: [f64; 3],
+    pub step: f64,
+    pub points: [usize; 3],
+}
+
+impl MeshGrid {
+    /// A grid over `[min, max]` with `resolution` cells along its longest
+    /// side, padded by two cells on every side so that a surface inside the
+    /// box closes.
+    pub fn covering(min: [f64; 3], max: [f64; 3], resolution: u32) -> MeshGrid {
+        let extent = (0..3).map(|a| max[a] - min[a]).fold(0.0, f64::max);
+        let step = (extent / resolution.max(1) as f64).max(f64::MIN_POSITIVE);
+        let pad = 2.0 * step;
+        let points =
+            std::array::from_fn(|a| (((max[a] - min[a]) / step).ceil().max(0.0) as usize) + 1 + 4);
+        MeshGrid {
+            min: std::array::from_fn(|a| min[a] - pad),
+            step,
+            points,
+        }
+    }
+
+    /// Field evaluations the grid needs.
+    pub fn evaluations(&self) -> u64 {
+        self.points.iter().map(|&n| n as u64).product()
+    }
+
+    fn point(&self, i: usize, j: usize, k: usize) -> [f32; 3] {
+        [
+            (self.min[0] + i as f64 * self.step) as f32,
+            (self.min[1] + j as f64 * self.step) as f32,
+            (self.min[2] + k as f64 * self.step) as f32,
+        ]
+    }
+}
+
+const NO_VERTEX: u32 = u32::MAX;
+
+/// The 12 edges of a cell as pairs of corner numbers (corner `c` is at
+/// offset `(c & 1, c >> 1 & 1, c >> 2 & 1)`).
+const CELL_EDGES: [(usize, usize); 12] = [
+    (0, 1),
+    (2, 3),
+    (4, 5),
+    (6, 7),
+    (0, 2),
+    (1, 3),
+    (4, 6),
+    (5, 7),
+    (0, 4),
+    (1, 5),
+    (2, 6),
+    (3, 7),
+];
+
+/// The surface crosses more cells than a mesh may have vertices.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct TooManyVertices(pub usize);
+
+impl std::fmt::Display for TooManyVertices {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "the surface crosses more than {} grid cells (the most a mesh may have vertices): lower `resolution` or the region",
+            self.0
+        )
+    }
+}
+
+/// The zero level set of `field` on `grid`, with at most `max_vertices`
+/// vertices. `progress` is called with the number of grid planes done.
+pub fn surface_nets(
+    field: &dyn DistanceField,
+    grid: &MeshGrid,
+    max_vertices: usize,
+    progress: &dyn Fn(u64),
+) -> Result<Mesh, TooManyVertices> {
+    let [nx, ny, nz] = grid.points;
+    let mut mesh = Mesh::default();
+    if nx < 2 || ny < 2 || nz < 2 {
+        return Ok(mesh);
+    }
+    let (cx, cy) = (nx - 1, ny - 1);
+    let plane = |k: usize| -> Vec<f32> {
+        let pts: Vec<[f32; 3]> = (0..ny)
+            .flat_map(|j| (0..nx).map(move |i| grid.point(i, j, k)))
+            .collect();
+        let mut out = vec![0.0; pts.len()];
+        const CHUNK: usize = 4096;
+        pts.par_chunks(CHUNK)
+            .zip(out.par_chunks_mut(CHUNK))
+            .for_each(|(p, o)| field.distances(p, o));
+        out
+    };
+    let inside = |v: f32| v < 0.0;
+    let mut below = plane(0);
+    let mut prev = vec![NO_VERTEX; cx * cy];
+    let mut quads: Vec<[u32; 4]> = Vec::new();
+    for k in 0..nz - 1 {
+        let above = plane(k + 1);
+        let mut cur = vec![NO_VERTEX; cx * cy];
+        for j in 0..cy {
+            for i in 0..cx {
+                let at = |c: usize| {
+                    let (di, dj) = (c & 1, (c >> 1) & 1);
+                    let layer = if c >> 2 & 1 == 0 { &below } else { &above };
+                    layer[(j + dj) * nx + i + di]
+                };
+                let corner: [f32; 8] = std::array::from_fn(at);
+                let signs = corner.iter().filter(|&&v| inside(v)).count();
+                if signs == 0 || signs == 8 {
+                    continue;
+                }
+                let (mut sum, mut n) = ([0.0f64; 3], 0.0);
+                for &(a, b) in &CELL_EDGES {
+                    let (fa, fb) = (corner[a], corner[b]);
+                    if inside(fa) == inside(fb) {
+                        continue;
+                    }
+                    let t = fa as f64 / (fa as f64 - fb as f64);
+                    let t = if t.is_finite() {
+                        t.clamp(0.0, 1.0)
+                    } else {
+                        0.5
+                    };
+                    for (axis, s) in sum.iter_mut().enumerate() {
+                        let (oa, ob) = ((a >> axis) & 1, (b >> axis) & 1);
+                        *s += oa as f64 + (ob as f64 - oa as f64) * t;
+                    }
+                    n += 1.0;
+                }
+                let base = [i, j, k];
+                let v: [f32; 3] = std::array::from_fn(|a| {
+                    (grid.min[a] + (base[a] as f64 + sum[a] / n) * grid.step) as f32
+                });
+                if mesh.vertices.len() >= max_vertices.min(NO_VERTEX as usize) {
+                    return Err(TooManyVertices(max_vertices));
+                }
+                cur[j * cx + i] = mesh.vertices.len() as u32;
+                mesh.vertices.push(v);
+            }
+        }
+        let below_at = |i: usize, j: usize| below[j * nx + i];
+        // A quad `[v00, v10, v11, v01]` in the plane of the two other axes
+        // (cyclic after the edge's axis) faces +axis; flip it when the
+        // field grows towards -axis.
+        let mut quad = |from: f32, to: f32, q: [u32; 4]| {
+            if inside(from) == inside(to) {
+                return;
+            }
+            debug_assert!(q.iter().all(|&v| v != NO_VERTEX));
+            quads.push(if inside(from) {
+                q
+            } else {
+                [q[3], q[2], q[1], q[0]]
+            });
+        };
+        // Edges along z between planes k and k+1: the cells around them
+        // are all in this layer.
+        for j in 1..cy {
+            for i in 1..cx {
+                let c = |i: usize, j: usize| cur[j * cx + i];
+                quad(
+                    below_at(i, j),
+                    above[j * nx + i],
+                    [c(i - 1, j - 1), c(i, j - 1), c(i, j), c(i - 1, j)],
+                );
+            }
+        }
+        // Edges along x and y in plane k: the cells around them are in
+        // this layer and the one before.
+        if k > 0 {
+            let (p, c) = (
+                |i: usize, j: usize| prev[j * cx + i],
+                |i: usize, j: usize| cur[j * cx + i],
+            );
+            for j in 1..cy {
+                for i in 0..cx {
+                    quad(
+                        below_at(i, j),
+                        below_at(i + 1, j),
+                        [p(i, j - 1), p(i, j), c(i, j), c(i, j - 1)],
+                    );
+                }
+            }
+            for j in 0..cy {
+                for i in 1..cx {
+                    quad(
+                        below_at(i, j),
+                        below_at(i, j + 1),
+                        [p(i - 1, j), c(i - 1, j), c(i, j), p(i, j)],
+                    );
+                }
+            }
+        }
+        below = above;
+        prev = cur;
+        progress(k as u64 + 1);
+    }
+    refine(field, grid.step as f32, &mut mesh);
+    let v = &mesh.vertices;
+    let len2 = |a: u32, b: u32| {
+        let (a, b) = (v[a as usize], v[b as usize]);
+        (0..3).map(|k| (a[k] - b[k]).powi(2)).sum::<f32>()
+    };
+    for q in quads {
+        // Split along the shorter diagonal: better-shaped triangles.
+        if len2(q[0], q[2]) <= len2(q[1], q[3]) {
+            mesh.triangles.push([q[0], q[1], q[2]]);
+            mesh.triangles.push([q[0], q[2], q[3]]);
+        } else {
+            mesh.triangles.push([q[0], q[1], q[3]]);
+            mesh.triangles.push([q[1], q[2], q[3]]);
+        }
+    }
+    Ok(mesh)
+}
+
+/// Moves each vertex onto the surface by one Newton step along the
+/// gradient (at most one cell) and gives it the normalised gradient there.
+fn refine(field: &dyn DistanceField, step: f32, mesh: &mut Mesh) {
+    let n = mesh.vertices.len();
+    let h = step * 0.05;
+    let (mut f, mut g) = (vec![0.0; n], vec![[0.0; 3]; n]);
+    let eval = |pts: &[[f32; 3]], f: &mut [f32], g: &mut [[f32; 3]]| {
+        const CHUNK: usize = 2048;
+        pts.par_chunks(CHUNK)
+            .zip(f.par_chunks_mut(CHUNK).zip(g.par_chunks_mut(CHUNK)))
+            .for_each(|(p, (f, g))| field.gradients(p, h, f, g));
+    };
+    eval(&mesh.vertices, &mut f, &mut g);
+    for ((v, f), g) in mesh.vertices.iter_mut().zip(&f).zip(&g) {
+        let len2 = g.iter().map(|x| x * x).sum::<f32>();
+        if !(len2 > 1e-12 && f.is_finite()) {
+            continue;
+        }
+        let moved: [f32; 3] = std::array::from_fn(|a| -f * g[a] / len2);
+        let dist = moved.iter().map(|x| x * x).sum::<f32>().sqrt();
+        if dist <= step && dist.is_finite() {
+            for a in 0..3 {
+                v[a] += moved[a];
+            }
+        }
+    }
+    eval(&mesh.vertices, &mut f, &mut g);
+    mesh.normals = g
+        .iter()
+        .map(|g| {
+            let len = g.iter().map(|x| x * x).sum::<f32>().sqrt();
+            if len > 1e-12 && len.is_finite() {
+                g.map(|x| x / len)
+            } else {
+                [0.0, 0.0, 0.0]
+            }
+        })
+        .collect();
+}
+
+impl Mesh {
+    /// Total surface area.
+    pub fn area(&self) -> f64 {
+        self.triangles.iter().map(|t| self.triangle_area(t)).sum()
+    }
+
+    fn triangle_area(&self, t: &[u32; 3]) -> f64 {
+        let [a, b, c] = t.map(|i| self.vertices[i as usize].map(|x| x as f64));
+        let (u, v) = (sub(b, a), sub(c, a));
+        0.5 * len(cross(u, v))
+    }
+
+    /// V − E + F: 2 for a closed surface of genus 0, 0 for a torus.
+    pub fn euler_characteristic(&self) -> i64 {
+        let mut edges: Vec<(u32, u32)> = self
+            .triangles
+            .iter()
+            .flat_map(|t| [(t[0], t[1]), (t[1], t[2]), (t[2], t[0])])
+            .map(|(a, b)| (a.min(b), a.max(b)))
+            .collect();
+        edges.sort_unstable();
+        edges.dedup();
+        self.vertices.len() as i64 - edges.len() as i64 + self.triangles.len() as i64
+    }
+
+    /// `n` points uniformly distributed over the surface (by area),
+    /// reproducibly from `seed`.
+    pub fn sample_surface(&self, n: usize, seed: u64) -> Vec<[f32; 3]> {
+        let mut cumulative = Vec::with_capacity(self.triangles.len());
+        let mut total = 0.0;
+        for t in &self.triangles {
+            total += self.triangle_area(t);
+            cumulative.push(total);
+        }
+        if self.triangles.is_empty() || total <= 0.0 {
+            return Vec::new();
+        }
+        let mut rng = SplitMix64::new(seed ^ 0x6d65_7368);
+        (0..n)
+            .map(|_| {
+                let target = rng.next_f64() * total;
+                let k = cumulative
+                    .partition_point(|&c| c < target)
+                    .min(self.triangles.len() - 1);
+                let [a, b, c] = self.triangles[k].map(|i| self.vertices[i as usize]);
+                // Uniform barycentric coordinates by folding the unit square.
+                let (mut u, mut v) = (rng.next_f32(), rng.next_f32());
+                if u + v > 1.0 {
+                    (u, v) = (1.0 - u, 1.0 - v);
+                }
+                std::array::from_fn(|i| a[i] + u * (b[i] - a[i]) + v * (c[i] - a[i]))
+            })
+            .collect()
+    }
+
+    /// The PLY file: binary little-endian, positions, normals, triangles.
+    pub fn ply_bytes(&self) -> Vec<u8> {
+        let mut out = format!(
+            "ply\nformat binary_little_endian 1.0\ncomment written by sdfl\n\
+             element vertex {}\nproperty float x\nproperty float y\nproperty float z\n\
+             property float nx\nproperty float ny\nproperty float nz\n\
+             element face {}\nproperty list uchar int vertex_indices\nend_header\n",
+            self.vertices.len(),
+            self.triangles.len()
+        )
+        .into_bytes();
+        out.reserve(self.vertices.len() * 24 + self.triangles.len() * 13);
+        for (v, n) in self.vertices.iter().zip(&self.normals) {
+            for x in v.iter().chain(n) {
+                out.extend_from_slice(&x.to_le_bytes());
+            }
+        }
+        for t in &self.triangles {
+            out.push(3);
+            for i in t {
+                out.extend_from_slice(&(*i as i32).to_le_bytes());
+            }
+        }
+        out
+    }
+
+    /// Writes the PLY file atomically.
+    pub fn write_ply(&self, path: &Path) -> io::Result<()> {
+        let mut file = Atomic::create(path)?;
+        file.writer()
+            .write_all(&self.ply_bytes())
+            .map_err(|e| crate::output::with_path(path, e))?;
+        file.commit()
+    }
+}
+
+fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+    std::array::from_fn(|i| a[i] - b[i])
+}
+fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+    [
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    ]
+}
+fn len(a: [f64; 3]) -> f64 {
+    (a[0] * a[0] + a[1] * a[1] + a[2] * a[2]).sqrt()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn sphere(r: f32, c: [f32; 3]) -> impl Fn(&[[f32; 3]], &mut [f32]) + Sync {
+        move |p: &[[f32; 3]], out: &mut [f32]| {
+            for (p, o) in p.iter().zip(out) {
+                let d = [p[0] - c[0], p[1] - c[1], p[2] - c[2]];
+                *o = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt() - r;
+            }
+        }
+    }
+
+    fn torus(major: f32, minor: f32) -> impl Fn(&[[f32; 3]], &mut [f32]) + Sync {
+        move |p: &[[f32; 3]], out: &mut [f32]| {
+            for (p, o) in p.iter().zip(out) {
+                let q = (p[0] * p[0] + p[1] * p[1]).sqrt() - major;
+                *o = (q * q + p[2] * p[2]).sqrt() - minor;
+            }
+        }
+    }
+
+    fn mesh_of(f: &dyn DistanceField, min: f64, max: f64, res: u32) -> Mesh {
+        surface_nets(
+            f,
+            &MeshGrid::covering([min; 3], [max; 3], res),
+            usize::MAX,
+            &|_| {},
+        )
+        .unwrap()
+    }
+
+    #[test]
+    fn too_many_vertices_is_an_error() {
+        let grid = MeshGrid::covering([-1.0; 3], [1.0; 3], 16);
+        let r = surface_nets(&sphere(0.5, [0.0; 3]), &grid, 100, &|_| {});
+        assert_eq!(r, Err(TooManyVertices(100)));
+    }
+
+    #[test]
+    fn a_sphere_is_closed_outward_and_on_its_surface() {
+        let (r, c) = (0.8f32, [0.1f32, -0.2, 0.3]);
+        let f = sphere(r, c);
+        let m = mesh_of(&f, -1.0, 1.2, 32);
+        assert!(m.triangles.len() > 1000);
+        assert_eq!(m.euler_characteristic(), 2, "closed, genus 0");
+        // Every edge is shared by exactly two triangles, in opposite
+        // directions (consistent orientation).
+        let mut directed: Vec<(u32, u32)> = m
+            .triangles
+            .iter()
+            .flat_map(|t| [(t[0], t[1]), (t[1], t[2]), (t[2], t[0])])
+            .collect();
+        directed.sort_unstable();
+        let n = directed.len();
+        directed.dedup();
+        assert_eq!(directed.len(), n, "no directed edge twice");
+        for &(a, b) in &directed {
+            assert!(
+                directed.binary_search(&(b, a)).is_ok(),
+                "edge {a}-{b} unmatched"
+            );
+        }
+        for (v, nrm) in m.vertices.iter().zip(&m.normals) {
+            let d = [v[0] - c[0], v[1] - c[1], v[2] - c[2]];
+            let dist = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+            assert!((dist - r).abs() < 1e-4, "vertex {dist} off the sphere");
+            let along = (0..3).map(|k| nrm[k] * d[k] / dist).sum::<f32>();
+            assert!(along > 0.999, "normal not radial: {along}");
+        }
+        // Triangles face outwards.
+        for t in &m.triangles {
+            let [a, b, cc] = t.map(|i| m.vertices[i as usize].map(|x| x as f64));
+            let n = cross(sub(b, a), sub(cc, a));
+            let mid: [f64; 3] = std::array::from_fn(|k| (a[k] + b[k] + cc[k]) / 3.0 - c[k] as f64);
+            assert!((0..3).map(|k| n[k] * mid[k]).sum::<f64>() > 0.0);
+        }
+        let area = m.area();
+        let exact = 4.0 * std::f64::consts::PI * (r as f64).powi(2);
+        assert!((area / exact - 1.0).abs() < 0.02, "area {area} vs {exact}");
+    }
+
+    #[test]
+    fn a_torus_has_genus_one_and_samples_lie_on_it() {
+        let f = torus(0.7, 0.25);
+        let m = mesh_of(&f, -1.0, 1.0, 40);
+        assert_eq!(m.euler_characteristic(), 0);
+        let pts = m.sample_surface(2000, 7);
+        assert_eq!(pts.len(), 2000);
+        let mut d = vec![0.0; pts.len()];
+        f(&pts, &mut d);
+        // Samples lie on flat triangles between vertices on the surface:
+        // off by at most the sagitta of a cell-sized chord.
+        let worst = d.iter().fold(0.0f32, |m, x| m.max(x.abs()));
+        assert!(worst < 0.01, "sample {worst} off the torus");
+        assert_eq!(pts, m.sample_surface(2000, 7), "reproducible");
+    }
+
+    #[test]
+    fn empty_full_and_hostile_fields_give_finite_meshes() {
+        let empty = |_: &[[f32; 3]], o: &mut [f32]| o.fill(1.0);
+        assert!(mesh_of(&empty, -1.0, 1.0, 8).triangles.is_empty());
+        let full = |_: &[[f32; 3]], o: &mut [f32]| o.fill(-1.0);
+        assert!(mesh_of(&full, -1.0, 1.0, 8).triangles.is_empty());
+        // NaN and infinite values count as outside and never make NaN
+        // vertices.
+        let wild = |p: &[[f32; 3]], o: &mut [f32]| {
+            for (p, o) in p.iter().zip(o) {
+                *o = if p[0] > 0.3 {
+                    f32::NAN
+                } else if p[1] > 0.3 {
+                    f32::INFINITY
+                } else {
+                    p[2] * 1e30
+                };
+            }
+        };
+        let m = mesh_of(&wild, -1.0, 1.0, 8);
+        assert!(!m.triangles.is_empty());
+        assert!(m.vertices.iter().flatten().all(|x| x.is_finite()));
+        assert!(m.normals.iter().flatten().all(|x| x.is_finite()));
+        // A plane exactly through grid points.
+        let plane = |p: &[[f32; 3]], o: &mut [f32]| {
+            for (p, o) in p.iter().zip(o) {
+                *o = p[2];
+            }
+        };
+        let m = mesh_of(&plane, -1.0, 1.0, 8);
+        assert!(m.vertices.iter().all(|v| v[2].abs() < 1e-6));
+    }
+
+    #[test]
+    fn ply_header_and_sizes() {
+        let m = mesh_of(&sphere(0.5, [0.0; 3]), -1.0, 1.0, 8);
+        let bytes = m.ply_bytes();
+        let end = b"end_header\n";
+        let at = bytes.windows(end.len()).position(|w| w == end).unwrap() + end.len();
+        let header = std::str::from_utf8(&bytes[..at]).unwrap();
+        assert!(header.contains(&format!("element vertex {}", m.vertices.len())));
+        assert!(header.contains(&format!("element face {}", m.triangles.len())));
+        assert_eq!(
+            bytes.len() - at,
+            m.vertices.len() * 24 + m.triangles.len() * 13
+        );
+        let first = f32::from_le_bytes(bytes[at..at + 4].try_into().unwrap());
+        assert_eq!(first, m.vertices[0][0]);
+    }
+}
