@@ -594,8 +594,9 @@ fn summarise(r: &serde_json::Value, out: &Path, stdout: &mut Stdout) {
             if let Some(fit) = rep.get("mesh_fit").filter(|f| f.is_object()) {
                 let num = |k: &str| fit[k].as_f64().unwrap_or(f64::NAN);
                 eprintln!(
-                    "  mesh vs the data's {} points: Chamfer {:.4} (points → mesh {:.4}, mesh → points {:.4})",
+                    "  mesh vs {} {} points: Chamfer {:.4} (points → mesh {:.4}, mesh → points {:.4})",
                     fit["points"],
+                    fit["against"].as_str().unwrap_or("?"),
                     num("chamfer"),
                     num("points_to_mesh"),
                     num("mesh_to_points")

@@ -30,6 +30,23 @@ fn describe_field(field: &sdfl_stdlib::value::Field) -> String {
             },
             n.multiply_adds()
         ),
+        Field::NeuralSurface(n) => format!(
+            "neural SDF as a {:?} volume (alpha {}, beta {}): harmonic({}) position, {}x{} softplus layers with the exact gradient at every sample; colour network {}x{} ReLU on the point, the normal{}; {} multiply-adds per sample",
+            n.density,
+            n.alpha,
+            n.beta,
+            n.sdf.encoding.freqs,
+            n.sdf.layers,
+            n.sdf.width,
+            n.color_layers,
+            n.color_width,
+            if n.view_dependent {
+                " and the view direction"
+            } else {
+                " (no view direction)"
+            },
+            n.multiply_adds_per_sample()
+        ),
         Field::Sdf(f) => format!(
             "{:?} density, alpha {}, beta {}, {} primitives",
             f.density,
@@ -218,6 +235,17 @@ pub(crate) fn plan_text(program: &sdfl_stdlib::Program) -> String {
                     n.radius
                 )
             }
+            sdfl_stdlib::value::Field::NeuralSurface(n) => {
+                use sdfl_runtime::train::Objective;
+                let m = sdfl_runtime::neural::surface::SurfaceObjective::new(n, &job.losses);
+                format!(
+                    "all {} weights (distance network {}, colour network {}), the distance starting as a sphere of radius {}",
+                    m.initial().len(),
+                    m.sdf.len,
+                    m.initial().len() - m.sdf.len,
+                    n.sdf.radius
+                )
+            }
             sdfl_stdlib::value::Field::Sdf(f) => {
                 let model = sdfl_runtime::train::TrainModel::new(f);
                 let params: Vec<String> = model
@@ -382,6 +410,8 @@ pub(crate) fn plan_text(program: &sdfl_stdlib::Program) -> String {
             match (&*job.model, job.backend) {
                 (sdfl_stdlib::value::Field::NeuralSdf(_), _) =>
                     "none: forward-mode tangents give the exact gradient of f; a hand-written second-order backward",
+                (sdfl_stdlib::value::Field::NeuralSurface(_), _) =>
+                    "none: the distance network's exact gradient by forward-mode tangents; colour network, density and compositing by hand-written backward passes",
                 (sdfl_stdlib::value::Field::Nerf(_), _) =>
                     "none: fused layer kernels with a hand-written backward through the network and the compositing",
                 (_, sdfl_stdlib::value::Backend::Dfdx) =>
@@ -401,7 +431,7 @@ pub(crate) fn plan_text(program: &sdfl_stdlib::Program) -> String {
         );
         let region = if on_points {
             "the points' box grown by a tenth of its diagonal".to_string()
-        } else if matches!(&*job.model, sdfl_stdlib::value::Field::NeuralSdf(_)) {
+        } else if matches!(&*job.model, sdfl_stdlib::value::Field::NeuralSurface(_)) {
             format!("[-{0}, {0}]^3", job.bounds)
         } else {
             "the starting bounds grown by half".to_string()

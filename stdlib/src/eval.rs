@@ -126,7 +126,7 @@ impl Sizes {
                     items: 0,
                     ..Size::node([self.shape(&f.shape, level + 1)], false)
                 },
-                Field::Nerf(_) | Field::NeuralSdf(_) => Size::SCALAR,
+                Field::Nerf(_) | Field::NeuralSdf(_) | Field::NeuralSurface(_) => Size::SCALAR,
             },
             _ => Size::SCALAR,
         }

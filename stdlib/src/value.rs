@@ -218,6 +218,57 @@ pub enum Field {
     Nerf(Nerf),
     /// A neural signed distance function.
     NeuralSdf(NeuralSdf),
+    /// A neural SDF seen as a volume with a learned colour (VolSDF, NeuS).
+    NeuralSurface(NeuralSurface),
+}
+
+/// A neural SDF rendered as a volume, trained from images (VolSDF, Yariv et
+/// al. 2021; NeuS-style density): density from the distance as for analytic
+/// fields, colour from a small network that sees the encoded point, the
+/// SDF's gradient (the surface normal) and, when `view_dependent`, the
+/// encoded view direction.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct NeuralSurface {
+    pub sdf: NeuralSdf,
+    /// `VolSdf` or `Neus`.
+    pub density: DensityKind,
+    pub alpha: f64,
+    pub beta: f64,
+    /// The colour network: `color_layers` hidden ReLU layers of
+    /// `color_width`, sigmoid colour; the point encoded with
+    /// `color_freqs` harmonics, the direction with 2.
+    pub color_layers: usize,
+    pub color_width: usize,
+    pub color_freqs: usize,
+    pub view_dependent: bool,
+    /// Seen through wherever the volume is not opaque.
+    pub background: [f64; 3],
+}
+
+impl NeuralSurface {
+    pub const DIRECTION_FREQS: usize = 2;
+
+    /// Width of the colour network's input.
+    pub fn color_input(&self) -> usize {
+        let dir = if self.view_dependent {
+            3 + 6 * Self::DIRECTION_FREQS
+        } else {
+            0
+        };
+        3 + 6 * self.color_freqs + 3 + dir
+    }
+
+    /// Multiply-adds of the colour network per sample.
+    pub fn color_multiply_adds(&self) -> usize {
+        let w = self.color_width;
+        self.color_input() * w + (self.color_layers - 1) * w * w + 3 * w
+    }
+
+    /// Multiply-adds of one sample: the distance with its gradient (four
+    /// passes' worth) and the colour.
+    pub fn multiply_adds_per_sample(&self) -> usize {
+        4 * self.sdf.multiply_adds() + self.color_multiply_adds()
+    }
 }
 
 /// A neural signed distance function (IGR; the course assignment's part 6):
@@ -244,14 +295,14 @@ impl Field {
     pub fn visit_params<'s>(&'s self, f: &mut dyn FnMut(&'s crate::param::ParamUse)) {
         match self {
             Field::Sdf(s) => s.visit_params(f),
-            Field::Nerf(_) | Field::NeuralSdf(_) => {}
+            Field::Nerf(_) | Field::NeuralSdf(_) | Field::NeuralSurface(_) => {}
         }
     }
 
     pub fn as_sdf(&self) -> Option<&SdfField> {
         match self {
             Field::Sdf(s) => Some(s),
-            Field::Nerf(_) | Field::NeuralSdf(_) => None,
+            Field::Nerf(_) | Field::NeuralSdf(_) | Field::NeuralSurface(_) => None,
         }
     }
 }

@@ -168,6 +168,10 @@ pub fn volume_work(j: &VolumeJob, size: Option<(u32, u32)>) -> Work {
         ),
         // Refused as a volume when evaluated; counted like a network.
         Field::NeuralSdf(n) => ((n.multiply_adds() as f64 / 10_000.0).max(1.0), 0.0),
+        Field::NeuralSurface(n) => (
+            (n.multiply_adds_per_sample() as f64 / 10_000.0).max(1.0),
+            0.0,
+        ),
     };
     let mesh = mesh_work(j.outputs.iter().map(|o| &o.kind), per_sample);
     Work {
@@ -219,6 +223,7 @@ pub fn train_work(j: &TrainJob, size: Option<(u32, u32)>) -> Work {
         // A distance and its three tangents, forward and backward, at a
         // surface and a random point per ray of the batch (not per sample).
         Field::NeuralSdf(n) => 2.0 * 12.0 * n.multiply_adds() as f64 / 10_000.0 / samples.max(1.0),
+        Field::NeuralSurface(n) => 3.0 * n.multiply_adds_per_sample() as f64 / 10_000.0,
     };
     let steps = iterations * j.rays as f64 * samples * per_sample;
     let (data_evals, data_bytes) = match &*j.data {
@@ -250,6 +255,7 @@ pub fn train_work(j: &TrainJob, size: Option<(u32, u32)>) -> Work {
         Field::Nerf(n) => (n.multiply_adds_per_sample() as f64 / 10_000.0).max(1.0),
         // A distance and its gradient.
         Field::NeuralSdf(n) => (4.0 * n.multiply_adds() as f64 / 10_000.0).max(1.0),
+        Field::NeuralSurface(n) => (4.0 * n.sdf.multiply_adds() as f64 / 10_000.0).max(1.0),
     };
     let mesh = mesh_work(j.before.iter().chain(&j.after).map(|o| &o.kind), per_point);
     Work {
@@ -274,6 +280,19 @@ pub fn train_work(j: &TrainJob, size: Option<(u32, u32)>) -> Work {
                         * 4.0
                         * ((n.layers + 1) * n.width + 4 * n.encoding_width()) as f64
                         + 16.0 * n.multiply_adds() as f64
+                }
+                // Per sample: every SDF layer's values, three tangents and
+                // their slopes, and the colour network's activations.
+                Field::NeuralSurface(n) => {
+                    let s = &n.sdf;
+                    let per_sample = 4
+                        * (3 * 4 * (s.layers + 1) * s.width
+                            + 4 * s.encoding_width()
+                            + 2 * n.color_layers * n.color_width
+                            + n.color_input()
+                            + 16);
+                    j.rays as f64 * samples * per_sample as f64
+                        + 16.0 * (s.multiply_adds() + n.color_multiply_adds()) as f64
                 }
                 Field::Nerf(n) => {
                     let per_sample = 4

@@ -98,7 +98,7 @@ fn field_view<'a>(
     let strat = stratified(sampler)?;
     Ok(match field {
         // The language refuses to render these; say so if one gets here.
-        Field::NeuralSdf(_) => {
+        Field::NeuralSdf(_) | Field::NeuralSurface(_) => {
             return Err(invalid("a neural SDF cannot be rendered yet"));
         }
         Field::Sdf(f) => {

@@ -4,6 +4,7 @@
 
 use super::*;
 use crate::neural::distance::NeuralSdfObjective;
+use crate::neural::surface::SurfaceObjective;
 
 /// The learned parameters and how training went.
 #[derive(Debug, Clone, Serialize)]
@@ -25,7 +26,8 @@ pub struct TrainReport {
     /// How well a distance field fits its points.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub fit: Option<crate::neural::distance::SdfFit>,
-    /// The first mesh written after training, against all the data's points.
+    /// The first mesh written after training, against all the data's
+    /// points, or against the true surface of a scene sdfl rendered.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub mesh_fit: Option<crate::neural::distance::MeshFit>,
     pub written: Vec<Written>,
@@ -101,6 +103,19 @@ pub fn step_memory(job: &TrainJob) -> u64 {
             let net = crate::neural::distance::sdf_net(n);
             crate::neural::sdf_net::SdfWork::bytes_for(&net, 2 * rays as usize)
                 + 24 * net.len as u64
+        }
+        // The distance network's values and tangents at every sample,
+        // plus the colour network's activations and the adjoints.
+        (Field::NeuralSurface(n), _) => {
+            let net = crate::neural::distance::sdf_net(&n.sdf);
+            let rows = rays * samples;
+            crate::neural::sdf_net::SdfWork::bytes_for(&net, rows as usize)
+                + rows
+                    * 4
+                    * (3 * n.color_input() as u64
+                        + 3 * n.color_layers as u64 * n.color_width as u64
+                        + 24)
+                + 24 * (net.len + n.color_multiply_adds()) as u64
         }
         (Field::Sdf(_), Backend::Fused) => 0,
         (Field::Sdf(_), Backend::Dfdx) => {
@@ -197,13 +212,19 @@ pub fn run_train_job(
     // occupancy grid) is copied from the run's before each use.
     let nerf_model = match &*job.model {
         Field::Nerf(n) => Some(NerfObjective::new(n, &job.sampler).map_err(invalid)?),
-        Field::Sdf(_) | Field::NeuralSdf(_) => None,
+        Field::Sdf(_) | Field::NeuralSdf(_) | Field::NeuralSurface(_) => None,
     };
     let nerf_model = std::sync::Mutex::new(nerf_model);
+    // A copy of a neural surface's model for rendering (it holds buffers).
+    let surface_model = match &*job.model {
+        Field::NeuralSurface(n) => Some(SurfaceObjective::new(n, &job.losses)),
+        _ => None,
+    };
     let objective: Box<dyn Objective> = match (&*job.model, &analytic) {
         (Field::Nerf(n), _) => Box::new(NerfObjective::new(n, &job.sampler).map_err(invalid)?),
         (Field::Sdf(_), Some(model)) => Box::new(FieldObjective::new(model, job.backend)),
         (Field::NeuralSdf(n), _) => Box::new(NeuralSdfObjective::new(n, &job.losses, job.bounds)),
+        (Field::NeuralSurface(n), _) => Box::new(SurfaceObjective::new(n, &job.losses)),
         (Field::Sdf(_), None) => unreachable!("an analytic field has a model"),
     };
     let mut setup = TrainSetup::of(job, &views);
@@ -276,6 +297,19 @@ pub fn run_train_job(
             .map(|v| (v.colour, v.depth))
             .map_err(invalid)
         }
+        (Field::NeuralSurface(_), _) => {
+            let _ = want_depth;
+            let size = ImageSize {
+                width: wh.0,
+                height: wh.1,
+            };
+            surface_model
+                .as_ref()
+                .expect("a surface model")
+                .render_view(values, &strat, job.sampler.last_interval, cam, size)
+                .map(|v| (v.colour, v.depth))
+                .map_err(invalid)
+        }
         (Field::Nerf(_), _) => nerf_view(
             nerf_model
                 .lock()
@@ -345,6 +379,14 @@ pub fn run_train_job(
                         params: values,
                     };
                     write(&field, Some(mesh_region(&points, job.bounds)))
+                }
+                (Field::NeuralSurface(n), _) => {
+                    let net = crate::neural::distance::sdf_net(&n.sdf);
+                    let field = crate::neural::distance::NetDistance {
+                        net: &net,
+                        params: &values[..net.len],
+                    };
+                    write(&field, Some(mesh_region(&[], job.bounds)))
                 }
                 (Field::Sdf(f), Some(model)) => {
                     let args = model.plain(values);
@@ -483,13 +525,19 @@ pub fn run_train_job(
     }
     let mut mesh_fit = None;
     for (w, mesh) in write_meshes(&run.values(), &job.after)? {
-        // The first mesh against the input points.
-        if mesh_fit.is_none() && !all_points.is_empty() {
-            mesh_fit = Some(crate::neural::distance::mesh_fit(
-                &mesh,
-                &all_points,
-                job.seed,
-            ));
+        // The first mesh against the data's points, or against the true
+        // surface where sdfl rendered the data itself.
+        if mesh_fit.is_none() {
+            let (truth, against) = if all_points.is_empty() {
+                (true_surface(&job.data, job.seed), "true surface")
+            } else {
+                (all_points.clone(), "data points")
+            };
+            if !truth.is_empty() {
+                mesh_fit = Some(crate::neural::distance::mesh_fit(
+                    &mesh, &truth, against, job.seed,
+                ));
+            }
         }
         written.push(w);
     }
@@ -592,6 +640,39 @@ pub fn run_train_job(
         written,
         stages,
     })
+}
+
+/// Points spread evenly over the true surface of data that sdfl rendered
+/// from a shape (the shape's mesh at a fine grid, sampled by area); none
+/// for data read from files or an unbounded shape.
+fn true_surface(data: &Dataset, seed: u64) -> Vec<[f32; 3]> {
+    let shape = match data {
+        Dataset::Traced { job, .. } => job.scene.clone(),
+        Dataset::Rendered { field, .. } => match field.as_sdf() {
+            Some(f) => f.shape.clone(),
+            None => return Vec::new(),
+        },
+        _ => return Vec::new(),
+    };
+    let Some(b) = shape.bounds() else {
+        return Vec::new();
+    };
+    let sdf = Lowered::new(&shape, LowerOptions::default());
+    let distance = |p: &[[f32; 3]], out: &mut [f32]| {
+        for (p, o) in p.iter().zip(out) {
+            *o = sdf.dist(Vec3A::from(*p));
+        }
+    };
+    let grid = crate::mesh::MeshGrid::covering(b.min.to_array(), b.max.to_array(), 192);
+    match crate::mesh::surface_nets(
+        &distance,
+        &grid,
+        sdfl_stdlib::work::MAX_MESH_VERTICES,
+        &|_| {},
+    ) {
+        Ok(m) => m.sample_surface(50_000, seed ^ 0x7472_7574_68),
+        Err(_) => Vec::new(),
+    }
 }
 
 /// The region a neural SDF's mesh covers by default: its points' box grown

@@ -217,6 +217,8 @@ pub struct MeshFit {
     /// Mean distance from a point to the nearest mesh sample, and back.
     pub points_to_mesh: f64,
     pub mesh_to_points: f64,
+    /// What the points are: "data points" or "true surface".
+    pub against: &'static str,
     /// Points and mesh samples compared.
     pub points: usize,
     pub samples: usize,
@@ -226,7 +228,12 @@ pub struct MeshFit {
 /// at most 50 000² pairs).
 const MESH_FIT_POINTS: usize = 50_000;
 
-pub fn mesh_fit(mesh: &crate::mesh::Mesh, points: &[[f32; 3]], seed: u64) -> MeshFit {
+pub fn mesh_fit(
+    mesh: &crate::mesh::Mesh,
+    points: &[[f32; 3]],
+    against: &'static str,
+    seed: u64,
+) -> MeshFit {
     let every = points.len().div_ceil(MESH_FIT_POINTS).max(1);
     let points: Vec<[f32; 3]> = points.iter().step_by(every).copied().collect();
     let samples = mesh.sample_surface(MESH_FIT_POINTS.min(4 * points.len()).max(1000), seed);
@@ -242,6 +249,7 @@ pub fn mesh_fit(mesh: &crate::mesh::Mesh, points: &[[f32; 3]], seed: u64) -> Mes
         chamfer: 0.5 * (to_mesh + to_points),
         points_to_mesh: to_mesh,
         mesh_to_points: to_points,
+        against,
         points: points.len(),
         samples: samples.len(),
     }

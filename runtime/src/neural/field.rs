@@ -67,7 +67,7 @@ impl Samples {
     }
 
     /// Positions and directions of every sample.
-    fn points(&self, rays: &[Ray], points: &mut Vec<f32>, dirs: &mut Vec<f32>) {
+    pub(crate) fn points(&self, rays: &[Ray], points: &mut Vec<f32>, dirs: &mut Vec<f32>) {
         let n = self.t.len();
         points.resize(n * 3, 0.0);
         dirs.resize(n * 3, 0.0);

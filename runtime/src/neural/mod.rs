@@ -4,7 +4,8 @@
 //! sweep ([`composite`]), the NeRF as a trainable model and a renderable
 //! field ([`field`]), the occupancy grid that skips empty space
 //! ([`occupancy`]); the neural SDF with its exact input gradient
-//! ([`sdf_net`]) and as a model fitted to points ([`distance`]).
+//! ([`sdf_net`]), as a model fitted to points ([`distance`]) and as a
+//! volume with a colour network fitted to images ([`surface`]).
 
 pub mod composite;
 pub mod distance;
@@ -15,3 +16,4 @@ pub mod mlp;
 pub mod nerf;
 pub mod occupancy;
 pub mod sdf_net;
+pub mod surface;

@@ -230,6 +230,7 @@ pub(crate) fn train_block(name: &str, a: &Args) -> Result<TrainJob, Diag> {
     // A distance field learns from points with point terms; the others
     // from images with image terms.
     let on_points = matches!(&**model, Field::NeuralSdf(_));
+    let surface_volume = matches!(&**model, Field::NeuralSurface(_));
     let (data_v, data_span) = a.get("data");
     if on_points != matches!(&**data, Dataset::Points { .. }) {
         return Err(value_error(
@@ -263,16 +264,33 @@ pub(crate) fn train_block(name: &str, a: &Args) -> Result<TrainJob, Diag> {
                 weight: 0.1,
             },
         ]
+    } else if surface_volume && a.get("losses").1 == a.span {
+        // A neural SDF seen through images: colour, and unit gradients at
+        // the samples so that it stays a distance.
+        vec![
+            Loss {
+                kind: LossKind::Mse,
+                weight: 1.0,
+            },
+            Loss {
+                kind: LossKind::Eikonal,
+                weight: 0.02,
+            },
+        ]
     } else {
         losses
     };
-    if let Some(l) = losses.iter().find(|l| l.kind.on_images() == on_points) {
+    let applies =
+        |k: LossKind| k.on_images() != on_points || (surface_volume && k == LossKind::Eikonal);
+    if let Some(l) = losses.iter().find(|l| !applies(l.kind)) {
         return Err(value_error(
             losses_span,
             format!("`{}` does not apply to this model", loss_name(l.kind)),
             "not a term of this model",
             if on_points {
                 "a neural SDF trains on `surface()`, `eikonal()` and `inter()`"
+            } else if surface_volume {
+                "a neural SDF's volume trains on `mse()` and `eikonal()`"
             } else {
                 "a field rendered to images trains on `mse()`"
             },
@@ -329,7 +347,7 @@ pub(crate) fn train_block(name: &str, a: &Args) -> Result<TrainJob, Diag> {
         match &**model {
             Field::Sdf(f) => check_meshes(outputs, Some(&f.shape))?,
             // Bounded by its points or the training `bounds`.
-            Field::NeuralSdf(_) => {}
+            Field::NeuralSdf(_) | Field::NeuralSurface(_) => {}
             Field::Nerf(_) => check_meshes(outputs, None)?,
         }
     }
@@ -391,7 +409,7 @@ pub(crate) fn train_block(name: &str, a: &Args) -> Result<TrainJob, Diag> {
 }
 
 pub(crate) fn volume_block(name: &str, a: &Args, field: Arc<Field>) -> Result<VolumeJob, Diag> {
-    if matches!(*field, Field::NeuralSdf(_)) {
+    if matches!(*field, Field::NeuralSdf(_) | Field::NeuralSurface(_)) {
         return Err(super::not_a_volume(a.get("scene").1));
     }
     let (width, height) = image_size(a, "size")?;

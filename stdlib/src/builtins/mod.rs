@@ -19,8 +19,9 @@ use crate::precision::{beta, f32_range};
 use crate::shape::Shape;
 use crate::value::{
     Backend, Dataset, DensityActivation, DensityKind, Encoding, Field, Harmonic, HashGridSpec,
-    HitTolerance, LastInterval, Loss, LossKind, MeshRegion, Nerf, OccupancySpec, Optimizer, Output,
-    OutputKind, RenderJob, Sampler, Schedule, SdfField, TrainJob, Value, VolumeJob,
+    HitTolerance, LastInterval, Loss, LossKind, MeshRegion, Nerf, NeuralSdf, NeuralSurface,
+    OccupancySpec, Optimizer, Output, OutputKind, RenderJob, Sampler, Schedule, SdfField, TrainJob,
+    Value, VolumeJob,
 };
 
 pub const SHAPE: Type = Type::Named("shape");
@@ -1091,7 +1092,7 @@ pub(crate) fn not_a_volume(span: Span) -> Diag {
         span,
         "a neural SDF is rendered by the `train` statement that fits it",
         "a neural SDF",
-        "train it from points and ask for `after: [gif(...)]` there: its surface is sphere-traced",
+        "train it (from points, or from images as `volsdf(neural_sdf(...))`) and ask for `after: [gif(...)]` there",
     )
 }
 
@@ -1110,7 +1111,7 @@ fn volume_fn(
         name,
         doc,
         vec![
-            req("shape", SHAPE, "the signed distance function"),
+            req("shape", Type::OneOf(vec![SHAPE, FIELD]), "the signed distance function: a shape, or a `neural_sdf(...)` to train from images"),
             opt("alpha", Type::Number, alpha_default, "density scale (> 0)"),
             opt(
                 "beta",
@@ -1122,15 +1123,83 @@ fn volume_fn(
                 "color",
                 Type::OneOf(vec![MATERIAL, Type::Vec3]),
                 "rainbow()",
-                "colour of the volume (rainbow or constant)",
+                "colour of the volume (rainbow or constant); a neural SDF's colour is learnt",
             ),
+            opt("view_dependent", Type::Bool, "true", "a neural SDF's colour network sees the view direction"),
+            opt("background", Type::Vec3, "[0, 0, 0]", "a neural SDF's volume: colour seen where it is not opaque"),
         ],
         FIELD,
         eval,
     )
 }
 
+/// A neural SDF as a volume with a learnt colour.
+fn neural_surface(a: &Args, density: DensityKind, sdf: &NeuralSdf) -> Result<Value, Diag> {
+    let given = |name: &str| a.get(name).1 != a.span;
+    if given("color") {
+        return Err(value_error(
+            a.get("color").1,
+            "a neural SDF's colour is learnt from the images",
+            "not used by a neural SDF",
+            "leave `color` out",
+        ));
+    }
+    let fixed = |name: &str| -> Result<f64, Diag> {
+        match a.get(name).0 {
+            Value::Param(_) => Err(value_error(
+                a.get(name).1,
+                format!("`{name}` of a neural SDF's volume is fixed while its network trains"),
+                "cannot be a `param` here yet",
+                format!("give `{name}` a number"),
+            )),
+            _ => a.positive(name),
+        }
+    };
+    let (alpha, beta) = (fixed("alpha")?, fixed("beta")?);
+    crate::precision::beta(beta, a.get("beta").1)?;
+    Ok(Value::Field(Arc::new(Field::NeuralSurface(
+        NeuralSurface {
+            sdf: sdf.clone(),
+            density,
+            alpha,
+            beta,
+            color_layers: 2,
+            color_width: 64,
+            color_freqs: 4,
+            view_dependent: matches!(a.get("view_dependent").0, Value::Bool(true)),
+            background: a.vec3("background")?.to_array(),
+        },
+    ))))
+}
+
 fn field(a: &Args, density: DensityKind) -> Result<Value, Diag> {
+    if let Value::Field(f) = a.get("shape").0 {
+        return match &**f {
+            Field::NeuralSdf(n) if density != DensityKind::Opacity => neural_surface(a, density, n),
+            _ => Err(value_error(
+                a.get("shape").1,
+                "this field is not a distance function",
+                "not a shape or a `neural_sdf(...)`",
+                if density == DensityKind::Opacity {
+                    "the opacity form takes shapes; train a neural SDF from images with `volsdf` or `neus`"
+                } else {
+                    "give a shape or a `neural_sdf(...)`"
+                },
+            )),
+        };
+    }
+    let given = |name: &str| a.get(name).1 != a.span;
+    if let Some(name) = ["view_dependent", "background"]
+        .into_iter()
+        .find(|n| given(n))
+    {
+        return Err(value_error(
+            a.get(name).1,
+            format!("`{name}` applies to a neural SDF's volume only"),
+            "ignored for a shape",
+            format!("leave `{name}` out, or give a `neural_sdf(...)`"),
+        ));
+    }
     // α is an opacity (at most 1) in the assignment's form, a density scale
     // otherwise; trained values stay in range.
     let alpha_bound = match density {

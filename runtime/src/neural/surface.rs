@@ -1,0 +1,600 @@
+//! A neural SDF seen as a volume and trained from images (VolSDF; NeuS-style
+//! density): samples along rays → the distance network with its exact
+//! gradient → density `σ(f)` and a colour network that sees the encoded
+//! point, the gradient (the surface normal) and the encoded view direction
+//! → compositing → MSE, plus the eikonal term `(‖∇f‖ − 1)²` at the samples.
+//!
+//! Backward: compositing gives `∂L/∂σ` and `∂L/∂c`; the colour network turns
+//! `∂L/∂c` into its weights' gradient and `∂L/∂∇f` (the normal is one of its
+//! inputs); `∂L/∂f = ∂L/∂σ·σ'(f)`. The distance network takes both adjoints
+//! at once ([`SdfNet::backward`]: its second-order pass through the tangents).
+
+use rayon::prelude::*;
+use sdfl_stdlib::camera::Camera;
+use sdfl_stdlib::value::{DensityKind, LastInterval, Loss, LossKind, NeuralSurface};
+
+use super::composite::{composite, composite_backward};
+use super::distance::sdf_net;
+use super::encoding::Harmonic;
+use super::field::{NerfView, Samples};
+use super::mlp::{Activation, Dense};
+use super::sdf_net::{eikonal_loss, SdfNet, SdfWork};
+use crate::train::fused::Batch;
+use crate::train::{Objective, TensorSpec, TrainError};
+use crate::volume::density::{neus_density_grad, volsdf_density_grad};
+use crate::volume::{camera_rays, ImageSize, Ray, SplitMix64, Stratified, VolumeError};
+
+/// Rays per block of the compositing pass.
+const RAY_BLOCK: usize = 64;
+/// Samples per pass when rendering (bounds the distance network's buffers).
+const RENDER_ROWS: usize = 1 << 14;
+
+/// The colour network: the encoded point, the normal and (when view
+/// dependent) the encoded direction → ReLU layers → sigmoid colour.
+#[derive(Debug, Clone)]
+pub struct ColorNet {
+    position: Harmonic,
+    direction: Option<Harmonic>,
+    layers: Vec<Dense>,
+}
+
+/// The colour network's buffers.
+#[derive(Default)]
+struct ColorWork {
+    position: Vec<f32>,
+    direction: Vec<f32>,
+    /// Every layer's output.
+    acts: Vec<Vec<f32>>,
+    d_a: Vec<f32>,
+    d_b: Vec<f32>,
+}
+
+impl ColorNet {
+    fn new(spec: &NeuralSurface, offset: usize) -> Self {
+        let position = Harmonic {
+            dims: 3,
+            freqs: spec.color_freqs,
+            include_input: true,
+        };
+        let direction = spec.view_dependent.then_some(Harmonic {
+            dims: 3,
+            freqs: NeuralSurface::DIRECTION_FREQS,
+            include_input: true,
+        });
+        let mut parts = vec![position.width(), 3];
+        parts.extend(direction.map(|d| d.width()));
+        let mut layers = Vec::new();
+        let mut at = offset;
+        for i in 0..spec.color_layers {
+            let d = if i == 0 {
+                Dense::new(&parts, spec.color_width, Activation::Relu, at)
+            } else {
+                Dense::new(&[spec.color_width], spec.color_width, Activation::Relu, at)
+            };
+            at = d.end();
+            layers.push(d);
+        }
+        layers.push(Dense::new(&[spec.color_width], 3, Activation::Sigmoid, at));
+        ColorNet {
+            position,
+            direction,
+            layers,
+        }
+    }
+
+    fn end(&self) -> usize {
+        self.layers.last().expect("an output layer").end()
+    }
+
+    fn forward(
+        &self,
+        params: &[f32],
+        points: &[f32],
+        normals: &[f32],
+        dirs: &[f32],
+        w: &mut ColorWork,
+    ) {
+        let rows = points.len() / 3;
+        w.position.resize(rows * self.position.width(), 0.0);
+        self.position.encode(points, &mut w.position);
+        if let Some(d) = &self.direction {
+            w.direction.resize(rows * d.width(), 0.0);
+            d.encode(dirs, &mut w.direction);
+        }
+        w.acts.resize(self.layers.len(), Vec::new());
+        for (i, d) in self.layers.iter().enumerate() {
+            let (before, rest) = w.acts.split_at_mut(i);
+            let out = &mut rest[0];
+            out.resize(rows * d.out, 0.0);
+            if i == 0 {
+                let mut inputs: Vec<&[f32]> = vec![&w.position, normals];
+                if self.direction.is_some() {
+                    inputs.push(&w.direction);
+                }
+                d.forward(params, &inputs, out);
+            } else {
+                d.forward(params, &[&before[i - 1]], out);
+            }
+        }
+    }
+
+    /// The colour of the last [`Self::forward`].
+    fn rgb<'w>(&self, w: &'w ColorWork) -> &'w [f32] {
+        w.acts.last().expect("an output layer")
+    }
+
+    /// Adds the weights' gradient into `grad` and writes `∂L/∂normal` into
+    /// `d_normal`, given `∂L/∂rgb` in `d_rgb` (overwritten).
+    fn backward(
+        &self,
+        params: &[f32],
+        normals: &[f32],
+        d_rgb: &mut [f32],
+        d_normal: &mut [f32],
+        w: &mut ColorWork,
+        grad: &mut [f32],
+    ) {
+        let ColorWork {
+            position,
+            direction,
+            acts,
+            d_a,
+            d_b,
+        } = w;
+        d_a.clear();
+        d_a.extend_from_slice(d_rgb);
+        for i in (0..self.layers.len()).rev() {
+            let d = &self.layers[i];
+            if i == 0 {
+                let mut inputs: Vec<&[f32]> = vec![position.as_slice(), normals];
+                let mut d_in: Vec<Option<&mut [f32]>> = vec![None, Some(&mut *d_normal)];
+                if self.direction.is_some() {
+                    inputs.push(direction.as_slice());
+                    d_in.push(None);
+                }
+                d.backward(params, &inputs, &acts[0], d_a, &mut d_in, false, grad);
+            } else {
+                d_b.resize(acts[i - 1].len(), 0.0);
+                d.backward(
+                    params,
+                    &[acts[i - 1].as_slice()],
+                    &acts[i],
+                    d_a,
+                    &mut [Some(d_b.as_mut_slice())],
+                    false,
+                    grad,
+                );
+                std::mem::swap(d_a, d_b);
+            }
+        }
+    }
+}
+
+/// Density `σ(f)` and `dσ/df` of a neural surface.
+fn density(kind: DensityKind, f: f32, alpha: f32, beta: f32) -> (f32, f32) {
+    match kind {
+        DensityKind::Neus => neus_density_grad(f, alpha, beta),
+        // The evaluator allows only VolSDF and NeuS here.
+        DensityKind::VolSdf | DensityKind::Opacity => volsdf_density_grad(f, alpha, beta),
+    }
+}
+
+/// A neural SDF with a colour network, fitted to images.
+pub struct SurfaceObjective {
+    pub sdf: SdfNet,
+    pub color: ColorNet,
+    spec: NeuralSurface,
+    /// Weight of the eikonal term (the trainer weighs the colour term).
+    eikonal: f32,
+    samples: Samples,
+    points: Vec<f32>,
+    dirs: Vec<f32>,
+    sdf_work: SdfWork,
+    color_work: ColorWork,
+    sigma: Vec<f32>,
+    slope: Vec<f32>,
+    d_sigma: Vec<f32>,
+    d_rgb: Vec<f32>,
+    d_f: Vec<f32>,
+    d_g: Vec<f32>,
+    d_normal: Vec<f32>,
+}
+
+impl SurfaceObjective {
+    pub fn new(spec: &NeuralSurface, losses: &[Loss]) -> Self {
+        let sdf = sdf_net(&spec.sdf);
+        let color = ColorNet::new(spec, sdf.len);
+        SurfaceObjective {
+            eikonal: losses
+                .iter()
+                .filter(|l| l.kind == LossKind::Eikonal)
+                .map(|l| l.weight as f32)
+                .sum(),
+            sdf,
+            color,
+            spec: spec.clone(),
+            samples: Samples::default(),
+            points: Vec::new(),
+            dirs: Vec::new(),
+            sdf_work: SdfWork::default(),
+            color_work: ColorWork::default(),
+            sigma: Vec::new(),
+            slope: Vec::new(),
+            d_sigma: Vec::new(),
+            d_rgb: Vec::new(),
+            d_f: Vec::new(),
+            d_g: Vec::new(),
+            d_normal: Vec::new(),
+        }
+    }
+
+    /// The distance network's share of the parameters.
+    pub fn sdf_params<'p>(&self, params: &'p [f32]) -> &'p [f32] {
+        &params[..self.sdf.len]
+    }
+
+    fn background(&self) -> [f32; 3] {
+        self.spec.background.map(|x| x as f32)
+    }
+
+    fn densities(&mut self) {
+        let (a, b, kind) = (
+            self.spec.alpha as f32,
+            self.spec.beta as f32,
+            self.spec.density,
+        );
+        let f = self.sdf_work.distance();
+        self.sigma.resize(f.len(), 0.0);
+        self.slope.resize(f.len(), 0.0);
+        self.sigma
+            .par_iter_mut()
+            .zip(self.slope.par_iter_mut())
+            .zip(f.par_iter())
+            .for_each(|((s, d), &f)| (*s, *d) = density(kind, f, a, b));
+    }
+
+    /// Renders one view: colour and expected depth per pixel.
+    pub fn render_view(
+        &self,
+        params: &[f32],
+        sampler: &Stratified,
+        last: LastInterval,
+        cam: &Camera,
+        size: ImageSize,
+    ) -> Result<NerfView, VolumeError> {
+        sampler.validate()?;
+        let rays = camera_rays(cam, size)?;
+        let t = sampler.depths();
+        let n = t.len().max(1);
+        let mut view = NerfView {
+            colour: vec![[0.0; 3]; rays.len()],
+            depth: vec![0.0; rays.len()],
+        };
+        let per_pass = (RENDER_ROWS / n).max(1);
+        let (mut samples, mut points, mut dirs) = (Samples::default(), Vec::new(), Vec::new());
+        let (mut sdf_work, mut color_work) = (SdfWork::default(), ColorWork::default());
+        let (a, b) = (self.spec.alpha as f32, self.spec.beta as f32);
+        for (chunk, (colour, depth)) in rays.chunks(per_pass).zip(
+            view.colour
+                .chunks_mut(per_pass)
+                .zip(view.depth.chunks_mut(per_pass)),
+        ) {
+            samples.fixed(chunk.len(), t.len(), |_| &t, last);
+            samples.points(chunk, &mut points, &mut dirs);
+            self.sdf
+                .forward(&params[..self.sdf.len], &points, &mut sdf_work);
+            let sigma: Vec<f32> = sdf_work
+                .distance()
+                .iter()
+                .map(|&f| density(self.spec.density, f, a, b).0)
+                .collect();
+            self.color
+                .forward(params, &points, sdf_work.gradient(), &dirs, &mut color_work);
+            let rgb = self.color.rgb(&color_work);
+            colour
+                .par_iter_mut()
+                .zip(depth.par_iter_mut())
+                .enumerate()
+                .for_each(|(r, (c, d))| {
+                    let k = r * t.len()..(r + 1) * t.len();
+                    let out = composite(
+                        &sigma[k.clone()],
+                        &rgb[3 * k.start..3 * k.end],
+                        &samples.t[k.clone()],
+                        &samples.delta[k.clone()],
+                        self.background(),
+                    );
+                    *c = out.colour;
+                    *d = out.depth;
+                });
+        }
+        Ok(view)
+    }
+}
+
+impl Objective for SurfaceObjective {
+    fn tensors(&self) -> Vec<TensorSpec> {
+        let sdf = self
+            .sdf
+            .layers()
+            .into_iter()
+            .flat_map(|(name, d)| d.tensors(&format!("sdf.{name}")));
+        let n = self.color.layers.len();
+        let color = self
+            .color
+            .layers
+            .iter()
+            .enumerate()
+            .flat_map(move |(i, d)| {
+                let name = if i + 1 == n {
+                    "color.out".to_string()
+                } else {
+                    format!("color.{i}")
+                };
+                d.tensors(&name)
+            });
+        sdf.chain(color).collect()
+    }
+
+    fn initial(&self) -> Vec<f32> {
+        let mut v = self
+            .sdf
+            .init_geometric(self.spec.sdf.seed, self.spec.sdf.radius as f32);
+        v.resize(self.color.end(), 0.0);
+        let mut rng = SplitMix64::new(self.spec.sdf.seed ^ 0x636f_6c6f_72);
+        for d in &self.color.layers {
+            d.init(&mut v, &mut rng);
+        }
+        v
+    }
+
+    fn loss_and_grad(
+        &mut self,
+        values: &[f32],
+        batch: &Batch,
+        weight: f64,
+        grad: &mut [f32],
+    ) -> Result<f64, TrainError> {
+        let rays: &[Ray] = &batch.rays;
+        let n = batch.samples;
+        if rays.is_empty() || n == 0 {
+            return Err(TrainError::Invalid(
+                "a neural SDF's volume trains on rays, and the batch has none".into(),
+            ));
+        }
+        self.samples
+            .fixed(rays.len(), n, |r| batch.depths_of(r), batch.last_interval);
+        self.samples.points(rays, &mut self.points, &mut self.dirs);
+        let sdf_params = &values[..self.sdf.len];
+        self.sdf
+            .forward(sdf_params, &self.points, &mut self.sdf_work);
+        self.densities();
+        self.color.forward(
+            values,
+            &self.points,
+            self.sdf_work.gradient(),
+            &self.dirs,
+            &mut self.color_work,
+        );
+        let rows = self.points.len() / 3;
+        self.d_sigma.resize(rows, 0.0);
+        self.d_rgb.resize(3 * rows, 0.0);
+        // `weight` scales the image terms as the trainer weighs them; the
+        // MSE is a mean over rays and channels.
+        let scale = (weight / (3 * rays.len()) as f64) as f32;
+        let background = self.background();
+        let (sigma, rgb) = (&self.sigma, self.color.rgb(&self.color_work));
+        let (t, delta) = (&self.samples.t, &self.samples.delta);
+        let losses: Vec<f64> = self
+            .d_sigma
+            .par_chunks_mut(RAY_BLOCK * n)
+            .zip(self.d_rgb.par_chunks_mut(3 * RAY_BLOCK * n))
+            .enumerate()
+            .map(|(blk, (d_sigma, d_rgb))| {
+                let mut trans = Vec::new();
+                let mut loss = 0f64;
+                for (j, (ds, dc)) in d_sigma
+                    .chunks_mut(n)
+                    .zip(d_rgb.chunks_mut(3 * n))
+                    .enumerate()
+                {
+                    let r = blk * RAY_BLOCK + j;
+                    let k = r * n..(r + 1) * n;
+                    let (sg, c) = (&sigma[k.clone()], &rgb[3 * k.start..3 * k.end]);
+                    let out = composite(sg, c, &t[k.clone()], &delta[k.clone()], background);
+                    let mut g = [0f32; 3];
+                    for i in 0..3 {
+                        let e = out.colour[i] - batch.targets[r][i];
+                        loss += (e * e * scale) as f64;
+                        g[i] = 2.0 * e * scale;
+                    }
+                    composite_backward(sg, c, &delta[k.clone()], background, g, ds, dc, &mut trans);
+                }
+                loss
+            })
+            .collect();
+        let mut loss: f64 = losses.iter().sum();
+        // The colour network: its weights, and the normal's adjoint.
+        self.d_normal.resize(3 * rows, 0.0);
+        self.color.backward(
+            values,
+            self.sdf_work.gradient(),
+            &mut self.d_rgb,
+            &mut self.d_normal,
+            &mut self.color_work,
+            grad,
+        );
+        // ∂L/∂f through the density; ∂L/∂∇f from the colour and the
+        // eikonal term at every sample.
+        self.d_f.resize(rows, 0.0);
+        self.d_f
+            .par_iter_mut()
+            .zip(self.d_sigma.par_iter().zip(self.slope.par_iter()))
+            .for_each(|(d, (ds, s))| *d = ds * s);
+        self.d_g.resize(3 * rows, 0.0);
+        if self.eikonal > 0.0 {
+            loss += eikonal_loss(self.sdf_work.gradient(), self.eikonal, &mut self.d_g);
+        } else {
+            self.d_g.fill(0.0);
+        }
+        for (d, n) in self.d_g.iter_mut().zip(&self.d_normal) {
+            *d += n;
+        }
+        self.sdf.backward(
+            sdf_params,
+            &self.d_f,
+            &self.d_g,
+            &mut self.sdf_work,
+            &mut grad[..self.sdf.len],
+        );
+        Ok(loss)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use sdfl_stdlib::value::{Harmonic as HarmonicSpec, NeuralSdf};
+
+    fn spec(density: DensityKind, view_dependent: bool) -> NeuralSurface {
+        NeuralSurface {
+            sdf: NeuralSdf {
+                encoding: HarmonicSpec {
+                    freqs: 2,
+                    include_input: true,
+                },
+                layers: 2,
+                width: 8,
+                skips: vec![],
+                beta: 20.0,
+                radius: 0.5,
+                seed: 3,
+            },
+            density,
+            alpha: 10.0,
+            beta: 0.1,
+            color_layers: 2,
+            color_width: 8,
+            color_freqs: 2,
+            view_dependent,
+            background: [0.2, 0.3, 0.4],
+        }
+    }
+
+    fn batch(rays: usize, samples: usize) -> Batch {
+        let mut rng = SplitMix64::new(9);
+        let rays: Vec<Ray> = (0..rays)
+            .map(|_| {
+                let o = [rng.next_f32() - 0.5, rng.next_f32() - 0.5, -2.0];
+                let d = [
+                    0.2 * (rng.next_f32() - 0.5),
+                    0.2 * (rng.next_f32() - 0.5),
+                    1.0,
+                ];
+                let len = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+                Ray {
+                    origin: o,
+                    dir: d.map(|x| x / len),
+                    view: 0,
+                    pixel: 0,
+                }
+            })
+            .collect();
+        let targets = (0..rays.len())
+            .map(|_| [rng.next_f32(), rng.next_f32(), rng.next_f32()])
+            .collect();
+        let depths = (0..samples)
+            .map(|i| 1.0 + 2.0 * i as f32 / (samples - 1) as f32)
+            .collect();
+        Batch {
+            rays,
+            targets,
+            depths,
+            samples,
+            shared: true,
+            last_interval: LastInterval::Zero,
+            seed: 1,
+            step: 0,
+            points: Vec::new(),
+        }
+    }
+
+    /// Every parameter's gradient (a sample of them) against central
+    /// differences of the loss, with and without view dependence, for both
+    /// densities, MSE and eikonal together.
+    #[test]
+    fn gradient_matches_finite_differences() {
+        let losses = [
+            Loss {
+                kind: LossKind::Mse,
+                weight: 1.0,
+            },
+            Loss {
+                kind: LossKind::Eikonal,
+                weight: 0.1,
+            },
+        ];
+        for (density, view) in [(DensityKind::VolSdf, true), (DensityKind::Neus, false)] {
+            let s = spec(density, view);
+            let mut obj = SurfaceObjective::new(&s, &losses);
+            let values = obj.initial();
+            let b = batch(7, 24);
+            let mut grad = vec![0.0; values.len()];
+            obj.loss_and_grad(&values, &b, 1.0, &mut grad).unwrap();
+            let mut rng = SplitMix64::new(4);
+            let mut checked = 0;
+            for _ in 0..60 {
+                let i = rng.below(values.len() as u64) as usize;
+                let h = 1e-3;
+                let at = |x: f32, obj: &mut SurfaceObjective| {
+                    let mut v = values.clone();
+                    v[i] = x;
+                    let mut g = vec![0.0; v.len()];
+                    obj.loss_and_grad(&v, &b, 1.0, &mut g).unwrap()
+                };
+                let fd =
+                    (at(values[i] + h, &mut obj) - at(values[i] - h, &mut obj)) / (2.0 * h as f64);
+                let got = grad[i] as f64;
+                assert!(
+                    (got - fd).abs() <= 2e-3 * (1.0 + fd.abs()) + 1e-4,
+                    "{density:?} parameter {i}: {got} vs {fd}"
+                );
+                checked += (fd.abs() > 1e-5) as usize;
+            }
+            assert!(checked > 10, "most sampled gradients are not zero");
+        }
+    }
+
+    #[test]
+    fn renders_finite_colours_over_the_background() {
+        let s = spec(DensityKind::VolSdf, true);
+        let obj = SurfaceObjective::new(&s, &[]);
+        let values = obj.initial();
+        let cam = Camera::look_at(
+            glam::DVec3::new(0.0, 0.0, -3.0),
+            glam::DVec3::ZERO,
+            glam::DVec3::Y,
+            1.0,
+        );
+        let sampler = Stratified::new(32, 0.5, 5.0).unwrap();
+        let size = ImageSize {
+            width: 9,
+            height: 9,
+        };
+        let v = obj
+            .render_view(&values, &sampler, LastInterval::Zero, &cam, size)
+            .unwrap();
+        assert!(v
+            .colour
+            .iter()
+            .flatten()
+            .all(|x| x.is_finite() && (0.0..=1.0).contains(x)));
+        // A corner ray misses the starting sphere (radius 0.5): background.
+        let corner = v.colour[0];
+        for (c, bg) in corner.iter().zip(s.background) {
+            assert!((c - bg as f32).abs() < 1e-3, "{corner:?}");
+        }
+        // The centre ray hits it: opaque, not the background.
+        assert!((v.colour[40][2] - 0.4).abs() > 1e-3 || (v.colour[40][0] - 0.2).abs() > 1e-3);
+    }
+}
