@@ -13,6 +13,34 @@ pub struct File {
 pub enum Item {
     Let(Let),
     Block(Block),
+    Fn(FnDef),
+    Import(Import),
+}
+
+/// `import "path.sdfl"`
+#[derive(Debug, Clone, PartialEq)]
+pub struct Import {
+    /// The path as written (escapes resolved).
+    pub path: String,
+    /// The span of the string literal.
+    pub path_span: Span,
+    pub span: Span,
+}
+
+/// `fn name(params) { body }`
+#[derive(Debug, Clone, PartialEq)]
+pub struct FnDef {
+    pub name: Ident,
+    pub params: Vec<FnParam>,
+    pub body: Body,
+    pub span: Span,
+}
+
+/// A parameter of a `fn`, with its default (`None`: required).
+#[derive(Debug, Clone, PartialEq)]
+pub struct FnParam {
+    pub name: Ident,
+    pub default: Option<Expr>,
 }
 
 /// A name as written, with its span.
@@ -60,6 +88,14 @@ pub enum BinOp {
     Div,
     Rem,
     Pow,
+    Lt,
+    Le,
+    Gt,
+    Ge,
+    Eq,
+    Ne,
+    And,
+    Or,
 }
 
 impl BinOp {
@@ -71,7 +107,31 @@ impl BinOp {
             BinOp::Div => "/",
             BinOp::Rem => "%",
             BinOp::Pow => "^",
+            BinOp::Lt => "<",
+            BinOp::Le => "<=",
+            BinOp::Gt => ">",
+            BinOp::Ge => ">=",
+            BinOp::Eq => "==",
+            BinOp::Ne => "!=",
+            BinOp::And => "&&",
+            BinOp::Or => "||",
         }
+    }
+    /// `< <= > >=`: numbers in, a bool out.
+    pub fn is_ordering(self) -> bool {
+        matches!(self, BinOp::Lt | BinOp::Le | BinOp::Gt | BinOp::Ge)
+    }
+    /// `== !=`
+    pub fn is_equality(self) -> bool {
+        matches!(self, BinOp::Eq | BinOp::Ne)
+    }
+    /// `&& ||`: bools in, a bool out.
+    pub fn is_logical(self) -> bool {
+        matches!(self, BinOp::And | BinOp::Or)
+    }
+    /// `+ - * / % ^`
+    pub fn is_arithmetic(self) -> bool {
+        !(self.is_ordering() || self.is_equality() || self.is_logical())
     }
 }
 
@@ -93,6 +153,17 @@ pub enum ExprKind {
     /// `value.name`: a vector component.
     Member(Box<Expr>, Ident),
     Neg(Box<Expr>),
+    /// `!value`
+    Not(Box<Expr>),
+    /// `list[index]`
+    Index(Box<Expr>, Box<Expr>),
+    /// `if cond { then } else { otherwise }`; `else if` is an `otherwise`
+    /// body holding only another `If`.
+    If {
+        cond: Box<Expr>,
+        then: Body,
+        otherwise: Body,
+    },
     Binary(BinOp, Box<Expr>, Box<Expr>),
     For {
         bindings: Vec<Binding>,

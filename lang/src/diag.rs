@@ -21,6 +21,23 @@ pub mod codes {
     pub const UNKNOWN_BLOCK: &str = "sdfl::name::unknown-block";
     pub const DUPLICATE_NAME: &str = "sdfl::name::duplicate";
     pub const NOT_CALLABLE: &str = "sdfl::name::not-callable";
+    /// A `fn` named like a built-in function.
+    pub const SHADOWS_BUILTIN: &str = "sdfl::name::shadows-builtin";
+    /// A call of a `fn` defined below the call (or of itself): functions
+    /// call only functions defined above them, so there is no recursion.
+    pub const FN_ORDER: &str = "sdfl::fn::order";
+    /// A list index that is not a whole number within the list.
+    pub const INDEX: &str = "sdfl::value::index";
+    /// An `import` path that is absolute, leaves the main file's directory
+    /// or names something other than a `.sdfl` file.
+    pub const IMPORT_PATH: &str = "sdfl::import::path";
+    /// An `import`ed file that cannot be read.
+    pub const IMPORT_MISSING: &str = "sdfl::import::missing";
+    /// Files that import each other in a cycle.
+    pub const IMPORT_CYCLE: &str = "sdfl::import::cycle";
+    /// A statement (`render`, `train`) in an imported file, which may hold
+    /// only `let`s, `fn`s and `import`s.
+    pub const IMPORT_STATEMENT: &str = "sdfl::import::statement";
     pub const UNKNOWN_ARG: &str = "sdfl::arg::unknown";
     pub const MISSING_ARG: &str = "sdfl::arg::missing";
     pub const DUPLICATE_ARG: &str = "sdfl::arg::duplicate";
