@@ -44,7 +44,11 @@ pub fn check(file: &File, env: &dyn Env) -> Diagnostics {
         current_fn: None,
     };
     for item in &file.items {
+        // One named like a built-in is an error; calls mean the built-in.
         if let Item::Fn(f) = item {
+            if env.function(&f.name.name).is_some() {
+                continue;
+            }
             c.all_fns.entry(f.name.name.clone()).or_insert(f.name.span);
         }
     }
@@ -148,6 +152,7 @@ impl Checker<'_> {
                 .help("a `fn` may not replace a built-in: give it another name"),
             );
         }
+        let shadows = self.env.function(&name.name).is_some();
         let mut seen: HashMap<&str, Span> = HashMap::new();
         let mut scope = HashMap::new();
         let mut params = Vec::new();
@@ -192,6 +197,9 @@ impl Checker<'_> {
         let returns = self.expr(&f.body.value);
         self.current_fn = outer;
         self.locals = saved;
+        if shadows {
+            return;
+        }
         if let Some((_, first)) = self.fns.get(&name.name) {
             let first = *first;
             self.diags.push(

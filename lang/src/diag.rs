@@ -93,6 +93,9 @@ pub struct Diag {
     pub help: Option<String>,
     /// Secondary spans, e.g. the earlier definition of a duplicate name.
     pub notes: Vec<(Span, String)>,
+    /// The file the spans point into when it is not the file being
+    /// loaded: one it imports.
+    pub file: Option<SourceFile>,
 }
 
 impl Diag {
@@ -104,6 +107,7 @@ impl Diag {
             label: String::new(),
             help: None,
             notes: Vec::new(),
+            file: None,
         }
     }
     /// Warnings are the codes under `sdfl::warn::` (kept in the code, so a
@@ -160,10 +164,13 @@ impl Diagnostics {
 }
 
 /// A source file: its name (as shown to the user) and its text.
-#[derive(Debug, Clone)]
+#[derive(Debug, Clone, PartialEq)]
 pub struct SourceFile {
     pub name: String,
     pub text: Arc<str>,
+    /// Where it is on disk, when that differs from `name`: its `import`s
+    /// are resolved from here (else from `name`).
+    pub path: Option<std::path::PathBuf>,
 }
 
 impl SourceFile {
@@ -171,7 +178,19 @@ impl SourceFile {
         SourceFile {
             name: name.into(),
             text: text.into(),
+            path: None,
         }
+    }
+    /// The same file, found on disk at `path` (its name stays as shown).
+    pub fn at(mut self, path: impl Into<std::path::PathBuf>) -> Self {
+        self.path = Some(path.into());
+        self
+    }
+    /// Where the file is on disk: `path`, or its name.
+    pub fn disk_path(&self) -> std::path::PathBuf {
+        self.path
+            .clone()
+            .unwrap_or_else(|| std::path::PathBuf::from(&self.name))
     }
     /// 1-based line and column of a byte offset.
     pub fn line_col(&self, offset: usize) -> (usize, usize) {
@@ -271,6 +290,8 @@ pub fn render(source: &SourceFile, diags: &Diagnostics, color: bool) -> String {
         .with_links(false);
     let mut out = String::new();
     for diag in diags.diags.iter().take(MAX_RENDERED) {
+        // A diagnostic inside an imported file is shown in that file.
+        let source = diag.file.as_ref().unwrap_or(source);
         let (line, col) = source.line_col(diag.span.start);
         let quotable = [diag.span.start, diag.span.end]
             .into_iter()

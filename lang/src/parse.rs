@@ -278,7 +278,7 @@ fn syntax_error(text: &str, pos: usize, variant: &ErrorVariant<Rule>) -> Diag {
         }
     }
     if expected.contains(&"an expression") {
-        expected.retain(|e| *e != "`-`");
+        expected.retain(|e| *e != "`-`" && *e != "`!`");
     }
     let found = text[pos..].chars().next();
     let token: String = text[pos..]
