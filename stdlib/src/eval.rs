@@ -796,7 +796,9 @@ impl<'e> Evaluator<'e> {
     /// Poison for a value that should have been a bool (with a diagnostic
     /// unless it is poison already).
     fn not_bool(&mut self, v: Value, span: Span, what: &str) -> Value {
-        if v.is_poison() {
+        // Shallow, like every poison test here: a list holding poison is
+        // poison itself, and walking lists would cost their length.
+        if matches!(v, Value::Poison) {
             return Value::Poison;
         }
         self.error(
@@ -811,7 +813,7 @@ impl<'e> Evaluator<'e> {
     }
 
     fn index(&mut self, list: Value, index: Value, list_span: Span, span: Span) -> Value {
-        if list.is_poison() || index.is_poison() {
+        if matches!(list, Value::Poison) || matches!(index, Value::Poison) {
             return Value::Poison;
         }
         let Value::List(items) = &list else {
@@ -861,7 +863,10 @@ impl<'e> Evaluator<'e> {
                     span,
                     format!("index {} is {what}", fmt_num(i)),
                 )
-                .label(format!("{} items", n))
+                .label(match n {
+                    1 => "the list has 1 item".to_string(),
+                    n => format!("the list has {n} items"),
+                })
                 .help(help),
             ),
             None => items[i as usize].clone(),
@@ -872,7 +877,19 @@ impl<'e> Evaluator<'e> {
     /// of numbers.
     fn compare(&mut self, op: BinOp, l: Value, r: Value, span: Span) -> Value {
         use std::cmp::Ordering;
-        if l.is_poison() || r.is_poison() {
+        if matches!(l, Value::Poison) || matches!(r, Value::Poison) {
+            return Value::Poison;
+        }
+        // Comparing lists walks them, as arithmetic does: one unit per item.
+        let walked = [&l, &r]
+            .iter()
+            .map(|v| match v {
+                Value::List(items) => items.len() as u64,
+                _ => 0,
+            })
+            .max()
+            .unwrap_or(0);
+        if !self.spend_n(walked, span) {
             return Value::Poison;
         }
         let nums = |v: &Value| -> Option<Vec<f64>> {

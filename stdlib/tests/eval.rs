@@ -356,3 +356,39 @@ fn more_math_builtins() {
     assert_eq!(codes_of("let x = min(sphere())"), [codes::TYPE]);
     assert_eq!(codes_of("let x = normalize([0, 0, 0])"), [codes::VALUE]);
 }
+
+#[test]
+fn statements_are_kept_in_file_order() {
+    use sdfl_stdlib::value::Statement;
+    let block = |name: &str, scene: &str| {
+        format!("render {name} {{ scene: {scene}, camera: look_at([0, 0, 3]), outputs: [image(\"{name}.png\")] }}\n")
+    };
+    let src = [
+        block("a", "sphere()"),
+        block("v", "sdf_volume(sphere())"),
+        block("b", "box()"),
+    ]
+    .concat();
+    let p = load(&SourceFile::new("order.sdfl", src)).unwrap();
+    assert_eq!(
+        p.order,
+        [
+            Statement::Render(0),
+            Statement::Volume(0),
+            Statement::Render(1)
+        ]
+    );
+}
+
+#[test]
+fn indexing_is_cheap_and_comparing_lists_is_budgeted() {
+    let t = std::time::Instant::now();
+    // Indexing a long list costs one unit, not its length.
+    let src =
+        "let xs = for i in 0..400000 { i }\nlet ys = for i in 0..400000 { xs[i] }\nlet n = len(ys)";
+    assert_eq!(codes_of(src), Vec::<&str>::new());
+    // Comparing lists walks them: 1e5 comparisons of 4e5 items is refused.
+    let src = "let xs = for i in 0..400000 { i }\nlet ys = for i in 0..100000 { xs == xs }";
+    assert_eq!(codes_of(src), [codes::TOO_LARGE]);
+    assert!(t.elapsed().as_secs() < 20, "{:?}", t.elapsed());
+}
