@@ -3,6 +3,7 @@
 //! [`Type::Any`] afterwards so one mistake does not cascade into many.
 
 use std::collections::{HashMap, HashSet};
+use std::rc::Rc;
 use std::sync::{Mutex, OnceLock};
 
 use crate::ast::*;
@@ -16,6 +17,10 @@ use crate::types::{Env, Param, Signature, Type};
 /// whose tree walkers and `Drop` overflowed the stack, and whose type took
 /// quadratic time to check.
 pub const MAX_LIST_NESTING: usize = 64;
+
+/// Most parameters of one `fn`: checking and evaluating a call walks
+/// them, so a call costs at most this much whatever the file.
+pub const MAX_FN_PARAMS: usize = 256;
 
 /// After this many diagnostics, unknown names get no "did you mean"
 /// suggestion: each one compares the name against every visible name, which
@@ -112,7 +117,7 @@ struct Checker<'e> {
     deep_list_reported: bool,
     /// The `fn`s defined so far, as signatures (untyped parameters) with
     /// the type of their body, and where they are named.
-    fns: HashMap<String, (Signature, Span)>,
+    fns: HashMap<String, (Rc<Signature>, Span)>,
     /// Every `fn` of the file, to tell a call of a later one from an
     /// unknown name.
     all_fns: HashMap<String, Span>,
@@ -153,6 +158,17 @@ impl Checker<'_> {
             );
         }
         let shadows = self.env.function(&name.name).is_some();
+        if let Some(p) = f.params.get(MAX_FN_PARAMS) {
+            self.diags.push(
+                Diag::new(
+                    codes::TOO_LARGE,
+                    p.name.span,
+                    format!("`{}` has more than {MAX_FN_PARAMS} parameters", name.name),
+                )
+                .label("one too many")
+                .help("pass related values together as a list or vector"),
+            );
+        }
         let mut seen: HashMap<&str, Span> = HashMap::new();
         let mut scope = HashMap::new();
         let mut params = Vec::new();
@@ -221,7 +237,8 @@ impl Checker<'_> {
             returns,
             doc: "",
         };
-        self.fns.insert(name.name.clone(), (sig, name.span));
+        self.fns
+            .insert(name.name.clone(), (Rc::new(sig), name.span));
     }
 
     fn lookup(&self, name: &str) -> Option<Type> {
@@ -703,7 +720,8 @@ impl Checker<'_> {
                 return Type::Any;
             }
         }
-        let Some(sig) = user.as_ref().or_else(|| self.env.function(&callee.name)) else {
+        let Some(sig) = user.or_else(|| self.env.function(&callee.name).cloned().map(Rc::new))
+        else {
             let mut d = Diag::new(
                 codes::UNKNOWN_FUNCTION,
                 callee.span,
@@ -720,7 +738,10 @@ impl Checker<'_> {
                 .help("only built-ins and `fn`s can be called; use the name without `(...)`");
             } else {
                 let mut names = self.env.function_names();
-                names.extend(self.fns.values().map(|(sig, _)| sig.name));
+                // A file's own `fn`s too, while suggestions stay cheap.
+                if self.diags.len() < MAX_SUGGESTIONS {
+                    names.extend(self.fns.values().map(|(sig, _)| sig.name));
+                }
                 d = match suggest(&callee.name, names.iter().copied()) {
                     Some(s) => d.help(format!("did you mean `{s}`?")),
                     None => d.help("`sdfl docs` lists the built-in functions"),
@@ -729,7 +750,6 @@ impl Checker<'_> {
             self.diags.push(d);
             return Type::Any;
         };
-        let sig = sig.clone();
         let mut given: HashMap<&str, Span> = HashMap::new();
         let mut seen_named = false;
         for (i, (arg, ty)) in args.iter().zip(&arg_types).enumerate() {

@@ -968,6 +968,11 @@ impl<'e> Evaluator<'e> {
         if poisoned {
             return Value::Poison;
         }
+        // Binding walks the parameters: their count is work, like the items
+        // of a list passed to a built-in.
+        if !self.spend_n(f.params.len() as u64, f.name.span) {
+            return Value::Poison;
+        }
         let caller = std::mem::take(&mut self.locals);
         for p in &f.params {
             if let (false, Some(d)) = (scope.contains_key(&p.name.name), &p.default) {

@@ -265,6 +265,14 @@ fn functions_bind_arguments_like_builtins() {
     assert!(
         matches!(&*p.renders[0].scene, sdfl_stdlib::shape::Shape::Sphere { radius, .. } if radius.value == 1.0)
     );
+    // A call's cost is bounded: so is a `fn`'s parameter count.
+    let params: Vec<String> = (0..=sdfl_lang::check::MAX_FN_PARAMS)
+        .map(|i| format!("p{i}: 1"))
+        .collect();
+    assert_eq!(
+        codes_of(&format!("fn f({}) {{ 1 }}", params.join(", "))),
+        [codes::TOO_LARGE]
+    );
     for (src, code) in [
         ("fn f(a) { a }\nlet x = f()", codes::MISSING_ARG),
         ("fn f(a) { a }\nlet x = f(1, 2)", codes::TOO_MANY_ARGS),
