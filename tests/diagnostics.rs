@@ -196,8 +196,9 @@ fn every_case_diagnostic_is_complete() {
                 "{}: no help in {d:?}",
                 case.display()
             );
-            let len = d.file.as_ref().map_or(text.len(), |f| f.text.len());
-            assert!(d.span.end <= len, "{}: {d:?}", case.display());
+            let (file, span) = diags.locate(d.span);
+            let len = file.map_or(text.len(), |f| f.text.len());
+            assert!(span.end <= len, "{}: {d:?}", case.display());
         }
     }
 }

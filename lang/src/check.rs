@@ -1,6 +1,13 @@
 //! Name resolution and type checking of a parsed file against the built-ins
-//! of an [`Env`]. Every problem found is reported; an unknown name gets type
-//! [`Type::Any`] afterwards so one mistake does not cascade into many.
+//! of an [`Env`] and the file's own `fn`s. Every problem found is reported;
+//! an unknown name gets type [`Type::Any`] afterwards so one mistake does
+//! not cascade into many.
+//!
+//! Items are checked in file order: a `let` or `fn` sees only the names
+//! above it, so `fn`s cannot call each other in a cycle. A `fn`'s
+//! parameters are untyped (`Any`): its body is checked once, where it is
+//! defined, and values passed to it are checked when it is evaluated.
+//! `import`s are expected to be resolved (spliced in) before checking.
 
 use std::collections::{HashMap, HashSet};
 use std::rc::Rc;

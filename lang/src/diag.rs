@@ -93,9 +93,6 @@ pub struct Diag {
     pub help: Option<String>,
     /// Secondary spans, e.g. the earlier definition of a duplicate name.
     pub notes: Vec<(Span, String)>,
-    /// The file the spans point into when it is not the file being
-    /// loaded: one it imports.
-    pub file: Option<SourceFile>,
 }
 
 impl Diag {
@@ -107,7 +104,6 @@ impl Diag {
             label: String::new(),
             help: None,
             notes: Vec::new(),
-            file: None,
         }
     }
     /// Warnings are the codes under `sdfl::warn::` (kept in the code, so a
@@ -137,9 +133,53 @@ impl Diag {
 #[derive(Debug, Clone, Default)]
 pub struct Diagnostics {
     pub diags: Vec<Diag>,
+    /// The files the loaded one imports, each with the offset its spans
+    /// were moved to (past the loaded file's and each other's): a span at
+    /// or past an offset points into that file. (Kept here rather than on
+    /// each [`Diag`], which stays small.)
+    pub files: Vec<(usize, SourceFile)>,
 }
 
 impl Diagnostics {
+    /// The imported file `span` points into (`None`: the loaded file) and
+    /// the span within that file.
+    pub fn locate(&self, span: Span) -> (Option<&SourceFile>, Span) {
+        match self
+            .files
+            .iter()
+            .rev()
+            .find(|(base, _)| *base <= span.start)
+        {
+            Some((base, f)) => (Some(f), Span::new(span.start - base, span.end - base)),
+            None => (None, span),
+        }
+    }
+
+    /// `d` with its spans in the file of its primary span, and that file:
+    /// a note in another file becomes a sentence of the help.
+    fn localised(&self, d: &Diag) -> (Option<&SourceFile>, Diag) {
+        let (file, span) = self.locate(d.span);
+        let mut local = Diag {
+            span,
+            notes: Vec::new(),
+            ..d.clone()
+        };
+        for (s, text) in &d.notes {
+            let (note_file, s) = self.locate(*s);
+            if note_file.map(|f| &f.name) == file.map(|f| &f.name) {
+                local.notes.push((s, text.clone()));
+                continue;
+            }
+            let (name, (line, col)) = match note_file {
+                Some(f) => (f.name.as_str(), f.line_col(s.start)),
+                None => ("the file loaded", (0, 0)),
+            };
+            let help = local.help.take().unwrap_or_default();
+            local.help = Some(format!("{help} ({text}: {name}:{line}:{col})"));
+        }
+        (file, local)
+    }
+
     pub fn push(&mut self, d: Diag) {
         self.diags.push(d);
     }
@@ -155,6 +195,11 @@ impl Diagnostics {
     }
     pub fn extend(&mut self, other: Diagnostics) {
         self.diags.extend(other.diags);
+        for f in other.files {
+            if !self.files.contains(&f) {
+                self.files.push(f);
+            }
+        }
     }
     /// Sort by position so a report reads top to bottom.
     pub fn sorted(mut self) -> Self {
@@ -291,7 +336,8 @@ pub fn render(source: &SourceFile, diags: &Diagnostics, color: bool) -> String {
     let mut out = String::new();
     for diag in diags.diags.iter().take(MAX_RENDERED) {
         // A diagnostic inside an imported file is shown in that file.
-        let source = diag.file.as_ref().unwrap_or(source);
+        let (file, local) = diags.localised(diag);
+        let (source, diag) = (file.unwrap_or(source), &local);
         let (line, col) = source.line_col(diag.span.start);
         let quotable = [diag.span.start, diag.span.end]
             .into_iter()

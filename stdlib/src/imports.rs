@@ -4,8 +4,8 @@
 //!
 //! Each imported file's tree is moved to offsets past every file before it
 //! (see [`sdfl_lang::ast::Shift`]), so a span still names one place in one
-//! file; [`Sources::locate`] moves diagnostics back into the file they are
-//! about. Paths are relative to the importing file and must stay inside the
+//! file; [`Sources::locate`] attaches the files to the diagnostics, and
+//! rendering shows each in the file its span is in. Paths are relative to the importing file and must stay inside the
 //! main file's directory, name `.sdfl` files, and not import in a cycle. A
 //! file imported twice (by two others) is read once.
 
@@ -27,54 +27,12 @@ pub struct Sources {
 }
 
 impl Sources {
-    /// Diagnostics with spans in imported files moved back into them (and
-    /// the file attached). A note in another file than its diagnostic
-    /// becomes a sentence of the help.
-    pub fn locate(&self, diags: Diagnostics) -> Diagnostics {
-        if self.files.is_empty() {
-            return diags;
-        }
-        let find = |at: usize| self.files.iter().rev().find(|(base, _)| *base <= at);
-        let mut out = Diagnostics::default();
-        for mut d in diags.diags {
-            let home = find(d.span.start).map(|(b, f)| (*b, f.clone()));
-            let base = home.as_ref().map_or(0, |h| h.0);
-            let mut notes = Vec::new();
-            for (span, text) in std::mem::take(&mut d.notes) {
-                match find(span.start) {
-                    Some((b, _)) if *b == base => notes.push((local(span, base), text)),
-                    None if base == 0 => notes.push((span, text)),
-                    other => {
-                        let (b, name, file) = match other {
-                            Some((b, f)) => (*b, f.name.clone(), Some(f)),
-                            None => (0, String::new(), None),
-                        };
-                        let at = local(span, b).start;
-                        let place = match file {
-                            Some(f) => {
-                                let (l, c) = f.line_col(at);
-                                format!("{name}:{l}:{c}")
-                            }
-                            None => "the main file".to_string(),
-                        };
-                        let help = d.help.take().unwrap_or_default();
-                        d.help = Some(format!("{help} ({text}: {place})"));
-                    }
-                }
-            }
-            d.notes = notes;
-            if let Some((b, f)) = home {
-                d.span = local(d.span, b);
-                d.file = Some(f);
-            }
-            out.push(d);
-        }
-        out
+    /// `diags` with the imported files attached, so that their spans are
+    /// shown in the files they point into.
+    pub fn locate(&self, mut diags: Diagnostics) -> Diagnostics {
+        diags.files = self.files.clone();
+        diags
     }
-}
-
-fn local(s: Span, base: usize) -> Span {
-    Span::new(s.start - base, s.end - base)
 }
 
 /// Parses `source` and splices in what it imports.
