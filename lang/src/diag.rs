@@ -439,4 +439,31 @@ mod tests {
         assert!(d.has_errors());
         assert!(render(&src, &d, false).ends_with("1 error in f\n"));
     }
+
+    #[test]
+    fn diagnostics_in_imported_files_are_shown_there() {
+        let main = SourceFile::new("main.sdfl", "import \"lib.sdfl\"\nlet a = 1\n");
+        let lib = SourceFile::new("lib.sdfl", "let a = 2\n");
+        let base = main.text.len() + 1;
+        let mut d = Diagnostics::default();
+        // In main, with a note in lib; and one in lib itself.
+        d.push(
+            Diag::new(codes::DUPLICATE_NAME, Span::new(22, 23), "twice")
+                .label("again")
+                .help("rename")
+                .note(Span::new(base + 4, base + 5), "first"),
+        );
+        d.push(
+            Diag::new(codes::TYPE, Span::new(base + 8, base + 9), "in lib")
+                .label("here")
+                .help("h"),
+        );
+        d.files.push((base, lib));
+        assert_eq!(d.locate(Span::new(base + 8, base + 9)).1, Span::new(8, 9));
+        assert!(d.locate(Span::new(3, 4)).0.is_none());
+        let text = render(&main, &d, false);
+        assert!(text.contains("[lib.sdfl:1:9]"), "{text}");
+        assert!(text.contains("[main.sdfl:2:5]"), "{text}");
+        assert!(text.contains("rename (first: lib.sdfl:1:5)"), "{text}");
+    }
 }
