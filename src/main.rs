@@ -639,11 +639,24 @@ fn summarise(r: &serde_json::Value, out: &Path, stdout: &mut Stdout) {
     }
 }
 
+/// The language's own constructs, for `sdfl docs` (the built-ins document
+/// themselves in their table).
+const SYNTAX: &[(&str, &str)] = &[
+    ("let", "`let name = value` binds a name, at top level or at the start of a `{ ... }` body."),
+    ("for", "`for i in 0..n, x in list { let ...; value }`: a list, one value per combination (the last binding varies fastest)."),
+    ("if", "`if cond { a } else if other { b } else { c }`: the value of the branch taken (the others are not evaluated); conditions are bools, from `< <= > >= == !=`, `&&`, `||` and `!`."),
+    ("fn", "`fn name(a, b: default) { let ...; value }` at top level: a function called like a built-in (positional, named, default arguments); it sees its parameters and the names above it, and calls only functions defined above it."),
+    ("import", "`import \"path.sdfl\"`: the `let`s and `fn`s of another file (which may hold nothing else), relative to this one and inside the main file's directory."),
+];
+
 fn docs(name: Option<&str>) -> ExitCode {
     let env = sdfl_stdlib::StdEnv::get();
     let mut o = Stdout::new();
     match name {
         None => {
+            for (kw, doc) in SYNTAX {
+                o.line(&format!("{kw:<20} syntax: {doc}"));
+            }
             for b in env.blocks() {
                 o.line(&format!("{:<20} statement: {}", b.kind, b.doc));
             }
@@ -653,6 +666,10 @@ fn docs(name: Option<&str>) -> ExitCode {
             ExitCode::SUCCESS
         }
         Some(n) => {
+            if let Some((_, doc)) = SYNTAX.iter().find(|(kw, _)| *kw == n) {
+                o.line(doc);
+                return ExitCode::SUCCESS;
+            }
             if let Some(b) = env.builtin(n) {
                 o.line(&format!("{}\n\n{}\n", b.sig.synopsis(), b.sig.doc));
                 for p in &b.sig.params {

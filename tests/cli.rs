@@ -271,3 +271,21 @@ render field {
     let text = String::from_utf8_lossy(&plan.stdout);
     assert!(text.contains("ball.ply: surface nets, 48 cells"), "{text}");
 }
+
+#[test]
+fn docs_describe_the_syntax_and_the_new_builtins() {
+    for (name, wants) in [
+        ("if", "else if"),
+        ("fn", "defined above"),
+        ("import", ".sdfl"),
+        ("random", "SplitMix64"),
+        ("min", "lists are flattened"),
+    ] {
+        let out = sdfl(&["docs", name]);
+        assert!(out.status.success(), "docs {name}");
+        let text = String::from_utf8_lossy(&out.stdout);
+        assert!(text.contains(wants), "docs {name}: {text}");
+    }
+    let all = String::from_utf8_lossy(&sdfl(&["docs"]).stdout).into_owned();
+    assert!(all.contains("syntax:") && all.contains("len"), "{all}");
+}

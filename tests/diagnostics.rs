@@ -46,7 +46,8 @@ fn normalise(text: &str) -> String {
 fn render_case(path: &Path) -> Result<String, String> {
     let name = path.file_name().expect("a file name").to_string_lossy();
     let text = normalise(&fs::read_to_string(path).map_err(|e| format!("{name}: {e}"))?);
-    let src = SourceFile::new(name.to_string(), text);
+    // Shown by name; imports are found next to the case.
+    let src = SourceFile::new(name.to_string(), text).at(path);
     match sdfl_stdlib::load_warned(&src) {
         Ok((_, warnings)) if warnings.is_empty() => Err(format!(
             "{name}: loads without error or warning, but every case here must report something"
@@ -195,7 +196,9 @@ fn every_case_diagnostic_is_complete() {
                 "{}: no help in {d:?}",
                 case.display()
             );
-            assert!(d.span.end <= text.len(), "{}: {d:?}", case.display());
+            let (file, span) = diags.locate(d.span);
+            let len = file.map_or(text.len(), |f| f.text.len());
+            assert!(span.end <= len, "{}: {d:?}", case.display());
         }
     }
 }

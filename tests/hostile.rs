@@ -1203,3 +1203,138 @@ fn oversized_neural_fields_are_refused() {
         );
     }
 }
+
+// ------------------------------------------------ conditions, fns, imports
+
+/// Each function calls the one before twice: 2^40 calls of a doubling
+/// union if nothing bounded them; a chain of 2000 functions nests 2000
+/// evaluations (a stack overflow if nothing bounded it); a doubling
+/// function in nested loops. All are refused with a diagnostic, quickly.
+#[test]
+fn function_bombs_are_refused() {
+    let mut doubling = String::from("fn f0(s) { union(s, s.translate([0.1, 0, 0])) }\n");
+    for i in 1..40 {
+        doubling.push_str(&format!("fn f{i}(s) {{ f{0}(f{0}(s)) }}\n", i - 1));
+    }
+    doubling.push_str(&render_with("").replace("sphere()", "f39(sphere())"));
+    let mut chain = String::from("fn f0(x) { x + 1 }\n");
+    for i in 1..2000 {
+        chain.push_str(&format!("fn f{i}(x) {{ f{}(x) + 1 }}\n", i - 1));
+    }
+    chain.push_str("let a = f1999(1)\n");
+    let looped = "fn dbl(s) { union(s, s.translate([0.1, 0, 0])) }\n\
+                  let a = for i in 0..1000, j in 0..1000 { dbl(dbl(sphere())) }\n";
+    for (name, src) in [
+        ("fn_doubling", doubling),
+        ("fn_chain", chain),
+        ("fn_in_loops", looped.to_string()),
+    ] {
+        for o in hostile(name, src, Expect::Error) {
+            assert!(
+                o.stderr.contains("sdfl::limit::too-large"),
+                "{name}: {}",
+                head(&o.stderr)
+            );
+            assert!(
+                o.elapsed < Duration::from_secs(10),
+                "{name}: {:?}",
+                o.elapsed
+            );
+        }
+    }
+}
+
+/// Conditions cannot nest the parser or the evaluator out of stack.
+#[test]
+fn condition_chains_are_bounded() {
+    let else_ifs = format!(
+        "let a = if 1 < 2 {{ 1 }}{} else {{ 2 }}\n",
+        " else if 1 < 2 { 1 }".repeat(100_000)
+    );
+    let nots = format!("let a = {}true\n", "!".repeat(100_000));
+    let conds = format!(
+        "let a = {}true{}\n",
+        "if ".repeat(10_000),
+        " { true } else { false }".repeat(10_000)
+    );
+    let fine = format!(
+        "let a = if 1 < 2 {{ 1 }}{} else {{ 2 }}\n{}",
+        " else if 1 < 2 { 1 }".repeat(100),
+        render_with("")
+    );
+    hostile("else_ifs", else_ifs, Expect::Error);
+    hostile("nots", nots, Expect::Error);
+    hostile("ifs_in_conditions", conds, Expect::Error);
+    hostile("some_else_ifs", fine, Expect::Ok);
+}
+
+/// Imports: fine inside the main file's directory (through `..` back into
+/// it); refused when they cycle, leave it (by path or by a link), name
+/// something that is not a regular .sdfl file, or nest too deep.
+#[test]
+fn imports_are_confined() {
+    let dir = case_dir("imports");
+    let root = dir.join("scene");
+    fs::create_dir_all(root.join("lib")).unwrap();
+    let write = |name: &str, text: &str| fs::write(root.join(name), text).unwrap();
+    write("common.sdfl", "let r = 0.5\n");
+    write(
+        "lib/parts.sdfl",
+        "import \"../common.sdfl\"\nfn ball(at) { sphere(r, center: at) }\n",
+    );
+    write(
+        "main.sdfl",
+        &format!(
+            "import \"lib/parts.sdfl\"\n{}",
+            render_with("").replace("sphere()", "ball([0, 0, 0])")
+        ),
+    );
+    write("self.sdfl", "import \"self.sdfl\"\n");
+    write("escape.sdfl", "import \"lib/../../outside.sdfl\"\n");
+    fs::write(dir.join("outside.sdfl"), "let x = 1\n").unwrap();
+    // A chain of 100 files, each importing the next.
+    for i in 0..100 {
+        write(
+            &format!("chain{i}.sdfl"),
+            &format!("import \"chain{}.sdfl\"\n", i + 1),
+        );
+    }
+    write("chain100.sdfl", "let end = 1\n");
+    let mut cases = vec![
+        ("main.sdfl", Expect::Ok),
+        ("self.sdfl", Expect::Error),
+        ("escape.sdfl", Expect::Error),
+        ("chain0.sdfl", Expect::Error),
+    ];
+    #[cfg(unix)]
+    {
+        std::os::unix::fs::symlink(dir.join("outside.sdfl"), root.join("link.sdfl")).unwrap();
+        std::os::unix::fs::symlink("/dev/zero", root.join("zero.sdfl")).unwrap();
+        write("via_link.sdfl", "import \"link.sdfl\"\n");
+        write("via_zero.sdfl", "import \"zero.sdfl\"\n");
+        cases.extend([
+            ("via_link.sdfl", Expect::Error),
+            ("via_zero.sdfl", Expect::Error),
+        ]);
+        if Command::new("mkfifo")
+            .arg(root.join("fifo.sdfl"))
+            .status()
+            .is_ok_and(|s| s.success())
+        {
+            write("via_fifo.sdfl", "import \"fifo.sdfl\"\n");
+            cases.push(("via_fifo.sdfl", Expect::Error));
+        }
+    }
+    let out = dir.join("out");
+    for (file, expect) in cases {
+        let path = root.join(file);
+        let (path, out) = (path.to_str().unwrap(), out.to_str().unwrap());
+        for args in [
+            vec!["check", path],
+            vec!["run", path, "--out", out, "--size", "8x8"],
+        ] {
+            let o = sdfl(&dir, &args);
+            assert_outcome(&format!("{file}: sdfl {}", args[0]), &o, expect);
+        }
+    }
+}

@@ -1,13 +1,22 @@
 //! Name resolution and type checking of a parsed file against the built-ins
-//! of an [`Env`]. Every problem found is reported; an unknown name gets type
-//! [`Type::Any`] afterwards so one mistake does not cascade into many.
+//! of an [`Env`] and the file's own `fn`s. Every problem found is reported;
+//! an unknown name gets type [`Type::Any`] afterwards so one mistake does
+//! not cascade into many.
+//!
+//! Items are checked in file order: a `let` or `fn` sees only the names
+//! above it, so `fn`s cannot call each other in a cycle. A `fn`'s
+//! parameters are untyped (`Any`): its body is checked once, where it is
+//! defined, and values passed to it are checked when it is evaluated.
+//! `import`s are expected to be resolved (spliced in) before checking.
 
-use std::collections::HashMap;
+use std::collections::{HashMap, HashSet};
+use std::rc::Rc;
+use std::sync::{Mutex, OnceLock};
 
 use crate::ast::*;
 use crate::diag::{codes, suggest, Diag, Diagnostics};
 use crate::span::Span;
-use crate::types::{Env, Param, Type};
+use crate::types::{Env, Param, Signature, Type};
 
 /// Deepest nesting of lists (as `[[[1]]]`) a file may build. Brackets
 /// alone cannot nest deeper than the parser's limit, but chains of `let`s
@@ -15,6 +24,10 @@ use crate::types::{Env, Param, Type};
 /// whose tree walkers and `Drop` overflowed the stack, and whose type took
 /// quadratic time to check.
 pub const MAX_LIST_NESTING: usize = 64;
+
+/// Most parameters of one `fn`: checking and evaluating a call walks
+/// them, so a call costs at most this much whatever the file.
+pub const MAX_FN_PARAMS: usize = 256;
 
 /// After this many diagnostics, unknown names get no "did you mean"
 /// suggestion: each one compares the name against every visible name, which
@@ -38,10 +51,26 @@ pub fn check(file: &File, env: &dyn Env) -> Diagnostics {
         locals: Vec::new(),
         diags: Diagnostics::default(),
         deep_list_reported: false,
+        fns: HashMap::new(),
+        all_fns: HashMap::new(),
+        current_fn: None,
     };
+    for item in &file.items {
+        // One named like a built-in is an error; calls mean the built-in.
+        if let Item::Fn(f) = item {
+            if env.function(&f.name.name).is_some() {
+                continue;
+            }
+            c.all_fns.entry(f.name.name.clone()).or_insert(f.name.span);
+        }
+    }
     let mut blocks: HashMap<(String, String), Span> = HashMap::new();
     for item in &file.items {
         match item {
+            // Resolved (spliced into the file) before checking; one left
+            // here was reported by the resolver.
+            Item::Import(_) => {}
+            Item::Fn(f) => c.fn_def(f),
             Item::Let(l) => {
                 let ty = c.expr(&l.value);
                 if let Some((_, first)) = c.globals.get(&l.name.name) {
@@ -93,9 +122,132 @@ struct Checker<'e> {
     /// Whether lists nested too deep were reported (once is enough: the
     /// file is not evaluated after a check error).
     deep_list_reported: bool,
+    /// The `fn`s defined so far, as signatures (untyped parameters) with
+    /// the type of their body, and where they are named.
+    fns: HashMap<String, (Rc<Signature>, Span)>,
+    /// Every `fn` of the file, to tell a call of a later one from an
+    /// unknown name.
+    all_fns: HashMap<String, Span>,
+    /// The `fn` whose body is being checked.
+    current_fn: Option<String>,
+}
+
+/// A name with a `'static` lifetime, as [`Signature`]s hold: each distinct
+/// name is leaked once (a few bytes per name a file defines).
+fn intern(name: &str) -> &'static str {
+    static NAMES: OnceLock<Mutex<HashSet<&'static str>>> = OnceLock::new();
+    let mut names = NAMES
+        .get_or_init(Default::default)
+        .lock()
+        .unwrap_or_else(|e| e.into_inner());
+    if let Some(n) = names.get(name) {
+        return n;
+    }
+    let n: &'static str = Box::leak(name.into());
+    names.insert(n);
+    n
 }
 
 impl Checker<'_> {
+    /// A `fn` definition: its name, parameters and body, checked where it
+    /// stands (it sees the `let`s and `fn`s above it, not itself).
+    fn fn_def(&mut self, f: &FnDef) {
+        let name = &f.name;
+        if self.env.function(&name.name).is_some() {
+            self.diags.push(
+                Diag::new(
+                    codes::SHADOWS_BUILTIN,
+                    name.span,
+                    format!("`{}` is a built-in function", name.name),
+                )
+                .label("already a built-in")
+                .help("a `fn` may not replace a built-in: give it another name"),
+            );
+        }
+        let shadows = self.env.function(&name.name).is_some();
+        if let Some(p) = f.params.get(MAX_FN_PARAMS) {
+            self.diags.push(
+                Diag::new(
+                    codes::TOO_LARGE,
+                    p.name.span,
+                    format!("`{}` has more than {MAX_FN_PARAMS} parameters", name.name),
+                )
+                .label("one too many")
+                .help("pass related values together as a list or vector"),
+            );
+        }
+        let mut seen: HashMap<&str, Span> = HashMap::new();
+        let mut scope = HashMap::new();
+        let mut params = Vec::new();
+        for p in &f.params {
+            if let Some(first) = seen.insert(&p.name.name, p.name.span) {
+                self.diags.push(
+                    Diag::new(
+                        codes::DUPLICATE_NAME,
+                        p.name.span,
+                        format!("parameter `{}` is named twice", p.name.name),
+                    )
+                    .label("named again here")
+                    .note(first, "first named here")
+                    .help("each parameter of a `fn` needs its own name"),
+                );
+                continue;
+            }
+            // Defaults are evaluated at the call, seeing only top-level names.
+            if let Some(d) = &p.default {
+                let saved = std::mem::take(&mut self.locals);
+                self.expr(d);
+                self.locals = saved;
+            }
+            // Untyped: a call may pass anything, checked when evaluated.
+            scope.insert(p.name.name.clone(), Type::Any);
+            params.push(Param {
+                name: intern(&p.name.name),
+                ty: Type::Any,
+                default: p.default.as_ref().map(|_| "…"),
+                doc: "a parameter of this `fn`",
+            });
+        }
+        let saved = std::mem::replace(&mut self.locals, vec![scope]);
+        let outer = self.current_fn.replace(name.name.clone());
+        for l in &f.body.lets {
+            let t = self.expr(&l.value);
+            self.locals
+                .last_mut()
+                .expect("scope pushed above")
+                .insert(l.name.name.clone(), t);
+        }
+        let returns = self.expr(&f.body.value);
+        self.current_fn = outer;
+        self.locals = saved;
+        if shadows {
+            return;
+        }
+        if let Some((_, first)) = self.fns.get(&name.name) {
+            let first = *first;
+            self.diags.push(
+                Diag::new(
+                    codes::DUPLICATE_NAME,
+                    name.span,
+                    format!("`fn {}` is defined twice", name.name),
+                )
+                .label("defined again here")
+                .note(first, "first defined here")
+                .help("a scene file defines each function once; pick another name"),
+            );
+            return;
+        }
+        let sig = Signature {
+            name: intern(&name.name),
+            params,
+            rest: None,
+            returns,
+            doc: "",
+        };
+        self.fns
+            .insert(name.name.clone(), (Rc::new(sig), name.span));
+    }
+
     fn lookup(&self, name: &str) -> Option<Type> {
         for scope in self.locals.iter().rev() {
             if let Some(t) = scope.get(name) {
@@ -312,6 +464,97 @@ impl Checker<'_> {
                 }
                 t
             }
+            ExprKind::Not(inner) => {
+                let t = self.expr(inner);
+                self.expect_bool(&t, inner.span, "`!`");
+                Type::Bool
+            }
+            ExprKind::Index(list, index) => {
+                let (lt, it) = (self.expr(list), self.expr(index));
+                if !Type::Number.accepts(&it) {
+                    self.diags.push(
+                        Diag::new(
+                            codes::TYPE,
+                            index.span,
+                            format!("an index must be a number, not {}", it.with_article()),
+                        )
+                        .label(format!("this is {}", it.with_article()))
+                        .help("index lists with whole numbers from 0: `xs[0]`"),
+                    );
+                }
+                match lt {
+                    Type::List(e) => *e,
+                    Type::Vec3 => Type::Number,
+                    Type::Any => Type::Any,
+                    t => {
+                        self.diags.push(
+                            Diag::new(
+                                codes::TYPE,
+                                list.span,
+                                format!("cannot index {}", t.with_article()),
+                            )
+                            .label(format!("this is {}", t.with_article()))
+                            .help("only lists and vectors have items `[i]`"),
+                        );
+                        Type::Any
+                    }
+                }
+            }
+            ExprKind::If {
+                cond,
+                then,
+                otherwise,
+            } => {
+                let t = self.expr(cond);
+                self.expect_bool(&t, cond.span, "a condition");
+                let a = self.body(then);
+                let b = self.body(otherwise);
+                // Branches of different types are checked when evaluated:
+                // a `OneOf` of both would double in size at every `fn`
+                // returning one of its argument's types or a list of it.
+                match (a, b) {
+                    (Type::Any, _) | (_, Type::Any) => Type::Any,
+                    (a, b) if a.accepts(&b) && b.accepts(&a) => a,
+                    _ => Type::Any,
+                }
+            }
+            ExprKind::Binary(op, l, r) if op.is_logical() => {
+                let (lt, rt) = (self.expr(l), self.expr(r));
+                let what = format!("`{}`", op.symbol());
+                self.expect_bool(&lt, l.span, &what);
+                self.expect_bool(&rt, r.span, &what);
+                Type::Bool
+            }
+            ExprKind::Binary(op, l, r) if !op.is_arithmetic() => {
+                let (lt, rt) = (self.expr(l), self.expr(r));
+                let comparable = |t: &Type| {
+                    if op.is_ordering() {
+                        Type::Number.accepts(t)
+                    } else {
+                        t.is_numeric() || Type::Bool.accepts(t) || Type::Str.accepts(t)
+                    }
+                };
+                for (t, side) in [(&lt, l), (&rt, r)] {
+                    if !comparable(t) {
+                        let help = if op.is_ordering() {
+                            "`<`, `<=`, `>` and `>=` compare numbers"
+                        } else {
+                            "`==` and `!=` compare numbers, vectors, bools and strings"
+                        };
+                        self.diags.push(
+                            Diag::new(
+                                codes::TYPE,
+                                side.span,
+                                format!("`{}` cannot compare {}", op.symbol(), t.with_article()),
+                            )
+                            .label(format!("this is {}", t.with_article()))
+                            .help(help),
+                        );
+                        return Type::Bool;
+                    }
+                }
+                Type::Bool
+            }
             ExprKind::Binary(op, l, r) => {
                 let (lt, rt) = (self.expr(l), self.expr(r));
                 for (t, side) in [(&lt, l), (&rt, r)] {
@@ -399,6 +642,35 @@ impl Checker<'_> {
         }
     }
 
+    /// A `{ let ...; value }` body's type, its lets in a scope of their own.
+    fn body(&mut self, body: &Body) -> Type {
+        self.locals.push(HashMap::new());
+        for l in &body.lets {
+            let t = self.expr(&l.value);
+            self.locals
+                .last_mut()
+                .expect("scope pushed above")
+                .insert(l.name.name.clone(), t);
+        }
+        let t = self.expr(&body.value);
+        self.locals.pop();
+        t
+    }
+
+    fn expect_bool(&mut self, t: &Type, span: Span, what: &str) {
+        if !Type::Bool.accepts(t) {
+            self.diags.push(
+                Diag::new(
+                    codes::TYPE,
+                    span,
+                    format!("{what} needs a bool, not {}", t.with_article()),
+                )
+                .label(format!("this is {}", t.with_article()))
+                .help("compare values to get a bool: `x < 1`, `n == 0`, `a && b`"),
+            );
+        }
+    }
+
     fn var(&mut self, id: &Ident) -> Type {
         if let Some(t) = self.lookup(&id.name) {
             return t;
@@ -414,6 +686,8 @@ impl Checker<'_> {
                 "`{0}` is a built-in function: call it as `{0}(...)`",
                 id.name
             ));
+        } else if self.fns.contains_key(&id.name) {
+            d = d.help(format!("`{0}` is a `fn`: call it as `{0}(...)`", id.name));
         } else if self.diags.len() >= MAX_SUGGESTIONS {
             d = d.help("define it first with `let name = ...`");
         } else {
@@ -429,7 +703,34 @@ impl Checker<'_> {
 
     fn call(&mut self, callee: &Ident, args: &[Arg], span: Span) -> Type {
         let arg_types: Vec<Type> = args.iter().map(|a| self.expr(&a.value)).collect();
-        let Some(sig) = self.env.function(&callee.name) else {
+        let user = self.fns.get(&callee.name).map(|(sig, _)| sig.clone());
+        if user.is_none() {
+            if let Some(at) = self.all_fns.get(&callee.name).copied() {
+                let own = self.current_fn.as_deref() == Some(callee.name.as_str());
+                let d = if own {
+                    Diag::new(
+                        codes::FN_ORDER,
+                        callee.span,
+                        format!("`{}` calls itself", callee.name),
+                    )
+                    .label("a recursive call")
+                    .help("sdfl functions cannot recurse: build repetition with `for`")
+                } else {
+                    Diag::new(
+                        codes::FN_ORDER,
+                        callee.span,
+                        format!("`{}` is defined below this call", callee.name),
+                    )
+                    .label("not defined yet")
+                    .note(at, "defined here")
+                    .help("define a `fn` above its first use (so functions cannot call each other in a cycle)")
+                };
+                self.diags.push(d);
+                return Type::Any;
+            }
+        }
+        let Some(sig) = user.or_else(|| self.env.function(&callee.name).cloned().map(Rc::new))
+        else {
             let mut d = Diag::new(
                 codes::UNKNOWN_FUNCTION,
                 callee.span,
@@ -443,9 +744,13 @@ impl Checker<'_> {
                     format!("`{}` is a value, not a function", callee.name),
                 )
                 .label("cannot be called")
-                .help("only built-ins can be called; use the name without `(...)`");
+                .help("only built-ins and `fn`s can be called; use the name without `(...)`");
             } else {
-                let names = self.env.function_names();
+                let mut names = self.env.function_names();
+                // A file's own `fn`s too, while suggestions stay cheap.
+                if self.diags.len() < MAX_SUGGESTIONS {
+                    names.extend(self.fns.values().map(|(sig, _)| sig.name));
+                }
                 d = match suggest(&callee.name, names.iter().copied()) {
                     Some(s) => d.help(format!("did you mean `{s}`?")),
                     None => d.help("`sdfl docs` lists the built-in functions"),
@@ -454,7 +759,6 @@ impl Checker<'_> {
             self.diags.push(d);
             return Type::Any;
         };
-        let sig = sig.clone();
         let mut given: HashMap<&str, Span> = HashMap::new();
         let mut seen_named = false;
         for (i, (arg, ty)) in args.iter().zip(&arg_types).enumerate() {
@@ -560,5 +864,66 @@ impl Checker<'_> {
             }
         }
         sig.returns.clone()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::types::{BlockSig, Signature};
+
+    /// No built-ins: enough for the language's own constructs.
+    struct Empty;
+    impl Env for Empty {
+        fn function(&self, _: &str) -> Option<&Signature> {
+            None
+        }
+        fn block(&self, _: &str) -> Option<&BlockSig> {
+            None
+        }
+        fn constant(&self, _: &str) -> Option<Type> {
+            None
+        }
+        fn function_names(&self) -> Vec<&'static str> {
+            Vec::new()
+        }
+        fn block_names(&self) -> Vec<&'static str> {
+            Vec::new()
+        }
+        fn constant_names(&self) -> Vec<&'static str> {
+            Vec::new()
+        }
+    }
+
+    fn check_src(src: &str) -> Diagnostics {
+        check(&crate::parse::parse(src).expect("parses"), &Empty)
+    }
+
+    #[test]
+    fn branch_types_do_not_grow_with_functions() {
+        // Each `fn` returns its argument's type or a list of it: a union
+        // type of both would double at every level.
+        let mut src = String::from("fn g0(c) { 1 }\n");
+        for i in 1..200 {
+            src.push_str(&format!(
+                "fn g{i}(c) {{ if c {{ g{0}(c) }} else {{ [g{0}(c)] }} }}\n",
+                i - 1
+            ));
+        }
+        let t = std::time::Instant::now();
+        assert!(check_src(&src).is_empty());
+        assert!(t.elapsed().as_secs() < 5);
+    }
+
+    #[test]
+    fn conditions_and_operands_are_typed() {
+        let d = check_src(
+            "let a = if 1 { 1 } else { 2 }\nlet b = !1\nlet c = true < 1\nlet d = [1][true]",
+        );
+        assert_eq!(d.len(), 4, "{d:?}");
+        assert!(d.diags.iter().all(|d| d.code == codes::TYPE));
+        assert!(
+            check_src("let a = if 1 < 2 && !(2 == 3) || false { [1, 2][0] } else { 3 }").is_empty()
+        );
     }
 }

@@ -21,6 +21,23 @@ pub mod codes {
     pub const UNKNOWN_BLOCK: &str = "sdfl::name::unknown-block";
     pub const DUPLICATE_NAME: &str = "sdfl::name::duplicate";
     pub const NOT_CALLABLE: &str = "sdfl::name::not-callable";
+    /// A `fn` named like a built-in function.
+    pub const SHADOWS_BUILTIN: &str = "sdfl::name::shadows-builtin";
+    /// A call of a `fn` defined below the call (or of itself): functions
+    /// call only functions defined above them, so there is no recursion.
+    pub const FN_ORDER: &str = "sdfl::fn::order";
+    /// A list index that is not a whole number within the list.
+    pub const INDEX: &str = "sdfl::value::index";
+    /// An `import` path that is absolute, leaves the main file's directory
+    /// or names something other than a `.sdfl` file.
+    pub const IMPORT_PATH: &str = "sdfl::import::path";
+    /// An `import`ed file that cannot be read.
+    pub const IMPORT_MISSING: &str = "sdfl::import::missing";
+    /// Files that import each other in a cycle.
+    pub const IMPORT_CYCLE: &str = "sdfl::import::cycle";
+    /// A statement (`render`, `train`) in an imported file, which may hold
+    /// only `let`s, `fn`s and `import`s.
+    pub const IMPORT_STATEMENT: &str = "sdfl::import::statement";
     pub const UNKNOWN_ARG: &str = "sdfl::arg::unknown";
     pub const MISSING_ARG: &str = "sdfl::arg::missing";
     pub const DUPLICATE_ARG: &str = "sdfl::arg::duplicate";
@@ -116,9 +133,53 @@ impl Diag {
 #[derive(Debug, Clone, Default)]
 pub struct Diagnostics {
     pub diags: Vec<Diag>,
+    /// The files the loaded one imports, each with the offset its spans
+    /// were moved to (past the loaded file's and each other's): a span at
+    /// or past an offset points into that file. (Kept here rather than on
+    /// each [`Diag`], which stays small.)
+    pub files: Vec<(usize, SourceFile)>,
 }
 
 impl Diagnostics {
+    /// The imported file `span` points into (`None`: the loaded file) and
+    /// the span within that file.
+    pub fn locate(&self, span: Span) -> (Option<&SourceFile>, Span) {
+        match self
+            .files
+            .iter()
+            .rev()
+            .find(|(base, _)| *base <= span.start)
+        {
+            Some((base, f)) => (Some(f), Span::new(span.start - base, span.end - base)),
+            None => (None, span),
+        }
+    }
+
+    /// `d` with its spans in the file of its primary span, and that file:
+    /// a note in another file becomes a sentence of the help.
+    fn localised(&self, d: &Diag) -> (Option<&SourceFile>, Diag) {
+        let (file, span) = self.locate(d.span);
+        let mut local = Diag {
+            span,
+            notes: Vec::new(),
+            ..d.clone()
+        };
+        for (s, text) in &d.notes {
+            let (note_file, s) = self.locate(*s);
+            if note_file.map(|f| &f.name) == file.map(|f| &f.name) {
+                local.notes.push((s, text.clone()));
+                continue;
+            }
+            let (name, (line, col)) = match note_file {
+                Some(f) => (f.name.as_str(), f.line_col(s.start)),
+                None => ("the file loaded", (0, 0)),
+            };
+            let help = local.help.take().unwrap_or_default();
+            local.help = Some(format!("{help} ({text}: {name}:{line}:{col})"));
+        }
+        (file, local)
+    }
+
     pub fn push(&mut self, d: Diag) {
         self.diags.push(d);
     }
@@ -134,6 +195,11 @@ impl Diagnostics {
     }
     pub fn extend(&mut self, other: Diagnostics) {
         self.diags.extend(other.diags);
+        for f in other.files {
+            if !self.files.contains(&f) {
+                self.files.push(f);
+            }
+        }
     }
     /// Sort by position so a report reads top to bottom.
     pub fn sorted(mut self) -> Self {
@@ -143,10 +209,13 @@ impl Diagnostics {
 }
 
 /// A source file: its name (as shown to the user) and its text.
-#[derive(Debug, Clone)]
+#[derive(Debug, Clone, PartialEq)]
 pub struct SourceFile {
     pub name: String,
     pub text: Arc<str>,
+    /// Where it is on disk, when that differs from `name`: its `import`s
+    /// are resolved from here (else from `name`).
+    pub path: Option<std::path::PathBuf>,
 }
 
 impl SourceFile {
@@ -154,7 +223,19 @@ impl SourceFile {
         SourceFile {
             name: name.into(),
             text: text.into(),
+            path: None,
         }
+    }
+    /// The same file, found on disk at `path` (its name stays as shown).
+    pub fn at(mut self, path: impl Into<std::path::PathBuf>) -> Self {
+        self.path = Some(path.into());
+        self
+    }
+    /// Where the file is on disk: `path`, or its name.
+    pub fn disk_path(&self) -> std::path::PathBuf {
+        self.path
+            .clone()
+            .unwrap_or_else(|| std::path::PathBuf::from(&self.name))
     }
     /// 1-based line and column of a byte offset.
     pub fn line_col(&self, offset: usize) -> (usize, usize) {
@@ -254,6 +335,9 @@ pub fn render(source: &SourceFile, diags: &Diagnostics, color: bool) -> String {
         .with_links(false);
     let mut out = String::new();
     for diag in diags.diags.iter().take(MAX_RENDERED) {
+        // A diagnostic inside an imported file is shown in that file.
+        let (file, local) = diags.localised(diag);
+        let (source, diag) = (file.unwrap_or(source), &local);
         let (line, col) = source.line_col(diag.span.start);
         let quotable = [diag.span.start, diag.span.end]
             .into_iter()
@@ -354,5 +438,32 @@ mod tests {
         );
         assert!(d.has_errors());
         assert!(render(&src, &d, false).ends_with("1 error in f\n"));
+    }
+
+    #[test]
+    fn diagnostics_in_imported_files_are_shown_there() {
+        let main = SourceFile::new("main.sdfl", "import \"lib.sdfl\"\nlet a = 1\n");
+        let lib = SourceFile::new("lib.sdfl", "let a = 2\n");
+        let base = main.text.len() + 1;
+        let mut d = Diagnostics::default();
+        // In main, with a note in lib; and one in lib itself.
+        d.push(
+            Diag::new(codes::DUPLICATE_NAME, Span::new(22, 23), "twice")
+                .label("again")
+                .help("rename")
+                .note(Span::new(base + 4, base + 5), "first"),
+        );
+        d.push(
+            Diag::new(codes::TYPE, Span::new(base + 8, base + 9), "in lib")
+                .label("here")
+                .help("h"),
+        );
+        d.files.push((base, lib));
+        assert_eq!(d.locate(Span::new(base + 8, base + 9)).1, Span::new(8, 9));
+        assert!(d.locate(Span::new(3, 4)).0.is_none());
+        let text = render(&main, &d, false);
+        assert!(text.contains("[lib.sdfl:1:9]"), "{text}");
+        assert!(text.contains("[main.sdfl:2:5]"), "{text}");
+        assert!(text.contains("rename (first: lib.sdfl:1:5)"), "{text}");
     }
 }

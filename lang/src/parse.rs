@@ -115,23 +115,29 @@ fn prescan(text: &str) -> Option<Diag> {
     while i < bytes.len() {
         let c = bytes[i];
         match c {
-            b'f' if bytes[i..].starts_with(b"for")
-                && (i == 0 || !is_ident(bytes[i - 1]))
-                && !bytes.get(i + 3).is_some_and(|b| is_ident(*b)) =>
+            // `for` and `if` open a level that lasts until their `{`.
+            b'f' | b'i'
+                if (i == 0 || !is_ident(bytes[i - 1]))
+                    && [&b"for"[..], b"if"].iter().any(|kw| {
+                        bytes[i..].starts_with(kw)
+                            && !bytes.get(i + kw.len()).is_some_and(|b| is_ident(*b))
+                    }) =>
             {
+                let len = if c == b'f' { 3 } else { 2 };
+                let kw = if c == b'f' { "for" } else { "if" };
                 open_fors += 1;
                 if depth + open_fors > MAX_NESTING {
                     return Some(
                         Diag::new(
                             codes::NESTING,
-                            Span::new(i, i + 3),
-                            format!("`for` loops and brackets nested more than {MAX_NESTING} deep"),
+                            Span::new(i, i + len),
+                            format!("`{kw}`s and brackets nested more than {MAX_NESTING} deep"),
                         )
                         .label("too deep")
-                        .help("bind inner loops to names with `let` to flatten the expression"),
+                        .help("bind inner parts to names with `let` to flatten the expression"),
                     );
                 }
-                i += 2;
+                i += len - 1;
             }
             b'a'..=b'z' | b'A'..=b'Z' | b'_' | b'0'..=b'9' => {
                 // Skip the rest of a name, so `xfor` or `for_x` is no `for`.
@@ -177,17 +183,18 @@ fn prescan(text: &str) -> Option<Diag> {
             b')' | b']' | b'}' => depth = depth.saturating_sub(1),
             _ => {}
         }
-        if c == b'-' {
+        // A run of prefix operators (`!` not starting `!=`).
+        if c == b'-' || c == b'!' && bytes.get(i + 1) != Some(&b'=') {
             minus_run += 1;
             if minus_run > MAX_PREFIX_RUN {
                 return Some(
                     Diag::new(
                         codes::NESTING,
                         Span::new(i, i + 1),
-                        format!("more than {MAX_PREFIX_RUN} minus signs in a row"),
+                        format!("more than {MAX_PREFIX_RUN} `-` or `!` signs in a row"),
                     )
                     .label("too many")
-                    .help("an even number of minus signs cancels out: remove them"),
+                    .help("an even number of `-` or `!` signs cancels out: remove them"),
                 );
             }
         } else if !c.is_ascii_whitespace() {
@@ -202,6 +209,16 @@ fn describe_rule(rule: Rule) -> &'static str {
     match rule {
         Rule::EOI => "end of file",
         Rule::item | Rule::let_stmt | Rule::block => "`let` or a block like `render name { ... }`",
+        Rule::import_stmt => "`import`",
+        Rule::fn_def => "`fn`",
+        Rule::fn_param => "a parameter",
+        Rule::if_expr => "`if`",
+        Rule::index => "an index (`[i]`)",
+        Rule::kw_if => "`if`",
+        Rule::kw_else => "`else`",
+        Rule::kw_fn => "`fn`",
+        Rule::kw_import => "`import`",
+        Rule::op_not => "`!`",
         Rule::field => "a field (`name: value`)",
         Rule::expr | Rule::postfixed => "an expression",
         Rule::call => "a call",
@@ -222,9 +239,7 @@ fn describe_rule(rule: Rule) -> &'static str {
         Rule::kw_for => "`for`",
         Rule::kw_in => "`in`",
         Rule::op_assign => "`=`",
-        Rule::op_add | Rule::op_sub | Rule::op_mul | Rule::op_div | Rule::op_rem | Rule::op_pow => {
-            "an operator"
-        }
+        r if is_infix(r) => "an operator",
         Rule::op_neg => "`-`",
         Rule::range_inclusive => "`..=`",
         Rule::range_exclusive => "`..`",
@@ -254,16 +269,16 @@ fn syntax_error(text: &str, pos: usize, variant: &ErrorVariant<Rule>) -> Diag {
     };
     expected.sort_unstable();
     expected.dedup();
-    // An operator, a method (`.`) or a unit is always possible after an
-    // operand and rarely the point; a minus sign is one way to start an
-    // expression.
-    for noise in ["an operator", "`.`", "a unit (`deg`)"] {
+    // An operator, a method (`.`), an index (`[`) or a unit is always
+    // possible after an operand and rarely the point; a minus sign is one
+    // way to start an expression.
+    for noise in ["an operator", "`.`", "`[`", "a unit (`deg`)"] {
         if expected.len() > 1 {
             expected.retain(|e| *e != noise);
         }
     }
     if expected.contains(&"an expression") {
-        expected.retain(|e| *e != "`-`");
+        expected.retain(|e| *e != "`-`" && *e != "`!`");
     }
     let found = text[pos..].chars().next();
     let token: String = text[pos..]
@@ -477,6 +492,10 @@ fn is_punctuation(rule: Rule) -> bool {
         Rule::kw_let
             | Rule::kw_for
             | Rule::kw_in
+            | Rule::kw_if
+            | Rule::kw_else
+            | Rule::kw_fn
+            | Rule::kw_import
             | Rule::op_assign
             | Rule::dot
             | Rule::comma
@@ -502,6 +521,21 @@ fn build_file(pair: Pair<Rule>, diags: &mut Diagnostics) -> File {
         .map(|p| match p.as_rule() {
             Rule::let_stmt => Item::Let(build_let(p, diags).0),
             Rule::block => Item::Block(build_block(p, diags)),
+            Rule::fn_def => Item::Fn(build_fn(p, diags)),
+            Rule::import_stmt => {
+                let span = span_of(&p);
+                let lit = children(p).next().expect("import has a path");
+                let path_span = span_of(&lit);
+                let path = match build_string(lit, diags) {
+                    ExprKind::Str(s) => s,
+                    _ => unreachable!("build_string makes strings"),
+                };
+                Item::Import(Import {
+                    path,
+                    path_span,
+                    span,
+                })
+            }
             r => unreachable!("grammar: item cannot be {r:?}"),
         })
         .collect();
@@ -590,15 +624,72 @@ fn build_block(pair: Pair<Rule>, diags: &mut Diagnostics) -> Block {
     }
 }
 
+fn build_fn(pair: Pair<Rule>, diags: &mut Diagnostics) -> FnDef {
+    let span = span_of(&pair);
+    let mut it = children(pair);
+    let name = build_ident(it.next().expect("fn has a name"));
+    let mut params = Vec::new();
+    let mut body = None;
+    for p in it {
+        match p.as_rule() {
+            Rule::fn_param => {
+                let mut parts = children(p);
+                let pname = build_ident(parts.next().expect("parameter has a name"));
+                let default = parts.next().map(|e| build_expr(e, diags).0);
+                params.push(FnParam {
+                    name: pname,
+                    default,
+                });
+            }
+            Rule::body => body = Some(build_body(p, diags).0),
+            r => unreachable!("grammar: fn cannot contain {r:?}"),
+        }
+    }
+    FnDef {
+        name,
+        params,
+        body: body.expect("fn has a body"),
+        span,
+    }
+}
+
+fn is_infix(rule: Rule) -> bool {
+    matches!(
+        rule,
+        Rule::op_add
+            | Rule::op_sub
+            | Rule::op_mul
+            | Rule::op_div
+            | Rule::op_rem
+            | Rule::op_pow
+            | Rule::op_lt
+            | Rule::op_le
+            | Rule::op_gt
+            | Rule::op_ge
+            | Rule::op_eq
+            | Rule::op_ne
+            | Rule::op_and
+            | Rule::op_or
+    )
+}
+
 fn pratt() -> &'static PrattParser<Rule> {
     static PRATT: OnceLock<PrattParser<Rule>> = OnceLock::new();
     PRATT.get_or_init(|| {
         PrattParser::new()
+            .op(Op::infix(Rule::op_or, Assoc::Left))
+            .op(Op::infix(Rule::op_and, Assoc::Left))
+            .op(Op::infix(Rule::op_lt, Assoc::Left)
+                | Op::infix(Rule::op_le, Assoc::Left)
+                | Op::infix(Rule::op_gt, Assoc::Left)
+                | Op::infix(Rule::op_ge, Assoc::Left)
+                | Op::infix(Rule::op_eq, Assoc::Left)
+                | Op::infix(Rule::op_ne, Assoc::Left))
             .op(Op::infix(Rule::op_add, Assoc::Left) | Op::infix(Rule::op_sub, Assoc::Left))
             .op(Op::infix(Rule::op_mul, Assoc::Left)
                 | Op::infix(Rule::op_div, Assoc::Left)
                 | Op::infix(Rule::op_rem, Assoc::Left))
-            .op(Op::prefix(Rule::op_neg))
+            .op(Op::prefix(Rule::op_neg) | Op::prefix(Rule::op_not))
             .op(Op::infix(Rule::op_pow, Assoc::Right))
     })
 }
@@ -610,17 +701,7 @@ fn build_expr(pair: Pair<Rule>, diags: &mut Diagnostics) -> Built<Expr> {
     let operators = pair
         .clone()
         .into_inner()
-        .filter(|p| {
-            matches!(
-                p.as_rule(),
-                Rule::op_add
-                    | Rule::op_sub
-                    | Rule::op_mul
-                    | Rule::op_div
-                    | Rule::op_rem
-                    | Rule::op_pow
-            )
-        })
+        .filter(|p| is_infix(p.as_rule()))
         .count();
     if operators > MAX_OPERATORS {
         diags.push(
@@ -653,10 +734,12 @@ fn build_expr(pair: Pair<Rule>, diags: &mut Diagnostics) -> Built<Expr> {
     let (expr, depth) = pratt()
         .map_primary(|_| operands.next().expect("one operand per primary"))
         .map_prefix(|op, (rhs, depth): Built<Expr>| {
-            let expr = Expr {
-                span: span_of(&op).to(rhs.span),
-                kind: ExprKind::Neg(Box::new(rhs)),
+            let span = span_of(&op).to(rhs.span);
+            let kind = match op.as_rule() {
+                Rule::op_not => ExprKind::Not(Box::new(rhs)),
+                _ => ExprKind::Neg(Box::new(rhs)),
             };
+            let expr = Expr { span, kind };
             (expr, depth + 1)
         })
         .map_infix(|(lhs, l), op, (rhs, r)| {
@@ -667,6 +750,14 @@ fn build_expr(pair: Pair<Rule>, diags: &mut Diagnostics) -> Built<Expr> {
                 Rule::op_div => BinOp::Div,
                 Rule::op_rem => BinOp::Rem,
                 Rule::op_pow => BinOp::Pow,
+                Rule::op_lt => BinOp::Lt,
+                Rule::op_le => BinOp::Le,
+                Rule::op_gt => BinOp::Gt,
+                Rule::op_ge => BinOp::Ge,
+                Rule::op_eq => BinOp::Eq,
+                Rule::op_ne => BinOp::Ne,
+                Rule::op_and => BinOp::And,
+                Rule::op_or => BinOp::Or,
                 r => unreachable!("grammar: {r:?} is not an infix operator"),
             };
             let expr = Expr {
@@ -714,6 +805,15 @@ fn build_postfixed(pair: Pair<Rule>, diags: &mut Diagnostics) -> Built<Expr> {
                 let name = build_ident(children(suffix).next().expect("member has a name"));
                 expr = Expr {
                     kind: ExprKind::Member(Box::new(expr), name),
+                    span,
+                };
+            }
+            Rule::index => {
+                let (index, d) =
+                    build_expr(children(suffix).next().expect("index has a value"), diags);
+                depth = depth.max(d);
+                expr = Expr {
+                    kind: ExprKind::Index(Box::new(expr), Box::new(index)),
                     span,
                 };
             }
@@ -781,6 +881,7 @@ fn build_primary(pair: Pair<Rule>, diags: &mut Diagnostics) -> Built<Expr> {
             depth = d;
             kind
         }
+        Rule::if_expr => return build_if(pair, diags),
         r => unreachable!("grammar: {r:?} is not a primary"),
     };
     (Expr { kind, span }, depth + 1)
@@ -872,27 +973,9 @@ fn build_for(pair: Pair<Rule>, diags: &mut Diagnostics) -> Built<ExprKind> {
                 bindings.push(Binding { var, source });
             }
             Rule::body => {
-                let mut lets = Vec::new();
-                let mut value = None;
-                for b in children(p) {
-                    match b.as_rule() {
-                        Rule::let_stmt => {
-                            let (l, d) = build_let(b, diags);
-                            depth = depth.max(d);
-                            lets.push(l);
-                        }
-                        Rule::expr => {
-                            let (v, d) = build_expr(b, diags);
-                            depth = depth.max(d);
-                            value = Some(v);
-                        }
-                        r => unreachable!("grammar: body cannot contain {r:?}"),
-                    }
-                }
-                body = Some(Body {
-                    lets,
-                    value: Box::new(value.expect("body has a value")),
-                });
+                let (b, d) = build_body(p, diags);
+                depth = depth.max(d);
+                body = Some(b);
             }
             r => unreachable!("grammar: for cannot contain {r:?}"),
         }
@@ -903,6 +986,85 @@ fn build_for(pair: Pair<Rule>, diags: &mut Diagnostics) -> Built<ExprKind> {
         body: body.expect("for has a body"),
     };
     (kind, depth)
+}
+
+/// `{ let ...; value }` and its height.
+fn build_body(pair: Pair<Rule>, diags: &mut Diagnostics) -> Built<Body> {
+    let mut lets = Vec::new();
+    let mut value = None;
+    let mut depth = 0;
+    for b in children(pair) {
+        match b.as_rule() {
+            Rule::let_stmt => {
+                let (l, d) = build_let(b, diags);
+                depth = depth.max(d);
+                lets.push(l);
+            }
+            Rule::expr => {
+                let (v, d) = build_expr(b, diags);
+                depth = depth.max(d);
+                value = Some(v);
+            }
+            r => unreachable!("grammar: body cannot contain {r:?}"),
+        }
+    }
+    let body = Body {
+        lets,
+        value: Box::new(value.expect("body has a value")),
+    };
+    (body, depth)
+}
+
+/// `if a { x } else if b { y } else { z }`: the conditions and bodies come
+/// as a flat list, nested here from the last `else` back (iteratively: a
+/// chain of thousands must not recurse). Each `else if` adds a level.
+fn build_if(pair: Pair<Rule>, diags: &mut Diagnostics) -> Built<Expr> {
+    let span = span_of(&pair);
+    let first_line = first_line_span(&pair);
+    let mut conds = Vec::new();
+    let mut bodies = Vec::new();
+    let mut depth = 0;
+    for p in children(pair) {
+        match p.as_rule() {
+            Rule::expr => {
+                let (c, d) = build_expr(p.clone(), diags);
+                depth = depth.max(d);
+                conds.push((c, span_of(&p).start));
+            }
+            Rule::body => {
+                let (b, d) = build_body(p, diags);
+                depth = depth.max(d);
+                bodies.push(b);
+            }
+            r => unreachable!("grammar: if cannot contain {r:?}"),
+        }
+    }
+    let height = depth + conds.len();
+    if height > MAX_DEPTH {
+        return too_deep(first_line, span, diags);
+    }
+    let mut otherwise = bodies.pop().expect("if has an else");
+    loop {
+        let (cond, start) = conds.pop().expect("one condition per `if`");
+        let then = bodies.pop().expect("one body per condition");
+        // An `else if` spans from its condition; the first, the whole.
+        let at = if conds.is_empty() { span.start } else { start };
+        let expr = Expr {
+            span: Span::new(at, span.end),
+            kind: ExprKind::If {
+                cond: Box::new(cond),
+                then,
+                otherwise,
+            },
+        };
+        if conds.is_empty() {
+            return (expr, height);
+        }
+        otherwise = Body {
+            lets: Vec::new(),
+            value: Box::new(expr),
+        };
+    }
 }
 
 #[cfg(test)]
@@ -1068,5 +1230,105 @@ mod tests {
         let src = format!("let a = 1{}", "+1".repeat(100_000));
         let d = parse(&src).unwrap_err();
         assert_eq!(d.diags[0].code, codes::NESTING);
+    }
+
+    #[test]
+    fn comparisons_sit_below_arithmetic_and_logic_lowest() {
+        // a + 1 < b || c && !d == e  =  ((a + 1) < b) || (c && ((!d) == e))
+        let ExprKind::Binary(BinOp::Or, l, r) = expr("a + 1 < b || c && !d == e").kind else {
+            panic!()
+        };
+        let ExprKind::Binary(BinOp::Lt, ll, _) = &l.kind else {
+            panic!("{l:?}")
+        };
+        assert!(matches!(ll.kind, ExprKind::Binary(BinOp::Add, _, _)));
+        let ExprKind::Binary(BinOp::And, _, rr) = &r.kind else {
+            panic!("{r:?}")
+        };
+        let ExprKind::Binary(BinOp::Eq, not, _) = &rr.kind else {
+            panic!("{rr:?}")
+        };
+        assert!(matches!(not.kind, ExprKind::Not(_)));
+        for (src, op) in [
+            ("a <= b", BinOp::Le),
+            ("a >= b", BinOp::Ge),
+            ("a != b", BinOp::Ne),
+            ("a > b", BinOp::Gt),
+        ] {
+            assert!(
+                matches!(expr(src).kind, ExprKind::Binary(o, _, _) if o == op),
+                "{src}"
+            );
+        }
+    }
+
+    #[test]
+    fn if_with_parentheses_parses() {
+        // This reported "`{` is never closed" before `if` existed.
+        let e = expr("if (x > 1) { 1 } else { 2 }");
+        assert!(matches!(e.kind, ExprKind::If { .. }));
+        // `else if` nests in the `else` branch.
+        let ExprKind::If { otherwise, .. } =
+            expr("if a { 1 } else if b { 2 } else { let c = 3; c }").kind
+        else {
+            panic!()
+        };
+        let ExprKind::If { otherwise, .. } = &otherwise.value.kind else {
+            panic!()
+        };
+        assert_eq!(otherwise.lets.len(), 1);
+        // `else` is required: an `if` is an expression.
+        let d = parse("let x = if a { 1 }").unwrap_err();
+        assert!(d.diags[0].message.contains("`else`"), "{d:?}");
+    }
+
+    #[test]
+    fn long_else_if_chains_are_a_diagnostic_not_an_overflow() {
+        let src = format!(
+            "let a = if x {{ 1 }}{} else {{ 2 }}",
+            " else if x { 1 }".repeat(100_000)
+        );
+        let d = parse(&src).unwrap_err();
+        assert_eq!(d.diags[0].code, codes::NESTING);
+        assert!(parse(&format!("let a = {}1", "!".repeat(100_000))).is_err());
+        let src = format!(
+            "let a = {}1{}",
+            "if x { 1 } else { ".repeat(10_000),
+            " }".repeat(10_000)
+        );
+        assert_eq!(parse(&src).unwrap_err().diags[0].code, codes::NESTING);
+        let src = format!(
+            "let a = {}x{}",
+            "if ".repeat(10_000),
+            " { 1 } else { 2 }".repeat(10_000)
+        );
+        assert_eq!(parse(&src).unwrap_err().diags[0].code, codes::NESTING);
+    }
+
+    #[test]
+    fn functions_imports_and_indexing() {
+        let f = parse(
+            "import \"lib/a.sdfl\"\nfn blob(r, k: 2,) { let x = r * k; x }\nlet y = xs[1][i + 1]",
+        )
+        .unwrap();
+        let Item::Import(i) = &f.items[0] else {
+            panic!()
+        };
+        assert_eq!(i.path, "lib/a.sdfl");
+        let Item::Fn(func) = &f.items[1] else {
+            panic!()
+        };
+        assert_eq!(func.name.name, "blob");
+        assert_eq!(func.params.len(), 2);
+        assert!(func.params[0].default.is_none() && func.params[1].default.is_some());
+        assert_eq!(func.body.lets.len(), 1);
+        let Item::Let(l) = &f.items[2] else { panic!() };
+        let ExprKind::Index(inner, _) = &l.value.kind else {
+            panic!()
+        };
+        assert!(matches!(inner.kind, ExprKind::Index(_, _)));
+        // Keywords are not names.
+        assert!(parse("let fn = 1").is_err());
+        assert!(parse("let iffy = 1\nlet importance = 2").is_ok());
     }
 }

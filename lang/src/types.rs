@@ -145,9 +145,12 @@ impl Signature {
         if let Some(r) = &self.rest {
             parts.push(format!("{}: {}...", r.name, r.ty));
         }
-        parts.extend(self.params.iter().map(|p| match p.default {
-            Some(d) => format!("{}: {} = {d}", p.name, p.ty),
-            None => format!("{}: {}", p.name, p.ty),
+        // Parameters of `fn`s are untyped (`Any`): shown by name only.
+        parts.extend(self.params.iter().map(|p| match (p.default, &p.ty) {
+            (Some(d), Type::Any) => format!("{}: {d}", p.name),
+            (None, Type::Any) => p.name.to_string(),
+            (Some(d), t) => format!("{}: {t} = {d}", p.name),
+            (None, t) => format!("{}: {t}", p.name),
         }));
         format!("{}({})", self.name, parts.join(", "))
     }

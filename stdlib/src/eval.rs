@@ -176,8 +176,18 @@ pub fn fmt_bytes(b: f64) -> String {
     }
 }
 
+/// Deepest nesting of expression evaluation, `fn` calls included: the
+/// parser bounds one expression's height, and a call evaluates another
+/// expression inside the caller's, so chains of calls are bounded here to
+/// the same depth (the evaluator recurses once per level).
+pub const MAX_EVAL_DEPTH: usize = sdfl_lang::parse::MAX_DEPTH;
+
 pub struct Evaluator<'e> {
     env: &'e StdEnv,
+    /// The `fn`s defined so far.
+    fns: HashMap<String, Arc<FnDef>>,
+    /// Current nesting of [`Evaluator::expr`].
+    depth: usize,
     globals: HashMap<String, Value>,
     locals: Vec<HashMap<String, Value>>,
     pub(crate) diags: Diagnostics,
@@ -201,6 +211,8 @@ impl<'e> Evaluator<'e> {
     pub fn new(env: &'e StdEnv) -> Self {
         Evaluator {
             env,
+            fns: HashMap::new(),
+            depth: 0,
             globals: HashMap::new(),
             locals: Vec::new(),
             diags: Diagnostics::default(),
@@ -250,6 +262,11 @@ impl<'e> Evaluator<'e> {
                         program.renders.len() + program.volumes.len() + program.trains.len();
                     self.block(b, index, &mut program);
                 }
+                Item::Fn(f) => {
+                    self.fns.insert(f.name.name.clone(), Arc::new(f.clone()));
+                }
+                // Spliced into the file by the resolver before evaluation.
+                Item::Import(_) => {}
             }
         }
         if self.diags.has_errors() {
@@ -505,6 +522,40 @@ impl<'e> Evaluator<'e> {
         if self.aborted {
             return Value::Poison;
         }
+        if self.depth >= MAX_EVAL_DEPTH {
+            self.aborted = true;
+            return self.error(
+                Diag::new(
+                    codes::TOO_LARGE,
+                    e.span,
+                    format!("expressions and `fn` calls nested more than {MAX_EVAL_DEPTH} levels deep"),
+                )
+                .label("evaluation stopped here")
+                .help("each call evaluates the function's expression inside the caller's: bind parts to names with `let` instead of nesting calls"),
+            );
+        }
+        self.depth += 1;
+        let v = self.eval_expr(e);
+        self.depth -= 1;
+        v
+    }
+
+    /// `{ let ...; value }` in a scope of its own.
+    fn body(&mut self, body: &Body) -> Value {
+        self.locals.push(HashMap::new());
+        for l in &body.lets {
+            let v = self.expr(&l.value);
+            self.locals
+                .last_mut()
+                .expect("pushed")
+                .insert(l.name.name.clone(), v);
+        }
+        let v = self.expr(&body.value);
+        self.locals.pop();
+        v
+    }
+
+    fn eval_expr(&mut self, e: &Expr) -> Value {
         match &e.kind {
             ExprKind::Number(x) => Value::Number(*x),
             ExprKind::Bool(b) => Value::Bool(*b),
@@ -549,6 +600,43 @@ impl<'e> Evaluator<'e> {
             ExprKind::Neg(inner) => {
                 let v = self.expr(inner);
                 self.arith(BinOp::Sub, Value::Number(0.0), v, e.span, inner.span)
+            }
+            ExprKind::Not(inner) => match self.expr(inner) {
+                Value::Bool(b) => Value::Bool(!b),
+                v => self.not_bool(v, inner.span, "`!`"),
+            },
+            ExprKind::If {
+                cond,
+                then,
+                otherwise,
+            } => match self.expr(cond) {
+                // Only the branch taken is evaluated.
+                Value::Bool(true) => self.body(then),
+                Value::Bool(false) => self.body(otherwise),
+                v => self.not_bool(v, cond.span, "a condition"),
+            },
+            ExprKind::Index(list, index) => {
+                let (lv, iv) = (self.expr(list), self.expr(index));
+                self.index(lv, iv, list.span, index.span)
+            }
+            ExprKind::Binary(op, l, r) if op.is_logical() => {
+                let what = format!("`{}`", op.symbol());
+                let lv = match self.expr(l) {
+                    Value::Bool(b) => b,
+                    v => return self.not_bool(v, l.span, &what),
+                };
+                // `false && x` and `true || x` do not evaluate `x`.
+                if lv == (*op == BinOp::Or) {
+                    return Value::Bool(lv);
+                }
+                match self.expr(r) {
+                    Value::Bool(b) => Value::Bool(b),
+                    v => self.not_bool(v, r.span, &what),
+                }
+            }
+            ExprKind::Binary(op, l, r) if !op.is_arithmetic() => {
+                let (lv, rv) = (self.expr(l), self.expr(r));
+                self.compare(*op, lv, rv, e.span)
             }
             ExprKind::Binary(op, l, r) => {
                 let (lv, rv) = (self.expr(l), self.expr(r));
@@ -705,6 +793,199 @@ impl<'e> Evaluator<'e> {
         true
     }
 
+    /// Poison for a value that should have been a bool (with a diagnostic
+    /// unless it is poison already).
+    fn not_bool(&mut self, v: Value, span: Span, what: &str) -> Value {
+        // Shallow, like every poison test here: a list holding poison is
+        // poison itself, and walking lists would cost their length.
+        if matches!(v, Value::Poison) {
+            return Value::Poison;
+        }
+        self.error(
+            Diag::new(
+                codes::TYPE,
+                span,
+                format!("{what} needs a bool, not a {}", v.type_name()),
+            )
+            .label(format!("this is a {}", describe(&v)))
+            .help("compare values to get a bool: `x < 1`, `n == 0`, `a && b`"),
+        )
+    }
+
+    fn index(&mut self, list: Value, index: Value, list_span: Span, span: Span) -> Value {
+        if matches!(list, Value::Poison) || matches!(index, Value::Poison) {
+            return Value::Poison;
+        }
+        let Value::List(items) = &list else {
+            let d = Diag::new(
+                codes::TYPE,
+                list_span,
+                format!("cannot index a {}", list.type_name()),
+            )
+            .label(format!("this is a {}", describe(&list)))
+            .help("only lists and vectors have items `[i]`");
+            return self.error(d);
+        };
+        let Value::Number(i) = index else {
+            let d = Diag::new(
+                codes::TYPE,
+                span,
+                format!("an index must be a number, not a {}", index.type_name()),
+            )
+            .label(format!("this is a {}", describe(&index)))
+            .help("index lists with whole numbers from 0: `xs[0]`");
+            return self.error(d);
+        };
+        let n = items.len();
+        let last = match n {
+            0 => "the list is empty".to_string(),
+            n => format!("indices of this list are 0 to {}", n - 1),
+        };
+        let problem = if i.fract() != 0.0 {
+            Some(("not a whole number", "round it: `floor(x)`".to_string()))
+        } else if i < 0.0 {
+            Some((
+                "negative",
+                format!("{last}; indices count from 0 at the start"),
+            ))
+        } else if i >= n as f64 {
+            Some((
+                "past the end",
+                format!("{last}; `len(xs)` is the item count"),
+            ))
+        } else {
+            None
+        };
+        match problem {
+            Some((what, help)) => self.error(
+                Diag::new(
+                    codes::INDEX,
+                    span,
+                    format!("index {} is {what}", fmt_num(i)),
+                )
+                .label(match n {
+                    1 => "the list has 1 item".to_string(),
+                    n => format!("the list has {n} items"),
+                })
+                .help(help),
+            ),
+            None => items[i as usize].clone(),
+        }
+    }
+
+    /// `< <= > >=` on numbers, `== !=` on numbers, bools, strings and lists
+    /// of numbers.
+    fn compare(&mut self, op: BinOp, l: Value, r: Value, span: Span) -> Value {
+        use std::cmp::Ordering;
+        if matches!(l, Value::Poison) || matches!(r, Value::Poison) {
+            return Value::Poison;
+        }
+        // Comparing lists walks them, as arithmetic does: one unit per item.
+        let walked = [&l, &r]
+            .iter()
+            .map(|v| match v {
+                Value::List(items) => items.len() as u64,
+                _ => 0,
+            })
+            .max()
+            .unwrap_or(0);
+        if !self.spend_n(walked, span) {
+            return Value::Poison;
+        }
+        let nums = |v: &Value| -> Option<Vec<f64>> {
+            match v {
+                Value::List(_) => crate::builtins::one_or_list(v, |v| match v {
+                    Value::Number(x) => Some(*x),
+                    _ => None,
+                }),
+                _ => None,
+            }
+        };
+        let result = match (&l, &r) {
+            (Value::Number(a), Value::Number(b)) => a.partial_cmp(b),
+            _ if op.is_ordering() => None,
+            (Value::Bool(a), Value::Bool(b)) => Some(a.cmp(b)),
+            (Value::Str(a), Value::Str(b)) => Some(a.cmp(b)),
+            _ => match (nums(&l), nums(&r)) {
+                (Some(a), Some(b)) => Some(if a == b {
+                    Ordering::Equal
+                } else {
+                    Ordering::Less
+                }),
+                _ => None,
+            },
+        };
+        let Some(ord) = result else {
+            let help = if op.is_ordering() {
+                "`<`, `<=`, `>` and `>=` compare numbers"
+            } else {
+                "`==` and `!=` compare numbers, vectors, bools and strings of the same kind"
+            };
+            return self.error(
+                Diag::new(
+                    codes::TYPE,
+                    span,
+                    format!(
+                        "`{}` cannot compare a {} with a {}",
+                        op.symbol(),
+                        l.type_name(),
+                        r.type_name()
+                    ),
+                )
+                .label(format!("{} {} {}", describe(&l), op.symbol(), describe(&r)))
+                .help(help),
+            );
+        };
+        Value::Bool(match op {
+            BinOp::Lt => ord == Ordering::Less,
+            BinOp::Le => ord != Ordering::Greater,
+            BinOp::Gt => ord == Ordering::Greater,
+            BinOp::Ge => ord != Ordering::Less,
+            BinOp::Eq => ord == Ordering::Equal,
+            _ => ord != Ordering::Equal,
+        })
+    }
+
+    /// A call of a `fn`: arguments bound as the checker bound them,
+    /// defaults evaluated at the call, and the body evaluated with only its
+    /// parameters and the top-level names in scope.
+    fn call_fn(&mut self, f: Arc<FnDef>, args: &[Arg]) -> Value {
+        let mut scope: HashMap<String, Value> = HashMap::new();
+        let mut poisoned = false;
+        for (i, a) in args.iter().enumerate() {
+            let v = self.expr(&a.value);
+            poisoned |= matches!(v, Value::Poison);
+            let slot = match &a.name {
+                Some(n) => f.params.iter().find(|p| p.name.name == n.name),
+                None => f.params.get(i),
+            };
+            if let Some(p) = slot {
+                scope.insert(p.name.name.clone(), v);
+            }
+        }
+        // With poison passed in, the body is not evaluated: its errors
+        // would repeat what was reported, and a chain of calls stops here.
+        if poisoned {
+            return Value::Poison;
+        }
+        // Binding walks the parameters: their count is work, like the items
+        // of a list passed to a built-in.
+        if !self.spend_n(f.params.len() as u64, f.name.span) {
+            return Value::Poison;
+        }
+        let caller = std::mem::take(&mut self.locals);
+        for p in &f.params {
+            if let (false, Some(d)) = (scope.contains_key(&p.name.name), &p.default) {
+                let v = self.expr(d);
+                scope.insert(p.name.name.clone(), v);
+            }
+        }
+        self.locals.push(scope);
+        let v = self.body(&f.body);
+        self.locals = caller;
+        v
+    }
+
     fn arith(&mut self, op: BinOp, l: Value, r: Value, span: Span, rhs_span: Span) -> Value {
         let apply = |a: f64, b: f64| match op {
             BinOp::Add => a + b,
@@ -713,6 +994,8 @@ impl<'e> Evaluator<'e> {
             BinOp::Div => a / b,
             BinOp::Rem => a.rem_euclid(b),
             BinOp::Pow => a.powf(b),
+            // Comparisons and logic are evaluated before arithmetic.
+            _ => f64::NAN,
         };
         let nums = |v: &Value| -> Option<Vec<f64>> {
             crate::builtins::one_or_list(v, |v| match v {
@@ -782,6 +1065,9 @@ impl<'e> Evaluator<'e> {
     fn call(&mut self, callee: &Ident, args: &[Arg], span: Span) -> Value {
         if !self.spend(span) {
             return Value::Poison;
+        }
+        if let Some(f) = self.fns.get(&callee.name) {
+            return self.call_fn(f.clone(), args);
         }
         let Some(builtin) = self.env.builtin(&callee.name) else {
             return Value::Poison;

@@ -3,11 +3,13 @@
 //! materials, cameras, render jobs) handed to the runtime.
 //!
 //! [`load`] runs the whole front half of the pipeline:
-//! parse → check → evaluate, reporting every error of the file together.
+//! parse → resolve imports → check → evaluate, reporting every error of the
+//! file together.
 
 pub mod builtins;
 pub mod camera;
 pub mod eval;
+pub mod imports;
 pub mod material;
 pub mod num;
 pub mod outputs;
@@ -31,23 +33,29 @@ pub fn load(source: &SourceFile) -> Result<Program, Diagnostics> {
 /// [`load`], with the warnings of a file that has no errors (a file with
 /// errors reports its warnings among them).
 pub fn load_warned(source: &SourceFile) -> Result<(Program, Diagnostics), Diagnostics> {
-    let file = sdfl_lang::parse::parse(&source.text)?;
+    let (file, sources) = imports::resolve(source);
+    let located = |d| sources.locate(d);
+    let file = file.map_err(located)?;
     let env = StdEnv::get();
     let diags = sdfl_lang::check::check(&file, env);
     if !diags.is_empty() {
-        return Err(diags);
+        return Err(located(diags));
     }
-    eval::Evaluator::new(env).run_warned(&file)
+    eval::Evaluator::new(env)
+        .run_warned(&file)
+        .map(|(p, w)| (p, located(w)))
+        .map_err(located)
 }
 
 /// [`load`] with top-level `let` bindings replaced by the given numbers
 /// (`sdfl sweep`). Names that no top-level `let` binds are reported.
 pub fn load_with(source: &SourceFile, overrides: &[(String, f64)]) -> Result<Program, Diagnostics> {
-    let file = sdfl_lang::parse::parse(&source.text)?;
+    let (file, sources) = imports::resolve(source);
+    let file = file.map_err(|d| sources.locate(d))?;
     let env = StdEnv::get();
     let diags = sdfl_lang::check::check(&file, env);
     if !diags.is_empty() {
-        return Err(diags);
+        return Err(sources.locate(diags));
     }
     let mut map = std::collections::HashMap::new();
     let mut missing = Diagnostics::default();
@@ -68,17 +76,21 @@ pub fn load_with(source: &SourceFile, overrides: &[(String, f64)]) -> Result<Pro
     if !missing.is_empty() {
         return Err(missing);
     }
-    eval::Evaluator::new(env).with_overrides(map).run(&file)
+    eval::Evaluator::new(env)
+        .with_overrides(map)
+        .run(&file)
+        .map_err(|d| sources.locate(d))
 }
 
 /// Parse and check only (no evaluation): what `sdfl check` needs for
 /// syntax and names. Value errors are found by [`load`].
 pub fn check(source: &SourceFile) -> Result<(), Diagnostics> {
-    let file = sdfl_lang::parse::parse(&source.text)?;
+    let (file, sources) = imports::resolve(source);
+    let file = file.map_err(|d| sources.locate(d))?;
     let diags = sdfl_lang::check::check(&file, StdEnv::get());
     if diags.is_empty() {
         Ok(())
     } else {
-        Err(diags)
+        Err(sources.locate(diags))
     }
 }

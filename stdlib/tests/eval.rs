@@ -42,10 +42,10 @@ fn every_default_evaluates() {
                 format!("{}: {v}", p.name)
             })
             .collect();
-        let rest = if b.sig.rest.is_some() {
-            "sphere(), "
-        } else {
-            ""
+        let rest = match &b.sig.rest {
+            Some(r) if r.ty == sdfl_lang::types::Type::Number => "1, ",
+            Some(_) => "sphere(), ",
+            None => "",
         };
         let src = format!("let x = {}({rest}{})", b.sig.name, args.join(", "));
         let r = load(&SourceFile::new("t", src.clone()));
@@ -196,4 +196,207 @@ fn smooth_operators_take_any_number_of_shapes() {
         codes_of("let s = smooth_union(sphere(), box(), 0.3)"),
         [codes::TYPE]
     );
+}
+
+/// The number `expr` evaluates to (as a sphere's radius).
+fn number(expr: &str) -> f64 {
+    radius_of(expr)
+}
+
+#[test]
+fn conditions_pick_one_branch() {
+    let cases = [
+        ("if 1 < 2 { 1 } else { 2 }", 1.0),
+        ("if 1 > 2 { 1 } else if 2 >= 2 { 3 } else { 2 }", 3.0),
+        ("if 1 == 2 || 2 != 3 && !false { 4 } else { 5 }", 4.0),
+        // `&&` binds tighter than `||`; comparisons below `+`.
+        ("if true || false && false { 1 } else { 2 }", 1.0),
+        ("if 1 + 1 == 2 { 6 } else { 7 }", 6.0),
+        (
+            "if [1, 2, 3] == [1, 2, 3] && \"a\" != \"b\" { 1 } else { 2 }",
+            1.0,
+        ),
+        ("if 1 <= 1 { let k = 2; k * 4 } else { 0 }", 8.0),
+    ];
+    for (expr, want) in cases {
+        assert_eq!(number(expr), want, "{expr}");
+    }
+    // The branch not taken is not evaluated: its division by zero is no error.
+    assert_eq!(number("if true { 1 } else { 1 / 0 }"), 1.0);
+    assert_eq!(number("if false && 1 / 0 > 0 { 2 } else { 3 }"), 3.0);
+    // Conditions are bools: a number is a type error, found by the checker
+    // or, for values it cannot know, by the evaluator.
+    assert_eq!(codes_of("let a = if 1 { 1 } else { 2 }"), [codes::TYPE]);
+    assert_eq!(codes_of("let a = !3"), [codes::TYPE]);
+    assert_eq!(codes_of("let a = sphere() < 1"), [codes::TYPE]);
+    assert_eq!(
+        codes_of("fn f(c) { if c { 1 } else { 2 } }\nlet a = f(1)"),
+        [codes::TYPE]
+    );
+    assert_eq!(
+        codes_of("fn f(a, b) { a == b }\nlet x = f(sphere(), 1)"),
+        [codes::TYPE]
+    );
+}
+
+#[test]
+fn functions_bind_arguments_like_builtins() {
+    let f = "fn f(a, b: 2, c: [0, 0, 1]) { let s = a * b; s + c.z }\n";
+    let at = |call: &str| {
+        let src = format!(
+            "{f}render r {{ scene: sphere({call}), camera: look_at(eye: [0, 0, -3]), outputs: [image(\"a.png\")] }}"
+        );
+        let p = load(&SourceFile::new("f.sdfl", src)).unwrap_or_else(|d| panic!("{call}: {d:?}"));
+        match &*p.renders[0].scene {
+            sdfl_stdlib::shape::Shape::Sphere { radius, .. } => radius.value,
+            other => panic!("{other:?}"),
+        }
+    };
+    assert_eq!(at("f(1)"), 3.0);
+    assert_eq!(at("f(1, 3)"), 4.0);
+    assert_eq!(at("f(b: 1, a: 2)"), 3.0);
+    assert_eq!(at("f(1, c: [0, 0, 0.5])"), 2.5);
+    assert_eq!(at("(1).f(4)"), 5.0);
+    // Parameters are the function's own: a loop variable of the caller
+    // with the name of a global is not seen inside.
+    let src = "let k = 1\nfn g(x) { x + k }\nlet v = for k in [10] { g(0) }\n\
+               render r { scene: sphere(v[0]), camera: look_at([0, 0, 5]), outputs: [image(\"a.png\")] }";
+    let p = load(&SourceFile::new("t", src)).unwrap();
+    assert!(
+        matches!(&*p.renders[0].scene, sdfl_stdlib::shape::Shape::Sphere { radius, .. } if radius.value == 1.0)
+    );
+    // A call's cost is bounded: so is a `fn`'s parameter count.
+    let params: Vec<String> = (0..=sdfl_lang::check::MAX_FN_PARAMS)
+        .map(|i| format!("p{i}: 1"))
+        .collect();
+    assert_eq!(
+        codes_of(&format!("fn f({}) {{ 1 }}", params.join(", "))),
+        [codes::TOO_LARGE]
+    );
+    for (src, code) in [
+        ("fn f(a) { a }\nlet x = f()", codes::MISSING_ARG),
+        ("fn f(a) { a }\nlet x = f(1, 2)", codes::TOO_MANY_ARGS),
+        ("fn f(a) { a }\nlet x = f(1, b: 1)", codes::UNKNOWN_ARG),
+        ("fn f(a) { a }\nlet x = f(1, a: 1)", codes::DUPLICATE_ARG),
+        (
+            "fn f(a, b: 1) { a }\nlet x = f(1, b: 1, 2)",
+            codes::POSITIONAL_AFTER_NAMED,
+        ),
+        ("fn f(a, a) { a }", codes::DUPLICATE_NAME),
+        ("fn f(a) { a }\nfn f(b) { b }", codes::DUPLICATE_NAME),
+        ("fn sphere(a) { a }", codes::SHADOWS_BUILTIN),
+        ("fn f(a) { f(a) }", codes::FN_ORDER),
+        ("fn f(a) { g(a) }\nfn g(a) { f(a) }", codes::FN_ORDER),
+        ("let x = f(1)\nfn f(a) { a }", codes::FN_ORDER),
+        ("fn f(a) { a + later }\nlet later = 1", codes::UNKNOWN_NAME),
+    ] {
+        assert_eq!(codes_of(src), [code], "{src}");
+    }
+}
+
+#[test]
+fn functions_stay_inside_the_work_budget() {
+    let t = std::time::Instant::now();
+    // Each level calls the one before twice: 2^40 calls if unbounded.
+    let mut src = String::from("fn f0(s) { union(s, s.translate([0.1, 0, 0])) }\n");
+    for i in 1..40 {
+        src.push_str(&format!("fn f{i}(s) {{ f{0}(f{0}(s)) }}\n", i - 1));
+    }
+    src.push_str("let a = f39(sphere())\n");
+    let c = codes_of(&src);
+    assert!(
+        !c.is_empty() && c.iter().all(|c| *c == codes::TOO_LARGE),
+        "{c:?}"
+    );
+    // A doubling function called in nested loops.
+    let src = "fn dbl(s) { union(s, s.translate([0.1, 0, 0])) }\n\
+               let a = for i in 0..1000, j in 0..1000 { dbl(dbl(sphere())) }";
+    let c = codes_of(src);
+    assert!(
+        !c.is_empty() && c.iter().all(|c| *c == codes::TOO_LARGE),
+        "{c:?}"
+    );
+    assert!(t.elapsed().as_secs() < 30, "{:?}", t.elapsed());
+}
+
+#[test]
+fn lists_are_indexed_from_zero() {
+    assert_eq!(number("[4, 5, 6][1]"), 5.0);
+    assert_eq!(number("[[1, 2], [3, 7]][1][1]"), 7.0);
+    assert_eq!(
+        number("[1, 2, 3].y + len([1, 2]) + len(for i in 0..4 { i })"),
+        8.0
+    );
+    assert_eq!(number("(for i in 0..5 { i * i })[4]"), 16.0);
+    for bad in ["[1, 2][2]", "[1, 2][-1]", "[1, 2][0.5]"] {
+        assert_eq!(codes_of(&format!("let x = {bad}")), [codes::INDEX], "{bad}");
+    }
+    assert_eq!(codes_of("let x = [1, 2][\"a\"]"), [codes::TYPE]);
+    assert_eq!(codes_of("let x = sphere()[0]"), [codes::TYPE]);
+    assert_eq!(codes_of("let x = len(1)"), [codes::TYPE]);
+}
+
+#[test]
+fn more_math_builtins() {
+    let cases = [
+        ("min(3, 1, 2)", 1.0),
+        ("max(3, 1, 2)", 3.0),
+        ("min([4, 5], 6)", 4.0),
+        ("max(7)", 7.0),
+        ("mix([0, 0, 0], [2, 4, 8], 0.5).z", 4.0),
+        ("mix(1, [3, 3, 3], 0.5).x", 2.0),
+    ];
+    for (expr, want) in cases {
+        assert_eq!(number(expr), want, "{expr}");
+    }
+    // Deterministic, in [0, 1), and different for different inputs.
+    let r = number("random(seed: 7) + 1");
+    assert!((1.0..2.0).contains(&r));
+    assert_eq!(r, number("random(7, 0) + 1"));
+    let xs: Vec<f64> = (0..50)
+        .map(|i| sdfl_stdlib::builtins::random(1.0, i as f64))
+        .collect();
+    assert!(xs.iter().all(|x| (0.0..1.0).contains(x)));
+    assert!(xs.windows(2).all(|w| w[0] != w[1]));
+    let mean = xs.iter().sum::<f64>() / 50.0;
+    assert!((0.3..0.7).contains(&mean), "{mean}");
+    assert_eq!(codes_of("let x = min()"), [codes::VALUE]);
+    assert_eq!(codes_of("let x = min(sphere())"), [codes::TYPE]);
+    assert_eq!(codes_of("let x = normalize([0, 0, 0])"), [codes::VALUE]);
+}
+
+#[test]
+fn statements_are_kept_in_file_order() {
+    use sdfl_stdlib::value::Statement;
+    let block = |name: &str, scene: &str| {
+        format!("render {name} {{ scene: {scene}, camera: look_at([0, 0, 3]), outputs: [image(\"{name}.png\")] }}\n")
+    };
+    let src = [
+        block("a", "sphere()"),
+        block("v", "sdf_volume(sphere())"),
+        block("b", "box()"),
+    ]
+    .concat();
+    let p = load(&SourceFile::new("order.sdfl", src)).unwrap();
+    assert_eq!(
+        p.order,
+        [
+            Statement::Render(0),
+            Statement::Volume(0),
+            Statement::Render(1)
+        ]
+    );
+}
+
+#[test]
+fn indexing_is_cheap_and_comparing_lists_is_budgeted() {
+    let t = std::time::Instant::now();
+    // Indexing a long list costs one unit, not its length.
+    let src =
+        "let xs = for i in 0..400000 { i }\nlet ys = for i in 0..400000 { xs[i] }\nlet n = len(ys)";
+    assert_eq!(codes_of(src), Vec::<&str>::new());
+    // Comparing lists walks them: 1e5 comparisons of 4e5 items is refused.
+    let src = "let xs = for i in 0..400000 { i }\nlet ys = for i in 0..100000 { xs == xs }";
+    assert_eq!(codes_of(src), [codes::TOO_LARGE]);
+    assert!(t.elapsed().as_secs() < 20, "{:?}", t.elapsed());
 }

@@ -127,7 +127,9 @@ fn known_names() -> &'static [String] {
     })
 }
 
-const KEYWORDS: &[&str] = &["let", "for", "in", "true", "false"];
+const KEYWORDS: &[&str] = &[
+    "let", "for", "in", "true", "false", "if", "else", "fn", "import",
+];
 
 const NUMBERS: &[&str] = &[
     "0",
@@ -174,7 +176,7 @@ const STRINGS: &[&str] = &[
 
 const PUNCTUATION: &[&str] = &[
     "(", ")", "[", "]", "{", "}", ",", ":", ";", "=", ".", "+", "-", "*", "/", "%", "^", "..",
-    "..=", "//", "/*", "*/", "\"", "\\", "\n",
+    "..=", "//", "/*", "*/", "\"", "\\", "\n", "<", "<=", ">", ">=", "==", "!=", "&&", "||", "!",
 ];
 
 fn token() -> impl Strategy<Value = String> {
@@ -463,7 +465,17 @@ fn gen_typed(t: &mut Tape, ty: &Type, depth: u32) -> String {
             let ty = t.choose(&options).clone();
             gen_typed(t, &ty, depth)
         }
-        Type::Number => match t.pick(8) {
+        Type::Number => match t.pick(10) {
+            8 if depth > 0 => {
+                let c = gen_typed(t, &Type::Bool, depth - 1);
+                let (a, b) = (gen_typed(t, ty, depth - 1), gen_typed(t, ty, depth - 1));
+                format!("if {c} {{ {a} }} else {{ {b} }}")
+            }
+            9 if depth > 0 => {
+                let items = gen_typed(t, &Type::list(Type::Number), depth - 1);
+                let i = t.choose(&["0", "1", "2", "-1", "0.5"]).to_string();
+                format!("({items})[{i}]")
+            }
             5 if depth > 0 => {
                 let op = t.choose(&["+", "-", "*", "/", "%", "^"]).to_string();
                 let (a, b) = (gen_typed(t, ty, depth - 1), gen_typed(t, ty, depth - 1));
@@ -482,7 +494,22 @@ fn gen_typed(t: &mut Tape, ty: &Type, depth: u32) -> String {
             ),
             _ => gen_number(t),
         },
-        Type::Bool => t.choose(&["true", "false"]).to_string(),
+        Type::Bool => match t.pick(4) {
+            0 if depth > 0 => {
+                let op = t.choose(&["<", "<=", ">", ">=", "==", "!="]).to_string();
+                let (a, b) = (
+                    gen_typed(t, &Type::Number, depth - 1),
+                    gen_typed(t, &Type::Number, depth - 1),
+                );
+                format!("({a} {op} {b})")
+            }
+            1 if depth > 0 => {
+                let op = t.choose(&["&&", "||"]).to_string();
+                let (a, b) = (gen_typed(t, ty, depth - 1), gen_typed(t, ty, depth - 1));
+                format!("(!{a} {op} {b})")
+            }
+            _ => t.choose(&["true", "false"]).to_string(),
+        },
         Type::Str => t.choose(PLAIN_STRINGS).to_string(),
         Type::Vec3 => match t.pick(5) {
             4 if depth > 0 => {

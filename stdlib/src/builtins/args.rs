@@ -232,6 +232,22 @@ impl Args {
         Ok(Arg { param, ..c })
     }
 
+    /// The rest arguments, with lists flattened, as numbers.
+    pub fn rest_numbers(&self) -> Result<Vec<f64>, Diag> {
+        fn walk(v: &Value, span: Span, out: &mut Vec<f64>) -> Result<(), Diag> {
+            match v {
+                Value::Number(x) => Ok(out.push(f32_range(*x, span, "x")?)),
+                Value::List(items) => items.iter().try_for_each(|i| walk(i, span, out)),
+                other => Err(type_error(span, "number", other)),
+            }
+        }
+        let mut out = Vec::new();
+        for (v, s) in &self.rest {
+            walk(v, *s, &mut out)?;
+        }
+        Ok(out)
+    }
+
     /// The rest arguments, with lists flattened, as shapes.
     pub fn rest_shapes(&self) -> Result<Vec<Arc<Shape>>, Diag> {
         fn walk(v: &Value, span: Span, out: &mut Vec<Arc<Shape>>) -> Result<(), Diag> {

@@ -242,7 +242,7 @@ pub(crate) fn train_block(name: &str, a: &Args) -> Result<TrainJob, Diag> {
             },
             format!("a {}", data_v.type_name()),
             if on_points {
-                "give `data: points(\"cloud.npz\")`"
+                "give `data: points(\"cloud.npz\")`, or train `volsdf(neural_sdf(...))` on images"
             } else {
                 "render or read views: `render_views(...)`, `views(...)`, `nerf_synthetic(...)`"
             },

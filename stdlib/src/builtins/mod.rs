@@ -892,12 +892,26 @@ fn table() -> Vec<Builtin> {
         ),
         func(
             "mix",
-            "Linear interpolation `a + (b - a)·t`.",
-            vec![req("a", Type::Number, "value at t = 0"), req("b", Type::Number, "value at t = 1"), req("t", Type::Number, "the fraction")],
-            Type::Number,
+            "Linear interpolation `a + (b - a)·t` of numbers or vectors (a number with a vector means that number in every component).",
+            vec![req("a", num_or_vec(), "value at t = 0"), req("b", num_or_vec(), "value at t = 1"), req("t", Type::Number, "the fraction")],
+            // A number or a vector, known from the arguments' values.
+            Type::Any,
             |a| {
-                let (x, y, t) = (a.number("a")?, a.number("b")?, a.number("t")?);
-                finite(x + (y - x) * t, a, "mix")
+                let t = a.number("t")?;
+                match (a.get("a").0, a.get("b").0) {
+                    (Value::Number(_), Value::Number(_)) => {
+                        let (x, y) = (a.number("a")?, a.number("b")?);
+                        finite(x + (y - x) * t, a, "mix")
+                    }
+                    _ => {
+                        let (x, y) = (a.vec3("a")?, a.vec3("b")?);
+                        let v = x + (y - x) * t;
+                        if !v.is_finite() {
+                            return finite(f64::INFINITY, a, "mix");
+                        }
+                        Ok(Value::from_vec3(v))
+                    }
+                }
             },
         ),
         func("length", "Length of a vector.", vec![req("v", Type::Vec3, "the vector")], Type::Number, |a| {
@@ -928,16 +942,71 @@ fn table() -> Vec<Builtin> {
             Type::Number,
             |a| finite(a.number("y")?.atan2(a.number("x")?), a, "atan2"),
         ),
-        func("min", "The smaller of two numbers.", vec![req("a", Type::Number, "a"), req("b", Type::Number, "b")], Type::Number, |a| {
-            Ok(Value::Number(a.number("a")?.min(a.number("b")?)))
-        }),
-        func("max", "The larger of two numbers.", vec![req("a", Type::Number, "a"), req("b", Type::Number, "b")], Type::Number, |a| {
-            Ok(Value::Number(a.number("a")?.max(a.number("b")?)))
-        }),
+        variadic(
+            "min",
+            "The smallest of one or more numbers; lists are flattened: `min(a, b, c)`, `min(xs)`.",
+            req("x", Type::Number, "numbers or lists of numbers"),
+            Type::Number,
+            |a| extreme(a, "min", f64::min),
+        ),
+        variadic(
+            "max",
+            "The largest of one or more numbers; lists are flattened: `max(a, b, c)`, `max(xs)`.",
+            req("x", Type::Number, "numbers or lists of numbers"),
+            Type::Number,
+            |a| extreme(a, "max", f64::max),
+        ),
+        func(
+            "len",
+            "The number of items of a list (3 for a vector).",
+            vec![req("list", Type::list(Type::Any), "the list")],
+            Type::Number,
+            |a| match a.get("list") {
+                (Value::List(items), _) => Ok(Value::Number(items.len() as f64)),
+                (v, s) => Err(type_error(s, "list", v)),
+            },
+        ),
+        func(
+            "random",
+            "A pseudo-random number in [0, 1), the same for the same `seed` and `i` on every machine: \
+             SplitMix64 of the two numbers' bits. Vary `i` (a loop index) for a sequence, `seed` for another sequence.",
+            vec![req("seed", Type::Number, "selects the sequence"), opt("i", Type::Number, "0", "position in the sequence")],
+            Type::Number,
+            |a| Ok(Value::Number(random(a.number("seed")?, a.number("i")?))),
+        ),
     ]
     .into_iter()
     .chain(neural::builtins())
     .collect()
+}
+
+/// `min`/`max` of the rest arguments, lists flattened.
+fn extreme(a: &Args, name: &str, pick: fn(f64, f64) -> f64) -> Result<Value, Diag> {
+    let xs = a.rest_numbers()?;
+    match xs.into_iter().reduce(pick) {
+        Some(x) => Ok(Value::Number(x)),
+        None => Err(value_error(
+            a.span,
+            format!("`{name}` of no numbers"),
+            "empty",
+            "give at least one number",
+        )),
+    }
+}
+
+/// SplitMix64's output function (Steele, Lea and Flood, 2014).
+fn splitmix64(mut z: u64) -> u64 {
+    z = z.wrapping_add(0x9e37_79b9_7f4a_7c15);
+    z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+    z ^ (z >> 31)
+}
+
+/// `random(seed, i)`: the hash of both numbers' bits, its top 53 bits as
+/// a fraction in [0, 1). (`+ 0.0` makes -0 and 0 the same seed.)
+pub fn random(seed: f64, i: f64) -> f64 {
+    let h = splitmix64(splitmix64((seed + 0.0).to_bits()) ^ (i + 0.0).to_bits());
+    (h >> 11) as f64 / (1u64 << 53) as f64
 }
 
 fn render_views(a: &Args) -> Result<Value, Diag> {
