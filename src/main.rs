@@ -594,7 +594,7 @@ fn summarise(r: &serde_json::Value, out: &Path, stdout: &mut Stdout) {
             if let Some(fit) = rep.get("mesh_fit").filter(|f| f.is_object()) {
                 let num = |k: &str| fit[k].as_f64().unwrap_or(f64::NAN);
                 eprintln!(
-                    "  mesh vs {} {} points: Chamfer {:.4} (points → mesh {:.4}, mesh → points {:.4})",
+                    "  mesh vs {} points of the {}: Chamfer {:.4} (points → mesh {:.4}, mesh → points {:.4})",
                     fit["points"],
                     fit["against"].as_str().unwrap_or("?"),
                     num("chamfer"),

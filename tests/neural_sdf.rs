@@ -87,7 +87,7 @@ fn a_small_neural_sdf_finds_the_sphere_of_its_points() {
     let mesh_fit = report.mesh_fit.expect("a mesh fit");
     assert!(mesh_fit.chamfer < 0.05, "{mesh_fit:?}");
     assert_eq!(mesh_fit.points, 2000);
-    assert_eq!(mesh_fit.against, "data points");
+    assert_eq!(mesh_fit.against, "data");
     let vertices = ply_vertices(&dir.join("out/fit.ply"));
     assert!(vertices.len() > 500);
     let radii: Vec<f32> = vertices

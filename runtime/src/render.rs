@@ -487,7 +487,8 @@ pub fn run_job(
         .iter()
         .filter(|o| matches!(o.kind, OutputKind::Mesh { .. }))
     {
-        written.push(crate::mesh::write_mesh(out_dir, o, &distance, bounds)?.0);
+        let field = crate::mesh::Lipschitz(&distance, scene.lipschitz);
+        written.push(crate::mesh::write_mesh(out_dir, o, &field, bounds)?.0);
     }
     let mesh_s = t.elapsed().as_secs_f64();
     let mut stages = vec![

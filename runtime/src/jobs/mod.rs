@@ -327,10 +327,11 @@ pub fn run_volume_job(
             .shape
             .bounds()
             .map(|b| (b.min.to_array(), b.max.to_array()));
+        let field = crate::mesh::Lipschitz(&distance, sdf.lipschitz);
         for o in meshes {
             report
                 .written
-                .push(crate::mesh::write_mesh(out_dir, o, &distance, bounds)?.0);
+                .push(crate::mesh::write_mesh(out_dir, o, &field, bounds)?.0);
         }
         report
             .stages

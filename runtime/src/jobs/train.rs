@@ -374,18 +374,25 @@ pub fn run_train_job(
             match (&*job.model, &analytic) {
                 (Field::NeuralSdf(n), _) => {
                     let net = crate::neural::distance::sdf_net(n);
-                    let field = crate::neural::distance::NetDistance {
-                        net: &net,
-                        params: values,
-                    };
+                    // Trained with the eikonal term, not bounded: a margin of 2.
+                    let field = crate::mesh::Lipschitz(
+                        crate::neural::distance::NetDistance {
+                            net: &net,
+                            params: values,
+                        },
+                        2.0,
+                    );
                     write(&field, Some(mesh_region(&points, job.bounds)))
                 }
                 (Field::NeuralSurface(n), _) => {
                     let net = crate::neural::distance::sdf_net(&n.sdf);
-                    let field = crate::neural::distance::NetDistance {
-                        net: &net,
-                        params: &values[..net.len],
-                    };
+                    let field = crate::mesh::Lipschitz(
+                        crate::neural::distance::NetDistance {
+                            net: &net,
+                            params: &values[..net.len],
+                        },
+                        2.0,
+                    );
                     write(&field, Some(mesh_region(&[], job.bounds)))
                 }
                 (Field::Sdf(f), Some(model)) => {
@@ -531,7 +538,7 @@ pub fn run_train_job(
             let (truth, against) = if all_points.is_empty() {
                 (true_surface(&job.data, job.seed), "true surface")
             } else {
-                (all_points.clone(), "data points")
+                (all_points.clone(), "data")
             };
             if !truth.is_empty() {
                 mesh_fit = Some(crate::neural::distance::mesh_fit(

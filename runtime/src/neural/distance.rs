@@ -217,7 +217,7 @@ pub struct MeshFit {
     /// Mean distance from a point to the nearest mesh sample, and back.
     pub points_to_mesh: f64,
     pub mesh_to_points: f64,
-    /// What the points are: "data points" or "true surface".
+    /// What the points are from: "data" or "true surface".
     pub against: &'static str,
     /// Points and mesh samples compared.
     pub points: usize,
