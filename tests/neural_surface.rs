@@ -22,7 +22,7 @@ train fit {
   bounds: 1.2,
   views: look_at(eye: [0, 0, -3]),
   size: [8, 8],
-  after: [mesh("fit.ply", resolution: 32)],
+  after: [mesh("fit.ply", resolution: 32), geometry_gif("geometry.gif")],
   checkpoint: "fit.ckpt",
 }
 "#;

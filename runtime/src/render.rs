@@ -63,6 +63,8 @@ impl Plan {
                 | OutputKind::Comparison => {}
                 // Meshes sample the distance on a grid, not along rays.
                 OutputKind::Mesh { .. } => plan.meshes.push(who),
+                // Refused for renders when evaluated.
+                OutputKind::GeometryGif { .. } => {}
             }
         }
         let shaded = !plan.color.is_empty();
@@ -433,7 +435,8 @@ pub fn run_job(
                 | OutputKind::LossCurve
                 | OutputKind::PsnrCurve
                 | OutputKind::Comparison
-                | OutputKind::Mesh { .. } => continue,
+                | OutputKind::Mesh { .. }
+                | OutputKind::GeometryGif { .. } => continue,
             };
             // The camera checks are written once, for the first view.
             let rel = if matches!(o.kind, OutputKind::Grid | OutputKind::Rays) {

@@ -105,6 +105,7 @@ pub fn kind_name(kind: &OutputKind) -> &'static str {
         OutputKind::Comparison => "comparison",
         OutputKind::Dataset => "dataset",
         OutputKind::Mesh { .. } => "mesh",
+        OutputKind::GeometryGif { .. } => "geometry_gif",
     }
 }
 

@@ -125,6 +125,10 @@ pub enum OutputKind {
     /// A NeRF-synthetic data set in a directory: `transforms.json` and
     /// `r_<k>.png` per view (RGBA, alpha = the hit mask).
     Dataset,
+    /// A neural SDF's surface sphere-traced from every view (normals as
+    /// colours) as an animated GIF: the geometry of a model whose `gif`
+    /// shows its volume-rendered colour.
+    GeometryGif { fps: f64 },
     /// The surface (zero level set) as a triangle mesh in a PLY file.
     Mesh {
         /// Grid cells along the region's longest side.

@@ -236,7 +236,8 @@ pub fn write_volume_outputs(
                 | OutputKind::Normals
                 | OutputKind::Mask
                 // Written by the job, which knows the field's distance.
-                | OutputKind::Mesh { .. } => continue,
+                | OutputKind::Mesh { .. }
+                | OutputKind::GeometryGif { .. } => continue,
                 OutputKind::Image => ("image", rgb8(&colour), (w, h)),
                 OutputKind::Depth => ("depth", crate::render::depth_image(&depth), (w, h)),
                 OutputKind::Grid => ("grid_image", figures::xy_grid_image(w, h), (w, h)),

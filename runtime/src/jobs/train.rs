@@ -441,6 +441,13 @@ pub fn run_train_job(
                 .into_iter()
                 .map(|m| m.0),
         );
+        written.extend(write_geometry_gifs(
+            job,
+            &job.before,
+            &run.values(),
+            wh,
+            out_dir,
+        )?);
     }
 
     let t = Instant::now();
@@ -524,12 +531,24 @@ pub fn run_train_job(
     let volume_outputs: Vec<Output> = job
         .after
         .iter()
-        .filter(|o| !matches!(o.kind, OutputKind::LossCurve | OutputKind::Mesh { .. }))
+        .filter(|o| {
+            !matches!(
+                o.kind,
+                OutputKind::LossCurve | OutputKind::Mesh { .. } | OutputKind::GeometryGif { .. }
+            )
+        })
         .cloned()
         .collect();
     if !volume_outputs.is_empty() {
         written.extend(render_at(&run.values(), &volume_outputs)?);
     }
+    written.extend(write_geometry_gifs(
+        job,
+        &job.after,
+        &run.values(),
+        wh,
+        out_dir,
+    )?);
     let mut mesh_fit = None;
     for (w, mesh) in write_meshes(&run.values(), &job.after)? {
         // The first mesh against the data's points, or against the true
@@ -647,6 +666,55 @@ pub fn run_train_job(
         written,
         stages,
     })
+}
+
+/// The `geometry_gif`s of a neural SDF model at `values`: its surface
+/// sphere-traced from every view, normals as colours.
+fn write_geometry_gifs(
+    job: &TrainJob,
+    outputs: &[Output],
+    values: &[f32],
+    (w, h): (u32, u32),
+    out_dir: &Path,
+) -> io::Result<Vec<Written>> {
+    let sdf = match &*job.model {
+        Field::NeuralSdf(n) => n,
+        Field::NeuralSurface(n) => &n.sdf,
+        _ => return Ok(Vec::new()),
+    };
+    let net = crate::neural::distance::sdf_net(sdf);
+    let settings = crate::neural::distance::TraceSettings {
+        far: job.sampler.far as f32,
+        ..Default::default()
+    };
+    let mut written = Vec::new();
+    for o in outputs {
+        let OutputKind::GeometryGif { fps } = o.kind else {
+            continue;
+        };
+        let mut gif = crate::output::GifWriter::create(&out_dir.join(&o.path), fps)?;
+        for cam in &job.views {
+            let size = ImageSize {
+                width: w,
+                height: h,
+            };
+            let view =
+                crate::neural::distance::trace_view(&net, &values[..net.len], cam, size, settings)
+                    .map_err(invalid)?;
+            gif.push(w, h, &rgb8(&view.colour))?;
+        }
+        let frames = gif.frames;
+        gif.finish()?;
+        written.push(Written {
+            path: o.path.clone(),
+            kind: "geometry_gif",
+            width: w,
+            height: h,
+            frames,
+            mesh: None,
+        });
+    }
+    Ok(written)
 }
 
 /// Points spread evenly over the true surface of data that sdfl rendered

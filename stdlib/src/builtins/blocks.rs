@@ -347,7 +347,7 @@ pub(crate) fn train_block(name: &str, a: &Args) -> Result<TrainJob, Diag> {
         match &**model {
             Field::Sdf(f) => check_meshes(outputs, Some(&f.shape))?,
             // Bounded by its points or the training `bounds`.
-            Field::NeuralSdf(_) | Field::NeuralSurface(_) => {}
+            Field::NeuralSdf(_) | Field::NeuralSurface(_) => geometry_gifs(outputs, true)?,
             Field::Nerf(_) => check_meshes(outputs, None)?,
         }
     }
@@ -448,6 +448,7 @@ pub(crate) fn volume_block(name: &str, a: &Args, field: Arc<Field>) -> Result<Vo
 /// `mesh` outputs need a distance (`shape`; none for a radiance field) and,
 /// for `bounds: "auto"`, a bounded one.
 fn check_meshes(outputs: &[Output], shape: Option<&Shape>) -> Result<(), Diag> {
+    geometry_gifs(outputs, false)?;
     for o in outputs {
         let OutputKind::Mesh { region, .. } = o.kind else {
             continue;
@@ -470,6 +471,23 @@ fn check_meshes(outputs: &[Output], shape: Option<&Shape>) -> Result<(), Diag> {
         }
     }
     Ok(())
+}
+
+/// `geometry_gif` sphere-traces a neural SDF: only a training statement of
+/// one (`neural` true) writes it.
+fn geometry_gifs(outputs: &[Output], neural: bool) -> Result<(), Diag> {
+    match outputs
+        .iter()
+        .find(|o| matches!(o.kind, OutputKind::GeometryGif { .. }))
+    {
+        Some(o) if !neural => Err(value_error(
+            o.span,
+            "`geometry_gif` shows a trained neural SDF's surface",
+            "not an output of this statement",
+            "ask for it in the `after` of a `train` whose model is a neural SDF; a shape's surface is what `render` draws",
+        )),
+        _ => Ok(()),
+    }
 }
 
 /// The built-in that makes a loss term.

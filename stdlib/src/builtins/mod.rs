@@ -648,6 +648,19 @@ fn table() -> Vec<Builtin> {
             },
         ),
         func(
+            "geometry_gif",
+            "A neural SDF's surface, sphere-traced from every view with normals as colours, as an animated GIF (after `train`): the geometry of a `volsdf(neural_sdf(...))` whose `gif` shows its volume-rendered colour.",
+            vec![
+                req("path", Type::Str, "file name inside the output directory"),
+                opt("fps", Type::Number, "10", "frames per second (> 0)"),
+            ],
+            OUTPUT,
+            |a| {
+                let fps = a.positive("fps")?;
+                out(a, OutputKind::GeometryGif { fps }, "gif")
+            },
+        ),
+        func(
             "mesh",
             "The surface (where the distance is 0) as a triangle mesh in a binary PLY file with normals, for Blender or MeshLab: surface nets on a grid with `resolution` cells along the longest side, vertices projected onto the surface. Of a render's scene, an SDF field, or a trained SDF or neural SDF.",
             vec![
