@@ -70,6 +70,16 @@ fn held_out_psnr(reports: &[serde_json::Value]) -> Option<f64> {
     (!last.is_empty()).then(|| last.iter().sum::<f64>() / last.len() as f64)
 }
 
+/// The mean over a run's training statements of their mesh's Chamfer
+/// distance (to the data's points or the true surface).
+fn mesh_chamfer(reports: &[serde_json::Value]) -> Option<f64> {
+    let c: Vec<f64> = reports
+        .iter()
+        .filter_map(|r| r["report"]["mesh_fit"]["chamfer"].as_f64())
+        .collect();
+    (!c.is_empty()).then(|| c.iter().sum::<f64>() / c.len() as f64)
+}
+
 pub(crate) fn sweep(
     file: &Path,
     name: &str,
@@ -133,8 +143,8 @@ pub(crate) fn sweep(
     let (_, _, ref_dir, ref_reports) = rows.last().expect("at least two settings");
     let ref_images = images_of(ref_reports);
     let ref_params = params_of(ref_reports);
-    let mut table = format!("| {name} | seconds | PSNR vs {name}={} (dB) | max parameter error | held-out PSNR (dB) |\n|---:|---:|---:|---:|---:|\n", values[values.len() - 1]);
-    let mut csv = format!("{name},seconds,psnr_db,param_error,held_out_psnr_db\n");
+    let mut table = format!("| {name} | seconds | PSNR vs {name}={} (dB) | max parameter error | held-out PSNR (dB) | mesh Chamfer |\n|---:|---:|---:|---:|---:|---:|\n", values[values.len() - 1]);
+    let mut csv = format!("{name},seconds,psnr_db,param_error,held_out_psnr_db,mesh_chamfer\n");
     let held_out_any = rows.iter().any(|r| held_out_psnr(&r.3).is_some());
     let mut points = Vec::new();
     // The same quality against the swept value (time may hardly change).
@@ -170,17 +180,20 @@ pub(crate) fn sweep(
             })
         };
         let held = held_out_psnr(reports);
+        let chamfer = mesh_chamfer(reports);
         table.push_str(&format!(
-            "| {v} | {secs:.3} | {} | {} | {} |\n",
+            "| {v} | {secs:.3} | {} | {} | {} | {} |\n",
             fmt(mean_psnr, 2),
             fmt(perr, 5),
-            held.map_or("-".to_string(), |x| format!("{x:.2}"))
+            held.map_or("-".to_string(), |x| format!("{x:.2}")),
+            chamfer.map_or("-".to_string(), |x| format!("{x:.4}"))
         ));
         csv.push_str(&format!(
-            "{v},{secs},{},{},{}\n",
+            "{v},{secs},{},{},{},{}\n",
             mean_psnr.map_or(String::new(), |x| x.to_string()),
             perr.map_or(String::new(), |x| x.to_string()),
-            held.map_or(String::new(), |x| x.to_string())
+            held.map_or(String::new(), |x| x.to_string()),
+            chamfer.map_or(String::new(), |x| x.to_string())
         ));
         // The plot: quality against time: held-out PSNR where training
         // held views out, else PSNR against the reference, else parameter error.
