@@ -233,6 +233,19 @@ fn table() -> Vec<Builtin> {
         },
         eval,
     };
+    // An animated GIF of all views: a path and a frame rate.
+    let animation = |name: &'static str, doc: &'static str, eval: EvalFn| {
+        func(
+            name,
+            doc,
+            vec![
+                req("path", Type::Str, "file name inside the output directory"),
+                opt("fps", Type::Number, "10", "frames per second (> 0)"),
+            ],
+            OUTPUT,
+            eval,
+        )
+    };
     let output = |name: &'static str, doc: &'static str, eval: EvalFn| {
         func(
             name,
@@ -603,32 +616,8 @@ fn table() -> Vec<Builtin> {
         output("image", "Shaded colour as PNG; one file per view (`{view}` in the name, or `_NN` added).", |a| {
             out(a, OutputKind::Image, "png")
         }),
-        func(
-            "gif",
-            "All views as an animated GIF.",
-            vec![
-                req("path", Type::Str, "file name inside the output directory"),
-                opt("fps", Type::Number, "10", "frames per second (> 0)"),
-            ],
-            OUTPUT,
-            |a| {
-                let fps = a.positive("fps")?;
-                out(a, OutputKind::Gif { fps }, "gif")
-            },
-        ),
-        func(
-            "depth_gif",
-            "Depth of all views (colour-mapped as `depth`) as an animated GIF.",
-            vec![
-                req("path", Type::Str, "file name inside the output directory"),
-                opt("fps", Type::Number, "10", "frames per second (> 0)"),
-            ],
-            OUTPUT,
-            |a| {
-                let fps = a.positive("fps")?;
-                out(a, OutputKind::DepthGif { fps }, "gif")
-            },
-        ),
+        animation("gif", "All views as an animated GIF.", |a| out(a, OutputKind::Gif { fps: a.positive("fps")? }, "gif")),
+        animation("depth_gif", "Depth of all views (colour-mapped as `depth`) as an animated GIF.", |a| out(a, OutputKind::DepthGif { fps: a.positive("fps")? }, "gif")),
         output("depth", "Hit depth normalised by its maximum, colour-mapped, as PNG per view; misses black.", |a| {
             out(a, OutputKind::Depth, "png")
         }),
@@ -647,19 +636,7 @@ fn table() -> Vec<Builtin> {
                 Ok(Value::Output(Arc::new(Output { kind: OutputKind::Dataset, path, span: a.span })))
             },
         ),
-        func(
-            "geometry_gif",
-            "A neural SDF's surface, sphere-traced from every view with normals as colours, as an animated GIF (after `train`): the geometry of a `volsdf(neural_sdf(...))` whose `gif` shows its volume-rendered colour.",
-            vec![
-                req("path", Type::Str, "file name inside the output directory"),
-                opt("fps", Type::Number, "10", "frames per second (> 0)"),
-            ],
-            OUTPUT,
-            |a| {
-                let fps = a.positive("fps")?;
-                out(a, OutputKind::GeometryGif { fps }, "gif")
-            },
-        ),
+        animation("geometry_gif", "A neural SDF's surface, sphere-traced from every view with normals as colours, as an animated GIF (after `train`): the geometry of a `volsdf(neural_sdf(...))` whose `gif` shows its volume-rendered colour.", |a| out(a, OutputKind::GeometryGif { fps: a.positive("fps")? }, "gif")),
         func(
             "mesh",
             "The surface (where the distance is 0) as a triangle mesh in a binary PLY file with normals, for Blender or MeshLab: surface nets on a grid with `resolution` cells along the longest side, vertices projected onto the surface. Of a render's scene, an SDF field, or a trained SDF or neural SDF.",
