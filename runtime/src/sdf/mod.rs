@@ -22,7 +22,7 @@ use sdfl_stdlib::material::Material;
 use sdfl_stdlib::num::V3;
 use sdfl_stdlib::param::Arg;
 use sdfl_stdlib::sdf;
-use sdfl_stdlib::shape::{Aabb, Shape};
+use sdfl_stdlib::shape::{cells, repeat_ranges, Aabb, Axis, Shape};
 
 mod bvh;
 mod lower;
