@@ -357,7 +357,7 @@ fn table() -> Vec<Builtin> {
                 if (bottom.value - top.value).abs() >= height.value {
                     return Err(value_error(
                         a.get("height").1,
-                        format!("`height` {} is not above the radii's difference {}", height.value, (bottom.value - top.value).abs()),
+                        format!("`height` {} is not above |bottom - top| = |{} - {}|", sdfl_lang::fmt_num(height.value), sdfl_lang::fmt_num(bottom.value), sdfl_lang::fmt_num(top.value)),
                         "one sphere holds the other",
                         "make `height` larger than |bottom - top|, or use `sphere`",
                     ));
@@ -407,7 +407,7 @@ fn table() -> Vec<Builtin> {
                 if radius.value * 2.0 >= size.value.min_element() {
                     return Err(value_error(
                         a.get("radius").1,
-                        format!("`radius` {} is not below half the smallest side {}", radius.value, size.value.min_element()),
+                        format!("`radius` {} is not below half the smallest side {}", sdfl_lang::fmt_num(radius.value), sdfl_lang::fmt_num(size.value.min_element())),
                         "too round",
                         "use a smaller radius, or `sphere`/`capsule`",
                     ));
