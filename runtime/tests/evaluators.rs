@@ -340,3 +340,32 @@ fn degenerate_unions_stay_exact() {
     );
     assert_eq!(naive.prims.len(), 800);
 }
+
+/// Primitives under a domain operator are lowered in the operator's frame;
+/// their centres (the rainbow's `c`) are still reported in world space,
+/// as the reference's for points near the original (copy at the origin).
+#[test]
+fn warped_primitives_keep_world_centres() {
+    let ball = Arc::new(Shape::Sphere {
+        center: DVec3::new(0.2, 0.1, 0.0).into(),
+        radius: 0.3.into(),
+    });
+    let shape = Shape::Translate(
+        Arc::new(Shape::Scale(
+            Arc::new(Shape::Twist(
+                Arc::new(Shape::Translate(ball, DVec3::new(0.0, 0.0, 0.5).into())),
+                0.7.into(),
+            )),
+            2.0.into(),
+        )),
+        DVec3::new(1.0, -1.0, 0.5).into(),
+    );
+    let l = Lowered::new(&shape, LowerOptions::default());
+    assert_eq!(l.prims.len(), 1);
+    let expected = DVec3::new(0.2, 0.1, 0.5) * 2.0 + DVec3::new(1.0, -1.0, 0.5);
+    assert!(
+        (l.prims[0].center - expected).length() < 1e-12,
+        "{}",
+        l.prims[0].center
+    );
+}

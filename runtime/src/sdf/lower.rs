@@ -6,6 +6,10 @@ pub(super) struct Lowering {
     pub(super) options: LowerOptions,
     pub(super) prims: Vec<PrimInfo>,
     pub(super) bvh_nodes: usize,
+    /// Inside a domain operator: its frame's local → world map, for the
+    /// primitives' centres (the rainbow's `c`; the copy at the origin for
+    /// a repetition).
+    pub(super) warp_to_world: DAffine3,
 }
 
 impl Lowering {
@@ -13,7 +17,7 @@ impl Lowering {
         let id = self.prims.len() as u32;
         let local_center = shape.primitive_center().unwrap_or(DVec3::ZERO);
         self.prims.push(PrimInfo {
-            center: frame.to_local.inverse().transform_point3(local_center),
+            center: (self.warp_to_world * frame.to_local.inverse()).transform_point3(local_center),
             material: frame.material.clone(),
             kind: shape.name(),
         });
@@ -290,8 +294,12 @@ impl Lowering {
     fn warp(&mut self, child: &Shape, op: WarpOp, frame: &Frame) -> Box<dyn Node> {
         let mut inner_frame = Frame::identity();
         inner_frame.material = frame.material.clone();
+        let outer = self.warp_to_world;
+        self.warp_to_world = outer * frame.to_local.inverse();
+        let inner = self.lower(child, &inner_frame);
+        self.warp_to_world = outer;
         Box::new(Warp {
-            inner: self.lower(child, &inner_frame),
+            inner,
             xform: frame.xform(),
             scale: frame.scale as f32,
             op,

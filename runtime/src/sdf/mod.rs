@@ -81,6 +81,7 @@ impl Lowered {
             options,
             prims: Vec::new(),
             bvh_nodes: 0,
+            warp_to_world: DAffine3::IDENTITY,
         };
         let root = cx.lower(shape, &Frame::identity());
         Lowered {
