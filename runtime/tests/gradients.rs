@@ -43,7 +43,7 @@ const CASES: &[(&str, &str)] = &[
     ("link", "sdf_volume(link(length: param(0.6), major: param(0.5), minor: param(0.2), center: param([0.05, 0.1, 0])))"),
     ("cone", "sdf_volume(cone(radius: param(0.7), height: param(1.3), center: param([0.05, 0.1, 0]), axis: \"y\"))"),
     ("elongate", "sdf_volume(elongate(sphere(0.5), param([0.3, 0.1, 0.2])))"),
-    ("repeat", "sdf_volume(repeat(sphere(0.25), spacing: param([0.7, 0.6, 0]), count: [3, 2, 1]))"),
+    ("repeat", "sdf_volume(repeat(sphere(0.25), spacing: param([0.7, 0.6, 0.8]), count: [3, 2, 1]))"),
     ("mirror", "sdf_volume(mirror(sphere(param(0.4), center: param([0.4, 0.1, 0]))))"),
     ("twist", "sdf_volume(twist(box(size: [1, 0.5, 1.2]), rate: param(0.8)))"),
     ("bend", "sdf_volume(bend(box(size: [1.4, 0.4, 0.6]), rate: param(0.5)))"),

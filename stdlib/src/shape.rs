@@ -1020,20 +1020,22 @@ impl Shape {
             return 1;
         };
         let e = shape.extent();
-        (0..3)
+        // In f64: tiny spacings make huge counts, refused by `repeat`.
+        let n: f64 = (0..3)
             .map(|i| {
                 let s = spacing.value[i];
                 if s <= 0.0 {
-                    return 1;
+                    return 1.0;
                 }
-                let within = (2.0 * reach(e[i], s)).floor().min(1e9) as u64 + 1;
+                let within = (2.0 * reach(e[i], s)).floor() + 1.0;
                 if count[i] == 0 {
                     within
                 } else {
-                    within.min(count[i] as u64)
+                    within.min(count[i] as f64)
                 }
             })
-            .product()
+            .product();
+        n.min(u64::MAX as f64) as u64
     }
 
     /// Per axis, how far the shape reaches from its origin (`max(|min|,

@@ -222,3 +222,21 @@ fn repeats_count_their_copies_per_point_in_training_work() {
     let work = |t| sdfl_stdlib::work::train_work(t, None).evaluations;
     assert!(work(b) > work(a) && work(c) > work(b));
 }
+
+/// A trainable spacing must repeat on every axis, and training may not pack
+/// the copies closer than half their starting spacing.
+#[test]
+fn trainable_spacings_are_kept_apart() {
+    assert_eq!(
+        codes_of("let r = repeat(sphere(0.2), spacing: param([1, 0, 1]))"),
+        vec!["sdfl::value::range"]
+    );
+    let src = "let cams = [look_at(eye: [0, 0, -3])]\n\
+               train t { model: sdf_volume(repeat(sphere(0.2), spacing: param([1, 0.8, 1]), count: [3, 1, 3])), data: render_views(sdf_volume(sphere()), cameras: cams, size: [4, 4]) }";
+    let p = load(&SourceFile::new("t.sdfl", src)).unwrap_or_else(|e| panic!("{e:?}"));
+    let mut bounds = Vec::new();
+    p.trains[0]
+        .model
+        .visit_params(&mut |u| bounds.push(u.bound));
+    assert_eq!(bounds, vec![sdfl_stdlib::param::Bound::AtLeast(0.4)]);
+}

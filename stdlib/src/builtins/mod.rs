@@ -581,7 +581,16 @@ fn table() -> Vec<Builtin> {
             SHAPE,
             |a| {
                 let s = a.shape("shape")?;
-                let spacing = a.vec3_arg("spacing", Bound::Within(0.0, f64::MAX))?;
+                let mut spacing = a.vec3_arg("spacing", Bound::Within(0.0, f64::MAX))?;
+                // Training may not pack the copies much closer than they
+                // start (each point would evaluate ever more of them).
+                if let Some(u) = &mut spacing.param {
+                    let least = spacing.value.min_element();
+                    if least <= 0.0 {
+                        return Err(value_error(a.get("spacing").1, "a trainable `spacing` is 0 on some axis", "not repeated there", "give every axis a spacing and `count: 1` where it is not repeated"));
+                    }
+                    u.bound = Bound::AtLeast(least * 0.5);
+                }
                 let (cv, cspan) = (a.vec3("count")?, a.get("count").1);
                 if cv.to_array().iter().any(|c| c.fract() != 0.0 || *c < 0.0 || *c > 1e6) {
                     return Err(value_error(cspan, "`count` must be whole numbers from 0 to 1000000", "not a count", "write e.g. `count: [5, 1, 5]` (0: infinitely many)"));
