@@ -391,7 +391,7 @@ fn table() -> Vec<Builtin> {
         ),
         func(
             "rounded_box",
-            "A box of full side lengths `size` with edges rounded by `radius`: sugar for `round(box(size - 2·radius), radius)`, so it spans exactly `size` (exact outside, a bound inside).",
+            "A box of full side lengths `size` with edges rounded by `radius`: sugar for `round(box(size - 2·radius), radius)`, so it spans exactly `size` (exact outside, a bound inside). Not trainable: write `round(box(size: param(..)), param(..))` to fit one.",
             vec![
                 opt("size", num_or_vec(), "[1, 1, 1]", "side lengths (> 0); a number for a cube"),
                 opt("radius", Type::Number, "0.1", "edge radius (> 0, below half the smallest side)"),
