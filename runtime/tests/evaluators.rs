@@ -7,7 +7,7 @@ use std::sync::Arc;
 
 use glam::{DVec3, Vec3A};
 use sdfl_runtime::{LowerOptions, Lowered};
-use sdfl_stdlib::shape::Shape;
+use sdfl_stdlib::shape::{Axis, Shape};
 
 struct Lcg(u64);
 impl Lcg {
@@ -51,6 +51,7 @@ fn primitive(rng: &mut Lcg) -> Shape {
             center: c.into(),
             major: rng.range(0.2, 0.4).into(),
             minor: rng.range(0.03, 0.1).into(),
+            axis: Axis::Z,
         },
         4 => Shape::Capsule {
             a: c.into(),
@@ -61,6 +62,7 @@ fn primitive(rng: &mut Lcg) -> Shape {
             center: c.into(),
             radius: rng.range(0.05, 0.3).into(),
             height: rng.range(0.1, 0.6).into(),
+            axis: Axis::Z,
         },
         // Fields evaluate in the order written: the random draws keep their order.
         _ => Shape::Rotate {
@@ -122,7 +124,76 @@ fn random_scene(seed: u64, n: usize, with_bounds_ops: bool) -> Shape {
             height: 0.5.into(),
             bottom: 0.25.into(),
             top: 0.05.into(),
+            axis: Axis::Y,
         }));
+        // The newer primitives along every axis, and the domain operators
+        // (each lowered as a warp node, some under transforms).
+        members.push(Arc::new(Shape::RoundCone {
+            center: rng.v3(2.0).into(),
+            bottom: 0.2.into(),
+            top: 0.08.into(),
+            height: 0.4.into(),
+            axis: Axis::X,
+        }));
+        members.push(Arc::new(Shape::HexPrism {
+            center: rng.v3(2.0).into(),
+            radius: 0.2.into(),
+            height: 0.3.into(),
+            axis: Axis::Y,
+        }));
+        members.push(Arc::new(Shape::TriPrism {
+            center: rng.v3(2.0).into(),
+            side: 0.4.into(),
+            height: 0.2.into(),
+            axis: Axis::Z,
+        }));
+        members.push(Arc::new(Shape::Link {
+            center: rng.v3(2.0).into(),
+            length: 0.3.into(),
+            major: 0.15.into(),
+            minor: 0.04.into(),
+            axis: Axis::X,
+        }));
+        let (e, f) = (Arc::new(primitive(&mut rng)), Arc::new(primitive(&mut rng)));
+        members.push(Arc::new(Shape::Elongate(
+            e.clone(),
+            DVec3::new(0.2, 0.0, 0.1).into(),
+        )));
+        members.push(Arc::new(Shape::Mirror(f.clone(), Axis::X)));
+        members.push(Arc::new(Shape::Translate(
+            Arc::new(Shape::Twist(e.clone(), 2.0.into())),
+            rng.v3(1.0).into(),
+        )));
+        members.push(Arc::new(Shape::Scale(
+            Arc::new(Shape::Bend(f.clone(), 1.5.into())),
+            0.8.into(),
+        )));
+        members.push(Arc::new(Shape::ScaleXyz(
+            e,
+            DVec3::new(1.5, 0.6, 1.0).into(),
+        )));
+        let small: Vec<Arc<Shape>> = (0..3)
+            .map(|_| {
+                Arc::new(Shape::Sphere {
+                    center: rng.v3(0.3).into(),
+                    radius: 0.1.into(),
+                })
+            })
+            .collect();
+        members.push(Arc::new(Shape::Repeat {
+            shape: Arc::new(Shape::Union(small)),
+            spacing: DVec3::new(0.7, 0.0, 0.5).into(),
+            count: [5, 1, 3],
+        }));
+        // Unbounded: kept out of the BVH, never culled.
+        members.push(Arc::new(Shape::Translate(
+            Arc::new(Shape::Repeat {
+                shape: f,
+                spacing: DVec3::new(1.3, 0.0, 1.1).into(),
+                count: [0, 1, 0],
+            }),
+            DVec3::new(0.0, -3.0, 0.0).into(),
+        )));
     }
     Shape::Union(members)
 }
@@ -268,4 +339,33 @@ fn degenerate_unions_stay_exact() {
         },
     );
     assert_eq!(naive.prims.len(), 800);
+}
+
+/// Primitives under a domain operator are lowered in the operator's frame;
+/// their centres (the rainbow's `c`) are still reported in world space,
+/// as the reference's for points near the original (copy at the origin).
+#[test]
+fn warped_primitives_keep_world_centres() {
+    let ball = Arc::new(Shape::Sphere {
+        center: DVec3::new(0.2, 0.1, 0.0).into(),
+        radius: 0.3.into(),
+    });
+    let shape = Shape::Translate(
+        Arc::new(Shape::Scale(
+            Arc::new(Shape::Twist(
+                Arc::new(Shape::Translate(ball, DVec3::new(0.0, 0.0, 0.5).into())),
+                0.7.into(),
+            )),
+            2.0.into(),
+        )),
+        DVec3::new(1.0, -1.0, 0.5).into(),
+    );
+    let l = Lowered::new(&shape, LowerOptions::default());
+    assert_eq!(l.prims.len(), 1);
+    let expected = DVec3::new(0.2, 0.1, 0.5) * 2.0 + DVec3::new(1.0, -1.0, 0.5);
+    assert!(
+        (l.prims[0].center - expected).length() < 1e-12,
+        "{}",
+        l.prims[0].center
+    );
 }

@@ -171,6 +171,46 @@ fn lipschitz_scaled_steps_do_not_tunnel_through_thin_bound_shapes() {
     assert!(tunnelled_without_scaling > 0);
 }
 
+#[test]
+fn twisted_and_bent_thin_plates_are_hit_where_first_crossed() {
+    // Thin plates turned fast: the warped field's gradient reaches
+    // 1 + |rate|·R, and the tracer's steps are shortened by that.
+    let plate = Arc::new(Shape::Box {
+        center: DVec3::ZERO.into(),
+        size: DVec3::new(2.4, 0.03, 2.0).into(),
+    });
+    for shape in [
+        Shape::Twist(plate.clone(), 2.5.into()),
+        Shape::Bend(plate.clone(), 1.2.into()),
+    ] {
+        let l = lower(&shape);
+        assert!(l.lipschitz > 2.0, "{}: {}", shape.name(), l.lipschitz);
+        let s = TraceSettings {
+            max_steps: 4000,
+            ..settings(&l)
+        };
+        let mut hits = 0;
+        for k in 0..40 {
+            let x = -0.9 + 1.8 * k as f64 / 39.0;
+            let o = DVec3::new(x, 2.0, -0.5 + 0.02 * k as f64);
+            let d = DVec3::new(0.1, -1.0, 0.25).normalize();
+            let Some(expected) = first_crossing(&shape, o, d, 5.0) else {
+                continue;
+            };
+            hits += 1;
+            let h = sphere_trace(&*l.root, o.as_vec3().into(), d.as_vec3().into(), &s);
+            assert!(h.hit, "{}: ray {k} missed", shape.name());
+            assert!(
+                (h.t as f64 - expected).abs() < 2e-3,
+                "{}: ray {k} hit at {} but the surface is first crossed at {expected}",
+                shape.name(),
+                h.t
+            );
+        }
+        assert!(hits >= 15, "{}: only {hits} rays cross", shape.name());
+    }
+}
+
 fn job(material: Material, outputs: Vec<OutputKind>) -> RenderJob {
     RenderJob {
         name: "t".into(),

@@ -54,10 +54,10 @@ pub fn octahedron<T: Real>(p: V3<T>, center: V3<T>, size: T) -> T {
 }
 
 /// Capped cone along Z, full `height`, radius `bottom` at `z = −height/2`
-/// and `top` at `+height/2` (Inigo Quilez's exact formula).
+/// and `top` at `+height/2` (Inigo Quilez's exact formula). `d` is the point
+/// in the cone's frame ([`along`]).
 #[inline(always)]
-pub fn capped_cone<T: Real>(p: V3<T>, center: V3<T>, height: T, bottom: T, top: T) -> T {
-    let d = p - center;
+pub fn capped_cone<T: Real>(d: V3<T>, height: T, bottom: T, top: T) -> T {
     let h = height * T::lit(0.5);
     let (qx, qy) = ((d.x * d.x + d.y * d.y).sqrt(), d.z);
     // The nearer cap's radius, and the slanted side as a segment.
@@ -77,10 +77,9 @@ pub fn capped_cone<T: Real>(p: V3<T>, center: V3<T>, height: T, bottom: T, top: 
     }
 }
 
-/// Torus in the XY plane around the Z axis.
+/// Torus in the XY plane around the Z axis (`q` in its frame, [`along`]).
 #[inline(always)]
-pub fn torus<T: Real>(p: V3<T>, center: V3<T>, major: T, minor: T) -> T {
-    let q = p - center;
+pub fn torus<T: Real>(q: V3<T>, major: T, minor: T) -> T {
     let a = (q.x * q.x + q.y * q.y).sqrt() - major;
     (a * a + q.z * q.z).sqrt() - minor
 }
@@ -99,14 +98,125 @@ pub fn capsule<T: Real>(p: V3<T>, a: V3<T>, b: V3<T>, radius: T) -> T {
     (pa - ba * h).length() - radius
 }
 
-/// Capped cylinder along the Z axis with full `height`.
+/// Capped cylinder along the Z axis with full `height` (`q` in its frame).
 #[inline(always)]
-pub fn cylinder<T: Real>(p: V3<T>, center: V3<T>, radius: T, height: T) -> T {
+pub fn cylinder<T: Real>(q: V3<T>, radius: T, height: T) -> T {
+    extrude(
+        (q.x * q.x + q.y * q.y).sqrt() - radius,
+        q.z,
+        height * T::lit(0.5),
+    )
+}
+
+/// The exact distance to a 2D shape with distance `d2` extruded over
+/// `|z| ≤ half`.
+#[inline(always)]
+pub fn extrude<T: Real>(d2: T, z: T, half: T) -> T {
+    let dz = z.abs() - half;
+    let (ox, oz) = (d2.max(T::zero()), dz.max(T::zero()));
+    d2.max(dz).min(T::zero()) + (ox * ox + oz * oz).sqrt()
+}
+
+/// Which world axis a shape built along Z is laid along.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Axis {
+    X,
+    Y,
+    Z,
+}
+
+impl Axis {
+    pub fn index(self) -> usize {
+        self as usize
+    }
+    /// A vector of the shape's frame (its own Z along `self`) in world axes.
+    pub fn to_world(self, v: glam::DVec3) -> glam::DVec3 {
+        match self {
+            Axis::Z => v,
+            Axis::X => glam::DVec3::new(v.z, v.x, v.y),
+            Axis::Y => glam::DVec3::new(v.y, v.z, v.x),
+        }
+    }
+}
+
+/// `p − center` in the frame of a shape built along Z and laid along `axis`:
+/// a cyclic permutation of the coordinates, i.e. a rotation, so an exact
+/// distance stays exact.
+#[inline(always)]
+pub fn along<T: Real>(p: V3<T>, center: V3<T>, axis: Axis) -> V3<T> {
     let q = p - center;
-    let dx = (q.x * q.x + q.y * q.y).sqrt() - radius;
-    let dz = q.z.abs() - height * T::lit(0.5);
-    let (ox, oz) = (dx.max(T::zero()), dz.max(T::zero()));
-    dx.max(dz).min(T::zero()) + (ox * ox + oz * oz).sqrt()
+    match axis {
+        Axis::Z => q,
+        Axis::X => V3::new(q.y, q.z, q.x),
+        Axis::Y => V3::new(q.z, q.x, q.y),
+    }
+}
+
+/// Two spheres along Z, radius `bottom` at `z = −height/2` and `top` at
+/// `+height/2`, and the cone tangent to both (their convex hull): exact.
+/// Needs `|bottom − top| < height` (else one sphere holds the other).
+#[inline(always)]
+pub fn round_cone<T: Real>(q: V3<T>, bottom: T, top: T, height: T) -> T {
+    // Sine and cosine of the side's slope; the clamp keeps trained values finite.
+    let b = ((bottom - top) / height).clamp(-0.999, 0.999);
+    let a = (T::one() - b * b).sqrt();
+    let (x, z) = ((q.x * q.x + q.y * q.y).sqrt(), q.z + height * T::lit(0.5));
+    // Where the point projects along the side: below, on or above it.
+    let k = a * z - b * x;
+    if k.val() < 0.0 {
+        (x * x + z * z).sqrt() - bottom
+    } else if k.val() > (a * height).val() {
+        let zt = z - height;
+        (x * x + zt * zt).sqrt() - top
+    } else {
+        x * a + z * b - bottom
+    }
+}
+
+/// Hexagonal prism along Z: flat sides at distance `radius` from the axis
+/// (two of them parallel to X), full `height`; exact.
+#[inline(always)]
+pub fn hex_prism<T: Real>(q: V3<T>, radius: T, height: T) -> T {
+    let (kx, ky) = (T::lit(-(3f64.sqrt()) / 2.0), T::lit(0.5));
+    let (mut x, mut y) = (q.x.abs(), q.y.abs());
+    // Fold the slanted sides onto the top one.
+    let t = (kx * x + ky * y).min(T::zero()) * T::lit(2.0);
+    x = x - t * kx;
+    y = y - t * ky;
+    // The top side runs over |x| ≤ radius/√3.
+    let half = radius * T::lit(1.0 / 3f64.sqrt());
+    let (ex, ey) = (x - x.max(-half).min(half), y - radius);
+    let len = (ex * ex + ey * ey).sqrt();
+    let d2 = if ey.val() < 0.0 { -len } else { len };
+    extrude(d2, q.z, height * T::lit(0.5))
+}
+
+/// Prism along Z over an equilateral triangle of side `side` centred on
+/// its centroid, one vertex towards +Y, full `height`; exact.
+#[inline(always)]
+pub fn tri_prism<T: Real>(q: V3<T>, side: T, height: T) -> T {
+    let k = T::lit(3f64.sqrt());
+    let r = side * T::lit(0.5);
+    let (mut x, mut y) = (q.x.abs() - r, q.y + r / k);
+    // Reflect across the right side's normal onto the base's frame.
+    if (x + k * y).val() > 0.0 {
+        let (nx, ny) = ((x - k * y) * T::lit(0.5), (-k * x - y) * T::lit(0.5));
+        x = nx;
+        y = ny;
+    }
+    x = x - x.max(-(r + r)).min(T::zero());
+    let len = (x * x + y * y).sqrt();
+    let d2 = if y.val() < 0.0 { len } else { -len };
+    extrude(d2, q.z, height * T::lit(0.5))
+}
+
+/// A chain link in the XY plane: a torus (`major`, `minor`) cut across Y
+/// and pulled apart by straight parts of full `length`; exact.
+#[inline(always)]
+pub fn link<T: Real>(q: V3<T>, length: T, major: T, minor: T) -> T {
+    let y = (q.y.abs() - length * T::lit(0.5)).max(T::zero());
+    let a = (q.x * q.x + y * y).sqrt() - major;
+    (a * a + q.z * q.z).sqrt() - minor
 }
 
 /// `dot(p, normal) − height`, `normal` unit length.
@@ -148,6 +258,81 @@ pub fn displacement<T: Real>(p: V3<T>, amplitude: T, frequency: T) -> T {
 #[inline(always)]
 pub fn rainbow<T: Real>(p: V3<T>, center: V3<T>) -> V3<T> {
     (p - center).abs().map(|v| v.clamp(0.02, 0.98))
+}
+
+/// `p − clamp(p, −h, h)`: a shape elongated by `h` on each side (the
+/// shape is cut at its centre planes and the gap filled with its section).
+#[inline(always)]
+pub fn elongate<T: Real>(p: V3<T>, h: V3<T>) -> V3<T> {
+    p.zip(h, |x, h| x - x.max(-h).min(h))
+}
+
+/// `p` with its XY part rotated by `angle` about Z.
+#[inline(always)]
+fn spin<T: Real>(p: V3<T>, angle: T) -> V3<T> {
+    let (s, c) = (angle.sin(), angle.cos());
+    V3::new(c * p.x - s * p.y, s * p.x + c * p.y, p.z)
+}
+
+/// Twist about Z: each slice turned by `rate·z`.
+#[inline(always)]
+pub fn twist<T: Real>(p: V3<T>, rate: T) -> V3<T> {
+    spin(p, rate * p.z)
+}
+
+/// Bend in the XY plane: each slice across X turned by `rate·x`.
+#[inline(always)]
+pub fn bend<T: Real>(p: V3<T>, rate: T) -> V3<T> {
+    spin(p, rate * p.x)
+}
+
+/// The nearest point to `p` of the cylinder `|xy| ≤ radius`,
+/// `lo ≤ z ≤ hi`, and the distance to it (0 inside). Twists and bends turn
+/// points about Z, so a shape inside this cylinder stays inside it; they
+/// are evaluated at the nearest point and bounded below by the distance
+/// to the cylinder, which keeps their Lipschitz constant finite everywhere.
+#[inline(always)]
+pub fn into_cylinder<T: Real>(p: V3<T>, radius: f64, lo: f64, hi: f64) -> (V3<T>, T) {
+    let r = (p.x * p.x + p.y * p.y).sqrt();
+    let f = if r.val() > radius {
+        T::lit(radius) / r
+    } else {
+        T::one()
+    };
+    let q = V3::new(p.x * f, p.y * f, p.z.clamp(lo, hi));
+    (q, (p - q).length())
+}
+
+/// A warped distance `d` taken at the nearest point of the warp's region,
+/// `e` away: at least `e` outside, so at least the distance to the region's box.
+#[inline(always)]
+pub fn beyond<T: Real>(e: T, d: T) -> T {
+    if e.val() > 0.0 {
+        e.max(d)
+    } else {
+        d
+    }
+}
+
+/// The copies a repetition evaluates along one axis, as a closed range of
+/// (centred) copy indices: those whose centre is less than `reach` cells from
+/// `u = p/spacing`. Every copy further away has a nearer copy, shifted one
+/// cell towards the point, with every one of its points nearer (this needs
+/// `reach ≥ ½ + extent/spacing`, `extent` the child's reach from its
+/// origin), so the minimum over the range is the union of all copies. `count`
+/// copies (centred on the origin) or infinitely many.
+#[inline(always)]
+pub fn repeat_range(u: f64, reach: f64, count: Option<u32>) -> (f64, f64) {
+    match count {
+        None => ((u - reach).ceil(), (u + reach).floor()),
+        Some(n) => {
+            let mid = (n as f64 - 1.0) * 0.5;
+            let v = u + mid;
+            let lo = (v - reach).ceil().clamp(0.0, n as f64 - 1.0);
+            let hi = (v + reach).floor().clamp(0.0, n as f64 - 1.0);
+            (lo - mid, hi - mid)
+        }
+    }
 }
 
 /// `p` rotated by `angle` around the unit `axis` (Rodrigues' formula).

@@ -17,6 +17,7 @@ use crate::material::Material;
 use crate::num::{Real, V3};
 use crate::param::{Arg, ParamUse};
 use crate::sdf;
+pub use crate::sdf::Axis;
 
 /// An axis-aligned box.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -95,34 +96,68 @@ pub enum Shape {
         center: Arg<DVec3>,
         size: Arg<f64>,
     },
-    /// Along Z: full `height`, radius `bottom` at the lower cap, `top` at the upper.
+    /// Along `axis`: full `height`, radius `bottom` at the lower cap, `top` at the upper.
     CappedCone {
         center: Arg<DVec3>,
         height: Arg<f64>,
         bottom: Arg<f64>,
         top: Arg<f64>,
+        axis: Axis,
+    },
+    /// Spheres of radius `bottom` and `top` `height` apart along `axis`,
+    /// and the cone tangent to both.
+    RoundCone {
+        center: Arg<DVec3>,
+        bottom: Arg<f64>,
+        top: Arg<f64>,
+        height: Arg<f64>,
+        axis: Axis,
+    },
+    /// Flat sides `radius` from the axis, full `height`.
+    HexPrism {
+        center: Arg<DVec3>,
+        radius: Arg<f64>,
+        height: Arg<f64>,
+        axis: Axis,
+    },
+    /// Equilateral triangle of `side`, full `height`.
+    TriPrism {
+        center: Arg<DVec3>,
+        side: Arg<f64>,
+        height: Arg<f64>,
+        axis: Axis,
+    },
+    /// A torus pulled apart by straight parts of `length` (in its frame, along Y).
+    Link {
+        center: Arg<DVec3>,
+        length: Arg<f64>,
+        major: Arg<f64>,
+        minor: Arg<f64>,
+        axis: Axis,
     },
     /// Semi-axes `radii` (a bound).
     Ellipsoid {
         center: Arg<DVec3>,
         radii: Arg<DVec3>,
     },
-    /// In the XY plane around the Z axis.
+    /// Around `axis` (in the XY plane for Z).
     Torus {
         center: Arg<DVec3>,
         major: Arg<f64>,
         minor: Arg<f64>,
+        axis: Axis,
     },
     Capsule {
         a: Arg<DVec3>,
         b: Arg<DVec3>,
         radius: Arg<f64>,
     },
-    /// Capped, along the Z axis.
+    /// Capped, along `axis`.
     Cylinder {
         center: Arg<DVec3>,
         radius: Arg<f64>,
         height: Arg<f64>,
+        axis: Axis,
     },
     /// `dot(p, normal) - height`; `normal` is unit length.
     Plane {
@@ -159,6 +194,24 @@ pub enum Shape {
     Onion(Arc<Shape>, Arg<f64>),
     /// Inside exactly one of the two shapes.
     Xor(Arc<Shape>, Arc<Shape>),
+    /// Cut at the coordinate planes through the origin and pulled `h` apart
+    /// each way (the gap filled with the section): exact outside an exact shape.
+    Elongate(Arc<Shape>, Arg<DVec3>),
+    /// Copies `spacing` apart (a zero component: not repeated on that axis),
+    /// `count` per axis centred on the origin (0: infinitely many).
+    Repeat {
+        shape: Arc<Shape>,
+        spacing: Arg<DVec3>,
+        count: [u32; 3],
+    },
+    /// The shape's half on the positive side of `axis`, reflected to the other.
+    Mirror(Arc<Shape>, Axis),
+    /// Each slice across Z turned by `rate·z` (a bound, see [`Shape::lipschitz`]).
+    Twist(Arc<Shape>, Arg<f64>),
+    /// Each slice across X turned about Z by `rate·x` (a bound).
+    Bend(Arc<Shape>, Arg<f64>),
+    /// Non-uniform scale: `max(min(s)·d(p/s), box)`, a bound.
+    ScaleXyz(Arc<Shape>, Arg<DVec3>),
 }
 
 /// Where the numeric arguments of a shape come from when it is evaluated:
@@ -251,19 +304,63 @@ impl Shape {
                 height,
                 bottom,
                 top,
+                axis,
             } => {
                 let c = args.vector(center);
                 let (h, b, t) = (args.scalar(height), args.scalar(bottom), args.scalar(top));
-                Sample::prim(sdf::capped_cone(p, c, h, b, t), c)
+                Sample::prim(sdf::capped_cone(sdf::along(p, c, *axis), h, b, t), c)
+            }
+            Shape::RoundCone {
+                center,
+                bottom,
+                top,
+                height,
+                axis,
+            } => {
+                let c = args.vector(center);
+                let (b, t, h) = (args.scalar(bottom), args.scalar(top), args.scalar(height));
+                Sample::prim(sdf::round_cone(sdf::along(p, c, *axis), b, t, h), c)
+            }
+            Shape::HexPrism {
+                center,
+                radius,
+                height,
+                axis,
+            } => {
+                let c = args.vector(center);
+                let (r, h) = (args.scalar(radius), args.scalar(height));
+                Sample::prim(sdf::hex_prism(sdf::along(p, c, *axis), r, h), c)
+            }
+            Shape::TriPrism {
+                center,
+                side,
+                height,
+                axis,
+            } => {
+                let c = args.vector(center);
+                let (s, h) = (args.scalar(side), args.scalar(height));
+                Sample::prim(sdf::tri_prism(sdf::along(p, c, *axis), s, h), c)
+            }
+            Shape::Link {
+                center,
+                length,
+                major,
+                minor,
+                axis,
+            } => {
+                let c = args.vector(center);
+                let (l, a, b) = (args.scalar(length), args.scalar(major), args.scalar(minor));
+                Sample::prim(sdf::link(sdf::along(p, c, *axis), l, a, b), c)
             }
             Shape::Torus {
                 center,
                 major,
                 minor,
+                axis,
             } => {
                 let c = args.vector(center);
-                let d = sdf::torus(p, c, args.scalar(major), args.scalar(minor));
-                Sample::prim(d, c)
+                let q = sdf::along(p, c, *axis);
+                Sample::prim(sdf::torus(q, args.scalar(major), args.scalar(minor)), c)
             }
             Shape::Capsule { a, b, radius } => {
                 let (a, b) = (args.vector(a), args.vector(b));
@@ -274,10 +371,14 @@ impl Shape {
                 center,
                 radius,
                 height,
+                axis,
             } => {
                 let c = args.vector(center);
-                let d = sdf::cylinder(p, c, args.scalar(radius), args.scalar(height));
-                Sample::prim(d, c)
+                let q = sdf::along(p, c, *axis);
+                Sample::prim(
+                    sdf::cylinder(q, args.scalar(radius), args.scalar(height)),
+                    c,
+                )
             }
             Shape::Plane { normal, height } => {
                 let n = V3::lit(normal.to_array());
@@ -374,6 +475,68 @@ impl Shape {
                 }
                 .with_d(d)
             }
+            Shape::Elongate(s, h) => s.sample(sdf::elongate(p, args.vector(h)), args),
+            Shape::Repeat {
+                shape,
+                spacing,
+                count,
+            } => {
+                let s = args.vector(spacing);
+                let ranges = repeat_ranges(p, s, shape.extent(), *count);
+                let mut best: Option<Sample<'s, T>> = None;
+                for kx in cells(ranges[0]) {
+                    for ky in cells(ranges[1]) {
+                        for kz in cells(ranges[2]) {
+                            let off = V3::new(s.x * T::lit(kx), s.y * T::lit(ky), s.z * T::lit(kz));
+                            let inner = shape.sample(p - off, args);
+                            if best.is_none_or(|b| inner.d.val() < b.d.val()) {
+                                best = Some(Sample {
+                                    center: inner.center + off,
+                                    ..inner
+                                });
+                            }
+                        }
+                    }
+                }
+                best.expect("every range holds a copy")
+            }
+            Shape::Mirror(s, axis) => {
+                let mut a = p.to_array();
+                a[axis.index()] = a[axis.index()].abs();
+                s.sample(V3::from_array(a), args)
+            }
+            Shape::Twist(s, rate) | Shape::Bend(s, rate) => {
+                let (radius, lo, hi) = s.turn_region();
+                let (q, e) = sdf::into_cylinder(p, radius, lo, hi);
+                let k = args.scalar(rate);
+                let w = if matches!(self, Shape::Twist(..)) {
+                    sdf::twist(q, k)
+                } else {
+                    sdf::bend(q, k)
+                };
+                let inner = s.sample(w, args);
+                inner.with_d(sdf::beyond(e, inner.d))
+            }
+            Shape::ScaleXyz(s, f) => {
+                let f = args.vector(f);
+                let mul = |a: V3<T>| a.zip(f, |x, y| x * y);
+                let inner = s.sample(p.zip(f, |x, y| x / y), args);
+                let mut d = inner.d * f.min_element();
+                // Scaled distances fall behind along the stretched axes: the
+                // scaled box's distance (also a bound) keeps culling exact.
+                if let Some(b) = s.bounds() {
+                    let (c, size) = (
+                        V3::lit(b.center().to_array()),
+                        V3::lit((b.max - b.min).to_array()),
+                    );
+                    d = d.max(sdf::cuboid(p, mul(c), mul(size)));
+                }
+                Sample {
+                    d,
+                    center: mul(inner.center),
+                    ..inner
+                }
+            }
         }
     }
 
@@ -399,6 +562,35 @@ impl Shape {
             }
             Shape::Plane { height, .. } => s1(height),
             Shape::Octahedron { size, .. } => s1(size),
+            Shape::RoundCone {
+                bottom,
+                top,
+                height,
+                ..
+            } => {
+                s1(bottom);
+                s1(top);
+                s1(height)
+            }
+            Shape::HexPrism { radius, height, .. } => {
+                s1(radius);
+                s1(height)
+            }
+            Shape::TriPrism { side, height, .. } => {
+                s1(side);
+                s1(height)
+            }
+            Shape::Link {
+                length,
+                major,
+                minor,
+                ..
+            } => {
+                s1(length);
+                s1(major);
+                s1(minor)
+            }
+            Shape::Twist(_, k) | Shape::Bend(_, k) => s1(k),
             Shape::CappedCone {
                 height,
                 bottom,
@@ -434,7 +626,13 @@ impl Shape {
             | Shape::Torus { center, .. }
             | Shape::Cylinder { center, .. }
             | Shape::Octahedron { center, .. }
-            | Shape::CappedCone { center, .. } => v3(center),
+            | Shape::CappedCone { center, .. }
+            | Shape::RoundCone { center, .. }
+            | Shape::HexPrism { center, .. }
+            | Shape::TriPrism { center, .. }
+            | Shape::Link { center, .. } => v3(center),
+            Shape::Elongate(_, v) | Shape::ScaleXyz(_, v) => v3(v),
+            Shape::Repeat { spacing, .. } => v3(spacing),
             Shape::Box { center, size } | Shape::BoxFrame { center, size, .. } => {
                 v3(center);
                 v3(size)
@@ -465,7 +663,34 @@ impl Shape {
             | Shape::Capsule { .. }
             | Shape::Cylinder { .. }
             | Shape::CappedCone { .. }
+            | Shape::RoundCone { .. }
+            | Shape::HexPrism { .. }
+            | Shape::TriPrism { .. }
+            | Shape::Link { .. }
             | Shape::Plane { .. } => Exactness::Exact,
+            // Disjoint copies of an exact shape: their union is exact.
+            Shape::Repeat {
+                shape,
+                spacing,
+                count,
+            } => {
+                let (e, s) = (shape.extent(), spacing.value);
+                let apart = (0..3).all(|i| s[i] <= 0.0 || count[i] == 1 || e[i] <= s[i] * 0.5);
+                if apart {
+                    shape.exactness()
+                } else {
+                    Exactness::Bound
+                }
+            }
+            // Reflecting a shape that lies on the kept side adds a copy
+            // never nearer than the original.
+            Shape::Mirror(s, axis) => match s.bounds() {
+                Some(b) if b.min[axis.index()] >= 0.0 => s.exactness(),
+                _ => Exactness::Bound,
+            },
+            Shape::Elongate(..) | Shape::Twist(..) | Shape::Bend(..) | Shape::ScaleXyz(..) => {
+                Exactness::Bound
+            }
             // Offsets of exact distances are exact outside; inside (and
             // for a shell, on both sides) only a bound in general.
             Shape::Ellipsoid { .. }
@@ -506,7 +731,17 @@ impl Shape {
             | Shape::Scale(s, _)
             | Shape::Paint(s, _)
             | Shape::Round(s, _)
-            | Shape::Onion(s, _) => s.lipschitz(),
+            | Shape::Onion(s, _)
+            | Shape::Elongate(s, _)
+            | Shape::Repeat { shape: s, .. }
+            | Shape::Mirror(s, _) => s.lipschitz(),
+            Shape::ScaleXyz(s, _) => s.lipschitz().max(1.0),
+            // Turning by an angle that changes at `rate` per unit moves a
+            // point at radius r by up to `rate·r` more: within the region
+            // (radius R) the Jacobian's norm is at most `1 + |rate|·R`.
+            Shape::Twist(s, k) | Shape::Bend(s, k) => {
+                s.lipschitz() * (1.0 + k.value.abs() * s.turn_region().0)
+            }
             Shape::Displace {
                 shape,
                 amplitude,
@@ -536,9 +771,62 @@ impl Shape {
                 center,
                 major,
                 minor,
+                axis,
             } => {
                 let (r, m) = (major.value, minor.value);
-                Some(Aabb::around(center.value, DVec3::new(r + m, r + m, m)))
+                Some(Aabb::around(
+                    center.value,
+                    axis.to_world(DVec3::new(r + m, r + m, m)),
+                ))
+            }
+            Shape::RoundCone {
+                center,
+                bottom,
+                top,
+                height,
+                axis,
+            } => {
+                let (b, t, h) = (bottom.value, top.value, height.value * 0.5);
+                let r = b.max(t);
+                let (lo, hi) = (DVec3::new(-r, -r, -h - b), DVec3::new(r, r, h + t));
+                let c = center.value;
+                Some(Aabb::new(c + axis.to_world(lo), c + axis.to_world(hi)))
+            }
+            Shape::HexPrism {
+                center,
+                radius,
+                height,
+                axis,
+            } => {
+                let r = radius.value;
+                let half = DVec3::new(r * 2.0 / 3f64.sqrt(), r, height.value * 0.5);
+                Some(Aabb::around(center.value, axis.to_world(half)))
+            }
+            Shape::TriPrism {
+                center,
+                side,
+                height,
+                axis,
+            } => {
+                let (s, h) = (side.value, height.value * 0.5);
+                let inr = s / (2.0 * 3f64.sqrt());
+                let (lo, hi) = (
+                    DVec3::new(-s * 0.5, -inr, -h),
+                    DVec3::new(s * 0.5, 2.0 * inr, h),
+                );
+                let c = center.value;
+                Some(Aabb::new(c + axis.to_world(lo), c + axis.to_world(hi)))
+            }
+            Shape::Link {
+                center,
+                length,
+                major,
+                minor,
+                axis,
+            } => {
+                let (r, m) = (major.value, minor.value);
+                let half = DVec3::new(r + m, length.value * 0.5 + r + m, m);
+                Some(Aabb::around(center.value, axis.to_world(half)))
             }
             Shape::Capsule { a, b, radius } => {
                 Some(Aabb::new(a.value.min(b.value), a.value.max(b.value)).expand(radius.value))
@@ -547,9 +835,10 @@ impl Shape {
                 center,
                 radius,
                 height,
+                axis,
             } => Some(Aabb::around(
                 center.value,
-                DVec3::new(radius.value, radius.value, height.value * 0.5),
+                axis.to_world(DVec3::new(radius.value, radius.value, height.value * 0.5)),
             )),
             Shape::Octahedron { center, size } => {
                 Some(Aabb::around(center.value, DVec3::splat(size.value)))
@@ -559,11 +848,12 @@ impl Shape {
                 height,
                 bottom,
                 top,
+                axis,
             } => {
                 let r = bottom.value.max(top.value);
                 Some(Aabb::around(
                     center.value,
-                    DVec3::new(r, r, height.value * 0.5),
+                    axis.to_world(DVec3::new(r, r, height.value * 0.5)),
                 ))
             }
             Shape::Plane { .. } => None,
@@ -603,6 +893,44 @@ impl Shape {
             Shape::Round(s, r) => s.bounds().map(|b| b.expand(r.value)),
             Shape::Onion(s, t) => s.bounds().map(|b| b.expand(t.value)),
             Shape::Xor(a, b) => Some(a.bounds()?.union(b.bounds()?)),
+            // The clamp moves a point by at most `h` per axis.
+            Shape::Elongate(s, h) => s
+                .bounds()
+                .map(|b| Aabb::new(b.min - h.value, b.max + h.value)),
+            Shape::Repeat {
+                shape,
+                spacing,
+                count,
+            } => {
+                let b = shape.bounds()?;
+                let s = spacing.value;
+                let mut reach = DVec3::ZERO;
+                for i in 0..3 {
+                    if s[i] > 0.0 {
+                        if count[i] == 0 {
+                            return None;
+                        }
+                        reach[i] = s[i] * (count[i] as f64 - 1.0) * 0.5;
+                    }
+                }
+                Some(Aabb::new(b.min - reach, b.max + reach))
+            }
+            Shape::Mirror(s, axis) => s.bounds().map(|b| {
+                let i = axis.index();
+                let e = b.min[i].abs().max(b.max[i].abs());
+                let (mut lo, mut hi) = (b.min, b.max);
+                lo[i] = -e;
+                hi[i] = e;
+                Aabb::new(lo, hi)
+            }),
+            Shape::Twist(s, _) | Shape::Bend(s, _) => {
+                s.bounds()?;
+                let (r, lo, hi) = s.turn_region();
+                Some(Aabb::new(DVec3::new(-r, -r, lo), DVec3::new(r, r, hi)))
+            }
+            Shape::ScaleXyz(s, f) => s
+                .bounds()
+                .map(|b| Aabb::new(b.min * f.value, b.max * f.value)),
         }
     }
 
@@ -622,11 +950,21 @@ impl Shape {
             | Shape::Paint(s, _)
             | Shape::Round(s, _)
             | Shape::Onion(s, _)
-            | Shape::Displace { shape: s, .. } => vec![s],
+            | Shape::Displace { shape: s, .. }
+            | Shape::Elongate(s, _)
+            | Shape::Repeat { shape: s, .. }
+            | Shape::Mirror(s, _)
+            | Shape::Twist(s, _)
+            | Shape::Bend(s, _)
+            | Shape::ScaleXyz(s, _) => vec![s],
             Shape::Sphere { .. }
             | Shape::Ellipsoid { .. }
             | Shape::Octahedron { .. }
             | Shape::CappedCone { .. }
+            | Shape::RoundCone { .. }
+            | Shape::HexPrism { .. }
+            | Shape::TriPrism { .. }
+            | Shape::Link { .. }
             | Shape::Box { .. }
             | Shape::BoxFrame { .. }
             | Shape::Torus { .. }
@@ -647,10 +985,80 @@ impl Shape {
             | Shape::Cylinder { center, .. }
             | Shape::Ellipsoid { center, .. }
             | Shape::Octahedron { center, .. }
-            | Shape::CappedCone { center, .. } => Some(center.value),
+            | Shape::CappedCone { center, .. }
+            | Shape::RoundCone { center, .. }
+            | Shape::HexPrism { center, .. }
+            | Shape::TriPrism { center, .. }
+            | Shape::Link { center, .. } => Some(center.value),
             Shape::Capsule { a, b, .. } => Some((a.value + b.value) * 0.5),
             Shape::Plane { normal, height } => Some(*normal * height.value),
             _ => None,
+        }
+    }
+
+    /// Primitive evaluations per point without culling (what training
+    /// pays): a repetition evaluates its child in every copy that may be
+    /// nearest, at most [`Shape::copies_per_point`].
+    pub fn evaluation_cost(&self) -> f64 {
+        let children = self.children();
+        if children.is_empty() {
+            return 1.0;
+        }
+        let sum: f64 = children.iter().map(|s| s.evaluation_cost()).sum();
+        sum * self.copies_per_point() as f64
+    }
+
+    /// For a repetition, the most copies evaluated at one point (the
+    /// product over axes of the copies within reach); 1 otherwise.
+    pub fn copies_per_point(&self) -> u64 {
+        let Shape::Repeat {
+            shape,
+            spacing,
+            count,
+        } = self
+        else {
+            return 1;
+        };
+        let e = shape.extent();
+        // In f64: tiny spacings make huge counts, refused by `repeat`.
+        let n: f64 = (0..3)
+            .map(|i| {
+                let s = spacing.value[i];
+                if s <= 0.0 {
+                    return 1.0;
+                }
+                let within = (2.0 * reach(e[i], s)).floor() + 1.0;
+                if count[i] == 0 {
+                    within
+                } else {
+                    within.min(count[i] as f64)
+                }
+            })
+            .product();
+        n.min(u64::MAX as f64) as u64
+    }
+
+    /// Per axis, how far the shape reaches from its origin (`max(|min|,
+    /// |max|)` of its bounds; infinite when unbounded).
+    pub fn extent(&self) -> DVec3 {
+        match self.bounds() {
+            Some(b) => b.min.abs().max(b.max.abs()),
+            None => DVec3::INFINITY,
+        }
+    }
+
+    /// The cylinder about Z that holds the shape however it is turned
+    /// about Z: its radius and its Z range (twists and bends).
+    pub fn turn_region(&self) -> (f64, f64, f64) {
+        match self.bounds() {
+            Some(b) => {
+                let (x, y) = (
+                    b.min.x.abs().max(b.max.x.abs()),
+                    b.min.y.abs().max(b.max.y.abs()),
+                );
+                ((x * x + y * y).sqrt(), b.min.z, b.max.z)
+            }
+            None => (f64::INFINITY, f64::NEG_INFINITY, f64::INFINITY),
         }
     }
 
@@ -690,8 +1098,56 @@ impl Shape {
             Shape::Round(..) => "round",
             Shape::Onion(..) => "onion",
             Shape::Xor(..) => "xor",
+            Shape::RoundCone { .. } => "round_cone",
+            Shape::HexPrism { .. } => "hex_prism",
+            Shape::TriPrism { .. } => "tri_prism",
+            Shape::Link { .. } => "link",
+            Shape::Elongate(..) => "elongate",
+            Shape::Repeat { .. } => "repeat",
+            Shape::Mirror(..) => "mirror",
+            Shape::Twist(..) => "twist",
+            Shape::Bend(..) => "bend",
+            Shape::ScaleXyz(..) => "scale",
         }
     }
+}
+
+/// How many cells from a point a repetition must look (see
+/// [`sdf::repeat_range`]); an unbounded child is refused by `repeat`, and
+/// gets its nearest two copies here.
+pub fn reach(extent: f64, spacing: f64) -> f64 {
+    if extent.is_finite() {
+        0.5 + extent / spacing
+    } else {
+        1.0
+    }
+}
+
+/// The copy ranges of a repetition at `p` (a single copy on axes with no spacing).
+pub fn repeat_ranges<T: Real>(
+    p: V3<T>,
+    spacing: V3<T>,
+    extent: DVec3,
+    count: [u32; 3],
+) -> [(f64, f64); 3] {
+    let (p, s) = (p.to_array(), spacing.to_array());
+    std::array::from_fn(|i| {
+        let s = s[i].val();
+        if s > 0.0 {
+            sdf::repeat_range(
+                p[i].val() / s,
+                reach(extent[i], s),
+                (count[i] > 0).then_some(count[i]),
+            )
+        } else {
+            (0.0, 0.0)
+        }
+    })
+}
+
+/// The copy indices of a closed range, one apart.
+pub fn cells((lo, hi): (f64, f64)) -> impl Iterator<Item = f64> {
+    (0..=((hi - lo).round().max(0.0) as i64)).map(move |j| lo + j as f64)
 }
 
 fn smallest(boxes: impl Iterator<Item = Aabb>) -> Option<Aabb> {

@@ -216,7 +216,7 @@ pub fn train_work(j: &TrainJob, size: Option<(u32, u32)>) -> Work {
     let mut scalars = 0usize;
     j.model.visit_params(&mut |u| scalars += u.decl.init.len());
     let per_sample = match &*j.model {
-        Field::Sdf(f) => f.shape.primitive_count() as f64 * (1.0 + scalars.div_ceil(16) as f64),
+        Field::Sdf(f) => f.shape.evaluation_cost() * (1.0 + scalars.div_ceil(16) as f64),
         // Forward and backward through the network, in units of about
         // 10 000 multiply-adds (a few hundred primitive evaluations).
         Field::Nerf(n) => 3.0 * n.multiply_adds_per_sample() as f64 / 10_000.0,

@@ -5,7 +5,11 @@ use std::sync::Arc;
 
 use glam::DVec3;
 use proptest::prelude::*;
-use sdfl_stdlib::shape::Shape;
+use sdfl_stdlib::shape::{Axis, Exactness, Shape};
+
+fn axis() -> impl Strategy<Value = Axis> {
+    prop_oneof![Just(Axis::X), Just(Axis::Y), Just(Axis::Z)]
+}
 
 fn v3(r: f64) -> impl Strategy<Value = DVec3> {
     (-r..r, -r..r, -r..r).prop_map(|(x, y, z)| DVec3::new(x, y, z))
@@ -26,21 +30,49 @@ fn leaf() -> impl Strategy<Value = Shape> {
             size: (s.abs() + DVec3::splat(0.3)).into(),
             thickness: 0.05.into()
         }),
-        (v3(1.0), 0.3f64..1.0, 0.05f64..0.25).prop_map(|(c, a, b)| Shape::Torus {
+        (v3(1.0), 0.3f64..1.0, 0.05f64..0.25, axis()).prop_map(|(c, a, b, axis)| Shape::Torus {
             center: c.into(),
             major: a.into(),
-            minor: b.into()
+            minor: b.into(),
+            axis,
+        }),
+        (v3(1.0), 0.1f64..0.5, 0.0f64..0.5, axis()).prop_map(|(c, a, b, axis)| Shape::RoundCone {
+            center: c.into(),
+            bottom: a.into(),
+            top: (a * 0.3 + 0.02).into(),
+            height: (a + b + 0.05).into(),
+            axis,
+        }),
+        (v3(1.0), 0.05f64..0.8, 0.05f64..1.0, axis()).prop_map(|(c, r, h, axis)| Shape::HexPrism {
+            center: c.into(),
+            radius: r.into(),
+            height: h.into(),
+            axis,
+        }),
+        (v3(1.0), 0.05f64..1.0, 0.05f64..1.0, axis()).prop_map(|(c, s, h, axis)| Shape::TriPrism {
+            center: c.into(),
+            side: s.into(),
+            height: h.into(),
+            axis,
+        }),
+        (v3(1.0), 0.05f64..1.0, 0.2f64..0.6, axis()).prop_map(|(c, l, r, axis)| Shape::Link {
+            center: c.into(),
+            length: l.into(),
+            major: r.into(),
+            minor: (r * 0.3).into(),
+            axis,
         }),
         (v3(1.0), 0.05f64..1.0).prop_map(|(c, s)| Shape::Octahedron {
             center: c.into(),
             size: s.into()
         }),
-        (v3(1.0), 0.05f64..1.0, 0.0f64..0.6, 0.0f64..0.6).prop_map(|(c, h, b, t)| {
+        (v3(1.0), 0.05f64..1.0, 0.0f64..0.6, 0.0f64..0.6, axis()).prop_map(|(c, h, b, t, axis)| {
             Shape::CappedCone {
                 center: c.into(),
                 height: h.into(),
                 bottom: (b + 0.01).into(),
                 top: t.into(),
+                axis,
             }
         }),
         (v3(1.0), v3(1.0)).prop_map(|(c, r)| Shape::Ellipsoid {
@@ -52,10 +84,11 @@ fn leaf() -> impl Strategy<Value = Shape> {
             b: b.into(),
             radius: r.into()
         }),
-        (v3(1.0), 0.05f64..1.0, 0.05f64..1.0).prop_map(|(c, r, h)| Shape::Cylinder {
+        (v3(1.0), 0.05f64..1.0, 0.05f64..1.0, axis()).prop_map(|(c, r, h, axis)| Shape::Cylinder {
             center: c.into(),
             radius: r.into(),
-            height: h.into()
+            height: h.into(),
+            axis,
         }),
     ]
 }
@@ -96,6 +129,20 @@ fn tree() -> impl Strategy<Value = Shape> {
                 amplitude: amp.into(),
                 frequency: f.into()
             }),
+            (a(), v3(0.5)).prop_map(|(x, h)| Shape::Elongate(x, h.abs().into())),
+            // Limited only: an infinite repetition has no bounds.
+            (a(), v3(2.0), (0u32..4, 0u32..4, 0u32..4)).prop_map(|(x, s, (i, j, k))| {
+                Shape::Repeat {
+                    shape: x,
+                    spacing: (s.abs() + DVec3::splat(0.3)).into(),
+                    count: [i + 1, j + 1, k + 1],
+                }
+            }),
+            (a(), axis()).prop_map(|(x, ax)| Shape::Mirror(x, ax)),
+            (a(), -3.0f64..3.0).prop_map(|(x, k)| Shape::Twist(x, k.into())),
+            (a(), -2.0f64..2.0).prop_map(|(x, k)| Shape::Bend(x, k.into())),
+            (a(), v3(1.0))
+                .prop_map(|(x, s)| Shape::ScaleXyz(x, (s.abs() + DVec3::splat(0.2)).into())),
         ]
     })
 }
@@ -111,4 +158,63 @@ proptest! {
             prop_assert!(d >= lb - 1e-9, "{} at {p}: distance {d} < box bound {lb}", shape.name());
         }
     }
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(300))]
+    /// Sphere tracing steps `d / L`: no two points may differ in value by
+    /// more than `L` times their distance (a sampled Lipschitz check, which
+    /// also covers the region borders of twists and bends).
+    #[test]
+    fn values_change_at_most_by_the_lipschitz_constant(
+        shape in tree(),
+        pairs in prop::collection::vec((v3(3.0), v3(0.3)), 32),
+    ) {
+        let l = shape.lipschitz();
+        for (p, dp) in pairs {
+            let (a, b) = (shape.distance(p), shape.distance(p + dp));
+            prop_assert!(
+                (a - b).abs() <= l * dp.length() * (1.0 + 1e-9) + 1e-9,
+                "{}: |{a} - {b}| > {l}·{} at {p}", shape.name(), dp.length()
+            );
+        }
+    }
+
+    /// An exact shape's value is the distance: `|f(p) − f(q)| ≤ |p − q|`,
+    /// so the same check with `L = 1` holds for everything marked exact.
+    #[test]
+    fn exact_shapes_are_1_lipschitz(shape in tree(), pairs in prop::collection::vec((v3(3.0), v3(0.3)), 16)) {
+        if shape.exactness() == Exactness::Exact {
+            for (p, dp) in pairs {
+                let (a, b) = (shape.distance(p), shape.distance(p + dp));
+                prop_assert!((a - b).abs() <= dp.length() + 1e-9, "{} at {p}", shape.name());
+            }
+        }
+    }
+}
+
+/// An infinite repetition has no bounds (unions keep it out of their BVH
+/// and never cull it); a limited one is bounded by its end copies.
+#[test]
+fn infinite_repeat_is_unbounded() {
+    let child = Arc::new(Shape::Sphere {
+        center: DVec3::new(0.1, 0.0, 0.0).into(),
+        radius: 0.3.into(),
+    });
+    let r = |count| Shape::Repeat {
+        shape: child.clone(),
+        spacing: DVec3::new(1.0, 0.0, 1.5).into(),
+        count,
+    };
+    assert_eq!(r([0, 1, 0]).bounds(), None);
+    assert_eq!(r([3, 1, 0]).bounds(), None);
+    let b = r([3, 1, 2]).bounds().unwrap();
+    assert!(
+        (b.min - DVec3::new(-1.2, -0.3, -1.05)).length() < 1e-12,
+        "{b:?}"
+    );
+    assert!(
+        (b.max - DVec3::new(1.4, 0.3, 1.05)).length() < 1e-12,
+        "{b:?}"
+    );
 }

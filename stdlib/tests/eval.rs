@@ -400,3 +400,46 @@ fn indexing_is_cheap_and_comparing_lists_is_budgeted() {
     assert_eq!(codes_of(src), [codes::TOO_LARGE]);
     assert!(t.elapsed().as_secs() < 20, "{:?}", t.elapsed());
 }
+
+/// A repetition lowers its child once, but each point evaluates it in every
+/// copy within reach: training's work estimate counts those evaluations.
+#[test]
+fn repeats_count_their_copies_per_point_in_training_work() {
+    let load_one = |scene: &str| {
+        let src = format!(
+            "let cams = [look_at(eye: [0, 0, -3])]\n\
+             train t {{ model: sdf_volume({scene}), data: render_views(sdf_volume(sphere()), cameras: cams, size: [4, 4]) }}"
+        );
+        load(&SourceFile::new("work.sdfl", src)).unwrap_or_else(|e| panic!("{e:?}"))
+    };
+    let one = load_one("sphere(param(0.2))");
+    let rows = load_one("repeat(sphere(param(0.2)), spacing: [1, 0, 1], count: [5, 1, 5])");
+    let endless = load_one("repeat(sphere(param(0.2)), spacing: [1, 1, 1])");
+    let (a, b, c) = (&one.trains[0], &rows.trains[0], &endless.trains[0]);
+    let cost = |t: &sdfl_stdlib::value::TrainJob| t.model.as_sdf().unwrap().shape.evaluation_cost();
+    // Copies 0.2 wide, 1 apart: the two nearest per repeated axis.
+    assert_eq!(cost(a), 1.0);
+    assert_eq!(cost(b), 4.0);
+    assert_eq!(cost(c), 8.0);
+    assert_eq!(b.model.as_sdf().unwrap().shape.primitive_count(), 1);
+    let work = |t| sdfl_stdlib::work::train_work(t, None).evaluations;
+    assert!(work(b) > work(a) && work(c) > work(b));
+}
+
+/// A trainable spacing must repeat on every axis, and training may not pack
+/// the copies closer than half their starting spacing.
+#[test]
+fn trainable_spacings_are_kept_apart() {
+    assert_eq!(
+        codes_of("let r = repeat(sphere(0.2), spacing: param([1, 0, 1]))"),
+        vec!["sdfl::value::range"]
+    );
+    let src = "let cams = [look_at(eye: [0, 0, -3])]\n\
+               train t { model: sdf_volume(repeat(sphere(0.2), spacing: param([1, 0.8, 1]), count: [3, 1, 3])), data: render_views(sdf_volume(sphere()), cameras: cams, size: [4, 4]) }";
+    let p = load(&SourceFile::new("t.sdfl", src)).unwrap_or_else(|e| panic!("{e:?}"));
+    let mut bounds = Vec::new();
+    p.trains[0]
+        .model
+        .visit_params(&mut |u| bounds.push(u.bound));
+    assert_eq!(bounds, vec![sdfl_stdlib::param::Bound::AtLeast(0.4)]);
+}

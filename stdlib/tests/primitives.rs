@@ -6,7 +6,7 @@ use std::f64::consts::TAU;
 use std::sync::Arc;
 
 use glam::{DQuat, DVec3};
-use sdfl_stdlib::shape::Shape;
+use sdfl_stdlib::shape::{Axis, Exactness, Shape};
 
 /// Deterministic uniform numbers in [0, 1).
 struct Lcg(u64);
@@ -180,6 +180,7 @@ fn torus() {
             center: c.into(),
             major: big.into(),
             minor: small.into(),
+            axis: Axis::Z,
         },
         &surface,
         inside,
@@ -258,6 +259,7 @@ fn cylinder() {
             center: c.into(),
             radius: r.into(),
             height: h.into(),
+            axis: Axis::Z,
         },
         &surface,
         inside,
@@ -372,6 +374,7 @@ fn capped_cone_is_exact() {
             height: h.into(),
             bottom: bottom.into(),
             top: top.into(),
+            axis: Axis::Z,
         };
         let spacing = 0.01;
         let radius_at = |z: f64| bottom + (top - bottom) * (z / h + 0.5);
@@ -403,5 +406,335 @@ fn capped_cone_is_exact() {
             q.z.abs() <= h / 2.0 && q.truncate().length() <= radius_at(q.z)
         };
         check(&shape, &surface, inside, 2.0 * spacing);
+    }
+}
+
+/// Points on the boundary of the solid `inside` (within `lo..hi`): wherever
+/// the inside test changes between neighbouring nodes of a grid of spacing
+/// `h`, the crossing found by bisection. Independent of any SDF formula.
+fn surface_of(inside: &dyn Fn(DVec3) -> bool, lo: DVec3, hi: DVec3, h: f64) -> Vec<DVec3> {
+    let n = ((hi - lo) / h).ceil().as_uvec3() + glam::UVec3::ONE;
+    let (nx, ny, nz) = (n.x as usize, n.y as usize, n.z as usize);
+    let at = |i: usize, j: usize, k: usize| lo + DVec3::new(i as f64, j as f64, k as f64) * h;
+    let grid: Vec<bool> = (0..nx * ny * nz)
+        .map(|m| inside(at(m % nx, (m / nx) % ny, m / (nx * ny))))
+        .collect();
+    let idx = |i: usize, j: usize, k: usize| i + nx * (j + ny * k);
+    let mut out = Vec::new();
+    for k in 0..nz {
+        for j in 0..ny {
+            for i in 0..nx {
+                let a = grid[idx(i, j, k)];
+                for (di, dj, dk) in [(1, 0, 0), (0, 1, 0), (0, 0, 1)] {
+                    let (i2, j2, k2) = (i + di, j + dj, k + dk);
+                    if i2 >= nx || j2 >= ny || k2 >= nz || grid[idx(i2, j2, k2)] == a {
+                        continue;
+                    }
+                    let (mut p, mut q) = (at(i, j, k), at(i2, j2, k2));
+                    for _ in 0..40 {
+                        let m = (p + q) * 0.5;
+                        if inside(m) == a {
+                            p = m;
+                        } else {
+                            q = m;
+                        }
+                    }
+                    out.push((p + q) * 0.5);
+                }
+            }
+        }
+    }
+    out
+}
+
+/// A shape built along Z checked against its inside test (in its own
+/// frame, Z up), laid along each axis: the brute-force surface comes from
+/// the inside test, the axis mapping is written here independently.
+fn check_along_axes(make: impl Fn(Axis) -> Shape, local_inside: impl Fn(DVec3) -> bool, c: DVec3) {
+    let h = 0.012;
+    for axis in [Axis::Z, Axis::X, Axis::Y] {
+        let shape = make(axis);
+        assert_eq!(shape.exactness(), Exactness::Exact, "{}", shape.name());
+        let to_local = |p: DVec3| {
+            let q = p - c;
+            match axis {
+                Axis::Z => q,
+                Axis::X => DVec3::new(q.y, q.z, q.x),
+                Axis::Y => DVec3::new(q.z, q.x, q.y),
+            }
+        };
+        let inside = |p: DVec3| local_inside(to_local(p));
+        let b = shape.bounds().unwrap().expand(2.0 * h);
+        let surface = surface_of(&inside, b.min, b.max, h);
+        assert!(
+            surface.len() > 1000,
+            "{}: {} surface points",
+            shape.name(),
+            surface.len()
+        );
+        check(&shape, &surface, inside, 1.5 * h);
+    }
+}
+
+#[test]
+fn round_cone_is_exact() {
+    let c = DVec3::new(0.1, -0.2, 0.05);
+    let (r1, r2, h) = (0.45, 0.15, 0.8);
+    // The union of spheres along the axis, radius varying linearly: the
+    // distance to it is convex in the parameter, so a ternary search finds it.
+    let inside = |q: DVec3| {
+        let f =
+            |t: f64| (q - DVec3::new(0.0, 0.0, -h / 2.0 + h * t)).length() - (r1 + (r2 - r1) * t);
+        let (mut a, mut b) = (0.0, 1.0);
+        for _ in 0..100 {
+            let (m1, m2) = (a + (b - a) / 3.0, b - (b - a) / 3.0);
+            if f(m1) < f(m2) {
+                b = m2;
+            } else {
+                a = m1;
+            }
+        }
+        f((a + b) / 2.0) < 0.0
+    };
+    check_along_axes(
+        |axis| Shape::RoundCone {
+            center: c.into(),
+            bottom: r1.into(),
+            top: r2.into(),
+            height: h.into(),
+            axis,
+        },
+        inside,
+        c,
+    );
+}
+
+#[test]
+fn hex_prism_is_exact() {
+    let c = DVec3::new(-0.1, 0.05, 0.2);
+    let (r, h) = (0.4, 0.7);
+    let inside = |q: DVec3| {
+        q.y.abs() <= r
+            && 3f64.sqrt() / 2.0 * q.x.abs() + q.y.abs() / 2.0 <= r
+            && q.z.abs() <= h / 2.0
+    };
+    check_along_axes(
+        |axis| Shape::HexPrism {
+            center: c.into(),
+            radius: r.into(),
+            height: h.into(),
+            axis,
+        },
+        inside,
+        c,
+    );
+}
+
+#[test]
+fn tri_prism_is_exact() {
+    let c = DVec3::new(0.2, 0.0, -0.1);
+    let (side, h) = (0.9, 0.5);
+    let k = 3f64.sqrt();
+    // Base at −inradius, apex at +2·inradius, sides through the apex.
+    let inside = |q: DVec3| {
+        q.y >= -side / (2.0 * k) && k * q.x.abs() + q.y <= side / k && q.z.abs() <= h / 2.0
+    };
+    check_along_axes(
+        |axis| Shape::TriPrism {
+            center: c.into(),
+            side: side.into(),
+            height: h.into(),
+            axis,
+        },
+        inside,
+        c,
+    );
+}
+
+#[test]
+fn link_is_exact() {
+    let c = DVec3::new(0.0, 0.1, 0.1);
+    let (len, big, small) = (0.6, 0.35, 0.1);
+    // Two straight tubes at x = ±major and two half tori at y = ±length/2.
+    let inside = |q: DVec3| {
+        let y = q.y.abs() - len / 2.0;
+        if y <= 0.0 {
+            (q.x.abs() - big).powi(2) + q.z * q.z < small * small
+        } else {
+            ((q.x * q.x + y * y).sqrt() - big).powi(2) + q.z * q.z < small * small
+        }
+    };
+    check_along_axes(
+        |axis| Shape::Link {
+            center: c.into(),
+            length: len.into(),
+            major: big.into(),
+            minor: small.into(),
+            axis,
+        },
+        inside,
+        c,
+    );
+}
+
+#[test]
+fn torus_cylinder_and_cone_along_each_axis() {
+    let c = DVec3::new(0.1, 0.2, -0.1);
+    let (big, small) = (0.5, 0.15);
+    check_along_axes(
+        |axis| Shape::Torus {
+            center: c.into(),
+            major: big.into(),
+            minor: small.into(),
+            axis,
+        },
+        |q| ((q.x * q.x + q.y * q.y).sqrt() - big).powi(2) + q.z * q.z < small * small,
+        c,
+    );
+    let (r, h) = (0.35, 0.8);
+    check_along_axes(
+        |axis| Shape::Cylinder {
+            center: c.into(),
+            radius: r.into(),
+            height: h.into(),
+            axis,
+        },
+        |q| (q.x * q.x + q.y * q.y).sqrt() < r && q.z.abs() < h / 2.0,
+        c,
+    );
+    // A pointed cone (`top: 0`).
+    check_along_axes(
+        |axis| Shape::CappedCone {
+            center: c.into(),
+            height: h.into(),
+            bottom: r.into(),
+            top: 0.0.into(),
+            axis,
+        },
+        |q| q.z.abs() < h / 2.0 && (q.x * q.x + q.y * q.y).sqrt() < r * (0.5 - q.z / h),
+        c,
+    );
+}
+
+fn ball(c: DVec3, r: f64) -> Arc<Shape> {
+    Arc::new(Shape::Sphere {
+        center: c.into(),
+        radius: r.into(),
+    })
+}
+
+/// The union of the copies, written out.
+fn copies(
+    shape: &Arc<Shape>,
+    spacing: DVec3,
+    range: [std::ops::RangeInclusive<i32>; 3],
+    centre: DVec3,
+) -> Shape {
+    let mut out = Vec::new();
+    for i in range[0].clone() {
+        for j in range[1].clone() {
+            for k in range[2].clone() {
+                let off = DVec3::new(i as f64, j as f64, k as f64) * spacing - centre;
+                out.push(Arc::new(Shape::Translate(shape.clone(), off.into())));
+            }
+        }
+    }
+    Shape::Union(out)
+}
+
+/// Repetitions equal the union of their copies, written out, everywhere
+/// (across cell borders too), for copies apart, touching and overlapping,
+/// and for children off-centre in their cell.
+#[test]
+fn repeat_is_the_union_of_its_copies() {
+    let child = |c: DVec3, r: f64| {
+        Arc::new(Shape::Union(vec![
+            ball(c, r),
+            Arc::new(Shape::Box {
+                center: (c + DVec3::new(0.2, -0.1, 0.0)).into(),
+                size: DVec3::new(0.3, 0.5, r).into(),
+            }),
+        ]))
+    };
+    let spacing = DVec3::new(1.0, 0.8, 0.0);
+    let mut rng = Lcg(3);
+    for (c, r) in [
+        (DVec3::ZERO, 0.25),
+        (DVec3::new(0.3, 0.1, 0.0), 0.3),
+        (DVec3::ZERO, 0.9),
+        (DVec3::new(-0.6, 0.2, 0.1), 0.7),
+    ] {
+        let shape = child(c, r);
+        // Limited: 4 × 3 copies, centred.
+        let limited = Shape::Repeat {
+            shape: shape.clone(),
+            spacing: spacing.into(),
+            count: [4, 3, 1],
+        };
+        let brute = copies(
+            &shape,
+            spacing,
+            [0..=3, 0..=2, 0..=0],
+            DVec3::new(1.5, 0.8, 0.0),
+        );
+        // Infinite, against enough copies to cover the points tested.
+        let infinite = Shape::Repeat {
+            shape: shape.clone(),
+            spacing: spacing.into(),
+            count: [0, 0, 1],
+        };
+        let many = copies(&shape, spacing, [-12..=12, -12..=12, 0..=0], DVec3::ZERO);
+        for _ in 0..2000 {
+            let p = rng.in_box(DVec3::splat(-4.0), DVec3::splat(4.0));
+            let (a, b) = (limited.distance(p), brute.distance(p));
+            assert!(
+                (a - b).abs() < 1e-12,
+                "limited {a} vs copies {b} at {p} ({c}, {r})"
+            );
+            let (a, b) = (infinite.distance(p), many.distance(p));
+            assert!(
+                (a - b).abs() < 1e-12,
+                "infinite {a} vs copies {b} at {p} ({c}, {r})"
+            );
+        }
+    }
+}
+
+/// Elongating a sphere gives a capsule; mirroring a shape on the positive
+/// side gives the union with its reflection (both exact).
+#[test]
+fn elongate_and_mirror_match_their_constructions() {
+    // Cut at the plane x = 0 through the sphere's centre.
+    let s = ball(DVec3::new(0.0, 0.2, -0.1), 0.3);
+    let long = Shape::Elongate(s.clone(), DVec3::new(0.5, 0.0, 0.0).into());
+    let capsule = Shape::Capsule {
+        a: DVec3::new(-0.5, 0.2, -0.1).into(),
+        b: DVec3::new(0.5, 0.2, -0.1).into(),
+        radius: 0.3.into(),
+    };
+    let right = Arc::new(Shape::Box {
+        center: DVec3::new(0.6, 0.1, 0.0).into(),
+        size: DVec3::new(0.4, 0.3, 0.5).into(),
+    });
+    let mirrored = Shape::Mirror(right.clone(), Axis::X);
+    assert_eq!(mirrored.exactness(), Exactness::Exact);
+    let both = Shape::Union(vec![
+        right,
+        Arc::new(Shape::Box {
+            center: DVec3::new(-0.6, 0.1, 0.0).into(),
+            size: DVec3::new(0.4, 0.3, 0.5).into(),
+        }),
+    ]);
+    let mut rng = Lcg(9);
+    for _ in 0..2000 {
+        let p = rng.in_box(DVec3::splat(-2.0), DVec3::splat(2.0));
+        assert!(
+            (long.distance(p) - capsule.distance(p)).abs() < 1e-12,
+            "elongate at {p}"
+        );
+        assert!(
+            (mirrored.distance(p) - both.distance(p)).abs() < 1e-12,
+            "mirror at {p}"
+        );
     }
 }

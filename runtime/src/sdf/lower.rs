@@ -6,6 +6,10 @@ pub(super) struct Lowering {
     pub(super) options: LowerOptions,
     pub(super) prims: Vec<PrimInfo>,
     pub(super) bvh_nodes: usize,
+    /// Inside a domain operator: its frame's local → world map, for the
+    /// primitives' centres (the rainbow's `c`; the copy at the origin for
+    /// a repetition).
+    pub(super) warp_to_world: DAffine3,
 }
 
 impl Lowering {
@@ -13,7 +17,7 @@ impl Lowering {
         let id = self.prims.len() as u32;
         let local_center = shape.primitive_center().unwrap_or(DVec3::ZERO);
         self.prims.push(PrimInfo {
-            center: frame.to_local.inverse().transform_point3(local_center),
+            center: (self.warp_to_world * frame.to_local.inverse()).transform_point3(local_center),
             material: frame.material.clone(),
             kind: shape.name(),
         });
@@ -62,9 +66,11 @@ impl Lowering {
                 center,
                 major,
                 minor,
+                axis,
             } => self.leaf(
                 Torus {
                     c: c(center),
+                    axis: *axis,
                     major: f(major),
                     minor: f(minor),
                 },
@@ -84,9 +90,11 @@ impl Lowering {
                 center,
                 radius,
                 height,
+                axis,
             } => self.leaf(
                 Cylinder {
                     c: c(center),
+                    axis: *axis,
                     r: f(radius),
                     height: f(height),
                 },
@@ -149,9 +157,11 @@ impl Lowering {
                 height,
                 bottom,
                 top,
+                axis,
             } => self.leaf(
                 CappedCone {
                     c: c(center),
+                    axis: *axis,
                     height: f(height),
                     bottom: f(bottom),
                     top: f(top),
@@ -179,7 +189,121 @@ impl Lowering {
                 shell: true,
             }),
             Shape::Xor(a, b) => Box::new(Xor(self.lower(a, frame), self.lower(b, frame))),
+            Shape::RoundCone {
+                center,
+                bottom,
+                top,
+                height,
+                axis,
+            } => self.leaf(
+                RoundCone {
+                    c: c(center),
+                    axis: *axis,
+                    bottom: f(bottom),
+                    top: f(top),
+                    height: f(height),
+                },
+                shape,
+                frame,
+            ),
+            Shape::HexPrism {
+                center,
+                radius,
+                height,
+                axis,
+            } => self.leaf(
+                HexPrism {
+                    c: c(center),
+                    axis: *axis,
+                    radius: f(radius),
+                    height: f(height),
+                },
+                shape,
+                frame,
+            ),
+            Shape::TriPrism {
+                center,
+                side,
+                height,
+                axis,
+            } => self.leaf(
+                TriPrism {
+                    c: c(center),
+                    axis: *axis,
+                    side: f(side),
+                    height: f(height),
+                },
+                shape,
+                frame,
+            ),
+            Shape::Link {
+                center,
+                length,
+                major,
+                minor,
+                axis,
+            } => self.leaf(
+                Link {
+                    c: c(center),
+                    axis: *axis,
+                    length: f(length),
+                    major: f(major),
+                    minor: f(minor),
+                },
+                shape,
+                frame,
+            ),
+            Shape::Elongate(s, h) => self.warp(s, WarpOp::Elongate(c(h)), frame),
+            Shape::Mirror(s, axis) => self.warp(s, WarpOp::Mirror(axis.index()), frame),
+            Shape::Repeat {
+                shape: s,
+                spacing,
+                count,
+            } => self.warp(
+                s,
+                WarpOp::Repeat {
+                    spacing: c(spacing),
+                    extent: s.extent(),
+                    count: *count,
+                },
+                frame,
+            ),
+            Shape::Twist(s, rate) | Shape::Bend(s, rate) => {
+                let (radius, lo, hi) = s.turn_region();
+                let op = WarpOp::Turn {
+                    rate: f(rate),
+                    bend: matches!(shape, Shape::Bend(..)),
+                    radius,
+                    lo,
+                    hi,
+                };
+                self.warp(s, op, frame)
+            }
+            Shape::ScaleXyz(s, by) => {
+                let boxed = s.bounds().map(|b| {
+                    let (ctr, size) = (b.center() * by.value, (b.max - b.min) * by.value);
+                    (V3::lit(ctr.to_array()), V3::lit(size.to_array()))
+                });
+                self.warp(s, WarpOp::Scale { by: c(by), boxed }, frame)
+            }
         }
+    }
+
+    /// A domain operator: its child is lowered in the operator's own frame
+    /// (keeping the material), the warp applied between the two.
+    fn warp(&mut self, child: &Shape, op: WarpOp, frame: &Frame) -> Box<dyn Node> {
+        let mut inner_frame = Frame::identity();
+        inner_frame.material = frame.material.clone();
+        let outer = self.warp_to_world;
+        self.warp_to_world = outer * frame.to_local.inverse();
+        let inner = self.lower(child, &inner_frame);
+        self.warp_to_world = outer;
+        Box::new(Warp {
+            inner,
+            xform: frame.xform(),
+            scale: frame.scale as f32,
+            op,
+        })
     }
 
     pub(super) fn binary(

@@ -22,7 +22,7 @@ use sdfl_stdlib::material::Material;
 use sdfl_stdlib::num::V3;
 use sdfl_stdlib::param::Arg;
 use sdfl_stdlib::sdf;
-use sdfl_stdlib::shape::{Aabb, Shape};
+use sdfl_stdlib::shape::{cells, repeat_ranges, Aabb, Axis, Shape};
 
 mod bvh;
 mod lower;
@@ -81,6 +81,7 @@ impl Lowered {
             options,
             prims: Vec::new(),
             bvh_nodes: 0,
+            warp_to_world: DAffine3::IDENTITY,
         };
         let root = cx.lower(shape, &Frame::identity());
         Lowered {

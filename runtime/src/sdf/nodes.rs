@@ -60,6 +60,7 @@ impl Prim for Octahedron {
 
 pub(super) struct CappedCone {
     pub(super) c: V3<f32>,
+    pub(super) axis: Axis,
     pub(super) height: f32,
     pub(super) bottom: f32,
     pub(super) top: f32,
@@ -67,7 +68,68 @@ pub(super) struct CappedCone {
 impl Prim for CappedCone {
     #[inline(always)]
     fn local(&self, p: Vec3A) -> f32 {
-        sdf::capped_cone(v3(p), self.c, self.height, self.bottom, self.top)
+        let q = sdf::along(v3(p), self.c, self.axis);
+        sdf::capped_cone(q, self.height, self.bottom, self.top)
+    }
+}
+
+pub(super) struct RoundCone {
+    pub(super) c: V3<f32>,
+    pub(super) axis: Axis,
+    pub(super) bottom: f32,
+    pub(super) top: f32,
+    pub(super) height: f32,
+}
+impl Prim for RoundCone {
+    #[inline(always)]
+    fn local(&self, p: Vec3A) -> f32 {
+        let q = sdf::along(v3(p), self.c, self.axis);
+        sdf::round_cone(q, self.bottom, self.top, self.height)
+    }
+}
+
+pub(super) struct HexPrism {
+    pub(super) c: V3<f32>,
+    pub(super) axis: Axis,
+    pub(super) radius: f32,
+    pub(super) height: f32,
+}
+impl Prim for HexPrism {
+    #[inline(always)]
+    fn local(&self, p: Vec3A) -> f32 {
+        sdf::hex_prism(
+            sdf::along(v3(p), self.c, self.axis),
+            self.radius,
+            self.height,
+        )
+    }
+}
+
+pub(super) struct TriPrism {
+    pub(super) c: V3<f32>,
+    pub(super) axis: Axis,
+    pub(super) side: f32,
+    pub(super) height: f32,
+}
+impl Prim for TriPrism {
+    #[inline(always)]
+    fn local(&self, p: Vec3A) -> f32 {
+        sdf::tri_prism(sdf::along(v3(p), self.c, self.axis), self.side, self.height)
+    }
+}
+
+pub(super) struct Link {
+    pub(super) c: V3<f32>,
+    pub(super) axis: Axis,
+    pub(super) length: f32,
+    pub(super) major: f32,
+    pub(super) minor: f32,
+}
+impl Prim for Link {
+    #[inline(always)]
+    fn local(&self, p: Vec3A) -> f32 {
+        let q = sdf::along(v3(p), self.c, self.axis);
+        sdf::link(q, self.length, self.major, self.minor)
     }
 }
 
@@ -84,13 +146,14 @@ impl Prim for Ellipsoid {
 
 pub(super) struct Torus {
     pub(super) c: V3<f32>,
+    pub(super) axis: Axis,
     pub(super) major: f32,
     pub(super) minor: f32,
 }
 impl Prim for Torus {
     #[inline(always)]
     fn local(&self, p: Vec3A) -> f32 {
-        sdf::torus(v3(p), self.c, self.major, self.minor)
+        sdf::torus(sdf::along(v3(p), self.c, self.axis), self.major, self.minor)
     }
 }
 
@@ -108,13 +171,14 @@ impl Prim for Capsule {
 
 pub(super) struct Cylinder {
     pub(super) c: V3<f32>,
+    pub(super) axis: Axis,
     pub(super) r: f32,
     pub(super) height: f32,
 }
 impl Prim for Cylinder {
     #[inline(always)]
     fn local(&self, p: Vec3A) -> f32 {
-        sdf::cylinder(v3(p), self.c, self.r, self.height)
+        sdf::cylinder(sdf::along(v3(p), self.c, self.axis), self.r, self.height)
     }
 }
 
@@ -299,5 +363,120 @@ impl Node for Displace {
     fn dist_id(&self, p: Vec3A) -> (f32, u32) {
         let (d, id) = self.inner.dist_id(p);
         (d + self.offset(p), id)
+    }
+}
+
+// ---------------------------------------------------------------- domain warps
+
+/// A domain operator: the point is moved into the child's frame (`xform`,
+/// then `op`), the child (lowered in that frame) is evaluated, and the
+/// result scaled back to world units. Each op follows `Shape::sample`.
+pub(super) struct Warp {
+    pub(super) inner: Box<dyn Node>,
+    pub(super) xform: Xform,
+    pub(super) scale: f32,
+    pub(super) op: WarpOp,
+}
+
+pub(super) enum WarpOp {
+    Elongate(V3<f32>),
+    Mirror(usize),
+    Repeat {
+        spacing: V3<f32>,
+        extent: DVec3,
+        count: [u32; 3],
+    },
+    /// Twist (`bend: false`) or bend at `rate` in the cylinder `radius`, `lo..hi`.
+    Turn {
+        rate: f32,
+        bend: bool,
+        radius: f64,
+        lo: f64,
+        hi: f64,
+    },
+    /// Non-uniform scale, with the scaled child's box when it has one.
+    Scale {
+        by: V3<f32>,
+        boxed: Option<(V3<f32>, V3<f32>)>,
+    },
+}
+
+#[inline(always)]
+fn a3(p: V3<f32>) -> Vec3A {
+    Vec3A::new(p.x, p.y, p.z)
+}
+
+impl Warp {
+    fn eval(&self, p: Vec3A, id: bool) -> (f32, u32) {
+        let q = v3(self.xform.apply(p));
+        let inner = |q: V3<f32>| {
+            if id {
+                self.inner.dist_id(a3(q))
+            } else {
+                (self.inner.dist(a3(q)), 0)
+            }
+        };
+        let (d, i) = match &self.op {
+            WarpOp::Elongate(h) => inner(sdf::elongate(q, *h)),
+            WarpOp::Mirror(axis) => {
+                let mut a = q.to_array();
+                a[*axis] = a[*axis].abs();
+                inner(V3::from_array(a))
+            }
+            WarpOp::Repeat {
+                spacing: s,
+                extent,
+                count,
+            } => {
+                let r = repeat_ranges(q, *s, *extent, *count);
+                let mut best = (f32::INFINITY, u32::MAX);
+                for kx in cells(r[0]) {
+                    for ky in cells(r[1]) {
+                        for kz in cells(r[2]) {
+                            let off = V3::new(s.x * kx as f32, s.y * ky as f32, s.z * kz as f32);
+                            let c = inner(q - off);
+                            if c.0 < best.0 {
+                                best = c;
+                            }
+                        }
+                    }
+                }
+                best
+            }
+            WarpOp::Turn {
+                rate,
+                bend,
+                radius,
+                lo,
+                hi,
+            } => {
+                let (c, e) = sdf::into_cylinder(q, *radius, *lo, *hi);
+                let w = if *bend {
+                    sdf::bend(c, *rate)
+                } else {
+                    sdf::twist(c, *rate)
+                };
+                let (d, i) = inner(w);
+                (sdf::beyond(e, d), i)
+            }
+            WarpOp::Scale { by, boxed } => {
+                let (d, i) = inner(q.zip(*by, |x, y| x / y));
+                let d = d * by.min_element();
+                match boxed {
+                    Some((c, size)) => (d.max(sdf::cuboid(q, *c, *size)), i),
+                    None => (d, i),
+                }
+            }
+        };
+        (d * self.scale, i)
+    }
+}
+
+impl Node for Warp {
+    fn dist(&self, p: Vec3A) -> f32 {
+        self.eval(p, false).0
+    }
+    fn dist_id(&self, p: Vec3A) -> (f32, u32) {
+        self.eval(p, true)
     }
 }

@@ -16,7 +16,7 @@ use crate::eval::describe;
 use crate::material::{Light, Material};
 use crate::param::{Arg, Bound, ParamDecl, ParamInit, ParamUse, MIN_BETA, MIN_LENGTH};
 use crate::precision::{beta, f32_range};
-use crate::shape::Shape;
+use crate::shape::{Axis, Shape};
 use crate::value::{
     Backend, Dataset, DensityActivation, DensityKind, Encoding, Field, Harmonic, HashGridSpec,
     HitTolerance, LastInterval, Loss, LossKind, MeshRegion, Nerf, NeuralSdf, NeuralSurface,
@@ -217,6 +217,14 @@ fn finite(x: f64, args: &Args, what: &str) -> Result<Value, Diag> {
 
 fn table() -> Vec<Builtin> {
     let center = || opt("center", Type::Vec3, "[0, 0, 0]", "centre of the shape");
+    let axis = || {
+        opt(
+            "axis",
+            Type::Str,
+            "\"z\"",
+            "the axis the shape is built along: \"x\", \"y\" or \"z\"",
+        )
+    };
     // Any number of shapes (lists flattened), blended pairwise in order;
     // `k` is named.
     let smooth = |name: &'static str, doc: &'static str, eval: EvalFn| Builtin {
@@ -314,12 +322,13 @@ fn table() -> Vec<Builtin> {
         ),
         func(
             "capped_cone",
-            "A cone cut at both ends, along the Z axis: radius `bottom` at z = -height/2, `top` at +height/2 (exact; `top: 0` is a cone).",
+            "A cone cut at both ends, along the Z axis (or `axis`): radius `bottom` at z = -height/2, `top` at +height/2 (exact; `top: 0` is a cone).",
             vec![
                 opt("height", Type::Number, "1", "full height (> 0)"),
                 opt("bottom", Type::Number, "0.5", "radius of the lower cap (≥ 0)"),
                 opt("top", Type::Number, "0.2", "radius of the upper cap (≥ 0)"),
                 center(),
+                axis(),
             ],
             SHAPE,
             |a| {
@@ -328,19 +337,123 @@ fn table() -> Vec<Builtin> {
                 if bottom.value <= 0.0 && top.value <= 0.0 {
                     return Err(value_error(a.span, "a cone with no radius at either end", "both radii 0", "give `bottom` or `top` a radius above 0"));
                 }
-                shape(Shape::CappedCone { center: a.vec3_arg("center", Bound::Free)?, height: a.length_arg("height")?, bottom, top })
+                shape(Shape::CappedCone { center: a.vec3_arg("center", Bound::Free)?, height: a.length_arg("height")?, bottom, top, axis: axis_arg(a)? })
             },
         ),
         func(
+            "cone",
+            "A pointed cone along the Z axis (or `axis`): base of `radius` at -height/2, tip at +height/2 (exact; `capped_cone` with `top: 0`).",
+            vec![
+                opt("radius", Type::Number, "0.5", "radius of the base (> 0)"),
+                opt("height", Type::Number, "1", "full height (> 0)"),
+                center(),
+                axis(),
+            ],
+            SHAPE,
+            |a| {
+                let top = Arg { value: 0.0, param: None };
+                shape(Shape::CappedCone { center: a.vec3_arg("center", Bound::Free)?, height: a.length_arg("height")?, bottom: a.length_arg("radius")?, top, axis: axis_arg(a)? })
+            },
+        ),
+        func(
+            "round_cone",
+            "Two spheres, radius `bottom` at z = -height/2 and `top` at +height/2, joined by the cone tangent to both (their convex hull; exact). Needs |bottom - top| < height.",
+            vec![
+                opt("bottom", Type::Number, "0.5", "radius of the lower sphere (> 0)"),
+                opt("top", Type::Number, "0.2", "radius of the upper sphere (> 0)"),
+                opt("height", Type::Number, "1", "distance between the spheres' centres (> |bottom - top|)"),
+                center(),
+                axis(),
+            ],
+            SHAPE,
+            |a| {
+                let (bottom, top, height) = (a.length_arg("bottom")?, a.length_arg("top")?, a.length_arg("height")?);
+                if (bottom.value - top.value).abs() >= height.value {
+                    return Err(value_error(
+                        a.get("height").1,
+                        format!("`height` {} is not above |bottom - top| = |{} - {}|", sdfl_lang::fmt_num(height.value), sdfl_lang::fmt_num(bottom.value), sdfl_lang::fmt_num(top.value)),
+                        "one sphere holds the other",
+                        "make `height` larger than |bottom - top|, or use `sphere`",
+                    ));
+                }
+                shape(Shape::RoundCone { center: a.vec3_arg("center", Bound::Free)?, bottom, top, height, axis: axis_arg(a)? })
+            },
+        ),
+        func(
+            "hex_prism",
+            "A hexagonal prism along the Z axis (or `axis`): flat sides `radius` from the axis, two of them parallel to X, full `height` (exact).",
+            vec![
+                opt("radius", Type::Number, "0.5", "distance from the axis to each flat side (> 0)"),
+                opt("height", Type::Number, "1", "full height (> 0)"),
+                center(),
+                axis(),
+            ],
+            SHAPE,
+            |a| shape(Shape::HexPrism { center: a.vec3_arg("center", Bound::Free)?, radius: a.length_arg("radius")?, height: a.length_arg("height")?, axis: axis_arg(a)? }),
+        ),
+        func(
+            "tri_prism",
+            "A prism along the Z axis (or `axis`) over an equilateral triangle of `side`, centred on its centroid with a vertex towards +Y, full `height` (exact).",
+            vec![
+                opt("side", Type::Number, "1", "side of the triangle (> 0)"),
+                opt("height", Type::Number, "1", "full height (> 0)"),
+                center(),
+                axis(),
+            ],
+            SHAPE,
+            |a| shape(Shape::TriPrism { center: a.vec3_arg("center", Bound::Free)?, side: a.length_arg("side")?, height: a.length_arg("height")?, axis: axis_arg(a)? }),
+        ),
+        func(
+            "rounded_box",
+            "A box of full side lengths `size` with edges rounded by `radius`: sugar for `round(box(size - 2·radius), radius)`, so it spans exactly `size` (exact outside, a bound inside). Not trainable: write `round(box(size: param(..)), param(..))` to fit one.",
+            vec![
+                opt("size", num_or_vec(), "[1, 1, 1]", "side lengths (> 0); a number for a cube"),
+                opt("radius", Type::Number, "0.1", "edge radius (> 0, below half the smallest side)"),
+                center(),
+            ],
+            SHAPE,
+            |a| {
+                let size = a.vec3_arg("size", Bound::AtLeast(MIN_LENGTH))?;
+                let radius = a.length_arg("radius")?;
+                if size.param.is_some() || radius.param.is_some() {
+                    return Err(value_error(a.span, "`rounded_box` with trainable arguments", "param", "write `round(box(size: param(..)), param(..))` to train them"));
+                }
+                if radius.value * 2.0 >= size.value.min_element() {
+                    return Err(value_error(
+                        a.get("radius").1,
+                        format!("`radius` {} is not below half the smallest side {}", sdfl_lang::fmt_num(radius.value), sdfl_lang::fmt_num(size.value.min_element())),
+                        "too round",
+                        "use a smaller radius, or `sphere`/`capsule`",
+                    ));
+                }
+                let inner = Shape::Box { center: a.vec3_arg("center", Bound::Free)?, size: (size.value - DVec3::splat(2.0 * radius.value)).into() };
+                shape(Shape::Round(Arc::new(inner), radius))
+            },
+        ),
+        func(
+            "link",
+            "A chain link around the Z axis (or `axis`): a torus (`major`, `minor`) cut across Y and pulled apart by straight parts of `length` (exact).",
+            vec![
+                opt("length", Type::Number, "1", "length of the straight parts (> 0)"),
+                opt("major", Type::Number, "0.4", "distance from the centre line to the tube's centre (> 0)"),
+                opt("minor", Type::Number, "0.1", "radius of the tube (> 0)"),
+                center(),
+                axis(),
+            ],
+            SHAPE,
+            |a| shape(Shape::Link { center: a.vec3_arg("center", Bound::Free)?, length: a.length_arg("length")?, major: a.length_arg("major")?, minor: a.length_arg("minor")?, axis: axis_arg(a)? }),
+        ),
+        func(
             "torus",
-            "A torus in the XY plane around the Z axis (exact).",
+            "A torus around the Z axis (or `axis`), in the XY plane (exact).",
             vec![
                 opt("major", Type::Number, "1", "distance from the centre to the tube's centre (> 0)"),
                 opt("minor", Type::Number, "0.25", "radius of the tube (> 0)"),
                 center(),
+                axis(),
             ],
             SHAPE,
-            |a| shape(Shape::Torus { center: a.vec3_arg("center", Bound::Free)?, major: a.length_arg("major")?, minor: a.length_arg("minor")? }),
+            |a| shape(Shape::Torus { center: a.vec3_arg("center", Bound::Free)?, major: a.length_arg("major")?, minor: a.length_arg("minor")?, axis: axis_arg(a)? }),
         ),
         func(
             "capsule",
@@ -355,14 +468,15 @@ fn table() -> Vec<Builtin> {
         ),
         func(
             "cylinder",
-            "A capped cylinder along the Z axis (exact).",
+            "A capped cylinder along the Z axis (or `axis`) (exact).",
             vec![
                 opt("radius", Type::Number, "0.5", "radius (> 0)"),
                 opt("height", Type::Number, "1", "full height (> 0)"),
                 center(),
+                axis(),
             ],
             SHAPE,
-            |a| shape(Shape::Cylinder { center: a.vec3_arg("center", Bound::Free)?, radius: a.length_arg("radius")?, height: a.length_arg("height")? }),
+            |a| shape(Shape::Cylinder { center: a.vec3_arg("center", Bound::Free)?, radius: a.length_arg("radius")?, height: a.length_arg("height")?, axis: axis_arg(a)? }),
         ),
         func(
             "plane",
@@ -408,10 +522,10 @@ fn table() -> Vec<Builtin> {
             SHAPE,
             |a| shape(Shape::Subtraction(a.shape("a")?, a.shape("b")?)),
         ),
-        smooth("smooth_union", "Union of any number of shapes, blended over radius `k` (polynomial smooth minimum, applied in order; a bound).", |a| {
+        smooth("smooth_union", "Union of any number of shapes or lists, blended over radius `k` (polynomial smooth minimum, folded left: `smooth_union(a, b, c)` is `smooth_union(smooth_union(a, b), c)`; a bound).", |a| {
             blend(a, |x, y, k| Shape::SmoothUnion(x, y, k))
         }),
-        smooth("smooth_intersection", "Intersection of any number of shapes, blended over radius `k` (a bound).", |a| {
+        smooth("smooth_intersection", "Intersection of any number of shapes or lists, blended over radius `k`, folded left like `smooth_union` (a bound).", |a| {
             blend(a, |x, y, k| Shape::SmoothIntersection(x, y, k))
         }),
         smooth("smooth_subtraction", "The first shape minus each of the others, blended over radius `k` (a bound).", |a| {
@@ -444,10 +558,104 @@ fn table() -> Vec<Builtin> {
         ),
         func(
             "scale",
-            "Scales a shape uniformly about the origin (keeps exactness).",
-            vec![req("shape", SHAPE, "the shape"), req("factor", Type::Number, "scale factor (> 0)")],
+            "Scales a shape about the origin: by a number, uniformly (keeps exactness); by `[sx, sy, sz]`, per axis: `max(min(s)·d(p/s), distance to the scaled bounding box)`, a bound with Lipschitz constant that of the shape (at least 1).",
+            vec![req("shape", SHAPE, "the shape"), req("factor", num_or_vec(), "scale factor (> 0), or one per axis")],
             SHAPE,
-            |a| shape(Shape::Scale(a.shape("shape")?, a.length_arg("factor")?)),
+            |a| {
+                let s = a.shape("shape")?;
+                match a.get("factor").0 {
+                    Value::Number(_) => shape(Shape::Scale(s, a.length_arg("factor")?)),
+                    Value::Param(d) if matches!(d.init, ParamInit::Scalar(_)) => shape(Shape::Scale(s, a.length_arg("factor")?)),
+                    _ => {
+                        let f = a.vec3_arg("factor", Bound::AtLeast(MIN_LENGTH))?;
+                        let v = f.value;
+                        if f.param.is_none() && v.x == v.y && v.y == v.z {
+                            return shape(Shape::Scale(s, v.x.into()));
+                        }
+                        shape(Shape::ScaleXyz(s, f))
+                    }
+                }
+            },
+        ),
+        func(
+            "elongate",
+            "Cuts a shape at the planes through the origin and pulls the halves `by` apart on each side (`d(p - clamp(p, -by, by))`), filling the gap with the section there: a sphere at the origin becomes a capsule, a torus a link (build the shape around the origin, then `translate`). Exact outside an exact shape, a bound inside.",
+            vec![req("shape", SHAPE, "the shape"), req("by", num_or_vec(), "half the added length on each axis (≥ 0)")],
+            SHAPE,
+            |a| shape(Shape::Elongate(a.shape("shape")?, a.vec3_arg("by", Bound::Within(0.0, f64::MAX))?)),
+        ),
+        func(
+            "repeat",
+            "Copies of a shape `spacing` apart on each axis (0: not repeated on that axis), `count` of them per axis centred on the origin, or infinitely many where `count` is 0 (unbounded: never culled). Each point looks at every copy that can be nearest (those whose centre is within ½ + extent/spacing cells, `extent` how far the shape reaches from the origin), so the result is the union of all copies: exact for an exact shape whose copies do not overlap (extent ≤ spacing/2), a bound otherwise.",
+            vec![
+                req("shape", SHAPE, "the shape, around the origin"),
+                req("spacing", num_or_vec(), "distance between copies per axis (≥ 0; 0: not repeated)"),
+                opt("count", num_or_vec(), "0", "copies per axis (whole numbers; 0: infinitely many)"),
+            ],
+            SHAPE,
+            |a| {
+                let s = a.shape("shape")?;
+                let mut spacing = a.vec3_arg("spacing", Bound::Within(0.0, f64::MAX))?;
+                // Training may not pack the copies much closer than they
+                // start (each point would evaluate ever more of them).
+                if let Some(u) = &mut spacing.param {
+                    let least = spacing.value.min_element();
+                    if least <= 0.0 {
+                        return Err(value_error(a.get("spacing").1, "a trainable `spacing` is 0 on some axis", "not repeated there", "give every axis a spacing and `count: 1` where it is not repeated"));
+                    }
+                    u.bound = Bound::AtLeast(least * 0.5);
+                }
+                let (cv, cspan) = (a.vec3("count")?, a.get("count").1);
+                if cv.to_array().iter().any(|c| c.fract() != 0.0 || *c < 0.0 || *c > 1e6) {
+                    return Err(value_error(cspan, "`count` must be whole numbers from 0 to 1000000", "not a count", "write e.g. `count: [5, 1, 5]` (0: infinitely many)"));
+                }
+                let count = cv.to_array().map(|c| c as u32);
+                if spacing.value.max_element() <= 0.0 {
+                    return Err(value_error(a.get("spacing").1, "`spacing` is 0 on every axis", "nothing repeated", "give the distance between copies on at least one axis"));
+                }
+                if s.bounds().is_none() {
+                    return Err(value_error(a.get("shape").1, "`repeat` of an unbounded shape (a plane)", "unbounded", "repeat bounded shapes; a repeated plane is the plane"));
+                }
+                let r = Shape::Repeat { shape: s, spacing, count };
+                if r.copies_per_point() > MAX_COPIES_PER_POINT {
+                    return Err(value_error(
+                        a.get("spacing").1,
+                        format!("copies overlap so much that each point would evaluate {} of them (at most {MAX_COPIES_PER_POINT})", r.copies_per_point()),
+                        "spacing too small for the shape",
+                        "space the copies further apart or make the shape smaller",
+                    ));
+                }
+                shape(r)
+            },
+        ),
+        func(
+            "mirror",
+            "Keeps the shape's half on the positive side of `axis` and reflects it onto the other (`d(|x|, y, z)` for \"x\"). Exact for an exact shape lying on the positive side, a bound otherwise.",
+            vec![req("shape", SHAPE, "the shape"), opt("axis", Type::Str, "\"x\"", "the axis flipped: \"x\", \"y\" or \"z\"")],
+            SHAPE,
+            |a| shape(Shape::Mirror(a.shape("shape")?, axis_arg(a)?)),
+        ),
+        func(
+            "twist",
+            "Turns each slice of a shape across Z by `rate·z` radians about the Z axis. A bound with Lipschitz constant `L·(1 + |rate|·R)` (`L` the shape's, `R` the radius of the cylinder about Z holding its bounds), traced with proportionally shorter steps; outside that cylinder it is at least the distance to it.",
+            vec![req("shape", SHAPE, "the shape"), req("rate", Type::Number, "radians per unit of z")],
+            SHAPE,
+            |a| {
+                let s = a.shape("shape")?;
+                unbounded_warp(a, &s, "twist")?;
+                shape(Shape::Twist(s, a.scalar_arg("rate", Bound::Free)?))
+            },
+        ),
+        func(
+            "bend",
+            "Bends a shape in the XY plane: each slice across X turned by `rate·x` radians about the Z axis. A bound with Lipschitz constant `L·(1 + |rate|·R)` like `twist`.",
+            vec![req("shape", SHAPE, "the shape"), req("rate", Type::Number, "radians per unit of x")],
+            SHAPE,
+            |a| {
+                let s = a.shape("shape")?;
+                unbounded_warp(a, &s, "bend")?;
+                shape(Shape::Bend(s, a.scalar_arg("rate", Bound::Free)?))
+            },
         ),
         func(
             "displace",
@@ -1323,6 +1531,39 @@ fn paints_with_normals(s: &Shape) -> bool {
 }
 
 /// A smooth operator over the rest shapes, applied left to right.
+/// Most copies a repetition may evaluate at one point.
+const MAX_COPIES_PER_POINT: u64 = 64;
+
+/// The `axis` argument: `"x"`, `"y"` or `"z"`.
+fn axis_arg(a: &Args) -> Result<Axis, Diag> {
+    let (name, span) = a.string("axis")?;
+    match &*name {
+        "x" => Ok(Axis::X),
+        "y" => Ok(Axis::Y),
+        "z" => Ok(Axis::Z),
+        other => Err(value_error(
+            span,
+            format!("unknown axis `{other}`"),
+            "not an axis",
+            "use \"x\", \"y\" or \"z\"",
+        )),
+    }
+}
+
+/// Twists and bends need a bounded shape: their Lipschitz constant grows
+/// with its radius.
+fn unbounded_warp(a: &Args, s: &Shape, name: &str) -> Result<(), Diag> {
+    if s.bounds().is_none() {
+        return Err(value_error(
+            a.get("shape").1,
+            format!("`{name}` of an unbounded shape (a plane)"),
+            "unbounded",
+            format!("{name} bounded shapes (intersect a plane with a box first)"),
+        ));
+    }
+    Ok(())
+}
+
 fn blend(a: &Args, op: fn(Arc<Shape>, Arc<Shape>, Arg<f64>) -> Shape) -> Result<Value, Diag> {
     let shapes = a.rest_shapes()?;
     let k = a.length_arg("k")?;
