@@ -591,7 +591,12 @@ fn summarise(r: &serde_json::Value, out: &Path, stdout: &mut Stdout) {
                     fit["surface_samples"]
                 );
             }
-            if let Some(fit) = rep.get("mesh_fit").filter(|f| f.is_object()) {
+            if rep
+                .get("mesh_fit")
+                .is_some_and(|f| f.is_object() && f["chamfer"].is_null())
+            {
+                eprintln!("  the mesh is empty: the trained field has no surface in its region");
+            } else if let Some(fit) = rep.get("mesh_fit").filter(|f| f.is_object()) {
                 let num = |k: &str| fit[k].as_f64().unwrap_or(f64::NAN);
                 eprintln!(
                     "  mesh vs {} points of the {}: Chamfer {:.4} (points → mesh {:.4}, mesh → points {:.4})",

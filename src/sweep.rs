@@ -72,10 +72,16 @@ fn held_out_psnr(reports: &[serde_json::Value]) -> Option<f64> {
 
 /// The mean over a run's training statements of their mesh's Chamfer
 /// distance (to the data's points or the true surface).
+/// An empty mesh (no surface found) has no finite distance: infinity.
 fn mesh_chamfer(reports: &[serde_json::Value]) -> Option<f64> {
     let c: Vec<f64> = reports
         .iter()
-        .filter_map(|r| r["report"]["mesh_fit"]["chamfer"].as_f64())
+        .filter(|r| r["report"]["mesh_fit"].is_object())
+        .map(|r| {
+            r["report"]["mesh_fit"]["chamfer"]
+                .as_f64()
+                .unwrap_or(f64::INFINITY)
+        })
         .collect();
     (!c.is_empty()).then(|| c.iter().sum::<f64>() / c.len() as f64)
 }
@@ -186,7 +192,11 @@ pub(crate) fn sweep(
             fmt(mean_psnr, 2),
             fmt(perr, 5),
             held.map_or("-".to_string(), |x| format!("{x:.2}")),
-            chamfer.map_or("-".to_string(), |x| format!("{x:.4}"))
+            chamfer.map_or("-".to_string(), |x| if x.is_finite() {
+                format!("{x:.4}")
+            } else {
+                "no surface".to_string()
+            })
         ));
         csv.push_str(&format!(
             "{v},{secs},{},{},{},{}\n",

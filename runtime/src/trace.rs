@@ -189,6 +189,7 @@ mod tests {
             center: Arg::fixed(glam::DVec3::ZERO),
             major: Arg::fixed(1.0),
             minor: Arg::fixed(0.3),
+            axis: sdfl_stdlib::sdf::Axis::Z,
         };
         let scene = Lowered::new(&torus, LowerOptions::default());
         let origin = Vec3A::new(0.0, 0.0, -4.0);
