@@ -31,10 +31,11 @@ fn describe_field(field: &sdfl_stdlib::value::Field) -> String {
             n.multiply_adds()
         ),
         Field::NeuralSurface(n) => format!(
-            "neural SDF as a {:?} volume (alpha {}, beta {}): harmonic({}) position, {}x{} softplus layers with the exact gradient at every sample; colour network {}x{} ReLU on the point, the normal{}; {} multiply-adds per sample",
+            "neural SDF as a {:?} volume (alpha {}, beta {}{}): harmonic({}) position, {}x{} softplus layers with the exact gradient at every sample; colour network {}x{} ReLU on the point, the normal{}; {} multiply-adds per sample",
             n.density,
             n.alpha,
             n.beta,
+            if n.train_beta { ", trained" } else { "" },
             n.sdf.encoding.freqs,
             n.sdf.layers,
             n.sdf.width,
@@ -238,11 +239,17 @@ pub(crate) fn plan_text(program: &sdfl_stdlib::Program) -> String {
             sdfl_stdlib::value::Field::NeuralSurface(n) => {
                 use sdfl_runtime::train::Objective;
                 let m = sdfl_runtime::neural::surface::SurfaceObjective::new(n, &job.losses);
+                let beta = usize::from(n.train_beta);
                 format!(
-                    "all {} weights (distance network {}, colour network {}), the distance starting as a sphere of radius {}",
-                    m.initial().len(),
+                    "all {} weights (distance network {}, colour network {}){}, the distance starting as a sphere of radius {}",
+                    m.initial().len() - beta,
                     m.sdf.len,
-                    m.initial().len() - m.sdf.len,
+                    m.initial().len() - m.sdf.len - beta,
+                    if n.train_beta {
+                        format!(", and beta from {} (as log beta, kept in 1e-4..10)", n.beta)
+                    } else {
+                        String::new()
+                    },
                     n.sdf.radius
                 )
             }

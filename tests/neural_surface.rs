@@ -1,9 +1,9 @@
-//! A neural SDF learnt from images through a VolSDF or NeuS density, end
-//! to end through the language and small enough for CI: views of a sphere
-//! rendered by sdfl, a small distance network that starts as a smaller
-//! sphere; after a short training the held-out PSNR has risen well above
-//! its start, the extracted mesh lies near the true sphere, and a resumed
-//! run is the same run.
+//! A neural SDF learnt from images through a VolSDF or NeuS density (NeuS
+//! with a trained β), end to end through the language and small enough for
+//! CI: views of a sphere rendered by sdfl, a small distance network that
+//! starts as a smaller sphere; after a short training the held-out PSNR has
+//! risen well above its start and the extracted mesh lies near the true
+//! sphere.
 
 use std::path::PathBuf;
 
@@ -13,7 +13,7 @@ use sdfl_runtime::jobs::{run_train_job, TrainOptions, TrainReport};
 const SCENE: &str = r#"
 let cams = orbit(radius: 3, up: [0, 1, 0], focal: 1.5, views: 12)
 train fit {
-  model: DENSITY(neural_sdf(encoding: harmonic(freqs: 2), layers: 2, width: 32, skips: [], radius: 0.4), alpha: ALPHA, beta: 0.08, view_dependent: false),
+  model: DENSITY(neural_sdf(encoding: harmonic(freqs: 2), layers: 2, width: 32, skips: [], radius: 0.4), alpha: ALPHA, beta: BETA, view_dependent: false),
   data: render_views(sphere(0.7), cameras: cams, size: [16, 16], material: lambert(albedo: [0.9, 0.5, 0.2]), test_views: 2, split_seed: 3),
   sampler: stratified(samples: 32, near: 1.8, far: 4.2, jitter: true),
   rays: 256,
@@ -35,10 +35,16 @@ fn temp(name: &str) -> PathBuf {
 }
 
 fn run(density: &str, iterations: usize, out: &std::path::Path) -> TrainReport {
-    let alpha = if density == "volsdf" { "12" } else { "1" };
+    // NeuS also trains its β.
+    let (alpha, beta) = if density == "volsdf" {
+        ("12", "0.08")
+    } else {
+        ("1", "param(0.08)")
+    };
     let src = SCENE
         .replace("DENSITY", density)
         .replace("ALPHA", alpha)
+        .replace("BETA", beta)
         .replace("ITERATIONS", &iterations.to_string());
     let job = sdfl_stdlib::load(&SourceFile::new("fit.sdfl", src))
         .unwrap()
@@ -77,6 +83,22 @@ fn volsdf_and_neus_learn_a_sphere_from_its_images() {
             e1 < 0.08 && e1 < e0 / 3.0,
             "{density}: Chamfer {e0:.3} → {e1:.4}"
         );
+        // A trained β is reported, moved from its start and in range.
+        match density {
+            "neus" => {
+                let (name, b) = &end.params[0];
+                assert_eq!(name, "beta");
+                assert!(b[0] != 0.08 && b[0] > 1e-4 && b[0] < 10.0, "{b:?}");
+            }
+            _ => assert!(end.params.is_empty()),
+        }
+        let gif = end
+            .written
+            .iter()
+            .find(|w| w.kind == "geometry_gif")
+            .unwrap();
+        assert_eq!(gif.frames, 1);
+        assert!(dir.join("geometry.gif").is_file());
         let _ = std::fs::remove_dir_all(&dir);
     }
 }

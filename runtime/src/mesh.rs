@@ -61,8 +61,14 @@ pub fn write_mesh(
         })?,
     };
     let grid = MeshGrid::covering(min, max, resolution);
-    let mesh = surface_nets(field, &grid, sdfl_stdlib::work::MAX_MESH_VERTICES, &|_| {})
-        .map_err(|e| io::Error::other(format!("`{}`: {e}", o.path.display())))?;
+    let max = sdfl_stdlib::work::MAX_MESH_VERTICES;
+    let mesh = match surface_nets(field, &grid, max, &|_| {}) {
+        // A field steeper than its assumed bound (a network) is sampled
+        // again at every grid point.
+        Err(MeshError::BoundBroken) => surface_nets(&Dense(field), &grid, max, &|_| {}),
+        r => r,
+    }
+    .map_err(|e| io::Error::other(format!("`{}`: {e}", o.path.display())))?;
     mesh.write_ply(&out_dir.join(&o.path))?;
     let stats = MeshStats {
         vertices: mesh.vertices.len(),
@@ -190,6 +196,10 @@ impl MeshGrid {
 
 const NO_VERTEX: u32 = u32::MAX;
 
+/// Most planes a grid point is skipped for on the strength of a Lipschitz
+/// bound before it is evaluated again (and the bound checked).
+const RECHECK_PLANES: usize = 8;
+
 /// The 12 edges of a cell as pairs of corner numbers (corner `c` is at
 /// offset `(c & 1, c >> 1 & 1, c >> 2 & 1)`).
 const CELL_EDGES: [(usize, usize); 12] = [
@@ -207,17 +217,37 @@ const CELL_EDGES: [(usize, usize); 12] = [
     (3, 7),
 ];
 
-/// The surface crosses more cells than a mesh may have vertices.
+/// Why a mesh could not be made.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct TooManyVertices(pub usize);
+pub enum MeshError {
+    /// The surface crosses more cells than a mesh may have vertices.
+    TooManyVertices(usize),
+    /// A value changed faster than the field's Lipschitz bound allows, so
+    /// points skipped on its strength may have the wrong sign.
+    BoundBroken,
+}
 
-impl std::fmt::Display for TooManyVertices {
+impl std::fmt::Display for MeshError {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        write!(
-            f,
-            "the surface crosses more than {} grid cells (the most a mesh may have vertices): lower `resolution` or the region",
-            self.0
-        )
+        match self {
+            MeshError::TooManyVertices(n) => write!(
+                f,
+                "the surface crosses more than {n} grid cells (the most a mesh may have vertices): lower `resolution` or the region"
+            ),
+            MeshError::BoundBroken => write!(f, "the field is steeper than its Lipschitz bound"),
+        }
+    }
+}
+
+/// A field seen without its Lipschitz bound: every grid point evaluated.
+struct Dense<'a>(&'a dyn DistanceField);
+
+impl DistanceField for Dense<'_> {
+    fn distances(&self, points: &[[f32; 3]], out: &mut [f32]) {
+        self.0.distances(points, out)
+    }
+    fn gradients(&self, points: &[[f32; 3]], h: f32, f: &mut [f32], g: &mut [[f32; 3]]) {
+        self.0.gradients(points, h, f, g)
     }
 }
 
@@ -228,7 +258,7 @@ pub fn surface_nets(
     grid: &MeshGrid,
     max_vertices: usize,
     progress: &dyn Fn(u64),
-) -> Result<Mesh, TooManyVertices> {
+) -> Result<Mesh, MeshError> {
     let [nx, ny, nz] = grid.points;
     let mut mesh = Mesh::default();
     if nx < 2 || ny < 2 || nz < 2 {
@@ -241,6 +271,7 @@ pub fn surface_nets(
     // evaluated again only once the bound runs out.
     let reach = field.lipschitz().map(|l| l * grid.step as f32);
     let mut known: Vec<(f32, usize)> = vec![(f32::NAN, 0); nx * ny];
+    let mut broken = false;
     let mut plane = |k: usize| -> Vec<f32> {
         let mut out = vec![0.0; nx * ny];
         let mut todo = Vec::with_capacity(nx * ny);
@@ -248,7 +279,9 @@ pub fn surface_nets(
             if let Some(reach) = reach {
                 let (v, k0) = known[idx];
                 let bound = v.abs() - (k - k0) as f32 * reach;
-                if bound > 2.0 * reach {
+                // Seen again every few planes, so that a field steeper
+                // than its bound is caught (and meshed densely instead).
+                if v.is_finite() && bound > 2.0 * reach && k - k0 < RECHECK_PLANES {
                     *o = bound.copysign(v);
                     continue;
                 }
@@ -265,6 +298,15 @@ pub fn surface_nets(
             .zip(values.par_chunks_mut(CHUNK))
             .for_each(|(p, o)| field.distances(p, o));
         for (&idx, &v) in todo.iter().zip(&values) {
+            // Values seen again must keep to the bound that let them be
+            // skipped in between (a little slack for rounding).
+            if let Some(reach) = reach {
+                let (old, k0) = known[idx];
+                let allowed = (k - k0) as f32 * reach * 1.001 + 1e-6 * (1.0 + old.abs());
+                if old.is_finite() && v.is_finite() && (v - old).abs() > allowed {
+                    broken = true;
+                }
+            }
             out[idx] = v;
             known[idx] = (v, k);
         }
@@ -312,7 +354,7 @@ pub fn surface_nets(
                     (grid.min[a] + (base[a] as f64 + sum[a] / n) * grid.step) as f32
                 });
                 if mesh.vertices.len() >= max_vertices.min(NO_VERTEX as usize) {
-                    return Err(TooManyVertices(max_vertices));
+                    return Err(MeshError::TooManyVertices(max_vertices));
                 }
                 cur[j * cx + i] = mesh.vertices.len() as u32;
                 mesh.vertices.push(v);
@@ -374,6 +416,10 @@ pub fn surface_nets(
         below = above;
         prev = cur;
         progress(k as u64 + 1);
+    }
+    drop(plane);
+    if broken {
+        return Err(MeshError::BoundBroken);
     }
     refine(field, grid.step as f32, &mut mesh);
     let v = &mesh.vertices;
@@ -491,6 +537,11 @@ impl Mesh {
 
     /// The PLY file: binary little-endian, positions, normals, triangles.
     pub fn ply_bytes(&self) -> Vec<u8> {
+        assert_eq!(
+            self.normals.len(),
+            self.vertices.len(),
+            "a normal per vertex"
+        );
         let mut out = format!(
             "ply\nformat binary_little_endian 1.0\ncomment written by sdfl\n\
              element vertex {}\nproperty float x\nproperty float y\nproperty float z\n\
@@ -591,11 +642,29 @@ mod tests {
         assert!(some * 2 < all, "{some} of {all} evaluations");
     }
 
+    /// A field steeper than its claimed bound is caught where a skipped
+    /// point is seen again, and meshing it densely gives the right mesh.
+    #[test]
+    fn a_broken_bound_is_caught() {
+        let f = sphere(0.5, [0.0; 3]);
+        // Distances times 4, claimed 1-Lipschitz.
+        let steep = |p: &[[f32; 3]], o: &mut [f32]| {
+            f(p, o);
+            o.iter_mut().for_each(|v| *v *= 4.0);
+        };
+        let grid = MeshGrid::covering([-1.0; 3], [1.0; 3], 32);
+        let r = surface_nets(&Lipschitz(&steep, 1.0), &grid, usize::MAX, &|_| {});
+        assert_eq!(r, Err(MeshError::BoundBroken));
+        let dense =
+            surface_nets(&Dense(&Lipschitz(&steep, 1.0)), &grid, usize::MAX, &|_| {}).unwrap();
+        assert_eq!(dense.euler_characteristic(), 2);
+    }
+
     #[test]
     fn too_many_vertices_is_an_error() {
         let grid = MeshGrid::covering([-1.0; 3], [1.0; 3], 16);
         let r = surface_nets(&sphere(0.5, [0.0; 3]), &grid, 100, &|_| {});
-        assert_eq!(r, Err(TooManyVertices(100)));
+        assert_eq!(r, Err(MeshError::TooManyVertices(100)));
     }
 
     #[test]

@@ -237,7 +237,10 @@ pub struct NeuralSurface {
     /// `VolSdf` or `Neus`.
     pub density: DensityKind,
     pub alpha: f64,
+    /// The starting β when `train_beta`.
     pub beta: f64,
+    /// β is trained with the networks (as `log β`, so it stays positive).
+    pub train_beta: bool,
     /// The colour network: `color_layers` hidden ReLU layers of
     /// `color_width`, sigmoid colour; the point encoded with
     /// `color_freqs` harmonics, the direction with 2.

@@ -70,9 +70,10 @@ fn bytes_per_pixel(kinds: impl Iterator<Item = OutputKind>, volume: bool) -> f64
     b.max(3.0)
 }
 
-/// Most vertices a mesh may have (about 2.5 GB with its triangles); a
-/// surface that needs more stops with an error.
-pub const MAX_MESH_VERTICES: usize = 40_000_000;
+/// Most vertices a mesh may have: with its normals, quads, triangles and
+/// the PLY bytes, about 100 bytes each at the peak (2 GB); a surface that
+/// needs more stops with an error.
+pub const MAX_MESH_VERTICES: usize = 20_000_000;
 
 /// The grid evaluations and peak memory of the meshes among `outputs`, a
 /// grid point costing `per_point` evaluations. A surface is assumed to cross
@@ -89,10 +90,10 @@ fn mesh_work<'a>(outputs: impl Iterator<Item = &'a OutputKind>, per_point: f64) 
             w.evaluations += n * n * n * per_point;
             // Two planes of points and values, two layers of vertex
             // numbers, and vertices, normals and triangles of the surface.
-            let surface = 8.0 * n * n;
+            let surface = (8.0 * n * n).min(MAX_MESH_VERTICES as f64);
             w.memory = w
                 .memory
-                .max(2.0 * n * n * 16.0 + 2.0 * n * n * 4.0 + surface * 48.0);
+                .max(2.0 * n * n * 16.0 + 2.0 * n * n * 4.0 + surface * 100.0);
         }
     }
     w
@@ -258,10 +259,23 @@ pub fn train_work(j: &TrainJob, size: Option<(u32, u32)>) -> Work {
         Field::NeuralSurface(n) => (4.0 * n.sdf.multiply_adds() as f64 / 10_000.0).max(1.0),
     };
     let mesh = mesh_work(j.before.iter().chain(&j.after).map(|o| &o.kind), per_point);
+    // Rendering a network's views costs its passes; a geometry GIF traces
+    // each view with up to 96 steps.
+    let network = match &*j.model {
+        Field::Sdf(_) => 1.0,
+        _ => per_point,
+    };
+    let geometry_gifs = j
+        .before
+        .iter()
+        .chain(&j.after)
+        .filter(|o| matches!(o.kind, OutputKind::GeometryGif { .. }))
+        .count() as f64;
     Work {
         evaluations: steps
             + data_evals
-            + outputs.min(1.0) * 2.0 * px * views * samples
+            + outputs.min(1.0) * 2.0 * px * views * samples * network
+            + geometry_gifs * px * views * 96.0 * per_point
             + mesh.evaluations,
         // Per-ray buffers of a batch (samples, weights, gradients); a
         // network keeps every layer's activations per sample, twice with a

@@ -657,7 +657,12 @@ pub fn run_train_job(
         params: if analytic.is_some() {
             run.named_values()
         } else {
-            Vec::new()
+            // A neural surface's trained β, by its value.
+            run.named_values()
+                .into_iter()
+                .filter(|(name, _)| name == "log_beta")
+                .map(|(_, v)| ("beta".to_string(), v.iter().map(|x| x.exp()).collect()))
+                .collect()
         },
         network_weights: analytic.is_none().then(|| run.values().len()),
         held_out,

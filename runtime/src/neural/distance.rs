@@ -337,9 +337,12 @@ pub struct TracedView {
     pub depth: Vec<f32>,
 }
 
+/// Rays per network pass when tracing (bounds the buffers).
+const TRACE_ROWS: usize = 1 << 14;
+
 /// Sphere-traces `net` at `params` from `cam`: a wavefront, every step
-/// evaluating all rays still marching in one batch through the network
-/// (value and exact gradient, which gives the normals at the hits).
+/// evaluating the distance at all rays still marching, in bounded batches;
+/// the exact gradient (the normal) only where rays hit.
 pub fn trace_view(
     net: &SdfNet,
     params: &[f32],
@@ -355,7 +358,7 @@ pub fn trace_view(
         depth: vec![0.0; n],
     };
     let mut active: Vec<usize> = (0..n).collect();
-    let (mut work, mut points) = (SdfWork::default(), Vec::new());
+    let (mut points, mut f, mut hits) = (Vec::new(), Vec::new(), Vec::new());
     for _ in 0..s.iterations {
         if active.is_empty() {
             break;
@@ -365,17 +368,15 @@ pub fn trace_view(
             let ray = &rays[r];
             points.extend((0..3).map(|k| ray.origin[k] + t[r] * ray.dir[k]));
         }
-        net.forward(params, &points, &mut work);
-        let (f, g) = (work.distance(), work.gradient());
+        // Distances alone (no tangents), a bounded batch at a time.
+        f.resize(active.len(), 0.0);
+        for (p, f) in points.chunks(3 * TRACE_ROWS).zip(f.chunks_mut(TRACE_ROWS)) {
+            net.distance(params, p, f);
+        }
         let mut still = Vec::with_capacity(active.len());
         for (i, &r) in active.iter().enumerate() {
             if f[i].abs() < s.epsilon {
-                let gi = &g[3 * i..3 * i + 3];
-                let len = (gi[0] * gi[0] + gi[1] * gi[1] + gi[2] * gi[2])
-                    .sqrt()
-                    .max(1e-12);
-                view.colour[r] = [0, 1, 2].map(|k| 0.5 * (gi[k] / len + 1.0));
-                view.depth[r] = t[r];
+                hits.push(r);
             } else {
                 t[r] += s.safety * f[i];
                 if t[r] < s.far && t[r].is_finite() {
@@ -384,6 +385,21 @@ pub fn trace_view(
             }
         }
         active = still;
+    }
+    // Normals where the rays hit: the exact gradient there.
+    let mut work = SdfWork::default();
+    for block in hits.chunks(TRACE_ROWS) {
+        points.clear();
+        for &r in block {
+            let ray = &rays[r];
+            points.extend((0..3).map(|k| ray.origin[k] + t[r] * ray.dir[k]));
+        }
+        net.forward(params, &points, &mut work);
+        for (&r, g) in block.iter().zip(work.gradient().chunks(3)) {
+            let len = (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt().max(1e-12);
+            view.colour[r] = [0, 1, 2].map(|k| 0.5 * (g[k] / len + 1.0));
+            view.depth[r] = t[r];
+        }
     }
     Ok(view)
 }

@@ -51,6 +51,10 @@ struct ColorWork {
 
 impl ColorNet {
     fn new(spec: &NeuralSurface, offset: usize) -> Self {
+        assert!(
+            spec.color_layers >= 1,
+            "a colour network has a hidden layer"
+        );
         let position = Harmonic {
             dims: 3,
             freqs: spec.color_freqs,
@@ -124,7 +128,7 @@ impl ColorNet {
     }
 
     /// Adds the weights' gradient into `grad` and writes `∂L/∂normal` into
-    /// `d_normal`, given `∂L/∂rgb` in `d_rgb` (overwritten).
+    /// `d_normal`, given `∂L/∂rgb` in `d_rgb`.
     fn backward(
         &self,
         params: &[f32],
@@ -233,16 +237,26 @@ impl SurfaceObjective {
         &params[..self.sdf.len]
     }
 
+    /// Where `log β` is kept when β is trained (after the colour network).
+    fn beta_at(&self) -> Option<usize> {
+        self.spec.train_beta.then(|| self.color.end())
+    }
+
+    /// β at `params`: trained (`e^θ`, kept in range by [`Objective::project`])
+    /// or fixed.
+    pub fn beta(&self, params: &[f32]) -> f32 {
+        match self.beta_at() {
+            Some(i) => params[i].exp(),
+            None => self.spec.beta as f32,
+        }
+    }
+
     fn background(&self) -> [f32; 3] {
         self.spec.background.map(|x| x as f32)
     }
 
-    fn densities(&mut self) {
-        let (a, b, kind) = (
-            self.spec.alpha as f32,
-            self.spec.beta as f32,
-            self.spec.density,
-        );
+    fn densities(&mut self, b: f32) {
+        let (a, kind) = (self.spec.alpha as f32, self.spec.density);
         let f = self.sdf_work.distance();
         self.sigma.resize(f.len(), 0.0);
         self.slope.resize(f.len(), 0.0);
@@ -273,7 +287,7 @@ impl SurfaceObjective {
         let per_pass = (RENDER_ROWS / n).max(1);
         let (mut samples, mut points, mut dirs) = (Samples::default(), Vec::new(), Vec::new());
         let (mut sdf_work, mut color_work) = (SdfWork::default(), ColorWork::default());
-        let (a, b) = (self.spec.alpha as f32, self.spec.beta as f32);
+        let (a, b) = (self.spec.alpha as f32, self.beta(params));
         for (chunk, (colour, depth)) in rays.chunks(per_pass).zip(
             view.colour
                 .chunks_mut(per_pass)
@@ -333,7 +347,19 @@ impl Objective for SurfaceObjective {
                 };
                 d.tensors(&name)
             });
-        sdf.chain(color).collect()
+        let beta = self.beta_at().map(|offset| TensorSpec {
+            name: "log_beta".into(),
+            offset,
+            len: 1,
+        });
+        sdf.chain(color).chain(beta).collect()
+    }
+
+    fn project(&self, values: &mut [f32]) {
+        // β from 1e-4 (where f32 densities still resolve) to 10.
+        if let Some(i) = self.beta_at() {
+            values[i] = values[i].clamp((1e-4f32).ln(), (10f32).ln());
+        }
     }
 
     fn initial(&self) -> Vec<f32> {
@@ -344,6 +370,9 @@ impl Objective for SurfaceObjective {
         let mut rng = SplitMix64::new(self.spec.sdf.seed ^ 0x636f_6c6f_72);
         for d in &self.color.layers {
             d.init(&mut v, &mut rng);
+        }
+        if self.spec.train_beta {
+            v.push((self.spec.beta as f32).ln());
         }
         v
     }
@@ -368,7 +397,8 @@ impl Objective for SurfaceObjective {
         let sdf_params = &values[..self.sdf.len];
         self.sdf
             .forward(sdf_params, &self.points, &mut self.sdf_work);
-        self.densities();
+        let beta = self.beta(values);
+        self.densities(beta);
         self.color.forward(
             values,
             &self.points,
@@ -424,6 +454,24 @@ impl Objective for SurfaceObjective {
             &mut self.color_work,
             grad,
         );
+        // A trained β: ∂σ/∂β = −(f/β)·∂σ/∂f for VolSDF's Laplace CDF, and
+        // −σ/β more for NeuS's (α/β)·s(1−s); through β = e^θ, times β.
+        if let Some(i) = self.beta_at() {
+            let neus = self.spec.density == DensityKind::Neus;
+            let f = self.sdf_work.distance();
+            let (slope, sigma, d_sigma) = (&self.slope, &self.sigma, &self.d_sigma);
+            let d_beta: f64 = (0..rows)
+                .into_par_iter()
+                .map(|k| {
+                    let mut ds_db = -(f[k] / beta) * slope[k];
+                    if neus {
+                        ds_db -= sigma[k] / beta;
+                    }
+                    (d_sigma[k] * ds_db) as f64
+                })
+                .sum();
+            grad[i] += (d_beta * beta as f64) as f32;
+        }
         // ∂L/∂f through the density; ∂L/∂∇f from the colour and the
         // eikonal term at every sample.
         self.d_f.resize(rows, 0.0);
@@ -473,6 +521,7 @@ mod tests {
             density,
             alpha: 10.0,
             beta: 0.1,
+            train_beta: false,
             color_layers: 2,
             color_width: 8,
             color_freqs: 2,
@@ -534,8 +583,16 @@ mod tests {
                 weight: 0.1,
             },
         ];
-        for (density, view) in [(DensityKind::VolSdf, true), (DensityKind::Neus, false)] {
-            let s = spec(density, view);
+        for (density, view, train_beta) in [
+            (DensityKind::VolSdf, true, false),
+            (DensityKind::Neus, false, false),
+            (DensityKind::VolSdf, false, true),
+            (DensityKind::Neus, true, true),
+        ] {
+            let s = NeuralSurface {
+                train_beta,
+                ..spec(density, view)
+            };
             let mut obj = SurfaceObjective::new(&s, &losses);
             let values = obj.initial();
             let b = batch(7, 24);
@@ -543,8 +600,13 @@ mod tests {
             obj.loss_and_grad(&values, &b, 1.0, &mut grad).unwrap();
             let mut rng = SplitMix64::new(4);
             let mut checked = 0;
-            for _ in 0..60 {
-                let i = rng.below(values.len() as u64) as usize;
+            for n in 0..60 {
+                // A trained β is the last value: always checked.
+                let i = if train_beta && n == 0 {
+                    values.len() - 1
+                } else {
+                    rng.below(values.len() as u64) as usize
+                };
                 let h = 1e-3;
                 let at = |x: f32, obj: &mut SurfaceObjective| {
                     let mut v = values.clone();

@@ -280,6 +280,14 @@ pub(crate) fn train_block(name: &str, a: &Args) -> Result<TrainJob, Diag> {
     } else {
         losses
     };
+    if surface_volume && !losses.iter().any(|l| l.kind == LossKind::Mse) {
+        return Err(value_error(
+            losses_span,
+            "a neural SDF's volume learns from images, and these terms have no image term",
+            "no `mse()`",
+            "add `mse()`: `losses: [mse(), eikonal()]`",
+        ));
+    }
     let applies =
         |k: LossKind| k.on_images() != on_points || (surface_volume && k == LossKind::Eikonal);
     if let Some(l) = losses.iter().find(|l| !applies(l.kind)) {

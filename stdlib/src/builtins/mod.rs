@@ -1411,18 +1411,20 @@ fn neural_surface(a: &Args, density: DensityKind, sdf: &NeuralSdf) -> Result<Val
             "leave `color` out",
         ));
     }
-    let fixed = |name: &str| -> Result<f64, Diag> {
-        match a.get(name).0 {
-            Value::Param(_) => Err(value_error(
-                a.get(name).1,
-                format!("`{name}` of a neural SDF's volume is fixed while its network trains"),
-                "cannot be a `param` here yet",
-                format!("give `{name}` a number"),
-            )),
-            _ => a.positive(name),
-        }
+    if matches!(a.get("alpha").0, Value::Param(_)) {
+        return Err(value_error(
+            a.get("alpha").1,
+            "`alpha` of a neural SDF's volume is fixed while its network trains",
+            "cannot be a `param` here",
+            "give `alpha` a number; `beta` can be a `param`",
+        ));
+    }
+    let alpha = a.positive("alpha")?;
+    // A trainable β starts at the param's value.
+    let (beta, train_beta) = match a.get("beta").0 {
+        Value::Param(_) => (a.scalar_arg("beta", Bound::AtLeast(MIN_BETA))?.value, true),
+        _ => (a.positive("beta")?, false),
     };
-    let (alpha, beta) = (fixed("alpha")?, fixed("beta")?);
     crate::precision::beta(beta, a.get("beta").1)?;
     Ok(Value::Field(Arc::new(Field::NeuralSurface(
         NeuralSurface {
@@ -1430,6 +1432,7 @@ fn neural_surface(a: &Args, density: DensityKind, sdf: &NeuralSdf) -> Result<Val
             density,
             alpha,
             beta,
+            train_beta,
             color_layers: 2,
             color_width: 64,
             color_freqs: 4,
