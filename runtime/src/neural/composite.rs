@@ -49,6 +49,32 @@ pub fn composite(
     out
 }
 
+/// One ray's squared colour error against `target`, times `scale`, with
+/// its adjoints written as [`composite_backward`] writes them.
+#[allow(clippy::too_many_arguments)]
+pub fn squared_error_backward(
+    sigma: &[f32],
+    rgb: &[f32],
+    t: &[f32],
+    delta: &[f32],
+    background: [f32; 3],
+    target: [f32; 3],
+    scale: f32,
+    d_sigma: &mut [f32],
+    d_rgb: &mut [f32],
+    trans: &mut Vec<f32>,
+) -> f64 {
+    let out = composite(sigma, rgb, t, delta, background);
+    let (mut loss, mut g) = (0f64, [0f32; 3]);
+    for i in 0..3 {
+        let e = out.colour[i] - target[i];
+        loss += (e * e * scale) as f64;
+        g[i] = 2.0 * e * scale;
+    }
+    composite_backward(sigma, rgb, delta, background, g, d_sigma, d_rgb, trans);
+    loss
+}
+
 /// Given `g = ∂L/∂C`, writes `∂L/∂σ_k` into `d_sigma` and `∂L/∂c_k` into
 /// `d_rgb` (3 per sample); `trans` is scratch space.
 #[allow(clippy::too_many_arguments)]

@@ -12,7 +12,7 @@ use rayon::prelude::*;
 use sdfl_stdlib::camera::Camera;
 use sdfl_stdlib::value::{LastInterval, Nerf, OccupancySpec, Sampler};
 
-use super::composite::{composite, composite_backward};
+use super::composite::{composite, squared_error_backward};
 use super::nerf::{NerfNet, NerfWork, PositionEncoding};
 use super::occupancy::{OccupancyConfig, OccupancyGrid, RaySamples};
 use crate::train::fused::Batch;
@@ -146,13 +146,6 @@ fn fit_pass(
                 let k = samples.range(r);
                 let (sg, c) = (&sigma[k.clone()], &rgb[3 * k.start..3 * k.end]);
                 let (t, delta) = (&samples.t[k.clone()], &samples.delta[k.clone()]);
-                let out = composite(sg, c, t, delta, background);
-                let mut g = [0f32; 3];
-                for i in 0..3 {
-                    let e = out.colour[i] - targets[r][i];
-                    loss += (e * e * scale) as f64;
-                    g[i] = 2.0 * e * scale;
-                }
                 // SAFETY: ray r's samples k belong to this block alone.
                 let (ds, dc) = unsafe {
                     (
@@ -160,7 +153,9 @@ fn fit_pass(
                         std::slice::from_raw_parts_mut(d_rgb.0.add(3 * k.start), 3 * k.len()),
                     )
                 };
-                composite_backward(sg, c, delta, background, g, ds, dc, &mut trans);
+                loss += squared_error_backward(
+                    sg, c, t, delta, background, targets[r], scale, ds, dc, &mut trans,
+                );
                 if let Some(w) = w_out {
                     // SAFETY: as above.
                     let w = unsafe { std::slice::from_raw_parts_mut(w.0.add(k.start), k.len()) };

@@ -13,7 +13,7 @@ use rayon::prelude::*;
 use sdfl_stdlib::camera::Camera;
 use sdfl_stdlib::value::{DensityKind, LastInterval, Loss, LossKind, NeuralSurface};
 
-use super::composite::{composite, composite_backward};
+use super::composite::{composite, squared_error_backward};
 use super::distance::sdf_net;
 use super::encoding::Harmonic;
 use super::field::{NerfView, Samples};
@@ -431,14 +431,18 @@ impl Objective for SurfaceObjective {
                     let r = blk * RAY_BLOCK + j;
                     let k = r * n..(r + 1) * n;
                     let (sg, c) = (&sigma[k.clone()], &rgb[3 * k.start..3 * k.end]);
-                    let out = composite(sg, c, &t[k.clone()], &delta[k.clone()], background);
-                    let mut g = [0f32; 3];
-                    for i in 0..3 {
-                        let e = out.colour[i] - batch.targets[r][i];
-                        loss += (e * e * scale) as f64;
-                        g[i] = 2.0 * e * scale;
-                    }
-                    composite_backward(sg, c, &delta[k.clone()], background, g, ds, dc, &mut trans);
+                    loss += squared_error_backward(
+                        sg,
+                        c,
+                        &t[k.clone()],
+                        &delta[k.clone()],
+                        background,
+                        batch.targets[r],
+                        scale,
+                        ds,
+                        dc,
+                        &mut trans,
+                    );
                 }
                 loss
             })
