@@ -289,3 +289,30 @@ fn docs_describe_the_syntax_and_the_new_builtins() {
     let all = String::from_utf8_lossy(&sdfl(&["docs"]).stdout).into_owned();
     assert!(all.contains("syntax:") && all.contains("len"), "{all}");
 }
+
+#[test]
+fn a_mesh_finer_than_f32_resolves_is_refused() {
+    let tmp = temp("mesh-precision");
+    let file = tmp.join("far.sdfl");
+    std::fs::write(
+        &file,
+        r#"render far {
+  scene: sphere(0.5),
+  camera: look_at(eye: [0, 0, -3]),
+  size: [4, 4],
+  outputs: [mesh("far.ply", resolution: 512, bounds: [[100000, 0, 0], [100000.01, 0.01, 0.01]])],
+}
+"#,
+    )
+    .unwrap();
+    let out = sdfl(&[
+        "run",
+        file.to_str().unwrap(),
+        "--out",
+        tmp.join("out").to_str().unwrap(),
+    ]);
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("below f32 precision"), "{err}");
+    assert!(!tmp.join("out/far.ply").exists());
+}

@@ -61,6 +61,21 @@ pub fn write_mesh(
         })?,
     };
     let grid = MeshGrid::covering(min, max, resolution);
+    // Grid points must stay apart in f32 (a small region far out).
+    let far_out = (0..3)
+        .map(|a| min[a].abs().max(max[a].abs()))
+        .fold(0.0, f64::max);
+    if grid.step < 8.0 * far_out * f32::EPSILON as f64 {
+        return Err(io::Error::new(
+            io::ErrorKind::InvalidInput,
+            format!(
+                "`{}`: cells of {:.1e} this far from the origin ({:.1e}) are below f32 precision: lower `resolution` or move the region",
+                o.path.display(),
+                grid.step,
+                far_out
+            ),
+        ));
+    }
     let max = sdfl_stdlib::work::MAX_MESH_VERTICES;
     let mesh = match surface_nets(field, &grid, max, &|_| {}) {
         // A field steeper than its assumed bound (a network) is sampled
