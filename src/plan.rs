@@ -246,7 +246,7 @@ pub(crate) fn plan_text(program: &sdfl_stdlib::Program) -> String {
                     m.sdf.len,
                     m.initial().len() - m.sdf.len - beta,
                     if n.train_beta {
-                        format!(", and beta from {} (as log beta, kept in 1e-4..10)", n.beta)
+                        format!(", and beta from {} (as ln(beta)/20: it moves 20 times faster than a weight; kept in 1e-4..10)", n.beta)
                     } else {
                         String::new()
                     },

@@ -661,7 +661,13 @@ pub fn run_train_job(
             run.named_values()
                 .into_iter()
                 .filter(|(name, _)| name == "log_beta")
-                .map(|(_, v)| ("beta".to_string(), v.iter().map(|x| x.exp()).collect()))
+                .map(|(_, v)| {
+                    let rate = crate::neural::surface::BETA_RATE;
+                    (
+                        "beta".to_string(),
+                        v.iter().map(|x| (rate * x).exp()).collect(),
+                    )
+                })
                 .collect()
         },
         network_weights: analytic.is_none().then(|| run.values().len()),

@@ -24,6 +24,12 @@ use crate::train::{Objective, TensorSpec, TrainError};
 use crate::volume::density::{neus_density_grad, volsdf_density_grad};
 use crate::volume::{camera_rays, ImageSize, Ray, SplitMix64, Stratified, VolumeError};
 
+/// A trained β is kept as `θ = ln β / BETA_RATE`: Adam's steps in θ are
+/// about the learning rate whatever the gradient's scale, so this makes
+/// `ln β` move this many times faster than a network weight (one shared
+/// learning rate would leave it nearly where it started).
+pub const BETA_RATE: f32 = 20.0;
+
 /// Rays per block of the compositing pass.
 const RAY_BLOCK: usize = 64;
 /// Samples per pass when rendering (bounds the distance network's buffers).
@@ -242,11 +248,11 @@ impl SurfaceObjective {
         self.spec.train_beta.then(|| self.color.end())
     }
 
-    /// β at `params`: trained (`e^θ`, kept in range by [`Objective::project`])
-    /// or fixed.
+    /// β at `params`: trained (`e^(BETA_RATE·θ)`, kept in range by
+    /// [`Objective::project`]) or fixed.
     pub fn beta(&self, params: &[f32]) -> f32 {
         match self.beta_at() {
-            Some(i) => params[i].exp(),
+            Some(i) => (BETA_RATE * params[i]).exp(),
             None => self.spec.beta as f32,
         }
     }
@@ -358,7 +364,7 @@ impl Objective for SurfaceObjective {
     fn project(&self, values: &mut [f32]) {
         // β from 1e-4 (where f32 densities still resolve) to 10.
         if let Some(i) = self.beta_at() {
-            values[i] = values[i].clamp((1e-4f32).ln(), (10f32).ln());
+            values[i] = values[i].clamp((1e-4f32).ln() / BETA_RATE, (10f32).ln() / BETA_RATE);
         }
     }
 
@@ -372,7 +378,7 @@ impl Objective for SurfaceObjective {
             d.init(&mut v, &mut rng);
         }
         if self.spec.train_beta {
-            v.push((self.spec.beta as f32).ln());
+            v.push((self.spec.beta as f32).ln() / BETA_RATE);
         }
         v
     }
@@ -459,7 +465,8 @@ impl Objective for SurfaceObjective {
             grad,
         );
         // A trained β: ∂σ/∂β = −(f/β)·∂σ/∂f for VolSDF's Laplace CDF, and
-        // −σ/β more for NeuS's (α/β)·s(1−s); through β = e^θ, times β.
+        // −σ/β more for NeuS's (α/β)·s(1−s); through β = e^(rate·θ), times
+        // rate·β.
         if let Some(i) = self.beta_at() {
             let neus = self.spec.density == DensityKind::Neus;
             let f = self.sdf_work.distance();
@@ -474,7 +481,7 @@ impl Objective for SurfaceObjective {
                     (d_sigma[k] * ds_db) as f64
                 })
                 .sum();
-            grad[i] += (d_beta * beta as f64) as f32;
+            grad[i] += (d_beta * beta as f64 * BETA_RATE as f64) as f32;
         }
         // ∂L/∂f through the density; ∂L/∂∇f from the colour and the
         // eikonal term at every sample.
