@@ -149,6 +149,24 @@ fn intern(name: &str) -> &'static str {
 }
 
 impl Checker<'_> {
+    /// The type of an item of `t` (a list, or a vector of numbers); for
+    /// anything else a type error at `span`: "{what} a number", with `help`.
+    fn item_type(&mut self, t: Type, span: Span, what: &str, help: &str) -> Type {
+        match t {
+            Type::List(e) => *e,
+            Type::Vec3 => Type::Number,
+            Type::Any => Type::Any,
+            t => {
+                self.diags.push(
+                    Diag::new(codes::TYPE, span, format!("{what} {}", t.with_article()))
+                        .label(format!("this is {}", t.with_article()))
+                        .help(help),
+                );
+                Type::Any
+            }
+        }
+    }
+
     /// A `fn` definition: its name, parameters and body, checked where it
     /// stands (it sees the `let`s and `fn`s above it, not itself).
     fn fn_def(&mut self, f: &FnDef) {
@@ -482,23 +500,12 @@ impl Checker<'_> {
                         .help("index lists with whole numbers from 0: `xs[0]`"),
                     );
                 }
-                match lt {
-                    Type::List(e) => *e,
-                    Type::Vec3 => Type::Number,
-                    Type::Any => Type::Any,
-                    t => {
-                        self.diags.push(
-                            Diag::new(
-                                codes::TYPE,
-                                list.span,
-                                format!("cannot index {}", t.with_article()),
-                            )
-                            .label(format!("this is {}", t.with_article()))
-                            .help("only lists and vectors have items `[i]`"),
-                        );
-                        Type::Any
-                    }
-                }
+                self.item_type(
+                    lt,
+                    list.span,
+                    "cannot index",
+                    "only lists and vectors have items `[i]`",
+                )
             }
             ExprKind::If {
                 cond,
@@ -605,23 +612,15 @@ impl Checker<'_> {
                             }
                             Type::Number
                         }
-                        Source::List(list) => match self.expr(list) {
-                            Type::List(e) => *e,
-                            Type::Vec3 => Type::Number,
-                            Type::Any => Type::Any,
-                            t => {
-                                self.diags.push(
-                                    Diag::new(
-                                        codes::TYPE,
-                                        list.span,
-                                        format!("cannot loop over {}", t.with_article()),
-                                    )
-                                    .label(format!("this is {}", t.with_article()))
-                                    .help("loop over a range `0..n` or a list `[...]`"),
-                                );
-                                Type::Any
-                            }
-                        },
+                        Source::List(list) => {
+                            let t = self.expr(list);
+                            self.item_type(
+                                t,
+                                list.span,
+                                "cannot loop over",
+                                "loop over a range `0..n` or a list `[...]`",
+                            )
+                        }
                     };
                     self.locals
                         .last_mut()
