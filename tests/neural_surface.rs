@@ -13,7 +13,7 @@ use sdfl_runtime::jobs::{run_train_job, TrainOptions, TrainReport};
 const SCENE: &str = r#"
 let cams = orbit(radius: 3, up: [0, 1, 0], focal: 1.5, views: 12)
 train fit {
-  model: DENSITY(neural_sdf(encoding: harmonic(freqs: 2), layers: 2, width: 32, skips: [], radius: 0.4), alpha: ALPHA, beta: BETA, view_dependent: false),
+  model: DENSITY(neural_sdf(encoding: harmonic(freqs: 2), layers: 2, width: 32, skips: [], radius: 0.4), ALPHAbeta: BETA, view_dependent: false),
   data: render_views(sphere(0.7), cameras: cams, size: [16, 16], material: lambert(albedo: [0.9, 0.5, 0.2]), test_views: 2, split_seed: 3),
   sampler: stratified(samples: 32, near: 1.8, far: 4.2, jitter: true),
   rays: 256,
@@ -35,11 +35,11 @@ fn temp(name: &str) -> PathBuf {
 }
 
 fn run(density: &str, iterations: usize, out: &std::path::Path) -> TrainReport {
-    // NeuS also trains its β.
+    // NeuS (no α: its opacity comes from β) also trains its β.
     let (alpha, beta) = if density == "volsdf" {
-        ("12", "0.08")
+        ("alpha: 12, ", "0.08")
     } else {
-        ("1", "param(0.08)")
+        ("", "param(0.08)")
     };
     let src = SCENE
         .replace("DENSITY", density)

@@ -276,7 +276,6 @@ impl Dense {
         assert_eq!(d_out.len(), out.len());
         assert_eq!(d_inputs.len(), self.parts.len());
         let act = self.act;
-        let w = self.weights(params);
         // dZ = dY ⊙ act'(z), in place.
         if act != Activation::Identity {
             d_out
@@ -288,7 +287,24 @@ impl Dense {
                     }
                 });
         }
-        let dz: &[f32] = d_out;
+        self.pull_back(params, d_out, d_inputs, accumulate);
+        self.weight_gradient(inputs, d_out, grad);
+    }
+
+    /// `∂L/∂x_p = dZ·W_pᵀ` into each given `d_inputs[p]` (added to what it
+    /// holds when `accumulate`), from the pre-activation adjoint `dz`
+    /// (rows × out); per block of rows.
+    pub fn pull_back(
+        &self,
+        params: &[f32],
+        dz: &[f32],
+        d_inputs: &mut [Option<&mut [f32]>],
+        accumulate: bool,
+    ) {
+        let n = self.out;
+        let rows = dz.len() / n;
+        assert_eq!(d_inputs.len(), self.parts.len());
+        let w = self.weights(params);
         // ∂L/∂x_p = dZ·W_pᵀ, per block of rows.
         let mut w_row = 0;
         for (p, &k) in self.parts.iter().enumerate() {
@@ -323,6 +339,14 @@ impl Dense {
             }
             w_row += k;
         }
+    }
+
+    /// Adds `∂L/∂W_p = x_pᵀ·dZ` and `∂L/∂b = Σ_rows dZ` to `grad`, from the
+    /// pre-activation adjoint `dz` (rows × out) and the layer's inputs.
+    pub fn weight_gradient(&self, inputs: &[&[f32]], dz: &[f32], grad: &mut [f32]) {
+        let n = self.out;
+        let rows = dz.len() / n;
+        self.check(inputs, rows);
         // ∂L/∂W_p = x_pᵀ·dZ and ∂L/∂b = Σ_rows dZ: partial sums over fixed
         // blocks of rows (each operand packed once), added in block order.
         let fan_in = self.fan_in();

@@ -6,20 +6,19 @@
 //! The eikonal loss needs `∇f`, and its gradient needs `∂∇f/∂params`: a
 //! second derivative. Both are computed exactly, without a tape:
 //!
-//! - Forward: next to each layer's values `y = act(z)` (rows × width) the
-//!   pass carries three tangents per row, `y' = ∂y/∂x_j` (3·rows × width),
-//!   pushed through as ordinary batched products `z' = x'·W` (no bias), then
-//!   `y' = act'(z) ⊙ z'`. Values and tangents of a layer live in one buffer,
-//!   values first, tangent row `3r + j` for point `r`, direction `j`; the
-//!   output's tangent rows are `∇f` as rows × 3.
-//! - Backward: given `∂L/∂f` and `∂L/∂∇f`, the adjoints of both paths are
-//!   formed per layer (`dz' = s ⊙ dy'`, `ds = Σ_j dy'_j ⊙ z'_j`,
-//!   `dz = s ⊙ dy + ds ⊙ act''(z)`, with `s = act'(z)`), and then one
-//!   [`Dense::backward`] over the stacked 4·rows rows forms
-//!   `∂L/∂W = xᵀ·dz + x'ᵀ·dz'` and `[dx; dx'] = [dz; dz']·Wᵀ` together. The
-//!   bias only ever saw the value rows, so its gradient is put right
-//!   afterwards. Every reduction runs in a fixed order: bit-identical at any
-//!   thread count.
+//! - Forward: the values, `z = x·W + b`, `y = act(z)`, keeping each layer's
+//!   slope `s = act'(z)`; then, for `∇f`, one reverse pass from the output
+//!   (`u = ∂f/∂y`, `δ = s ⊙ u`, `u_prev = δ·Wᵀ`) down to the encoding, and
+//!   through the encoding's Jacobian to `x`.
+//! - Backward (reverse over reverse): given `∂L/∂f` and `ḡ = ∂L/∂∇f`, the
+//!   adjoint of that reverse pass runs forwards through the layers
+//!   (`δ̄ = ū_prev·W`, `ū = s ⊙ δ̄`, `z̄ += u ⊙ δ̄ ⊙ act''(z)`), then the
+//!   ordinary backward pass of the values carries `z̄` back. Each layer's
+//!   weight gradient `yᵀ·z̄ + ū_prevᵀ·δ` is one product over the stacked
+//!   rows `[y; ū_prev]`, `[z̄; δ]`; the bias saw only the values, so its
+//!   gradient is put right afterwards. Six products of a layer's size per
+//!   step (forward-mode tangents need twelve). Every reduction runs in a
+//!   fixed order: bit-identical at any thread count.
 
 use rayon::prelude::*;
 
@@ -309,63 +308,88 @@ impl SdfNet {
         assert_eq!(points.len() % 3, 0, "rows of 3");
         let rows = points.len() / 3;
         work.resize(self, rows);
-        let (e, w, beta) = (self.encoding.width(), self.width(), self.beta);
+        let (e, w, beta, layers) = (
+            self.encoding.width(),
+            self.width(),
+            self.beta,
+            self.hidden.len(),
+        );
         let SdfWork {
+            at,
             enc,
-            hidden,
+            g_enc,
+            act,
             slope,
-            pre_tangent,
+            up,
+            adj,
             out,
             ..
         } = work;
-        let (enc_v, enc_t) = enc.split_at_mut(rows * e);
+        at.copy_from_slice(points);
+        let enc_v = &mut enc[..rows * e];
         self.encoding.encode(points, enc_v);
-        encode_tangents(&self.encoding, points, enc_t);
-        let (enc_v, enc_t) = (&*enc_v, &*enc_t);
+        let enc_v = &*enc_v;
+        // Values: y = softplus(z) and s = σ(βz) from one exponential.
         for (i, d) in self.hidden.iter().enumerate() {
-            let (before, rest) = hidden.split_at_mut(i);
-            let (y, yt) = rest[0].split_at_mut(rows * w);
-            let (prev_v, prev_t) = if i == 0 {
-                (enc_v, enc_t)
+            let (before, rest) = act.split_at_mut(i);
+            let y = &mut rest[0][..rows * w];
+            let prev: &[f32] = if i == 0 {
+                enc_v
             } else {
-                before[i - 1].split_at(rows * w)
+                &before[i - 1][..rows * w]
             };
-            let zt = &mut pre_tangent[i];
-            // z (bias, no activation) into y, and z'.
             let lin = &self.linear[i];
             if d.parts.len() == 2 {
-                lin.forward(params, &[prev_v, enc_v], y);
-                linear_part(d, params, &[prev_t, enc_t], zt);
+                lin.forward(params, &[prev, enc_v], y);
             } else {
-                lin.forward(params, &[prev_v], y);
-                linear_part(d, params, &[prev_t], zt);
+                lin.forward(params, &[prev], y);
             }
-            // y = softplus(z) and s = σ(βz) from one exponential (s kept
-            // for the backward pass), then y' = s ⊙ z'.
             y.par_chunks_mut(ROW_BLOCK * w)
                 .zip(slope[i].par_chunks_mut(ROW_BLOCK * w))
-                .zip(yt.par_chunks_mut(3 * ROW_BLOCK * w))
-                .zip(zt.par_chunks(3 * ROW_BLOCK * w))
-                .for_each(|(((y, s), yt), zt)| {
-                    for (((y, s), yt), zt) in y
-                        .chunks_mut(w)
-                        .zip(s.chunks_mut(w))
-                        .zip(yt.chunks_mut(3 * w))
-                        .zip(zt.chunks(3 * w))
-                    {
-                        for c in 0..w {
-                            (y[c], s[c]) = softplus_and_slope(y[c], beta);
-                            for j in 0..3 {
-                                yt[j * w + c] = s[c] * zt[j * w + c];
-                            }
-                        }
+                .for_each(|(y, s)| {
+                    for (y, s) in y.iter_mut().zip(s) {
+                        (*y, *s) = softplus_and_slope(*y, beta);
                     }
                 });
         }
-        let (hv, ht) = hidden.last().expect("a hidden layer").split_at(rows * w);
         let (f, g) = out.split_at_mut(rows);
-        self.output.forward(params, &[hv], f);
-        linear_part(&self.output, params, &[ht], g);
+        self.output
+            .forward(params, &[&act[layers - 1][..rows * w]], f);
+        // ∇f: u = ∂f/∂y is the output's weights in every row of the last
+        // layer; δ = s ⊙ u; u_prev = δ·Wᵀ, the skip layers' and the first
+        // layer's encoding parts adding up in g_enc = ∂f/∂enc.
+        let w_out = &params[self.output.offset..self.output.offset + w];
+        up[layers - 1][..rows * w]
+            .par_chunks_mut(w)
+            .for_each(|u| u.copy_from_slice(w_out));
+        g_enc.fill(0.0);
+        for i in (0..layers).rev() {
+            let delta = &mut adj[i][rows * w..];
+            delta
+                .par_chunks_mut(ROW_BLOCK * w)
+                .zip(slope[i].par_chunks(ROW_BLOCK * w))
+                .zip(up[i].par_chunks(ROW_BLOCK * w))
+                .for_each(|((d, s), u)| {
+                    for ((d, s), u) in d.iter_mut().zip(s).zip(u) {
+                        *d = s * u;
+                    }
+                });
+            let delta = &adj[i][rows * w..];
+            let lin = &self.linear[i];
+            let (below, _) = up.split_at_mut(i);
+            if i == 0 {
+                lin.pull_back(params, delta, &mut [Some(g_enc.as_mut_slice())], true);
+            } else if lin.parts.len() == 2 {
+                let u_prev = &mut below[i - 1];
+                u_prev.fill(0.0);
+                let mut d_in = [Some(u_prev.as_mut_slice()), Some(g_enc.as_mut_slice())];
+                lin.pull_back(params, delta, &mut d_in, true);
+            } else {
+                let mut d_in = [Some(below[i - 1].as_mut_slice())];
+                lin.pull_back(params, delta, &mut d_in, false);
+            }
+        }
+        self.encoding.backward(points, g_enc, g);
     }
 
     /// Adds `∂L/∂params` to `grad` given `∂L/∂f` (rows) and `∂L/∂∇f`
@@ -388,71 +412,112 @@ impl SdfNet {
     /// The backward pass from the adjoints in `work.d_out`.
     fn backward_from_work(&self, params: &[f32], work: &mut SdfWork, grad: &mut [f32]) {
         assert_eq!(grad.len(), self.len, "gradient");
-        let (rows, w, beta) = (work.rows, self.width(), self.beta);
+        let (rows, e, w, beta, layers) = (
+            work.rows,
+            self.encoding.width(),
+            self.width(),
+            self.beta,
+            self.hidden.len(),
+        );
         if rows == 0 {
             return;
         }
         let SdfWork {
+            at,
             enc,
-            hidden,
+            act,
             slope,
-            pre_tangent,
-            out,
+            up,
+            adj,
             d_out,
-            d_a,
-            d_b,
+            d_last,
+            tmp,
             bias_keep,
             bias_sum,
             ..
         } = work;
-        let last = hidden.last().expect("a hidden layer");
-        let keep = |d: &Dense, grad: &[f32], bias_keep: &mut Vec<f32>| {
-            bias_keep.clear();
-            bias_keep.extend_from_slice(&grad[d.offset + d.fan_in() * d.out..d.end()]);
-        };
-        keep(&self.output, grad, bias_keep);
-        self.output.backward(
-            params,
-            &[last.as_slice()],
-            out.as_slice(),
-            d_out,
-            &mut [Some(d_a.as_mut_slice())],
-            false,
-            grad,
-        );
-        value_bias(&self.output, d_out, rows, bias_keep, bias_sum, grad);
-        for i in (0..self.hidden.len()).rev() {
-            let d = &self.linear[i];
-            pull_through_softplus(d_a, &slope[i], &pre_tangent[i], beta, w);
-            keep(d, grad, bias_keep);
-            let y = &hidden[i];
+        let (d_f, d_g) = d_out.split_at(rows);
+        // The adjoint of ∇f's reverse pass, forwards: ḡ_enc = J·ḡ, then per
+        // layer δ̄ = ū_prev·W (the encoding part: ḡ_enc), ū = s ⊙ δ̄ and
+        // z̄ = u ⊙ δ̄ ⊙ β·s·(1 − s).
+        encode_pushforward(&self.encoding, at, d_g, &mut enc[rows * e..]);
+        let enc_bar = &enc[rows * e..];
+        for i in 0..layers {
+            let lin = &self.linear[i];
+            let (before, rest) = act.split_at_mut(i);
             if i == 0 {
-                d.backward(params, &[enc.as_slice()], y, d_a, &mut [None], false, grad);
-            } else if d.parts.len() == 2 {
-                let mut d_in = [Some(d_b.as_mut_slice()), None];
-                d.backward(
-                    params,
-                    &[hidden[i - 1].as_slice(), enc.as_slice()],
-                    y,
-                    d_a,
-                    &mut d_in,
-                    false,
-                    grad,
-                );
+                lin.linear(params, &[enc_bar], tmp);
+            } else if lin.parts.len() == 2 {
+                lin.linear(params, &[&before[i - 1][rows * w..], enc_bar], tmp);
             } else {
-                let mut d_in = [Some(d_b.as_mut_slice())];
-                d.backward(
-                    params,
-                    &[hidden[i - 1].as_slice()],
-                    y,
-                    d_a,
-                    &mut d_in,
-                    false,
-                    grad,
-                );
+                lin.linear(params, &[&before[i - 1][rows * w..]], tmp);
             }
-            value_bias(d, d_a, rows, bias_keep, bias_sum, grad);
-            std::mem::swap(d_a, d_b);
+            let u_bar = &mut rest[0][rows * w..];
+            let z_bar = &mut adj[i][..rows * w];
+            u_bar
+                .par_chunks_mut(ROW_BLOCK * w)
+                .zip(z_bar.par_chunks_mut(ROW_BLOCK * w))
+                .zip(slope[i].par_chunks(ROW_BLOCK * w))
+                .zip(
+                    up[i]
+                        .par_chunks(ROW_BLOCK * w)
+                        .zip(tmp.par_chunks(ROW_BLOCK * w)),
+                )
+                .for_each(|(((ub, zb), s), (u, t))| {
+                    for c in 0..ub.len() {
+                        let s = s[c];
+                        ub[c] = s * t[c];
+                        zb[c] = u[c] * t[c] * beta * s * (1.0 - s);
+                    }
+                });
+        }
+        // The output layer: ∂L/∂w_out = yᵀ·∂L/∂f + Σ_rows ū (u = w_out in
+        // every row of the last layer), one product over the stacked rows
+        // [y; ū] and [∂L/∂f; 1]; ∂L/∂b; and ā = ∂L/∂y (in tmp).
+        let last = &act[layers - 1];
+        d_last[..rows].copy_from_slice(d_f);
+        d_last[rows..].fill(1.0);
+        let out_bias = self.output.offset + w;
+        bias_keep.clear();
+        bias_keep.extend_from_slice(&grad[out_bias..out_bias + 1]);
+        self.output
+            .weight_gradient(&[last.as_slice()], d_last, grad);
+        value_bias(&self.output, d_last, rows, bias_keep, bias_sum, grad);
+        self.output
+            .pull_back(params, d_f, &mut [Some(tmp.as_mut_slice())], false);
+        // The values' backward pass, carrying z̄: per layer z̄ += ā ⊙ s, one
+        // weight gradient over the stacked rows, then ā_prev = z̄·Wᵀ.
+        for i in (0..layers).rev() {
+            let lin = &self.linear[i];
+            let z_bar = &mut adj[i][..rows * w];
+            z_bar
+                .par_chunks_mut(ROW_BLOCK * w)
+                .zip(tmp.par_chunks(ROW_BLOCK * w))
+                .zip(slope[i].par_chunks(ROW_BLOCK * w))
+                .for_each(|((zb, a), s)| {
+                    for ((zb, a), s) in zb.iter_mut().zip(a).zip(s) {
+                        *zb += a * s;
+                    }
+                });
+            let stacked = &adj[i];
+            bias_keep.clear();
+            bias_keep.extend_from_slice(&grad[lin.offset + lin.fan_in() * w..lin.end()]);
+            if i == 0 {
+                lin.weight_gradient(&[enc.as_slice()], stacked, grad);
+            } else if lin.parts.len() == 2 {
+                lin.weight_gradient(&[act[i - 1].as_slice(), enc.as_slice()], stacked, grad);
+            } else {
+                lin.weight_gradient(&[act[i - 1].as_slice()], stacked, grad);
+            }
+            value_bias(lin, stacked, rows, bias_keep, bias_sum, grad);
+            if i > 0 {
+                let z_bar = &adj[i][..rows * w];
+                let mut d_in: Vec<Option<&mut [f32]>> = vec![Some(tmp.as_mut_slice())];
+                if lin.parts.len() == 2 {
+                    d_in.push(None);
+                }
+                lin.pull_back(params, z_bar, &mut d_in, false);
+            }
         }
     }
 
@@ -603,75 +668,55 @@ fn softplus_and_slope(z: f32, beta: f32) -> (f32, f32) {
     ((t.max(0.0) + super::mlp::ln_1p_small(e)) / beta, s)
 }
 
-/// Rows `3r + j` of `out` (rows × 3 tangents × width): `∂enc(x_r)/∂x_j`.
-/// Only the features of `x_j` move: `2^k cos`, `−2^k sin`, and 1 for the
-/// raw input.
-fn encode_tangents(h: &Harmonic, points: &[f32], out: &mut [f32]) {
+/// `out = J(x)·v` per row: the encoding's Jacobian (width × 3) applied to
+/// `v` (rows × 3), the transpose of [`Harmonic::backward`]. Only the
+/// features of `x_j` move with it: `2^k cos`, `−2^k sin`, and 1 for the raw
+/// input.
+fn encode_pushforward(h: &Harmonic, points: &[f32], v: &[f32], out: &mut [f32]) {
     let (f, e) = (h.freqs, h.width());
-    assert_eq!(out.len(), points.len() * e);
-    out.par_chunks_mut(ROW_BLOCK * 3 * e)
+    assert_eq!(out.len(), points.len() / 3 * e);
+    out.par_chunks_mut(ROW_BLOCK * e)
         .zip(points.par_chunks(ROW_BLOCK * 3))
-        .for_each(|(o, p)| {
-            for (rows, x) in o.chunks_mut(3 * e).zip(p.chunks(3)) {
-                rows.fill(0.0);
-                for (j, row) in rows.chunks_mut(e).enumerate() {
+        .zip(v.par_chunks(ROW_BLOCK * 3))
+        .for_each(|((o, p), v)| {
+            for ((row, x), v) in o.chunks_mut(e).zip(p.chunks(3)).zip(v.chunks(3)) {
+                for j in 0..3 {
                     let mut scale = 1.0f32;
                     for k in 0..f {
                         let (s, c) = (x[j] * scale).sin_cos();
-                        row[j * f + k] = scale * c;
-                        row[3 * f + j * f + k] = -scale * s;
+                        row[j * f + k] = v[j] * scale * c;
+                        row[3 * f + j * f + k] = -v[j] * scale * s;
                         scale *= 2.0;
                     }
                     if h.include_input {
-                        row[6 * f + j] = 1.0;
+                        row[6 * f + j] = v[j];
                     }
                 }
             }
         });
 }
 
-/// `out = Σ_p x_p·W_p`: a layer without bias or activation, the pushforward
-/// of tangents.
-fn linear_part(d: &Dense, params: &[f32], inputs: &[&[f32]], out: &mut [f32]) {
-    d.linear(params, inputs, out);
-}
-
-/// Turns `[dy; dy']` (the adjoints of a softplus layer's values and
-/// tangents) into `[dz; dz']` in place: with `s = σ(βz)`,
-/// `ds = Σ_j dy'_j ⊙ z'_j`, `dz' = s ⊙ dy'` and
-/// `dz = s ⊙ dy + ds ⊙ act''(z)`, `act'' = β·s·(1 − s)` (where `s → 1`
-/// the rounding of `1 − s` is far below f32's resolution of the largest
-/// `act''`, β/4).
-fn pull_through_softplus(d: &mut [f32], slope: &[f32], zt: &[f32], beta: f32, w: usize) {
-    let rows = slope.len() / w;
-    let (dv, dt) = d.split_at_mut(rows * w);
-    dv.par_chunks_mut(ROW_BLOCK * w)
-        .zip(dt.par_chunks_mut(3 * ROW_BLOCK * w))
-        .zip(slope.par_chunks(ROW_BLOCK * w))
-        .zip(zt.par_chunks(3 * ROW_BLOCK * w))
-        .for_each(|(((dv, dt), s), zt)| {
-            for (((dv, dt), s), zt) in dv
-                .chunks_mut(w)
-                .zip(dt.chunks_mut(3 * w))
-                .zip(s.chunks(w))
-                .zip(zt.chunks(3 * w))
-            {
-                for c in 0..w {
-                    let s = s[c];
-                    let ds = dt[c] * zt[c] + dt[w + c] * zt[w + c] + dt[2 * w + c] * zt[2 * w + c];
-                    for j in 0..3 {
-                        dt[j * w + c] *= s;
-                    }
-                    dv[c] = s * dv[c] + ds * beta * s * (1.0 - s);
+/// Column sums of `m` (rows of `cols`) in f64, rows in order, per block of
+/// columns (the same at any thread count).
+fn column_sums(m: &[f32], cols: usize, sums: &mut Vec<f64>) {
+    sums.clear();
+    sums.resize(cols, 0.0);
+    sums.par_chunks_mut(COL_BLOCK)
+        .enumerate()
+        .for_each(|(blk, s)| {
+            let c0 = blk * COL_BLOCK;
+            for r in m.chunks(cols) {
+                for (s, &v) in s.iter_mut().zip(&r[c0..]) {
+                    *s += v as f64;
                 }
             }
         });
 }
 
-/// [`Dense::backward`] over the stacked rows added the tangent rows' `dz'`
-/// to `∂L/∂b` too; the bias reaches only the values: `∂L/∂b` becomes what
-/// it held before (`keep`) plus the sum of the value rows' `dz` (in f64,
-/// rows in order, per block of columns).
+/// [`Dense::weight_gradient`] over the stacked rows added the
+/// second-order rows' `δ` to `∂L/∂b` too; the bias reaches only the values:
+/// `∂L/∂b` becomes what it held before (`keep`) plus the sum of the value
+/// rows' `z̄` (the first `rows`).
 fn value_bias(
     d: &Dense,
     dz: &[f32],
@@ -681,18 +726,7 @@ fn value_bias(
     grad: &mut [f32],
 ) {
     let n = d.out;
-    sums.clear();
-    sums.resize(n, 0.0);
-    sums.par_chunks_mut(COL_BLOCK)
-        .enumerate()
-        .for_each(|(blk, s)| {
-            let c0 = blk * COL_BLOCK;
-            for r in dz[..rows * n].chunks(n) {
-                for (s, &v) in s.iter_mut().zip(&r[c0..]) {
-                    *s += v as f64;
-                }
-            }
-        });
+    column_sums(&dz[..rows * n], n, sums);
     let gb = &mut grad[d.offset + d.fan_in() * n..d.end()];
     for ((g, &k), &s) in gb.iter_mut().zip(keep).zip(sums.iter()) {
         *g = k + s as f32;
@@ -714,19 +748,28 @@ pub struct SdfWork {
     rows: usize,
     /// Both point sets of a loss, one after the other.
     points: Vec<f32>,
-    /// Values (rows × e) then tangents (3·rows × e) of the encoding.
+    /// The points of the last forward pass.
+    at: Vec<f32>,
+    /// The encoding (rows × e), then `ḡ_enc = J·ḡ` (rows × e).
     enc: Vec<f32>,
-    /// Per hidden layer: values (rows × w) then tangents (3·rows × w).
-    hidden: Vec<Vec<f32>>,
+    /// `∂f/∂enc` (rows × e).
+    g_enc: Vec<f32>,
+    /// Per hidden layer: values `y` (rows × w), then `ū` (rows × w).
+    act: Vec<Vec<f32>>,
     /// Per hidden layer: the slopes `σ(βz)` (rows × w).
     slope: Vec<Vec<f32>>,
-    /// Per hidden layer: pre-activation tangents `z'` (3·rows × w).
-    pre_tangent: Vec<Vec<f32>>,
+    /// Per hidden layer: `u = ∂f/∂y` (rows × w).
+    up: Vec<Vec<f32>>,
+    /// Per hidden layer: `z̄` (rows × w), then `δ = ∂f/∂z` (rows × w).
+    adj: Vec<Vec<f32>>,
     /// `f` (rows) then `∇f` (rows × 3).
     out: Vec<f32>,
+    /// `∂L/∂f` (rows) then `∂L/∂∇f` (rows × 3).
     d_out: Vec<f32>,
-    d_a: Vec<f32>,
-    d_b: Vec<f32>,
+    /// `∂L/∂f` (rows), then ones (rows): the output layer's stacked `dz`.
+    d_last: Vec<f32>,
+    /// `δ̄`, then `ā`, of one layer (rows × w).
+    tmp: Vec<f32>,
     bias_keep: Vec<f32>,
     bias_sum: Vec<f64>,
 }
@@ -736,24 +779,22 @@ impl SdfWork {
         let (e, w, l) = (net.encoding.width(), net.width(), net.hidden.len());
         self.rows = rows;
         let set = |v: &mut Vec<f32>, n: usize| v.resize(n, 0.0);
-        set(&mut self.enc, 4 * rows * e);
-        self.hidden.resize_with(l, Vec::new);
-        self.slope.resize_with(l, Vec::new);
-        self.pre_tangent.resize_with(l, Vec::new);
-        for ((h, s), t) in self
-            .hidden
-            .iter_mut()
-            .zip(&mut self.slope)
-            .zip(&mut self.pre_tangent)
-        {
-            set(h, 4 * rows * w);
-            set(s, rows * w);
-            set(t, 3 * rows * w);
+        set(&mut self.at, 3 * rows);
+        set(&mut self.enc, 2 * rows * e);
+        set(&mut self.g_enc, rows * e);
+        for v in [&mut self.act, &mut self.slope, &mut self.up, &mut self.adj] {
+            v.resize_with(l, Vec::new);
+        }
+        for i in 0..l {
+            set(&mut self.act[i], 2 * rows * w);
+            set(&mut self.slope[i], rows * w);
+            set(&mut self.up[i], rows * w);
+            set(&mut self.adj[i], 2 * rows * w);
         }
         set(&mut self.out, 4 * rows);
         set(&mut self.d_out, 4 * rows);
-        set(&mut self.d_a, 4 * rows * w);
-        set(&mut self.d_b, 4 * rows * w);
+        set(&mut self.d_last, 2 * rows);
+        set(&mut self.tmp, rows * w);
     }
 
     /// `f` at the points of the last forward pass.
@@ -769,7 +810,7 @@ impl SdfWork {
     /// Bytes held for `rows` points (for memory estimates).
     pub fn bytes_for(net: &SdfNet, rows: usize) -> u64 {
         let (e, w, l) = (net.encoding.width(), net.width(), net.hidden.len());
-        let per_row = 3 + 4 * e + l * 8 * w + 8 + 8 * w;
+        let per_row = 6 + 3 * e + l * 6 * w + 10 + w;
         (4 * per_row * rows) as u64
     }
 }
@@ -980,7 +1021,7 @@ mod tests {
     }
 
     #[test]
-    fn encoding_tangents_are_the_transpose_of_its_backward() {
+    fn encoding_pushforward_is_the_transpose_of_its_backward() {
         let h = Harmonic {
             dims: 3,
             freqs: 4,
@@ -990,20 +1031,20 @@ mod tests {
         let mut rng = SplitMix64::new(3);
         let pts = points(5, 2.0, &mut rng);
         let g = points(5 * e, 1.0, &mut rng);
-        let mut tangents = vec![f32::NAN; 5 * 3 * e];
-        encode_tangents(&h, &pts, &mut tangents);
+        let v = points(5, 1.0, &mut rng);
+        let mut jv = vec![f32::NAN; 5 * e];
+        encode_pushforward(&h, &pts, &v, &mut jv);
         let mut dx = vec![0.0; 15];
         h.backward(&pts, &g[..5 * e], &mut dx);
+        // ⟨J·v, g⟩ = ⟨v, Jᵀ·g⟩ row by row.
         for r in 0..5 {
-            for j in 0..3 {
-                let row = &tangents[(3 * r + j) * e..(3 * r + j + 1) * e];
-                let jg: f32 = row.iter().zip(&g[r * e..]).map(|(a, b)| a * b).sum();
-                assert!(
-                    (jg - dx[3 * r + j]).abs() < 1e-5,
-                    "{jg} vs {}",
-                    dx[3 * r + j]
-                );
-            }
+            let left: f32 = jv[r * e..(r + 1) * e]
+                .iter()
+                .zip(&g[r * e..])
+                .map(|(a, b)| a * b)
+                .sum();
+            let right: f32 = (0..3).map(|j| v[3 * r + j] * dx[3 * r + j]).sum();
+            assert!((left - right).abs() < 1e-4, "{left} vs {right}");
         }
     }
 

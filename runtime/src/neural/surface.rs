@@ -21,7 +21,7 @@ use super::mlp::{Activation, Dense};
 use super::sdf_net::{eikonal_loss, SdfNet, SdfWork};
 use crate::train::fused::Batch;
 use crate::train::{Objective, TensorSpec, TrainError};
-use crate::volume::density::{neus_density_grad, volsdf_density_grad};
+use crate::volume::density::{neus_interval_depth, volsdf_density_grad};
 use crate::volume::{camera_rays, ImageSize, Ray, SplitMix64, Stratified, VolumeError};
 
 /// A trained β is kept as `θ = ln β / BETA_RATE`: Adam's steps in θ are
@@ -180,13 +180,44 @@ impl ColorNet {
     }
 }
 
-/// Density `σ(f)` and `dσ/df` of a neural surface.
-fn density(kind: DensityKind, f: f32, alpha: f32, beta: f32) -> (f32, f32) {
-    match kind {
-        DensityKind::Neus => neus_density_grad(f, alpha, beta),
-        // The evaluator allows only VolSDF and NeuS here.
-        DensityKind::VolSdf | DensityKind::Opacity => volsdf_density_grad(f, alpha, beta),
-    }
+/// What each sample absorbs, for rays of `n` samples with distances `f`.
+/// VolSDF: the density `σ(f_k)` (compositing multiplies it by the
+/// interval). NeuS: the optical depth of the interval from sample `k` to
+/// `k + 1` ([`neus_interval_depth`]; compositing then takes unit
+/// intervals), 0 for a ray's last sample. `slope[k] = ∂a_k/∂f_k`;
+/// `slope_next[k] = ∂a_k/∂f_{k+1}` (NeuS only, else 0).
+#[allow(clippy::too_many_arguments)]
+fn absorption(
+    kind: DensityKind,
+    f: &[f32],
+    n: usize,
+    alpha: f32,
+    beta: f32,
+    out: &mut [f32],
+    slope: &mut [f32],
+    slope_next: &mut [f32],
+) {
+    out.par_chunks_mut(n)
+        .zip(slope.par_chunks_mut(n))
+        .zip(slope_next.par_chunks_mut(n))
+        .zip(f.par_chunks(n))
+        .for_each(|(((a, s), s_next), f)| match kind {
+            DensityKind::Neus => {
+                for k in 0..n {
+                    (a[k], s[k], s_next[k]) = match f.get(k + 1) {
+                        Some(&f_next) => neus_interval_depth(f[k], f_next, beta),
+                        None => (0.0, 0.0, 0.0),
+                    };
+                }
+            }
+            // The evaluator allows only VolSDF and NeuS here.
+            DensityKind::VolSdf | DensityKind::Opacity => {
+                for k in 0..n {
+                    (a[k], s[k]) = volsdf_density_grad(f[k], alpha, beta);
+                    s_next[k] = 0.0;
+                }
+            }
+        });
 }
 
 /// A neural SDF with a colour network, fitted to images.
@@ -201,8 +232,12 @@ pub struct SurfaceObjective {
     dirs: Vec<f32>,
     sdf_work: SdfWork,
     color_work: ColorWork,
+    /// Per sample: what it absorbs ([`absorption`]) and its slopes.
     sigma: Vec<f32>,
     slope: Vec<f32>,
+    slope_next: Vec<f32>,
+    /// Unit intervals, for NeuS's per-interval depths.
+    ones: Vec<f32>,
     d_sigma: Vec<f32>,
     d_rgb: Vec<f32>,
     d_f: Vec<f32>,
@@ -230,6 +265,8 @@ impl SurfaceObjective {
             color_work: ColorWork::default(),
             sigma: Vec::new(),
             slope: Vec::new(),
+            slope_next: Vec::new(),
+            ones: Vec::new(),
             d_sigma: Vec::new(),
             d_rgb: Vec::new(),
             d_f: Vec::new(),
@@ -261,16 +298,31 @@ impl SurfaceObjective {
         self.spec.background.map(|x| x as f32)
     }
 
-    fn densities(&mut self, b: f32) {
+    fn densities(&mut self, n: usize, b: f32) {
         let (a, kind) = (self.spec.alpha as f32, self.spec.density);
         let f = self.sdf_work.distance();
-        self.sigma.resize(f.len(), 0.0);
-        self.slope.resize(f.len(), 0.0);
-        self.sigma
-            .par_iter_mut()
-            .zip(self.slope.par_iter_mut())
-            .zip(f.par_iter())
-            .for_each(|((s, d), &f)| (*s, *d) = density(kind, f, a, b));
+        for v in [&mut self.sigma, &mut self.slope, &mut self.slope_next] {
+            v.resize(f.len(), 0.0);
+        }
+        absorption(
+            kind,
+            f,
+            n,
+            a,
+            b,
+            &mut self.sigma,
+            &mut self.slope,
+            &mut self.slope_next,
+        );
+    }
+
+    /// The intervals compositing multiplies absorption by: the samples'
+    /// for a density, ones for NeuS's interval depths.
+    fn intervals<'a>(&self, samples: &'a [f32], ones: &'a [f32]) -> &'a [f32] {
+        match self.spec.density {
+            DensityKind::Neus => ones,
+            _ => samples,
+        }
     }
 
     /// Renders one view: colour and expected depth per pixel.
@@ -303,11 +355,21 @@ impl SurfaceObjective {
             samples.points(chunk, &mut points, &mut dirs);
             self.sdf
                 .forward(&params[..self.sdf.len], &points, &mut sdf_work);
-            let sigma: Vec<f32> = sdf_work
-                .distance()
-                .iter()
-                .map(|&f| density(self.spec.density, f, a, b).0)
-                .collect();
+            let f = sdf_work.distance();
+            let (mut sigma, mut slope, mut slope_next) =
+                (vec![0.0; f.len()], vec![0.0; f.len()], vec![0.0; f.len()]);
+            absorption(
+                self.spec.density,
+                f,
+                n,
+                a,
+                b,
+                &mut sigma,
+                &mut slope,
+                &mut slope_next,
+            );
+            let ones = vec![1.0; f.len()];
+            let delta = self.intervals(&samples.delta, &ones);
             self.color
                 .forward(params, &points, sdf_work.gradient(), &dirs, &mut color_work);
             let rgb = self.color.rgb(&color_work);
@@ -321,7 +383,7 @@ impl SurfaceObjective {
                         &sigma[k.clone()],
                         &rgb[3 * k.start..3 * k.end],
                         &samples.t[k.clone()],
-                        &samples.delta[k.clone()],
+                        &delta[k.clone()],
                         self.background(),
                     );
                     *c = out.colour;
@@ -404,7 +466,7 @@ impl Objective for SurfaceObjective {
         self.sdf
             .forward(sdf_params, &self.points, &mut self.sdf_work);
         let beta = self.beta(values);
-        self.densities(beta);
+        self.densities(n, beta);
         self.color.forward(
             values,
             &self.points,
@@ -419,8 +481,12 @@ impl Objective for SurfaceObjective {
         // MSE is a mean over rays and channels.
         let scale = (weight / (3 * rays.len()) as f64) as f32;
         let background = self.background();
+        self.ones.resize(rows, 1.0);
         let (sigma, rgb) = (&self.sigma, self.color.rgb(&self.color_work));
-        let (t, delta) = (&self.samples.t, &self.samples.delta);
+        let (t, delta) = (
+            &self.samples.t,
+            self.intervals(&self.samples.delta, &self.ones),
+        );
         let losses: Vec<f64> = self
             .d_sigma
             .par_chunks_mut(RAY_BLOCK * n)
@@ -464,32 +530,40 @@ impl Objective for SurfaceObjective {
             &mut self.color_work,
             grad,
         );
-        // A trained β: ∂σ/∂β = −(f/β)·∂σ/∂f for VolSDF's Laplace CDF, and
-        // −σ/β more for NeuS's (α/β)·s(1−s); through β = e^(rate·θ), times
-        // rate·β.
+        // A trained β: both absorptions depend on f/β alone but for VolSDF's
+        // α/β-free form, so ∂a_k/∂β = −(f_k·s_k + f_{k+1}·s'_k)/β with the
+        // slopes of [`absorption`]; through β = e^(rate·θ), times rate·β.
+        let f = self.sdf_work.distance();
+        let (slope, slope_next, d_sigma) = (&self.slope, &self.slope_next, &self.d_sigma);
         if let Some(i) = self.beta_at() {
-            let neus = self.spec.density == DensityKind::Neus;
-            let f = self.sdf_work.distance();
-            let (slope, sigma, d_sigma) = (&self.slope, &self.sigma, &self.d_sigma);
             let d_beta: f64 = (0..rows)
                 .into_par_iter()
                 .map(|k| {
-                    let mut ds_db = -(f[k] / beta) * slope[k];
-                    if neus {
-                        ds_db -= sigma[k] / beta;
+                    let mut da_db = -(f[k] / beta) * slope[k];
+                    if slope_next[k] != 0.0 {
+                        da_db -= (f[k + 1] / beta) * slope_next[k];
                     }
-                    (d_sigma[k] * ds_db) as f64
+                    (d_sigma[k] * da_db) as f64
                 })
                 .sum();
             grad[i] += (d_beta * beta as f64 * BETA_RATE as f64) as f32;
         }
-        // ∂L/∂f through the density; ∂L/∂∇f from the colour and the
+        // ∂L/∂f_k through what sample k absorbs and (NeuS) what the
+        // interval before it absorbs; ∂L/∂∇f from the colour and the
         // eikonal term at every sample.
         self.d_f.resize(rows, 0.0);
         self.d_f
-            .par_iter_mut()
-            .zip(self.d_sigma.par_iter().zip(self.slope.par_iter()))
-            .for_each(|(d, (ds, s))| *d = ds * s);
+            .par_chunks_mut(n)
+            .zip(d_sigma.par_chunks(n))
+            .zip(slope.par_chunks(n).zip(slope_next.par_chunks(n)))
+            .for_each(|((d, ds), (s, s_next))| {
+                for k in 0..n {
+                    d[k] = ds[k] * s[k];
+                    if k > 0 {
+                        d[k] += ds[k - 1] * s_next[k - 1];
+                    }
+                }
+            });
         self.d_g.resize(3 * rows, 0.0);
         if self.eikonal > 0.0 {
             loss += eikonal_loss(self.sdf_work.gradient(), self.eikonal, &mut self.d_g);
