@@ -570,17 +570,33 @@ fn summarise(r: &serde_json::Value, out: &Path, stdout: &mut Stdout) {
             stages.join(", ")
         ),
         Some("train") => {
+            // A run resumed at its last step trains nothing: no step time.
+            let resumed = rep["resumed_from"].as_u64();
+            let pace = if resumed.is_some() && resumed == rep["iterations"].as_u64() {
+                "already trained".to_string()
+            } else {
+                format!(
+                    "{:.2} ms/step",
+                    rep["seconds_per_step"].as_f64().unwrap_or(0.0) * 1e3
+                )
+            };
             eprintln!(
-                "{name}: {} iterations{}, final loss {:.3e}, {:.2} ms/step; {}",
+                "{name}: {} iterations{}, final loss {:.3e}, {pace}; {}",
                 rep["iterations"],
-                rep["resumed_from"]
-                    .as_u64()
+                resumed
                     .map(|k| format!(" (resumed at {k})"))
                     .unwrap_or_default(),
                 rep["final_loss"].as_f64().unwrap_or(f64::NAN),
-                rep["seconds_per_step"].as_f64().unwrap_or(0.0) * 1e3,
                 stages.join(", ")
             );
+            if let Some(h) = rep["held_out"].as_array().and_then(|h| h.last()) {
+                eprintln!(
+                    "  held-out views at step {}: PSNR {:.2} dB, SSIM {:.3}",
+                    h["step"],
+                    h["psnr"].as_f64().unwrap_or(f64::NAN),
+                    h["ssim"].as_f64().unwrap_or(f64::NAN)
+                );
+            }
             if let Some(fit) = rep.get("fit").filter(|f| f.is_object()) {
                 let num = |k: &str| fit[k].as_f64().unwrap_or(f64::NAN);
                 eprintln!(
