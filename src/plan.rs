@@ -416,11 +416,11 @@ pub(crate) fn plan_text(program: &sdfl_stdlib::Program) -> String {
             "  gradient tape  {}",
             match (&*job.model, job.backend) {
                 (sdfl_stdlib::value::Field::NeuralSdf(_), _) =>
-                    "none: forward-mode tangents give the exact gradient of f; a hand-written second-order backward",
+                    "none: the exact gradient of f by a reverse pass in the forward; a hand-written reverse-over-reverse backward",
                 (sdfl_stdlib::value::Field::NeuralSurface(_), _) =>
-                    "none: the distance network's exact gradient by forward-mode tangents; colour network, density and compositing by hand-written backward passes",
+                    "none: the distance network's exact gradient by a reverse pass in the forward; colour network, density and compositing by hand-written backward passes",
                 (sdfl_stdlib::value::Field::Nerf(_), _) =>
-                    "none: fused layer kernels with a hand-written backward through the network and the compositing",
+                    "none: fused layer kernels with a hand-written backward through the network and the compositing; renders stop each ray once less than 1e-4 of its light is left",
                 (_, sdfl_stdlib::value::Backend::Dfdx) =>
                     "dfdx autodiff graph over [rays, samples], the field as a custom op",
                 (_, sdfl_stdlib::value::Backend::Fused) =>

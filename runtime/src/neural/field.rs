@@ -12,7 +12,7 @@ use rayon::prelude::*;
 use sdfl_stdlib::camera::Camera;
 use sdfl_stdlib::value::{LastInterval, Nerf, OccupancySpec, Sampler};
 
-use super::composite::{composite, squared_error_backward};
+use super::composite::squared_error_backward;
 use super::nerf::{NerfNet, NerfWork, PositionEncoding};
 use super::occupancy::{OccupancyConfig, OccupancyGrid, RaySamples};
 use crate::train::fused::Batch;
@@ -26,6 +26,11 @@ use crate::volume::{camera_rays, ImageSize, Ray, SplitMix64, Stratified, VolumeE
 const RAY_BLOCK: usize = 64;
 /// Samples per network pass when rendering (bounds the buffers).
 const RENDER_ROWS: usize = 1 << 16;
+/// Rendering stops a ray once its transmittance falls below this: what lies
+/// behind could change its colour by at most this much.
+pub const EARLY_STOP: f32 = 1e-4;
+/// Samples per ray per network pass of early-stopping rendering.
+const SEGMENT: usize = 16;
 
 /// The samples of a batch of rays: ray `r`'s depths are
 /// `t[offsets[r]..offsets[r + 1]]`, each with its interval in `delta`.
@@ -481,6 +486,8 @@ impl Objective for NerfObjective {
 pub struct NerfView {
     pub colour: Vec<[f32; 3]>,
     pub depth: Vec<f32>,
+    /// Network evaluations it took.
+    pub evaluated: usize,
 }
 
 /// Renders one view of a NeRF with stratified (unjittered) samples, through
@@ -497,6 +504,26 @@ pub fn render_nerf_view(
     cam: &Camera,
     size: ImageSize,
 ) -> Result<NerfView, VolumeError> {
+    render_nerf_view_until(
+        net, fine, occupancy, params, background, sampler, last, cam, size, EARLY_STOP,
+    )
+}
+
+/// [`render_nerf_view`], each ray stopped once its transmittance is below
+/// `stop` (0: every sample evaluated).
+#[allow(clippy::too_many_arguments)]
+pub fn render_nerf_view_until(
+    net: &NerfNet,
+    fine: Option<(&NerfNet, usize)>,
+    occupancy: Option<&Occupancy>,
+    params: &[f32],
+    background: [f32; 3],
+    sampler: &Stratified,
+    last: LastInterval,
+    cam: &Camera,
+    size: ImageSize,
+    stop: f32,
+) -> Result<NerfView, VolumeError> {
     sampler.validate()?;
     let rays = camera_rays(cam, size)?;
     let t = sampler.depths();
@@ -504,6 +531,7 @@ pub fn render_nerf_view(
     let mut view = NerfView {
         colour: vec![[0.0; 3]; rays.len()],
         depth: vec![0.0; rays.len()],
+        evaluated: 0,
     };
     let per_sample = n + fine.map_or(0, |(_, m)| n + m);
     let per_pass = (RENDER_ROWS / per_sample.max(1)).max(1);
@@ -526,11 +554,14 @@ pub fn render_nerf_view(
             }
             None => samples.fixed(chunk.len(), n, |_| &t, last),
         }
-        samples.points(chunk, &mut pass.points, &mut pass.dirs);
-        net.forward(params, &pass.points, &pass.dirs, &mut pass.work);
         let used = match fine.filter(|_| occupancy.is_none()) {
             None => &samples,
-            Some((f, m)) => {
+            Some((_, m)) => {
+                // The coarse network sees every sample: its weights place
+                // the fine ones.
+                samples.points(chunk, &mut pass.points, &mut pass.dirs);
+                net.forward(params, &pass.points, &pass.dirs, &mut pass.work);
+                view.evaluated += samples.t.len();
                 weights.resize(samples.t.len(), 0.0);
                 let (sigma, delta) = (&pass.work.sigma, &samples.delta);
                 weights.par_chunks_mut(n).enumerate().for_each(|(r, w)| {
@@ -551,30 +582,98 @@ pub fn render_nerf_view(
                     &mut fine_t,
                     &mut fine_s,
                 )?;
-                fine_s.points(chunk, &mut pass.points, &mut pass.dirs);
-                f.forward(params, &pass.points, &pass.dirs, &mut pass.work);
                 &fine_s
             }
         };
-        let work = &pass.work;
-        colour
-            .par_iter_mut()
-            .zip(depth.par_iter_mut())
-            .enumerate()
-            .for_each(|(r, (c, d))| {
-                let k = used.range(r);
-                let out = composite(
-                    &work.sigma[k.clone()],
-                    &work.rgb[3 * k.start..3 * k.end],
-                    &used.t[k.clone()],
-                    &used.delta[k.clone()],
-                    background,
-                );
-                *c = out.colour;
-                *d = out.depth;
-            });
+        view.evaluated += composite_until_opaque(
+            fine.filter(|_| occupancy.is_none()).map_or(net, |(f, _)| f),
+            params,
+            chunk,
+            used,
+            background,
+            stop,
+            &mut pass,
+            colour,
+            depth,
+        );
     }
     Ok(view)
+}
+
+/// Composites `samples` of `rays` through `net`, a segment of
+/// [`SEGMENT`] samples per ray at a time, dropping each ray once its
+/// transmittance is below `stop` (its remainder is the background). With
+/// `stop = 0` every sample is evaluated and the colours equal
+/// [`super::composite::composite`]'s bit for bit. Returns the samples evaluated.
+#[allow(clippy::too_many_arguments)]
+fn composite_until_opaque(
+    net: &NerfNet,
+    params: &[f32],
+    rays: &[Ray],
+    samples: &Samples,
+    background: [f32; 3],
+    stop: f32,
+    pass: &mut Pass,
+    colour: &mut [[f32; 3]],
+    depth: &mut [f32],
+) -> usize {
+    // Per ray: transmittance, colour and depth so far.
+    let mut state = vec![(1.0f32, [0.0f32; 3], 0.0f32); samples.rays()];
+    let mut alive: Vec<usize> = (0..samples.rays())
+        .filter(|&r| !samples.range(r).is_empty())
+        .collect();
+    let (mut seg, mut seg_rays, mut evaluated) = (Samples::default(), Vec::new(), 0);
+    let mut start = 0;
+    while !alive.is_empty() {
+        seg.offsets.clear();
+        seg.t.clear();
+        seg.delta.clear();
+        seg.offsets.push(0);
+        seg_rays.clear();
+        for &r in &alive {
+            let k = samples.range(r);
+            let a = (k.start + start).min(k.end);
+            let b = (a + SEGMENT).min(k.end);
+            seg.t.extend_from_slice(&samples.t[a..b]);
+            seg.delta.extend_from_slice(&samples.delta[a..b]);
+            seg.offsets.push(seg.t.len());
+            seg_rays.push(rays[r]);
+        }
+        seg.points(&seg_rays, &mut pass.points, &mut pass.dirs);
+        net.forward(params, &pass.points, &pass.dirs, &mut pass.work);
+        evaluated += seg.t.len();
+        let work = &pass.work;
+        // The same operations in the same order as `composite`.
+        let next: Vec<(f32, [f32; 3], f32)> = alive
+            .par_iter()
+            .enumerate()
+            .map(|(i, &r)| {
+                let (mut trans, mut c, mut d) = state[r];
+                for k in seg.range(i) {
+                    let tau = work.sigma[k] * seg.delta[k];
+                    let w = trans * -(-tau).exp_m1();
+                    for j in 0..3 {
+                        c[j] += w * work.rgb[3 * k + j];
+                    }
+                    d += w * seg.t[k];
+                    trans *= (-tau).exp();
+                }
+                (trans, c, d)
+            })
+            .collect();
+        for (&r, s) in alive.iter().zip(next) {
+            state[r] = s;
+        }
+        start += SEGMENT;
+        alive.retain(|&r| state[r].0 >= stop && start < samples.range(r).len());
+    }
+    for ((c, d), (trans, sum, dep)) in colour.iter_mut().zip(depth.iter_mut()).zip(state) {
+        for j in 0..3 {
+            c[j] = sum[j] + trans * background[j];
+        }
+        *d = dep;
+    }
+    evaluated
 }
 
 #[cfg(test)]
@@ -675,5 +774,119 @@ mod tests {
                 );
             }
         }
+    }
+
+    /// A small NeRF whose density head starts at `density_bias`.
+    fn opaque_nerf(density_bias: f32) -> (NerfNet, Vec<f32>) {
+        let spec = Nerf {
+            position: Encoding::Harmonic(Harmonic {
+                freqs: 2,
+                include_input: true,
+            }),
+            direction: None,
+            layers: 2,
+            width: 16,
+            skips: vec![],
+            color_width: 8,
+            fine: 0,
+            background: [0.0; 3],
+            seed: 2,
+            density: sdfl_stdlib::value::DensityActivation::Softplus,
+            occupancy: None,
+        };
+        let net = NerfNet::new(&spec);
+        let mut params = net.init(spec.seed);
+        params[net.density.offset + net.density.fan_in()] = density_bias;
+        (net, params)
+    }
+
+    fn small_view(stop: f32, density_bias: f32) -> NerfView {
+        let (net, params) = opaque_nerf(density_bias);
+        let cam = Camera::look_at(
+            glam::DVec3::new(0.0, 0.0, -3.0),
+            glam::DVec3::ZERO,
+            glam::DVec3::Y,
+            1.0,
+        );
+        let sampler = Stratified::new(96, 1.0, 5.0).unwrap();
+        let size = ImageSize {
+            width: 12,
+            height: 10,
+        };
+        render_nerf_view_until(
+            &net,
+            None,
+            None,
+            &params,
+            [0.2, 0.4, 0.6],
+            &sampler,
+            LastInterval::Zero,
+            &cam,
+            size,
+            stop,
+        )
+        .unwrap()
+    }
+
+    /// Without stopping, every sample is evaluated and each pixel is the
+    /// plain composite of all of them, bit for bit.
+    #[test]
+    fn rendering_without_early_stop_is_the_plain_composite() {
+        let view = small_view(0.0, 0.5);
+        let (net, params) = opaque_nerf(0.5);
+        let cam = Camera::look_at(
+            glam::DVec3::new(0.0, 0.0, -3.0),
+            glam::DVec3::ZERO,
+            glam::DVec3::Y,
+            1.0,
+        );
+        let size = ImageSize {
+            width: 12,
+            height: 10,
+        };
+        let rays = camera_rays(&cam, size).unwrap();
+        let t = Stratified::new(96, 1.0, 5.0).unwrap().depths();
+        let mut samples = Samples::default();
+        samples.fixed(rays.len(), t.len(), |_| &t, LastInterval::Zero);
+        let (mut points, mut dirs, mut work) = (Vec::new(), Vec::new(), NerfWork::default());
+        samples.points(&rays, &mut points, &mut dirs);
+        net.forward(&params, &points, &dirs, &mut work);
+        assert_eq!(view.evaluated, rays.len() * t.len());
+        for (r, (c, d)) in view.colour.iter().zip(&view.depth).enumerate() {
+            let k = samples.range(r);
+            let want = crate::neural::composite::composite(
+                &work.sigma[k.clone()],
+                &work.rgb[3 * k.start..3 * k.end],
+                &samples.t[k.clone()],
+                &samples.delta[k.clone()],
+                [0.2, 0.4, 0.6],
+            );
+            assert_eq!((*c, *d), (want.colour, want.depth), "pixel {r}");
+        }
+    }
+
+    /// Stopped rays differ from the full composite by at most the light
+    /// left when they stopped, and an opaque field takes far fewer
+    /// evaluations; a transparent one stops no ray.
+    #[test]
+    fn early_stop_keeps_its_bound_and_saves_work() {
+        let (full, early) = (small_view(0.0, 20.0), small_view(EARLY_STOP, 20.0));
+        for (a, b) in full.colour.iter().zip(&early.colour) {
+            for j in 0..3 {
+                assert!((a[j] - b[j]).abs() <= 1.01 * EARLY_STOP, "{a:?} vs {b:?}");
+            }
+        }
+        for (a, b) in full.depth.iter().zip(&early.depth) {
+            assert!((a - b).abs() <= 5.0 * EARLY_STOP + 1e-5, "{a} vs {b}");
+        }
+        assert!(
+            early.evaluated * 3 < full.evaluated,
+            "{} of {} evaluations",
+            early.evaluated,
+            full.evaluated
+        );
+        let (full, early) = (small_view(0.0, -8.0), small_view(EARLY_STOP, -8.0));
+        assert_eq!(early.evaluated, full.evaluated);
+        assert_eq!(early.colour, full.colour);
     }
 }

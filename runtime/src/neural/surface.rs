@@ -341,6 +341,7 @@ impl SurfaceObjective {
         let mut view = NerfView {
             colour: vec![[0.0; 3]; rays.len()],
             depth: vec![0.0; rays.len()],
+            evaluated: 0,
         };
         let per_pass = (RENDER_ROWS / n).max(1);
         let (mut samples, mut points, mut dirs) = (Samples::default(), Vec::new(), Vec::new());
@@ -355,6 +356,7 @@ impl SurfaceObjective {
             samples.points(chunk, &mut points, &mut dirs);
             self.sdf
                 .forward(&params[..self.sdf.len], &points, &mut sdf_work);
+            view.evaluated += points.len() / 3;
             let f = sdf_work.distance();
             let (mut sigma, mut slope, mut slope_next) =
                 (vec![0.0; f.len()], vec![0.0; f.len()], vec![0.0; f.len()]);
