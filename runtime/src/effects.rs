@@ -72,7 +72,7 @@ impl SurfacePoint<'_> {
     /// distance from the origin.
     pub fn bias(&self) -> f32 {
         let scale = 1.0 + self.p.abs().max_element();
-        (16.0 * self.epsilon).max(512.0 * f32::EPSILON * scale)
+        (16.0 * self.epsilon).max(16.0 * f32::EPSILON * scale)
     }
 }
 

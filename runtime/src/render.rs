@@ -286,6 +286,14 @@ pub fn render_view(
     } else {
         1
     });
+    // Sub-pixel rays decide hits within half of 1/n of a pixel for n
+    // samples: a pixel's footprint would widen every silhouette by half a
+    // pixel, and 1/n keeps the widening below the coverage levels the n
+    // samples resolve (each row and column of the n × n grid holds one).
+    let sub_settings = TraceSettings {
+        footprint: settings.footprint / offsets.len() as f32,
+        ..settings
+    };
     let geometry = needs.depth || needs.normals || needs.mask;
     let centre_separate = offsets.len() > 1 && geometry;
     let inv_l = 1.0 / scene.lipschitz;
@@ -337,8 +345,8 @@ pub fn render_view(
             let counters = Counters::default();
             let rows = (band * BAND_ROWS)..((band + 1) * BAND_ROWS).min(h);
             let nrows = rows.len();
-            let mut trace = |d: Vec3A| {
-                let hit = sphere_trace(&*scene.root, origin, d, &settings);
+            let mut trace = |d: Vec3A, s: &TraceSettings| {
+                let hit = sphere_trace(&*scene.root, origin, d, s);
                 steps += hit.steps as u64;
                 undecided += hit.undecided as u64;
                 rays += 1;
@@ -352,7 +360,7 @@ pub fn render_view(
                         // The pixel centre: every quantity when it is the
                         // only ray, else depth, normals and the mask.
                         let (d64, dir) = direction(xn, yn);
-                        let hit = trace(dir);
+                        let hit = trace(dir, &settings);
                         if !hit.hit {
                             if let (Some(c), false) = (col.as_deref_mut(), centre_separate) {
                                 c[k * 3..k * 3 + 3].copy_from_slice(&background);
@@ -389,7 +397,7 @@ pub fn render_view(
                             let (xs, ys) =
                                 cam.pixel_ndc_at(i as f64 + dx, j as f64 + dy, width, height);
                             let (d64, dir) = direction(xs, ys);
-                            let hit = trace(dir);
+                            let hit = trace(dir, &sub_settings);
                             sum += if hit.hit {
                                 hits += 1;
                                 shade(&hit, d64, dir, &counters).0
