@@ -53,7 +53,7 @@ impl Value {
             Value::Shape(_) => "shape",
             Value::Material(_) => "material",
             Value::Light(_) => "light",
-            Value::Shadows(_) => "shadows",
+            Value::Shadows(_) => "soft shadow",
             Value::Occlusion(_) => "ambient occlusion",
             Value::Fog(_) => "fog",
             Value::Camera(_) => "camera",

@@ -37,7 +37,7 @@ pub const LOSS: Type = Type::Named("loss");
 pub const ENCODING: Type = Type::Named("encoding");
 pub const OCCUPANCY: Type = Type::Named("occupancy grid");
 pub const LIGHT: Type = Type::Named("light");
-pub const SHADOWS: Type = Type::Named("shadows");
+pub const SHADOWS: Type = Type::Named("soft shadow");
 pub const OCCLUSION: Type = Type::Named("ambient occlusion");
 pub const FOG: Type = Type::Named("fog");
 /// Most samples per ray.
@@ -1330,7 +1330,7 @@ fn effects(a: &Args) -> Result<Effects, Diag> {
         (Value::Bool(false), _) => None,
         (Value::Bool(true), _) => Some(SoftShadows { k: 8.0, steps: 32 }),
         (Value::Shadows(s), _) => Some(*s),
-        (v, span) => return Err(type_error(span, "shadows", v)),
+        (v, span) => return Err(type_error(span, "soft shadow", v)),
     };
     let occlusion = match a.get("ao") {
         (Value::Bool(false), _) => None,
