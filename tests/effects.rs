@@ -138,6 +138,7 @@ fn at<'a>(scene: &'a Lowered, counters: &'a Counters, p: Vec3A, n: Vec3A) -> Sur
         n,
         far: 1e6,
         epsilon: 1e-5,
+        pixel: 0.0,
         counters,
     }
 }

@@ -62,6 +62,10 @@ pub struct SurfacePoint<'a> {
     pub far: f32,
     /// The hit tolerance of the primary ray (its `epsilon`).
     pub epsilon: f32,
+    /// Half a pixel's width at the point (0 with an absolute hit
+    /// tolerance): shadow rays start and step at least this far, since
+    /// finer detail is not resolved in the image.
+    pub pixel: f32,
     pub counters: &'a Counters,
 }
 
@@ -77,7 +81,7 @@ impl SurfacePoint<'_> {
 }
 
 /// The classic soft shadow: from `origin`, march towards the light at
-/// `t = bias, …` (steps `max(h, bias)`, `h` the distance scaled by
+/// `t = min_step, …` (steps `max(h, min_step)`, `h` the distance scaled by
 /// `inv_l`), keeping `min(k·h/t)`; stop in full shadow (≤ 1e-3), past
 /// `far`, or after `steps` evaluations. Returns the visible fraction in
 /// 0..1 (never NaN) and the evaluations made.
@@ -87,12 +91,12 @@ pub fn soft_shadow(
     inv_l: f32,
     origin: Vec3A,
     towards_light: Vec3A,
-    bias: f32,
+    min_step: f32,
     far: f32,
     s: &SoftShadows,
 ) -> (f32, u32) {
     let k = s.k as f32;
-    let mut t = bias;
+    let mut t = min_step;
     let mut visible = 1.0f32;
     for step in 0..s.steps {
         let h = sdf.dist(origin + towards_light * t) * inv_l;
@@ -103,7 +107,7 @@ pub fn soft_shadow(
         if visible <= 1e-3 {
             return (0.0, step + 1);
         }
-        t += h.max(bias);
+        t += h.max(min_step);
         if !(t <= far) {
             return (visible.clamp(0.0, 1.0), step + 1);
         }
@@ -116,7 +120,15 @@ impl Surroundings for SurfacePoint<'_> {
         let bias = self.bias();
         let origin = self.p + self.n * bias;
         let l: Vec3A = towards_light.as_vec3().into();
-        let (v, steps) = soft_shadow(self.sdf, self.inv_lipschitz, origin, l, bias, self.far, s);
+        let (v, steps) = soft_shadow(
+            self.sdf,
+            self.inv_lipschitz,
+            origin,
+            l,
+            bias.max(self.pixel),
+            self.far,
+            s,
+        );
         let c = self.counters;
         c.shadow_rays.set(c.shadow_rays.get() + 1);
         c.shadow_steps.set(c.shadow_steps.get() + steps as u64);

@@ -329,6 +329,7 @@ pub fn render_view(
             n,
             far: settings.far,
             epsilon: settings.epsilon,
+            pixel: settings.footprint * hit.t,
             counters,
         };
         let rgb = material.shade_in(p64, center, n64, d64, &env);
