@@ -384,6 +384,101 @@ mod tests {
         assert!(shade(mirror) > shade(0.0) + 0.3);
     }
 
+    /// Surroundings that answer fixed fractions and count the questions.
+    struct Fixed {
+        light: f64,
+        ambient: f64,
+        asked: std::cell::Cell<(u32, u32)>,
+    }
+
+    impl Surroundings for Fixed {
+        fn light_visibility(&self, _: DVec3, _: &SoftShadows) -> f64 {
+            let (l, a) = self.asked.get();
+            self.asked.set((l + 1, a));
+            self.light
+        }
+        fn ambient_visibility(&self, _: &AmbientOcclusion) -> f64 {
+            let (l, a) = self.asked.get();
+            self.asked.set((l, a + 1));
+            self.ambient
+        }
+    }
+
+    #[test]
+    fn effects_are_asked_for_only_when_the_material_has_them() {
+        let env = |light, ambient| Fixed {
+            light,
+            ambient,
+            asked: Default::default(),
+        };
+        let lambert = |effects| Material::Lambert {
+            albedo: Box::new(Material::constant(DVec3::new(0.8, 0.6, 0.4))),
+            light: DVec3::Y,
+            ambient: 0.25,
+            effects,
+        };
+        let (p, n, view) = (DVec3::ZERO, DVec3::Y, -DVec3::Y);
+        // No effects: the surroundings are never asked.
+        let e = env(0.0, 0.0);
+        let plain = lambert(Effects::default()).shade_in(p, p, n, view, &e);
+        assert_eq!(e.asked.get(), (0, 0));
+        assert!((plain - DVec3::new(0.8, 0.6, 0.4)).length() < 1e-12);
+        // Shadows only: in full shadow, only the ambient term is left.
+        let shadows = Effects {
+            shadows: Some(SoftShadows { k: 8.0, steps: 16 }),
+            occlusion: None,
+        };
+        let e = env(0.0, 0.0);
+        let c = lambert(shadows).shade_in(p, p, n, view, &e);
+        assert_eq!(e.asked.get(), (1, 0));
+        assert!((c - DVec3::new(0.8, 0.6, 0.4) * 0.25).length() < 1e-12);
+        // Facing away from the light: in its own shadow, nothing marched.
+        let e = env(1.0, 1.0);
+        lambert(shadows).shade_in(p, p, -n, view, &e);
+        assert_eq!(e.asked.get(), (0, 0));
+        // Occlusion scales the ambient term only.
+        let both = Effects {
+            shadows: shadows.shadows,
+            occlusion: Some(AmbientOcclusion {
+                samples: 4,
+                distance: 0.5,
+            }),
+        };
+        let e = env(0.5, 0.5);
+        let c = lambert(both).shade_in(p, p, n, view, &e);
+        assert_eq!(e.asked.get(), (1, 1));
+        let want = DVec3::new(0.8, 0.6, 0.4) * (0.25 * 0.5 + 0.75 * 0.5);
+        assert!((c - want).length() < 1e-12);
+        // Phong: a shadowed light loses its highlight too; one ray per
+        // light the surface faces.
+        let m = Material::Phong {
+            albedo: Box::new(Material::constant(DVec3::new(0.5, 0.4, 0.2))),
+            lights: vec![
+                Light {
+                    direction: DVec3::Z,
+                    color: DVec3::ONE,
+                },
+                Light {
+                    direction: -DVec3::Z,
+                    color: DVec3::ONE,
+                },
+            ],
+            ambient: 0.1,
+            specular: 0.5,
+            shininess: 32.0,
+            effects: both,
+        };
+        let e = env(0.0, 1.0);
+        let c = m.shade_in(p, p, DVec3::Z, -DVec3::Z, &e);
+        assert_eq!(e.asked.get(), (1, 1));
+        assert!(
+            (c - DVec3::new(0.5, 0.4, 0.2) * 0.1).length() < 1e-12,
+            "{c}"
+        );
+        assert_eq!(m.effect_evaluations(), 2 * 16 + 4);
+        assert_eq!(m.shadowed_lights(), 2);
+    }
+
     #[test]
     fn blinn_phong_is_the_same_formula_in_f32() {
         let light = Light {
