@@ -108,7 +108,7 @@ pub fn soft_shadow(
             return (0.0, step + 1);
         }
         t += h.max(min_step);
-        if !(t <= far) {
+        if t > far {
             return (visible.clamp(0.0, 1.0), step + 1);
         }
     }
