@@ -87,7 +87,7 @@ fn a_scene_without_shadows_never_marches_a_shadow_ray() {
         "{fx:?}"
     );
     // A material asks, but no output shows colour: nothing is shaded.
-    let src = sphere_over_plane(", shadows: true, ao: true").replace("image(", "depth(");
+    let src = sphere_over_plane(", shadows: soft(), ao: ao()").replace("image(", "depth(");
     let program = load(&src);
     let job = &program.renders[0];
     let plan = Plan::of(job);

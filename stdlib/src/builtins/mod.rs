@@ -699,8 +699,8 @@ fn table() -> Vec<Builtin> {
                 opt("albedo", Type::OneOf(vec![MATERIAL, Type::Vec3]), "rainbow()", "base colour or material"),
                 opt("light", Type::Vec3, "[1, 1, 1]", "direction towards the light"),
                 opt("ambient", Type::Number, "0.2", "light reaching surfaces facing away (0..1)"),
-                opt("shadows", Type::OneOf(vec![SHADOWS, Type::Bool]), "false", "`soft(...)`: the scene blocks the light, with penumbrae (`true`: `soft()`; `false`: no shadow rays)"),
-                opt("ao", Type::OneOf(vec![OCCLUSION, Type::Bool]), "false", "`ao(...)`: ambient occlusion darkens the ambient term (`true`: `ao()`; `false`: none)"),
+                opt("shadows", Type::OneOf(vec![SHADOWS, Type::Bool]), "false", "`soft(...)`: the scene blocks the light, with penumbrae (`false`: none, no shadow rays)"),
+                opt("ao", Type::OneOf(vec![OCCLUSION, Type::Bool]), "false", "`ao(...)`: ambient occlusion darkens the ambient term (`false`: none)"),
             ],
             MATERIAL,
             |a| {
@@ -725,8 +725,8 @@ fn table() -> Vec<Builtin> {
                 opt("ambient", Type::Number, "0.1", "light reaching surfaces facing away (0..1)"),
                 opt("specular", Type::Number, "0.5", "strength of the highlight (0..1)"),
                 opt("shininess", Type::Number, "32", "highlight exponent (> 0; larger is a smaller, sharper highlight)"),
-                opt("shadows", Type::OneOf(vec![SHADOWS, Type::Bool]), "false", "`soft(...)`: the scene blocks each light, with penumbrae (`true`: `soft()`; `false`: no shadow rays)"),
-                opt("ao", Type::OneOf(vec![OCCLUSION, Type::Bool]), "false", "`ao(...)`: ambient occlusion darkens the ambient term (`true`: `ao()`; `false`: none)"),
+                opt("shadows", Type::OneOf(vec![SHADOWS, Type::Bool]), "false", "`soft(...)`: the scene blocks each light, with penumbrae (`false`: none, no shadow rays)"),
+                opt("ao", Type::OneOf(vec![OCCLUSION, Type::Bool]), "false", "`ao(...)`: ambient occlusion darkens the ambient term (`false`: none)"),
             ],
             MATERIAL,
             phong,
@@ -1323,38 +1323,48 @@ fn phong(a: &Args) -> Result<Value, Diag> {
     })))
 }
 
-/// The `shadows` and `ao` options of a lit material: `false` (none), `true`
-/// (the defaults of `soft()` and `ao()`), or a value of those.
-fn effects(a: &Args) -> Result<Effects, Diag> {
-    let shadows = match a.get("shadows") {
-        (Value::Bool(false), _) => None,
-        (Value::Bool(true), _) => Some(SoftShadows { k: 8.0, steps: 32 }),
-        (Value::Shadows(s), _) => Some(*s),
-        (v, span) => return Err(type_error(span, "soft shadow", v)),
-    };
-    let occlusion = match a.get("ao") {
-        (Value::Bool(false), _) => None,
-        (Value::Bool(true), _) => Some(AmbientOcclusion {
-            samples: 5,
-            distance: 0.5,
-        }),
-        (Value::Occlusion(o), _) => Some(*o),
-        (v, span) => return Err(type_error(span, "ambient occlusion", v)),
-    };
-    Ok(Effects { shadows, occlusion })
+/// An effect option: `false` (none) or the value of its built-in. `true`
+/// is refused with the call to write, so that the built-in's signature
+/// stays the one place its defaults are written.
+fn effect_option<T>(
+    a: &Args,
+    name: &str,
+    builtin: &str,
+    expected: &str,
+    pick: impl Fn(&Value) -> Option<T>,
+) -> Result<Option<T>, Diag> {
+    match a.get(name) {
+        (Value::Bool(false), _) => Ok(None),
+        (Value::Bool(true), span) => Err(value_error(
+            span,
+            format!("`{name}: true` does not say which {expected} to compute"),
+            format!("use `{builtin}(...)`"),
+            format!("write `{name}: {builtin}()` for the defaults (`sdfl docs {builtin}`), or `false` for none"),
+        )),
+        (v, span) => pick(v).map(Some).ok_or_else(|| type_error(span, expected, v)),
+    }
 }
 
-/// A render's `fog` option: `false` (none) or `fog(...)`.
+/// The `shadows` and `ao` options of a lit material.
+fn effects(a: &Args) -> Result<Effects, Diag> {
+    Ok(Effects {
+        shadows: effect_option(a, "shadows", "soft", "soft shadow", |v| match v {
+            Value::Shadows(s) => Some(*s),
+            _ => None,
+        })?,
+        occlusion: effect_option(a, "ao", "ao", "ambient occlusion", |v| match v {
+            Value::Occlusion(o) => Some(*o),
+            _ => None,
+        })?,
+    })
+}
+
+/// A render's `fog` option.
 pub(crate) fn fog_option(a: &Args) -> Result<Option<Fog>, Diag> {
-    match a.get("fog") {
-        (Value::Bool(false), _) => Ok(None),
-        (Value::Bool(true), _) => Ok(Some(Fog {
-            color: DVec3::new(0.7, 0.75, 0.8),
-            density: 0.2,
-        })),
-        (Value::Fog(f), _) => Ok(Some(*f)),
-        (v, span) => Err(type_error(span, "fog", v)),
-    }
+    effect_option(a, "fog", "fog", "fog", |v| match v {
+        Value::Fog(f) => Some(*f),
+        _ => None,
+    })
 }
 
 /// A render's `samples_per_pixel`: a square from 1 to
