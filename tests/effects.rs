@@ -438,3 +438,53 @@ fn plan_lists_each_effect_with_its_cost() {
     let work = sdfl_stdlib::work::render_work(&program.renders[0], None);
     assert_eq!(work.evaluations, 100.0 * (64.0 * 10.0 + 9.0 * 46.0));
 }
+
+#[test]
+fn supersampling_leaves_depth_and_the_mask_at_the_pixel_centre() {
+    let src = |spp: u32| {
+        format!(
+            "render s {{
+               scene: union(plane(), sphere(0.5, center: [0, 1, 0])),
+               material: lambert(albedo: [0.8, 0.6, 0.4], light: [0, 1, 0]),
+               camera: look_at([0, 3, -3], at: [0, 0, 0], focal: 1.5),
+               size: [20, 20], far: 20, samples_per_pixel: {spp},
+               outputs: [image(\"s.png\"), depth(\"d.png\"), mask(\"m.png\")],
+             }}"
+        )
+    };
+    let trace = |spp: u32| {
+        let program = load(&src(spp));
+        let job = &program.renders[0];
+        let scene = Lowered::new(&job.scene, LowerOptions::default());
+        let plan = Plan::of(job);
+        render_view(
+            &scene,
+            job,
+            &job.cameras[0],
+            (20, 20),
+            Needs::from(&plan),
+            &|_| {},
+        )
+    };
+    let (one, four) = (trace(1), trace(4));
+    // Four rays a pixel for the colour, and the centre's for the rest.
+    assert_eq!((one.rays, four.rays), (400, 400 * 5));
+    assert_eq!(one.depth, four.depth);
+    assert_eq!(one.mask, four.mask);
+    assert_ne!(one.color, four.color, "edges are averaged");
+    // Without a colour output, one ray a pixel whatever the setting.
+    let program = load(&src(16).replace("image(\"s.png\"), ", ""));
+    let job = &program.renders[0];
+    let plan = Plan::of(job);
+    assert_eq!(plan.samples_per_pixel, 1);
+    let scene = Lowered::new(&job.scene, LowerOptions::default());
+    let v = render_view(
+        &scene,
+        job,
+        &job.cameras[0],
+        (20, 20),
+        Needs::from(&plan),
+        &|_| {},
+    );
+    assert_eq!(v.rays, 400);
+}
