@@ -556,6 +556,17 @@ fn summarise(r: &serde_json::Value, out: &Path, stdout: &mut Stdout) {
                 rep["steps"].as_f64().unwrap_or(0.0) / rays,
                 stages.join(", ")
             );
+            let fx = &rep["effects"];
+            let (shadow_rays, occlusion) = (
+                fx["shadow_rays"].as_u64().unwrap_or(0),
+                fx["occlusion_samples"].as_u64().unwrap_or(0),
+            );
+            if shadow_rays + occlusion > 0 {
+                eprintln!(
+                    "  effects: {shadow_rays} shadow rays ({} SDF evaluations), {occlusion} occlusion samples",
+                    fx["shadow_steps"].as_u64().unwrap_or(0)
+                );
+            }
             let undecided = rep["undecided"].as_u64().unwrap_or(0);
             if undecided > 0 {
                 eprintln!(

@@ -164,6 +164,16 @@ pub(crate) fn plan_text(program: &sdfl_stdlib::Program) -> String {
             );
         }
         row(&mut o, "hit mask", &plan.mask);
+        let effects = plan.effect_lines();
+        if effects.is_empty() {
+            let _ = writeln!(
+                o,
+                "  effects        none (no shadow rays, occlusion, fog or supersampling asked for)"
+            );
+        }
+        for (what, cost) in effects {
+            let _ = writeln!(o, "  {what:<14} {cost}");
+        }
         for d in job
             .outputs
             .iter()

@@ -115,6 +115,22 @@ fn plan_names_what_each_output_needs() {
     let text = String::from_utf8_lossy(&out.stdout);
     assert!(text.contains("depth          skipped"), "{text}");
     assert!(text.contains("normals        skipped"), "{text}");
+    assert!(
+        text.contains("effects        none (no shadow rays, occlusion, fog or supersampling"),
+        "{text}"
+    );
+    // Each effect asked for, with its cost.
+    let out = sdfl(&["plan", &example("effects.sdfl")]);
+    let text = String::from_utf8_lossy(&out.stdout);
+    for line in [
+        "soft shadows   k 8: up to 32 SDF evaluations per shaded sample per light facing it (2 lights)",
+        "occlusion      5 SDF evaluations per shaded sample along the normal, within 0.5",
+        "fog            exponential, density 0.08",
+        "supersampling  4 samples per pixel (2x2 rotated grid): 4x primary rays",
+    ] {
+        assert!(text.contains(line), "{line}\n{text}");
+    }
+    assert!(!text.contains("effects        none"), "{text}");
     let out = sdfl(&["plan", &example("train_box.sdfl")]);
     let text = String::from_utf8_lossy(&out.stdout);
     assert!(

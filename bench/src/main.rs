@@ -103,6 +103,8 @@ fn frame_time(lowered: &Lowered, shape: &Shape, reps: usize) -> f64 {
         epsilon: 1e-4,
         hit_tolerance: sdfl_stdlib::value::HitTolerance::Absolute,
         background: DVec3::ZERO,
+        fog: None,
+        samples_per_pixel: 1,
         outputs: vec![],
     };
     let needs = Needs {

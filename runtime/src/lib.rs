@@ -2,6 +2,7 @@
 //! volume rendering, dfdx training, data sets, and writing outputs.
 
 pub mod data;
+pub mod effects;
 pub mod jobs;
 pub mod mesh;
 pub mod metrics;

@@ -7,12 +7,14 @@ use std::time::Instant;
 use glam::{DVec3, Vec3A};
 use rayon::prelude::*;
 use sdfl_stdlib::camera::Camera;
+use sdfl_stdlib::effects::{subpixel_offsets, AmbientOcclusion, Fog, SoftShadows};
 use sdfl_stdlib::material::Material;
 use sdfl_stdlib::value::HitTolerance;
 use sdfl_stdlib::{OutputKind, RenderJob};
 use serde::Serialize;
 
 use crate::data::nerf_synthetic::DatasetWriter;
+use crate::effects::{Counters, EffectStats, SurfacePoint};
 use crate::output::{colormap, to_u8, write_png, GifWriter};
 use crate::sdf::{LowerOptions, Lowered};
 use crate::trace::{normal, sphere_trace, TraceSettings};
@@ -36,6 +38,23 @@ pub struct Plan {
     /// Shading needs the view (ray) direction (a specular material): the
     /// colour differs between views of one point.
     pub shading_view: bool,
+    /// The soft shadows the materials ask for (each distinct setting with
+    /// the most lights it is marched towards); empty: no shadow rays.
+    pub shadows: Vec<ShadowPlan>,
+    /// The ambient occlusion the materials ask for (each distinct setting).
+    pub occlusion: Vec<AmbientOcclusion>,
+    /// Fog over the colour.
+    pub fog: Option<Fog>,
+    /// Rays per pixel for the colour (1 without colour outputs).
+    pub samples_per_pixel: u32,
+}
+
+/// Soft shadows of one setting, marched towards up to `lights` lights per
+/// shaded sample.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct ShadowPlan {
+    pub shadows: SoftShadows,
+    pub lights: usize,
 }
 
 impl Plan {
@@ -72,7 +91,93 @@ impl Plan {
             shaded && (job.material.needs_normal() || any_painted(job, Material::needs_normal));
         plan.shading_view =
             shaded && (job.material.needs_view() || any_painted(job, Material::needs_view));
+        plan.samples_per_pixel = 1;
+        if shaded {
+            let mut materials = vec![&*job.material];
+            painted(&job.scene, &mut materials);
+            for m in materials {
+                let lights = m.shadowed_lights();
+                for e in m.effects() {
+                    if let Some(s) = e.shadows {
+                        match plan.shadows.iter_mut().find(|p| p.shadows == s) {
+                            Some(p) => p.lights = p.lights.max(lights),
+                            None => plan.shadows.push(ShadowPlan { shadows: s, lights }),
+                        }
+                    }
+                    if let Some(o) = e.occlusion {
+                        if !plan.occlusion.contains(&o) {
+                            plan.occlusion.push(o);
+                        }
+                    }
+                }
+            }
+            plan.fog = job.fog;
+            plan.samples_per_pixel = job.samples_per_pixel;
+        }
         plan
+    }
+
+    /// What the effects cost, one line each (empty without effects), as
+    /// `sdfl plan` prints them.
+    pub fn effect_lines(&self) -> Vec<(&'static str, String)> {
+        let mut lines = Vec::new();
+        for s in &self.shadows {
+            lines.push((
+                "soft shadows",
+                format!(
+                    "k {}: up to {} SDF evaluations per shaded sample per light facing it ({} light{})",
+                    s.shadows.k,
+                    s.shadows.steps,
+                    s.lights,
+                    if s.lights == 1 { "" } else { "s" }
+                ),
+            ));
+        }
+        for o in &self.occlusion {
+            lines.push((
+                "occlusion",
+                format!(
+                    "{} SDF evaluations per shaded sample along the normal, within {}",
+                    o.samples, o.distance
+                ),
+            ));
+        }
+        if let Some(f) = &self.fog {
+            lines.push((
+                "fog",
+                format!(
+                    "exponential, density {}, colour {:?}: per pixel, no SDF evaluations",
+                    f.density,
+                    f.color.to_array()
+                ),
+            ));
+        }
+        if self.samples_per_pixel > 1 {
+            let m = (self.samples_per_pixel as f64).sqrt().round() as u32;
+            lines.push((
+                "supersampling",
+                format!(
+                    "{0} samples per pixel ({m}x{m} rotated grid): {0}x primary rays and shading for colour{1}",
+                    self.samples_per_pixel,
+                    if self.depth.is_empty() && self.normals.is_empty() && self.mask.is_empty() {
+                        ""
+                    } else {
+                        ", plus the pixel centre's ray for depth, normals and mask"
+                    }
+                ),
+            ));
+        }
+        lines
+    }
+}
+
+/// The materials painted onto parts of `s`.
+fn painted<'a>(s: &'a sdfl_stdlib::shape::Shape, out: &mut Vec<&'a Material>) {
+    if let sdfl_stdlib::shape::Shape::Paint(_, m) = s {
+        out.push(m);
+    }
+    for c in s.children() {
+        painted(c, out);
     }
 }
 
@@ -98,6 +203,10 @@ pub struct ViewBuffers {
     pub steps: u64,
     /// Rays whose steps ran out before they hit or passed `far`.
     pub undecided: u64,
+    /// Primary rays traced (pixels × samples, and pixel centres).
+    pub rays: u64,
+    /// Shadow rays and occlusion samples.
+    pub effects: EffectStats,
 }
 
 /// Which quantities to compute for each pixel.
@@ -151,7 +260,6 @@ pub fn render_view(
     let mut depth = needs.depth.then(|| vec![0f32; w * h]);
     let mut normals = alloc(needs.normals, w * h * 3);
     let mut mask = alloc(needs.mask, w * h);
-    let background = job.background.to_array().map(to_u8);
 
     // Split every buffer into bands of rows; each band is traced by one task.
     let bands = h.div_ceil(BAND_ROWS);
@@ -170,66 +278,149 @@ pub fn render_view(
             )
         })
         .collect();
-    let (hits, steps, undecided) = work
+    // Colour averages the rays of `samples_per_pixel` sub-pixel points; the
+    // geometric buffers are the pixel centre's, traced separately only
+    // when the colour's rays miss it.
+    let offsets = subpixel_offsets(if needs.color {
+        job.samples_per_pixel
+    } else {
+        1
+    });
+    // Sub-pixel rays decide hits within half of 1/n of a pixel for n
+    // samples: a pixel's footprint would widen every silhouette by half a
+    // pixel, and 1/n keeps the widening below the coverage levels the n
+    // samples resolve (each row and column of the n × n grid holds one).
+    let sub_settings = TraceSettings {
+        footprint: settings.footprint / offsets.len() as f32,
+        ..settings
+    };
+    let geometry = needs.depth || needs.normals || needs.mask;
+    let centre_separate = offsets.len() > 1 && geometry;
+    let inv_l = 1.0 / scene.lipschitz;
+    let fog_far = job.far;
+    let background64 = job.background;
+    let fogged_background = job
+        .fog
+        .map_or(background64, |f| f.apply(background64, fog_far));
+    let background = fogged_background.to_array().map(to_u8);
+    let direction = |x: f64, y: f64| -> (DVec3, Vec3A) {
+        let d64 = (ax * (x / cam.focal) + ay * (y / cam.focal) + az).normalize();
+        (d64, d64.as_vec3().into())
+    };
+    // The shaded, fogged colour of a hit, and its normal if shading used it.
+    let shade = |hit: &crate::trace::Hit, d64: DVec3, dir: Vec3A, counters: &Counters| {
+        let p = origin + dir * hit.t;
+        let (_, id) = scene.root.dist_id(p);
+        let info = scene.prims.get(id as usize);
+        let material = info
+            .and_then(|i| i.material.as_deref())
+            .unwrap_or(&job.material);
+        let center = info.map_or(DVec3::ZERO, |i| i.center);
+        let shading_normal = material
+            .needs_normal()
+            .then(|| normal(&*scene.root, p, 5e-4, -dir));
+        let n = shading_normal.unwrap_or(Vec3A::Z);
+        let p64 = DVec3::from(p.to_array().map(f64::from));
+        let n64 = DVec3::from(n.to_array().map(f64::from));
+        let env = SurfacePoint {
+            sdf: &*scene.root,
+            inv_lipschitz: inv_l,
+            p,
+            n,
+            far: settings.far,
+            epsilon: settings.epsilon,
+            pixel: settings.footprint * hit.t,
+            counters,
+        };
+        let rgb = material.shade_in(p64, center, n64, d64, &env);
+        let rgb = match &job.fog {
+            Some(f) => f.apply(rgb, hit.t as f64),
+            None => rgb,
+        };
+        (rgb, shading_normal)
+    };
+    let (hits, steps, undecided, rays, effects) = work
         .into_par_iter()
         .map(|(band, mut col, mut dep, mut nor, mut msk)| {
-            let (mut hits, mut steps, mut undecided) = (0u64, 0u64, 0u64);
+            let (mut hits, mut steps, mut undecided, mut rays) = (0u64, 0u64, 0u64, 0u64);
+            let counters = Counters::default();
             let rows = (band * BAND_ROWS)..((band + 1) * BAND_ROWS).min(h);
             let nrows = rows.len();
+            let mut trace = |d: Vec3A, s: &TraceSettings| {
+                let hit = sphere_trace(&*scene.root, origin, d, s);
+                steps += hit.steps as u64;
+                undecided += hit.undecided as u64;
+                rays += 1;
+                hit
+            };
             for (r, j) in rows.enumerate() {
                 for i in 0..w {
-                    let (xn, yn) = cam.pixel_ndc(i as u32, j as u32, width, height);
-                    let d64 = (ax * (xn / cam.focal) + ay * (yn / cam.focal) + az).normalize();
-                    let dir: Vec3A = d64.as_vec3().into();
-                    let hit = sphere_trace(&*scene.root, origin, dir, &settings);
-                    steps += hit.steps as u64;
-                    undecided += hit.undecided as u64;
                     let k = r * w + i;
-                    if !hit.hit {
-                        if let Some(c) = col.as_deref_mut() {
-                            c[k * 3..k * 3 + 3].copy_from_slice(&background);
-                        }
-                        continue;
-                    }
-                    hits += 1;
-                    let p = origin + dir * hit.t;
-                    let mut n_cache = None;
-                    let mut get_normal =
-                        || *n_cache.get_or_insert_with(|| normal(&*scene.root, p, 5e-4, -dir));
-                    if let Some(c) = col.as_deref_mut() {
-                        let (_, id) = scene.root.dist_id(p);
-                        let info = scene.prims.get(id as usize);
-                        let material = info
-                            .and_then(|i| i.material.as_deref())
-                            .unwrap_or(&job.material);
-                        let center = info.map_or(DVec3::ZERO, |i| i.center);
-                        let n = if material.needs_normal() {
-                            get_normal()
+                    let (xn, yn) = cam.pixel_ndc(i as u32, j as u32, width, height);
+                    if centre_separate || offsets.len() == 1 {
+                        // The pixel centre: every quantity when it is the
+                        // only ray, else depth, normals and the mask.
+                        let (d64, dir) = direction(xn, yn);
+                        let hit = trace(dir, &settings);
+                        if !hit.hit {
+                            if let (Some(c), false) = (col.as_deref_mut(), centre_separate) {
+                                c[k * 3..k * 3 + 3].copy_from_slice(&background);
+                            }
                         } else {
-                            Vec3A::Z
+                            hits += 1;
+                            let p = origin + dir * hit.t;
+                            let mut shading_normal = None;
+                            if let (Some(c), false) = (col.as_deref_mut(), centre_separate) {
+                                let (rgb, n) = shade(&hit, d64, dir, &counters);
+                                shading_normal = n;
+                                c[k * 3..k * 3 + 3].copy_from_slice(&rgb.to_array().map(to_u8));
+                            }
+                            if let Some(d) = dep.as_deref_mut() {
+                                d[k] = hit.t;
+                            }
+                            if let Some(nb) = nor.as_deref_mut() {
+                                let n = shading_normal
+                                    .unwrap_or_else(|| normal(&*scene.root, p, 5e-4, -dir));
+                                let rgb = [n.x, n.y, n.z].map(|x| to_u8(((x + 1.0) * 0.5) as f64));
+                                nb[k * 3..k * 3 + 3].copy_from_slice(&rgb);
+                            }
+                            if let Some(m) = msk.as_deref_mut() {
+                                m[k] = 255;
+                            }
+                        }
+                    }
+                    if offsets.len() > 1 {
+                        let Some(c) = col.as_deref_mut() else {
+                            continue;
                         };
-                        let p64 = DVec3::from(p.to_array().map(f64::from));
-                        let n64 = DVec3::from(n.to_array().map(f64::from));
-                        let rgb = material.shade(p64, center, n64, d64);
+                        let mut sum = DVec3::ZERO;
+                        for (dx, dy) in &offsets {
+                            let (xs, ys) =
+                                cam.pixel_ndc_at(i as f64 + dx, j as f64 + dy, width, height);
+                            let (d64, dir) = direction(xs, ys);
+                            let hit = trace(dir, &sub_settings);
+                            sum += if hit.hit {
+                                hits += 1;
+                                shade(&hit, d64, dir, &counters).0
+                            } else {
+                                fogged_background
+                            };
+                        }
+                        let rgb = sum / offsets.len() as f64;
                         c[k * 3..k * 3 + 3].copy_from_slice(&rgb.to_array().map(to_u8));
-                    }
-                    if let Some(d) = dep.as_deref_mut() {
-                        d[k] = hit.t;
-                    }
-                    if let Some(nb) = nor.as_deref_mut() {
-                        let n = get_normal();
-                        let rgb = [n.x, n.y, n.z].map(|x| to_u8(((x + 1.0) * 0.5) as f64));
-                        nb[k * 3..k * 3 + 3].copy_from_slice(&rgb);
-                    }
-                    if let Some(m) = msk.as_deref_mut() {
-                        m[k] = 255;
                     }
                 }
             }
             progress((nrows * w) as u64);
-            (hits, steps, undecided)
+            (hits, steps, undecided, rays, counters.stats())
         })
-        .reduce(|| (0, 0, 0), |a, b| (a.0 + b.0, a.1 + b.1, a.2 + b.2));
+        .reduce(
+            || (0, 0, 0, 0, EffectStats::default()),
+            |mut a, b| {
+                a.4 += b.4;
+                (a.0 + b.0, a.1 + b.1, a.2 + b.2, a.3 + b.3, a.4)
+            },
+        );
     ViewBuffers {
         width,
         height,
@@ -240,6 +431,8 @@ pub fn render_view(
         hits,
         steps,
         undecided,
+        rays,
+        effects,
     }
 }
 
@@ -341,12 +534,17 @@ pub struct JobReport {
     pub bvh_nodes: usize,
     pub lipschitz: f32,
     pub views: usize,
+    /// Primary rays traced: pixels × views × samples per pixel (and the
+    /// pixel centres where supersampled colour and depth, normals or a
+    /// mask are both asked for); `hits` of them hit.
     pub rays: u64,
     pub hits: u64,
     pub steps: u64,
     /// Rays whose steps ran out before they hit or passed `far` (shown as
     /// misses: more `iterations` or `hit_tolerance: "pixel"` decide them).
     pub undecided: u64,
+    /// Shadow rays and occlusion samples (all 0 unless a material asks).
+    pub effects: EffectStats,
     pub plan: Plan,
     pub written: Vec<Written>,
     /// (stage, seconds)
@@ -397,7 +595,8 @@ pub fn run_job(
         .collect();
     let mut written = Vec::new();
     let (mut trace_s, mut encode_s) = (0.0, 0.0);
-    let (mut hits, mut steps, mut undecided) = (0, 0, 0);
+    let (mut hits, mut steps, mut undecided, mut rays) = (0, 0, 0, 0);
+    let mut effects = EffectStats::default();
     for (k, cam) in job.cameras.iter().enumerate() {
         let t = Instant::now();
         let view = render_view(&scene, job, cam, (width, height), needs, progress);
@@ -405,6 +604,8 @@ pub fn run_job(
         hits += view.hits;
         steps += view.steps;
         undecided += view.undecided;
+        rays += view.rays;
+        effects += view.effects;
         let t = Instant::now();
         for o in &job.outputs {
             let rel = view_path(&o.path, k, views);
@@ -508,10 +709,11 @@ pub fn run_job(
         bvh_nodes: scene.bvh_nodes,
         lipschitz: scene.lipschitz,
         views,
-        rays: width as u64 * height as u64 * views as u64,
+        rays,
         hits,
         steps,
         undecided,
+        effects,
         plan,
         written,
         stages,

@@ -230,6 +230,8 @@ fn job(material: Material, outputs: Vec<OutputKind>) -> RenderJob {
         epsilon: 1e-5,
         hit_tolerance: sdfl_stdlib::value::HitTolerance::Absolute,
         background: DVec3::ZERO,
+        fog: None,
+        samples_per_pixel: 1,
         outputs: outputs
             .into_iter()
             .map(|kind| Output {

@@ -63,6 +63,19 @@ impl Camera {
         }
     }
 
+    /// [`Self::pixel_ndc`] at fractional pixel coordinates `(x, y)` (pixel
+    /// centres at whole numbers; `x + 0.5` is the pixel's right edge), for
+    /// rays through a pixel off its centre (supersampling).
+    pub fn pixel_ndc_at(&self, x: f64, y: f64, w: u32, h: u32) -> (f64, f64) {
+        let axis = |k: f64, n: u32| match self.pixel_centers {
+            PixelCenters::Corners if n > 1 => 1.0 - 2.0 * k / (n - 1) as f64,
+            // One pixel spans the whole of -1..1.
+            PixelCenters::Corners => -2.0 * k,
+            PixelCenters::Half => 1.0 - (2.0 * k + 1.0) / n as f64,
+        };
+        (axis(x, w), axis(y, h))
+    }
+
     /// The camera axes `(x, y, z)`: the columns of `R`.
     /// `z = normalize(at - eye)`, `x = normalize(cross(up, z))`, `y = cross(z, x)`.
     pub fn axes(&self) -> (DVec3, DVec3, DVec3) {
@@ -270,6 +283,25 @@ mod tests {
     fn corner_pixels_are_at_plus_minus_one() {
         assert_eq!(pixel_ndc(0, 0, 256, 256), (1.0, 1.0));
         assert_eq!(pixel_ndc(255, 255, 256, 256), (-1.0, -1.0));
+    }
+
+    #[test]
+    fn fractional_pixels_agree_with_whole_ones() {
+        for centers in [PixelCenters::Corners, PixelCenters::Half] {
+            let cam = Camera {
+                pixel_centers: centers,
+                ..Camera::look_at(DVec3::new(0.0, 0.0, -3.0), DVec3::ZERO, DVec3::Y, 1.0)
+            };
+            for (i, j, w, h) in [(0, 0, 8, 6), (7, 5, 8, 6), (3, 2, 8, 6), (0, 0, 1, 1)] {
+                let (x, y) = cam.pixel_ndc_at(i as f64, j as f64, w, h);
+                let (xw, yw) = cam.pixel_ndc(i, j, w, h);
+                assert!((x - xw).abs() < 1e-15 && (y - yw).abs() < 1e-15);
+                // Half a pixel right is half a pixel's width further in NDC.
+                let (xr, _) = cam.pixel_ndc_at(i as f64 + 0.5, j as f64, w, h);
+                let (xn, _) = cam.pixel_ndc_at(i as f64 + 1.0, j as f64, w, h);
+                assert!(((x - xr) - 0.5 * (x - xn)).abs() < 1e-12);
+            }
+        }
     }
 
     #[test]

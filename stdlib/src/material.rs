@@ -2,6 +2,7 @@
 
 use glam::DVec3;
 
+use crate::effects::{AmbientOcclusion, Open, SoftShadows, Surroundings};
 use crate::num::{Real, V3};
 use crate::param::{Arg, ParamUse};
 use crate::shape::ArgSource;
@@ -12,12 +13,14 @@ pub enum Material {
     Rainbow,
     /// One colour (trainable).
     Constant(Arg<DVec3>),
-    /// `albedo · (ambient + (1 - ambient)·max(0, n·l))` under a directional
-    /// light coming from `light` (unit vector towards the light).
+    /// `albedo · (ambient·ao + (1 - ambient)·max(0, n·l)·shadow)` under a
+    /// directional light coming from `light` (unit vector towards the
+    /// light); `ao` and `shadow` are 1 unless the material asks for them.
     Lambert {
         albedo: Box<Material>,
         light: DVec3,
         ambient: f64,
+        effects: Effects,
     },
     /// The surface normal as a colour, `(n + 1) / 2`.
     Normals,
@@ -28,7 +31,39 @@ pub enum Material {
         ambient: f64,
         specular: f64,
         shininess: f64,
+        effects: Effects,
     },
+}
+
+/// The effects a lit material asks for; each costs SDF evaluations per
+/// shaded point (see `sdfl plan`), none when absent.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct Effects {
+    /// Lights are blocked by the scene, with penumbrae. A surface facing
+    /// away from a light is in its own shadow (no ray is marched).
+    pub shadows: Option<SoftShadows>,
+    /// The ambient term is darkened where the scene crowds the surface.
+    pub occlusion: Option<AmbientOcclusion>,
+}
+
+impl Effects {
+    /// The fraction of the light from unit direction `l` reaching a point
+    /// with normal `n`: 1 without shadows, else 0 facing away and the
+    /// scene's soft shadow facing it.
+    fn visibility(&self, n: DVec3, l: DVec3, env: &dyn Surroundings) -> f64 {
+        match &self.shadows {
+            None => 1.0,
+            Some(_) if n.dot(l) <= 0.0 => 0.0,
+            Some(s) => env.light_visibility(l, s),
+        }
+    }
+
+    /// The fraction of ambient light reaching the point.
+    fn ambient(&self, env: &dyn Surroundings) -> f64 {
+        self.occlusion
+            .as_ref()
+            .map_or(1.0, |ao| env.ambient_visibility(ao))
+    }
 }
 
 /// A directional light.
@@ -40,12 +75,15 @@ pub struct Light {
     pub color: DVec3,
 }
 
-/// Blinn-Phong shading, in any number type: `albedo·ambient + Σ_l color_l·
-/// (albedo·(1 - ambient)·max(0, n·l) + specular·max(0, n·h)^shininess)`
-/// with `h = normalize(l - view)`, `view` the unit ray direction (from the
-/// eye towards the surface), clamped to 0..1 componentwise. Where `h` is
-/// undefined (light straight along the ray) the highlight is 0.
+/// Blinn-Phong shading, in any number type: `albedo·ambient·ao + Σ_l
+/// color_l·shadow_l·(albedo·(1 - ambient)·max(0, n·l) +
+/// specular·max(0, n·h)^shininess)` with `h = normalize(l - view)`, `view`
+/// the unit ray direction (from the eye towards the surface), clamped to
+/// 0..1 componentwise. Where `h` is undefined (light straight along the
+/// ray) the highlight is 0. `ao` and `shadow_l` (the visible fraction of
+/// light `l`, see [`Effects`]) are 1 without occlusion and shadows.
 #[inline]
+#[allow(clippy::too_many_arguments)]
 pub fn blinn_phong<T: Real>(
     albedo: V3<T>,
     n: V3<T>,
@@ -54,9 +92,15 @@ pub fn blinn_phong<T: Real>(
     ambient: f64,
     specular: f64,
     shininess: f64,
+    ao: f64,
+    mut shadow: impl FnMut(&Light) -> f64,
 ) -> V3<T> {
-    let mut c = albedo * T::lit(ambient);
+    let mut c = albedo * T::lit(ambient * ao);
     for light in lights {
+        let visible = shadow(light);
+        if visible <= 0.0 {
+            continue;
+        }
         let l = V3::lit(light.direction.to_array());
         let diffuse = n.dot(l).max(T::zero());
         let half = l - view;
@@ -73,7 +117,7 @@ pub fn blinn_phong<T: Real>(
             T::zero()
         };
         let lit = (albedo * (diffuse * T::lit(1.0 - ambient))).map(|x| x + highlight);
-        c = c + lit.zip(V3::lit(light.color.to_array()), |a, b| a * b);
+        c = c + lit.zip(V3::lit((light.color * visible).to_array()), |a, b| a * b);
     }
     c.map(|x| x.clamp(0.0, 1.0))
 }
@@ -101,19 +145,107 @@ impl Material {
         }
     }
 
+    /// The effects the material and its albedo ask for.
+    pub fn effects(&self) -> Vec<Effects> {
+        match self {
+            Material::Lambert {
+                albedo, effects, ..
+            }
+            | Material::Phong {
+                albedo, effects, ..
+            } => {
+                let mut all = albedo.effects();
+                all.push(*effects);
+                all
+            }
+            _ => Vec::new(),
+        }
+    }
+
+    /// The lights a material with shadows marches shadow rays towards, per
+    /// shaded point (its albedo's included).
+    pub fn shadowed_lights(&self) -> usize {
+        match self {
+            Material::Lambert {
+                albedo, effects, ..
+            } => albedo.shadowed_lights() + usize::from(effects.shadows.is_some()),
+            Material::Phong {
+                albedo,
+                effects,
+                lights,
+                ..
+            } => {
+                albedo.shadowed_lights()
+                    + if effects.shadows.is_some() {
+                        lights.len()
+                    } else {
+                        0
+                    }
+            }
+            _ => 0,
+        }
+    }
+
+    /// Most SDF evaluations the material's effects take per shaded point:
+    /// `steps` per shadowed light, `samples` for ambient occlusion.
+    pub fn effect_evaluations(&self) -> u64 {
+        let own = |e: &Effects, lights: usize| {
+            e.shadows.map_or(0, |s| s.steps as u64 * lights as u64)
+                + e.occlusion.map_or(0, |o| o.samples as u64)
+        };
+        match self {
+            Material::Lambert {
+                albedo, effects, ..
+            } => albedo.effect_evaluations() + own(effects, 1),
+            Material::Phong {
+                albedo,
+                effects,
+                lights,
+                ..
+            } => albedo.effect_evaluations() + own(effects, lights.len()),
+            _ => 0,
+        }
+    }
+
     /// The colour at world point `p` of a primitive centred at `center`,
     /// with unit normal `n` (ignored unless [`Self::needs_normal`]), seen
     /// along the unit ray direction `view` (ignored unless
-    /// [`Self::needs_view`]).
+    /// [`Self::needs_view`]), with nothing around it: no shadows, no
+    /// occlusion (see [`Self::shade_in`]).
     pub fn shade(&self, p: DVec3, center: DVec3, n: DVec3, view: DVec3) -> DVec3 {
+        self.shade_in(p, center, n, view, &Open)
+    }
+
+    /// [`Self::shade`] in a scene: shadows and ambient occlusion, where the
+    /// material asks for them, come from `env`, which is asked nothing
+    /// otherwise.
+    pub fn shade_in(
+        &self,
+        p: DVec3,
+        center: DVec3,
+        n: DVec3,
+        view: DVec3,
+        env: &dyn Surroundings,
+    ) -> DVec3 {
         match self {
             Material::Lambert {
                 albedo,
                 light,
                 ambient,
+                effects,
             } => {
                 let diffuse = n.dot(*light).max(0.0);
-                albedo.shade(p, center, n, view) * (ambient + (1.0 - ambient) * diffuse)
+                let direct = if diffuse > 0.0 {
+                    diffuse * effects.visibility(n, *light, env)
+                } else {
+                    0.0
+                };
+                let ao = if *ambient > 0.0 {
+                    effects.ambient(env)
+                } else {
+                    1.0
+                };
+                albedo.shade_in(p, center, n, view, env) * (ambient * ao + (1.0 - ambient) * direct)
             }
             Material::Phong {
                 albedo,
@@ -121,8 +253,14 @@ impl Material {
                 ambient,
                 specular,
                 shininess,
+                effects,
             } => {
-                let a = albedo.shade(p, center, n, view);
+                let a = albedo.shade_in(p, center, n, view, env);
+                let ao = if *ambient > 0.0 {
+                    effects.ambient(env)
+                } else {
+                    1.0
+                };
                 let c = blinn_phong(
                     V3::from(a),
                     V3::from(n),
@@ -131,6 +269,8 @@ impl Material {
                     *ambient,
                     *specular,
                     *shininess,
+                    ao,
+                    |l| effects.visibility(n, l.direction, env),
                 );
                 DVec3::from_array(c.to_array())
             }
@@ -181,6 +321,7 @@ mod tests {
             ambient: 0.1,
             specular: 0.5,
             shininess: 32.0,
+            effects: Effects::default(),
         }
     }
 
@@ -226,6 +367,7 @@ mod tests {
             ambient: 0.0,
             specular: 0.6,
             shininess: 64.0,
+            effects: Effects::default(),
         };
         let shade = |angle: f64| {
             // The ray travels towards -z, tilted by `angle` about y.
@@ -242,6 +384,101 @@ mod tests {
         assert!(shade(mirror) > shade(0.0) + 0.3);
     }
 
+    /// Surroundings that answer fixed fractions and count the questions.
+    struct Fixed {
+        light: f64,
+        ambient: f64,
+        asked: std::cell::Cell<(u32, u32)>,
+    }
+
+    impl Surroundings for Fixed {
+        fn light_visibility(&self, _: DVec3, _: &SoftShadows) -> f64 {
+            let (l, a) = self.asked.get();
+            self.asked.set((l + 1, a));
+            self.light
+        }
+        fn ambient_visibility(&self, _: &AmbientOcclusion) -> f64 {
+            let (l, a) = self.asked.get();
+            self.asked.set((l, a + 1));
+            self.ambient
+        }
+    }
+
+    #[test]
+    fn effects_are_asked_for_only_when_the_material_has_them() {
+        let env = |light, ambient| Fixed {
+            light,
+            ambient,
+            asked: Default::default(),
+        };
+        let lambert = |effects| Material::Lambert {
+            albedo: Box::new(Material::constant(DVec3::new(0.8, 0.6, 0.4))),
+            light: DVec3::Y,
+            ambient: 0.25,
+            effects,
+        };
+        let (p, n, view) = (DVec3::ZERO, DVec3::Y, -DVec3::Y);
+        // No effects: the surroundings are never asked.
+        let e = env(0.0, 0.0);
+        let plain = lambert(Effects::default()).shade_in(p, p, n, view, &e);
+        assert_eq!(e.asked.get(), (0, 0));
+        assert!((plain - DVec3::new(0.8, 0.6, 0.4)).length() < 1e-12);
+        // Shadows only: in full shadow, only the ambient term is left.
+        let shadows = Effects {
+            shadows: Some(SoftShadows { k: 8.0, steps: 16 }),
+            occlusion: None,
+        };
+        let e = env(0.0, 0.0);
+        let c = lambert(shadows).shade_in(p, p, n, view, &e);
+        assert_eq!(e.asked.get(), (1, 0));
+        assert!((c - DVec3::new(0.8, 0.6, 0.4) * 0.25).length() < 1e-12);
+        // Facing away from the light: in its own shadow, nothing marched.
+        let e = env(1.0, 1.0);
+        lambert(shadows).shade_in(p, p, -n, view, &e);
+        assert_eq!(e.asked.get(), (0, 0));
+        // Occlusion scales the ambient term only.
+        let both = Effects {
+            shadows: shadows.shadows,
+            occlusion: Some(AmbientOcclusion {
+                samples: 4,
+                distance: 0.5,
+            }),
+        };
+        let e = env(0.5, 0.5);
+        let c = lambert(both).shade_in(p, p, n, view, &e);
+        assert_eq!(e.asked.get(), (1, 1));
+        let want = DVec3::new(0.8, 0.6, 0.4) * (0.25 * 0.5 + 0.75 * 0.5);
+        assert!((c - want).length() < 1e-12);
+        // Phong: a shadowed light loses its highlight too; one ray per
+        // light the surface faces.
+        let m = Material::Phong {
+            albedo: Box::new(Material::constant(DVec3::new(0.5, 0.4, 0.2))),
+            lights: vec![
+                Light {
+                    direction: DVec3::Z,
+                    color: DVec3::ONE,
+                },
+                Light {
+                    direction: -DVec3::Z,
+                    color: DVec3::ONE,
+                },
+            ],
+            ambient: 0.1,
+            specular: 0.5,
+            shininess: 32.0,
+            effects: both,
+        };
+        let e = env(0.0, 1.0);
+        let c = m.shade_in(p, p, DVec3::Z, -DVec3::Z, &e);
+        assert_eq!(e.asked.get(), (1, 1));
+        assert!(
+            (c - DVec3::new(0.5, 0.4, 0.2) * 0.1).length() < 1e-12,
+            "{c}"
+        );
+        assert_eq!(m.effect_evaluations(), 2 * 16 + 4);
+        assert_eq!(m.shadowed_lights(), 2);
+    }
+
     #[test]
     fn blinn_phong_is_the_same_formula_in_f32() {
         let light = Light {
@@ -249,10 +486,28 @@ mod tests {
             color: DVec3::new(0.9, 0.8, 0.7),
         };
         let (a, n, v) = ([0.3, 0.6, 0.9], [0.0, 0.6, 0.8], [0.6, 0.0, -0.8]);
-        let c64: V3<f64> =
-            blinn_phong(V3::lit(a), V3::lit(n), V3::lit(v), &[light], 0.2, 0.4, 16.0);
-        let c32: V3<f32> =
-            blinn_phong(V3::lit(a), V3::lit(n), V3::lit(v), &[light], 0.2, 0.4, 16.0);
+        let c64: V3<f64> = blinn_phong(
+            V3::lit(a),
+            V3::lit(n),
+            V3::lit(v),
+            &[light],
+            0.2,
+            0.4,
+            16.0,
+            1.0,
+            |_| 1.0,
+        );
+        let c32: V3<f32> = blinn_phong(
+            V3::lit(a),
+            V3::lit(n),
+            V3::lit(v),
+            &[light],
+            0.2,
+            0.4,
+            16.0,
+            1.0,
+            |_| 1.0,
+        );
         for (x, y) in c64.to_array().iter().zip(c32.to_array()) {
             assert!((x - y as f64).abs() < 1e-5);
         }

@@ -20,6 +20,12 @@ pub enum Value {
     Material(Arc<Material>),
     /// A directional light of a `phong` material.
     Light(crate::material::Light),
+    /// Soft shadows of a lit material.
+    Shadows(crate::effects::SoftShadows),
+    /// Ambient occlusion of a lit material.
+    Occlusion(crate::effects::AmbientOcclusion),
+    /// Fog of a `render`.
+    Fog(crate::effects::Fog),
     Camera(Camera),
     Output(Arc<Output>),
     /// A number or vector marked trainable with `param(...)`.
@@ -47,6 +53,9 @@ impl Value {
             Value::Shape(_) => "shape",
             Value::Material(_) => "material",
             Value::Light(_) => "light",
+            Value::Shadows(_) => "soft shadow",
+            Value::Occlusion(_) => "ambient occlusion",
+            Value::Fog(_) => "fog",
             Value::Camera(_) => "camera",
             Value::Output(_) => "output",
             Value::Param(_) => "trainable parameter",
@@ -185,6 +194,12 @@ pub struct RenderJob {
     pub epsilon: f64,
     pub hit_tolerance: HitTolerance,
     pub background: DVec3,
+    /// Exponential fog by distance, over hits and misses (at `far`).
+    pub fog: Option<crate::effects::Fog>,
+    /// Rays per pixel whose colours are averaged (a square: 1, 4, 9, …;
+    /// see `effects::subpixel_offsets`). Depth, normals and the mask are
+    /// the pixel centre's.
+    pub samples_per_pixel: u32,
     pub outputs: Vec<Output>,
 }
 

@@ -107,12 +107,49 @@ pub fn render_work(j: &RenderJob, size: Option<(u32, u32)>) -> Work {
 pub fn render_work_of(j: &RenderJob, size: Option<(u32, u32)>, primitives: u64) -> Work {
     let px = pixels((j.width, j.height), size);
     let mesh = mesh_work(j.outputs.iter().map(|o| &o.kind), 1.0);
+    // Supersampled colour traces `samples_per_pixel` rays, and the pixel
+    // centre's too where depth, normals or a mask are asked for; each shaded
+    // sample pays for its material's shadows and occlusion.
+    let spp = j.samples_per_pixel as f64;
+    let geometry = j.outputs.iter().any(|o| {
+        matches!(
+            o.kind,
+            OutputKind::Depth
+                | OutputKind::DepthGif { .. }
+                | OutputKind::Normals
+                | OutputKind::Mask
+                | OutputKind::Dataset
+        )
+    });
+    let rays = if spp > 1.0 && geometry {
+        spp + 1.0
+    } else {
+        spp
+    };
+    let effects = j
+        .material
+        .effect_evaluations()
+        .max(painted_effects(&j.scene)) as f64;
     Work {
-        evaluations: px * j.cameras.len() as f64 * j.iterations as f64 + mesh.evaluations,
+        evaluations: px * j.cameras.len() as f64 * (j.iterations as f64 * rays + spp * effects)
+            + mesh.evaluations,
         memory: primitives as f64 * BYTES_PER_PRIMITIVE as f64
             + (px * bytes_per_pixel(j.outputs.iter().map(|o| o.kind.clone()), false))
                 .max(mesh.memory),
     }
+}
+
+/// The most SDF evaluations a painted material's effects take per shaded
+/// point.
+fn painted_effects(s: &crate::shape::Shape) -> u64 {
+    let own = match s {
+        crate::shape::Shape::Paint(_, m) => m.effect_evaluations(),
+        _ => 0,
+    };
+    s.children()
+        .into_iter()
+        .map(|c| painted_effects(c))
+        .fold(own, u64::max)
 }
 
 /// Most evaluations of all statements of a file together.

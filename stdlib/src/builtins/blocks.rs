@@ -68,6 +68,18 @@ pub(crate) fn render_sig() -> BlockSig {
                 "stratified()",
                 "depth samples along each ray (fields only)",
             ),
+            opt(
+                "fog",
+                Type::OneOf(vec![FOG, Type::Bool]),
+                "false",
+                "`fog(color, density)`: exponential fog by distance (`false`: none; shapes only)",
+            ),
+            opt(
+                "samples_per_pixel",
+                Type::Number,
+                "1",
+                "rays per pixel whose colours are averaged: a square (1, 4, 9, 16, … 256), an m × m rotated grid in each pixel (shapes only; depth, normals and mask stay the pixel centre's)",
+            ),
         ],
     }
 }
@@ -123,6 +135,8 @@ pub(crate) fn render_block(name: &str, a: &Args) -> Result<RenderJob, Diag> {
             }
         },
         background: colour(bg, bg_span)?,
+        fog: fog_option(a)?,
+        samples_per_pixel: samples_per_pixel(a)?,
         outputs,
     })
 }
@@ -421,6 +435,22 @@ pub(crate) fn volume_block(name: &str, a: &Args, field: Arc<Field>) -> Result<Vo
         return Err(super::not_a_volume(a.get("scene").1));
     }
     let (width, height) = image_size(a, "size")?;
+    // Sphere tracing's effects: asked of a volume, say so.
+    for (name, asked) in [
+        ("fog", !matches!(a.get("fog").0, Value::Bool(false))),
+        ("samples_per_pixel", samples_per_pixel(a)? != 1),
+    ] {
+        if asked {
+            return Err(value_error(
+                a.get(name).1,
+                format!(
+                    "`{name}` is an effect of sphere-traced shapes; this render's scene is a field"
+                ),
+                "not for volume renders",
+                "remove it, or render a shape: volume renders composite samples along each ray",
+            ));
+        }
+    }
     let Value::Sampler(sampler) = a.get("sampler").0 else {
         return Err(type_error(
             a.get("sampler").1,

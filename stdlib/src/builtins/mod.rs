@@ -12,8 +12,9 @@ use sdfl_lang::types::{BlockSig, Env, Param, Signature, Type};
 use sdfl_lang::Span;
 
 use crate::camera::{Camera, OrbitUp, PixelCenters};
+use crate::effects::{AmbientOcclusion, Fog, SoftShadows, MAX_SAMPLES_PER_PIXEL};
 use crate::eval::describe;
-use crate::material::{Light, Material};
+use crate::material::{Effects, Light, Material};
 use crate::param::{Arg, Bound, ParamDecl, ParamInit, ParamUse, MIN_BETA, MIN_LENGTH};
 use crate::precision::{beta, f32_range};
 use crate::shape::{Axis, Shape};
@@ -36,6 +37,9 @@ pub const LOSS: Type = Type::Named("loss");
 pub const ENCODING: Type = Type::Named("encoding");
 pub const OCCUPANCY: Type = Type::Named("occupancy grid");
 pub const LIGHT: Type = Type::Named("light");
+pub const SHADOWS: Type = Type::Named("soft shadow");
+pub const OCCLUSION: Type = Type::Named("ambient occlusion");
+pub const FOG: Type = Type::Named("fog");
 /// Most samples per ray.
 pub const MAX_SAMPLES: u64 = 4096;
 
@@ -690,11 +694,13 @@ fn table() -> Vec<Builtin> {
         ),
         func(
             "lambert",
-            "Diffuse shading under a directional light: `albedo·(ambient + (1 - ambient)·max(0, n·light))`.",
+            "Diffuse shading under a directional light: `albedo·(ambient·ao + (1 - ambient)·max(0, n·light)·shadow)`; `shadow` and `ao` are 1 unless asked for.",
             vec![
                 opt("albedo", Type::OneOf(vec![MATERIAL, Type::Vec3]), "rainbow()", "base colour or material"),
                 opt("light", Type::Vec3, "[1, 1, 1]", "direction towards the light"),
                 opt("ambient", Type::Number, "0.2", "light reaching surfaces facing away (0..1)"),
+                opt("shadows", Type::OneOf(vec![SHADOWS, Type::Bool]), "false", "`soft(...)`: the scene blocks the light, with penumbrae (`false`: none, no shadow rays)"),
+                opt("ao", Type::OneOf(vec![OCCLUSION, Type::Bool]), "false", "`ao(...)`: ambient occlusion darkens the ambient term (`false`: none)"),
             ],
             MATERIAL,
             |a| {
@@ -706,6 +712,7 @@ fn table() -> Vec<Builtin> {
                     albedo: Box::new((*a.material("albedo")?).clone()),
                     light: a.direction("light")?,
                     ambient,
+                    effects: effects(a)?,
                 })))
             },
         ),
@@ -718,9 +725,44 @@ fn table() -> Vec<Builtin> {
                 opt("ambient", Type::Number, "0.1", "light reaching surfaces facing away (0..1)"),
                 opt("specular", Type::Number, "0.5", "strength of the highlight (0..1)"),
                 opt("shininess", Type::Number, "32", "highlight exponent (> 0; larger is a smaller, sharper highlight)"),
+                opt("shadows", Type::OneOf(vec![SHADOWS, Type::Bool]), "false", "`soft(...)`: the scene blocks each light, with penumbrae (`false`: none, no shadow rays)"),
+                opt("ao", Type::OneOf(vec![OCCLUSION, Type::Bool]), "false", "`ao(...)`: ambient occlusion darkens the ambient term (`false`: none)"),
             ],
             MATERIAL,
             phong,
+        ),
+        func(
+            "soft",
+            "Soft shadows for `lambert`/`phong` (`shadows: soft(...)`): a ray is marched from the surface towards each light, and the light's visible fraction is `clamp(min over the ray of k·h/t, 0, 1)` (`h` the scene's distance at `t` along it; the classic penumbra estimate). Costs up to `steps` SDF evaluations per shaded pixel and light; a surface facing away from a light is in its own shadow (no ray).",
+            vec![
+                opt("k", Type::Number, "8", "hardness (> 0): larger is a narrower penumbra; 2..32 is usual"),
+                opt("steps", Type::Number, "32", "most SDF evaluations of one shadow ray (1..4096); rays stop early in full shadow or past the render's `far`"),
+            ],
+            SHADOWS,
+            |a| Ok(Value::Shadows(SoftShadows { k: a.positive("k")?, steps: a.count("steps", 1, MAX_SAMPLES)? as u32 })),
+        ),
+        func(
+            "ao",
+            "Ambient occlusion for `lambert`/`phong` (`ao: ao(...)`): the scene's distance at `samples` heights `h_i = distance·(i + 1/2)/samples` along the normal gives `ao = 1 - Σ w_i·clamp((h_i - d_i)/h_i, 0, 1) / Σ w_i`, `w_i = 1 - h_i/distance`; it multiplies the ambient term. 1 in the open, 0 where the space along the normal is filled. Costs `samples` SDF evaluations per shaded pixel.",
+            vec![
+                opt("samples", Type::Number, "5", "SDF evaluations along the normal (1..4096)"),
+                opt("distance", Type::Number, "0.5", "how far from the surface occluders count (> 0, in scene units)"),
+            ],
+            OCCLUSION,
+            |a| Ok(Value::Occlusion(AmbientOcclusion { samples: a.count("samples", 1, MAX_SAMPLES)? as u32, distance: a.positive("distance")? })),
+        ),
+        func(
+            "fog",
+            "Exponential fog for a `render` (`fog: fog(...)`): a point `t` along the ray shows `color + (surface - color)·exp(-density·t)`; misses are fogged as at `far`. No SDF evaluations.",
+            vec![
+                opt("color", Type::Vec3, "[0.7, 0.75, 0.8]", "the colour far things fade to (linear RGB in 0..1)"),
+                opt("density", Type::Number, "0.2", "extinction per unit of distance (> 0): half the colour is left after ln(2)/density"),
+            ],
+            FOG,
+            |a| {
+                let (color, span) = (a.vec3("color")?, a.get("color").1);
+                Ok(Value::Fog(Fog { color: colour(color, span)?, density: a.positive("density")? }))
+            },
         ),
         func(
             "light",
@@ -1217,6 +1259,8 @@ fn render_views(a: &Args) -> Result<Value, Diag> {
                     epsilon: 1e-5,
                     hit_tolerance: HitTolerance::Pixel,
                     background: colour(bg, bg_span)?,
+                    fog: None,
+                    samples_per_pixel: 1,
                     outputs: Vec::new(),
                 }),
                 test,
@@ -1275,7 +1319,76 @@ fn phong(a: &Args) -> Result<Value, Diag> {
         ambient,
         specular,
         shininess,
+        effects: effects(a)?,
     })))
+}
+
+/// An effect option: `false` (none) or the value of its built-in. `true`
+/// is refused with the call to write, so that the built-in's signature
+/// stays the one place its defaults are written.
+fn effect_option<T>(
+    a: &Args,
+    name: &str,
+    builtin: &str,
+    expected: &str,
+    pick: impl Fn(&Value) -> Option<T>,
+) -> Result<Option<T>, Diag> {
+    match a.get(name) {
+        (Value::Bool(false), _) => Ok(None),
+        (Value::Bool(true), span) => Err(value_error(
+            span,
+            format!("`{name}: true` does not say which {expected} to compute"),
+            format!("use `{builtin}(...)`"),
+            format!("write `{name}: {builtin}()` for the defaults (`sdfl docs {builtin}`), or `false` for none"),
+        )),
+        (v, span) => pick(v).map(Some).ok_or_else(|| type_error(span, expected, v)),
+    }
+}
+
+/// The `shadows` and `ao` options of a lit material.
+fn effects(a: &Args) -> Result<Effects, Diag> {
+    Ok(Effects {
+        shadows: effect_option(a, "shadows", "soft", "soft shadow", |v| match v {
+            Value::Shadows(s) => Some(*s),
+            _ => None,
+        })?,
+        occlusion: effect_option(a, "ao", "ao", "ambient occlusion", |v| match v {
+            Value::Occlusion(o) => Some(*o),
+            _ => None,
+        })?,
+    })
+}
+
+/// A render's `fog` option.
+pub(crate) fn fog_option(a: &Args) -> Result<Option<Fog>, Diag> {
+    effect_option(a, "fog", "fog", "fog", |v| match v {
+        Value::Fog(f) => Some(*f),
+        _ => None,
+    })
+}
+
+/// A render's `samples_per_pixel`: a square from 1 to
+/// [`MAX_SAMPLES_PER_PIXEL`] (an `m × m` rotated grid in each pixel).
+pub(crate) fn samples_per_pixel(a: &Args) -> Result<u32, Diag> {
+    let n = a.count("samples_per_pixel", 1, MAX_SAMPLES_PER_PIXEL as u64)? as u32;
+    let m = (n as f64).sqrt().round() as u32;
+    if m * m != n {
+        let (below, above) = (
+            (n as f64).sqrt().floor() as u32,
+            (n as f64).sqrt().ceil() as u32,
+        );
+        return Err(value_error(
+            a.get("samples_per_pixel").1,
+            format!("`samples_per_pixel` must be a square (an m × m grid in each pixel), got {n}"),
+            "not a square",
+            format!(
+                "use {} ({below}×{below}) or {} ({above}×{above})",
+                below * below,
+                above * above
+            ),
+        ));
+    }
+    Ok(n)
 }
 
 /// A neural SDF is fitted to points; rendering one is not built yet.
