@@ -269,10 +269,13 @@ pub fn render(chart: &Chart, width: u32, height: u32) -> Result<Plot, PlotError>
     })
 }
 
+/// Consecutive drawable points of a series: x, y and label.
+type Run = Vec<(f64, f64, Option<String>)>;
+
 /// The chart's points sorted into what is drawn, with ranges and scales.
 struct Prepared {
-    /// Per series: runs of consecutive drawable points.
-    runs: Vec<Vec<Vec<(f64, f64, Option<String>)>>>,
+    /// Per series: its runs.
+    runs: Vec<Vec<Run>>,
     log_x: bool,
     log_y: bool,
     xr: Range<f64>,
@@ -311,7 +314,7 @@ impl Prepared {
         let drawable = |p: &Point| usable(p) && (!log_x || p.x > 0.0) && (!log_y || p.y > 0.0);
         let not_positive = all().filter(|p| usable(p) && !drawable(p)).count();
 
-        let runs: Vec<Vec<Vec<(f64, f64, Option<String>)>>> = chart
+        let runs: Vec<Vec<Run>> = chart
             .series
             .iter()
             .map(|s| {
