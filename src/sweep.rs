@@ -2,6 +2,7 @@
 //! time side by side.
 
 use super::*;
+use sdfl_runtime::plot::{Axis, Chart, Series};
 
 /// Mean squared error of two 8-bit images of the same size.
 fn mse(a: &Path, b: &Path) -> Option<f64> {
@@ -86,6 +87,15 @@ fn mesh_chamfer(reports: &[serde_json::Value]) -> Option<f64> {
     (!c.is_empty()).then(|| c.iter().sum::<f64>() / c.len() as f64)
 }
 
+/// One run's measures, for the plots.
+struct Quality {
+    value: f64,
+    secs: f64,
+    held: Option<f64>,
+    psnr: Option<f64>,
+    perr: Option<f64>,
+}
+
 pub(crate) fn sweep(
     file: &Path,
     name: &str,
@@ -152,9 +162,10 @@ pub(crate) fn sweep(
     let mut table = format!("| {name} | seconds | PSNR vs {name}={} (dB) | max parameter error | held-out PSNR (dB) | mesh Chamfer |\n|---:|---:|---:|---:|---:|---:|\n", values[values.len() - 1]);
     let mut csv = format!("{name},seconds,psnr_db,param_error,held_out_psnr_db,mesh_chamfer\n");
     let held_out_any = rows.iter().any(|r| held_out_psnr(&r.3).is_some());
-    let mut points = Vec::new();
-    // The same quality against the swept value (time may hardly change).
-    let mut by_value = Vec::new();
+    // What the plots show: held-out PSNR where training held views out,
+    // else PSNR against the reference's images, else parameter error; the
+    // last two leave the reference row out (it is what they compare with).
+    let mut quality: Vec<Quality> = Vec::new();
     for (row, (v, secs, dir, reports)) in rows.iter().enumerate() {
         let is_ref = row + 1 == rows.len();
         // PSNR of the mean squared error over all images of the run.
@@ -205,16 +216,14 @@ pub(crate) fn sweep(
             held.map_or(String::new(), |x| x.to_string()),
             chamfer.map_or(String::new(), |x| x.to_string())
         ));
-        // The plot: quality against time: held-out PSNR where training
-        // held views out, else PSNR against the reference, else parameter error.
-        let y = if held_out_any {
-            held
-        } else {
-            mean_psnr.filter(|p| p.is_finite()).or(perr)
-        };
-        if let Some(y) = y {
-            points.push((*secs, y));
-            by_value.push((*v, y));
+        if !is_ref || held_out_any {
+            quality.push(Quality {
+                value: *v,
+                secs: *secs,
+                held,
+                psnr: mean_psnr,
+                perr,
+            });
         }
     }
     Stdout::new().print(&table);
@@ -223,40 +232,49 @@ pub(crate) fn sweep(
         std::io::Write::write_all(f.writer(), bytes)?;
         f.commit()
     };
-    let log_y = ref_images.is_empty() && !held_out_any;
-    let png = sdfl_runtime::volume::figures::line_plot(
-        640,
-        400,
-        &[(
-            if held_out_any {
-                "held-out PSNR (dB) vs seconds"
-            } else {
-                "error vs seconds"
-            },
-            &points,
-        )],
-        log_y,
-    );
-    let value_label = format!(
-        "{} vs {name}",
-        if held_out_any {
-            "held-out PSNR (dB)"
-        } else {
-            "error"
-        }
-    );
-    let value_png = sdfl_runtime::volume::figures::line_plot(
-        640,
-        400,
-        &[(value_label.as_str(), &by_value)],
-        log_y,
+    let reference = format!("{name}={}", values[values.len() - 1]);
+    let images_any = quality.iter().any(|q| q.psnr.is_some());
+    let (y_title, pick): (String, fn(&Quality) -> Option<f64>) = if held_out_any {
+        ("held-out PSNR (dB)".into(), |q| q.held)
+    } else if images_any {
+        (format!("PSNR vs {reference} (dB)"), |q| q.psnr)
+    } else {
+        (format!("max parameter error vs {reference}"), |q| q.perr)
+    };
+    let quality_name = y_title.split(" (").next().unwrap_or("quality").to_string();
+    let plot = |x_title: &str,
+                against: &str,
+                x: &dyn Fn(f64, f64) -> f64,
+                label: &dyn Fn(f64, f64) -> String| {
+        let series = Series::labelled(
+            "",
+            quality
+                .iter()
+                .filter_map(|q| pick(q).map(|y| (x(q.value, q.secs), y, label(q.value, q.secs)))),
+        );
+        let chart = Chart {
+            title: format!("Sweep of `{name}`: {quality_name} against {against}"),
+            x: Axis::new(x_title),
+            y: Axis::new(y_title.clone()),
+            series: vec![series],
+        };
+        sdfl_runtime::plot::render(&chart, 640, 400).and_then(|p| p.png())
+    };
+    // Quality against time, each point labelled with its setting; and
+    // against the swept value (time may hardly change), labelled with time.
+    let png = plot("time per run (s)", "time", &|_, secs| secs, &|v, _| {
+        format!("{name}={v}")
+    });
+    let value_png = plot(
+        &format!("{name} (the value of `let {name}`)"),
+        name,
+        &|v, _| v,
+        &|_, secs| format!("{secs:.1} s"),
     );
     let result = write("sweep.csv", csv.as_bytes())
         .and_then(|_| write("sweep.md", table.as_bytes()))
-        .and_then(|_| sdfl_runtime::output::write_png(&out.join("sweep.png"), 640, 400, &png))
-        .and_then(|_| {
-            sdfl_runtime::output::write_png(&out.join("sweep_value.png"), 640, 400, &value_png)
-        });
+        .and_then(|_| write("sweep.png", &png?))
+        .and_then(|_| write("sweep_value.png", &value_png?));
     match result {
         Ok(()) => {
             eprintln!(

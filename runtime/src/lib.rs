@@ -8,6 +8,7 @@ pub mod mesh;
 pub mod metrics;
 pub mod neural;
 pub mod output;
+pub mod plot;
 pub mod render;
 pub mod sdf;
 pub mod trace;

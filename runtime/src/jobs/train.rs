@@ -5,6 +5,8 @@
 use super::*;
 use crate::neural::distance::NeuralSdfObjective;
 use crate::neural::surface::SurfaceObjective;
+use crate::output::write_bytes;
+use crate::plot::{self, Axis, Chart, Scale, Series};
 
 /// The learned parameters and how training went.
 #[derive(Debug, Clone, Serialize)]
@@ -568,18 +570,21 @@ pub fn run_train_job(
         written.push(w);
     }
     for o in job.after.iter().filter(|o| o.kind == OutputKind::LossCurve) {
-        let pts: Vec<(f64, f64)> = run
+        let pts = run
             .losses
             .iter()
             .enumerate()
-            .map(|(i, l)| ((i + 1) as f64, *l as f64))
-            .collect();
-        let (pw, ph) = (512, 320);
-        write_png(
+            .map(|(i, l)| ((i + 1) as f64, *l as f64));
+        let chart = Chart {
+            title: format!("Training loss of `{}`", job.name),
+            x: Axis::new("step").scale(Scale::Linear),
+            y: Axis::new(loss_title(&job.losses)),
+            series: vec![Series::new("loss", pts)],
+        };
+        let (pw, ph) = (640, 400);
+        write_bytes(
             &out_dir.join(&o.path),
-            pw,
-            ph,
-            &figures::line_plot(pw, ph, &[("loss", &pts)], true),
+            &plot::render(&chart, pw, ph)?.png()?,
         )?;
         written.push(Written {
             path: o.path.clone(),
@@ -602,21 +607,31 @@ pub fn run_train_job(
             });
         }
         for o in &job.after {
-            let (pw, ph, rgb) = match o.kind {
+            let (pw, ph) = match o.kind {
                 OutputKind::PsnrCurve => {
-                    let pts: Vec<(f64, f64)> =
-                        held_out.iter().map(|h| (h.seconds, h.psnr)).collect();
-                    let (pw, ph) = (512, 320);
-                    (
-                        pw,
-                        ph,
-                        figures::line_plot(pw, ph, &[("held-out PSNR (dB) vs s", &pts)], false),
-                    )
+                    let chart = Chart {
+                        title: format!("Held-out PSNR of `{}` during training", job.name),
+                        x: Axis::new("training time (s)").scale(Scale::Linear),
+                        y: Axis::new(format!("PSNR on {} held-out views (dB)", test_views.len()))
+                            .scale(Scale::Linear),
+                        series: vec![Series::labelled(
+                            "held-out PSNR",
+                            held_out
+                                .iter()
+                                .map(|h| (h.seconds, h.psnr, format!("step {}", h.step))),
+                        )],
+                    };
+                    let plot = plot::render(&chart, 640, 400)?;
+                    write_bytes(&out_dir.join(&o.path), &plot.png()?)?;
+                    (plot.width, plot.height)
                 }
-                OutputKind::Comparison => comparison_image(&test_views, &renders),
+                OutputKind::Comparison => {
+                    let (pw, ph, rgb) = comparison_image(&test_views, &renders);
+                    write_png(&out_dir.join(&o.path), pw, ph, &rgb)?;
+                    (pw, ph)
+                }
                 _ => continue,
             };
-            write_png(&out_dir.join(&o.path), pw, ph, &rgb)?;
             written.push(Written {
                 path: o.path.clone(),
                 kind: sdfl_stdlib::outputs::kind_name(&o.kind),
@@ -777,4 +792,44 @@ fn mesh_region(points: &[[f32; 3]], bounds: f64) -> ([f64; 3], [f64; 3]) {
     let diagonal = (0..3).map(|k| (hi[k] - lo[k]).powi(2)).sum::<f64>().sqrt();
     let grow = 0.1 * diagonal.max(1e-3);
     (lo.map(|x| x - grow), hi.map(|x| x + grow))
+}
+
+/// The loss axis's title: what the loss is made of, e.g. "loss (MSE of
+/// pixel colours)" or "loss (|f| + 0.1·eikonal)".
+fn loss_title(losses: &[sdfl_stdlib::value::Loss]) -> String {
+    use sdfl_stdlib::value::LossKind;
+    let term = |k: &LossKind| match k {
+        LossKind::Mse => "MSE".to_string(),
+        LossKind::Surface => "|f|".to_string(),
+        LossKind::Eikonal => "eikonal".to_string(),
+        LossKind::Inter { alpha } => format!("exp(−{}·|f|)", short_num(*alpha)),
+    };
+    match losses {
+        [] => "loss".to_string(),
+        [l] if l.kind == LossKind::Mse && l.weight == 1.0 => {
+            "loss (MSE of pixel colours)".to_string()
+        }
+        _ => {
+            let terms: Vec<String> = losses
+                .iter()
+                .map(|l| {
+                    if l.weight == 1.0 {
+                        term(&l.kind)
+                    } else {
+                        format!("{}·{}", short_num(l.weight), term(&l.kind))
+                    }
+                })
+                .collect();
+            format!("loss ({})", terms.join(" + "))
+        }
+    }
+}
+
+/// A number in a title as `sdfl_lang::fmt_num` writes it: `0.1`, `3e-5`.
+fn short_num(x: f64) -> String {
+    if x == 0.0 || !x.is_finite() || (1e-4..1e9).contains(&x.abs()) {
+        format!("{x}")
+    } else {
+        format!("{x:e}")
+    }
 }

@@ -1,11 +1,12 @@
 //! Diagnostic figures as RGB8 pixel buffers (row-major from the top-left,
 //! 3 bytes a pixel): the assignment's "xy grid" and "rays" checks
 //! (CONVENTIONS.md), a side view of one camera's sample points, the part-0
-//! transmittance figure, and simple line plots for loss curves and sweeps.
-//! All are pure; writing files is [`crate::output::write_png`]'s job.
+//! transmittance figure. All are pure; writing files is
+//! [`crate::output::write_png`]'s job. Charts for people (loss curves,
+//! sweeps) are [`crate::plot`]'s.
 //!
-//! Text uses a built-in 3×5 pixel font (digits, A–Z, a little punctuation;
-//! lower case is drawn as upper case), so no font dependency is needed.
+//! The transmittance figure's text uses a built-in 3×5 pixel font (digits,
+//! A–Z, a little punctuation; lower case is drawn as upper case).
 
 use glam::DVec3;
 use sdfl_stdlib::camera::{pixel_ndc, Camera};
@@ -326,96 +327,12 @@ pub fn transmittance_figure(width: u32, height: u32) -> (Vec<u8>, [f64; 4]) {
     (cv.px, values)
 }
 
-/// A line plot of `(name, points)` series with axes, tick marks, numeric tick
-/// labels and a legend (the last two when the image is large enough).
-/// Each series has its own colour; non-finite points (and, with `log_y`,
-/// non-positive y) break the line. Isolated points, and all points of short
-/// series, get markers. Empty, constant or extreme data do not panic.
-pub fn line_plot(
-    width: u32,
-    height: u32,
-    series: &[(&str, &[(f64, f64)])],
-    log_y: bool,
-) -> Vec<u8> {
-    let mut cv = Canvas::new(width, height, WHITE);
-    if cv.px.is_empty() {
-        return cv.px;
-    }
-    let ty = |y: f64| {
-        if !log_y {
-            y
-        } else if y > 0.0 {
-            y.log10()
-        } else {
-            f64::NAN
-        }
-    };
-    let valid = |&(x, y): &(f64, f64)| {
-        let y = ty(y);
-        (x.is_finite() && y.is_finite()).then_some((x, y))
-    };
-    let pts = || series.iter().flat_map(|s| s.1.iter().filter_map(valid));
-    let xr = Range::of(pts().map(|p| p.0), 0.03);
-    let yr = Range::of(pts().map(|p| p.1), 0.06);
-    let xticks = linear_ticks(xr, 6.0);
-    let yticks = if log_y {
-        log_ticks(yr)
-    } else {
-        linear_ticks(yr, 5.0)
-    };
-    let (fr, st) = make_frame(width, height, xr, yr, &yticks, false);
-    draw_grid(&mut cv, &fr, &xticks, &yticks);
-
-    let lw = st.scale / 2;
-    for (k, (_, data)) in series.iter().enumerate() {
-        let c = PALETTE[k % PALETTE.len()];
-        let ok: Vec<Option<(f64, f64)>> = data
-            .iter()
-            .map(|p| valid(p).map(|(x, y)| fr.px(x, y)))
-            .collect();
-        let markers = ok.iter().flatten().count() <= 60;
-        for i in 0..ok.len() {
-            let Some(p) = ok[i] else { continue };
-            let before = i > 0 && ok[i - 1].is_some();
-            let after = ok.get(i + 1).is_some_and(|q| q.is_some());
-            if before {
-                cv.line(ok[i - 1].unwrap_or(p), p, lw, c);
-            }
-            if markers || !(before || after) {
-                cv.dot(p.0, p.1, st.scale, c);
-            }
-        }
-    }
-    draw_axes(&mut cv, &fr, &st, &xticks, &yticks);
-    let entries: Vec<(String, [u8; 3])> = series
-        .iter()
-        .enumerate()
-        .map(|(k, s)| (s.0.chars().take(24).collect(), PALETTE[k % PALETTE.len()]))
-        .collect();
-    draw_legend(&mut cv, &fr, &st, &entries);
-    cv.px
-}
-
 // ---------------------------------------------------------------------------
 // Drawing
 
 const WHITE: [u8; 3] = [255, 255, 255];
 const AXIS: [u8; 3] = [40, 40, 40];
 const GRID: [u8; 3] = [226, 226, 226];
-/// Matplotlib's "tab10": distinct, and readable on white.
-const PALETTE: [[u8; 3]; 10] = [
-    [31, 119, 180],
-    [255, 127, 14],
-    [44, 160, 44],
-    [214, 39, 40],
-    [148, 103, 189],
-    [140, 86, 75],
-    [227, 119, 194],
-    [127, 127, 127],
-    [188, 189, 34],
-    [23, 190, 207],
-];
-
 fn mix(a: [u8; 3], b: [u8; 3], t: f64) -> [u8; 3] {
     let t = t.clamp(0.0, 1.0);
     [0, 1, 2].map(|i| (a[i] as f64 * (1.0 - t) + b[i] as f64 * t).round() as u8)
@@ -631,35 +548,6 @@ struct Range {
 }
 
 impl Range {
-    /// The range of the finite values, padded by `pad` of its span each
-    /// side; empty data give [0, 1], constant data a range around the value.
-    fn of(vals: impl Iterator<Item = f64>, pad: f64) -> Range {
-        let (lo, hi) = vals
-            .filter(|v| v.is_finite())
-            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| {
-                (a.min(v), b.max(v))
-            });
-        if lo > hi {
-            return Range { lo: 0.0, hi: 1.0 };
-        }
-        // Halves: `hi - lo` itself may overflow for data near ±f64::MAX.
-        let half = hi * 0.5 - lo * 0.5;
-        let widen = if half > 0.0 {
-            half * 2.0 * pad
-        } else {
-            let m = lo.abs().max(hi.abs()) * 0.1;
-            if m >= f64::MIN_POSITIVE {
-                m
-            } else {
-                1.0
-            }
-        };
-        Range {
-            lo: (lo - widen).max(-f64::MAX),
-            hi: (hi + widen).min(f64::MAX),
-        }
-    }
-
     /// `v`'s position in the range, 0 at `lo` and 1 at `hi`; 0.5 when the
     /// range is degenerate.
     fn unit(&self, v: f64) -> f64 {
@@ -742,115 +630,12 @@ fn make_frame(
     (fr, Style { scale, labels })
 }
 
-/// Steps of 1, 2 or 5 × 10^k giving about `target` ticks over a span of
-/// `2·half_span` (halved to stay finite near ±f64::MAX).
-fn nice_step(half_span: f64, target: f64) -> Option<f64> {
-    let raw = half_span / (0.5 * target);
-    if !(raw > 0.0 && raw.is_finite()) {
-        return None;
-    }
-    let mag = 10f64.powf(raw.log10().floor());
-    if !(mag > 0.0 && mag.is_finite()) {
-        return None;
-    }
-    let n = raw / mag;
-    let m = if n <= 1.0 {
-        1.0
-    } else if n <= 2.0 {
-        2.0
-    } else if n <= 5.0 {
-        5.0
-    } else {
-        10.0
-    };
-    Some(m * mag).filter(|s| s.is_finite())
-}
-
-/// Multiples of `step` inside the range (at most 64, distinct).
-fn tick_values(r: Range, step: f64) -> Vec<f64> {
-    let k0 = (r.lo / step).ceil();
-    let mut out: Vec<f64> = Vec::new();
-    if !k0.is_finite() {
-        return out;
-    }
-    for k in 0..64 {
-        let v = (k0 + k as f64) * step;
-        if v.is_nan() || v > r.hi {
-            break;
-        }
-        if v >= r.lo && out.last() != Some(&v) {
-            out.push(v);
-        }
-    }
-    out
-}
-
-fn linear_ticks(r: Range, target: f64) -> Vec<(f64, String)> {
-    let Some(step) = nice_step(r.hi * 0.5 - r.lo * 0.5, target) else {
-        return Vec::new();
-    };
-    tick_values(r, step)
-        .into_iter()
-        .map(|v| (v, fmt_tick(v, step)))
-        .collect()
-}
-
-/// Ticks of a log10 axis: whole decades when it spans one or more, else
-/// linear steps of the exponent labelled with their values.
-fn log_ticks(r: Range) -> Vec<(f64, String)> {
-    let half = r.hi * 0.5 - r.lo * 0.5;
-    if half >= 0.5 {
-        let Some(step) = nice_step(half, 6.0) else {
-            return Vec::new();
-        };
-        tick_values(r, step.max(1.0).round())
-            .into_iter()
-            .map(|v| (v, decade_label(v as i64)))
-            .collect()
-    } else {
-        let Some(step) = nice_step(half, 5.0) else {
-            return Vec::new();
-        };
-        tick_values(r, step)
-            .into_iter()
-            .map(|v| (v, fmt_sig(10f64.powf(v))))
-            .collect()
-    }
-}
-
 /// `10^e` as "0.001" … "10000", else "1e-14".
 fn decade_label(e: i64) -> String {
     match e {
         0..=4 => format!("1{}", "0".repeat(e as usize)),
         -3..=-1 => format!("0.{}1", "0".repeat((-e - 1) as usize)),
         _ => format!("1e{e}"),
-    }
-}
-
-/// Enough decimals to tell ticks `step` apart; exponent form when large or
-/// small.
-fn fmt_tick(v: f64, step: f64) -> String {
-    let a = v.abs();
-    if a < step * 1e-6 {
-        return "0".into();
-    }
-    if !(1e-3..1e5).contains(&a) {
-        let p = (a.log10().floor() - step.log10().floor()).clamp(0.0, 4.0) as usize;
-        format!("{v:.p$e}")
-    } else {
-        let p = (-step.log10().floor()).clamp(0.0, 6.0) as usize;
-        format!("{v:.p$}")
-    }
-}
-
-/// Two significant digits.
-fn fmt_sig(v: f64) -> String {
-    let a = v.abs();
-    if (1e-3..1e5).contains(&a) {
-        let p = (1.0 - a.log10().floor()).max(0.0) as usize;
-        format!("{v:.p$}")
-    } else {
-        format!("{v:.1e}")
     }
 }
 
@@ -906,45 +691,6 @@ fn draw_axes(cv: &mut Canvas, fr: &Frame, st: &Style, xt: &[(f64, String)], yt: 
             let x0 = l as i64 - tick - 2 * s - text_width(text, s);
             label(cv, x0, py.round() as i64 - 2 * s, text);
         }
-    }
-}
-
-/// Swatches and names in the top-right corner, if there is room.
-fn draw_legend(cv: &mut Canvas, fr: &Frame, st: &Style, entries: &[(String, [u8; 3])]) {
-    if !st.labels || entries.iter().all(|e| e.0.is_empty()) {
-        return;
-    }
-    let s = st.scale;
-    let (sw, row) = (8 * s, 7 * s);
-    let tw = entries
-        .iter()
-        .map(|e| text_width(&e.0, s))
-        .max()
-        .unwrap_or(0);
-    let (bw, bh) = (sw + tw + 7 * s, entries.len() as i64 * row + 3 * s);
-    let (pw, ph) = ((fr.r - fr.l) as i64, (fr.b - fr.t) as i64);
-    if bw > pw * 2 / 3 || bh > ph * 2 / 3 {
-        return;
-    }
-    let x0 = fr.r as i64 - bw - 2 * s;
-    let y0 = fr.t as i64 + 2 * s;
-    cv.fill(x0, y0, x0 + bw, y0 + bh, WHITE);
-    let frame = [(x0, y0), (x0 + bw, y0), (x0 + bw, y0 + bh), (x0, y0 + bh)];
-    for k in 0..4 {
-        let (p, q) = (frame[k], frame[(k + 1) % 4]);
-        cv.line(
-            (p.0 as f64, p.1 as f64),
-            (q.0 as f64, q.1 as f64),
-            0,
-            [170, 170, 170],
-        );
-    }
-    for (k, (name, c)) in entries.iter().enumerate() {
-        let y = y0 + 2 * s + k as i64 * row;
-        let mid = (y + 2 * s) as f64;
-        let xs = (x0 + 2 * s) as f64;
-        cv.line((xs, mid), (xs + sw as f64 - s as f64, mid), s / 2, *c);
-        cv.text(x0 + 3 * s + sw, y, name, s, AXIS);
     }
 }
 
@@ -1059,89 +805,18 @@ mod tests {
     }
 
     #[test]
-    fn line_plot_draws_series_in_distinct_colours() {
-        let a: Vec<(f64, f64)> = (0..100)
-            .map(|k| (k as f64, (-0.05 * k as f64).exp()))
-            .collect();
-        let b: Vec<(f64, f64)> = (0..100).map(|k| (k as f64, 0.5)).collect();
-        for log_y in [false, true] {
-            let img = line_plot(320, 240, &[("loss", &a), ("val", &b)], log_y);
-            assert_eq!(img.len(), 320 * 240 * 3);
-            let cs = colours(&img);
-            assert!(cs.contains(&PALETTE[0]) && cs.contains(&PALETTE[1]));
-            assert!(cs.contains(&AXIS));
-        }
-    }
-
-    #[test]
-    fn line_plot_hard_cases() {
-        let nan = f64::NAN;
-        let inf = f64::INFINITY;
-        let empty: &[(f64, f64)] = &[];
-        let constant = [(0.0, 3.0), (1.0, 3.0), (2.0, 3.0)];
-        let single = [(5.0, 5.0)];
-        let broken = [(0.0, 1.0), (1.0, nan), (2.0, 2.0), (inf, 3.0), (4.0, -inf)];
-        let nonpos = [(0.0, 0.0), (1.0, -1.0), (2.0, 1e-300), (3.0, 5e-324)];
-        let huge = [(-f64::MAX, f64::MAX), (f64::MAX, -f64::MAX), (0.0, 0.0)];
-        let tiny = [(0.0, 5e-324), (1.0, 5e-324), (1e-310, 1e-320)];
-        let same_x = [(1.0, 0.0), (1.0, 1.0), (1.0, 2.0)];
-        let all_nan = [(nan, nan), (nan, 1.0)];
-        type Series<'a> = (&'a str, &'a [(f64, f64)]);
-        let cases: Vec<Vec<Series>> = vec![
-            vec![],
-            vec![("", empty)],
-            vec![("c", &constant)],
-            vec![("single", &single)],
-            vec![("broken", &broken), ("nonpos", &nonpos)],
-            vec![("huge", &huge)],
-            vec![("tiny", &tiny)],
-            vec![("same x", &same_x)],
-            vec![("nan", &all_nan), ("", empty)],
-        ];
-        for series in &cases {
-            for log_y in [false, true] {
-                for (w, h) in [(0, 0), (1, 1), (3, 2), (50, 30), (320, 240), (900, 60)] {
-                    let img = line_plot(w, h, series, log_y);
-                    assert_eq!(img.len(), (w * h * 3) as usize);
-                }
-            }
-        }
-        // A constant series is drawn (in the middle), and a lone point shows.
-        let img = line_plot(200, 100, &[("c", &constant)], false);
-        assert!(colours(&img).contains(&PALETTE[0]));
-        let img = line_plot(200, 100, &[("", empty), ("one", &single)], true);
-        assert!(colours(&img).contains(&PALETTE[1]));
-        // Many series cycle the palette rather than running out.
-        let many: Vec<(&str, &[(f64, f64)])> = (0..13).map(|_| ("s", &constant[..])).collect();
-        assert_eq!(line_plot(100, 80, &many, false).len(), 100 * 80 * 3);
-    }
-
-    #[test]
-    fn ranges_and_ticks() {
-        let r = Range::of([3.0, 3.0].into_iter(), 0.05);
-        assert!(r.lo < 3.0 && r.hi > 3.0);
-        assert_eq!(
-            Range::of(std::iter::empty(), 0.05),
-            Range { lo: 0.0, hi: 1.0 }
-        );
-        let r = Range::of([-f64::MAX, f64::MAX].into_iter(), 0.05);
-        assert!(r.lo.is_finite() && r.hi.is_finite());
+    fn ranges_and_decade_labels() {
+        let r = Range { lo: -2.0, hi: 2.0 };
+        assert!((r.unit(0.0) - 0.5).abs() < 1e-12 && r.unit(2.0) == 1.0);
+        let r = Range {
+            lo: -f64::MAX,
+            hi: f64::MAX,
+        };
         assert!((r.unit(0.0) - 0.5).abs() < 1e-12 && r.unit(f64::MAX) <= 1.0);
-        let t = linear_ticks(Range { lo: 0.0, hi: 10.0 }, 5.0);
-        let v: Vec<f64> = t.iter().map(|p| p.0).collect();
-        assert_eq!(v, [0.0, 2.0, 4.0, 6.0, 8.0, 10.0]);
-        assert_eq!(t[1].1, "2");
-        let t = linear_ticks(Range { lo: 0.0, hi: 0.2 }, 5.0);
-        assert_eq!(t[1].1, "0.05");
-        assert_eq!(fmt_tick(2e5, 2e5), "2e5");
-        assert_eq!(fmt_tick(-0.0, 1.0), "0");
+        assert_eq!(Range { lo: 1.0, hi: 1.0 }.unit(1.0), 0.5);
         assert_eq!(decade_label(-3), "0.001");
         assert_eq!(decade_label(2), "100");
         assert_eq!(decade_label(-14), "1e-14");
-        let t = log_ticks(Range { lo: -15.5, hi: 0.5 });
-        assert!(t.iter().all(|p| p.0.fract() == 0.0) && !t.is_empty());
-        assert!(!log_ticks(Range { lo: 0.1, hi: 0.5 }).is_empty());
-        assert!(linear_ticks(Range { lo: 1.0, hi: 1.0 }, 5.0).is_empty());
     }
 
     #[test]
@@ -1184,28 +859,6 @@ mod tests {
         write_png(&dir.join("sample_points_nerf.png"), 400, 300, &img).unwrap();
         let (img, _) = transmittance_figure(640, 400);
         write_png(&dir.join("transmittance.png"), 640, 400, &img).unwrap();
-        let a: Vec<(f64, f64)> = (0..300)
-            .map(|k| (k as f64, 0.5 * (-0.02 * k as f64).exp() + 0.01))
-            .collect();
-        let b: Vec<(f64, f64)> = (0..300)
-            .map(|k| (k as f64, 0.3 / (1.0 + k as f64)))
-            .collect();
-        let c = [(10.0, 0.2), (50.0, 0.05), (120.0, 0.02), (250.0, 0.015)];
-        let series: [(&str, &[(f64, f64)]); 3] = [("train loss", &a), ("val", &b), ("sweep", &c)];
-        write_png(
-            &dir.join("plot.png"),
-            480,
-            320,
-            &line_plot(480, 320, &series, false),
-        )
-        .unwrap();
-        write_png(
-            &dir.join("plot_log.png"),
-            480,
-            320,
-            &line_plot(480, 320, &series, true),
-        )
-        .unwrap();
         eprintln!("figures in {}", dir.display());
     }
 }
