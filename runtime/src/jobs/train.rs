@@ -556,16 +556,13 @@ pub fn run_train_job(
         // The first mesh against the data's points, or against the true
         // surface where sdfl rendered the data itself.
         if mesh_fit.is_none() {
-            let (truth, against) = if all_points.is_empty() {
-                (true_surface(&job.data, job.seed), "true surface")
+            use crate::neural::distance::{mesh_fit as fit, Reference};
+            mesh_fit = if all_points.is_empty() {
+                true_surface(&job.data)
+                    .map(|t| fit(&mesh, Reference::Surface(&t), "true surface", job.seed))
             } else {
-                (all_points.clone(), "data")
+                Some(fit(&mesh, Reference::Points(&all_points), "data", job.seed))
             };
-            if !truth.is_empty() {
-                mesh_fit = Some(crate::neural::distance::mesh_fit(
-                    &mesh, &truth, against, job.seed,
-                ));
-            }
         }
         written.push(w);
     }
@@ -743,21 +740,16 @@ fn write_geometry_gifs(
     Ok(written)
 }
 
-/// Points spread evenly over the true surface of data that sdfl rendered
-/// from a shape (the shape's mesh at a fine grid, sampled by area); none
-/// for data read from files or an unbounded shape.
-fn true_surface(data: &Dataset, seed: u64) -> Vec<[f32; 3]> {
+/// The true surface of data that sdfl rendered from a shape: the shape's
+/// mesh at a fine grid; none for data read from files, an unbounded shape
+/// or an empty mesh.
+fn true_surface(data: &Dataset) -> Option<crate::mesh::Mesh> {
     let shape = match data {
         Dataset::Traced { job, .. } => job.scene.clone(),
-        Dataset::Rendered { field, .. } => match field.as_sdf() {
-            Some(f) => f.shape.clone(),
-            None => return Vec::new(),
-        },
-        _ => return Vec::new(),
+        Dataset::Rendered { field, .. } => field.as_sdf()?.shape.clone(),
+        _ => return None,
     };
-    let Some(b) = shape.bounds() else {
-        return Vec::new();
-    };
+    let b = shape.bounds()?;
     let sdf = Lowered::new(&shape, LowerOptions::default());
     let distance = |p: &[[f32; 3]], out: &mut [f32]| {
         for (p, o) in p.iter().zip(out) {
@@ -765,15 +757,14 @@ fn true_surface(data: &Dataset, seed: u64) -> Vec<[f32; 3]> {
         }
     };
     let grid = crate::mesh::MeshGrid::covering(b.min.to_array(), b.max.to_array(), 192);
-    match crate::mesh::surface_nets(
+    crate::mesh::surface_nets(
         &distance,
         &grid,
         sdfl_stdlib::work::MAX_MESH_VERTICES,
         &|_| {},
-    ) {
-        Ok(m) => m.sample_surface(50_000, seed ^ 0x7472_7574_68),
-        Err(_) => Vec::new(),
-    }
+    )
+    .ok()
+    .filter(|m| !m.triangles.is_empty())
 }
 
 /// The region a neural SDF's mesh covers by default: its points' box grown
