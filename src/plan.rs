@@ -375,13 +375,20 @@ pub(crate) fn plan_text(program: &sdfl_stdlib::Program) -> String {
                 )
             } else {
                 format!(
-                    "{} rays x {} samples{}",
+                    "{} rays x {} samples{}{}",
                     job.rays,
                     job.sampler.samples,
                     if job.sampler.jitter {
                         " (jittered)"
                     } else {
                         ""
+                    },
+                    match &*job.model {
+                        sdfl_stdlib::value::Field::NeuralSurface(n) if n.fine > 0 => format!(
+                            " + {} placed near the surface by a distance-only pass over them",
+                            n.fine
+                        ),
+                        _ => String::new(),
                     }
                 )
             },

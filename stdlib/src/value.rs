@@ -265,6 +265,9 @@ pub struct NeuralSurface {
     pub view_dependent: bool,
     /// Seen through wherever the volume is not opaque.
     pub background: [f64; 3],
+    /// Samples per ray added near the surface by inverse CDF on the
+    /// weights of a distance-only pass (0: the stratified samples alone).
+    pub fine: usize,
 }
 
 impl NeuralSurface {

@@ -110,7 +110,7 @@ pub fn step_memory(job: &TrainJob) -> u64 {
         // plus the colour network's activations and the adjoints.
         (Field::NeuralSurface(n), _) => {
             let net = crate::neural::distance::sdf_net(&n.sdf);
-            let rows = rays * samples;
+            let rows = rays * (samples + n.fine as u64);
             crate::neural::sdf_net::SdfWork::bytes_for(&net, rows as usize)
                 + rows
                     * 4

@@ -325,7 +325,7 @@ impl NerfObjective {
 /// Fine samples for rays with `n` coarse samples each and their weights:
 /// `m` depths by inverse CDF merged with the coarse ones (`n + m` per ray).
 #[allow(clippy::too_many_arguments)]
-fn fine_samples(
+pub(crate) fn fine_samples(
     coarse: &Samples,
     n: usize,
     weights: &[f32],

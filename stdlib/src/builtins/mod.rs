@@ -1432,6 +1432,7 @@ fn volume_fn(
             ),
             opt("view_dependent", Type::Bool, "true", "a neural SDF's colour network sees the view direction"),
             opt("background", Type::Vec3, "[0, 0, 0]", "a neural SDF's volume: colour seen where it is not opaque"),
+            opt("fine", Type::Number, "0", "a neural SDF's volume: samples per ray added where the surface is, placed by inverse CDF on the weights of a distance-only pass over the stratified samples (0: none)"),
         ],
         FIELD,
         eval,
@@ -1484,6 +1485,7 @@ fn neural_surface(a: &Args, density: DensityKind, sdf: &NeuralSdf) -> Result<Val
             color_freqs: 4,
             view_dependent: matches!(a.get("view_dependent").0, Value::Bool(true)),
             background: a.vec3("background")?.to_array(),
+            fine: a.count("fine", 0, MAX_SAMPLES)? as usize,
         },
     ))))
 }
@@ -1505,7 +1507,7 @@ fn field(a: &Args, density: DensityKind) -> Result<Value, Diag> {
         };
     }
     let given = |name: &str| a.get(name).1 != a.span;
-    if let Some(name) = ["view_dependent", "background"]
+    if let Some(name) = ["view_dependent", "background", "fine"]
         .into_iter()
         .find(|n| given(n))
     {
