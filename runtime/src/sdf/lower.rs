@@ -158,7 +158,7 @@ impl Lowering {
                 frequency,
             } => Box::new(Displace {
                 inner: self.lower(s, frame),
-                xform: frame.xform(),
+                xform: self.noise_frame(frame, frequency.value).xform(),
                 amplitude: (amplitude.value * frame.scale) as f32,
                 frequency: frequency.value as f32,
             }),
@@ -310,6 +310,21 @@ impl Lowering {
                 self.warp(s, WarpOp::Scale { by: c(by), boxed }, frame)
             }
         }
+    }
+
+    /// The frame a displacement's `sin(f·x)·sin(f·y)·sin(f·z)` is evaluated
+    /// in. Lowered relative to an origin, its translation (which holds the
+    /// origin) is reduced modulo the period `2π/f` on each axis, in f64:
+    /// the same function, evaluated in f32 on coordinates near the camera
+    /// instead of near the origin's size.
+    fn noise_frame(&self, frame: &Frame, frequency: f64) -> Frame {
+        let mut noise = frame.clone();
+        if self.relative && frequency != 0.0 {
+            let period = std::f64::consts::TAU / frequency.abs();
+            let t = noise.to_local.translation;
+            noise.to_local.translation = t - (t / period).round() * period;
+        }
+        noise
     }
 
     /// A domain operator: its child is lowered in the operator's own frame
