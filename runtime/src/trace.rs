@@ -38,8 +38,18 @@ pub struct Hit {
 /// The over-relaxation factor of relaxed tracing.
 const OMEGA: f32 = 1.6;
 
+/// The smallest hit tolerance per unit of coordinate size (2⁻²¹, 4 to 8
+/// ulps): an f32 distance at coordinates of size `m` is rounded by a few
+/// ulps of `m`, and a step below an ulp of `t` does not move the ray, so a
+/// tolerance below `m·2⁻²¹` would be met only by chance (the ray stalls
+/// and its steps run out). Below `m` = 20 it is under the default
+/// `epsilon` (1e-5), so scenes near the origin trace as before.
+const PRECISION_TOLERANCE: f32 = 1.0 / 2_097_152.0;
+
 /// March from `near` until the distance is below the hit tolerance (a hit,
-/// also when the ray starts inside a shape), `t` passes `far`, or the steps
+/// also when the ray starts inside a shape; the tolerance is
+/// `max(epsilon, footprint·t)`, and at least what f32 resolves at the
+/// point's coordinates, [`PRECISION_TOLERANCE`]), `t` passes `far`, or the steps
 /// run out: then, with a pixel footprint, a ray that came within two
 /// footprints of a surface hits where it came closest, and any other is an
 /// undecided miss. Always returns finite values within `max_steps` steps.
@@ -51,6 +61,7 @@ const OMEGA: f32 = 1.6;
 #[inline]
 pub fn sphere_trace(sdf: &dyn Node, origin: Vec3A, dir: Vec3A, s: &TraceSettings) -> Hit {
     let inv_l = 1.0 / s.lipschitz;
+    let scale = origin.abs().max_element();
     let mut omega = if s.relax { OMEGA } else { 1.0 };
     let mut t = s.near;
     let (mut prev_t, mut prev_r, mut step_len) = (t, 0.0f32, 0.0f32);
@@ -74,7 +85,11 @@ pub fn sphere_trace(sdf: &dyn Node, origin: Vec3A, dir: Vec3A, s: &TraceSettings
             t = prev_t + prev_r;
             continue;
         }
-        if r < s.epsilon.max(s.footprint * t) {
+        let tolerance = s
+            .epsilon
+            .max(s.footprint * t)
+            .max((scale + t) * PRECISION_TOLERANCE);
+        if r < tolerance {
             let (t, extra) = refine(sdf, origin, dir, t, r, inv_l, s.epsilon);
             return Hit {
                 t,
@@ -152,6 +167,21 @@ fn refine(
 
 /// Most refinement steps after a footprint hit.
 const REFINE_STEPS: u32 = 16;
+
+/// The finite-difference step of [`normal`] at `p`: 5e-4, or more where
+/// coordinates are so large that f32 rounds the distance by more than a
+/// small fraction of the step (`|p|·2⁻¹⁴`, about 4 000 ulps of `|p|`: the
+/// rounding of each sample tilts the normal by at most ~1e-3). Below
+/// |p| ≈ 8 it is the fixed step the images have always used.
+#[inline]
+pub fn normal_step(p: Vec3A) -> f32 {
+    NORMAL_STEP.max(p.abs().max_element() * NORMAL_STEP_PER_UNIT)
+}
+
+/// The finite-difference step of normals near the origin.
+pub const NORMAL_STEP: f32 = 5e-4;
+/// The step's growth with the coordinates' size (2⁻¹⁴).
+const NORMAL_STEP_PER_UNIT: f32 = 1.0 / 16384.0;
 
 /// Unit surface normal at `p` by tetrahedral central differences. Where the
 /// gradient vanishes or is undefined (a sphere's centre, symmetric points

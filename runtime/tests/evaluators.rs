@@ -221,12 +221,30 @@ fn evaluators(shape: &Shape) -> Vec<(&'static str, Lowered)> {
                 },
             ),
         ),
+        // Lowered relative to a point away from the world origin (as for a
+        // camera there): the same function of the world point.
+        (
+            "relative",
+            Lowered::relative_to(shape, LowerOptions::default(), DVec3::new(2.5, -1.25, 3.0)),
+        ),
     ]
 }
 
 fn check_scene(shape: &Shape, seed: u64) {
     let mut rng = Lcg(seed ^ 0x9e37);
     let evals = evaluators(shape);
+    // Lowered relative to an origin, the culled scene reports the same
+    // primitives at the same world centres.
+    let (culled, relative) = (&evals[1].1, &evals[3].1);
+    assert_eq!(culled.prims.len(), relative.prims.len());
+    for (a, b) in culled.prims.iter().zip(&relative.prims) {
+        assert!(
+            (a.center - b.center).length() < 1e-9,
+            "{} vs {}",
+            a.center,
+            b.center
+        );
+    }
     for _ in 0..3000 {
         let p = rng.v3(3.5);
         let reference = shape.distance(p);
@@ -238,7 +256,7 @@ fn check_scene(shape: &Shape, seed: u64) {
                 (d - reference).abs() <= tol,
                 "{name}: {d} vs reference {reference} at {p}"
             );
-            let (did, id) = e.root.dist_id(pf);
+            let (did, id) = e.root.dist_id(e.from_world(pf));
             assert_eq!(did, e.dist(pf), "{name}: dist_id disagrees with dist");
             assert!(
                 (id as usize) < e.prims.len(),

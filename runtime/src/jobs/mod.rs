@@ -22,7 +22,7 @@ use crate::metrics;
 use crate::neural::field::NerfObjective;
 use crate::neural::nerf::{NerfNet, NerfWork};
 use crate::output::{to_u8, write_png};
-use crate::render::{render_view, view_path, Gifs, Needs, Written};
+use crate::render::{render_view, view_path, Gifs, Needs, ViewScenes, Written};
 use crate::sdf::{LowerOptions, Lowered};
 use crate::train::checkpoint::{Checkpoint, Fnv};
 use crate::train::fused::field_at;
@@ -506,7 +506,7 @@ fn load_points(path: &Path, every: usize, center: bool) -> io::Result<Views> {
 /// Every view of a sphere-traced data set: the tracer of `render` with the
 /// job's settings, colour quantised to 8 bits as its `image` output writes.
 pub fn traced_views(job: &RenderJob) -> Vec<TrainView> {
-    let scene = Lowered::new(&job.scene, LowerOptions::default());
+    let mut scenes = ViewScenes::new(&job.scene, LowerOptions::default(), &job.cameras);
     let needs = Needs {
         color: true,
         depth: false,
@@ -516,7 +516,14 @@ pub fn traced_views(job: &RenderJob) -> Vec<TrainView> {
     job.cameras
         .iter()
         .map(|c| {
-            let view = render_view(&scene, job, c, (job.width, job.height), needs, &|_| {});
+            let view = render_view(
+                scenes.for_view(c),
+                job,
+                c,
+                (job.width, job.height),
+                needs,
+                &|_| {},
+            );
             let rgb = view.color.expect("colour is asked for");
             TrainView {
                 camera: *c,

@@ -10,14 +10,16 @@ pub(super) struct Lowering {
     /// primitives' centres (the rainbow's `c`; the copy at the origin for
     /// a repetition).
     pub(super) warp_to_world: DAffine3,
+    /// Lowering relative to an origin away from the world's: each
+    /// primitive's own position is moved into its frame (see [`anchored`]).
+    pub(super) relative: bool,
 }
 
 impl Lowering {
     pub(super) fn leaf<P: Prim>(&mut self, prim: P, shape: &Shape, frame: &Frame) -> Box<dyn Node> {
         let id = self.prims.len() as u32;
-        let local_center = shape.primitive_center().unwrap_or(DVec3::ZERO);
         self.prims.push(PrimInfo {
-            center: (self.warp_to_world * frame.to_local.inverse()).transform_point3(local_center),
+            center: self.world_center(shape, frame),
             material: frame.material.clone(),
             kind: shape.name(),
         });
@@ -29,7 +31,28 @@ impl Lowering {
         })
     }
 
+    /// A primitive's centre in the world (the rainbow's `c`).
+    fn world_center(&self, shape: &Shape, frame: &Frame) -> DVec3 {
+        let local_center = shape.primitive_center().unwrap_or(DVec3::ZERO);
+        (self.warp_to_world * frame.to_local.inverse()).transform_point3(local_center)
+    }
+
     pub(super) fn lower(&mut self, shape: &Shape, frame: &Frame) -> Box<dyn Node> {
+        if self.relative {
+            if let Some((moved, by)) = anchored(shape, frame) {
+                // A primitive: lowered at its anchor (once, not again), with
+                // the centre of the shape as written.
+                self.relative = false;
+                let node = self.lower(&moved, &frame.then(DAffine3::from_translation(-by), 1.0));
+                self.relative = true;
+                let center = self.world_center(shape, frame);
+                self.prims
+                    .last_mut()
+                    .expect("a primitive was lowered")
+                    .center = center;
+                return node;
+            }
+        }
         let f = |a: &Arg<f64>| a.value as f32;
         let c = |a: &Arg<DVec3>| V3::lit(a.value.to_array());
         match shape {
@@ -135,7 +158,7 @@ impl Lowering {
                 frequency,
             } => Box::new(Displace {
                 inner: self.lower(s, frame),
-                xform: frame.xform(),
+                xform: self.noise_frame(frame, frequency.value).xform(),
                 amplitude: (amplitude.value * frame.scale) as f32,
                 frequency: frequency.value as f32,
             }),
@@ -289,6 +312,21 @@ impl Lowering {
         }
     }
 
+    /// The frame a displacement's `sin(f·x)·sin(f·y)·sin(f·z)` is evaluated
+    /// in. Lowered relative to an origin, its translation (which holds the
+    /// origin) is reduced modulo the period `2π/f` on each axis, in f64:
+    /// the same function, evaluated in f32 on coordinates near the camera
+    /// instead of near the origin's size.
+    fn noise_frame(&self, frame: &Frame, frequency: f64) -> Frame {
+        let mut noise = frame.clone();
+        if self.relative && frequency != 0.0 {
+            let period = std::f64::consts::TAU / frequency.abs();
+            let t = noise.to_local.translation;
+            noise.to_local.translation = t - (t / period).round() * period;
+        }
+        noise
+    }
+
     /// A domain operator: its child is lowered in the operator's own frame
     /// (keeping the material), the warp applied between the two.
     fn warp(&mut self, child: &Shape, op: WarpOp, frame: &Frame) -> Box<dyn Node> {
@@ -376,6 +414,46 @@ impl Lowering {
         self.bvh_nodes += bvh.nodes.len();
         Box::new(bvh)
     }
+}
+
+/// A primitive moved to its own anchor, and the anchor (in the primitive's
+/// frame): its centre (a capsule's midpoint), or for a plane the point of
+/// it nearest the evaluator's origin. Lowered at the anchor with the
+/// anchor's translation in its frame, composed with the rest in f64, the
+/// f32 formula sees coordinates relative to the primitive, as small as the
+/// distances it returns near the camera however far both are from the world
+/// origin. The value is the same function of the point; only the rounding
+/// differs. `None` for anything but a primitive.
+pub(super) fn anchored(shape: &Shape, frame: &Frame) -> Option<(Shape, DVec3)> {
+    let mut moved = shape.clone();
+    let by = match &mut moved {
+        Shape::Sphere { center, .. }
+        | Shape::Box { center, .. }
+        | Shape::BoxFrame { center, .. }
+        | Shape::Torus { center, .. }
+        | Shape::Cylinder { center, .. }
+        | Shape::Ellipsoid { center, .. }
+        | Shape::Octahedron { center, .. }
+        | Shape::CappedCone { center, .. }
+        | Shape::RoundCone { center, .. }
+        | Shape::HexPrism { center, .. }
+        | Shape::TriPrism { center, .. }
+        | Shape::Link { center, .. } => std::mem::replace(&mut center.value, DVec3::ZERO),
+        Shape::Capsule { a, b, .. } => {
+            let by = (a.value + b.value) * 0.5;
+            a.value -= by;
+            b.value -= by;
+            by
+        }
+        Shape::Plane { normal, height } => {
+            let e = frame.to_local.translation;
+            let by = e - (e.dot(*normal) - height.value) * *normal;
+            height.value -= normal.dot(by);
+            by
+        }
+        _ => return None,
+    };
+    Some((moved, by))
 }
 
 /// A transform's child, its world → local step and its distance scale.

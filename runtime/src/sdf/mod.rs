@@ -68,38 +68,82 @@ impl Default for LowerOptions {
 }
 
 /// A lowered scene: evaluator, Lipschitz bound and primitive table.
+///
+/// The evaluator takes points relative to `origin` (world = origin + p):
+/// lowered relative to a point near the camera, a scene far from the world
+/// origin is evaluated in f32 on coordinates as small as those near it.
 pub struct Lowered {
     pub root: Box<dyn Node>,
+    /// The world point the evaluator's coordinates are relative to (zero:
+    /// world coordinates, exactly as lowered without an origin).
+    pub origin: DVec3,
     pub lipschitz: f32,
     pub prims: Vec<PrimInfo>,
     pub bvh_nodes: usize,
 }
 
 impl Lowered {
+    /// The scene in world coordinates.
     pub fn new(shape: &Shape, options: LowerOptions) -> Self {
+        Self::relative_to(shape, options, DVec3::ZERO)
+    }
+
+    /// The scene in coordinates relative to `origin`: the translation to it
+    /// is composed with every transform in f64, and each primitive is
+    /// lowered at its own anchor (`lower::anchored`), so no f32 value
+    /// holds a coordinate of the size of `origin`.
+    pub fn relative_to(shape: &Shape, options: LowerOptions, origin: DVec3) -> Self {
+        let relative = origin != DVec3::ZERO;
+        let to_origin = DAffine3::from_translation(origin);
         let mut cx = Lowering {
             options,
             prims: Vec::new(),
             bvh_nodes: 0,
-            warp_to_world: DAffine3::IDENTITY,
+            warp_to_world: to_origin,
+            relative,
         };
-        let root = cx.lower(shape, &Frame::identity());
+        let mut frame = Frame::identity();
+        frame.to_local = to_origin;
+        let root = cx.lower(shape, &frame);
         Lowered {
             root,
+            origin,
             lipschitz: shape.lipschitz().max(1.0) as f32,
             prims: cx.prims,
             bvh_nodes: cx.bvh_nodes,
         }
     }
 
+    /// The distance at a world point.
     pub fn dist(&self, p: Vec3A) -> f32 {
-        self.root.dist(p)
+        self.root.dist(self.from_world(p))
     }
 
-    /// Distances of a batch of points.
+    /// A world point in the evaluator's coordinates (itself when the
+    /// origin is the world's).
+    #[inline]
+    pub fn from_world(&self, p: Vec3A) -> Vec3A {
+        if self.origin == DVec3::ZERO {
+            p
+        } else {
+            (p.as_dvec3() - self.origin).as_vec3().into()
+        }
+    }
+
+    /// A point in the evaluator's coordinates as a world point.
+    #[inline]
+    pub fn to_world(&self, p: Vec3A) -> DVec3 {
+        if self.origin == DVec3::ZERO {
+            p.as_dvec3()
+        } else {
+            self.origin + p.as_dvec3()
+        }
+    }
+
+    /// Distances of a batch of world points.
     pub fn eval_batch(&self, points: &[Vec3A], out: &mut [f32]) {
         for (p, o) in points.iter().zip(out.iter_mut()) {
-            *o = self.root.dist(*p);
+            *o = self.dist(*p);
         }
     }
 }
