@@ -264,6 +264,28 @@ fn rot<T: Real>(p: V3<T>, axis: DVec3, angle: T) -> V3<T> {
     sdf::rotate(p, V3::lit(axis.to_array()), angle)
 }
 
+/// `Some(f(center))` for the primitives with a `center` argument (the one
+/// list of them), `None` otherwise.
+macro_rules! centred {
+    ($shape:expr, $c:ident => $e:expr) => {
+        match $shape {
+            Shape::Sphere { center: $c, .. }
+            | Shape::Box { center: $c, .. }
+            | Shape::BoxFrame { center: $c, .. }
+            | Shape::Torus { center: $c, .. }
+            | Shape::Cylinder { center: $c, .. }
+            | Shape::Ellipsoid { center: $c, .. }
+            | Shape::Octahedron { center: $c, .. }
+            | Shape::CappedCone { center: $c, .. }
+            | Shape::RoundCone { center: $c, .. }
+            | Shape::HexPrism { center: $c, .. }
+            | Shape::TriPrism { center: $c, .. }
+            | Shape::Link { center: $c, .. } => Some($e),
+            _ => None,
+        }
+    };
+}
+
 impl Shape {
     /// The signed distance (or bound) at `p`, evaluated directly in f64.
     pub fn distance(&self, p: DVec3) -> f64 {
@@ -974,25 +996,23 @@ impl Shape {
         }
     }
 
+    /// The `center` argument of a primitive that has one.
+    pub fn center_arg(&self) -> Option<&Arg<DVec3>> {
+        centred!(self, center => center)
+    }
+
+    /// [`Self::center_arg`], to move it.
+    pub fn center_arg_mut(&mut self) -> Option<&mut Arg<DVec3>> {
+        centred!(self, center => center)
+    }
+
     /// The centre used by the rainbow material, for primitives (in the
     /// primitive's own frame).
     pub fn primitive_center(&self) -> Option<DVec3> {
         match self {
-            Shape::Sphere { center, .. }
-            | Shape::Box { center, .. }
-            | Shape::BoxFrame { center, .. }
-            | Shape::Torus { center, .. }
-            | Shape::Cylinder { center, .. }
-            | Shape::Ellipsoid { center, .. }
-            | Shape::Octahedron { center, .. }
-            | Shape::CappedCone { center, .. }
-            | Shape::RoundCone { center, .. }
-            | Shape::HexPrism { center, .. }
-            | Shape::TriPrism { center, .. }
-            | Shape::Link { center, .. } => Some(center.value),
             Shape::Capsule { a, b, .. } => Some((a.value + b.value) * 0.5),
             Shape::Plane { normal, height } => Some(*normal * height.value),
-            _ => None,
+            _ => self.center_arg().map(|c| c.value),
         }
     }
 

@@ -311,6 +311,7 @@ impl NerfObjective {
             last,
             cam,
             size,
+            EARLY_STOP,
         )
     }
 
@@ -491,28 +492,11 @@ pub struct NerfView {
 }
 
 /// Renders one view of a NeRF with stratified (unjittered) samples, through
-/// the fine network when there is one, or with an occupancy grid's samples.
+/// the fine network when there is one, or with an occupancy grid's samples;
+/// each ray stops once its transmittance is below `stop` ([`EARLY_STOP`];
+/// 0: every sample evaluated).
 #[allow(clippy::too_many_arguments)]
 pub fn render_nerf_view(
-    net: &NerfNet,
-    fine: Option<(&NerfNet, usize)>,
-    occupancy: Option<&Occupancy>,
-    params: &[f32],
-    background: [f32; 3],
-    sampler: &Stratified,
-    last: LastInterval,
-    cam: &Camera,
-    size: ImageSize,
-) -> Result<NerfView, VolumeError> {
-    render_nerf_view_until(
-        net, fine, occupancy, params, background, sampler, last, cam, size, EARLY_STOP,
-    )
-}
-
-/// [`render_nerf_view`], each ray stopped once its transmittance is below
-/// `stop` (0: every sample evaluated).
-#[allow(clippy::too_many_arguments)]
-pub fn render_nerf_view_until(
     net: &NerfNet,
     fine: Option<(&NerfNet, usize)>,
     occupancy: Option<&Occupancy>,
@@ -813,7 +797,7 @@ mod tests {
             width: 12,
             height: 10,
         };
-        render_nerf_view_until(
+        render_nerf_view(
             &net,
             None,
             None,

@@ -426,19 +426,11 @@ impl Lowering {
 /// differs. `None` for anything but a primitive.
 pub(super) fn anchored(shape: &Shape, frame: &Frame) -> Option<(Shape, DVec3)> {
     let mut moved = shape.clone();
+    if let Some(center) = moved.center_arg_mut() {
+        let by = std::mem::replace(&mut center.value, DVec3::ZERO);
+        return Some((moved, by));
+    }
     let by = match &mut moved {
-        Shape::Sphere { center, .. }
-        | Shape::Box { center, .. }
-        | Shape::BoxFrame { center, .. }
-        | Shape::Torus { center, .. }
-        | Shape::Cylinder { center, .. }
-        | Shape::Ellipsoid { center, .. }
-        | Shape::Octahedron { center, .. }
-        | Shape::CappedCone { center, .. }
-        | Shape::RoundCone { center, .. }
-        | Shape::HexPrism { center, .. }
-        | Shape::TriPrism { center, .. }
-        | Shape::Link { center, .. } => std::mem::replace(&mut center.value, DVec3::ZERO),
         Shape::Capsule { a, b, .. } => {
             let by = (a.value + b.value) * 0.5;
             a.value -= by;
