@@ -262,7 +262,7 @@ fn check_scene(shape: &Shape, seed: u64) {
     // The batched path (packs of 8 points) equals the per-point one.
     let pf: Vec<Vec3A> = points.iter().map(|p| p.as_vec3().into()).collect();
     for (name, e) in &evals {
-        assert_batch_equals_points(name, e, &pf);
+        assert_batch_equals_points(name, e, &pf, false);
     }
     for &p in &points {
         let reference = shape.distance(p);
@@ -341,13 +341,24 @@ fn batch_matches_single_points() {
     }
 }
 
-/// `eval_batch` equals `dist` point by point, bit for bit (up to the sign
-/// of zero), for a batch and for every shorter prefix's last partial pack.
-fn assert_batch_equals_points(name: &str, e: &Lowered, points: &[Vec3A]) {
+/// `eval_batch` equals `dist` point by point: bit for bit (up to the sign
+/// of zero) when `exact`, else within 1e-6 relative (a culled union may
+/// evaluate a batch against every member, whose minimum can differ from
+/// the culled one by rounding far away), for a batch and for batches ending
+/// inside a pack.
+fn assert_batch_equals_points(name: &str, e: &Lowered, points: &[Vec3A], exact: bool) {
     let mut out = vec![f32::NAN; points.len()];
     e.eval_batch(points, &mut out);
     for (p, d) in points.iter().zip(&out) {
-        assert_eq!(*d, e.dist(*p), "{name}: batch vs single point at {p}");
+        let single = e.dist(*p);
+        if exact {
+            assert_eq!(*d, single, "{name}: batch vs single point at {p}");
+        } else {
+            assert!(
+                (d - single).abs() <= 1e-6 * d.abs().max(single.abs()),
+                "{name}: batch {d} vs single point {single} at {p}"
+            );
+        }
     }
     // Batches ending inside a pack (the remainder lanes repeat the last point).
     for len in [1, 3, 7, 9, 15, 17]
@@ -449,8 +460,9 @@ fn packed_unions_of_one_kind_equal_the_per_point_path() {
                 },
             );
             let name = format!("kind {kind}, {n} members");
-            assert_batch_equals_points(&name, &packed, &points);
-            assert_batch_equals_points(&name, &unpacked, &points);
+            // Plain unions (below the BVH threshold) are exact.
+            assert_batch_equals_points(&name, &packed, &points, n < 16);
+            assert_batch_equals_points(&name, &unpacked, &points, n < 16);
             for p in &points {
                 let (a, b) = (packed.dist(*p), unpacked.dist(*p));
                 assert!(a.is_finite(), "{name}: {a} at {p}");

@@ -415,7 +415,10 @@ impl Lowering {
                 None => unbounded.push(node),
             }
         }
-        let bvh = BvhUnion::build(items, unbounded);
+        let mut bvh = BvhUnion::build(items, unbounded);
+        if self.options.pack {
+            bvh.table = member_table(&bvh.members);
+        }
         self.bvh_nodes += bvh.nodes.len();
         Box::new(bvh)
     }
@@ -566,16 +569,36 @@ pub(super) fn pack_union(nodes: Vec<Box<dyn Node>>) -> Vec<Box<dyn Node>> {
     out
 }
 
+/// A leaf of kind `P` in world coordinates (its value is the formula's):
+/// its primitive and id.
+fn packable<P: Prim + Clone>(n: &dyn Node) -> Option<(P, u32)> {
+    (n as &dyn std::any::Any)
+        .downcast_ref::<Leaf<P>>()
+        .filter(|l| matches!(l.xform, Xform::Identity) && l.scale == 1.0)
+        .map(|l| (l.prim.clone(), l.id))
+}
+
+/// A culled union's members as one [`MemberTable`] when all are packable
+/// primitives of one [`Lanewise`] kind.
+pub(super) fn member_table(members: &[Box<dyn Node>]) -> Option<Box<dyn MemberTable>> {
+    fn of<P: Lanewise>(members: &[Box<dyn Node>]) -> Option<Box<dyn MemberTable>> {
+        let (prims, ids) = members
+            .iter()
+            .map(|m| packable::<P>(m.as_ref()))
+            .collect::<Option<(Vec<P>, Vec<u32>)>>()?;
+        Some(Box::new(Packed { prims, ids }))
+    }
+    of::<Sphere>(members)
+        .or_else(|| of::<BoxPrim>(members))
+        .or_else(|| of::<Ellipsoid>(members))
+        .or_else(|| of::<Octahedron>(members))
+}
+
 fn pack_kind<P: Prim + Clone>(
     nodes: Vec<Box<dyn Node>>,
     out: &mut Vec<Box<dyn Node>>,
 ) -> Vec<Box<dyn Node>> {
-    let packable = |n: &dyn Node| {
-        (n as &dyn std::any::Any)
-            .downcast_ref::<Leaf<P>>()
-            .filter(|l| matches!(l.xform, Xform::Identity) && l.scale == 1.0)
-            .map(|l| (l.prim.clone(), l.id))
-    };
+    let packable = packable::<P>;
     if nodes
         .iter()
         .filter(|n| packable(n.as_ref()).is_some())

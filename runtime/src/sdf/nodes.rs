@@ -336,9 +336,98 @@ fn packed_kernel<P: Prim>(union: &Packed<P>, p: &[P8], out: &mut [F8]) {
 }
 lanes::avx2_kernel!(packed_packs, packed_kernel, Packed);
 
+/// Primitives whose distances at one point are taken for eight members at
+/// once (member `i` in lane `i`): the same formula, the members' parameters
+/// in the lanes instead of the points.
+pub(super) trait Lanewise: Prim + Clone {
+    fn members8(ms: [&Self; LANES], p: Vec3A) -> F8;
+}
+
+/// One parameter of eight members, as lanes.
+#[inline(always)]
+fn lanes_of<P>(ms: &[&P; LANES], f: impl Fn(&P) -> f32) -> F8 {
+    F8(std::array::from_fn(|i| f(ms[i])))
+}
+
+#[inline(always)]
+fn centres<P>(ms: &[&P; LANES], f: impl Fn(&P) -> V3<f32>) -> P8 {
+    V3::new(
+        lanes_of(ms, |m| f(m).x),
+        lanes_of(ms, |m| f(m).y),
+        lanes_of(ms, |m| f(m).z),
+    )
+}
+
+impl Lanewise for Sphere {
+    #[inline(always)]
+    fn members8(ms: [&Self; LANES], p: Vec3A) -> F8 {
+        sdf::sphere(v8(v3(p)), centres(&ms, |m| m.c), lanes_of(&ms, |m| m.r))
+    }
+}
+impl Lanewise for BoxPrim {
+    #[inline(always)]
+    fn members8(ms: [&Self; LANES], p: Vec3A) -> F8 {
+        sdf::cuboid(v8(v3(p)), centres(&ms, |m| m.c), centres(&ms, |m| m.size))
+    }
+}
+impl Lanewise for Ellipsoid {
+    #[inline(always)]
+    fn members8(ms: [&Self; LANES], p: Vec3A) -> F8 {
+        sdf::ellipsoid(v8(v3(p)), centres(&ms, |m| m.c), centres(&ms, |m| m.radii))
+    }
+}
+impl Lanewise for Octahedron {
+    #[inline(always)]
+    fn members8(ms: [&Self; LANES], p: Vec3A) -> F8 {
+        sdf::octahedron(v8(v3(p)), centres(&ms, |m| m.c), lanes_of(&ms, |m| m.size))
+    }
+}
+
+/// A culled union's members as one table (all primitives of one
+/// [`Lanewise`] kind in world coordinates): the minimum over a cell's
+/// candidate list, eight members at a time.
+pub(super) trait MemberTable: Send + Sync {
+    /// `min(best, member distances of list)` at `p`.
+    fn min_over(&self, p: Vec3A, list: &[u32], best: f32) -> f32;
+    /// The minimum over all members, for packs of points.
+    fn min_packs(&self, p: &[P8], out: &mut [F8]);
+}
+
+#[inline(always)]
+fn table_kernel<P: Lanewise>(t: &Packed<P>, p: Vec3A, list: &[u32], best: f32) -> f32 {
+    let mut m = s8(best);
+    for chunk in list.chunks(LANES) {
+        // A partial chunk repeats its last member.
+        let last = chunk.len() - 1;
+        let ms: [&P; LANES] = std::array::from_fn(|i| &t.prims[chunk[i.min(last)] as usize]);
+        m = m.min(P::members8(ms, p));
+    }
+    m.0.iter().fold(best, |a, b| a.min(*b))
+}
+
+impl<P: Lanewise> MemberTable for Packed<P> {
+    fn min_over(&self, p: Vec3A, list: &[u32], best: f32) -> f32 {
+        #[cfg(any(target_arch = "x86_64", target_arch = "x86"))]
+        {
+            #[target_feature(enable = "avx2")]
+            unsafe fn avx2<P: Lanewise>(t: &Packed<P>, p: Vec3A, list: &[u32], best: f32) -> f32 {
+                table_kernel(t, p, list, best)
+            }
+            if lanes::has_avx2() {
+                // SAFETY: the CPU supports AVX2 (checked just above).
+                return unsafe { avx2(self, p, list, best) };
+            }
+        }
+        table_kernel(self, p, list, best)
+    }
+    fn min_packs(&self, p: &[P8], out: &mut [F8]) {
+        packed_packs(self, p, out)
+    }
+}
+
 /// The elementwise `f(out, other)` of a node's packs and another's.
 #[inline(always)]
-fn combine_packs(child: &dyn Node, p: &[P8], out: &mut [F8], f: impl Fn(F8, F8) -> F8) {
+pub(super) fn combine_packs(child: &dyn Node, p: &[P8], out: &mut [F8], f: impl Fn(F8, F8) -> F8) {
     let mut tmp = [s8(0.0); BATCH_PACKS];
     for (p, out) in p.chunks(BATCH_PACKS).zip(out.chunks_mut(BATCH_PACKS)) {
         let tmp = &mut tmp[..p.len()];
