@@ -48,8 +48,8 @@ impl F8 {
     #[inline(always)]
     fn zip(self, o: Self, f: impl Fn(f32, f32) -> f32) -> Self {
         let mut r = self.0;
-        for i in 0..LANES {
-            r[i] = f(r[i], o.0[i]);
+        for (a, b) in r.iter_mut().zip(o.0) {
+            *a = f(*a, b);
         }
         F8(r)
     }

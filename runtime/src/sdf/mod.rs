@@ -164,16 +164,21 @@ impl Lowered {
         let mut packs = [P8::splat(F8::splat(0.0)); BATCH_PACKS];
         let mut dists = [F8::splat(0.0); BATCH_PACKS];
         let mut local = [Vec3A::ZERO; LANES];
+        let relative = self.origin != DVec3::ZERO;
         for (points, out) in points[..n]
             .chunks(LANES * BATCH_PACKS)
             .zip(out[..n].chunks_mut(LANES * BATCH_PACKS))
         {
             let count = points.len().div_ceil(LANES);
             for (pack, pts) in packs.iter_mut().zip(points.chunks(LANES)) {
-                for (l, p) in local.iter_mut().zip(pts) {
-                    *l = self.from_world(*p);
-                }
-                *pack = lanes::pack(&local[..pts.len()]);
+                *pack = if relative {
+                    for (l, p) in local.iter_mut().zip(pts) {
+                        *l = self.from_world(*p);
+                    }
+                    lanes::pack(&local[..pts.len()])
+                } else {
+                    lanes::pack(pts)
+                };
             }
             self.root.dist_packs(&packs[..count], &mut dists[..count]);
             for (o, d) in out.chunks_mut(LANES).zip(&dists) {

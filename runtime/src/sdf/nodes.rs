@@ -395,6 +395,12 @@ pub(super) trait MemberTable: Send + Sync {
 
 #[inline(always)]
 fn table_kernel<P: Lanewise>(t: &Packed<P>, p: Vec3A, list: &[u32], best: f32) -> f32 {
+    // A short list costs less one member at a time (still without a call).
+    if list.len() < LANES / 2 {
+        return list
+            .iter()
+            .fold(best, |m, i| m.min(t.prims[*i as usize].local(p)));
+    }
     let mut m = s8(best);
     for chunk in list.chunks(LANES) {
         // A partial chunk repeats its last member.
