@@ -4,7 +4,8 @@
 //! For N = 1, 10, 100, 1 000, 10 000 primitives (spheres scattered in a
 //! cube, scaled so the scene keeps its size) it measures evaluation
 //! throughput (points/s, one thread) and 512×512 frame time (all threads),
-//! naive min-union against BVH-culled, and the same expression evaluated by
+//! naive min-union against BVH-culled (batched: `eval_batch`; and per point
+//! without packed unions, the evaluator before issue 10), and the same expression evaluated by
 //! the fidget crate's JIT in the same run; it prints a Markdown table.
 //! `cargo run --release -p sdfl-bench -- train` times training steps instead
 //! (see `train.rs`); `-- nerf` times NeRF steps and `-- neural-sdf` neural SDF steps (see `nerf.rs`).
@@ -145,8 +146,10 @@ fn main() {
         .map(|s| s.split(',').filter_map(|x| x.parse().ok()).collect())
         .unwrap_or_else(|| vec![1, 10, 100, 1000, 10_000]);
     let points = sample_points(200_000);
-    println!("| N | naive Mpts/s | culled Mpts/s | fidget JIT Mpts/s | culled / fidget | naive frame ms | culled frame ms | BVH nodes | lowering ms |");
-    println!("|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
+    // `-- 1,10 no-frames`: evaluation throughput only.
+    let frames = std::env::args().nth(2).as_deref() != Some("no-frames");
+    println!("| N | naive Mpts/s | per-point Mpts/s | culled Mpts/s | fidget JIT Mpts/s | per-point / fidget | culled / fidget | naive frame ms | per-point frame ms | culled frame ms | BVH nodes | lowering ms |");
+    println!("|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
     for &n in &sizes {
         let spheres = scattered_spheres(n);
         let shape = scene(&spheres);
@@ -179,20 +182,56 @@ fn main() {
             naive.eval_batch(naive_pts, &mut out[..naive_pts.len()])
         });
         let t_culled = best_of(3, || culled.eval_batch(&points, &mut out));
+        // The evaluator before packed unions and batches (one point at a
+        // time through a node per member), in the same run.
+        let unpacked = Lowered::new(
+            &shape,
+            LowerOptions {
+                pack: false,
+                ..Default::default()
+            },
+        );
+        let batch = out.clone();
+        let t_point = best_of(3, || {
+            for (p, o) in points.iter().zip(out.iter_mut()) {
+                *o = unpacked.dist(*p);
+            }
+        });
+        for (a, b) in batch.iter().zip(&out) {
+            assert!(
+                (a - b).abs() <= 1e-6 * a.abs().max(b.abs()),
+                "batch {a} != per-point {b}"
+            );
+        }
         let fidget = peer::FidgetScene::new(&spheres);
         fidget.check_against(&culled, &points[..2000]);
         let (fidget_rate, _) = fidget.throughput(&points, n);
         let rate = |count: usize, t: f64| count as f64 / t / 1e6;
         let culled_rate = rate(points.len(), t_culled);
         println!(
-            "| {n} | {:.2} | {:.2} | {:.2} | {:.2} | {:.1} | {:.1} | {} | {:.1} |",
+            "| {n} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.1} | {:.1} | {:.1} | {} | {:.1} |",
             rate(naive_pts.len(), t_naive),
+            rate(points.len(), t_point),
             culled_rate,
             fidget_rate / 1e6,
+            rate(points.len(), t_point) * 1e6 / fidget_rate,
             culled_rate * 1e6 / fidget_rate,
             // One naive frame at large N already takes many seconds.
-            frame_time(&naive, &shape, if n >= 1000 { 1 } else { 3 }) * 1e3,
-            frame_time(&culled, &shape, 3) * 1e3,
+            if frames {
+                frame_time(&naive, &shape, if n >= 1000 { 1 } else { 3 }) * 1e3
+            } else {
+                f64::NAN
+            },
+            if frames {
+                frame_time(&unpacked, &shape, 3) * 1e3
+            } else {
+                f64::NAN
+            },
+            if frames {
+                frame_time(&culled, &shape, 3) * 1e3
+            } else {
+                f64::NAN
+            },
             culled.bvh_nodes,
             lower_ms,
         );

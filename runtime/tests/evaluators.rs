@@ -218,6 +218,7 @@ fn evaluators(shape: &Shape) -> Vec<(&'static str, Lowered)> {
                 LowerOptions {
                     cull: true,
                     bvh_threshold: 2,
+                    ..Default::default()
                 },
             ),
         ),
@@ -226,6 +227,18 @@ fn evaluators(shape: &Shape) -> Vec<(&'static str, Lowered)> {
         (
             "relative",
             Lowered::relative_to(shape, LowerOptions::default(), DVec3::new(2.5, -1.25, 3.0)),
+        ),
+        // Every member its own node (no packed unions): the per-point
+        // evaluator as it was before packing.
+        (
+            "culled-unpacked",
+            Lowered::new(
+                shape,
+                LowerOptions {
+                    pack: false,
+                    ..Default::default()
+                },
+            ),
         ),
     ]
 }
@@ -245,8 +258,13 @@ fn check_scene(shape: &Shape, seed: u64) {
             b.center
         );
     }
-    for _ in 0..3000 {
-        let p = rng.v3(3.5);
+    let points: Vec<DVec3> = (0..3000).map(|_| rng.v3(3.5)).collect();
+    // The batched path (packs of 8 points) equals the per-point one.
+    let pf: Vec<Vec3A> = points.iter().map(|p| p.as_vec3().into()).collect();
+    for (name, e) in &evals {
+        assert_batch_equals_points(name, e, &pf, false);
+    }
+    for &p in &points {
         let reference = shape.distance(p);
         let pf: Vec3A = p.as_vec3().into();
         for (name, e) in &evals {
@@ -320,6 +338,147 @@ fn batch_matches_single_points() {
     e.eval_batch(&pts, &mut out);
     for (p, d) in pts.iter().zip(&out) {
         assert_eq!(*d, e.dist(*p));
+    }
+}
+
+/// `eval_batch` equals `dist` point by point: bit for bit (up to the sign
+/// of zero) when `exact`, else within 1e-6 relative (a culled union may
+/// evaluate a batch against every member, whose minimum can differ from
+/// the culled one by rounding far away), for a batch and for batches ending
+/// inside a pack.
+fn assert_batch_equals_points(name: &str, e: &Lowered, points: &[Vec3A], exact: bool) {
+    let mut out = vec![f32::NAN; points.len()];
+    e.eval_batch(points, &mut out);
+    for (p, d) in points.iter().zip(&out) {
+        let single = e.dist(*p);
+        if exact {
+            assert_eq!(*d, single, "{name}: batch vs single point at {p}");
+        } else {
+            assert!(
+                (d - single).abs() <= 1e-6 * d.abs().max(single.abs()),
+                "{name}: batch {d} vs single point {single} at {p}"
+            );
+        }
+    }
+    // Batches ending inside a pack (the remainder lanes repeat the last point).
+    for len in [1, 3, 7, 9, 15, 17]
+        .into_iter()
+        .filter(|l| *l <= points.len())
+    {
+        let mut short = vec![f32::NAN; len];
+        e.eval_batch(&points[..len], &mut short);
+        assert_eq!(short, out[..len], "{name}: batch of {len}");
+    }
+}
+
+/// A primitive of one kind (`kind` 0..9) at a random place.
+fn primitive_of_kind(rng: &mut Lcg, kind: u32) -> Shape {
+    let c = rng.v3(2.0);
+    let size = DVec3::new(
+        rng.range(0.1, 0.6),
+        rng.range(0.1, 0.6),
+        rng.range(0.1, 0.6),
+    );
+    match kind {
+        0 => Shape::Sphere {
+            center: c.into(),
+            radius: rng.range(0.05, 0.4).into(),
+        },
+        1 => Shape::Box {
+            center: c.into(),
+            size: size.into(),
+        },
+        2 => Shape::Torus {
+            center: c.into(),
+            major: rng.range(0.2, 0.4).into(),
+            minor: rng.range(0.03, 0.1).into(),
+            axis: [Axis::X, Axis::Y, Axis::Z][(rng.next() * 3.0) as usize],
+        },
+        3 => Shape::Cylinder {
+            center: c.into(),
+            radius: rng.range(0.05, 0.3).into(),
+            height: rng.range(0.1, 0.6).into(),
+            axis: [Axis::X, Axis::Y, Axis::Z][(rng.next() * 3.0) as usize],
+        },
+        4 => Shape::Ellipsoid {
+            center: c.into(),
+            radii: size.into(),
+        },
+        5 => Shape::Octahedron {
+            center: c.into(),
+            size: rng.range(0.1, 0.5).into(),
+        },
+        6 => Shape::BoxFrame {
+            center: c.into(),
+            size: size.into(),
+            thickness: 0.05.into(),
+        },
+        // Not packed: a branchy formula (lane by lane) and a transformed leaf.
+        7 => Shape::Capsule {
+            a: c.into(),
+            b: (c + rng.v3(0.3)).into(),
+            radius: rng.range(0.03, 0.2).into(),
+        },
+        _ => Shape::Translate(
+            Arc::new(Shape::Sphere {
+                center: DVec3::ZERO.into(),
+                radius: rng.range(0.05, 0.4).into(),
+            }),
+            c.into(),
+        ),
+    }
+}
+
+#[test]
+fn packed_unions_of_one_kind_equal_the_per_point_path() {
+    let mut rng = Lcg(41);
+    for kind in 0..9 {
+        for n in [1, 2, 7, 8, 9, 15, 16, 17, 100, 200] {
+            let members: Vec<Shape> = (0..n).map(|_| primitive_of_kind(&mut rng, kind)).collect();
+            let shape = Shape::Union(members.iter().cloned().map(Arc::new).collect());
+            // Hard cases: the centres themselves (zero vectors inside the
+            // formulas), far and huge coordinates; then random points, a
+            // count that leaves a partial pack.
+            let mut points: Vec<Vec3A> = members
+                .iter()
+                .filter_map(|m| m.primitive_center())
+                .map(|c| c.as_vec3().into())
+                .collect();
+            points.extend([
+                Vec3A::ZERO,
+                Vec3A::splat(1e6),
+                Vec3A::new(-3e7, 2e7, 1e-30),
+                Vec3A::new(1e-38, -1e-38, 0.0),
+            ]);
+            points.extend((0..1003).map(|_| Vec3A::from(rng.v3(4.0).as_vec3())));
+            let packed = Lowered::new(&shape, LowerOptions::default());
+            let unpacked = Lowered::new(
+                &shape,
+                LowerOptions {
+                    pack: false,
+                    ..Default::default()
+                },
+            );
+            let name = format!("kind {kind}, {n} members");
+            // Plain unions (below the BVH threshold) are exact.
+            assert_batch_equals_points(&name, &packed, &points, n < 16);
+            assert_batch_equals_points(&name, &unpacked, &points, n < 16);
+            for p in &points {
+                let (a, b) = (packed.dist(*p), unpacked.dist(*p));
+                assert!(a.is_finite(), "{name}: {a} at {p}");
+                assert!(
+                    (a - b).abs() <= 1e-6 * a.abs().max(b.abs()),
+                    "{name}: packed {a} vs unpacked {b} at {p}"
+                );
+                let (d, id) = packed.root.dist_id(*p);
+                assert_eq!(d, a, "{name}: dist_id");
+                let direct = members[id as usize].distance(p.as_dvec3());
+                assert!(
+                    (direct - d as f64).abs() <= 1e-4 * (1.0 + direct.abs()),
+                    "{name}: id {id} gives {direct}, not {d}"
+                );
+            }
+        }
     }
 }
 

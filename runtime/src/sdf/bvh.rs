@@ -30,9 +30,19 @@ pub(super) struct BvhUnion {
     /// Members without bounds (planes): always evaluated.
     pub(super) unbounded: Vec<Box<dyn Node>>,
     pub(super) grid: Option<CellGrid>,
+    /// The members as one table when all are primitives of one packable
+    /// kind: a cell's candidates are then evaluated eight at a time.
+    pub(super) table: Option<Box<dyn MemberTable>>,
 }
 
 pub(super) const LEAF_SIZE: usize = 4;
+/// Most members of a union with a [`MemberTable`] whose batches are
+/// evaluated against every member, eight points at a time, instead of
+/// culled point by point: below it the packed minimum is faster (measured
+/// on spheres: at 100 members 4× the culled evaluator per point, at 1 000
+/// half of it; see BENCHMARKS.md). The value is the same either way (the
+/// culled minimum is the minimum).
+pub(super) const PACKED_MEMBERS: usize = 256;
 pub(super) const STACK: usize = 64;
 
 /// Candidate lists per cell of a regular grid over the union's bounds.
@@ -162,6 +172,7 @@ impl BvhUnion {
             boxes,
             unbounded,
             grid: None,
+            table: None,
         };
         union.grid = Some(union.build_grid(lipschitz));
         union
@@ -355,11 +366,29 @@ impl Node for BvhUnion {
             .iter()
             .fold(f32::INFINITY, |m, c| m.min(c.dist(p)));
         if let Some(list) = self.grid.as_ref().and_then(|g| g.lookup(p)) {
+            if let Some(table) = &self.table {
+                return table.min_over(p, list, best);
+            }
             return list
                 .iter()
                 .fold(best, |m, i| m.min(self.members[*i as usize].dist(p)));
         }
         self.search(p, best, |m, best| best.min(self.members[m].dist(p)))
+    }
+    fn dist_packs(&self, p: &[P8], out: &mut [F8]) {
+        match &self.table {
+            Some(table) if self.members.len() <= PACKED_MEMBERS => {
+                table.min_packs(p, out);
+                for u in &self.unbounded {
+                    combine_packs(u.as_ref(), p, out, |m, d| m.min(d));
+                }
+            }
+            _ => {
+                for (q, o) in p.iter().zip(out.iter_mut()) {
+                    *o = per_lane(q, |x| self.dist(x));
+                }
+            }
+        }
     }
     fn dist_id(&self, p: Vec3A) -> (f32, u32) {
         let mut best = (f32::INFINITY, u32::MAX);

@@ -397,9 +397,14 @@ impl Lowering {
         };
         let bounded = members.iter().filter(|(s, _)| s.bounds().is_some()).count();
         if !self.options.cull || bounded < self.options.bvh_threshold {
-            return Box::new(Union(
-                members.iter().map(|(s, f)| self.lower(s, f)).collect(),
-            ));
+            let mut nodes: Vec<_> = members.iter().map(|(s, f)| self.lower(s, f)).collect();
+            if self.options.pack {
+                nodes = pack_union(nodes);
+            }
+            if nodes.len() == 1 {
+                return nodes.pop().expect("one node");
+            }
+            return Box::new(Union(nodes));
         }
         let mut items = Vec::with_capacity(bounded);
         let mut unbounded = Vec::new();
@@ -410,7 +415,10 @@ impl Lowering {
                 None => unbounded.push(node),
             }
         }
-        let bvh = BvhUnion::build(items, unbounded);
+        let mut bvh = BvhUnion::build(items, unbounded);
+        if self.options.pack {
+            bvh.table = member_table(&bvh.members);
+        }
         self.bvh_nodes += bvh.nodes.len();
         Box::new(bvh)
     }
@@ -541,4 +549,74 @@ pub(super) fn dedup_primitives(members: Vec<(&Shape, Frame)>) -> Vec<(&Shape, Fr
         .zip(drop)
         .filter_map(|(m, d)| (!d).then_some(m))
         .collect()
+}
+
+/// A plain union's members with the primitives of each kind that sit in
+/// world coordinates (identity transform, scale 1: the leaf's value is the
+/// formula's) gathered into one [`Packed`] node per kind, when there are at
+/// least two; the rest unchanged. The minimum is the same; only which of
+/// two members at exactly equal distance names the point may change.
+pub(super) fn pack_union(nodes: Vec<Box<dyn Node>>) -> Vec<Box<dyn Node>> {
+    let mut out = Vec::new();
+    let mut rest = pack_kind::<Sphere>(nodes, &mut out);
+    rest = pack_kind::<BoxPrim>(rest, &mut out);
+    rest = pack_kind::<Torus>(rest, &mut out);
+    rest = pack_kind::<Cylinder>(rest, &mut out);
+    rest = pack_kind::<Ellipsoid>(rest, &mut out);
+    rest = pack_kind::<Octahedron>(rest, &mut out);
+    rest = pack_kind::<BoxFrame>(rest, &mut out);
+    out.extend(rest);
+    out
+}
+
+/// A leaf of kind `P` in world coordinates (its value is the formula's):
+/// its primitive and id.
+fn packable<P: Prim + Clone>(n: &dyn Node) -> Option<(P, u32)> {
+    (n as &dyn std::any::Any)
+        .downcast_ref::<Leaf<P>>()
+        .filter(|l| matches!(l.xform, Xform::Identity) && l.scale == 1.0)
+        .map(|l| (l.prim.clone(), l.id))
+}
+
+/// A culled union's members as one [`MemberTable`] when all are packable
+/// primitives of one [`Lanewise`] kind.
+pub(super) fn member_table(members: &[Box<dyn Node>]) -> Option<Box<dyn MemberTable>> {
+    fn of<P: Lanewise>(members: &[Box<dyn Node>]) -> Option<Box<dyn MemberTable>> {
+        let (prims, ids) = members
+            .iter()
+            .map(|m| packable::<P>(m.as_ref()))
+            .collect::<Option<(Vec<P>, Vec<u32>)>>()?;
+        Some(Box::new(Packed { prims, ids }))
+    }
+    of::<Sphere>(members)
+        .or_else(|| of::<BoxPrim>(members))
+        .or_else(|| of::<Ellipsoid>(members))
+        .or_else(|| of::<Octahedron>(members))
+}
+
+fn pack_kind<P: Prim + Clone>(
+    nodes: Vec<Box<dyn Node>>,
+    out: &mut Vec<Box<dyn Node>>,
+) -> Vec<Box<dyn Node>> {
+    let packable = packable::<P>;
+    if nodes
+        .iter()
+        .filter(|n| packable(n.as_ref()).is_some())
+        .count()
+        < 2
+    {
+        return nodes;
+    }
+    let (mut prims, mut ids, mut rest) = (Vec::new(), Vec::new(), Vec::new());
+    for n in nodes {
+        match packable(n.as_ref()) {
+            Some((p, id)) => {
+                prims.push(p);
+                ids.push(id);
+            }
+            None => rest.push(n),
+        }
+    }
+    out.push(Box::new(Packed { prims, ids }));
+    rest
 }

@@ -4,6 +4,24 @@ use super::*;
 
 pub(super) trait Prim: Send + Sync + 'static {
     fn local(&self, p: Vec3A) -> f32;
+    /// [`Prim::local`] of a pack of points. Primitives whose formula has no
+    /// branch on the point evaluate the same generic formula on the lanes;
+    /// the others (the default) go lane by lane.
+    #[inline(always)]
+    fn local8(&self, p: P8) -> F8 {
+        per_lane(&p, |q| self.local(q))
+    }
+}
+
+/// A constant in every lane.
+#[inline(always)]
+fn s8(x: f32) -> F8 {
+    F8::splat(x)
+}
+
+#[inline(always)]
+fn v8(v: V3<f32>) -> P8 {
+    V3::new(s8(v.x), s8(v.y), s8(v.z))
 }
 
 #[inline(always)]
@@ -13,6 +31,7 @@ pub(super) fn v3(p: Vec3A) -> V3<f32> {
 
 // Each primitive evaluates the one formula in `sdfl_stdlib::sdf`, in f32.
 
+#[derive(Clone)]
 pub(super) struct Sphere {
     pub(super) c: V3<f32>,
     pub(super) r: f32,
@@ -22,8 +41,13 @@ impl Prim for Sphere {
     fn local(&self, p: Vec3A) -> f32 {
         sdf::sphere(v3(p), self.c, self.r)
     }
+    #[inline(always)]
+    fn local8(&self, p: P8) -> F8 {
+        sdf::sphere(p, v8(self.c), s8(self.r))
+    }
 }
 
+#[derive(Clone)]
 pub(super) struct BoxPrim {
     pub(super) c: V3<f32>,
     pub(super) size: V3<f32>,
@@ -33,8 +57,13 @@ impl Prim for BoxPrim {
     fn local(&self, p: Vec3A) -> f32 {
         sdf::cuboid(v3(p), self.c, self.size)
     }
+    #[inline(always)]
+    fn local8(&self, p: P8) -> F8 {
+        sdf::cuboid(p, v8(self.c), v8(self.size))
+    }
 }
 
+#[derive(Clone)]
 pub(super) struct BoxFrame {
     pub(super) c: V3<f32>,
     pub(super) size: V3<f32>,
@@ -45,8 +74,13 @@ impl Prim for BoxFrame {
     fn local(&self, p: Vec3A) -> f32 {
         sdf::box_frame(v3(p), self.c, self.size, self.thickness)
     }
+    #[inline(always)]
+    fn local8(&self, p: P8) -> F8 {
+        sdf::box_frame(p, v8(self.c), v8(self.size), s8(self.thickness))
+    }
 }
 
+#[derive(Clone)]
 pub(super) struct Octahedron {
     pub(super) c: V3<f32>,
     pub(super) size: f32,
@@ -56,8 +90,13 @@ impl Prim for Octahedron {
     fn local(&self, p: Vec3A) -> f32 {
         sdf::octahedron(v3(p), self.c, self.size)
     }
+    #[inline(always)]
+    fn local8(&self, p: P8) -> F8 {
+        sdf::octahedron(p, v8(self.c), s8(self.size))
+    }
 }
 
+#[derive(Clone)]
 pub(super) struct CappedCone {
     pub(super) c: V3<f32>,
     pub(super) axis: Axis,
@@ -73,6 +112,7 @@ impl Prim for CappedCone {
     }
 }
 
+#[derive(Clone)]
 pub(super) struct RoundCone {
     pub(super) c: V3<f32>,
     pub(super) axis: Axis,
@@ -88,6 +128,7 @@ impl Prim for RoundCone {
     }
 }
 
+#[derive(Clone)]
 pub(super) struct HexPrism {
     pub(super) c: V3<f32>,
     pub(super) axis: Axis,
@@ -105,6 +146,7 @@ impl Prim for HexPrism {
     }
 }
 
+#[derive(Clone)]
 pub(super) struct TriPrism {
     pub(super) c: V3<f32>,
     pub(super) axis: Axis,
@@ -118,6 +160,7 @@ impl Prim for TriPrism {
     }
 }
 
+#[derive(Clone)]
 pub(super) struct Link {
     pub(super) c: V3<f32>,
     pub(super) axis: Axis,
@@ -133,6 +176,7 @@ impl Prim for Link {
     }
 }
 
+#[derive(Clone)]
 pub(super) struct Ellipsoid {
     pub(super) c: V3<f32>,
     pub(super) radii: V3<f32>,
@@ -142,8 +186,13 @@ impl Prim for Ellipsoid {
     fn local(&self, p: Vec3A) -> f32 {
         sdf::ellipsoid(v3(p), self.c, self.radii)
     }
+    #[inline(always)]
+    fn local8(&self, p: P8) -> F8 {
+        sdf::ellipsoid(p, v8(self.c), v8(self.radii))
+    }
 }
 
+#[derive(Clone)]
 pub(super) struct Torus {
     pub(super) c: V3<f32>,
     pub(super) axis: Axis,
@@ -155,8 +204,17 @@ impl Prim for Torus {
     fn local(&self, p: Vec3A) -> f32 {
         sdf::torus(sdf::along(v3(p), self.c, self.axis), self.major, self.minor)
     }
+    #[inline(always)]
+    fn local8(&self, p: P8) -> F8 {
+        sdf::torus(
+            sdf::along(p, v8(self.c), self.axis),
+            s8(self.major),
+            s8(self.minor),
+        )
+    }
 }
 
+#[derive(Clone)]
 pub(super) struct Capsule {
     pub(super) a: V3<f32>,
     pub(super) b: V3<f32>,
@@ -169,6 +227,7 @@ impl Prim for Capsule {
     }
 }
 
+#[derive(Clone)]
 pub(super) struct Cylinder {
     pub(super) c: V3<f32>,
     pub(super) axis: Axis,
@@ -180,8 +239,17 @@ impl Prim for Cylinder {
     fn local(&self, p: Vec3A) -> f32 {
         sdf::cylinder(sdf::along(v3(p), self.c, self.axis), self.r, self.height)
     }
+    #[inline(always)]
+    fn local8(&self, p: P8) -> F8 {
+        sdf::cylinder(
+            sdf::along(p, v8(self.c), self.axis),
+            s8(self.r),
+            s8(self.height),
+        )
+    }
 }
 
+#[derive(Clone)]
 pub(super) struct Plane {
     pub(super) n: V3<f32>,
     pub(super) h: f32,
@@ -190,6 +258,10 @@ impl Prim for Plane {
     #[inline(always)]
     fn local(&self, p: Vec3A) -> f32 {
         sdf::plane(v3(p), self.n, self.h)
+    }
+    #[inline(always)]
+    fn local8(&self, p: P8) -> F8 {
+        sdf::plane(p, v8(self.n), s8(self.h))
     }
 }
 
@@ -209,6 +281,167 @@ impl<P: Prim> Node for Leaf<P> {
     fn dist_id(&self, p: Vec3A) -> (f32, u32) {
         (self.dist(p), self.id)
     }
+    fn dist_packs(&self, p: &[P8], out: &mut [F8]) {
+        leaf_packs(self, p, out)
+    }
+}
+
+#[inline(always)]
+fn leaf_kernel<P: Prim>(leaf: &Leaf<P>, p: &[P8], out: &mut [F8]) {
+    for (q, o) in p.iter().zip(out.iter_mut()) {
+        *o = leaf.prim.local8(leaf.xform.apply8(*q)) * s8(leaf.scale);
+    }
+}
+lanes::avx2_kernel!(leaf_packs, leaf_kernel, Leaf);
+
+/// A union of primitives of one kind, each in world coordinates (identity
+/// transform, scale 1): their parameters in one array, evaluated without a
+/// call per member, and for packs of points member by member over the
+/// packs (the same formula per lane as [`Prim::local`]).
+pub(super) struct Packed<P> {
+    pub(super) prims: Vec<P>,
+    pub(super) ids: Vec<u32>,
+}
+
+impl<P: Prim> Node for Packed<P> {
+    fn dist(&self, p: Vec3A) -> f32 {
+        self.prims
+            .iter()
+            .fold(f32::INFINITY, |m, c| m.min(c.local(p)))
+    }
+    fn dist_id(&self, p: Vec3A) -> (f32, u32) {
+        let mut best = (f32::INFINITY, u32::MAX);
+        for (c, id) in self.prims.iter().zip(&self.ids) {
+            let d = c.local(p);
+            if d < best.0 {
+                best = (d, *id);
+            }
+        }
+        best
+    }
+    fn dist_packs(&self, p: &[P8], out: &mut [F8]) {
+        packed_packs(self, p, out)
+    }
+}
+
+#[inline(always)]
+fn packed_kernel<P: Prim>(union: &Packed<P>, p: &[P8], out: &mut [F8]) {
+    for (q, o) in p.iter().zip(out.iter_mut()) {
+        let mut m = s8(f32::INFINITY);
+        for c in &union.prims {
+            m = m.min(c.local8(*q));
+        }
+        *o = m;
+    }
+}
+lanes::avx2_kernel!(packed_packs, packed_kernel, Packed);
+
+/// Primitives whose distances at one point are taken for eight members at
+/// once (member `i` in lane `i`): the same formula, the members' parameters
+/// in the lanes instead of the points.
+pub(super) trait Lanewise: Prim + Clone {
+    fn members8(ms: [&Self; LANES], p: Vec3A) -> F8;
+}
+
+/// One parameter of eight members, as lanes.
+#[inline(always)]
+fn lanes_of<P>(ms: &[&P; LANES], f: impl Fn(&P) -> f32) -> F8 {
+    F8(std::array::from_fn(|i| f(ms[i])))
+}
+
+#[inline(always)]
+fn centres<P>(ms: &[&P; LANES], f: impl Fn(&P) -> V3<f32>) -> P8 {
+    V3::new(
+        lanes_of(ms, |m| f(m).x),
+        lanes_of(ms, |m| f(m).y),
+        lanes_of(ms, |m| f(m).z),
+    )
+}
+
+impl Lanewise for Sphere {
+    #[inline(always)]
+    fn members8(ms: [&Self; LANES], p: Vec3A) -> F8 {
+        sdf::sphere(v8(v3(p)), centres(&ms, |m| m.c), lanes_of(&ms, |m| m.r))
+    }
+}
+impl Lanewise for BoxPrim {
+    #[inline(always)]
+    fn members8(ms: [&Self; LANES], p: Vec3A) -> F8 {
+        sdf::cuboid(v8(v3(p)), centres(&ms, |m| m.c), centres(&ms, |m| m.size))
+    }
+}
+impl Lanewise for Ellipsoid {
+    #[inline(always)]
+    fn members8(ms: [&Self; LANES], p: Vec3A) -> F8 {
+        sdf::ellipsoid(v8(v3(p)), centres(&ms, |m| m.c), centres(&ms, |m| m.radii))
+    }
+}
+impl Lanewise for Octahedron {
+    #[inline(always)]
+    fn members8(ms: [&Self; LANES], p: Vec3A) -> F8 {
+        sdf::octahedron(v8(v3(p)), centres(&ms, |m| m.c), lanes_of(&ms, |m| m.size))
+    }
+}
+
+/// A culled union's members as one table (all primitives of one
+/// [`Lanewise`] kind in world coordinates): the minimum over a cell's
+/// candidate list, eight members at a time.
+pub(super) trait MemberTable: Send + Sync {
+    /// `min(best, member distances of list)` at `p`.
+    fn min_over(&self, p: Vec3A, list: &[u32], best: f32) -> f32;
+    /// The minimum over all members, for packs of points.
+    fn min_packs(&self, p: &[P8], out: &mut [F8]);
+}
+
+#[inline(always)]
+fn table_kernel<P: Lanewise>(t: &Packed<P>, p: Vec3A, list: &[u32], best: f32) -> f32 {
+    // A short list costs less one member at a time (still without a call).
+    if list.len() < LANES / 2 {
+        return list
+            .iter()
+            .fold(best, |m, i| m.min(t.prims[*i as usize].local(p)));
+    }
+    let mut m = s8(best);
+    for chunk in list.chunks(LANES) {
+        // A partial chunk repeats its last member.
+        let last = chunk.len() - 1;
+        let ms: [&P; LANES] = std::array::from_fn(|i| &t.prims[chunk[i.min(last)] as usize]);
+        m = m.min(P::members8(ms, p));
+    }
+    m.0.iter().fold(best, |a, b| a.min(*b))
+}
+
+impl<P: Lanewise> MemberTable for Packed<P> {
+    fn min_over(&self, p: Vec3A, list: &[u32], best: f32) -> f32 {
+        #[cfg(any(target_arch = "x86_64", target_arch = "x86"))]
+        {
+            #[target_feature(enable = "avx2")]
+            unsafe fn avx2<P: Lanewise>(t: &Packed<P>, p: Vec3A, list: &[u32], best: f32) -> f32 {
+                table_kernel(t, p, list, best)
+            }
+            if lanes::has_avx2() {
+                // SAFETY: the CPU supports AVX2 (checked just above).
+                return unsafe { avx2(self, p, list, best) };
+            }
+        }
+        table_kernel(self, p, list, best)
+    }
+    fn min_packs(&self, p: &[P8], out: &mut [F8]) {
+        packed_packs(self, p, out)
+    }
+}
+
+/// The elementwise `f(out, other)` of a node's packs and another's.
+#[inline(always)]
+pub(super) fn combine_packs(child: &dyn Node, p: &[P8], out: &mut [F8], f: impl Fn(F8, F8) -> F8) {
+    let mut tmp = [s8(0.0); BATCH_PACKS];
+    for (p, out) in p.chunks(BATCH_PACKS).zip(out.chunks_mut(BATCH_PACKS)) {
+        let tmp = &mut tmp[..p.len()];
+        child.dist_packs(p, tmp);
+        for (o, t) in out.iter_mut().zip(tmp.iter()) {
+            *o = f(*o, *t);
+        }
+    }
 }
 
 // ---------------------------------------------------------------- combinators
@@ -217,6 +450,14 @@ pub(super) struct Union(pub(super) Vec<Box<dyn Node>>);
 impl Node for Union {
     fn dist(&self, p: Vec3A) -> f32 {
         self.0.iter().fold(f32::INFINITY, |m, c| m.min(c.dist(p)))
+    }
+    fn dist_packs(&self, p: &[P8], out: &mut [F8]) {
+        for o in out.iter_mut() {
+            *o = s8(f32::INFINITY);
+        }
+        for c in &self.0 {
+            combine_packs(c.as_ref(), p, out, |m, d| m.min(d));
+        }
     }
     fn dist_id(&self, p: Vec3A) -> (f32, u32) {
         self.0.iter().fold((f32::INFINITY, u32::MAX), |best, c| {
@@ -236,6 +477,14 @@ impl Node for Intersection {
         self.0
             .iter()
             .fold(f32::NEG_INFINITY, |m, c| m.max(c.dist(p)))
+    }
+    fn dist_packs(&self, p: &[P8], out: &mut [F8]) {
+        for o in out.iter_mut() {
+            *o = s8(f32::NEG_INFINITY);
+        }
+        for c in &self.0 {
+            combine_packs(c.as_ref(), p, out, |m, d| m.max(d));
+        }
     }
     fn dist_id(&self, p: Vec3A) -> (f32, u32) {
         self.0
@@ -325,6 +574,16 @@ impl Offset {
 impl Node for Offset {
     fn dist(&self, p: Vec3A) -> f32 {
         self.apply(self.inner.dist(p))
+    }
+    fn dist_packs(&self, p: &[P8], out: &mut [F8]) {
+        self.inner.dist_packs(p, out);
+        for o in out.iter_mut() {
+            *o = if self.shell {
+                o.abs() - s8(self.by)
+            } else {
+                *o - s8(self.by)
+            };
+        }
     }
     fn dist_id(&self, p: Vec3A) -> (f32, u32) {
         let (d, id) = self.inner.dist_id(p);

@@ -1,0 +1,236 @@
+//! Packs of [`LANES`] points evaluated together ([`F8`]): a lane type that
+//! implements `sdfl_stdlib::num::Real`, so the batched evaluator calls the
+//! same generic formula per primitive (`sdfl_stdlib::sdf`) as the per-point
+//! one, with eight points in the lanes instead of one.
+//!
+//! Every operation is the f32 operation lane by lane (IEEE add, mul, div,
+//! correctly rounded sqrt, `min`/`max` with `Real`'s tie and NaN rule), so a
+//! lane's result is bit for bit the per-point result. The lanes are a plain
+//! `[f32; 8]`: LLVM turns the fixed-size loops into vector instructions, and
+//! [`has_avx2`] picks a kernel a second time with AVX2 enabled (picked at
+//! run time), which a compile-time SIMD crate such as `wide` cannot do
+//! without building the whole crate for one CPU.
+//!
+//! A branch on a value (`Real::val`) has no meaning for eight points at once;
+//! it is defined for a pack whose lanes agree (a constant, such as a smooth
+//! union's `k`) and panics otherwise, so formulas that branch on the point
+//! are evaluated lane by lane through the per-point path instead.
+
+use std::ops::{Add, Div, Mul, Neg, Sub};
+
+use glam::Vec3A;
+use sdfl_stdlib::num::{Real, V3};
+
+/// Points per pack.
+pub const LANES: usize = 8;
+
+/// Eight f32 lanes.
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[repr(C, align(32))]
+pub struct F8(pub [f32; LANES]);
+
+/// Eight points, one per lane.
+pub type P8 = V3<F8>;
+
+impl F8 {
+    #[inline(always)]
+    pub fn splat(x: f32) -> Self {
+        F8([x; LANES])
+    }
+    #[inline(always)]
+    fn map(self, f: impl Fn(f32) -> f32) -> Self {
+        let mut r = self.0;
+        for x in r.iter_mut() {
+            *x = f(*x);
+        }
+        F8(r)
+    }
+    #[inline(always)]
+    fn zip(self, o: Self, f: impl Fn(f32, f32) -> f32) -> Self {
+        let mut r = self.0;
+        for (a, b) in r.iter_mut().zip(o.0) {
+            *a = f(*a, b);
+        }
+        F8(r)
+    }
+}
+
+/// A pack of points from up to [`LANES`] points; missing lanes repeat the
+/// last point (so they stay finite and cost nothing special).
+#[inline(always)]
+pub fn pack(points: &[Vec3A]) -> P8 {
+    let last = points.len().min(LANES) - 1;
+    let (mut x, mut y, mut z) = ([0.0; LANES], [0.0; LANES], [0.0; LANES]);
+    for i in 0..LANES {
+        let p = points[i.min(last)];
+        x[i] = p.x;
+        y[i] = p.y;
+        z[i] = p.z;
+    }
+    V3::new(F8(x), F8(y), F8(z))
+}
+
+/// Lane `i` of a pack of points.
+#[inline(always)]
+pub fn lane(p: &P8, i: usize) -> Vec3A {
+    Vec3A::new(p.x.0[i], p.y.0[i], p.z.0[i])
+}
+
+/// A pack's point values with `f` applied lane by lane (the fallback of
+/// nodes without a packed kernel).
+#[inline(always)]
+pub fn per_lane(p: &P8, f: impl Fn(Vec3A) -> f32) -> F8 {
+    let mut r = [0.0; LANES];
+    for (i, r) in r.iter_mut().enumerate() {
+        *r = f(lane(p, i));
+    }
+    F8(r)
+}
+
+/// Whether the CPU has AVX2: the packed kernels then run a copy of
+/// themselves compiled with it (`#[target_feature]`, the generic formula
+/// inlined into it and vectorised 8 wide); else the baseline build.
+#[inline(always)]
+pub fn has_avx2() -> bool {
+    #[cfg(any(target_arch = "x86_64", target_arch = "x86"))]
+    {
+        std::arch::is_x86_feature_detected!("avx2")
+    }
+    #[cfg(not(any(target_arch = "x86_64", target_arch = "x86")))]
+    {
+        false
+    }
+}
+
+/// `$vis fn $name<P: Prim>(node: &$node, p: &[P8], out: &mut [F8])`
+/// running the `#[inline(always)]` kernel `$kernel` with the same
+/// signature, compiled with AVX2 when the CPU has it.
+macro_rules! avx2_kernel {
+    ($name:ident, $kernel:ident, $node:ident) => {
+        fn $name<P: Prim>(node: &$node<P>, p: &[P8], out: &mut [F8]) {
+            #[cfg(any(target_arch = "x86_64", target_arch = "x86"))]
+            {
+                #[target_feature(enable = "avx2")]
+                unsafe fn avx2<P: Prim>(node: &$node<P>, p: &[P8], out: &mut [F8]) {
+                    $kernel(node, p, out)
+                }
+                if lanes::has_avx2() {
+                    // SAFETY: the CPU supports AVX2 (checked just above).
+                    return unsafe { avx2(node, p, out) };
+                }
+            }
+            $kernel(node, p, out)
+        }
+    };
+}
+pub(super) use avx2_kernel;
+
+macro_rules! lane_op {
+    ($tr:ident, $f:ident, $op:tt) => {
+        impl $tr for F8 {
+            type Output = F8;
+            #[inline(always)]
+            fn $f(self, o: F8) -> F8 {
+                self.zip(o, |a, b| a $op b)
+            }
+        }
+    };
+}
+lane_op!(Add, add, +);
+lane_op!(Sub, sub, -);
+lane_op!(Mul, mul, *);
+lane_op!(Div, div, /);
+
+impl Neg for F8 {
+    type Output = F8;
+    #[inline(always)]
+    fn neg(self) -> F8 {
+        self.map(|a| -a)
+    }
+}
+
+impl Real for F8 {
+    #[inline(always)]
+    fn lit(x: f64) -> Self {
+        F8::splat(<f32 as Real>::lit(x))
+    }
+    /// The common value of the lanes; panics when they differ (a branch on
+    /// the point itself, which a pack cannot take).
+    #[inline(always)]
+    fn val(self) -> f64 {
+        let v = self.0[0];
+        assert!(
+            self.0.iter().all(|x| x.to_bits() == v.to_bits()),
+            "a branch on a per-point value in a packed formula: evaluate it lane by lane"
+        );
+        v as f64
+    }
+    #[inline(always)]
+    fn sqrt(self) -> Self {
+        self.map(f32::sqrt)
+    }
+    #[inline(always)]
+    fn abs(self) -> Self {
+        self.map(f32::abs)
+    }
+    #[inline(always)]
+    fn exp(self) -> Self {
+        self.map(f32::exp)
+    }
+    #[inline(always)]
+    fn ln(self) -> Self {
+        self.map(f32::ln)
+    }
+    #[inline(always)]
+    fn ln_1p(self) -> Self {
+        self.map(f32::ln_1p)
+    }
+    #[inline(always)]
+    fn exp_m1(self) -> Self {
+        self.map(f32::exp_m1)
+    }
+    #[inline(always)]
+    fn sin(self) -> Self {
+        self.map(f32::sin)
+    }
+    #[inline(always)]
+    fn cos(self) -> Self {
+        self.map(f32::cos)
+    }
+    #[inline(always)]
+    fn max(self, o: Self) -> Self {
+        self.zip(o, <f32 as Real>::max)
+    }
+    #[inline(always)]
+    fn min(self, o: Self) -> Self {
+        self.zip(o, <f32 as Real>::min)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn lanes_equal_scalar_operations() {
+        let a = F8([0.0, -0.0, 1.5, -2.25, 1e30, 3.0, f32::MIN_POSITIVE, 7.0]);
+        let b = F8([0.0, 0.0, -1.5, 4.0, -1e30, 3.0, 2.0, f32::INFINITY]);
+        let check = |r: F8, f: &dyn Fn(f32, f32) -> f32| {
+            for i in 0..LANES {
+                assert_eq!(r.0[i].to_bits(), f(a.0[i], b.0[i]).to_bits(), "lane {i}");
+            }
+        };
+        check(a + b, &|x, y| x + y);
+        check(a * b, &|x, y| x * y);
+        check(a.min(b), &|x, y| Real::min(x, y));
+        check(a.max(b), &|x, y| Real::max(x, y));
+        check(a.abs().sqrt(), &|x, _| x.abs().sqrt());
+    }
+
+    #[test]
+    fn a_constant_pack_has_a_value() {
+        assert_eq!(F8::splat(0.5).val(), 0.5);
+        let mixed = F8([0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]);
+        assert!(std::panic::catch_unwind(|| mixed.val()).is_err());
+    }
+}
