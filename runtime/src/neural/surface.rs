@@ -418,6 +418,7 @@ impl SurfaceObjective {
         ) {
             if self.spec.fine > 0 {
                 coarse.fixed(chunk.len(), t.len(), |_| &t, last);
+                view.evaluated += coarse.t.len();
                 self.upsample(
                     params,
                     b,
