@@ -921,10 +921,10 @@ mod tests {
         assert!(p.log_x && p.log_y);
     }
 
-    #[test]
-    fn points_are_labelled_with_their_settings() {
-        let s = Series::labelled(
-            "held-out PSNR",
+    /// A β sweep's held-out PSNR against seconds, each point labelled.
+    fn beta_sweep(name: &str) -> Series {
+        Series::labelled(
+            name,
             [
                 (100.1, 25.07, "beta=0.02"),
                 (91.0, 36.41, "beta=0.05"),
@@ -932,7 +932,12 @@ mod tests {
                 (78.5, 35.21, "beta=0.2"),
             ]
             .map(|(x, y, l)| (x, y, l.to_string())),
-        );
+        )
+    }
+
+    #[test]
+    fn points_are_labelled_with_their_settings() {
+        let s = beta_sweep("held-out PSNR");
         let c = Chart {
             title: "sweep".into(),
             x: Axis::new("time per run (s)"),
@@ -1133,16 +1138,7 @@ mod tests {
             .collect();
         let p = render(&chart(vec![Series::new("loss", loss)]), 512, 320).unwrap();
         std::fs::write(dir.join("plot_loss.png"), p.png().unwrap()).unwrap();
-        let sweep = Series::labelled(
-            "",
-            [
-                (100.1, 25.07, "beta=0.02"),
-                (91.0, 36.41, "beta=0.05"),
-                (79.2, 35.76, "beta=0.1"),
-                (78.5, 35.21, "beta=0.2"),
-            ]
-            .map(|(x, y, l)| (x, y, l.to_string())),
-        );
+        let sweep = beta_sweep("");
         let c = Chart {
             title: "Sweep of beta: held-out PSNR against time".into(),
             x: Axis::new("time per run (s)"),

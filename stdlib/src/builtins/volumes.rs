@@ -1,0 +1,184 @@
+//! Volumes: an SDF (a shape or a neural SDF) seen through a density
+//! model, `sdf_volume`, `volsdf` and `neus`.
+
+use super::*;
+
+pub(super) fn volume_fn(
+    name: &'static str,
+    doc: &'static str,
+    density: DensityKind,
+    alpha_default: &'static str,
+) -> Builtin {
+    let eval: EvalFn = match density {
+        DensityKind::Opacity => |a| field(a, DensityKind::Opacity),
+        DensityKind::VolSdf => |a| field(a, DensityKind::VolSdf),
+        DensityKind::Neus => |a| field(a, DensityKind::Neus),
+    };
+    func(
+        name,
+        doc,
+        vec![
+            req("shape", Type::OneOf(vec![SHAPE, FIELD]), "the signed distance function: a shape, or a `neural_sdf(...)` to train from images"),
+            opt("alpha", Type::Number, alpha_default, "density scale (> 0)"),
+            opt(
+                "beta",
+                Type::Number,
+                "0.05",
+                "sharpness: the Laplace/logistic scale (> 0; smaller is sharper)",
+            ),
+            opt(
+                "color",
+                Type::OneOf(vec![MATERIAL, Type::Vec3]),
+                "rainbow()",
+                "colour of the volume (rainbow or constant); a neural SDF's colour is learnt",
+            ),
+            opt("view_dependent", Type::Bool, "true", "a neural SDF's colour network sees the view direction"),
+            opt("background", Type::Vec3, "[0, 0, 0]", "a neural SDF's volume: colour seen where it is not opaque"),
+            opt("fine", Type::Number, "0", "a neural SDF's volume: samples per ray added where the surface is, placed by inverse CDF on the weights of a distance-only pass over the stratified samples (0: none)"),
+        ],
+        FIELD,
+        eval,
+    )
+}
+
+/// A neural SDF as a volume with a learnt colour.
+fn neural_surface(a: &Args, density: DensityKind, sdf: &NeuralSdf) -> Result<Value, Diag> {
+    let given = |name: &str| a.get(name).1 != a.span;
+    if given("color") {
+        return Err(value_error(
+            a.get("color").1,
+            "a neural SDF's colour is learnt from the images",
+            "not used by a neural SDF",
+            "leave `color` out",
+        ));
+    }
+    if density == DensityKind::Neus && given("alpha") {
+        return Err(value_error(
+            a.get("alpha").1,
+            "a neural SDF's NeuS volume has no `alpha`",
+            "not used",
+            "leave `alpha` out: NeuS's opacity across a surface comes from the SDF and `beta` alone",
+        ));
+    }
+    if matches!(a.get("alpha").0, Value::Param(_)) {
+        return Err(value_error(
+            a.get("alpha").1,
+            "`alpha` of a neural SDF's volume is fixed while its network trains",
+            "cannot be a `param` here",
+            "give `alpha` a number; `beta` can be a `param`",
+        ));
+    }
+    let alpha = a.positive("alpha")?;
+    // A trainable β starts at the param's value.
+    let (beta, train_beta) = match a.get("beta").0 {
+        Value::Param(_) => (a.scalar_arg("beta", Bound::AtLeast(MIN_BETA))?.value, true),
+        _ => (a.positive("beta")?, false),
+    };
+    crate::precision::beta(beta, a.get("beta").1)?;
+    Ok(Value::Field(Arc::new(Field::NeuralSurface(
+        NeuralSurface {
+            sdf: sdf.clone(),
+            density,
+            alpha,
+            beta,
+            train_beta,
+            color_layers: 2,
+            color_width: 64,
+            color_freqs: 4,
+            view_dependent: matches!(a.get("view_dependent").0, Value::Bool(true)),
+            background: a.vec3("background")?.to_array(),
+            fine: a.count("fine", 0, MAX_SAMPLES)? as usize,
+        },
+    ))))
+}
+
+fn field(a: &Args, density: DensityKind) -> Result<Value, Diag> {
+    if let Value::Field(f) = a.get("shape").0 {
+        return match &**f {
+            Field::NeuralSdf(n) if density != DensityKind::Opacity => neural_surface(a, density, n),
+            _ => Err(value_error(
+                a.get("shape").1,
+                "this field is not a distance function",
+                "not a shape or a `neural_sdf(...)`",
+                if density == DensityKind::Opacity {
+                    "the opacity form takes shapes; train a neural SDF from images with `volsdf` or `neus`"
+                } else {
+                    "give a shape or a `neural_sdf(...)`"
+                },
+            )),
+        };
+    }
+    let given = |name: &str| a.get(name).1 != a.span;
+    if let Some(name) = ["view_dependent", "background", "fine"]
+        .into_iter()
+        .find(|n| given(n))
+    {
+        return Err(value_error(
+            a.get(name).1,
+            format!("`{name}` applies to a neural SDF's volume only"),
+            "ignored for a shape",
+            format!("leave `{name}` out, or give a `neural_sdf(...)`"),
+        ));
+    }
+    // α is an opacity (at most 1) in the assignment's form, a density scale
+    // otherwise; trained values stay in range.
+    let alpha_bound = match density {
+        DensityKind::Opacity => Bound::Within(1e-6, 1.0),
+        DensityKind::VolSdf | DensityKind::Neus => Bound::AtLeast(1e-6),
+    };
+    let alpha = a.scalar_arg("alpha", Bound::AtLeast(1e-6))?;
+    if density == DensityKind::Opacity && alpha.value > 1.0 {
+        return Err(value_error(
+            a.get("alpha").1,
+            format!(
+                "`alpha` is an opacity here and must be at most 1, got {}",
+                alpha.value
+            ),
+            "above 1",
+            "use `volsdf` for a density scale above 1",
+        ));
+    }
+    let alpha = Arg {
+        param: alpha.param.map(|u| ParamUse {
+            bound: alpha_bound,
+            ..u
+        }),
+        ..alpha
+    };
+    let color = a.material("color")?;
+    let shape = a.shape("shape")?;
+    if paints_with_normals(&shape) {
+        return Err(value_error(
+            a.get("shape").1,
+            "a volume's shape cannot be painted with a material that needs normals",
+            "painted with `lambert` or `normals`",
+            "paint volume parts with `rainbow()` or a constant colour",
+        ));
+    }
+    if color.needs_normal() {
+        return Err(value_error(
+            a.get("color").1,
+            "volume colours cannot use normals",
+            "needs a normal",
+            "use `rainbow()` or a constant colour",
+        ));
+    }
+    Ok(Value::Field(Arc::new(Field::Sdf(SdfField {
+        shape,
+        density,
+        alpha,
+        beta: {
+            let b = a.scalar_arg("beta", Bound::AtLeast(MIN_BETA))?;
+            beta(b.value, a.get("beta").1)?;
+            b
+        },
+        color,
+    }))))
+}
+
+/// Whether any `paint` in the tree uses a material that needs normals
+/// (volumes have none to give).
+fn paints_with_normals(s: &Shape) -> bool {
+    matches!(s, Shape::Paint(_, m) if m.needs_normal())
+        || s.children().into_iter().any(|c| paints_with_normals(c))
+}
