@@ -8,7 +8,7 @@
 //! without packed unions, the evaluator before issue 10), and the same expression evaluated by
 //! the fidget crate's JIT in the same run; it prints a Markdown table.
 //! `cargo run --release -p sdfl-bench -- train` times training steps instead
-//! (see `train.rs`); `-- nerf` times NeRF steps and `-- neural-sdf` neural SDF steps (see `nerf.rs`).
+//! (see `train.rs`; `-- train 20 fused` the fused kernel only); `-- nerf` times NeRF steps and `-- neural-sdf` neural SDF steps (see `nerf.rs`).
 
 use std::time::Instant;
 
@@ -125,7 +125,8 @@ fn main() {
             .nth(2)
             .and_then(|r| r.parse().ok())
             .unwrap_or(20);
-        return train::main(reps);
+        let only_fused = std::env::args().nth(3).as_deref() == Some("fused");
+        return train::main(reps, only_fused);
     }
     if std::env::args().nth(1).as_deref() == Some("nerf") {
         let reps = std::env::args()

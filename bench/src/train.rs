@@ -96,12 +96,17 @@ fn time_forward(name: &str, src: &str, reps: usize) -> (f64, f64) {
     })
 }
 
-pub fn main(reps: usize) {
+/// `only_fused`: skip the dfdx backend and the forward-only rows (for
+/// profiling the fused kernel).
+pub fn main(reps: usize, only_fused: bool) {
     let all = rayon::current_num_threads();
     println!("| fit | backend | threads | step ms (median) | step ms (min) |");
     println!("|---|---|---:|---:|---:|");
     for (name, src) in [("box", BOX), ("torus", TORUS)] {
         for threads in [1, all] {
+            if only_fused {
+                break;
+            }
             let pool = rayon::ThreadPoolBuilder::new()
                 .num_threads(threads)
                 .build()
@@ -110,6 +115,9 @@ pub fn main(reps: usize) {
             println!("| {name} | forward only | {threads} | {med:.2} | {min:.2} |");
         }
         for backend in [Backend::Fused, Backend::Dfdx] {
+            if only_fused && backend != Backend::Fused {
+                continue;
+            }
             for threads in [1, all] {
                 let pool = rayon::ThreadPoolBuilder::new()
                     .num_threads(threads)

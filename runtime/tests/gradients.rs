@@ -6,7 +6,7 @@
 //! must give finite values and gradients.
 
 use sdfl_lang::SourceFile;
-use sdfl_runtime::train::fused::{field_at, loss_and_grad, Batch};
+use sdfl_runtime::train::fused::{field_at, loss_and_grad, loss_and_grad_f32, Batch};
 use sdfl_runtime::train::TrainModel;
 use sdfl_runtime::volume::{camera_rays, ImageSize, Stratified};
 use sdfl_stdlib::camera::Camera;
@@ -118,6 +118,35 @@ fn every_parameter_gradient_matches_finite_differences() {
             "{name}: all gradients are 0"
         );
     }
+}
+
+/// The training path (fields in lanes of samples where their definition has
+/// no branch on the point) gives the scalar kernel's result to the bit, for
+/// every case, on straight-on and grazing views, both last intervals.
+#[test]
+fn lane_kernel_is_the_scalar_kernel_to_the_bit() {
+    let mut in_lanes = 0;
+    for (eye, last) in [
+        ([0.3, 0.4, -3.0], LastInterval::Zero),
+        ([2.9, 0.05, -0.4], LastInterval::Infinite),
+    ] {
+        let b = batch(eye, last);
+        for (name, src) in CASES {
+            let m = model(src);
+            in_lanes += m.field.shape.branch_free() as usize;
+            let v: Vec<f32> = m.initial_values().iter().map(|&x| x as f32).collect();
+            let (lanes, scalar) = (
+                loss_and_grad_f32(&m, &v, &b, 1.0),
+                loss_and_grad::<f32>(&m, &v, &b, 1.0),
+            );
+            assert_eq!(lanes.loss.to_bits(), scalar.loss.to_bits(), "{name}");
+            for (x, y) in lanes.grad.iter().zip(&scalar.grad) {
+                assert_eq!(x.to_bits(), y.to_bits(), "{name}: {x} vs {y}");
+            }
+        }
+    }
+    // Most primitives and transforms take the lane path.
+    assert!(in_lanes >= 2 * 15, "{in_lanes} cases in lanes");
 }
 
 #[test]

@@ -37,6 +37,11 @@ pub trait Real:
     fn max(self, o: Self) -> Self;
     /// The smaller of the two (the first on ties).
     fn min(self, o: Self) -> Self;
+    /// `then` where `a > b`, else `otherwise` (NaN compares false). A
+    /// select, not a branch: lane types choose lane by lane, so formulas
+    /// built on it (the derivatives of `max`, `min`, `abs`, `sqrt`) run on
+    /// packs of points whose lanes disagree.
+    fn if_gt(a: Self, b: Self, then: Self, otherwise: Self) -> Self;
     #[inline(always)]
     fn clamp(self, lo: f64, hi: f64) -> Self {
         self.max(Self::lit(lo)).min(Self::lit(hi))
@@ -108,6 +113,14 @@ macro_rules! real_float {
                     o
                 } else {
                     self
+                }
+            }
+            #[inline(always)]
+            fn if_gt(a: Self, b: Self, then: Self, otherwise: Self) -> Self {
+                if a > b {
+                    then
+                } else {
+                    otherwise
                 }
             }
         }
@@ -224,20 +237,12 @@ impl<F: Real, const N: usize> Real for Dual<F, N> {
         let s = self.v.sqrt();
         // The subgradient 0 at 0 (e.g. the outside length of a box at a
         // point inside it): finite, and exact where the value stays 0.
-        let df = if s.val() > 0.0 {
-            F::lit(0.5) / s
-        } else {
-            F::zero()
-        };
+        let df = F::if_gt(s, F::zero(), F::lit(0.5) / s, F::zero());
         self.chain(s, df)
     }
     #[inline(always)]
     fn abs(self) -> Self {
-        if self.v.val() < 0.0 {
-            -self
-        } else {
-            self
-        }
+        Self::if_gt(Self::zero(), self, -self, self)
     }
     #[inline(always)]
     fn exp(self) -> Self {
@@ -266,18 +271,22 @@ impl<F: Real, const N: usize> Real for Dual<F, N> {
     }
     #[inline(always)]
     fn max(self, o: Self) -> Self {
-        if o.v.val() > self.v.val() {
-            o
-        } else {
-            self
-        }
+        Self::if_gt(o, self, o, self)
     }
     #[inline(always)]
     fn min(self, o: Self) -> Self {
-        if o.v.val() < self.v.val() {
-            o
-        } else {
-            self
+        Self::if_gt(self, o, o, self)
+    }
+    /// Selects value and tangents together, by the values.
+    #[inline(always)]
+    fn if_gt(a: Self, b: Self, then: Self, otherwise: Self) -> Self {
+        let mut d = otherwise.d;
+        for i in 0..N {
+            d[i] = F::if_gt(a.v, b.v, then.d[i], d[i]);
+        }
+        Dual {
+            v: F::if_gt(a.v, b.v, then.v, otherwise.v),
+            d,
         }
     }
 }
@@ -321,12 +330,12 @@ impl<T: Real> V3<T> {
     }
     #[inline(always)]
     pub fn abs(self) -> Self {
-        self.map(T::abs)
+        V3::new(self.x.abs(), self.y.abs(), self.z.abs())
     }
     /// Componentwise `max(v, s)`.
     #[inline(always)]
     pub fn max_s(self, s: T) -> Self {
-        self.map(|v| v.max(s))
+        V3::new(self.x.max(s), self.y.max(s), self.z.max(s))
     }
     #[inline(always)]
     pub fn max_element(self) -> T {
@@ -354,32 +363,34 @@ impl<T: Real> V3<T> {
     }
 }
 
+// The operators spell out their components (no closures): with wide lane
+// or dual types LLVM would otherwise leave the closures as calls.
 impl<T: Real> Add for V3<T> {
     type Output = Self;
     #[inline(always)]
     fn add(self, o: Self) -> Self {
-        self.zip(o, |a, b| a + b)
+        V3::new(self.x + o.x, self.y + o.y, self.z + o.z)
     }
 }
 impl<T: Real> Sub for V3<T> {
     type Output = Self;
     #[inline(always)]
     fn sub(self, o: Self) -> Self {
-        self.zip(o, |a, b| a - b)
+        V3::new(self.x - o.x, self.y - o.y, self.z - o.z)
     }
 }
 impl<T: Real> Mul<T> for V3<T> {
     type Output = Self;
     #[inline(always)]
     fn mul(self, s: T) -> Self {
-        self.map(|a| a * s)
+        V3::new(self.x * s, self.y * s, self.z * s)
     }
 }
 impl<T: Real> Neg for V3<T> {
     type Output = Self;
     #[inline(always)]
     fn neg(self) -> Self {
-        self.map(|a| -a)
+        V3::new(-self.x, -self.y, -self.z)
     }
 }
 

@@ -205,6 +205,16 @@ impl Real for F8 {
     fn min(self, o: Self) -> Self {
         self.zip(o, <f32 as Real>::min)
     }
+    #[inline(always)]
+    fn if_gt(a: Self, b: Self, then: Self, otherwise: Self) -> Self {
+        let mut r = otherwise.0;
+        for i in 0..LANES {
+            if a.0[i] > b.0[i] {
+                r[i] = then.0[i];
+            }
+        }
+        F8(r)
+    }
 }
 
 #[cfg(test)]

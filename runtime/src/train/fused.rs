@@ -12,9 +12,11 @@
 
 use rayon::prelude::*;
 use sdfl_stdlib::num::{Dual, Real, V3};
-use sdfl_stdlib::value::LastInterval;
+use sdfl_stdlib::shape::ArgSource;
+use sdfl_stdlib::value::{DensityKind, LastInterval};
 
 use super::model::TrainModel;
+use crate::sdf::lanes::{F8, LANES};
 use crate::volume::march::{absorption, intervals_into, log_keep, march, Depths, RayColour};
 use crate::volume::Ray;
 
@@ -80,16 +82,65 @@ pub fn field_at<T: Real, A: sdfl_stdlib::shape::ArgSource<T>>(
 /// below f32's resolution of the sum).
 const NEGLIGIBLE: f64 = 1e-7;
 
-/// One sample of the plain pass: its colour, absorption, and the
-/// derivatives of its opacity and `ln(1 − opacity)` with respect to (sdf,
-/// α, β).
-#[derive(Debug, Clone, Copy)]
-struct PlainSample<F> {
-    colour: [F; 3],
-    opacity: F,
-    trans: F,
-    d_opacity: [F; 3],
-    d_log_keep: [F; 3],
+/// The plain pass's samples, a column per quantity (so a pack of lanes is
+/// stored with whole-vector copies): each sample's colour (3), opacity,
+/// the transmittance before it, and the derivatives of its opacity (3) and
+/// of `ln(1 − opacity)` (3) with respect to (sdf, α, β).
+#[derive(Debug, Clone)]
+struct PlainSamples<F> {
+    /// `COLUMNS` columns of `cap` values each.
+    data: Vec<F>,
+    cap: usize,
+    len: usize,
+}
+
+const COLUMNS: usize = 11;
+const OPACITY: usize = 3;
+const TRANS: usize = 4;
+const D_OPACITY: usize = 5;
+const D_LOG_KEEP: usize = 8;
+
+impl<F: Real> PlainSamples<F> {
+    /// Room for `samples` samples (and a pack's spill past them).
+    fn new(samples: usize) -> Self {
+        let cap = samples + LANES;
+        PlainSamples {
+            data: vec![F::zero(); COLUMNS * cap],
+            cap,
+            len: 0,
+        }
+    }
+    fn clear(&mut self) {
+        self.len = 0;
+    }
+    fn len(&self) -> usize {
+        self.len
+    }
+    fn column(&self, c: usize) -> &[F] {
+        &self.data[c * self.cap..c * self.cap + self.len]
+    }
+    fn push(&mut self, values: [F; COLUMNS]) {
+        debug_assert!(self.len < self.cap, "more samples than the batch has");
+        for (c, v) in values.into_iter().enumerate() {
+            self.data[c * self.cap + self.len] = v;
+        }
+        self.len += 1;
+    }
+}
+
+impl PlainSamples<f32> {
+    /// Stores the first `kept` lanes of a pack of samples.
+    fn push_lanes(&mut self, lanes: [F8; COLUMNS], kept: usize) {
+        debug_assert!(
+            self.len + LANES <= self.cap,
+            "more samples than the batch has"
+        );
+        for (c, v) in lanes.into_iter().enumerate() {
+            let at = c * self.cap + self.len;
+            self.data[at..at + LANES].copy_from_slice(&v.0);
+        }
+        self.len += kept;
+    }
 }
 
 /// What one ray gives: its loss, the gradient chunk through the field, and
@@ -101,13 +152,194 @@ struct RayGrad<F, const N: usize> {
     beta: F,
 }
 
+/// The plain pass's state along one ray.
+struct PlainMarch<F: Real> {
+    alpha: Dual<F, 3>,
+    inv_beta: Dual<F, 3>,
+    trans: F,
+    colour: [F; 3],
+}
+
+impl<F: Real> PlainMarch<F> {
+    fn new(model: &TrainModel, values: &[F]) -> Self {
+        let f = &model.field;
+        let flat = model.plain(values);
+        PlainMarch {
+            alpha: Dual::seed(flat.scalar(&f.alpha).v, 1),
+            inv_beta: Dual::<F, 3>::one() / Dual::seed(flat.scalar(&f.beta).v, 2),
+            trans: F::one(),
+            colour: [F::zero(); 3],
+        }
+    }
+
+    /// Whether the ray is spent (every later weight and derivative is 0).
+    #[inline(always)]
+    fn spent(&self) -> bool {
+        self.trans.val() == 0.0
+    }
+
+    /// Composites one sample of distance `sdf` and colour `c` over interval
+    /// `dk`, keeping what the reverse sweep needs.
+    #[inline(always)]
+    fn add(&mut self, kind: DensityKind, sdf: F, c: [F; 3], dk: f32, plain: &mut PlainSamples<F>) {
+        let sdf = Dual::<F, 3>::seed(sdf, 0);
+        let dk = Dual::lit(dk as f64);
+        let a = absorption(kind, sdf, self.alpha, self.inv_beta, dk);
+        let lk = log_keep(kind, sdf, self.alpha, self.inv_beta, dk);
+        for i in 0..3 {
+            self.colour[i] = self.colour[i] + self.trans * a.opacity.v * c[i];
+        }
+        let values = [
+            c[0],
+            c[1],
+            c[2],
+            a.opacity.v,
+            self.trans,
+            a.opacity.d[0],
+            a.opacity.d[1],
+            a.opacity.d[2],
+            lk.d[0],
+            lk.d[1],
+            lk.d[2],
+        ];
+        plain.push(values);
+        self.trans = self.trans * a.keep.v;
+    }
+}
+
+impl PlainMarch<f32> {
+    /// [`PlainMarch::add`] for up to [`LANES`] consecutive samples: the
+    /// absorption in lanes (the same formula, lane by lane), the compositing
+    /// in order. Stops, returning true, where the ray is spent.
+    #[inline(always)]
+    fn add_pack(
+        &mut self,
+        kind: DensityKind,
+        sdf: F8,
+        c: [F8; 3],
+        dk: &[f32],
+        plain: &mut PlainSamples<f32>,
+    ) -> bool {
+        let mut d = [dk[dk.len() - 1]; LANES];
+        d[..dk.len()].copy_from_slice(dk);
+        let splat = |x: Dual<f32, 3>| Dual::<F8, 3> {
+            v: F8::splat(x.v),
+            d: x.d.map(F8::splat),
+        };
+        let sdf = Dual::<F8, 3>::seed(sdf, 0);
+        let (alpha, inv_beta, dk8) = (
+            splat(self.alpha),
+            splat(self.inv_beta),
+            Dual::constant(F8(d)),
+        );
+        let a = absorption(kind, sdf, alpha, inv_beta, dk8);
+        let lk = log_keep(kind, sdf, alpha, inv_beta, dk8);
+        let mut trans = [0.0f32; LANES];
+        let mut kept = 0;
+        while kept < dk.len() && !self.spent() {
+            let (j, opacity) = (kept, a.opacity.v.0[kept]);
+            for i in 0..3 {
+                self.colour[i] += self.trans * opacity * c[i].0[j];
+            }
+            trans[j] = self.trans;
+            self.trans *= a.keep.v.0[j];
+            kept += 1;
+        }
+        let lanes = [
+            c[0],
+            c[1],
+            c[2],
+            a.opacity.v,
+            F8(trans),
+            a.opacity.d[0],
+            a.opacity.d[1],
+            a.opacity.d[2],
+            lk.d[0],
+            lk.d[1],
+            lk.d[2],
+        ];
+        plain.push_lanes(lanes, kept);
+        if kept < dk.len() {
+            return true;
+        }
+        false
+    }
+}
+
+/// The loss of a ray's colour and the reverse sweep of its compositing:
+/// fills `adjoint` (each sample's sdf and colour) and returns (loss, ∂L/∂α,
+/// ∂L/∂β, the largest adjoint). `∂L/∂ln(1 − o_k)` is the suffix sum
+/// `Σ_{j>k} (g·c_j)·w_j`, so an opaque sample needs no division.
+fn reverse_sweep<F: Real>(
+    colour: [F; 3],
+    target: [f32; 3],
+    scale: F,
+    plain: &PlainSamples<F>,
+    adjoint: &mut Vec<(F, [F; 3])>,
+) -> (F, F, F, f64) {
+    let mut loss = F::zero();
+    let mut g = [F::zero(); 3];
+    for i in 0..3 {
+        let e = colour[i] - F::lit(target[i] as f64);
+        loss = loss + e * e * scale;
+        g[i] = F::lit(2.0) * e * scale;
+    }
+    adjoint.clear();
+    adjoint.resize(plain.len(), (F::zero(), [F::zero(); 3]));
+    let (mut d_alpha, mut d_beta) = (F::zero(), F::zero());
+    let mut suffix = F::zero();
+    let mut largest = 0.0f64;
+    let n = plain.len();
+    let col = |c: usize| plain.column(c);
+    let (c, o, tr) = ([col(0), col(1), col(2)], col(OPACITY), col(TRANS));
+    let dop = [col(D_OPACITY), col(D_OPACITY + 1), col(D_OPACITY + 2)];
+    let dlk = [col(D_LOG_KEEP), col(D_LOG_KEEP + 1), col(D_LOG_KEEP + 2)];
+    for k in (0..n).rev() {
+        let gc = g[0] * c[0][k] + g[1] * c[1][k] + g[2] * c[2][k];
+        let w = tr[k] * o[k];
+        let d_opacity = tr[k] * gc;
+        // One add a sample on each running sum.
+        d_alpha = d_alpha + (d_opacity * dop[1][k] + suffix * dlk[1][k]);
+        d_beta = d_beta + (d_opacity * dop[2][k] + suffix * dlk[2][k]);
+        let d_sdf = d_opacity * dop[0][k] + suffix * dlk[0][k];
+        let d_colour = g.map(|x| x * w);
+        largest = largest.max(adjoint_size(d_sdf, d_colour));
+        adjoint[k] = (d_sdf, d_colour);
+        suffix = suffix + gc * w;
+    }
+    (loss, d_alpha, d_beta, largest)
+}
+
+/// In f64, so that finite adjoints never sum to infinity.
+#[inline(always)]
+fn adjoint_size<F: Real>(d_sdf: F, d_colour: [F; 3]) -> f64 {
+    d_sdf.val().abs() + d_colour.iter().map(|x| x.val().abs()).sum::<f64>()
+}
+
+/// `field + adjoint · tangents` of one sample, in the one order both
+/// paths use (so they agree to the bit).
+#[inline(always)]
+fn add_tangents<F: Real, const N: usize>(
+    field: &mut [F; N],
+    (d_sdf, d_colour): (F, [F; 3]),
+    sdf: impl Fn(usize) -> F,
+    c: impl Fn(usize, usize) -> F,
+) {
+    for i in 0..N {
+        field[i] = field[i]
+            + d_sdf * sdf(i)
+            + d_colour[0] * c(0, i)
+            + d_colour[1] * c(1, i)
+            + d_colour[2] * c(2, i);
+    }
+}
+
 /// One ray's squared error times `scale` and its gradient, in three passes:
 ///
 /// 1. plain: the field at every sample up to where the ray is spent, and
 ///    the absorption with derivatives in (sdf, α, β) only;
 /// 2. a reverse sweep of the compositing in scalars: the adjoint of each
-///    sample's sdf and colour, and of α and β (`∂L/∂ln(1 − o_k)` is the
-///    suffix sum `Σ_{j>k} (g·c_j)·w_j`, so an opaque sample needs no division);
+///    sample's sdf and colour, and of α and β;
 /// 3. forward-mode tangents through the field only, at the samples whose
 ///    adjoints matter, dotted with those adjoints.
 #[allow(clippy::too_many_arguments)]
@@ -120,105 +352,201 @@ fn ray_grad<F: Real, const N: usize>(
     delta: &[f32],
     target: [f32; 3],
     scale: F,
-    plain: &mut Vec<PlainSample<F>>,
+    plain: &mut PlainSamples<F>,
     adjoint: &mut Vec<(F, [F; 3])>,
 ) -> RayGrad<F, N> {
     let f = &model.field;
     let (origin, dir) = (ray.origin.map(f64::from), ray.dir.map(f64::from));
     let flat = model.plain(values);
     let (o, d) = (V3::lit(origin), V3::lit(dir));
-    let alpha = Dual::<F, 3>::seed(flat.scalar(&f.alpha).v, 1);
-    let inv_beta = Dual::<F, 3>::one() / Dual::seed(flat.scalar(&f.beta).v, 2);
+    let mut m = PlainMarch::new(model, values);
     plain.clear();
-    let mut trans = F::one();
-    let mut colour = [F::zero(); 3];
     for (&tk, &dk) in t.iter().zip(delta) {
-        if trans.val() == 0.0 {
+        if m.spent() {
             break;
         }
         let (sdf, c) = field_at(model, &flat, o + d * Dual::lit(tk as f64));
-        let sdf = Dual::<F, 3>::seed(sdf.v, 0);
-        let dk = Dual::lit(dk as f64);
-        let a = absorption(f.density, sdf, alpha, inv_beta, dk);
-        let lk = log_keep(f.density, sdf, alpha, inv_beta, dk);
-        let c = [c.x.v, c.y.v, c.z.v];
-        for i in 0..3 {
-            colour[i] = colour[i] + trans * a.opacity.v * c[i];
-        }
-        plain.push(PlainSample {
-            colour: c,
-            opacity: a.opacity.v,
-            trans,
-            d_opacity: a.opacity.d,
-            d_log_keep: lk.d,
-        });
-        trans = trans * a.keep.v;
+        m.add(f.density, sdf.v, [c.x.v, c.y.v, c.z.v], dk, plain);
     }
-    let mut loss = F::zero();
-    let mut g = [F::zero(); 3];
-    for i in 0..3 {
-        let e = colour[i] - F::lit(target[i] as f64);
-        loss = loss + e * e * scale;
-        g[i] = F::lit(2.0) * e * scale;
-    }
-    // The reverse sweep.
-    adjoint.clear();
-    adjoint.resize(plain.len(), (F::zero(), [F::zero(); 3]));
-    let (mut d_alpha, mut d_beta) = (F::zero(), F::zero());
-    let mut suffix = F::zero();
-    let mut largest = 0.0f64;
-    for (k, s) in plain.iter().enumerate().rev() {
-        let gc = g[0] * s.colour[0] + g[1] * s.colour[1] + g[2] * s.colour[2];
-        let w = s.trans * s.opacity;
-        let d_opacity = s.trans * gc;
-        d_alpha = d_alpha + d_opacity * s.d_opacity[1] + suffix * s.d_log_keep[1];
-        d_beta = d_beta + d_opacity * s.d_opacity[2] + suffix * s.d_log_keep[2];
-        let d_sdf = d_opacity * s.d_opacity[0] + suffix * s.d_log_keep[0];
-        let d_colour = g.map(|x| x * w);
-        largest =
-            largest.max(d_sdf.val().abs() + d_colour.iter().map(|x| x.val().abs()).sum::<f64>());
-        adjoint[k] = (d_sdf, d_colour);
-        suffix = suffix + gc * w;
-    }
-    // Tangents through the field where the adjoints matter.
+    let (loss, alpha, beta, largest) = reverse_sweep(m.colour, target, scale, plain, adjoint);
     let mut field = [F::zero(); N];
     if N > 0 && largest > 0.0 {
         let args = model.args::<F, N>(values, first);
         let (o, d) = (V3::<Dual<F, N>>::lit(origin), V3::<Dual<F, N>>::lit(dir));
-        for (k, &(d_sdf, d_colour)) in adjoint.iter().enumerate() {
-            let size = d_sdf.val().abs() + d_colour.iter().map(|x| x.val().abs()).sum::<f64>();
-            if size <= NEGLIGIBLE * largest {
+        for (k, &adj) in adjoint.iter().enumerate() {
+            if adjoint_size(adj.0, adj.1) <= NEGLIGIBLE * largest {
                 continue;
             }
             let (sdf, c) = field_at(model, &args, o + d * Dual::lit(t[k] as f64));
-            for i in 0..N {
-                field[i] = field[i]
-                    + d_sdf * sdf.d[i]
-                    + d_colour[0] * c.x.d[i]
-                    + d_colour[1] * c.y.d[i]
-                    + d_colour[2] * c.z.d[i];
-            }
+            let c = [c.x, c.y, c.z];
+            add_tangents(&mut field, adj, |i| sdf.d[i], |j, i| c[j].d[i]);
         }
     }
     RayGrad {
         loss,
         field,
-        alpha: d_alpha,
-        beta: d_beta,
+        alpha,
+        beta,
     }
 }
 
-use sdfl_stdlib::shape::ArgSource;
+/// [`ray_grad`] in f32 with the field evaluated on packs of [`LANES`]
+/// samples (a field whose [`branch_free`](sdfl_stdlib::shape::Shape::branch_free) holds): every lane is the
+/// scalar operation, and the sums run in the same order, so the result is
+/// [`ray_grad`]'s to the bit.
+#[allow(clippy::too_many_arguments)]
+fn ray_grad_lanes<const N: usize>(
+    model: &TrainModel,
+    values: &[f32],
+    lanes: &[F8],
+    first: usize,
+    ray: &Ray,
+    t: &[f32],
+    delta: &[f32],
+    target: [f32; 3],
+    scale: f32,
+    plain: &mut PlainSamples<f32>,
+    adjoint: &mut Vec<(f32, [f32; 3])>,
+) -> RayGrad<f32, N> {
+    let f = &model.field;
+    let (origin, dir) = (ray.origin.map(f64::from), ray.dir.map(f64::from));
+    // Depths of up to LANES samples, the missing lanes repeating the last.
+    let pack = |ks: &[usize]| {
+        let mut x = [t[ks[ks.len() - 1]]; LANES];
+        for (x, &k) in x.iter_mut().zip(ks) {
+            *x = t[k];
+        }
+        F8(x)
+    };
+    let flat = model.plain(lanes);
+    let (o, d) = (V3::lit(origin), V3::lit(dir));
+    let mut m = PlainMarch::new(model, values);
+    plain.clear();
+    let mut ks = [0usize; LANES];
+    for k0 in (0..t.len()).step_by(LANES) {
+        if m.spent() {
+            break;
+        }
+        let n = (t.len() - k0).min(LANES);
+        for (j, k) in ks[..n].iter_mut().enumerate() {
+            *k = k0 + j;
+        }
+        let (sdf, c) = field_at(model, &flat, o + d * Dual::constant(pack(&ks[..n])));
+        let c = [c.x.v, c.y.v, c.z.v];
+        if m.add_pack(f.density, sdf.v, c, &delta[k0..k0 + n], plain) {
+            break;
+        }
+    }
+    let (loss, alpha, beta, largest) = reverse_sweep(m.colour, target, scale, plain, adjoint);
+    let mut field = [0.0f32; N];
+    if N > 0 && largest > 0.0 {
+        let args = model.args::<F8, N>(lanes, first);
+        let (o, d) = (V3::<Dual<F8, N>>::lit(origin), V3::<Dual<F8, N>>::lit(dir));
+        let eval = |ks: &[usize], field: &mut [f32; N]| {
+            let (sdf, c) = field_at(model, &args, o + d * Dual::constant(pack(ks)));
+            let c = [c.x, c.y, c.z];
+            for (j, &k) in ks.iter().enumerate() {
+                add_tangents(field, adjoint[k], |i| sdf.d[i].0[j], |a, i| c[a].d[i].0[j]);
+            }
+        };
+        let mut n = 0;
+        for (k, adj) in adjoint.iter().enumerate() {
+            if adjoint_size(adj.0, adj.1) > NEGLIGIBLE * largest {
+                ks[n] = k;
+                n += 1;
+                if n == LANES {
+                    eval(&ks, &mut field);
+                    n = 0;
+                }
+            }
+        }
+        if n > 0 {
+            eval(&ks[..n], &mut field);
+        }
+    }
+    RayGrad {
+        loss,
+        field,
+        alpha,
+        beta,
+    }
+}
+
+/// How a pass computes one ray: [`ray_grad`] in any base type, or
+/// [`ray_grad_lanes`] in f32.
+trait RayPath<F: Real>: Sync {
+    #[allow(clippy::too_many_arguments)]
+    fn ray<const N: usize>(
+        &self,
+        model: &TrainModel,
+        values: &[F],
+        first: usize,
+        ray: &Ray,
+        t: &[f32],
+        delta: &[f32],
+        target: [f32; 3],
+        scale: F,
+        plain: &mut PlainSamples<F>,
+        adjoint: &mut Vec<(F, [F; 3])>,
+    ) -> RayGrad<F, N>;
+}
+
+/// One sample at a time.
+struct Scalar;
+
+impl<F: Real> RayPath<F> for Scalar {
+    fn ray<const N: usize>(
+        &self,
+        model: &TrainModel,
+        values: &[F],
+        first: usize,
+        ray: &Ray,
+        t: &[f32],
+        delta: &[f32],
+        target: [f32; 3],
+        scale: F,
+        plain: &mut PlainSamples<F>,
+        adjoint: &mut Vec<(F, [F; 3])>,
+    ) -> RayGrad<F, N> {
+        ray_grad(
+            model, values, first, ray, t, delta, target, scale, plain, adjoint,
+        )
+    }
+}
+
+/// Packs of samples in lanes; the values splatted across the lanes.
+struct Lanes(Vec<F8>);
+
+impl RayPath<f32> for Lanes {
+    fn ray<const N: usize>(
+        &self,
+        model: &TrainModel,
+        values: &[f32],
+        first: usize,
+        ray: &Ray,
+        t: &[f32],
+        delta: &[f32],
+        target: [f32; 3],
+        scale: f32,
+        plain: &mut PlainSamples<f32>,
+        adjoint: &mut Vec<(f32, [f32; 3])>,
+    ) -> RayGrad<f32, N> {
+        ray_grad_lanes(
+            model, values, &self.0, first, ray, t, delta, target, scale, plain, adjoint,
+        )
+    }
+}
 
 /// `N` tangents from scalar `first`: (loss, d loss / d scalar for the `N`
 /// scalars, d loss / d α, d loss / d β) for the batch under MSE with `weight`.
 fn pass<F: Real, const N: usize>(
+    path: &impl RayPath<F>,
     model: &TrainModel,
     values: &[F],
     first: usize,
     batch: &Batch,
     weight: f64,
-) -> (f64, [f64; N], f64, f64) {
+) -> (f64, Vec<f64>, f64, f64) {
     let last = batch.last_interval;
     let scale = F::lit(weight / (3 * batch.rays.len().max(1)) as f64);
     let blocks: Vec<(f64, [f64; N], f64, f64)> = (0..batch.rays.len())
@@ -226,13 +554,13 @@ fn pass<F: Real, const N: usize>(
         .par_chunks(BLOCK)
         .map(|idx| {
             let mut delta = Vec::with_capacity(batch.samples);
-            let mut plain = Vec::with_capacity(batch.samples);
+            let mut plain = PlainSamples::new(batch.samples);
             let mut adjoint = Vec::with_capacity(batch.samples);
             let mut acc = (F::zero(), [F::zero(); N], F::zero(), F::zero());
             for &r in idx {
                 let t = batch.depths_of(r);
                 intervals_into(t, last, &mut delta);
-                let g = ray_grad::<F, N>(
+                let g = path.ray::<N>(
                     model,
                     values,
                     first,
@@ -259,7 +587,7 @@ fn pass<F: Real, const N: usize>(
             )
         })
         .collect();
-    let mut total = (0.0, [0.0; N], 0.0, 0.0);
+    let mut total = (0.0, vec![0.0; N], 0.0, 0.0);
     for (l, g, a, b) in blocks {
         total.0 += l;
         for i in 0..N {
@@ -272,8 +600,35 @@ fn pass<F: Real, const N: usize>(
 }
 
 /// The batch's MSE (times `weight`) and its gradient, in base type `F`
-/// (f32 for training, f64 for reference tests).
+/// (f32 for training, f64 for reference tests), one sample at a time.
 pub fn loss_and_grad<F: Real>(
+    model: &TrainModel,
+    values: &[F],
+    batch: &Batch,
+    weight: f64,
+) -> LossGrad {
+    loss_and_grad_by(&Scalar, model, values, batch, weight)
+}
+
+/// [`loss_and_grad`] in f32, the field evaluated on packs of samples where
+/// its definition allows ([`branch_free`](sdfl_stdlib::shape::Shape::branch_free)): the same result to the
+/// bit, several times faster.
+pub fn loss_and_grad_f32(
+    model: &TrainModel,
+    values: &[f32],
+    batch: &Batch,
+    weight: f64,
+) -> LossGrad {
+    if model.field.shape.branch_free() {
+        let lanes = Lanes(values.iter().map(|&v| F8::splat(v)).collect());
+        loss_and_grad_by(&lanes, model, values, batch, weight)
+    } else {
+        loss_and_grad_by(&Scalar, model, values, batch, weight)
+    }
+}
+
+fn loss_and_grad_by<F: Real>(
+    path: &impl RayPath<F>,
     model: &TrainModel,
     values: &[F],
     batch: &Batch,
@@ -284,14 +639,17 @@ pub fn loss_and_grad<F: Real>(
     let mut loss = 0.0;
     let mut first = 0;
     loop {
+        // Tangents in the fewest lanes that hold the parameters left.
         let (l, g, d_alpha, d_beta) = match p - first {
-            0 => with_n::<F, 0>(model, values, first, batch, weight),
-            1 => with_n::<F, 1>(model, values, first, batch, weight),
-            2 => with_n::<F, 2>(model, values, first, batch, weight),
-            3 | 4 => with_n::<F, 4>(model, values, first, batch, weight),
-            5..=8 => with_n::<F, 8>(model, values, first, batch, weight),
-            9..=12 => with_n::<F, 12>(model, values, first, batch, weight),
-            _ => with_n::<F, CHUNK>(model, values, first, batch, weight),
+            0 => pass::<F, 0>(path, model, values, first, batch, weight),
+            1 => pass::<F, 1>(path, model, values, first, batch, weight),
+            2 => pass::<F, 2>(path, model, values, first, batch, weight),
+            3 => pass::<F, 3>(path, model, values, first, batch, weight),
+            4 => pass::<F, 4>(path, model, values, first, batch, weight),
+            5 | 6 => pass::<F, 6>(path, model, values, first, batch, weight),
+            7 | 8 => pass::<F, 8>(path, model, values, first, batch, weight),
+            9..=12 => pass::<F, 12>(path, model, values, first, batch, weight),
+            _ => pass::<F, CHUNK>(path, model, values, first, batch, weight),
         };
         for (i, gi) in g.into_iter().enumerate() {
             if first + i < p {
@@ -314,17 +672,6 @@ pub fn loss_and_grad<F: Real>(
         }
     }
     LossGrad { loss, grad }
-}
-
-fn with_n<F: Real, const N: usize>(
-    model: &TrainModel,
-    values: &[F],
-    first: usize,
-    batch: &Batch,
-    weight: f64,
-) -> (f64, Vec<f64>, f64, f64) {
-    let (l, g, a, b) = pass::<F, N>(model, values, first, batch, weight);
-    (l, g.to_vec(), a, b)
 }
 
 /// Forward colours (and depths) of rays of the model at `values`: the

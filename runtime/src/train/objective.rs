@@ -6,7 +6,7 @@
 use dfdx::tensor::Cache;
 use sdfl_stdlib::value::Backend;
 
-use super::fused::{loss_and_grad, Batch};
+use super::fused::{loss_and_grad_f32, Batch};
 use super::model::TrainModel;
 use super::TrainError;
 
@@ -103,7 +103,7 @@ impl Objective for FieldObjective<'_> {
         grad: &mut [f32],
     ) -> Result<f64, TrainError> {
         let lg = match self.backend {
-            Backend::Fused => loss_and_grad::<f32>(self.model, values, batch, weight),
+            Backend::Fused => loss_and_grad_f32(self.model, values, batch, weight),
             Backend::Dfdx => {
                 super::graph::loss_and_grad(&self.dev, self.model, values, batch, weight)?
             }

@@ -37,18 +37,14 @@ pub fn absorption<T: Real>(
     match kind {
         DensityKind::Opacity => {
             // o = α·Ψ_β(−sdf); keep = 1 − o, formed so it is exact at α = 1.
+            // Both sides are formed and one selected (lanes of samples
+            // may lie on both).
             let e = (-sdf.abs() * inv_beta).exp();
-            if sdf.val() >= 0.0 {
-                let o = alpha * e * half;
-                Absorption {
-                    opacity: o,
-                    keep: T::one() - o,
-                }
-            } else {
-                Absorption {
-                    opacity: alpha - alpha * e * half,
-                    keep: (T::one() - alpha) + alpha * e * half,
-                }
+            let out = alpha * e * half;
+            let inside = T::zero();
+            Absorption {
+                opacity: T::if_gt(inside, sdf, alpha - out, out),
+                keep: T::if_gt(inside, sdf, (T::one() - alpha) + out, T::one() - out),
             }
         }
         DensityKind::VolSdf | DensityKind::Neus => {
@@ -71,17 +67,18 @@ pub fn log_keep<T: Real>(kind: DensityKind, sdf: T, alpha: T, inv_beta: T, delta
         DensityKind::Opacity => {
             let half = T::lit(0.5);
             let x = -sdf.abs() * inv_beta;
-            if sdf.val() >= 0.0 {
-                (-(alpha * x.exp() * half)).ln_1p()
-            } else if alpha.val() == 1.0 {
+            let e = x.exp();
+            let outside = (-(alpha * e * half)).ln_1p();
+            let inside = if alpha.val() == 1.0 {
                 // ln(e/2) without forming e/2, which may underflow; the
                 // second term is 0 at α = 1 but carries ∂/∂α = 1 − 2/e (e
                 // floored so that the tangent stays finite in f32).
-                let e = x.exp().max(T::lit(1e-20));
+                let e = e.max(T::lit(1e-20));
                 T::lit(0.5f64.ln()) + x + (alpha - T::one()) * (T::one() - T::lit(2.0) / e)
             } else {
-                ((T::one() - alpha) + alpha * x.exp() * half).ln()
-            }
+                ((T::one() - alpha) + alpha * e * half).ln()
+            };
+            T::if_gt(T::zero(), sdf, inside, outside)
         }
         DensityKind::VolSdf | DensityKind::Neus => -(density(kind, sdf, alpha, inv_beta) * delta),
     }
@@ -95,11 +92,8 @@ pub fn density<T: Real>(kind: DensityKind, sdf: T, alpha: T, inv_beta: T) -> T {
         // σ = α·Ψ_β(−sdf).
         DensityKind::VolSdf | DensityKind::Opacity => {
             let e = (-sdf.abs() * inv_beta).exp();
-            if sdf.val() >= 0.0 {
-                alpha * e * half
-            } else {
-                alpha - alpha * e * half
-            }
+            let out = alpha * e * half;
+            T::if_gt(T::zero(), sdf, alpha - out, out)
         }
         // (α/β)·s(1 − s), s = sigmoid(−sdf/β), as e/(1 + e)² with e = exp(−|sdf|/β).
         DensityKind::Neus => {
