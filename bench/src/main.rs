@@ -7,6 +7,9 @@
 //! naive min-union against BVH-culled (batched: `eval_batch`; and per point
 //! without packed unions, the evaluator before issue 10), and the same expression evaluated by
 //! the fidget crate's JIT in the same run; it prints a Markdown table.
+//! `-- frames` times frames (depth + normals) against fidget's own voxel
+//! renderer (see `peer.rs`), `-- showcase` the showcase's trace with and
+//! without tiles.
 //! `cargo run --release -p sdfl-bench -- train` times training steps instead
 //! (see `train.rs`); `-- nerf` times NeRF steps and `-- neural-sdf` neural SDF steps (see `nerf.rs`).
 
@@ -145,10 +148,13 @@ fn frame_time(lowered: &Lowered, shape: &Shape, reps: usize) -> f64 {
 
 /// `-- frames [N,N,…]`: sdfl's traced depth + normals against fidget's
 /// voxel renderer (depth + normals, 512² × 512), same scene and frustum,
-/// all threads, best of 3 each, alternating so both see the same load.
+/// all threads, best of 3 each, alternating so both see the same load;
+/// and sdfl's tracer before tiles (`LowerOptions::tiles` off). The hit
+/// masks are compared as a check that both render the same scene (they
+/// differ at silhouettes: fidget's voxels against sdfl's ε).
 fn frames_main(sizes: &[usize]) {
-    println!("| N | sdfl depth+normals ms | fidget voxel ms | sdfl / fidget speed | hit masks agree | steps per ray |");
-    println!("|---:|---:|---:|---:|---:|---:|");
+    println!("| N | sdfl depth+normals ms | fidget voxel ms | **sdfl / fidget speed** | hit masks agree | steps per ray | sdfl untiled ms | untiled / fidget |");
+    println!("|---:|---:|---:|---:|---:|---:|---:|---:|");
     let needs = Needs {
         color: false,
         depth: true,
@@ -159,8 +165,17 @@ fn frames_main(sizes: &[usize]) {
         let spheres = scattered_spheres(n);
         let shape = scene(&spheres);
         let lowered = Lowered::new(&shape, LowerOptions::default());
+        // The tracer before tiles, in the same run.
+        let untiled = Lowered::new(
+            &shape,
+            LowerOptions {
+                tiles: false,
+                ..Default::default()
+            },
+        );
         let fidget = peer::FidgetFrame::new(&spheres, FRAME);
-        let (mut sdfl_s, mut fidget_s) = (f64::INFINITY, f64::INFINITY);
+        let (mut sdfl_s, mut fidget_s, mut untiled_s) =
+            (f64::INFINITY, f64::INFINITY, f64::INFINITY);
         let (mut view, mut peer_hits) = (None, Vec::new());
         for _ in 0..3 {
             let (s, v) = frame(&lowered, &shape, needs, 1);
@@ -169,6 +184,7 @@ fn frames_main(sizes: &[usize]) {
             let (s, h) = fidget.render();
             fidget_s = fidget_s.min(s);
             peer_hits = h;
+            untiled_s = untiled_s.min(frame(&untiled, &shape, needs, 1).0);
         }
         let view = view.expect("rendered");
         let depth = view.depth.as_ref().expect("depth planned");
@@ -178,12 +194,14 @@ fn frames_main(sizes: &[usize]) {
             .filter(|(d, h)| (**d > 0.0) == h.is_some())
             .count();
         println!(
-            "| {n} | {:.1} | {:.1} | {:.2} | {:.2} % | {:.1} |",
+            "| {n} | {:.1} | {:.1} | **{:.2}** | {:.2} % | {:.1} | {:.1} | {:.2} |",
             sdfl_s * 1e3,
             fidget_s * 1e3,
             fidget_s / sdfl_s,
             100.0 * agree as f64 / depth.len() as f64,
             view.steps as f64 / view.rays as f64,
+            untiled_s * 1e3,
+            fidget_s / untiled_s,
         );
     }
 }

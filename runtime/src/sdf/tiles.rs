@@ -118,8 +118,9 @@ pub struct Tile<'a> {
     /// where a member is unbounded.
     bounds: Option<(Vec3A, Vec3A)>,
     /// Rays start where they enter `bounds` (else at `near`: a scene that
-    /// is no union keeps the plain tracer's steps, so its images are the
-    /// same bit for bit; rays missing `bounds` still end unmarched).
+    /// is no union, or a tile that keeps every member, keeps the plain
+    /// tracer's steps, so its pixels are the same bit for bit; rays
+    /// missing `bounds` still end unmarched).
     enter: bool,
 }
 
@@ -196,7 +197,11 @@ impl<'a> TileScene<'a> {
                 return tile;
             }
             tile.bounds = bounds;
-            if list.len() <= MAX_TILE_MEMBERS {
+            if list.len() == u.members.len() {
+                // Nothing to cull: the whole scene from `near`, the plain
+                // tracer's steps (rays missing `bounds` still end at once).
+                tile.enter = false;
+            } else if list.len() <= MAX_TILE_MEMBERS {
                 tile.members = Some(list);
             }
         } else if let Some((c, h)) = self.whole {
