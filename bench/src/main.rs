@@ -7,13 +7,16 @@
 //! naive min-union against BVH-culled (batched: `eval_batch`; and per point
 //! without packed unions, the evaluator before issue 10), and the same expression evaluated by
 //! the fidget crate's JIT in the same run; it prints a Markdown table.
+//! `-- frames` times frames (depth + normals) against fidget's own voxel
+//! renderer (see `peer.rs`), `-- showcase` the showcase's trace with and
+//! without tiles.
 //! `cargo run --release -p sdfl-bench -- train` times training steps instead
 //! (see `train.rs`; `-- train 20 fused` the fused kernel only); `-- nerf` times NeRF steps and `-- neural-sdf` neural SDF steps (see `nerf.rs`).
 
 use std::time::Instant;
 
 use glam::{DVec3, Vec3A};
-use sdfl_runtime::render::{render_view, Needs};
+use sdfl_runtime::render::{render_view, Needs, ViewBuffers};
 use sdfl_runtime::{LowerOptions, Lowered};
 use sdfl_stdlib::camera::Camera;
 use sdfl_stdlib::material::Material;
@@ -85,8 +88,10 @@ fn best_of(reps: usize, mut f: impl FnMut()) -> f64 {
         .fold(f64::INFINITY, f64::min)
 }
 
-fn frame_time(lowered: &Lowered, shape: &Shape, reps: usize) -> f64 {
-    let job = RenderJob {
+/// The bench's render job: 512² of `shape` from z = -3.5 towards the
+/// origin (focal 1), 128 steps, ε = 1e-4.
+fn frame_job(shape: &Shape) -> RenderJob {
+    RenderJob {
         name: "bench".into(),
         scene: Arc::new(shape.clone()),
         material: Arc::new(Material::Rainbow),
@@ -96,8 +101,8 @@ fn frame_time(lowered: &Lowered, shape: &Shape, reps: usize) -> f64 {
             DVec3::Y,
             1.0,
         )],
-        width: 512,
-        height: 512,
+        width: FRAME,
+        height: FRAME,
         near: 0.0,
         far: 8.0,
         iterations: 128,
@@ -107,19 +112,151 @@ fn frame_time(lowered: &Lowered, shape: &Shape, reps: usize) -> f64 {
         fog: None,
         samples_per_pixel: 1,
         outputs: vec![],
-    };
+    }
+}
+
+/// Frame size in pixels (and fidget's depth in voxels).
+const FRAME: u32 = 512;
+
+/// Best of `reps` frames of the quantities in `needs`, in seconds, and the
+/// last frame's buffers.
+fn frame(lowered: &Lowered, shape: &Shape, needs: Needs, reps: usize) -> (f64, ViewBuffers) {
+    let job = frame_job(shape);
+    let mut last = None;
+    let secs = best_of(reps, || {
+        last = Some(render_view(
+            lowered,
+            &job,
+            &job.cameras[0],
+            (FRAME, FRAME),
+            needs,
+            &|_| {},
+        ));
+    });
+    (secs, last.expect("at least one frame"))
+}
+
+fn frame_time(lowered: &Lowered, shape: &Shape, reps: usize) -> f64 {
     let needs = Needs {
         color: true,
         depth: false,
         normals: false,
         mask: false,
     };
-    best_of(reps, || {
-        render_view(lowered, &job, &job.cameras[0], (512, 512), needs, &|_| {});
-    })
+    frame(lowered, shape, needs, reps).0
+}
+
+/// `-- frames [N,N,…]`: sdfl's traced depth + normals against fidget's
+/// voxel renderer (depth + normals, 512² × 512), same scene and frustum,
+/// all threads, best of 3 each, alternating so both see the same load;
+/// and sdfl's tracer before tiles (`LowerOptions::tiles` off). The hit
+/// masks are compared as a check that both render the same scene (they
+/// differ at silhouettes: fidget's voxels against sdfl's ε).
+fn frames_main(sizes: &[usize]) {
+    println!("| N | sdfl depth+normals ms | fidget voxel ms | **sdfl / fidget speed** | hit masks agree | steps per ray | sdfl untiled ms | untiled / fidget |");
+    println!("|---:|---:|---:|---:|---:|---:|---:|---:|");
+    let needs = Needs {
+        color: false,
+        depth: true,
+        normals: true,
+        mask: false,
+    };
+    for &n in sizes {
+        let spheres = scattered_spheres(n);
+        let shape = scene(&spheres);
+        let lowered = Lowered::new(&shape, LowerOptions::default());
+        // The tracer before tiles, in the same run.
+        let untiled = Lowered::new(
+            &shape,
+            LowerOptions {
+                tiles: false,
+                ..Default::default()
+            },
+        );
+        let fidget = peer::FidgetFrame::new(&spheres, FRAME);
+        let (mut sdfl_s, mut fidget_s, mut untiled_s) =
+            (f64::INFINITY, f64::INFINITY, f64::INFINITY);
+        let (mut view, mut peer_hits) = (None, Vec::new());
+        for _ in 0..3 {
+            let (s, v) = frame(&lowered, &shape, needs, 1);
+            sdfl_s = sdfl_s.min(s);
+            view = Some(v);
+            let (s, h) = fidget.render();
+            fidget_s = fidget_s.min(s);
+            peer_hits = h;
+            untiled_s = untiled_s.min(frame(&untiled, &shape, needs, 1).0);
+        }
+        let view = view.expect("rendered");
+        let depth = view.depth.as_ref().expect("depth planned");
+        let agree = depth
+            .iter()
+            .zip(&peer_hits)
+            .filter(|(d, h)| (**d > 0.0) == h.is_some())
+            .count();
+        println!(
+            "| {n} | {:.1} | {:.1} | **{:.2}** | {:.2} % | {:.1} | {:.1} | {:.2} |",
+            sdfl_s * 1e3,
+            fidget_s * 1e3,
+            fidget_s / sdfl_s,
+            100.0 * agree as f64 / depth.len() as f64,
+            view.steps as f64 / view.rays as f64,
+            untiled_s * 1e3,
+            fidget_s / untiled_s,
+        );
+    }
+}
+
+/// `-- showcase [reps]`: the trace stage of `sdfl run` on the built-in
+/// showcase (`examples/large_scene.sdfl`: every view, the quantities its
+/// outputs need, all threads), tiled against untiled
+/// (`LowerOptions::tiles` off: the tracer before tiles), alternating; best
+/// of `reps` each.
+fn showcase_main(reps: usize) {
+    let src = sdfl_lang::SourceFile::new(
+        "large_scene.sdfl",
+        include_str!("../../examples/large_scene.sdfl"),
+    );
+    let program = sdfl_stdlib::load(&src).unwrap_or_else(|e| panic!("{e:?}"));
+    let job = &program.renders[0];
+    let needs = Needs::from(&sdfl_runtime::Plan::of(job));
+    let trace = |tiles: bool| {
+        let options = LowerOptions {
+            tiles,
+            ..Default::default()
+        };
+        let mut scenes = sdfl_runtime::render::ViewScenes::new(&job.scene, options, &job.cameras);
+        let mut secs = 0.0;
+        for cam in &job.cameras {
+            let scene = scenes.for_view(cam);
+            let t = Instant::now();
+            render_view(scene, job, cam, (job.width, job.height), needs, &|_| {});
+            secs += t.elapsed().as_secs_f64();
+        }
+        secs
+    };
+    let (mut tiled, mut plain) = (f64::INFINITY, f64::INFINITY);
+    for _ in 0..reps {
+        tiled = tiled.min(trace(true));
+        plain = plain.min(trace(false));
+    }
+    println!("| showcase trace | tiled s | untiled s | untiled / tiled |");
+    println!("|---|---:|---:|---:|");
+    println!(
+        "| {} views of {}² | {tiled:.3} | {plain:.3} | {:.2} |",
+        job.cameras.len(),
+        job.width,
+        plain / tiled
+    );
 }
 
 fn main() {
+    if std::env::args().nth(1).as_deref() == Some("showcase") {
+        let reps = std::env::args()
+            .nth(2)
+            .and_then(|r| r.parse().ok())
+            .unwrap_or(5);
+        return showcase_main(reps);
+    }
     if std::env::args().nth(1).as_deref() == Some("train") {
         let reps = std::env::args()
             .nth(2)
@@ -141,6 +278,13 @@ fn main() {
             .and_then(|r| r.parse().ok())
             .unwrap_or(10);
         return nerf::neural_sdf_main(reps);
+    }
+    if std::env::args().nth(1).as_deref() == Some("frames") {
+        let sizes: Vec<usize> = std::env::args()
+            .nth(2)
+            .map(|s| s.split(',').filter_map(|x| x.parse().ok()).collect())
+            .unwrap_or_else(|| vec![1, 10, 100, 1000, 10_000]);
+        return frames_main(&sizes);
     }
     let sizes: Vec<usize> = std::env::args()
         .nth(1)

@@ -50,6 +50,26 @@ fn min_tree(ctx: &mut Context, nodes: &[Node]) -> Node {
     }
 }
 
+/// `min_i (|p - c_i| - r_i)` in `ctx`.
+fn sphere_union(ctx: &mut Context, spheres: &[(DVec3, f64)]) -> Node {
+    let (x, y, z) = (ctx.x(), ctx.y(), ctx.z());
+    let dists: Vec<Node> = spheres
+        .iter()
+        .map(|(c, r)| {
+            let mut sq = |axis: Node, c: f64| {
+                let d = ctx.sub(axis, c as f32).unwrap();
+                ctx.square(d).unwrap()
+            };
+            let (dx, dy, dz) = (sq(x, c.x), sq(y, c.y), sq(z, c.z));
+            let sum = ctx.add(dx, dy).unwrap();
+            let sum = ctx.add(sum, dz).unwrap();
+            let len = ctx.sqrt(sum).unwrap();
+            ctx.sub(len, *r as f32).unwrap()
+        })
+        .collect();
+    min_tree(ctx, &dists)
+}
+
 impl FidgetScene {
     /// Builds `min_i (|p - c_i| - r_i)` and JIT-compiles it; the time taken
     /// is kept as the second number of [`throughput`](Self::throughput).
@@ -60,22 +80,7 @@ impl FidgetScene {
         );
         let start = Instant::now();
         let mut ctx = Context::new();
-        let (x, y, z) = (ctx.x(), ctx.y(), ctx.z());
-        let dists: Vec<Node> = spheres
-            .iter()
-            .map(|(c, r)| {
-                let mut sq = |axis: Node, c: f64| {
-                    let d = ctx.sub(axis, c as f32).unwrap();
-                    ctx.square(d).unwrap()
-                };
-                let (dx, dy, dz) = (sq(x, c.x), sq(y, c.y), sq(z, c.z));
-                let sum = ctx.add(dx, dy).unwrap();
-                let sum = ctx.add(sum, dz).unwrap();
-                let len = ctx.sqrt(sum).unwrap();
-                ctx.sub(len, *r as f32).unwrap()
-            })
-            .collect();
-        let root = min_tree(&mut ctx, &dists);
+        let root = sphere_union(&mut ctx, spheres);
         let shape = JitShape::new(&ctx, root).expect("fidget shape");
         let tape = shape.ez_float_slice_tape();
         FidgetScene {
@@ -155,4 +160,73 @@ fn split(points: &[Vec3A]) -> (Vec<f32>, Vec<f32>, Vec<f32>) {
         points.iter().map(|p| p.y).collect(),
         points.iter().map(|p| p.z).collect(),
     )
+}
+
+/// fidget's own renderer on the same union of spheres: its voxel raster
+/// (`fidget::raster::voxel`, interval pruning over tiles of 64, 16, 8
+/// voxels, then the JIT's bulk and gradient evaluators), depth and normals
+/// of a `size`² image × `size` depth voxels, on rayon's global pool (the
+/// threads sdfl's frames use).
+///
+/// The voxel cube is mapped onto the frustum of sdfl's bench camera (eye
+/// at z = −3.5 looking along +z, focal 1, the image's left edge towards
+/// +x) between the planes z = −1.5 and z = 1.5, which hold the scene: a
+/// projective `world_to_model`, as fidget's own perspective views use, so
+/// both renderers see the same scene in the same pixels.
+pub struct FidgetFrame {
+    shape: JitShape,
+    cfg: fidget::raster::voxel::RenderConfig,
+}
+
+impl FidgetFrame {
+    pub fn new(spheres: &[(DVec3, f64)], size: u32) -> Self {
+        let mut ctx = Context::new();
+        let root = sphere_union(&mut ctx, spheres);
+        let shape = JitShape::new(&ctx, root).expect("fidget shape");
+        // Screen NDC (x, y, z) in [-1, 1]³ (z = 1 nearest) → model. The
+        // distance along z from the eye is 1/w with w = P + Q·z: 2 at the
+        // near plane (z = 1), 5 at the far one (z = -1).
+        let (p, q) = (0.35f32, 0.15f32);
+        #[rustfmt::skip]
+        let m = nalgebra::Matrix4::new(
+            -1.0, 0.0, 0.0, 0.0,
+            0.0, 1.0, 0.0, 0.0,
+            0.0, 0.0, -3.5 * q, 1.0 - 3.5 * p,
+            0.0, 0.0, q, p,
+        );
+        let cfg = fidget::raster::voxel::RenderConfig {
+            image_size: fidget::render::VoxelSize::new(size, size, size),
+            world_to_model: m,
+        };
+        FidgetFrame { shape, cfg }
+    }
+
+    /// Renders once: the seconds taken and, per pixel (row-major, top
+    /// first), the distance along the ray to the hit (`None`: a miss),
+    /// converted from the voxel depth for comparing hit masks with sdfl.
+    pub fn render(&self) -> (f64, Vec<Option<f32>>) {
+        let shape = fidget::shape::BoundShape::try_from(self.shape.clone()).expect("no vars");
+        let t = Instant::now();
+        let image = self.cfg.run(shape);
+        let secs = t.elapsed().as_secs_f64();
+        let n = self.cfg.image_size.width() as usize;
+        let d = self.cfg.image_size.depth() as f32;
+        let (p, q) = (0.35f32, 0.15f32);
+        let hits = image
+            .as_slice()
+            .iter()
+            .enumerate()
+            .map(|(k, px)| {
+                (px.depth > 0).then(|| {
+                    // Voxel index → screen z → distance along z → along the ray.
+                    let z = (px.depth as f32 - 0.5) * 2.0 / d - 1.0;
+                    let along_z = 1.0 / (p + q * z);
+                    let (i, j) = (k % n, k / n);
+                    let ndc = |i: usize| (i as f32 + 0.5) * 2.0 / n as f32 - 1.0;
+                    along_z * (ndc(i).powi(2) + ndc(j).powi(2) + 1.0).sqrt()
+                })
+            })
+            .collect();
+        (secs, hits)
+    }
 }

@@ -16,11 +16,12 @@ use serde::Serialize;
 use crate::data::nerf_synthetic::DatasetWriter;
 use crate::effects::{Counters, EffectStats, SurfacePoint};
 use crate::output::{colormap, to_u8, write_png, GifWriter};
+use crate::sdf::tiles::{Margin, TILE};
 use crate::sdf::{LowerOptions, Lowered};
-use crate::trace::{normal, normal_step, sphere_trace, TraceSettings};
+use crate::trace::{normal, normal_step, TraceSettings};
 
-/// Rows per parallel work unit.
-const BAND_ROWS: usize = 8;
+/// Rows per parallel work unit: one row of screen tiles.
+const BAND_ROWS: usize = TILE;
 
 /// Which per-pixel quantities a job computes, and which output asks for each.
 /// Quantities no output needs are never computed.
@@ -358,6 +359,16 @@ pub fn render_view(
         footprint: settings.footprint / offsets.len() as f32,
         ..settings
     };
+    // Each tile of TILE × TILE pixels marches only the members that can
+    // come near its rays (see `sdf::tiles`).
+    let reach = origin.abs().max_element() + settings.far;
+    let margin = Margin::for_trace(
+        &settings,
+        origin,
+        normal_step(Vec3A::splat(reach)),
+        scene.lipschitz,
+    );
+    let tiles = scene.tiles(origin, margin);
     let geometry = needs.depth || needs.normals || needs.mask;
     let centre_separate = offsets.len() > 1 && geometry;
     let inv_l = 1.0 / scene.lipschitz;
@@ -410,69 +421,95 @@ pub fn render_view(
             let counters = Counters::default();
             let rows = (band * BAND_ROWS)..((band + 1) * BAND_ROWS).min(h);
             let nrows = rows.len();
-            let mut trace = |d: Vec3A, s: &TraceSettings| {
-                let hit = sphere_trace(&*scene.root, origin, d, s);
-                steps += hit.steps as u64;
-                undecided += hit.undecided as u64;
-                rays += 1;
-                hit
-            };
-            for (r, j) in rows.enumerate() {
-                for i in 0..w {
-                    let k = r * w + i;
-                    let (xn, yn) = cam.pixel_ndc(i as u32, j as u32, width, height);
-                    if centre_separate || offsets.len() == 1 {
-                        // The pixel centre: every quantity when it is the
-                        // only ray, else depth, normals and the mask.
-                        let (d64, dir) = direction(xn, yn);
-                        let hit = trace(dir, &settings);
-                        if !hit.hit {
-                            if let (Some(c), false) = (col.as_deref_mut(), centre_separate) {
+            for i0 in (0..w).step_by(TILE) {
+                let i1 = (i0 + TILE).min(w);
+                // The tile's rectangle on the image plane, half a pixel
+                // past its outer pixel centres (sub-pixel rays stay inside).
+                let (xa, ya) =
+                    cam.pixel_ndc_at(i0 as f64 - 0.5, rows.start as f64 - 0.5, width, height);
+                let (xb, yb) =
+                    cam.pixel_ndc_at(i1 as f64 - 0.5, rows.end as f64 - 0.5, width, height);
+                let tile = tiles.tile(
+                    (ax, ay, az),
+                    (xa / cam.focal, xb / cam.focal),
+                    (ya / cam.focal, yb / cam.focal),
+                );
+                if tile.is_empty() && offsets.len() == 1 {
+                    // Every ray misses: only the background to write.
+                    rays += (nrows * (i1 - i0)) as u64;
+                    if let Some(c) = col.as_deref_mut() {
+                        for r in 0..nrows {
+                            for k in r * w + i0..r * w + i1 {
                                 c[k * 3..k * 3 + 3].copy_from_slice(&background);
-                            }
-                        } else {
-                            hits += 1;
-                            let p = origin + dir * hit.t;
-                            let mut shading_normal = None;
-                            if let (Some(c), false) = (col.as_deref_mut(), centre_separate) {
-                                let (rgb, n) = shade(&hit, d64, dir, &counters);
-                                shading_normal = n;
-                                c[k * 3..k * 3 + 3].copy_from_slice(&rgb.to_array().map(to_u8));
-                            }
-                            if let Some(d) = dep.as_deref_mut() {
-                                d[k] = hit.t;
-                            }
-                            if let Some(nb) = nor.as_deref_mut() {
-                                let n = shading_normal.unwrap_or_else(|| {
-                                    normal(&*scene.root, p, normal_step(p), -dir)
-                                });
-                                let rgb = [n.x, n.y, n.z].map(|x| to_u8(((x + 1.0) * 0.5) as f64));
-                                nb[k * 3..k * 3 + 3].copy_from_slice(&rgb);
-                            }
-                            if let Some(m) = msk.as_deref_mut() {
-                                m[k] = 255;
                             }
                         }
                     }
-                    if offsets.len() > 1 {
-                        let Some(c) = col.as_deref_mut() else {
-                            continue;
-                        };
-                        let mut sum = DVec3::ZERO;
-                        for (dx, dy) in &offsets {
-                            let (xs, ys) =
-                                cam.pixel_ndc_at(i as f64 + dx, j as f64 + dy, width, height);
-                            let (d64, dir) = direction(xs, ys);
-                            let hit = trace(dir, &sub_settings);
-                            sum += if hit.hit {
-                                hits += 1;
-                                shade(&hit, d64, dir, &counters).0
+                    continue;
+                }
+                let mut trace = |d: Vec3A, s: &TraceSettings| {
+                    let hit = tile.trace(d, s);
+                    steps += hit.steps as u64;
+                    undecided += hit.undecided as u64;
+                    rays += 1;
+                    hit
+                };
+                for (r, j) in rows.clone().enumerate() {
+                    for i in i0..i1 {
+                        let k = r * w + i;
+                        let (xn, yn) = cam.pixel_ndc(i as u32, j as u32, width, height);
+                        if centre_separate || offsets.len() == 1 {
+                            // The pixel centre: every quantity when it is the
+                            // only ray, else depth, normals and the mask.
+                            let (d64, dir) = direction(xn, yn);
+                            let hit = trace(dir, &settings);
+                            if !hit.hit {
+                                if let (Some(c), false) = (col.as_deref_mut(), centre_separate) {
+                                    c[k * 3..k * 3 + 3].copy_from_slice(&background);
+                                }
                             } else {
-                                fogged_background
-                            };
+                                hits += 1;
+                                let p = origin + dir * hit.t;
+                                let mut shading_normal = None;
+                                if let (Some(c), false) = (col.as_deref_mut(), centre_separate) {
+                                    let (rgb, n) = shade(&hit, d64, dir, &counters);
+                                    shading_normal = n;
+                                    c[k * 3..k * 3 + 3].copy_from_slice(&rgb.to_array().map(to_u8));
+                                }
+                                if let Some(d) = dep.as_deref_mut() {
+                                    d[k] = hit.t;
+                                }
+                                if let Some(nb) = nor.as_deref_mut() {
+                                    let n = shading_normal
+                                        .unwrap_or_else(|| tile.normal(p, normal_step(p), -dir));
+                                    let rgb =
+                                        [n.x, n.y, n.z].map(|x| to_u8(((x + 1.0) * 0.5) as f64));
+                                    nb[k * 3..k * 3 + 3].copy_from_slice(&rgb);
+                                }
+                                if let Some(m) = msk.as_deref_mut() {
+                                    m[k] = 255;
+                                }
+                            }
                         }
-                        let rgb = sum / offsets.len() as f64;
-                        c[k * 3..k * 3 + 3].copy_from_slice(&rgb.to_array().map(to_u8));
+                        if offsets.len() > 1 {
+                            let Some(c) = col.as_deref_mut() else {
+                                continue;
+                            };
+                            let mut sum = DVec3::ZERO;
+                            for (dx, dy) in &offsets {
+                                let (xs, ys) =
+                                    cam.pixel_ndc_at(i as f64 + dx, j as f64 + dy, width, height);
+                                let (d64, dir) = direction(xs, ys);
+                                let hit = trace(dir, &sub_settings);
+                                sum += if hit.hit {
+                                    hits += 1;
+                                    shade(&hit, d64, dir, &counters).0
+                                } else {
+                                    fogged_background
+                                };
+                            }
+                            let rgb = sum / offsets.len() as f64;
+                            c[k * 3..k * 3 + 3].copy_from_slice(&rgb.to_array().map(to_u8));
+                        }
                     }
                 }
             }

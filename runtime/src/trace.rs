@@ -4,6 +4,20 @@ use glam::Vec3A;
 
 use crate::sdf::Node;
 
+/// What a ray marches: a signed distance (or bound) per point. Every
+/// lowered [`Node`] is one; a screen tile's candidate members
+/// (`sdf::tiles::Tile`) are another.
+pub trait Distance {
+    fn dist(&self, p: Vec3A) -> f32;
+}
+
+impl<T: Node + ?Sized> Distance for T {
+    #[inline(always)]
+    fn dist(&self, p: Vec3A) -> f32 {
+        Node::dist(self, p)
+    }
+}
+
 /// Settings of one trace.
 #[derive(Debug, Clone, Copy)]
 pub struct TraceSettings {
@@ -44,7 +58,7 @@ const OMEGA: f32 = 1.6;
 /// tolerance below `m·2⁻²¹` would be met only by chance (the ray stalls
 /// and its steps run out). Below `m` = 20 it is under the default
 /// `epsilon` (1e-5), so scenes near the origin trace as before.
-const PRECISION_TOLERANCE: f32 = 1.0 / 2_097_152.0;
+pub(crate) const PRECISION_TOLERANCE: f32 = 1.0 / 2_097_152.0;
 
 /// March from `near` until the distance is below the hit tolerance (a hit,
 /// also when the ray starts inside a shape; the tolerance is
@@ -59,7 +73,12 @@ const PRECISION_TOLERANCE: f32 = 1.0 / 2_097_152.0;
 /// surface, so the trace returns to the previous point and steps `d` from
 /// there, unrelaxed for the rest of the ray (enhanced sphere tracing).
 #[inline]
-pub fn sphere_trace(sdf: &dyn Node, origin: Vec3A, dir: Vec3A, s: &TraceSettings) -> Hit {
+pub fn sphere_trace<D: Distance + ?Sized>(
+    sdf: &D,
+    origin: Vec3A,
+    dir: Vec3A,
+    s: &TraceSettings,
+) -> Hit {
     let inv_l = 1.0 / s.lipschitz;
     let scale = origin.abs().max_element();
     let mut omega = if s.relax { OMEGA } else { 1.0 };
@@ -144,8 +163,8 @@ pub fn sphere_trace(sdf: &dyn Node, origin: Vec3A, dir: Vec3A, s: &TraceSettings
 /// at most [`REFINE_STEPS`], stopping below `epsilon` or where the distance
 /// stops shrinking (a ray grazing past keeps its footprint hit). Returns the
 /// refined `t` and the steps taken.
-fn refine(
-    sdf: &dyn Node,
+fn refine<D: Distance + ?Sized>(
+    sdf: &D,
     origin: Vec3A,
     dir: Vec3A,
     mut t: f32,
@@ -186,7 +205,7 @@ const NORMAL_STEP_PER_UNIT: f32 = 1.0 / 16384.0;
 /// Unit surface normal at `p` by tetrahedral central differences. Where the
 /// gradient vanishes or is undefined (a sphere's centre, symmetric points
 /// inside a box) it returns `fallback`, so it is never NaN.
-pub fn normal(sdf: &dyn Node, p: Vec3A, h: f32, fallback: Vec3A) -> Vec3A {
+pub fn normal<D: Distance + ?Sized>(sdf: &D, p: Vec3A, h: f32, fallback: Vec3A) -> Vec3A {
     const K: [Vec3A; 4] = [
         Vec3A::new(1.0, -1.0, -1.0),
         Vec3A::new(-1.0, -1.0, 1.0),

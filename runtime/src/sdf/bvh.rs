@@ -105,6 +105,16 @@ impl BvhUnion {
         unbounded: Vec<Box<dyn Node>>,
     ) -> Self {
         let lipschitz = items.iter().map(|i| i.2).fold(1.0f32, f32::max);
+        let mut union = Self::tree(items, unbounded);
+        union.grid = Some(union.build_grid(lipschitz));
+        union
+    }
+
+    /// The BVH alone (no grid).
+    pub(super) fn tree(
+        items: Vec<(Box<dyn Node>, Aabb, f32)>,
+        unbounded: Vec<Box<dyn Node>>,
+    ) -> Self {
         let mut items: Vec<(Box<dyn Node>, Aabb, DVec3)> = items
             .into_iter()
             .map(|(n, b, _)| (n, b, b.center()))
@@ -166,16 +176,14 @@ impl BvhUnion {
             work.push((left + 1, mid, hi));
         }
         let boxes = items.iter().map(|i| padded(i.1)).collect();
-        let mut union = BvhUnion {
+        BvhUnion {
             nodes,
             members: items.into_iter().map(|i| i.0).collect(),
             boxes,
             unbounded,
             grid: None,
             table: None,
-        };
-        union.grid = Some(union.build_grid(lipschitz));
-        union
+        }
     }
 
     pub(super) fn build_grid(&self, lipschitz: f32) -> CellGrid {

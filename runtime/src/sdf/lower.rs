@@ -389,6 +389,43 @@ impl Lowering {
         }
     }
 
+    /// The members of `shape`'s top-level union (through transforms and
+    /// paint) as a BVH without a grid, for culling per screen tile: `None`
+    /// unless at least two are bounded.
+    pub(super) fn tile_union(&mut self, shape: &Shape, frame: &Frame) -> Option<BvhUnion> {
+        let mut members = Vec::new();
+        self.union_members(shape, frame, &mut members);
+        let members = dedup_primitives(members);
+        if members.iter().filter(|(s, _)| s.bounds().is_some()).count() < 2 {
+            return None;
+        }
+        let (items, unbounded) = self.lower_members(&members);
+        let mut bvh = BvhUnion::tree(items, unbounded);
+        if self.options.pack {
+            bvh.table = member_table(&bvh.members);
+        }
+        Some(bvh)
+    }
+
+    /// Members lowered, the bounded ones with their world boxes and
+    /// Lipschitz bounds.
+    #[allow(clippy::type_complexity)]
+    fn lower_members(
+        &mut self,
+        members: &[(&Shape, Frame)],
+    ) -> (Vec<(Box<dyn Node>, Aabb, f32)>, Vec<Box<dyn Node>>) {
+        let mut items = Vec::with_capacity(members.len());
+        let mut unbounded = Vec::new();
+        for (s, f) in members {
+            let node = self.lower(s, f);
+            match s.bounds() {
+                Some(b) => items.push((node, f.world_box(b), s.lipschitz() as f32)),
+                None => unbounded.push(node),
+            }
+        }
+        (items, unbounded)
+    }
+
     pub(super) fn union(&mut self, members: Vec<(&Shape, Frame)>) -> Box<dyn Node> {
         let members = if self.options.cull {
             dedup_primitives(members)
@@ -406,15 +443,7 @@ impl Lowering {
             }
             return Box::new(Union(nodes));
         }
-        let mut items = Vec::with_capacity(bounded);
-        let mut unbounded = Vec::new();
-        for (s, f) in &members {
-            let node = self.lower(s, f);
-            match s.bounds() {
-                Some(b) => items.push((node, f.world_box(b), s.lipschitz() as f32)),
-                None => unbounded.push(node),
-            }
-        }
+        let (items, unbounded) = self.lower_members(&members);
         let mut bvh = BvhUnion::build(items, unbounded);
         if self.options.pack {
             bvh.table = member_table(&bvh.members);

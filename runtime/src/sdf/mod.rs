@@ -28,6 +28,7 @@ mod bvh;
 pub mod lanes;
 mod lower;
 mod nodes;
+pub mod tiles;
 
 use bvh::*;
 use lanes::{per_lane, F8, LANES, P8};
@@ -71,6 +72,10 @@ pub struct LowerOptions {
     /// node (evaluated without a call per member); off, every member is its own node (the
     /// evaluator before packing, kept for comparisons).
     pub pack: bool,
+    /// Cull per screen tile when tracing (see [`tiles`]); off (or without
+    /// `cull`), every ray marches the whole scene from `near`, as the
+    /// tracer before tiles did (kept for comparisons).
+    pub tiles: bool,
 }
 
 impl Default for LowerOptions {
@@ -79,6 +84,7 @@ impl Default for LowerOptions {
             cull: true,
             bvh_threshold: 16,
             pack: true,
+            tiles: true,
         }
     }
 }
@@ -96,6 +102,15 @@ pub struct Lowered {
     pub lipschitz: f32,
     pub prims: Vec<PrimInfo>,
     pub bvh_nodes: usize,
+    /// The top-level union's members with their boxes, for culling per
+    /// screen tile, when the root is not already such a union (small
+    /// unions are lowered without one).
+    tile_union: Option<Box<BvhUnion>>,
+    /// The scene's box in the evaluator's coordinates (centre, half
+    /// extents), when bounded.
+    bounds: Option<(Vec3A, Vec3A)>,
+    /// Tiles cull (`LowerOptions::cull` and `tiles`).
+    tiles: bool,
 }
 
 impl Lowered {
@@ -121,12 +136,34 @@ impl Lowered {
         let mut frame = Frame::identity();
         frame.to_local = to_origin;
         let root = cx.lower(shape, &frame);
+        let tiles = options.cull && options.tiles;
+        let tile_union = if tiles
+            && (root.as_ref() as &dyn std::any::Any)
+                .downcast_ref::<BvhUnion>()
+                .is_none()
+        {
+            // Lowered again member by member (leaves only: no grid), with
+            // the same ids as in `root`.
+            let mut again = Lowering {
+                options,
+                prims: Vec::new(),
+                bvh_nodes: 0,
+                warp_to_world: to_origin,
+                relative,
+            };
+            again.tile_union(shape, &frame).map(Box::new)
+        } else {
+            None
+        };
         Lowered {
             root,
             origin,
             lipschitz: shape.lipschitz().max(1.0) as f32,
             prims: cx.prims,
             bvh_nodes: cx.bvh_nodes,
+            tile_union,
+            bounds: shape.bounds().map(|b| padded(frame.world_box(b))),
+            tiles,
         }
     }
 
