@@ -342,19 +342,21 @@ fn add_tangents<F: Real, const N: usize>(
 ///    sample's sdf and colour, and of α and β;
 /// 3. forward-mode tangents through the field only, at the samples whose
 ///    adjoints matter, dotted with those adjoints.
-#[allow(clippy::too_many_arguments)]
 fn ray_grad<F: Real, const N: usize>(
     model: &TrainModel,
     values: &[F],
     first: usize,
-    ray: &Ray,
-    t: &[f32],
-    delta: &[f32],
-    target: [f32; 3],
+    task: &RayTask,
     scale: F,
-    plain: &mut PlainSamples<F>,
-    adjoint: &mut Vec<(F, [F; 3])>,
+    scratch: &mut Scratch<F>,
 ) -> RayGrad<F, N> {
+    let RayTask {
+        ray,
+        t,
+        delta,
+        target,
+    } = *task;
+    let Scratch { plain, adjoint } = scratch;
     let f = &model.field;
     let (origin, dir) = (ray.origin.map(f64::from), ray.dir.map(f64::from));
     let flat = model.plain(values);
@@ -394,20 +396,22 @@ fn ray_grad<F: Real, const N: usize>(
 /// samples (a field whose [`branch_free`](sdfl_stdlib::shape::Shape::branch_free) holds): every lane is the
 /// scalar operation, and the sums run in the same order, so the result is
 /// [`ray_grad`]'s to the bit.
-#[allow(clippy::too_many_arguments)]
 fn ray_grad_lanes<const N: usize>(
     model: &TrainModel,
     values: &[f32],
     lanes: &[F8],
     first: usize,
-    ray: &Ray,
-    t: &[f32],
-    delta: &[f32],
-    target: [f32; 3],
+    task: &RayTask,
     scale: f32,
-    plain: &mut PlainSamples<f32>,
-    adjoint: &mut Vec<(f32, [f32; 3])>,
+    scratch: &mut Scratch<f32>,
 ) -> RayGrad<f32, N> {
+    let RayTask {
+        ray,
+        t,
+        delta,
+        target,
+    } = *task;
+    let Scratch { plain, adjoint } = scratch;
     let f = &model.field;
     let (origin, dir) = (ray.origin.map(f64::from), ray.dir.map(f64::from));
     // Depths of up to LANES samples, the missing lanes repeating the last.
@@ -472,22 +476,32 @@ fn ray_grad_lanes<const N: usize>(
     }
 }
 
+/// One ray of a batch: its depths, their intervals and its target colour.
+#[derive(Clone, Copy)]
+struct RayTask<'a> {
+    ray: &'a Ray,
+    t: &'a [f32],
+    delta: &'a [f32],
+    target: [f32; 3],
+}
+
+/// A ray's working storage, reused from ray to ray.
+struct Scratch<F> {
+    plain: PlainSamples<F>,
+    adjoint: Vec<(F, [F; 3])>,
+}
+
 /// How a pass computes one ray: [`ray_grad`] in any base type, or
 /// [`ray_grad_lanes`] in f32.
 trait RayPath<F: Real>: Sync {
-    #[allow(clippy::too_many_arguments)]
     fn ray<const N: usize>(
         &self,
         model: &TrainModel,
         values: &[F],
         first: usize,
-        ray: &Ray,
-        t: &[f32],
-        delta: &[f32],
-        target: [f32; 3],
+        task: &RayTask,
         scale: F,
-        plain: &mut PlainSamples<F>,
-        adjoint: &mut Vec<(F, [F; 3])>,
+        scratch: &mut Scratch<F>,
     ) -> RayGrad<F, N>;
 }
 
@@ -500,17 +514,11 @@ impl<F: Real> RayPath<F> for Scalar {
         model: &TrainModel,
         values: &[F],
         first: usize,
-        ray: &Ray,
-        t: &[f32],
-        delta: &[f32],
-        target: [f32; 3],
+        task: &RayTask,
         scale: F,
-        plain: &mut PlainSamples<F>,
-        adjoint: &mut Vec<(F, [F; 3])>,
+        scratch: &mut Scratch<F>,
     ) -> RayGrad<F, N> {
-        ray_grad(
-            model, values, first, ray, t, delta, target, scale, plain, adjoint,
-        )
+        ray_grad(model, values, first, task, scale, scratch)
     }
 }
 
@@ -523,17 +531,11 @@ impl RayPath<f32> for Lanes {
         model: &TrainModel,
         values: &[f32],
         first: usize,
-        ray: &Ray,
-        t: &[f32],
-        delta: &[f32],
-        target: [f32; 3],
+        task: &RayTask,
         scale: f32,
-        plain: &mut PlainSamples<f32>,
-        adjoint: &mut Vec<(f32, [f32; 3])>,
+        scratch: &mut Scratch<f32>,
     ) -> RayGrad<f32, N> {
-        ray_grad_lanes(
-            model, values, &self.0, first, ray, t, delta, target, scale, plain, adjoint,
-        )
+        ray_grad_lanes(model, values, &self.0, first, task, scale, scratch)
     }
 }
 
@@ -554,24 +556,21 @@ fn pass<F: Real, const N: usize>(
         .par_chunks(BLOCK)
         .map(|idx| {
             let mut delta = Vec::with_capacity(batch.samples);
-            let mut plain = PlainSamples::new(batch.samples);
-            let mut adjoint = Vec::with_capacity(batch.samples);
+            let mut scratch = Scratch {
+                plain: PlainSamples::new(batch.samples),
+                adjoint: Vec::with_capacity(batch.samples),
+            };
             let mut acc = (F::zero(), [F::zero(); N], F::zero(), F::zero());
             for &r in idx {
                 let t = batch.depths_of(r);
                 intervals_into(t, last, &mut delta);
-                let g = path.ray::<N>(
-                    model,
-                    values,
-                    first,
-                    &batch.rays[r],
+                let task = RayTask {
+                    ray: &batch.rays[r],
                     t,
-                    &delta,
-                    batch.targets[r],
-                    scale,
-                    &mut plain,
-                    &mut adjoint,
-                );
+                    delta: &delta,
+                    target: batch.targets[r],
+                };
+                let g = path.ray::<N>(model, values, first, &task, scale, &mut scratch);
                 acc.0 = acc.0 + g.loss;
                 for i in 0..N {
                     acc.1[i] = acc.1[i] + g.field[i];
