@@ -6,7 +6,9 @@
 //! training loop (`Run` over a `TrainSetup`). Prints the step's GFLOP/s
 //! (3 × 2 × multiply-adds per sample × samples) and this machine's dense
 //! throughput through the same layer kernel (65536 × 128 × 128), at 1 thread
-//! and at all threads.
+//! and at all threads, in fp32 and in bf16 (`nerf(precision: "bf16")`: the
+//! forward and input-adjoint products in bf16, fp32 where the CPU lacks
+//! AVX-512 BF16).
 
 use std::time::Instant;
 
@@ -14,7 +16,7 @@ use sdfl_runtime::neural::field::NerfObjective;
 use sdfl_runtime::neural::mlp::{Activation, Dense};
 use sdfl_runtime::train::{Run, TrainSetup};
 use sdfl_runtime::volume::SplitMix64;
-use sdfl_stdlib::value::Field;
+use sdfl_stdlib::value::{Field, Precision};
 
 const SCENE: &str = r#"
 let sampler = stratified(samples: 64, near: 2, far: 6)
@@ -32,9 +34,9 @@ fn median_min(mut ms: Vec<f64>) -> (f64, f64) {
 }
 
 /// GFLOP/s of a 65536 × 128 × 128 product through [`Dense::forward`].
-fn dense_throughput(reps: usize) -> f64 {
+fn dense_throughput(reps: usize, precision: Precision) -> f64 {
     let (rows, k, n) = (65536, 128, 128);
-    let layer = Dense::new(&[k], n, Activation::Identity, 0);
+    let layer = Dense::new(&[k], n, Activation::Identity, 0).with_precision(precision);
     let mut params = vec![0.0; layer.end()];
     layer.init(&mut params, &mut SplitMix64::new(1));
     let mut rng = SplitMix64::new(2);
@@ -60,16 +62,31 @@ pub fn main(reps: usize) {
     let setup = TrainSetup::of(&job, &views);
     let macs = sdfl_runtime::neural::nerf::NerfNet::new(spec).multiply_adds();
     let flop = 3.0 * 2.0 * macs as f64 * 1024.0 * 64.0;
-    println!("| implementation | threads | step ms (median) | step ms (min) | step GFLOP/s | dense GFLOP/s | step / dense |");
-    println!("|---|---:|---:|---:|---:|---:|---:|");
+    println!(
+        "AVX-512 BF16 on this CPU: {}",
+        if sdfl_runtime::neural::bf16::available() {
+            "yes"
+        } else {
+            "no (bf16 runs fp32)"
+        }
+    );
+    println!("| implementation | precision | threads | step ms (median) | step ms (min) | step GFLOP/s | dense GFLOP/s | step / dense |");
+    println!("|---|---|---:|---:|---:|---:|---:|---:|");
     let all = rayon::current_num_threads();
-    for threads in [1, all] {
+    for (threads, precision) in [1, all]
+        .into_iter()
+        .flat_map(|t| [(t, Precision::Fp32), (t, Precision::Bf16)])
+    {
         let pool = rayon::ThreadPoolBuilder::new()
             .num_threads(threads)
             .build()
             .expect("thread pool");
+        let spec = &sdfl_stdlib::value::Nerf {
+            precision,
+            ..spec.clone()
+        };
         pool.install(|| {
-            let gemm = dense_throughput(reps);
+            let gemm = dense_throughput(reps, precision);
             let model = NerfObjective::new(spec, &job.sampler).expect("model");
             let mut run = Run::of(Box::new(model), 5e-4).expect("run");
             for _ in 0..2 {
@@ -85,7 +102,7 @@ pub fn main(reps: usize) {
             let (med, min) = median_min(ms);
             let gflops = flop / (med * 1e-3) / 1e9;
             println!(
-                "| sdfl (fused layers) | {threads} | {med:.1} | {min:.1} | {gflops:.1} | {gemm:.1} | {:.0}% |",
+                "| sdfl (fused layers) | {precision:?} | {threads} | {med:.1} | {min:.1} | {gflops:.1} | {gemm:.1} | {:.0}% |",
                 100.0 * gflops / gemm
             );
         });
