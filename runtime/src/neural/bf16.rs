@@ -65,6 +65,9 @@ pub fn round(x: f32) -> f32 {
 const NR: usize = 32;
 /// Rows per register tile: 12 × 2 accumulators, 2 for `B`, 1 broadcast.
 const MR: usize = 12;
+/// Row pairs per chunk of a transposed product (`matmul_tn`): 256 pairs of
+/// both packed operands, 32 columns each, are 2 × 32 KiB a panel.
+const KC: usize = 256;
 
 /// The right operand `B` (`k × n`), rounded to bf16 and laid out for the
 /// kernel: panels of [`NR`] columns; in each, for every pair of rows
@@ -232,7 +235,7 @@ fn emulated(m: usize, a: &[f32], lda: usize, b: &Packed, c: &mut [f32], ldc: usi
 
 #[cfg(target_arch = "x86_64")]
 mod avx512 {
-    use super::{Packed, MR, NR};
+    use super::{Packed, KC, MR, NR};
     use std::arch::x86_64::*;
     use std::cell::RefCell;
 
@@ -270,6 +273,14 @@ mod avx512 {
             strip.resize(MR * ks, 0);
             for r0 in (0..m).step_by(MR) {
                 let rows = MR.min(m - r0);
+                // The activations stream from memory: ask for the next
+                // strip's rows while this one computes.
+                for r in r0 + MR..(r0 + 2 * MR).min(m) {
+                    let row = a[r * lda..].as_ptr();
+                    for c0 in (0..k).step_by(16) {
+                        _mm_prefetch::<_MM_HINT_T0>(row.add(c0) as *const i8);
+                    }
+                }
                 for r in 0..MR {
                     let dst = strip[r * ks..].as_mut_ptr();
                     if r >= rows {
@@ -320,8 +331,9 @@ mod avx512 {
         words: &mut [u32],
     ) {
         let src = b.as_ptr();
-        for q in 0..n.div_ceil(NR) {
-            for p in 0..kp {
+        // Row pairs outermost: each row is read once, in order.
+        for p in 0..kp {
+            for q in 0..n.div_ceil(NR) {
                 for half in 0..2 {
                     let j0 = q * NR + half * 16;
                     if j0 >= n {
@@ -353,24 +365,29 @@ mod avx512 {
     #[target_feature(enable = "avx512f,avx512bf16")]
     pub(super) unsafe fn matmul_tn(xp: &Packed, b: &Packed, c: &mut [f32], ldc: usize) {
         let (k, n, kp) = (xp.n, b.n, b.kp);
-        for qa in 0..k.div_ceil(NR) {
-            let width = NR.min(k - qa * NR);
-            for r0 in (0..width).step_by(MR) {
-                let a = xp.words[qa * kp * NR + r0..].as_ptr();
-                let i0 = qa * NR + r0;
-                for q in 0..n.div_ceil(NR) {
-                    tile(
-                        a,
-                        1,
-                        NR,
-                        kp,
-                        b.words[q * kp * NR..].as_ptr(),
-                        c[i0 * ldc + q * NR..].as_mut_ptr(),
-                        ldc,
-                        MR.min(width - r0),
-                        NR.min(n - q * NR),
-                        false,
-                    );
+        // Row pairs in chunks whose operands stay in L2, each chunk's sums
+        // added to C in chunk order.
+        for p0 in (0..kp).step_by(KC) {
+            let pairs = KC.min(kp - p0);
+            for qa in 0..k.div_ceil(NR) {
+                let width = NR.min(k - qa * NR);
+                for r0 in (0..width).step_by(MR) {
+                    let a = xp.words[(qa * kp + p0) * NR + r0..].as_ptr();
+                    let i0 = qa * NR + r0;
+                    for q in 0..n.div_ceil(NR) {
+                        tile(
+                            a,
+                            1,
+                            NR,
+                            pairs,
+                            b.words[(q * kp + p0) * NR..].as_ptr(),
+                            c[i0 * ldc + q * NR..].as_mut_ptr(),
+                            ldc,
+                            MR.min(width - r0),
+                            NR.min(n - q * NR),
+                            p0 > 0,
+                        );
+                    }
                 }
             }
         }
