@@ -361,7 +361,8 @@ mod avx512 {
     }
 
     /// See [`super::matmul_tn`]: `xp` is `X` packed (its columns, the
-    /// rows of `Xᵀ`, in panels of 32, read 12 at a time).
+    /// rows of `Xᵀ`, in panels of 32, read 12 at a time). The caller
+    /// checked AVX-512 F + BF16 and C's bounds.
     #[target_feature(enable = "avx512f,avx512bf16")]
     pub(super) unsafe fn matmul_tn(xp: &Packed, b: &Packed, c: &mut [f32], ldc: usize) {
         let (k, n, kp) = (xp.n, b.n, b.kp);
@@ -393,8 +394,11 @@ mod avx512 {
         }
     }
 
-    /// One `MR × NR` tile: registers accumulate over all `kp` row pairs,
-    /// then `rows × cols` of it are written (or added) to `c`.
+    /// One `MR × NR` tile: registers accumulate over `kp` row pairs, then
+    /// `rows × cols` of it are written (or added) to `c`. Callers (above)
+    /// hold AVX-512 F + BF16 and pass pointers valid for `MR` rows of `a`
+    /// (zero rows or slack past the last), `kp` pairs of `b`, `rows × cols`
+    /// of `c`.
     #[target_feature(enable = "avx512f,avx512bf16")]
     #[allow(clippy::too_many_arguments)]
     unsafe fn tile(
