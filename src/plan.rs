@@ -56,7 +56,7 @@ fn describe_field(field: &sdfl_stdlib::value::Field) -> String {
             f.shape.primitive_count()
         ),
         Field::Nerf(n) => format!(
-            "NeRF: {} position, {}x{} ReLU trunk{}, {:?} density, {}; {} multiply-adds per sample{}; {}",
+            "NeRF: {} position, {}x{} ReLU trunk{}, {:?} density, {}; {} multiply-adds per sample{}; {}; {}",
             enc(&n.position),
             n.layers,
             n.width,
@@ -85,8 +85,24 @@ fn describe_field(field: &sdfl_stdlib::value::Field) -> String {
                     o.resolution, o.every
                 ),
                 None => "every sample evaluated (no occupancy grid)".into(),
-            }
+            },
+            precision(n.precision)
         ),
+    }
+}
+
+/// Which number format a network's layer products run in, here.
+fn precision(p: sdfl_stdlib::value::Precision) -> String {
+    use sdfl_stdlib::value::Precision;
+    let min = sdfl_runtime::neural::mlp::BF16_MIN;
+    match (p, sdfl_runtime::neural::bf16::available()) {
+        (Precision::Fp32, _) => "layer products in fp32".into(),
+        (Precision::Bf16, true) => format!(
+            "layer products in bf16 with fp32 sums (this CPU has AVX-512 BF16; layers narrower than {min} stay fp32)"
+        ),
+        (Precision::Bf16, false) => {
+            "layer products in fp32: bf16 asked for, but this CPU lacks AVX-512 BF16".into()
+        }
     }
 }
 

@@ -289,6 +289,34 @@ render field {
 }
 
 #[test]
+fn plan_says_which_precision_runs() {
+    let dir = temp("precision");
+    let file = dir.join("bf16.sdfl");
+    std::fs::write(
+        &file,
+        r#"
+let cams = orbit(views: 3)
+train t { model: nerf(precision: "bf16"), data: render_views(volsdf(sphere(0.5)), cameras: cams, size: [8, 8]) }
+train f { model: nerf(), data: render_views(volsdf(sphere(0.5)), cameras: cams, size: [8, 8]) }
+"#,
+    )
+    .unwrap();
+    let plan = sdfl(&["plan", file.to_str().unwrap()]);
+    let text = String::from_utf8_lossy(&plan.stdout);
+    let bf16 = if sdfl_runtime::neural::bf16::available() {
+        "layer products in bf16 with fp32 sums (this CPU has AVX-512 BF16"
+    } else {
+        "layer products in fp32: bf16 asked for, but this CPU lacks AVX-512 BF16"
+    };
+    assert!(text.contains(bf16), "{text}");
+    assert!(
+        text.contains("layer products in fp32\n") || text.contains("layer products in fp32;"),
+        "{text}"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
 fn docs_describe_the_syntax_and_the_new_builtins() {
     for (name, wants) in [
         ("if", "else if"),

@@ -72,6 +72,7 @@ fn fused_nerf_equals_the_dfdx_graph() {
         seed: 4,
         density: DensityActivation::Relu,
         occupancy: None,
+        precision: Default::default(),
     };
     let net = NerfNet::new(&spec);
     let mut params = net.init(spec.seed);

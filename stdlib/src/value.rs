@@ -464,6 +464,21 @@ pub struct Nerf {
     pub density: DensityActivation,
     /// Empty space skipped by an occupancy grid (coarse network only).
     pub occupancy: Option<OccupancySpec>,
+    /// Number format of the layers' matrix products.
+    pub precision: Precision,
+}
+
+/// Number format of a network's matrix products (weights, gradients and
+/// the optimizer stay fp32 either way).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Precision {
+    /// fp32 products.
+    #[default]
+    Fp32,
+    /// Operands rounded to bfloat16 (round-to-nearest-even), sums in fp32;
+    /// fp32 where the CPU lacks AVX-512 BF16.
+    Bf16,
 }
 
 /// An occupancy grid (nerfacc-style): `resolution`³ cells over `min..max`

@@ -687,6 +687,7 @@ mod tests {
             seed: 4,
             density: sdfl_stdlib::value::DensityActivation::Exp,
             occupancy: None,
+            precision: Default::default(),
         };
         let sampler = Sampler {
             samples: 7,
@@ -777,6 +778,7 @@ mod tests {
             seed: 2,
             density: sdfl_stdlib::value::DensityActivation::Softplus,
             occupancy: None,
+            precision: Default::default(),
         };
         let net = NerfNet::new(&spec);
         let mut params = net.init(spec.seed);

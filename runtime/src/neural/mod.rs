@@ -1,4 +1,5 @@
-//! Neural fields on the CPU: fused dense layers ([`mlp`]), input
+//! Neural fields on the CPU: fused dense layers ([`mlp`]) and their bf16
+//! products ([`bf16`]), input
 //! encodings ([`encoding`], the multiresolution hash grid [`hashgrid`]),
 //! the NeRF network ([`nerf`]), compositing of densities with its reverse
 //! sweep ([`composite`]), the NeRF as a trainable model and a renderable
@@ -7,6 +8,7 @@
 //! ([`sdf_net`]), as a model fitted to points ([`distance`]) and as a
 //! volume with a colour network fitted to images ([`surface`]).
 
+pub mod bf16;
 pub mod composite;
 pub mod distance;
 pub mod encoding;

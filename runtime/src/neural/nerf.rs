@@ -117,7 +117,7 @@ impl NerfNet {
         let (enc, w) = (position.width(), spec.width);
         let mut offset = first + position.len();
         let mut layer = |parts: &[usize], out: usize, act: Activation| {
-            let d = Dense::new(parts, out, act, offset);
+            let d = Dense::new(parts, out, act, offset).with_precision(spec.precision);
             offset = d.end();
             d
         };
@@ -476,6 +476,7 @@ mod tests {
             seed: 0,
             density: DensityActivation::Relu,
             occupancy: None,
+            precision: Default::default(),
         }
     }
 

@@ -21,8 +21,8 @@ use crate::shape::{Axis, Shape};
 use crate::value::{
     Backend, Dataset, DensityActivation, DensityKind, Encoding, Field, Harmonic, HashGridSpec,
     HitTolerance, LastInterval, Loss, LossKind, MeshRegion, Nerf, NeuralSdf, NeuralSurface,
-    OccupancySpec, Optimizer, Output, OutputKind, RenderJob, Sampler, Schedule, SdfField, TrainJob,
-    Value, VolumeJob,
+    OccupancySpec, Optimizer, Output, OutputKind, Precision, RenderJob, Sampler, Schedule,
+    SdfField, TrainJob, Value, VolumeJob,
 };
 
 pub const SHAPE: Type = Type::Named("shape");
