@@ -448,6 +448,22 @@ mod tests {
 
     /// The kernels to check here: the portable one, and the native one
     /// where this CPU has it.
+    /// `a · b` (row-major m×k and k×n) by `kernel`, into a fresh matrix.
+    fn product(kernel: Kernel, m: usize, k: usize, n: usize, a: &[f32], b: &[f32]) -> Vec<f32> {
+        let mut c = vec![0.0; m * n];
+        matmul(
+            kernel,
+            m,
+            a,
+            k,
+            &Packed::new(b, k, n, n, 1),
+            &mut c,
+            n,
+            false,
+        );
+        c
+    }
+
     fn kernels() -> Vec<Kernel> {
         std::iter::once(Kernel::Emulated)
             .chain(Kernel::native())
@@ -598,17 +614,7 @@ mod tests {
                 let a = random(m * k, &mut rng);
                 let b = random(k * n, &mut rng);
                 let want = reference(m, k, n, &a, k, &b, |x| x);
-                let mut c = vec![0.0; m * n];
-                matmul(
-                    kernel,
-                    m,
-                    &a,
-                    k,
-                    &Packed::new(&b, k, n, n, 1),
-                    &mut c,
-                    n,
-                    false,
-                );
+                let c = product(kernel, m, k, n, &a, &b);
                 for (got, &(s, abs)) in c.iter().zip(&want) {
                     assert!((*got as f64 - s).abs() <= 2f64.powi(-6) * abs + 1e-30);
                 }
@@ -668,17 +674,7 @@ mod tests {
         let b: Vec<f32> = (0..k * n).map(|i| vals[(i * 7 + 3) % vals.len()]).collect();
         let want = reference(m, k, n, &a, k, &b, round);
         for kernel in kernels() {
-            let mut c = vec![0.0; m * n];
-            matmul(
-                kernel,
-                m,
-                &a,
-                k,
-                &Packed::new(&b, k, n, n, 1),
-                &mut c,
-                n,
-                false,
-            );
+            let c = product(kernel, m, k, n, &a, &b);
             for (got, &(s, abs)) in c.iter().zip(&want) {
                 assert!(got.is_finite(), "{kernel:?}: {got}");
                 assert!((*got as f64 - s).abs() <= 1e-5 * abs + 1e-30);

@@ -1,0 +1,469 @@
+//! Shapes, combinators and transforms: the primitives' and operators'
+//! signatures, docs and evaluation.
+
+use super::*;
+
+/// The shape built-ins, in the order `sdfl docs` lists them.
+pub(super) fn builtins() -> Vec<Builtin> {
+    let center = || opt("center", Type::Vec3, "[0, 0, 0]", "centre of the shape");
+    let axis = || {
+        opt(
+            "axis",
+            Type::Str,
+            "\"z\"",
+            "the axis the shape is built along: \"x\", \"y\" or \"z\"",
+        )
+    };
+    // Any number of shapes (lists flattened), blended pairwise in order;
+    // `k` is named.
+    let smooth = |name: &'static str, doc: &'static str, eval: EvalFn| Builtin {
+        sig: Signature {
+            name,
+            params: vec![opt("k", Type::Number, "0.25", "blend radius (> 0)")],
+            rest: Some(req(
+                "shapes",
+                SHAPE,
+                "two or more shapes, or lists of shapes (the blend radius is named: `k: 0.2`)",
+            )),
+            returns: SHAPE,
+            doc,
+        },
+        eval,
+    };
+    vec![
+        // ---- shapes
+        func(
+            "sphere",
+            "A sphere: `|p - center| - radius` (exact).",
+            vec![opt("radius", Type::Number, "1", "radius (> 0)"), center()],
+            SHAPE,
+            |a| shape(Shape::Sphere { center: a.vec3_arg("center", Bound::Free)?, radius: a.length_arg("radius")? }),
+        ),
+        func(
+            "box",
+            "A box with full side lengths `size` (exact).",
+            vec![opt("size", num_or_vec(), "[1, 1, 1]", "side lengths (> 0); a number for a cube"), center()],
+            SHAPE,
+            |a| shape(Shape::Box { center: a.vec3_arg("center", Bound::Free)?, size: a.vec3_arg("size", Bound::AtLeast(MIN_LENGTH))? }),
+        ),
+        func(
+            "box_frame",
+            "The edges of a box: side lengths `size`, edge `thickness` (exact).",
+            vec![
+                opt("size", num_or_vec(), "[1, 1, 1]", "side lengths (> 0)"),
+                opt("thickness", Type::Number, "0.05", "edge thickness (> 0, below half the smallest side)"),
+                center(),
+            ],
+            SHAPE,
+            |a| {
+                let size = a.vec3_arg("size", Bound::AtLeast(MIN_LENGTH))?;
+                let thickness = a.length_arg("thickness")?;
+                if thickness.value >= size.value.min_element() * 0.5 {
+                    return Err(value_error(
+                        a.get("thickness").1,
+                        format!("`thickness` {} is not below half the smallest side {}", thickness.value, size.value.min_element()),
+                        "too thick",
+                        "a frame this thick is a solid box: use `box`, or thinner edges",
+                    ));
+                }
+                shape(Shape::BoxFrame { center: a.vec3_arg("center", Bound::Free)?, size, thickness })
+            },
+        ),
+        func(
+            "ellipsoid",
+            "An ellipsoid with semi-axes `radii` (a bound with Lipschitz constant 1).",
+            vec![opt("radii", num_or_vec(), "[1, 0.5, 0.5]", "semi-axes (> 0); a number for a sphere"), center()],
+            SHAPE,
+            |a| shape(Shape::Ellipsoid { center: a.vec3_arg("center", Bound::Free)?, radii: a.vec3_arg("radii", Bound::AtLeast(MIN_LENGTH))? }),
+        ),
+        func(
+            "octahedron",
+            "An octahedron with vertices at `±size` on each axis (a bound with Lipschitz constant 1).",
+            vec![opt("size", Type::Number, "1", "distance from the centre to a vertex (> 0)"), center()],
+            SHAPE,
+            |a| shape(Shape::Octahedron { center: a.vec3_arg("center", Bound::Free)?, size: a.length_arg("size")? }),
+        ),
+        func(
+            "capped_cone",
+            "A cone cut at both ends, along the Z axis (or `axis`): radius `bottom` at z = -height/2, `top` at +height/2 (exact; `top: 0` is a cone).",
+            vec![
+                opt("height", Type::Number, "1", "full height (> 0)"),
+                opt("bottom", Type::Number, "0.5", "radius of the lower cap (≥ 0)"),
+                opt("top", Type::Number, "0.2", "radius of the upper cap (≥ 0)"),
+                center(),
+                axis(),
+            ],
+            SHAPE,
+            |a| {
+                let radius = |name| a.scalar_arg(name, Bound::Within(0.0, f64::MAX));
+                let (bottom, top) = (radius("bottom")?, radius("top")?);
+                if bottom.value <= 0.0 && top.value <= 0.0 {
+                    return Err(value_error(a.span, "a cone with no radius at either end", "both radii 0", "give `bottom` or `top` a radius above 0"));
+                }
+                shape(Shape::CappedCone { center: a.vec3_arg("center", Bound::Free)?, height: a.length_arg("height")?, bottom, top, axis: axis_arg(a)? })
+            },
+        ),
+        func(
+            "cone",
+            "A pointed cone along the Z axis (or `axis`): base of `radius` at -height/2, tip at +height/2 (exact; `capped_cone` with `top: 0`).",
+            vec![
+                opt("radius", Type::Number, "0.5", "radius of the base (> 0)"),
+                opt("height", Type::Number, "1", "full height (> 0)"),
+                center(),
+                axis(),
+            ],
+            SHAPE,
+            |a| {
+                let top = Arg { value: 0.0, param: None };
+                shape(Shape::CappedCone { center: a.vec3_arg("center", Bound::Free)?, height: a.length_arg("height")?, bottom: a.length_arg("radius")?, top, axis: axis_arg(a)? })
+            },
+        ),
+        func(
+            "round_cone",
+            "Two spheres, radius `bottom` at z = -height/2 and `top` at +height/2, joined by the cone tangent to both (their convex hull; exact). Needs |bottom - top| < height.",
+            vec![
+                opt("bottom", Type::Number, "0.5", "radius of the lower sphere (> 0)"),
+                opt("top", Type::Number, "0.2", "radius of the upper sphere (> 0)"),
+                opt("height", Type::Number, "1", "distance between the spheres' centres (> |bottom - top|)"),
+                center(),
+                axis(),
+            ],
+            SHAPE,
+            |a| {
+                let (bottom, top, height) = (a.length_arg("bottom")?, a.length_arg("top")?, a.length_arg("height")?);
+                if (bottom.value - top.value).abs() >= height.value {
+                    return Err(value_error(
+                        a.get("height").1,
+                        format!("`height` {} is not above |bottom - top| = |{} - {}|", sdfl_lang::fmt_num(height.value), sdfl_lang::fmt_num(bottom.value), sdfl_lang::fmt_num(top.value)),
+                        "one sphere holds the other",
+                        "make `height` larger than |bottom - top|, or use `sphere`",
+                    ));
+                }
+                shape(Shape::RoundCone { center: a.vec3_arg("center", Bound::Free)?, bottom, top, height, axis: axis_arg(a)? })
+            },
+        ),
+        func(
+            "hex_prism",
+            "A hexagonal prism along the Z axis (or `axis`): flat sides `radius` from the axis, two of them parallel to X, full `height` (exact).",
+            vec![
+                opt("radius", Type::Number, "0.5", "distance from the axis to each flat side (> 0)"),
+                opt("height", Type::Number, "1", "full height (> 0)"),
+                center(),
+                axis(),
+            ],
+            SHAPE,
+            |a| shape(Shape::HexPrism { center: a.vec3_arg("center", Bound::Free)?, radius: a.length_arg("radius")?, height: a.length_arg("height")?, axis: axis_arg(a)? }),
+        ),
+        func(
+            "tri_prism",
+            "A prism along the Z axis (or `axis`) over an equilateral triangle of `side`, centred on its centroid with a vertex towards +Y, full `height` (exact).",
+            vec![
+                opt("side", Type::Number, "1", "side of the triangle (> 0)"),
+                opt("height", Type::Number, "1", "full height (> 0)"),
+                center(),
+                axis(),
+            ],
+            SHAPE,
+            |a| shape(Shape::TriPrism { center: a.vec3_arg("center", Bound::Free)?, side: a.length_arg("side")?, height: a.length_arg("height")?, axis: axis_arg(a)? }),
+        ),
+        func(
+            "rounded_box",
+            "A box of full side lengths `size` with edges rounded by `radius`: sugar for `round(box(size - 2·radius), radius)`, so it spans exactly `size` (exact outside, a bound inside). Not trainable: write `round(box(size: param(..)), param(..))` to fit one.",
+            vec![
+                opt("size", num_or_vec(), "[1, 1, 1]", "side lengths (> 0); a number for a cube"),
+                opt("radius", Type::Number, "0.1", "edge radius (> 0, below half the smallest side)"),
+                center(),
+            ],
+            SHAPE,
+            |a| {
+                let size = a.vec3_arg("size", Bound::AtLeast(MIN_LENGTH))?;
+                let radius = a.length_arg("radius")?;
+                if size.param.is_some() || radius.param.is_some() {
+                    return Err(value_error(a.span, "`rounded_box` with trainable arguments", "param", "write `round(box(size: param(..)), param(..))` to train them"));
+                }
+                if radius.value * 2.0 >= size.value.min_element() {
+                    return Err(value_error(
+                        a.get("radius").1,
+                        format!("`radius` {} is not below half the smallest side {}", sdfl_lang::fmt_num(radius.value), sdfl_lang::fmt_num(size.value.min_element())),
+                        "too round",
+                        "use a smaller radius, or `sphere`/`capsule`",
+                    ));
+                }
+                let inner = Shape::Box { center: a.vec3_arg("center", Bound::Free)?, size: (size.value - DVec3::splat(2.0 * radius.value)).into() };
+                shape(Shape::Round(Arc::new(inner), radius))
+            },
+        ),
+        func(
+            "link",
+            "A chain link around the Z axis (or `axis`): a torus (`major`, `minor`) cut across Y and pulled apart by straight parts of `length` (exact).",
+            vec![
+                opt("length", Type::Number, "1", "length of the straight parts (> 0)"),
+                opt("major", Type::Number, "0.4", "distance from the centre line to the tube's centre (> 0)"),
+                opt("minor", Type::Number, "0.1", "radius of the tube (> 0)"),
+                center(),
+                axis(),
+            ],
+            SHAPE,
+            |a| shape(Shape::Link { center: a.vec3_arg("center", Bound::Free)?, length: a.length_arg("length")?, major: a.length_arg("major")?, minor: a.length_arg("minor")?, axis: axis_arg(a)? }),
+        ),
+        func(
+            "torus",
+            "A torus around the Z axis (or `axis`), in the XY plane (exact).",
+            vec![
+                opt("major", Type::Number, "1", "distance from the centre to the tube's centre (> 0)"),
+                opt("minor", Type::Number, "0.25", "radius of the tube (> 0)"),
+                center(),
+                axis(),
+            ],
+            SHAPE,
+            |a| shape(Shape::Torus { center: a.vec3_arg("center", Bound::Free)?, major: a.length_arg("major")?, minor: a.length_arg("minor")?, axis: axis_arg(a)? }),
+        ),
+        func(
+            "capsule",
+            "A segment from `a` to `b` thickened by `radius` (exact).",
+            vec![
+                req("a", Type::Vec3, "one end"),
+                req("b", Type::Vec3, "the other end"),
+                opt("radius", Type::Number, "0.25", "radius (> 0)"),
+            ],
+            SHAPE,
+            |a| shape(Shape::Capsule { a: a.vec3_arg("a", Bound::Free)?, b: a.vec3_arg("b", Bound::Free)?, radius: a.length_arg("radius")? }),
+        ),
+        func(
+            "cylinder",
+            "A capped cylinder along the Z axis (or `axis`) (exact).",
+            vec![
+                opt("radius", Type::Number, "0.5", "radius (> 0)"),
+                opt("height", Type::Number, "1", "full height (> 0)"),
+                center(),
+                axis(),
+            ],
+            SHAPE,
+            |a| shape(Shape::Cylinder { center: a.vec3_arg("center", Bound::Free)?, radius: a.length_arg("radius")?, height: a.length_arg("height")?, axis: axis_arg(a)? }),
+        ),
+        func(
+            "plane",
+            "The half-space below a plane: `dot(p, normal) - height` (exact, unbounded).",
+            vec![
+                opt("normal", Type::Vec3, "[0, 1, 0]", "the plane's normal (nonzero)"),
+                opt("height", Type::Number, "0", "offset along the normal"),
+            ],
+            SHAPE,
+            |a| shape(Shape::Plane { normal: a.direction("normal")?, height: a.scalar_arg("height", Bound::Free)? }),
+        ),
+        // ---- combinators
+        variadic(
+            "union",
+            "The union (minimum) of shapes; lists are flattened. Culled with a BVH when large.",
+            req("shapes", SHAPE, "shapes or lists of shapes"),
+            SHAPE,
+            |a| {
+                let shapes = a.rest_shapes()?;
+                if shapes.is_empty() {
+                    return Err(value_error(a.span, "`union` of no shapes", "empty", "give at least one shape"));
+                }
+                shape(if shapes.len() == 1 { (*shapes[0]).clone() } else { Shape::Union(shapes) })
+            },
+        ),
+        variadic(
+            "intersection",
+            "The intersection (maximum) of shapes (a bound).",
+            req("shapes", SHAPE, "shapes or lists of shapes"),
+            SHAPE,
+            |a| {
+                let shapes = a.rest_shapes()?;
+                if shapes.is_empty() {
+                    return Err(value_error(a.span, "`intersection` of no shapes", "empty", "give at least one shape"));
+                }
+                shape(Shape::Intersection(shapes))
+            },
+        ),
+        func(
+            "subtraction",
+            "`a` with `b` cut away: `max(a, -b)` (a bound).",
+            vec![req("a", SHAPE, "the shape to cut"), req("b", SHAPE, "the shape removed")],
+            SHAPE,
+            |a| shape(Shape::Subtraction(a.shape("a")?, a.shape("b")?)),
+        ),
+        smooth("smooth_union", "Union of any number of shapes or lists, blended over radius `k` (polynomial smooth minimum, folded left: `smooth_union(a, b, c)` is `smooth_union(smooth_union(a, b), c)`; a bound).", |a| {
+            blend(a, |x, y, k| Shape::SmoothUnion(x, y, k))
+        }),
+        smooth("smooth_intersection", "Intersection of any number of shapes or lists, blended over radius `k`, folded left like `smooth_union` (a bound).", |a| {
+            blend(a, |x, y, k| Shape::SmoothIntersection(x, y, k))
+        }),
+        smooth("smooth_subtraction", "The first shape minus each of the others, blended over radius `k` (a bound).", |a| {
+            blend(a, |x, y, k| Shape::SmoothSubtraction(x, y, k))
+        }),
+        // ---- transforms
+        func(
+            "translate",
+            "Moves a shape by `by`.",
+            vec![req("shape", SHAPE, "the shape"), req("by", Type::Vec3, "offset")],
+            SHAPE,
+            |a| shape(Shape::Translate(a.shape("shape")?, a.vec3_arg("by", Bound::Free)?)),
+        ),
+        func(
+            "rotate",
+            "Rotates a shape by `angle` (radians; write `30deg` for degrees) around `axis` through the origin.",
+            vec![
+                req("shape", SHAPE, "the shape"),
+                req("angle", Type::Number, "angle in radians"),
+                opt("axis", Type::Vec3, "[0, 0, 1]", "rotation axis (nonzero)"),
+            ],
+            SHAPE,
+            |a| {
+                shape(Shape::Rotate {
+                    shape: a.shape("shape")?,
+                    axis: a.direction("axis")?,
+                    angle: a.scalar_arg("angle", Bound::Free)?,
+                })
+            },
+        ),
+        func(
+            "scale",
+            "Scales a shape about the origin: by a number, uniformly (keeps exactness); by `[sx, sy, sz]`, per axis: `max(min(s)·d(p/s), distance to the scaled bounding box)`, a bound with Lipschitz constant that of the shape (at least 1).",
+            vec![req("shape", SHAPE, "the shape"), req("factor", num_or_vec(), "scale factor (> 0), or one per axis")],
+            SHAPE,
+            |a| {
+                let s = a.shape("shape")?;
+                match a.get("factor").0 {
+                    Value::Number(_) => shape(Shape::Scale(s, a.length_arg("factor")?)),
+                    Value::Param(d) if matches!(d.init, ParamInit::Scalar(_)) => shape(Shape::Scale(s, a.length_arg("factor")?)),
+                    _ => {
+                        let f = a.vec3_arg("factor", Bound::AtLeast(MIN_LENGTH))?;
+                        let v = f.value;
+                        if f.param.is_none() && v.x == v.y && v.y == v.z {
+                            return shape(Shape::Scale(s, v.x.into()));
+                        }
+                        shape(Shape::ScaleXyz(s, f))
+                    }
+                }
+            },
+        ),
+        func(
+            "elongate",
+            "Cuts a shape at the planes through the origin and pulls the halves `by` apart on each side (`d(p - clamp(p, -by, by))`), filling the gap with the section there: a sphere at the origin becomes a capsule, a torus a link (build the shape around the origin, then `translate`). Exact outside an exact shape, a bound inside.",
+            vec![req("shape", SHAPE, "the shape"), req("by", num_or_vec(), "half the added length on each axis (≥ 0)")],
+            SHAPE,
+            |a| shape(Shape::Elongate(a.shape("shape")?, a.vec3_arg("by", Bound::Within(0.0, f64::MAX))?)),
+        ),
+        func(
+            "repeat",
+            "Copies of a shape `spacing` apart on each axis (0: not repeated on that axis), `count` of them per axis centred on the origin, or infinitely many where `count` is 0 (unbounded: never culled). Each point looks at every copy that can be nearest (those whose centre is within ½ + extent/spacing cells, `extent` how far the shape reaches from the origin), so the result is the union of all copies: exact for an exact shape whose copies do not overlap (extent ≤ spacing/2), a bound otherwise.",
+            vec![
+                req("shape", SHAPE, "the shape, around the origin"),
+                req("spacing", num_or_vec(), "distance between copies per axis (≥ 0; 0: not repeated)"),
+                opt("count", num_or_vec(), "0", "copies per axis (whole numbers; 0: infinitely many)"),
+            ],
+            SHAPE,
+            |a| {
+                let s = a.shape("shape")?;
+                let mut spacing = a.vec3_arg("spacing", Bound::Within(0.0, f64::MAX))?;
+                // Training may not pack the copies much closer than they
+                // start (each point would evaluate ever more of them).
+                if let Some(u) = &mut spacing.param {
+                    let least = spacing.value.min_element();
+                    if least <= 0.0 {
+                        return Err(value_error(a.get("spacing").1, "a trainable `spacing` is 0 on some axis", "not repeated there", "give every axis a spacing and `count: 1` where it is not repeated"));
+                    }
+                    u.bound = Bound::AtLeast(least * 0.5);
+                }
+                let (cv, cspan) = (a.vec3("count")?, a.get("count").1);
+                if cv.to_array().iter().any(|c| c.fract() != 0.0 || *c < 0.0 || *c > 1e6) {
+                    return Err(value_error(cspan, "`count` must be whole numbers from 0 to 1000000", "not a count", "write e.g. `count: [5, 1, 5]` (0: infinitely many)"));
+                }
+                let count = cv.to_array().map(|c| c as u32);
+                if spacing.value.max_element() <= 0.0 {
+                    return Err(value_error(a.get("spacing").1, "`spacing` is 0 on every axis", "nothing repeated", "give the distance between copies on at least one axis"));
+                }
+                if s.bounds().is_none() {
+                    return Err(value_error(a.get("shape").1, "`repeat` of an unbounded shape (a plane)", "unbounded", "repeat bounded shapes; a repeated plane is the plane"));
+                }
+                let r = Shape::Repeat { shape: s, spacing, count };
+                if r.copies_per_point() > MAX_COPIES_PER_POINT {
+                    return Err(value_error(
+                        a.get("spacing").1,
+                        format!("copies overlap so much that each point would evaluate {} of them (at most {MAX_COPIES_PER_POINT})", r.copies_per_point()),
+                        "spacing too small for the shape",
+                        "space the copies further apart or make the shape smaller",
+                    ));
+                }
+                shape(r)
+            },
+        ),
+        func(
+            "mirror",
+            "Keeps the shape's half on the positive side of `axis` and reflects it onto the other (`d(|x|, y, z)` for \"x\"). Exact for an exact shape lying on the positive side, a bound otherwise.",
+            vec![req("shape", SHAPE, "the shape"), opt("axis", Type::Str, "\"x\"", "the axis flipped: \"x\", \"y\" or \"z\"")],
+            SHAPE,
+            |a| shape(Shape::Mirror(a.shape("shape")?, axis_arg(a)?)),
+        ),
+        func(
+            "twist",
+            "Turns each slice of a shape across Z by `rate·z` radians about the Z axis. A bound with Lipschitz constant `L·(1 + |rate|·R)` (`L` the shape's, `R` the radius of the cylinder about Z holding its bounds), traced with proportionally shorter steps; outside that cylinder it is at least the distance to it.",
+            vec![req("shape", SHAPE, "the shape"), req("rate", Type::Number, "radians per unit of z")],
+            SHAPE,
+            |a| {
+                let s = a.shape("shape")?;
+                unbounded_warp(a, &s, "twist")?;
+                shape(Shape::Twist(s, a.scalar_arg("rate", Bound::Free)?))
+            },
+        ),
+        func(
+            "bend",
+            "Bends a shape in the XY plane: each slice across X turned by `rate·x` radians about the Z axis. A bound with Lipschitz constant `L·(1 + |rate|·R)` like `twist`.",
+            vec![req("shape", SHAPE, "the shape"), req("rate", Type::Number, "radians per unit of x")],
+            SHAPE,
+            |a| {
+                let s = a.shape("shape")?;
+                unbounded_warp(a, &s, "bend")?;
+                shape(Shape::Bend(s, a.scalar_arg("rate", Bound::Free)?))
+            },
+        ),
+        func(
+            "displace",
+            "Adds `amplitude·sin(f·x)·sin(f·y)·sin(f·z)`: a bound with Lipschitz constant `1 + √3·amplitude·frequency`, traced with proportionally shorter steps.",
+            vec![
+                req("shape", SHAPE, "the shape"),
+                opt("amplitude", Type::Number, "0.05", "displacement amplitude (> 0)"),
+                opt("frequency", Type::Number, "10", "spatial frequency (> 0)"),
+            ],
+            SHAPE,
+            |a| {
+                shape(Shape::Displace {
+                    shape: a.shape("shape")?,
+                    amplitude: a.length_arg("amplitude")?,
+                    frequency: a.length_arg("frequency")?,
+                })
+            },
+        ),
+        func(
+            "round",
+            "The shape grown by `radius`, `d - radius`: rounds its edges (a box of side s rounded by r spans s + 2r). Exact outside an exact convex shape, a bound elsewhere.",
+            vec![req("shape", SHAPE, "the shape"), opt("radius", Type::Number, "0.1", "how far to grow (> 0)")],
+            SHAPE,
+            |a| shape(Shape::Round(a.shape("shape")?, a.length_arg("radius")?)),
+        ),
+        func(
+            "onion",
+            "A shell of `thickness` around the shape's surface, `|d| - thickness` (a bound).",
+            vec![req("shape", SHAPE, "the shape"), opt("thickness", Type::Number, "0.05", "half the shell's width (> 0)")],
+            SHAPE,
+            |a| shape(Shape::Onion(a.shape("shape")?, a.length_arg("thickness")?)),
+        ),
+        func(
+            "xor",
+            "Inside exactly one of `a` and `b`: `max(min(a, b), -max(a, b))` (a bound).",
+            vec![req("a", SHAPE, "first shape"), req("b", SHAPE, "second shape")],
+            SHAPE,
+            |a| shape(Shape::Xor(a.shape("a")?, a.shape("b")?)),
+        ),
+        func(
+            "paint",
+            "Gives a shape's primitives a material (overriding the render's).",
+            vec![req("shape", SHAPE, "the shape"), req("material", Type::OneOf(vec![MATERIAL, Type::Vec3]), "a material or a colour [r, g, b]")],
+            SHAPE,
+            |a| shape(Shape::Paint(a.shape("shape")?, a.material("material")?)),
+        ),
+    ]
+}
