@@ -34,7 +34,8 @@ fn temp(name: &str) -> PathBuf {
     d
 }
 
-fn run(density: &str, iterations: usize, out: &std::path::Path) -> TrainReport {
+/// Runs the fit; without `mesh` no mesh is written (nor measured).
+fn run(density: &str, iterations: usize, mesh: bool, out: &std::path::Path) -> TrainReport {
     // NeuS (no α: its opacity comes from β) also trains its β.
     let (alpha, beta) = if density == "volsdf" {
         ("alpha: 12, ", "0.08")
@@ -46,6 +47,11 @@ fn run(density: &str, iterations: usize, out: &std::path::Path) -> TrainReport {
         .replace("ALPHA", alpha)
         .replace("BETA", beta)
         .replace("ITERATIONS", &iterations.to_string());
+    let src = if mesh {
+        src
+    } else {
+        src.replace("mesh(\"fit.ply\", resolution: 32), ", "")
+    };
     let job = sdfl_stdlib::load(&SourceFile::new("fit.sdfl", src))
         .unwrap()
         .trains[0]
@@ -64,41 +70,60 @@ fn mesh_error(report: &TrainReport) -> f64 {
     fit.chamfer
 }
 
-#[test]
-fn volsdf_and_neus_learn_a_sphere_from_its_images() {
-    for density in ["volsdf", "neus"] {
-        let dir = temp(density);
-        let start = run(density, 0, &dir);
-        let _ = std::fs::remove_dir_all(&dir);
-        let end = run(density, 250, &dir);
-        let (p0, p1) = (start.held_out[0].psnr, end.held_out.last().unwrap().psnr);
-        assert!(
-            p1 > p0 + 5.0 && p1 > 20.0,
-            "{density}: held-out PSNR {p0:.2} → {p1:.2}"
-        );
-        let (e0, e1) = (mesh_error(&start), mesh_error(&end));
-        // The start is about 0.3 inside everywhere.
+/// Trains `density` on the sphere's views for 250 steps: held-out PSNR and
+/// the mesh's distance to the true surface must improve well past their
+/// start. `measure_start` also measures the untrained mesh (about 0.3
+/// inside everywhere), which shows the measure sees a bad surface; it is the
+/// slow part (far surfaces are costly nearest-point queries), so one
+/// density does it.
+fn learns_a_sphere_from_its_images(density: &str, measure_start: bool) {
+    let dir = temp(density);
+    let start = run(density, 0, measure_start, &dir);
+    let _ = std::fs::remove_dir_all(&dir);
+    let end = run(density, 250, true, &dir);
+    let (p0, p1) = (start.held_out[0].psnr, end.held_out.last().unwrap().psnr);
+    assert!(
+        p1 > p0 + 5.0 && p1 > 20.0,
+        "{density}: held-out PSNR {p0:.2} → {p1:.2}"
+    );
+    // The start is a sphere of radius 0.4 inside the true 0.7.
+    let e0 = if measure_start {
+        let e0 = mesh_error(&start);
         assert!(e0 > 0.2, "{density}: {e0}");
-        assert!(
-            e1 < 0.08 && e1 < e0 / 3.0,
-            "{density}: Chamfer {e0:.3} → {e1:.4}"
-        );
-        // A trained β is reported, moved from its start and in range.
-        match density {
-            "neus" => {
-                let (name, b) = &end.params[0];
-                assert_eq!(name, "beta");
-                assert!(b[0] != 0.08 && b[0] > 1e-4 && b[0] < 10.0, "{b:?}");
-            }
-            _ => assert!(end.params.is_empty()),
+        e0
+    } else {
+        0.3
+    };
+    let e1 = mesh_error(&end);
+    assert!(
+        e1 < 0.08 && e1 < e0 / 3.0,
+        "{density}: Chamfer {e0:.3} → {e1:.4}"
+    );
+    // A trained β is reported, moved from its start and in range.
+    match density {
+        "neus" => {
+            let (name, b) = &end.params[0];
+            assert_eq!(name, "beta");
+            assert!(b[0] != 0.08 && b[0] > 1e-4 && b[0] < 10.0, "{b:?}");
         }
-        let gif = end
-            .written
-            .iter()
-            .find(|w| w.kind == "geometry_gif")
-            .unwrap();
-        assert_eq!(gif.frames, 1);
-        assert!(dir.join("geometry.gif").is_file());
-        let _ = std::fs::remove_dir_all(&dir);
+        _ => assert!(end.params.is_empty()),
     }
+    let gif = end
+        .written
+        .iter()
+        .find(|w| w.kind == "geometry_gif")
+        .unwrap();
+    assert_eq!(gif.frames, 1);
+    assert!(dir.join("geometry.gif").is_file());
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn volsdf_learns_a_sphere_from_its_images() {
+    learns_a_sphere_from_its_images("volsdf", true);
+}
+
+#[test]
+fn neus_learns_a_sphere_from_its_images() {
+    learns_a_sphere_from_its_images("neus", false);
 }

@@ -6,11 +6,12 @@
 //! must give finite values and gradients.
 
 use sdfl_lang::SourceFile;
-use sdfl_runtime::train::fused::{field_at, loss_and_grad, loss_and_grad_f32, Batch};
+use sdfl_runtime::train::fused::{
+    loss_and_grad_f32, loss_and_grad_f64, loss_and_grad_scalar_f32, Batch,
+};
 use sdfl_runtime::train::TrainModel;
 use sdfl_runtime::volume::{camera_rays, ImageSize, Stratified};
 use sdfl_stdlib::camera::Camera;
-use sdfl_stdlib::num::{Dual, Real, V3};
 use sdfl_stdlib::value::LastInterval;
 
 /// Models, each with every argument that can be trained marked `param`.
@@ -99,8 +100,8 @@ fn every_parameter_gradient_matches_finite_differences() {
         let m = model(src);
         assert!(m.scalars > 0, "{name}: no parameters");
         let v0 = m.initial_values();
-        let g = loss_and_grad::<f64>(&m, &v0, &b, 1.0).grad;
-        let loss = |v: &[f64]| loss_and_grad::<f64>(&m, v, &b, 1.0).loss;
+        let g = loss_and_grad_f64(&m, &v0, &b, 1.0).grad;
+        let loss = |v: &[f64]| loss_and_grad_f64(&m, v, &b, 1.0).loss;
         for i in 0..m.scalars {
             let (mut up, mut down) = (v0.clone(), v0.clone());
             up[i] += h;
@@ -137,7 +138,7 @@ fn lane_kernel_is_the_scalar_kernel_to_the_bit() {
             let v: Vec<f32> = m.initial_values().iter().map(|&x| x as f32).collect();
             let (lanes, scalar) = (
                 loss_and_grad_f32(&m, &v, &b, 1.0),
-                loss_and_grad::<f32>(&m, &v, &b, 1.0),
+                loss_and_grad_scalar_f32(&m, &v, &b, 1.0),
             );
             assert_eq!(lanes.loss.to_bits(), scalar.loss.to_bits(), "{name}");
             for (x, y) in lanes.grad.iter().zip(&scalar.grad) {
@@ -157,8 +158,8 @@ fn f32_kernel_matches_f64() {
         let v64 = m.initial_values();
         let v32: Vec<f32> = v64.iter().map(|&x| x as f32).collect();
         let (a, r) = (
-            loss_and_grad::<f32>(&m, &v32, &b, 1.0),
-            loss_and_grad::<f64>(&m, &v64, &b, 1.0),
+            loss_and_grad_scalar_f32(&m, &v32, &b, 1.0),
+            loss_and_grad_f64(&m, &v64, &b, 1.0),
         );
         assert!(
             (a.loss - r.loss).abs() <= 1e-5 * (1.0 + r.loss.abs()),
@@ -188,7 +189,7 @@ fn hard_cases_have_finite_values_and_gradients() {
             batch([0.3, 0.4, -3.0], LastInterval::Infinite),
             grazing.clone(),
         ] {
-            let lg = loss_and_grad::<f32>(
+            let lg = loss_and_grad_scalar_f32(
                 &m,
                 &v.iter().map(|&x| x as f32).collect::<Vec<_>>(),
                 &b,
@@ -200,23 +201,27 @@ fn hard_cases_have_finite_values_and_gradients() {
             );
         }
     }
-    // Points exactly on a box's edge and corner, and at its centre.
+    // Samples exactly on a box's edge and corner, and at its centre: a ray
+    // from each point, its first sample at the point itself.
     let m = model("sdf_volume(box(size: param([1, 1, 1]), center: param([0, 0, 0])))");
     let v: Vec<f64> = m.initial_values();
-    let args = m.args::<f64, 6>(&v, 0);
     for p in [
         [0.5, 0.5, 0.0],
         [0.5, 0.5, 0.5],
         [0.0, 0.0, 0.0],
         [0.5, 0.0, 0.0],
     ] {
-        let (d, c) = field_at(&m, &args, V3::from_array(p.map(Dual::<f64, 6>::lit)));
-        for x in [d, c.x, c.y, c.z] {
-            assert!(
-                x.v.is_finite() && x.d.iter().all(|g| g.is_finite()),
-                "{p:?}: {x:?}"
-            );
-        }
+        let mut b = batch([0.3, 0.4, -3.0], LastInterval::Zero);
+        b.rays.truncate(1);
+        b.targets.truncate(1);
+        b.rays[0].origin = p;
+        b.rays[0].dir = [0.0, 0.0, 1.0];
+        let lg = loss_and_grad_f64(&m, &v, &b, 1.0);
+        assert!(
+            lg.loss.is_finite() && lg.grad.iter().all(|g| g.is_finite()),
+            "{p:?}: {lg:?}"
+        );
+        assert!(lg.grad.iter().any(|g| *g != 0.0), "{p:?}: {lg:?}");
     }
 }
 
@@ -234,13 +239,13 @@ fn a_parameter_used_twice_is_one_parameter_named_by_its_let() {
     // Its gradient is the sum over both uses: equal to finite differences.
     let b = batch([0.3, 0.4, -3.0], LastInterval::Zero);
     let v0 = m.initial_values();
-    let g = loss_and_grad::<f64>(&m, &v0, &b, 1.0).grad;
+    let g = loss_and_grad_f64(&m, &v0, &b, 1.0).grad;
     let h = 1e-6;
     let (mut up, mut down) = (v0.clone(), v0.clone());
     up[0] += h;
     down[0] -= h;
-    let fd = (loss_and_grad::<f64>(&m, &up, &b, 1.0).loss
-        - loss_and_grad::<f64>(&m, &down, &b, 1.0).loss)
+    let fd = (loss_and_grad_f64(&m, &up, &b, 1.0).loss
+        - loss_and_grad_f64(&m, &down, &b, 1.0).loss)
         / (2.0 * h);
     assert!(
         (g[0] - fd).abs() <= 1e-7 + 1e-4 * fd.abs(),
@@ -265,14 +270,14 @@ fn many_parameters_take_several_tangent_passes() {
     assert_eq!(m.scalars, 80);
     let b = batch([0.3, 0.4, -3.0], LastInterval::Zero);
     let v0 = m.initial_values();
-    let g = loss_and_grad::<f64>(&m, &v0, &b, 1.0).grad;
+    let g = loss_and_grad_f64(&m, &v0, &b, 1.0).grad;
     let h = 1e-6;
     for i in [0, 17, 40, 79] {
         let (mut up, mut down) = (v0.clone(), v0.clone());
         up[i] += h;
         down[i] -= h;
-        let fd = (loss_and_grad::<f64>(&m, &up, &b, 1.0).loss
-            - loss_and_grad::<f64>(&m, &down, &b, 1.0).loss)
+        let fd = (loss_and_grad_f64(&m, &up, &b, 1.0).loss
+            - loss_and_grad_f64(&m, &down, &b, 1.0).loss)
             / (2.0 * h);
         assert!(
             (g[i] - fd).abs() <= 1e-7 + 1e-4 * fd.abs(),
@@ -292,7 +297,7 @@ fn dfdx_graph_backend_matches_the_fused_kernel() {
             let v64 = m.initial_values();
             let v32: Vec<f32> = v64.iter().map(|&x| x as f32).collect();
             let g = sdfl_runtime::train::graph::loss_and_grad(&dev, &m, &v32, &b, 1.0).unwrap();
-            let r = loss_and_grad::<f64>(&m, &v64, &b, 1.0);
+            let r = loss_and_grad_f64(&m, &v64, &b, 1.0);
             assert!(
                 (g.loss - r.loss).abs() <= 1e-5 * (1.0 + r.loss.abs()),
                 "{name}: {} vs {}",

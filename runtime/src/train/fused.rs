@@ -270,7 +270,11 @@ impl PlainMarch<f32> {
 /// fills `adjoint` (each sample's sdf and colour) and returns (loss, ∂L/∂α,
 /// ∂L/∂β, the largest adjoint). `∂L/∂ln(1 − o_k)` is the suffix sum
 /// `Σ_{j>k} (g·c_j)·w_j`, so an opaque sample needs no division.
-fn reverse_sweep<F: Real>(
+///
+/// `FIELD`: whether the samples' adjoints are wanted (tangents follow);
+/// `DENSITY`: whether α's and β's are (either is a parameter). What is not
+/// wanted is not computed and comes back as zero.
+fn reverse_sweep<F: Real, const FIELD: bool, const DENSITY: bool>(
     colour: [F; 3],
     target: [f32; 3],
     scale: F,
@@ -285,7 +289,9 @@ fn reverse_sweep<F: Real>(
         g[i] = F::lit(2.0) * e * scale;
     }
     adjoint.clear();
-    adjoint.resize(plain.len(), (F::zero(), [F::zero(); 3]));
+    if FIELD {
+        adjoint.resize(plain.len(), (F::zero(), [F::zero(); 3]));
+    }
     let (mut d_alpha, mut d_beta) = (F::zero(), F::zero());
     let mut suffix = F::zero();
     let mut largest = 0.0f64;
@@ -299,15 +305,39 @@ fn reverse_sweep<F: Real>(
         let w = tr[k] * o[k];
         let d_opacity = tr[k] * gc;
         // One add a sample on each running sum.
-        d_alpha = d_alpha + (d_opacity * dop[1][k] + suffix * dlk[1][k]);
-        d_beta = d_beta + (d_opacity * dop[2][k] + suffix * dlk[2][k]);
-        let d_sdf = d_opacity * dop[0][k] + suffix * dlk[0][k];
-        let d_colour = g.map(|x| x * w);
-        largest = largest.max(adjoint_size(d_sdf, d_colour));
-        adjoint[k] = (d_sdf, d_colour);
+        if DENSITY {
+            d_alpha = d_alpha + (d_opacity * dop[1][k] + suffix * dlk[1][k]);
+            d_beta = d_beta + (d_opacity * dop[2][k] + suffix * dlk[2][k]);
+        }
+        if FIELD {
+            let d_sdf = d_opacity * dop[0][k] + suffix * dlk[0][k];
+            let d_colour = g.map(|x| x * w);
+            largest = largest.max(adjoint_size(d_sdf, d_colour));
+            adjoint[k] = (d_sdf, d_colour);
+        }
         suffix = suffix + gc * w;
     }
     (loss, d_alpha, d_beta, largest)
+}
+
+/// [`reverse_sweep`] computing only what is wanted.
+#[inline(always)]
+fn sweep<F: Real>(
+    field: bool,
+    density: bool,
+    colour: [F; 3],
+    target: [f32; 3],
+    scale: F,
+    plain: &PlainSamples<F>,
+    adjoint: &mut Vec<(F, [F; 3])>,
+) -> (F, F, F, f64) {
+    let a = (colour, target, scale, plain, adjoint);
+    match (field, density) {
+        (true, true) => reverse_sweep::<F, true, true>(a.0, a.1, a.2, a.3, a.4),
+        (true, false) => reverse_sweep::<F, true, false>(a.0, a.1, a.2, a.3, a.4),
+        (false, true) => reverse_sweep::<F, false, true>(a.0, a.1, a.2, a.3, a.4),
+        (false, false) => reverse_sweep::<F, false, false>(a.0, a.1, a.2, a.3, a.4),
+    }
 }
 
 /// In f64, so that finite adjoints never sum to infinity.
@@ -355,6 +385,7 @@ fn ray_grad<F: Real, const N: usize>(
         t,
         delta,
         target,
+        ..
     } = *task;
     let Scratch { plain, adjoint } = scratch;
     let f = &model.field;
@@ -370,7 +401,15 @@ fn ray_grad<F: Real, const N: usize>(
         let (sdf, c) = field_at(model, &flat, o + d * Dual::lit(tk as f64));
         m.add(f.density, sdf.v, [c.x.v, c.y.v, c.z.v], dk, plain);
     }
-    let (loss, alpha, beta, largest) = reverse_sweep(m.colour, target, scale, plain, adjoint);
+    let (loss, alpha, beta, largest) = sweep(
+        N > 0,
+        task.density_adjoints,
+        m.colour,
+        target,
+        scale,
+        plain,
+        adjoint,
+    );
     let mut field = [F::zero(); N];
     if N > 0 && largest > 0.0 {
         let args = model.args::<F, N>(values, first);
@@ -410,6 +449,7 @@ fn ray_grad_lanes<const N: usize>(
         t,
         delta,
         target,
+        ..
     } = *task;
     let Scratch { plain, adjoint } = scratch;
     let f = &model.field;
@@ -441,7 +481,15 @@ fn ray_grad_lanes<const N: usize>(
             break;
         }
     }
-    let (loss, alpha, beta, largest) = reverse_sweep(m.colour, target, scale, plain, adjoint);
+    let (loss, alpha, beta, largest) = sweep(
+        N > 0,
+        task.density_adjoints,
+        m.colour,
+        target,
+        scale,
+        plain,
+        adjoint,
+    );
     let mut field = [0.0f32; N];
     if N > 0 && largest > 0.0 {
         let args = model.args::<F8, N>(lanes, first);
@@ -483,6 +531,8 @@ struct RayTask<'a> {
     t: &'a [f32],
     delta: &'a [f32],
     target: [f32; 3],
+    /// Whether α or β is a parameter (their adjoints are wanted).
+    density_adjoints: bool,
 }
 
 /// A ray's working storage, reused from ray to ray.
@@ -551,6 +601,9 @@ fn pass<F: Real, const N: usize>(
 ) -> (f64, Vec<f64>, f64, f64) {
     let last = batch.last_interval;
     let scale = F::lit(weight / (3 * batch.rays.len().max(1)) as f64);
+    let f = &model.field;
+    let density_adjoints = first == 0
+        && (model.scalar_index(&f.alpha).is_some() || model.scalar_index(&f.beta).is_some());
     let blocks: Vec<(f64, [f64; N], f64, f64)> = (0..batch.rays.len())
         .collect::<Vec<_>>()
         .par_chunks(BLOCK)
@@ -569,6 +622,7 @@ fn pass<F: Real, const N: usize>(
                     t,
                     delta: &delta,
                     target: batch.targets[r],
+                    density_adjoints,
                 };
                 let g = path.ray::<N>(model, values, first, &task, scale, &mut scratch);
                 acc.0 = acc.0 + g.loss;
@@ -598,20 +652,34 @@ fn pass<F: Real, const N: usize>(
     total
 }
 
-/// The batch's MSE (times `weight`) and its gradient, in base type `F`
-/// (f32 for training, f64 for reference tests), one sample at a time.
-pub fn loss_and_grad<F: Real>(
+/// The batch's MSE (times `weight`) and its gradient in f64, one sample at
+/// a time: the reference the f32 paths are tested against. Compiled here,
+/// with one width of tangents, so that tests calling it do not instantiate
+/// the field's evaluator again.
+pub fn loss_and_grad_f64(
     model: &TrainModel,
-    values: &[F],
+    values: &[f64],
     batch: &Batch,
     weight: f64,
 ) -> LossGrad {
-    loss_and_grad_by(&Scalar, model, values, batch, weight)
+    loss_and_grad_by::<_, Wide>(&Scalar, model, values, batch, weight)
 }
 
-/// [`loss_and_grad`] in f32, the field evaluated on packs of samples where
-/// its definition allows ([`branch_free`](sdfl_stdlib::shape::Shape::branch_free)): the same result to the
-/// bit, several times faster.
+/// [`loss_and_grad_f64`] in f32, one sample at a time: the path of fields
+/// that branch on the point.
+pub fn loss_and_grad_scalar_f32(
+    model: &TrainModel,
+    values: &[f32],
+    batch: &Batch,
+    weight: f64,
+) -> LossGrad {
+    loss_and_grad_by::<_, Narrow>(&Scalar, model, values, batch, weight)
+}
+
+/// The batch's loss and gradient in f32, the field evaluated on packs of
+/// samples where its definition allows
+/// ([`branch_free`](sdfl_stdlib::shape::Shape::branch_free)): the result of
+/// [`loss_and_grad_scalar_f32`] to the bit, several times faster.
 pub fn loss_and_grad_f32(
     model: &TrainModel,
     values: &[f32],
@@ -620,26 +688,39 @@ pub fn loss_and_grad_f32(
 ) -> LossGrad {
     if model.field.shape.branch_free() {
         let lanes = Lanes(values.iter().map(|&v| F8::splat(v)).collect());
-        loss_and_grad_by(&lanes, model, values, batch, weight)
+        loss_and_grad_by::<_, Narrow>(&lanes, model, values, batch, weight)
     } else {
-        loss_and_grad_by(&Scalar, model, values, batch, weight)
+        loss_and_grad_scalar_f32(model, values, batch, weight)
     }
 }
 
-fn loss_and_grad_by<F: Real>(
-    path: &impl RayPath<F>,
-    model: &TrainModel,
-    values: &[F],
-    batch: &Batch,
-    weight: f64,
-) -> LossGrad {
-    let p = model.scalars;
-    let mut grad = vec![0.0; p];
-    let mut loss = 0.0;
-    let mut first = 0;
-    loop {
-        // Tangents in the fewest lanes that hold the parameters left.
-        let (l, g, d_alpha, d_beta) = match p - first {
+/// How many tangents a pass carries for the parameters left.
+trait Widths {
+    fn pass<F: Real>(
+        path: &impl RayPath<F>,
+        left: usize,
+        model: &TrainModel,
+        values: &[F],
+        first: usize,
+        batch: &Batch,
+        weight: f64,
+    ) -> (f64, Vec<f64>, f64, f64);
+}
+
+/// The fewest lanes that hold the parameters left (training: less work).
+struct Narrow;
+
+impl Widths for Narrow {
+    fn pass<F: Real>(
+        path: &impl RayPath<F>,
+        left: usize,
+        model: &TrainModel,
+        values: &[F],
+        first: usize,
+        batch: &Batch,
+        weight: f64,
+    ) -> (f64, Vec<f64>, f64, f64) {
+        match left {
             0 => pass::<F, 0>(path, model, values, first, batch, weight),
             1 => pass::<F, 1>(path, model, values, first, batch, weight),
             2 => pass::<F, 2>(path, model, values, first, batch, weight),
@@ -649,7 +730,43 @@ fn loss_and_grad_by<F: Real>(
             7 | 8 => pass::<F, 8>(path, model, values, first, batch, weight),
             9..=12 => pass::<F, 12>(path, model, values, first, batch, weight),
             _ => pass::<F, CHUNK>(path, model, values, first, batch, weight),
-        };
+        }
+    }
+}
+
+/// Always [`CHUNK`] (the reference: one instance of the evaluator; unused
+/// tangents are zero and change nothing).
+struct Wide;
+
+impl Widths for Wide {
+    fn pass<F: Real>(
+        path: &impl RayPath<F>,
+        _left: usize,
+        model: &TrainModel,
+        values: &[F],
+        first: usize,
+        batch: &Batch,
+        weight: f64,
+    ) -> (f64, Vec<f64>, f64, f64) {
+        pass::<F, CHUNK>(path, model, values, first, batch, weight)
+    }
+}
+
+fn loss_and_grad_by<F: Real, W: Widths>(
+    path: &impl RayPath<F>,
+    model: &TrainModel,
+    values: &[F],
+    batch: &Batch,
+    weight: f64,
+) -> LossGrad {
+    // Tangents through the field only for the scalars it depends on (α and
+    // β alone reach the loss through the density: no field tangents).
+    let p = model.field_scalars;
+    let mut grad = vec![0.0; model.scalars];
+    let mut loss = 0.0;
+    let mut first = 0;
+    loop {
+        let (l, g, d_alpha, d_beta) = W::pass(path, p - first, model, values, first, batch, weight);
         for (i, gi) in g.into_iter().enumerate() {
             if first + i < p {
                 grad[first + i] += gi;

@@ -36,6 +36,10 @@ pub struct TrainModel {
     offsets: Vec<usize>,
     /// Number of scalars.
     pub scalars: usize,
+    /// The first `field_scalars` scalars are those the field (shape and
+    /// colour) depends on; the rest (α and β used nowhere else) reach the
+    /// loss through the density only.
+    pub field_scalars: usize,
 }
 
 impl TrainModel {
@@ -74,11 +78,21 @@ impl TrainModel {
         for p in &params {
             offsets[p.decl.id] = p.offset;
         }
+        // Shape and colour are visited before α and β, so their parameters
+        // come first.
+        let mut field_scalars = 0;
+        let mut field_use = |u: &sdfl_stdlib::param::ParamUse| {
+            let p = &params[seen[&Arc::as_ptr(&u.decl)]];
+            field_scalars = field_scalars.max(p.offset + p.len);
+        };
+        field.shape.visit_params(&mut field_use);
+        field.color.visit_params(&mut field_use);
         TrainModel {
             field: field.clone(),
             params,
             offsets,
             scalars,
+            field_scalars,
         }
     }
 
