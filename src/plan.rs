@@ -35,7 +35,11 @@ fn describe_field(field: &sdfl_stdlib::value::Field) -> String {
             n.density,
             n.alpha,
             n.beta,
-            if n.train_beta { ", trained" } else { "" },
+            match (n.train_beta, n.beta_end) {
+                (true, _) => ", trained".to_string(),
+                (false, Some(end)) => format!(" falling to {end} over the steps"),
+                (false, None) => String::new(),
+            },
             n.sdf.encoding.freqs,
             n.sdf.layers,
             n.sdf.width,
@@ -265,16 +269,16 @@ pub(crate) fn plan_text(program: &sdfl_stdlib::Program) -> String {
             sdfl_stdlib::value::Field::NeuralSurface(n) => {
                 use sdfl_runtime::train::Objective;
                 let m = sdfl_runtime::neural::surface::SurfaceObjective::new(n, &job.losses);
-                let beta = usize::from(n.train_beta);
+                let beta = usize::from(n.train_beta || n.beta_end.is_some());
                 format!(
                     "all {} weights (distance network {}, colour network {}){}, the distance starting as a sphere of radius {}",
                     m.initial().len() - beta,
                     m.sdf.len,
                     m.initial().len() - m.sdf.len - beta,
-                    if n.train_beta {
-                        format!(", and beta from {} (as ln(beta)/20: it moves 20 times faster than a weight; kept in 1e-4..10)", n.beta)
-                    } else {
-                        String::new()
+                    match (n.train_beta, n.beta_end) {
+                        (true, _) => format!(", and beta from {} (as ln(beta)/20: it moves 20 times faster than a weight; kept in 1e-4..10)", n.beta),
+                        (false, Some(end)) => format!(" (beta is not trained: it falls geometrically from {} to {end} over the steps)", n.beta),
+                        (false, None) => String::new(),
                     },
                     n.sdf.radius
                 )

@@ -127,3 +127,34 @@ fn volsdf_learns_a_sphere_from_its_images() {
 fn neus_learns_a_sphere_from_its_images() {
     learns_a_sphere_from_its_images("neus", false);
 }
+
+/// An annealed β (`beta_end`) is reported like a trained one: its start
+/// before any step, `beta_end` after the last.
+#[test]
+fn an_annealed_beta_ends_at_beta_end() {
+    let src = |iterations: usize| {
+        SCENE
+            .replace("DENSITY", "volsdf")
+            .replace("ALPHA", "alpha: 12, ")
+            .replace("BETA", "0.08, beta_end: 0.02")
+            .replace("ITERATIONS", &iterations.to_string())
+            .replace("checkpoint: \"fit.ckpt\",", "")
+            .replace(
+                "after: [mesh(\"fit.ply\", resolution: 32), geometry_gif(\"geometry.gif\")],",
+                "",
+            )
+    };
+    for (iterations, want) in [(0, 0.08), (6, 0.02)] {
+        let dir = temp(&format!("anneal{iterations}"));
+        let job = sdfl_stdlib::load(&SourceFile::new("fit.sdfl", src(iterations)))
+            .unwrap()
+            .trains[0]
+            .clone();
+        let opts = TrainOptions { restart: false };
+        let r = run_train_job(&job, &dir, &dir, None, opts, &|_| {}, &|_| {}).unwrap();
+        let (name, b) = &r.params[0];
+        assert_eq!(name, "beta");
+        assert!((b[0] - want).abs() < 1e-6, "{iterations} steps: β {b:?}");
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+}

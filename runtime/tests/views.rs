@@ -166,6 +166,51 @@ fn phong_arguments_are_checked() {
     assert!(e.contains("normals"), "{e}");
 }
 
+/// A traced data set's pixels against the analytic silhouette of a sphere:
+/// with `hit_tolerance: "absolute"` a pixel is lit exactly where the thin
+/// ray through its centre meets the sphere; with "pixel" (a `render`'s
+/// tolerance) rays passing within half a pixel's width hit too, so the
+/// silhouette grows.
+#[test]
+fn an_absolute_tolerance_data_set_shows_the_exact_silhouette() {
+    let lit = |tolerance: &str| -> (usize, usize) {
+        let p = load(&format!(
+            "let cams = orbit(radius: 3, up: [0, 1, 0], focal: 1.2, views: 3)\n\
+             train t {{ model: sdf_volume(sphere(param(0.8))), iterations: 1, \
+             data: render_views(sphere(0.5, center: [0.1, 0, 0]), cameras: cams, size: [48, 48], material: [1, 1, 1], \
+             iterations: 256, hit_tolerance: \"{tolerance}\") }}"
+        ));
+        let views = load_views(dataset(&p), Path::new(".")).unwrap();
+        let (mut lit, mut exact) = (0, 0);
+        for v in &views.train {
+            let cam = &v.camera;
+            for (k, px) in v.image.pixels.iter().enumerate() {
+                let (i, j) = ((k % 48) as u32, (k / 48) as u32);
+                let (x, y) = cam.pixel_ndc(i, j, 48, 48);
+                let d = cam.ray_direction(x, y).normalize();
+                // Distance from the centre to the ray's line.
+                let to_c = DVec3::new(0.1, 0.0, 0.0) - cam.eye;
+                let miss = (to_c - d * to_c.dot(d)).length();
+                exact += (miss < 0.5) as usize;
+                lit += (px[0] > 0.5) as usize;
+            }
+        }
+        (lit, exact)
+    };
+    let (absolute, exact) = lit("absolute");
+    assert!(exact > 150, "{exact}");
+    assert_eq!(absolute, exact, "absolute: the exact silhouette");
+    let (pixel, _) = lit("pixel");
+    assert!(
+        pixel > exact + exact / 20,
+        "pixel: {pixel} vs exact {exact}"
+    );
+    let e = load_err(
+        "train t { model: sdf_volume(sphere(param(0.8))), data: render_views(sphere(), cameras: orbit(views: 4), hit_tolerance: \"exact\") }",
+    );
+    assert!(e.contains("unknown hit tolerance"), "{e}");
+}
+
 const TRACED: &str = "\
 let scene = union(sphere(0.7), box(size: 0.5, center: [0.6, 0.4, 0]))
 let mat = phong(albedo: rainbow(), lights: [light(direction: [1, 1, -1]), light(direction: [-1, 0, -1], color: [0.2, 0.2, 0.4])])

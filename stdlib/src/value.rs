@@ -256,6 +256,9 @@ pub struct NeuralSurface {
     pub beta: f64,
     /// β is trained with the networks (as `log β`, so it stays positive).
     pub train_beta: bool,
+    /// A fixed β that falls geometrically from `beta` at the first step to
+    /// this at the last (`None`: β stays `beta`, or is trained).
+    pub beta_end: Option<f64>,
     /// The colour network: `color_layers` hidden ReLU layers of
     /// `color_width`, sigmoid colour; the point encoded with
     /// `color_freqs` harmonics, the direction with 2.

@@ -225,23 +225,25 @@ pub fn run_train_job(
         Field::Sdf(_) | Field::NeuralSdf(_) | Field::NeuralSurface(_) => None,
     };
     let nerf_model = std::sync::Mutex::new(nerf_model);
+    let mut setup = TrainSetup::of(job, &views);
+    setup.points = &points;
+    let steps = match job.epochs {
+        Some(e) => e.saturating_mul(setup.steps_per_epoch()),
+        None => job.iterations,
+    };
     // A copy of a neural surface's model for rendering (it holds buffers).
     let surface_model = match &*job.model {
-        Field::NeuralSurface(n) => Some(SurfaceObjective::new(n, &job.losses)),
+        Field::NeuralSurface(n) => Some(SurfaceObjective::new(n, &job.losses).with_steps(steps)),
         _ => None,
     };
     let objective: Box<dyn Objective> = match (&*job.model, &analytic) {
         (Field::Nerf(n), _) => Box::new(NerfObjective::new(n, &job.sampler).map_err(invalid)?),
         (Field::Sdf(_), Some(model)) => Box::new(FieldObjective::new(model, job.backend)),
         (Field::NeuralSdf(n), _) => Box::new(NeuralSdfObjective::new(n, &job.losses, job.bounds)),
-        (Field::NeuralSurface(n), _) => Box::new(SurfaceObjective::new(n, &job.losses)),
+        (Field::NeuralSurface(n), _) => {
+            Box::new(SurfaceObjective::new(n, &job.losses).with_steps(steps))
+        }
         (Field::Sdf(_), None) => unreachable!("an analytic field has a model"),
-    };
-    let mut setup = TrainSetup::of(job, &views);
-    setup.points = &points;
-    let steps = match job.epochs {
-        Some(e) => e.saturating_mul(setup.steps_per_epoch()),
-        None => job.iterations,
     };
     let fail = |e: TrainError| io::Error::other(format!("training `{}`: {e}", job.name));
     let mut run = Run::of(objective, job.optimizer.lr).map_err(fail)?;

@@ -228,6 +228,9 @@ pub struct SurfaceObjective {
     spec: NeuralSurface,
     /// Weight of the eikonal term (the trainer weighs the colour term).
     eikonal: f32,
+    /// The training's steps, over which a scheduled β falls to
+    /// `spec.beta_end`.
+    steps: usize,
     samples: Samples,
     points: Vec<f32>,
     dirs: Vec<f32>,
@@ -258,6 +261,7 @@ impl SurfaceObjective {
                 .sum(),
             sdf,
             color,
+            steps: 1,
             spec: spec.clone(),
             samples: Samples::default(),
             points: Vec::new(),
@@ -276,18 +280,39 @@ impl SurfaceObjective {
         }
     }
 
+    /// A run of `steps` steps: a scheduled β reaches `beta_end` at the last.
+    pub fn with_steps(mut self, steps: usize) -> Self {
+        self.steps = steps;
+        self
+    }
+
+    /// β at `step` of a schedule from `spec.beta` to `spec.beta_end`,
+    /// geometric (`ln β` falls linearly) and `beta_end` from the last step
+    /// on; `spec.beta` without a schedule.
+    pub fn scheduled_beta(&self, step: usize) -> f64 {
+        match self.spec.beta_end {
+            Some(end) => {
+                let s = (step as f64 / self.steps.saturating_sub(1).max(1) as f64).min(1.0);
+                self.spec.beta * (end / self.spec.beta).powf(s)
+            }
+            None => self.spec.beta,
+        }
+    }
+
     /// The distance network's share of the parameters.
     pub fn sdf_params<'p>(&self, params: &'p [f32]) -> &'p [f32] {
         &params[..self.sdf.len]
     }
 
-    /// Where `log β` is kept when β is trained (after the colour network).
+    /// Where `log β` is kept when β is trained or scheduled (after the
+    /// colour network).
     fn beta_at(&self) -> Option<usize> {
-        self.spec.train_beta.then(|| self.color.end())
+        (self.spec.train_beta || self.spec.beta_end.is_some()).then(|| self.color.end())
     }
 
     /// β at `params`: trained (`e^(BETA_RATE·θ)`, kept in range by
-    /// [`Objective::project`]) or fixed.
+    /// [`Objective::project`]), scheduled (kept in the same form, set by
+    /// [`Objective::at_step`]; its gradient is not taken) or fixed.
     pub fn beta(&self, params: &[f32]) -> f32 {
         match self.beta_at() {
             Some(i) => (BETA_RATE * params[i]).exp(),
@@ -506,7 +531,7 @@ impl Objective for SurfaceObjective {
 
     fn project(&self, values: &mut [f32]) {
         // β from 1e-4 (where f32 densities still resolve) to 10.
-        if let Some(i) = self.beta_at() {
+        if let (Some(i), true) = (self.beta_at(), self.spec.train_beta) {
             values[i] = values[i].clamp((1e-4f32).ln() / BETA_RATE, (10f32).ln() / BETA_RATE);
         }
     }
@@ -520,10 +545,16 @@ impl Objective for SurfaceObjective {
         for d in &self.color.layers {
             d.init(&mut v, &mut rng);
         }
-        if self.spec.train_beta {
-            v.push((self.spec.beta as f32).ln() / BETA_RATE);
+        if self.beta_at().is_some() {
+            v.push((self.scheduled_beta(0) as f32).ln() / BETA_RATE);
         }
         v
+    }
+
+    fn at_step(&self, step: usize, values: &mut [f32]) {
+        if let (Some(i), Some(_)) = (self.beta_at(), self.spec.beta_end) {
+            values[i] = (self.scheduled_beta(step) as f32).ln() / BETA_RATE;
+        }
     }
 
     fn loss_and_grad(
@@ -639,7 +670,7 @@ impl Objective for SurfaceObjective {
         // slopes of [`absorption`]; through β = e^(rate·θ), times rate·β.
         let f = self.sdf_work.distance();
         let (slope, slope_next, d_sigma) = (&self.slope, &self.slope_next, &self.d_sigma);
-        if let Some(i) = self.beta_at() {
+        if let (Some(i), true) = (self.beta_at(), self.spec.train_beta) {
             let d_beta: f64 = (0..rows)
                 .into_par_iter()
                 .map(|k| {
@@ -711,6 +742,7 @@ mod tests {
             alpha: 10.0,
             beta: 0.1,
             train_beta: false,
+            beta_end: None,
             color_layers: 2,
             color_width: 8,
             color_freqs: 2,
@@ -773,21 +805,31 @@ mod tests {
                 weight: 0.1,
             },
         ];
-        for (density, view, train_beta) in [
-            (DensityKind::VolSdf, true, false),
-            (DensityKind::Neus, false, false),
-            (DensityKind::VolSdf, false, true),
-            (DensityKind::Neus, true, true),
+        // A scheduled β (the last two) is a value, not a weight: the
+        // networks' gradient is checked mid-schedule, and β's is zero.
+        for (density, view, train_beta, beta_end) in [
+            (DensityKind::VolSdf, true, false, None),
+            (DensityKind::Neus, false, false, None),
+            (DensityKind::VolSdf, false, true, None),
+            (DensityKind::Neus, true, true, None),
+            (DensityKind::VolSdf, true, false, Some(0.02)),
+            (DensityKind::Neus, false, false, Some(0.02)),
         ] {
             let s = NeuralSurface {
                 train_beta,
+                beta_end,
                 ..spec(density, view)
             };
-            let mut obj = SurfaceObjective::new(&s, &losses);
-            let values = obj.initial();
+            let mut obj = SurfaceObjective::new(&s, &losses).with_steps(10);
+            let mut values = obj.initial();
+            obj.at_step(5, &mut values);
             let b = batch(7, 24);
             let mut grad = vec![0.0; values.len()];
             obj.loss_and_grad(&values, &b, 1.0, &mut grad).unwrap();
+            let weights = values.len() - usize::from(beta_end.is_some());
+            if beta_end.is_some() {
+                assert_eq!(grad[weights], 0.0, "a scheduled β is not trained");
+            }
             let mut rng = SplitMix64::new(4);
             let mut checked = 0;
             for n in 0..60 {
@@ -795,7 +837,7 @@ mod tests {
                 let i = if train_beta && n == 0 {
                     values.len() - 1
                 } else {
-                    rng.below(values.len() as u64) as usize
+                    rng.below(weights as u64) as usize
                 };
                 let h = 1e-3;
                 let at = |x: f32, obj: &mut SurfaceObjective| {
@@ -815,6 +857,47 @@ mod tests {
             }
             assert!(checked > 10, "most sampled gradients are not zero");
         }
+    }
+
+    /// A scheduled β falls geometrically from `beta` at step 0 to
+    /// `beta_end` at the last step and stays there; the objective keeps
+    /// it where a trained β is kept, so a render at the run's values sees
+    /// it; nothing but the schedule moves it.
+    #[test]
+    fn a_scheduled_beta_falls_geometrically() {
+        let s = NeuralSurface {
+            beta: 0.1,
+            beta_end: Some(0.001),
+            ..spec(DensityKind::VolSdf, false)
+        };
+        let obj = SurfaceObjective::new(&s, &[]).with_steps(101);
+        let close = |a: f64, b: f64| (a - b).abs() <= 1e-5 * b;
+        assert!(close(obj.scheduled_beta(0), 0.1));
+        assert!(
+            close(obj.scheduled_beta(50), 0.01),
+            "the geometric mean halfway"
+        );
+        assert!(close(obj.scheduled_beta(100), 0.001));
+        assert!(
+            close(obj.scheduled_beta(500), 0.001),
+            "beta_end after the last step"
+        );
+        let mut values = obj.initial();
+        assert!(close(obj.beta(&values) as f64, 0.1));
+        for step in [1, 37, 100] {
+            obj.at_step(step, &mut values);
+            let mut projected = values.clone();
+            obj.project(&mut projected);
+            assert_eq!(projected, values, "project leaves a scheduled β alone");
+            assert!(close(obj.beta(&values) as f64, obj.scheduled_beta(step)));
+        }
+        // Without a schedule nothing moves, and a fixed β has no slot.
+        let fixed = SurfaceObjective::new(&spec(DensityKind::VolSdf, false), &[]).with_steps(101);
+        let mut v = fixed.initial();
+        let before = v.clone();
+        fixed.at_step(50, &mut v);
+        assert_eq!(v, before);
+        assert_eq!(v.len() + 1, values.len());
     }
 
     /// Fine samples gather where a ray crosses the surface (the network

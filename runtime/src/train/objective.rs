@@ -37,6 +37,12 @@ pub trait Objective {
     ) -> Result<f64, TrainError>;
     /// Puts values back into their ranges after a step.
     fn project(&self, _values: &mut [f32]) {}
+    /// Sets values that follow a schedule rather than the gradient (an
+    /// annealed β) to what they are at `step` (from 0); called after
+    /// each step with the step the values are now at, so that a run's values are a
+    /// function of its step and resumed runs stay the same run.
+    /// [`Self::initial`] gives step 0's.
+    fn at_step(&self, _step: usize, _values: &mut [f32]) {}
     /// State that changes with training besides the parameters (an
     /// occupancy grid), kept in checkpoints.
     fn state(&self) -> Vec<(String, Vec<f32>)> {

@@ -304,6 +304,7 @@ impl<'m> Run<'m> {
         // Back into range: a radius stays positive, a colour in 0..1.
         let mut v = self.values();
         self.objective.project(&mut v);
+        self.objective.at_step(self.step + 1, &mut v);
         for (id, p) in self.ids.iter().zip(&self.tensors) {
             self.store.set_values(*id, &v[p.offset..p.offset + p.len])?;
         }

@@ -84,6 +84,21 @@ pub(crate) fn render_sig() -> BlockSig {
     }
 }
 
+/// A sphere tracer's `hit_tolerance`: "pixel" or "absolute".
+pub(super) fn hit_tolerance(a: &Args) -> Result<HitTolerance, Diag> {
+    let (mode, span) = a.string("hit_tolerance")?;
+    match &*mode {
+        "pixel" => Ok(HitTolerance::Pixel),
+        "absolute" => Ok(HitTolerance::Absolute),
+        other => Err(value_error(
+            span,
+            format!("unknown hit tolerance `{other}`"),
+            "not a choice",
+            "use \"pixel\" or \"absolute\"",
+        )),
+    }
+}
+
 pub(crate) fn render_block(name: &str, a: &Args) -> Result<RenderJob, Diag> {
     let outputs = outputs(a, "outputs", false)?;
     if let Some(o) = outputs
@@ -119,21 +134,7 @@ pub(crate) fn render_block(name: &str, a: &Args) -> Result<RenderJob, Diag> {
         far,
         iterations: a.count("iterations", 1, MAX_ITERATIONS as u64)? as u32,
         epsilon: a.positive("epsilon")?,
-        hit_tolerance: {
-            let (mode, span) = a.string("hit_tolerance")?;
-            match &*mode {
-                "pixel" => HitTolerance::Pixel,
-                "absolute" => HitTolerance::Absolute,
-                other => {
-                    return Err(value_error(
-                        span,
-                        format!("unknown hit tolerance `{other}`"),
-                        "not a choice",
-                        "use \"pixel\" or \"absolute\"",
-                    ))
-                }
-            }
-        },
+        hit_tolerance: hit_tolerance(a)?,
         background: colour(bg, bg_span)?,
         fog: fog_option(a)?,
         samples_per_pixel: samples_per_pixel(a)?,

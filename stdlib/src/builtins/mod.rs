@@ -475,6 +475,7 @@ fn table() -> Vec<Builtin> {
                 opt("near", Type::Number, "0", "where rays start (shapes only, ≥ 0)"),
                 opt("far", Type::Number, "5", "where rays give up (shapes only, > near)"),
                 opt("iterations", Type::Number, "64", "most sphere-tracing steps per ray (shapes only)"),
+                opt("hit_tolerance", Type::Str, "\"pixel\"", "shapes only: \"pixel\", a ray hits within half a pixel's width of the surface (silhouettes grow by up to that), as a `render` draws; \"absolute\", within 1e-5 with plain steps: each pixel shows what the thin ray through its centre meets, as training rays are cast (raise `iterations` for grazing rays)"),
                 opt("test_views", Type::Number, "0", "how many cameras to hold out as test views (fewer than the cameras)"),
                 opt("split_seed", Type::Number, "0", "seed of the shuffle that picks the test views"),
             ],
@@ -759,7 +760,14 @@ fn render_views(a: &Args) -> Result<Value, Diag> {
         }
         Value::Field(field) => {
             refuse(
-                &["material", "background", "near", "far", "iterations"],
+                &[
+                    "material",
+                    "background",
+                    "near",
+                    "far",
+                    "iterations",
+                    "hit_tolerance",
+                ],
                 "field",
                 "a field's colour is its `color`; its depth range is the `sampler`'s",
             )?;
@@ -801,7 +809,7 @@ fn render_views(a: &Args) -> Result<Value, Diag> {
                     far,
                     iterations: a.count("iterations", 1, MAX_ITERATIONS as u64)? as u32,
                     epsilon: 1e-5,
-                    hit_tolerance: HitTolerance::Pixel,
+                    hit_tolerance: blocks::hit_tolerance(a)?,
                     background: colour(bg, bg_span)?,
                     fog: None,
                     samples_per_pixel: 1,

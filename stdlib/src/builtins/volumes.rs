@@ -34,6 +34,7 @@ pub(super) fn volume_fn(
             ),
             opt("view_dependent", Type::Bool, "true", "a neural SDF's colour network sees the view direction"),
             opt("background", Type::Vec3, "[0, 0, 0]", "a neural SDF's volume: colour seen where it is not opaque"),
+            opt("beta_end", Type::Number, "0", "a neural SDF's volume: β falls geometrically from `beta` at the first training step to this (> 0, at most `beta`) at the last, sharpening the surface as training goes; 0: β stays `beta` (or is trained, when a `param`)"),
             opt("fine", Type::Number, "0", "a neural SDF's volume: samples per ray added where the surface is, placed by inverse CDF on the weights of a distance-only pass over the stratified samples (0: none)"),
         ],
         FIELD,
@@ -75,6 +76,34 @@ fn neural_surface(a: &Args, density: DensityKind, sdf: &NeuralSdf) -> Result<Val
         _ => (a.positive("beta")?, false),
     };
     crate::precision::beta(beta, a.get("beta").1)?;
+    let beta_end = if given("beta_end") {
+        let span = a.get("beta_end").1;
+        if train_beta {
+            return Err(value_error(
+                span,
+                "a trained `beta` has no schedule",
+                "not with `beta: param(...)`",
+                "give `beta` a number to anneal it to `beta_end`, or leave `beta_end` out to train β",
+            ));
+        }
+        let end = a.positive("beta_end")?;
+        if end > beta {
+            return Err(value_error(
+                span,
+                format!(
+                    "`beta_end` ({}) is above `beta` ({}): the schedule sharpens the surface, it does not blur it",
+                    sdfl_lang::fmt_num(end),
+                    sdfl_lang::fmt_num(beta)
+                ),
+                "above the starting β",
+                "give `beta_end` a value at most `beta`",
+            ));
+        }
+        crate::precision::beta(end, span)?;
+        Some(end)
+    } else {
+        None
+    };
     Ok(Value::Field(Arc::new(Field::NeuralSurface(
         NeuralSurface {
             sdf: sdf.clone(),
@@ -82,6 +111,7 @@ fn neural_surface(a: &Args, density: DensityKind, sdf: &NeuralSdf) -> Result<Val
             alpha,
             beta,
             train_beta,
+            beta_end,
             color_layers: 2,
             color_width: 64,
             color_freqs: 4,
@@ -109,7 +139,7 @@ fn field(a: &Args, density: DensityKind) -> Result<Value, Diag> {
         };
     }
     let given = |name: &str| a.get(name).1 != a.span;
-    if let Some(name) = ["view_dependent", "background", "fine"]
+    if let Some(name) = ["view_dependent", "background", "fine", "beta_end"]
         .into_iter()
         .find(|n| given(n))
     {
