@@ -26,10 +26,11 @@ def harmonic(x, freqs):
 
 
 class Nerf(nn.Module):
-    def __init__(self, width=128, layers=6, skip=3, color=64):
+    def __init__(self, width=128, layers=6, skip=3, color=64, density=torch.relu):
         super().__init__()
         enc, denc = 39, 15
         self.skip = skip
+        self.activation = density
         self.trunk = nn.ModuleList(
             [nn.Linear(enc if i == 0 else width + (enc if i == skip else 0), width) for i in range(layers)]
         )
@@ -45,7 +46,7 @@ class Nerf(nn.Module):
             if i == self.skip:
                 h = torch.cat([h, e], dim=-1)
             h = torch.relu(layer(h))
-        sigma = torch.relu(self.density(h))[..., 0]
+        sigma = self.activation(self.density(h))[..., 0]
         c = torch.relu(self.color_hidden(torch.cat([self.feature(h), harmonic(dirs, 2)], dim=-1)))
         return sigma, torch.sigmoid(self.color_out(c))
 

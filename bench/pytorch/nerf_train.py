@@ -1,7 +1,7 @@
 """The textbook NeRF trained in PyTorch on CPU from a NeRF-synthetic data set,
 timed to a held-out PSNR: the peer of `sdfl` training on the same files.
 
-The network is the one in nerf_bench.py (sdfl's `nerf()` defaults: harmonic
+The network is nerf_bench.py's (sdfl's `nerf()` defaults: harmonic
 position 6, direction 2, 6 x 128 ReLU with the position again at layer 3,
 64-wide view-dependent colour branch, softplus density as `nerf.sdfl`),
 1024 random rays over all training views a step, 64 jittered samples
@@ -27,8 +27,9 @@ import zlib
 
 import numpy as np
 import torch
-import torch.nn as nn
 import torch.nn.functional as F
+
+from nerf_bench import Nerf
 
 
 def read_png(path):
@@ -107,37 +108,6 @@ def rays_of(poses, h, w, focal):
     return origins.reshape(-1, 3).copy(), dirs.reshape(-1, 3).copy()
 
 
-def harmonic(x, freqs):
-    f = 2.0 ** torch.arange(freqs, dtype=x.dtype)
-    e = (x[..., None] * f).reshape(*x.shape[:-1], -1)
-    return torch.cat([e.sin(), e.cos(), x], dim=-1)
-
-
-class Nerf(nn.Module):
-    def __init__(self, width=128, layers=6, skip=3, color=64):
-        super().__init__()
-        enc, denc = 39, 15
-        self.skip = skip
-        self.trunk = nn.ModuleList(
-            [nn.Linear(enc if i == 0 else width + (enc if i == skip else 0), width) for i in range(layers)]
-        )
-        self.density = nn.Linear(width, 1)
-        self.feature = nn.Linear(width, width)
-        self.color_hidden = nn.Linear(width + denc, color)
-        self.color_out = nn.Linear(color, 3)
-
-    def forward(self, points, dirs):
-        e = harmonic(points, 6)
-        h = e
-        for i, layer in enumerate(self.trunk):
-            if i == self.skip:
-                h = torch.cat([h, e], dim=-1)
-            h = torch.relu(layer(h))
-        sigma = F.softplus(self.density(h))[..., 0]
-        c = torch.relu(self.color_hidden(torch.cat([self.feature(h), harmonic(dirs, 2)], dim=-1)))
-        return sigma, torch.sigmoid(self.color_out(c))
-
-
 def render(net, origins, dirs, t):
     n, s = t.shape
     points = origins[:, None, :] + t[..., None] * dirs[:, None, :]
@@ -176,7 +146,7 @@ def main():
     test_target = torch.from_numpy(test_img.reshape(len(test_img), -1, 3))
     print(f"{len(train_img)} training and {len(test_img)} held-out views of {w}x{h}, focal {focal:.1f}")
 
-    net = Nerf()
+    net = Nerf(density=F.softplus)
     opt = torch.optim.Adam(net.parameters(), lr=5e-4)
     s = args.samples
     edges = torch.linspace(args.near, args.far, s + 1)
