@@ -322,6 +322,7 @@ impl<'e> Evaluator<'e> {
             if let (false, Some(src)) = (args.named.contains_key(p.name), p.default) {
                 let v = self.default_value(sig.kind, p.name, src);
                 args.named.insert(p.name, (v, b.kind.span));
+                args.defaulted.push(p.name);
             }
         }
         // Shallow: lists holding poison are poison themselves (see `expr`).
@@ -1106,6 +1107,7 @@ impl<'e> Evaluator<'e> {
             if let (false, Some(src)) = (bound.named.contains_key(p.name), p.default) {
                 let v = self.default_value(sig.name, p.name, src);
                 bound.named.insert(p.name, (v, span));
+                bound.defaulted.push(p.name);
             }
         }
         match (builtin.eval)(&bound) {

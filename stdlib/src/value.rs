@@ -38,6 +38,9 @@ pub enum Value {
     Optimizer(Optimizer),
     Encoding(Encoding),
     Occupancy(OccupancySpec),
+    /// The shape of a network's hidden layers, for `nerf(network: ...)` and
+    /// `neural_sdf(network: ...)`.
+    Network(Arc<Mlp>),
     /// The value of an expression that already produced a diagnostic.
     /// Anything computed from it is poison too, silently.
     Poison,
@@ -66,6 +69,7 @@ impl Value {
             Value::Optimizer(_) => "optimizer",
             Value::Encoding(_) => "encoding",
             Value::Occupancy(_) => "occupancy grid",
+            Value::Network(_) => "network",
             Value::Poison => "invalid value",
         }
     }
@@ -297,6 +301,16 @@ impl NeuralSurface {
     pub fn multiply_adds_per_sample(&self) -> usize {
         4 * self.sdf.multiply_adds() + self.color_multiply_adds()
     }
+}
+
+/// The hidden layers of a multilayer perceptron: `layers` of `width`, the
+/// layers in `skips` (from 1) seeing the network's input again. The field
+/// that holds it decides the input, the activation and the heads.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Mlp {
+    pub layers: usize,
+    pub width: usize,
+    pub skips: Vec<usize>,
 }
 
 /// A neural signed distance function (IGR; the course assignment's part 6):

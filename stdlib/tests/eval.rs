@@ -443,3 +443,35 @@ fn trainable_spacings_are_kept_apart() {
         .visit_params(&mut |u| bounds.push(u.bound));
     assert_eq!(bounds, vec![sdfl_stdlib::param::Bound::AtLeast(0.4)]);
 }
+
+#[test]
+fn one_mlp_value_shapes_every_network_it_is_given_to() {
+    use sdfl_stdlib::value::Field;
+    let src = r#"
+let net = mlp(layers: 3, width: 24, skips: [2])
+let cams = orbit(views: 4)
+let truth = volsdf(sphere(0.5))
+train by_value {
+  model: nerf(network: net),
+  data: render_views(truth, cameras: cams, size: [8, 8]),
+}
+train by_arguments {
+  model: nerf(layers: 3, width: 24, skips: [2]),
+  data: render_views(truth, cameras: cams, size: [8, 8]),
+}
+train surface {
+  model: volsdf(neural_sdf(network: net)),
+  data: render_views(truth, cameras: cams, size: [8, 8]),
+}
+"#;
+    let p = load(&SourceFile::new("mlp.sdfl", src)).unwrap();
+    let (Field::Nerf(a), Field::Nerf(b)) = (&*p.trains[0].model, &*p.trains[1].model) else {
+        panic!("two NeRFs")
+    };
+    assert_eq!((a.layers, a.width, &a.skips), (3, 24, &vec![2]));
+    assert_eq!(a, b);
+    let Field::NeuralSurface(s) = &*p.trains[2].model else {
+        panic!("a neural surface")
+    };
+    assert_eq!((s.sdf.layers, s.sdf.width, &s.sdf.skips), (3, 24, &vec![2]));
+}

@@ -175,7 +175,7 @@ impl Real for F8 {
     }
     #[inline(always)]
     fn exp(self) -> Self {
-        self.map(f32::exp)
+        self.map(sdfl_stdlib::num::exp_f32)
     }
     #[inline(always)]
     fn ln(self) -> Self {

@@ -11,6 +11,8 @@ pub struct Args {
     /// The built-in or block the arguments are for (names trainable
     /// arguments, `torus.major`).
     pub owner: &'static str,
+    /// The parameters that took their default (not written in the call).
+    pub defaulted: Vec<&'static str>,
 }
 
 pub(crate) fn value_error(
@@ -41,7 +43,13 @@ impl Args {
             rest: Vec::new(),
             span,
             owner: "",
+            defaulted: Vec::new(),
         }
+    }
+
+    /// Whether the call wrote this parameter (it did not take its default).
+    pub(crate) fn given(&self, name: &str) -> bool {
+        self.named.contains_key(name) && !self.defaulted.contains(&name)
     }
 
     pub(crate) fn get(&self, name: &str) -> (&Value, Span) {

@@ -36,6 +36,7 @@ pub const OPTIMIZER: Type = Type::Named("optimizer");
 pub const LOSS: Type = Type::Named("loss");
 pub const ENCODING: Type = Type::Named("encoding");
 pub const OCCUPANCY: Type = Type::Named("occupancy grid");
+pub const NETWORK: Type = Type::Named("network");
 pub const LIGHT: Type = Type::Named("light");
 pub const SHADOWS: Type = Type::Named("soft shadow");
 pub const OCCLUSION: Type = Type::Named("ambient occlusion");

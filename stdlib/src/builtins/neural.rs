@@ -1,8 +1,8 @@
-//! Neural fields: encodings (`harmonic`, `hashgrid`), the occupancy grid
-//! and `nerf` itself.
+//! Neural fields: encodings (`harmonic`, `hashgrid`), the occupancy grid,
+//! hidden layers (`mlp`), `neural_sdf` and `nerf` itself.
 
 use super::*;
-use crate::value::NeuralSdf;
+use crate::value::{Mlp, NeuralSdf};
 
 /// Most trainable numbers in a hash grid's tables (1 GiB with gradient and
 /// Adam's moments).
@@ -20,10 +20,11 @@ pub(crate) fn builtins() -> Vec<Builtin> {
                 opt("encoding", ENCODING, "harmonic(freqs: 4)", "encoding of the point (harmonic)"),
                 opt("layers", Type::Number, "6", "hidden layers"),
                 opt("width", Type::Number, "128", "width of the hidden layers"),
-                opt("skips", Type::list(Type::Number), "[3]", "layers (from 1) that see the encoding again"),
+                opt("skips", Type::list(Type::Number), "[3]", "hidden layers (counted from 0; 1 to `layers` − 1) that see the encoding again"),
                 opt("beta", Type::Number, "100", "softplus sharpness (> 0): large is close to ReLU, with curvature"),
                 opt("radius", Type::Number, "1", "radius of the sphere the weights start as (> 0)"),
                 opt("seed", Type::Number, "0", "seed of the initial weights"),
+                opt("network", NETWORK, "mlp()", "the hidden layers as one value, `mlp(...)` (instead of `layers`, `width`, `skips`)"),
             ],
             FIELD,
             |a| {
@@ -39,12 +40,12 @@ pub(crate) fn builtins() -> Vec<Builtin> {
                     }
                     other => return Err(type_error(a.get("encoding").1, "encoding", other)),
                 };
-                let (layers, width) = network_size(a)?;
+                let Mlp { layers, width, skips } = hidden_layers(a)?;
                 Ok(Value::Field(Arc::new(Field::NeuralSdf(NeuralSdf {
                     encoding,
                     layers,
                     width,
-                    skips: skip_layers(a, layers)?,
+                    skips,
                     beta: a.positive("beta")?,
                     radius: a.positive("radius")?,
                     seed: a.count("seed", 0, u32::MAX as u64)?,
@@ -189,6 +190,20 @@ pub(crate) fn builtins() -> Vec<Builtin> {
             },
         ),
         func(
+            "mlp",
+            "The hidden layers of a multilayer perceptron, as a value: `layers` of `width`, the layers in `skips` (counted from 0; 1 to `layers` − 1) seeing the network's input again. Define it once and give it to `nerf(network: ...)` or `neural_sdf(network: ...)`; the field decides the input (its encoding), the activation and the output heads.",
+            vec![
+                opt("layers", Type::Number, "6", "hidden layers"),
+                opt("width", Type::Number, "128", "width of the hidden layers"),
+                opt("skips", Type::list(Type::Number), "[3]", "hidden layers (counted from 0; 1 to `layers` − 1) that see the input again"),
+            ],
+            NETWORK,
+            |a| {
+                let (layers, width) = network_size(a)?;
+                Ok(Value::Network(Arc::new(Mlp { layers, width, skips: skip_layers(a, layers)? })))
+            },
+        ),
+        func(
             "nerf",
             "A neural radiance field (Mildenhall et al.): an MLP from the encoded position to density (ReLU) and colour (sigmoid). `view_dependent` adds a colour branch that sees the encoded view direction; density never does. Weights start as PyTorch's default initialisation, seeded. Trained as a `train` statement's model.",
             vec![
@@ -197,7 +212,7 @@ pub(crate) fn builtins() -> Vec<Builtin> {
                 opt("view_dependent", Type::Bool, "true", "whether colour depends on the view direction"),
                 opt("layers", Type::Number, "6", "hidden layers of the trunk"),
                 opt("width", Type::Number, "128", "width of the hidden layers"),
-                opt("skips", Type::list(Type::Number), "[3]", "trunk layers (from 0) that see the encoded position again"),
+                opt("skips", Type::list(Type::Number), "[3]", "trunk layers (counted from 0; 1 to `layers` − 1) that see the encoded position again"),
                 opt("color_width", Type::Number, "64", "width of the colour branch"),
                 opt("fine", Type::Number, "0", "fine samples per ray, drawn by inverse CDF from the coarse network's weights for a second (fine) network of the same shape; 0: one network"),
                 opt("background", Type::Vec3, "[0, 0, 0]", "colour where a ray leaves the volume"),
@@ -205,6 +220,7 @@ pub(crate) fn builtins() -> Vec<Builtin> {
                 opt("occupancy", OCCUPANCY, "occupancy_grid(resolution: 0)", "skip empty space with an occupancy grid while training and rendering (resolution 0: none)"),
                 opt("density", Type::Str, "\"relu\"", "density activation: \"relu\" (the NeRF paper; can die on dark scenes, every sample's gradient zero), \"softplus\" (Mip-NeRF: its gradient never vanishes) or \"exp\" (instant-ngp's truncated exponential, for hash grids)"),
                 opt("precision", Type::Str, "\"fp32\"", "number format of the layers' matrix products: \"fp32\", or \"bf16\" (inputs rounded to bfloat16, sums in fp32: about twice the throughput where the CPU has AVX-512 BF16, fp32 elsewhere; weights and Adam stay fp32)"),
+                opt("network", NETWORK, "mlp()", "the trunk's hidden layers as one value, `mlp(...)` (instead of `layers`, `width`, `skips`)"),
             ],
             FIELD,
             |a| {
@@ -212,8 +228,7 @@ pub(crate) fn builtins() -> Vec<Builtin> {
                     Value::Encoding(e) => Ok(*e),
                     other => Err(type_error(a.get(name).1, "encoding", other)),
                 };
-                let layers = a.count("layers", 1, 32)? as usize;
-                let skips = skip_layers(a, layers)?;
+                let Mlp { layers, width, skips } = hidden_layers(a)?;
                 let (bg, bg_span) = (a.vec3("background")?, a.get("background").1);
                 let view_dependent = matches!(a.get("view_dependent").0, Value::Bool(true));
                 let direction = if view_dependent { Some(encoding("direction")?) } else { None };
@@ -233,7 +248,6 @@ pub(crate) fn builtins() -> Vec<Builtin> {
                         "encode the direction with `harmonic(freqs: 2)`",
                     ));
                 }
-                let (_, width) = network_size(a)?;
                 Ok(Value::Field(Arc::new(Field::Nerf(Nerf {
                     position: encoding("position")?,
                     direction,
@@ -286,6 +300,27 @@ pub(crate) fn builtins() -> Vec<Builtin> {
     ]
 }
 
+/// A field's hidden layers: its `network` argument, or its `layers`,
+/// `width` and `skips` (one or the other, not both).
+fn hidden_layers(a: &Args) -> Result<Mlp, Diag> {
+    if !a.given("network") {
+        let (layers, width) = network_size(a)?;
+        return Ok(Mlp { layers, width, skips: skip_layers(a, layers)? });
+    }
+    if let Some(name) = ["layers", "width", "skips"].into_iter().find(|n| a.given(n)) {
+        return Err(value_error(
+            a.get(name).1,
+            format!("`{name}` and `network` both give the hidden layers"),
+            "also set by `network`",
+            format!("give one: move `{name}` into `mlp(...)`, or drop `network`"),
+        ));
+    }
+    match a.get("network") {
+        (Value::Network(m), _) => Ok((**m).clone()),
+        (other, span) => Err(type_error(span, "network", other)),
+    }
+}
+
 /// The `layers` and `width` of a network, refused past
 /// [`MAX_NETWORK_WEIGHTS`].
 fn network_size(a: &Args) -> Result<(usize, usize), Diag> {
@@ -318,9 +353,9 @@ fn skip_layers(a: &Args, layers: usize) -> Result<Vec<usize>, Diag> {
                 _ => {
                     return Err(value_error(
                         skips_span,
-                        format!("a skip must name a trunk layer from 1 to {}", layers - 1),
+                        format!("a skip must name a hidden layer from 1 to {}", layers - 1),
                         "not a later trunk layer",
-                        "layer 0 sees the encoding already; e.g. `skips: [3]` for 6 layers",
+                        "layer 0 sees the input already; e.g. `skips: [3]` for 6 layers",
                     ))
                 }
             }
