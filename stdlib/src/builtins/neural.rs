@@ -305,9 +305,16 @@ pub(crate) fn builtins() -> Vec<Builtin> {
 fn hidden_layers(a: &Args) -> Result<Mlp, Diag> {
     if !a.given("network") {
         let (layers, width) = network_size(a)?;
-        return Ok(Mlp { layers, width, skips: skip_layers(a, layers)? });
+        return Ok(Mlp {
+            layers,
+            width,
+            skips: skip_layers(a, layers)?,
+        });
     }
-    if let Some(name) = ["layers", "width", "skips"].into_iter().find(|n| a.given(n)) {
+    if let Some(name) = ["layers", "width", "skips"]
+        .into_iter()
+        .find(|n| a.given(n))
+    {
         return Err(value_error(
             a.get(name).1,
             format!("`{name}` and `network` both give the hidden layers"),
