@@ -60,7 +60,7 @@ fn describe_field(field: &sdfl_stdlib::value::Field) -> String {
             f.shape.primitive_count()
         ),
         Field::Nerf(n) => format!(
-            "NeRF: {} position, {}x{} ReLU trunk{}, {:?} density, {}; {} multiply-adds per sample{}; {}; {}",
+            "NeRF: {} position, {}x{} ReLU trunk{}, {} density, {}; {} multiply-adds per sample{}; {}; {}",
             enc(&n.position),
             n.layers,
             n.width,
@@ -69,7 +69,7 @@ fn describe_field(field: &sdfl_stdlib::value::Field) -> String {
             } else {
                 format!(" (position again at layers {:?})", n.skips)
             },
-            n.density,
+            n.density.name(),
             match &n.direction {
                 Some(d) => format!(
                     "view-dependent colour ({} direction, {}-wide branch)",

@@ -523,6 +523,17 @@ pub enum DensityActivation {
     Softplus,
 }
 
+impl DensityActivation {
+    /// The activation's usual name, for reports.
+    pub fn name(self) -> &'static str {
+        match self {
+            DensityActivation::Relu => "ReLU",
+            DensityActivation::Exp => "exponential",
+            DensityActivation::Softplus => "softplus",
+        }
+    }
+}
+
 impl Encoding {
     /// Features of a 3-vector's encoding.
     pub fn width(&self) -> usize {
