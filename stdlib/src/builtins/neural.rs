@@ -361,7 +361,7 @@ fn skip_layers(a: &Args, layers: usize) -> Result<Vec<usize>, Diag> {
                     return Err(value_error(
                         skips_span,
                         format!("a skip must name a hidden layer from 1 to {}", layers - 1),
-                        "not a later trunk layer",
+                        "not a later hidden layer",
                         "layer 0 sees the input already; e.g. `skips: [3]` for 6 layers",
                     ))
                 }
