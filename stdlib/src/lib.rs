@@ -18,6 +18,7 @@ pub mod param;
 pub mod precision;
 pub mod sdf;
 pub mod shape;
+pub mod size;
 pub mod value;
 pub mod work;
 

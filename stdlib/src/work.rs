@@ -8,8 +8,8 @@ use sdfl_lang::diag::{codes, fmt_num, Diag};
 use sdfl_lang::Span;
 
 use crate::camera::Camera;
-use crate::eval::{fmt_bytes, BYTES_PER_PRIMITIVE};
 use crate::shape::Aabb;
+use crate::size::{fmt_bytes, BYTES_PER_PRIMITIVE};
 use crate::value::{Dataset, Field, OutputKind, Program, RenderJob, TrainJob, VolumeJob};
 
 /// Most SDF (or density) evaluations one statement may ask for: about an
@@ -156,7 +156,7 @@ fn painted_effects(s: &crate::shape::Shape) -> u64 {
 pub const MAX_FILE_EVALUATIONS: f64 = 4.0 * MAX_EVALUATIONS;
 /// Most primitives lowered by all statements of a file together (each
 /// statement lowers its scene again).
-pub const MAX_FILE_PRIMITIVES: u64 = 10 * crate::eval::MAX_PRIMITIVES;
+pub const MAX_FILE_PRIMITIVES: u64 = 10 * crate::size::MAX_PRIMITIVES;
 
 /// The diagnostic for a statement that takes a file's totals past the
 /// limits.

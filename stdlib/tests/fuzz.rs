@@ -704,7 +704,7 @@ fn check_bomb(text: &str) -> Result<(), TestCaseError> {
         for job in &program.renders {
             let n = job.scene.primitive_count() as u64;
             prop_assert!(
-                n <= sdfl_stdlib::eval::MAX_PRIMITIVES,
+                n <= sdfl_stdlib::size::MAX_PRIMITIVES,
                 "{n} primitives accepted in {text:?}"
             );
         }
