@@ -55,6 +55,8 @@ pub const MAX_ITERATIONS: u32 = 100_000;
 /// (the call's span for defaults).
 mod args;
 mod blocks;
+mod data;
+mod materials;
 mod neural;
 mod outputs;
 mod shapes;
@@ -64,6 +66,8 @@ pub use args::Args;
 pub(crate) use args::*;
 pub(crate) use blocks::{render_block, train_block, volume_block};
 use blocks::{render_sig, train_sig};
+use data::render_views;
+use materials::{effects, fog_option, phong, samples_per_pixel};
 
 pub type EvalFn = fn(&Args) -> Result<Value, Diag>;
 
@@ -720,241 +724,6 @@ pub fn random(seed: f64, i: f64) -> f64 {
     (h >> 11) as f64 / (1u64 << 53) as f64
 }
 
-fn render_views(a: &Args) -> Result<Value, Diag> {
-    let cameras = camera_list(a, "cameras")?;
-    let (width, height) = image_size(a, "size")?;
-    // Settings of the other kind of scene, given explicitly, would be
-    // silently ignored: refuse them (defaults carry the call's span).
-    let given = |name: &str| a.get(name).1 != a.span;
-    let refuse = |names: &[&str], scene: &str, help: &str| -> Result<(), Diag> {
-        match names.iter().find(|n| given(n)) {
-            Some(n) => Err(value_error(
-                a.get(n).1,
-                format!("`{n}` does not apply to a {scene}"),
-                format!("ignored for a {scene}"),
-                help.to_string(),
-            )),
-            None => Ok(()),
-        }
-    };
-    let tests = a.count("test_views", 0, MAX_VIEWS as u64)? as usize;
-    if tests >= cameras.len() {
-        return Err(value_error(
-            a.get("test_views").1,
-            format!(
-                "holding out {tests} of {} cameras leaves no training view",
-                cameras.len()
-            ),
-            "as many as the cameras",
-            "hold out fewer views than there are cameras",
-        ));
-    }
-    let test = crate::value::held_out(
-        cameras.len(),
-        tests,
-        a.count("split_seed", 0, u32::MAX as u64)?,
-    );
-    let (scene, scene_span) = a.get("scene");
-    let data = match scene {
-        Value::Field(field) if matches!(**field, Field::NeuralSdf(_)) => {
-            return Err(not_a_volume(scene_span));
-        }
-        Value::Field(field) => {
-            refuse(
-                &[
-                    "material",
-                    "background",
-                    "near",
-                    "far",
-                    "iterations",
-                    "hit_tolerance",
-                ],
-                "field",
-                "a field's colour is its `color`; its depth range is the `sampler`'s",
-            )?;
-            let Value::Sampler(sampler) = a.get("sampler").0 else {
-                return Err(type_error(
-                    a.get("sampler").1,
-                    "sampler",
-                    a.get("sampler").0,
-                ));
-            };
-            Dataset::Rendered {
-                field: field.clone(),
-                cameras,
-                width,
-                height,
-                sampler: *sampler,
-                test,
-            }
-        }
-        Value::Shape(shape) => {
-            refuse(
-                &["sampler"],
-                "shape",
-                "shapes are sphere-traced: set `near`, `far` and `iterations` instead",
-            )?;
-            let (near, far) = (a.number("near")?, a.number("far")?);
-            check_range(a, near, far)?;
-            let (bg, bg_span) = (a.vec3("background")?, a.get("background").1);
-            // The `render` statement's defaults for what is not asked here.
-            Dataset::Traced {
-                job: Arc::new(RenderJob {
-                    name: "render_views".to_string(),
-                    scene: shape.clone(),
-                    material: a.material("material")?,
-                    cameras,
-                    width,
-                    height,
-                    near,
-                    far,
-                    iterations: a.count("iterations", 1, MAX_ITERATIONS as u64)? as u32,
-                    epsilon: 1e-5,
-                    hit_tolerance: blocks::hit_tolerance(a)?,
-                    background: colour(bg, bg_span)?,
-                    fog: None,
-                    samples_per_pixel: 1,
-                    outputs: Vec::new(),
-                }),
-                test,
-            }
-        }
-        other => return Err(type_error(scene_span, "shape or field", other)),
-    };
-    Ok(Value::Dataset(Arc::new(data)))
-}
-
-fn phong(a: &Args) -> Result<Value, Diag> {
-    let fraction = |name: &str| -> Result<f64, Diag> {
-        let x = a.number(name)?;
-        if (0.0..=1.0).contains(&x) {
-            Ok(x)
-        } else {
-            Err(value_error(
-                a.get(name).1,
-                format!("`{name}` must be in 0..1, got {}", sdfl_lang::fmt_num(x)),
-                "out of 0..1",
-                "use a fraction such as 0.5",
-            ))
-        }
-    };
-    let (ambient, specular) = (fraction("ambient")?, fraction("specular")?);
-    let shininess = a.positive("shininess")?;
-    let (lights_v, lights_span) = a.get("lights");
-    let lights = one_or_list(lights_v, |v| match v {
-        Value::Light(l) => Some(*l),
-        _ => None,
-    });
-    let lights = match lights {
-        Some(l) if l.is_empty() => {
-            return Err(value_error(
-                lights_span,
-                "a `phong` material with no lights",
-                "empty list",
-                "give at least one light, e.g. `lights: [light(direction: [1, 1, 1])]`",
-            ))
-        }
-        Some(l) => l,
-        None => return Err(type_error(lights_span, "list of lights", lights_v)),
-    };
-    let albedo = a.material("albedo")?;
-    if albedo.needs_view() {
-        return Err(value_error(
-            a.get("albedo").1,
-            "a `phong` albedo cannot itself depend on the view",
-            "a view-dependent material",
-            "use a colour, `rainbow()`, `lambert(...)` or `normals()` as the albedo",
-        ));
-    }
-    Ok(Value::Material(Arc::new(Material::Phong {
-        albedo: Box::new((*albedo).clone()),
-        lights,
-        ambient,
-        specular,
-        shininess,
-        effects: effects(a)?,
-    })))
-}
-
-/// An effect option: `false` (none) or the value of its built-in. `true`
-/// is refused with the call to write, so that the built-in's signature
-/// stays the one place its defaults are written.
-fn effect_option<T>(
-    a: &Args,
-    name: &str,
-    builtin: &str,
-    expected: &str,
-    pick: impl Fn(&Value) -> Option<T>,
-) -> Result<Option<T>, Diag> {
-    match a.get(name) {
-        (Value::Bool(false), _) => Ok(None),
-        (Value::Bool(true), span) => Err(value_error(
-            span,
-            format!("`{name}: true` does not say which {expected} to compute"),
-            format!("use `{builtin}(...)`"),
-            format!("write `{name}: {builtin}()` for the defaults (`sdfl docs {builtin}`), or `false` for none"),
-        )),
-        (v, span) => pick(v).map(Some).ok_or_else(|| type_error(span, expected, v)),
-    }
-}
-
-/// The `shadows` and `ao` options of a lit material.
-fn effects(a: &Args) -> Result<Effects, Diag> {
-    Ok(Effects {
-        shadows: effect_option(a, "shadows", "soft", "soft shadow", |v| match v {
-            Value::Shadows(s) => Some(*s),
-            _ => None,
-        })?,
-        occlusion: effect_option(a, "ao", "ao", "ambient occlusion", |v| match v {
-            Value::Occlusion(o) => Some(*o),
-            _ => None,
-        })?,
-    })
-}
-
-/// A render's `fog` option.
-pub(crate) fn fog_option(a: &Args) -> Result<Option<Fog>, Diag> {
-    effect_option(a, "fog", "fog", "fog", |v| match v {
-        Value::Fog(f) => Some(*f),
-        _ => None,
-    })
-}
-
-/// A render's `samples_per_pixel`: a square from 1 to
-/// [`MAX_SAMPLES_PER_PIXEL`] (an `m × m` rotated grid in each pixel).
-pub(crate) fn samples_per_pixel(a: &Args) -> Result<u32, Diag> {
-    let n = a.count("samples_per_pixel", 1, MAX_SAMPLES_PER_PIXEL as u64)? as u32;
-    let m = (n as f64).sqrt().round() as u32;
-    if m * m != n {
-        let (below, above) = (
-            (n as f64).sqrt().floor() as u32,
-            (n as f64).sqrt().ceil() as u32,
-        );
-        return Err(value_error(
-            a.get("samples_per_pixel").1,
-            format!("`samples_per_pixel` must be a square (an m × m grid in each pixel), got {n}"),
-            "not a square",
-            format!(
-                "use {} ({below}×{below}) or {} ({above}×{above})",
-                below * below,
-                above * above
-            ),
-        ));
-    }
-    Ok(n)
-}
-
-/// A neural SDF is fitted to points; rendering one is not built yet.
-pub(crate) fn not_a_volume(span: Span) -> Diag {
-    value_error(
-        span,
-        "a neural SDF is rendered by the `train` statement that fits it",
-        "a neural SDF",
-        "train it (from points, or from images as `volsdf(neural_sdf(...))`) and ask for `after: [gif(...)]` there",
-    )
-}
-
-/// A smooth operator over the rest shapes, applied left to right.
 /// Most copies a repetition may evaluate at one point.
 const MAX_COPIES_PER_POINT: u64 = 64;
 
@@ -1148,4 +917,14 @@ pub fn safe_output_path(p: &str, span: Span) -> Result<PathBuf, Diag> {
             .label("not a plain relative path")
             .help("name files relative to the output directory, without `..` or a leading `/`; choose the directory with `--out`"))
     }
+}
+
+/// A neural SDF is fitted to points; rendering one is not built yet.
+pub(crate) fn not_a_volume(span: Span) -> Diag {
+    value_error(
+        span,
+        "a neural SDF is rendered by the `train` statement that fits it",
+        "a neural SDF",
+        "train it (from points, or from images as `volsdf(neural_sdf(...))`) and ask for `after: [gif(...)]` there",
+    )
 }

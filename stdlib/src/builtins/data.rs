@@ -1,0 +1,108 @@
+//! `render_views(...)`: a data set of views that sdfl renders of any scene,
+//! with held-out test views.
+
+use super::*;
+
+pub(super) fn render_views(a: &Args) -> Result<Value, Diag> {
+    let cameras = camera_list(a, "cameras")?;
+    let (width, height) = image_size(a, "size")?;
+    // Settings of the other kind of scene, given explicitly, would be
+    // silently ignored: refuse them (defaults carry the call's span).
+    let given = |name: &str| a.get(name).1 != a.span;
+    let refuse = |names: &[&str], scene: &str, help: &str| -> Result<(), Diag> {
+        match names.iter().find(|n| given(n)) {
+            Some(n) => Err(value_error(
+                a.get(n).1,
+                format!("`{n}` does not apply to a {scene}"),
+                format!("ignored for a {scene}"),
+                help.to_string(),
+            )),
+            None => Ok(()),
+        }
+    };
+    let tests = a.count("test_views", 0, MAX_VIEWS as u64)? as usize;
+    if tests >= cameras.len() {
+        return Err(value_error(
+            a.get("test_views").1,
+            format!(
+                "holding out {tests} of {} cameras leaves no training view",
+                cameras.len()
+            ),
+            "as many as the cameras",
+            "hold out fewer views than there are cameras",
+        ));
+    }
+    let test = crate::value::held_out(
+        cameras.len(),
+        tests,
+        a.count("split_seed", 0, u32::MAX as u64)?,
+    );
+    let (scene, scene_span) = a.get("scene");
+    let data = match scene {
+        Value::Field(field) if matches!(**field, Field::NeuralSdf(_)) => {
+            return Err(not_a_volume(scene_span));
+        }
+        Value::Field(field) => {
+            refuse(
+                &[
+                    "material",
+                    "background",
+                    "near",
+                    "far",
+                    "iterations",
+                    "hit_tolerance",
+                ],
+                "field",
+                "a field's colour is its `color`; its depth range is the `sampler`'s",
+            )?;
+            let Value::Sampler(sampler) = a.get("sampler").0 else {
+                return Err(type_error(
+                    a.get("sampler").1,
+                    "sampler",
+                    a.get("sampler").0,
+                ));
+            };
+            Dataset::Rendered {
+                field: field.clone(),
+                cameras,
+                width,
+                height,
+                sampler: *sampler,
+                test,
+            }
+        }
+        Value::Shape(shape) => {
+            refuse(
+                &["sampler"],
+                "shape",
+                "shapes are sphere-traced: set `near`, `far` and `iterations` instead",
+            )?;
+            let (near, far) = (a.number("near")?, a.number("far")?);
+            check_range(a, near, far)?;
+            let (bg, bg_span) = (a.vec3("background")?, a.get("background").1);
+            // The `render` statement's defaults for what is not asked here.
+            Dataset::Traced {
+                job: Arc::new(RenderJob {
+                    name: "render_views".to_string(),
+                    scene: shape.clone(),
+                    material: a.material("material")?,
+                    cameras,
+                    width,
+                    height,
+                    near,
+                    far,
+                    iterations: a.count("iterations", 1, MAX_ITERATIONS as u64)? as u32,
+                    epsilon: 1e-5,
+                    hit_tolerance: blocks::hit_tolerance(a)?,
+                    background: colour(bg, bg_span)?,
+                    fog: None,
+                    samples_per_pixel: 1,
+                    outputs: Vec::new(),
+                }),
+                test,
+            }
+        }
+        other => return Err(type_error(scene_span, "shape or field", other)),
+    };
+    Ok(Value::Dataset(Arc::new(data)))
+}
