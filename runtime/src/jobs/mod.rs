@@ -58,7 +58,7 @@ struct LoweredField {
 impl LoweredField {
     fn new(field: &SdfField) -> Self {
         LoweredField {
-            sdf: Lowered::new(&field.shape, LowerOptions::default()),
+            sdf: Lowered::new(&field.shape, LowerOptions::point_queries()),
             color: (*field.color).clone(),
         }
     }
@@ -318,7 +318,7 @@ pub fn run_volume_job(
         let Field::Sdf(f) = &*job.field else {
             return Err(invalid("only a distance field has a surface to mesh"));
         };
-        let sdf = Lowered::new(&f.shape, LowerOptions::default());
+        let sdf = Lowered::new(&f.shape, LowerOptions::point_queries());
         let distance = |p: &[[f32; 3]], out: &mut [f32]| {
             for (p, o) in p.iter().zip(out) {
                 *o = sdf.dist(Vec3A::from(*p));

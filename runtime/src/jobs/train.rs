@@ -760,7 +760,7 @@ fn true_surface(data: &Dataset) -> Option<crate::mesh::Mesh> {
         _ => return None,
     };
     let b = shape.bounds()?;
-    let sdf = Lowered::new(&shape, LowerOptions::default());
+    let sdf = Lowered::new(&shape, LowerOptions::point_queries());
     let distance = |p: &[[f32; 3]], out: &mut [f32]| {
         for (p, o) in p.iter().zip(out) {
             *o = sdf.dist(Vec3A::from(*p));

@@ -89,6 +89,18 @@ impl Default for LowerOptions {
     }
 }
 
+impl LowerOptions {
+    /// For evaluators that only answer distance queries (volumes, meshes,
+    /// geometric error) and never trace: no union lowered a second time for
+    /// culling per screen tile.
+    pub fn point_queries() -> Self {
+        LowerOptions {
+            tiles: false,
+            ..LowerOptions::default()
+        }
+    }
+}
+
 /// A lowered scene: evaluator, Lipschitz bound and primitive table.
 ///
 /// The evaluator takes points relative to `origin` (world = origin + p):

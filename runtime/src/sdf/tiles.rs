@@ -364,6 +364,25 @@ mod tests {
         Shape::Union(members)
     }
 
+    /// Only tracing culls per tile: a scene lowered for distance queries
+    /// holds no second lowering of its union, and answers the same.
+    #[test]
+    fn point_queries_lower_the_union_once() {
+        let shape = scene(6, 3, false, &mut Rng(3));
+        let traced = Lowered::new(&shape, LowerOptions::default());
+        let queried = Lowered::new(&shape, LowerOptions::point_queries());
+        assert!(
+            traced.tile_union.is_some(),
+            "a small plain union is lowered again for tiles"
+        );
+        assert!(queried.tile_union.is_none() && !queried.tiles);
+        let mut rng = Rng(4);
+        for _ in 0..200 {
+            let p = Vec3A::from(rng.v(1.5).as_vec3());
+            assert_eq!(traced.dist(p).to_bits(), queried.dist(p).to_bits());
+        }
+    }
+
     fn settings(footprint: f32) -> TraceSettings {
         TraceSettings {
             near: 0.0,
