@@ -29,6 +29,11 @@ pub(super) fn prescan(text: &str) -> Option<Diag> {
     let mut i = 0;
     let is_ident = |b: u8| b.is_ascii_alphanumeric() || b == b'_';
     while i < bytes.len() {
+        if let Some(last) = literal_end(bytes, i) {
+            i = last + 1;
+            minus_run = 0;
+            continue;
+        }
         let c = bytes[i];
         match c {
             // `for` and `if` open a level that lasts until their `{`.
@@ -60,24 +65,6 @@ pub(super) fn prescan(text: &str) -> Option<Diag> {
                 while bytes.get(i + 1).is_some_and(|b| is_ident(*b)) {
                     i += 1;
                 }
-            }
-            b'"' => {
-                i += 1;
-                while i < bytes.len() && bytes[i] != b'"' && bytes[i] != b'\n' {
-                    i += if bytes[i] == b'\\' { 2 } else { 1 };
-                }
-            }
-            b'/' if bytes.get(i + 1) == Some(&b'/') => {
-                while i < bytes.len() && bytes[i] != b'\n' {
-                    i += 1;
-                }
-            }
-            b'/' if bytes.get(i + 1) == Some(&b'*') => {
-                i += 2;
-                while i + 1 < bytes.len() && !(bytes[i] == b'*' && bytes[i + 1] == b'/') {
-                    i += 1;
-                }
-                i += 1;
             }
             b'(' | b'[' | b'{' => {
                 if c == b'{' {
@@ -365,25 +352,11 @@ fn innermost_unclosed(text: &str, pos: usize) -> Option<(usize, char)> {
     let mut stack = Vec::new();
     let mut i = 0;
     while i < bytes.len() {
+        if let Some(last) = literal_end(bytes, i) {
+            i = last + 1;
+            continue;
+        }
         match bytes[i] {
-            b'"' => {
-                i += 1;
-                while i < bytes.len() && bytes[i] != b'"' && bytes[i] != b'\n' {
-                    i += if bytes[i] == b'\\' { 2 } else { 1 };
-                }
-            }
-            b'/' if bytes.get(i + 1) == Some(&b'/') => {
-                while i < bytes.len() && bytes[i] != b'\n' {
-                    i += 1;
-                }
-            }
-            b'/' if bytes.get(i + 1) == Some(&b'*') => {
-                i += 2;
-                while i + 1 < bytes.len() && !(bytes[i] == b'*' && bytes[i + 1] == b'/') {
-                    i += 1;
-                }
-                i += 1;
-            }
             c @ (b'(' | b'[' | b'{') => stack.push((i, c as char)),
             b')' | b']' | b'}' => {
                 stack.pop();
@@ -393,4 +366,32 @@ fn innermost_unclosed(text: &str, pos: usize) -> Option<(usize, char)> {
         i += 1;
     }
     stack.pop()
+}
+
+/// Where a string or comment starting at `i` ends (its last byte; the end
+/// of the text or of the line when unterminated), or `None` when none
+/// starts there: what bracket and keyword scans skip, as the parser does.
+fn literal_end(bytes: &[u8], mut i: usize) -> Option<usize> {
+    match (bytes[i], bytes.get(i + 1)) {
+        (b'"', _) => {
+            i += 1;
+            while i < bytes.len() && bytes[i] != b'"' && bytes[i] != b'\n' {
+                i += if bytes[i] == b'\\' { 2 } else { 1 };
+            }
+        }
+        (b'/', Some(b'/')) => {
+            while i < bytes.len() && bytes[i] != b'\n' {
+                i += 1;
+            }
+        }
+        (b'/', Some(b'*')) => {
+            i += 2;
+            while i + 1 < bytes.len() && !(bytes[i] == b'*' && bytes[i + 1] == b'/') {
+                i += 1;
+            }
+            i += 1;
+        }
+        _ => return None,
+    }
+    Some(i)
 }
