@@ -236,21 +236,13 @@ fn emulated(m: usize, a: &[f32], lda: usize, b: &Packed, c: &mut [f32], ldc: usi
 #[cfg(target_arch = "x86_64")]
 mod avx512 {
     use super::{Packed, KC, MR, NR};
+    use crate::neural::fp32::avx512::mask;
     use std::arch::x86_64::*;
     use std::cell::RefCell;
 
     thread_local! {
         /// One strip of `A` in bf16 pairs, reused across calls.
         static STRIP: RefCell<Vec<u32>> = const { RefCell::new(Vec::new()) };
-    }
-
-    /// Lanes `0..len.min(16)` set.
-    fn mask(len: usize) -> __mmask16 {
-        if len >= 16 {
-            0xffff
-        } else {
-            ((1u32 << len) - 1) as __mmask16
-        }
     }
 
     /// See [`super::matmul`]; the caller checked AVX-512 F + BF16 and the

@@ -28,6 +28,7 @@ use rayon::prelude::*;
 use sdfl_stdlib::value::Precision;
 
 use super::bf16::{self, Kernel, Packed};
+use super::fp32::{self, Strided};
 use crate::volume::SplitMix64;
 
 /// Rows per block of the forward and input-adjoint passes.
@@ -109,20 +110,73 @@ pub fn sigmoid(z: f32) -> f32 {
 /// `ln(1 + e^(βz))/β` without overflow for large `βz`.
 #[inline(always)]
 pub fn softplus(z: f32, beta: f32) -> f32 {
-    let x = beta * z;
-    (x.max(0.0) + ln_1p_small((-x.abs()).exp())) / beta
+    softplus_and_slope(z, beta).0
 }
 
-/// `ln(1 + e)` for `0 ≤ e ≤ 1`, skipping the logarithm where `e < 2^-24`:
-/// there `ln(1 + e) = e·(1 − e/2 + …)` rounds to `e` in f32. With a sharp
-/// softplus most pre-activations land there.
+/// `softplus(z) = (max(βz, 0) + ln(1 + e^{−|βz|}))/β` (no overflow) and its
+/// slope `σ(βz)`, from one exponential. Branch-free, with sdfl's own `exp`
+/// and `ln(1 + e)`, so a loop over a layer's outputs vectorises.
 #[inline(always)]
-pub fn ln_1p_small(e: f32) -> f32 {
-    if e < 5.9e-8 {
-        e
-    } else {
-        e.ln_1p()
+pub fn softplus_and_slope(z: f32, beta: f32) -> (f32, f32) {
+    softplus_scaled(z, beta, 1.0 / beta)
+}
+
+/// [`softplus_and_slope`] given `1/β` too (a product instead of a
+/// division in a loop over a layer).
+#[inline(always)]
+fn softplus_scaled(z: f32, beta: f32, inv_beta: f32) -> (f32, f32) {
+    use sdfl_stdlib::num::{exp_f32, ln_1p_unit_f32};
+    let t = beta * z;
+    let e = exp_f32(-t.abs());
+    let s = if t >= 0.0 { 1.0 } else { e } / (1.0 + e);
+    ((t.max(0.0) + ln_1p_unit_f32(e)) * inv_beta, s)
+}
+
+/// [`softplus_and_slope`] of every `y` in place, its slope into `slope`
+/// where given (as long as `y`). Compiled with AVX-512 or AVX2 where the
+/// CPU has them (16 or 8 lanes instead of SSE's 4; the same operations, so
+/// the same bits).
+pub fn softplus_layer(y: &mut [f32], slope: Option<&mut [f32]>, beta: f32) {
+    #[inline(always)]
+    fn kernel(y: &mut [f32], slope: Option<&mut [f32]>, beta: f32) {
+        let inv_beta = 1.0 / beta;
+        match slope {
+            Some(s) => {
+                assert_eq!(s.len(), y.len(), "one slope a value");
+                for (y, s) in y.iter_mut().zip(s) {
+                    (*y, *s) = softplus_scaled(*y, beta, inv_beta);
+                }
+            }
+            None => {
+                for y in y {
+                    *y = softplus_scaled(*y, beta, inv_beta).0;
+                }
+            }
+        }
     }
+    #[cfg(target_arch = "x86_64")]
+    {
+        #[target_feature(enable = "avx512f")]
+        unsafe fn avx512(y: &mut [f32], slope: Option<&mut [f32]>, beta: f32) {
+            kernel(y, slope, beta)
+        }
+        if fp32::available() {
+            // SAFETY: the CPU supports AVX-512 F (checked just above).
+            return unsafe { avx512(y, slope, beta) };
+        }
+    }
+    #[cfg(any(target_arch = "x86_64", target_arch = "x86"))]
+    {
+        #[target_feature(enable = "avx2")]
+        unsafe fn avx2(y: &mut [f32], slope: Option<&mut [f32]>, beta: f32) {
+            kernel(y, slope, beta)
+        }
+        if crate::sdf::lanes::has_avx2() {
+            // SAFETY: the CPU supports AVX2 (checked just above).
+            return unsafe { avx2(y, slope, beta) };
+        }
+    }
+    kernel(y, slope, beta)
 }
 
 /// One layer's shape and where its weights live in the flat parameters.
@@ -136,6 +190,29 @@ pub struct Dense {
     pub offset: usize,
     /// Number format of the layer's matrix products.
     pub precision: Precision,
+    /// Where its fp32 products run.
+    pub products: Products,
+}
+
+/// Where a layer's fp32 products run: both give the same sums up to
+/// rounding, each the same bits at any thread count.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Products {
+    /// [`fp32`]'s AVX-512 register tiles, reading the operands in place.
+    Native,
+    /// matrixmultiply (packs both operands; any CPU).
+    Portable,
+}
+
+impl Products {
+    /// The native kernel where this CPU runs it.
+    pub fn detect() -> Self {
+        if fp32::available() {
+            Products::Native
+        } else {
+            Products::Portable
+        }
+    }
 }
 
 impl Dense {
@@ -146,12 +223,23 @@ impl Dense {
             act,
             offset,
             precision: Precision::Fp32,
+            products: Products::detect(),
         }
     }
 
     /// The layer with its products in `precision`.
     pub fn with_precision(self, precision: Precision) -> Self {
         Dense { precision, ..self }
+    }
+
+    /// The layer with its fp32 products run by `products`.
+    pub fn with_products(self, products: Products) -> Self {
+        Dense { products, ..self }
+    }
+
+    /// Whether the fp32 products run natively.
+    fn native(&self) -> bool {
+        self.products == Products::Native
     }
 
     /// The bf16 kernel for a product of width `k` into `n`, if it runs in
@@ -283,6 +371,12 @@ impl Dense {
                 w_row += k;
                 continue;
             }
+            if self.native() {
+                let a = Strided::row_major(&x[r0 * k..], k);
+                fp32::matmul(m, k, n, a, &w[w_row * n..], n, y, n, p > 0);
+                w_row += k;
+                continue;
+            }
             // SAFETY: x holds rows × k (checked by the caller), w rows
             // w_row..w_row+k of n columns, y m × n; all row-major.
             unsafe {
@@ -375,6 +469,12 @@ impl Dense {
                 let packed = self
                     .bf16_kernel(n, k)
                     .map(|kern| (kern, Packed::new(wp, n, k, 1, n)));
+                // Wᵀ (n × k) row-major for the fp32 kernel.
+                let wt: Vec<f32> = if packed.is_none() && self.native() {
+                    (0..n * k).map(|i| wp[(i % k) * n + i / k]).collect()
+                } else {
+                    Vec::new()
+                };
                 dx.par_chunks_mut(ROW_BLOCK * k)
                     .enumerate()
                     .for_each(|(blk, dxb)| {
@@ -382,6 +482,11 @@ impl Dense {
                         if let Some((kernel, wt)) = &packed {
                             let a = &dz[blk * ROW_BLOCK * n..];
                             bf16::matmul(*kernel, m, a, n, wt, dxb, k, accumulate);
+                            return;
+                        }
+                        if !wt.is_empty() {
+                            let a = Strided::row_major(&dz[blk * ROW_BLOCK * n..], n);
+                            fp32::matmul(m, n, k, a, &wt, k, dxb, k, accumulate);
                             return;
                         }
                         // SAFETY: dz rows from blk·ROW_BLOCK, m × n; wp is
@@ -436,6 +541,12 @@ impl Dense {
                             dz_packed.get_or_insert_with(|| Packed::new(dz_block, m, n, n, 1));
                         let xb = &x[r0 * k..(r0 + m) * k];
                         bf16::matmul_tn(kernel, xb, k, dzp, &mut part[w_row * n..], n);
+                        w_row += k;
+                        continue;
+                    }
+                    if self.native() {
+                        let xt = Strided::transposed(&x[r0 * k..], k);
+                        fp32::matmul(k, m, n, xt, dz_block, n, &mut part[w_row * n..], n, false);
                         w_row += k;
                         continue;
                     }
@@ -523,14 +634,30 @@ mod tests {
         (0..n).map(|_| 2.0 * rng.next_f32() - 1.0).collect()
     }
 
+    /// Layers of every kind, their products run by each kernel this CPU
+    /// has (the portable one always).
     fn layers() -> Vec<Dense> {
-        vec![
+        let shapes = [
             Dense::new(&[7], 5, Activation::Relu, 3),
             Dense::new(&[6, 4], 9, Activation::Sigmoid, 0),
             Dense::new(&[33], 17, Activation::Softplus { beta: 10.0 }, 1),
             Dense::new(&[4], 3, Activation::Exp, 0),
             Dense::new(&[5, 2, 3], 1, Activation::Identity, 0),
-        ]
+            Dense::new(&[20, 13], 40, Activation::Softplus { beta: 100.0 }, 2),
+        ];
+        product_kinds()
+            .into_iter()
+            .flat_map(|p| shapes.iter().map(move |d| d.clone().with_products(p)))
+            .collect()
+    }
+
+    /// The portable products, and the native ones where this CPU runs them.
+    fn product_kinds() -> Vec<Products> {
+        let mut kinds = vec![Products::Portable];
+        if fp32::available() {
+            kinds.push(Products::Native);
+        }
+        kinds
     }
 
     #[test]
@@ -695,7 +822,13 @@ mod tests {
 
     #[test]
     fn backward_is_identical_at_any_thread_count() {
-        let layer = Dense::new(&[40, 8], 24, Activation::Relu, 0);
+        for products in product_kinds() {
+            let layer = Dense::new(&[40, 8], 24, Activation::Relu, 0).with_products(products);
+            backward_is_identical_at_1_and_3_threads(&layer);
+        }
+    }
+
+    fn backward_is_identical_at_1_and_3_threads(layer: &Dense) {
         let rows = 3000;
         let mut rng = SplitMix64::new(3);
         let mut params = vec![0.0; layer.end()];
@@ -779,6 +912,46 @@ mod tests {
         near(&got.0, &want.0, "forward");
         near(&got.1, &want.1, "input adjoint");
         near(&got.2, &want.2, "weight gradient");
+    }
+
+    /// The layer pass (AVX-512, AVX2 or SSE, whichever runs here) is the
+    /// scalar formula bit for bit, with or without slopes, and both are
+    /// within a few ulp of f64.
+    #[test]
+    fn softplus_layer_is_the_scalar_formula_and_near_f64() {
+        let beta = 100.0f32;
+        let z: Vec<f32> = (-3000..=3000)
+            .map(|i| i as f32 * 7e-4)
+            .chain([0.0, -0.0, 1e-30, -1e-30, 1e30, -1e30, 3e36, -3e36])
+            .collect();
+        let (mut y, mut s) = (z.clone(), vec![0.0; z.len()]);
+        softplus_layer(&mut y, Some(&mut s), beta);
+        let mut y_alone = z.clone();
+        softplus_layer(&mut y_alone, None, beta);
+        for (i, &zi) in z.iter().enumerate() {
+            let (ys, ss) = softplus_and_slope(zi, beta);
+            assert_eq!(
+                (y[i].to_bits(), s[i].to_bits(), y_alone[i].to_bits()),
+                (ys.to_bits(), ss.to_bits(), ys.to_bits()),
+                "at {zi}"
+            );
+            // βz as the kernel forms it: its f32 rounding moves e^{−|βz|}
+            // by up to |βz|·2^-24 relative, which no formula after can undo.
+            let x = (beta * zi) as f64;
+            let want = (x.max(0.0) + (-x.abs()).exp().ln_1p()) / beta as f64;
+            let slope = 1.0 / (1.0 + (-x).exp());
+            assert!(
+                // Below f32's normal range the value underflows, as it should.
+                (y[i] as f64 - want).abs() <= 4.0 * f32::EPSILON as f64 * want + 1.2e-38,
+                "softplus({zi}) = {} vs {want}",
+                y[i]
+            );
+            assert!(
+                (s[i] as f64 - slope).abs() <= 2.0 * f32::EPSILON as f64 * slope + 1.2e-38,
+                "slope({zi}) = {} vs {slope}",
+                s[i]
+            );
+        }
     }
 
     #[test]

@@ -1,5 +1,5 @@
-//! Neural fields on the CPU: fused dense layers ([`mlp`]) and their bf16
-//! products ([`bf16`]), input
+//! Neural fields on the CPU: fused dense layers ([`mlp`]), their fp32
+//! products without packing ([`fp32`]) and bf16 products ([`bf16`]), input
 //! encodings ([`encoding`], the multiresolution hash grid [`hashgrid`]),
 //! the NeRF network ([`nerf`]), compositing of densities with its reverse
 //! sweep ([`composite`]), the NeRF as a trainable model and a renderable
@@ -13,6 +13,7 @@ pub mod composite;
 pub mod distance;
 pub mod encoding;
 pub mod field;
+pub mod fp32;
 pub mod hashgrid;
 pub mod mlp;
 pub mod nerf;

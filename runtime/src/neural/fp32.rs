@@ -1,0 +1,355 @@
+//! Matrix products in fp32 with AVX-512 register tiles that read both
+//! operands where they lie: no packing.
+//!
+//! A general product library (matrixmultiply) copies both operands into
+//! panels on every call; at a network layer's shapes (an inner dimension
+//! and a width of ~128) each copied number serves only ~128 multiply-adds,
+//! so the copies cost a fifth of the products' time. Here a 12 × 32 tile of
+//! `C` lives in 24 registers while the sum runs: a row of `B`'s 32 columns
+//! is two vector loads (a layer's weights, or the adjoints' rows, read in
+//! place, masked at the edges), an element of `A` one broadcast (at any
+//! strides, so `Xᵀ` needs no transpose). The sum over `r` runs in chunks of
+//! [`KC`] (a panel of `B` stays in L1), each element's products added in
+//! order of `r`: the result depends only on the operands, not on how rows
+//! are split among threads.
+//!
+//! [`available`] says whether the CPU runs it (AVX-512 F, checked at run
+//! time); callers fall back to matrixmultiply elsewhere.
+
+/// Columns per tile: two 16-lane vectors.
+const NR: usize = 32;
+/// Rows per tile: 12 × 2 accumulators, 2 for `B`, 1 broadcast.
+const MR: usize = 12;
+/// Steps of the sum per chunk: a 32-column panel of `B` is 16 KiB.
+const KC: usize = 128;
+
+/// Whether this CPU runs the kernel (AVX-512 F).
+pub fn available() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        std::arch::is_x86_feature_detected!("avx512f")
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        false
+    }
+}
+
+/// An operand read in place: element `(i, r)` at `data[i·rows + r·cols]`.
+#[derive(Debug, Clone, Copy)]
+pub struct Strided<'a> {
+    pub data: &'a [f32],
+    /// Distance between consecutive rows.
+    pub rows: usize,
+    /// Distance between consecutive columns.
+    pub cols: usize,
+}
+
+impl<'a> Strided<'a> {
+    /// Row-major with rows `ld` apart.
+    pub fn row_major(data: &'a [f32], ld: usize) -> Self {
+        Strided {
+            data,
+            rows: ld,
+            cols: 1,
+        }
+    }
+
+    /// The transpose of a row-major matrix with rows `ld` apart.
+    pub fn transposed(data: &'a [f32], ld: usize) -> Self {
+        Strided {
+            data,
+            rows: 1,
+            cols: ld,
+        }
+    }
+
+    /// Whether `(rows − 1, cols − 1)` lies in `data` (non-empty shapes).
+    fn holds(&self, rows: usize, cols: usize) -> bool {
+        rows == 0 || cols == 0 || (rows - 1) * self.rows + (cols - 1) * self.cols < self.data.len()
+    }
+}
+
+/// `C = A·B` (or `C += A·B` when `accumulate`) for `A` `m × k` (any
+/// strides), `B` `k × n` row-major with rows `ldb` apart, `C` `m × n` with
+/// rows `ldc` apart. One thread; callers split rows. Panics unless
+/// [`available`] or if an operand is too short for its shape.
+#[allow(clippy::too_many_arguments)]
+pub fn matmul(
+    m: usize,
+    k: usize,
+    n: usize,
+    a: Strided,
+    b: &[f32],
+    ldb: usize,
+    c: &mut [f32],
+    ldc: usize,
+    accumulate: bool,
+) {
+    if m == 0 || n == 0 {
+        return;
+    }
+    assert!(a.holds(m, k), "A holds m × k");
+    assert!(k == 0 || (k - 1) * ldb + n <= b.len(), "B holds k × n");
+    assert!((m - 1) * ldc + n <= c.len(), "C holds m × n");
+    if k == 0 {
+        if !accumulate {
+            for row in c.chunks_mut(ldc).take(m) {
+                row[..n].fill(0.0);
+            }
+        }
+        return;
+    }
+    #[cfg(target_arch = "x86_64")]
+    {
+        assert!(available(), "the AVX-512 fp32 kernel on a CPU without it");
+        // SAFETY: AVX-512 F checked just above; every index the kernel
+        // forms is below the bounds asserted above (rows < m, columns < n
+        // by masks, sum steps < k).
+        unsafe { avx512::matmul(m, k, n, a, b, ldb, c, ldc, accumulate) }
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    unreachable!("no AVX-512 kernel off x86-64")
+}
+
+#[cfg(target_arch = "x86_64")]
+pub(super) mod avx512 {
+    use super::{Strided, KC, MR, NR};
+    use std::arch::x86_64::*;
+
+    /// Lanes `0..len.min(16)` set (also for the bf16 kernel's edges).
+    #[inline(always)]
+    pub(in crate::neural) fn mask(len: usize) -> __mmask16 {
+        if len >= 16 {
+            0xffff
+        } else {
+            ((1u32 << len) - 1) as __mmask16
+        }
+    }
+
+    #[target_feature(enable = "avx512f")]
+    #[allow(clippy::too_many_arguments)]
+    pub(super) unsafe fn matmul(
+        m: usize,
+        k: usize,
+        n: usize,
+        a: Strided,
+        b: &[f32],
+        ldb: usize,
+        c: &mut [f32],
+        ldc: usize,
+        accumulate: bool,
+    ) {
+        let (a_ptr, b_ptr, c_ptr) = (a.data.as_ptr(), b.as_ptr(), c.as_mut_ptr());
+        for r0 in (0..k).step_by(KC) {
+            let steps = KC.min(k - r0);
+            // The first chunk starts from C (accumulating) or from zero.
+            let load = r0 > 0 || accumulate;
+            for j0 in (0..n).step_by(NR) {
+                let cols = n - j0;
+                let masks = [mask(cols), mask(cols.saturating_sub(16))];
+                let panel = b_ptr.add(r0 * ldb + j0);
+                for i0 in (0..m).step_by(MR) {
+                    let tile = Tile {
+                        a: a_ptr.add(i0 * a.rows + r0 * a.cols),
+                        a_rows: a.rows,
+                        a_cols: a.cols,
+                        b: panel,
+                        ldb,
+                        c: c_ptr.add(i0 * ldc + j0),
+                        ldc,
+                        steps,
+                        masks,
+                        load,
+                    };
+                    match m - i0 {
+                        1 => tile.run::<1>(),
+                        2 => tile.run::<2>(),
+                        3 => tile.run::<3>(),
+                        4 => tile.run::<4>(),
+                        5 => tile.run::<5>(),
+                        6 => tile.run::<6>(),
+                        7 => tile.run::<7>(),
+                        8 => tile.run::<8>(),
+                        9 => tile.run::<9>(),
+                        10 => tile.run::<10>(),
+                        11 => tile.run::<11>(),
+                        _ => tile.run::<MR>(),
+                    }
+                }
+            }
+        }
+    }
+
+    /// One tile of `C` (up to `MR` rows, up to `NR` columns by `masks`)
+    /// over one chunk of the sum.
+    struct Tile {
+        a: *const f32,
+        a_rows: usize,
+        a_cols: usize,
+        b: *const f32,
+        ldb: usize,
+        c: *mut f32,
+        ldc: usize,
+        steps: usize,
+        masks: [__mmask16; 2],
+        load: bool,
+    }
+
+    impl Tile {
+        #[target_feature(enable = "avx512f")]
+        #[inline]
+        unsafe fn run<const R: usize>(&self) {
+            let [m0, m1] = self.masks;
+            let mut acc = [[_mm512_setzero_ps(); 2]; R];
+            if self.load {
+                for (i, acc) in acc.iter_mut().enumerate() {
+                    let row = self.c.add(i * self.ldc);
+                    acc[0] = _mm512_maskz_loadu_ps(m0, row);
+                    acc[1] = _mm512_maskz_loadu_ps(m1, row.wrapping_add(16));
+                }
+            }
+            for r in 0..self.steps {
+                let brow = self.b.add(r * self.ldb);
+                let b0 = _mm512_maskz_loadu_ps(m0, brow);
+                // Past n the mask is empty and nothing is read (hence a
+                // wrapping pointer: it may point past the operand).
+                let b1 = _mm512_maskz_loadu_ps(m1, brow.wrapping_add(16));
+                let a = self.a.add(r * self.a_cols);
+                for (i, acc) in acc.iter_mut().enumerate() {
+                    let x = _mm512_set1_ps(*a.add(i * self.a_rows));
+                    acc[0] = _mm512_fmadd_ps(x, b0, acc[0]);
+                    acc[1] = _mm512_fmadd_ps(x, b1, acc[1]);
+                }
+            }
+            for (i, acc) in acc.iter().enumerate() {
+                let row = self.c.add(i * self.ldc);
+                _mm512_mask_storeu_ps(row, m0, acc[0]);
+                _mm512_mask_storeu_ps(row.wrapping_add(16), m1, acc[1]);
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn numbers(len: usize, seed: u32) -> Vec<f32> {
+        let mut s = seed.wrapping_mul(2_654_435_761).wrapping_add(1);
+        (0..len)
+            .map(|_| {
+                s ^= s << 13;
+                s ^= s >> 17;
+                s ^= s << 5;
+                (s % 2001) as f32 / 1000.0 - 1.0
+            })
+            .collect()
+    }
+
+    /// The kernel against f64 sums, over shapes with every kind of edge
+    /// (partial tiles, partial panels, several chunks of the sum), both
+    /// layouts of `A` and both modes.
+    #[test]
+    fn products_match_f64_sums() {
+        if !available() {
+            eprintln!("no AVX-512 F here: the kernel is not run");
+            return;
+        }
+        for (m, k, n) in [
+            (1, 1, 1),
+            (13, 7, 33),
+            (12, 128, 32),
+            (25, 129, 17),
+            (5, 300, 64),
+            (40, 27, 128),
+            (3, 256, 100),
+        ] {
+            for transposed in [false, true] {
+                for accumulate in [false, true] {
+                    let (lda, ldb, ldc) = (if transposed { m + 2 } else { k + 3 }, n + 1, n + 5);
+                    let a_data = numbers(if transposed { k * lda } else { m * lda }, 1);
+                    let b = numbers(k * ldb, 2);
+                    let c0 = numbers(m * ldc, 3);
+                    let a = if transposed {
+                        Strided::transposed(&a_data, lda)
+                    } else {
+                        Strided::row_major(&a_data, lda)
+                    };
+                    let mut c = c0.clone();
+                    matmul(m, k, n, a, &b, ldb, &mut c, ldc, accumulate);
+                    for i in 0..m {
+                        for j in 0..ldc {
+                            let got = c[i * ldc + j];
+                            if j >= n {
+                                assert_eq!(got, c0[i * ldc + j], "outside C touched");
+                                continue;
+                            }
+                            let at = |r: usize| a.data[i * a.rows + r * a.cols] as f64;
+                            let mut want = if accumulate {
+                                c0[i * ldc + j] as f64
+                            } else {
+                                0.0
+                            };
+                            let mut size = want.abs();
+                            for r in 0..k {
+                                let p = at(r) * b[r * ldb + j] as f64;
+                                want += p;
+                                size += p.abs();
+                            }
+                            let tol = (k as f64 + 1.0) * f32::EPSILON as f64 * size;
+                            assert!(
+                                (got as f64 - want).abs() <= tol,
+                                "{m}×{k}×{n} ({transposed}, {accumulate}) at ({i}, {j}): {got} vs {want}"
+                            );
+                        }
+                    }
+                }
+            }
+        }
+    }
+
+    /// How rows are split among calls does not change a bit.
+    #[test]
+    fn splitting_rows_changes_nothing() {
+        if !available() {
+            return;
+        }
+        let (m, k, n) = (37, 200, 70);
+        let (a, b) = (numbers(m * k, 4), numbers(k * n, 5));
+        let mut whole = vec![0.0; m * n];
+        matmul(
+            m,
+            k,
+            n,
+            Strided::row_major(&a, k),
+            &b,
+            n,
+            &mut whole,
+            n,
+            false,
+        );
+        let mut split = vec![0.0; m * n];
+        for (r0, rows) in [(0, 5), (5, 13), (18, 19)] {
+            let a = Strided::row_major(&a[r0 * k..], k);
+            matmul(rows, k, n, a, &b, n, &mut split[r0 * n..], n, false);
+        }
+        assert_eq!(whole, split);
+    }
+
+    /// Non-finite operands reach the sums as IEEE arithmetic says (no
+    /// masked-off lane or skipped step hides them).
+    #[test]
+    fn non_finite_operands_propagate() {
+        if !available() {
+            return;
+        }
+        let (m, k, n) = (2, 3, 2);
+        let a = [1.0, f32::NAN, 0.0, 1.0, 1.0, f32::INFINITY];
+        let b = [1.0; 6];
+        let mut c = [0.0; 4];
+        matmul(m, k, n, Strided::row_major(&a, k), &b, n, &mut c, n, false);
+        assert!(c[0].is_nan() && c[1].is_nan());
+        assert_eq!(c[2], f32::INFINITY);
+    }
+}
