@@ -185,6 +185,18 @@ fn random_scene(seed: u64, n: usize, with_bounds_ops: bool) -> Shape {
             spacing: DVec3::new(0.7, 0.0, 0.5).into(),
             count: [5, 1, 3],
         }));
+        // A child whose value is only a bound, its copies overlapping: the
+        // repetition's continuous terms in both evaluators.
+        let blend = Shape::SmoothUnion(
+            Arc::new(primitive(&mut rng)),
+            Arc::new(primitive(&mut rng)),
+            0.3.into(),
+        );
+        members.push(Arc::new(Shape::Repeat {
+            shape: Arc::new(blend),
+            spacing: DVec3::new(0.4, 0.9, 0.0).into(),
+            count: [4, 3, 1],
+        }));
         // Unbounded: kept out of the BVH, never culled.
         members.push(Arc::new(Shape::Translate(
             Arc::new(Shape::Repeat {

@@ -335,6 +335,117 @@ pub fn repeat_range(u: f64, reach: f64, count: Option<u32>) -> (f64, f64) {
     }
 }
 
+/// A copy's term in a repetition whose child's value `f` is only a bound
+/// on its distance. [`repeat_range`]'s window holds the nearest copy, but a
+/// farther copy's bound may be lower and joins the window only past a cell
+/// boundary, where a plain minimum would jump. So each copy gives
+/// `max(b, min(f, w + ½·s_min))`: `b` the distance from `q` (the point in
+/// the copy's frame) to the child's box `lo..hi`, `w` how deep inside the
+/// window the copy is (`½·s + extent − |q|` on the repeated axes, the least
+/// of them, `extent` the box's reach from the origin: 0 where it enters),
+/// `s_min` the least spacing. Never above the copy's distance (`f` and `b`
+/// are both lower bounds of it); exactly `b` where the copy enters (its box
+/// is at least `½·s` away along that axis), where [`repeat_beyond`] takes
+/// over: the minimum of the terms and that is continuous, and Lipschitz
+/// with the larger of 1 and the child's constant.
+#[inline(always)]
+pub fn repeat_bound_term<T: Real>(f: T, q: V3<T>, spacing: V3<T>, lo: V3<T>, hi: V3<T>) -> T {
+    let zero = T::zero();
+    let (q, s, lo, hi) = (
+        q.to_array(),
+        spacing.to_array(),
+        lo.to_array(),
+        hi.to_array(),
+    );
+    let mut sq = zero;
+    // (depth in the window, half the least spacing) over the repeated axes.
+    let mut w: Option<(T, T)> = None;
+    for i in 0..3 {
+        let g = box_gap(q[i], lo[i], hi[i]);
+        sq = sq + g * g;
+        if s[i].val() > 0.0 {
+            let half = s[i] * T::lit(0.5);
+            let wi = half + lo[i].abs().max(hi[i].abs()) - q[i].abs();
+            w = Some(w.map_or((wi, half), |(w, h)| (w.min(wi), h.min(half))));
+        }
+    }
+    let b = sq.sqrt();
+    match w {
+        Some((w, half)) => b.max(f.min(w + half)),
+        None => f,
+    }
+}
+
+/// How far `x` lies outside `lo..hi` (0 inside).
+#[inline(always)]
+fn box_gap<T: Real>(x: T, lo: T, hi: T) -> T {
+    (lo - x).max(x - hi).max(T::zero())
+}
+
+/// The least distance from `p` to the boxes (`lo..hi` about each copy's
+/// origin) of the copies a repetition leaves out of its `ranges` (see
+/// [`repeat_range`]; copy indices centred on the origin): per repeated axis
+/// with a copy beyond its range, the nearest such layer's gap along that
+/// axis, with the nearest copy's gap along each other axis (a box's
+/// distance is the root of the squared gaps, axis by axis). `None` when no
+/// copy is left out.
+pub fn repeat_beyond<T: Real>(
+    p: V3<T>,
+    spacing: V3<T>,
+    (lo, hi): (V3<T>, V3<T>),
+    count: [u32; 3],
+    ranges: [(f64, f64); 3],
+) -> Option<T> {
+    let (p, s, lo, hi) = (
+        p.to_array(),
+        spacing.to_array(),
+        lo.to_array(),
+        hi.to_array(),
+    );
+    let gap = |i: usize, k: f64| {
+        let off = s[i] * T::lit(k);
+        box_gap(p[i], lo[i] + off, hi[i] + off)
+    };
+    // Whether copy k exists along axis i (counts are centred on the origin).
+    let exists = |i: usize, k: f64| count[i] == 0 || k.abs() <= (count[i] as f64 - 1.0) * 0.5;
+    // The nearest copy's gap along each axis (the single copy where
+    // unrepeated): the gap is least at the copy whose box centre is nearest.
+    let near: [T; 3] = std::array::from_fn(|i| {
+        if s[i].val() <= 0.0 {
+            return gap(i, 0.0);
+        }
+        let u = (p[i].val() - 0.5 * (lo[i].val() + hi[i].val())) / s[i].val();
+        let k = if count[i] == 0 {
+            u.round()
+        } else {
+            // Centred indices are whole for odd counts, halves for even.
+            let mid = (count[i] as f64 - 1.0) * 0.5;
+            ((u + mid).round() - mid).clamp(-mid, mid)
+        };
+        gap(i, k)
+    });
+    let mut best: Option<T> = None;
+    for i in 0..3 {
+        if s[i].val() <= 0.0 {
+            continue;
+        }
+        let (first, last) = ranges[i];
+        let outside = [first - 1.0, last + 1.0]
+            .into_iter()
+            .filter(|&k| exists(i, k))
+            .map(|k| gap(i, k))
+            .reduce(|a, b| a.min(b));
+        let Some(a) = outside else { continue };
+        let mut sq = a * a;
+        for j in (0..3).filter(|&j| j != i) {
+            sq = sq + near[j] * near[j];
+        }
+        let d = sq.sqrt();
+        best = Some(best.map_or(d, |b| b.min(d)));
+    }
+    best
+}
+
 /// `p` rotated by `angle` around the unit `axis` (Rodrigues' formula).
 #[inline(always)]
 pub fn rotate<T: Real>(p: V3<T>, axis: V3<T>, angle: T) -> V3<T> {

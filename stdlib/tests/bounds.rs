@@ -170,15 +170,6 @@ proptest! {
         shape in tree(),
         pairs in prop::collection::vec((v3(3.0), v3(0.3)), 32),
     ) {
-        // A repetition of a shape whose value is only a bound takes the
-        // least value over the copies near the point (the nearest copy is
-        // always among them, so it stays a lower bound of the distance,
-        // safe to trace); a farther copy's bound can be lower still and
-        // joins that set only past a cell boundary, so the value may jump
-        // there. Known, open: such shapes are left out of this check.
-        if repeats_a_bound(&shape) {
-            return Ok(());
-        }
         let l = shape.lipschitz();
         for (p, dp) in pairs {
             let (a, b) = (shape.distance(p), shape.distance(p + dp));
@@ -202,11 +193,40 @@ proptest! {
     }
 }
 
-/// Whether `shape` repeats, anywhere in its tree, a child whose value is
-/// only a bound on its distance.
-fn repeats_a_bound(shape: &Shape) -> bool {
-    matches!(shape, Shape::Repeat { shape: child, .. } if child.exactness() != Exactness::Exact)
-        || shape.children().into_iter().any(|c| repeats_a_bound(c))
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(200))]
+    /// A repetition of a shape whose value is only a bound stays below the
+    /// distance: below the least, over every copy (brute force), of the
+    /// larger of the copy's own bound and its box's distance (both at most
+    /// that copy's distance).
+    #[test]
+    fn repeated_bounds_stay_below_every_copy(
+        child in tree(),
+        spacing in v3(1.5),
+        count in (1u32..5, 1u32..4, 1u32..5),
+        points in prop::collection::vec(v3(4.0), 16),
+    ) {
+        let Some(b) = child.repeated_as_bound() else { return Ok(()) };
+        let spacing = spacing.abs() + DVec3::splat(0.2);
+        let count = [count.0, count.1, count.2];
+        let child = Arc::new(child);
+        let shape = Shape::Repeat { shape: child.clone(), spacing: spacing.into(), count };
+        let copies = |i: usize| (0..count[i]).map(move |k| k as f64 - (count[i] as f64 - 1.0) * 0.5);
+        for p in points {
+            let mut brute = f64::INFINITY;
+            for kx in copies(0) {
+                for ky in copies(1) {
+                    for kz in copies(2) {
+                        let q = p - DVec3::new(kx, ky, kz) * spacing;
+                        let gap = (b.min - q).max(q - b.max).max(DVec3::ZERO).length();
+                        brute = brute.min(child.distance(q).max(gap));
+                    }
+                }
+            }
+            let d = shape.distance(p);
+            prop_assert!(d <= brute + 1e-9, "at {p}: {d} above {brute}");
+        }
+    }
 }
 
 /// An infinite repetition has no bounds (unions keep it out of their BVH

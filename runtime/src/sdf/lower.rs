@@ -288,6 +288,9 @@ impl Lowering {
                     spacing: c(spacing),
                     extent: s.extent(),
                     count: *count,
+                    bound: s
+                        .repeated_as_bound()
+                        .map(|b| (V3::lit(b.min.to_array()), V3::lit(b.max.to_array()))),
                 },
                 frame,
             ),

@@ -644,6 +644,9 @@ pub(super) enum WarpOp {
         spacing: V3<f32>,
         extent: DVec3,
         count: [u32; 3],
+        /// A bounded child whose value is only a bound: its box
+        /// (continuous terms, `sdf::repeat_bound_term`).
+        bound: Option<(V3<f32>, V3<f32>)>,
     },
     /// Twist (`bend: false`) or bend at `rate` in the cylinder `radius`, `lo..hi`.
     Turn {
@@ -686,6 +689,7 @@ impl Warp {
                 spacing: s,
                 extent,
                 count,
+                bound,
             } => {
                 let r = repeat_ranges(q, *s, *extent, *count);
                 let mut best = (f32::INFINITY, u32::MAX);
@@ -693,11 +697,19 @@ impl Warp {
                     for ky in cells(r[1]) {
                         for kz in cells(r[2]) {
                             let off = V3::new(s.x * kx as f32, s.y * ky as f32, s.z * kz as f32);
-                            let c = inner(q - off);
+                            let mut c = inner(q - off);
+                            if let Some((lo, hi)) = bound {
+                                c.0 = sdf::repeat_bound_term(c.0, q - off, *s, *lo, *hi);
+                            }
                             if c.0 < best.0 {
                                 best = c;
                             }
                         }
+                    }
+                }
+                if let Some(b) = bound {
+                    if let Some(d) = sdf::repeat_beyond(q, *s, *b, *count, r) {
+                        best.0 = best.0.min(d);
                     }
                 }
                 best

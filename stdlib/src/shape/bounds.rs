@@ -115,6 +115,33 @@ impl Shape {
         }
     }
 
+    /// Whether the value is the exact distance wherever it is positive
+    /// (outside the shape): exact shapes, unions of such shapes (and
+    /// repetitions, which equal the union of their copies), offsets of
+    /// them and elongations of exact shapes. A repetition needs this of its
+    /// child to take the least value over the copies near the point (a
+    /// farther copy's value is then its distance, never below a nearer
+    /// copy's); see [`Shape::repeated_as_bound`].
+    pub fn exact_outside(&self) -> bool {
+        if self.exactness() == Exactness::Exact {
+            return true;
+        }
+        match self {
+            Shape::Union(c) => c.iter().all(|s| s.exact_outside()),
+            Shape::Round(s, _)
+            | Shape::Repeat { shape: s, .. }
+            | Shape::Translate(s, _)
+            | Shape::Rotate { shape: s, .. }
+            | Shape::Scale(s, _)
+            | Shape::Paint(s, _) => s.exact_outside(),
+            Shape::Mirror(s, axis) => {
+                matches!(s.bounds(), Some(b) if b.min[axis.index()] >= 0.0) && s.exact_outside()
+            }
+            Shape::Elongate(s, _) => s.exactness() == Exactness::Exact,
+            _ => false,
+        }
+    }
+
     /// A bound `L` on the gradient norm: sphere tracing steps `d / L`.
     pub fn lipschitz(&self) -> f64 {
         match self {
@@ -133,8 +160,13 @@ impl Shape {
             | Shape::Round(s, _)
             | Shape::Onion(s, _)
             | Shape::Elongate(s, _)
-            | Shape::Repeat { shape: s, .. }
             | Shape::Mirror(s, _) => s.lipschitz(),
+            // A bounded child's bound meets 1-Lipschitz box distances
+            // (`sdf::repeat_bound_term`).
+            Shape::Repeat { shape: s, .. } => match s.repeated_as_bound() {
+                Some(_) => s.lipschitz().max(1.0),
+                None => s.lipschitz(),
+            },
             Shape::ScaleXyz(s, _) => s.lipschitz().max(1.0),
             // Turning by an angle that changes at `rate` per unit moves a
             // point at radius r by up to `rate·r` more: within the region

@@ -486,13 +486,20 @@ impl Shape {
                 count,
             } => {
                 let s = args.vector(spacing);
-                let ranges = repeat_ranges(p, s, shape.extent(), *count);
+                let extent = shape.extent();
+                let ranges = repeat_ranges(p, s, extent, *count);
+                let bound = shape
+                    .repeated_as_bound()
+                    .map(|b| (V3::lit(b.min.to_array()), V3::lit(b.max.to_array())));
                 let mut best: Option<Sample<'s, T>> = None;
                 for kx in cells(ranges[0]) {
                     for ky in cells(ranges[1]) {
                         for kz in cells(ranges[2]) {
                             let off = V3::new(s.x * T::lit(kx), s.y * T::lit(ky), s.z * T::lit(kz));
-                            let inner = shape.sample(p - off, args);
+                            let mut inner = shape.sample(p - off, args);
+                            if let Some((lo, hi)) = bound {
+                                inner.d = sdf::repeat_bound_term(inner.d, p - off, s, lo, hi);
+                            }
                             if best.is_none_or(|b| inner.d.val() < b.d.val()) {
                                 best = Some(Sample {
                                     center: inner.center + off,
@@ -502,7 +509,13 @@ impl Shape {
                         }
                     }
                 }
-                best.expect("every range holds a copy")
+                let mut best = best.expect("every range holds a copy");
+                if let Some(b) = bound {
+                    if let Some(d) = sdf::repeat_beyond(p, s, b, *count, ranges) {
+                        best.d = best.d.min(d);
+                    }
+                }
+                best
             }
             Shape::Mirror(s, axis) => {
                 let mut a = p.to_array();
@@ -766,6 +779,20 @@ impl Shape {
         match self.bounds() {
             Some(b) => b.min.abs().max(b.max.abs()),
             None => DVec3::INFINITY,
+        }
+    }
+
+    /// As the child of a repetition: its bounds when it has them and its
+    /// value may fall below its distance outside it (not
+    /// [`exact_outside`](Self::exact_outside)). The repetition then
+    /// evaluates copies through [`sdf::repeat_bound_term`] and
+    /// [`sdf::repeat_beyond`], so its value stays continuous where copies
+    /// join or leave the window.
+    pub fn repeated_as_bound(&self) -> Option<Aabb> {
+        if self.exact_outside() {
+            None
+        } else {
+            self.bounds()
         }
     }
 
