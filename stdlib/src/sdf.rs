@@ -339,12 +339,14 @@ pub fn repeat_range(u: f64, reach: f64, count: Option<u32>) -> (f64, f64) {
 /// on its distance. [`repeat_range`]'s window holds the nearest copy, but a
 /// farther copy's bound may be lower and joins the window only past a cell
 /// boundary, where a plain minimum would jump. So each copy gives
-/// `max(b, min(f, w + ½·s_min))`: `b` the distance from `q` (the point in
-/// the copy's frame) to the child's box `lo..hi`, `w` how deep inside the
+/// `max(b, min(f, w + ½·s_min))`: `b` the signed distance from `q` (the
+/// point in the copy's frame) to the child's box `lo..hi` (at most `f`:
+/// the child lies in its box), `w` how deep inside the
 /// window the copy is (`½·s + extent − |q|` on the repeated axes, the least
 /// of them, `extent` the box's reach from the origin: 0 where it enters),
-/// `s_min` the least spacing. Never above the copy's distance (`f` and `b`
-/// are both lower bounds of it); exactly `b` where the copy enters (its box
+/// `s_min` the least spacing. Never above the copy's signed distance (`f`
+/// and `b` are both lower bounds of it; inside the copy, where the depth is
+/// at least `½·s`, it is `f`); exactly `b` where the copy enters (its box
 /// is at least `½·s` away along that axis), where [`repeat_beyond`] takes
 /// over: the minimum of the terms and that is continuous, and Lipschitz
 /// with the larger of 1 and the child's constant.
@@ -357,11 +359,13 @@ pub fn repeat_bound_term<T: Real>(f: T, q: V3<T>, spacing: V3<T>, lo: V3<T>, hi:
         lo.to_array(),
         hi.to_array(),
     );
-    let mut sq = zero;
+    let (mut sq, mut deepest) = (zero, None::<T>);
     // (depth in the window, half the least spacing) over the repeated axes.
     let mut w: Option<(T, T)> = None;
     for i in 0..3 {
-        let g = box_gap(q[i], lo[i], hi[i]);
+        let signed = (lo[i] - q[i]).max(q[i] - hi[i]);
+        deepest = Some(deepest.map_or(signed, |d| d.max(signed)));
+        let g = signed.max(zero);
         sq = sq + g * g;
         if s[i].val() > 0.0 {
             let half = s[i] * T::lit(0.5);
@@ -369,7 +373,13 @@ pub fn repeat_bound_term<T: Real>(f: T, q: V3<T>, spacing: V3<T>, lo: V3<T>, hi:
             w = Some(w.map_or((wi, half), |(w, h)| (w.min(wi), h.min(half))));
         }
     }
-    let b = sq.sqrt();
+    // The box's signed distance: negative inside, where the child is too.
+    let deepest = deepest.expect("three axes");
+    let b = if deepest.val() > 0.0 {
+        sq.sqrt()
+    } else {
+        deepest
+    };
     match w {
         Some((w, half)) => b.max(f.min(w + half)),
         None => f,

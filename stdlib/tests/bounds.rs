@@ -197,14 +197,15 @@ proptest! {
     #![proptest_config(ProptestConfig::with_cases(200))]
     /// A repetition of a shape whose value is only a bound stays below the
     /// distance: below the least, over every copy (brute force), of the
-    /// larger of the copy's own bound and its box's distance (both at most
-    /// that copy's distance).
+    /// larger of the copy's own bound and its box's signed distance (both
+    /// at most that copy's signed distance), so negative inside any copy.
     #[test]
     fn repeated_bounds_stay_below_every_copy(
         child in tree(),
         spacing in v3(1.5),
         count in (1u32..5, 1u32..4, 1u32..5),
         points in prop::collection::vec(v3(4.0), 16),
+        near in prop::collection::vec(v3(0.3), 8),
     ) {
         let Some(b) = child.repeated_as_bound() else { return Ok(()) };
         let spacing = spacing.abs() + DVec3::splat(0.2);
@@ -212,14 +213,22 @@ proptest! {
         let child = Arc::new(child);
         let shape = Shape::Repeat { shape: child.clone(), spacing: spacing.into(), count };
         let copies = |i: usize| (0..count[i]).map(move |k| k as f64 - (count[i] as f64 - 1.0) * 0.5);
-        for p in points {
+        // Points near the copies' centres too, where the value is negative.
+        let centre = b.center();
+        let near = near.into_iter().map(|d| centre + d + DVec3::new(1.0, 0.0, 0.0) * spacing.x * 0.5 * ((count[0] + 1) % 2) as f64);
+        for p in points.into_iter().chain(near) {
             let mut brute = f64::INFINITY;
             for kx in copies(0) {
                 for ky in copies(1) {
                     for kz in copies(2) {
                         let q = p - DVec3::new(kx, ky, kz) * spacing;
-                        let gap = (b.min - q).max(q - b.max).max(DVec3::ZERO).length();
-                        brute = brute.min(child.distance(q).max(gap));
+                        let gap = (b.min - q).max(q - b.max);
+                        let boxed = if gap.max_element() > 0.0 {
+                            gap.max(DVec3::ZERO).length()
+                        } else {
+                            gap.max_element()
+                        };
+                        brute = brute.min(child.distance(q).max(boxed));
                     }
                 }
             }

@@ -64,10 +64,21 @@ impl<'a> Strided<'a> {
         }
     }
 
-    /// Whether `(rows − 1, cols − 1)` lies in `data` (non-empty shapes).
+    /// Whether `(rows − 1, cols − 1)` lies in `data` (non-empty shapes;
+    /// an index past `usize` does not).
     fn holds(&self, rows: usize, cols: usize) -> bool {
-        rows == 0 || cols == 0 || (rows - 1) * self.rows + (cols - 1) * self.cols < self.data.len()
+        rows == 0 || cols == 0 || last_index(rows, self.rows, cols, self.cols, self.data.len())
     }
+}
+
+/// Whether `(rows − 1)·row_step + (cols − 1)·col_step < len`, without
+/// overflow (for `rows, cols ≥ 1`).
+fn last_index(rows: usize, row_step: usize, cols: usize, col_step: usize, len: usize) -> bool {
+    (rows - 1)
+        .checked_mul(row_step)
+        .zip((cols - 1).checked_mul(col_step))
+        .and_then(|(a, b)| a.checked_add(b))
+        .is_some_and(|last| last < len)
 }
 
 /// `C = A·B` (or `C += A·B` when `accumulate`) for `A` `m × k` (any
@@ -90,12 +101,13 @@ pub fn matmul(
         return;
     }
     assert!(a.holds(m, k), "A holds m × k");
-    assert!(k == 0 || (k - 1) * ldb + n <= b.len(), "B holds k × n");
-    assert!((m - 1) * ldc + n <= c.len(), "C holds m × n");
+    assert!(k == 0 || last_index(k, ldb, n, 1, b.len()), "B holds k × n");
+    assert!(m == 1 || ldc >= n, "rows of C do not overlap");
+    assert!(last_index(m, ldc, n, 1, c.len()), "C holds m × n");
     if k == 0 {
         if !accumulate {
-            for row in c.chunks_mut(ldc).take(m) {
-                row[..n].fill(0.0);
+            for i in 0..m {
+                c[i * ldc..i * ldc + n].fill(0.0);
             }
         }
         return;
@@ -335,6 +347,20 @@ mod tests {
             matmul(rows, k, n, a, &b, n, &mut split[r0 * n..], n, false);
         }
         assert_eq!(whole, split);
+    }
+
+    /// Strides whose last index passes `usize` are refused, not wrapped.
+    #[test]
+    #[should_panic(expected = "A holds m × k")]
+    fn overflowing_strides_are_refused() {
+        let data = [1.0f32; 3];
+        let a = Strided {
+            data: &data,
+            rows: (usize::MAX / 3) + 1,
+            cols: 0,
+        };
+        let mut c = [0.0f32; 4];
+        matmul(4, 1, 1, a, &[1.0], 1, &mut c, 1, false);
     }
 
     /// Non-finite operands reach the sums as IEEE arithmetic says (no

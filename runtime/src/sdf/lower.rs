@@ -288,9 +288,7 @@ impl Lowering {
                     spacing: c(spacing),
                     extent: s.extent(),
                     count: *count,
-                    bound: s
-                        .repeated_as_bound()
-                        .map(|b| (V3::lit(b.min.to_array()), V3::lit(b.max.to_array()))),
+                    bound: s.repeated_as_bound().map(box_outwards),
                 },
                 frame,
             ),
@@ -651,4 +649,29 @@ fn pack_kind<P: Prim + Clone>(
     }
     out.push(Box::new(Packed { prims, ids }));
     rest
+}
+
+/// A box in f32, rounded outwards: it still holds the shape, so distances
+/// to it stay at most the shape's.
+fn box_outwards(b: Aabb) -> (V3<f32>, V3<f32>) {
+    let down = |x: f64| {
+        let y = x as f32;
+        if y as f64 > x {
+            y.next_down()
+        } else {
+            y
+        }
+    };
+    let up = |x: f64| {
+        let y = x as f32;
+        if (y as f64) < x {
+            y.next_up()
+        } else {
+            y
+        }
+    };
+    (
+        V3::from_array(b.min.to_array().map(down)),
+        V3::from_array(b.max.to_array().map(up)),
+    )
 }

@@ -117,8 +117,8 @@ impl Shape {
 
     /// Whether the value is the exact distance wherever it is positive
     /// (outside the shape): exact shapes, unions of such shapes (and
-    /// repetitions, which equal the union of their copies), offsets of
-    /// them and elongations of exact shapes. A repetition needs this of its
+    /// repetitions, which equal the union of their copies), and offsets
+    /// and rigid moves of them. A repetition needs this of its
     /// child to take the least value over the copies near the point (a
     /// farther copy's value is then its distance, never below a nearer
     /// copy's); see [`Shape::repeated_as_bound`].
@@ -137,7 +137,8 @@ impl Shape {
             Shape::Mirror(s, axis) => {
                 matches!(s.bounds(), Some(b) if b.min[axis.index()] >= 0.0) && s.exact_outside()
             }
-            Shape::Elongate(s, _) => s.exactness() == Exactness::Exact,
+            // Not elongations: pulling a shape apart at the origin's planes
+            // moves its parts away from points across them.
             _ => false,
         }
     }

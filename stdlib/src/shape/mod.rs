@@ -150,7 +150,9 @@ pub enum Shape {
     /// Inside exactly one of the two shapes.
     Xor(Arc<Shape>, Arc<Shape>),
     /// Cut at the coordinate planes through the origin and pulled `h` apart
-    /// each way (the gap filled with the section): exact outside an exact shape.
+    /// each way (the gap filled with the section): a bound (exact outside a
+    /// sphere or box centred at the origin, not in general: a part off the
+    /// origin moves away from points across the planes).
     Elongate(Arc<Shape>, Arg<DVec3>),
     /// Copies `spacing` apart (a zero component: not repeated on that axis),
     /// `count` per axis centred on the origin (0: infinitely many).
