@@ -1,0 +1,178 @@
+//! Blocks into jobs: a block's fields are evaluated against its signature
+//! (defaults filled in), the built-in that owns the block turns them into a
+//! render, a volume render or a training, and the job is checked against
+//! the file's limits (warnings, costs summed over the statements).
+
+use super::*;
+
+impl<'e> Evaluator<'e> {
+    pub(super) fn block(&mut self, b: &Block, index: usize, program: &mut Program) {
+        let Some(sig) = self.env.block_sig(&b.kind.name) else {
+            return;
+        };
+        let mut args = Args::new(b.kind.span);
+        args.owner = sig.kind;
+        for f in &b.fields {
+            let v = self.expr(&f.value);
+            if let Some(p) = sig.fields.iter().find(|p| p.name == f.name.name) {
+                args.named.insert(p.name, (v, f.value.span));
+            }
+        }
+        for p in &sig.fields {
+            if let (false, Some(src)) = (args.named.contains_key(p.name), p.default) {
+                let v = self.default_value(sig.kind, p.name, src);
+                args.named.insert(p.name, (v, b.kind.span));
+                args.defaulted.push(p.name);
+            }
+        }
+        // Shallow: lists holding poison are poison themselves (see `expr`).
+        if args.named.values().any(|(v, _)| matches!(v, Value::Poison)) {
+            return;
+        }
+        let name = b
+            .name
+            .as_ref()
+            .map_or_else(|| format!("{}{index}", b.kind.name), |n| n.name.clone());
+        let result = match (sig.kind, args.named.get("scene")) {
+            ("train", _) => {
+                crate::builtins::train_block(&name, &args).map(|j| program.trains.push(j))
+            }
+            (_, Some((Value::Field(f), _))) => {
+                crate::builtins::volume_block(&name, &args, f.clone())
+                    .map(|j| program.volumes.push(j))
+            }
+            _ => crate::builtins::render_block(&name, &args).map(|j| program.renders.push(j)),
+        };
+        if let Err(d) = result {
+            self.diags.push(d);
+            return;
+        }
+        let field = |name: &str| args.named.get(name).map_or(b.kind.span, |(_, s)| *s);
+        let kind = match (sig.kind, args.named.get("scene")) {
+            ("train", _) => "train",
+            (_, Some((Value::Field(_), _))) => "volume",
+            _ => "render",
+        };
+        program.order.push(match kind {
+            "train" => crate::value::Statement::Train(program.trains.len() - 1),
+            "volume" => crate::value::Statement::Volume(program.volumes.len() - 1),
+            _ => crate::value::Statement::Render(program.renders.len() - 1),
+        });
+        // A `param` outside a `train` model keeps its starting value.
+        let untrained = match kind {
+            "render" => program.renders.last().and_then(|j| {
+                let mut first = None;
+                j.scene.visit_params(&mut |u| {
+                    first.get_or_insert(u.decl.span);
+                });
+                first.map(|s| (s, "this render draws it at its starting value"))
+            }),
+            "volume" => program.volumes.last().and_then(|j| {
+                let mut first = None;
+                j.field.visit_params(&mut |u| {
+                    first.get_or_insert(u.decl.span);
+                });
+                first.map(|s| (s, "this render draws it at its starting value"))
+            }),
+            _ => program.trains.last().and_then(|j| match &*j.data {
+                crate::value::Dataset::Rendered { field, .. } => {
+                    let mut first = None;
+                    field.visit_params(&mut |u| {
+                        first.get_or_insert(u.decl.span);
+                    });
+                    first.map(|s| (s, "the training data is rendered at its starting value"))
+                }
+                crate::value::Dataset::Traced { job, .. } => {
+                    let mut first = None;
+                    job.scene.visit_params(&mut |u| {
+                        first.get_or_insert(u.decl.span);
+                    });
+                    first.map(|s| (s, "the training data is rendered at its starting value"))
+                }
+                crate::value::Dataset::Files { .. }
+                | crate::value::Dataset::NerfSynthetic { .. }
+                | crate::value::Dataset::Points { .. } => None,
+            }),
+        };
+        if let Some((span, what)) = untrained {
+            self.diags.push(
+                Diag::new(codes::UNTRAINED_PARAM, span, "this `param` is not trained here")
+                    .label(what)
+                    .help("`param(...)` is fitted only inside a `train` statement's `model`; write the number itself here"),
+            );
+        }
+        let mut found = crate::outputs::check_job(program, kind, &mut self.files, &field);
+        use crate::work;
+        let span = b
+            .name
+            .as_ref()
+            .map_or(b.kind.span, |n| b.kind.span.to(n.span));
+        let default_far;
+        let (w, what, scene, reach) = match kind {
+            "train" => {
+                let j = program.trains.last().expect("just added");
+                let w = work::train_work(j, None);
+                let scene = j.model.as_sdf().map(|f| f.shape.clone());
+                (w, "iterations or rays", scene, None)
+            }
+            "volume" => {
+                let j = program.volumes.last().expect("just added");
+                let reach = (
+                    &j.cameras,
+                    j.sampler.near,
+                    j.sampler.far,
+                    (field("sampler"), "the sampler's `far` ends the rays"),
+                );
+                (
+                    work::volume_work(j, None),
+                    "samples",
+                    j.field.as_sdf().map(|f| f.shape.clone()),
+                    Some(reach),
+                )
+            }
+            _ => {
+                let j = program.renders.last().expect("just added");
+                let prims = self.sizes.shape(&j.scene, 0).primitives;
+                default_far = format!("`far` is {} unless given", fmt_num(j.far));
+                let far_note = if field("far") == b.kind.span {
+                    (b.kind.span, default_far.as_str())
+                } else {
+                    (field("far"), "rays end here")
+                };
+                let reach = (&j.cameras, j.near, j.far, far_note);
+                let w = work::render_work_of(j, None, prims);
+                (w, "iterations", Some(j.scene.clone()), Some(reach))
+            }
+        };
+        found.extend(work::refuse(w, span, what));
+        let size = scene
+            .as_ref()
+            .map_or(Size::SCALAR, |s| self.sizes.shape(s, 0));
+        // Bounds are an expanded walk: worth it for a warning only on
+        // scenes of ordinary size. (A neural field has no bounds to check.)
+        if let (Some((cameras, near, far, note)), Some(scene)) =
+            (reach.filter(|_| size.nodes <= 1_000_000), &scene)
+        {
+            found.extend(work::reach_warning(
+                scene.bounds(),
+                cameras,
+                near,
+                far,
+                field("camera"),
+                note,
+            ));
+        }
+        // Totals over the file: each statement runs, one after another.
+        self.total_evaluations += w.evaluations;
+        self.total_primitives = self.total_primitives.saturating_add(size.primitives);
+        if found.is_empty() && !self.total_refused {
+            let refused = work::refuse_total(self.total_evaluations, self.total_primitives, span);
+            // Once: every later statement is over too.
+            self.total_refused = refused.is_some();
+            found.extend(refused);
+        }
+        for d in found {
+            self.diags.push(d);
+        }
+    }
+}
