@@ -1,0 +1,284 @@
+//! The neural surface's gradient against finite differences, β's schedule,
+//! fine samples at the surface, finite colours.
+
+use super::*;
+use sdfl_stdlib::value::{Harmonic as HarmonicSpec, NeuralSdf};
+
+fn spec(density: DensityKind, view_dependent: bool) -> NeuralSurface {
+    NeuralSurface {
+        sdf: NeuralSdf {
+            encoding: HarmonicSpec {
+                freqs: 2,
+                include_input: true,
+            },
+            layers: 2,
+            width: 8,
+            skips: vec![],
+            beta: 20.0,
+            radius: 0.5,
+            seed: 3,
+        },
+        density,
+        alpha: 10.0,
+        beta: 0.1,
+        train_beta: false,
+        beta_end: None,
+        color_layers: 2,
+        color_width: 8,
+        color_freqs: 2,
+        view_dependent,
+        background: [0.2, 0.3, 0.4],
+        fine: 0,
+    }
+}
+
+fn batch(rays: usize, samples: usize) -> Batch {
+    let mut rng = SplitMix64::new(9);
+    let rays: Vec<Ray> = (0..rays)
+        .map(|_| {
+            let o = [rng.next_f32() - 0.5, rng.next_f32() - 0.5, -2.0];
+            let d = [
+                0.2 * (rng.next_f32() - 0.5),
+                0.2 * (rng.next_f32() - 0.5),
+                1.0,
+            ];
+            let len = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+            Ray {
+                origin: o,
+                dir: d.map(|x| x / len),
+                view: 0,
+                pixel: 0,
+            }
+        })
+        .collect();
+    let targets = (0..rays.len())
+        .map(|_| [rng.next_f32(), rng.next_f32(), rng.next_f32()])
+        .collect();
+    let depths = (0..samples)
+        .map(|i| 1.0 + 2.0 * i as f32 / (samples - 1) as f32)
+        .collect();
+    Batch {
+        rays,
+        targets,
+        depths,
+        samples,
+        shared: true,
+        last_interval: LastInterval::Zero,
+        seed: 1,
+        step: 0,
+        points: Vec::new(),
+    }
+}
+
+/// Every parameter's gradient (a sample of them) against central
+/// differences of the loss, with and without view dependence, for both
+/// densities, MSE and eikonal together.
+#[test]
+fn gradient_matches_finite_differences() {
+    let losses = [
+        Loss {
+            kind: LossKind::Mse,
+            weight: 1.0,
+        },
+        Loss {
+            kind: LossKind::Eikonal,
+            weight: 0.1,
+        },
+    ];
+    // A scheduled β (the last two) is a value, not a weight: the
+    // networks' gradient is checked mid-schedule, and β's is zero.
+    for (density, view, train_beta, beta_end) in [
+        (DensityKind::VolSdf, true, false, None),
+        (DensityKind::Neus, false, false, None),
+        (DensityKind::VolSdf, false, true, None),
+        (DensityKind::Neus, true, true, None),
+        (DensityKind::VolSdf, true, false, Some(0.02)),
+        (DensityKind::Neus, false, false, Some(0.02)),
+    ] {
+        let s = NeuralSurface {
+            train_beta,
+            beta_end,
+            ..spec(density, view)
+        };
+        let mut obj = SurfaceObjective::new(&s, &losses).with_steps(10);
+        let mut values = obj.initial();
+        obj.at_step(5, &mut values);
+        let b = batch(7, 24);
+        let mut grad = vec![0.0; values.len()];
+        obj.loss_and_grad(&values, &b, 1.0, &mut grad).unwrap();
+        let weights = values.len() - usize::from(beta_end.is_some());
+        if beta_end.is_some() {
+            assert_eq!(grad[weights], 0.0, "a scheduled β is not trained");
+        }
+        let mut rng = SplitMix64::new(4);
+        let mut checked = 0;
+        for n in 0..60 {
+            // A trained β is the last value: always checked.
+            let i = if train_beta && n == 0 {
+                values.len() - 1
+            } else {
+                rng.below(weights as u64) as usize
+            };
+            let h = 1e-3;
+            let at = |x: f32, obj: &mut SurfaceObjective| {
+                let mut v = values.clone();
+                v[i] = x;
+                let mut g = vec![0.0; v.len()];
+                obj.loss_and_grad(&v, &b, 1.0, &mut g).unwrap()
+            };
+            let fd = (at(values[i] + h, &mut obj) - at(values[i] - h, &mut obj)) / (2.0 * h as f64);
+            let got = grad[i] as f64;
+            assert!(
+                (got - fd).abs() <= 2e-3 * (1.0 + fd.abs()) + 1e-4,
+                "{density:?} parameter {i}: {got} vs {fd}"
+            );
+            checked += (fd.abs() > 1e-5) as usize;
+        }
+        assert!(checked > 10, "most sampled gradients are not zero");
+    }
+}
+
+/// A scheduled β falls geometrically from `beta` at step 0 to
+/// `beta_end` at the last step and stays there; the objective keeps
+/// it where a trained β is kept, so a render at the run's values sees
+/// it; nothing but the schedule moves it.
+#[test]
+fn a_scheduled_beta_falls_geometrically() {
+    let s = NeuralSurface {
+        beta: 0.1,
+        beta_end: Some(0.001),
+        ..spec(DensityKind::VolSdf, false)
+    };
+    let obj = SurfaceObjective::new(&s, &[]).with_steps(101);
+    let close = |a: f64, b: f64| (a - b).abs() <= 1e-5 * b;
+    assert!(close(obj.scheduled_beta(0), 0.1));
+    assert!(
+        close(obj.scheduled_beta(50), 0.01),
+        "the geometric mean halfway"
+    );
+    assert!(close(obj.scheduled_beta(100), 0.001));
+    assert!(
+        close(obj.scheduled_beta(500), 0.001),
+        "beta_end after the last step"
+    );
+    let mut values = obj.initial();
+    assert!(close(obj.beta(&values) as f64, 0.1));
+    for step in [1, 37, 100] {
+        obj.at_step(step, &mut values);
+        let mut projected = values.clone();
+        obj.project(&mut projected);
+        assert_eq!(projected, values, "project leaves a scheduled β alone");
+        assert!(close(obj.beta(&values) as f64, obj.scheduled_beta(step)));
+    }
+    // Without a schedule nothing moves, and a fixed β has no slot.
+    let fixed = SurfaceObjective::new(&spec(DensityKind::VolSdf, false), &[]).with_steps(101);
+    let mut v = fixed.initial();
+    let before = v.clone();
+    fixed.at_step(50, &mut v);
+    assert_eq!(v, before);
+    assert_eq!(v.len() + 1, values.len());
+}
+
+/// Fine samples gather where a ray crosses the surface (the network
+/// starts as a sphere of radius 0.5), sorted along each ray, for both
+/// densities; a ray that misses keeps them spread out.
+#[test]
+fn fine_samples_gather_at_the_surface() {
+    for density in [DensityKind::VolSdf, DensityKind::Neus] {
+        let s = NeuralSurface {
+            fine: 16,
+            ..spec(density, false)
+        };
+        let obj = SurfaceObjective::new(&s, &[]);
+        let values = obj.initial();
+        let rays = [
+            Ray {
+                origin: [0.0, 0.0, -2.0],
+                dir: [0.0, 0.0, 1.0],
+                view: 0,
+                pixel: 0,
+            },
+            Ray {
+                origin: [2.0, 0.0, -2.0],
+                dir: [0.0, 0.0, 1.0],
+                view: 0,
+                pixel: 1,
+            },
+        ];
+        let n = 24;
+        let t: Vec<f32> = (0..n)
+            .map(|i| 0.5 + 3.0 * i as f32 / (n - 1) as f32)
+            .collect();
+        let mut coarse = Samples::default();
+        coarse.fixed(2, n, |_| &t, LastInterval::Zero);
+        let mut out = Samples::default();
+        obj.upsample(
+            &values,
+            obj.beta(&values),
+            &rays,
+            &coarse,
+            n,
+            Spacing::Even,
+            LastInterval::Zero,
+            &mut out,
+        )
+        .unwrap();
+        let m = n + 16;
+        assert_eq!(out.t.len(), 2 * m);
+        let mut f = vec![0.0; 2 * m];
+        let (mut points, mut dirs) = (Vec::new(), Vec::new());
+        out.points(&rays, &mut points, &mut dirs);
+        obj.sdf.distance(&values[..obj.sdf.len], &points, &mut f);
+        // The hit ray enters the sphere near t = 1.5: its samples crowd
+        // within three coarse intervals of it, twice as many as a miss's.
+        let hit = &out.t[..m];
+        assert!(hit.windows(2).all(|p| p[0] <= p[1]), "{hit:?}");
+        let gap = 3.0 / (n - 1) as f32;
+        let near = |t: &[f32]| t.iter().filter(|&&t| (t - 1.5).abs() < 3.0 * gap).count();
+        assert!(
+            near(hit) >= 16,
+            "{density:?}: {} near the surface: {hit:?}",
+            near(hit)
+        );
+        let miss = &out.t[m..];
+        assert!(miss.windows(2).all(|p| p[0] <= p[1]));
+        assert!(
+            2 * near(miss) <= near(hit),
+            "{density:?}: the miss has {}",
+            near(miss)
+        );
+    }
+}
+
+#[test]
+fn renders_finite_colours_over_the_background() {
+    let s = spec(DensityKind::VolSdf, true);
+    let obj = SurfaceObjective::new(&s, &[]);
+    let values = obj.initial();
+    let cam = Camera::look_at(
+        glam::DVec3::new(0.0, 0.0, -3.0),
+        glam::DVec3::ZERO,
+        glam::DVec3::Y,
+        1.0,
+    );
+    let sampler = Stratified::new(32, 0.5, 5.0).unwrap();
+    let size = ImageSize {
+        width: 9,
+        height: 9,
+    };
+    let v = obj
+        .render_view(&values, &sampler, LastInterval::Zero, &cam, size)
+        .unwrap();
+    assert!(v
+        .colour
+        .iter()
+        .flatten()
+        .all(|x| x.is_finite() && (0.0..=1.0).contains(x)));
+    // A corner ray misses the starting sphere (radius 0.5): background.
+    let corner = v.colour[0];
+    for (c, bg) in corner.iter().zip(s.background) {
+        assert!((c - bg as f32).abs() < 1e-3, "{corner:?}");
+    }
+    // The centre ray hits it: opaque, not the background.
+    assert!((v.colour[40][2] - 0.4).abs() > 1e-3 || (v.colour[40][0] - 0.2).abs() > 1e-3);
+}
