@@ -784,20 +784,6 @@ impl Shape {
         }
     }
 
-    /// As the child of a repetition: its bounds when it has them and its
-    /// value may fall below its distance outside it (not
-    /// [`exact_outside`](Self::exact_outside)). The repetition then
-    /// evaluates copies through [`sdf::repeat_bound_term`] and
-    /// [`sdf::repeat_beyond`], so its value stays continuous where copies
-    /// join or leave the window.
-    pub fn repeated_as_bound(&self) -> Option<Aabb> {
-        if self.exact_outside() {
-            None
-        } else {
-            self.bounds()
-        }
-    }
-
     /// The cylinder about Z that holds the shape however it is turned
     /// about Z: its radius and its Z range (twists and bends).
     pub fn turn_region(&self) -> (f64, f64, f64) {
