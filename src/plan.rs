@@ -453,15 +453,14 @@ pub(crate) fn plan_text(program: &sdfl_stdlib::Program) -> String {
             "  gradient tape  {}",
             match (&*job.model, job.backend) {
                 (sdfl_stdlib::value::Field::NeuralSdf(_), _) =>
-                    "none: the exact gradient of f by a reverse pass in the forward; a hand-written reverse-over-reverse backward",
+                    "none: the exact gradient of f by a reverse pass in the forward; a hand-written reverse-over-reverse backward".to_string(),
                 (sdfl_stdlib::value::Field::NeuralSurface(_), _) =>
-                    "none: the distance network's exact gradient by a reverse pass in the forward; colour network, density and compositing by hand-written backward passes",
+                    "none: the distance network's exact gradient by a reverse pass in the forward; colour network, density and compositing by hand-written backward passes".to_string(),
                 (sdfl_stdlib::value::Field::Nerf(_), _) =>
-                    "none: fused layer kernels with a hand-written backward through the network and the compositing; renders stop each ray once less than 1e-4 of its light is left",
+                    "none: fused layer kernels with a hand-written backward through the network and the compositing; renders stop each ray once less than 1e-4 of its light is left".to_string(),
                 (_, sdfl_stdlib::value::Backend::Dfdx) =>
-                    "dfdx autodiff graph over [rays, samples], the field as a custom op",
-                (_, sdfl_stdlib::value::Backend::Fused) =>
-                    "fused per-ray kernel: forward-mode tangents for each parameter, no tape",
+                    "dfdx autodiff graph over [rays, samples], the field as a custom op".to_string(),
+                (field, sdfl_stdlib::value::Backend::Fused) => fused_kernel(field),
             }
         );
         if !on_points {
@@ -489,4 +488,26 @@ pub(crate) fn plan_text(program: &sdfl_stdlib::Program) -> String {
         );
     }
     o
+}
+
+/// What the fused kernel runs for an analytic field: its traced tape (at
+/// the starting values) or, where the field branches on the sample,
+/// forward-mode tangents.
+fn fused_kernel(field: &sdfl_stdlib::value::Field) -> String {
+    let Some(sdf) = field.as_sdf() else {
+        return "fused per-ray kernel".into();
+    };
+    let model = sdfl_runtime::train::TrainModel::new(sdf);
+    let values: Vec<f32> = model.initial_values().iter().map(|&x| x as f32).collect();
+    match sdfl_runtime::train::tape::Tape::trace(&model, &values) {
+        Ok(tape) => format!(
+            "traced each step: {} operations a sample forward, {} in reverse on 16 samples at a time, one reverse pass for all {} scalars",
+            tape.len(),
+            tape.reverse_len(),
+            model.scalars
+        ),
+        Err(why) => format!(
+            "fused per-ray kernel: forward-mode tangents for each parameter (not traced: {why})"
+        ),
+    }
 }

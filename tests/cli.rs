@@ -111,6 +111,14 @@ fn plan_names_what_each_output_needs() {
         "{text}"
     );
     assert!(text.contains("gradient tape  none"), "{text}");
+    // Training says which kernel runs: the traced tape for the box fit.
+    let out = sdfl(&["plan", &example("train_box.sdfl")]);
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        text.contains("gradient tape  traced each step:")
+            && text.contains("one reverse pass for all 6 scalars"),
+        "{text}"
+    );
     let out = sdfl(&["plan", &example("torus.sdfl")]);
     let text = String::from_utf8_lossy(&out.stdout);
     assert!(text.contains("depth          skipped"), "{text}");

@@ -96,6 +96,20 @@ fn time_forward(name: &str, src: &str, reps: usize) -> (f64, f64) {
     })
 }
 
+/// Milliseconds of the fused kernel alone (loss and gradient of one batch).
+fn time_kernel(src: &str, reps: usize) -> (f64, f64) {
+    let (job, views) = prepare(src);
+    let model = TrainModel::new(job.model.as_sdf().expect("an analytic field"));
+    let setup = TrainSetup::of(&job, &views);
+    let batch = setup.batch(0).expect("batch");
+    let values: Vec<f32> = model.initial_values().iter().map(|&x| x as f32).collect();
+    timed(reps, |_| {
+        std::hint::black_box(sdfl_runtime::train::fused::loss_and_grad_f32(
+            &model, &values, &batch, 1.0,
+        ));
+    })
+}
+
 /// `only_fused`: skip the dfdx backend and the forward-only rows (for
 /// profiling the fused kernel).
 pub fn main(reps: usize, only_fused: bool) {
@@ -113,6 +127,14 @@ pub fn main(reps: usize, only_fused: bool) {
                 .expect("thread pool");
             let (med, min) = pool.install(|| time_forward(name, src, reps));
             println!("| {name} | forward only | {threads} | {med:.2} | {min:.2} |");
+        }
+        for threads in [1, all] {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .expect("thread pool");
+            let (med, min) = pool.install(|| time_kernel(src, reps));
+            println!("| {name} | fused kernel alone (loss and gradient) | {threads} | {med:.2} | {min:.2} |");
         }
         for backend in [Backend::Fused, Backend::Dfdx] {
             if only_fused && backend != Backend::Fused {

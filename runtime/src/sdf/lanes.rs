@@ -1,7 +1,9 @@
 //! Packs of [`LANES`] points evaluated together ([`F8`]): a lane type that
 //! implements `sdfl_stdlib::num::Real`, so the batched evaluator calls the
 //! same generic formula per primitive (`sdfl_stdlib::sdf`) as the per-point
-//! one, with eight points in the lanes instead of one.
+//! one, with eight points in the lanes instead of one. [`F16`], the same
+//! type sixteen wide (one AVX-512 register), carries the training tape's
+//! samples (`train::tape`).
 //!
 //! Every operation is the f32 operation lane by lane (IEEE add, mul, div,
 //! correctly rounded sqrt, `min`/`max` with `Real`'s tie and NaN rule), so a
@@ -24,36 +26,8 @@ use sdfl_stdlib::num::{Real, V3};
 /// Points per pack.
 pub const LANES: usize = 8;
 
-/// Eight f32 lanes.
-#[derive(Debug, Clone, Copy, PartialEq)]
-#[repr(C, align(32))]
-pub struct F8(pub [f32; LANES]);
-
 /// Eight points, one per lane.
 pub type P8 = V3<F8>;
-
-impl F8 {
-    #[inline(always)]
-    pub fn splat(x: f32) -> Self {
-        F8([x; LANES])
-    }
-    #[inline(always)]
-    fn map(self, f: impl Fn(f32) -> f32) -> Self {
-        let mut r = self.0;
-        for x in r.iter_mut() {
-            *x = f(*x);
-        }
-        F8(r)
-    }
-    #[inline(always)]
-    fn zip(self, o: Self, f: impl Fn(f32, f32) -> f32) -> Self {
-        let mut r = self.0;
-        for (a, b) in r.iter_mut().zip(o.0) {
-            *a = f(*a, b);
-        }
-        F8(r)
-    }
-}
 
 /// A pack of points from up to [`LANES`] points; missing lanes repeat the
 /// last point (so they stay finite and cost nothing special).
@@ -125,97 +99,152 @@ macro_rules! avx2_kernel {
 }
 pub(super) use avx2_kernel;
 
-macro_rules! lane_op {
-    ($tr:ident, $f:ident, $op:tt) => {
-        impl $tr for F8 {
-            type Output = F8;
+/// Defines a lane type: `$n` f32 lanes aligned to `$align` bytes, each
+/// operation the f32 operation lane by lane.
+macro_rules! lane_type {
+    ($(#[$meta:meta])* $name:ident, $n:literal, $align:literal) => {
+        $(#[$meta])*
+        #[derive(Debug, Clone, Copy, PartialEq)]
+        #[repr(C, align($align))]
+        pub struct $name(pub [f32; $n]);
+
+        impl $name {
             #[inline(always)]
-            fn $f(self, o: F8) -> F8 {
-                self.zip(o, |a, b| a $op b)
+            pub fn splat(x: f32) -> Self {
+                $name([x; $n])
+            }
+            #[inline(always)]
+            fn map(self, f: impl Fn(f32) -> f32) -> Self {
+                let mut r = self.0;
+                for x in r.iter_mut() {
+                    *x = f(*x);
+                }
+                $name(r)
+            }
+            #[inline(always)]
+            fn zip(self, o: Self, f: impl Fn(f32, f32) -> f32) -> Self {
+                let mut r = self.0;
+                for (a, b) in r.iter_mut().zip(o.0) {
+                    *a = f(*a, b);
+                }
+                $name(r)
+            }
+        }
+
+        impl Add for $name {
+            type Output = $name;
+            #[inline(always)]
+            fn add(self, o: $name) -> $name {
+                self.zip(o, |a, b| a + b)
+            }
+        }
+        impl Sub for $name {
+            type Output = $name;
+            #[inline(always)]
+            fn sub(self, o: $name) -> $name {
+                self.zip(o, |a, b| a - b)
+            }
+        }
+        impl Mul for $name {
+            type Output = $name;
+            #[inline(always)]
+            fn mul(self, o: $name) -> $name {
+                self.zip(o, |a, b| a * b)
+            }
+        }
+        impl Div for $name {
+            type Output = $name;
+            #[inline(always)]
+            fn div(self, o: $name) -> $name {
+                self.zip(o, |a, b| a / b)
+            }
+        }
+        impl Neg for $name {
+            type Output = $name;
+            #[inline(always)]
+            fn neg(self) -> $name {
+                self.map(|a| -a)
+            }
+        }
+
+        impl Real for $name {
+            #[inline(always)]
+            fn lit(x: f64) -> Self {
+                $name::splat(<f32 as Real>::lit(x))
+            }
+            /// The common value of the lanes; panics when they differ (a branch on
+            /// the point itself, which a pack cannot take).
+            #[inline(always)]
+            fn val(self) -> f64 {
+                let v = self.0[0];
+                assert!(
+                    self.0.iter().all(|x| x.to_bits() == v.to_bits()),
+                    "a branch on a per-point value in a packed formula: evaluate it lane by lane"
+                );
+                v as f64
+            }
+            #[inline(always)]
+            fn sqrt(self) -> Self {
+                self.map(f32::sqrt)
+            }
+            #[inline(always)]
+            fn abs(self) -> Self {
+                self.map(f32::abs)
+            }
+            #[inline(always)]
+            fn exp(self) -> Self {
+                self.map(sdfl_stdlib::num::exp_f32)
+            }
+            #[inline(always)]
+            fn ln(self) -> Self {
+                self.map(f32::ln)
+            }
+            #[inline(always)]
+            fn ln_1p(self) -> Self {
+                self.map(f32::ln_1p)
+            }
+            #[inline(always)]
+            fn exp_m1(self) -> Self {
+                self.map(f32::exp_m1)
+            }
+            #[inline(always)]
+            fn sin(self) -> Self {
+                self.map(f32::sin)
+            }
+            #[inline(always)]
+            fn cos(self) -> Self {
+                self.map(f32::cos)
+            }
+            #[inline(always)]
+            fn max(self, o: Self) -> Self {
+                self.zip(o, <f32 as Real>::max)
+            }
+            #[inline(always)]
+            fn min(self, o: Self) -> Self {
+                self.zip(o, <f32 as Real>::min)
+            }
+            #[inline(always)]
+            fn if_gt(a: Self, b: Self, then: Self, otherwise: Self) -> Self {
+                let mut r = otherwise.0;
+                for i in 0..$n {
+                    if a.0[i] > b.0[i] {
+                        r[i] = then.0[i];
+                    }
+                }
+                $name(r)
             }
         }
     };
 }
-lane_op!(Add, add, +);
-lane_op!(Sub, sub, -);
-lane_op!(Mul, mul, *);
-lane_op!(Div, div, /);
 
-impl Neg for F8 {
-    type Output = F8;
-    #[inline(always)]
-    fn neg(self) -> F8 {
-        self.map(|a| -a)
-    }
-}
-
-impl Real for F8 {
-    #[inline(always)]
-    fn lit(x: f64) -> Self {
-        F8::splat(<f32 as Real>::lit(x))
-    }
-    /// The common value of the lanes; panics when they differ (a branch on
-    /// the point itself, which a pack cannot take).
-    #[inline(always)]
-    fn val(self) -> f64 {
-        let v = self.0[0];
-        assert!(
-            self.0.iter().all(|x| x.to_bits() == v.to_bits()),
-            "a branch on a per-point value in a packed formula: evaluate it lane by lane"
-        );
-        v as f64
-    }
-    #[inline(always)]
-    fn sqrt(self) -> Self {
-        self.map(f32::sqrt)
-    }
-    #[inline(always)]
-    fn abs(self) -> Self {
-        self.map(f32::abs)
-    }
-    #[inline(always)]
-    fn exp(self) -> Self {
-        self.map(sdfl_stdlib::num::exp_f32)
-    }
-    #[inline(always)]
-    fn ln(self) -> Self {
-        self.map(f32::ln)
-    }
-    #[inline(always)]
-    fn ln_1p(self) -> Self {
-        self.map(f32::ln_1p)
-    }
-    #[inline(always)]
-    fn exp_m1(self) -> Self {
-        self.map(f32::exp_m1)
-    }
-    #[inline(always)]
-    fn sin(self) -> Self {
-        self.map(f32::sin)
-    }
-    #[inline(always)]
-    fn cos(self) -> Self {
-        self.map(f32::cos)
-    }
-    #[inline(always)]
-    fn max(self, o: Self) -> Self {
-        self.zip(o, <f32 as Real>::max)
-    }
-    #[inline(always)]
-    fn min(self, o: Self) -> Self {
-        self.zip(o, <f32 as Real>::min)
-    }
-    #[inline(always)]
-    fn if_gt(a: Self, b: Self, then: Self, otherwise: Self) -> Self {
-        let mut r = otherwise.0;
-        for i in 0..LANES {
-            if a.0[i] > b.0[i] {
-                r[i] = then.0[i];
-            }
-        }
-        F8(r)
-    }
-}
+lane_type!(
+    /// Eight f32 lanes.
+    F8, 8, 32
+);
+lane_type!(
+    /// Sixteen f32 lanes (one AVX-512 register): the training tape's unit.
+    F16, 16, 64
+);
 
 #[cfg(test)]
 mod tests {

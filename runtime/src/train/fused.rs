@@ -1,4 +1,6 @@
-//! The fused training kernel for analytic fields, per ray: a plain march
+//! The fused training kernel for analytic fields. Fields that trace run
+//! through their [`Tape`] (see [`super::tape`]); the rest, and the f64
+//! reference every path is tested against, run here, per ray: a plain march
 //! (the field in f32, the absorption with derivatives in sdf, α and β), a
 //! reverse sweep of the compositing in scalars (the adjoint of every
 //! sample's sdf and colour), then forward-mode [`Dual`] tangents through
@@ -16,7 +18,7 @@ use sdfl_stdlib::shape::ArgSource;
 use sdfl_stdlib::value::{DensityKind, LastInterval};
 
 use super::model::TrainModel;
-use crate::sdf::lanes::{F8, LANES};
+use super::tape::{self, Tape};
 use crate::volume::march::{absorption, intervals_into, log_keep, march, Depths, RayColour};
 use crate::volume::Ray;
 
@@ -82,8 +84,8 @@ pub fn field_at<T: Real, A: sdfl_stdlib::shape::ArgSource<T>>(
 /// below f32's resolution of the sum).
 const NEGLIGIBLE: f64 = 1e-7;
 
-/// The plain pass's samples, a column per quantity (so a pack of lanes is
-/// stored with whole-vector copies): each sample's colour (3), opacity,
+/// The plain pass's samples, a column per quantity: each sample's colour
+/// (3), opacity,
 /// the transmittance before it, and the derivatives of its opacity (3) and
 /// of `ln(1 − opacity)` (3) with respect to (sdf, α, β).
 #[derive(Debug, Clone)]
@@ -101,9 +103,9 @@ const D_OPACITY: usize = 5;
 const D_LOG_KEEP: usize = 8;
 
 impl<F: Real> PlainSamples<F> {
-    /// Room for `samples` samples (and a pack's spill past them).
+    /// Room for `samples` samples.
     fn new(samples: usize) -> Self {
-        let cap = samples + LANES;
+        let cap = samples;
         PlainSamples {
             data: vec![F::zero(); COLUMNS * cap],
             cap,
@@ -125,21 +127,6 @@ impl<F: Real> PlainSamples<F> {
             self.data[c * self.cap + self.len] = v;
         }
         self.len += 1;
-    }
-}
-
-impl PlainSamples<f32> {
-    /// Stores the first `kept` lanes of a pack of samples.
-    fn push_lanes(&mut self, lanes: [F8; COLUMNS], kept: usize) {
-        debug_assert!(
-            self.len + LANES <= self.cap,
-            "more samples than the batch has"
-        );
-        for (c, v) in lanes.into_iter().enumerate() {
-            let at = c * self.cap + self.len;
-            self.data[at..at + LANES].copy_from_slice(&v.0);
-        }
-        self.len += kept;
     }
 }
 
@@ -204,65 +191,6 @@ impl<F: Real> PlainMarch<F> {
         ];
         plain.push(values);
         self.trans = self.trans * a.keep.v;
-    }
-}
-
-impl PlainMarch<f32> {
-    /// [`PlainMarch::add`] for up to [`LANES`] consecutive samples: the
-    /// absorption in lanes (the same formula, lane by lane), the compositing
-    /// in order. Stops, returning true, where the ray is spent.
-    #[inline(always)]
-    fn add_pack(
-        &mut self,
-        kind: DensityKind,
-        sdf: F8,
-        c: [F8; 3],
-        dk: &[f32],
-        plain: &mut PlainSamples<f32>,
-    ) -> bool {
-        let mut d = [dk[dk.len() - 1]; LANES];
-        d[..dk.len()].copy_from_slice(dk);
-        let splat = |x: Dual<f32, 3>| Dual::<F8, 3> {
-            v: F8::splat(x.v),
-            d: x.d.map(F8::splat),
-        };
-        let sdf = Dual::<F8, 3>::seed(sdf, 0);
-        let (alpha, inv_beta, dk8) = (
-            splat(self.alpha),
-            splat(self.inv_beta),
-            Dual::constant(F8(d)),
-        );
-        let a = absorption(kind, sdf, alpha, inv_beta, dk8);
-        let lk = log_keep(kind, sdf, alpha, inv_beta, dk8);
-        let mut trans = [0.0f32; LANES];
-        let mut kept = 0;
-        while kept < dk.len() && !self.spent() {
-            let (j, opacity) = (kept, a.opacity.v.0[kept]);
-            for i in 0..3 {
-                self.colour[i] += self.trans * opacity * c[i].0[j];
-            }
-            trans[j] = self.trans;
-            self.trans *= a.keep.v.0[j];
-            kept += 1;
-        }
-        let lanes = [
-            c[0],
-            c[1],
-            c[2],
-            a.opacity.v,
-            F8(trans),
-            a.opacity.d[0],
-            a.opacity.d[1],
-            a.opacity.d[2],
-            lk.d[0],
-            lk.d[1],
-            lk.d[2],
-        ];
-        plain.push_lanes(lanes, kept);
-        if kept < dk.len() {
-            return true;
-        }
-        false
     }
 }
 
@@ -431,99 +359,6 @@ fn ray_grad<F: Real, const N: usize>(
     }
 }
 
-/// [`ray_grad`] in f32 with the field evaluated on packs of [`LANES`]
-/// samples (a field whose [`branch_free`](sdfl_stdlib::shape::Shape::branch_free) holds): every lane is the
-/// scalar operation, and the sums run in the same order, so the result is
-/// [`ray_grad`]'s to the bit.
-fn ray_grad_lanes<const N: usize>(
-    model: &TrainModel,
-    values: &[f32],
-    lanes: &[F8],
-    first: usize,
-    task: &RayTask,
-    scale: f32,
-    scratch: &mut Scratch<f32>,
-) -> RayGrad<f32, N> {
-    let RayTask {
-        ray,
-        t,
-        delta,
-        target,
-        ..
-    } = *task;
-    let Scratch { plain, adjoint } = scratch;
-    let f = &model.field;
-    let (origin, dir) = (ray.origin.map(f64::from), ray.dir.map(f64::from));
-    // Depths of up to LANES samples, the missing lanes repeating the last.
-    let pack = |ks: &[usize]| {
-        let mut x = [t[ks[ks.len() - 1]]; LANES];
-        for (x, &k) in x.iter_mut().zip(ks) {
-            *x = t[k];
-        }
-        F8(x)
-    };
-    let flat = model.plain(lanes);
-    let (o, d) = (V3::lit(origin), V3::lit(dir));
-    let mut m = PlainMarch::new(model, values);
-    plain.clear();
-    let mut ks = [0usize; LANES];
-    for k0 in (0..t.len()).step_by(LANES) {
-        if m.spent() {
-            break;
-        }
-        let n = (t.len() - k0).min(LANES);
-        for (j, k) in ks[..n].iter_mut().enumerate() {
-            *k = k0 + j;
-        }
-        let (sdf, c) = field_at(model, &flat, o + d * Dual::constant(pack(&ks[..n])));
-        let c = [c.x.v, c.y.v, c.z.v];
-        if m.add_pack(f.density, sdf.v, c, &delta[k0..k0 + n], plain) {
-            break;
-        }
-    }
-    let (loss, alpha, beta, largest) = sweep(
-        N > 0,
-        task.density_adjoints,
-        m.colour,
-        target,
-        scale,
-        plain,
-        adjoint,
-    );
-    let mut field = [0.0f32; N];
-    if N > 0 && largest > 0.0 {
-        let args = model.args::<F8, N>(lanes, first);
-        let (o, d) = (V3::<Dual<F8, N>>::lit(origin), V3::<Dual<F8, N>>::lit(dir));
-        let eval = |ks: &[usize], field: &mut [f32; N]| {
-            let (sdf, c) = field_at(model, &args, o + d * Dual::constant(pack(ks)));
-            let c = [c.x, c.y, c.z];
-            for (j, &k) in ks.iter().enumerate() {
-                add_tangents(field, adjoint[k], |i| sdf.d[i].0[j], |a, i| c[a].d[i].0[j]);
-            }
-        };
-        let mut n = 0;
-        for (k, adj) in adjoint.iter().enumerate() {
-            if adjoint_size(adj.0, adj.1) > NEGLIGIBLE * largest {
-                ks[n] = k;
-                n += 1;
-                if n == LANES {
-                    eval(&ks, &mut field);
-                    n = 0;
-                }
-            }
-        }
-        if n > 0 {
-            eval(&ks[..n], &mut field);
-        }
-    }
-    RayGrad {
-        loss,
-        field,
-        alpha,
-        beta,
-    }
-}
-
 /// One ray of a batch: its depths, their intervals and its target colour.
 #[derive(Clone, Copy)]
 struct RayTask<'a> {
@@ -569,23 +404,6 @@ impl<F: Real> RayPath<F> for Scalar {
         scratch: &mut Scratch<F>,
     ) -> RayGrad<F, N> {
         ray_grad(model, values, first, task, scale, scratch)
-    }
-}
-
-/// Packs of samples in lanes; the values splatted across the lanes.
-struct Lanes(Vec<F8>);
-
-impl RayPath<f32> for Lanes {
-    fn ray<const N: usize>(
-        &self,
-        model: &TrainModel,
-        values: &[f32],
-        first: usize,
-        task: &RayTask,
-        scale: f32,
-        scratch: &mut Scratch<f32>,
-    ) -> RayGrad<f32, N> {
-        ray_grad_lanes(model, values, &self.0, first, task, scale, scratch)
     }
 }
 
@@ -676,22 +494,31 @@ pub fn loss_and_grad_scalar_f32(
     loss_and_grad_by::<_, Narrow>(&Scalar, model, values, batch, weight)
 }
 
-/// The batch's loss and gradient in f32, the field evaluated on packs of
-/// samples where its definition allows
-/// ([`branch_free`](sdfl_stdlib::shape::Shape::branch_free)): the result of
-/// [`loss_and_grad_scalar_f32`] to the bit, several times faster.
+/// The batch's loss and gradient in f32: through the model's [`Tape`]
+/// (the field, absorption and colour traced once, run on lanes of samples
+/// forward and in reverse) where it can be traced (no branch on a
+/// per-sample value) and is small enough; else [`loss_and_grad_scalar_f32`]
+/// (whose loss the tape's equals to the bit).
 pub fn loss_and_grad_f32(
     model: &TrainModel,
     values: &[f32],
     batch: &Batch,
     weight: f64,
 ) -> LossGrad {
-    if model.field.shape.branch_free() {
-        let lanes = Lanes(values.iter().map(|&v| F8::splat(v)).collect());
-        loss_and_grad_by::<_, Narrow>(&lanes, model, values, batch, weight)
-    } else {
-        loss_and_grad_scalar_f32(model, values, batch, weight)
+    match traced(model, values, batch) {
+        Some(tape) => tape::loss_and_grad(&tape, model, batch, weight),
+        None => loss_and_grad_scalar_f32(model, values, batch, weight),
     }
+}
+
+/// Registers × chunks of 16 samples the tape kernel may keep per thread
+/// (16 MiB of lanes, twice: values and adjoints).
+const TAPE_LANES: usize = 1 << 18;
+
+/// The model's tape at `values`, if it traces and fits.
+pub fn traced(model: &TrainModel, values: &[f32], batch: &Batch) -> Option<Tape> {
+    let tape = Tape::trace(model, values).ok()?;
+    (tape.registers() * batch.samples.div_ceil(16) <= TAPE_LANES).then_some(tape)
 }
 
 /// How many tangents a pass carries for the parameters left.

@@ -5,6 +5,8 @@
 //!   layout, read as forward-mode dual numbers.
 //! * [`fused`]: the fused per-ray kernel (loss and exact gradient in one
 //!   forward pass, ordered parallel reduction).
+//! * [`tape`]: the model traced into a flat tape each step, run forward and
+//!   in reverse on lanes of 16 samples (the fused kernel's fast path).
 //! * [`trainer`]: seeded batches, the step (Adam through dfdx's kernel,
 //!   projection into range), the loop.
 //! * [`graph`]: the `dfdx` backend: the field as a custom dfdx op, the
@@ -22,6 +24,7 @@ pub mod graph_ops;
 pub mod model;
 pub mod objective;
 pub mod params;
+pub mod tape;
 pub mod trainer;
 
 pub use model::TrainModel;

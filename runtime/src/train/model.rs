@@ -127,6 +127,15 @@ impl TrainModel {
         Some(self.offset(&u.decl)).filter(|&o| o != usize::MAX)
     }
 
+    /// The flat index of a vector argument's parameter and the parameter's
+    /// form (a scalar parameter fills all three components).
+    pub fn vector_index(&self, a: &Arg<DVec3>) -> Option<(usize, ParamInit)> {
+        let u = a.param.as_ref()?;
+        Some(self.offset(&u.decl))
+            .filter(|&o| o != usize::MAX)
+            .map(|o| (o, u.decl.init))
+    }
+
     fn offset(&self, decl: &ParamDecl) -> usize {
         self.offsets.get(decl.id).copied().unwrap_or(usize::MAX)
     }

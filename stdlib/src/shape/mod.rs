@@ -214,6 +214,29 @@ impl<'s, T: Real> Sample<'s, T> {
     fn with_d(self, d: T) -> Self {
         Sample { d, ..self }
     }
+    /// `then` where `a > b`, else `otherwise`: a select (lane by lane, no
+    /// branch on the point) when both have the same material, a branch on
+    /// the values when they differ (a material is not a number).
+    fn if_gt(a: T, b: T, then: Self, otherwise: Self) -> Self {
+        let same = match (then.material, otherwise.material) {
+            (None, None) => true,
+            (Some(x), Some(y)) => Arc::ptr_eq(x, y),
+            _ => false,
+        };
+        if !same {
+            return if a.val() > b.val() { then } else { otherwise };
+        }
+        let pick = |x: T, y: T| T::if_gt(a, b, x, y);
+        Sample {
+            d: pick(then.d, otherwise.d),
+            center: V3::new(
+                pick(then.center.x, otherwise.center.x),
+                pick(then.center.y, otherwise.center.y),
+                pick(then.center.z, otherwise.center.z),
+            ),
+            material: then.material,
+        }
+    }
 }
 
 /// Rotation by `angle` about `axis` for the generic evaluator.
@@ -395,12 +418,12 @@ impl Shape {
             Shape::Union(children) => children
                 .iter()
                 .map(|c| c.sample(p, args))
-                .reduce(|best, s| if s.d.val() < best.d.val() { s } else { best })
+                .reduce(|best, s| Sample::if_gt(best.d, s.d, s, best))
                 .expect("unions have children"),
             Shape::Intersection(children) => children
                 .iter()
                 .map(|c| c.sample(p, args))
-                .reduce(|best, s| if s.d.val() > best.d.val() { s } else { best })
+                .reduce(|best, s| Sample::if_gt(s.d, best.d, s, best))
                 .expect("intersections have children"),
             Shape::Subtraction(a, b) => {
                 let (sa, sb) = (a.sample(p, args), b.sample(p, args));
@@ -410,12 +433,13 @@ impl Shape {
             Shape::SmoothUnion(a, b, k) => {
                 let (sa, sb) = (a.sample(p, args), b.sample(p, args));
                 let d = sdf::smooth_min(sa.d, sb.d, args.scalar(k));
-                if sa.d.val() <= sb.d.val() { sa } else { sb }.with_d(d)
+                // The colour of the nearer (the first on ties).
+                Sample::if_gt(sa.d, sb.d, sb, sa).with_d(d)
             }
             Shape::SmoothIntersection(a, b, k) => {
                 let (sa, sb) = (a.sample(p, args), b.sample(p, args));
                 let d = sdf::smooth_max(sa.d, sb.d, args.scalar(k));
-                if sa.d.val() >= sb.d.val() { sa } else { sb }.with_d(d)
+                Sample::if_gt(sb.d, sa.d, sb, sa).with_d(d)
             }
             Shape::SmoothSubtraction(a, b, k) => {
                 let (sa, sb) = (a.sample(p, args), b.sample(p, args));
