@@ -460,7 +460,7 @@ pub(crate) fn plan_text(program: &sdfl_stdlib::Program) -> String {
                     "none: fused layer kernels with a hand-written backward through the network and the compositing; renders stop each ray once less than 1e-4 of its light is left".to_string(),
                 (_, sdfl_stdlib::value::Backend::Dfdx) =>
                     "dfdx autodiff graph over [rays, samples], the field as a custom op".to_string(),
-                (field, sdfl_stdlib::value::Backend::Fused) => fused_kernel(field),
+                (field, sdfl_stdlib::value::Backend::Fused) => fused_kernel(field, job.sampler.samples),
             }
         );
         if !on_points {
@@ -493,13 +493,13 @@ pub(crate) fn plan_text(program: &sdfl_stdlib::Program) -> String {
 /// What the fused kernel runs for an analytic field: its traced tape (at
 /// the starting values) or, where the field branches on the sample,
 /// forward-mode tangents.
-fn fused_kernel(field: &sdfl_stdlib::value::Field) -> String {
+fn fused_kernel(field: &sdfl_stdlib::value::Field, samples: usize) -> String {
     let Some(sdf) = field.as_sdf() else {
         return "fused per-ray kernel".into();
     };
     let model = sdfl_runtime::train::TrainModel::new(sdf);
     let values: Vec<f32> = model.initial_values().iter().map(|&x| x as f32).collect();
-    match sdfl_runtime::train::tape::Tape::trace(&model, &values) {
+    match sdfl_runtime::train::fused::tape_for(&model, &values, samples) {
         Ok(tape) => format!(
             "traced each step: {} operations a sample forward, {} in reverse on 16 samples at a time, one reverse pass for all {} scalars",
             tape.len(),

@@ -323,3 +323,45 @@ fn dfdx_graph_backend_matches_the_fused_kernel() {
         }
     }
 }
+
+/// The tape kernel on batches whose samples do not fill its 16 lanes and
+/// whose rays do not fill its groups (2, 5, 17, 40 samples; 3 to 37 rays),
+/// with colours that are one parameter for all three channels.
+#[test]
+fn tape_kernel_matches_f64_on_ragged_batches() {
+    let fields = [
+        "sdf_volume(sphere(param(0.9), center: param([0.1, -0.1, 0.2])), color: constant(param(0.4)))",
+        "sdf_volume(union(sphere(param(0.5), center: [-0.5, 0, 0]), box(size: param([0.6, 0.5, 0.7]), center: [0.5, 0.1, 0])))",
+        "volsdf(torus(major: param(0.8), minor: param(0.3)), alpha: param(8), beta: param(0.08), color: param([0.2, 0.4, 0.6]))",
+    ];
+    for (samples, rays) in [(2, 3), (5, 7), (17, 5), (40, 37)] {
+        let mut b = batch([0.3, 0.4, -3.0], LastInterval::Infinite);
+        b.rays.truncate(rays);
+        b.targets.truncate(rays);
+        b.depths = Stratified::new(samples, 0.5, 5.5).unwrap().depths();
+        b.samples = samples;
+        for src in fields {
+            let m = model(src);
+            let v64 = m.initial_values();
+            let v32: Vec<f32> = v64.iter().map(|&x| x as f32).collect();
+            assert!(traced(&m, &v32, &b).is_some(), "{src}");
+            let (a, s, r) = (
+                loss_and_grad_f32(&m, &v32, &b, 1.0),
+                loss_and_grad_scalar_f32(&m, &v32, &b, 1.0),
+                loss_and_grad_f64(&m, &v64, &b, 1.0),
+            );
+            assert_eq!(
+                a.loss.to_bits(),
+                s.loss.to_bits(),
+                "{src}, {samples} samples"
+            );
+            let scale = r.grad.iter().fold(1e-3f64, |m, x| m.max(x.abs()));
+            for (i, (x, y)) in a.grad.iter().zip(&r.grad).enumerate() {
+                assert!(
+                    (x - y).abs() <= 2e-3 * scale,
+                    "{src}, {samples} samples, scalar {i}: tape {x} vs f64 {y}"
+                );
+            }
+        }
+    }
+}

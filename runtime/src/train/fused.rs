@@ -511,14 +511,23 @@ pub fn loss_and_grad_f32(
     }
 }
 
-/// Registers × chunks of 16 samples the tape kernel may keep per thread
-/// (16 MiB of lanes, twice: values and adjoints).
+/// Lanes of 16 samples the tape kernel may keep per thread: 16 MiB of
+/// values and as much of adjoints.
 const TAPE_LANES: usize = 1 << 18;
+
+/// The model's tape at `values` for batches of `samples` samples a ray, or
+/// why the forward-mode kernel runs instead.
+pub fn tape_for(model: &TrainModel, values: &[f32], samples: usize) -> Result<Tape, &'static str> {
+    let tape = Tape::trace(model, values)?;
+    if tape.registers() * tape::lanes_per_register(samples) > TAPE_LANES {
+        return Err("too large for the tape's lanes");
+    }
+    Ok(tape)
+}
 
 /// The model's tape at `values`, if it traces and fits.
 pub fn traced(model: &TrainModel, values: &[f32], batch: &Batch) -> Option<Tape> {
-    let tape = Tape::trace(model, values).ok()?;
-    (tape.registers() * batch.samples.div_ceil(16) <= TAPE_LANES).then_some(tape)
+    tape_for(model, values, batch.samples).ok()
 }
 
 /// How many tangents a pass carries for the parameters left.

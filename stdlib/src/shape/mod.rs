@@ -272,33 +272,6 @@ impl Shape {
         self.sample(p.into(), &Fixed).d
     }
 
-    /// Whether [`Shape::sample`] never branches on the point (`Real::val`
-    /// of a per-point value), so it can evaluate packs of points in lanes:
-    /// true for the primitives whose formulas are selects, not branches, and
-    /// the operators over them that keep the one attaining primitive.
-    pub fn branch_free(&self) -> bool {
-        match self {
-            Shape::Sphere { .. }
-            | Shape::Box { .. }
-            | Shape::BoxFrame { .. }
-            | Shape::Ellipsoid { .. }
-            | Shape::Octahedron { .. }
-            | Shape::Torus { .. }
-            | Shape::Cylinder { .. }
-            | Shape::Link { .. }
-            | Shape::Plane { .. } => true,
-            Shape::Translate(s, _)
-            | Shape::Rotate { shape: s, .. }
-            | Shape::Scale(s, _)
-            | Shape::Paint(s, _)
-            | Shape::Round(s, _)
-            | Shape::Onion(s, _)
-            | Shape::Elongate(s, _)
-            | Shape::Displace { shape: s, .. } => s.branch_free(),
-            _ => false,
-        }
-    }
-
     /// The shape at `p` in any number type, its arguments read from `args`:
     /// the one walk of the tree that every non-culled evaluator shares.
     pub fn sample<'s, T: Real, A: ArgSource<T>>(&'s self, p: V3<T>, args: &A) -> Sample<'s, T> {

@@ -41,7 +41,7 @@ use super::fused::field_at;
 use super::model::TrainModel;
 use crate::volume::march::{absorption, log_keep};
 
-pub use kernel::loss_and_grad;
+pub use kernel::{lanes_per_register, loss_and_grad};
 
 /// Most nodes a tape may have (beyond it the scalar kernel runs: a scene
 /// that large is not a small-scene training step).
@@ -383,8 +383,10 @@ pub struct Tape {
     /// registers: (operation, result register).
     forward: Vec<(Op, u32)>,
     /// The instructions whose result carries a gradient, last first, with a
-    /// bit per operand that wants its adjoint.
-    reverse: Vec<(Op, u32, u8)>,
+    /// bit per operand that wants its adjoint and a bit per operand whose
+    /// adjoint it writes first (stores rather than adds: no register is
+    /// zeroed that something writes before reading).
+    reverse: Vec<(Op, u32, u8, u8)>,
     registers: usize,
     /// Registers of the inputs (point x, y, z, interval), if used.
     inputs: [Option<u32>; 4],
@@ -392,7 +394,11 @@ pub struct Tape {
     outputs: [u32; OUTPUTS],
     /// Whether each output carries a gradient.
     output_grads: [bool; OUTPUTS],
-    /// Registers whose adjoints the reverse pass adds to (zeroed first).
+    /// Whether each output's seed is the first write to its register's
+    /// adjoint (outputs may share a register).
+    seed_first: [bool; OUTPUTS],
+    /// Registers whose adjoints are read before anything writes them
+    /// (zeroed first; none in the tapes the compiler makes).
     adjoint_registers: Vec<u32>,
     /// Uniform values held in registers.
     uniforms: Vec<Uniform>,
@@ -525,10 +531,8 @@ impl Tape {
             inputs: [None; 4],
             outputs: outputs.map(reg),
             output_grads: outputs.map(|o| live[o as usize]),
-            adjoint_registers: (0..n)
-                .filter(|&i| in_register[i] && live[i] && grad[i])
-                .map(|i| register[i])
-                .collect(),
+            seed_first: [false; OUTPUTS],
+            adjoint_registers: Vec::new(),
             uniforms: Vec::new(),
             nodes: nodes.iter().map(|n| (n.op, n.value)).collect(),
         };
@@ -550,12 +554,44 @@ impl Tape {
                     }
                     if reversed(i) {
                         tape.reverse
-                            .push((op.renumber(reg), reg(i as u32), wants(i)));
+                            .push((op.renumber(reg), reg(i as u32), wants(i), 0));
                     }
                 }
             }
         }
         tape.reverse.reverse();
+        // Which write to each adjoint comes first, in the order the kernel
+        // runs: the seeds, then the reverse instructions.
+        let mut written = vec![false; tape.registers];
+        let read = |r: u32, written: &[bool], zeroed: &mut Vec<u32>| {
+            if !written[r as usize] && !zeroed.contains(&r) {
+                zeroed.push(r);
+            }
+        };
+        for o in [OPACITY, LOG_KEEP, COLOUR, COLOUR + 1, COLOUR + 2] {
+            if tape.output_grads[o] {
+                let r = tape.outputs[o] as usize;
+                tape.seed_first[o] = !written[r];
+                written[r] = true;
+            }
+        }
+        let mut zeroed = Vec::new();
+        for (op, dst, wants, first) in &mut tape.reverse {
+            read(*dst, &written, &mut zeroed);
+            let (args, k) = op.operands();
+            for (j, &a) in args[..k].iter().enumerate() {
+                if *wants & (1 << j) != 0 {
+                    *first |= (!written[a as usize] as u8) << j;
+                    written[a as usize] = true;
+                }
+            }
+        }
+        for u in &tape.uniforms {
+            if u.grad {
+                read(u.register, &written, &mut zeroed);
+            }
+        }
+        tape.adjoint_registers = zeroed;
         tape
     }
 
