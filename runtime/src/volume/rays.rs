@@ -152,8 +152,9 @@ pub fn random_rays(
         chosen.insert(pick);
         order.push(pick);
     }
+    // The draw is sequential (one stream); the rays are not.
     Ok(order
-        .into_iter()
+        .into_par_iter()
         .map(|idx| {
             let view = (idx / per_view) as u32;
             pixel_ray(&cams[view as usize], size, view, (idx % per_view) as u32)
