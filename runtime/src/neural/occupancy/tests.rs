@@ -1,0 +1,444 @@
+//! Tests of the occupancy grid and its march.
+
+use super::*;
+
+fn grid(res: u32) -> OccupancyGrid {
+    let mut c = OccupancyConfig::new([-1.0, -0.5, 0.0], [1.0, 1.5, 3.0]);
+    c.res = res;
+    OccupancyGrid::new(c).unwrap()
+}
+
+fn random_ray(rng: &mut SplitMix64) -> ([f32; 3], [f32; 3]) {
+    let o = std::array::from_fn(|_| rng.next_f32() * 8.0 - 4.0);
+    let target: [f32; 3] = [
+        rng.next_f32() * 2.0 - 1.0,
+        rng.next_f32() * 2.0 - 0.5,
+        rng.next_f32() * 3.0,
+    ];
+    let d: [f32; 3] = std::array::from_fn(|a| target[a] - o[a]);
+    let n = d.iter().map(|v| v * v).sum::<f32>().sqrt();
+    (o, d.map(|v| v / n))
+}
+
+/// Fixed-step samples kept by `keep(cell)`, testing every sample.
+fn brute(
+    g: &OccupancyGrid,
+    o: [f32; 3],
+    d: [f32; 3],
+    near: f32,
+    far: f32,
+    step: f32,
+    keep: impl Fn(Option<[u32; 3]>) -> bool,
+) -> Vec<f32> {
+    let (mut t, mut dt) = (Vec::new(), Vec::new());
+    fixed_step(near, far, step, &mut t, &mut dt).unwrap();
+    t.into_iter()
+        .filter(|&tk| keep(g.cell_of(std::array::from_fn(|a| o[a] + tk * d[a]))))
+        .collect()
+}
+
+#[test]
+fn all_occupied_equals_fixed_step() {
+    let mut g = grid(16);
+    let mut rng = SplitMix64::new(1);
+    let (mut t, mut dt) = (Vec::new(), Vec::new());
+    let (mut ft, mut fdt) = (Vec::new(), Vec::new());
+    for i in 0..300 {
+        let (o, d) = random_ray(&mut rng);
+        let step = [0.01, 0.0371, 0.3][i % 3];
+        // Inside the box: exactly the plain sampler's samples.
+        let o_in = [0.1, 0.2, 1.5];
+        g.march(o_in, d, 0.0, 0.45, step, &mut t, &mut dt).unwrap();
+        fixed_step(0.0, 0.45, step, &mut ft, &mut fdt).unwrap();
+        assert_eq!((&t, &dt), (&ft, &fdt));
+        // Through the box: the plain samples inside it.
+        g.march(o, d, 0.5, 12.0, step, &mut t, &mut dt).unwrap();
+        let want = brute(&g, o, d, 0.5, 12.0, step, |c| c.is_some());
+        assert_eq!(t, want);
+        assert!(!t.is_empty());
+        assert!(dt.iter().all(|&v| v == step));
+        // Disabled: the plain sampler, box or not.
+        g.set_enabled(false);
+        g.march(o, d, 0.5, 12.0, step, &mut t, &mut dt).unwrap();
+        fixed_step(0.5, 12.0, step, &mut ft, &mut fdt).unwrap();
+        assert_eq!((&t, &dt), (&ft, &fdt));
+        g.set_enabled(true);
+    }
+}
+
+#[test]
+fn one_occupied_cell_emits_only_inside_it() {
+    let mut g = grid(8);
+    g.fill(false);
+    let target = [3u32, 4, 2];
+    g.set_occupied(g.index(target), true);
+    let (lo, hi) = ([-1.0f64, -0.5, 0.0], [1.0f64, 1.5, 3.0]);
+    let cell: [(f64, f64); 3] = std::array::from_fn(|a| {
+        let h = (hi[a] - lo[a]) / 8.0;
+        (
+            lo[a] + target[a] as f64 * h,
+            lo[a] + (target[a] + 1) as f64 * h,
+        )
+    });
+    let inside = |p: [f64; 3], margin: f64| {
+        (0..3).all(|a| p[a] >= cell[a].0 - margin && p[a] < cell[a].1 + margin)
+    };
+    let mut rng = SplitMix64::new(2);
+    let (mut t, mut dt) = (Vec::new(), Vec::new());
+    let mut hits = 0;
+    for i in 0..2000 {
+        // Aim at the cell half the time.
+        let (mut o, mut d) = random_ray(&mut rng);
+        if i % 2 == 0 {
+            let c: [f64; 3] = std::array::from_fn(|a| {
+                cell[a].0 + rng.next_f32() as f64 * (cell[a].1 - cell[a].0)
+            });
+            let v: [f32; 3] = std::array::from_fn(|a| (c[a] - o[a] as f64) as f32);
+            let n = v.iter().map(|x| x * x).sum::<f32>().sqrt();
+            d = v.map(|x| x / n);
+        }
+        if i % 7 == 0 {
+            o = [0.0, 0.0, 1.0];
+        }
+        let step = [0.003, 0.02, 0.11][i % 3];
+        g.march(o, d, 0.0, 10.0, step, &mut t, &mut dt).unwrap();
+        let want = brute(&g, o, d, 0.0, 10.0, step, |c| c == Some(target));
+        assert_eq!(t, want, "ray {i}");
+        hits += t.len();
+        for &tk in &t {
+            let p = std::array::from_fn(|a| o[a] as f64 + tk as f64 * d[a] as f64);
+            assert!(inside(p, 1e-5), "{p:?}");
+        }
+        // Brute force in f64: samples clearly inside are all emitted.
+        let (mut all, mut adt) = (Vec::new(), Vec::new());
+        fixed_step(0.0, 10.0, step, &mut all, &mut adt).unwrap();
+        for &tk in &all {
+            let p = std::array::from_fn(|a| o[a] as f64 + tk as f64 * d[a] as f64);
+            if inside(p, -1e-5) {
+                assert!(t.contains(&tk));
+            }
+        }
+    }
+    assert!(hits > 1000, "{hits}");
+}
+
+#[test]
+fn sparse_grids_match_brute_force() {
+    // Dense and sparse occupancy (empty blocks), R a multiple of the
+    // block or not, occupied cells scattered or in one clump.
+    let mut rng = SplitMix64::new(3);
+    let mut kept = 0;
+    for (res, p, clump) in [(32, 0.08, false), (37, 0.002, false), (64, 0.3, true)] {
+        let mut g = grid(res);
+        for c in 0..g.cells() {
+            let r = res as usize;
+            let near_centre = [c % r, c / r % r, c / (r * r)]
+                .iter()
+                .all(|&v| v.abs_diff(r / 2) < 4);
+            let on = rng.next_f32() < p && (!clump || near_centre);
+            g.set_occupied(c, on);
+        }
+        check_blocks(&g);
+        let mut full = g.clone();
+        full.fill(true);
+        check_blocks(&full);
+        assert_eq!(full.occupied_count(), full.cells());
+        full.fill(false);
+        check_blocks(&full);
+        let (mut t, mut dt) = (Vec::new(), Vec::new());
+        for i in 0..1000 {
+            let (o, d) = random_ray(&mut rng);
+            let step = [0.001, 0.013, 0.2][i % 3];
+            g.march(o, d, 0.2, 11.0, step, &mut t, &mut dt).unwrap();
+            let want = brute(&g, o, d, 0.2, 11.0, step, |c| {
+                c.is_some_and(|c| g.is_occupied(g.index(c)))
+            });
+            assert_eq!(t, want, "R {res} ray {i}");
+            kept += t.len();
+        }
+    }
+    assert!(kept > 10_000, "{kept}");
+}
+
+/// The block counts agree with the bits.
+fn check_blocks(g: &OccupancyGrid) {
+    let mut want = vec![0u32; g.blocks.len()];
+    let r = g.cfg.res as usize;
+    for c in 0..g.cells() {
+        if g.is_occupied(c) {
+            want[g.block_of([c % r, c / r % r, c / (r * r)].map(|v| v as u32))] += 1;
+        }
+    }
+    assert_eq!(want, g.blocks);
+}
+
+#[test]
+fn batches_match_single_rays_for_any_thread_count() {
+    let mut g = grid(40);
+    let mut rng = SplitMix64::new(6);
+    for c in 0..g.cells() {
+        g.set_occupied(c, rng.next_f32() < 0.05);
+    }
+    let rays: Vec<Ray> = (0..3000)
+        .map(|k| {
+            let (origin, dir) = random_ray(&mut rng);
+            Ray {
+                origin,
+                dir,
+                view: 0,
+                pixel: k,
+            }
+        })
+        .collect();
+    let run = |threads| {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap();
+        let mut out = RaySamples::default();
+        pool.install(|| g.march_rays(&rays, 0.1, 12.0, 0.01, &mut out))
+            .unwrap();
+        out
+    };
+    let one = run(1);
+    assert_eq!(one, run(3));
+    assert_eq!(one.offsets.len(), rays.len() + 1);
+    let (mut t, mut dt) = (Vec::new(), Vec::new());
+    for (r, ray) in rays.iter().enumerate() {
+        g.march(ray.origin, ray.dir, 0.1, 12.0, 0.01, &mut t, &mut dt)
+            .unwrap();
+        assert_eq!(t, one.t[one.offsets[r]..one.offsets[r + 1]]);
+        assert_eq!(dt, one.dt[one.offsets[r]..one.offsets[r + 1]]);
+    }
+    let mut bad = rays.clone();
+    bad[2000].dir = [0.0; 3];
+    let mut out = RaySamples::default();
+    assert!(g.march_rays(&bad, 0.1, 12.0, 0.01, &mut out).is_err());
+}
+
+#[test]
+fn grazing_rays_and_misses() {
+    let mut g = grid(8);
+    let mut rng = SplitMix64::new(4);
+    for c in 0..g.cells() {
+        g.set_occupied(c, rng.next_f32() < 0.3);
+    }
+    let (mut t, mut dt) = (Vec::new(), Vec::new());
+    let occupied = |c: Option<[u32; 3]>| c.is_some_and(|c| g.is_occupied(g.index(c)));
+    // Rays in the planes of cell faces (y = −0.5 + j/4, z = 3k/8),
+    // along axes and diagonals within the plane, and along edges.
+    let mut n = 0;
+    for j in 0..=8 {
+        for k in 0..=8 {
+            let y = -0.5 + j as f32 * 0.25;
+            let z = k as f32 * 0.375;
+            for d in [
+                [1.0, 0.0, 0.0],
+                [-1.0, 0.0, 0.0],
+                [0.6, 0.0, 0.8],
+                [0.0, 0.0, -1.0],
+            ] {
+                let o = [
+                    -3.0 * d[0],
+                    y,
+                    if d[2] == 0.0 { z } else { 1.5 - 3.0 * d[2] },
+                ];
+                for step in [0.01, 0.25] {
+                    g.march(o, d, 0.0, 8.0, step, &mut t, &mut dt).unwrap();
+                    assert_eq!(t, brute(&g, o, d, 0.0, 8.0, step, occupied));
+                    n += t.len();
+                }
+            }
+        }
+    }
+    assert!(n > 0);
+    // The max faces are outside: a ray along y = 1.5 gets nothing.
+    g.fill(true);
+    g.march(
+        [-2.0, 1.5, 1.0],
+        [1.0, 0.0, 0.0],
+        0.0,
+        5.0,
+        0.01,
+        &mut t,
+        &mut dt,
+    )
+    .unwrap();
+    assert!(t.is_empty());
+    g.march(
+        [-2.0, -0.5, 0.0],
+        [1.0, 0.0, 0.0],
+        0.0,
+        5.0,
+        0.01,
+        &mut t,
+        &mut dt,
+    )
+    .unwrap();
+    assert_eq!(t.len(), 200);
+    // Misses: beside the box, pointing away, parallel outside.
+    for (o, d) in [
+        ([-2.0, 5.0, 1.0], [1.0, 0.0, 0.0]),
+        ([0.0, 0.0, -1.0], [0.0, 0.0, -1.0]),
+        ([3.0, 3.0, 5.0], [0.577, 0.577, 0.577]),
+    ] {
+        g.march(o, d, 0.0, 50.0, 0.01, &mut t, &mut dt).unwrap();
+        assert!(t.is_empty() && dt.is_empty());
+    }
+    // Refused: NaN, zero direction, reversed range, zero step, too many.
+    let o = [0.0; 3];
+    let x = [1.0, 0.0, 0.0];
+    assert!(g
+        .march([f32::NAN, 0.0, 0.0], x, 0.0, 1.0, 0.1, &mut t, &mut dt)
+        .is_err());
+    assert!(g
+        .march(o, [0.0; 3], 0.0, 1.0, 0.1, &mut t, &mut dt)
+        .is_err());
+    assert!(g.march(o, x, 1.0, 0.5, 0.1, &mut t, &mut dt).is_err());
+    assert!(g.march(o, x, 0.0, 1.0, 0.0, &mut t, &mut dt).is_err());
+    assert!(g.march(o, x, 0.0, 1e6, 1e-3, &mut t, &mut dt).is_err());
+    assert!(g
+        .march(o, x, 0.0, f32::INFINITY, 0.1, &mut t, &mut dt)
+        .is_err());
+    g.march(o, x, 1.0, 1.0, 0.1, &mut t, &mut dt).unwrap();
+    assert!(t.is_empty());
+}
+
+#[test]
+fn update_tracks_a_moving_sphere() {
+    let mut cfg = OccupancyConfig::new([-1.0; 3], [1.0; 3]);
+    cfg.res = 16;
+    // Density threshold 1 (0.01 / 0.01).
+    cfg.step_size = 0.01;
+    let mut g = OccupancyGrid::new(cfg).unwrap();
+    assert_eq!(g.occupied_count(), g.cells());
+    let sphere = |c: [f32; 3], r: f32| {
+        move |p: &[[f32; 3]], out: &mut [f32]| {
+            for (q, o) in p.iter().zip(out.iter_mut()) {
+                let d2: f32 = (0..3).map(|a| (q[a] - c[a]).powi(2)).sum();
+                *o = if d2 < r * r { 10.0 } else { 0.0 };
+            }
+        }
+    };
+    let h = 2.0 / 16.0;
+    let centre =
+        |ijk: [usize; 3]| -> [f32; 3] { std::array::from_fn(|a| -1.0 + (ijk[a] as f32 + 0.5) * h) };
+    // Distance from a cell's centre to the sphere's centre, and the cell's
+    // half-diagonal: fully inside or fully outside decides its bit.
+    let half_diag = 3f32.sqrt() * h / 2.0;
+    let classify = |g: &OccupancyGrid, c: [f32; 3], r: f32| {
+        let (mut inside, mut outside) = (0, 0);
+        for z in 0..16 {
+            for y in 0..16 {
+                for x in 0..16 {
+                    let p = centre([x, y, z]);
+                    let d = (0..3).map(|a| (p[a] - c[a]).powi(2)).sum::<f32>().sqrt();
+                    let occ = g.is_occupied(g.index([x as u32, y as u32, z as u32]));
+                    if d + half_diag < r {
+                        assert!(occ, "{x} {y} {z} inside");
+                        inside += 1;
+                    } else if d - half_diag > r {
+                        assert!(!occ, "{x} {y} {z} outside");
+                        outside += 1;
+                    }
+                }
+            }
+        }
+        assert!(inside > 10 && outside > 100);
+    };
+    let mut rng = SplitMix64::new(5);
+    let a = [-0.4, 0.0, 0.0];
+    g.update(0, &mut sphere(a, 0.5), &mut rng);
+    classify(&g, a, 0.5);
+    let first = g.ema().to_vec();
+    // The sphere moves: new cells at once, old ones after decaying below
+    // the threshold (10·0.95^k ≤ 1 from k = 45 on).
+    let b = [0.4, 0.0, 0.0];
+    let only_a = g.index([3, 8, 8]); // centre −0.5625: in a, not in b.
+    assert!(g.is_occupied(only_a));
+    for k in 1..=45 {
+        g.update(k, &mut sphere(b, 0.5), &mut rng);
+        assert_eq!(g.is_occupied(only_a), k < 45, "update {k}");
+    }
+    classify(&g, b, 0.5);
+    check_blocks(&g);
+    // Same draws, same grid.
+    let mut again = OccupancyGrid::new(g.config().clone()).unwrap();
+    again.update(0, &mut sphere(a, 0.5), &mut SplitMix64::new(5));
+    assert_eq!(again.ema(), &first[..]);
+    // NaN and infinite densities stay finite / occupied.
+    again.update(
+        1,
+        &mut |_: &[[f32; 3]], o: &mut [f32]| o.fill(f32::NAN),
+        &mut rng,
+    );
+    assert!(again.ema().iter().all(|v| v.is_finite()));
+    again.update(
+        2,
+        &mut |_: &[[f32; 3]], o: &mut [f32]| o.fill(f32::INFINITY),
+        &mut rng,
+    );
+    assert!(again.ema().iter().all(|v| v.is_finite()));
+    assert_eq!(again.occupied_count(), again.cells());
+}
+
+#[test]
+fn subsets_after_warmup_update_a_stride() {
+    let mut cfg = OccupancyConfig::new([-1.0; 3], [1.0; 3]);
+    cfg.res = 8;
+    cfg.warmup = 2;
+    cfg.subsets = 4;
+    cfg.step_size = 0.01;
+    let mut g = OccupancyGrid::new(cfg).unwrap();
+    let mut rng = SplitMix64::new(1);
+    let mut one = |_: &[[f32; 3]], o: &mut [f32]| o.fill(1.0);
+    g.update(0, &mut one, &mut rng);
+    assert!(g.ema().iter().all(|&v| v == 1.0));
+    let mut zero = |_: &[[f32; 3]], o: &mut [f32]| o.fill(0.0);
+    g.update(6, &mut zero, &mut rng);
+    for (c, &v) in g.ema().iter().enumerate() {
+        assert_eq!(v, if c % 4 == 2 { 0.95 } else { 1.0 });
+    }
+}
+
+#[test]
+fn march_throughput() {
+    let mut cfg = OccupancyConfig::new([-1.0; 3], [1.0; 3]);
+    cfg.step_size = 0.01;
+    let mut g = OccupancyGrid::new(cfg).unwrap();
+    let start = std::time::Instant::now();
+    g.update(
+        0,
+        &mut |p: &[[f32; 3]], o: &mut [f32]| {
+            for (q, o) in p.iter().zip(o.iter_mut()) {
+                let r = (q[0] * q[0] + q[1] * q[1] + q[2] * q[2]).sqrt();
+                *o = if (r - 0.5).abs() < 0.05 { 10.0 } else { 0.0 };
+            }
+        },
+        &mut SplitMix64::new(1),
+    );
+    let update = start.elapsed().as_secs_f64();
+    let mut rng = SplitMix64::new(2);
+    let n = if cfg!(debug_assertions) { 1000 } else { 20_000 };
+    let rays: Vec<_> = (0..n).map(|_| random_ray(&mut rng)).collect();
+    let step = 3f32.sqrt() * 2.0 / 1024.0;
+    let (mut t, mut dt) = (Vec::new(), Vec::new());
+    let time = |g: &OccupancyGrid, t: &mut Vec<f32>, dt: &mut Vec<f32>| {
+        let start = std::time::Instant::now();
+        let mut n = 0;
+        for (o, d) in &rays {
+            g.march(*o, *d, 0.0, 12.0, step, t, dt).unwrap();
+            n += t.len();
+        }
+        (start.elapsed().as_secs_f64(), n)
+    };
+    let (skip, n) = time(&g, &mut t, &mut dt);
+    g.set_enabled(false);
+    let (plain, m) = time(&g, &mut t, &mut dt);
+    println!(
+        "occupancy march (R=128, shell, step {step:.4}, one thread): {:.2} M rays/s, {n} samples kept of {m}; plain sampler {:.2} M rays/s; update of 128³ cells {:.0} ms",
+        rays.len() as f64 / skip / 1e6,
+        rays.len() as f64 / plain / 1e6,
+        update * 1e3
+    );
+}

@@ -1,0 +1,241 @@
+//! Helpers the built-ins share: reading cameras, image sizes and outputs,
+//! confining output paths, blends, axes, ranges and `random`.
+
+use super::*;
+
+/// `min`/`max` of the rest arguments, lists flattened.
+pub(super) fn extreme(a: &Args, name: &str, pick: fn(f64, f64) -> f64) -> Result<Value, Diag> {
+    let xs = a.rest_numbers()?;
+    match xs.into_iter().reduce(pick) {
+        Some(x) => Ok(Value::Number(x)),
+        None => Err(value_error(
+            a.span,
+            format!("`{name}` of no numbers"),
+            "empty",
+            "give at least one number",
+        )),
+    }
+}
+
+/// SplitMix64's output function (Steele, Lea and Flood, 2014).
+pub(super) fn splitmix64(mut z: u64) -> u64 {
+    z = z.wrapping_add(0x9e37_79b9_7f4a_7c15);
+    z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+    z ^ (z >> 31)
+}
+
+/// `random(seed, i)`: the hash of both numbers' bits, its top 53 bits as
+/// a fraction in [0, 1). (`+ 0.0` makes -0 and 0 the same seed.)
+pub fn random(seed: f64, i: f64) -> f64 {
+    let h = splitmix64(splitmix64((seed + 0.0).to_bits()) ^ (i + 0.0).to_bits());
+    (h >> 11) as f64 / (1u64 << 53) as f64
+}
+
+/// Most copies a repetition may evaluate at one point.
+pub(super) const MAX_COPIES_PER_POINT: u64 = 64;
+
+/// The `axis` argument: `"x"`, `"y"` or `"z"`.
+pub(super) fn axis_arg(a: &Args) -> Result<Axis, Diag> {
+    let (name, span) = a.string("axis")?;
+    match &*name {
+        "x" => Ok(Axis::X),
+        "y" => Ok(Axis::Y),
+        "z" => Ok(Axis::Z),
+        other => Err(value_error(
+            span,
+            format!("unknown axis `{other}`"),
+            "not an axis",
+            "use \"x\", \"y\" or \"z\"",
+        )),
+    }
+}
+
+/// Twists and bends need a bounded shape: their Lipschitz constant grows
+/// with its radius.
+pub(super) fn unbounded_warp(a: &Args, s: &Shape, name: &str) -> Result<(), Diag> {
+    if s.bounds().is_none() {
+        return Err(value_error(
+            a.get("shape").1,
+            format!("`{name}` of an unbounded shape (a plane)"),
+            "unbounded",
+            format!("{name} bounded shapes (intersect a plane with a box first)"),
+        ));
+    }
+    Ok(())
+}
+
+pub(super) fn blend(
+    a: &Args,
+    op: fn(Arc<Shape>, Arc<Shape>, Arg<f64>) -> Shape,
+) -> Result<Value, Diag> {
+    let shapes = a.rest_shapes()?;
+    let k = a.length_arg("k")?;
+    let mut it = shapes.into_iter();
+    let Some(first) = it.next() else {
+        return Err(value_error(
+            a.span,
+            "a blend of no shapes",
+            "empty",
+            "give at least two shapes",
+        ));
+    };
+    let mut acc = first;
+    for s in it {
+        acc = Arc::new(op(acc, s, k.clone()));
+    }
+    Ok(Value::Shape(acc))
+}
+
+pub(super) fn check_range(a: &Args, near: f64, far: f64) -> Result<(), Diag> {
+    if near < 0.0 {
+        return Err(value_error(
+            a.get("near").1,
+            format!("`near` must be ≥ 0, got {}", sdfl_lang::fmt_num(near)),
+            "negative",
+            "rays start at the camera or in front of it",
+        ));
+    }
+    if far <= near {
+        return Err(value_error(
+            a.get("far").1,
+            format!(
+                "`far` ({}) must be greater than `near` ({})",
+                sdfl_lang::fmt_num(far),
+                sdfl_lang::fmt_num(near)
+            ),
+            "not beyond near",
+            "rays march from near to far: make far larger",
+        ));
+    }
+    Ok(())
+}
+
+/// A value that is one `T` or a list of them (as `pick` reads each), or
+/// `None` if any item is something else.
+pub(crate) fn one_or_list<T>(v: &Value, pick: impl Fn(&Value) -> Option<T>) -> Option<Vec<T>> {
+    match v {
+        Value::List(items) => items.iter().map(&pick).collect(),
+        one => pick(one).map(|t| vec![t]),
+    }
+}
+
+pub(super) fn camera_list(a: &Args, name: &str) -> Result<Vec<Camera>, Diag> {
+    let (v, s) = a.get(name);
+    let cams = one_or_list(v, |v| match v {
+        Value::Camera(c) => Some(*c),
+        _ => None,
+    });
+    match cams {
+        Some(c) if c.is_empty() => Err(value_error(
+            s,
+            "no camera views",
+            "empty list",
+            "give at least one camera",
+        )),
+        Some(c) if c.len() > MAX_VIEWS => Err(value_error(
+            s,
+            format!("{} views (at most {MAX_VIEWS})", c.len()),
+            "too many views",
+            "use fewer views",
+        )),
+        Some(c) => Ok(c),
+        None => Err(type_error(s, "camera or list of cameras", v)),
+    }
+}
+
+pub(super) fn image_size(a: &Args, name: &str) -> Result<(u32, u32), Diag> {
+    let (size, size_span) = a.get(name);
+    let dims: Option<Vec<f64>> = match size {
+        Value::List(items) => items
+            .iter()
+            .map(|i| {
+                if let Value::Number(x) = i {
+                    Some(*x)
+                } else {
+                    None
+                }
+            })
+            .collect(),
+        _ => None,
+    };
+    match dims.as_deref() {
+        Some([w, h])
+            if w.fract() == 0.0
+                && h.fract() == 0.0
+                && (1.0..=MAX_IMAGE_SIDE as f64).contains(w)
+                && (1.0..=MAX_IMAGE_SIDE as f64).contains(h) =>
+        {
+            Ok((*w as u32, *h as u32))
+        }
+        _ => Err(value_error(
+            size_span,
+            format!("`{name}` must be [width, height] in whole pixels from 1 to {MAX_IMAGE_SIDE}"),
+            "invalid image size",
+            "for example `size: [256, 256]`",
+        )),
+    }
+}
+
+pub(super) fn outputs(a: &Args, name: &str, allow_empty: bool) -> Result<Vec<Output>, Diag> {
+    match a.get(name) {
+        (Value::List(items), s) => {
+            let outs: Option<Vec<Output>> = items
+                .iter()
+                .map(|i| {
+                    if let Value::Output(o) = i {
+                        Some((**o).clone())
+                    } else {
+                        None
+                    }
+                })
+                .collect();
+            match outs {
+                Some(o) if !o.is_empty() || allow_empty => Ok(o),
+                Some(_) => Err(value_error(
+                    s,
+                    "no outputs requested",
+                    "empty",
+                    "ask for e.g. `outputs: [image(\"out.png\")]`",
+                )),
+                None => Err(type_error(s, "list of outputs", a.get(name).0)),
+            }
+        }
+        (v, s) => Err(type_error(s, "list of outputs", v)),
+    }
+}
+
+/// Output names must stay inside the output directory: relative, no `..`.
+pub fn safe_output_path(p: &str, span: Span) -> Result<PathBuf, Diag> {
+    let path = Path::new(p);
+    // A trailing `/` names a directory, which an output cannot be.
+    let ok = !p.is_empty()
+        && path.components().all(|c| matches!(c, Component::Normal(_)))
+        && !p.contains('\0')
+        && !p.ends_with('/');
+    if ok {
+        Ok(path.to_path_buf())
+    } else if p.ends_with('/') && !p.starts_with('/') && !p.contains("..") {
+        Err(Diag::new(
+            codes::PATH,
+            span,
+            format!("output path `{p}` names a directory"),
+        )
+        .label("ends with `/`")
+        .help("name a file, e.g. `dir/name.png`"))
+    } else {
+        Err(Diag::new(codes::PATH, span, format!("output path `{p}` leaves the output directory"))
+            .label("not a plain relative path")
+            .help("name files relative to the output directory, without `..` or a leading `/`; choose the directory with `--out`"))
+    }
+}
+
+/// A neural SDF is fitted to points; rendering one is not built yet.
+pub(crate) fn not_a_volume(span: Span) -> Diag {
+    value_error(
+        span,
+        "a neural SDF is rendered by the `train` statement that fits it",
+        "a neural SDF",
+        "train it (from points, or from images as `volsdf(neural_sdf(...))`) and ask for `after: [gif(...)]` there",
+    )
+}
