@@ -1,9 +1,11 @@
-//! A [`Tape`] run over a batch: per ray, the tape forward on chunks of 16
-//! samples (until the ray is spent), the compositing and loss in order,
-//! the reverse sweep of the compositing (each sample's adjoints of opacity,
-//! `ln(1 − opacity)` and colour), then the tape in reverse on the chunks,
-//! summing the adjoints of the uniform registers. One pass through the
-//! operations on parameters alone then gives every parameter's gradient.
+//! A [`Tape`] run over a batch, a group of rays (about 256 samples) at a
+//! time: the tape forward on every sample of the group, 16 lanes per
+//! column; the compositing and loss ray by ray, in order, until each ray
+//! is spent; the reverse sweep of the compositing (each sample's adjoints
+//! of opacity, `ln(1 − opacity)` and colour); then the tape in reverse,
+//! summing the adjoints of the uniform registers over the samples that
+//! matter. One pass through the operations on parameters alone then gives
+//! every parameter's gradient.
 //!
 //! Rays run in parallel in fixed blocks whose sums are added in order, so
 //! a step is bit-identical whatever the thread count (the basis of exact
@@ -32,7 +34,9 @@ const BLOCK: usize = 64;
 /// the two agree to about 1e-6 of the gradient.)
 const NEGLIGIBLE: f64 = 1e-7;
 
-/// A block's working storage, reused from group to group.
+/// A thread's working storage, reused from group to group and block to
+/// block (the uniform registers are filled once; everything else is
+/// written before it is read, or masked).
 struct Scratch {
     /// Forward values: register `r` of column `j` (chunk `c` of ray `g` of
     /// the group: `j = g·chunks + c`) at `r·cols + j`.
@@ -196,7 +200,8 @@ fn block(
 }
 
 /// One group of rays: their losses added to `loss` one by one (the scalar
-/// kernel's order), their share of the gradient to `adjoints`.
+/// kernel's order), their share of the uniform registers' adjoints to
+/// `sums`, lane by lane.
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
 fn rays_of_group(
