@@ -99,6 +99,43 @@ macro_rules! avx2_kernel {
 }
 pub(super) use avx2_kernel;
 
+/// `$vis fn $name(args) -> $ret` running the `#[inline(always)]` function
+/// `$body` on the same arguments, compiled twice more, for AVX-512 F and
+/// for AVX2, and the widest copy the CPU runs picked at run time (the same
+/// operations in each, so the same bits; wider lanes where loops
+/// vectorise).
+macro_rules! widest_simd {
+    ($(#[$meta:meta])* $vis:vis fn $name:ident($($arg:ident: $ty:ty),* $(,)?) -> $ret:ty = $body:path) => {
+        $(#[$meta])*
+        $vis fn $name($($arg: $ty),*) -> $ret {
+            #[cfg(target_arch = "x86_64")]
+            {
+                #[target_feature(enable = "avx512f")]
+                unsafe fn avx512($($arg: $ty),*) -> $ret {
+                    $body($($arg),*)
+                }
+                if $crate::neural::fp32::available() {
+                    // SAFETY: the CPU supports AVX-512 F (checked just above).
+                    return unsafe { avx512($($arg),*) };
+                }
+            }
+            #[cfg(any(target_arch = "x86_64", target_arch = "x86"))]
+            {
+                #[target_feature(enable = "avx2")]
+                unsafe fn avx2($($arg: $ty),*) -> $ret {
+                    $body($($arg),*)
+                }
+                if $crate::sdf::lanes::has_avx2() {
+                    // SAFETY: the CPU supports AVX2 (checked just above).
+                    return unsafe { avx2($($arg),*) };
+                }
+            }
+            $body($($arg),*)
+        }
+    };
+}
+pub(crate) use widest_simd;
+
 /// Defines a lane type: `$n` f32 lanes aligned to `$align` bytes, each
 /// operation the f32 operation lane by lane.
 macro_rules! lane_type {

@@ -274,24 +274,6 @@ fn adjoint_size<F: Real>(d_sdf: F, d_colour: [F; 3]) -> f64 {
     d_sdf.val().abs() + d_colour.iter().map(|x| x.val().abs()).sum::<f64>()
 }
 
-/// `field + adjoint · tangents` of one sample, in the one order both
-/// paths use (so they agree to the bit).
-#[inline(always)]
-fn add_tangents<F: Real, const N: usize>(
-    field: &mut [F; N],
-    (d_sdf, d_colour): (F, [F; 3]),
-    sdf: impl Fn(usize) -> F,
-    c: impl Fn(usize, usize) -> F,
-) {
-    for i in 0..N {
-        field[i] = field[i]
-            + d_sdf * sdf(i)
-            + d_colour[0] * c(0, i)
-            + d_colour[1] * c(1, i)
-            + d_colour[2] * c(2, i);
-    }
-}
-
 /// One ray's squared error times `scale` and its gradient, in three passes:
 ///
 /// 1. plain: the field at every sample up to where the ray is spent, and
@@ -348,7 +330,15 @@ fn ray_grad<F: Real, const N: usize>(
             }
             let (sdf, c) = field_at(model, &args, o + d * Dual::lit(t[k] as f64));
             let c = [c.x, c.y, c.z];
-            add_tangents(&mut field, adj, |i| sdf.d[i], |j, i| c[j].d[i]);
+            // field += adjoint · tangents.
+            let (d_sdf, d_colour) = adj;
+            for i in 0..N {
+                field[i] = field[i]
+                    + d_sdf * sdf.d[i]
+                    + d_colour[0] * c[0].d[i]
+                    + d_colour[1] * c[1].d[i]
+                    + d_colour[2] * c[2].d[i];
+            }
         }
     }
     RayGrad {
@@ -376,41 +366,9 @@ struct Scratch<F> {
     adjoint: Vec<(F, [F; 3])>,
 }
 
-/// How a pass computes one ray: [`ray_grad`] in any base type, or
-/// [`ray_grad_lanes`] in f32.
-trait RayPath<F: Real>: Sync {
-    fn ray<const N: usize>(
-        &self,
-        model: &TrainModel,
-        values: &[F],
-        first: usize,
-        task: &RayTask,
-        scale: F,
-        scratch: &mut Scratch<F>,
-    ) -> RayGrad<F, N>;
-}
-
-/// One sample at a time.
-struct Scalar;
-
-impl<F: Real> RayPath<F> for Scalar {
-    fn ray<const N: usize>(
-        &self,
-        model: &TrainModel,
-        values: &[F],
-        first: usize,
-        task: &RayTask,
-        scale: F,
-        scratch: &mut Scratch<F>,
-    ) -> RayGrad<F, N> {
-        ray_grad(model, values, first, task, scale, scratch)
-    }
-}
-
 /// `N` tangents from scalar `first`: (loss, d loss / d scalar for the `N`
 /// scalars, d loss / d α, d loss / d β) for the batch under MSE with `weight`.
 fn pass<F: Real, const N: usize>(
-    path: &impl RayPath<F>,
     model: &TrainModel,
     values: &[F],
     first: usize,
@@ -442,7 +400,7 @@ fn pass<F: Real, const N: usize>(
                     target: batch.targets[r],
                     density_adjoints,
                 };
-                let g = path.ray::<N>(model, values, first, &task, scale, &mut scratch);
+                let g = ray_grad::<F, N>(model, values, first, &task, scale, &mut scratch);
                 acc.0 = acc.0 + g.loss;
                 for i in 0..N {
                     acc.1[i] = acc.1[i] + g.field[i];
@@ -480,7 +438,7 @@ pub fn loss_and_grad_f64(
     batch: &Batch,
     weight: f64,
 ) -> LossGrad {
-    loss_and_grad_by::<_, Wide>(&Scalar, model, values, batch, weight)
+    loss_and_grad_by::<_, Wide>(model, values, batch, weight)
 }
 
 /// [`loss_and_grad_f64`] in f32, one sample at a time: the path of fields
@@ -491,7 +449,7 @@ pub fn loss_and_grad_scalar_f32(
     batch: &Batch,
     weight: f64,
 ) -> LossGrad {
-    loss_and_grad_by::<_, Narrow>(&Scalar, model, values, batch, weight)
+    loss_and_grad_by::<_, Narrow>(model, values, batch, weight)
 }
 
 /// The batch's loss and gradient in f32: through the model's [`Tape`]
@@ -533,7 +491,6 @@ pub fn traced(model: &TrainModel, values: &[f32], batch: &Batch) -> Option<Tape>
 /// How many tangents a pass carries for the parameters left.
 trait Widths {
     fn pass<F: Real>(
-        path: &impl RayPath<F>,
         left: usize,
         model: &TrainModel,
         values: &[F],
@@ -548,7 +505,6 @@ struct Narrow;
 
 impl Widths for Narrow {
     fn pass<F: Real>(
-        path: &impl RayPath<F>,
         left: usize,
         model: &TrainModel,
         values: &[F],
@@ -557,15 +513,15 @@ impl Widths for Narrow {
         weight: f64,
     ) -> (f64, Vec<f64>, f64, f64) {
         match left {
-            0 => pass::<F, 0>(path, model, values, first, batch, weight),
-            1 => pass::<F, 1>(path, model, values, first, batch, weight),
-            2 => pass::<F, 2>(path, model, values, first, batch, weight),
-            3 => pass::<F, 3>(path, model, values, first, batch, weight),
-            4 => pass::<F, 4>(path, model, values, first, batch, weight),
-            5 | 6 => pass::<F, 6>(path, model, values, first, batch, weight),
-            7 | 8 => pass::<F, 8>(path, model, values, first, batch, weight),
-            9..=12 => pass::<F, 12>(path, model, values, first, batch, weight),
-            _ => pass::<F, CHUNK>(path, model, values, first, batch, weight),
+            0 => pass::<F, 0>(model, values, first, batch, weight),
+            1 => pass::<F, 1>(model, values, first, batch, weight),
+            2 => pass::<F, 2>(model, values, first, batch, weight),
+            3 => pass::<F, 3>(model, values, first, batch, weight),
+            4 => pass::<F, 4>(model, values, first, batch, weight),
+            5 | 6 => pass::<F, 6>(model, values, first, batch, weight),
+            7 | 8 => pass::<F, 8>(model, values, first, batch, weight),
+            9..=12 => pass::<F, 12>(model, values, first, batch, weight),
+            _ => pass::<F, CHUNK>(model, values, first, batch, weight),
         }
     }
 }
@@ -576,7 +532,6 @@ struct Wide;
 
 impl Widths for Wide {
     fn pass<F: Real>(
-        path: &impl RayPath<F>,
         _left: usize,
         model: &TrainModel,
         values: &[F],
@@ -584,12 +539,11 @@ impl Widths for Wide {
         batch: &Batch,
         weight: f64,
     ) -> (f64, Vec<f64>, f64, f64) {
-        pass::<F, CHUNK>(path, model, values, first, batch, weight)
+        pass::<F, CHUNK>(model, values, first, batch, weight)
     }
 }
 
 fn loss_and_grad_by<F: Real, W: Widths>(
-    path: &impl RayPath<F>,
     model: &TrainModel,
     values: &[F],
     batch: &Batch,
@@ -602,7 +556,7 @@ fn loss_and_grad_by<F: Real, W: Widths>(
     let mut loss = 0.0;
     let mut first = 0;
     loop {
-        let (l, g, d_alpha, d_beta) = W::pass(path, p - first, model, values, first, batch, weight);
+        let (l, g, d_alpha, d_beta) = W::pass(p - first, model, values, first, batch, weight);
         for (i, gi) in g.into_iter().enumerate() {
             if first + i < p {
                 grad[first + i] += gi;

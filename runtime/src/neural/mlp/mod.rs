@@ -132,51 +132,31 @@ fn softplus_scaled(z: f32, beta: f32, inv_beta: f32) -> (f32, f32) {
     ((t.max(0.0) + ln_1p_unit_f32(e)) * inv_beta, s)
 }
 
-/// [`softplus_and_slope`] of every `y` in place, its slope into `slope`
-/// where given (as long as `y`). Compiled with AVX-512 or AVX2 where the
-/// CPU has them (16 or 8 lanes instead of SSE's 4; the same operations, so
-/// the same bits).
-pub fn softplus_layer(y: &mut [f32], slope: Option<&mut [f32]>, beta: f32) {
-    #[inline(always)]
-    fn kernel(y: &mut [f32], slope: Option<&mut [f32]>, beta: f32) {
-        let inv_beta = 1.0 / beta;
-        match slope {
-            Some(s) => {
-                assert_eq!(s.len(), y.len(), "one slope a value");
-                for (y, s) in y.iter_mut().zip(s) {
-                    (*y, *s) = softplus_scaled(*y, beta, inv_beta);
-                }
-            }
-            None => {
-                for y in y {
-                    *y = softplus_scaled(*y, beta, inv_beta).0;
-                }
+crate::sdf::lanes::widest_simd!(
+    /// [`softplus_and_slope`] of every `y` in place, its slope into `slope`
+    /// where given (as long as `y`). Compiled with AVX-512 or AVX2 where the
+    /// CPU has them (16 or 8 lanes instead of SSE's 4; the same operations,
+    /// so the same bits).
+    pub fn softplus_layer(y: &mut [f32], slope: Option<&mut [f32]>, beta: f32) -> () = softplus_lanes
+);
+
+/// The loop of [`softplus_layer`].
+#[inline(always)]
+fn softplus_lanes(y: &mut [f32], slope: Option<&mut [f32]>, beta: f32) {
+    let inv_beta = 1.0 / beta;
+    match slope {
+        Some(s) => {
+            assert_eq!(s.len(), y.len(), "one slope a value");
+            for (y, s) in y.iter_mut().zip(s) {
+                (*y, *s) = softplus_scaled(*y, beta, inv_beta);
             }
         }
-    }
-    #[cfg(target_arch = "x86_64")]
-    {
-        #[target_feature(enable = "avx512f")]
-        unsafe fn avx512(y: &mut [f32], slope: Option<&mut [f32]>, beta: f32) {
-            kernel(y, slope, beta)
-        }
-        if fp32::available() {
-            // SAFETY: the CPU supports AVX-512 F (checked just above).
-            return unsafe { avx512(y, slope, beta) };
+        None => {
+            for y in y {
+                *y = softplus_scaled(*y, beta, inv_beta).0;
+            }
         }
     }
-    #[cfg(any(target_arch = "x86_64", target_arch = "x86"))]
-    {
-        #[target_feature(enable = "avx2")]
-        unsafe fn avx2(y: &mut [f32], slope: Option<&mut [f32]>, beta: f32) {
-            kernel(y, slope, beta)
-        }
-        if crate::sdf::lanes::has_avx2() {
-            // SAFETY: the CPU supports AVX2 (checked just above).
-            return unsafe { avx2(y, slope, beta) };
-        }
-    }
-    kernel(y, slope, beta)
 }
 
 /// One layer's shape and where its weights live in the flat parameters.

@@ -117,50 +117,16 @@ pub fn loss_and_grad(tape: &Tape, model: &TrainModel, batch: &Batch, weight: f64
     }
 }
 
-/// [`block`] compiled for the widest vectors the CPU has.
-fn run_block(
-    tape: &Tape,
-    batch: &Batch,
-    rays: &[usize],
-    scale: f32,
-    s: &mut Scratch,
-) -> (f32, Vec<f32>) {
-    #[cfg(target_arch = "x86_64")]
-    {
-        #[target_feature(enable = "avx512f")]
-        unsafe fn avx512(
-            tape: &Tape,
-            batch: &Batch,
-            rays: &[usize],
-            scale: f32,
-            s: &mut Scratch,
-        ) -> (f32, Vec<f32>) {
-            block(tape, batch, rays, scale, s)
-        }
-        if crate::neural::fp32::available() {
-            // SAFETY: the CPU supports AVX-512 F (checked just above).
-            return unsafe { avx512(tape, batch, rays, scale, s) };
-        }
-    }
-    #[cfg(any(target_arch = "x86_64", target_arch = "x86"))]
-    {
-        #[target_feature(enable = "avx2")]
-        unsafe fn avx2(
-            tape: &Tape,
-            batch: &Batch,
-            rays: &[usize],
-            scale: f32,
-            s: &mut Scratch,
-        ) -> (f32, Vec<f32>) {
-            block(tape, batch, rays, scale, s)
-        }
-        if crate::sdf::lanes::has_avx2() {
-            // SAFETY: the CPU supports AVX2 (checked just above).
-            return unsafe { avx2(tape, batch, rays, scale, s) };
-        }
-    }
-    block(tape, batch, rays, scale, s)
-}
+crate::sdf::lanes::widest_simd!(
+    /// [`block`] compiled for the widest vectors the CPU has.
+    fn run_block(
+        tape: &Tape,
+        batch: &Batch,
+        rays: &[usize],
+        scale: f32,
+        s: &mut Scratch,
+    ) -> (f32, Vec<f32>) = block
+);
 
 /// Lanes (of 16 samples) a thread keeps per register, values and adjoints
 /// each: the tape's memory is `64 B × registers ×` this, twice.
