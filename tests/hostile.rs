@@ -4,128 +4,13 @@
 //! within a time bound (never a signal, a panic's 101 or a stack overflow),
 //! and when it fails, stderr names a diagnostic code (`sdfl::...`).
 
+mod common;
+use common::*;
+
 use std::fs;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::process::{Command, Stdio};
-use std::time::{Duration, Instant};
-
-/// Longest any one command may take (the slowest cases need about a second).
-const TIME_LIMIT: Duration = Duration::from_secs(20);
-
-/// What a run of the binary did.
-struct Outcome {
-    code: Option<i32>,
-    stderr: String,
-    elapsed: Duration,
-}
-
-/// A fresh, empty directory for one case.
-fn case_dir(name: &str) -> PathBuf {
-    let dir = Path::new(env!("CARGO_TARGET_TMPDIR"))
-        .join("hostile")
-        .join(name);
-    let _ = fs::remove_dir_all(&dir);
-    fs::create_dir_all(&dir).expect("temp dir is writable");
-    dir
-}
-
-/// Runs `sdfl` with `args`, killing it after [`TIME_LIMIT`]. Output goes to
-/// files (a pipe could fill up and block the child).
-fn sdfl(dir: &Path, args: &[&str]) -> Outcome {
-    let (out_path, err_path) = (dir.join("stdout.txt"), dir.join("stderr.txt"));
-    let t0 = Instant::now();
-    let mut child = Command::new(env!("CARGO_BIN_EXE_sdfl"))
-        .args(args)
-        .stdin(Stdio::null())
-        .stdout(fs::File::create(&out_path).expect("stdout file"))
-        .stderr(fs::File::create(&err_path).expect("stderr file"))
-        .spawn()
-        .expect("the sdfl binary starts");
-    let status = loop {
-        if let Some(status) = child.try_wait().expect("wait for sdfl") {
-            break status;
-        }
-        if t0.elapsed() > TIME_LIMIT {
-            let _ = child.kill();
-            let _ = child.wait();
-            panic!("`sdfl {}` ran longer than {TIME_LIMIT:?}", args.join(" "));
-        }
-        std::thread::sleep(Duration::from_millis(20));
-    };
-    let stderr = String::from_utf8_lossy(&fs::read(&err_path).unwrap_or_default()).into_owned();
-    Outcome {
-        code: status.code(),
-        stderr,
-        elapsed: t0.elapsed(),
-    }
-}
-
-#[derive(Debug, Clone, Copy, PartialEq)]
-enum Expect {
-    /// Exit 0.
-    Ok,
-    /// Exit 1 with a diagnostic.
-    Error,
-}
-
-/// The start of stderr, for failure messages (some are megabytes long).
-fn head(s: &str) -> &str {
-    let mut end = s.len().min(2000);
-    while !s.is_char_boundary(end) {
-        end -= 1;
-    }
-    &s[..end]
-}
-
-fn assert_outcome(what: &str, o: &Outcome, expect: Expect) {
-    assert!(
-        matches!(o.code, Some(0 | 1)),
-        "{what}: exit {:?} (a signal, panic or overflow), stderr:\n{}",
-        o.code,
-        head(&o.stderr)
-    );
-    assert!(
-        !o.stderr.contains("panicked") && !o.stderr.contains("overflowed its stack"),
-        "{what}: {}",
-        head(&o.stderr)
-    );
-    match expect {
-        Expect::Ok => assert_eq!(o.code, Some(0), "{what}: stderr:\n{}", head(&o.stderr)),
-        Expect::Error => {
-            assert_eq!(
-                o.code,
-                Some(1),
-                "{what}: should fail; stderr:\n{}",
-                head(&o.stderr)
-            );
-            assert!(
-                o.stderr.contains("sdfl::"),
-                "{what}: no diagnostic code in stderr:\n{}",
-                head(&o.stderr)
-            );
-        }
-    }
-}
-
-/// Writes `contents` to a file and runs both `check` and `run` on it.
-fn hostile(name: &str, contents: impl AsRef<[u8]>, expect: Expect) -> Vec<Outcome> {
-    let dir = case_dir(name);
-    let file = dir.join(format!("{name}.sdfl"));
-    fs::write(&file, contents).expect("case file is writable");
-    let file = file.to_str().expect("temp paths are UTF-8");
-    let out = dir.join("out");
-    let out = out.to_str().expect("temp paths are UTF-8");
-    let mut outcomes = Vec::new();
-    for args in [
-        vec!["check", file],
-        vec!["run", file, "--out", out, "--size", "8x8"],
-    ] {
-        let o = sdfl(&dir, &args);
-        assert_outcome(&format!("{name}: sdfl {}", args[0]), &o, expect);
-        outcomes.push(o);
-    }
-    outcomes
-}
+use std::time::Duration;
 
 /// Deterministic pseudo-random bytes (no dependency on a RNG crate).
 fn noise(len: usize, mut seed: u64) -> Vec<u8> {
