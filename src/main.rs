@@ -509,6 +509,7 @@ fn run(file: Option<&Path>, out: &Path, options: RunOptions, json: bool) -> Exit
         }
     };
     bar.finish_and_clear();
+    print_fit_warnings(&reports);
     if json {
         let summary = serde_json::json!({
             "file": src.name,
@@ -525,6 +526,21 @@ fn run(file: Option<&Path>, out: &Path, options: RunOptions, json: bool) -> Exit
         summarise(r, shown, &mut stdout);
     }
     ExitCode::SUCCESS
+}
+
+/// A fit's warnings on stderr, with `--json` too (where they are also in
+/// each report's `warnings`).
+fn print_fit_warnings(reports: &[serde_json::Value]) {
+    for r in reports {
+        let name = r["report"]["name"].as_str().unwrap_or("?");
+        for w in r["report"]["warnings"].as_array().into_iter().flatten() {
+            eprintln!(
+                "warning[{}]: `{name}`: {}",
+                sdfl_runtime::train::trainer::DIVERGED,
+                w.as_str().unwrap_or("?")
+            );
+        }
+    }
 }
 
 /// A human summary of one job's JSON report on stderr; written paths on stdout.

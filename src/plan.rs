@@ -208,11 +208,7 @@ pub(crate) fn plan_text(program: &sdfl_stdlib::Program) -> String {
         }
         mesh_lines(&mut o, &job.outputs, "the scene's bounds");
         let _ = writeln!(o, "  gradient tape  none (not training)");
-        let _ = writeln!(
-            o,
-            "  work           {}",
-            sdfl_stdlib::work::render_work(job, None).describe()
-        );
+        work_lines(&mut o, &sdfl_stdlib::work::render_work(job, None));
     }
     for job in &program.volumes {
         let names = |pred: &dyn Fn(&sdfl_stdlib::OutputKind) -> bool| -> Vec<String> {
@@ -249,11 +245,7 @@ pub(crate) fn plan_text(program: &sdfl_stdlib::Program) -> String {
         );
         mesh_lines(&mut o, &job.outputs, "the field's bounds");
         let _ = writeln!(o, "  gradient tape  none (not training)");
-        let _ = writeln!(
-            o,
-            "  work           {}",
-            sdfl_stdlib::work::volume_work(job, None).describe()
-        );
+        work_lines(&mut o, &sdfl_stdlib::work::volume_work(job, None));
     }
     for job in &program.trains {
         let _ = writeln!(o, "train {}", job.name);
@@ -481,13 +473,18 @@ pub(crate) fn plan_text(program: &sdfl_stdlib::Program) -> String {
         };
         mesh_lines(&mut o, &job.before, &region);
         mesh_lines(&mut o, &job.after, &region);
-        let _ = writeln!(
-            o,
-            "  work           {}",
-            sdfl_stdlib::work::train_work(job, None).describe()
-        );
+        work_lines(&mut o, &sdfl_stdlib::work::train_work(job, None));
     }
     o
+}
+
+/// The statement's estimated work, then each stage's share and memory.
+fn work_lines(o: &mut String, work: &sdfl_stdlib::work::Work) {
+    use std::fmt::Write;
+    let _ = writeln!(o, "  work           {}", work.describe());
+    for line in work.stage_lines() {
+        let _ = writeln!(o, "    {line}");
+    }
 }
 
 /// What the fused kernel runs for an analytic field: its traced tape (at

@@ -13,27 +13,167 @@ use crate::size::{fmt_bytes, BYTES_PER_PRIMITIVE};
 use crate::value::{Dataset, Field, OutputKind, Program, RenderJob, TrainJob, VolumeJob};
 
 /// Most SDF (or density) evaluations one statement may ask for: about an
-/// hour of tracing on a few cores. The examples need 1e7 to 1e9.
+/// hour of tracing on a few cores. The examples need 1e7 to 1e11.
 pub const MAX_EVALUATIONS: f64 = 1e12;
 /// Largest estimated peak memory of one statement.
 pub const MAX_MEMORY: f64 = 8e9;
 
-/// The estimated cost of one statement.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Work {
-    /// SDF or density evaluations, at most (every ray takes every step).
+/// A network's multiply-adds that take about as long as one evaluation of
+/// an analytic primitive (a few nanoseconds on one core), so that networks
+/// and SDFs are counted in one unit. Measured on sdfl's kernels: a
+/// primitive's distance costs 2–5 ns in the tracer, and the fp32 layer
+/// products run 20–50 multiply-adds a nanosecond.
+pub const MULTIPLY_ADDS_PER_EVALUATION: f64 = 100.0;
+
+/// A part of a statement's run. Stages run one after another, so their
+/// evaluations add up and their memory does not.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Stage {
+    /// Reading or rendering the training data.
+    Data,
+    /// Rendering a `render` or `volume` statement's views.
+    Views,
+    /// Optimiser steps.
+    Training,
+    /// Occupancy-grid refreshes during training.
+    GridRefresh,
+    /// Held-out views rendered and scored during and after training.
+    HeldOut,
+    /// Images, GIFs and plots written after (or before) training.
+    Outputs,
+    /// Meshes, the true surface they are measured against, and surface fits.
+    Meshes,
+}
+
+impl Stage {
+    /// Every stage, in the order a statement runs them.
+    pub const ALL: [Stage; 7] = [
+        Stage::Data,
+        Stage::Views,
+        Stage::Training,
+        Stage::GridRefresh,
+        Stage::HeldOut,
+        Stage::Outputs,
+        Stage::Meshes,
+    ];
+
+    /// The stage's name in `sdfl plan` and in refusals.
+    pub fn name(self) -> &'static str {
+        match self {
+            Stage::Data => "data",
+            Stage::Views => "views",
+            Stage::Training => "training",
+            Stage::GridRefresh => "grid refreshes",
+            Stage::HeldOut => "held-out evaluation",
+            Stage::Outputs => "outputs",
+            Stage::Meshes => "meshes and fits",
+        }
+    }
+}
+
+/// What one stage costs: evaluations, and the memory it holds while it runs
+/// (on top of what the whole statement holds).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct Cost {
     pub evaluations: f64,
-    /// Peak bytes: the lowered scene and one view's buffers.
     pub memory: f64,
 }
 
+/// The estimated cost of one statement, stage by stage.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Work {
+    /// SDF or density evaluations of every stage, at most (every ray takes
+    /// every step).
+    pub evaluations: f64,
+    /// Peak bytes: what is held throughout, plus the largest stage's own.
+    pub memory: f64,
+    /// Bytes held throughout: the lowered scene, the data, the weights with
+    /// their gradients, moments and checkpoint copies, grids.
+    pub resident: f64,
+    stages: [Cost; Stage::ALL.len()],
+}
+
 impl Work {
+    /// Nothing yet but `resident` bytes.
+    pub fn new(resident: f64) -> Self {
+        Work {
+            evaluations: 0.0,
+            memory: resident,
+            resident,
+            stages: [Cost::default(); Stage::ALL.len()],
+        }
+    }
+
+    /// Adds a stage's evaluations and its own memory.
+    pub fn add(&mut self, stage: Stage, evaluations: f64, memory: f64) {
+        let c = &mut self.stages[stage as usize];
+        c.evaluations += evaluations;
+        c.memory = c.memory.max(memory);
+        self.evaluations = self.stages.iter().map(|c| c.evaluations).sum();
+        self.memory = self.resident + self.stages.iter().map(|c| c.memory).fold(0.0, f64::max);
+    }
+
+    /// The cost of one stage.
+    pub fn stage(&self, stage: Stage) -> Cost {
+        self.stages[stage as usize]
+    }
+
+    /// The stages that cost anything, in the order they run.
+    pub fn stages(&self) -> impl Iterator<Item = (Stage, Cost)> + '_ {
+        Stage::ALL
+            .into_iter()
+            .map(|s| (s, self.stage(s)))
+            .filter(|(_, c)| c.evaluations > 0.0 || c.memory > 0.0)
+    }
+
+    /// The stage with the most evaluations.
+    pub fn largest(&self) -> Stage {
+        Stage::ALL
+            .into_iter()
+            .max_by(|a, b| {
+                self.stage(*a)
+                    .evaluations
+                    .total_cmp(&self.stage(*b).evaluations)
+            })
+            .unwrap_or(Stage::Training)
+    }
+
     pub fn describe(&self) -> String {
         format!(
             "at most {} SDF evaluations, about {} of memory",
             approx(self.evaluations),
             fmt_bytes(self.memory)
         )
+    }
+
+    /// One line per stage, as `sdfl plan` prints them: evaluations, share
+    /// of the whole, and the stage's own memory.
+    pub fn stage_lines(&self) -> Vec<String> {
+        let total = self.evaluations.max(1.0);
+        let mut lines: Vec<String> = self
+            .stages()
+            .map(|(s, c)| {
+                let memory = if c.memory > 0.0 {
+                    format!(", {} while it runs", fmt_bytes(c.memory))
+                } else {
+                    String::new()
+                };
+                format!(
+                    "{:<20} {:>8} evaluations ({:>3.0} %){memory}",
+                    s.name(),
+                    approx(c.evaluations),
+                    100.0 * c.evaluations / total,
+                )
+            })
+            .collect();
+        if self.resident > 0.0 {
+            lines.push(format!(
+                "{:<20} {} held throughout",
+                "resident",
+                fmt_bytes(self.resident)
+            ));
+        }
+        lines
     }
 }
 
@@ -75,28 +215,51 @@ fn bytes_per_pixel(kinds: impl Iterator<Item = OutputKind>, volume: bool) -> f64
 /// needs more stops with an error.
 pub const MAX_MESH_VERTICES: usize = 20_000_000;
 
-/// The grid evaluations and peak memory of the meshes among `outputs`, a
-/// grid point costing `per_point` evaluations. A surface is assumed to cross
-/// a few times the cells of one plane; [`MAX_MESH_VERTICES`] bounds the rest.
-fn mesh_work<'a>(outputs: impl Iterator<Item = &'a OutputKind>, per_point: f64) -> Work {
-    let mut w = Work {
-        evaluations: 0.0,
-        memory: 0.0,
-    };
+/// Cells a side of the grid the true surface is meshed on, where a mesh is
+/// measured against the shape sdfl rendered its data from.
+pub const TRUE_SURFACE_RESOLUTION: u32 = 192;
+/// Samples standing for a surface in a Chamfer distance, and query points
+/// on the other side (see `runtime::neural::distance`).
+pub const SURFACE_SAMPLES: usize = 1_000_000;
+pub const MESH_FIT_POINTS: usize = 50_000;
+
+/// The cost of one surface-nets mesh at `resolution` cells a side, a grid
+/// point costing `per_point` evaluations. A surface is assumed to cross a
+/// few times the cells of one plane; [`MAX_MESH_VERTICES`] bounds the rest.
+fn mesh_cost(resolution: u32, per_point: f64) -> Cost {
+    // The grid is padded by two cells a side.
+    let n = resolution as f64 + 5.0;
+    // Two planes of points and values, two layers of vertex numbers, and
+    // vertices, normals and triangles of the surface.
+    let surface = (8.0 * n * n).min(MAX_MESH_VERTICES as f64);
+    Cost {
+        evaluations: n * n * n * per_point,
+        memory: 2.0 * n * n * 16.0 + 2.0 * n * n * 4.0 + surface * 100.0,
+    }
+}
+
+/// The grid evaluations and peak memory of the meshes among `outputs`.
+fn mesh_work<'a>(outputs: impl Iterator<Item = &'a OutputKind>, per_point: f64) -> Cost {
+    let mut w = Cost::default();
     for o in outputs {
         if let OutputKind::Mesh { resolution, .. } = o {
-            // The grid is padded by two cells a side.
-            let n = *resolution as f64 + 5.0;
-            w.evaluations += n * n * n * per_point;
-            // Two planes of points and values, two layers of vertex
-            // numbers, and vertices, normals and triangles of the surface.
-            let surface = (8.0 * n * n).min(MAX_MESH_VERTICES as f64);
-            w.memory = w
-                .memory
-                .max(2.0 * n * n * 16.0 + 2.0 * n * n * 4.0 + surface * 100.0);
+            let c = mesh_cost(*resolution, per_point);
+            w.evaluations += c.evaluations;
+            w.memory = w.memory.max(c.memory);
         }
     }
     w
+}
+
+/// A Chamfer distance between a mesh and a reference: surface samples on
+/// both sides and a k-d tree over the larger (about 40 bytes a point).
+fn chamfer_cost() -> Cost {
+    let points = (SURFACE_SAMPLES + 2 * MESH_FIT_POINTS) as f64;
+    Cost {
+        // Each query walks a few dozen tree nodes.
+        evaluations: 2.0 * MESH_FIT_POINTS as f64 * 30.0,
+        memory: points * 40.0,
+    }
 }
 
 pub fn render_work(j: &RenderJob, size: Option<(u32, u32)>) -> Work {
@@ -130,15 +293,15 @@ pub fn render_work_of(j: &RenderJob, size: Option<(u32, u32)>, primitives: u64) 
         .material
         .effect_evaluations()
         .max(painted_effects(&j.scene)) as f64;
-    Work {
-        evaluations: px * j.cameras.len() as f64 * (j.iterations as f64 * rays + spp * effects)
-            + mesh.evaluations,
-        memory: primitives as f64 * BYTES_PER_PRIMITIVE as f64
-            + (px * bytes_per_pixel(j.outputs.iter().map(|o| o.kind.clone()), false))
-                .max(mesh.memory),
-    }
+    let mut w = Work::new(primitives as f64 * BYTES_PER_PRIMITIVE as f64);
+    w.add(
+        Stage::Views,
+        px * j.cameras.len() as f64 * (j.iterations as f64 * rays + spp * effects),
+        px * bytes_per_pixel(j.outputs.iter().map(|o| o.kind.clone()), false),
+    );
+    w.add(Stage::Meshes, mesh.evaluations, mesh.memory);
+    w
 }
-
 /// The most SDF evaluations a painted material's effects take per shaded
 /// point.
 fn painted_effects(s: &crate::shape::Shape) -> u64 {
@@ -193,36 +356,66 @@ pub fn refuse_total(evaluations: f64, primitives: u64, span: Span) -> Option<Dia
     )
 }
 
-pub fn volume_work(j: &VolumeJob, size: Option<(u32, u32)>) -> Work {
-    let px = pixels((j.width, j.height), size);
-    // A network's sample costs its multiply-adds (in units of about 10 000)
-    // and holds its activations for one pass of 65 536 samples.
-    let (per_sample, network) = match &*j.field {
-        Field::Sdf(_) => (1.0, 0.0),
-        Field::Nerf(n) => (
-            (n.multiply_adds_per_sample() as f64 / 10_000.0).max(1.0),
-            65_536.0 * 4.0 * ((n.layers + 4) * n.width + n.position.width()) as f64
-                + 4.0 * n.weights() as f64,
-        ),
-        // Refused as a volume when evaluated; counted like a network.
-        Field::NeuralSdf(n) => ((n.multiply_adds() as f64 / 10_000.0).max(1.0), 0.0),
-        Field::NeuralSurface(n) => (
-            (n.multiply_adds_per_sample() as f64 / 10_000.0).max(1.0),
-            0.0,
-        ),
-    };
-    let mesh = mesh_work(j.outputs.iter().map(|o| &o.kind), per_sample);
-    Work {
-        evaluations: px * j.cameras.len() as f64 * j.sampler.samples as f64 * per_sample
-            + mesh.evaluations,
-        memory: (px * bytes_per_pixel(j.outputs.iter().map(|o| o.kind.clone()), true))
-            .max(mesh.memory)
-            + network,
-    }
+/// A network pass of `multiply_adds`, in evaluations (at least one).
+fn network(multiply_adds: usize) -> f64 {
+    (multiply_adds as f64 / MULTIPLY_ADDS_PER_EVALUATION).max(1.0)
 }
 
-pub fn train_work(j: &TrainJob, size: Option<(u32, u32)>) -> Work {
-    let samples = j.sampler.samples as f64;
+/// Multiply-adds of a NeRF sample's forward pass, its encoding included (a
+/// hash grid interpolates eight corners a level).
+fn nerf_multiply_adds(n: &crate::value::Nerf) -> usize {
+    let encoding = match &n.position {
+        crate::value::Encoding::HashGrid(g) => (g.levels * 8 * (g.features + 4)) as usize,
+        crate::value::Encoding::Harmonic(_) => 0,
+    };
+    n.multiply_adds_per_sample() + encoding
+}
+
+/// Bytes of a NeRF's buffers per sample of a pass: the encoding, every
+/// layer's values and the colour branch, forward and back.
+fn nerf_bytes_per_sample(n: &crate::value::Nerf) -> f64 {
+    (4 * (2 * n.position.width() + (n.layers + 4) * n.width + 2 * n.color_width + 16)) as f64
+}
+
+/// Samples a NeRF render or refresh evaluates in one pass.
+const NETWORK_PASS: f64 = 65_536.0;
+
+pub fn volume_work(j: &VolumeJob, size: Option<(u32, u32)>) -> Work {
+    let px = pixels((j.width, j.height), size);
+    // A network's sample costs its multiply-adds and holds its activations
+    // for one pass of 65 536 samples.
+    let (per_sample, network_bytes) = match &*j.field {
+        Field::Sdf(_) => (1.0, 0.0),
+        Field::Nerf(n) => (
+            network(nerf_multiply_adds(n)),
+            NETWORK_PASS * nerf_bytes_per_sample(n) + 4.0 * n.weights() as f64,
+        ),
+        // Refused as a volume when evaluated; counted like a network.
+        Field::NeuralSdf(n) => (network(n.multiply_adds()), 0.0),
+        Field::NeuralSurface(n) => (network(n.multiply_adds_per_sample()), 0.0),
+    };
+    let mesh = mesh_work(j.outputs.iter().map(|o| &o.kind), per_sample);
+    let mut w = Work::new(network_bytes);
+    w.add(
+        Stage::Views,
+        px * j.cameras.len() as f64 * j.sampler.samples as f64 * per_sample,
+        px * bytes_per_pixel(j.outputs.iter().map(|o| o.kind.clone()), true),
+    );
+    w.add(Stage::Meshes, mesh.evaluations, mesh.memory);
+    w
+}
+
+/// Bytes a trained model holds per trainable number: its value, gradient
+/// and two Adam moments, the step's copies, the last good checkpoint and
+/// the checkpoint being written (values and moments, then serialised).
+pub const BYTES_PER_WEIGHT: f64 = 64.0;
+/// Copies of an occupancy grid's cells (f32 each) a run holds: the
+/// trained model's, the rendering copy's, the state copied between them,
+/// and the last good checkpoint's with its serialisation.
+const GRID_COPIES: f64 = 6.0;
+
+/// Training steps a run takes (epochs through known data, or iterations).
+fn training_steps(j: &TrainJob) -> f64 {
     let pixels_of_data = match &*j.data {
         Dataset::Rendered {
             cameras,
@@ -235,7 +428,7 @@ pub fn train_work(j: &TrainJob, size: Option<(u32, u32)>) -> Work {
         }
         Dataset::Files { .. } | Dataset::NerfSynthetic { .. } | Dataset::Points { .. } => None,
     };
-    let iterations = match (j.epochs, pixels_of_data) {
+    match (j.epochs, pixels_of_data) {
         (Some(e), Some(px)) => e as f64 * (px / j.rays.max(1) as f64).ceil(),
         // Read files' sizes are known only when read; a 16 384² view each.
         (Some(e), None) => {
@@ -248,22 +441,88 @@ pub fn train_work(j: &TrainJob, size: Option<(u32, u32)>) -> Work {
             e as f64 * (px / j.rays.max(1) as f64).ceil()
         }
         (None, _) => j.iterations as f64,
-    };
+    }
+}
+
+/// Evaluations of one pixel of a rendered view of the trained model.
+fn render_per_pixel(j: &TrainJob) -> f64 {
+    let samples = j.sampler.samples as f64;
+    match &*j.model {
+        Field::Sdf(f) => samples * f.shape.evaluation_cost(),
+        Field::Nerf(n) => (samples + n.fine as f64) * network(nerf_multiply_adds(n)),
+        // Sphere-traced, up to 96 steps of a distance.
+        Field::NeuralSdf(n) => 96.0 * network(n.multiply_adds()),
+        Field::NeuralSurface(n) => samples * network(n.multiply_adds_per_sample()),
+    }
+}
+
+/// Bytes of a neural surface's buffers per sample: every SDF layer's
+/// values, three tangents and their slopes, and the colour network's
+/// activations.
+fn surface_bytes_per_sample(n: &crate::value::NeuralSurface) -> f64 {
+    let s = &n.sdf;
+    (4 * (3 * 4 * (s.layers + 1) * s.width
+        + 4 * s.encoding_width()
+        + 2 * n.color_layers * n.color_width
+        + n.color_input()
+        + 16)) as f64
+}
+
+/// Bytes of a network's buffers while it renders (one pass of samples).
+fn render_buffers(j: &TrainJob) -> f64 {
+    match &*j.model {
+        Field::Nerf(n) => NETWORK_PASS * nerf_bytes_per_sample(n),
+        Field::NeuralSdf(n) => (4 * 64 * ((n.layers + 1) * n.width + n.encoding_width())) as f64,
+        // Samples of 16 384 a pass.
+        Field::NeuralSurface(n) => 16_384.0 * surface_bytes_per_sample(n),
+        Field::Sdf(_) => 0.0,
+    }
+}
+
+/// The held-out evaluation of a training run with `views` held-out views
+/// of `pixels` each: every `eval_every` steps and once at the end; all
+/// renders of the last one kept for the comparison image.
+pub fn held_out_cost(j: &TrainJob, views: usize, pixels: f64) -> Cost {
+    if views == 0 {
+        return Cost::default();
+    }
+    let steps = training_steps(j);
+    let times = if j.eval_every > 0 {
+        (steps / j.eval_every as f64).floor()
+    } else {
+        0.0
+    } + 1.0;
+    Cost {
+        evaluations: times * views as f64 * pixels * render_per_pixel(j),
+        memory: views as f64 * pixels * 24.0 + pixels * 16.0 + render_buffers(j),
+    }
+}
+
+pub fn train_work(j: &TrainJob, size: Option<(u32, u32)>) -> Work {
+    let samples = j.sampler.samples as f64;
+    let iterations = training_steps(j);
+    let rays = j.rays as f64;
     // Training walks the whole model at every sample (no culling), once for
-    // values and once per 16 parameters for tangents.
+    // values and once per 16 parameters for tangents; a network forward and
+    // backward (about three passes).
     let mut scalars = 0usize;
     j.model.visit_params(&mut |u| scalars += u.decl.init.len());
-    let per_sample = match &*j.model {
-        Field::Sdf(f) => f.shape.evaluation_cost() * (1.0 + scalars.div_ceil(16) as f64),
-        // Forward and backward through the network, in units of about
-        // 10 000 multiply-adds (a few hundred primitive evaluations).
-        Field::Nerf(n) => 3.0 * n.multiply_adds_per_sample() as f64 / 10_000.0,
+    let per_ray = match &*j.model {
+        Field::Sdf(f) => samples * f.shape.evaluation_cost() * (1.0 + scalars.div_ceil(16) as f64),
+        Field::Nerf(n) => {
+            // The fine network sees the coarse samples and its own.
+            let fine = if n.fine > 0 {
+                samples + n.fine as f64
+            } else {
+                0.0
+            };
+            3.0 * (samples + fine) * network(nerf_multiply_adds(n))
+        }
         // A distance and its three tangents, forward and backward, at a
         // surface and a random point per ray of the batch (not per sample).
-        Field::NeuralSdf(n) => 2.0 * 12.0 * n.multiply_adds() as f64 / 10_000.0 / samples.max(1.0),
-        Field::NeuralSurface(n) => 3.0 * n.multiply_adds_per_sample() as f64 / 10_000.0,
+        Field::NeuralSdf(n) => 2.0 * 12.0 * network(n.multiply_adds()),
+        Field::NeuralSurface(n) => 3.0 * samples * network(n.multiply_adds_per_sample()),
     };
-    let steps = iterations * j.rays as f64 * samples * per_sample;
     let (data_evals, data_bytes) = match &*j.data {
         Dataset::Rendered {
             cameras,
@@ -285,22 +544,91 @@ pub fn train_work(j: &TrainJob, size: Option<(u32, u32)>) -> Work {
             (0.0, 0.0)
         }
     };
+    let weights = match &*j.model {
+        Field::Sdf(_) => scalars as f64,
+        Field::Nerf(n) => n.weights() as f64 * if n.fine > 0 { 2.0 } else { 1.0 },
+        Field::NeuralSdf(n) => n.multiply_adds() as f64,
+        Field::NeuralSurface(n) => (n.sdf.multiply_adds() + n.color_multiply_adds()) as f64,
+    };
+    let grid = match &*j.model {
+        Field::Nerf(n) => n.occupancy.as_ref(),
+        _ => None,
+    };
+    let cells = grid.map_or(0.0, |g| (g.resolution as f64).powi(3));
+    let mut w = Work::new(data_bytes + weights * BYTES_PER_WEIGHT + cells * 4.0 * GRID_COPIES);
+    w.add(Stage::Data, data_evals, 0.0);
+
+    // Per-ray buffers of a batch (samples, weights, gradients); a network
+    // keeps every layer's activations per sample, twice with a fine
+    // network (which sees the coarse samples too).
+    let batch = rays * samples * 64.0
+        + match &*j.model {
+            Field::Sdf(_) => 0.0,
+            // Every layer's values and three tangents, forward and back,
+            // for 2 points a ray.
+            Field::NeuralSdf(n) => {
+                rays * 2.0 * 8.0 * 4.0 * ((n.layers + 1) * n.width + 4 * n.encoding_width()) as f64
+            }
+            Field::NeuralSurface(n) => rays * samples * surface_bytes_per_sample(n),
+            Field::Nerf(n) => {
+                let fine = if n.fine > 0 {
+                    2.0 + n.fine as f64 / samples.max(1.0)
+                } else {
+                    0.0
+                };
+                rays * samples * nerf_bytes_per_sample(n) * (1.0 + fine)
+            }
+        };
+    w.add(Stage::Training, iterations * rays * per_ray, batch);
+
+    if let (Some(g), Field::Nerf(n)) = (grid, &*j.model) {
+        let refreshes = (iterations / g.every.max(1) as f64).ceil();
+        w.add(
+            Stage::GridRefresh,
+            refreshes * cells * network(nerf_multiply_adds(n)),
+            // One pass of points, their directions and densities.
+            cells.min(NETWORK_PASS) * (nerf_bytes_per_sample(n) + 28.0),
+        );
+    }
+
+    let (test_views, test_pixels) = match &*j.data {
+        Dataset::Rendered {
+            test,
+            width,
+            height,
+            ..
+        } => (test.len(), *width as f64 * *height as f64),
+        Dataset::Traced { job, test } => (test.len(), job.width as f64 * job.height as f64),
+        // A NeRF-synthetic test split is counted when it is read.
+        Dataset::Files { .. } | Dataset::NerfSynthetic { .. } | Dataset::Points { .. } => (0, 0.0),
+    };
+    let held_out = held_out_cost(j, test_views, test_pixels);
+    w.add(Stage::HeldOut, held_out.evaluations, held_out.memory);
+
+    // Views rendered for the outputs before and after training (each set
+    // of outputs renders every view once), and geometry GIFs sphere-traced
+    // with up to 96 steps.
     let px = pixels((j.width, j.height), size);
     let views = j.views.len() as f64;
-    let outputs = (j.before.len() + j.after.len()) as f64;
+    let renders = |outputs: &[crate::value::Output]| {
+        outputs.iter().any(|o| {
+            !matches!(
+                o.kind,
+                OutputKind::LossCurve
+                    | OutputKind::PsnrCurve
+                    | OutputKind::Comparison
+                    | OutputKind::Mesh { .. }
+                    | OutputKind::GeometryGif { .. }
+            )
+        })
+    };
+    let passes = renders(&j.before) as u8 as f64 + renders(&j.after) as u8 as f64;
     let per_point = match &*j.model {
         Field::Sdf(f) => f.shape.primitive_count() as f64,
-        Field::Nerf(n) => (n.multiply_adds_per_sample() as f64 / 10_000.0).max(1.0),
+        Field::Nerf(n) => network(nerf_multiply_adds(n)),
         // A distance and its gradient.
-        Field::NeuralSdf(n) => (4.0 * n.multiply_adds() as f64 / 10_000.0).max(1.0),
-        Field::NeuralSurface(n) => (4.0 * n.sdf.multiply_adds() as f64 / 10_000.0).max(1.0),
-    };
-    let mesh = mesh_work(j.before.iter().chain(&j.after).map(|o| &o.kind), per_point);
-    // Rendering a network's views costs its passes; a geometry GIF traces
-    // each view with up to 96 steps.
-    let network = match &*j.model {
-        Field::Sdf(_) => 1.0,
-        _ => per_point,
+        Field::NeuralSdf(n) => 4.0 * network(n.multiply_adds()),
+        Field::NeuralSurface(n) => 4.0 * network(n.sdf.multiply_adds()),
     };
     let geometry_gifs = j
         .before
@@ -308,73 +636,82 @@ pub fn train_work(j: &TrainJob, size: Option<(u32, u32)>) -> Work {
         .chain(&j.after)
         .filter(|o| matches!(o.kind, OutputKind::GeometryGif { .. }))
         .count() as f64;
-    Work {
-        evaluations: steps
-            + data_evals
-            + outputs.min(1.0) * 2.0 * px * views * samples * network
-            + geometry_gifs * px * views * 96.0 * per_point
-            + mesh.evaluations,
-        // Per-ray buffers of a batch (samples, weights, gradients); a
-        // network keeps every layer's activations per sample, twice with a
-        // fine network (which sees the coarse samples too).
-        memory: data_bytes
-            + j.rays as f64 * samples * 64.0
-            + (px * 16.0).max(mesh.memory)
-            + match &*j.model {
-                Field::Sdf(_) => 0.0,
-                // Every layer's values and three tangents, forward and back,
-                // for 2 points a ray; weights with gradient and moments.
-                Field::NeuralSdf(n) => {
-                    j.rays as f64
-                        * 2.0
-                        * 8.0
-                        * 4.0
-                        * ((n.layers + 1) * n.width + 4 * n.encoding_width()) as f64
-                        + 16.0 * n.multiply_adds() as f64
-                }
-                // Per sample: every SDF layer's values, three tangents and
-                // their slopes, and the colour network's activations.
-                Field::NeuralSurface(n) => {
-                    let s = &n.sdf;
-                    let per_sample = 4
-                        * (3 * 4 * (s.layers + 1) * s.width
-                            + 4 * s.encoding_width()
-                            + 2 * n.color_layers * n.color_width
-                            + n.color_input()
-                            + 16);
-                    j.rays as f64 * samples * per_sample as f64
-                        + 16.0 * (s.multiply_adds() + n.color_multiply_adds()) as f64
-                }
-                Field::Nerf(n) => {
-                    let per_sample = 4
-                        * (2 * n.position.width()
-                            + (n.layers + 4) * n.width
-                            + 2 * n.color_width
-                            + 16);
-                    let fine = if n.fine > 0 {
-                        2.0 + n.fine as f64 / samples.max(1.0)
-                    } else {
-                        0.0
-                    };
-                    let networks = if n.fine > 0 { 2.0 } else { 1.0 };
-                    // Values, gradient and Adam's two moments of every weight.
-                    j.rays as f64 * samples * per_sample as f64 * (1.0 + fine)
-                        + networks * n.weights() as f64 * 16.0
-                }
-            },
+    let outputs = j.before.len() + j.after.len();
+    if outputs > 0 {
+        w.add(
+            Stage::Outputs,
+            passes * px * views * render_per_pixel(j)
+                + geometry_gifs * px * views * 96.0 * per_point,
+            px * 16.0 + render_buffers(j),
+        );
     }
+
+    // Meshes; the first mesh after training is measured against the true
+    // surface (meshed finely) where sdfl rendered the data from a shape, or
+    // against the data's points; a neural SDF's fit is measured by random
+    // points projected onto its surface, ten passes.
+    let meshes = mesh_work(j.before.iter().chain(&j.after).map(|o| &o.kind), per_point);
+    w.add(Stage::Meshes, meshes.evaluations, meshes.memory);
+    if j.after
+        .iter()
+        .any(|o| matches!(o.kind, OutputKind::Mesh { .. }))
+    {
+        let truth = match &*j.data {
+            Dataset::Traced { job, .. } => Some(job.scene.primitive_count() as f64),
+            Dataset::Rendered { field, .. } => {
+                field.as_sdf().map(|f| f.shape.primitive_count() as f64)
+            }
+            _ => None,
+        };
+        if let Some(primitives) = truth {
+            let t = mesh_cost(TRUE_SURFACE_RESOLUTION, primitives);
+            w.add(Stage::Meshes, t.evaluations, t.memory);
+        }
+        let c = chamfer_cost();
+        w.add(Stage::Meshes, c.evaluations, c.memory);
+    }
+    if let Field::NeuralSdf(n) = &*j.model {
+        let probes = 65_536.0;
+        let per_row = (4 * (3 * n.encoding_width() + 6 * (n.layers + 1) * n.width + 16)) as f64;
+        w.add(
+            Stage::Meshes,
+            10.0 * probes * 4.0 * network(n.multiply_adds()),
+            FIT_CHUNK_ROWS * per_row + probes * 16.0 + chamfer_cost().memory,
+        );
+    }
+    w
 }
+
+/// Rows a neural SDF's fit evaluates at a time (`runtime::neural::distance`).
+pub const FIT_CHUNK_ROWS: f64 = 4096.0;
 
 /// The diagnostic for a statement whose estimate is beyond the limits.
 pub fn refuse(work: Work, span: Span, what: &str) -> Option<Diag> {
     let (too, fix) = if work.evaluations > MAX_EVALUATIONS {
+        let largest = work.largest();
+        let share = work.stage(largest).evaluations / work.evaluations;
+        let fix = match largest {
+            Stage::GridRefresh => {
+                "refresh the occupancy grid less often (`every`) or lower its `resolution`"
+                    .to_string()
+            }
+            Stage::HeldOut => {
+                "score fewer held-out views, less often (`eval_every`), or with fewer samples"
+                    .to_string()
+            }
+            Stage::Outputs => "render fewer or smaller output views".to_string(),
+            Stage::Meshes => "lower the meshes' `resolution`".to_string(),
+            _ => format!("lower the image size, the number of views or the {what}"),
+        };
         (
             format!(
-                "{} SDF evaluations (at most {})",
+                "{} SDF evaluations (at most {}), {:.0} % of them in {}",
                 approx(work.evaluations),
-                fmt_num(MAX_EVALUATIONS)
+                fmt_num(MAX_EVALUATIONS),
+                100.0 * share,
+                largest.name()
             ),
-            format!("lower the image size, the number of views or the {what}"),
+            fix,
         )
     } else if work.memory > MAX_MEMORY {
         (

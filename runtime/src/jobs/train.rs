@@ -34,6 +34,9 @@ pub struct TrainReport {
     pub mesh_fit: Option<crate::neural::distance::MeshFit>,
     pub written: Vec<Written>,
     pub stages: Vec<(String, f64)>,
+    /// What looks wrong with the fit (code `sdfl::warn::diverged`): a loss
+    /// that ended far above its lowest, parameters held at their range.
+    pub warnings: Vec<String>,
 }
 
 /// Quality on the held-out views at a step.
@@ -174,6 +177,36 @@ pub fn fingerprint(job: &TrainJob, views: &[TrainView]) -> [String; 4] {
     ]
 }
 
+/// A data set's held-out views are known only once it is read (a
+/// NeRF-synthetic test split): their evaluation joins the statement's
+/// budget then, before any step runs.
+fn held_out_within_budget(
+    job: &TrainJob,
+    size: Option<(u32, u32)>,
+    test_views: &[TrainView],
+) -> io::Result<()> {
+    use sdfl_stdlib::work::{held_out_cost, train_work, MAX_EVALUATIONS};
+    if !job.data.test_views().is_empty() || test_views.is_empty() {
+        // Counted when the file was evaluated, or nothing to count.
+        return Ok(());
+    }
+    let pixels = test_views
+        .iter()
+        .map(|v| v.image.width as f64 * v.image.height as f64)
+        .fold(0.0, f64::max);
+    let held_out = held_out_cost(job, test_views.len(), pixels);
+    let total = train_work(job, size).evaluations + held_out.evaluations;
+    if total > MAX_EVALUATIONS {
+        return Err(invalid(format!(
+            "training `{}` would need {total:.1e} SDF evaluations (at most {MAX_EVALUATIONS:.0e}), {:.1e} of them scoring its {} held-out views: score less often (`eval_every`), with fewer views or samples",
+            job.name,
+            held_out.evaluations,
+            test_views.len()
+        )));
+    }
+    Ok(())
+}
+
 /// Options of a training run that are not in the file.
 #[derive(Debug, Clone, Copy, Default)]
 pub struct TrainOptions {
@@ -215,6 +248,7 @@ pub fn run_train_job(
         all_points,
     } = load_views(&job.data, base)?;
     stages.push(("load data".to_string(), t.elapsed().as_secs_f64()));
+    held_out_within_budget(job, size, &test_views)?;
 
     // The analytic model outlives the run that borrows it.
     let analytic = job.model.as_sdf().map(TrainModel::new);
@@ -670,6 +704,29 @@ pub fn run_train_job(
     };
     stages.push(("outputs".to_string(), t.elapsed().as_secs_f64()));
     let steps_run = (run.step - done_before).max(1);
+    // Parameters the projection holds at an edge they did not start at.
+    let at_bounds: Vec<String> = analytic
+        .as_ref()
+        .map(|model| {
+            let values = run.values();
+            let start = model.initial_values();
+            model
+                .params
+                .iter()
+                .filter(|p| {
+                    let (lo, hi) = p.bound.limits();
+                    (p.offset..p.offset + p.len).any(|i| {
+                        let (v, s) = (values[i] as f64, start[i]);
+                        [lo, hi]
+                            .iter()
+                            .any(|&b| b.is_finite() && v == b as f32 as f64 && s != b)
+                    })
+                })
+                .map(|p| p.name.clone())
+                .collect()
+        })
+        .unwrap_or_default();
+    let warnings = crate::train::trainer::fit_warnings(&run.losses, &at_bounds);
     Ok(TrainReport {
         name: job.name.clone(),
         iterations: run.step,
@@ -698,6 +755,7 @@ pub fn run_train_job(
         mesh_fit,
         written,
         stages,
+        warnings,
     })
 }
 

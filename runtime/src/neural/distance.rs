@@ -158,9 +158,9 @@ pub struct SdfFit {
 pub fn fit(net: &SdfNet, params: &[f32], points: &[[f32; 3]], bounds: f32, seed: u64) -> SdfFit {
     let mut work = SdfWork::default();
     let flat: Vec<f32> = points.iter().flatten().copied().collect();
-    net.forward(params, &flat, &mut work);
+    let (f, g) = distances_and_gradients(net, params, &flat, &mut work);
     let n = points.len().max(1) as f64;
-    let surface_mean_abs = work.distance().iter().map(|f| f.abs() as f64).sum::<f64>() / n;
+    let surface_mean_abs = f.iter().map(|f| f.abs() as f64).sum::<f64>() / n;
     let eik = |g: &[f32]| {
         g.chunks(3)
             .map(|g| {
@@ -169,18 +169,17 @@ pub fn fit(net: &SdfNet, params: &[f32], points: &[[f32; 3]], bounds: f32, seed:
             })
             .sum::<f64>()
     };
-    let mut eikonal = eik(work.gradient());
+    let mut eikonal = eik(&g);
     let mut rng = SplitMix64::new(seed ^ 0x6368_616d);
     let mut probe = Vec::new();
     random_points(points.len(), bounds, &mut rng, &mut probe);
-    net.forward(params, &probe, &mut work);
-    eikonal = (eikonal + eik(work.gradient())) / (2.0 * n);
+    let (_, g) = distances_and_gradients(net, params, &probe, &mut work);
+    eikonal = (eikonal + eik(&g)) / (2.0 * n);
     // Many probes, so the surface samples are dense next to the points
     // (sparse samples would bias the Chamfer distance upwards).
     random_points(PROBES.max(points.len()), bounds, &mut rng, &mut probe);
-    net.forward(params, &probe, &mut work);
+    let (mut f, mut g) = distances_and_gradients(net, params, &probe, &mut work);
     for _ in 0..8 {
-        let (f, g) = (work.distance(), work.gradient());
         for (i, p) in probe.chunks_mut(3).enumerate() {
             let gi = &g[3 * i..3 * i + 3];
             let len2 = (gi[0] * gi[0] + gi[1] * gi[1] + gi[2] * gi[2]).max(1e-12);
@@ -188,11 +187,11 @@ pub fn fit(net: &SdfNet, params: &[f32], points: &[[f32; 3]], bounds: f32, seed:
                 p[k] -= f[i] * gi[k] / len2;
             }
         }
-        net.forward(params, &probe, &mut work);
+        (f, g) = distances_and_gradients(net, params, &probe, &mut work);
     }
     let found: Vec<[f32; 3]> = probe
         .chunks(3)
-        .zip(work.distance())
+        .zip(&f)
         .filter(|(p, f)| f.abs() < 1e-3 && p.iter().all(|x| x.is_finite() && x.abs() <= bounds))
         .map(|(p, _)| [p[0], p[1], p[2]])
         .collect();
@@ -207,6 +206,29 @@ pub fn fit(net: &SdfNet, params: &[f32], points: &[[f32; 3]], bounds: f32, seed:
         chamfer,
         surface_samples: found.len(),
     }
+}
+
+/// Rows per forward pass when measuring a fit: a pass holds every layer's
+/// values and tangents per row (tens of kilobytes for a wide network), so
+/// all of a large point cloud at once took gigabytes.
+pub const FIT_CHUNK: usize = 4096;
+
+/// `f` and `∇f` (three a point) at the flat `points`, [`FIT_CHUNK`] rows
+/// at a time (rows are independent, so the values are those of one pass).
+fn distances_and_gradients(
+    net: &SdfNet,
+    params: &[f32],
+    points: &[f32],
+    work: &mut SdfWork,
+) -> (Vec<f32>, Vec<f32>) {
+    let rows = points.len() / 3;
+    let (mut f, mut g) = (Vec::with_capacity(rows), Vec::with_capacity(3 * rows));
+    for chunk in points.chunks(3 * FIT_CHUNK) {
+        net.forward(params, chunk, work);
+        f.extend_from_slice(work.distance());
+        g.extend_from_slice(work.gradient());
+    }
+    (f, g)
 }
 
 /// A mesh against the points it should pass through.

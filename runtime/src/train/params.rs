@@ -10,7 +10,7 @@
 
 use dfdx::optim::AdamConfig;
 use dfdx::prelude::{Cpu, Gradients, Tensor, TensorFromVec};
-use dfdx::tensor::{Cache, Storage};
+use dfdx::tensor::Storage;
 
 use super::TrainError;
 
@@ -44,10 +44,12 @@ impl Default for ParamStore {
 }
 
 impl ParamStore {
-    /// A store on a fresh CPU device with dfdx's allocation cache enabled.
+    /// A store on a fresh CPU device. dfdx's allocation cache stays off:
+    /// it keeps every dropped buffer forever and hands one back only to an
+    /// allocation of the same length, so a tensor replaced each step (or a
+    /// batch of another size) grew the heap by a parameter's size a step.
     pub fn new() -> Self {
         let dev = Cpu::default();
-        dev.enable_cache();
         ParamStore {
             dev,
             params: Vec::new(),
@@ -121,7 +123,8 @@ impl ParamStore {
         if values.len() != self.dev.len(&p.m) {
             return Err(TrainError::Invalid(format!("'{}': wrong length", p.name)));
         }
-        p.tensor = self.dev.tensor_from_vec(values.to_vec(), (values.len(),));
+        // In place: the buffer is the parameter's for the whole run.
+        p.tensor.copy_from(values);
         Ok(())
     }
 

@@ -336,3 +336,101 @@ impl<'m> Run<'m> {
         Ok(())
     }
 }
+
+/// The stable code of the warnings [`fit_warnings`] gives.
+pub const DIVERGED: &str = "sdfl::warn::diverged";
+
+/// Warnings on a finished fit: a loss that ended far above its lowest (the
+/// fit diverged or oscillates; a huge learning rate ended at 40× its best
+/// with exit code 0), and parameters left at the edge of their range (the
+/// optimiser pushed them out and the projection held them there). Losses
+/// are compared as means over twentieths of the run, so one noisy batch
+/// is not a divergence.
+pub fn fit_warnings(losses: &[f32], at_bounds: &[String]) -> Vec<String> {
+    let mut warnings = Vec::new();
+    if losses.len() >= 20 {
+        let w = losses.len() / 20;
+        let means: Vec<(usize, f64)> = losses
+            .chunks(w)
+            .enumerate()
+            .map(|(i, c)| {
+                let mean = c.iter().map(|&x| x as f64).sum::<f64>() / c.len() as f64;
+                (i * w + c.len(), mean)
+            })
+            .collect();
+        let (best_step, best) = means
+            .iter()
+            .copied()
+            .min_by(|a, b| a.1.total_cmp(&b.1))
+            .unwrap_or((0, 0.0));
+        let last = means.last().map_or(0.0, |m| m.1);
+        let first = means.first().map_or(0.0, |m| m.1);
+        if last > 4.0 * best && last - best > 1e-9 {
+            warnings.push(format!(
+                "the loss ended at {last:.3e}, {:.0}× its lowest ({best:.3e}, by step {best_step}): the fit diverged or oscillates; lower the learning rate (`adam(lr: ...)`)",
+                last / best.max(f64::MIN_POSITIVE)
+            ));
+        } else if last >= 0.9 * first && last > 1e-6 {
+            warnings.push(format!(
+                "the loss did not fall: {first:.3e} over the first twentieth of the steps, {last:.3e} over the last; lower the learning rate (`adam(lr: ...)`), or check that the model can reach the data"
+            ));
+        }
+    }
+    if !at_bounds.is_empty() {
+        warnings.push(format!(
+            "{} ended at the edge of {} range ({}): the optimiser pushed past it; check the starting values and the learning rate",
+            if at_bounds.len() == 1 {
+                "a parameter".to_string()
+            } else {
+                format!("{} parameters", at_bounds.len())
+            },
+            if at_bounds.len() == 1 { "its" } else { "their" },
+            at_bounds.join(", ")
+        ));
+    }
+    warnings
+}
+
+#[cfg(test)]
+mod warning_tests {
+    use super::fit_warnings;
+
+    #[test]
+    fn a_converging_fit_gives_no_warning() {
+        let losses: Vec<f32> = (0..500).map(|i| 1.0 / (1.0 + i as f32)).collect();
+        assert!(fit_warnings(&losses, &[]).is_empty());
+        // Noise around a floor is not a divergence.
+        let noisy: Vec<f32> = (0..500)
+            .map(|i| 0.01 + 1.0 / (1.0 + i as f32) + 0.005 * ((i * 7919) % 13) as f32 / 13.0)
+            .collect();
+        assert!(fit_warnings(&noisy, &[]).is_empty());
+        // Too short to judge.
+        assert!(fit_warnings(&[1.0, 5.0, 100.0], &[]).is_empty());
+        // Already at the optimum: nothing to fall.
+        assert!(fit_warnings(&[1e-9; 100], &[]).is_empty());
+    }
+
+    #[test]
+    fn a_diverging_fit_and_parameters_at_bounds_warn() {
+        let losses: Vec<f32> = (0..400)
+            .map(|i| {
+                if i < 100 {
+                    0.05 / (1.0 + i as f32)
+                } else {
+                    0.31
+                }
+            })
+            .collect();
+        let w = fit_warnings(&losses, &[]);
+        assert_eq!(w.len(), 1, "{w:?}");
+        assert!(
+            w[0].contains("diverged") && w[0].contains("learning rate"),
+            "{w:?}"
+        );
+        // A loss that jumps at the first step and stays there.
+        let w = fit_warnings(&[0.04; 40], &["radius".to_string()]);
+        assert_eq!(w.len(), 2, "{w:?}");
+        assert!(w[0].contains("did not fall"), "{w:?}");
+        assert!(w[1].contains("radius"), "{w:?}");
+    }
+}

@@ -1,0 +1,201 @@
+//! Memory over a training run, measured by a counting allocator: the heap
+//! stays flat from step to step (nothing a step allocates outlives it), and
+//! the peak stays within the estimate `sdfl plan` prints and the budget
+//! checks. One test function, so no other test's allocations are counted.
+
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::Mutex;
+
+use sdfl_lang::SourceFile;
+use sdfl_runtime::jobs::{run_train_job, TrainOptions};
+
+/// The system allocator, counting live and peak bytes.
+struct Counting;
+
+static LIVE: AtomicUsize = AtomicUsize::new(0);
+static PEAK: AtomicUsize = AtomicUsize::new(0);
+
+unsafe impl GlobalAlloc for Counting {
+    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+        let p = System.alloc(layout);
+        if !p.is_null() {
+            let now = LIVE.fetch_add(layout.size(), Ordering::Relaxed) + layout.size();
+            PEAK.fetch_max(now, Ordering::Relaxed);
+        }
+        p
+    }
+    unsafe fn dealloc(&self, p: *mut u8, layout: Layout) {
+        System.dealloc(p, layout);
+        LIVE.fetch_sub(layout.size(), Ordering::Relaxed);
+    }
+    unsafe fn alloc_zeroed(&self, layout: Layout) -> *mut u8 {
+        let p = System.alloc_zeroed(layout);
+        if !p.is_null() {
+            let now = LIVE.fetch_add(layout.size(), Ordering::Relaxed) + layout.size();
+            PEAK.fetch_max(now, Ordering::Relaxed);
+        }
+        p
+    }
+    unsafe fn realloc(&self, p: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
+        let q = System.realloc(p, layout, new_size);
+        if !q.is_null() {
+            if new_size >= layout.size() {
+                let now = LIVE.fetch_add(new_size - layout.size(), Ordering::Relaxed) + new_size
+                    - layout.size();
+                PEAK.fetch_max(now, Ordering::Relaxed);
+            } else {
+                LIVE.fetch_sub(layout.size() - new_size, Ordering::Relaxed);
+            }
+        }
+        q
+    }
+}
+
+#[global_allocator]
+static ALLOCATOR: Counting = Counting;
+
+fn temp(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("sdfl-memory-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+/// What one run allocated: live bytes after each step, and the peak over
+/// the whole run above the live bytes at its start.
+struct Profile {
+    live_after_step: Vec<usize>,
+    peak: usize,
+}
+
+fn profile(src: &str, dir: &Path) -> (Profile, f64) {
+    let program = sdfl_stdlib::load(&SourceFile::new("memory.sdfl", src)).unwrap();
+    let job = program.trains[0].clone();
+    let estimate = sdfl_stdlib::work::train_work(&job, None).memory;
+    let steps = Mutex::new(Vec::new());
+    let start = LIVE.load(Ordering::Relaxed);
+    PEAK.store(start, Ordering::Relaxed);
+    let record = |_| {
+        let live = LIVE.load(Ordering::Relaxed);
+        if let Ok(mut s) = steps.lock() {
+            s.push(live);
+        }
+    };
+    let out = dir.join("out");
+    run_train_job(
+        &job,
+        &out,
+        dir,
+        None,
+        TrainOptions { restart: true },
+        &record,
+        &|_| {},
+    )
+    .unwrap();
+    let peak = PEAK.load(Ordering::Relaxed).saturating_sub(start);
+    (
+        Profile {
+            live_after_step: steps.into_inner().unwrap(),
+            peak,
+        },
+        estimate,
+    )
+}
+
+/// Live bytes may wobble by a step's rounding (a vector grown once), never
+/// climb: the growth from the 10th step to the last, per step, stays under
+/// a kilobyte (the leak this guards against was megabytes a step).
+fn assert_flat(what: &str, p: &Profile) {
+    let steps = &p.live_after_step;
+    assert!(steps.len() >= 60, "{what}: {} steps seen", steps.len());
+    let (early, late) = (steps[9], *steps.last().unwrap());
+    let per_step = late.saturating_sub(early) as f64 / (steps.len() - 10) as f64;
+    assert!(
+        per_step < 1024.0,
+        "{what}: live heap grew from {early} to {late} bytes over {} steps ({per_step:.0} bytes a step)",
+        steps.len() - 10
+    );
+}
+
+fn assert_within(what: &str, p: &Profile, estimate: f64) {
+    eprintln!(
+        "{what}: peak heap {:.1} MB, estimate {:.1} MB",
+        p.peak as f64 / 1e6,
+        estimate / 1e6
+    );
+    assert!(
+        (p.peak as f64) <= estimate,
+        "{what}: peak heap {} bytes, estimate {estimate:.0}",
+        p.peak
+    );
+}
+
+const HASH_NERF: &str = r#"
+let cams = orbit(radius: 2.5, up: [0, 1, 0], focal: 1, views: 8)
+let truth = volsdf(sphere(radius: 0.6), alpha: 10, beta: 0.05)
+train fast {
+  model: nerf(
+    position: hashgrid(levels: 6, log2_table: 14, max_res: 64, min: [-1.2, -1.2, -1.2], max: [1.2, 1.2, 1.2]),
+    layers: 1, width: 32, skips: [], view_dependent: false, density: "exp",
+    occupancy: occupancy_grid(resolution: 48, min: [-1.2, -1.2, -1.2], max: [1.2, 1.2, 1.2], every: 20),
+  ),
+  data: render_views(truth, cameras: cams, size: [16, 16], sampler: stratified(samples: 32, near: 1, far: 4), test_views: 2),
+  sampler: stratified(samples: 32, near: 1, far: 4),
+  rays: 128,
+  optimizer: adam(lr: 1e-2),
+  iterations: 80,
+  eval_every: 40,
+  views: orbit(radius: 2.5, up: [0, 1, 0], focal: 1, views: 3),
+  size: [16, 16],
+  after: [gif("fast.gif"), psnr_curve("psnr.png")],
+  checkpoint: "fast.ckpt",
+}
+"#;
+
+const NEURAL_SDF: &str = r#"
+train fit {
+  model: neural_sdf(encoding: harmonic(freqs: 2), layers: 2, width: 32, skips: [], radius: 0.5),
+  data: points("sphere.xyz"),
+  rays: 256,
+  optimizer: adam(lr: 2e-3),
+  iterations: 80,
+  bounds: 1.5,
+  views: look_at(eye: [0, 0, -3]),
+  size: [16, 16],
+  after: [image("fit.png"), mesh("fit.ply", resolution: 32)],
+  checkpoint: "fit.ckpt",
+}
+"#;
+
+/// 1000 points on the sphere of radius 0.8 (a Fibonacci lattice).
+fn write_sphere(dir: &Path) {
+    let n = 1000;
+    let golden = std::f64::consts::PI * (3.0 - 5f64.sqrt());
+    let text: String = (0..n)
+        .map(|i| {
+            let y = 1.0 - 2.0 * (i as f64 + 0.5) / n as f64;
+            let r = (1.0 - y * y).sqrt();
+            let t = golden * i as f64;
+            format!("{} {} {}\n", 0.8 * r * t.cos(), 0.8 * y, 0.8 * r * t.sin())
+        })
+        .collect();
+    std::fs::write(dir.join("sphere.xyz"), text).unwrap();
+}
+
+#[test]
+fn training_memory_is_flat_over_steps_and_within_the_estimate() {
+    let dir = temp("nerf");
+    let (p, estimate) = profile(HASH_NERF, &dir);
+    assert_flat("hash-grid NeRF", &p);
+    assert_within("hash-grid NeRF", &p, estimate);
+    let _ = std::fs::remove_dir_all(&dir);
+
+    let dir = temp("sdf");
+    write_sphere(&dir);
+    let (p, estimate) = profile(NEURAL_SDF, &dir);
+    assert_flat("neural SDF", &p);
+    assert_within("neural SDF", &p, estimate);
+    let _ = std::fs::remove_dir_all(&dir);
+}
