@@ -19,10 +19,11 @@ pub const MAX_EVALUATIONS: f64 = 1e12;
 pub const MAX_MEMORY: f64 = 8e9;
 
 /// A network's multiply-adds that take about as long as one evaluation of
-/// an analytic primitive (a few nanoseconds on one core), so that networks
-/// and SDFs are counted in one unit. Measured on sdfl's kernels: a
-/// primitive's distance costs 2–5 ns in the tracer, and the fp32 layer
-/// products run 20–50 multiply-adds a nanosecond.
+/// an analytic primitive, so that networks and SDFs are counted in one
+/// unit. From BENCHMARKS.md, one core: the NeRF step runs about 46
+/// multiply-adds a nanosecond (91 GFLOP/s), the batched evaluator 270–340
+/// million primitive distances a second (about 3 ns each, so ~140
+/// multiply-adds); rounded down, since narrow layers run slower.
 pub const MULTIPLY_ADDS_PER_EVALUATION: f64 = 100.0;
 
 /// A part of a statement's run. Stages run one after another, so their

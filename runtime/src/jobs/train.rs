@@ -177,31 +177,43 @@ pub fn fingerprint(job: &TrainJob, views: &[TrainView]) -> [String; 4] {
     ]
 }
 
-/// A data set's held-out views are known only once it is read (a
-/// NeRF-synthetic test split): their evaluation joins the statement's
-/// budget then, before any step runs.
-fn held_out_within_budget(
+/// What a data set read from files holds is known only once it is read (a
+/// NeRF-synthetic test split, its images' sizes): its held-out evaluation
+/// and its pixels join the statement's budget then, before any step runs.
+fn within_budget_once_read(
     job: &TrainJob,
     size: Option<(u32, u32)>,
+    views: &[TrainView],
     test_views: &[TrainView],
 ) -> io::Result<()> {
-    use sdfl_stdlib::work::{held_out_cost, train_work, MAX_EVALUATIONS};
-    if !job.data.test_views().is_empty() || test_views.is_empty() {
-        // Counted when the file was evaluated, or nothing to count.
+    use sdfl_stdlib::work::{held_out_cost, train_work, MAX_EVALUATIONS, MAX_MEMORY};
+    if matches!(*job.data, Dataset::Rendered { .. } | Dataset::Traced { .. }) {
+        // Rendered by sdfl: counted when the file was evaluated.
         return Ok(());
     }
-    let pixels = test_views
-        .iter()
-        .map(|v| v.image.width as f64 * v.image.height as f64)
-        .fold(0.0, f64::max);
-    let held_out = held_out_cost(job, test_views.len(), pixels);
-    let total = train_work(job, size).evaluations + held_out.evaluations;
+    let pixels = |v: &TrainView| v.image.width as f64 * v.image.height as f64;
+    let largest = test_views.iter().map(pixels).fold(0.0, f64::max);
+    let held_out = held_out_cost(job, test_views.len(), largest);
+    let work = train_work(job, size);
+    let total = work.evaluations + held_out.evaluations;
     if total > MAX_EVALUATIONS {
         return Err(invalid(format!(
             "training `{}` would need {total:.1e} SDF evaluations (at most {MAX_EVALUATIONS:.0e}), {:.1e} of them scoring its {} held-out views: score less often (`eval_every`), with fewer views or samples",
             job.name,
             held_out.evaluations,
             test_views.len()
+        )));
+    }
+    // Pixels as f32 colours, as read.
+    let data: f64 = views.iter().chain(test_views).map(pixels).sum::<f64>() * 12.0;
+    let memory = work.memory + data + held_out.memory;
+    if memory > MAX_MEMORY {
+        return Err(invalid(format!(
+            "training `{}` would hold about {:.1} GB ({:.1} GB of it the data set's {} views): use fewer or smaller views",
+            job.name,
+            memory / 1e9,
+            data / 1e9,
+            views.len() + test_views.len()
         )));
     }
     Ok(())
@@ -248,7 +260,7 @@ pub fn run_train_job(
         all_points,
     } = load_views(&job.data, base)?;
     stages.push(("load data".to_string(), t.elapsed().as_secs_f64()));
-    held_out_within_budget(job, size, &test_views)?;
+    within_budget_once_read(job, size, &views, &test_views)?;
 
     // The analytic model outlives the run that borrows it.
     let analytic = job.model.as_sdf().map(TrainModel::new);
