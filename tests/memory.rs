@@ -3,6 +3,9 @@
 //! the peak stays within the estimate `sdfl plan` prints and the budget
 //! checks. One test function, so no other test's allocations are counted.
 
+mod common;
+use common::write_sphere_points;
+
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicUsize, Ordering};
@@ -169,21 +172,6 @@ train fit {
 }
 "#;
 
-/// 1000 points on the sphere of radius 0.8 (a Fibonacci lattice).
-fn write_sphere(dir: &Path) {
-    let n = 1000;
-    let golden = std::f64::consts::PI * (3.0 - 5f64.sqrt());
-    let text: String = (0..n)
-        .map(|i| {
-            let y = 1.0 - 2.0 * (i as f64 + 0.5) / n as f64;
-            let r = (1.0 - y * y).sqrt();
-            let t = golden * i as f64;
-            format!("{} {} {}\n", 0.8 * r * t.cos(), 0.8 * y, 0.8 * r * t.sin())
-        })
-        .collect();
-    std::fs::write(dir.join("sphere.xyz"), text).unwrap();
-}
-
 #[test]
 fn training_memory_is_flat_over_steps_and_within_the_estimate() {
     let dir = temp("nerf");
@@ -193,7 +181,7 @@ fn training_memory_is_flat_over_steps_and_within_the_estimate() {
     let _ = std::fs::remove_dir_all(&dir);
 
     let dir = temp("sdf");
-    write_sphere(&dir);
+    write_sphere_points(&dir, 1000);
     let (p, estimate) = profile(NEURAL_SDF, &dir);
     assert_flat("neural SDF", &p);
     assert_within("neural SDF", &p, estimate);

@@ -3,6 +3,9 @@
 //! and eikonal term measured by the report), and a resumed run is the same
 //! run.
 
+mod common;
+use common::write_sphere_points;
+
 use std::path::{Path, PathBuf};
 
 use sdfl_lang::SourceFile;
@@ -31,21 +34,6 @@ fn temp(name: &str) -> PathBuf {
     d
 }
 
-/// 2000 points on the sphere of radius 0.8 (a Fibonacci lattice).
-fn write_sphere(dir: &Path) {
-    let n = 2000;
-    let golden = std::f64::consts::PI * (3.0 - 5f64.sqrt());
-    let text: String = (0..n)
-        .map(|i| {
-            let y = 1.0 - 2.0 * (i as f64 + 0.5) / n as f64;
-            let r = (1.0 - y * y).sqrt();
-            let t = golden * i as f64;
-            format!("{} {} {}\n", 0.8 * r * t.cos(), 0.8 * y, 0.8 * r * t.sin())
-        })
-        .collect();
-    std::fs::write(dir.join("sphere.xyz"), text).unwrap();
-}
-
 fn run(iterations: usize, dir: &Path) -> TrainReport {
     let src = SPHERE.replace("ITERATIONS", &iterations.to_string());
     let job = sdfl_stdlib::load(&SourceFile::new("fit.sdfl", src))
@@ -60,7 +48,7 @@ fn run(iterations: usize, dir: &Path) -> TrainReport {
 #[test]
 fn a_small_neural_sdf_finds_the_sphere_of_its_points() {
     let dir = temp("sphere");
-    write_sphere(&dir);
+    write_sphere_points(&dir, 2000);
     let start = run(0, &dir).fit.expect("a fit report");
     let _ = std::fs::remove_dir_all(dir.join("out"));
     let report = run(300, &dir);
@@ -102,8 +90,8 @@ fn a_small_neural_sdf_finds_the_sphere_of_its_points() {
 #[test]
 fn a_resumed_neural_sdf_run_is_the_same_run() {
     let (whole, parts) = (temp("whole"), temp("parts"));
-    write_sphere(&whole);
-    write_sphere(&parts);
+    write_sphere_points(&whole, 2000);
+    write_sphere_points(&parts, 2000);
     run(30, &whole);
     run(13, &parts);
     let resumed = run(30, &parts);

@@ -125,3 +125,18 @@ pub fn hostile(name: &str, contents: impl AsRef<[u8]>, expect: Expect) -> Vec<Ou
     }
     outcomes
 }
+
+/// `n` points on the sphere of radius 0.8 about the origin (a Fibonacci
+/// lattice), as `sphere.xyz` in `dir`: data for neural SDF fits.
+pub fn write_sphere_points(dir: &Path, n: usize) {
+    let golden = std::f64::consts::PI * (3.0 - 5f64.sqrt());
+    let text: String = (0..n)
+        .map(|i| {
+            let y = 1.0 - 2.0 * (i as f64 + 0.5) / n as f64;
+            let r = (1.0 - y * y).sqrt();
+            let t = golden * i as f64;
+            format!("{} {} {}\n", 0.8 * r * t.cos(), 0.8 * y, 0.8 * r * t.sin())
+        })
+        .collect();
+    fs::write(dir.join("sphere.xyz"), text).expect("the case directory is writable");
+}
