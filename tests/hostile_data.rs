@@ -1,0 +1,167 @@
+//! Hostile data sets, point files and checkpoints, through the real binary:
+//! decompression bombs, readers that mistook one thing for another, values
+//! outside their ranges, paths that leave the data set, tampered
+//! checkpoints. Each ends as a diagnostic (or loads correctly), never an
+//! abort, a hang or a silently wrong result.
+
+mod common;
+
+use std::fs;
+use std::path::Path;
+use std::process::{Command, Stdio};
+use std::time::Instant;
+
+use common::*;
+
+/// Address space the binary may use in the bomb cases: far below what the
+/// bombs inflate to (2 GiB and more).
+const MEMORY_LIMIT: u64 = 1 << 30;
+
+/// Runs `sdfl` with `args` in `dir` with its address space limited to
+/// [`MEMORY_LIMIT`] (through util-linux `prlimit` where it is installed).
+fn sdfl_limited(dir: &Path, args: &[&str]) -> Outcome {
+    let prlimit = Path::new("/usr/bin/prlimit");
+    if !prlimit.exists() {
+        eprintln!("note: no prlimit; running without a memory limit");
+        return sdfl(dir, args);
+    }
+    let t0 = Instant::now();
+    let out = Command::new(prlimit)
+        .arg(format!("--as={MEMORY_LIMIT}"))
+        .arg("--")
+        .arg(env!("CARGO_BIN_EXE_sdfl"))
+        .args(args)
+        .current_dir(dir)
+        .stdin(Stdio::null())
+        .output()
+        .expect("prlimit starts");
+    Outcome {
+        code: out.status.code(),
+        stderr: String::from_utf8_lossy(&out.stderr).into_owned(),
+        elapsed: t0.elapsed(),
+    }
+}
+
+/// Writes `scene` to `dir/scene.sdfl` and runs it (`run`, output in
+/// `dir/out`), memory-limited.
+fn run_scene(dir: &Path, scene: &str) -> Outcome {
+    let file = dir.join("scene.sdfl");
+    fs::write(&file, scene).unwrap();
+    let out = dir.join("out");
+    sdfl_limited(
+        dir,
+        &[
+            "run",
+            file.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ],
+    )
+}
+
+/// A raw deflate stream of `mib` MiB of zeros in about 1 KiB a MiB: one
+/// sync-flushed block of a MiB, repeated, then a final empty block.
+fn zeros_deflated(mib: usize) -> Vec<u8> {
+    use flate2::{Compress, Compression, FlushCompress};
+    let mut block = Vec::with_capacity(1 << 16);
+    Compress::new(Compression::best(), false)
+        .compress_vec(&vec![0u8; 1 << 20], &mut block, FlushCompress::Sync)
+        .unwrap();
+    let mut out = block.repeat(mib);
+    let mut end = Vec::with_capacity(64);
+    Compress::new(Compression::best(), false)
+        .compress_vec(&[], &mut end, FlushCompress::Finish)
+        .unwrap();
+    out.extend(end);
+    out
+}
+
+/// A 16×16 grey PNG whose iCCP colour profile inflates to 2 GiB, every
+/// CRC right.
+fn iccp_bomb() -> Vec<u8> {
+    let mut png = Vec::new();
+    image::RgbImage::from_pixel(16, 16, image::Rgb([128, 128, 128]))
+        .write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)
+        .unwrap();
+    let n: u64 = 1 << 31;
+    let mut data = b"bomb\0\0\x78\x9c".to_vec();
+    data.extend(zeros_deflated((n >> 20) as usize));
+    // Adler-32 of n zeros: a stays 1, b adds 1 per byte.
+    data.extend((((n % 65521) << 16) as u32 | 1).to_be_bytes());
+    let mut chunk = (data.len() as u32).to_be_bytes().to_vec();
+    chunk.extend(b"iCCP");
+    chunk.extend(&data);
+    chunk.extend(crc32fast::hash(&chunk[4..]).to_be_bytes());
+    // After the signature (8 bytes) and IHDR (25).
+    png.splice(33..33, chunk);
+    png
+}
+
+/// A PNG of 2 MB whose colour profile inflates to 2 GiB took 2 GiB and
+/// 5.5 s to load, and aborted (exit 134) under a memory limit. Its profile
+/// now inflates to at most 16 MiB and is dropped (sdfl applies no colour
+/// profiles): the pixels train within 1 GiB of address space.
+#[test]
+fn a_colour_profile_bomb_loads_in_bounded_memory() {
+    let dir = case_dir("data_iccp_bomb");
+    let bomb = iccp_bomb();
+    assert!(bomb.len() < 3 << 20, "{}", bomb.len());
+    fs::write(dir.join("bomb.png"), bomb).unwrap();
+    let o = run_scene(
+        &dir,
+        "train t {\n  model: sdf_volume(sphere(param(0.8))),\n  \
+         data: views(images: [\"bomb.png\"], cameras: [look_at([0, 0, -3])]),\n  \
+         iterations: 1,\n  size: [16, 16],\n}\n",
+    );
+    assert_outcome("iCCP bomb", &o, Expect::Ok);
+}
+
+/// A zip archive of one deflated entry `name` of `mib` MiB of zeros, with
+/// its true size (the CRC is not needed: it is refused before).
+fn zip_bomb(name: &str, mib: usize) -> Vec<u8> {
+    let data = zeros_deflated(mib);
+    let le32 = |v: u32| v.to_le_bytes();
+    let mut fields = vec![20u8, 0, 0, 0, 8, 0, 0, 0, 0, 0];
+    fields.extend(le32(0));
+    fields.extend(le32(data.len() as u32));
+    fields.extend(le32(u32::try_from(mib << 20).unwrap()));
+    fields.extend((name.len() as u16).to_le_bytes());
+    fields.extend([0, 0]);
+    let mut z = le32(0x0403_4b50).to_vec();
+    z.extend(&fields);
+    z.extend(name.as_bytes());
+    z.extend(&data);
+    let cd_at = z.len() as u32;
+    z.extend(le32(0x0201_4b50));
+    z.extend([20, 0]);
+    z.extend(&fields);
+    z.extend([0u8; 10]);
+    z.extend(le32(0));
+    z.extend(name.as_bytes());
+    let cd_len = z.len() as u32 - cd_at;
+    z.extend(le32(0x0605_4b50));
+    z.extend([0, 0, 0, 0, 1, 0, 1, 0]);
+    z.extend(le32(cd_len));
+    z.extend(le32(cd_at));
+    z.extend([0, 0]);
+    z
+}
+
+/// An `.npz` point cloud whose entry inflates to 3 GiB was refused only
+/// after 1.96 GB: now from its declared size, before inflating.
+#[test]
+fn an_npz_bomb_is_refused_from_its_declared_size() {
+    let dir = case_dir("data_npz_bomb");
+    fs::write(dir.join("bomb.npz"), zip_bomb("verts.npy", 3 << 10)).unwrap();
+    let o = run_scene(
+        &dir,
+        "train t {\n  model: neural_sdf(layers: 2, width: 8, skips: []),\n  data: points(\"bomb.npz\"),\n  \
+         iterations: 1,\n}\n",
+    );
+    assert_outcome("npz bomb", &o, Expect::Error);
+    assert!(
+        o.stderr.contains("declares 3221225472 bytes"),
+        "{}",
+        head(&o.stderr)
+    );
+}
