@@ -165,3 +165,104 @@ fn an_npz_bomb_is_refused_from_its_declared_size() {
         head(&o.stderr)
     );
 }
+
+const POSE: &str = "[[1,0,0,0],[0,1,0,0],[0,0,1,3],[0,0,0,1]]";
+
+/// A NeRF-synthetic data set in `dir/set`: one 4×4 image `r_0.png` and
+/// `transforms_train.json` with `keys` and frames of `file_paths`; a
+/// `set.png` beside the directory. Runs a one-step training on it.
+fn run_nerf_synthetic(
+    name: &str,
+    keys: &str,
+    file_paths: &[&str],
+) -> (std::path::PathBuf, Outcome) {
+    let dir = case_dir(name);
+    fs::create_dir_all(dir.join("set")).unwrap();
+    let img = image::RgbaImage::from_pixel(4, 4, image::Rgba([200, 100, 50, 255]));
+    img.save(dir.join("set/r_0.png")).unwrap();
+    img.save(dir.join("set.png")).unwrap();
+    img.save(dir.join("outside.png")).unwrap();
+    let frames: Vec<String> = file_paths
+        .iter()
+        .map(|f| format!("{{\"file_path\": \"{f}\", \"transform_matrix\": {POSE}}}"))
+        .collect();
+    fs::write(
+        dir.join("set/transforms_train.json"),
+        format!("{{{keys}, \"frames\": [{}]}}", frames.join(", ")),
+    )
+    .unwrap();
+    #[cfg(unix)]
+    std::os::unix::fs::symlink("../outside.png", dir.join("set/link.png")).unwrap();
+    let o = run_scene(
+        &dir,
+        "train t {\n  model: sdf_volume(sphere(param(0.8))),\n  data: nerf_synthetic(\"set\"),\n  \
+         iterations: 1,\n  size: [4, 4],\n}\n",
+    );
+    (dir, o)
+}
+
+/// Data-set focal lengths skipped the range `look_at(focal: ...)` has:
+/// `fl_x: 1e300`, `camera_angle_x: 1e-300` and `fl_x: 1e-300` trained.
+#[test]
+fn data_set_focal_lengths_are_range_checked() {
+    let (_, o) = run_nerf_synthetic("nerf_focal_ok", "\"camera_angle_x\": 0.7", &["./r_0"]);
+    assert_outcome("a sound data set", &o, Expect::Ok);
+    for (name, keys, key) in [
+        (
+            "nerf_fl_huge",
+            "\"camera_angle_x\": 0.7, \"fl_x\": 1e300",
+            "`fl_x`",
+        ),
+        (
+            "nerf_fl_tiny",
+            "\"camera_angle_x\": 0.7, \"fl_x\": 1e-300",
+            "`fl_x`",
+        ),
+        (
+            "nerf_fl_negative",
+            "\"camera_angle_x\": 0.7, \"fl_x\": -5",
+            "`fl_x`",
+        ),
+        (
+            "nerf_fl_y_tiny",
+            "\"camera_angle_x\": 0.7, \"fl_y\": 1e-300",
+            "`fl_y`",
+        ),
+        (
+            "nerf_angle_tiny",
+            "\"camera_angle_x\": 1e-300",
+            "`camera_angle_x`",
+        ),
+    ] {
+        let (_, o) = run_nerf_synthetic(name, keys, &["./r_0"]);
+        assert_outcome(name, &o, Expect::Error);
+        assert!(
+            o.stderr.contains(key)
+                && o.stderr.contains("focal length")
+                && o.stderr.contains("transforms_train.json"),
+            "{name}: {}",
+            head(&o.stderr)
+        );
+    }
+}
+
+/// `file_path: "."` named the file beside the data set's directory
+/// (`set` + `.png`), which was read. Frame images must be files strictly
+/// inside the directory, links followed.
+#[test]
+fn frame_images_stay_inside_the_data_set() {
+    for (name, path, says) in [
+        ("nerf_path_dot", ".", "inside the data set"),
+        ("nerf_path_dot_slash", "./", "inside the data set"),
+        ("nerf_path_dot_dot", "./../set", "inside the data set"),
+        ("nerf_path_link", "link", "leads outside the data set"),
+    ] {
+        let (_, o) = run_nerf_synthetic(name, "\"camera_angle_x\": 0.7", &["r_0", path]);
+        assert_outcome(name, &o, Expect::Error);
+        assert!(
+            o.stderr.contains(says) && o.stderr.contains("frame 1"),
+            "{name}: {}",
+            head(&o.stderr)
+        );
+    }
+}
