@@ -42,6 +42,17 @@ fn sdfl_limited(dir: &Path, args: &[&str]) -> Outcome {
     }
 }
 
+/// Whether the rendered diagnostics in `stderr` tell `text`, wherever they
+/// wrapped it (lines of 100 columns, continued after a `│`).
+fn tells(stderr: &str, text: &str) -> bool {
+    let squash = |s: &str| -> String {
+        s.chars()
+            .filter(|c| !c.is_whitespace() && *c != '│')
+            .collect()
+    };
+    squash(stderr).contains(&squash(text))
+}
+
 /// Writes `scene` to `dir/scene.sdfl` and runs it (`run`, output in
 /// `dir/out`), memory-limited.
 fn run_scene(dir: &Path, scene: &str) -> Outcome {
@@ -160,7 +171,7 @@ fn an_npz_bomb_is_refused_from_its_declared_size() {
     );
     assert_outcome("npz bomb", &o, Expect::Error);
     assert!(
-        o.stderr.contains("declares 3221225472 bytes"),
+        tells(&o.stderr, "declares 3221225472 bytes"),
         "{}",
         head(&o.stderr)
     );
@@ -237,9 +248,9 @@ fn data_set_focal_lengths_are_range_checked() {
         let (_, o) = run_nerf_synthetic(name, keys, &["./r_0"]);
         assert_outcome(name, &o, Expect::Error);
         assert!(
-            o.stderr.contains(key)
-                && o.stderr.contains("focal length")
-                && o.stderr.contains("transforms_train.json"),
+            tells(&o.stderr, key)
+                && tells(&o.stderr, "focal length")
+                && tells(&o.stderr, "transforms_train.json"),
             "{name}: {}",
             head(&o.stderr)
         );
@@ -260,9 +271,53 @@ fn frame_images_stay_inside_the_data_set() {
         let (_, o) = run_nerf_synthetic(name, "\"camera_angle_x\": 0.7", &["r_0", path]);
         assert_outcome(name, &o, Expect::Error);
         assert!(
-            o.stderr.contains(says) && o.stderr.contains("frame 1"),
+            tells(&o.stderr, says) && tells(&o.stderr, "frame 1"),
             "{name}: {}",
             head(&o.stderr)
         );
+    }
+}
+
+/// A checkpoint from a real two-step run, tampered: a NaN radius (taken
+/// as "already trained", then kept as "the last good checkpoint"), a
+/// radius of −5, a negative Adam second moment (which made the fit its
+/// lower bound), a step of 2^62. Each is refused, naming the checkpoint,
+/// what is wrong, and `--restart`; the untouched one resumes.
+#[test]
+fn tampered_checkpoints_are_refused() {
+    use sdfl_runtime::train::checkpoint::Checkpoint;
+    let dir = case_dir("data_checkpoints");
+    let scene = "train t {\n  model: sdf_volume(sphere(param(0.8))),\n  \
+         data: render_views(sdf_volume(sphere()), cameras: [look_at([0, 0, -3])], size: [8, 8]),\n  \
+         iterations: 2,\n  checkpoint: \"t.ckpt\",\n}\n";
+    assert_outcome("first run", &run_scene(&dir, scene), Expect::Ok);
+    let path = dir.join("out/t.ckpt");
+    let good = Checkpoint::read(&path).unwrap();
+    assert_eq!(good.step, 2);
+    assert_outcome("resumed run", &run_scene(&dir, scene), Expect::Ok);
+    let cases: Vec<(fn(&mut Checkpoint), &str)> = vec![
+        (|c| c.params[0].values[0] = f32::NAN, "is NaN"),
+        (|c| c.params[0].values[0] = -5.0, "is -5, outside its range"),
+        (
+            |c| c.params[0].adam_v[0] = -1.0,
+            "(Adam's second moment) is -1",
+        ),
+        (|c| c.step = 1 << 62, "past this run's 2 steps"),
+        (|c| c.losses[1] = f32::INFINITY, "the loss of step 2 is inf"),
+    ];
+    for (tamper, says) in cases {
+        let mut c = good.clone();
+        tamper(&mut c);
+        c.write(&path).unwrap();
+        let bytes = fs::read(&path).unwrap();
+        let o = run_scene(&dir, scene);
+        assert_outcome(says, &o, Expect::Error);
+        assert!(
+            tells(&o.stderr, says) && tells(&o.stderr, "t.ckpt") && tells(&o.stderr, "--restart"),
+            "{says}: {}",
+            head(&o.stderr)
+        );
+        // Refused, not overwritten.
+        assert!(fs::read(&path).unwrap() == bytes, "{says}");
     }
 }
