@@ -321,3 +321,104 @@ fn tampered_checkpoints_are_refused() {
         assert!(fs::read(&path).unwrap() == bytes, "{says}");
     }
 }
+
+/// The diagnostics of loading `scene`, written as `dir/scene.sdfl` (so
+/// that it has a directory): each one's code, the text under its span, its
+/// message and help.
+fn load_errors(dir: &Path, scene: &str) -> Vec<(&'static str, String, String, String)> {
+    let file = dir.join("scene.sdfl");
+    fs::write(&file, scene).unwrap();
+    let src = sdfl_lang::SourceFile::new("scene.sdfl", scene).at(&file);
+    match sdfl_stdlib::load(&src) {
+        Ok(_) => Vec::new(),
+        Err(d) => d
+            .diags
+            .into_iter()
+            .map(|d| {
+                let under = scene
+                    .get(d.span.start..d.span.end)
+                    .unwrap_or("")
+                    .to_string();
+                (d.code, under, d.message, d.help.unwrap_or_default())
+            })
+            .collect(),
+    }
+}
+
+/// `check` passed `nerf_synthetic("nowhere/data")`, failing only when run.
+/// Inputs the language names (data-set directories and their transforms
+/// files, point files, image files) are checked when the file is loaded,
+/// relative to its directory, at the argument that names them. A program
+/// built in memory, with no directory, is checked when run.
+#[test]
+fn missing_inputs_are_found_by_check() {
+    let dir = case_dir("data_missing_inputs");
+    fs::create_dir_all(dir.join("empty")).unwrap();
+    fs::create_dir_all(dir.join("set")).unwrap();
+    fs::write(dir.join("set/transforms_train.json"), "{}").unwrap();
+    fs::write(dir.join("cloud.xyz"), "0 0 1\n").unwrap();
+    let train = |data: &str| {
+        format!(
+            "train t {{ model: sdf_volume(sphere(param(0.8))), iterations: 1, data: {data} }}\n"
+        )
+    };
+    for (data, under, message) in [
+        ("nerf_synthetic(\"nowhere/data\")", "\"nowhere/data\"", "not found"),
+        ("nerf_synthetic(\"nowhere.json\")", "\"nowhere.json\"", "not found"),
+        ("nerf_synthetic(\"cloud.xyz\")", "\"cloud.xyz\"", "not a directory"),
+        ("nerf_synthetic(\"empty\")", "\"empty\"", "no transforms_train.json"),
+        (
+            "nerf_synthetic(\"set\", test_split: \"test\")",
+            "\"test\"",
+            "no transforms_test.json",
+        ),
+        (
+            "views(images: [\"cloud.xyz\", \"gone.png\"], cameras: [look_at([0, 0, -3]), look_at([0, 0, 3])])",
+            "[\"cloud.xyz\", \"gone.png\"]",
+            "gone.png` not found",
+        ),
+    ] {
+        let errors = load_errors(&dir, &train(data));
+        assert!(
+            matches!(&errors[..], [(code, u, m, _)] if *code == "sdfl::io" && u == under && m.contains(message)),
+            "{data}: {errors:?}"
+        );
+    }
+    let errors = load_errors(
+        &dir,
+        "train t { model: neural_sdf(layers: 2, width: 8, skips: []), data: points(\"gone.ply\") }\n",
+    );
+    assert!(
+        matches!(&errors[..], [(_, u, m, _)] if u == "\"gone.ply\"" && m.contains("not found")),
+        "{errors:?}"
+    );
+    // Through the binary: `check` fails.
+    let file = dir.join("scene.sdfl");
+    fs::write(&file, train("nerf_synthetic(\"nowhere/data\")")).unwrap();
+    let o = sdfl(&dir, &["check", file.to_str().unwrap()]);
+    assert_outcome("check", &o, Expect::Error);
+    // Present inputs load; a program with no file is not checked.
+    assert!(load_errors(&dir, &train("nerf_synthetic(\"set\")")).is_empty());
+    let src = sdfl_lang::SourceFile::new("memory.sdfl", train("nerf_synthetic(\"nowhere/data\")"));
+    assert!(sdfl_stdlib::load(&src).is_ok());
+}
+
+/// Without `test_split`, `psnr_curve` and `comparison` of a NeRF-synthetic
+/// data set said to hold views out with `render_views(..., test_views:
+/// 5)`; the fix there is `test_split: "test"`.
+#[test]
+fn held_out_help_fits_the_data_set() {
+    let dir = case_dir("data_held_out_help");
+    fs::create_dir_all(dir.join("set")).unwrap();
+    fs::write(dir.join("set/transforms_train.json"), "{}").unwrap();
+    for output in ["psnr_curve(\"p.png\")", "comparison(\"c.png\")"] {
+        let errors = load_errors(
+            &dir,
+            &format!("train t {{ model: sdf_volume(sphere(param(0.8))), data: nerf_synthetic(\"set\"), after: [{output}] }}\n"),
+        );
+        assert!(
+            matches!(&errors[..], [(_, _, m, help)] if m.contains("needs held-out views") && help.contains("test_split: \"test\"")),
+            "{output}: {errors:?}"
+        );
+    }
+}

@@ -394,7 +394,12 @@ pub(crate) fn train_block(name: &str, a: &Args) -> Result<TrainJob, Diag> {
                 o.path.display()
             ),
             "compares against test views",
-            "hold some views out: `render_views(..., test_views: 5)`",
+            match &**data {
+                Dataset::NerfSynthetic { .. } => {
+                    "read the data set's test views too: `nerf_synthetic(..., test_split: \"test\")`"
+                }
+                _ => "hold some views out: `render_views(..., test_views: 5)`",
+            },
         ));
     }
     let (width, height) = image_size(a, "size")?;
