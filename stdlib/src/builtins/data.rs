@@ -123,15 +123,16 @@ pub(super) fn check_input(a: &Args, rel: &Path, span: Span, kind: Input) -> Resu
         return Ok(());
     };
     let full = base.join(rel);
-    let (ok, what) = match kind {
-        Input::File => (full.is_file(), "file"),
-        Input::Dir => (full.is_dir(), "directory"),
+    // Links followed, as the runtime reads them.
+    let (ok, what, kind) = match kind {
+        Input::File => (full.is_file(), "file", "regular file"),
+        Input::Dir => (full.is_dir(), "directory", "directory"),
     };
     if ok {
         return Ok(());
     }
     let found = if full.exists() {
-        format!("not a {what}")
+        format!("not a {kind}")
     } else {
         "not found".to_string()
     };
