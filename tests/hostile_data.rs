@@ -422,3 +422,43 @@ fn held_out_help_fits_the_data_set() {
         );
     }
 }
+
+/// Errors reading a data set pointed at the `train` statement; they point
+/// at the argument that named the files: a NeRF-synthetic data set's
+/// path, or the `data` argument.
+#[test]
+fn data_errors_point_at_the_argument() {
+    let dir = case_dir("data_error_span");
+    fs::create_dir_all(dir.join("set")).unwrap();
+    fs::write(dir.join("set/transforms_train.json"), "{\"frames\": []}").unwrap();
+    fs::write(dir.join("cloud.xyz"), "0 0 nan\n").unwrap();
+    for (data, under) in [
+        ("nerf_synthetic(\"set\")", "──┬──"),
+        ("points(\"cloud.xyz\")", "─────────┬─────────"),
+    ] {
+        let model = if data.starts_with("points") {
+            "neural_sdf(layers: 2, width: 8, skips: [])"
+        } else {
+            "sdf_volume(sphere(param(0.8)))"
+        };
+        let scene = format!("train t {{\n  model: {model},\n  data: {data},\n  iterations: 1,\n}}\n");
+        let o = run_scene(&dir, &scene);
+        assert_outcome(data, &o, Expect::Error);
+        // The underline sits below the argument (line 3), labelled.
+        let lines: Vec<&str> = o.stderr.lines().collect();
+        let at = lines
+            .iter()
+            .position(|l| l.contains(&format!("data: {data}")))
+            .unwrap_or_else(|| panic!("{data}: {}", head(&o.stderr)));
+        let column = |l: &str, s: &str| l.find(s).map(|b| l[..b].chars().count());
+        let (code_line, mark) = (lines[at], lines[at + 1]);
+        let arg = if data.starts_with("points") { data } else { "\"set\"" };
+        assert_eq!(
+            column(mark, under),
+            column(code_line, arg),
+            "{data}: {}",
+            head(&o.stderr)
+        );
+        assert!(tells(&o.stderr, "read while running `t`"), "{}", head(&o.stderr));
+    }
+}

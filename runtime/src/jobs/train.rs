@@ -213,7 +213,7 @@ pub fn run_train_job(
         test: test_views,
         points,
         all_points,
-    } = load_views(&job.data, base)?;
+    } = load_views(&job.data, base).map_err(|e| crate::data::at_argument(job.data_span, e))?;
     stages.push(("load data".to_string(), t.elapsed().as_secs_f64()));
 
     // The analytic model outlives the run that borrows it.

@@ -417,6 +417,7 @@ pub(crate) fn train_block(name: &str, a: &Args) -> Result<TrainJob, Diag> {
         name: name.to_string(),
         model: model.clone(),
         data: data.clone(),
+        data_span: a.get("data").1,
         sampler: *sampler,
         rays: a.count("rays", 1, 1 << 20)? as usize,
         optimizer: *optimizer,

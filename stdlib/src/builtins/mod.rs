@@ -546,6 +546,7 @@ fn table() -> Vec<Builtin> {
                 let (bg, bg_span) = (a.vec3("background")?, a.get("background").1);
                 Ok(Value::Dataset(Arc::new(Dataset::NerfSynthetic {
                     path: PathBuf::from(path.as_ref()),
+                    path_span,
                     split,
                     test_split,
                     background: colour(bg, bg_span)?,
