@@ -441,7 +441,8 @@ fn data_errors_point_at_the_argument() {
         } else {
             "sdf_volume(sphere(param(0.8)))"
         };
-        let scene = format!("train t {{\n  model: {model},\n  data: {data},\n  iterations: 1,\n}}\n");
+        let scene =
+            format!("train t {{\n  model: {model},\n  data: {data},\n  iterations: 1,\n}}\n");
         let o = run_scene(&dir, &scene);
         assert_outcome(data, &o, Expect::Error);
         // The underline sits below the argument (line 3), labelled.
@@ -452,13 +453,67 @@ fn data_errors_point_at_the_argument() {
             .unwrap_or_else(|| panic!("{data}: {}", head(&o.stderr)));
         let column = |l: &str, s: &str| l.find(s).map(|b| l[..b].chars().count());
         let (code_line, mark) = (lines[at], lines[at + 1]);
-        let arg = if data.starts_with("points") { data } else { "\"set\"" };
+        let arg = if data.starts_with("points") {
+            data
+        } else {
+            "\"set\""
+        };
         assert_eq!(
             column(mark, under),
             column(code_line, arg),
             "{data}: {}",
             head(&o.stderr)
         );
-        assert!(tells(&o.stderr, "read while running `t`"), "{}", head(&o.stderr));
+        assert!(
+            tells(&o.stderr, "read while running `t`"),
+            "{}",
+            head(&o.stderr)
+        );
     }
+}
+
+/// A valid PNG header declaring `w`×`h`, with no pixels.
+fn png_header(w: u32, h: u32) -> Vec<u8> {
+    let mut ihdr = b"IHDR".to_vec();
+    ihdr.extend(w.to_be_bytes());
+    ihdr.extend(h.to_be_bytes());
+    ihdr.extend([8, 6, 0, 0, 0]);
+    let mut b = b"\x89PNG\r\n\x1a\n".to_vec();
+    b.extend(13u32.to_be_bytes());
+    b.extend(&ihdr);
+    b.extend(crc32fast::hash(&ihdr).to_be_bytes());
+    b.extend(0u32.to_be_bytes());
+    b.extend(b"IDAT");
+    b.extend(crc32fast::hash(b"IDAT").to_be_bytes());
+    b
+}
+
+/// The decoded-size cap covers a data set's images together, across its
+/// training and test splits: each split fits, both do not.
+#[test]
+fn the_decoded_size_cap_covers_every_split() {
+    let dir = case_dir("data_cap_splits");
+    fs::create_dir_all(dir.join("set")).unwrap();
+    fs::write(dir.join("set/big.png"), png_header(12_000, 12_000)).unwrap();
+    for split in ["train", "test"] {
+        fs::write(
+            dir.join(format!("set/transforms_{split}.json")),
+            format!("{{\"camera_angle_x\": 0.7, \"frames\": [{{\"file_path\": \"big\", \"transform_matrix\": {POSE}}}]}}"),
+        )
+        .unwrap();
+    }
+    let scene = |test: &str| {
+        format!("train t {{\n  model: sdf_volume(sphere(param(0.8))),\n  data: nerf_synthetic(\"set\"{test}),\n  iterations: 1,\n}}\n")
+    };
+    let o = run_scene(&dir, &scene(", test_split: \"test\""));
+    assert_outcome("two splits", &o, Expect::Error);
+    assert!(
+        tells(&o.stderr, "(at most 2000000000)"),
+        "{}",
+        head(&o.stderr)
+    );
+    // One split alone fits the cap (and then fails to decode: no pixels).
+    let o = run_scene(&dir, &scene(""));
+    assert_outcome("one split", &o, Expect::Error);
+    assert!(!tells(&o.stderr, "at most"), "{}", head(&o.stderr));
 }
