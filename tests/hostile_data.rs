@@ -295,7 +295,8 @@ fn tampered_checkpoints_are_refused() {
     let good = Checkpoint::read(&path).unwrap();
     assert_eq!(good.step, 2);
     assert_outcome("resumed run", &run_scene(&dir, scene), Expect::Ok);
-    let cases: Vec<(fn(&mut Checkpoint), &str)> = vec![
+    type Tamper = fn(&mut Checkpoint);
+    let cases: Vec<(Tamper, &str)> = vec![
         (|c| c.params[0].values[0] = f32::NAN, "is NaN"),
         (|c| c.params[0].values[0] = -5.0, "is -5, outside its range"),
         (

@@ -288,7 +288,8 @@ mod tests {
             fingerprint: Default::default(),
         };
         good.check(2).unwrap();
-        let cases: Vec<(fn(&mut Checkpoint), &str)> = vec![
+        type Tamper = fn(&mut Checkpoint);
+        let cases: Vec<(Tamper, &str)> = vec![
             (
                 |c| c.params[0].values[1] = f32::NAN,
                 "`torus.major`[1] is NaN",
