@@ -339,13 +339,20 @@ fn runtime_error(src: &SourceFile, job: &str, e: &std::io::Error) -> String {
         }
         _ => "the message names the file concerned",
     };
-    let span = statement_span(src, job);
+    // At the argument that named the input, where the error carries it
+    // (and it is in this file, not an imported one).
+    let argument = sdfl_runtime::data::argument_span(e).filter(|s| s.end <= src.text.len());
+    let span = argument.or_else(|| statement_span(src, job));
+    let label = match argument {
+        Some(_) => format!("read while running `{job}`"),
+        None => format!("while running `{job}`"),
+    };
     let diag = sdfl_lang::Diag::new(
         sdfl_lang::codes::IO,
         span.unwrap_or_default(),
         e.to_string(),
     )
-    .label(format!("while running `{job}`"))
+    .label(label)
     .help(help);
     let mut diags = sdfl_lang::Diagnostics::default();
     diags.push(diag);

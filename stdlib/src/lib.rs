@@ -44,9 +44,24 @@ pub fn load_warned(source: &SourceFile) -> Result<(Program, Diagnostics), Diagno
         return Err(located(diags));
     }
     eval::Evaluator::new(env)
+        .with_base(input_base(source))
         .run_warned(&file)
         .map(|(p, w)| (p, located(w)))
         .map_err(located)
+}
+
+/// The directory input files are relative to, the scene file's, when the
+/// source is a file on disk; a program built in memory (or read from
+/// standard input) has none, and its inputs are checked only when run.
+fn input_base(source: &SourceFile) -> Option<std::sync::Arc<std::path::Path>> {
+    let path = source.disk_path();
+    if !path.is_file() {
+        return None;
+    }
+    Some(match path.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d.into(),
+        _ => std::path::Path::new(".").into(),
+    })
 }
 
 /// [`load`] with top-level `let` bindings replaced by the given numbers
@@ -79,6 +94,7 @@ pub fn load_with(source: &SourceFile, overrides: &[(String, f64)]) -> Result<Pro
         return Err(missing);
     }
     eval::Evaluator::new(env)
+        .with_base(input_base(source))
         .with_overrides(map)
         .run(&file)
         .map_err(|d| sources.locate(d))

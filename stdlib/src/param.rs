@@ -92,9 +92,15 @@ impl Bound {
             Bound::Within(lo, hi) => (lo, hi),
         }
     }
+    /// `x` moved into the range. NaN stays NaN (`max`/`min` would turn it
+    /// into a bound), so that training still reports it as an error.
     pub fn project(self, x: f64) -> f64 {
         let (lo, hi) = self.limits();
-        x.max(lo).min(hi)
+        if x.is_nan() {
+            x
+        } else {
+            x.max(lo).min(hi)
+        }
     }
 }
 
@@ -146,5 +152,20 @@ impl From<f64> for Arg<f64> {
 impl From<DVec3> for Arg<DVec3> {
     fn from(v: DVec3) -> Self {
         Arg::fixed(v)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn projection_keeps_nan() {
+        for b in [Bound::Free, Bound::AtLeast(1e-4), Bound::Within(0.0, 1.0)] {
+            assert!(b.project(f64::NAN).is_nan(), "{b:?}");
+        }
+        assert_eq!(Bound::AtLeast(1e-4).project(-5.0), 1e-4);
+        assert_eq!(Bound::Within(0.0, 1.0).project(f64::INFINITY), 1.0);
+        assert_eq!(Bound::Within(0.0, 1.0).project(0.25), 0.25);
     }
 }

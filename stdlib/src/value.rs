@@ -633,6 +633,8 @@ pub enum Dataset {
     NerfSynthetic {
         /// The directory (relative to the scene file) or a `.json` file.
         path: std::path::PathBuf,
+        /// The `path` argument, where errors reading the data set point.
+        path_span: sdfl_lang::Span,
         split: String,
         /// The split read as test views, if any.
         test_split: Option<String>,
@@ -783,6 +785,8 @@ pub struct TrainJob {
     pub name: String,
     pub model: Arc<Field>,
     pub data: Arc<Dataset>,
+    /// The `data` argument, where errors reading the data set point.
+    pub data_span: sdfl_lang::Span,
     pub sampler: Sampler,
     pub rays: usize,
     pub optimizer: Optimizer,

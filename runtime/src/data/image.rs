@@ -45,24 +45,36 @@ fn is_npy(path: &Path) -> bool {
         .is_some_and(|e| e.eq_ignore_ascii_case("npy"))
 }
 
-fn limits() -> image::Limits {
-    let mut l = image::Limits::default();
-    l.max_image_width = Some(MAX_SIDE);
-    l.max_image_height = Some(MAX_SIDE);
-    // The decoded 8- or 16-bit image; the f32 copy is counted by the caller.
-    l.max_alloc = Some(MAX_SIDE as u64 * MAX_SIDE as u64 * 8);
+/// Most bytes of metadata (ICC profile, text chunks) one image may inflate
+/// to: real profiles are a few kilobytes to a megabyte.
+pub const MAX_METADATA_BYTES: u64 = 16 << 20;
+
+/// Limits for reading an image: every allocation of the decoder counts
+/// (the 8- or 16-bit pixels of the declared `w`×`h` when decoding, and each
+/// compressed ancillary chunk it inflates, which the header read also
+/// parses), so a tiny file cannot inflate gigabytes of colour profile. The
+/// f32 copy is counted by the caller. For the header alone (`None`) the
+/// sizes are checked by the caller, with a message naming them.
+fn limits(decode: Option<(u32, u32)>) -> image::Limits {
+    let mut l = image::Limits::no_limits();
+    let pixels = decode.map_or(0, |(w, h)| {
+        l.max_image_width = Some(MAX_SIDE);
+        l.max_image_height = Some(MAX_SIDE);
+        w as u64 * h as u64 * 8
+    });
+    l.max_alloc = Some(pixels + MAX_METADATA_BYTES);
     l
 }
 
-/// A reader of `path`; `decode` sets the limits (for the header alone,
-/// the sizes are checked here, with a message naming them).
-fn reader(path: &Path, decode: bool) -> io::Result<image::ImageReader<BufReader<File>>> {
+/// A reader of `path` within [`limits`].
+fn reader(
+    path: &Path,
+    decode: Option<(u32, u32)>,
+) -> io::Result<image::ImageReader<BufReader<File>>> {
     let mut r = image::ImageReader::new(BufReader::new(open_regular(path)?))
         .with_guessed_format()
         .map_err(|e| invalid(path, e))?;
-    if decode {
-        r.limits(limits());
-    }
+    r.limits(limits(decode));
     Ok(r)
 }
 
@@ -77,7 +89,7 @@ pub fn image_dimensions(path: &Path) -> io::Result<(u32, u32)> {
             ref s => return Err(invalid(path, format!("shape {s:?} (only (H, W, 3))"))),
         }
     } else {
-        reader(path, false)?
+        reader(path, None)?
             .into_dimensions()
             .map_err(|e| invalid(path, e))?
     };
@@ -112,11 +124,11 @@ pub fn check_dataset<P: AsRef<Path>>(paths: impl IntoIterator<Item = P>) -> io::
 /// Reads an RGB image as f32 (`.npy`: `(H, W, 3)` float32; otherwise any
 /// format `image` decodes, scaled to 0..1), its size checked first.
 pub fn read_rgb_image(path: &Path) -> io::Result<RgbImage> {
-    image_dimensions(path)?;
+    let size = image_dimensions(path)?;
     if is_npy(path) {
         return read_rgb_f32(path).map_err(|e| invalid(path, e));
     }
-    let img = reader(path, true)?
+    let img = reader(path, Some(size))?
         .decode()
         .map_err(|e| invalid(path, e))?
         .to_rgb32f();
@@ -130,14 +142,14 @@ pub fn read_rgb_image(path: &Path) -> io::Result<RgbImage> {
 /// Reads an image with its alpha channel as f32 RGBA in 0..1 (opaque where
 /// the file has no alpha), its size checked first. Not `.npy`.
 pub fn read_rgba_image(path: &Path) -> io::Result<(u32, u32, Vec<[f32; 4]>)> {
-    image_dimensions(path)?;
+    let size = image_dimensions(path)?;
     if is_npy(path) {
         return Err(invalid(
             path,
             "expected an image with alpha (PNG), not .npy",
         ));
     }
-    let img = reader(path, true)?
+    let img = reader(path, Some(size))?
         .decode()
         .map_err(|e| invalid(path, e))?
         .to_rgba32f();
@@ -233,6 +245,45 @@ mod tests {
         assert_eq!(image_dimensions(&big).unwrap(), (12_000, 12_000));
         let e = check_dataset([&big, &big]).unwrap_err().to_string();
         assert!(e.contains("at most"), "{e}");
+    }
+
+    /// A 16×16 PNG (opaque grey) with `chunk` (type and data) inserted
+    /// after its header.
+    fn png_with_chunk(kind: &[u8; 4], data: &[u8]) -> Vec<u8> {
+        let mut png = Vec::new();
+        image::RgbImage::from_pixel(16, 16, image::Rgb([128, 128, 128]))
+            .write_to(&mut io::Cursor::new(&mut png), image::ImageFormat::Png)
+            .unwrap();
+        let mut chunk = (data.len() as u32).to_be_bytes().to_vec();
+        chunk.extend(kind);
+        chunk.extend(data);
+        chunk.extend(crc32(&chunk[4..]).to_be_bytes());
+        // The signature (8 bytes) and IHDR (25).
+        png.splice(33..33, chunk);
+        png
+    }
+
+    #[test]
+    fn ancillary_chunks_inflate_within_limits() {
+        let d = dir("bombs");
+        // An ICC profile of 2 GiB zeros in 2 MB: inflated only up to the
+        // metadata limit, then dropped (as the png crate drops a bad
+        // profile); the pixels load.
+        let mut iccp = b"bomb\0\0\x78\x9c".to_vec();
+        iccp.extend(crate::data::npy::tests::zeros_deflated(2048));
+        let n = 1u64 << 31;
+        iccp.extend((((n % 65521) << 16) as u32 | 1).to_be_bytes());
+        let path = d.join("iccp.png");
+        std::fs::write(&path, png_with_chunk(b"iCCP", &iccp)).unwrap();
+        let (w, h, px) = read_rgba_image(&path).unwrap();
+        assert_eq!((w, h), (16, 16));
+        assert!((px[0][0] - 128.0 / 255.0).abs() < 1e-6, "{:?}", px[0]);
+        // Metadata beyond the limit that cannot be dropped is refused.
+        let text = [b"k\0".as_slice(), &vec![b'x'; 17 << 20]].concat();
+        let path = d.join("text.png");
+        std::fs::write(&path, png_with_chunk(b"tEXt", &text)).unwrap();
+        let e = read_rgb_image(&path).unwrap_err().to_string();
+        assert!(e.contains("text.png") && e.contains("limit"), "{e}");
     }
 
     #[test]

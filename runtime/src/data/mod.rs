@@ -4,3 +4,39 @@ pub mod image;
 pub mod nerf_synthetic;
 pub mod npy;
 pub mod points;
+
+use std::io;
+
+use sdfl_lang::Span;
+
+/// An error reading an input that an argument of the program names (a
+/// data set's path): the argument's span travels with it, so that the
+/// diagnostic points at the argument rather than the statement.
+#[derive(Debug)]
+pub struct AtArgument {
+    pub span: Span,
+    pub error: io::Error,
+}
+
+impl std::fmt::Display for AtArgument {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        self.error.fmt(f)
+    }
+}
+
+impl std::error::Error for AtArgument {}
+
+/// `e`, pointing at `span` unless it already points at an argument.
+pub fn at_argument(span: Span, e: io::Error) -> io::Error {
+    if e.get_ref().is_some_and(|r| r.is::<AtArgument>()) {
+        return e;
+    }
+    io::Error::new(e.kind(), AtArgument { span, error: e })
+}
+
+/// The argument an error points at, if any.
+pub fn argument_span(e: &io::Error) -> Option<Span> {
+    e.get_ref()
+        .and_then(|r| r.downcast_ref::<AtArgument>())
+        .map(|a| a.span)
+}

@@ -87,23 +87,52 @@ fn number(v: &Value, key: &str, at: &Path) -> io::Result<Option<f64>> {
     }
 }
 
-/// An image path of a frame: relative, inside the data set (no `..`, no
-/// root), `.png` added when it has no extension (as Blender's files omit it).
+/// An image path of a frame: relative, naming a file strictly inside the
+/// data set (no `..`, no root, not `.` itself), `.png` added when it has no
+/// extension (as Blender's files omit it), and, links followed, still
+/// inside the data set's directory.
 fn frame_image(dir: &Path, file_path: &str, at: &Path) -> io::Result<PathBuf> {
-    let p = Path::new(file_path);
-    let inside = !file_path.is_empty()
-        && !file_path.contains('\0')
-        && p.components()
-            .all(|c| matches!(c, Component::Normal(_) | Component::CurDir));
-    if !inside {
-        return Err(invalid(
+    let outside = || {
+        invalid(
             at,
-            format!("frame image `{file_path}` is not a relative path inside the data set"),
-        ));
+            format!(
+                "frame image `{file_path}` is not a relative path to a file inside the data set"
+            ),
+        )
+    };
+    if file_path.contains('\0') {
+        return Err(outside());
     }
-    let mut image = dir.join(p);
+    // Only named components: `./r_0` is `r_0`, and `.` or `./` name the
+    // directory itself (whose `.png` would lie beside it).
+    let mut rel = PathBuf::new();
+    for c in Path::new(file_path).components() {
+        match c {
+            Component::Normal(n) => rel.push(n),
+            Component::CurDir => {}
+            _ => return Err(outside()),
+        }
+    }
+    if rel.as_os_str().is_empty() {
+        return Err(outside());
+    }
+    let mut image = dir.join(rel);
     if image.extension().is_none() {
         image.set_extension("png");
+    }
+    let named = |e: io::Error| invalid(&image, e);
+    let (real, real_dir) = (
+        image.canonicalize().map_err(named)?,
+        dir.canonicalize().map_err(|e| invalid(dir, e))?,
+    );
+    if !real.starts_with(&real_dir) || real == real_dir {
+        return Err(invalid(
+            at,
+            format!(
+                "frame image `{file_path}` leads outside the data set (to {})",
+                real.display()
+            ),
+        ));
     }
     Ok(image)
 }
@@ -144,7 +173,10 @@ pub fn read_transforms(path: &Path) -> io::Result<Transforms> {
             format!("{} frames (1 to {MAX_VIEWS})", frames_v.len()),
         ));
     }
-    let dir = path.parent().unwrap_or(Path::new("."));
+    let dir = match path.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d,
+        _ => Path::new("."),
+    };
     let mut frames = Vec::with_capacity(frames_v.len());
     for (k, f) in frames_v.iter().enumerate() {
         let at = |m: &str| invalid(path, format!("frame {k}: {m}"));
@@ -170,7 +202,12 @@ pub fn read_transforms(path: &Path) -> io::Result<Transforms> {
             }
         }
         frames.push(Frame {
-            image: frame_image(dir, file_path, path).map_err(|e| at(&e.to_string()))?,
+            image: frame_image(dir, file_path, path).map_err(|e| {
+                // Not the path twice.
+                let m = e.to_string();
+                at(m.strip_prefix(&format!("{}: ", path.display()))
+                    .unwrap_or(&m))
+            })?,
             pose,
         });
     }
@@ -209,7 +246,48 @@ impl Transforms {
         }
         let from_angle = wf / 2.0 / (self.camera_angle_x / 2.0).tan();
         let fl_x = self.fl_x.unwrap_or(from_angle);
-        Ok((fl_x, self.fl_y.unwrap_or(fl_x)))
+        let fl_y = self.fl_y.unwrap_or(fl_x);
+        // The range `look_at(focal: ...)` allows, in the same NDC units.
+        let (lo, hi) = sdfl_stdlib::precision::F32_SAFE;
+        for (fl, side, key) in [
+            (
+                fl_x,
+                wf,
+                if self.fl_x.is_some() {
+                    "fl_x"
+                } else {
+                    "camera_angle_x"
+                },
+            ),
+            (
+                fl_y,
+                hf,
+                if self.fl_y.is_some() {
+                    "fl_y"
+                } else if self.fl_x.is_some() {
+                    "fl_x"
+                } else {
+                    "camera_angle_x"
+                },
+            ),
+        ] {
+            let ndc = 2.0 * fl / side;
+            if !(lo..=hi).contains(&ndc) {
+                let given = match key {
+                    "fl_x" => self.fl_x,
+                    "fl_y" => self.fl_y,
+                    _ => Some(self.camera_angle_x),
+                };
+                return Err(invalid(
+                    at,
+                    format!(
+                        "`{key}` {} gives a focal length of {ndc:e} (in `look_at`'s units) for {w}x{h} images, outside {lo:e} to {hi:e}",
+                        given.unwrap_or(f64::NAN)
+                    ),
+                ));
+            }
+        }
+        Ok((fl_x, fl_y))
     }
 }
 

@@ -309,16 +309,30 @@ pub fn parse_npz_f32(bytes: &[u8], key: &str) -> Result<F32Array, NpyError> {
         Err(zip::result::ZipError::FileNotFound) => return Err(NpyError::MissingKey(key.into())),
         Err(e) => return Err(NpyError::Format(format!("bad archive entry {name}: {e}"))),
     };
-    // The declared size may lie (a zip bomb): read at most the limit.
+    // A zip bomb is refused from the size the archive declares, before
+    // anything is inflated; and the declared size may lie, so no more than
+    // it is ever inflated.
     let limit = MAX_ARRAY_BYTES + 10 + u16::MAX as u64;
-    let mut buf = Vec::with_capacity(entry.size().min(1 << 24) as usize);
+    let declared = entry.size();
+    if declared > limit {
+        return Err(NpyError::Unsupported(format!(
+            "{name} declares {declared} bytes uncompressed (at most {limit})"
+        )));
+    }
+    let mut buf = Vec::with_capacity(declared.min(1 << 24) as usize);
     (&mut entry)
-        .take(limit + 1)
+        .take(declared + 1)
         .read_to_end(&mut buf)
         .map_err(|e| NpyError::Format(format!("cannot inflate {name}: {e}")))?;
-    if buf.len() as u64 > limit {
-        return Err(NpyError::Unsupported(format!(
-            "{name} inflates to more than {limit} bytes"
+    if buf.len() as u64 != declared {
+        return Err(NpyError::Format(format!(
+            "{name} inflates to {}{} bytes, but declares {declared}",
+            if buf.len() as u64 > declared {
+                "more than "
+            } else {
+                ""
+            },
+            buf.len().min(declared as usize)
         )));
     }
     parse_f32(&buf)
@@ -349,7 +363,7 @@ pub fn encode_rgb_f32(img: &RgbImage) -> Vec<u8> {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
 
     fn sample() -> RgbImage {
@@ -470,6 +484,86 @@ mod tests {
             assert!(parse_npz_f32(&z, "other").is_err());
         }
         assert!(parse_npz_f32(b"not a zip", "verts").is_err());
+    }
+
+    /// A raw deflate stream of `n` MiB of zeros, about 1 KiB a MiB: one
+    /// sync-flushed block repeated (each copy inflates to the same MiB).
+    pub(crate) fn zeros_deflated(mib: usize) -> Vec<u8> {
+        use flate2::{Compress, Compression, FlushCompress};
+        let mut c = Compress::new(Compression::best(), false);
+        let mut block = Vec::with_capacity(1 << 16);
+        c.compress_vec(&vec![0u8; 1 << 20], &mut block, FlushCompress::Sync)
+            .unwrap();
+        let mut out = block.repeat(mib);
+        // A final empty block.
+        let mut end = Vec::with_capacity(64);
+        let mut c = Compress::new(Compression::best(), false);
+        c.compress_vec(&[], &mut end, FlushCompress::Finish)
+            .unwrap();
+        out.extend(end);
+        out
+    }
+
+    /// A zip archive of one deflated entry `name`, `mib` MiB of zeros
+    /// declared with their true size and CRC.
+    fn zip_bomb(name: &str, mib: usize) -> Vec<u8> {
+        let data = zeros_deflated(mib);
+        let mut crc = crc32fast::Hasher::new();
+        crc.update(&vec![0u8; 1 << 20]);
+        let one = crc.clone();
+        for _ in 1..mib {
+            crc.combine(&one);
+        }
+        let crc = crc.finalize();
+        let size = u32::try_from(mib << 20).unwrap();
+        let le32 = |v: u32| v.to_le_bytes();
+        let mut fields = Vec::new();
+        fields.extend([20u8, 0, 0, 0, 8, 0, 0, 0, 0, 0]); // version, flags, deflate, time, date
+        fields.extend(le32(crc));
+        fields.extend(le32(data.len() as u32));
+        fields.extend(le32(size));
+        fields.extend((name.len() as u16).to_le_bytes());
+        fields.extend([0, 0]); // no extra field
+        let mut z = le32(0x0403_4b50).to_vec();
+        z.extend(&fields);
+        z.extend(name.as_bytes());
+        z.extend(&data);
+        let cd_at = z.len() as u32;
+        z.extend(le32(0x0201_4b50));
+        z.extend([20, 0]); // made by
+        z.extend(&fields);
+        z.extend([0u8; 10]); // comment, disk, attributes
+        z.extend(le32(0)); // the local header's offset
+        z.extend(name.as_bytes());
+        let cd_len = z.len() as u32 - cd_at;
+        z.extend(le32(0x0605_4b50));
+        z.extend([0, 0, 0, 0, 1, 0, 1, 0]);
+        z.extend(le32(cd_len));
+        z.extend(le32(cd_at));
+        z.extend([0, 0]);
+        z
+    }
+
+    #[test]
+    fn npz_bombs_are_refused_from_their_declared_size() {
+        // 3 GiB of zeros in 3 MB: refused before any is inflated.
+        let z = zip_bomb("verts.npy", 3 << 10);
+        assert!(z.len() < 4 << 20, "{}", z.len());
+        let e = parse_npz_f32(&z, "verts").unwrap_err().to_string();
+        assert!(e.contains("declares 3221225472 bytes"), "{e}");
+        // The archive is sound: a small one inflates (and is then not a
+        // .npy file).
+        let e = parse_npz_f32(&zip_bomb("verts.npy", 2), "verts")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("magic"), "{e}");
+        // A declared size that understates the data: no more than it is
+        // inflated.
+        let mut lying = zip_bomb("verts.npy", 64);
+        let at = lying.len() - 22 - 46 - "verts.npy".len() + 24;
+        lying[at..at + 4].copy_from_slice(&1000u32.to_le_bytes());
+        let e = parse_npz_f32(&lying, "verts").unwrap_err().to_string();
+        assert!(e.contains("declares 1000"), "{e}");
     }
 
     #[test]

@@ -1,6 +1,6 @@
 //! Point clouds: `.npz` (array `verts`, as the course assignment's bunny),
-//! `.npy` (float32 N × 3), PLY (ASCII or binary little-endian, `x y z` the
-//! first vertex properties) and plain text (`x y z` per line). Regular files
+//! `.npy` (float32 N × 3), PLY (ASCII or binary little-endian, the vertex
+//! element's `x y z`) and plain text (`x y z` per line). Regular files
 //! only, sizes capped, every coordinate finite; errors name the file.
 
 use std::io::{self, Read};
@@ -92,8 +92,75 @@ fn parse_text(bytes: &[u8]) -> Result<Vec<[f32; 3]>, String> {
     Ok(out)
 }
 
-/// PLY with a `vertex` element whose first three properties are `x y z`
-/// floats (ASCII, or binary little-endian with float/double properties).
+/// A PLY property: a scalar, or a list (its count's type, its items').
+#[derive(Debug)]
+enum PlyProp {
+    Scalar(Scalar, String),
+    List(Scalar, Scalar),
+}
+
+/// A PLY scalar type.
+#[derive(Debug, Clone, Copy)]
+enum Scalar {
+    I8,
+    U8,
+    I16,
+    U16,
+    I32,
+    U32,
+    F32,
+    F64,
+}
+
+impl Scalar {
+    fn parse(t: &str) -> Result<Scalar, String> {
+        Ok(match t {
+            "char" | "int8" => Scalar::I8,
+            "uchar" | "uint8" => Scalar::U8,
+            "short" | "int16" => Scalar::I16,
+            "ushort" | "uint16" => Scalar::U16,
+            "int" | "int32" => Scalar::I32,
+            "uint" | "uint32" => Scalar::U32,
+            "float" | "float32" => Scalar::F32,
+            "double" | "float64" => Scalar::F64,
+            t => return Err(format!("unknown property type `{t}`")),
+        })
+    }
+    fn size(self) -> usize {
+        match self {
+            Scalar::I8 | Scalar::U8 => 1,
+            Scalar::I16 | Scalar::U16 => 2,
+            Scalar::I32 | Scalar::U32 | Scalar::F32 => 4,
+            Scalar::F64 => 8,
+        }
+    }
+    /// The little-endian value at the start of `b` (at least `size` bytes).
+    fn read_le(self, b: &[u8]) -> f64 {
+        match self {
+            Scalar::I8 => b[0] as i8 as f64,
+            Scalar::U8 => b[0] as f64,
+            Scalar::I16 => i16::from_le_bytes([b[0], b[1]]) as f64,
+            Scalar::U16 => u16::from_le_bytes([b[0], b[1]]) as f64,
+            Scalar::I32 => i32::from_le_bytes([b[0], b[1], b[2], b[3]]) as f64,
+            Scalar::U32 => u32::from_le_bytes([b[0], b[1], b[2], b[3]]) as f64,
+            Scalar::F32 => f32::from_le_bytes([b[0], b[1], b[2], b[3]]) as f64,
+            Scalar::F64 => f64::from_le_bytes(b[..8].try_into().expect("8 bytes")),
+        }
+    }
+}
+
+/// A PLY element: its name, count and properties, in header order.
+#[derive(Debug)]
+struct PlyElement {
+    name: String,
+    count: u64,
+    props: Vec<PlyProp>,
+}
+
+/// PLY (ASCII or binary little-endian): the `x y z` properties of the
+/// `vertex` element. Every element is read in the header's order and those
+/// other than `vertex` (faces, edges, anything) are skipped, list
+/// properties by their counts, so nothing else is ever read as a vertex.
 fn parse_ply(bytes: &[u8]) -> Result<Vec<[f32; 3]>, String> {
     let end = bytes
         .windows(11)
@@ -105,89 +172,165 @@ fn parse_ply(bytes: &[u8]) -> Result<Vec<[f32; 3]>, String> {
     if lines.next().map(str::trim) != Some("ply") {
         return Err("not a PLY file".into());
     }
-    let (mut format, mut count, mut props) = (None, None, Vec::new());
-    let mut in_vertex = false;
+    let mut format = None;
+    let mut elements: Vec<PlyElement> = Vec::new();
     for line in lines {
         let w: Vec<&str> = line.split_whitespace().collect();
         match w.as_slice() {
             ["format", f, _] => format = Some(f.to_string()),
-            ["element", "vertex", n] => {
-                count = Some(n.parse::<usize>().map_err(|_| "bad vertex count")?);
-                in_vertex = true;
+            ["element", name, n] => elements.push(PlyElement {
+                name: name.to_string(),
+                count: n
+                    .parse()
+                    .map_err(|_| format!("bad count of element `{name}`"))?,
+                props: Vec::new(),
+            }),
+            ["property", rest @ ..] => {
+                let e = elements.last_mut().ok_or("a property before any element")?;
+                e.props.push(match rest {
+                    ["list", count, item, _] => {
+                        PlyProp::List(Scalar::parse(count)?, Scalar::parse(item)?)
+                    }
+                    [ty, name] => PlyProp::Scalar(Scalar::parse(ty)?, name.to_string()),
+                    _ => return Err(format!("bad property line `{line}`")),
+                });
             }
-            ["element", ..] => in_vertex = false,
-            ["property", ty, name] if in_vertex => props.push((ty.to_string(), name.to_string())),
-            ["property", ..] if in_vertex => {
-                return Err("list properties on vertices are not supported".into())
-            }
+            ["element", ..] => return Err(format!("bad element line `{line}`")),
             _ => {}
         }
     }
-    let count = count.ok_or("no vertex element")?;
-    if count > MAX_POINTS {
+    let Some(v) = elements.iter().position(|e| e.name == "vertex") else {
+        return Err("no vertex element".into());
+    };
+    if elements[v].count > MAX_POINTS as u64 {
         return Err(format!("more than {MAX_POINTS} points"));
     }
-    let names: Vec<&str> = props.iter().map(|p| p.1.as_str()).collect();
-    if names.len() < 3 || names[..3] != ["x", "y", "z"] {
-        return Err("the vertex properties must start with x y z".into());
+    // Where x, y and z are among the vertex's properties.
+    let mut xyz = [usize::MAX; 3];
+    for (k, p) in elements[v].props.iter().enumerate() {
+        match p {
+            PlyProp::Scalar(_, n) => {
+                if let Some(i) = ["x", "y", "z"].iter().position(|a| a == n) {
+                    xyz[i] = k;
+                }
+            }
+            PlyProp::List(..) => return Err("list properties on vertices are not supported".into()),
+        }
     }
+    if xyz.contains(&usize::MAX) {
+        return Err("the vertex element has no x, y and z properties".into());
+    }
+    let mut out = Vec::with_capacity(elements[v].count as usize);
     match format.as_deref() {
         Some("ascii") => {
             let text = std::str::from_utf8(body).map_err(|_| "the PLY body is not text")?;
-            let mut out = Vec::with_capacity(count);
-            for line in text.lines().filter(|l| !l.trim().is_empty()).take(count) {
-                let v: Vec<f32> = line
-                    .split_whitespace()
-                    .take(3)
-                    .map(str::parse)
-                    .collect::<Result<_, _>>()
-                    .map_err(|_| "a vertex line is not numbers")?;
-                if v.len() < 3 {
-                    return Err("a vertex line has fewer than three numbers".into());
+            let mut words = text.split_ascii_whitespace();
+            let mut number = |what: &str| -> Result<f64, String> {
+                let w = words
+                    .next()
+                    .ok_or_else(|| format!("the file ends inside the {what} element"))?;
+                w.parse()
+                    .map_err(|_| format!("`{w}` in the {what} element is not a number"))
+            };
+            let mut row = Vec::new();
+            for (i, e) in elements.iter().enumerate() {
+                if e.props.is_empty() {
+                    continue;
                 }
-                out.push([v[0], v[1], v[2]]);
-            }
-            if out.len() < count {
-                return Err(format!("{count} vertices declared, {} found", out.len()));
+                for _ in 0..e.count {
+                    row.clear();
+                    for p in &e.props {
+                        match p {
+                            PlyProp::Scalar(..) => row.push(number(&e.name)?),
+                            PlyProp::List(..) => {
+                                let n = number(&e.name)?;
+                                if !(n >= 0.0 && n.fract() == 0.0) {
+                                    return Err(format!(
+                                        "a list count of the {} element is {n}",
+                                        e.name
+                                    ));
+                                }
+                                for _ in 0..n as u64 {
+                                    number(&e.name)?;
+                                }
+                            }
+                        }
+                    }
+                    if i == v {
+                        out.push(xyz.map(|k| row[k] as f32));
+                    }
+                }
+                if i == v {
+                    break;
+                }
             }
             Ok(out)
         }
         Some("binary_little_endian") => {
-            let sizes: Vec<usize> = props
-                .iter()
-                .map(|(ty, _)| match ty.as_str() {
-                    "float" | "float32" | "int" | "uint" | "int32" | "uint32" => Ok(4),
-                    "double" | "float64" => Ok(8),
-                    "char" | "uchar" | "int8" | "uint8" => Ok(1),
-                    "short" | "ushort" | "int16" | "uint16" => Ok(2),
-                    t => Err(format!("unknown property type `{t}`")),
-                })
-                .collect::<Result<_, _>>()?;
-            let stride: usize = sizes.iter().sum();
-            if body.len() < stride * count {
-                return Err(format!("{count} vertices declared, the file is shorter"));
+            let short = |e: &PlyElement| format!("the file ends inside the {} element", e.name);
+            let mut at = 0usize;
+            for (i, e) in elements.iter().enumerate() {
+                let fixed = e.props.iter().all(|p| matches!(p, PlyProp::Scalar(..)));
+                if fixed && i != v {
+                    // Skipped at once: no loop over a huge count.
+                    let stride: u64 = e
+                        .props
+                        .iter()
+                        .map(|p| match p {
+                            PlyProp::Scalar(t, _) => t.size() as u64,
+                            PlyProp::List(..) => 0,
+                        })
+                        .sum();
+                    let len = stride
+                        .checked_mul(e.count)
+                        .filter(|&l| l <= (body.len() - at) as u64)
+                        .ok_or_else(|| short(e))?;
+                    at += len as usize;
+                    continue;
+                }
+                let mut row = Vec::new();
+                for _ in 0..e.count {
+                    row.clear();
+                    for p in &e.props {
+                        let (t, n) = match p {
+                            PlyProp::Scalar(t, _) => (*t, None),
+                            PlyProp::List(c, t) => {
+                                let b = body.get(at..at + c.size()).ok_or_else(|| short(e))?;
+                                at += c.size();
+                                let n = c.read_le(b);
+                                if n < 0.0 {
+                                    return Err(format!(
+                                        "a list count of the {} element is {n}",
+                                        e.name
+                                    ));
+                                }
+                                (*t, Some(n as u64))
+                            }
+                        };
+                        match n {
+                            None => {
+                                let b = body.get(at..at + t.size()).ok_or_else(|| short(e))?;
+                                row.push(t.read_le(b));
+                                at += t.size();
+                            }
+                            Some(n) => {
+                                let len = (t.size() as u64)
+                                    .checked_mul(n)
+                                    .filter(|&l| l <= (body.len() - at) as u64)
+                                    .ok_or_else(|| short(e))?;
+                                at += len as usize;
+                            }
+                        }
+                    }
+                    if i == v {
+                        out.push(xyz.map(|k| row[k] as f32));
+                    }
+                }
+                if i == v {
+                    break;
+                }
             }
-            let read = |at: &[u8], ty: &str| -> Result<f32, String> {
-                Ok(match ty {
-                    "float" | "float32" => f32::from_le_bytes(at[..4].try_into().expect("4 bytes")),
-                    "double" | "float64" => {
-                        f64::from_le_bytes(at[..8].try_into().expect("8 bytes")) as f32
-                    }
-                    t => return Err(format!("x, y and z must be float or double, not `{t}`")),
-                })
-            };
-            (0..count)
-                .map(|i| {
-                    let row = &body[i * stride..];
-                    let mut at = 0;
-                    let mut p = [0f32; 3];
-                    for (k, slot) in p.iter_mut().enumerate() {
-                        *slot = read(&row[at..], &props[k].0)?;
-                        at += sizes[k];
-                    }
-                    Ok(p)
-                })
-                .collect()
+            Ok(out)
         }
         Some(f) => Err(format!(
             "PLY format `{f}` is not supported (ascii or binary_little_endian)"
@@ -231,6 +374,44 @@ mod tests {
         }
     }
 
+    /// Elements before `vertex` (faces here, with list properties) were
+    /// read as vertices: the face "3 0 1 2" became the point (3, 0, 1).
+    /// They are skipped, by their list counts, ASCII and binary.
+    #[test]
+    fn elements_are_read_in_header_order() {
+        let dir = tempfile::tempdir().unwrap();
+        let want = vec![[0.5f32, -1.0, 2.0], [3.25, 0.0, -0.125], [1.0, 1.0, 1.0]];
+        let ascii = "ply\nformat ascii 1.0\ncomment faces first\nelement face 2\nproperty list uchar int vertex_indices\nproperty uchar flags\nelement vertex 3\nproperty uchar red\nproperty float z\nproperty float x\nproperty float y\nend_header\n3 0 1 2 7\n4 0 1 2 0\n9\n9 2 0.5 -1 5 -0.125 3.25 0 6 1 1 1\n";
+        let mut binary = b"ply\nformat binary_little_endian 1.0\nelement edge 2\nproperty int a\nproperty int b\nelement face 2\nproperty list uchar int vertex_indices\nelement vertex 3\nproperty float x\nproperty double y\nproperty float z\nelement face2 1\nproperty list uchar int vertex_indices\nend_header\n".to_vec();
+        binary.extend([7u8; 16]); // two edges
+        for n in [3u8, 4] {
+            binary.push(n);
+            binary.extend((0..n as i32).flat_map(|i| i.to_le_bytes()));
+        }
+        for p in &want {
+            binary.extend(p[0].to_le_bytes());
+            binary.extend((p[1] as f64).to_le_bytes());
+            binary.extend(p[2].to_le_bytes());
+        }
+        binary.extend([3, 0, 0, 0, 0, 1, 0, 0, 0, 2, 0, 0, 0]);
+        for (name, bytes) in [("a.ply", ascii.as_bytes().to_vec()), ("b.ply", binary)] {
+            assert_eq!(
+                read_points(&write(dir.path(), name, &bytes)).unwrap(),
+                want,
+                "{name}"
+            );
+        }
+        // A list whose count runs past the end, a negative count.
+        for (name, bytes) in [
+            ("c.ply", b"ply\nformat binary_little_endian 1.0\nelement face 1\nproperty list uint int v\nelement vertex 1\nproperty float x\nproperty float y\nproperty float z\nend_header\n\xff\xff\xff\xff".to_vec()),
+            ("d.ply", b"ply\nformat ascii 1.0\nelement face 1\nproperty list char int v\nelement vertex 1\nproperty float x\nproperty float y\nproperty float z\nend_header\n-1 1 2 3\n".to_vec()),
+            ("e.ply", b"ply\nformat binary_little_endian 1.0\nelement face 4000000000\nproperty int v\nelement vertex 1\nproperty float x\nproperty float y\nproperty float z\nend_header\n".to_vec()),
+        ] {
+            let e = read_points(&write(dir.path(), name, &bytes)).unwrap_err().to_string();
+            assert!(e.contains(name) && e.contains("face"), "{name}: {e}");
+        }
+    }
+
     #[test]
     fn the_assignment_bunny_has_ten_thousand_points() {
         let p = Path::new(env!("CARGO_MANIFEST_DIR"))
@@ -248,7 +429,7 @@ mod tests {
         for (name, bytes) in [
             ("t.ply", b"ply\nformat ascii 1.0\nelement vertex 5\nproperty float x\nproperty float y\nproperty float z\nend_header\n1 2 3\n".to_vec()),
             ("u.ply", b"ply\nformat binary_little_endian 1.0\nelement vertex 4000000000\nproperty float x\nproperty float y\nproperty float z\nend_header\n".to_vec()),
-            ("v.ply", b"ply\nformat ascii 1.0\nelement vertex 1\nproperty float y\nproperty float x\nproperty float z\nend_header\n1 2 3\n".to_vec()),
+            ("v.ply", b"ply\nformat ascii 1.0\nelement vertex 1\nproperty float y\nproperty float x\nproperty float w\nend_header\n1 2 3\n".to_vec()),
             ("w.xyz", b"1 2 nan\n".to_vec()),
             ("x.xyz", b"1 2\n".to_vec()),
             ("y.xyz", b"".to_vec()),

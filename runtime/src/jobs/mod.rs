@@ -418,10 +418,12 @@ pub fn load_views(data: &Dataset, base: &Path) -> io::Result<Views> {
             .collect(),
         Dataset::NerfSynthetic {
             path,
+            path_span,
             split,
             test_split,
             background,
         } => {
+            let at = |e| crate::data::at_argument(*path_span, e);
             use crate::data::nerf_synthetic::{read_splits, transforms_path};
             let dir = base.join(path);
             let mut splits = vec![split.as_str()];
@@ -429,14 +431,14 @@ pub fn load_views(data: &Dataset, base: &Path) -> io::Result<Views> {
                 // The lone transforms.json stands in for the training split
                 // only: it never doubles as the test views.
                 if transforms_path(&dir, t) == transforms_path(&dir, split) {
-                    return Err(invalid(format!(
+                    return Err(at(invalid(format!(
                         "{}: no transforms_{t}.json for the test split `{t}`",
                         dir.display()
-                    )));
+                    ))));
                 }
                 splits.push(t);
             }
-            let mut read = read_splits(&dir, &splits, *background)?;
+            let mut read = read_splits(&dir, &splits, *background).map_err(at)?;
             let test = if read.len() > 1 {
                 read.pop().unwrap_or_default()
             } else {
@@ -453,8 +455,8 @@ pub fn load_views(data: &Dataset, base: &Path) -> io::Result<Views> {
             };
             let train = named(split, train);
             let test = named(test_split.as_deref().unwrap_or(""), test);
-            check_finite(&train)?;
-            check_finite(&test)?;
+            check_finite(&train).map_err(at)?;
+            check_finite(&test).map_err(at)?;
             return Ok(Views {
                 train: train.into_iter().map(|(v, _)| v).collect(),
                 test: test.into_iter().map(|(v, _)| v).collect(),

@@ -258,7 +258,7 @@ pub fn run_train_job(
         test: test_views,
         points,
         all_points,
-    } = load_views(&job.data, base)?;
+    } = load_views(&job.data, base).map_err(|e| crate::data::at_argument(job.data_span, e))?;
     stages.push(("load data".to_string(), t.elapsed().as_secs_f64()));
     within_budget_once_read(job, size, &views, &test_views)?;
 
@@ -305,7 +305,19 @@ pub fn run_train_job(
         .as_ref()
         .filter(|p| p.exists() && !options.restart)
     {
-        let ck = Checkpoint::read(cp)?;
+        let refused = |e: &dyn std::fmt::Display| {
+            invalid(format!(
+                "checkpoint {}: {e}; run with --restart to start over",
+                cp.display()
+            ))
+        };
+        let ck = Checkpoint::read(cp).map_err(|e| {
+            // Read errors name the checkpoint already.
+            let m = e.to_string();
+            let prefix = format!("checkpoint {}: ", cp.display());
+            refused(&m.strip_prefix(&prefix).unwrap_or(&m))
+        })?;
+        ck.check(steps).map_err(|e| refused(&e))?;
         let differs = ck.differences(&fp);
         if !differs.is_empty() {
             return Err(invalid(format!(
@@ -315,11 +327,9 @@ pub fn run_train_job(
                 if differs.len() == 1 { "s" } else { "" }
             )));
         }
-        run.resume(&ck).map_err(|e| {
-            invalid(format!(
-                "checkpoint {}: {e}; run with --restart to start over",
-                cp.display()
-            ))
+        run.resume(&ck).map_err(|e| match e {
+            TrainError::Invalid(m) => refused(&m),
+            e => refused(&e),
         })?;
         resumed_from = Some(run.step);
     }

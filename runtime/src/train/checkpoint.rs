@@ -199,6 +199,64 @@ impl Checkpoint {
         })
     }
 
+    /// Checks what a file may hold but a run of `steps` steps never writes:
+    /// every number finite, Adam's second moments at least 0, the step
+    /// within the run with one loss per step. (Each value's range is the
+    /// model's to check: [`super::Run::resume`].)
+    pub fn check(&self, steps: usize) -> Result<(), String> {
+        if self.step > steps {
+            return Err(format!(
+                "it is at step {}, past this run's {steps} steps (raise `iterations` to continue it)",
+                self.step
+            ));
+        }
+        if self.losses.len() != self.step {
+            return Err(format!(
+                "it holds {} losses for {} steps",
+                self.losses.len(),
+                self.step
+            ));
+        }
+        if !(0..=self.step as i64).contains(&(self.adam_steps as i64)) {
+            return Err(format!(
+                "Adam's step count {} is not within its {} steps",
+                self.adam_steps, self.step
+            ));
+        }
+        let bad = |v: &[f32], ok: fn(f32) -> bool| v.iter().position(|&x| !ok(x));
+        if let Some(k) = bad(&self.losses, f32::is_finite) {
+            return Err(format!("the loss of step {} is {}", k + 1, self.losses[k]));
+        }
+        for p in &self.params {
+            let n = p.values.len();
+            if p.adam_m.len() != n || p.adam_v.len() != n {
+                return Err(format!("`{}`: Adam moments of the wrong length", p.name));
+            }
+            for (what, v, ok) in [
+                ("", &p.values, f32::is_finite as fn(f32) -> bool),
+                (" (Adam's first moment)", &p.adam_m, f32::is_finite),
+                (" (Adam's second moment)", &p.adam_v, |x: f32| {
+                    x.is_finite() && x >= 0.0
+                }),
+            ] {
+                if let Some(k) = bad(v, ok) {
+                    let at = if n > 1 {
+                        format!("[{k}]")
+                    } else {
+                        String::new()
+                    };
+                    return Err(format!("`{}`{at}{what} is {}", p.name, v[k]));
+                }
+            }
+        }
+        for (name, v) in &self.state {
+            if let Some(k) = bad(v, f32::is_finite) {
+                return Err(format!("`{name}`[{k}] is {}", v[k]));
+            }
+        }
+        Ok(())
+    }
+
     /// The parts of the run that differ from `fingerprint` (empty: same run).
     pub fn differences(&self, fingerprint: &[String; 4]) -> Vec<&'static str> {
         PARTS
@@ -213,6 +271,54 @@ impl Checkpoint {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn checks_what_a_run_never_writes() {
+        let good = Checkpoint {
+            step: 2,
+            adam_steps: 2,
+            params: vec![ParamState {
+                name: "torus.major".into(),
+                values: vec![1.0, 2.0],
+                adam_m: vec![0.1, -0.2],
+                adam_v: vec![1e-3, 0.0],
+            }],
+            losses: vec![0.5, 0.25],
+            state: vec![("occupancy.ema".into(), vec![0.0, 3.5])],
+            fingerprint: Default::default(),
+        };
+        good.check(2).unwrap();
+        type Tamper = fn(&mut Checkpoint);
+        let cases: Vec<(Tamper, &str)> = vec![
+            (
+                |c| c.params[0].values[1] = f32::NAN,
+                "`torus.major`[1] is NaN",
+            ),
+            (
+                |c| c.params[0].adam_m[0] = f32::INFINITY,
+                "first moment) is inf",
+            ),
+            (
+                |c| c.params[0].adam_v[0] = -1e-3,
+                "second moment) is -0.001",
+            ),
+            (
+                |c| c.params[0].adam_v.pop().map(drop).unwrap_or(()),
+                "wrong length",
+            ),
+            (|c| c.losses[0] = f32::NAN, "loss of step 1 is NaN"),
+            (|c| c.step = 1 << 62, "past this run's 2 steps"),
+            (|c| c.step = 1, "2 losses for 1 steps"),
+            (|c| c.adam_steps = -1, "Adam's step count -1"),
+            (|c| c.state[0].1[1] = f32::NAN, "`occupancy.ema`[1] is NaN"),
+        ];
+        for (tamper, says) in cases {
+            let mut c = good.clone();
+            tamper(&mut c);
+            let e = c.check(2).unwrap_err();
+            assert!(e.contains(says), "{says}: {e}");
+        }
+    }
 
     #[test]
     fn round_trips_and_rejects_foreign_files() {

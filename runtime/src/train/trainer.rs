@@ -221,6 +221,24 @@ impl<'m> Run<'m> {
                 names(&ours)
             )));
         }
+        // Every value finite and in its parameter's range (what projection
+        // keeps).
+        let mut flat: Vec<f32> = ck.params.iter().flat_map(|p| p.values.clone()).collect();
+        let read = flat.clone();
+        self.objective.project(&mut flat);
+        if let Some(k) = (0..flat.len())
+            .find(|&k| !read[k].is_finite() || flat[k].to_bits() != read[k].to_bits())
+        {
+            let name = &self.tensors[self.tensor_at(k)].name;
+            return Err(TrainError::Invalid(if read[k].is_finite() {
+                format!(
+                    "`{name}` is {}, outside its range (nearest allowed: {})",
+                    read[k], flat[k]
+                )
+            } else {
+                format!("`{name}` is {}, outside its range (not finite)", read[k])
+            }));
+        }
         for (id, p) in self.ids.iter().zip(&ck.params) {
             self.store.restore(*id, &p.values, &p.adam_m, &p.adam_v)?;
         }
@@ -229,6 +247,14 @@ impl<'m> Run<'m> {
         self.step = ck.step;
         self.losses = ck.losses.clone();
         Ok(())
+    }
+
+    /// The tensor that flat index `k` lies in.
+    fn tensor_at(&self, k: usize) -> usize {
+        self.tensors
+            .iter()
+            .position(|t| (t.offset..t.offset + t.len).contains(&k))
+            .unwrap_or(0)
     }
 
     /// The current values, flat in the model's order.
@@ -305,14 +331,16 @@ impl<'m> Run<'m> {
         let mut v = self.values();
         self.objective.project(&mut v);
         self.objective.at_step(self.step + 1, &mut v);
-        for (id, p) in self.ids.iter().zip(&self.tensors) {
-            self.store.set_values(*id, &v[p.offset..p.offset + p.len])?;
-        }
-        if !v.iter().all(|x| x.is_finite()) {
+        if let Some(k) = v.iter().position(|x| !x.is_finite()) {
             return Err(TrainError::Gradient(format!(
-                "a parameter became non-finite at step {}",
+                "`{}` became {} at step {}",
+                self.tensors[self.tensor_at(k)].name,
+                v[k],
                 self.step + 1
             )));
+        }
+        for (id, p) in self.ids.iter().zip(&self.tensors) {
+            self.store.set_values(*id, &v[p.offset..p.offset + p.len])?;
         }
         self.step += 1;
         self.losses.push(loss as f32);
@@ -432,5 +460,96 @@ mod warning_tests {
         assert_eq!(w.len(), 2, "{w:?}");
         assert!(w[0].contains("did not fall"), "{w:?}");
         assert!(w[1].contains("radius"), "{w:?}");
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::train::objective::TensorSpec;
+    use sdfl_stdlib::param::Bound;
+    use sdfl_stdlib::value::{LastInterval, Optimizer, Sampler, Schedule};
+
+    /// One scalar `r` at least 0.5, pulled towards 2 by (r − 2)².
+    struct Pull;
+
+    impl Objective for Pull {
+        fn tensors(&self) -> Vec<TensorSpec> {
+            vec![TensorSpec {
+                name: "sphere.radius".into(),
+                offset: 0,
+                len: 1,
+            }]
+        }
+        fn initial(&self) -> Vec<f32> {
+            vec![1.0]
+        }
+        fn loss_and_grad(
+            &mut self,
+            v: &[f32],
+            _: &Batch,
+            _: f64,
+            g: &mut [f32],
+        ) -> Result<f64, TrainError> {
+            g[0] = 2.0 * (v[0] - 2.0);
+            Ok(((v[0] - 2.0) as f64).powi(2))
+        }
+        fn project(&self, v: &mut [f32]) {
+            v[0] = Bound::AtLeast(0.5).project(v[0] as f64) as f32;
+        }
+    }
+
+    fn setup(points: &[[f32; 3]]) -> TrainSetup<'_> {
+        TrainSetup {
+            views: &[],
+            points,
+            sampler: Sampler {
+                samples: 1,
+                near: 0.0,
+                far: 1.0,
+                jitter: false,
+                last_interval: LastInterval::Zero,
+            },
+            rays: 1,
+            optimizer: Optimizer {
+                lr: 0.1,
+                schedule: Schedule::Constant,
+            },
+            losses: &[],
+            seed: 0,
+        }
+    }
+
+    /// A NaN made by a step (here from a negative second moment, whose
+    /// square root is NaN) stops training with an error naming the
+    /// parameter; projection used to turn it into the lower bound, 0.5.
+    #[test]
+    fn a_nan_made_by_a_step_stops_training() {
+        let points = [[0.0; 3]];
+        let setup = setup(&points);
+        let mut run = Run::of(Box::new(Pull), 0.1).unwrap();
+        run.advance(&setup).unwrap();
+        let mut ck = run.checkpoint(Default::default());
+        ck.params[0].adam_v = vec![-1.0];
+        run.resume(&ck).unwrap();
+        let e = run.advance(&setup).unwrap_err().to_string();
+        assert!(e.contains("`sphere.radius` became NaN at step 2"), "{e}");
+    }
+
+    /// Values outside their parameter's range are refused on resuming.
+    #[test]
+    fn resumed_values_must_be_in_range() {
+        let mut run = Run::of(Box::new(Pull), 0.1).unwrap();
+        let mut ck = run.checkpoint(Default::default());
+        for bad in [-5.0, f32::NAN, f32::INFINITY] {
+            ck.params[0].values = vec![bad];
+            let e = run.resume(&ck).unwrap_err().to_string();
+            assert!(
+                e.contains("`sphere.radius`") && e.contains("outside its range"),
+                "{e}"
+            );
+        }
+        ck.params[0].values = vec![0.75];
+        run.resume(&ck).unwrap();
     }
 }

@@ -13,6 +13,9 @@ pub struct Args {
     pub owner: &'static str,
     /// The parameters that took their default (not written in the call).
     pub defaulted: Vec<&'static str>,
+    /// The directory that input paths are relative to (the scene file's),
+    /// where the program has a file on disk: inputs are checked to exist.
+    pub base: Option<std::sync::Arc<std::path::Path>>,
 }
 
 pub(crate) fn value_error(
@@ -44,6 +47,7 @@ impl Args {
             span,
             owner: "",
             defaulted: Vec::new(),
+            base: None,
         }
     }
 

@@ -394,7 +394,12 @@ pub(crate) fn train_block(name: &str, a: &Args) -> Result<TrainJob, Diag> {
                 o.path.display()
             ),
             "compares against test views",
-            "hold some views out: `render_views(..., test_views: 5)`",
+            match &**data {
+                Dataset::NerfSynthetic { .. } => {
+                    "read the data set's test views too: `nerf_synthetic(..., test_split: \"test\")`"
+                }
+                _ => "hold some views out: `render_views(..., test_views: 5)`",
+            },
         ));
     }
     let (width, height) = image_size(a, "size")?;
@@ -412,6 +417,7 @@ pub(crate) fn train_block(name: &str, a: &Args) -> Result<TrainJob, Diag> {
         name: name.to_string(),
         model: model.clone(),
         data: data.clone(),
+        data_span: a.get("data").1,
         sampler: *sampler,
         rays: a.count("rays", 1, 1 << 20)? as usize,
         optimizer: *optimizer,

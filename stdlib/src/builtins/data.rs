@@ -106,3 +106,88 @@ pub(super) fn render_views(a: &Args) -> Result<Value, Diag> {
     };
     Ok(Value::Dataset(Arc::new(data)))
 }
+
+/// What an input path must name.
+#[derive(Clone, Copy, PartialEq)]
+pub(super) enum Input {
+    File,
+    Dir,
+}
+
+/// Refuses an input that does not exist (relative to the scene file's
+/// directory) as a diagnostic at the argument naming it, so `check` finds
+/// it before anything runs. A program without a file on disk has no base
+/// directory: its inputs are checked when run.
+pub(super) fn check_input(a: &Args, rel: &Path, span: Span, kind: Input) -> Result<(), Diag> {
+    let Some(base) = &a.base else {
+        return Ok(());
+    };
+    let full = base.join(rel);
+    // Links followed, as the runtime reads them.
+    let (ok, what, kind) = match kind {
+        Input::File => (full.is_file(), "file", "regular file"),
+        Input::Dir => (full.is_dir(), "directory", "directory"),
+    };
+    if ok {
+        return Ok(());
+    }
+    let found = if full.exists() {
+        format!("not a {kind}")
+    } else {
+        "not found".to_string()
+    };
+    Err(Diag::new(
+        codes::IO,
+        span,
+        format!("input {what} `{}` {found}", full.display()),
+    )
+    .label(found)
+    .help("input paths are relative to the scene file's directory: check the path"))
+}
+
+/// A NeRF-synthetic data set's files exist: the `.json` file named, or the
+/// directory with the training split's transforms file (or a lone
+/// `transforms.json`) and the test split's.
+pub(super) fn check_nerf_synthetic(
+    a: &Args,
+    path: &Path,
+    split: &str,
+    test_split: Option<&str>,
+) -> Result<(), Diag> {
+    let span = a.get("path").1;
+    let is_json = path
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("json"));
+    if is_json {
+        return check_input(a, path, span, Input::File);
+    }
+    check_input(a, path, span, Input::Dir)?;
+    let Some(base) = &a.base else {
+        return Ok(());
+    };
+    let dir = base.join(path);
+    let has = |name: &str| dir.join(name).is_file();
+    let train = format!("transforms_{split}.json");
+    if !has(&train) && !has("transforms.json") {
+        return Err(Diag::new(
+            codes::IO,
+            span,
+            format!("the data set `{}` has no {train} (nor transforms.json)", dir.display()),
+        )
+        .label("no transforms file")
+        .help("name a NeRF-synthetic directory (with transforms_train.json), or the split's .json file"));
+    }
+    if let Some(t) = test_split {
+        let test = format!("transforms_{t}.json");
+        if !has(&test) {
+            return Err(Diag::new(
+                codes::IO,
+                a.get("test_split").1,
+                format!("the data set `{}` has no {test}", dir.display()),
+            )
+            .label("no such split")
+            .help("name a split the data set has, or leave `test_split` out"));
+        }
+    }
+    Ok(())
+}

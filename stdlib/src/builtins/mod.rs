@@ -71,6 +71,7 @@ use common::*;
 pub(crate) use common::{not_a_volume, one_or_list};
 pub use common::{random, safe_output_path};
 use data::render_views;
+use data::{check_input, Input};
 use materials::{effects, fog_option, phong, samples_per_pixel};
 
 pub type EvalFn = fn(&Args) -> Result<Value, Diag>;
@@ -456,7 +457,10 @@ fn table() -> Vec<Builtin> {
                 let mut images = Vec::new();
                 for item in items.iter() {
                     match item {
-                        Value::Str(p) => images.push(std::path::PathBuf::from(p.as_ref())),
+                        Value::Str(p) => {
+                            data::check_input(a, Path::new(p.as_ref()), images_span, data::Input::File)?;
+                            images.push(std::path::PathBuf::from(p.as_ref()))
+                        }
                         other => return Err(type_error(images_span, "list of file names", other)),
                     }
                 }
@@ -538,9 +542,11 @@ fn table() -> Vec<Builtin> {
                     return Err(value_error(a.get("split").1, "`split` is empty", "no split", "name the training split, e.g. \"train\""));
                 };
                 let test_split = split_name("test_split")?;
+                data::check_nerf_synthetic(a, Path::new(path.as_ref()), &split, test_split.as_deref())?;
                 let (bg, bg_span) = (a.vec3("background")?, a.get("background").1);
                 Ok(Value::Dataset(Arc::new(Dataset::NerfSynthetic {
                     path: PathBuf::from(path.as_ref()),
+                    path_span,
                     split,
                     test_split,
                     background: colour(bg, bg_span)?,

@@ -66,6 +66,7 @@ pub(crate) fn builtins() -> Vec<Builtin> {
                 if path.is_empty() {
                     return Err(value_error(span, "no point file named", "empty", "name a .npz, .npy, .ply or .xyz file"));
                 }
+                check_input(a, std::path::Path::new(&*path), span, Input::File)?;
                 Ok(Value::Dataset(Arc::new(Dataset::Points {
                     path: std::path::PathBuf::from(&*path),
                     every: a.count("every", 1, 1_000_000)? as usize,

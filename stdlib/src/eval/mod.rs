@@ -57,6 +57,8 @@ pub struct Evaluator<'e> {
     total_refused: bool,
     /// Every file the program writes so far, for collisions.
     files: crate::outputs::Files,
+    /// The scene file's directory, for input paths (see [`Args::base`]).
+    base: Option<std::sync::Arc<std::path::Path>>,
 }
 
 impl<'e> Evaluator<'e> {
@@ -78,7 +80,14 @@ impl<'e> Evaluator<'e> {
             total_primitives: 0,
             total_refused: false,
             files: crate::outputs::Files::default(),
+            base: None,
         }
+    }
+
+    /// Input paths are relative to `base`, and checked to exist there.
+    pub fn with_base(mut self, base: Option<std::sync::Arc<std::path::Path>>) -> Self {
+        self.base = base;
+        self
     }
 
     /// Replace the value of top-level `let NAME = ...` bindings.
@@ -758,6 +767,7 @@ impl<'e> Evaluator<'e> {
         let sig = &builtin.sig;
         let mut bound = Args::new(span);
         bound.owner = sig.name;
+        bound.base = self.base.clone();
         let mut poisoned = false;
         for (i, a) in args.iter().enumerate() {
             let v = self.expr(&a.value);
