@@ -405,6 +405,8 @@ fn an_unwritable_out_is_refused_before_any_work() {
             "{}",
             head(&o.stderr)
         );
+        // Names the directory, not the probe's temporary file.
+        assert!(!o.stderr.contains(".sdfl-"), "{}", head(&o.stderr));
         // Refused before the training ran, not at its first write.
         assert!(!o.stderr.contains("while running"), "{}", head(&o.stderr));
     }
