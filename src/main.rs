@@ -392,6 +392,9 @@ fn out_dir(out: &Path) -> Result<(PathBuf, OutDir), ()> {
 /// diagnostic and 1, or, for a stop by a signal, where it stopped and
 /// 128 + the signal.
 fn failed(src: &SourceFile, job: &str, e: &std::io::Error) -> ExitCode {
+    // Refused because a signal is stopping the process: that thread
+    // reports and exits (130 or 143); returning 1 first would race it.
+    interrupt::wait_if_exiting();
     if let Some(stop) = Stopped::of(e) {
         say!("sdfl: {stop}");
         return ExitCode::from(interrupt::exit_code(stop.signal));

@@ -280,6 +280,7 @@ pub(crate) fn sweep(
             ExitCode::SUCCESS
         }
         Err(e) => {
+            sdfl_runtime::interrupt::wait_if_exiting();
             say!(
                 "error[sdfl::io]: writing the sweep results under {}: {e}",
                 out.display()

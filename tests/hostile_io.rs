@@ -224,10 +224,16 @@ fn a_signal_while_a_gif_is_written_leaves_no_temporary_file() {
         let out = dir.join("out");
         let args = [os("run"), file.as_os_str(), os("--out"), out.as_os_str()];
         let mut child = spawn(&dir, &args, |_| {});
-        until("the GIF's temporary file appears", || {
-            !temporaries(&out).is_empty()
-        });
-        let tmp = temporaries(&out);
+        // The GIF's temporary file, once frames are in it (the empty one
+        // that checks --out is writable comes and goes first).
+        let frames_in = || {
+            temporaries(&out)
+                .into_iter()
+                .filter(|t| fs::metadata(t).is_ok_and(|m| m.len() > 0))
+                .collect::<Vec<_>>()
+        };
+        until("the GIF's temporary file fills", || !frames_in().is_empty());
+        let tmp = frames_in();
         // Another run on the same --out leaves a running one's files alone.
         let quick_dir = dir.join("quick");
         fs::create_dir_all(&quick_dir).unwrap();

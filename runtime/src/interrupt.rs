@@ -14,6 +14,7 @@
 
 use std::fmt;
 use std::io;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Mutex, MutexGuard};
 
 use crate::output::stderr;
@@ -72,8 +73,27 @@ fn on_signal(signal: i32) {
     exit_now(signal, &running)
 }
 
+/// Set once the process is exiting on a signal.
+static EXITING: AtomicBool = AtomicBool::new(false);
+
+/// Whether the process is exiting on a signal: an error met meanwhile
+/// (a file refused because the process is stopping) is not the outcome,
+/// and should not be reported or returned before the exit.
+pub fn exiting() -> bool {
+    EXITING.load(Ordering::SeqCst)
+}
+
+/// Waits for the exit under way, if the process is exiting on a signal:
+/// for a caller about to report an error, which is then not the outcome.
+pub fn wait_if_exiting() {
+    while exiting() {
+        std::thread::park();
+    }
+}
+
 /// Removes the files in flight, says what stopped, and exits.
 fn exit_now(signal: i32, running: &str) -> ! {
+    EXITING.store(true, Ordering::SeqCst);
     let removed = crate::output::abandon_in_flight();
     let what = if running.is_empty() {
         "before any statement ran".to_string()
