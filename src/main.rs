@@ -24,7 +24,6 @@ use sweep::sweep;
 use term::say_raw;
 
 /// The scene `sdfl run` renders when given no file.
-
 const SHOWCASE: &str = include_str!("../examples/large_scene.sdfl");
 
 #[derive(Parser)]
