@@ -3,6 +3,7 @@
 //! middle of a write, unwritable output directories, colour settings and
 //! the umask. Whatever happens, sdfl exits with its real outcome (0, 1, or
 //! 128 + the signal), never a panic's 101, and leaves no temporary file.
+#![cfg(unix)]
 
 mod common;
 use common::*;

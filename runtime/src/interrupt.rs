@@ -38,9 +38,15 @@ fn state() -> MutexGuard<'static, State> {
     STATE.lock().unwrap_or_else(|e| e.into_inner())
 }
 
+/// The two signals' numbers (the same on every Unix).
+const SIGINT: i32 = 2;
+const SIGTERM: i32 = 15;
+
 /// Handles SIGINT and SIGTERM from now on (see the module's docs).
+#[cfg(unix)]
 pub fn install() -> io::Result<()> {
-    use signal_hook::consts::{SIGINT, SIGTERM};
+    const _: () = assert!(SIGINT == signal_hook::consts::SIGINT);
+    const _: () = assert!(SIGTERM == signal_hook::consts::SIGTERM);
     let mut signals = signal_hook::iterator::Signals::new([SIGINT, SIGTERM])?;
     std::thread::Builder::new()
         .name("signals".into())
@@ -52,11 +58,18 @@ pub fn install() -> io::Result<()> {
     Ok(())
 }
 
+/// Elsewhere, Ctrl-C ends the process as it always does.
+#[cfg(not(unix))]
+pub fn install() -> io::Result<()> {
+    Ok(())
+}
+
 /// Names the statement now running, for the message a signal prints.
 pub fn running(statement: &str) {
     statement.clone_into(&mut state().running);
 }
 
+#[cfg_attr(not(unix), allow(dead_code))]
 fn on_signal(signal: i32) {
     let mut s = state();
     if s.graceful && s.pending.is_none() {
@@ -114,8 +127,8 @@ fn exit_now(signal: i32, running: &str) -> ! {
 
 fn name(signal: i32) -> &'static str {
     match signal {
-        signal_hook::consts::SIGINT => "SIGINT",
-        signal_hook::consts::SIGTERM => "SIGTERM",
+        SIGINT => "SIGINT",
+        SIGTERM => "SIGTERM",
         _ => "a signal",
     }
 }
