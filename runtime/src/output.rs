@@ -17,7 +17,7 @@
 //! leaves, the next run in the same directory removes ([`OutDir::open`]).
 //! Files are created with mode 0666 less the umask, like any other tool's.
 
-use std::collections::HashSet;
+use std::collections::BTreeSet;
 use std::fs;
 use std::io::{self, BufWriter, Write};
 use std::path::{Component, Path, PathBuf};
@@ -83,13 +83,16 @@ fn temporary_in(dir: &Path) -> io::Result<tempfile::NamedTempFile> {
 /// (then no new one is made).
 #[derive(Default)]
 struct InFlight {
-    paths: HashSet<PathBuf>,
+    paths: BTreeSet<PathBuf>,
     closed: bool,
 }
 
-static IN_FLIGHT: Mutex<Option<InFlight>> = Mutex::new(None);
+static IN_FLIGHT: Mutex<InFlight> = Mutex::new(InFlight {
+    paths: BTreeSet::new(),
+    closed: false,
+});
 
-fn in_flight() -> MutexGuard<'static, Option<InFlight>> {
+fn in_flight() -> MutexGuard<'static, InFlight> {
     // A panic elsewhere while holding it leaves the set consistent.
     IN_FLIGHT.lock().unwrap_or_else(|e| e.into_inner())
 }
@@ -99,14 +102,14 @@ fn in_flight() -> MutexGuard<'static, Option<InFlight>> {
 /// file being renamed into place meanwhile is complete (the rename holds
 /// the registry).
 pub fn abandon_in_flight() -> usize {
-    in_flight().get_or_insert_with(Default::default).abandon()
+    in_flight().abandon()
 }
 
 impl InFlight {
     fn abandon(&mut self) -> usize {
         self.closed = true;
-        self.paths
-            .drain()
+        std::mem::take(&mut self.paths)
+            .iter()
             .filter(|p| fs::remove_file(p).is_ok())
             .count()
     }
@@ -262,8 +265,7 @@ impl Atomic {
             _ => {}
         }
         // Created and registered together, so a signal never misses one.
-        let mut guard = in_flight();
-        let set = guard.get_or_insert_with(Default::default);
+        let mut set = in_flight();
         if set.closed {
             return Err(io::Error::new(
                 io::ErrorKind::Interrupted,
@@ -284,7 +286,7 @@ impl Atomic {
             })?
             .into_parts();
         set.paths.insert(tmp.to_path_buf());
-        drop(guard);
+        drop(set);
         Ok(Atomic::of(path, file, tmp))
     }
 
@@ -315,8 +317,7 @@ impl Atomic {
         file.sync_all().map_err(|e| with_path(&self.path, e))?;
         drop(file);
         let tmp = self.tmp.take().expect("committed once");
-        let mut guard = in_flight();
-        let set = guard.get_or_insert_with(Default::default);
+        let mut set = in_flight();
         if !set.paths.remove(&*tmp) {
             // Removed by a signal meanwhile: the process is exiting.
             return Err(io::Error::new(
@@ -336,11 +337,11 @@ impl Drop for Atomic {
         // Uncommitted: close, remove the temporary file, forget it.
         self.file.take();
         if let Some(tmp) = self.tmp.take() {
-            let mut guard = in_flight();
-            if let Some(set) = guard.as_mut() {
-                set.paths.remove(&*tmp);
-            }
+            // Removed under the registry, so a signal meanwhile sees it.
+            let mut set = in_flight();
+            set.paths.remove(&*tmp);
             drop(tmp);
+            drop(set);
         }
     }
 }
@@ -581,10 +582,7 @@ mod tests {
         let dest = d.join("x.png");
         let full = || {
             let tmp = temporary_in(&d).unwrap().into_temp_path();
-            in_flight()
-                .get_or_insert_with(Default::default)
-                .paths
-                .insert(tmp.to_path_buf());
+            in_flight().paths.insert(tmp.to_path_buf());
             let file = fs::File::options().write(true).open("/dev/full").unwrap();
             Atomic::of(&dest, file, tmp)
         };
@@ -610,9 +608,7 @@ mod tests {
         );
         // Nothing is left behind, and nothing is registered.
         assert!(fs::read_dir(&d).unwrap().next().is_none());
-        assert!(!in_flight()
-            .as_ref()
-            .is_some_and(|s| s.paths.iter().any(|p| p.starts_with(&d))));
+        assert!(!in_flight().paths.iter().any(|p| p.starts_with(&d)));
     }
 
     #[test]
