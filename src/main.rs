@@ -1,5 +1,6 @@
 //! `sdfl`: run, check and inspect scene files.
 
+use std::ffi::OsStr;
 use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -11,13 +12,18 @@ use sdfl_lang::SourceFile;
 use sdfl_runtime::{jobs, run_job, Plan, RunOptions};
 use sdfl_stdlib::value::Statement;
 
-/// The scene `sdfl run` renders when given no file.
+#[macro_use]
+mod term;
 mod plan;
 mod sweep;
 
 use plan::plan_text;
+use sdfl_runtime::interrupt::{self, Stopped};
+use sdfl_runtime::output::OutDir;
 use sweep::sweep;
+use term::say_raw;
 
+/// The scene `sdfl run` renders when given no file.
 const SHOWCASE: &str = include_str!("../examples/large_scene.sdfl");
 
 #[derive(Parser)]
@@ -92,18 +98,59 @@ enum Command {
 /// switching (100 000 threads took a minute to start).
 const THREADS_PER_CORE: usize = 4;
 
-/// `--threads`, clamped to 1..=THREADS_PER_CORE × cores with a warning.
-fn clamp_threads(n: usize) -> usize {
-    let cores = std::thread::available_parallelism().map_or(1, |c| c.get());
+fn cores() -> usize {
+    std::thread::available_parallelism().map_or(1, |c| c.get())
+}
+
+/// A thread count from `source` (`--threads N`), clamped to
+/// 1..=THREADS_PER_CORE × cores with a warning.
+fn clamp_threads(n: usize, source: &str) -> usize {
+    let cores = cores();
     let max = cores * THREADS_PER_CORE;
     if n == 0 || n > max {
         let to = n.clamp(1, max);
-        eprintln!(
-            "warning[sdfl::arg::threads]: --threads {n} is outside 1..={max} ({THREADS_PER_CORE} per core on {cores} cores); using {to}"
+        say!(
+            "warning[sdfl::arg::threads]: {source} is outside 1..={max} ({THREADS_PER_CORE} per core on {cores} cores); using {to}"
         );
         to
     } else {
         n
+    }
+}
+
+/// The worker threads: `--threads`, else `RAYON_NUM_THREADS` (which rayon
+/// would read itself, unbounded: 100 000 left sdfl asleep), clamped alike;
+/// neither given, rayon's default (one per core).
+fn set_up_threads(flag: Option<usize>, env: Option<&OsStr>) -> Result<(), ()> {
+    let n = match (flag, env) {
+        (Some(n), _) => clamp_threads(n, &format!("--threads {n}")),
+        (None, Some(v)) => match v.to_str().map(|v| v.trim().parse::<usize>()) {
+            // Rayon's meaning of 0: one per core.
+            Some(Ok(0)) => cores(),
+            Some(Ok(n)) => clamp_threads(n, &format!("RAYON_NUM_THREADS={n}")),
+            _ => {
+                say!(
+                    "warning[sdfl::arg::threads]: RAYON_NUM_THREADS={} is not a number; using {} (one per core)",
+                    v.to_string_lossy(),
+                    cores()
+                );
+                cores()
+            }
+        },
+        (None, None) => return Ok(()),
+    };
+    // An explicit count: rayon then ignores RAYON_NUM_THREADS.
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(n)
+        .build_global()
+        .map_err(|e| say!("error[sdfl::io]: cannot set up {n} threads: {e}"))
+}
+
+/// Handles SIGINT and SIGTERM for commands that write (a failure to is
+/// only a warning: the default handling still stops the process).
+fn handle_signals() {
+    if let Err(e) = interrupt::install() {
+        say!("warning[sdfl::io]: cannot handle signals ({e}); an interrupted run may leave `.sdfl-*.tmp` files, removed by the next run");
     }
 }
 
@@ -125,7 +172,7 @@ impl Stdout {
         let mut out = std::io::stdout().lock();
         if let Err(e) = out.write_all(text.as_bytes()).and_then(|_| out.flush()) {
             if e.kind() != std::io::ErrorKind::BrokenPipe {
-                eprintln!("warning[sdfl::io]: cannot write to stdout: {e}");
+                say!("warning[sdfl::io]: cannot write to stdout: {e}");
             }
             self.closed = true;
         }
@@ -160,42 +207,43 @@ fn parse_set(s: &str) -> Result<(String, Vec<f64>), String> {
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
+    let threads = match cli.command {
+        Command::Run { threads, .. } => threads,
+        _ => None,
+    };
+    if matches!(
+        cli.command,
+        Command::Run { .. } | Command::Sweep { .. } | Command::Transmittance { .. }
+    ) {
+        if set_up_threads(threads, std::env::var_os("RAYON_NUM_THREADS").as_deref()).is_err() {
+            return ExitCode::FAILURE;
+        }
+        handle_signals();
+    }
     match cli.command {
         Command::Run {
             file,
             out,
             size,
-            threads,
+            threads: _,
             json,
             no_cull,
             restart,
-        } => {
-            if let Some(n) = threads {
-                let n = clamp_threads(n);
-                if let Err(e) = rayon::ThreadPoolBuilder::new()
-                    .num_threads(n)
-                    .build_global()
-                {
-                    eprintln!("error[sdfl::io]: cannot set up {n} threads: {e}");
-                    return ExitCode::FAILURE;
-                }
-            }
-            run(
-                file.as_deref(),
-                &out,
-                RunOptions {
-                    size,
-                    no_cull,
-                    restart,
-                },
-                json,
-            )
-        }
+        } => run(
+            file.as_deref(),
+            &out,
+            RunOptions {
+                size,
+                no_cull,
+                restart,
+            },
+            json,
+        ),
         Command::Check { files } => {
             let mut ok = true;
             for f in &files {
                 match read(f).and_then(|src| load(&src).map(|_| ())) {
-                    Ok(()) => eprintln!("{}: ok", f.display()),
+                    Ok(()) => say!("{}: ok", f.display()),
                     Err(()) => ok = false,
                 }
             }
@@ -236,7 +284,7 @@ fn main() -> ExitCode {
                     (v - e).abs() / e
                 ));
             }
-            let Ok(out) = out_dir(&out) else {
+            let Ok((out, _lock)) = out_dir(&out) else {
                 return ExitCode::FAILURE;
             };
             let path = out.join("transmittance.png");
@@ -246,7 +294,7 @@ fn main() -> ExitCode {
                     ExitCode::SUCCESS
                 }
                 Err(e) => {
-                    eprintln!("error[sdfl::io]: {e}");
+                    say!("error[sdfl::io]: {e}");
                     ExitCode::FAILURE
                 }
             }
@@ -278,7 +326,7 @@ fn read(path: &Path) -> Result<SourceFile, ()> {
             Ok(SourceFile::new(path.display().to_string(), text))
         }
         Err(e) => {
-            eprintln!("error[sdfl::io]: cannot read the scene file: {e}\n  help: give the path of a .sdfl file");
+            say!("error[sdfl::io]: cannot read the scene file: {e}\n  help: give the path of a .sdfl file");
             Err(())
         }
     }
@@ -286,16 +334,16 @@ fn read(path: &Path) -> Result<SourceFile, ()> {
 
 /// Loads a file, printing its diagnostics: errors fail, warnings do not.
 fn load(src: &SourceFile) -> Result<sdfl_stdlib::Program, ()> {
-    let color = std::io::stderr().is_terminal();
+    let color = term::color();
     match sdfl_stdlib::load_warned(src) {
         Ok((program, warnings)) => {
             if !warnings.is_empty() {
-                eprint!("{}", sdfl_lang::render(src, &warnings, color));
+                say_raw(&sdfl_lang::render(src, &warnings, color));
             }
             Ok(program)
         }
         Err(diags) => {
-            eprint!("{}", sdfl_lang::render(src, &diags, color));
+            say_raw(&sdfl_lang::render(src, &diags, color));
             Err(())
         }
     }
@@ -303,8 +351,10 @@ fn load(src: &SourceFile) -> Result<sdfl_stdlib::Program, ()> {
 
 /// Creates the output directory and returns its canonical path: outputs
 /// are confined to it (no link inside it is followed; see
-/// `sdfl_runtime::output`).
-fn out_dir(out: &Path) -> Result<PathBuf, ()> {
+/// `sdfl_runtime::output`). It is checked to be writable now, before any
+/// work, and held (the lock) so that a run starting there meanwhile does
+/// not take this one's temporary files for stale ones.
+fn out_dir(out: &Path) -> Result<(PathBuf, OutDir), ()> {
     let made = sdfl_runtime::output::ensure_dir(out).or_else(|e| {
         // `--out` itself may be a link the user chose; follow that one.
         if out.is_dir() {
@@ -313,16 +363,43 @@ fn out_dir(out: &Path) -> Result<PathBuf, ()> {
             Err(e)
         }
     });
-    match made.and_then(|()| std::fs::canonicalize(out)) {
-        Ok(p) => Ok(p),
+    let opened = made
+        .and_then(|()| std::fs::canonicalize(out))
+        .and_then(|p| OutDir::open(&p).map(|o| (p, o)));
+    match opened {
+        Ok((p, (lock, stale))) => {
+            if stale > 0 {
+                say!(
+                    "note: removed {stale} unfinished `.sdfl-*.tmp` file{} that an interrupted run left in {}",
+                    if stale == 1 { "" } else { "s" },
+                    out.display()
+                );
+            }
+            Ok((p, lock))
+        }
         Err(e) => {
-            eprintln!(
+            say!(
                 "error[sdfl::io]: cannot use {} as the output directory: {e}\n  help: give `--out` a directory that can be created and written",
                 out.display()
             );
             Err(())
         }
     }
+}
+
+/// Reports a run that failed in `job` and returns the exit status: a
+/// diagnostic and 1, or, for a stop by a signal, where it stopped and
+/// 128 + the signal.
+fn failed(src: &SourceFile, job: &str, e: &std::io::Error) -> ExitCode {
+    // Refused because a signal is stopping the process: that thread
+    // reports and exits (130 or 143); returning 1 first would race it.
+    interrupt::wait_if_exiting();
+    if let Some(stop) = Stopped::of(e) {
+        say!("sdfl: {stop}");
+        return ExitCode::from(interrupt::exit_code(stop.signal));
+    }
+    say_raw(&runtime_error(src, job, e));
+    ExitCode::FAILURE
 }
 
 /// A run-time error as a diagnostic at the statement that failed.
@@ -357,7 +434,7 @@ fn runtime_error(src: &SourceFile, job: &str, e: &std::io::Error) -> String {
     let mut diags = sdfl_lang::Diagnostics::default();
     diags.push(diag);
     if span.is_some() {
-        sdfl_lang::render(src, &diags, std::io::stderr().is_terminal())
+        sdfl_lang::render(src, &diags, term::color())
     } else {
         format!(
             "error[{}]: `{job}`: {e}\n  help: {help}\n",
@@ -404,6 +481,7 @@ fn execute(
         match *statement {
             Statement::Render(i) => {
                 let job = &program.renders[i];
+                interrupt::running(&job.name);
                 bar.set_message(job.name.clone());
                 let r =
                     run_job(job, out, options, &|n| bar.inc(n)).map_err(|e| io(&job.name, e))?;
@@ -411,6 +489,7 @@ fn execute(
             }
             Statement::Volume(i) => {
                 let job = &program.volumes[i];
+                interrupt::running(&job.name);
                 bar.set_message(job.name.clone());
                 let r = jobs::run_volume_job(job, out, options.size, &|n| bar.inc(n))
                     .map_err(|e| io(&job.name, e))?;
@@ -418,6 +497,7 @@ fn execute(
             }
             Statement::Train(i) => {
                 let job = &program.trains[i];
+                interrupt::running(&job.name);
                 bar.set_message(job.name.clone());
                 let train = jobs::TrainOptions {
                     restart: options.restart,
@@ -496,12 +576,12 @@ fn run(file: Option<&Path>, out: &Path, options: RunOptions, json: bool) -> Exit
         return ExitCode::FAILURE;
     };
     if let Err(e) = sdfl_stdlib::work::check_program(&program, options.size) {
-        eprintln!("error[{}]: {e}", sdfl_lang::codes::WORK);
+        say!("error[{}]: {e}", sdfl_lang::codes::WORK);
         return ExitCode::FAILURE;
     }
     // Written under the canonical directory, reported as the user named it.
     let shown = out;
-    let Ok(out) = out_dir(out) else {
+    let Ok((out, _lock)) = out_dir(out) else {
         return ExitCode::FAILURE;
     };
     let out = out.as_path();
@@ -511,8 +591,7 @@ fn run(file: Option<&Path>, out: &Path, options: RunOptions, json: bool) -> Exit
         Ok(r) => r,
         Err((job, e)) => {
             bar.abandon();
-            eprint!("{}", runtime_error(&src, &job, &e));
-            return ExitCode::FAILURE;
+            return failed(&src, &job, &e);
         }
     };
     bar.finish_and_clear();
@@ -520,7 +599,8 @@ fn run(file: Option<&Path>, out: &Path, options: RunOptions, json: bool) -> Exit
     if json {
         let summary = serde_json::json!({
             "file": src.name,
-            "out_dir": shown,
+            // Paths need not be UTF-8; JSON strings must be.
+            "out_dir": shown.to_string_lossy(),
             "load_seconds": load_s,
             "total_seconds": t0.elapsed().as_secs_f64(),
             "jobs": reports,
@@ -541,7 +621,7 @@ fn print_fit_warnings(reports: &[serde_json::Value]) {
     for r in reports {
         let name = r["report"]["name"].as_str().unwrap_or("?");
         for w in r["report"]["warnings"].as_array().into_iter().flatten() {
-            eprintln!(
+            say!(
                 "warning[{}]: `{name}`: {}",
                 sdfl_runtime::train::trainer::DIVERGED,
                 w.as_str().unwrap_or("?")
@@ -571,7 +651,7 @@ fn summarise(r: &serde_json::Value, out: &Path, stdout: &mut Stdout) {
     match r["kind"].as_str() {
         Some("render") => {
             let rays = rep["rays"].as_f64().unwrap_or(0.0).max(1.0);
-            eprintln!(
+            say!(
                 "{name}: {} primitives, {} views, {rays} rays ({:.1}% hit, {:.1} steps/ray); {}",
                 rep["primitives"],
                 rep["views"],
@@ -585,19 +665,19 @@ fn summarise(r: &serde_json::Value, out: &Path, stdout: &mut Stdout) {
                 fx["occlusion_samples"].as_u64().unwrap_or(0),
             );
             if shadow_rays + occlusion > 0 {
-                eprintln!(
+                say!(
                     "  effects: {shadow_rays} shadow rays ({} SDF evaluations), {occlusion} occlusion samples",
                     fx["shadow_steps"].as_u64().unwrap_or(0)
                 );
             }
             let undecided = rep["undecided"].as_u64().unwrap_or(0);
             if undecided > 0 {
-                eprintln!(
+                say!(
                     "  {undecided} rays ran out of steps before they hit or passed `far` and are drawn as misses: raise `iterations` (with `hit_tolerance: \"absolute\"`, rays grazing a surface need many)"
                 );
             }
         }
-        Some("volume") => eprintln!(
+        Some("volume") => say!(
             "{name}: volume, {} views, {} samples/ray; {}",
             rep["views"],
             rep["samples_per_ray"],
@@ -614,7 +694,7 @@ fn summarise(r: &serde_json::Value, out: &Path, stdout: &mut Stdout) {
                     rep["seconds_per_step"].as_f64().unwrap_or(0.0) * 1e3
                 )
             };
-            eprintln!(
+            say!(
                 "{name}: {} iterations{}, final loss {:.3e}, {pace}; {}",
                 rep["iterations"],
                 resumed
@@ -624,7 +704,7 @@ fn summarise(r: &serde_json::Value, out: &Path, stdout: &mut Stdout) {
                 stages.join(", ")
             );
             if let Some(h) = rep["held_out"].as_array().and_then(|h| h.last()) {
-                eprintln!(
+                say!(
                     "  held-out views at step {}: PSNR {:.2} dB, SSIM {:.3}",
                     h["step"],
                     h["psnr"].as_f64().unwrap_or(f64::NAN),
@@ -633,7 +713,7 @@ fn summarise(r: &serde_json::Value, out: &Path, stdout: &mut Stdout) {
             }
             if let Some(fit) = rep.get("fit").filter(|f| f.is_object()) {
                 let num = |k: &str| fit[k].as_f64().unwrap_or(f64::NAN);
-                eprintln!(
+                say!(
                     "  fit: mean |f| at the points {:.2e}, eikonal {:.2e}, Chamfer {:.4} ({} surface samples)",
                     num("surface_mean_abs"),
                     num("eikonal"),
@@ -645,10 +725,10 @@ fn summarise(r: &serde_json::Value, out: &Path, stdout: &mut Stdout) {
                 .get("mesh_fit")
                 .is_some_and(|f| f.is_object() && f["chamfer"].is_null())
             {
-                eprintln!("  the mesh is empty: the trained field has no surface in its region");
+                say!("  the mesh is empty: the trained field has no surface in its region");
             } else if let Some(fit) = rep.get("mesh_fit").filter(|f| f.is_object()) {
                 let num = |k: &str| fit[k].as_f64().unwrap_or(f64::NAN);
-                eprintln!(
+                say!(
                     "  mesh vs {} points of the {}: Chamfer {:.4} (points → mesh {:.4}, mesh → points {:.4})",
                     fit["points"],
                     fit["against"].as_str().unwrap_or("?"),
@@ -664,7 +744,7 @@ fn summarise(r: &serde_json::Value, out: &Path, stdout: &mut Stdout) {
                     .flatten()
                     .map(|v| format!("{:.4}", v.as_f64().unwrap_or(f64::NAN)))
                     .collect();
-                eprintln!(
+                say!(
                     "  {:<12} ({})",
                     p[0].as_str().unwrap_or("?"),
                     vals.join(", ")
@@ -675,7 +755,7 @@ fn summarise(r: &serde_json::Value, out: &Path, stdout: &mut Stdout) {
     }
     for w in rep["written"].as_array().into_iter().flatten() {
         if let Some(m) = w.get("mesh").filter(|m| m.is_object()) {
-            eprintln!(
+            say!(
                 "  {}: {} vertices, {} triangles, area {:.4}, cell {:.4} ({} cells a side), {:.2}s",
                 w["path"].as_str().unwrap_or("?"),
                 m["vertices"],
@@ -743,7 +823,7 @@ fn docs(name: Option<&str>) -> ExitCode {
                 }
                 return ExitCode::SUCCESS;
             }
-            eprintln!("error: no built-in named `{n}`; `sdfl docs` lists them");
+            say!("error: no built-in named `{n}`; `sdfl docs` lists them");
             ExitCode::FAILURE
         }
     }

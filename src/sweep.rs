@@ -106,7 +106,7 @@ pub(crate) fn sweep(
     let Ok(src) = read(file) else {
         return ExitCode::FAILURE;
     };
-    let Ok(out) = out_dir(out) else {
+    let Ok((out, _lock)) = out_dir(out) else {
         return ExitCode::FAILURE;
     };
     let out = out.as_path();
@@ -115,10 +115,7 @@ pub(crate) fn sweep(
         let program = match sdfl_stdlib::load_with(&src, &[(name.to_string(), *v)]) {
             Ok(p) => p,
             Err(d) => {
-                eprint!(
-                    "{}",
-                    sdfl_lang::render(&src, &d, std::io::stderr().is_terminal())
-                );
+                say_raw(&sdfl_lang::render(&src, &d, term::color()));
                 return ExitCode::FAILURE;
             }
         };
@@ -127,7 +124,7 @@ pub(crate) fn sweep(
         let dir = out.join(format!("{name}={v}"));
         if dir.exists() {
             if let Err(e) = std::fs::remove_dir_all(&dir) {
-                eprintln!("error[sdfl::io]: cannot clear {}: {e}", dir.display());
+                say!("error[sdfl::io]: cannot clear {}: {e}", dir.display());
                 return ExitCode::FAILURE;
             }
         }
@@ -151,8 +148,7 @@ pub(crate) fn sweep(
             }
             Err((job, e)) => {
                 bar.abandon();
-                eprint!("{}", runtime_error(&src, &job, &e));
-                return ExitCode::FAILURE;
+                return failed(&src, &job, &e);
             }
         }
     }
@@ -277,14 +273,15 @@ pub(crate) fn sweep(
         .and_then(|_| write("sweep_value.png", &value_png?));
     match result {
         Ok(()) => {
-            eprintln!(
+            say!(
                 "wrote {0}/sweep.csv, {0}/sweep.md, {0}/sweep.png (against seconds) and {0}/sweep_value.png (against the value)",
                 out.display()
             );
             ExitCode::SUCCESS
         }
         Err(e) => {
-            eprintln!(
+            sdfl_runtime::interrupt::wait_if_exiting();
+            say!(
                 "error[sdfl::io]: writing the sweep results under {}: {e}",
                 out.display()
             );

@@ -11,19 +11,108 @@
 //! outside it. (A local attacker racing the checks could still swap a
 //! directory for a link between check and create; the threat handled here
 //! is links left in an output directory, not a concurrent adversary.)
+//!
+//! Temporary files in flight are registered, so that a signal can remove
+//! them before the process exits ([`abandon_in_flight`]); what `kill -9`
+//! leaves, the next run in the same directory removes ([`OutDir::open`]).
+//! Files are created with mode 0666 less the umask, like any other tool's.
 
+use std::collections::BTreeSet;
 use std::fs;
 use std::io::{self, BufWriter, Write};
 use std::path::{Component, Path, PathBuf};
-use std::sync::{Arc, Mutex};
+use std::sync::{Arc, Mutex, MutexGuard};
 
 use image::codecs::gif::{GifEncoder, Repeat};
 use image::{Delay, Frame, ImageEncoder, RgbaImage};
-use tempfile::NamedTempFile;
+use tempfile::TempPath;
 
-/// An I/O error that names the path it concerns.
+/// Writes `text` to stderr, ignoring failure: a closed or full stderr
+/// (`2>/dev/full`, `2>&1 | head -1`) must not turn a run into a panic, as
+/// `eprint!` would; the exit status still tells the outcome. Every message
+/// of the CLI goes through here.
+pub fn stderr(text: &str) {
+    let _ = io::stderr().lock().write_all(text.as_bytes());
+}
+
+/// An I/O error that names the path it concerns (once: an error that
+/// already starts with the path is returned as it is).
 pub fn with_path(path: &Path, e: io::Error) -> io::Error {
-    io::Error::new(e.kind(), format!("{}: {e}", path.display()))
+    let shown = path.display().to_string();
+    if e.to_string().starts_with(&format!("{shown}: ")) {
+        return e;
+    }
+    io::Error::new(e.kind(), format!("{shown}: {e}"))
+}
+
+/// Temporary files are `.sdfl-XXXXXX.tmp`, X alphanumeric (tempfile's
+/// alphabet): [`is_temporary_name`] recognises exactly these.
+const TMP_PREFIX: &str = ".sdfl-";
+const TMP_SUFFIX: &str = ".tmp";
+const TMP_RANDOM: usize = 6;
+
+/// Whether `name` is one of this module's temporary file names.
+pub fn is_temporary_name(name: &std::ffi::OsStr) -> bool {
+    let Some(name) = name.to_str() else {
+        return false;
+    };
+    name.strip_prefix(TMP_PREFIX)
+        .and_then(|n| n.strip_suffix(TMP_SUFFIX))
+        .is_some_and(|x| x.len() == TMP_RANDOM && x.bytes().all(|b| b.is_ascii_alphanumeric()))
+}
+
+/// A new empty temporary file in `dir`, mode 0666 less the umask
+/// (tempfile's default, 0600, would ignore the umask). Its errors are the
+/// system's, without the temporary name that `tempfile_in` would add (the
+/// user asked for another file).
+fn temporary_in(dir: &Path) -> io::Result<tempfile::NamedTempFile> {
+    tempfile::Builder::new()
+        .prefix(TMP_PREFIX)
+        .suffix(TMP_SUFFIX)
+        .rand_bytes(TMP_RANDOM)
+        .make_in(dir, |path| {
+            let mut o = fs::OpenOptions::new();
+            o.read(true).write(true).create_new(true);
+            #[cfg(unix)]
+            std::os::unix::fs::OpenOptionsExt::mode(&mut o, 0o666);
+            o.open(path)
+        })
+}
+
+/// The temporary files being written, and whether the process is exiting
+/// (then no new one is made).
+#[derive(Default)]
+struct InFlight {
+    paths: BTreeSet<PathBuf>,
+    closed: bool,
+}
+
+static IN_FLIGHT: Mutex<InFlight> = Mutex::new(InFlight {
+    paths: BTreeSet::new(),
+    closed: false,
+});
+
+fn in_flight() -> MutexGuard<'static, InFlight> {
+    // A panic elsewhere while holding it leaves the set consistent.
+    IN_FLIGHT.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+/// Removes every temporary file being written and refuses new ones, for a
+/// process about to exit on a signal; returns how many were removed. A
+/// file being renamed into place meanwhile is complete (the rename holds
+/// the registry).
+pub fn abandon_in_flight() -> usize {
+    in_flight().abandon()
+}
+
+impl InFlight {
+    fn abandon(&mut self) -> usize {
+        self.closed = true;
+        std::mem::take(&mut self.paths)
+            .iter()
+            .filter(|p| fs::remove_file(p).is_ok())
+            .count()
+    }
 }
 
 /// Makes every directory of `dir` exist as a real directory, refusing
@@ -77,10 +166,79 @@ pub fn ensure_dir(dir: &Path) -> io::Result<()> {
     Ok(())
 }
 
+/// Most directory entries looked at for stale temporary files (as many
+/// as a run may write): `--out .` in a large tree costs no more.
+const STALE_SCAN_ENTRIES: usize = 100_000;
+/// Deepest directory looked into (paths are at most 1024 bytes anyway).
+const STALE_SCAN_DEPTH: usize = 64;
+
+/// An output directory in use by this run. A shared lock on it, held as
+/// long as this lives, tells a run starting there meanwhile that the
+/// temporary files it sees are in flight, not stale.
+pub struct OutDir {
+    _lock: fs::File,
+}
+
+impl OutDir {
+    /// Opens the existing directory `dir` for a run: checks that a file
+    /// can be created in it (before any work, rather than at the first
+    /// write after a whole training run) and, unless another run holds it,
+    /// removes the temporary files that killed runs left there (at any
+    /// depth, not following links). Returns how many were removed.
+    pub fn open(dir: &Path) -> io::Result<(OutDir, usize)> {
+        let lock = fs::File::open(dir).map_err(|e| with_path(dir, e))?;
+        drop(temporary_in(dir).map_err(|e| {
+            io::Error::new(
+                e.kind(),
+                format!("cannot create files in {}: {}", dir.display(), e),
+            )
+        })?);
+        let mut removed = 0;
+        // Where locks are not supported, nothing is removed: it could be
+        // another run's.
+        if lock.try_lock().is_ok() {
+            let mut budget = STALE_SCAN_ENTRIES;
+            removed = remove_stale(dir, STALE_SCAN_DEPTH, &mut budget);
+            let _ = lock.unlock();
+        }
+        let _ = lock.lock_shared();
+        Ok((OutDir { _lock: lock }, removed))
+    }
+}
+
+/// Removes this module's temporary files in `dir` and below: regular
+/// files named exactly as [`temporary_in`] names them. Links are neither
+/// followed nor removed.
+fn remove_stale(dir: &Path, depth: usize, budget: &mut usize) -> usize {
+    let Ok(entries) = fs::read_dir(dir) else {
+        return 0;
+    };
+    let mut removed = 0;
+    for e in entries.flatten() {
+        if *budget == 0 {
+            break;
+        }
+        *budget -= 1;
+        // The entry's own type: a link is a link, not what it leads to.
+        let Ok(t) = e.file_type() else { continue };
+        if t.is_dir() && depth > 0 {
+            removed += remove_stale(&e.path(), depth - 1, budget);
+        } else if t.is_file()
+            && is_temporary_name(&e.file_name())
+            && fs::remove_file(e.path()).is_ok()
+        {
+            removed += 1;
+        }
+    }
+    removed
+}
+
 /// A file being written; becomes visible at `path` on [`Atomic::commit`].
 pub struct Atomic {
     path: PathBuf,
-    file: Option<BufWriter<NamedTempFile>>,
+    file: Option<BufWriter<Named<fs::File>>>,
+    /// Removes the temporary file when dropped uncommitted.
+    tmp: Option<TempPath>,
 }
 
 impl Atomic {
@@ -106,38 +264,100 @@ impl Atomic {
             // A link or file there is replaced by the rename, not followed.
             _ => {}
         }
-        let tmp = tempfile::Builder::new()
-            .prefix(".sdfl-")
-            .suffix(".tmp")
-            .tempfile_in(dir)
+        // Created and registered together, so a signal never misses one.
+        let mut set = in_flight();
+        if set.closed {
+            return Err(io::Error::new(
+                io::ErrorKind::Interrupted,
+                format!("{}: not written: sdfl is stopping", path.display()),
+            ));
+        }
+        let (file, tmp) = temporary_in(dir)
             .map_err(|e| {
                 io::Error::new(
                     e.kind(),
-                    format!("cannot create a file in {}: {e}", dir.display()),
+                    format!(
+                        "{}: cannot create a file in {}: {}",
+                        path.display(),
+                        dir.display(),
+                        e
+                    ),
                 )
-            })?;
-        Ok(Atomic {
-            path: path.to_path_buf(),
-            file: Some(BufWriter::new(tmp)),
-        })
+            })?
+            .into_parts();
+        set.paths.insert(tmp.to_path_buf());
+        drop(set);
+        Ok(Atomic::of(path, file, tmp))
     }
 
-    pub fn writer(&mut self) -> &mut BufWriter<NamedTempFile> {
+    /// Writes into `file`, to become `path`; `tmp` is `file`'s name.
+    fn of(path: &Path, file: fs::File, tmp: TempPath) -> Atomic {
+        Atomic {
+            path: path.to_path_buf(),
+            file: Some(BufWriter::new(Named {
+                inner: file,
+                dest: path.to_path_buf(),
+            })),
+            tmp: Some(tmp),
+        }
+    }
+
+    /// The file's writer: its errors name the destination (never the
+    /// temporary file, which the user did not ask for).
+    pub fn writer(&mut self) -> &mut BufWriter<Named<fs::File>> {
         self.file.as_mut().expect("writer used after commit")
     }
 
     pub fn commit(mut self) -> io::Result<()> {
         let file = self.file.take().expect("committed once");
-        let tmp = file
+        let file = file
             .into_inner()
-            .map_err(|e| with_path(&self.path, e.into_error()))?;
-        tmp.as_file()
-            .sync_all()
-            .map_err(|e| with_path(&self.path, e))?;
+            .map_err(|e| with_path(&self.path, e.into_error()))?
+            .inner;
+        file.sync_all().map_err(|e| with_path(&self.path, e))?;
+        drop(file);
+        let tmp = self.tmp.take().expect("committed once");
+        let mut set = in_flight();
+        if !set.paths.remove(&*tmp) {
+            // Removed by a signal meanwhile: the process is exiting.
+            return Err(io::Error::new(
+                io::ErrorKind::Interrupted,
+                format!("{}: not written: sdfl is stopping", self.path.display()),
+            ));
+        }
         // On failure the temporary file is removed when dropped.
         tmp.persist(&self.path)
             .map_err(|e| with_path(&self.path, e.error))?;
         Ok(())
+    }
+}
+
+impl Drop for Atomic {
+    fn drop(&mut self) {
+        // Uncommitted: close, remove the temporary file, forget it.
+        self.file.take();
+        if let Some(tmp) = self.tmp.take() {
+            // Removed under the registry, so a signal meanwhile sees it.
+            let mut set = in_flight();
+            set.paths.remove(&*tmp);
+            drop(tmp);
+            drop(set);
+        }
+    }
+}
+
+/// A writer whose errors name `dest`.
+pub struct Named<W> {
+    inner: W,
+    dest: PathBuf,
+}
+
+impl<W: Write> Write for Named<W> {
+    fn write(&mut self, buf: &[u8]) -> io::Result<usize> {
+        self.inner.write(buf).map_err(|e| with_path(&self.dest, e))
+    }
+    fn flush(&mut self) -> io::Result<()> {
+        self.inner.flush().map_err(|e| with_path(&self.dest, e))
     }
 }
 
@@ -174,6 +394,7 @@ pub fn write_bytes(path: &Path, bytes: &[u8]) -> io::Result<()> {
 pub struct GifWriter {
     encoder: GifEncoder<SharedFile>,
     file: SharedFile,
+    path: PathBuf,
     delay: Delay,
     pub frames: usize,
 }
@@ -184,11 +405,12 @@ impl GifWriter {
         let mut encoder = GifEncoder::new_with_speed(file.clone(), 10);
         encoder
             .set_repeat(Repeat::Infinite)
-            .map_err(io::Error::other)?;
+            .map_err(|e| with_path(path, io::Error::other(e)))?;
         let ms = (1000.0 / fps).round().clamp(10.0, 60_000.0) as u32;
         Ok(GifWriter {
             encoder,
             file,
+            path: path.to_path_buf(),
             delay: Delay::from_numer_denom_ms(ms, 1),
             frames: 0,
         })
@@ -202,7 +424,7 @@ impl GifWriter {
         let img = RgbaImage::from_raw(width, height, rgba).expect("buffer matches dimensions");
         self.encoder
             .encode_frame(Frame::from_parts(img, 0, 0, self.delay))
-            .map_err(io::Error::other)?;
+            .map_err(|e| with_path(&self.path, io::Error::other(e)))?;
         self.frames += 1;
         Ok(())
     }
@@ -301,6 +523,18 @@ mod tests {
         };
         let tmp = names(&d);
         assert_eq!(tmp.len(), 2, "{tmp:?}");
+        // Named as the stale-file cleanup recognises, and only so.
+        assert!(tmp.iter().all(|n| is_temporary_name(n.as_ref())), "{tmp:?}");
+        for n in [
+            ".sdfl-abc12.tmp",
+            ".sdfl-abc1234.tmp",
+            ".sdfl-ab-12.tmp",
+            "sdfl-abc123.tmp",
+            ".sdfl-abc123.tmpx",
+            ".sdfl-abc123.tm",
+        ] {
+            assert!(!is_temporary_name(n.as_ref()), "{n}");
+        }
         assert!(tmp
             .iter()
             .all(|n| !n.contains(&std::process::id().to_string())));
@@ -337,6 +571,70 @@ mod tests {
             .file_name()
             .to_string_lossy()
             .ends_with(".tmp")));
+    }
+
+    #[cfg(target_os = "linux")]
+    #[test]
+    fn a_full_disk_names_the_destination_not_the_temporary_file() {
+        // The message named `…/.sdfl-c2R2vx.tmp`. /dev/full stands in for
+        // the temporary file on a full disk.
+        let d = dir("full");
+        let dest = d.join("x.png");
+        let full = || {
+            let tmp = temporary_in(&d).unwrap().into_temp_path();
+            in_flight().paths.insert(tmp.to_path_buf());
+            let file = fs::File::options().write(true).open("/dev/full").unwrap();
+            Atomic::of(&dest, file, tmp)
+        };
+        let check = |e: io::Error| {
+            let msg = e.to_string();
+            assert!(msg.starts_with(&format!("{}: ", dest.display())), "{msg}");
+            assert!(!msg.contains(".sdfl-"), "{msg}");
+            assert!(msg.contains("No space left"), "{msg}");
+        };
+        // A write larger than the buffer fails at once...
+        let mut a = full();
+        check(a.writer().write_all(&vec![0u8; 1 << 20]).unwrap_err());
+        drop(a);
+        // ...a small one when it is flushed, at the commit.
+        let mut a = full();
+        a.writer().write_all(b"short").unwrap();
+        check(a.commit().unwrap_err());
+        // Named once, however many layers name it.
+        let e = with_path(&dest, io::Error::other("disk full"));
+        assert_eq!(
+            with_path(&dest, e).to_string(),
+            format!("{}: disk full", dest.display())
+        );
+        // Nothing is left behind, and nothing is registered.
+        assert!(fs::read_dir(&d).unwrap().next().is_none());
+        assert!(!in_flight().paths.iter().any(|p| p.starts_with(&d)));
+    }
+
+    #[test]
+    fn abandoning_removes_the_files_in_flight_and_refuses_new_ones() {
+        // On a set of this test's own (the process-wide one is shared by
+        // the tests running beside it).
+        let d = dir("abandon");
+        let mut set = InFlight::default();
+        let tmps: Vec<TempPath> = (0..2)
+            .map(|_| temporary_in(&d).unwrap().into_temp_path())
+            .collect();
+        for t in &tmps {
+            set.paths.insert(t.to_path_buf());
+        }
+        assert_eq!(set.abandon(), 2);
+        assert!(set.closed && set.paths.is_empty());
+        assert_eq!(fs::read_dir(&d).unwrap().count(), 0);
+        // A file no longer registered (removed by a signal) is not renamed
+        // into place: the process is exiting.
+        let tmp = temporary_in(&d).unwrap().into_temp_path();
+        let file = fs::File::options().write(true).open(&tmp).unwrap();
+        let e = Atomic::of(&d.join("a.png"), file, tmp)
+            .commit()
+            .unwrap_err();
+        assert_eq!(e.kind(), io::ErrorKind::Interrupted, "{e}");
+        assert_eq!(fs::read_dir(&d).unwrap().count(), 0);
     }
 
     #[test]

@@ -525,8 +525,31 @@ pub fn run_train_job(
     let mut held_out: Vec<HeldOut> = Vec::new();
     // Seconds spent evaluating, left out of the training time.
     let mut eval_s = 0.0;
+    // A signal stops training after a step, with a checkpoint of it.
+    let graceful = crate::interrupt::Graceful::begin();
     let result = run.run_to(&setup, steps, |r, loss| {
         progress(1);
+        if let Some(signal) = crate::interrupt::stop_requested() {
+            let kept = match &checkpoint_path {
+                Some(cp) => match r.checkpoint(fp.clone()).write(cp) {
+                    Ok(()) => format!("; {} holds it: run again to resume", cp.display()),
+                    Err(e) => format!(
+                        "; its checkpoint failed ({e}), {} holds step {}",
+                        cp.display(),
+                        last_good.step
+                    ),
+                },
+                None => "; no `checkpoint` is named, so it is lost".to_string(),
+            };
+            io_error = Some(crate::interrupt::Stopped::error(
+                signal,
+                format!(
+                    "training `{}` at step {} of {steps}{kept}",
+                    job.name, r.step
+                ),
+            ));
+            return ControlFlow::Break(());
+        }
         if job.eval_every > 0 && !test_views.is_empty() && r.step % job.eval_every == 0 {
             let te = Instant::now();
             match sync(r.objective.state()).and_then(|_| evaluate(&r.values())) {
@@ -565,6 +588,7 @@ pub fn run_train_job(
         }
         ControlFlow::Continue(())
     });
+    drop(graceful);
     let train_s = t.elapsed().as_secs_f64() - eval_s;
     stages.push(("train".to_string(), train_s));
     if eval_s > 0.0 {
