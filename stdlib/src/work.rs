@@ -62,7 +62,7 @@ impl Stage {
     pub fn name(self) -> &'static str {
         match self {
             Stage::Data => "data",
-            Stage::Views => "views",
+            Stage::Views => "rendering",
             Stage::Training => "training",
             Stage::GridRefresh => "grid refreshes",
             Stage::HeldOut => "held-out evaluation",
@@ -706,7 +706,7 @@ pub fn refuse(work: Work, span: Span, what: &str) -> Option<Diag> {
         };
         (
             format!(
-                "{} SDF evaluations (at most {}), {:.0} % of them in {}",
+                "{} SDF evaluations (at most {}), {:.0} % of them for {}",
                 approx(work.evaluations),
                 fmt_num(MAX_EVALUATIONS),
                 100.0 * share,
