@@ -51,19 +51,37 @@ pub fn parse(text: &str) -> Result<File, Diagnostics> {
         diags.push(d);
         return Err(diags);
     }
-    let mut offset = 0;
-    let mut file = None;
+    let mut items = Vec::new();
+    // Where the next item's parse starts, and where the one before started
+    // (an error is reported as a parse of the whole rest would report it:
+    // the item before may also have wanted what comes next).
+    let (mut offset, mut previous) = (0, 0);
     while diags.len() < MAX_SYNTAX_ERRORS {
-        match SdflParser::parse(Rule::file, &text[offset..]) {
+        match SdflParser::parse(Rule::next_item, &text[offset..]) {
             Ok(mut pairs) => {
-                if offset == 0 {
-                    let root = pairs.next().expect("file rule always yields one pair");
-                    file = Some(build_file(root, &mut diags));
+                let step = pairs.next().expect("next_item always yields one pair");
+                let end = offset + step.as_span().end();
+                let Some(item) = children(step).next() else {
+                    break; // the end of the file
+                };
+                // Spans are built relative to `offset`, where pest began.
+                let mut found = Diagnostics::default();
+                let mut item = build_item(item, &mut found);
+                item.shift(offset);
+                for mut d in found.diags {
+                    d.span.shift(offset);
+                    d.notes.iter_mut().for_each(|(s, _)| s.shift(offset));
+                    diags.push(d);
                 }
-                break;
+                items.push(item);
+                (previous, offset) = (offset, end);
             }
-            Err(e) => {
-                let pos = offset
+            Err(_) => {
+                let e = match SdflParser::parse(Rule::file, &text[previous..]) {
+                    Err(e) => e,
+                    Ok(_) => unreachable!("an item that fails alone fails after the one before"),
+                };
+                let pos = previous
                     + match e.location {
                         InputLocation::Pos(p) => p,
                         InputLocation::Span((s, _)) => s,
@@ -71,23 +89,25 @@ pub fn parse(text: &str) -> Result<File, Diagnostics> {
                 diags.push(syntax_error(text, pos, &e.variant));
                 // An error at the start of a line that starts an item (the
                 // line before was incomplete): parsing resumes right there.
-                let item_here = pos > offset
+                let item_here = pos > previous
                     && (pos == 0 || text[..pos].ends_with('\n'))
                     && text[pos..].starts_with(|c: char| c.is_ascii_alphabetic() || c == '_');
-                if item_here {
-                    offset = pos;
-                    continue;
-                }
-                match next_item_start(text, pos) {
-                    Some(next) => offset = next,
+                let resume = if item_here {
+                    Some(pos)
+                } else {
+                    next_item_start(text, pos)
+                };
+                match resume {
+                    Some(next) => (previous, offset) = (next, next),
                     None => break,
                 }
             }
         }
     }
-    match file {
-        Some(f) if diags.is_empty() => Ok(f),
-        _ => Err(diags),
+    if diags.is_empty() {
+        Ok(File { items })
+    } else {
+        Err(diags)
     }
 }
 
@@ -128,30 +148,27 @@ fn children(pair: Pair<Rule>) -> impl Iterator<Item = Pair<Rule>> {
     pair.into_inner().filter(|p| !is_punctuation(p.as_rule()))
 }
 
-fn build_file(pair: Pair<Rule>, diags: &mut Diagnostics) -> File {
-    let items = children(pair)
-        .map(|p| match p.as_rule() {
-            Rule::let_stmt => Item::Let(build_let(p, diags).0),
-            Rule::block => Item::Block(build_block(p, diags)),
-            Rule::fn_def => Item::Fn(build_fn(p, diags)),
-            Rule::import_stmt => {
-                let span = span_of(&p);
-                let lit = children(p).next().expect("import has a path");
-                let path_span = span_of(&lit);
-                let path = match build_string(lit, diags) {
-                    ExprKind::Str(s) => s,
-                    _ => unreachable!("build_string makes strings"),
-                };
-                Item::Import(Import {
-                    path,
-                    path_span,
-                    span,
-                })
-            }
-            r => unreachable!("grammar: item cannot be {r:?}"),
-        })
-        .collect();
-    File { items }
+fn build_item(p: Pair<Rule>, diags: &mut Diagnostics) -> Item {
+    match p.as_rule() {
+        Rule::let_stmt => Item::Let(build_let(p, diags).0),
+        Rule::block => Item::Block(build_block(p, diags)),
+        Rule::fn_def => Item::Fn(build_fn(p, diags)),
+        Rule::import_stmt => {
+            let span = span_of(&p);
+            let lit = children(p).next().expect("import has a path");
+            let path_span = span_of(&lit);
+            let path = match build_string(lit, diags) {
+                ExprKind::Str(s) => s,
+                _ => unreachable!("build_string makes strings"),
+            };
+            Item::Import(Import {
+                path,
+                path_span,
+                span,
+            })
+        }
+        r => unreachable!("grammar: item cannot be {r:?}"),
+    }
 }
 
 fn build_ident(pair: Pair<Rule>) -> Ident {

@@ -96,6 +96,13 @@ impl<'e> Evaluator<'e> {
     /// (When it has, the warnings are reported with the errors.)
     pub fn run_warned(mut self, file: &File) -> Result<(Program, Diagnostics), Diagnostics> {
         let mut program = Program::default();
+        // Sized up front: a table growing holds its old copy too.
+        let lets = file
+            .items
+            .iter()
+            .filter(|i| matches!(i, Item::Let(_)))
+            .count();
+        self.globals.reserve(lets);
         for item in &file.items {
             if self.aborted {
                 break;
