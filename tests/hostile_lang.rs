@@ -64,3 +64,97 @@ fn a_large_file_of_lets_is_checked_in_memory_proportional_to_it() {
         bound >> 20
     );
 }
+
+/// Writes `text` and runs `sdfl check` on it.
+fn check_text(name: &str, text: &str) -> Outcome {
+    let dir = case_dir(name);
+    let file = dir.join(format!("{name}.sdfl"));
+    fs::write(&file, text).expect("case file is writable");
+    sdfl(
+        &dir,
+        &["check", file.to_str().expect("temp paths are UTF-8")],
+    )
+}
+
+/// How many times `needle` occurs in the report.
+fn count(o: &Outcome, needle: &str) -> usize {
+    o.stderr.matches(needle).count()
+}
+
+/// Every error of a file in one `check` run: lets that fail (and what uses
+/// them stays quiet), and every field of a statement, not only the first
+/// that fails; output collisions are found in a statement whose other
+/// fields fail too.
+#[test]
+fn one_check_reports_every_error_of_every_statement() {
+    let text = r#"let ball = sphere(radius: -1)
+let cam = look_at(eye: [0, 0, 0], at: [0, 0, 0])
+let good = box(size: 1)
+render scene {
+  scene: good,
+  camera: look_at(eye: [0, 0, -3]),
+  samples_per_pixel: 3,
+  iterations: 0.5,
+  epsilon: 0,
+  near: 3,
+  far: 1,
+  outputs: [image("a.png"), image("a.png")],
+}
+render other {
+  scene: ball,
+  camera: cam,
+  background: [2, 0, 0],
+  outputs: [image("b.png")],
+}
+render volume {
+  scene: sdf_volume(good),
+  camera: look_at(eye: [0, 0, -3]),
+  samples_per_pixel: 4,
+  size: [0, 8],
+  outputs: [image("v.png"), image("v.png")],
+}
+train fit {
+  model: sdf_volume(sphere(param(0.5))),
+  data: render_views(sdf_volume(good), cameras: [look_at(eye: [0, 0, -3])]),
+  rays: 0,
+  iterations: 1.5,
+  backend: "gpu",
+  seed: -1,
+  after: [loss_curve("l.png"), loss_curve("l.png")],
+}
+"#;
+    let o = check_text("lang_every_error", text);
+    assert_outcome("every error", &o, Expect::Error);
+    for (what, needle) in [
+        ("the bad radius", "`radius` must be positive"),
+        (
+            "the camera without orientation",
+            "no well-defined orientation",
+        ),
+        ("the non-square samples", "must be a square"),
+        (
+            "the fractional iterations",
+            "`iterations` must be a whole number",
+        ),
+        ("the zero epsilon", "`epsilon` must be positive"),
+        ("near beyond far", "`near`"),
+        ("the colour", "colour components must be in 0..1"),
+        (
+            "the volume's samples_per_pixel",
+            "is an effect of sphere-traced shapes",
+        ),
+        ("the volume's size", "`size`"),
+        ("the rays", "`rays` must be a whole number"),
+        ("the backend", "unknown backend `gpu`"),
+        ("the seed", "`seed` must be a whole number"),
+    ] {
+        assert!(
+            o.stderr.contains(needle),
+            "{what} ({needle}) is not reported:\n{}",
+            head(&o.stderr)
+        );
+    }
+    assert_eq!(count(&o, "sdfl::path::collision"), 3, "{}", o.stderr);
+    // The render of the failed `ball` adds nothing about its scene.
+    assert_eq!(count(&o, "`radius` must be positive"), 1, "{}", o.stderr);
+}
