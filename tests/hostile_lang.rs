@@ -158,3 +158,38 @@ train fit {
     // The render of the failed `ball` adds nothing about its scene.
     assert_eq!(count(&o, "`radius` must be positive"), 1, "{}", o.stderr);
 }
+
+/// An error inside a `fn` is reported once, at the definition, with every
+/// call that met it as a label (it was printed once per call, without the
+/// call). A call with other values that fails otherwise is its own error.
+#[test]
+fn an_error_inside_a_fn_is_reported_once_with_its_calls() {
+    let text = "fn ball(r) {
+  sphere(radius: r - 2)
+}
+fn pair(r) {
+  union(ball(r), ball(r))
+}
+let a = ball(1)
+let b = ball(1)
+let c = ball(0.5)
+let d = pair(1)
+let e = for i in 0..3 { sphere(radius: -1) }
+";
+    let o = check_text("lang_fn_error_once", text);
+    assert_outcome("fn error once", &o, Expect::Error);
+    assert_eq!(count(&o, "got -1\n"), 2, "{}", o.stderr);
+    assert_eq!(count(&o, "got -1.5"), 1, "{}", o.stderr);
+    assert!(o.stderr.contains("3 errors in"), "{}", o.stderr);
+    // Every call site is labelled: lines 7, 8 and 10 (and 5, inside `pair`).
+    let first = o
+        .stderr
+        .split("sdfl::value::range")
+        .nth(1)
+        .expect("a first report");
+    for line in [" 5 │", " 7 │", " 8 │", "10 │"] {
+        assert!(first.contains(line), "line{line} is not shown:\n{first}");
+    }
+    assert!(first.contains("`ball` called here"), "{first}");
+    assert!(first.contains("`pair` called here"), "{first}");
+}

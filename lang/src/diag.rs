@@ -156,8 +156,9 @@ impl Diagnostics {
     }
 
     /// `d` with its spans in the file of its primary span, and that file:
-    /// a note in another file becomes a sentence of the help.
-    fn localised(&self, d: &Diag) -> (Option<&SourceFile>, Diag) {
+    /// a note in another file becomes a sentence of the help. `main` is the
+    /// loaded file.
+    fn localised(&self, d: &Diag, main: &SourceFile) -> (Option<&SourceFile>, Diag) {
         let (file, span) = self.locate(d.span);
         let mut local = Diag {
             span,
@@ -170,10 +171,8 @@ impl Diagnostics {
                 local.notes.push((s, text.clone()));
                 continue;
             }
-            let (name, (line, col)) = match note_file {
-                Some(f) => (f.name.as_str(), f.line_col(s.start)),
-                None => ("the file loaded", (0, 0)),
-            };
+            let f = note_file.unwrap_or(main);
+            let (name, (line, col)) = (f.name.as_str(), f.line_col(s.start));
             let help = local.help.take().unwrap_or_default();
             local.help = Some(format!("{help} ({text}: {name}:{line}:{col})"));
         }
@@ -336,7 +335,7 @@ pub fn render(source: &SourceFile, diags: &Diagnostics, color: bool) -> String {
     let mut out = String::new();
     for diag in diags.diags.iter().take(MAX_RENDERED) {
         // A diagnostic inside an imported file is shown in that file.
-        let (file, local) = diags.localised(diag);
+        let (file, local) = diags.localised(diag, source);
         let (source, diag) = (file.unwrap_or(source), &local);
         let (line, col) = source.line_col(diag.span.start);
         let quotable = [diag.span.start, diag.span.end]

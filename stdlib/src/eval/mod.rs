@@ -28,6 +28,10 @@ pub const MAX_WORK: u64 = 2_000_000;
 /// which brackets do not limit): tree walkers recurse this deep.
 pub const MAX_DEPTH: usize = 200;
 
+/// Most call sites labelled on one error inside a `fn` (the others are
+/// counted).
+const MAX_CALL_LABELS: usize = 6;
+
 /// Deepest nesting of expression evaluation, `fn` calls included: the
 /// parser bounds one expression's height, and a call evaluates another
 /// expression inside the caller's, so chains of calls are bounded here to
@@ -51,6 +55,14 @@ pub struct Evaluator<'e> {
     /// `param(...)` calls evaluated so far (their ids).
     params: usize,
     sizes: Sizes,
+    /// The `fn` calls being evaluated (their names and call sites),
+    /// outermost first.
+    calls: Vec<(Arc<FnDef>, Span)>,
+    /// Where each diagnostic reported so far is, by what it says: the same
+    /// error met again (a `fn` called twice, a loop) is reported once.
+    reported: HashMap<(&'static str, Span, String), usize>,
+    /// Calls met by a diagnostic beyond those labelled, by its index.
+    more_calls: HashMap<usize, usize>,
     /// Estimated evaluations and primitives of the statements so far.
     total_evaluations: f64,
     total_primitives: u64,
@@ -74,6 +86,9 @@ impl<'e> Evaluator<'e> {
             overrides: HashMap::new(),
             params: 0,
             sizes: Sizes::default(),
+            calls: Vec::new(),
+            reported: HashMap::new(),
+            more_calls: HashMap::new(),
             total_evaluations: 0.0,
             total_primitives: 0,
             total_refused: false,
@@ -128,6 +143,14 @@ impl<'e> Evaluator<'e> {
                 Item::Import(_) => {}
             }
         }
+        for (&i, &n) in &self.more_calls {
+            let d = &mut self.diags.diags[i];
+            let more = format!("(and {n} more call{})", if n == 1 { "" } else { "s" });
+            d.help = Some(match d.help.take() {
+                Some(h) => format!("{h} {more}"),
+                None => more,
+            });
+        }
         if self.diags.has_errors() {
             Err(self.diags.sorted())
         } else {
@@ -136,8 +159,35 @@ impl<'e> Evaluator<'e> {
     }
 
     fn error(&mut self, d: Diag) -> Value {
-        self.diags.push(d);
+        self.report(d);
         Value::Poison
+    }
+
+    /// Reports `d` once: inside `fn` calls, with each call site as a label
+    /// (the error is at the definition, which every call shares); the same
+    /// error met again adds its call sites to the first report.
+    pub(crate) fn report(&mut self, d: Diag) {
+        let key = (d.code, d.span, d.message.clone());
+        let i = match self.reported.get(&key) {
+            Some(&i) => i,
+            None => {
+                self.reported.insert(key, self.diags.len());
+                self.diags.push(d);
+                self.diags.len() - 1
+            }
+        };
+        for (f, site) in &self.calls {
+            let d = &mut self.diags.diags[i];
+            if d.notes.iter().any(|(s, _)| s == site) {
+                continue;
+            }
+            if d.notes.len() >= MAX_CALL_LABELS {
+                *self.more_calls.entry(i).or_insert(0) += 1;
+                continue;
+            }
+            d.notes
+                .push((*site, format!("`{}` called here", f.name.name)));
+        }
     }
 
     fn spend(&mut self, span: Span) -> bool {
@@ -639,7 +689,7 @@ impl<'e> Evaluator<'e> {
     /// A call of a `fn`: arguments bound as the checker bound them,
     /// defaults evaluated at the call, and the body evaluated with only its
     /// parameters and the top-level names in scope.
-    fn call_fn(&mut self, f: Arc<FnDef>, args: &[Arg]) -> Value {
+    fn call_fn(&mut self, f: Arc<FnDef>, args: &[Arg], site: Span) -> Value {
         let mut scope: HashMap<String, Value> = HashMap::new();
         let mut poisoned = false;
         for (i, a) in args.iter().enumerate() {
@@ -664,6 +714,7 @@ impl<'e> Evaluator<'e> {
             return Value::Poison;
         }
         let caller = std::mem::take(&mut self.locals);
+        self.calls.push((f.clone(), site));
         for p in &f.params {
             if let (false, Some(d)) = (scope.contains_key(&p.name.name), &p.default) {
                 let v = self.expr(d);
@@ -672,6 +723,7 @@ impl<'e> Evaluator<'e> {
         }
         self.locals.push(scope);
         let v = self.body(&f.body);
+        self.calls.pop();
         self.locals = caller;
         v
     }
@@ -757,7 +809,7 @@ impl<'e> Evaluator<'e> {
             return Value::Poison;
         }
         if let Some(f) = self.fns.get(&callee.name) {
-            return self.call_fn(f.clone(), args);
+            return self.call_fn(f.clone(), args, span);
         }
         let Some(builtin) = self.env.builtin(&callee.name) else {
             return Value::Poison;
