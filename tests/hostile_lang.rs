@@ -193,3 +193,92 @@ let e = for i in 0..3 { sphere(radius: -1) }
     assert!(first.contains("`ball` called here"), "{first}");
     assert!(first.contains("`pair` called here"), "{first}");
 }
+
+/// A unit written apart from its number, or one sdfl does not have, is
+/// named as such with what to write (the help said to separate arguments
+/// with `,`).
+#[test]
+fn units_apart_from_their_number_or_unknown_say_what_to_write() {
+    let text = "let a = rotate(box(size: 1), 30 deg)
+let b = rotate(box(size: 1), 45degrees)
+let c = 30 deg
+let d = rotate(box(size: 1), 0.5 rad)
+render r {
+  scene: a,
+  camera: look_at(eye: [0, 0, -3], focal: 50mm),
+  outputs: [image(\"r.png\")],
+}
+let e = translate(box(size: 1), [2 cm, 0, 0])
+";
+    let o = check_text("lang_units", text);
+    assert_outcome("units", &o, Expect::Error);
+    assert_eq!(count(&o, "sdfl::syntax::unit"), 6, "{}", o.stderr);
+    assert!(!o.stderr.contains("separate arguments"), "{}", o.stderr);
+    for needle in [
+        "write `30deg`",
+        "write `45deg`",
+        "write `0.5`",
+        "`focal: 2.78`",
+        "write `2`",
+    ] {
+        assert!(o.stderr.contains(needle), "no {needle}:\n{}", o.stderr);
+    }
+    // Line 3's `deg` is reported there, not as a block on line 4.
+    assert!(o.stderr.contains("lang_units.sdfl:3:12]"), "{}", o.stderr);
+}
+
+/// Numbers that are likely in the wrong unit run, with a warning: a whole
+/// angle of 7 or more (degrees written as radians) and a focal length far
+/// beyond NDC's (a lens's millimetres).
+#[test]
+fn angles_in_degrees_and_focal_lengths_in_millimetres_are_warned_about() {
+    let render = |camera: &str, angle: &str| {
+        format!(
+            "render r {{
+  scene: rotate(box(size: 1), {angle}),
+  camera: {camera},
+  outputs: [image(\"r.png\")],
+}}
+"
+        )
+    };
+    let warned = [
+        ("look_at(eye: [0, 0, -3])", "45", "sdfl::warn::degrees"),
+        ("look_at(eye: [0, 0, -3])", "-90", "sdfl::warn::degrees"),
+        (
+            "look_at(eye: [0, 0, -3], focal: 50)",
+            "0.5",
+            "sdfl::warn::focal",
+        ),
+        ("orbit(focal: 35, views: 2)", "1", "sdfl::warn::focal"),
+    ];
+    for (i, (camera, angle, code)) in warned.into_iter().enumerate() {
+        let o = check_text(&format!("lang_unit_warning_{i}"), &render(camera, angle));
+        assert_outcome(code, &o, Expect::Ok);
+        assert_eq!(count(&o, code), 1, "{camera} {angle}: {}", o.stderr);
+    }
+    let o = check_text(
+        "lang_unit_warning_help",
+        &render("look_at(eye: [0, 0, -3], focal: 50)", "45"),
+    );
+    assert!(o.stderr.contains("`45deg`"), "{}", o.stderr);
+    assert!(o.stderr.contains("NDC units"), "{}", o.stderr);
+    assert!(o.stderr.contains("f/18"), "{}", o.stderr);
+    for (i, (camera, angle)) in [
+        ("look_at(eye: [0, 0, -3], focal: 2.5)", "3"),
+        ("look_at(eye: [0, 0, -3], focal: 20)", "45deg"),
+        ("look_at(eye: [0, 0, -3])", "6"),
+        ("look_at(eye: [0, 0, -3])", "7.5"),
+    ]
+    .into_iter()
+    .enumerate()
+    {
+        let o = check_text(&format!("lang_unit_quiet_{i}"), &render(camera, angle));
+        assert_outcome("no warning", &o, Expect::Ok);
+        assert!(
+            !o.stderr.contains("sdfl::warn"),
+            "{camera} {angle}: {}",
+            o.stderr
+        );
+    }
+}

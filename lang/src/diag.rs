@@ -16,6 +16,9 @@ pub mod codes {
     pub const NESTING: &str = "sdfl::syntax::nesting";
     pub const NUMBER: &str = "sdfl::syntax::number";
     pub const ESCAPE: &str = "sdfl::syntax::escape";
+    /// A unit written apart from its number (`30 deg`), or one sdfl does
+    /// not have (`50mm`, `0.5rad`).
+    pub const UNIT: &str = "sdfl::syntax::unit";
     pub const UNKNOWN_NAME: &str = "sdfl::name::unknown";
     pub const UNKNOWN_FUNCTION: &str = "sdfl::name::unknown-function";
     pub const UNKNOWN_BLOCK: &str = "sdfl::name::unknown-block";
@@ -63,6 +66,12 @@ pub mod codes {
     /// A warning: a `param(...)` where nothing trains it (a render, or the
     /// data of a `train`): it keeps its starting value.
     pub const UNTRAINED_PARAM: &str = "sdfl::warn::untrained-param";
+    /// A warning: a whole angle of 7 radians or more, likely meant in
+    /// degrees (`rotate(s, 45)`).
+    pub const DEGREES: &str = "sdfl::warn::degrees";
+    /// A warning: a focal length far beyond NDC's (a lens's millimetres,
+    /// `focal: 50`).
+    pub const FOCAL: &str = "sdfl::warn::focal";
 }
 
 /// A number in a message: plain when short, otherwise in short scientific

@@ -851,6 +851,9 @@ impl<'e> Evaluator<'e> {
                 bound.defaulted.push(p.name);
             }
         }
+        for w in crate::builtins::unit_warnings(sig.name, &bound) {
+            self.report(w);
+        }
         match (builtin.eval)(&bound) {
             Ok(Value::Param(mut decl)) => {
                 Arc::make_mut(&mut decl).id = self.params;
