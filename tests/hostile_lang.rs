@@ -282,3 +282,33 @@ fn angles_in_degrees_and_focal_lengths_in_millimetres_are_warned_about() {
         );
     }
 }
+
+/// One statement of 8 MB (a list literal) is refused as too large to
+/// parse, in bounded memory: parsing it whole took 1.3 GB (pest's tree of
+/// one statement is held while it is built).
+#[test]
+fn one_huge_statement_is_refused_in_bounded_memory() {
+    const BOUND: u64 = 400 << 20;
+    let dir = case_dir("lang_huge_statement");
+    let file = dir.join("list.sdfl");
+    let items = vec!["1"; 8 << 20 >> 1];
+    fs::write(&file, format!("let a = [{}]\n", items.join(","))).expect("case file is writable");
+    let (code, stderr, peak) = check_peak_memory(&file);
+    assert_eq!(code, Some(1), "{}", head(&stderr));
+    assert!(
+        stderr.contains("sdfl::limit::too-large"),
+        "{}",
+        head(&stderr)
+    );
+    assert!(
+        stderr.contains("statement too large to parse"),
+        "{}",
+        head(&stderr)
+    );
+    assert!(
+        peak <= BOUND,
+        "peaked at {} MB, over {} MB",
+        peak >> 20,
+        BOUND >> 20
+    );
+}

@@ -39,6 +39,12 @@ pub const MAX_DEPTH: usize = 640;
 pub const MAX_OPERATORS: usize = 512;
 /// Longest run of unary minus signs.
 const MAX_PREFIX_RUN: usize = 16;
+/// Most rule calls pest may make parsing one item (a `let`, `fn`, block
+/// or `import`): one item's parse tree is held whole while it is built, so
+/// this bounds the parser's memory (and time) whatever one statement holds.
+/// A list of 400k numbers (3 MB) fits, parsed in about 200 MB; an 8 MB
+/// list is refused at about the same (it took 1.3 GB).
+pub const MAX_ITEM_CALLS: usize = 50_000_000;
 /// Syntax errors reported before giving up on a file.
 const MAX_SYNTAX_ERRORS: usize = 20;
 
@@ -51,6 +57,9 @@ pub fn parse(text: &str) -> Result<File, Diagnostics> {
         diags.push(d);
         return Err(diags);
     }
+    static LIMIT: OnceLock<()> = OnceLock::new();
+    // Process-wide in pest, and only this parser uses pest.
+    LIMIT.get_or_init(|| pest::set_call_limit(std::num::NonZeroUsize::new(MAX_ITEM_CALLS)));
     let mut items = Vec::new();
     // Where the next item's parse starts, and where the one before started
     // (an error is reported as a parse of the whole rest would report it:
@@ -76,12 +85,31 @@ pub fn parse(text: &str) -> Result<File, Diagnostics> {
                 items.push(item);
                 (previous, offset) = (offset, end);
             }
-            Err(_) => {
-                let e = match SdflParser::parse(Rule::file, &text[previous..]) {
-                    Err(e) => e,
-                    Ok(_) => unreachable!("an item that fails alone fails after the one before"),
+            Err(first) if over_limit(&first) => {
+                let line = text[offset..].find('\n').map_or(text.len(), |n| offset + n);
+                diags.push(
+                    Diag::new(
+                        codes::TOO_LARGE,
+                        Span::new(offset, line.min(offset + 80)),
+                        "statement too large to parse",
+                    )
+                    .label("this statement")
+                    .help("split it into several `let`s, or build long lists with `for`; data sets belong in files (`.npy`, `.npz`, PNG)"),
+                );
+                match next_item_start(text, offset) {
+                    Some(next) => (previous, offset) = (next, next),
+                    None => break,
+                }
+                continue;
+            }
+            Err(first) => {
+                // As a parse of the file from the item before reports it
+                // (unless that parse, two items long, is over the limit).
+                let (e, base) = match SdflParser::parse(Rule::file, &text[previous..]) {
+                    Err(e) if !over_limit(&e) => (e, previous),
+                    _ => (first, offset),
                 };
-                let pos = previous
+                let pos = base
                     + match e.location {
                         InputLocation::Pos(p) => p,
                         InputLocation::Span((s, _)) => s,
@@ -109,6 +137,11 @@ pub fn parse(text: &str) -> Result<File, Diagnostics> {
     } else {
         Err(diags)
     }
+}
+
+/// Whether pest stopped at [`MAX_ITEM_CALLS`] (not at a syntax error).
+fn over_limit(e: &pest::error::Error<Rule>) -> bool {
+    matches!(&e.variant, ErrorVariant::CustomError { message } if message.contains("limit reached"))
 }
 
 // ------------------------------------------------------------- AST building
