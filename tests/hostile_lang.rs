@@ -312,3 +312,42 @@ fn one_huge_statement_is_refused_in_bounded_memory() {
         BOUND >> 20
     );
 }
+
+/// Name and type errors do not hide value errors elsewhere: statements the
+/// checker found wrong are left out of evaluation (what uses them stays
+/// quiet), the others are evaluated and their errors reported too.
+#[test]
+fn check_errors_and_value_errors_are_reported_together() {
+    let text = r#"let a = sphere(radius: "big")
+let b = box(size: -1)
+let c = sphere(radius: a)
+fn f(r) { sphere(radius: r, colour: 1) }
+let d = f(1)
+render r {
+  scene: torus(major: -2),
+  camera: look_at(eye: [0, 0, -3]),
+  iterations: 0.5,
+  outputs: [image("r.png")],
+}
+render s {
+  scene: b,
+  camera: look_at(eye: [0, 0, -3]),
+  outputs: [image("s.png")],
+  colour: 1,
+}
+"#;
+    let o = check_text("lang_check_and_values", text);
+    assert_outcome("check and values", &o, Expect::Error);
+    for needle in [
+        "sdfl::type::mismatch",
+        "`size` must be positive",
+        "sdfl::arg::unknown",
+        "`major` must be positive",
+        "`iterations` must be a whole number",
+        "sdfl::field::unknown",
+    ] {
+        assert!(o.stderr.contains(needle), "no {needle}:\n{}", o.stderr);
+    }
+    // Four from the checker (`c` passes a shape as a radius), three values.
+    assert!(o.stderr.contains("7 errors in"), "{}", o.stderr);
+}

@@ -50,6 +50,9 @@ pub struct Evaluator<'e> {
     work: u64,
     aborted: bool,
     defaults: HashMap<(&'static str, &'static str), Value>,
+    /// Where the items the checker found errors in start (sorted): they are
+    /// not evaluated (a `let` binds poison, a `fn` is left undefined).
+    failed: Vec<usize>,
     /// Values replacing top-level `let`s (for sweeps).
     overrides: HashMap<String, Value>,
     /// `param(...)` calls evaluated so far (their ids).
@@ -84,6 +87,7 @@ impl<'e> Evaluator<'e> {
             aborted: false,
             defaults: HashMap::new(),
             overrides: HashMap::new(),
+            failed: Vec::new(),
             params: 0,
             sizes: Sizes::default(),
             calls: Vec::new(),
@@ -100,6 +104,32 @@ impl<'e> Evaluator<'e> {
     pub fn with_overrides(mut self, overrides: HashMap<String, Value>) -> Self {
         self.overrides = overrides;
         self
+    }
+
+    /// An evaluator of the items of `file` that hold none of the checker's
+    /// errors at `errors` (only those are checked: the others are skipped).
+    /// `None` when an error lies outside every item.
+    pub fn without_failed(mut self, file: &File, errors: Vec<Span>) -> Option<Self> {
+        let mut items: Vec<Span> = file.items.iter().map(item_span).collect();
+        items.sort_unstable_by_key(|s| s.start);
+        let mut failed = Vec::new();
+        for e in errors {
+            // The last item starting at or before the error must hold it.
+            let k = items.partition_point(|s| s.start <= e.start);
+            let item = items.get(k.checked_sub(1)?)?;
+            if e.start >= item.end {
+                return None;
+            }
+            failed.push(item.start);
+        }
+        failed.sort_unstable();
+        failed.dedup();
+        self.failed = failed;
+        Some(self)
+    }
+
+    fn item_failed(&self, item: &Item) -> bool {
+        self.failed.binary_search(&item_span(item).start).is_ok()
     }
 
     /// Evaluate a checked file.
@@ -121,6 +151,12 @@ impl<'e> Evaluator<'e> {
         for item in &file.items {
             if self.aborted {
                 break;
+            }
+            if self.item_failed(item) {
+                if let Item::Let(l) = item {
+                    self.globals.insert(l.name.name.clone(), Value::Poison);
+                }
+                continue;
             }
             match item {
                 Item::Let(l) => {
@@ -884,6 +920,15 @@ impl<'e> Evaluator<'e> {
             Some(d) => self.error(d),
             None => v,
         }
+    }
+}
+
+fn item_span(item: &Item) -> Span {
+    match item {
+        Item::Let(l) => l.span,
+        Item::Block(b) => b.span,
+        Item::Fn(f) => f.span,
+        Item::Import(i) => i.span,
     }
 }
 
