@@ -351,3 +351,17 @@ render s {
     // Four from the checker (`c` passes a shape as a radius), three values.
     assert!(o.stderr.contains("7 errors in"), "{}", o.stderr);
 }
+
+/// Past six labelled calls, the others are counted in the help.
+#[test]
+fn calls_past_the_labelled_ones_are_counted() {
+    let mut text = String::from("fn ball(r) {\n  sphere(radius: r - 2)\n}\n");
+    for i in 0..9 {
+        text.push_str(&format!("let a{i} = ball(1)\n"));
+    }
+    let o = check_text("lang_fn_many_calls", &text);
+    assert_outcome("many calls", &o, Expect::Error);
+    assert_eq!(count(&o, "`ball` called here"), 6, "{}", o.stderr);
+    assert!(o.stderr.contains("(and 3 more calls)"), "{}", o.stderr);
+    assert!(o.stderr.contains("1 error in"), "{}", o.stderr);
+}

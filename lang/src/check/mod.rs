@@ -44,7 +44,7 @@ fn list_depth(t: &Type) -> usize {
 }
 
 /// Check a file. Returns the diagnostics (empty when the file is fine).
-pub fn check<'f>(file: &'f File, env: &dyn Env) -> Diagnostics {
+pub fn check(file: &File, env: &dyn Env) -> Diagnostics {
     // Sized up front: a file of a million `let`s must not hold the table
     // twice while it grows.
     let lets = file
