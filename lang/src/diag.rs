@@ -16,6 +16,9 @@ pub mod codes {
     pub const NESTING: &str = "sdfl::syntax::nesting";
     pub const NUMBER: &str = "sdfl::syntax::number";
     pub const ESCAPE: &str = "sdfl::syntax::escape";
+    /// A unit written apart from its number (`30 deg`), or one sdfl does
+    /// not have (`50mm`, `0.5rad`).
+    pub const UNIT: &str = "sdfl::syntax::unit";
     pub const UNKNOWN_NAME: &str = "sdfl::name::unknown";
     pub const UNKNOWN_FUNCTION: &str = "sdfl::name::unknown-function";
     pub const UNKNOWN_BLOCK: &str = "sdfl::name::unknown-block";
@@ -63,6 +66,12 @@ pub mod codes {
     /// A warning: a `param(...)` where nothing trains it (a render, or the
     /// data of a `train`): it keeps its starting value.
     pub const UNTRAINED_PARAM: &str = "sdfl::warn::untrained-param";
+    /// A warning: a whole angle of 7 radians or more, likely meant in
+    /// degrees (`rotate(s, 45)`).
+    pub const DEGREES: &str = "sdfl::warn::degrees";
+    /// A warning: a focal length far beyond NDC's (a lens's millimetres,
+    /// `focal: 50`).
+    pub const FOCAL: &str = "sdfl::warn::focal";
 }
 
 /// A number in a message: plain when short, otherwise in short scientific
@@ -156,8 +165,9 @@ impl Diagnostics {
     }
 
     /// `d` with its spans in the file of its primary span, and that file:
-    /// a note in another file becomes a sentence of the help.
-    fn localised(&self, d: &Diag) -> (Option<&SourceFile>, Diag) {
+    /// a note in another file becomes a sentence of the help. `main` is the
+    /// loaded file.
+    fn localised(&self, d: &Diag, main: &SourceFile) -> (Option<&SourceFile>, Diag) {
         let (file, span) = self.locate(d.span);
         let mut local = Diag {
             span,
@@ -170,10 +180,8 @@ impl Diagnostics {
                 local.notes.push((s, text.clone()));
                 continue;
             }
-            let (name, (line, col)) = match note_file {
-                Some(f) => (f.name.as_str(), f.line_col(s.start)),
-                None => ("the file loaded", (0, 0)),
-            };
+            let f = note_file.unwrap_or(main);
+            let (name, (line, col)) = (f.name.as_str(), f.line_col(s.start));
             let help = local.help.take().unwrap_or_default();
             local.help = Some(format!("{help} ({text}: {name}:{line}:{col})"));
         }
@@ -336,7 +344,7 @@ pub fn render(source: &SourceFile, diags: &Diagnostics, color: bool) -> String {
     let mut out = String::new();
     for diag in diags.diags.iter().take(MAX_RENDERED) {
         // A diagnostic inside an imported file is shown in that file.
-        let (file, local) = diags.localised(diag);
+        let (file, local) = diags.localised(diag, source);
         let (source, diag) = (file.unwrap_or(source), &local);
         let (line, col) = source.line_col(diag.span.start);
         let quotable = [diag.span.start, diag.span.end]

@@ -39,9 +39,18 @@ pub fn load_warned(source: &SourceFile) -> Result<(Program, Diagnostics), Diagno
     let located = |d| sources.locate(d);
     let file = file.map_err(located)?;
     let env = StdEnv::get();
-    let diags = sdfl_lang::check::check(&file, env);
+    let mut diags = sdfl_lang::check::check(&file, env);
     if !diags.is_empty() {
-        return Err(located(diags));
+        // The statements the checker passed are evaluated too, so that
+        // their value errors come in the same report.
+        let spans = diags.diags.iter().map(|d| d.span).collect();
+        if let Some(evaluator) = eval::Evaluator::new(env).without_failed(&file, spans) {
+            diags.diags.extend(match evaluator.run_warned(&file) {
+                Ok((_, warnings)) => warnings.diags,
+                Err(found) => found.diags,
+            });
+        }
+        return Err(located(diags.sorted()));
     }
     eval::Evaluator::new(env)
         .with_base(input_base(source))

@@ -45,9 +45,16 @@ fn list_depth(t: &Type) -> usize {
 
 /// Check a file. Returns the diagnostics (empty when the file is fine).
 pub fn check(file: &File, env: &dyn Env) -> Diagnostics {
+    // Sized up front: a file of a million `let`s must not hold the table
+    // twice while it grows.
+    let lets = file
+        .items
+        .iter()
+        .filter(|i| matches!(i, Item::Let(_)))
+        .count();
     let mut c = Checker {
         env,
-        globals: HashMap::new(),
+        globals: HashMap::with_capacity(lets),
         locals: Vec::new(),
         diags: Diagnostics::default(),
         deep_list_reported: false,
@@ -73,7 +80,7 @@ pub fn check(file: &File, env: &dyn Env) -> Diagnostics {
             Item::Fn(f) => c.fn_def(f),
             Item::Let(l) => {
                 let ty = c.expr(&l.value);
-                if let Some((_, first)) = c.globals.get(&l.name.name) {
+                if let Some((_, first)) = c.globals.get(l.name.name.as_str()) {
                     let first = *first;
                     c.diags.push(
                         Diag::new(
@@ -86,7 +93,7 @@ pub fn check(file: &File, env: &dyn Env) -> Diagnostics {
                         .help("a scene file states each name once; pick another name"),
                     );
                 } else {
-                    c.globals.insert(l.name.name.clone(), (ty, l.name.span));
+                    c.globals.insert(&l.name.name, (ty, l.name.span));
                 }
             }
             Item::Block(b) => {
@@ -114,9 +121,10 @@ pub fn check(file: &File, env: &dyn Env) -> Diagnostics {
     c.diags.sorted()
 }
 
-struct Checker<'e> {
+struct Checker<'e, 'f> {
     env: &'e dyn Env,
-    globals: HashMap<String, (Type, Span)>,
+    /// Keyed by the names in the file's tree: no copy of each.
+    globals: HashMap<&'f str, (Type, Span)>,
     locals: Vec<HashMap<String, Type>>,
     diags: Diagnostics,
     /// Whether lists nested too deep were reported (once is enough: the
@@ -148,7 +156,7 @@ fn intern(name: &str) -> &'static str {
     n
 }
 
-impl Checker<'_> {
+impl<'f> Checker<'_, 'f> {
     /// The type of an item of `t` (a list, or a vector of numbers); for
     /// anything else a type error at `span`: "{what} a number", with `help`.
     fn item_type(&mut self, t: Type, span: Span, what: &str, help: &str) -> Type {
@@ -284,7 +292,7 @@ impl Checker<'_> {
             .iter()
             .flat_map(|s| s.keys().map(String::as_str))
             .collect();
-        names.extend(self.globals.keys().map(String::as_str));
+        names.extend(self.globals.keys().copied());
         names.extend(self.env.constant_names());
         names
     }

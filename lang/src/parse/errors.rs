@@ -164,6 +164,9 @@ pub(super) fn syntax_error(text: &str, pos: usize, variant: &ErrorVariant<Rule>)
     if let Some(d) = unterminated(text, pos) {
         return d;
     }
+    if let Some(d) = unit_error(text, pos) {
+        return d;
+    }
     let mut expected: Vec<&str> = match variant {
         ErrorVariant::ParsingError { positives, .. } => {
             positives.iter().map(|r| describe_rule(*r)).collect()
@@ -295,6 +298,126 @@ pub(super) fn syntax_error(text: &str, pos: usize, variant: &ErrorVariant<Rule>)
         Some((span, text)) => d.note(span, text),
         None => d,
     }
+}
+
+/// What a unit word after a number means in sdfl: `deg` is the only unit
+/// (radians are the default, lengths are plain numbers in scene units).
+#[derive(Clone, Copy, PartialEq)]
+enum UnitWord {
+    Degrees,
+    Radians,
+    Length,
+}
+
+fn unit_word(word: &str) -> Option<UnitWord> {
+    match word {
+        "deg" | "degs" | "degree" | "degrees" | "°" => Some(UnitWord::Degrees),
+        "rad" | "rads" | "radian" | "radians" => Some(UnitWord::Radians),
+        "mm" | "cm" | "m" | "km" | "px" => Some(UnitWord::Length),
+        _ => None,
+    }
+}
+
+/// The number literal ending at `end` (its start), if one does: digits and
+/// `.`, with an exponent, not the tail of a name (`x1`).
+fn number_before(text: &str, end: usize) -> Option<usize> {
+    let b = text.as_bytes();
+    let back = |mut i: usize| {
+        while i > 0 && (b[i - 1].is_ascii_digit() || b[i - 1] == b'.') {
+            i -= 1;
+        }
+        i
+    };
+    let mut i = back(end);
+    if i == end {
+        return None;
+    }
+    // An exponent: `1e-3`, `2E5`.
+    let mut j = i;
+    if j > 0 && matches!(b[j - 1], b'+' | b'-') {
+        j -= 1;
+    }
+    if j > 0 && matches!(b[j - 1], b'e' | b'E') && back(j - 1) < j - 1 {
+        i = back(j - 1);
+    }
+    let in_name = i > 0 && (b[i - 1].is_ascii_alphanumeric() || b[i - 1] == b'_');
+    (!in_name && text[i..end].parse::<f64>().is_ok()).then_some(i)
+}
+
+/// A unit word at `pos` right after a number (`50mm`, `30 deg`), or the
+/// word just before `pos` that was one (`let a = 30 deg` then a new line,
+/// where the parser took `deg` for the start of a block): what to write.
+fn unit_error(text: &str, pos: usize) -> Option<Diag> {
+    let word_at = |at: usize| -> &str {
+        let rest = &text[at..];
+        if rest.starts_with('°') {
+            return &rest[..'°'.len_utf8()];
+        }
+        let n = rest
+            .find(|c: char| !(c.is_ascii_alphanumeric() || c == '_'))
+            .unwrap_or(rest.len());
+        &rest[..n]
+    };
+    // The word at `pos`, else the one before it (back over whitespace).
+    let before = text[..pos].trim_end();
+    let word_start_before = before
+        .rfind(|c: char| !(c.is_ascii_alphanumeric() || c == '_'))
+        .map_or(0, |i| {
+            i + before[i..].chars().next().map_or(1, char::len_utf8)
+        });
+    let candidates = [pos, word_start_before];
+    let (start, word, kind) = candidates.into_iter().find_map(|at| {
+        let word = word_at(at);
+        unit_word(word).map(|k| (at, word, k))
+    })?;
+    // The number before the word, apart by spaces or tabs only.
+    let gap_start = text[..start].trim_end_matches([' ', '\t']).len();
+    let num_start = number_before(text, gap_start)?;
+    let number = &text[num_start..gap_start];
+    let apart = gap_start < start;
+    let value: f64 = number.parse().ok()?;
+    let span = Span::new(start, start + word.len());
+    let field = text[..num_start].trim_end();
+    let (message, label, help) = match kind {
+        UnitWord::Degrees if word == "deg" => (
+            "a unit is written right after its number".to_string(),
+            "apart from its number".to_string(),
+            format!("write `{number}deg`"),
+        ),
+        UnitWord::Degrees => (
+            format!("`{word}` is not a unit: sdfl writes degrees as `deg`"),
+            "not a unit".to_string(),
+            format!("write `{number}deg`"),
+        ),
+        UnitWord::Radians => (
+            format!("`{word}` is not a unit: angles are in radians unless marked `deg`"),
+            "not a unit".to_string(),
+            format!("write `{number}` (or `{number}deg` for degrees)"),
+        ),
+        UnitWord::Length if field.ends_with("focal:") && word == "mm" => (
+            format!("`{word}` is not a unit: `focal` is in NDC units, not millimetres"),
+            "not a unit".to_string(),
+            format!(
+                "1 is a 90° field of view (`focal = 1/tan(fov/2)`); a {number} mm lens on a 36 mm-wide sensor is `focal: {:.2}` (f/18)",
+                value / 18.0
+            ),
+        ),
+        UnitWord::Length => (
+            format!("`{word}` is not a unit: lengths are plain numbers in scene units"),
+            "not a unit".to_string(),
+            format!("write `{number}`"),
+        ),
+    };
+    let label = if apart && kind != UnitWord::Degrees {
+        "a unit sdfl does not have".to_string()
+    } else {
+        label
+    };
+    Some(
+        Diag::new(codes::UNIT, span, message)
+            .label(label)
+            .help(help),
+    )
 }
 
 /// A string or block comment left open at `pos`, where the parser stopped:

@@ -39,6 +39,12 @@ pub const MAX_DEPTH: usize = 640;
 pub const MAX_OPERATORS: usize = 512;
 /// Longest run of unary minus signs.
 const MAX_PREFIX_RUN: usize = 16;
+/// Most rule calls pest may make parsing one item (a `let`, `fn`, block
+/// or `import`): one item's parse tree is held whole while it is built, so
+/// this bounds the parser's memory (and time) whatever one statement holds.
+/// A list of 400k numbers (3 MB) fits, parsed in about 200 MB; an 8 MB
+/// list is refused at about the same (it took 1.3 GB).
+pub const MAX_ITEM_CALLS: usize = 50_000_000;
 /// Syntax errors reported before giving up on a file.
 const MAX_SYNTAX_ERRORS: usize = 20;
 
@@ -51,19 +57,59 @@ pub fn parse(text: &str) -> Result<File, Diagnostics> {
         diags.push(d);
         return Err(diags);
     }
-    let mut offset = 0;
-    let mut file = None;
+    static LIMIT: OnceLock<()> = OnceLock::new();
+    // Process-wide in pest, and only this parser uses pest.
+    LIMIT.get_or_init(|| pest::set_call_limit(std::num::NonZeroUsize::new(MAX_ITEM_CALLS)));
+    let mut items = Vec::new();
+    // Where the next item's parse starts, and where the one before started
+    // (an error is reported as a parse of the whole rest would report it:
+    // the item before may also have wanted what comes next).
+    let (mut offset, mut previous) = (0, 0);
     while diags.len() < MAX_SYNTAX_ERRORS {
-        match SdflParser::parse(Rule::file, &text[offset..]) {
+        match SdflParser::parse(Rule::next_item, &text[offset..]) {
             Ok(mut pairs) => {
-                if offset == 0 {
-                    let root = pairs.next().expect("file rule always yields one pair");
-                    file = Some(build_file(root, &mut diags));
+                let step = pairs.next().expect("next_item always yields one pair");
+                let end = offset + step.as_span().end();
+                let Some(item) = children(step).next() else {
+                    break; // the end of the file
+                };
+                // Spans are built relative to `offset`, where pest began.
+                let mut found = Diagnostics::default();
+                let mut item = build_item(item, &mut found);
+                item.shift(offset);
+                for mut d in found.diags {
+                    d.span.shift(offset);
+                    d.notes.iter_mut().for_each(|(s, _)| s.shift(offset));
+                    diags.push(d);
                 }
-                break;
+                items.push(item);
+                (previous, offset) = (offset, end);
             }
-            Err(e) => {
-                let pos = offset
+            Err(first) if over_limit(&first) => {
+                let line = text[offset..].find('\n').map_or(text.len(), |n| offset + n);
+                diags.push(
+                    Diag::new(
+                        codes::TOO_LARGE,
+                        Span::new(offset, line.min(offset + 80)),
+                        "statement too large to parse",
+                    )
+                    .label("this statement")
+                    .help("split it into several `let`s, or build long lists with `for`; data sets belong in files (`.npy`, `.npz`, PNG)"),
+                );
+                match next_item_start(text, offset) {
+                    Some(next) => (previous, offset) = (next, next),
+                    None => break,
+                }
+                continue;
+            }
+            Err(first) => {
+                // As a parse of the file from the item before reports it
+                // (unless that parse, two items long, is over the limit).
+                let (e, base) = match SdflParser::parse(Rule::file, &text[previous..]) {
+                    Err(e) if !over_limit(&e) => (e, previous),
+                    _ => (first, offset),
+                };
+                let pos = base
                     + match e.location {
                         InputLocation::Pos(p) => p,
                         InputLocation::Span((s, _)) => s,
@@ -71,24 +117,31 @@ pub fn parse(text: &str) -> Result<File, Diagnostics> {
                 diags.push(syntax_error(text, pos, &e.variant));
                 // An error at the start of a line that starts an item (the
                 // line before was incomplete): parsing resumes right there.
-                let item_here = pos > offset
+                let item_here = pos > previous
                     && (pos == 0 || text[..pos].ends_with('\n'))
                     && text[pos..].starts_with(|c: char| c.is_ascii_alphabetic() || c == '_');
-                if item_here {
-                    offset = pos;
-                    continue;
-                }
-                match next_item_start(text, pos) {
-                    Some(next) => offset = next,
+                let resume = if item_here {
+                    Some(pos)
+                } else {
+                    next_item_start(text, pos)
+                };
+                match resume {
+                    Some(next) => (previous, offset) = (next, next),
                     None => break,
                 }
             }
         }
     }
-    match file {
-        Some(f) if diags.is_empty() => Ok(f),
-        _ => Err(diags),
+    if diags.is_empty() {
+        Ok(File { items })
+    } else {
+        Err(diags)
     }
+}
+
+/// Whether pest stopped at [`MAX_ITEM_CALLS`] (not at a syntax error).
+fn over_limit(e: &pest::error::Error<Rule>) -> bool {
+    matches!(&e.variant, ErrorVariant::CustomError { message } if message.contains("limit reached"))
 }
 
 // ------------------------------------------------------------- AST building
@@ -128,30 +181,27 @@ fn children(pair: Pair<Rule>) -> impl Iterator<Item = Pair<Rule>> {
     pair.into_inner().filter(|p| !is_punctuation(p.as_rule()))
 }
 
-fn build_file(pair: Pair<Rule>, diags: &mut Diagnostics) -> File {
-    let items = children(pair)
-        .map(|p| match p.as_rule() {
-            Rule::let_stmt => Item::Let(build_let(p, diags).0),
-            Rule::block => Item::Block(build_block(p, diags)),
-            Rule::fn_def => Item::Fn(build_fn(p, diags)),
-            Rule::import_stmt => {
-                let span = span_of(&p);
-                let lit = children(p).next().expect("import has a path");
-                let path_span = span_of(&lit);
-                let path = match build_string(lit, diags) {
-                    ExprKind::Str(s) => s,
-                    _ => unreachable!("build_string makes strings"),
-                };
-                Item::Import(Import {
-                    path,
-                    path_span,
-                    span,
-                })
-            }
-            r => unreachable!("grammar: item cannot be {r:?}"),
-        })
-        .collect();
-    File { items }
+fn build_item(p: Pair<Rule>, diags: &mut Diagnostics) -> Item {
+    match p.as_rule() {
+        Rule::let_stmt => Item::Let(build_let(p, diags).0),
+        Rule::block => Item::Block(build_block(p, diags)),
+        Rule::fn_def => Item::Fn(build_fn(p, diags)),
+        Rule::import_stmt => {
+            let span = span_of(&p);
+            let lit = children(p).next().expect("import has a path");
+            let path_span = span_of(&lit);
+            let path = match build_string(lit, diags) {
+                ExprKind::Str(s) => s,
+                _ => unreachable!("build_string makes strings"),
+            };
+            Item::Import(Import {
+                path,
+                path_span,
+                span,
+            })
+        }
+        r => unreachable!("grammar: item cannot be {r:?}"),
+    }
 }
 
 fn build_ident(pair: Pair<Rule>) -> Ident {

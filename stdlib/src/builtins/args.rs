@@ -337,3 +337,39 @@ pub(crate) fn colour(c: DVec3, span: Span) -> Result<DVec3, Diag> {
         ))
     }
 }
+
+/// The errors of a statement's fields, collected: every field is read and
+/// checked whatever the others hold, so one `check` reports them all. An
+/// error about a field that is poison (its own error was reported where it
+/// was made) is left out.
+pub(crate) struct Errors<'a> {
+    args: &'a Args,
+    pub diags: Vec<Diag>,
+}
+
+impl<'a> Errors<'a> {
+    pub fn new(args: &'a Args) -> Self {
+        Errors {
+            args,
+            diags: Vec::new(),
+        }
+    }
+
+    /// The value, or `None` with its error kept.
+    pub fn ok<T>(&mut self, r: Result<T, Diag>) -> Option<T> {
+        match r {
+            Ok(v) => Some(v),
+            Err(d) => {
+                let poisoned = self
+                    .args
+                    .named
+                    .values()
+                    .any(|(v, s)| v.is_poison() && *s == d.span);
+                if !poisoned {
+                    self.diags.push(d);
+                }
+                None
+            }
+        }
+    }
+}

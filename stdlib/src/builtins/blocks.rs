@@ -99,47 +99,74 @@ pub(super) fn hit_tolerance(a: &Args) -> Result<HitTolerance, Diag> {
     }
 }
 
-pub(crate) fn render_block(name: &str, a: &Args) -> Result<RenderJob, Diag> {
-    let outputs = outputs(a, "outputs", false)?;
-    if let Some(o) = outputs
-        .iter()
-        .find(|o| o.kind == OutputKind::SamplePoints || o.kind.training_only())
-    {
-        return Err(value_error(
-            a.get("outputs").1,
-            format!(
-                "`{}` needs a volume render or a training run",
-                o.path.display()
-            ),
-            "not a sphere-tracing output",
-            "sample points exist for fields; loss curves, PSNR curves and comparisons for `train`",
-        ));
+/// A statement's job and the errors of its fields. With errors, the job
+/// (when its outputs and views could be read) holds placeholders where
+/// fields failed: it is only checked for output collisions, never run.
+pub(crate) type Built<T> = (Option<T>, Vec<Diag>);
+
+pub(crate) fn render_block(name: &str, a: &Args) -> Built<RenderJob> {
+    let mut e = Errors::new(a);
+    let outputs = e.ok(outputs(a, "outputs", false).and_then(|outputs| {
+        match outputs
+            .iter()
+            .find(|o| o.kind == OutputKind::SamplePoints || o.kind.training_only())
+        {
+            Some(o) => Err(value_error(
+                a.get("outputs").1,
+                format!(
+                    "`{}` needs a volume render or a training run",
+                    o.path.display()
+                ),
+                "not a sphere-tracing output",
+                "sample points exist for fields; loss curves, PSNR curves and comparisons for `train`",
+            )),
+            None => Ok(outputs),
+        }
+    }));
+    let scene = e.ok(a.shape("scene"));
+    if let (Some(outputs), Some(scene)) = (&outputs, &scene) {
+        e.ok(check_meshes(outputs, Some(scene)));
     }
-    let scene = a.shape("scene")?;
-    check_meshes(&outputs, Some(&scene))?;
-    let (width, height) = image_size(a, "size")?;
-    let (near, far) = (a.number("near")?, a.number("far")?);
-    check_range(a, near, far)?;
-    let (bg, bg_span) = (a.vec3("background")?, a.get("background").1);
-    let cameras = camera_list(a, "camera")?;
-    one_intrinsics(a, &outputs, &cameras)?;
-    Ok(RenderJob {
-        name: name.to_string(),
-        scene,
-        material: a.material("material")?,
-        cameras,
-        width,
-        height,
-        near,
-        far,
-        iterations: a.count("iterations", 1, MAX_ITERATIONS as u64)? as u32,
-        epsilon: a.positive("epsilon")?,
-        hit_tolerance: hit_tolerance(a)?,
-        background: colour(bg, bg_span)?,
-        fog: fog_option(a)?,
-        samples_per_pixel: samples_per_pixel(a)?,
-        outputs,
-    })
+    let size = e.ok(image_size(a, "size"));
+    let (near, far) = (e.ok(a.number("near")), e.ok(a.number("far")));
+    let range = match (near, far) {
+        (Some(near), Some(far)) => e.ok(check_range(a, near, far).map(|()| (near, far))),
+        _ => None,
+    };
+    let (bg_span, bg) = (a.get("background").1, a.vec3("background"));
+    let background = e.ok(bg.and_then(|bg| colour(bg, bg_span)));
+    let cameras = e.ok(camera_list(a, "camera"));
+    if let (Some(outputs), Some(cameras)) = (&outputs, &cameras) {
+        e.ok(one_intrinsics(a, outputs, cameras));
+    }
+    let material = e.ok(a.material("material"));
+    let iterations = e.ok(a.count("iterations", 1, MAX_ITERATIONS as u64));
+    let epsilon = e.ok(a.positive("epsilon"));
+    let hit_tolerance = e.ok(hit_tolerance(a));
+    let fog = e.ok(fog_option(a));
+    let samples_per_pixel = e.ok(samples_per_pixel(a));
+    let (near, far) = range.unwrap_or((0.0, 1.0));
+    let (width, height) = size.unwrap_or((1, 1));
+    let job = (|| {
+        Some(RenderJob {
+            name: name.to_string(),
+            scene: scene?,
+            material: material?,
+            cameras: cameras?,
+            width,
+            height,
+            near,
+            far,
+            iterations: iterations.unwrap_or(1) as u32,
+            epsilon: epsilon.unwrap_or(1.0),
+            hit_tolerance: hit_tolerance.unwrap_or(HitTolerance::Pixel),
+            background: background.unwrap_or(DVec3::ZERO),
+            fog: fog.flatten(),
+            samples_per_pixel: samples_per_pixel.unwrap_or(1),
+            outputs: outputs?,
+        })
+    })();
+    (job, e.diags)
 }
 
 /// A `dataset` output (NeRF-synthetic) holds one focal length for all its
@@ -190,64 +217,169 @@ pub(crate) fn train_sig() -> BlockSig {
     }
 }
 
-pub(crate) fn train_block(name: &str, a: &Args) -> Result<TrainJob, Diag> {
+pub(crate) fn train_block(name: &str, a: &Args) -> Built<TrainJob> {
+    let mut e = Errors::new(a);
     let (model_v, model_span) = a.get("model");
-    let Value::Field(model) = model_v else {
-        return Err(type_error(model_span, "field", model_v));
-    };
-    let mut trainable = 0;
-    model.visit_params(&mut |_| trainable += 1);
-    // A neural field's weights are always trained; an analytic one needs
-    // something marked.
-    if trainable == 0 && model.as_sdf().is_some() {
-        return Err(value_error(
-            model_span,
-            "this model has nothing to train",
-            "no `param(...)` in it",
-            "mark the arguments to fit with `param(...)`, e.g. `sphere(radius: param(0.5))`",
-        ));
+    let model = e.ok(match model_v {
+        Value::Field(model) => Ok(model.clone()),
+        v => Err(type_error(model_span, "field", v)),
+    });
+    if let Some(model) = &model {
+        let mut trainable = 0;
+        model.visit_params(&mut |_| trainable += 1);
+        // A neural field's weights are always trained; an analytic one
+        // needs something marked.
+        if trainable == 0 && model.as_sdf().is_some() {
+            e.ok::<()>(Err(value_error(
+                model_span,
+                "this model has nothing to train",
+                "no `param(...)` in it",
+                "mark the arguments to fit with `param(...)`, e.g. `sphere(radius: param(0.5))`",
+            )));
+        }
     }
-    let Value::Dataset(data) = a.get("data").0 else {
-        return Err(type_error(a.get("data").1, "data set", a.get("data").0));
-    };
-    let Value::Sampler(sampler) = a.get("sampler").0 else {
-        return Err(type_error(
-            a.get("sampler").1,
-            "sampler",
-            a.get("sampler").0,
-        ));
-    };
-    let Value::Optimizer(optimizer) = a.get("optimizer").0 else {
-        return Err(type_error(
-            a.get("optimizer").1,
-            "optimizer",
-            a.get("optimizer").0,
-        ));
-    };
+    let (data_v, data_span) = a.get("data");
+    let data = e.ok(match data_v {
+        Value::Dataset(d) => Ok(d.clone()),
+        v => Err(type_error(data_span, "data set", v)),
+    });
+    let sampler = e.ok(match a.get("sampler").0 {
+        Value::Sampler(s) => Ok(*s),
+        v => Err(type_error(a.get("sampler").1, "sampler", v)),
+    });
+    let optimizer = e.ok(match a.get("optimizer").0 {
+        Value::Optimizer(o) => Ok(*o),
+        v => Err(type_error(a.get("optimizer").1, "optimizer", v)),
+    });
     let (losses_v, losses_span) = a.get("losses");
     // A list of losses (a single loss is a list of one too).
-    let losses = one_or_list(losses_v, |v| match v {
-        Value::Loss(l) => Some(*l),
-        _ => None,
-    });
-    let losses = match losses {
-        Some(l) if !l.is_empty() => l,
-        Some(_) => {
-            return Err(value_error(
+    let losses = e.ok(
+        match one_or_list(losses_v, |v| match v {
+            Value::Loss(l) => Some(*l),
+            _ => None,
+        }) {
+            Some(l) if !l.is_empty() => Ok(l),
+            Some(_) => Err(value_error(
                 losses_span,
                 "no loss terms",
                 "empty",
                 "train on at least `[mse()]`",
-            ))
+            )),
+            None => Err(type_error(losses_span, "list of losses", losses_v)),
+        },
+    );
+    let losses = match (&model, &data, losses) {
+        (Some(model), Some(data), Some(losses)) => {
+            e.ok(train_losses(a, model, data, losses, losses_span))
         }
-        None => return Err(type_error(losses_span, "list of losses", losses_v)),
+        _ => None,
     };
+    let backend = e.ok(a.string("backend").and_then(|(backend, span)| {
+        let backend = match &*backend {
+            "fused" => Backend::Fused,
+            "dfdx" => Backend::Dfdx,
+            other => {
+                return Err(value_error(
+                    span,
+                    format!("unknown backend `{other}`"),
+                    "not a backend",
+                    "use \"fused\" or \"dfdx\"",
+                ))
+            }
+        };
+        if backend == Backend::Dfdx && model.as_ref().is_some_and(|m| m.as_sdf().is_none()) {
+            return Err(value_error(
+                span,
+                "a neural field trains through its fused layer kernels only",
+                "no dfdx graph for this model",
+                "drop `backend`, or use \"fused\"",
+            ));
+        }
+        Ok(backend)
+    }));
+    let checkpoint = e.ok(a.string("checkpoint").and_then(|(checkpoint, span)| {
+        if checkpoint.is_empty() {
+            Ok(None)
+        } else {
+            safe_output_path(&checkpoint, span).map(Some)
+        }
+    }));
+    let before = e.ok(outputs(a, "before", true));
+    let after = e.ok(outputs(a, "after", true));
+    if let Some(model) = &model {
+        for outputs in [&before, &after].into_iter().flatten() {
+            e.ok(match &**model {
+                Field::Sdf(f) => check_meshes(outputs, Some(&f.shape)),
+                // Bounded by its points or the training `bounds`.
+                Field::NeuralSdf(_) | Field::NeuralSurface(_) => geometry_gifs(outputs, true),
+                Field::Nerf(_) => check_meshes(outputs, None),
+            });
+        }
+    }
+    if let (Some(data), Some(after)) = (&data, &after) {
+        e.ok(held_out(a, data, after));
+    }
+    let size = e.ok(image_size(a, "size"));
+    let epochs = e.ok(a.count("epochs", 0, 1_000_000));
+    // Defaults carry the block's span: a different span was written.
+    if epochs.is_some_and(|n| n > 0) && a.get("iterations").1 != a.span {
+        e.ok::<()>(Err(value_error(
+            a.get("epochs").1,
+            "`epochs` and `iterations` both say how long to train",
+            "and `iterations` is given too",
+            "keep one of them: `epochs` counts passes over every training pixel",
+        )));
+    }
+    let rays = e.ok(a.count("rays", 1, 1 << 20));
+    let iterations = e.ok(a.count("iterations", 0, 10_000_000));
+    let seed = e.ok(a.count("seed", 0, u32::MAX as u64));
+    let views = e.ok(camera_list(a, "views"));
+    let eval_every = e.ok(a.count("eval_every", 0, 10_000_000));
+    let bounds = e.ok(a.positive("bounds"));
+    let (width, height) = size.unwrap_or((1, 1));
+    let epochs = epochs.unwrap_or(0) as usize;
+    let job = (|| {
+        Some(TrainJob {
+            name: name.to_string(),
+            model: model?,
+            data: data?,
+            data_span: a.get("data").1,
+            sampler: sampler?,
+            rays: rays.unwrap_or(1) as usize,
+            optimizer: optimizer?,
+            losses: losses?,
+            iterations: iterations.unwrap_or(0) as usize,
+            epochs: (epochs > 0).then_some(epochs),
+            seed: seed.unwrap_or(0),
+            backend: backend.unwrap_or(Backend::Fused),
+            views: views?,
+            width,
+            height,
+            before: before?,
+            after: after?,
+            checkpoint: checkpoint?,
+            eval_every: eval_every.unwrap_or(0) as usize,
+            bounds: bounds.unwrap_or(1.0),
+        })
+    })();
+    (job, e.diags)
+}
+
+/// The loss terms a model trains on: the defaults of its kind unless
+/// given, each one a term of that kind, and a fitting data set.
+fn train_losses(
+    a: &Args,
+    model: &Field,
+    data: &Dataset,
+    losses: Vec<Loss>,
+    losses_span: Span,
+) -> Result<Vec<Loss>, Diag> {
     // A distance field learns from points with point terms; the others
     // from images with image terms.
-    let on_points = matches!(&**model, Field::NeuralSdf(_));
-    let surface_volume = matches!(&**model, Field::NeuralSurface(_));
+    let on_points = matches!(model, Field::NeuralSdf(_));
+    let surface_volume = matches!(model, Field::NeuralSurface(_));
     let (data_v, data_span) = a.get("data");
-    if on_points != matches!(&**data, Dataset::Points { .. }) {
+    if on_points != matches!(data, Dataset::Points { .. }) {
         return Err(value_error(
             data_span,
             if on_points {
@@ -337,157 +469,102 @@ pub(crate) fn train_block(name: &str, a: &Args) -> Result<TrainJob, Diag> {
             }
         }
     }
-    let (backend_name, backend_span) = a.string("backend")?;
-    let backend = match &*backend_name {
-        "fused" => Backend::Fused,
-        "dfdx" => Backend::Dfdx,
-        other => {
-            return Err(value_error(
-                backend_span,
-                format!("unknown backend `{other}`"),
-                "not a backend",
-                "use \"fused\" or \"dfdx\"",
-            ))
-        }
-    };
-    if backend == Backend::Dfdx && model.as_sdf().is_none() {
-        return Err(value_error(
-            backend_span,
-            "a neural field trains through its fused layer kernels only",
-            "no dfdx graph for this model",
-            "drop `backend`, or use \"fused\"",
-        ));
-    }
-    let (checkpoint, cp_span) = a.string("checkpoint")?;
-    let checkpoint = if checkpoint.is_empty() {
-        None
-    } else {
-        Some(safe_output_path(&checkpoint, cp_span)?)
-    };
-    let before = outputs(a, "before", true)?;
-    let after = outputs(a, "after", true)?;
-    for outputs in [&before, &after] {
-        match &**model {
-            Field::Sdf(f) => check_meshes(outputs, Some(&f.shape))?,
-            // Bounded by its points or the training `bounds`.
-            Field::NeuralSdf(_) | Field::NeuralSurface(_) => geometry_gifs(outputs, true)?,
-            Field::Nerf(_) => check_meshes(outputs, None)?,
-        }
-    }
+    Ok(losses)
+}
+
+/// `psnr_curve` and `comparison` compare against held-out views.
+fn held_out(a: &Args, data: &Dataset, after: &[Output]) -> Result<(), Diag> {
     let has_test = !data.test_views().is_empty()
         || matches!(
-            &**data,
+            data,
             Dataset::NerfSynthetic {
                 test_split: Some(_),
                 ..
             }
         );
-    if let Some(o) = after
+    match after
         .iter()
         .find(|o| matches!(o.kind, OutputKind::PsnrCurve | OutputKind::Comparison))
         .filter(|_| !has_test)
     {
-        return Err(value_error(
+        Some(o) => Err(value_error(
             a.get("after").1,
             format!(
                 "`{}` needs held-out views, and the data set has none",
                 o.path.display()
             ),
             "compares against test views",
-            match &**data {
+            match data {
                 Dataset::NerfSynthetic { .. } => {
                     "read the data set's test views too: `nerf_synthetic(..., test_split: \"test\")`"
                 }
                 _ => "hold some views out: `render_views(..., test_views: 5)`",
             },
-        ));
+        )),
+        None => Ok(()),
     }
-    let (width, height) = image_size(a, "size")?;
-    let epochs = a.count("epochs", 0, 1_000_000)? as usize;
-    // Defaults carry the block's span: a different span was written.
-    if epochs > 0 && a.get("iterations").1 != a.span {
-        return Err(value_error(
-            a.get("epochs").1,
-            "`epochs` and `iterations` both say how long to train",
-            "and `iterations` is given too",
-            "keep one of them: `epochs` counts passes over every training pixel",
-        ));
-    }
-    Ok(TrainJob {
-        name: name.to_string(),
-        model: model.clone(),
-        data: data.clone(),
-        data_span: a.get("data").1,
-        sampler: *sampler,
-        rays: a.count("rays", 1, 1 << 20)? as usize,
-        optimizer: *optimizer,
-        losses,
-        iterations: a.count("iterations", 0, 10_000_000)? as usize,
-        epochs: (epochs > 0).then_some(epochs),
-        seed: a.count("seed", 0, u32::MAX as u64)?,
-        backend,
-        views: camera_list(a, "views")?,
-        width,
-        height,
-        before,
-        after,
-        checkpoint,
-        eval_every: a.count("eval_every", 0, 10_000_000)? as usize,
-        bounds: a.positive("bounds")?,
-    })
 }
 
-pub(crate) fn volume_block(name: &str, a: &Args, field: Arc<Field>) -> Result<VolumeJob, Diag> {
+pub(crate) fn volume_block(name: &str, a: &Args, field: Arc<Field>) -> Built<VolumeJob> {
+    let mut e = Errors::new(a);
     if matches!(*field, Field::NeuralSdf(_) | Field::NeuralSurface(_)) {
-        return Err(super::not_a_volume(a.get("scene").1));
+        e.ok::<()>(Err(super::not_a_volume(a.get("scene").1)));
     }
-    let (width, height) = image_size(a, "size")?;
+    let size = e.ok(image_size(a, "size"));
     // Sphere tracing's effects: asked of a volume, say so.
+    let spp = e.ok(samples_per_pixel(a));
     for (name, asked) in [
         ("fog", !matches!(a.get("fog").0, Value::Bool(false))),
-        ("samples_per_pixel", samples_per_pixel(a)? != 1),
+        ("samples_per_pixel", spp.is_some_and(|n| n != 1)),
     ] {
         if asked {
-            return Err(value_error(
+            e.ok::<()>(Err(value_error(
                 a.get(name).1,
                 format!(
                     "`{name}` is an effect of sphere-traced shapes; this render's scene is a field"
                 ),
                 "not for volume renders",
                 "remove it, or render a shape: volume renders composite samples along each ray",
-            ));
+            )));
         }
     }
-    let Value::Sampler(sampler) = a.get("sampler").0 else {
-        return Err(type_error(
-            a.get("sampler").1,
-            "sampler",
-            a.get("sampler").0,
-        ));
-    };
-    let outputs = outputs(a, "outputs", false)?;
-    if let Some(o) = outputs.iter().find(|o| {
-        matches!(o.kind, OutputKind::Normals | OutputKind::Mask) || o.kind.training_only()
-    }) {
-        return Err(value_error(
-            a.get("outputs").1,
-            format!("`{}` cannot be made by volume rendering", o.path.display()),
-            "not a volume output",
-            "volume renders write image, gif, depth, grid_image, rays_image and sample_points",
-        ));
+    let sampler = e.ok(match a.get("sampler").0 {
+        Value::Sampler(s) => Ok(*s),
+        v => Err(type_error(a.get("sampler").1, "sampler", v)),
+    });
+    let outputs = e.ok(outputs(a, "outputs", false).and_then(|outputs| {
+        match outputs.iter().find(|o| {
+            matches!(o.kind, OutputKind::Normals | OutputKind::Mask) || o.kind.training_only()
+        }) {
+            Some(o) => Err(value_error(
+                a.get("outputs").1,
+                format!("`{}` cannot be made by volume rendering", o.path.display()),
+                "not a volume output",
+                "volume renders write image, gif, depth, grid_image, rays_image and sample_points",
+            )),
+            None => Ok(outputs),
+        }
+    }));
+    if let Some(outputs) = &outputs {
+        e.ok(check_meshes(outputs, field.as_sdf().map(|f| &*f.shape)));
     }
-    check_meshes(&outputs, field.as_sdf().map(|f| &*f.shape))?;
-    let cameras = camera_list(a, "camera")?;
-    one_intrinsics(a, &outputs, &cameras)?;
-    Ok(VolumeJob {
-        name: name.to_string(),
-        field,
-        cameras,
-        width,
-        height,
-        sampler: *sampler,
-        outputs,
-    })
+    let cameras = e.ok(camera_list(a, "camera"));
+    if let (Some(outputs), Some(cameras)) = (&outputs, &cameras) {
+        e.ok(one_intrinsics(a, outputs, cameras));
+    }
+    let (width, height) = size.unwrap_or((1, 1));
+    let job = (|| {
+        Some(VolumeJob {
+            name: name.to_string(),
+            field,
+            cameras: cameras?,
+            width,
+            height,
+            sampler: sampler?,
+            outputs: outputs?,
+        })
+    })();
+    (job, e.diags)
 }
 
 /// `mesh` outputs need a distance (`shape`; none for a radiance field) and,

@@ -239,3 +239,64 @@ pub(crate) fn not_a_volume(span: Span) -> Diag {
         "train it (from points, or from images as `volsdf(neural_sdf(...))`) and ask for `after: [gif(...)]` there",
     )
 }
+
+/// Arguments that are angles in radians.
+const ANGLES: &[(&str, &str)] = &[
+    ("rotate", "angle"),
+    ("sin", "x"),
+    ("cos", "x"),
+    ("tan", "x"),
+];
+/// Focal lengths in NDC units.
+const FOCALS: &[&str] = &["look_at", "orbit", "sphere_views"];
+/// A focal length above this is a field of view under 5.7°: far more
+/// likely a lens's millimetres than an NDC focal.
+const MAX_PLAUSIBLE_FOCAL: f64 = 20.0;
+
+/// Warnings for numbers likely written in the wrong unit: a whole angle of
+/// 7 radians or more (more than a turn: degrees meant), a focal length in
+/// millimetres. They run as written.
+pub(crate) fn unit_warnings(owner: &str, a: &Args) -> Vec<Diag> {
+    let number = |name: &str| match a.named.get(name) {
+        Some((Value::Number(x), s)) => Some((*x, *s)),
+        Some((Value::Param(d), s)) => match d.init {
+            ParamInit::Scalar(x) => Some((x, *s)),
+            ParamInit::Vec3(_) => None,
+        },
+        _ => None,
+    };
+    let mut found = Vec::new();
+    for &(_, name) in ANGLES.iter().filter(|(f, _)| *f == owner) {
+        if let Some((x, span)) = number(name).filter(|(x, _)| x.fract() == 0.0 && x.abs() >= 7.0) {
+            let n = sdfl_lang::fmt_num(x);
+            found.push(
+                Diag::new(
+                    codes::DEGREES,
+                    span,
+                    format!("`{name}` is {n} radians, {} turns: were degrees meant?", sdfl_lang::fmt_num((x / std::f64::consts::TAU * 100.0).round() / 100.0)),
+                )
+                .label("radians")
+                .help(format!("angles are radians unless marked: write `{n}deg` for degrees, or radians such as `pi / 4`")),
+            );
+        }
+    }
+    if FOCALS.contains(&owner) {
+        if let Some((f, span)) = number("focal").filter(|(f, _)| *f > MAX_PLAUSIBLE_FOCAL) {
+            let fov = 2.0 * (1.0 / f).atan().to_degrees();
+            found.push(
+                Diag::new(
+                    codes::FOCAL,
+                    span,
+                    format!("`focal` {} is a field of view of {fov:.1}°: was a lens's millimetres meant?", sdfl_lang::fmt_num(f)),
+                )
+                .label("NDC units")
+                .help(format!(
+                    "sdfl's focal is in NDC units, where 1 is a 90° field of view (`focal = 1/tan(fov/2)`); a lens of f mm on a 36 mm-wide sensor is f/18: {} mm is `focal: {:.2}`",
+                    sdfl_lang::fmt_num(f),
+                    f / 18.0
+                )),
+            );
+        }
+    }
+    found
+}

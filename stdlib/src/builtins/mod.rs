@@ -68,7 +68,7 @@ pub(crate) use args::*;
 pub(crate) use blocks::{render_block, train_block, volume_block};
 use blocks::{render_sig, train_sig};
 use common::*;
-pub(crate) use common::{not_a_volume, one_or_list};
+pub(crate) use common::{not_a_volume, one_or_list, unit_warnings};
 pub use common::{random, safe_output_path};
 use data::render_views;
 use data::{check_input, Input};

@@ -25,26 +25,30 @@ impl<'e> Evaluator<'e> {
                 args.defaulted.push(p.name);
             }
         }
-        // Shallow: lists holding poison are poison themselves (see `expr`).
-        if args.named.values().any(|(v, _)| matches!(v, Value::Poison)) {
-            return;
-        }
+        // Every field is checked, whatever the others hold (poison
+        // included: errors about a poisoned field itself are left out).
+        let poisoned = args.named.values().any(|(v, _)| v.is_poison());
         let name = b
             .name
             .as_ref()
             .map_or_else(|| format!("{}{index}", b.kind.name), |n| n.name.clone());
-        let result = match (sig.kind, args.named.get("scene")) {
+        let (added, errors) = match (sig.kind, args.named.get("scene")) {
             ("train", _) => {
-                crate::builtins::train_block(&name, &args).map(|j| program.trains.push(j))
+                let (job, errors) = crate::builtins::train_block(&name, &args);
+                (job.map(|j| program.trains.push(j)), errors)
             }
             (_, Some((Value::Field(f), _))) => {
-                crate::builtins::volume_block(&name, &args, f.clone())
-                    .map(|j| program.volumes.push(j))
+                let (job, errors) = crate::builtins::volume_block(&name, &args, f.clone());
+                (job.map(|j| program.volumes.push(j)), errors)
             }
-            _ => crate::builtins::render_block(&name, &args).map(|j| program.renders.push(j)),
+            _ => {
+                let (job, errors) = crate::builtins::render_block(&name, &args);
+                (job.map(|j| program.renders.push(j)), errors)
+            }
         };
-        if let Err(d) = result {
-            self.diags.push(d);
+        let failed = poisoned || !errors.is_empty();
+        self.diags.diags.extend(errors);
+        if added.is_none() {
             return;
         }
         let field = |name: &str| args.named.get(name).map_or(b.kind.span, |(_, s)| *s);
@@ -102,6 +106,12 @@ impl<'e> Evaluator<'e> {
             );
         }
         let mut found = crate::outputs::check_job(program, kind, &mut self.files, &field);
+        // A job with errors holds placeholders: only its outputs are
+        // checked (against the others'); its cost and reach are not.
+        if failed {
+            self.diags.diags.extend(found);
+            return;
+        }
         use crate::work;
         let span = b
             .name

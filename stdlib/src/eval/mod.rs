@@ -28,6 +28,10 @@ pub const MAX_WORK: u64 = 2_000_000;
 /// which brackets do not limit): tree walkers recurse this deep.
 pub const MAX_DEPTH: usize = 200;
 
+/// Most call sites labelled on one error inside a `fn` (the others are
+/// counted).
+const MAX_CALL_LABELS: usize = 6;
+
 /// Deepest nesting of expression evaluation, `fn` calls included: the
 /// parser bounds one expression's height, and a call evaluates another
 /// expression inside the caller's, so chains of calls are bounded here to
@@ -46,11 +50,22 @@ pub struct Evaluator<'e> {
     work: u64,
     aborted: bool,
     defaults: HashMap<(&'static str, &'static str), Value>,
+    /// Where the items the checker found errors in start (sorted): they are
+    /// not evaluated (a `let` binds poison, a `fn` is left undefined).
+    failed: Vec<usize>,
     /// Values replacing top-level `let`s (for sweeps).
     overrides: HashMap<String, Value>,
     /// `param(...)` calls evaluated so far (their ids).
     params: usize,
     sizes: Sizes,
+    /// The `fn` calls being evaluated (their names and call sites),
+    /// outermost first.
+    calls: Vec<(Arc<FnDef>, Span)>,
+    /// Where each diagnostic reported so far is, by what it says: the same
+    /// error met again (a `fn` called twice, a loop) is reported once.
+    reported: HashMap<(&'static str, Span, String), usize>,
+    /// Calls met by a diagnostic beyond those labelled, by its index.
+    more_calls: HashMap<usize, usize>,
     /// Estimated evaluations and primitives of the statements so far.
     total_evaluations: f64,
     total_primitives: u64,
@@ -74,8 +89,12 @@ impl<'e> Evaluator<'e> {
             aborted: false,
             defaults: HashMap::new(),
             overrides: HashMap::new(),
+            failed: Vec::new(),
             params: 0,
             sizes: Sizes::default(),
+            calls: Vec::new(),
+            reported: HashMap::new(),
+            more_calls: HashMap::new(),
             total_evaluations: 0.0,
             total_primitives: 0,
             total_refused: false,
@@ -96,6 +115,32 @@ impl<'e> Evaluator<'e> {
         self
     }
 
+    /// An evaluator of the items of `file` that hold none of the checker's
+    /// errors at `errors` (only those are checked: the others are skipped).
+    /// `None` when an error lies outside every item.
+    pub fn without_failed(mut self, file: &File, errors: Vec<Span>) -> Option<Self> {
+        let mut items: Vec<Span> = file.items.iter().map(item_span).collect();
+        items.sort_unstable_by_key(|s| s.start);
+        let mut failed = Vec::new();
+        for e in errors {
+            // The last item starting at or before the error must hold it.
+            let k = items.partition_point(|s| s.start <= e.start);
+            let item = items.get(k.checked_sub(1)?)?;
+            if e.start >= item.end {
+                return None;
+            }
+            failed.push(item.start);
+        }
+        failed.sort_unstable();
+        failed.dedup();
+        self.failed = failed;
+        Some(self)
+    }
+
+    fn item_failed(&self, item: &Item) -> bool {
+        self.failed.binary_search(&item_span(item).start).is_ok()
+    }
+
     /// Evaluate a checked file.
     pub fn run(self, file: &File) -> Result<Program, Diagnostics> {
         self.run_warned(file).map(|(p, _)| p)
@@ -105,9 +150,22 @@ impl<'e> Evaluator<'e> {
     /// (When it has, the warnings are reported with the errors.)
     pub fn run_warned(mut self, file: &File) -> Result<(Program, Diagnostics), Diagnostics> {
         let mut program = Program::default();
+        // Sized up front: a table growing holds its old copy too.
+        let lets = file
+            .items
+            .iter()
+            .filter(|i| matches!(i, Item::Let(_)))
+            .count();
+        self.globals.reserve(lets);
         for item in &file.items {
             if self.aborted {
                 break;
+            }
+            if self.item_failed(item) {
+                if let Item::Let(l) = item {
+                    self.globals.insert(l.name.name.clone(), Value::Poison);
+                }
+                continue;
             }
             match item {
                 Item::Let(l) => {
@@ -130,6 +188,14 @@ impl<'e> Evaluator<'e> {
                 Item::Import(_) => {}
             }
         }
+        for (&i, &n) in &self.more_calls {
+            let d = &mut self.diags.diags[i];
+            let more = format!("(and {n} more call{})", if n == 1 { "" } else { "s" });
+            d.help = Some(match d.help.take() {
+                Some(h) => format!("{h} {more}"),
+                None => more,
+            });
+        }
         if self.diags.has_errors() {
             Err(self.diags.sorted())
         } else {
@@ -138,8 +204,35 @@ impl<'e> Evaluator<'e> {
     }
 
     fn error(&mut self, d: Diag) -> Value {
-        self.diags.push(d);
+        self.report(d);
         Value::Poison
+    }
+
+    /// Reports `d` once: inside `fn` calls, with each call site as a label
+    /// (the error is at the definition, which every call shares); the same
+    /// error met again adds its call sites to the first report.
+    pub(crate) fn report(&mut self, d: Diag) {
+        let key = (d.code, d.span, d.message.clone());
+        let i = match self.reported.get(&key) {
+            Some(&i) => i,
+            None => {
+                self.reported.insert(key, self.diags.len());
+                self.diags.push(d);
+                self.diags.len() - 1
+            }
+        };
+        for (f, site) in &self.calls {
+            let d = &mut self.diags.diags[i];
+            if d.notes.iter().any(|(s, _)| s == site) {
+                continue;
+            }
+            if d.notes.len() >= MAX_CALL_LABELS {
+                *self.more_calls.entry(i).or_insert(0) += 1;
+                continue;
+            }
+            d.notes
+                .push((*site, format!("`{}` called here", f.name.name)));
+        }
     }
 
     fn spend(&mut self, span: Span) -> bool {
@@ -641,7 +734,7 @@ impl<'e> Evaluator<'e> {
     /// A call of a `fn`: arguments bound as the checker bound them,
     /// defaults evaluated at the call, and the body evaluated with only its
     /// parameters and the top-level names in scope.
-    fn call_fn(&mut self, f: Arc<FnDef>, args: &[Arg]) -> Value {
+    fn call_fn(&mut self, f: Arc<FnDef>, args: &[Arg], site: Span) -> Value {
         let mut scope: HashMap<String, Value> = HashMap::new();
         let mut poisoned = false;
         for (i, a) in args.iter().enumerate() {
@@ -666,6 +759,7 @@ impl<'e> Evaluator<'e> {
             return Value::Poison;
         }
         let caller = std::mem::take(&mut self.locals);
+        self.calls.push((f.clone(), site));
         for p in &f.params {
             if let (false, Some(d)) = (scope.contains_key(&p.name.name), &p.default) {
                 let v = self.expr(d);
@@ -674,6 +768,7 @@ impl<'e> Evaluator<'e> {
         }
         self.locals.push(scope);
         let v = self.body(&f.body);
+        self.calls.pop();
         self.locals = caller;
         v
     }
@@ -759,7 +854,7 @@ impl<'e> Evaluator<'e> {
             return Value::Poison;
         }
         if let Some(f) = self.fns.get(&callee.name) {
-            return self.call_fn(f.clone(), args);
+            return self.call_fn(f.clone(), args, span);
         }
         let Some(builtin) = self.env.builtin(&callee.name) else {
             return Value::Poison;
@@ -802,6 +897,9 @@ impl<'e> Evaluator<'e> {
                 bound.defaulted.push(p.name);
             }
         }
+        for w in crate::builtins::unit_warnings(sig.name, &bound) {
+            self.report(w);
+        }
         match (builtin.eval)(&bound) {
             Ok(Value::Param(mut decl)) => {
                 Arc::make_mut(&mut decl).id = self.params;
@@ -832,6 +930,15 @@ impl<'e> Evaluator<'e> {
             Some(d) => self.error(d),
             None => v,
         }
+    }
+}
+
+fn item_span(item: &Item) -> Span {
+    match item {
+        Item::Let(l) => l.span,
+        Item::Block(b) => b.span,
+        Item::Fn(f) => f.span,
+        Item::Import(i) => i.span,
     }
 }
 
