@@ -172,12 +172,33 @@ train fit {
 }
 "#;
 
+/// An analytic fit through the dfdx graph (the backend that compares the
+/// fused kernel against autodiff).
+const DFDX_BOX: &str = r#"
+let cams = [look_at(eye: [0, 0, -3]), look_at(eye: [2.5, 0.5, -1.5])]
+let truth = sdf_volume(box(size: [1, 0.8, 0.6], center: [0.1, 0, 0]))
+train fit {
+  model: sdf_volume(box(size: param([0.8, 0.8, 0.8]), center: param([0, 0, 0]))),
+  data: render_views(truth, cameras: cams, size: [16, 16]),
+  sampler: stratified(samples: 32, near: 1, far: 5),
+  rays: 128,
+  iterations: 80,
+  backend: "dfdx",
+}
+"#;
+
 #[test]
 fn training_memory_is_flat_over_steps_and_within_the_estimate() {
     let dir = temp("nerf");
     let (p, estimate) = profile(HASH_NERF, &dir);
     assert_flat("hash-grid NeRF", &p);
     assert_within("hash-grid NeRF", &p, estimate);
+    let _ = std::fs::remove_dir_all(&dir);
+
+    let dir = temp("dfdx");
+    let (p, estimate) = profile(DFDX_BOX, &dir);
+    assert_flat("box through the dfdx graph", &p);
+    assert_within("box through the dfdx graph", &p, estimate);
     let _ = std::fs::remove_dir_all(&dir);
 
     let dir = temp("sdf");

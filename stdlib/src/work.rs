@@ -564,6 +564,12 @@ pub fn train_work(j: &TrainJob, size: Option<(u32, u32)>) -> Work {
     // network (which sees the coarse samples too).
     let batch = rays * samples * 64.0
         + match &*j.model {
+            // The dfdx graph keeps every op's values and gradients per
+            // sample, and composites by a triangular samples × samples
+            // product per ray.
+            Field::Sdf(_) if j.backend == crate::value::Backend::Dfdx => {
+                rays * samples * (samples * 8.0 + 256.0)
+            }
             Field::Sdf(_) => 0.0,
             // Every layer's values and three tangents, forward and back,
             // for 2 points a ray.

@@ -70,8 +70,9 @@ pub struct FieldObjective<'m> {
 
 impl<'m> FieldObjective<'m> {
     pub fn new(model: &'m TrainModel, backend: Backend) -> Self {
+        // No allocation cache: dfdx's keeps every dropped buffer for good
+        // (5 MB a step on a box fit).
         let dev = dfdx::prelude::Cpu::default();
-        dev.enable_cache();
         FieldObjective {
             model,
             backend,
