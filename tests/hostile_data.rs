@@ -518,3 +518,68 @@ fn the_decoded_size_cap_covers_every_split() {
     assert_outcome("one split", &o, Expect::Error);
     assert!(!tells(&o.stderr, "at most"), "{}", head(&o.stderr));
 }
+
+/// An `.npz` entry that declares its size honestly but holds more points
+/// than a cloud may (here 40 million, 480 MB of zeros in half a megabyte)
+/// was inflated whole before the point limit applied: it is refused from
+/// the array's header, within the memory limit.
+#[test]
+fn too_many_points_are_refused_from_the_array_header() {
+    use flate2::{Compress, Compression, FlushCompress};
+    let rows: u64 = 40_000_000;
+    let mut header = format!("{{'descr': '<f4', 'fortran_order': False, 'shape': ({rows}, 3), }}");
+    while (10 + header.len() + 1) % 64 != 0 {
+        header.push(' ');
+    }
+    header.push('\n');
+    let mut npy_head = b"\x93NUMPY\x01\x00".to_vec();
+    npy_head.extend((header.len() as u16).to_le_bytes());
+    npy_head.extend(header.as_bytes());
+    // compress_vec writes only into spare capacity.
+    let mut data = Vec::with_capacity(4096);
+    Compress::new(Compression::best(), false)
+        .compress_vec(&npy_head, &mut data, FlushCompress::Sync)
+        .unwrap();
+    let zeros = zeros_deflated((rows * 12 >> 20) as usize);
+    data.extend(&zeros);
+    let size = npy_head.len() as u64 + ((rows * 12 >> 20) << 20);
+    // One stored zip entry around that stream, sizes declared truthfully.
+    let name = "verts.npy";
+    let le32 = |v: u32| v.to_le_bytes();
+    let mut fields = vec![20u8, 0, 0, 0, 8, 0, 0, 0, 0, 0];
+    fields.extend(le32(0));
+    fields.extend(le32(data.len() as u32));
+    fields.extend(le32(u32::try_from(size).unwrap()));
+    fields.extend((name.len() as u16).to_le_bytes());
+    fields.extend([0, 0]);
+    let mut z = le32(0x0403_4b50).to_vec();
+    z.extend(&fields);
+    z.extend(name.as_bytes());
+    z.extend(&data);
+    let cd_at = z.len() as u32;
+    z.extend(le32(0x0201_4b50));
+    z.extend([20, 0]);
+    z.extend(&fields);
+    z.extend([0u8; 10]);
+    z.extend(le32(0));
+    z.extend(name.as_bytes());
+    let cd_len = z.len() as u32 - cd_at;
+    z.extend(le32(0x0605_4b50));
+    z.extend([0, 0, 0, 0, 1, 0, 1, 0]);
+    z.extend(le32(cd_len));
+    z.extend(le32(cd_at));
+    z.extend([0, 0]);
+    let dir = case_dir("data_npz_too_many_points");
+    fs::write(dir.join("big.npz"), z).unwrap();
+    let o = run_scene(
+        &dir,
+        "train t {\n  model: neural_sdf(layers: 2, width: 8, skips: []),\n  data: points(\"big.npz\"),\n  \
+         iterations: 1,\n}\n",
+    );
+    assert_outcome("npz of too many points", &o, Expect::Error);
+    assert!(
+        tells(&o.stderr, "more than 30000000"),
+        "{}",
+        head(&o.stderr)
+    );
+}

@@ -231,6 +231,20 @@ fn header_shape(bytes: &[u8]) -> Result<(Vec<usize>, usize), NpyError> {
     Ok((shape.clone(), data_start))
 }
 
+/// An array of `shape` holds at most `max_values` numbers.
+pub fn check_values(shape: &[usize], max_values: u64) -> Result<(), NpyError> {
+    let n = shape
+        .iter()
+        .try_fold(1u64, |a, &d| a.checked_mul(d as u64))
+        .unwrap_or(u64::MAX);
+    if n > max_values {
+        return Err(NpyError::Unsupported(format!(
+            "shape {shape:?} holds {n} numbers, more than {max_values}"
+        )));
+    }
+    Ok(())
+}
+
 /// The shape declared by a `.npy` file's header, reading only the header.
 pub fn read_shape(path: impl AsRef<Path>) -> Result<Vec<usize>, NpyError> {
     use std::io::Read;
@@ -300,6 +314,16 @@ pub fn read_npz_f32(path: impl AsRef<Path>, key: &str) -> Result<F32Array, NpyEr
 
 /// [`read_npz_f32`] on the archive's bytes.
 pub fn parse_npz_f32(bytes: &[u8], key: &str) -> Result<F32Array, NpyError> {
+    parse_npz_f32_at_most(bytes, key, u64::MAX)
+}
+
+/// [`parse_npz_f32`] refusing an array of more than `max_values` numbers
+/// from its header, before the rest of the entry is inflated.
+pub fn parse_npz_f32_at_most(
+    bytes: &[u8],
+    key: &str,
+    max_values: u64,
+) -> Result<F32Array, NpyError> {
     use std::io::Read;
     let mut zip = zip::ZipArchive::new(std::io::Cursor::new(bytes))
         .map_err(|e| NpyError::Format(format!("not a zip archive: {e}")))?;
@@ -320,10 +344,25 @@ pub fn parse_npz_f32(bytes: &[u8], key: &str) -> Result<F32Array, NpyError> {
         )));
     }
     let mut buf = Vec::with_capacity(declared.min(1 << 24) as usize);
+    let inflate_err = |e: std::io::Error| NpyError::Format(format!("cannot inflate {name}: {e}"));
+    // The header first: an honestly declared but too large array is
+    // refused before it is inflated.
+    let head = declared.min(10 + u16::MAX as u64);
     (&mut entry)
-        .take(declared + 1)
+        .take(head)
         .read_to_end(&mut buf)
-        .map_err(|e| NpyError::Format(format!("cannot inflate {name}: {e}")))?;
+        .map_err(inflate_err)?;
+    if buf.len() >= 10 {
+        let hlen = u16::from_le_bytes([buf[8], buf[9]]) as usize;
+        if buf.len() >= 10 + hlen {
+            let (shape, _) = header_shape(&buf[..10 + hlen])?;
+            check_values(&shape, max_values)?;
+        }
+    }
+    (&mut entry)
+        .take(declared + 1 - buf.len() as u64)
+        .read_to_end(&mut buf)
+        .map_err(inflate_err)?;
     if buf.len() as u64 != declared {
         return Err(NpyError::Format(format!(
             "{name} inflates to {}{} bytes, but declares {declared}",

@@ -7,7 +7,7 @@ use std::io::{self, Read};
 use std::path::Path;
 
 use super::image::open_regular;
-use super::npy::{parse_f32, parse_npz_f32, F32Array};
+use super::npy::{parse_f32, parse_npz_f32_at_most, F32Array};
 
 /// Most points a cloud may hold.
 pub const MAX_POINTS: usize = 10_000_000;
@@ -23,6 +23,17 @@ fn bad(path: &Path, what: impl std::fmt::Display) -> io::Error {
 
 /// The points of `path`, by its extension.
 pub fn read_points(path: &Path) -> io::Result<Vec<[f32; 3]>> {
+    let ext = path
+        .extension()
+        .map(|e| e.to_string_lossy().to_ascii_lowercase())
+        .unwrap_or_default();
+    // An array's header says how many points it holds: too many are
+    // refused before the file is read.
+    let max_values = 3 * MAX_POINTS as u64;
+    if ext == "npy" {
+        let shape = super::npy::read_shape(path).map_err(|e| bad(path, e))?;
+        super::npy::check_values(&shape, max_values).map_err(|e| bad(path, e))?;
+    }
     let mut bytes = Vec::new();
     open_regular(path)?
         .take(MAX_BYTES + 1)
@@ -30,12 +41,10 @@ pub fn read_points(path: &Path) -> io::Result<Vec<[f32; 3]>> {
     if bytes.len() as u64 > MAX_BYTES {
         return Err(bad(path, format!("larger than {MAX_BYTES} bytes")));
     }
-    let ext = path
-        .extension()
-        .map(|e| e.to_string_lossy().to_ascii_lowercase())
-        .unwrap_or_default();
     let points = match ext.as_str() {
-        "npz" => rows(parse_npz_f32(&bytes, "verts").map_err(|e| bad(path, e))?),
+        "npz" => {
+            rows(parse_npz_f32_at_most(&bytes, "verts", max_values).map_err(|e| bad(path, e))?)
+        }
         "npy" => rows(parse_f32(&bytes).map_err(|e| bad(path, e))?),
         "ply" => parse_ply(&bytes),
         "xyz" | "txt" => parse_text(&bytes),
