@@ -155,7 +155,8 @@ fn handle_signals() {
 }
 
 /// Lines on stdout. A closed pipe (`sdfl run | head -0`) is a normal end:
-/// the reader wants no more, so the rest is dropped and sdfl exits 0.
+/// the reader wants no more, so the rest is dropped and sdfl exits 0. Any
+/// other error (a full disk) loses what a script reads: exit 1.
 struct Stdout {
     closed: bool,
 }
@@ -172,7 +173,10 @@ impl Stdout {
         let mut out = std::io::stdout().lock();
         if let Err(e) = out.write_all(text.as_bytes()).and_then(|_| out.flush()) {
             if e.kind() != std::io::ErrorKind::BrokenPipe {
-                say!("warning[sdfl::io]: cannot write to stdout: {e}");
+                // A full disk or an I/O error lost what a script reads
+                // (the `--json` report): that is a failure, not a success.
+                say!("error[sdfl::io]: cannot write to stdout: {e}\n  help: free space on (or fix) the device stdout goes to");
+                std::process::exit(1);
             }
             self.closed = true;
         }

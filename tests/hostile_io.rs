@@ -218,6 +218,8 @@ fn a_signal_while_a_gif_is_written_leaves_no_temporary_file() {
     for (sig, code, name) in [
         (libc::SIGTERM, 143, "sigterm"),
         (libc::SIGINT, 130, "sigint"),
+        // A closed terminal or ssh session.
+        (libc::SIGHUP, 129, "sighup"),
     ] {
         let dir = case_dir(&format!("gif_{name}"));
         let file = write_case(&dir, "spin.sdfl", LONG_GIF);
@@ -518,4 +520,41 @@ fn no_color_and_clicolor_turn_colour_off() {
     // Not a terminal: never colour.
     let o = sdfl(&dir, &["check", file.to_str().unwrap()]);
     assert!(!o.stderr.contains('\x1b'), "{}", o.stderr);
+}
+
+/// A report written to a full device is lost: the run fails (exit 1 with
+/// a diagnostic), where a script reading `--json` used to see success. A
+/// closed pipe stays a normal end.
+#[test]
+fn a_full_stdout_is_a_failure() {
+    let dir = case_dir("stdout_full");
+    let file = write_case(&dir, "quick.sdfl", WARNS);
+    for args in [
+        vec![os("plan"), file.as_os_str()],
+        vec![
+            os("run"),
+            file.as_os_str(),
+            os("--out"),
+            dir.join("out").into_os_string().leak(),
+            os("--json"),
+        ],
+    ] {
+        let out = Command::new(env!("CARGO_BIN_EXE_sdfl"))
+            .args(&args)
+            .stdin(Stdio::null())
+            .stdout(
+                fs::OpenOptions::new()
+                    .write(true)
+                    .open("/dev/full")
+                    .unwrap(),
+            )
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(1), "{args:?}: {stderr}");
+        assert!(
+            stderr.contains("error[sdfl::io]: cannot write to stdout"),
+            "{stderr}"
+        );
+    }
 }

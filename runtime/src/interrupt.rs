@@ -1,4 +1,5 @@
-//! Stopping on SIGINT or SIGTERM without leaving anything half-written.
+//! Stopping on SIGINT, SIGTERM or SIGHUP (a closed terminal or ssh
+//! session) without leaving anything half-written.
 //!
 //! [`install`] starts a thread that waits for either signal (signal-hook's
 //! handler only wakes it). What the thread does depends on what runs:
@@ -10,7 +11,8 @@
 //!   removed ([`crate::output::abandon_in_flight`]; finished outputs and
 //!   checkpoints are renamed into place whole, so they stay intact), the
 //!   statement that was running is named, and the process exits with
-//!   128 + the signal: 130 for SIGINT, 143 for SIGTERM, as a shell does.
+//!   128 + the signal: 130 for SIGINT, 143 for SIGTERM, 129 for SIGHUP,
+//!   as a shell does.
 
 use std::fmt;
 use std::io;
@@ -38,16 +40,18 @@ fn state() -> MutexGuard<'static, State> {
     STATE.lock().unwrap_or_else(|e| e.into_inner())
 }
 
-/// The two signals' numbers (the same on every Unix).
+/// The signals' numbers (the same on every Unix).
+const SIGHUP: i32 = 1;
 const SIGINT: i32 = 2;
 const SIGTERM: i32 = 15;
 
-/// Handles SIGINT and SIGTERM from now on (see the module's docs).
+/// Handles SIGINT, SIGTERM and SIGHUP from now on (see the module's docs).
 #[cfg(unix)]
 pub fn install() -> io::Result<()> {
     const _: () = assert!(SIGINT == signal_hook::consts::SIGINT);
     const _: () = assert!(SIGTERM == signal_hook::consts::SIGTERM);
-    let mut signals = signal_hook::iterator::Signals::new([SIGINT, SIGTERM])?;
+    const _: () = assert!(SIGHUP == signal_hook::consts::SIGHUP);
+    let mut signals = signal_hook::iterator::Signals::new([SIGINT, SIGTERM, SIGHUP])?;
     std::thread::Builder::new()
         .name("signals".into())
         .spawn(move || {
@@ -129,6 +133,7 @@ fn name(signal: i32) -> &'static str {
     match signal {
         SIGINT => "SIGINT",
         SIGTERM => "SIGTERM",
+        SIGHUP => "SIGHUP",
         _ => "a signal",
     }
 }
