@@ -428,22 +428,24 @@ fn runtime_error(src: &SourceFile, job: &str, e: &std::io::Error) -> String {
         Some(_) => format!("read while running `{job}`"),
         None => format!("while running `{job}`"),
     };
-    let diag = sdfl_lang::Diag::new(
-        sdfl_lang::codes::IO,
-        span.unwrap_or_default(),
-        e.to_string(),
-    )
-    .label(label)
-    .help(help);
+    let non_finite = sdfl_runtime::train::is_non_finite(e);
+    let (code, help) = if non_finite {
+        (
+            sdfl_runtime::train::NON_FINITE,
+            "the fit diverged: lower the learning rate (`adam(lr: ...)`), then run again (it resumes from the kept checkpoint; `--restart` starts over)",
+        )
+    } else {
+        (sdfl_lang::codes::IO, help)
+    };
+    let diag = sdfl_lang::Diag::new(code, span.unwrap_or_default(), e.to_string())
+        .label(label)
+        .help(help);
     let mut diags = sdfl_lang::Diagnostics::default();
     diags.push(diag);
     if span.is_some() {
         sdfl_lang::render(src, &diags, term::color())
     } else {
-        format!(
-            "error[{}]: `{job}`: {e}\n  help: {help}\n",
-            sdfl_lang::codes::IO
-        )
+        format!("error[{code}]: `{job}`: {e}\n  help: {help}\n")
     }
 }
 

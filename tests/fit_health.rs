@@ -70,3 +70,34 @@ fn a_diverging_fit_warns_and_a_sound_one_does_not() {
     assert!(warnings.is_empty(), "{warnings:?}");
     assert!(!stderr.contains("warning["), "{}", head(&stderr));
 }
+
+/// A fit whose numbers go non-finite stops with its own code and a help
+/// about the learning rate, not as an I/O error about files.
+#[test]
+fn a_non_finite_fit_is_not_an_io_error() {
+    let dir = case_dir("non_finite_fit");
+    write_sphere_points(&dir, 500);
+    let file = dir.join("fit.sdfl");
+    fs::write(
+        &file,
+        "train fit {\n  model: neural_sdf(layers: 2, width: 16, skips: [], radius: 0.5),\n  data: points(\"sphere.xyz\"),\n  rays: 128,\n  optimizer: adam(lr: 1e6),\n  iterations: 200,\n  checkpoint: \"fit.ckpt\",\n}\n",
+    )
+    .unwrap();
+    let out = dir.join("out");
+    let o = sdfl(
+        &dir,
+        &[
+            "run",
+            file.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ],
+    );
+    assert_outcome("non-finite fit", &o, Expect::Error);
+    assert!(
+        o.stderr.contains("sdfl::train::non-finite") && !o.stderr.contains("sdfl::io"),
+        "{}",
+        head(&o.stderr)
+    );
+    assert!(o.stderr.contains("learning rate"), "{}", head(&o.stderr));
+}

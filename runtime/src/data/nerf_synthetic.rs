@@ -282,7 +282,7 @@ impl Transforms {
                     at,
                     format!(
                         "`{key}` {} gives a focal length of {ndc:e} (in `look_at`'s units) for {w}x{h} images, outside {lo:e} to {hi:e}",
-                        given.unwrap_or(f64::NAN)
+                        sdfl_lang::fmt_num(given.unwrap_or(f64::NAN))
                     ),
                 ));
             }

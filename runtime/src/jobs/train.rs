@@ -608,11 +608,16 @@ pub fn run_train_job(
                 )
             })
             .unwrap_or_default();
-        return Err(io::Error::other(format!(
+        let message = format!(
             "training `{}` stopped at step {}: {e}{kept}",
             job.name,
             run.step + 1
-        )));
+        );
+        return Err(match e {
+            // Not an I/O error: the numbers went bad.
+            TrainError::Gradient(_) => io::Error::other(crate::train::NonFinite(message)),
+            _ => io::Error::other(message),
+        });
     }
     if let Some(cp) = &checkpoint_path {
         run.checkpoint(fp.clone()).write(cp)?;

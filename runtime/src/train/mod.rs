@@ -32,6 +32,28 @@ pub use objective::{FieldObjective, Objective, TensorSpec};
 pub use params::{Adam, ParamId, ParamStore};
 pub use trainer::{Run, TrainSetup, TrainView};
 
+/// Training stopped because a loss, gradient or parameter became
+/// non-finite (carried in an `io::Error` so that the CLI reports it as a
+/// fit that diverged, not as a file problem).
+#[derive(Debug)]
+pub struct NonFinite(pub String);
+
+impl std::fmt::Display for NonFinite {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.0)
+    }
+}
+
+impl std::error::Error for NonFinite {}
+
+/// The stable code of a training run stopped by a non-finite number.
+pub const NON_FINITE: &str = "sdfl::train::non-finite";
+
+/// Whether `e` is a training run stopped by a non-finite number.
+pub fn is_non_finite(e: &std::io::Error) -> bool {
+    e.get_ref().is_some_and(|r| r.is::<NonFinite>())
+}
+
 /// Errors from training.
 #[derive(Debug, Clone, PartialEq)]
 pub enum TrainError {

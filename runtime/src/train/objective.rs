@@ -3,7 +3,6 @@
 //! The loop ([`super::Run`]), Adam, checkpoints and resumption are written
 //! once over this trait; analytic fields and neural fields implement it.
 
-use dfdx::tensor::Cache;
 use sdfl_stdlib::value::Backend;
 
 use super::fused::{loss_and_grad_f32, Batch};

@@ -395,8 +395,8 @@ pub fn fit_warnings(losses: &[f32], at_bounds: &[String]) -> Vec<String> {
         let first = means.first().map_or(0.0, |m| m.1);
         if last > 4.0 * best && last - best > 1e-9 {
             warnings.push(format!(
-                "the loss ended at {last:.3e}, {:.0}× its lowest ({best:.3e}, by step {best_step}): the fit diverged or oscillates; lower the learning rate (`adam(lr: ...)`)",
-                last / best.max(f64::MIN_POSITIVE)
+                "the loss ended at {last:.3e}, {}× its lowest ({best:.3e}, by step {best_step}): the fit diverged or oscillates; lower the learning rate (`adam(lr: ...)`)",
+                sdfl_lang::fmt_num((last / best.max(f64::MIN_POSITIVE)).round())
             ));
         } else if last >= 0.9 * first && last > 1e-6 {
             warnings.push(format!(
