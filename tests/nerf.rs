@@ -192,3 +192,26 @@ fn a_resumed_run_keeps_its_occupancy_grid() {
     let _ = std::fs::remove_dir_all(&whole);
     let _ = std::fs::remove_dir_all(&parts);
 }
+
+/// An occupancy grid read from a checkpoint is checked like any input: a
+/// negative density or a cell marked neither 0 nor 1 is refused.
+#[test]
+fn a_tampered_occupancy_grid_is_refused() {
+    type Tamper = fn(&mut Vec<(String, Vec<f32>)>);
+    let cases: [(Tamper, &str); 2] = [
+        (|s| s[0].1[3] = -5.0, "occupancy cell 3 has density -5"),
+        (|s| s[1].1[3] = 0.5, "occupancy cell 3 is marked 0.5"),
+    ];
+    for (k, (tamper, says)) in cases.into_iter().enumerate() {
+        let out = temp(&format!("occ-tampered-{k}"));
+        run(&fast(5), &out).unwrap();
+        let path = out.join("fast.ckpt");
+        let mut ck = Checkpoint::read(&path).unwrap();
+        assert_eq!(ck.state[0].0, "occupancy.ema");
+        tamper(&mut ck.state);
+        ck.write(&path).unwrap();
+        let err = run(&fast(10), &out).unwrap_err().to_string();
+        assert!(err.contains(says) && err.contains("--restart"), "{err}");
+        let _ = std::fs::remove_dir_all(&out);
+    }
+}

@@ -392,6 +392,24 @@ impl Objective for NerfObjective {
         match (&mut self.occupancy, names.as_slice()) {
             (None, []) => Ok(()),
             (Some(o), ["occupancy.ema", "occupancy.occupied"]) => {
+                // Checked like any input: densities are never negative,
+                // and a cell is occupied or not.
+                if let Some(k) = state[0]
+                    .1
+                    .iter()
+                    .position(|&x| !(x >= 0.0 && x.is_finite()))
+                {
+                    return Err(TrainError::Invalid(format!(
+                        "occupancy cell {k} has density {}, not a finite number ≥ 0",
+                        state[0].1[k]
+                    )));
+                }
+                if let Some(k) = state[1].1.iter().position(|&x| x != 0.0 && x != 1.0) {
+                    return Err(TrainError::Invalid(format!(
+                        "occupancy cell {k} is marked {}, neither 0 nor 1",
+                        state[1].1[k]
+                    )));
+                }
                 let occupied: Vec<bool> = state[1].1.iter().map(|&x| x != 0.0).collect();
                 o.grid
                     .restore(&state[0].1, &occupied)

@@ -224,13 +224,19 @@ impl Checkpoint {
             ));
         }
         let bad = |v: &[f32], ok: fn(f32) -> bool| v.iter().position(|&x| !ok(x));
-        if let Some(k) = bad(&self.losses, f32::is_finite) {
+        // Every loss sdfl fits is a sum of squares and magnitudes: ≥ 0.
+        if let Some(k) = bad(&self.losses, |x| x.is_finite() && x >= 0.0) {
             return Err(format!("the loss of step {} is {}", k + 1, self.losses[k]));
         }
         for p in &self.params {
             let n = p.values.len();
             if p.adam_m.len() != n || p.adam_v.len() != n {
-                return Err(format!("`{}`: Adam moments of the wrong length", p.name));
+                return Err(format!(
+                    "`{}` holds {n} values but {} and {} Adam moments",
+                    p.name,
+                    p.adam_m.len(),
+                    p.adam_v.len()
+                ));
             }
             for (what, v, ok) in [
                 ("", &p.values, f32::is_finite as fn(f32) -> bool),
@@ -304,9 +310,14 @@ mod tests {
             ),
             (
                 |c| c.params[0].adam_v.pop().map(drop).unwrap_or(()),
-                "wrong length",
+                "holds 2 values but 2 and 1 Adam moments",
+            ),
+            (
+                |c| c.params[0].values.pop().map(drop).unwrap_or(()),
+                "holds 1 values but 2 and 2 Adam moments",
             ),
             (|c| c.losses[0] = f32::NAN, "loss of step 1 is NaN"),
+            (|c| c.losses[1] = -1.0, "loss of step 2 is -1"),
             (|c| c.step = 1 << 62, "past this run's 2 steps"),
             (|c| c.step = 1, "2 losses for 1 steps"),
             (|c| c.adam_steps = -1, "Adam's step count -1"),

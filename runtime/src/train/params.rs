@@ -143,6 +143,13 @@ impl ParamStore {
         v: &[f32],
     ) -> Result<(), TrainError> {
         let n = self.dev.len(&self.params[id.0].m);
+        if values.len() != n {
+            return Err(TrainError::Invalid(format!(
+                "'{}' has {} values, the model {n}",
+                self.params[id.0].name,
+                values.len()
+            )));
+        }
         if m.len() != n || v.len() != n {
             return Err(TrainError::Invalid(format!(
                 "'{}': moments of the wrong length",
