@@ -147,6 +147,33 @@ impl Work {
         )
     }
 
+    /// Each stage's share of the evaluations and its memory, on one line
+    /// (a refused statement's breakdown, which `sdfl plan` cannot print).
+    pub fn stage_shares(&self) -> String {
+        let total = self.evaluations.max(1.0);
+        let shares: Vec<String> = self
+            .stages()
+            .map(|(s, c)| {
+                format!(
+                    "{} {} ({:.0} %, {})",
+                    s.name(),
+                    approx(c.evaluations),
+                    100.0 * c.evaluations / total,
+                    fmt_bytes(c.memory)
+                )
+            })
+            .collect();
+        if self.resident > 0.0 {
+            format!(
+                "{}; {} held throughout",
+                shares.join(", "),
+                fmt_bytes(self.resident)
+            )
+        } else {
+            shares.join(", ")
+        }
+    }
+
     /// One line per stage, as `sdfl plan` prints them: evaluations, share
     /// of the whole, and the stage's own memory.
     pub fn stage_lines(&self) -> Vec<String> {
@@ -740,7 +767,8 @@ pub fn refuse(work: Work, span: Span, what: &str) -> Option<Diag> {
         )
         .label(work.describe())
         .help(format!(
-            "{fix}; `sdfl plan` prints the estimate (sizes can also be lowered with `--size`)"
+            "{fix} (sizes can also be lowered with `--size`); by stage: {}",
+            work.stage_shares()
         )),
     )
 }
