@@ -154,6 +154,12 @@ pub fn read_transforms(path: &Path) -> io::Result<Transforms> {
     if !root.is_object() {
         return Err(invalid(path, "not a JSON object"));
     }
+    if root.get(INCOMPLETE).is_some() {
+        return Err(invalid(
+            path,
+            "sdfl was stopped while it wrote this data set, so its images may be a mix of two runs: run the statement that writes it again",
+        ));
+    }
     let camera_angle_x = number(&root, "camera_angle_x", path)?
         .ok_or_else(|| invalid(path, "missing `camera_angle_x`"))?;
     if !(camera_angle_x > 0.0 && camera_angle_x < std::f64::consts::PI) {
@@ -364,9 +370,14 @@ fn read_frames(file: &Path, t: &Transforms, background: DVec3) -> io::Result<Vec
     Ok(views)
 }
 
+/// The key of the `transforms.json` a [`DatasetWriter`] leaves while it
+/// writes.
+const INCOMPLETE: &str = "sdfl_incomplete";
+
 /// Writes a data set as NeRF-synthetic files: `r_<k>.png` (RGBA, alpha =
 /// the hit mask, or opaque) per view and, on [`DatasetWriter::finish`],
-/// `transforms.json`, each atomically.
+/// `transforms.json`, each atomically. Until then `transforms.json` marks
+/// the set incomplete.
 pub struct DatasetWriter {
     /// Relative to the output directory.
     dir: PathBuf,
@@ -404,6 +415,16 @@ impl DatasetWriter {
             .enumerate()
             .flat_map(|(i, c)| [c[0], c[1], c[2], alpha.map_or(255, |a| a[i])])
             .collect();
+        if self.frames.is_empty() {
+            // Until `finish`, the data set says it is being written: a run
+            // stopped half-way (or a rerun stopped over an older set) leaves
+            // a set that refuses to load, not a silent mix of two runs.
+            let marker = format!("{{\"{INCOMPLETE}\": true}}\n");
+            write_bytes(
+                &self.out_dir.join(self.dir.join("transforms.json")),
+                marker.as_bytes(),
+            )?;
+        }
         let rel = self.dir.join(format!("r_{k}.png"));
         write_png_rgba(&self.out_dir.join(&rel), w, h, &rgba)?;
         let pose = camera.to_opengl(w, h);
@@ -462,5 +483,37 @@ impl DatasetWriter {
             frames: 0,
             mesh: None,
         })
+    }
+}
+
+#[cfg(test)]
+mod writer_tests {
+    use super::*;
+
+    /// A data set whose writing stopped half-way refuses to load (it may
+    /// mix two runs' images); once finished it loads.
+    #[test]
+    fn a_data_set_written_half_way_refuses_to_load() {
+        let out = std::env::temp_dir().join(format!("sdfl-writer-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&out);
+        std::fs::create_dir_all(&out).unwrap();
+        let cam = Camera::look_at(
+            glam::DVec3::new(0.0, 0.0, -3.0),
+            glam::DVec3::ZERO,
+            glam::DVec3::Y,
+            1.0,
+        );
+        let rgb = vec![128u8; 4 * 4 * 3];
+        let mut w = DatasetWriter::new(&out, Path::new("set"), (4, 4));
+        w.push(0, &cam, &rgb, None).unwrap();
+        let err = read_transforms(&out.join("set/transforms.json"))
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("stopped while it wrote"), "{err}");
+        w.push(1, &cam, &rgb, None).unwrap();
+        w.finish().unwrap();
+        let t = read_transforms(&out.join("set/transforms.json")).unwrap();
+        assert_eq!(t.frames.len(), 2);
+        let _ = std::fs::remove_dir_all(&out);
     }
 }
