@@ -412,6 +412,17 @@ fn held_out_help_fits_the_data_set() {
     let dir = case_dir("data_held_out_help");
     fs::create_dir_all(dir.join("set")).unwrap();
     fs::write(dir.join("set/transforms_train.json"), "{}").unwrap();
+    // A set without a test split (as `dataset(...)` writes them) is not
+    // sent round in a circle to `test_split`.
+    let errors = load_errors(
+        &dir,
+        "train t { model: sdf_volume(sphere(param(0.8))), data: nerf_synthetic(\"set\"), after: [psnr_curve(\"p.png\")] }\n",
+    );
+    assert!(
+        matches!(&errors[..], [(_, _, _, help)] if help.contains("no `transforms_test.json`")),
+        "{errors:?}"
+    );
+    fs::write(dir.join("set/transforms_test.json"), "{}").unwrap();
     for output in ["psnr_curve(\"p.png\")", "comparison(\"c.png\")"] {
         let errors = load_errors(
             &dir,

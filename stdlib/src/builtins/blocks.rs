@@ -495,8 +495,18 @@ fn held_out(a: &Args, data: &Dataset, after: &[Output]) -> Result<(), Diag> {
             ),
             "compares against test views",
             match data {
-                Dataset::NerfSynthetic { .. } => {
+                // Only where the data set has a test split to read: one
+                // written by `dataset(...)` holds `transforms.json` alone.
+                Dataset::NerfSynthetic { path, .. }
+                    if a
+                        .base
+                        .as_ref()
+                        .is_none_or(|b| b.join(path).join("transforms_test.json").is_file()) =>
+                {
                     "read the data set's test views too: `nerf_synthetic(..., test_split: \"test\")`"
+                }
+                Dataset::NerfSynthetic { .. } => {
+                    "this data set has no `transforms_test.json` to hold views out: drop this output, or train on data with held-out views (`render_views(..., test_views: 5)`)"
                 }
                 _ => "hold some views out: `render_views(..., test_views: 5)`",
             },

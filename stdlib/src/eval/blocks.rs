@@ -11,6 +11,7 @@ impl<'e> Evaluator<'e> {
             return;
         };
         let mut args = Args::new(b.kind.span);
+        args.base = self.base.clone();
         args.owner = sig.kind;
         for f in &b.fields {
             let v = self.expr(&f.value);
