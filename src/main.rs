@@ -591,6 +591,15 @@ fn run(file: Option<&Path>, out: &Path, options: RunOptions, json: bool) -> Exit
         return ExitCode::FAILURE;
     };
     let out = out.as_path();
+    // Every directory outputs go to, before any work.
+    let dirs = sdfl_stdlib::outputs::output_dirs(&program);
+    if let Err(e) = sdfl_runtime::output::check_output_dirs(out, &dirs) {
+        say!(
+            "error[{}]: cannot write the outputs: {e}\n  help: move what is in the way, or choose another `--out`",
+            sdfl_lang::codes::IO
+        );
+        return ExitCode::FAILURE;
+    }
     let load_s = t0.elapsed().as_secs_f64();
     let bar = progress_bar(work(&program, options.size), json);
     let reports = match execute(&program, out, options, &base_dir(file), &bar) {

@@ -558,3 +558,48 @@ fn a_full_stdout_is_a_failure() {
         );
     }
 }
+
+/// Output directories are checked before any work: a file where an
+/// output's directory should be, or a link on the way, used to be found
+/// only after a whole training run.
+#[test]
+fn output_directories_are_checked_before_any_work() {
+    let dir = case_dir("output_dirs_first");
+    let scene = "let cams = [look_at(eye: [0, 0, -3])]\n\
+                 train t {\n  model: sdf_volume(sphere(param(0.8))),\n  \
+                 data: render_views(sdf_volume(sphere(1)), cameras: cams, size: [8, 8]),\n  \
+                 iterations: 1000000,\n  views: cams,\n  size: [8, 8],\n  \
+                 after: [image(\"x/t.png\")],\n  checkpoint: \"t.ckpt\",\n}\n";
+    let file = write_case(&dir, "t.sdfl", scene);
+    let out = dir.join("out");
+    fs::create_dir_all(&out).unwrap();
+    fs::write(out.join("x"), "a file in the way").unwrap();
+    let o = sdfl(
+        &dir,
+        &[
+            "run",
+            file.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ],
+    );
+    assert_outcome("a file in the way", &o, Expect::Error);
+    assert!(o.stderr.contains("not a directory"), "{}", head(&o.stderr));
+    // Refused before training: no checkpoint, and at once.
+    assert!(!out.join("t.ckpt").exists());
+    assert!(o.elapsed < Duration::from_secs(10), "{:?}", o.elapsed);
+    fs::remove_file(out.join("x")).unwrap();
+    std::os::unix::fs::symlink(&dir, out.join("x")).unwrap();
+    let o = sdfl(
+        &dir,
+        &[
+            "run",
+            file.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ],
+    );
+    assert_outcome("a link in the way", &o, Expect::Error);
+    assert!(o.stderr.contains("symbolic link"), "{}", head(&o.stderr));
+    assert!(!out.join("t.ckpt").exists());
+}

@@ -206,6 +206,53 @@ impl OutDir {
     }
 }
 
+/// Checks, before any work, that every directory outputs go to (relative
+/// to the output directory `out`) can be made and written: each existing
+/// step on the way is a directory, not a link or a file, and the deepest
+/// existing one takes a new file. (Otherwise a whole training run could
+/// end on "exists and is not a directory".)
+pub fn check_output_dirs(out: &Path, dirs: &[PathBuf]) -> io::Result<()> {
+    let mut probed = std::collections::HashSet::new();
+    for rel in dirs {
+        let mut at = out.to_path_buf();
+        for c in rel.components() {
+            let next = at.join(c);
+            match fs::symlink_metadata(&next) {
+                Ok(m) if m.file_type().is_symlink() => {
+                    return Err(io::Error::new(
+                        io::ErrorKind::PermissionDenied,
+                        format!(
+                            "{} is a symbolic link: outputs never follow links",
+                            next.display()
+                        ),
+                    ))
+                }
+                Ok(m) if m.is_dir() => at = next,
+                Ok(_) => {
+                    return Err(io::Error::new(
+                        io::ErrorKind::AlreadyExists,
+                        format!(
+                            "{} exists and is not a directory, but outputs go inside it",
+                            next.display()
+                        ),
+                    ))
+                }
+                Err(e) if e.kind() == io::ErrorKind::NotFound => break,
+                Err(e) => return Err(with_path(&next, e)),
+            }
+        }
+        if probed.insert(at.clone()) {
+            drop(temporary_in(&at).map_err(|e| {
+                io::Error::new(
+                    e.kind(),
+                    format!("cannot create files in {}: {e}", at.display()),
+                )
+            })?);
+        }
+    }
+    Ok(())
+}
+
 /// Removes this module's temporary files in `dir` and below: regular
 /// files named exactly as [`temporary_in`] names them. Links are neither
 /// followed nor removed.

@@ -284,3 +284,39 @@ pub fn check_job(
         .take(10)
         .collect()
 }
+
+/// The directories, relative to the output directory, that the program's
+/// outputs and checkpoints go to (a data set's own directory included),
+/// each once: what the CLI checks can be written before any work.
+pub fn output_dirs(program: &Program) -> Vec<PathBuf> {
+    let mut dirs: Vec<PathBuf> = Vec::new();
+    let mut seen = std::collections::HashSet::new();
+    let mut add = |dir: PathBuf| {
+        if seen.insert(dir.clone()) {
+            dirs.push(dir);
+        }
+    };
+    let parent = |p: &Path| p.parent().map(Path::to_path_buf).unwrap_or_default();
+    let outputs = program
+        .renders
+        .iter()
+        .flat_map(|j| &j.outputs)
+        .chain(program.volumes.iter().flat_map(|j| &j.outputs))
+        .chain(
+            program
+                .trains
+                .iter()
+                .flat_map(|j| j.before.iter().chain(&j.after)),
+        );
+    for o in outputs {
+        add(if o.kind == OutputKind::Dataset {
+            o.path.clone()
+        } else {
+            parent(&o.path)
+        });
+    }
+    for c in program.trains.iter().filter_map(|j| j.checkpoint.as_ref()) {
+        add(parent(c));
+    }
+    dirs
+}
