@@ -130,18 +130,23 @@ fn a_colour_profile_bomb_loads_in_bounded_memory() {
 /// A zip archive of one deflated entry `name` of `mib` MiB of zeros, with
 /// its true size (the CRC is not needed: it is refused before).
 fn zip_bomb(name: &str, mib: usize) -> Vec<u8> {
-    let data = zeros_deflated(mib);
+    zip_of(name, &zeros_deflated(mib), (mib as u64) << 20)
+}
+
+/// A zip archive of one entry `name` holding the raw deflate stream
+/// `data`, declared to inflate to `size` bytes (CRC left 0).
+fn zip_of(name: &str, data: &[u8], size: u64) -> Vec<u8> {
     let le32 = |v: u32| v.to_le_bytes();
     let mut fields = vec![20u8, 0, 0, 0, 8, 0, 0, 0, 0, 0];
     fields.extend(le32(0));
     fields.extend(le32(data.len() as u32));
-    fields.extend(le32(u32::try_from(mib << 20).unwrap()));
+    fields.extend(le32(u32::try_from(size).unwrap()));
     fields.extend((name.len() as u16).to_le_bytes());
     fields.extend([0, 0]);
     let mut z = le32(0x0403_4b50).to_vec();
     z.extend(&fields);
     z.extend(name.as_bytes());
-    z.extend(&data);
+    z.extend(data);
     let cd_at = z.len() as u32;
     z.extend(le32(0x0201_4b50));
     z.extend([20, 0]);
@@ -554,32 +559,8 @@ fn too_many_points_are_refused_from_the_array_header() {
     let zeros = zeros_deflated((rows * 12 >> 20) as usize);
     data.extend(&zeros);
     let size = npy_head.len() as u64 + ((rows * 12 >> 20) << 20);
-    // One stored zip entry around that stream, sizes declared truthfully.
-    let name = "verts.npy";
-    let le32 = |v: u32| v.to_le_bytes();
-    let mut fields = vec![20u8, 0, 0, 0, 8, 0, 0, 0, 0, 0];
-    fields.extend(le32(0));
-    fields.extend(le32(data.len() as u32));
-    fields.extend(le32(u32::try_from(size).unwrap()));
-    fields.extend((name.len() as u16).to_le_bytes());
-    fields.extend([0, 0]);
-    let mut z = le32(0x0403_4b50).to_vec();
-    z.extend(&fields);
-    z.extend(name.as_bytes());
-    z.extend(&data);
-    let cd_at = z.len() as u32;
-    z.extend(le32(0x0201_4b50));
-    z.extend([20, 0]);
-    z.extend(&fields);
-    z.extend([0u8; 10]);
-    z.extend(le32(0));
-    z.extend(name.as_bytes());
-    let cd_len = z.len() as u32 - cd_at;
-    z.extend(le32(0x0605_4b50));
-    z.extend([0, 0, 0, 0, 1, 0, 1, 0]);
-    z.extend(le32(cd_len));
-    z.extend(le32(cd_at));
-    z.extend([0, 0]);
+    // One zip entry around that stream, its size declared truthfully.
+    let z = zip_of("verts.npy", &data, size);
     let dir = case_dir("data_npz_too_many_points");
     fs::write(dir.join("big.npz"), z).unwrap();
     let o = run_scene(
