@@ -475,6 +475,10 @@ pub(crate) fn plan_text(program: &sdfl_stdlib::Program) -> String {
         mesh_lines(&mut o, &job.after, &region);
         work_lines(&mut o, &sdfl_stdlib::work::train_work(job, None));
     }
+    if o.is_empty() {
+        // A file of `let`s and `fn`s only (one meant to be imported).
+        o.push_str("no statements: nothing runs (a file of `let`s and `fn`s is for `import`)\n");
+    }
     o
 }
 

@@ -368,3 +368,13 @@ fn a_mesh_finer_than_f32_resolves_is_refused() {
     assert!(err.contains("below f32 precision"), "{err}");
     assert!(!tmp.join("out/far.ply").exists());
 }
+
+/// A file with no statement (one meant for `import`) says so rather than
+/// printing nothing.
+#[test]
+fn plan_of_a_file_without_statements_says_so() {
+    let o = sdfl(&["plan", "examples/fewer_views_scene.sdfl"]);
+    assert!(o.status.success());
+    let text = String::from_utf8_lossy(&o.stdout);
+    assert!(text.starts_with("no statements"), "{text}");
+}
