@@ -437,10 +437,12 @@ pub fn volume_work(j: &VolumeJob, size: Option<(u32, u32)>) -> Work {
 /// and two Adam moments, the step's copies, the last good checkpoint and
 /// the checkpoint being written (values and moments, then serialised).
 pub const BYTES_PER_WEIGHT: f64 = 64.0;
-/// Copies of an occupancy grid's cells (f32 each) a run holds: the
-/// trained model's, the rendering copy's, the state copied between them,
-/// and the last good checkpoint's with its serialisation.
-const GRID_COPIES: f64 = 6.0;
+/// Copies of an occupancy grid's cells (f32 each) a run holds at its
+/// peak: the trained model's and the rendering copy's, and its state (two
+/// f32 arrays: densities and marks) copied between them, in the last good
+/// checkpoint, in the one being made and serialised. Measured: a 384³
+/// grid peaked at about nine copies.
+const GRID_COPIES: f64 = 10.0;
 
 /// Training steps a run takes (epochs through known data, or iterations).
 fn training_steps(j: &TrainJob) -> f64 {
