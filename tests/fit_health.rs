@@ -32,16 +32,7 @@ fn run(name: &str, lr: &str) -> (String, Vec<String>) {
     let file = dir.join("fit.sdfl");
     fs::write(&file, fit(lr)).unwrap();
     let out = dir.join("out");
-    let o = sdfl(
-        &dir,
-        &[
-            "run",
-            file.to_str().unwrap(),
-            "--out",
-            out.to_str().unwrap(),
-            "--json",
-        ],
-    );
+    let o = run_into(&dir, &file, &out, &["--json"]);
     assert_outcome(name, &o, Expect::Ok);
     let json: serde_json::Value =
         serde_json::from_slice(&fs::read(dir.join("stdout.txt")).unwrap()).unwrap();
@@ -84,15 +75,7 @@ fn a_non_finite_fit_is_not_an_io_error() {
     )
     .unwrap();
     let out = dir.join("out");
-    let o = sdfl(
-        &dir,
-        &[
-            "run",
-            file.to_str().unwrap(),
-            "--out",
-            out.to_str().unwrap(),
-        ],
-    );
+    let o = run_into(&dir, &file, &out, &[]);
     assert_outcome("non-finite fit", &o, Expect::Error);
     assert!(
         o.stderr.contains("sdfl::train::non-finite") && !o.stderr.contains("sdfl::io"),

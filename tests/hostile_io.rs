@@ -397,15 +397,7 @@ fn an_unwritable_out_is_refused_before_any_work() {
     }
     assert!(!outs.is_empty(), "no unwritable directory to test with");
     for out in outs {
-        let o = sdfl(
-            &dir,
-            &[
-                "run",
-                file.to_str().unwrap(),
-                "--out",
-                out.to_str().unwrap(),
-            ],
-        );
+        let o = run_into(&dir, &file, &out, &[]);
         assert_outcome(&format!("--out {}", out.display()), &o, Expect::Error);
         assert!(
             o.stderr.contains("sdfl::io")
@@ -574,15 +566,7 @@ fn output_directories_are_checked_before_any_work() {
     let out = dir.join("out");
     fs::create_dir_all(&out).unwrap();
     fs::write(out.join("x"), "a file in the way").unwrap();
-    let o = sdfl(
-        &dir,
-        &[
-            "run",
-            file.to_str().unwrap(),
-            "--out",
-            out.to_str().unwrap(),
-        ],
-    );
+    let o = run_into(&dir, &file, &out, &[]);
     assert_outcome("a file in the way", &o, Expect::Error);
     assert!(o.stderr.contains("not a directory"), "{}", head(&o.stderr));
     // Refused before training: no checkpoint, and at once.
@@ -590,15 +574,7 @@ fn output_directories_are_checked_before_any_work() {
     assert!(o.elapsed < Duration::from_secs(10), "{:?}", o.elapsed);
     fs::remove_file(out.join("x")).unwrap();
     std::os::unix::fs::symlink(&dir, out.join("x")).unwrap();
-    let o = sdfl(
-        &dir,
-        &[
-            "run",
-            file.to_str().unwrap(),
-            "--out",
-            out.to_str().unwrap(),
-        ],
-    );
+    let o = run_into(&dir, &file, &out, &[]);
     assert_outcome("a link in the way", &o, Expect::Error);
     assert!(o.stderr.contains("symbolic link"), "{}", head(&o.stderr));
     assert!(!out.join("t.ckpt").exists());

@@ -140,3 +140,14 @@ pub fn write_sphere_points(dir: &Path, n: usize) {
         .collect();
     fs::write(dir.join("sphere.xyz"), text).expect("the case directory is writable");
 }
+
+/// `sdfl run FILE --out OUT` in `dir` (see [`sdfl`]), extra arguments after.
+pub fn run_into(dir: &Path, file: &Path, out: &Path, extra: &[&str]) -> Outcome {
+    let (file, out) = (
+        file.to_str().expect("test paths are UTF-8"),
+        out.to_str().expect("test paths are UTF-8"),
+    );
+    let mut args = vec!["run", file, "--out", out];
+    args.extend_from_slice(extra);
+    sdfl(dir, &args)
+}
