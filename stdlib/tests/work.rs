@@ -53,6 +53,10 @@ fn a_plain_run_has_its_stages_and_fits_the_budget() {
     ] {
         assert!(w.stage(stage).evaluations > 0.0, "{stage:?}: {w:?}");
     }
+    // Stages are stored by their discriminant, in the order of `ALL`.
+    for (i, s) in Stage::ALL.iter().enumerate() {
+        assert_eq!(*s as usize, i, "{s:?}");
+    }
     let sum: f64 = w.stages().map(|(_, c)| c.evaluations).sum();
     assert_eq!(sum, w.evaluations);
     assert_eq!(w.largest(), Stage::Training);
