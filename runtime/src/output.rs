@@ -213,7 +213,8 @@ impl OutDir {
 /// end on "exists and is not a directory".)
 pub fn check_output_dirs(out: &Path, dirs: &[PathBuf]) -> io::Result<()> {
     let mut probed = std::collections::HashSet::new();
-    for rel in dirs {
+    // `out` itself was probed when it was opened (`OutDir::open`).
+    for rel in dirs.iter().filter(|d| !d.as_os_str().is_empty()) {
         let mut at = out.to_path_buf();
         for c in rel.components() {
             let next = at.join(c);

@@ -246,10 +246,18 @@ pub const MAX_MESH_VERTICES: usize = 20_000_000;
 /// Cells a side of the grid the true surface is meshed on, where a mesh is
 /// measured against the shape sdfl rendered its data from.
 pub const TRUE_SURFACE_RESOLUTION: u32 = 192;
-/// Samples standing for a surface in a Chamfer distance, and query points
-/// on the other side (see `runtime::neural::distance`).
+/// Samples standing for a surface that distances are measured to: the
+/// mean gap to the nearest of them adds about `0.5·√(area/n)` (0.001 on a
+/// surface of area 4) to a distance. The runtime's Chamfer distances use
+/// these, so the estimate and the work cannot drift apart.
 pub const SURFACE_SAMPLES: usize = 1_000_000;
+/// Query samples on each side of a mesh's Chamfer distance.
 pub const MESH_FIT_POINTS: usize = 50_000;
+/// Random points a neural SDF's fit projects onto its surface.
+pub const FIT_PROBES: usize = 65_536;
+/// Rows a neural SDF's fit evaluates at a time (a pass holds every layer's
+/// values and tangents per row).
+pub const FIT_CHUNK: usize = 4096;
 
 /// The cost of one surface-nets mesh at `resolution` cells a side, a grid
 /// point costing `per_point` evaluations. A surface is assumed to cross a
@@ -707,19 +715,16 @@ pub fn train_work(j: &TrainJob, size: Option<(u32, u32)>) -> Work {
         w.add(Stage::Meshes, c.evaluations, c.memory);
     }
     if let Field::NeuralSdf(n) = &*j.model {
-        let probes = 65_536.0;
+        let probes = FIT_PROBES as f64;
         let per_row = (4 * (3 * n.encoding_width() + 6 * (n.layers + 1) * n.width + 16)) as f64;
         w.add(
             Stage::Meshes,
             10.0 * probes * 4.0 * network(n.multiply_adds()),
-            FIT_CHUNK_ROWS * per_row + probes * 16.0 + chamfer_cost().memory,
+            FIT_CHUNK as f64 * per_row + probes * 16.0 + chamfer_cost().memory,
         );
     }
     w
 }
-
-/// Rows a neural SDF's fit evaluates at a time (`runtime::neural::distance`).
-pub const FIT_CHUNK_ROWS: f64 = 4096.0;
 
 /// The diagnostic for a statement whose estimate is beyond the limits.
 pub fn refuse(work: Work, span: Span, what: &str) -> Option<Diag> {

@@ -875,7 +875,11 @@ fn true_surface(data: &Dataset) -> Option<crate::mesh::Mesh> {
             *o = sdf.dist(Vec3A::from(*p));
         }
     };
-    let grid = crate::mesh::MeshGrid::covering(b.min.to_array(), b.max.to_array(), 192);
+    let grid = crate::mesh::MeshGrid::covering(
+        b.min.to_array(),
+        b.max.to_array(),
+        sdfl_stdlib::work::TRUE_SURFACE_RESOLUTION,
+    );
     crate::mesh::surface_nets(
         &distance,
         &grid,

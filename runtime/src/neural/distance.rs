@@ -8,6 +8,7 @@
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use rayon::prelude::*;
 use sdfl_stdlib::value::{Loss, LossKind, NeuralSdf};
+use sdfl_stdlib::work::{FIT_CHUNK, FIT_PROBES as PROBES, MESH_FIT_POINTS, SURFACE_SAMPLES};
 
 use super::sdf_net::{SdfLoss, SdfNet, SdfNetSpec, SdfWork};
 use crate::train::fused::Batch;
@@ -133,9 +134,6 @@ impl Objective for NeuralSdfObjective {
     }
 }
 
-/// Random points projected onto the surface to sample it.
-const PROBES: usize = 65_536;
-
 /// How well a trained distance field fits its points.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
 pub struct SdfFit {
@@ -208,11 +206,6 @@ pub fn fit(net: &SdfNet, params: &[f32], points: &[[f32; 3]], bounds: f32, seed:
     }
 }
 
-/// Rows per forward pass when measuring a fit: a pass holds every layer's
-/// values and tangents per row (tens of kilobytes for a wide network), so
-/// all of a large point cloud at once took gigabytes.
-pub const FIT_CHUNK: usize = 4096;
-
 /// `f` and `∇f` (three a point) at the flat `points`, [`FIT_CHUNK`] rows
 /// at a time (rows are independent, so the values are those of one pass).
 fn distances_and_gradients(
@@ -255,13 +248,6 @@ pub enum Reference<'a> {
     /// Another surface (the true one), as a mesh.
     Surface(&'a crate::mesh::Mesh),
 }
-
-/// Query samples on each side of a mesh's Chamfer distance.
-const MESH_FIT_POINTS: usize = 50_000;
-/// Samples standing for a surface that distances are measured to: the
-/// mean gap to the nearest of them adds about `0.5·√(area/n)` (0.001 on a
-/// surface of area 4) to a distance, not the 0.005 of 50 000.
-const SURFACE_SAMPLES: usize = 1_000_000;
 
 pub fn mesh_fit(
     mesh: &crate::mesh::Mesh,
