@@ -13,7 +13,7 @@ use sdfl_stdlib::value::HitTolerance;
 use sdfl_stdlib::{OutputKind, RenderJob};
 use serde::Serialize;
 
-use crate::data::nerf_synthetic::DatasetWriter;
+use crate::data::export::DatasetWriter;
 use crate::effects::{Counters, EffectStats, SurfacePoint};
 use crate::output::{colormap, to_u8, write_png, GifWriter};
 use crate::sdf::tiles::{Margin, TILE};

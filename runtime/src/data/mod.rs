@@ -1,5 +1,6 @@
 //! Readers for input data sets.
 
+pub mod export;
 pub mod image;
 pub mod nerf_synthetic;
 pub mod npy;

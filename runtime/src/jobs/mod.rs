@@ -16,7 +16,7 @@ use sdfl_stdlib::OutputKind;
 use sdfl_stdlib::RenderJob;
 use serde::Serialize;
 
-use crate::data::nerf_synthetic::DatasetWriter;
+use crate::data::export::DatasetWriter;
 use crate::data::npy::RgbImage;
 use crate::metrics;
 use crate::neural::field::NerfObjective;
