@@ -286,6 +286,17 @@ fn check(name: &str, model: &str, expect: &[(&str, Vec<usize>)]) {
         "{name}: all densities ~0"
     );
     eprintln!("{name}: worst relative density difference {worst:e}");
+    // For running the PyTorch snippet of docs/checkpoints.md by hand: the
+    // file, and the points with sdfl's densities and colours.
+    if let Some(dump) = std::env::var_os("SDFL_CHECKPOINT_DUMP") {
+        let dump = Path::new(&dump);
+        std::fs::create_dir_all(dump).unwrap();
+        std::fs::copy(&path, dump.join(format!("{name}.ckpt"))).unwrap();
+        let doc = serde_json::json!({
+            "points": points, "dirs": dirs, "sigma": work.sigma[..n], "rgb": work.rgb[..3 * n],
+        });
+        std::fs::write(dump.join(format!("{name}.json")), doc.to_string()).unwrap();
+    }
     let _ = std::fs::remove_dir_all(&out);
 }
 
