@@ -34,8 +34,9 @@ use glam::DVec3;
 use serde_json::Value;
 
 use common::{case_dir, run_into, Expect};
-use sdfl_runtime::data::export::{DatasetWriter, Lens, ViewIntrinsics};
+use sdfl_runtime::data::export::DatasetWriter;
 use sdfl_stdlib::camera::Camera;
+use sdfl_stdlib::lens::{Distortion, Intrinsics};
 
 /// What a parser resolves for one image.
 #[derive(Debug, Clone)]
@@ -322,14 +323,14 @@ fn instant_ngp(file: &Path) -> Vec<Parsed> {
 #[derive(Debug, Clone, Copy)]
 struct Truth {
     c2w: [[f64; 4]; 4],
-    i: ViewIntrinsics,
+    i: Intrinsics,
 }
 
-fn dist_of(l: Lens) -> [f64; 6] {
+fn dist_of(l: Distortion) -> [f64; 6] {
     match l {
-        Lens::Pinhole => [0.0; 6],
-        Lens::OpenCv { k1, k2, p1, p2 } => [k1, k2, 0.0, 0.0, p1, p2],
-        Lens::Fisheye { k1, k2, k3, k4 } => [k1, k2, k3, k4, 0.0, 0.0],
+        Distortion::None => [0.0; 6],
+        Distortion::OpenCv { k1, k2, p1, p2 } => [k1, k2, 0.0, 0.0, p1, p2],
+        Distortion::Fisheye { k1, k2, k3, k4 } => [k1, k2, k3, k4, 0.0, 0.0],
     }
 }
 
@@ -369,10 +370,10 @@ fn agrees(what: &str, parsed: &[Parsed], truth: &[Truth], want: &[usize], intrin
             );
             assert_eq!(
                 p.fisheye,
-                matches!(t.i.lens, Lens::Fisheye { .. }),
+                matches!(t.i.distortion, Distortion::Fisheye { .. }),
                 "{what}: view {k}"
             );
-            assert_eq!(p.dist, dist_of(t.i.lens), "{what}: view {k}");
+            assert_eq!(p.dist, dist_of(t.i.distortion), "{what}: view {k}");
         }
     }
     got.sort_unstable();
@@ -398,7 +399,7 @@ fn c2w(k: usize) -> [[f64; 4]; 4] {
 fn write_set(
     out: &Path,
     name: &str,
-    intrinsics: impl Fn(usize) -> ViewIntrinsics,
+    intrinsics: impl Fn(usize) -> Intrinsics,
 ) -> (Vec<Truth>, Vec<usize>) {
     let n = 12;
     let mut w = DatasetWriter::new(out, Path::new(name), (8, 6), n, 3, 5);
@@ -479,9 +480,9 @@ fn every_parser_reads_a_pinhole_set() {
 #[test]
 fn distorted_and_per_view_intrinsics() {
     let out = case_dir("export_distorted");
-    let opencv = |_| ViewIntrinsics {
-        w: 8,
-        h: 6,
+    let opencv = |_| Intrinsics {
+        width: 8,
+        height: 6,
         fx: 5.0,
         fy: 5.1,
         cx: 4.3,
@@ -522,9 +523,9 @@ fn distorted_and_per_view_intrinsics() {
     let t = json(&dir.join("transforms.json"));
     assert_eq!(t["camera_model"], "OPENCV");
 
-    let fisheye = |k: usize| ViewIntrinsics {
-        w: 8,
-        h: 6,
+    let fisheye = |k: usize| Intrinsics {
+        width: 8,
+        height: 6,
         fx: 4.0 + k as f64 * 0.1,
         fy: 4.0 + k as f64 * 0.1,
         cx: 4.0,
@@ -561,6 +562,17 @@ fn distorted_and_per_view_intrinsics() {
     );
 }
 
+/// The cameras of a statement as written for `w × h` images.
+fn truths(cameras: &[Camera], (w, h): (u32, u32)) -> Vec<Truth> {
+    cameras
+        .iter()
+        .map(|c| {
+            let (c2w, i) = c.to_opengl_intrinsics(w, h);
+            Truth { c2w, i }
+        })
+        .collect()
+}
+
 /// The `dataset(...)` built-in end to end: `test_views` holds views out,
 /// every parser finds the CLI's files and cameras, `nerf_synthetic`
 /// trains on them, and holding out every view is refused when checked.
@@ -574,25 +586,7 @@ fn the_dataset_output_from_the_cli() {
     common::assert_outcome("render a data set", &o, Expect::Ok);
     let program = sdfl_stdlib::load(&sdfl_lang::SourceFile::new("scene.sdfl", scene)).unwrap();
     let job = &program.renders[0];
-    let truth: Vec<Truth> = job
-        .cameras
-        .iter()
-        .map(|c| {
-            let p = c.to_opengl(10, 8);
-            Truth {
-                c2w: p.c2w,
-                i: ViewIntrinsics {
-                    w: 10,
-                    h: 8,
-                    fx: p.fl_x,
-                    fy: p.fl_y,
-                    cx: 5.0,
-                    cy: 4.0,
-                    lens: Lens::Pinhole,
-                },
-            }
-        })
-        .collect();
+    let truth = truths(&job.cameras, (10, 8));
     let held = sdfl_stdlib::value::held_out(6, 2, 3);
     let train: Vec<usize> = (0..6).filter(|k| !held.contains(k)).collect();
     let set = dir.join("out/set");
@@ -637,4 +631,55 @@ fn the_dataset_output_from_the_cli() {
         common::head(&o.stderr)
     );
     assert!(!dir.join("out2/set").exists());
+}
+
+/// Views through a real lens (`lens(...)`: off-centre principal point,
+/// fx ≠ fy, OpenCV distortion) write `camera_model` OPENCV with their
+/// coefficients; nerfstudio and instant-ngp resolve them exactly.
+#[test]
+fn a_lens_data_set_from_the_cli() {
+    let dir = case_dir("export_cli_lens");
+    let lens = |eye: &str| {
+        format!("lens(look_at(eye: {eye}), size: [10, 8], focal: [9, 9.5], center: [5.4, 3.7], model: \"opencv\", distortion: [-0.1, 0.01, 0.001, -0.002])")
+    };
+    let scene = format!(
+        "render r {{\n  scene: sphere(0.5),\n  camera: [{}, {}, {}],\n  size: [10, 8],\n  outputs: [dataset(\"set\", test_views: 1)],\n}}\n",
+        lens("[0, 0, -3]"),
+        lens("[3, 0, 0]"),
+        lens("[0, 3, 0.1]")
+    );
+    let file = dir.join("scene.sdfl");
+    fs::write(&file, &scene).unwrap();
+    let o = run_into(&dir, &file, &dir.join("out"), &[]);
+    common::assert_outcome("render through a lens", &o, Expect::Ok);
+    let program = sdfl_stdlib::load(&sdfl_lang::SourceFile::new("scene.sdfl", scene)).unwrap();
+    let truth = truths(&program.renders[0].cameras, (10, 8));
+    assert!(matches!(truth[0].i.distortion, Distortion::OpenCv { k1, .. } if k1 == -0.1));
+    let held = sdfl_stdlib::value::held_out(3, 1, 0);
+    let train: Vec<usize> = (0..3).filter(|k| !held.contains(k)).collect();
+    let set = dir.join("out/set");
+    assert_eq!(json(&set.join("transforms.json"))["camera_model"], "OPENCV");
+    for (split, want) in [("train", &train), ("test", &held)] {
+        agrees(
+            &format!("lens nerfstudio {split}"),
+            &nerfstudio(&set, split).unwrap(),
+            &truth,
+            want,
+            true,
+        );
+        agrees(
+            &format!("lens instant-ngp {split}"),
+            &instant_ngp(&set.join(format!("transforms_{split}.json"))),
+            &truth,
+            want,
+            true,
+        );
+        agrees(
+            &format!("lens blender {split}"),
+            &blender(&set, split),
+            &truth,
+            want,
+            false,
+        );
+    }
 }

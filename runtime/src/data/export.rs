@@ -27,6 +27,7 @@ use std::io;
 use std::path::{Path, PathBuf};
 
 use sdfl_stdlib::camera::Camera;
+use sdfl_stdlib::lens::{Distortion, Intrinsics};
 use sdfl_stdlib::outputs::DATASET_JSON;
 use sdfl_stdlib::value::held_out;
 use serde_json::{json, Map, Value};
@@ -38,138 +39,87 @@ use crate::render::Written;
 /// writes.
 pub(crate) const INCOMPLETE: &str = "sdfl_incomplete";
 
-/// Lens distortion as the files state it (OpenCV's models, as COLMAP and
-/// nerfstudio name them).
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub enum Lens {
-    /// No distortion: `camera_model` `PINHOLE`.
-    Pinhole,
-    /// `OPENCV`: radial `k1 k2`, tangential `p1 p2`.
-    OpenCv { k1: f64, k2: f64, p1: f64, p2: f64 },
-    /// `OPENCV_FISHEYE`: equidistant with `k1..k4`.
-    Fisheye { k1: f64, k2: f64, k3: f64, k4: f64 },
-}
-
-impl Lens {
-    fn is_fisheye(&self) -> bool {
-        matches!(self, Lens::Fisheye { .. })
-    }
-
-    /// The distortion keys and values. Only the model's own keys: instant-ngp
-    /// reads `p1`, `p2` into the slots of `k3`, `k4`, so a fisheye file
-    /// holding `p1` would lose its `k3`.
-    fn keys(&self) -> Vec<(&'static str, Value)> {
-        match *self {
-            Lens::Pinhole => Vec::new(),
-            Lens::OpenCv { k1, k2, p1, p2 } => {
-                vec![
-                    ("k1", k1.into()),
-                    ("k2", k2.into()),
-                    ("p1", p1.into()),
-                    ("p2", p2.into()),
-                ]
-            }
-            Lens::Fisheye { k1, k2, k3, k4 } => vec![
-                ("k1", k1.into()),
-                ("k2", k2.into()),
-                ("k3", k3.into()),
-                ("k4", k4.into()),
-                // instant-ngp's switch to its fisheye model (nerfstudio
-                // takes `camera_model`).
-                ("is_fisheye", true.into()),
-            ],
-        }
+/// The distortion keys and values of `d`. Only the model's own keys:
+/// instant-ngp reads `p1`, `p2` into the slots of `k3`, `k4`, so a fisheye
+/// file holding `p1` would lose its `k3`.
+fn distortion_keys(d: &Distortion) -> Vec<(&'static str, Value)> {
+    match *d {
+        Distortion::None => Vec::new(),
+        Distortion::OpenCv { k1, k2, p1, p2 } => vec![
+            ("k1", k1.into()),
+            ("k2", k2.into()),
+            ("p1", p1.into()),
+            ("p2", p2.into()),
+        ],
+        Distortion::Fisheye { k1, k2, k3, k4 } => vec![
+            ("k1", k1.into()),
+            ("k2", k2.into()),
+            ("k3", k3.into()),
+            ("k4", k4.into()),
+            // instant-ngp's switch to its fisheye model (nerfstudio
+            // takes `camera_model`).
+            ("is_fisheye", true.into()),
+        ],
     }
 }
 
-/// One view's pixel intrinsics (OpenCV convention: pixel `(i, j)` has its
-/// centre at `(i + ½, j + ½)`, x right, y down).
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct ViewIntrinsics {
-    pub w: u32,
-    pub h: u32,
-    pub fx: f64,
-    pub fy: f64,
-    pub cx: f64,
-    pub cy: f64,
-    pub lens: Lens,
+fn is_fisheye(i: &Intrinsics) -> bool {
+    matches!(i.distortion, Distortion::Fisheye { .. })
 }
 
-impl ViewIntrinsics {
-    /// The horizontal field of view of a centred pinhole with this `fx`.
-    pub fn camera_angle_x(&self) -> f64 {
-        2.0 * (self.w as f64 / 2.0 / self.fx).atan()
-    }
-
-    /// `fl_x fl_y cx cy w h` and the distortion, as JSON keys.
-    fn keys(&self) -> Vec<(&'static str, Value)> {
-        let mut v: Vec<(&'static str, Value)> = vec![
-            ("fl_x", self.fx.into()),
-            ("fl_y", self.fy.into()),
-            ("cx", self.cx.into()),
-            ("cy", self.cy.into()),
-            ("w", self.w.into()),
-            ("h", self.h.into()),
-        ];
-        v.extend(self.lens.keys());
-        v
-    }
-
-    /// Equal up to rounding (views of one camera model computed apart).
-    fn same(&self, o: &ViewIntrinsics) -> bool {
-        let close = |a: f64, b: f64| (a - b).abs() <= 1e-9 * a.abs().max(b.abs()).max(1.0);
-        let lens = match (self.lens, o.lens) {
-            (Lens::Pinhole, Lens::Pinhole) => true,
-            (
-                Lens::OpenCv { k1, k2, p1, p2 },
-                Lens::OpenCv {
-                    k1: a,
-                    k2: b,
-                    p1: c,
-                    p2: d,
-                },
-            ) => close(k1, a) && close(k2, b) && close(p1, c) && close(p2, d),
-            (
-                Lens::Fisheye { k1, k2, k3, k4 },
-                Lens::Fisheye {
-                    k1: a,
-                    k2: b,
-                    k3: c,
-                    k4: d,
-                },
-            ) => close(k1, a) && close(k2, b) && close(k3, c) && close(k4, d),
-            _ => false,
-        };
-        lens && (self.w, self.h) == (o.w, o.h)
-            && close(self.fx, o.fx)
-            && close(self.fy, o.fy)
-            && close(self.cx, o.cx)
-            && close(self.cy, o.cy)
-    }
+/// `fl_x fl_y cx cy w h` and the distortion, as JSON keys.
+fn intrinsic_keys(i: &Intrinsics) -> Vec<(&'static str, Value)> {
+    let mut v: Vec<(&'static str, Value)> = vec![
+        ("fl_x", i.fx.into()),
+        ("fl_y", i.fy.into()),
+        ("cx", i.cx.into()),
+        ("cy", i.cy.into()),
+        ("w", i.width.into()),
+        ("h", i.height.into()),
+    ];
+    v.extend(distortion_keys(&i.distortion));
+    v
 }
 
-/// The OpenGL pose and pixel intrinsics of an sdfl camera for `w × h`
-/// images.
-pub fn view_of(camera: &Camera, (w, h): (u32, u32)) -> ([[f64; 4]; 4], ViewIntrinsics) {
-    let pose = camera.to_opengl(w, h);
-    (
-        pose.c2w,
-        ViewIntrinsics {
-            w,
-            h,
-            fx: pose.fl_x,
-            fy: pose.fl_y,
-            cx: w as f64 / 2.0,
-            cy: h as f64 / 2.0,
-            lens: Lens::Pinhole,
-        },
-    )
+/// The horizontal field of view of a centred pinhole with `i`'s `fx`.
+fn camera_angle_x(i: &Intrinsics) -> f64 {
+    2.0 * (i.width as f64 / 2.0 / i.fx).atan()
+}
+
+/// Equal up to rounding (views of one camera model computed apart).
+fn same(a: &Intrinsics, b: &Intrinsics) -> bool {
+    let close = |x: f64, y: f64| (x - y).abs() <= 1e-9 * x.abs().max(y.abs()).max(1.0);
+    let all = |x: [f64; 4], y: [f64; 4]| x.iter().zip(&y).all(|(p, q)| close(*p, *q));
+    let lens = match (a.distortion, b.distortion) {
+        (Distortion::None, Distortion::None) => true,
+        (
+            Distortion::OpenCv { k1, k2, p1, p2 },
+            Distortion::OpenCv {
+                k1: q,
+                k2: r,
+                p1: s,
+                p2: t,
+            },
+        ) => all([k1, k2, p1, p2], [q, r, s, t]),
+        (
+            Distortion::Fisheye { k1, k2, k3, k4 },
+            Distortion::Fisheye {
+                k1: q,
+                k2: r,
+                k3: s,
+                k4: t,
+            },
+        ) => all([k1, k2, k3, k4], [q, r, s, t]),
+        _ => false,
+    };
+    lens && (a.width, a.height) == (b.width, b.height)
+        && all([a.fx, a.fy, a.cx, a.cy], [b.fx, b.fy, b.cx, b.cy])
 }
 
 struct FrameRecord {
     k: usize,
     c2w: [[f64; 4]; 4],
-    intrinsics: ViewIntrinsics,
+    intrinsics: Intrinsics,
 }
 
 /// Writes a data set: `r_<k>.png` per view as it is pushed, and on
@@ -233,7 +183,7 @@ impl DatasetWriter {
         rgb: &[u8],
         alpha: Option<&[u8]>,
     ) -> io::Result<Written> {
-        let (c2w, intrinsics) = view_of(camera, self.size);
+        let (c2w, intrinsics) = camera.to_opengl_intrinsics(self.size.0, self.size.1);
         self.push_view(k, c2w, intrinsics, rgb, alpha)
     }
 
@@ -243,18 +193,18 @@ impl DatasetWriter {
         &mut self,
         k: usize,
         c2w: [[f64; 4]; 4],
-        intrinsics: ViewIntrinsics,
+        intrinsics: Intrinsics,
         rgb: &[u8],
         alpha: Option<&[u8]>,
     ) -> io::Result<Written> {
         let (w, h) = self.size;
         let bad = |m: String| io::Error::new(io::ErrorKind::InvalidInput, m);
-        if (intrinsics.w, intrinsics.h) != (w, h) {
+        if (intrinsics.width, intrinsics.height) != (w, h) {
             return Err(bad(format!(
                 "{}: view {k}'s intrinsics are for {}x{} images, the data set's are {w}x{h}",
                 self.dir.display(),
-                intrinsics.w,
-                intrinsics.h
+                intrinsics.width,
+                intrinsics.height
             )));
         }
         if self.frames.iter().any(|f| f.k == k) {
@@ -264,7 +214,7 @@ impl DatasetWriter {
             )));
         }
         if let Some(f) = self.frames.first() {
-            if f.intrinsics.lens.is_fisheye() != intrinsics.lens.is_fisheye() {
+            if is_fisheye(&f.intrinsics) != is_fisheye(&intrinsics) {
                 return Err(bad(format!(
                     "{}: view {k} mixes a fisheye and a perspective lens, and a data set has one `camera_model`",
                     self.dir.display()
@@ -306,21 +256,24 @@ impl DatasetWriter {
         let mut frames: Vec<&FrameRecord> = self.frames.iter().collect();
         frames.sort_by_key(|f| f.k);
         let first = frames.first().map(|f| f.intrinsics);
-        let shared = first.filter(|i| frames.iter().all(|f| f.intrinsics.same(i)));
+        let shared = first.filter(|i| frames.iter().all(|f| same(&f.intrinsics, i)));
         let held = |k: usize| self.held.get(k).copied().unwrap_or(false);
         let any_held = frames.iter().any(|f| held(f.k));
         // nerfstudio's `camera_model` is one for the set: OPENCV as soon as
         // one view is distorted (pinhole views then have zeros).
-        let model = if frames.iter().any(|f| f.intrinsics.lens.is_fisheye()) {
+        let model = if frames.iter().any(|f| is_fisheye(&f.intrinsics)) {
             "OPENCV_FISHEYE"
-        } else if frames.iter().any(|f| f.intrinsics.lens != Lens::Pinhole) {
+        } else if frames
+            .iter()
+            .any(|f| f.intrinsics.distortion != Distortion::None)
+        {
             "OPENCV"
         } else {
             "PINHOLE"
         };
-        let widen = |i: ViewIntrinsics| match (model, i.lens) {
-            ("OPENCV", Lens::Pinhole) => ViewIntrinsics {
-                lens: Lens::OpenCv {
+        let widen = |i: Intrinsics| match (model, i.distortion) {
+            ("OPENCV", Distortion::None) => Intrinsics {
+                distortion: Distortion::OpenCv {
                     k1: 0.0,
                     k2: 0.0,
                     p1: 0.0,
@@ -336,10 +289,14 @@ impl DatasetWriter {
             // The Blender parser and sdfl read the field of view; with
             // intrinsics per frame it is the first view's (the others'
             // `fl_x` say theirs).
-            let angle = first.map_or(std::f64::consts::FRAC_PI_2, |i| i.camera_angle_x());
+            let angle = first.map_or(std::f64::consts::FRAC_PI_2, |i| camera_angle_x(&i));
             m.insert("camera_angle_x".into(), angle.into());
             if let Some(i) = shared {
-                m.extend(widen(i).keys().into_iter().map(|(k, v)| (k.to_string(), v)));
+                m.extend(
+                    intrinsic_keys(&widen(i))
+                        .into_iter()
+                        .map(|(k, v)| (k.to_string(), v)),
+                );
             }
             m
         };
@@ -354,8 +311,7 @@ impl DatasetWriter {
             m.insert("transform_matrix".into(), json!(f.c2w));
             if shared.is_none() {
                 m.extend(
-                    widen(f.intrinsics)
-                        .keys()
+                    intrinsic_keys(&widen(f.intrinsics))
                         .into_iter()
                         .map(|(k, v)| (k.to_string(), v)),
                 );
@@ -483,14 +439,14 @@ mod writer_tests {
             [0.0, 0.0, 1.0, 2.0],
             [0.0, 0.0, 0.0, 1.0],
         ];
-        let base = ViewIntrinsics {
-            w: 6,
-            h: 4,
+        let base = Intrinsics {
+            width: 6,
+            height: 4,
             fx: 5.0,
             fy: 5.5,
             cx: 3.25,
             cy: 1.75,
-            lens: Lens::OpenCv {
+            distortion: Distortion::OpenCv {
                 k1: -0.1,
                 k2: 0.01,
                 p1: 1e-3,
@@ -519,8 +475,8 @@ mod writer_tests {
             2
         );
 
-        let fish = ViewIntrinsics {
-            lens: Lens::Fisheye {
+        let fish = Intrinsics {
+            distortion: Distortion::Fisheye {
                 k1: 0.1,
                 k2: 0.0,
                 k3: -0.01,
@@ -530,7 +486,7 @@ mod writer_tests {
         };
         let mut w = DatasetWriter::new(dir.path(), Path::new("b"), (6, 4), 2, 1, 7);
         w.push_view(0, c2w, fish, &rgb, None).unwrap();
-        w.push_view(1, c2w, ViewIntrinsics { fx: 6.0, ..fish }, &rgb, None)
+        w.push_view(1, c2w, Intrinsics { fx: 6.0, ..fish }, &rgb, None)
             .unwrap();
         let docs = w.documents();
         let t = doc(&docs, "transforms.json");
@@ -552,8 +508,8 @@ mod writer_tests {
         w.push_view(
             1,
             c2w,
-            ViewIntrinsics {
-                lens: Lens::Pinhole,
+            Intrinsics {
+                distortion: Distortion::None,
                 ..base
             },
             &rgb,
