@@ -423,14 +423,14 @@ fn write_set(
 #[test]
 fn every_parser_reads_a_pinhole_set() {
     let out = case_dir("export_pinhole");
-    let pin = |_| ViewIntrinsics {
-        w: 8,
-        h: 6,
+    let pin = |_| Intrinsics {
+        width: 8,
+        height: 6,
         fx: 4.8,
         fy: 4.8,
         cx: 4.0,
         cy: 3.0,
-        lens: Lens::Pinhole,
+        distortion: Distortion::None,
     };
     let (truth, held) = write_set(&out, "set", pin);
     let dir = out.join("set");
@@ -487,7 +487,7 @@ fn distorted_and_per_view_intrinsics() {
         fy: 5.1,
         cx: 4.3,
         cy: 2.8,
-        lens: Lens::OpenCv {
+        distortion: Distortion::OpenCv {
             k1: -0.12,
             k2: 0.02,
             p1: 1e-3,
@@ -530,7 +530,7 @@ fn distorted_and_per_view_intrinsics() {
         fy: 4.0 + k as f64 * 0.1,
         cx: 4.0,
         cy: 3.0,
-        lens: Lens::Fisheye {
+        distortion: Distortion::Fisheye {
             k1: 0.05,
             k2: -0.01,
             k3: 0.002,
@@ -574,8 +574,8 @@ fn truths(cameras: &[Camera], (w, h): (u32, u32)) -> Vec<Truth> {
 }
 
 /// The `dataset(...)` built-in end to end: `test_views` holds views out,
-/// every parser finds the CLI's files and cameras, `nerf_synthetic`
-/// trains on them, and holding out every view is refused when checked.
+/// every parser finds the CLI's files and cameras, sdfl reads the splits
+/// back, and holding out every view is refused when checked.
 #[test]
 fn the_dataset_output_from_the_cli() {
     let dir = case_dir("export_cli");
@@ -605,16 +605,21 @@ fn the_dataset_output_from_the_cli() {
             want,
             true,
         );
-        // The Blender parser's focal is fl_x; sdfl's pixels are square
-        // only where fl_x = fl_y.
+        // Square pixels, centred: the Blender parser's one focal is exact.
         agrees(
             &format!("cli blender {split}"),
             &blender(&set, split),
             &truth,
             want,
-            false,
+            true,
         );
     }
+    let read = |split| {
+        sdfl_runtime::data::nerf_synthetic::read_split(&set, split, DVec3::ONE)
+            .unwrap()
+            .len()
+    };
+    assert_eq!((read("train"), read("test")), (4, 2));
     // Every view is an RGBA PNG whose alpha is the hit mask.
     let img = image::open(set.join("r_0.png")).unwrap().to_rgba8();
     assert_eq!(img.dimensions(), (10, 8));
@@ -639,17 +644,9 @@ fn the_dataset_output_from_the_cli() {
 #[test]
 fn a_lens_data_set_from_the_cli() {
     let dir = case_dir("export_cli_lens");
-    let lens = |eye: &str| {
-        format!("lens(look_at(eye: {eye}), size: [10, 8], focal: [9, 9.5], center: [5.4, 3.7], model: \"opencv\", distortion: [-0.1, 0.01, 0.001, -0.002])")
-    };
-    let scene = format!(
-        "render r {{\n  scene: sphere(0.5),\n  camera: [{}, {}, {}],\n  size: [10, 8],\n  outputs: [dataset(\"set\", test_views: 1)],\n}}\n",
-        lens("[0, 0, -3]"),
-        lens("[3, 0, 0]"),
-        lens("[0, 3, 0.1]")
-    );
+    let scene = "render r {\n  scene: sphere(0.5),\n  camera: lens([look_at(eye: [0, 0, -3]), look_at(eye: [3, 0, 0]), look_at(eye: [0, 3, 0.1])], size: [10, 8], focal: [9, 9.5], center: [5.4, 3.7], model: \"opencv\", distortion: [-0.1, 0.01, 0.001, -0.002]),\n  size: [10, 8],\n  outputs: [dataset(\"set\", test_views: 1)],\n}\n";
     let file = dir.join("scene.sdfl");
-    fs::write(&file, &scene).unwrap();
+    fs::write(&file, scene).unwrap();
     let o = run_into(&dir, &file, &dir.join("out"), &[]);
     common::assert_outcome("render through a lens", &o, Expect::Ok);
     let program = sdfl_stdlib::load(&sdfl_lang::SourceFile::new("scene.sdfl", scene)).unwrap();
