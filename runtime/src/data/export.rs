@@ -19,6 +19,10 @@
 //! camera-to-world matrices (`transform_matrix`: the camera looks down −z,
 //! +y up, +x right), pixel centres at `i + ½` (OpenCV's `cx`).
 //!
+//! instant-ngp is pointed at `transforms.json` (every view) or
+//! `transforms_train.json`: given the directory it loads every JSON file
+//! in it, so each view would count four times, held-out ones included.
+//!
 //! The `val` and `test` splits are the held-out views (the same views in
 //! both: nerfstudio evaluates on `val`, NeRF-synthetic codes on `test`);
 //! with none held out they list every view, so every parser finds them.
