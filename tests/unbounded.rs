@@ -1,0 +1,177 @@
+//! Unbounded scenes and backgrounds that agree (issue 22): a NeRF's
+//! background is its data's unless written, a written one that disagrees
+//! is a warning at `check`, a learned background and scene contraction are
+//! declared once, and a scene with content far outside the inner box
+//! trains with them.
+
+mod common;
+
+use common::{case_dir, sdfl};
+use sdfl_lang::SourceFile;
+use sdfl_stdlib::value::{Background, Field, LearnedBackground};
+
+const MISMATCH: &str = "sdfl::warn::background-mismatch";
+
+/// The program and its warnings.
+fn load(src: &str) -> (sdfl_stdlib::value::Program, Vec<sdfl_lang::diag::Diag>) {
+    let (p, d) = sdfl_stdlib::load_warned(&SourceFile::new("tests/data/unbounded.sdfl", src))
+        .unwrap_or_else(|d| panic!("{:#?}", d.diags));
+    (p, d.diags)
+}
+
+fn model_background(p: &sdfl_stdlib::value::Program) -> Background {
+    let Field::Nerf(n) = &*p.trains[0].model else {
+        panic!("a NeRF")
+    };
+    n.background
+}
+
+/// `nerf_fast.sdfl`'s model pointed at a NeRF-synthetic set (composited
+/// over white): the model takes the data's white, with no warning. (It
+/// used to keep black and train to an all-white 13.6 dB.)
+#[test]
+fn a_nerf_takes_its_nerf_synthetic_datas_white() {
+    let (p, warnings) = load(
+        r#"train t {
+  model: nerf(position: hashgrid(levels: 4, log2_table: 12), layers: 1, width: 16, skips: [], density: "exp"),
+  data: nerf_synthetic("nerf_synthetic_tiny"),
+  iterations: 1,
+}"#,
+    );
+    assert!(warnings.is_empty(), "{warnings:#?}");
+    assert_eq!(model_background(&p), Background::Color([1.0; 3]));
+}
+
+/// A traced data set's `background` and a rendered field's own are the
+/// data's background too.
+#[test]
+fn traced_and_rendered_data_give_their_background() {
+    let (p, w) = load(
+        r#"let cams = orbit(radius: 3, views: 3)
+train t {
+  model: nerf(layers: 1, width: 8, skips: []),
+  data: render_views(sphere(0.5), cameras: cams, size: [8, 8], background: [0.2, 0.3, 0.4]),
+  iterations: 1,
+}"#,
+    );
+    assert!(w.is_empty(), "{w:#?}");
+    assert_eq!(model_background(&p), Background::Color([0.2, 0.3, 0.4]));
+    // Views rendered from a NeRF with a learned background: photographs of
+    // a world, so the default is a learned background too.
+    let (p, w) = load(
+        r#"let cams = orbit(radius: 3, views: 3)
+train t {
+  model: nerf(layers: 1, width: 8, skips: []),
+  data: render_views(nerf(layers: 1, width: 8, skips: [], background: learned_background()), cameras: cams, size: [8, 8]),
+  iterations: 1,
+}"#,
+    );
+    assert!(w.is_empty(), "{w:#?}");
+    assert_eq!(
+        model_background(&p),
+        Background::Learned(LearnedBackground {
+            freqs: 4,
+            width: 32
+        })
+    );
+}
+
+/// The silent disagreement, said: a black model on white data is a
+/// warning at the model's `background`, naming the data's colour; the
+/// file still checks (exit 0). A learned background and an agreeing colour
+/// are quiet.
+#[test]
+fn a_written_background_the_data_disagrees_with_is_a_warning() {
+    let src = r#"train t {
+  model: nerf(layers: 1, width: 8, skips: [], background: [0, 0, 0]),
+  data: nerf_synthetic("nerf_synthetic_tiny"),
+  iterations: 1,
+}"#;
+    let (p, w) = load(src);
+    assert_eq!(w.len(), 1, "{w:#?}");
+    assert_eq!(w[0].code, MISMATCH);
+    let at = src.find("[0, 0, 0]").unwrap();
+    assert_eq!(
+        (w[0].span.start, w[0].span.end),
+        (at, at + "[0, 0, 0]".len())
+    );
+    assert!(
+        w[0].help.as_deref().unwrap().contains("[1, 1, 1]"),
+        "{:?}",
+        w[0].help
+    );
+    // The written colour is kept: the user asked for it.
+    assert_eq!(model_background(&p), Background::Color([0.0; 3]));
+
+    for quiet in ["[1, 1, 1]", "learned_background(freqs: 2, width: 8)"] {
+        let (_, w) = load(&src.replace("[0, 0, 0]", quiet));
+        assert!(w.is_empty(), "{quiet}: {w:#?}");
+    }
+
+    // Through the CLI: `check` passes and prints the warning.
+    let dir = case_dir("unbounded_mismatch");
+    std::fs::write(
+        dir.join("m.sdfl"),
+        r#"let cams = orbit(radius: 3, views: 3)
+train t {
+  model: nerf(layers: 1, width: 8, skips: [], background: [0, 0, 0]),
+  data: render_views(sphere(0.5), cameras: cams, size: [8, 8], background: [1, 1, 1]),
+  iterations: 1,
+}"#,
+    )
+    .unwrap();
+    let o = sdfl(&dir, &["check", dir.join("m.sdfl").to_str().unwrap()]);
+    assert_eq!(o.code, Some(0), "{}", o.stderr);
+    assert!(o.stderr.contains(MISMATCH), "{}", o.stderr);
+    assert!(o.stderr.contains("[1, 1, 1]"), "{}", o.stderr);
+}
+
+/// A constant colour against photographs of the world (views of a NeRF
+/// with a learned background) is said too.
+#[test]
+fn one_colour_against_the_world_is_a_warning() {
+    let (_, w) = load(
+        r#"let cams = orbit(radius: 3, views: 3)
+train t {
+  model: nerf(layers: 1, width: 8, skips: [], background: [1, 1, 1]),
+  data: render_views(nerf(layers: 1, width: 8, skips: [], background: learned_background()), cameras: cams, size: [8, 8]),
+  iterations: 1,
+}"#,
+    );
+    assert_eq!(w.iter().map(|d| d.code).collect::<Vec<_>>(), [MISMATCH]);
+    assert!(w[0].help.as_deref().unwrap().contains("learned_background"));
+}
+
+/// One setting for an unbounded scene: a grid given its own box beside a
+/// contraction is refused (it would disagree with the inner box); the
+/// defaults are taken as the contracted cube.
+#[test]
+fn unbounded_scenes_refuse_a_second_box() {
+    let bad = r#"let cams = orbit(radius: 3, views: 3)
+train t {
+  model: nerf(layers: 1, width: 8, skips: [], unbounded: contraction(min: [-1, -1, -1], max: [1, 1, 1]),
+              position: hashgrid(levels: 2, log2_table: 10, min: [-1, -1, -1], max: [1, 1, 1])),
+  data: render_views(sphere(0.5), cameras: cams, size: [8, 8]),
+  iterations: 1,
+}"#;
+    let e = sdfl_stdlib::load(&SourceFile::new("u.sdfl", bad)).unwrap_err();
+    assert!(
+        e.diags
+            .iter()
+            .any(|d| d.code == sdfl_lang::diag::codes::VALUE
+                && d.message.contains("contracted cube")),
+        "{:#?}",
+        e.diags
+    );
+    let good = bad.replace(", min: [-1, -1, -1], max: [1, 1, 1])),", ")),");
+    let (p, _) = load(&good);
+    let Field::Nerf(n) = &*p.trains[0].model else {
+        panic!()
+    };
+    assert_eq!(n.unbounded.unwrap().min, [-1.0; 3]);
+    let (p, _) = load(&good.replace("contraction(min: [-1, -1, -1], max: [1, 1, 1])", "true"));
+    let Field::Nerf(n) = &*p.trains[0].model else {
+        panic!()
+    };
+    assert_eq!(n.unbounded.unwrap().max, [1.5; 3]);
+}
