@@ -867,9 +867,8 @@ mod tests {
     use crate::volume::SplitMix64;
     use sdfl_stdlib::value::{Encoding, Harmonic};
 
-    #[test]
-    fn objective_gradient_matches_finite_differences() {
-        let spec = Nerf {
+    fn small_spec() -> Nerf {
+        Nerf {
             position: Encoding::Harmonic(Harmonic {
                 freqs: 2,
                 include_input: true,
@@ -890,7 +889,42 @@ mod tests {
             density: sdfl_stdlib::value::DensityActivation::Exp,
             occupancy: None,
             precision: Default::default(),
+        }
+    }
+
+    #[test]
+    fn objective_gradient_matches_finite_differences() {
+        objective_gradient_check(&small_spec());
+    }
+
+    /// Through a contracted hash grid (most samples beyond the inner box)
+    /// and a learned background: every tensor's gradient, the learned
+    /// background's layers and the grid's most-touched rows included.
+    #[test]
+    fn unbounded_grid_and_learned_background_gradient_matches_finite_differences() {
+        let spec = Nerf {
+            position: Encoding::HashGrid(sdfl_stdlib::value::HashGridSpec {
+                levels: 3,
+                features: 2,
+                log2_table: 8,
+                min_res: 2,
+                max_res: 8,
+                min: [-1.5; 3],
+                max: [1.5; 3],
+            }),
+            background: sdfl_stdlib::value::Background::Learned(
+                sdfl_stdlib::value::LearnedBackground { freqs: 2, width: 5 },
+            ),
+            unbounded: Some(sdfl_stdlib::value::Contraction {
+                min: [-0.5; 3],
+                max: [0.5; 3],
+            }),
+            ..small_spec()
         };
+        objective_gradient_check(&spec);
+    }
+
+    fn objective_gradient_check(spec: &Nerf) {
         let sampler = Sampler {
             samples: 7,
             near: 1.0,
@@ -898,7 +932,7 @@ mod tests {
             jitter: true,
             last_interval: LastInterval::Zero,
         };
-        let mut obj = NerfObjective::new(&spec, &sampler).unwrap();
+        let mut obj = NerfObjective::new(spec, &sampler).unwrap();
         // Smooth activations so differences see no kinks; same wiring.
         let smooth = Activation::Softplus { beta: 1.0 };
         let net = &mut obj.net;
@@ -908,6 +942,9 @@ mod tests {
             .chain([&mut net.density, &mut net.color_hidden])
         {
             d.act = smooth;
+        }
+        if let Backdrop::Learned(b) = &mut obj.backdrop {
+            b.hidden.act = smooth;
         }
         let mut rng = SplitMix64::new(8);
         let rays: Vec<Ray> = (0..9)
@@ -943,9 +980,28 @@ mod tests {
             let mut g = vec![0.0; v.len()];
             obj.loss_and_grad(v, &batch, 2.0, &mut g).unwrap()
         };
-        let tensors = NerfObjective::new(&spec, &sampler).unwrap().tensors();
+        let tensors = NerfObjective::new(spec, &sampler).unwrap().tensors();
+        let names: Vec<&str> = tensors.iter().map(|t| t.name.as_str()).collect();
+        let learned = matches!(spec.background, sdfl_stdlib::value::Background::Learned(_));
+        assert_eq!(
+            names.contains(&"background.out.weight"),
+            learned,
+            "{names:?}"
+        );
         for t in &tensors {
-            for i in [t.offset, t.offset + t.len / 2, t.offset + t.len - 1] {
+            // The largest entry too: a grid's ends may be rows no sample touches.
+            let largest = (t.offset..t.offset + t.len)
+                .max_by(|&a, &b| grad[a].abs().total_cmp(&grad[b].abs()))
+                .unwrap();
+            if t.name.starts_with("background") || t.name.contains("hashgrid") {
+                assert!(grad[largest] != 0.0, "{} has no gradient", t.name);
+            }
+            for i in [
+                t.offset,
+                t.offset + t.len / 2,
+                t.offset + t.len - 1,
+                largest,
+            ] {
                 let h = 1e-2;
                 let mut v = values.clone();
                 v[i] += h;
