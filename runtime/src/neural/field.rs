@@ -313,6 +313,11 @@ fn keep_occupied(
     candidates: &Samples,
     out: &mut Samples,
 ) {
+    if !grid.is_enabled() {
+        // A disabled grid skips nothing.
+        out.clone_from(candidates);
+        return;
+    }
     out.offsets.clear();
     out.t.clear();
     out.delta.clear();
@@ -1017,6 +1022,68 @@ mod tests {
                 );
             }
         }
+    }
+
+    /// In an unbounded scene the occupancy grid keeps exactly the
+    /// candidates whose contracted point lies in an occupied cell: all of
+    /// them at first, none once emptied, and only the far sample whose
+    /// cell alone is marked (beyond the inner box, so found in contracted
+    /// space).
+    #[test]
+    fn unbounded_occupancy_keeps_the_samples_in_occupied_contracted_cells() {
+        let spec = OccupancySpec {
+            resolution: 16,
+            min: [-1.5; 3],
+            max: [1.5; 3],
+            threshold: 0.01,
+            every: 1,
+        };
+        let c = Contract::new(&sdfl_stdlib::value::Contraction {
+            min: [-1.0; 3],
+            max: [1.0; 3],
+        });
+        let sampler = Sampler {
+            samples: 16,
+            near: 0.5,
+            far: 100.0,
+            jitter: false,
+            last_interval: LastInterval::Zero,
+        };
+        let mut occ = Occupancy::new(&spec, &sampler, Some(c)).unwrap();
+        let rays: Vec<Ray> = (0..3)
+            .map(|k| Ray {
+                origin: [0.0, 0.1 * k as f32, -3.0],
+                dir: [0.05 * k as f32, 0.0, 1.0],
+                view: 0,
+                pixel: k,
+            })
+            .collect();
+        let t: Vec<f32> = (0..16).map(|k| 0.5 + k as f32 * 99.5 / 15.0).collect();
+        let mut mapped = Vec::new();
+        unbounded_depths(&c, &rays, 0.5, 100.0, |_| &t, &mut mapped);
+        let mut candidates = Samples::default();
+        candidates.fixed(3, 16, |r| &mapped[r * 16..(r + 1) * 16], LastInterval::Zero);
+        let mut out = Samples::default();
+        occ.march(&rays, &candidates, &mut out).unwrap();
+        assert_eq!(out, candidates);
+        occ.grid.fill(false);
+        occ.march(&rays, &candidates, &mut out).unwrap();
+        assert!(out.t.is_empty() && out.offsets == vec![0; 4]);
+        // The last sample of ray 1, far beyond the box (t ≈ 100).
+        let k = candidates.offsets[2] - 1;
+        let tk = candidates.t[k];
+        assert!(tk > 50.0);
+        let p = std::array::from_fn(|a| rays[1].origin[a] + tk * rays[1].dir[a]);
+        let cell = occ
+            .grid
+            .cell_of(c.apply(p))
+            .expect("in the contracted cube");
+        let index = occ.grid.index(cell);
+        occ.grid.set_occupied(index, true);
+        occ.march(&rays, &candidates, &mut out).unwrap();
+        assert!(out.t.contains(&tk), "{:?}", out.t);
+        assert!(out.offsets[2] - out.offsets[1] >= 1);
+        assert_eq!(out.t.len(), out.delta.len());
     }
 
     /// A small NeRF whose density head starts at `density_bias`.
