@@ -42,6 +42,21 @@ impl Contract {
         contract_f32(x)
     }
 
+    /// World length per unit of contracted length at a contracted point
+    /// `y`, along the radius (the inverse map's largest stretch): the inner
+    /// box's half extent inside it, growing as `1/(2 − m)²` beyond (`m`
+    /// the ∞-norm of `y`, held below 2 so the cube's faces stay finite).
+    pub fn world_per_contracted(&self, y: [f32; 3]) -> f32 {
+        let h = self.inv_half.iter().fold(0.0f32, |a, &v| a.max(1.0 / v));
+        let m = y[0].abs().max(y[1].abs()).max(y[2].abs());
+        if m <= 1.0 {
+            h
+        } else {
+            let gap = (2.0 - m).max(1e-3);
+            h / (gap * gap)
+        }
+    }
+
     /// Every row of 3 of `points` contracted into `out` (resized).
     pub fn apply_all(&self, points: &[f32], out: &mut Vec<f32>) {
         out.resize(points.len(), 0.0);
@@ -268,6 +283,25 @@ mod tests {
         }
         let inf = contract_f32([f32::INFINITY, 1.0, 0.0]);
         assert!(inf.iter().all(|v| v.is_finite()), "{inf:?}");
+    }
+
+    /// The stretch against differences of the inverse map along a radius.
+    #[test]
+    fn world_per_contracted_is_the_inverse_maps_radial_stretch() {
+        let c = Contract::new(&Contraction {
+            min: [-2.0; 3],
+            max: [2.0; 3],
+        });
+        assert_eq!(c.world_per_contracted([0.5, 0.0, 0.0]), 2.0);
+        // Inverse along +x: y = 2 − 1/x (x ≥ 1) ⇒ x = 1/(2 − y); world = 2·x.
+        for y in [1.2f64, 1.5, 1.9] {
+            let inv = |y: f64| 2.0 / (2.0 - y);
+            let h = 1e-6;
+            let fd = (inv(y + h) - inv(y - h)) / (2.0 * h);
+            let got = c.world_per_contracted([y as f32, 0.3, -0.2]) as f64;
+            assert!((got - fd).abs() < 1e-4 * fd, "{y}: {got} vs {fd}");
+        }
+        assert!(c.world_per_contracted([2.0, 0.0, 0.0]).is_finite());
     }
 
     /// Piecewise depths: in order, from near, through the box exit at the

@@ -238,18 +238,13 @@ impl Occupancy {
                 spec.min.map(|x| x as f32),
                 spec.max.map(|x| x as f32),
             ),
-            // The threshold's step: half the samples cross the inner box.
-            Some(c) => {
-                let diag = (0..3)
-                    .map(|a| (c.max[a] - c.min[a]).powi(2))
-                    .sum::<f64>()
-                    .sqrt();
-                (
-                    (2.0 * diag / sampler.samples.max(1) as f64) as f32,
-                    [-2.0; 3],
-                    [2.0; 3],
-                )
-            }
+            // The threshold's step in contracted units: a ray's samples
+            // span about 3 of them (across the inner box and the shell).
+            Some(_) => (
+                (3.0 / sampler.samples.max(1) as f64) as f32,
+                [-2.0; 3],
+                [2.0; 3],
+            ),
         };
         let mut cfg = OccupancyConfig::new(min, max);
         cfg.res = spec.resolution;
@@ -290,7 +285,13 @@ impl Occupancy {
 
     /// Refreshes the grid from `net`'s density at `values`.
     fn update(&mut self, net: &NerfNet, values: &[f32], step: usize, seed: u64) {
+        // An unbounded field starts transparent: the grid waits until it
+        // has grown some density, rather than emptying every cell at once.
+        if self.contract.is_some() && step < UNBOUNDED_GRID_WARMUP {
+            return;
+        }
         let work = &mut self.work;
+        let contract = self.contract;
         let mut dirs = Vec::new();
         let mut density = |points: &[[f32; 3]], out: &mut [f32]| {
             let flat: Vec<f32> = points.iter().flatten().copied().collect();
@@ -298,11 +299,22 @@ impl Occupancy {
             // The grid's points are in the encoding's space already.
             net.forward_encoded(values, &flat, &dirs, work);
             out.copy_from_slice(&work.sigma);
+            // In contracted space a cell's opacity is its density times
+            // the world length a contracted step spans there.
+            if let Some(c) = &contract {
+                for (o, p) in out.iter_mut().zip(points) {
+                    *o *= c.world_per_contracted(*p);
+                }
+            }
         };
         let mut rng = SplitMix64::new(seed ^ 0x6F63_6375);
         self.grid.update(step as u64, &mut density, &mut rng);
     }
 }
+
+/// Training steps before an unbounded scene's occupancy grid is first
+/// refreshed (until then every cell is occupied).
+const UNBOUNDED_GRID_WARMUP: usize = 256;
 
 /// The samples of `candidates` whose contracted point lies in an occupied
 /// cell of `grid` (over the contracted cube), each keeping its interval.
