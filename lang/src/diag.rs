@@ -72,6 +72,9 @@ pub mod codes {
     /// A warning: a focal length far beyond NDC's (a lens's millimetres,
     /// `focal: 50`).
     pub const FOCAL: &str = "sdfl::warn::focal";
+    /// A warning: a NeRF's `background` disagrees with its training data's
+    /// (a NeRF-synthetic set composited over white, a black model).
+    pub const BACKGROUND_MISMATCH: &str = "sdfl::warn::background-mismatch";
 }
 
 /// A number in a message: plain when short, otherwise in short scientific

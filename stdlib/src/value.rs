@@ -41,6 +41,11 @@ pub enum Value {
     /// The shape of a network's hidden layers, for `nerf(network: ...)` and
     /// `neural_sdf(network: ...)`.
     Network(Arc<Mlp>),
+    /// What a NeRF's rays see behind the field: `data_background()`,
+    /// `learned_background(...)` (a colour is a vector).
+    Background(Background),
+    /// Scene contraction for unbounded scenes: `contraction(...)`.
+    Contraction(Contraction),
     /// The value of an expression that already produced a diagnostic.
     /// Anything computed from it is poison too, silently.
     Poison,
@@ -70,6 +75,8 @@ impl Value {
             Value::Encoding(_) => "encoding",
             Value::Occupancy(_) => "occupancy grid",
             Value::Network(_) => "network",
+            Value::Background(_) => "background",
+            Value::Contraction(_) => "contraction",
             Value::Poison => "invalid value",
         }
     }
@@ -479,8 +486,14 @@ pub struct Nerf {
     /// Fine samples per ray drawn from the coarse network's weights and
     /// evaluated by a second network (0: no fine network).
     pub fine: usize,
-    /// Colour seen where a ray leaves the volume.
-    pub background: [f64; 3],
+    /// What a ray sees where it leaves the field.
+    pub background: Background,
+    /// Where `background` was written (the call's span when defaulted), for
+    /// the `train` statement's agreement check.
+    #[serde(skip)]
+    pub background_at: WrittenAt,
+    /// Positions contracted (mip-NeRF 360) for an unbounded scene.
+    pub unbounded: Option<Contraction>,
     /// Seed of the initial weights.
     pub seed: u64,
     /// How the density head's output becomes a density.
@@ -489,6 +502,94 @@ pub struct Nerf {
     pub occupancy: Option<OccupancySpec>,
     /// Number format of the layers' matrix products.
     pub precision: Precision,
+}
+
+/// Where a value was written in the source. Not part of the value: two
+/// equal values written in different places are equal.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct WrittenAt(pub sdfl_lang::Span);
+
+impl PartialEq for WrittenAt {
+    fn eq(&self, _: &Self) -> bool {
+        true
+    }
+}
+
+/// What a NeRF's rays see where they leave the field (their remaining
+/// transmittance times this colour).
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Background {
+    /// The training data's (`data_background()`, the default): a `train`
+    /// statement replaces it by its data set's ([`Dataset::background`]);
+    /// black where nothing says otherwise (a field rendered outside a
+    /// `train`, image files of unknown background).
+    Data,
+    /// A fixed colour.
+    Color([f64; 3]),
+    /// A colour learned from the ray's direction (for images without
+    /// alpha, whose background is the world).
+    Learned(LearnedBackground),
+}
+
+impl Background {
+    /// The fixed colour: `Data` unresolved is black.
+    pub fn color(&self) -> Option<[f64; 3]> {
+        match self {
+            Background::Data => Some([0.0; 3]),
+            Background::Color(c) => Some(*c),
+            Background::Learned(_) => None,
+        }
+    }
+}
+
+/// A learned background: the ray's unit direction, harmonically encoded
+/// (`freqs` frequencies and the direction itself), through one ReLU layer
+/// of `width` to a sigmoid colour.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+pub struct LearnedBackground {
+    pub freqs: usize,
+    pub width: usize,
+}
+
+impl LearnedBackground {
+    /// Width of the encoded direction.
+    pub fn input(&self) -> usize {
+        3 * (2 * self.freqs + 1)
+    }
+
+    /// Multiply-adds per ray.
+    pub fn multiply_adds(&self) -> usize {
+        self.input() * self.width + self.width * 3
+    }
+
+    /// Trainable numbers.
+    pub fn weights(&self) -> u64 {
+        (self.multiply_adds() + self.width + 3) as u64
+    }
+}
+
+/// Scene contraction (mip-NeRF 360, ∞-norm as nerfstudio and nerfacc use
+/// it): the inner box `min`..`max` maps to [-1, 1]³, and with
+/// `m = max |x_i|` every point beyond it to `(2 − 1/m)·x/m`, so all of
+/// space fits in the cube [-2, 2]³ that the hash grid and the occupancy
+/// grid then cover.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct Contraction {
+    pub min: [f64; 3],
+    pub max: [f64; 3],
+}
+
+/// The background a data set's images hold, for the model's to agree with.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum DataBackground {
+    /// Composited over (or rendered on) this colour.
+    Color(DVec3),
+    /// Opaque photographs of the world: no one colour (a learned
+    /// background fits them).
+    World,
+    /// Not known (image files as they are).
+    Unknown,
 }
 
 /// Number format of a network's matrix products (weights, gradients and
@@ -560,6 +661,14 @@ impl Nerf {
         };
         let biases = self.layers * self.width + 1 + 2 * self.color_width + 3;
         grid + (self.multiply_adds_per_sample() + biases) as u64
+    }
+
+    /// Trainable numbers of the learned background (0 for a colour).
+    pub fn background_weights(&self) -> u64 {
+        match self.background {
+            Background::Learned(l) => l.weights(),
+            Background::Data | Background::Color(_) => 0,
+        }
     }
 
     /// Multiply-adds of one sample's forward pass.
@@ -649,6 +758,25 @@ pub enum Dataset {
 }
 
 impl Dataset {
+    /// The background its images hold: a NeRF-synthetic set's composite
+    /// colour, a traced set's `background`, a field's own when rendered
+    /// from one (an analytic field's is black).
+    pub fn background(&self) -> DataBackground {
+        match self {
+            Dataset::NerfSynthetic { background, .. } => DataBackground::Color(*background),
+            Dataset::Traced { job, .. } => DataBackground::Color(job.background),
+            Dataset::Rendered { field, .. } => match &**field {
+                Field::Nerf(n) => match n.background.color() {
+                    Some(c) => DataBackground::Color(DVec3::from_array(c)),
+                    None => DataBackground::World,
+                },
+                Field::NeuralSurface(s) => DataBackground::Color(DVec3::from_array(s.background)),
+                Field::Sdf(_) | Field::NeuralSdf(_) => DataBackground::Color(DVec3::ZERO),
+            },
+            Dataset::Files { .. } | Dataset::Points { .. } => DataBackground::Unknown,
+        }
+    }
+
     /// The cameras known before anything is read (none for NeRF-synthetic
     /// data, whose cameras are in its files), test views included.
     pub fn cameras(&self) -> &[Camera] {

@@ -404,7 +404,26 @@ fn nerf_multiply_adds(n: &crate::value::Nerf) -> usize {
         crate::value::Encoding::HashGrid(g) => (g.levels * 8 * (g.features + 4)) as usize,
         crate::value::Encoding::Harmonic(_) => 0,
     };
-    n.multiply_adds_per_sample() + encoding
+    // A contracted position: a handful of operations, about 10
+    // multiply-adds' worth.
+    let contraction = if n.unbounded.is_some() { 10 } else { 0 };
+    n.multiply_adds_per_sample() + encoding + contraction
+}
+
+/// Multiply-adds of a NeRF's background per ray (0 for a colour).
+fn background_multiply_adds(n: &crate::value::Nerf) -> usize {
+    match n.background {
+        crate::value::Background::Learned(l) => l.multiply_adds(),
+        crate::value::Background::Data | crate::value::Background::Color(_) => 0,
+    }
+}
+
+/// Evaluations of a NeRF's learned background per ray (0 for a colour).
+fn background_evaluations(n: &crate::value::Nerf) -> f64 {
+    match background_multiply_adds(n) {
+        0 => 0.0,
+        m => network(m),
+    }
 }
 
 /// Bytes of a NeRF's buffers per sample of a pass: the encoding, every
@@ -487,7 +506,9 @@ fn render_per_pixel(j: &TrainJob) -> f64 {
     let samples = j.sampler.samples as f64;
     match &*j.model {
         Field::Sdf(f) => samples * f.shape.evaluation_cost(),
-        Field::Nerf(n) => (samples + n.fine as f64) * network(nerf_multiply_adds(n)),
+        Field::Nerf(n) => {
+            (samples + n.fine as f64) * network(nerf_multiply_adds(n)) + background_evaluations(n)
+        }
         // Sphere-traced, up to 96 steps of a distance.
         Field::NeuralSdf(n) => 96.0 * network(n.multiply_adds()),
         Field::NeuralSurface(n) => samples * network(n.multiply_adds_per_sample()),
@@ -554,7 +575,9 @@ pub fn train_work(j: &TrainJob, size: Option<(u32, u32)>) -> Work {
             } else {
                 0.0
             };
+            // The learned background: once a ray, forward and backward.
             3.0 * (samples + fine) * network(nerf_multiply_adds(n))
+                + 3.0 * background_evaluations(n)
         }
         // A distance and its three tangents, forward and backward, at a
         // surface and a random point per ray of the batch (not per sample).
@@ -584,7 +607,9 @@ pub fn train_work(j: &TrainJob, size: Option<(u32, u32)>) -> Work {
     };
     let weights = match &*j.model {
         Field::Sdf(_) => scalars as f64,
-        Field::Nerf(n) => n.weights() as f64 * if n.fine > 0 { 2.0 } else { 1.0 },
+        Field::Nerf(n) => {
+            n.weights() as f64 * if n.fine > 0 { 2.0 } else { 1.0 } + n.background_weights() as f64
+        }
         Field::NeuralSdf(n) => n.multiply_adds() as f64,
         Field::NeuralSurface(n) => (n.sdf.multiply_adds() + n.color_multiply_adds()) as f64,
     };
@@ -620,7 +645,14 @@ pub fn train_work(j: &TrainJob, size: Option<(u32, u32)>) -> Work {
                 } else {
                     0.0
                 };
-                rays * samples * nerf_bytes_per_sample(n) * (1.0 + fine)
+                // A learned background's activations per ray, forward and back.
+                let background = match n.background {
+                    crate::value::Background::Learned(l) => {
+                        4.0 * (2 * l.input() + 2 * l.width + 12) as f64
+                    }
+                    _ => 0.0,
+                };
+                rays * samples * nerf_bytes_per_sample(n) * (1.0 + fine) + rays * background
             }
         };
     w.add(Stage::Training, iterations * rays * per_ray, batch);

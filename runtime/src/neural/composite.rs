@@ -64,6 +64,38 @@ pub fn squared_error_backward(
     d_rgb: &mut [f32],
     trans: &mut Vec<f32>,
 ) -> f64 {
+    let mut d_background = [0.0; 3];
+    squared_error_backward_bg(
+        sigma,
+        rgb,
+        t,
+        delta,
+        background,
+        target,
+        scale,
+        d_sigma,
+        d_rgb,
+        &mut d_background,
+        trans,
+    )
+}
+
+/// [`squared_error_backward`] that also writes `∂L/∂background`
+/// (`T_n·∂L/∂C`: the background is seen through what is left).
+#[allow(clippy::too_many_arguments)]
+pub fn squared_error_backward_bg(
+    sigma: &[f32],
+    rgb: &[f32],
+    t: &[f32],
+    delta: &[f32],
+    background: [f32; 3],
+    target: [f32; 3],
+    scale: f32,
+    d_sigma: &mut [f32],
+    d_rgb: &mut [f32],
+    d_background: &mut [f32; 3],
+    trans: &mut Vec<f32>,
+) -> f64 {
     let out = composite(sigma, rgb, t, delta, background);
     let (mut loss, mut g) = (0f64, [0f32; 3]);
     for i in 0..3 {
@@ -72,6 +104,11 @@ pub fn squared_error_backward(
         g[i] = 2.0 * e * scale;
     }
     composite_backward(sigma, rgb, delta, background, g, d_sigma, d_rgb, trans);
+    // `trans` now holds the transmittances, the last one behind every sample.
+    let left = trans[sigma.len()];
+    for i in 0..3 {
+        d_background[i] = left * g[i];
+    }
     loss
 }
 

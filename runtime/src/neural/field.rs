@@ -12,7 +12,9 @@ use rayon::prelude::*;
 use sdfl_stdlib::camera::Camera;
 use sdfl_stdlib::value::{LastInterval, Nerf, OccupancySpec, Sampler};
 
-use super::composite::squared_error_backward;
+use super::background::{Backdrop, BackdropWork};
+use super::composite::squared_error_backward_bg;
+use super::contract::Contract;
 use super::nerf::{NerfNet, NerfWork, PositionEncoding};
 use super::occupancy::{OccupancyConfig, OccupancyGrid, RaySamples};
 use crate::train::fused::Batch;
@@ -121,7 +123,8 @@ fn fit_pass(
     rays: &[Ray],
     targets: &[[f32; 3]],
     samples: &Samples,
-    background: [f32; 3],
+    backgrounds: &[[f32; 3]],
+    d_backgrounds: &mut [[f32; 3]],
     scale: f32,
     pass: &mut Pass,
     grad: &mut [f32],
@@ -141,10 +144,11 @@ fn fit_pass(
     let d_sigma = SharedSlice(pass.d_sigma.as_mut_ptr());
     let d_rgb = SharedSlice(pass.d_rgb.as_mut_ptr());
     let w_out = weights.map(|w| SharedSlice(w.as_mut_ptr()));
+    let d_bg = SharedSlice(d_backgrounds.as_mut_ptr().cast());
     let losses: Vec<f64> = blocks
         .par_iter()
         .map(|&r0| {
-            let (d_sigma, d_rgb, w_out) = (d_sigma, d_rgb, w_out);
+            let (d_sigma, d_rgb, w_out, d_bg) = (d_sigma, d_rgb, w_out, d_bg);
             let mut trans = Vec::new();
             let mut loss = 0f64;
             for r in r0..(r0 + RAY_BLOCK).min(rays.len()) {
@@ -158,9 +162,26 @@ fn fit_pass(
                         std::slice::from_raw_parts_mut(d_rgb.0.add(3 * k.start), 3 * k.len()),
                     )
                 };
-                loss += squared_error_backward(
-                    sg, c, t, delta, background, targets[r], scale, ds, dc, &mut trans,
+                let mut d_background = [0.0; 3];
+                loss += squared_error_backward_bg(
+                    sg,
+                    c,
+                    t,
+                    delta,
+                    backgrounds[r],
+                    targets[r],
+                    scale,
+                    ds,
+                    dc,
+                    &mut d_background,
+                    &mut trans,
                 );
+                // SAFETY: ray r's background adjoint belongs to this block;
+                // added to, since a fine pass sees the same background.
+                let db = unsafe { std::slice::from_raw_parts_mut(d_bg.0.add(3 * r), 3) };
+                for j in 0..3 {
+                    db[j] += d_background[j];
+                }
                 if let Some(w) = w_out {
                     // SAFETY: as above.
                     let w = unsafe { std::slice::from_raw_parts_mut(w.0.add(k.start), k.len()) };
@@ -194,6 +215,9 @@ unsafe impl Sync for SharedSlice {}
 /// fixed-step range its samples cover.
 pub struct Occupancy {
     pub grid: OccupancyGrid,
+    /// In an unbounded scene the grid covers the contracted cube and
+    /// filters the sampler's own depths (rays are curves there).
+    contract: Option<Contract>,
     every: usize,
     near: f32,
     far: f32,
@@ -203,14 +227,32 @@ pub struct Occupancy {
 }
 
 impl Occupancy {
-    fn new(spec: &OccupancySpec, sampler: &Sampler) -> Result<Self, String> {
-        let step = ((sampler.far - sampler.near) / sampler.samples.max(1) as f64) as f32;
-        let mut cfg = OccupancyConfig::new(spec.min.map(|x| x as f32), spec.max.map(|x| x as f32));
+    fn new(
+        spec: &OccupancySpec,
+        sampler: &Sampler,
+        contract: Option<Contract>,
+    ) -> Result<Self, String> {
+        let (step, min, max) = match &contract {
+            None => (
+                ((sampler.far - sampler.near) / sampler.samples.max(1) as f64) as f32,
+                spec.min.map(|x| x as f32),
+                spec.max.map(|x| x as f32),
+            ),
+            // The threshold's step in contracted units: a ray's samples
+            // span about 3 of them (across the inner box and the shell).
+            Some(_) => (
+                (3.0 / sampler.samples.max(1) as f64) as f32,
+                [-2.0; 3],
+                [2.0; 3],
+            ),
+        };
+        let mut cfg = OccupancyConfig::new(min, max);
         cfg.res = spec.resolution;
         cfg.threshold = spec.threshold as f32;
         cfg.step_size = step;
         Ok(Occupancy {
             grid: OccupancyGrid::new(cfg)?,
+            contract,
             every: spec.every.max(1),
             near: sampler.near as f32,
             far: sampler.far as f32,
@@ -220,8 +262,19 @@ impl Occupancy {
         })
     }
 
-    /// The samples of `rays` in occupied cells.
-    fn march(&mut self, rays: &[Ray], out: &mut Samples) -> Result<(), VolumeError> {
+    /// The samples of `rays` in occupied cells: the grid's fixed steps,
+    /// or in an unbounded scene `candidates` (the sampler's) kept where
+    /// their contracted point's cell is occupied.
+    fn march(
+        &mut self,
+        rays: &[Ray],
+        candidates: &Samples,
+        out: &mut Samples,
+    ) -> Result<(), VolumeError> {
+        if let Some(c) = self.contract {
+            keep_occupied(&self.grid, &c, rays, candidates, out);
+            return Ok(());
+        }
         self.grid
             .march_rays(rays, self.near, self.far, self.step, &mut self.marched)?;
         out.offsets.clone_from(&self.marched.offsets);
@@ -232,16 +285,83 @@ impl Occupancy {
 
     /// Refreshes the grid from `net`'s density at `values`.
     fn update(&mut self, net: &NerfNet, values: &[f32], step: usize, seed: u64) {
+        // An unbounded field starts transparent: the grid waits until it
+        // has grown some density, rather than emptying every cell at once.
+        if self.contract.is_some() && step < UNBOUNDED_GRID_WARMUP {
+            return;
+        }
         let work = &mut self.work;
+        let contract = self.contract;
         let mut dirs = Vec::new();
         let mut density = |points: &[[f32; 3]], out: &mut [f32]| {
             let flat: Vec<f32> = points.iter().flatten().copied().collect();
             dirs.resize(flat.len(), 0.0);
-            net.forward(values, &flat, &dirs, work);
+            // The grid's points are in the encoding's space already.
+            net.forward_encoded(values, &flat, &dirs, work);
             out.copy_from_slice(&work.sigma);
+            // In contracted space a cell's opacity is its density times
+            // the world length a contracted step spans there.
+            if let Some(c) = &contract {
+                for (o, p) in out.iter_mut().zip(points) {
+                    *o *= c.world_per_contracted(*p);
+                }
+            }
         };
         let mut rng = SplitMix64::new(seed ^ 0x6F63_6375);
         self.grid.update(step as u64, &mut density, &mut rng);
+    }
+}
+
+/// Training steps before an unbounded scene's occupancy grid is first
+/// refreshed (until then every cell is occupied).
+const UNBOUNDED_GRID_WARMUP: usize = 256;
+
+/// The samples of `candidates` whose contracted point lies in an occupied
+/// cell of `grid` (over the contracted cube), each keeping its interval.
+fn keep_occupied(
+    grid: &OccupancyGrid,
+    c: &Contract,
+    rays: &[Ray],
+    candidates: &Samples,
+    out: &mut Samples,
+) {
+    if !grid.is_enabled() {
+        // A disabled grid skips nothing.
+        out.clone_from(candidates);
+        return;
+    }
+    out.offsets.clear();
+    out.t.clear();
+    out.delta.clear();
+    out.offsets.push(0);
+    for (r, ray) in rays.iter().enumerate() {
+        for k in candidates.range(r) {
+            let t = candidates.t[k];
+            let p = std::array::from_fn(|a| ray.origin[a] + t * ray.dir[a]);
+            if let Some(cell) = grid.cell_of(c.apply(p)) {
+                if grid.is_occupied(grid.index(cell)) {
+                    out.t.push(t);
+                    out.delta.push(candidates.delta[k]);
+                }
+            }
+        }
+        out.offsets.push(out.t.len());
+    }
+}
+
+/// Per ray, stratified depths `depth_of(r)` on `[near, far]` moved to the
+/// contraction's linear-then-disparity spacing, into `out` (`n` a ray).
+fn unbounded_depths<'d>(
+    c: &Contract,
+    rays: &[Ray],
+    near: f64,
+    far: f64,
+    depth_of: impl Fn(usize) -> &'d [f32],
+    out: &mut Vec<f32>,
+) {
+    out.clear();
+    for (r, ray) in rays.iter().enumerate() {
+        c.depths(ray.origin, ray.dir, near, far, depth_of(r), out);
     }
 }
 
@@ -252,7 +372,17 @@ pub struct NerfObjective {
     pub fine: Option<(NerfNet, usize)>,
     pub occupancy: Option<Occupancy>,
     seed: u64,
-    background: [f32; 3],
+    /// Behind the field: a colour, or learned (parameters after the
+    /// networks').
+    pub backdrop: Backdrop,
+    /// The sampler's range (unbounded depths are spaced within it).
+    near: f64,
+    far: f64,
+    backdrop_work: BackdropWork,
+    backgrounds: Vec<[f32; 3]>,
+    d_backgrounds: Vec<[f32; 3]>,
+    mapped: Vec<f32>,
+    candidates: Samples,
     coarse_pass: Pass,
     fine_pass: Pass,
     samples: Samples,
@@ -273,14 +403,22 @@ impl NerfObjective {
         let occupancy = spec
             .occupancy
             .as_ref()
-            .map(|o| Occupancy::new(o, sampler))
+            .map(|o| Occupancy::new(o, sampler, net.contract))
             .transpose()?;
+        let first = net.len + fine.as_ref().map_or(0, |(f, _)| f.len);
         Ok(NerfObjective {
+            backdrop: Backdrop::new(&spec.background, first),
+            near: sampler.near,
+            far: sampler.far,
+            backdrop_work: BackdropWork::default(),
+            backgrounds: Vec::new(),
+            d_backgrounds: Vec::new(),
+            mapped: Vec::new(),
+            candidates: Samples::default(),
             net,
             fine,
             occupancy,
             seed: spec.seed,
-            background: spec.background.map(|x| x as f32),
             coarse_pass: Pass::default(),
             fine_pass: Pass::default(),
             samples: Samples::default(),
@@ -306,7 +444,7 @@ impl NerfObjective {
             self.fine.as_ref().map(|(f, m)| (f, *m)),
             self.occupancy.as_ref(),
             params,
-            self.background,
+            &self.backdrop,
             sampler,
             last,
             cam,
@@ -369,6 +507,12 @@ impl Objective for NerfObjective {
                         .flat_map(move |(name, d)| d.tensors(&format!("{prefix}{name}"))),
                 )
             })
+            .chain(
+                self.backdrop
+                    .layers()
+                    .into_iter()
+                    .flat_map(|(name, d)| d.tensors(&name)),
+            )
             .collect()
     }
 
@@ -428,6 +572,8 @@ impl Objective for NerfObjective {
             // The fine network starts from its own draw.
             f.init_into(self.seed.wrapping_add(1), &mut v);
         }
+        v.resize(v.len() + self.backdrop.len(), 0.0);
+        self.backdrop.init_into(self.seed, &mut v);
         v
     }
 
@@ -440,20 +586,47 @@ impl Objective for NerfObjective {
     ) -> Result<f64, TrainError> {
         let rays = batch.rays.len();
         let scale = (weight / (3 * rays.max(1)) as f64) as f32;
+        let n = batch.samples;
+        // The sampler's depths, spaced for an unbounded scene when it is one.
+        match &self.net.contract {
+            Some(c) => {
+                unbounded_depths(
+                    c,
+                    &batch.rays,
+                    self.near,
+                    self.far,
+                    |r| batch.depths_of(r),
+                    &mut self.mapped,
+                );
+                let mapped = &self.mapped;
+                self.candidates.fixed(
+                    rays,
+                    n,
+                    |r| &mapped[r * n..(r + 1) * n],
+                    batch.last_interval,
+                );
+            }
+            None => self
+                .candidates
+                .fixed(rays, n, |r| batch.depths_of(r), batch.last_interval),
+        }
         match &mut self.occupancy {
             Some(occ) => {
                 if batch.step % occ.every == 0 {
                     occ.update(&self.net, values, batch.step, batch.seed);
                 }
-                occ.march(&batch.rays, &mut self.samples)?;
+                occ.march(&batch.rays, &self.candidates, &mut self.samples)?;
             }
-            None => self.samples.fixed(
-                rays,
-                batch.samples,
-                |r| batch.depths_of(r),
-                batch.last_interval,
-            ),
+            None => std::mem::swap(&mut self.samples, &mut self.candidates),
         }
+        self.backdrop.colours(
+            values,
+            &batch.rays,
+            &mut self.backdrop_work,
+            &mut self.backgrounds,
+        );
+        self.d_backgrounds.clear();
+        self.d_backgrounds.resize(rays, [0.0; 3]);
         let want_weights = self.fine.is_some().then_some(&mut self.weights);
         let mut loss = fit_pass(
             &self.net,
@@ -461,7 +634,8 @@ impl Objective for NerfObjective {
             &batch.rays,
             &batch.targets,
             &self.samples,
-            self.background,
+            &self.backgrounds,
+            &mut self.d_backgrounds,
             scale,
             &mut self.coarse_pass,
             grad,
@@ -490,13 +664,16 @@ impl Objective for NerfObjective {
                 &batch.rays,
                 &batch.targets,
                 &self.fine_samples,
-                self.background,
+                &self.backgrounds,
+                &mut self.d_backgrounds,
                 scale,
                 &mut self.fine_pass,
                 grad,
                 None,
             );
         }
+        self.backdrop
+            .backward(values, &mut self.backdrop_work, &self.d_backgrounds, grad);
         Ok(loss)
     }
 }
@@ -519,7 +696,7 @@ pub fn render_nerf_view(
     fine: Option<(&NerfNet, usize)>,
     occupancy: Option<&Occupancy>,
     params: &[f32],
-    background: [f32; 3],
+    backdrop: &Backdrop,
     sampler: &Stratified,
     last: LastInterval,
     cam: &Camera,
@@ -540,12 +717,25 @@ pub fn render_nerf_view(
     let (mut pass, mut samples, mut fine_s) =
         (Pass::default(), Samples::default(), Samples::default());
     let (mut weights, mut fine_t) = (Vec::new(), Vec::new());
+    let (mut backgrounds, mut backdrop_work) = (Vec::new(), BackdropWork::default());
+    let (mut mapped, mut candidates) = (Vec::new(), Samples::default());
     for (chunk, (colour, depth)) in rays.chunks(per_pass).zip(
         view.colour
             .chunks_mut(per_pass)
             .zip(view.depth.chunks_mut(per_pass)),
     ) {
+        // Unbounded: the stratified depths spaced linearly through the
+        // inner box, in disparity beyond it.
+        let contract = net.contract;
+        if let Some(c) = &contract {
+            unbounded_depths(c, chunk, t[0] as f64, t[n - 1] as f64, |_| &t, &mut mapped);
+        }
         match occupancy {
+            Some(o) if o.contract.is_some() => {
+                let c = o.contract.as_ref().expect("just matched");
+                candidates.fixed(chunk.len(), n, |r| &mapped[r * n..(r + 1) * n], last);
+                keep_occupied(&o.grid, c, chunk, &candidates, &mut samples);
+            }
             Some(o) => {
                 let mut marched = RaySamples::default();
                 o.grid
@@ -554,8 +744,12 @@ pub fn render_nerf_view(
                 samples.t = marched.t;
                 samples.delta = marched.dt;
             }
+            None if contract.is_some() => {
+                samples.fixed(chunk.len(), n, |r| &mapped[r * n..(r + 1) * n], last)
+            }
             None => samples.fixed(chunk.len(), n, |_| &t, last),
         }
+        backdrop.colours(params, chunk, &mut backdrop_work, &mut backgrounds);
         let used = match fine.filter(|_| occupancy.is_none()) {
             None => &samples,
             Some((_, m)) => {
@@ -592,7 +786,7 @@ pub fn render_nerf_view(
             params,
             chunk,
             used,
-            background,
+            &backgrounds,
             stop,
             &mut pass,
             colour,
@@ -613,7 +807,7 @@ fn composite_until_opaque(
     params: &[f32],
     rays: &[Ray],
     samples: &Samples,
-    background: [f32; 3],
+    backgrounds: &[[f32; 3]],
     stop: f32,
     pass: &mut Pass,
     colour: &mut [[f32; 3]],
@@ -669,9 +863,14 @@ fn composite_until_opaque(
         start += SEGMENT;
         alive.retain(|&r| state[r].0 >= stop && start < samples.range(r).len());
     }
-    for ((c, d), (trans, sum, dep)) in colour.iter_mut().zip(depth.iter_mut()).zip(state) {
+    for (((c, d), (trans, sum, dep)), bg) in colour
+        .iter_mut()
+        .zip(depth.iter_mut())
+        .zip(state)
+        .zip(backgrounds)
+    {
         for j in 0..3 {
-            c[j] = sum[j] + trans * background[j];
+            c[j] = sum[j] + trans * bg[j];
         }
         *d = dep;
     }
@@ -685,9 +884,8 @@ mod tests {
     use crate::volume::SplitMix64;
     use sdfl_stdlib::value::{Encoding, Harmonic};
 
-    #[test]
-    fn objective_gradient_matches_finite_differences() {
-        let spec = Nerf {
+    fn small_spec() -> Nerf {
+        Nerf {
             position: Encoding::Harmonic(Harmonic {
                 freqs: 2,
                 include_input: true,
@@ -701,12 +899,49 @@ mod tests {
             skips: vec![1],
             color_width: 6,
             fine: 0,
-            background: [0.3, 0.6, 0.9],
+            background: sdfl_stdlib::value::Background::Color([0.3, 0.6, 0.9]),
+            background_at: Default::default(),
+            unbounded: None,
             seed: 4,
             density: sdfl_stdlib::value::DensityActivation::Exp,
             occupancy: None,
             precision: Default::default(),
+        }
+    }
+
+    #[test]
+    fn objective_gradient_matches_finite_differences() {
+        objective_gradient_check(&small_spec());
+    }
+
+    /// Through a contracted hash grid (most samples beyond the inner box)
+    /// and a learned background: every tensor's gradient, the learned
+    /// background's layers and the grid's most-touched rows included.
+    #[test]
+    fn unbounded_grid_and_learned_background_gradient_matches_finite_differences() {
+        let spec = Nerf {
+            position: Encoding::HashGrid(sdfl_stdlib::value::HashGridSpec {
+                levels: 3,
+                features: 2,
+                log2_table: 8,
+                min_res: 2,
+                max_res: 8,
+                min: [-1.5; 3],
+                max: [1.5; 3],
+            }),
+            background: sdfl_stdlib::value::Background::Learned(
+                sdfl_stdlib::value::LearnedBackground { freqs: 2, width: 5 },
+            ),
+            unbounded: Some(sdfl_stdlib::value::Contraction {
+                min: [-0.5; 3],
+                max: [0.5; 3],
+            }),
+            ..small_spec()
         };
+        objective_gradient_check(&spec);
+    }
+
+    fn objective_gradient_check(spec: &Nerf) {
         let sampler = Sampler {
             samples: 7,
             near: 1.0,
@@ -714,7 +949,7 @@ mod tests {
             jitter: true,
             last_interval: LastInterval::Zero,
         };
-        let mut obj = NerfObjective::new(&spec, &sampler).unwrap();
+        let mut obj = NerfObjective::new(spec, &sampler).unwrap();
         // Smooth activations so differences see no kinks; same wiring.
         let smooth = Activation::Softplus { beta: 1.0 };
         let net = &mut obj.net;
@@ -724,6 +959,9 @@ mod tests {
             .chain([&mut net.density, &mut net.color_hidden])
         {
             d.act = smooth;
+        }
+        if let Backdrop::Learned(b) = &mut obj.backdrop {
+            b.hidden.act = smooth;
         }
         let mut rng = SplitMix64::new(8);
         let rays: Vec<Ray> = (0..9)
@@ -759,9 +997,28 @@ mod tests {
             let mut g = vec![0.0; v.len()];
             obj.loss_and_grad(v, &batch, 2.0, &mut g).unwrap()
         };
-        let tensors = NerfObjective::new(&spec, &sampler).unwrap().tensors();
+        let tensors = NerfObjective::new(spec, &sampler).unwrap().tensors();
+        let names: Vec<&str> = tensors.iter().map(|t| t.name.as_str()).collect();
+        let learned = matches!(spec.background, sdfl_stdlib::value::Background::Learned(_));
+        assert_eq!(
+            names.contains(&"background.out.weight"),
+            learned,
+            "{names:?}"
+        );
         for t in &tensors {
-            for i in [t.offset, t.offset + t.len / 2, t.offset + t.len - 1] {
+            // The largest entry too: a grid's ends may be rows no sample touches.
+            let largest = (t.offset..t.offset + t.len)
+                .max_by(|&a, &b| grad[a].abs().total_cmp(&grad[b].abs()))
+                .unwrap();
+            if t.name.starts_with("background") || t.name.contains("hashgrid") {
+                assert!(grad[largest] != 0.0, "{} has no gradient", t.name);
+            }
+            for i in [
+                t.offset,
+                t.offset + t.len / 2,
+                t.offset + t.len - 1,
+                largest,
+            ] {
                 let h = 1e-2;
                 let mut v = values.clone();
                 v[i] += h;
@@ -779,6 +1036,68 @@ mod tests {
         }
     }
 
+    /// In an unbounded scene the occupancy grid keeps exactly the
+    /// candidates whose contracted point lies in an occupied cell: all of
+    /// them at first, none once emptied, and only the far sample whose
+    /// cell alone is marked (beyond the inner box, so found in contracted
+    /// space).
+    #[test]
+    fn unbounded_occupancy_keeps_the_samples_in_occupied_contracted_cells() {
+        let spec = OccupancySpec {
+            resolution: 16,
+            min: [-1.5; 3],
+            max: [1.5; 3],
+            threshold: 0.01,
+            every: 1,
+        };
+        let c = Contract::new(&sdfl_stdlib::value::Contraction {
+            min: [-1.0; 3],
+            max: [1.0; 3],
+        });
+        let sampler = Sampler {
+            samples: 16,
+            near: 0.5,
+            far: 100.0,
+            jitter: false,
+            last_interval: LastInterval::Zero,
+        };
+        let mut occ = Occupancy::new(&spec, &sampler, Some(c)).unwrap();
+        let rays: Vec<Ray> = (0..3)
+            .map(|k| Ray {
+                origin: [0.0, 0.1 * k as f32, -3.0],
+                dir: [0.05 * k as f32, 0.0, 1.0],
+                view: 0,
+                pixel: k,
+            })
+            .collect();
+        let t: Vec<f32> = (0..16).map(|k| 0.5 + k as f32 * 99.5 / 15.0).collect();
+        let mut mapped = Vec::new();
+        unbounded_depths(&c, &rays, 0.5, 100.0, |_| &t, &mut mapped);
+        let mut candidates = Samples::default();
+        candidates.fixed(3, 16, |r| &mapped[r * 16..(r + 1) * 16], LastInterval::Zero);
+        let mut out = Samples::default();
+        occ.march(&rays, &candidates, &mut out).unwrap();
+        assert_eq!(out, candidates);
+        occ.grid.fill(false);
+        occ.march(&rays, &candidates, &mut out).unwrap();
+        assert!(out.t.is_empty() && out.offsets == vec![0; 4]);
+        // The last sample of ray 1, far beyond the box (t ≈ 100).
+        let k = candidates.offsets[2] - 1;
+        let tk = candidates.t[k];
+        assert!(tk > 50.0);
+        let p = std::array::from_fn(|a| rays[1].origin[a] + tk * rays[1].dir[a]);
+        let cell = occ
+            .grid
+            .cell_of(c.apply(p))
+            .expect("in the contracted cube");
+        let index = occ.grid.index(cell);
+        occ.grid.set_occupied(index, true);
+        occ.march(&rays, &candidates, &mut out).unwrap();
+        assert!(out.t.contains(&tk), "{:?}", out.t);
+        assert!(out.offsets[2] - out.offsets[1] >= 1);
+        assert_eq!(out.t.len(), out.delta.len());
+    }
+
     /// A small NeRF whose density head starts at `density_bias`.
     fn opaque_nerf(density_bias: f32) -> (NerfNet, Vec<f32>) {
         let spec = Nerf {
@@ -792,7 +1111,9 @@ mod tests {
             skips: vec![],
             color_width: 8,
             fine: 0,
-            background: [0.0; 3],
+            background: sdfl_stdlib::value::Background::Color([0.0; 3]),
+            background_at: Default::default(),
+            unbounded: None,
             seed: 2,
             density: sdfl_stdlib::value::DensityActivation::Softplus,
             occupancy: None,
@@ -822,7 +1143,7 @@ mod tests {
             None,
             None,
             &params,
-            [0.2, 0.4, 0.6],
+            &Backdrop::Color([0.2, 0.4, 0.6]),
             &sampler,
             LastInterval::Zero,
             &cam,

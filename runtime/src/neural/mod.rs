@@ -8,8 +8,10 @@
 //! ([`sdf_net`]), as a model fitted to points ([`distance`]) and as a
 //! volume with a colour network fitted to images ([`surface`]).
 
+pub mod background;
 pub mod bf16;
 pub mod composite;
+pub mod contract;
 pub mod distance;
 pub mod encoding;
 pub mod field;

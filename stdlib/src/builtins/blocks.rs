@@ -220,6 +220,16 @@ pub(crate) fn train_block(name: &str, a: &Args) -> Built<TrainJob> {
         Value::Dataset(d) => Ok(d.clone()),
         v => Err(type_error(data_span, "data set", v)),
     });
+    // The model's background is the data's unless written, and a written
+    // one that disagrees is said.
+    let model = match (model, &data) {
+        (Some(m), Some(d)) => {
+            let (m, warning) = backgrounds_agree(m, d, data_span);
+            e.diags.extend(warning);
+            Some(m)
+        }
+        (m, _) => m,
+    };
     let sampler = e.ok(match a.get("sampler").0 {
         Value::Sampler(s) => Ok(*s),
         v => Err(type_error(a.get("sampler").1, "sampler", v)),
@@ -340,6 +350,90 @@ pub(crate) fn train_block(name: &str, a: &Args) -> Built<TrainJob> {
         })
     })();
     (job, e.diags)
+}
+
+/// A NeRF's background made one setting with its data's: `data_background()`
+/// (the default) becomes the data's colour (a learned background for
+/// photographs of the world, black where unknown, as before); a written
+/// colour the data disagrees with gives a warning at it.
+fn backgrounds_agree(
+    model: Arc<Field>,
+    data: &Dataset,
+    data_span: Span,
+) -> (Arc<Field>, Option<Diag>) {
+    use crate::value::{Background, DataBackground, LearnedBackground};
+    let Field::Nerf(n) = &*model else {
+        return (model, None);
+    };
+    let theirs = data.background();
+    let show = |c: [f64; 3]| {
+        format!(
+            "[{}, {}, {}]",
+            sdfl_lang::fmt_num(c[0]),
+            sdfl_lang::fmt_num(c[1]),
+            sdfl_lang::fmt_num(c[2])
+        )
+    };
+    match (n.background, theirs) {
+        (Background::Data, _) => {
+            let background = match theirs {
+                DataBackground::Color(c) => Background::Color(c.to_array()),
+                DataBackground::World => Background::Learned(LearnedBackground {
+                    freqs: 4,
+                    width: 32,
+                }),
+                DataBackground::Unknown => Background::Color([0.0; 3]),
+            };
+            let resolved = Nerf {
+                background,
+                ..n.clone()
+            };
+            (Arc::new(Field::Nerf(resolved)), None)
+        }
+        (Background::Color(mine), DataBackground::Color(d)) => {
+            // Half a level of an 8-bit image is the same colour.
+            let d = d.to_array();
+            let same = (0..3).all(|i| (mine[i] - d[i]).abs() <= 0.5 / 255.0);
+            let warning = (!same).then(|| {
+                Diag::new(
+                    codes::BACKGROUND_MISMATCH,
+                    n.background_at.0,
+                    format!(
+                        "this NeRF's background {} is not its training data's, {}",
+                        show(mine),
+                        show(d)
+                    ),
+                )
+                .label("the model's background")
+                .note(
+                    data_span,
+                    format!("these images are composited over {}", show(d)),
+                )
+                .help(format!(
+                    "drop `background` (a NeRF takes its data's), or write `background: {}`",
+                    show(d)
+                ))
+            });
+            (model, warning)
+        }
+        (Background::Color(mine), DataBackground::World) => {
+            let warning = Diag::new(
+                codes::BACKGROUND_MISMATCH,
+                n.background_at.0,
+                format!(
+                    "this NeRF's background is one colour, {}, but its training images show the world behind the scene",
+                    show(mine)
+                ),
+            )
+            .label("the model's background")
+            .note(data_span, "opaque photographs, no one background colour")
+            .help("drop `background` (a learned one is then used), or write `background: learned_background()`");
+            (model, Some(warning))
+        }
+        (Background::Color(_), DataBackground::Unknown) | (Background::Learned(_), _) => {
+            (model, None)
+        }
+    }
 }
 
 /// The loss terms a model trains on: the defaults of its kind unless

@@ -2,7 +2,15 @@
 //! hidden layers (`mlp`), `neural_sdf` and `nerf` itself.
 
 use super::*;
-use crate::value::{Mlp, NeuralSdf};
+use crate::value::{Background, Contraction, LearnedBackground, Mlp, NeuralSdf};
+
+/// The type of a NeRF's `background`: a colour or a background value.
+pub(crate) const BACKGROUND: Type = Type::Named("background");
+/// The type of a NeRF's `unbounded`.
+pub(crate) const CONTRACTION: Type = Type::Named("contraction");
+/// The box a hash grid or occupancy grid covers by default (and the inner
+/// box of a contraction).
+const DEFAULT_BOX: ([f64; 3], [f64; 3]) = ([-1.5; 3], [1.5; 3]);
 
 /// Most trainable numbers in a hash grid's tables (1 GiB with gradient and
 /// Adam's moments).
@@ -191,6 +199,41 @@ pub(crate) fn builtins() -> Vec<Builtin> {
             },
         ),
         func(
+            "data_background",
+            "The training data's background, as a NeRF's `background` (the default): a `train` statement puts its data set's colour here (a NeRF-synthetic set's composite colour, `render_views`' `background` for a shape, a rendered field's own), so model and data agree. Black where the data holds no colour of its own, or outside a `train`.",
+            vec![],
+            BACKGROUND,
+            |_| Ok(Value::Background(Background::Data)),
+        ),
+        func(
+            "learned_background",
+            "A background learned from the ray's direction, for images without alpha whose background is the world: the unit direction harmonically encoded (`freqs` frequencies and the direction itself) through one ReLU layer of `width` to a sigmoid colour, seen through each ray's remaining transmittance and trained with the field.",
+            vec![
+                opt("freqs", Type::Number, "4", "harmonic frequencies of the direction (0..8)"),
+                opt("width", Type::Number, "32", "width of the hidden layer (1..256)"),
+            ],
+            BACKGROUND,
+            |a| {
+                Ok(Value::Background(Background::Learned(LearnedBackground {
+                    freqs: a.count("freqs", 0, 8)? as usize,
+                    width: a.count("width", 1, 256)? as usize,
+                })))
+            },
+        ),
+        func(
+            "contraction",
+            "Scene contraction for unbounded scenes (mip-NeRF 360, with the ∞-norm as nerfstudio and nerfacc use it, so the contracted scene fills a cube): the inner box `min`..`max` maps to [-1, 1]³ unchanged, and beyond it a point `x` with `m = max |x_i|` goes to `(2 − 1/m)·x/m`; all of space fits in [-2, 2]³, which the NeRF's hash grid and occupancy grid then cover. Samples beyond the inner box are spaced evenly in disparity (1/t) up to the sampler's `far`, so give it a large `far` (e.g. 1000).",
+            vec![
+                opt("min", Type::Vec3, "[-1.5, -1.5, -1.5]", "lower corner of the inner box"),
+                opt("max", Type::Vec3, "[1.5, 1.5, 1.5]", "upper corner of the inner box"),
+            ],
+            CONTRACTION,
+            |a| {
+                let (min, max) = box_arg(a)?;
+                Ok(Value::Contraction(Contraction { min: min.to_array(), max: max.to_array() }))
+            },
+        ),
+        func(
             "mlp",
             "The hidden layers of a multilayer perceptron, as a value: `layers` of `width`, the layers in `skips` (counted from 0; 1 to `layers` − 1) seeing the network's input again. Define it once and give it to `nerf(network: ...)` or `neural_sdf(network: ...)`; the field decides the input (its encoding), the activation and the output heads.",
             vec![
@@ -216,7 +259,8 @@ pub(crate) fn builtins() -> Vec<Builtin> {
                 opt("skips", Type::list(Type::Number), "[3]", "trunk layers (counted from 0; 1 to `layers` − 1) that see the encoded position again"),
                 opt("color_width", Type::Number, "64", "width of the colour branch"),
                 opt("fine", Type::Number, "0", "fine samples per ray, drawn by inverse CDF from the coarse network's weights for a second (fine) network of the same shape; 0: one network"),
-                opt("background", Type::Vec3, "[0, 0, 0]", "colour where a ray leaves the volume"),
+                opt("background", Type::OneOf(vec![Type::Vec3, BACKGROUND]), "data_background()", "what a ray sees where it leaves the field: the training data's (`data_background()`), a colour `[r, g, b]`, or `learned_background()`"),
+                opt("unbounded", Type::OneOf(vec![CONTRACTION, Type::Bool]), "false", "an unbounded scene: `contraction(min, max)` (or `true`: the default inner box) contracts positions so the hash grid and occupancy grid cover all of space; `false`: the grids' boxes bound the scene"),
                 opt("seed", Type::Number, "0", "seed of the initial weights"),
                 opt("occupancy", OCCUPANCY, "occupancy_grid(resolution: 0)", "skip empty space with an occupancy grid while training and rendering (resolution 0: none)"),
                 opt("density", Type::Str, "\"relu\"", "density activation: \"relu\" (the NeRF paper; can die on dark scenes, every sample's gradient zero), \"softplus\" (Mip-NeRF: its gradient never vanishes) or \"exp\" (instant-ngp's truncated exponential, for hash grids)"),
@@ -230,7 +274,20 @@ pub(crate) fn builtins() -> Vec<Builtin> {
                     other => Err(type_error(a.get(name).1, "encoding", other)),
                 };
                 let Mlp { layers, width, skips } = hidden_layers(a)?;
-                let (bg, bg_span) = (a.vec3("background")?, a.get("background").1);
+                let bg_span = a.get("background").1;
+                let background = match a.get("background").0 {
+                    Value::Background(b) => *b,
+                    _ => Background::Color(colour(a.vec3("background")?, bg_span)?.to_array()),
+                };
+                let unbounded = match a.get("unbounded").0 {
+                    Value::Contraction(c) => Some(*c),
+                    Value::Bool(true) => Some(Contraction { min: DEFAULT_BOX.0, max: DEFAULT_BOX.1 }),
+                    Value::Bool(false) => None,
+                    other => return Err(type_error(a.get("unbounded").1, "contraction", other)),
+                };
+                if unbounded.is_some() {
+                    unbounded_grids(a)?;
+                }
                 let view_dependent = matches!(a.get("view_dependent").0, Value::Bool(true));
                 let direction = if view_dependent { Some(encoding("direction")?) } else { None };
                 if matches!(a.get("occupancy").0, Value::Occupancy(o) if o.resolution > 0) && a.count("fine", 0, MAX_SAMPLES)? > 0 {
@@ -257,7 +314,9 @@ pub(crate) fn builtins() -> Vec<Builtin> {
                     skips,
                     color_width: a.count("color_width", 1, 4096)? as usize,
                     fine: a.count("fine", 0, MAX_SAMPLES)? as usize,
-                    background: colour(bg, bg_span)?.to_array(),
+                    background,
+                    background_at: crate::value::WrittenAt(bg_span),
+                    unbounded,
                     seed: a.count("seed", 0, u32::MAX as u64)?,
                     occupancy: match a.get("occupancy").0 {
                         Value::Occupancy(o) if o.resolution > 0 => Some(*o),
@@ -299,6 +358,39 @@ pub(crate) fn builtins() -> Vec<Builtin> {
             },
         ),
     ]
+}
+
+/// In an unbounded scene the grids cover the contracted cube [-2, 2]³:
+/// a box given to the hash grid or the occupancy grid would disagree with
+/// the contraction's inner box, so it is refused (one setting, not three).
+fn unbounded_grids(a: &Args) -> Result<(), Diag> {
+    let boxes = [
+        (
+            "position",
+            match a.get("position").0 {
+                Value::Encoding(Encoding::HashGrid(g)) => Some((g.min, g.max)),
+                _ => None,
+            },
+        ),
+        (
+            "occupancy",
+            match a.get("occupancy").0 {
+                Value::Occupancy(o) if o.resolution > 0 => Some((o.min, o.max)),
+                _ => None,
+            },
+        ),
+    ];
+    for (name, b) in boxes {
+        if b.is_some_and(|b| b != DEFAULT_BOX) {
+            return Err(value_error(
+                a.get(name).1,
+                "in an unbounded scene the grids cover the contracted cube [-2, 2]³, not a box of their own",
+                "a box given here",
+                "drop `min` and `max` from this grid and give the inner box to `contraction(min: ..., max: ...)`",
+            ));
+        }
+    }
+    Ok(())
 }
 
 /// A field's hidden layers: its `network` argument, or its `layers`,

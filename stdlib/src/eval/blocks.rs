@@ -47,7 +47,11 @@ impl<'e> Evaluator<'e> {
                 (job.map(|j| program.renders.push(j)), errors)
             }
         };
-        let failed = poisoned || !errors.is_empty();
+        // Warnings (a background the data disagrees with) do not fail it.
+        let failed = poisoned
+            || errors
+                .iter()
+                .any(|d| d.severity() == sdfl_lang::diag::Severity::Error);
         self.diags.diags.extend(errors);
         if added.is_none() {
             return;

@@ -1,0 +1,286 @@
+//! What a NeRF's rays see behind the field: a fixed colour, or a colour
+//! learned from the ray's direction (for photographs without alpha, whose
+//! background is the world). The learned one is a tiny network over the
+//! rays of a batch: the unit direction harmonically encoded → one ReLU
+//! layer → sigmoid RGB. It is composited with each ray's remaining
+//! transmittance `T_n`, so `∂L/∂bg = T_n·∂L/∂C`, and trained with the field.
+
+use sdfl_stdlib::value::{Background, LearnedBackground};
+
+use super::encoding::Harmonic;
+use super::mlp::{Activation, Dense};
+use crate::volume::{Ray, SplitMix64};
+
+/// A learned background's layers and where they live in the flat
+/// parameters (after the field's networks).
+#[derive(Debug, Clone)]
+pub struct LearnedNet {
+    pub encoding: Harmonic,
+    pub hidden: Dense,
+    pub out: Dense,
+    pub first: usize,
+    pub len: usize,
+}
+
+/// Buffers of one batch of rays.
+#[derive(Debug, Default)]
+pub struct BackdropWork {
+    dirs: Vec<f32>,
+    enc: Vec<f32>,
+    hidden: Vec<f32>,
+    rgb: Vec<f32>,
+    d_hidden: Vec<f32>,
+}
+
+/// The background of a NeRF as the runtime computes it.
+#[derive(Debug, Clone)]
+pub enum Backdrop {
+    Color([f32; 3]),
+    Learned(LearnedNet),
+}
+
+impl Backdrop {
+    /// The backdrop of `spec` with any parameters from `first` on
+    /// (`Background::Data` unresolved is black, as outside a `train`).
+    pub fn new(spec: &Background, first: usize) -> Self {
+        match spec {
+            Background::Data | Background::Color(_) => {
+                Backdrop::Color(spec.color().unwrap_or([0.0; 3]).map(|x| x as f32))
+            }
+            Background::Learned(l) => Backdrop::Learned(LearnedNet::new(l, first)),
+        }
+    }
+
+    /// Trainable scalars.
+    pub fn len(&self) -> usize {
+        match self {
+            Backdrop::Color(_) => 0,
+            Backdrop::Learned(n) => n.len,
+        }
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// The learned layers with their names (none for a colour).
+    pub fn layers(&self) -> Vec<(String, &Dense)> {
+        match self {
+            Backdrop::Color(_) => Vec::new(),
+            Backdrop::Learned(n) => vec![
+                ("background.hidden".into(), &n.hidden),
+                ("background.out".into(), &n.out),
+            ],
+        }
+    }
+
+    /// PyTorch's default initialisation of the learned layers.
+    pub fn init_into(&self, seed: u64, params: &mut [f32]) {
+        let mut rng = SplitMix64::new(seed ^ 0x6267_6e64);
+        for (_, d) in self.layers() {
+            d.init(params, &mut rng);
+        }
+    }
+
+    /// One colour per ray into `out` (resized).
+    pub fn colours(
+        &self,
+        params: &[f32],
+        rays: &[Ray],
+        work: &mut BackdropWork,
+        out: &mut Vec<[f32; 3]>,
+    ) {
+        out.clear();
+        match self {
+            Backdrop::Color(c) => out.resize(rays.len(), *c),
+            Backdrop::Learned(n) => {
+                n.forward(params, rays, work);
+                out.extend(work.rgb.chunks(3).map(|c| [c[0], c[1], c[2]]));
+            }
+        }
+    }
+
+    /// Adds `∂L/∂params` given `∂L/∂colour` per ray, after
+    /// [`Self::colours`] of the same rays on `work` (nothing for a colour).
+    pub fn backward(
+        &self,
+        params: &[f32],
+        work: &mut BackdropWork,
+        d_colour: &[[f32; 3]],
+        grad: &mut [f32],
+    ) {
+        if let Backdrop::Learned(n) = self {
+            n.backward(params, work, d_colour, grad);
+        }
+    }
+}
+
+impl LearnedNet {
+    pub fn new(spec: &LearnedBackground, first: usize) -> Self {
+        let encoding = Harmonic {
+            dims: 3,
+            freqs: spec.freqs,
+            include_input: true,
+        };
+        let hidden = Dense::new(&[encoding.width()], spec.width, Activation::Relu, first);
+        let out = Dense::new(&[spec.width], 3, Activation::Sigmoid, hidden.end());
+        LearnedNet {
+            encoding,
+            len: out.end() - first,
+            hidden,
+            out,
+            first,
+        }
+    }
+
+    fn forward(&self, params: &[f32], rays: &[Ray], w: &mut BackdropWork) {
+        let n = rays.len();
+        w.dirs.clear();
+        // The unit direction: the colour of a direction, whatever the
+        // length of the ray's vector.
+        for r in rays {
+            let d = r.dir;
+            let len = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+                .sqrt()
+                .max(f32::MIN_POSITIVE);
+            w.dirs.extend(d.map(|x| x / len));
+        }
+        w.enc.resize(n * self.encoding.width(), 0.0);
+        self.encoding.encode(&w.dirs, &mut w.enc);
+        w.hidden.resize(n * self.hidden.out, 0.0);
+        self.hidden.forward(params, &[&w.enc], &mut w.hidden);
+        w.rgb.resize(n * 3, 0.0);
+        self.out.forward(params, &[&w.hidden], &mut w.rgb);
+    }
+
+    fn backward(
+        &self,
+        params: &[f32],
+        w: &mut BackdropWork,
+        d_colour: &[[f32; 3]],
+        grad: &mut [f32],
+    ) {
+        let mut d_rgb: Vec<f32> = d_colour.iter().flatten().copied().collect();
+        w.d_hidden.resize(w.hidden.len(), 0.0);
+        self.out.backward(
+            params,
+            &[&w.hidden],
+            &w.rgb,
+            &mut d_rgb,
+            &mut [Some(&mut w.d_hidden)],
+            false,
+            grad,
+        );
+        self.hidden.backward(
+            params,
+            &[&w.enc],
+            &w.hidden,
+            &mut w.d_hidden,
+            &mut [None],
+            false,
+            grad,
+        );
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn rays(n: usize, seed: u64) -> Vec<Ray> {
+        let mut g = SplitMix64::new(seed);
+        (0..n)
+            .map(|k| Ray {
+                origin: [0.0; 3],
+                // Not unit: the colour is the direction's, whatever its length.
+                dir: std::array::from_fn(|_| 3.0 * (2.0 * g.next_f32() - 1.0)),
+                view: 0,
+                pixel: k as u32,
+            })
+            .collect()
+    }
+
+    /// A sky: bright above, warm towards +x, as a function of direction.
+    fn sky(d: [f32; 3]) -> [f32; 3] {
+        let l = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+        let (x, y) = (d[0] / l, d[1] / l);
+        [0.5 + 0.35 * x, 0.45 + 0.4 * y, 0.6 - 0.3 * x * y]
+    }
+
+    /// Fitted alone (Adam by hand), a learned background reproduces a
+    /// direction-dependent sky on held-out directions far better than the
+    /// best single colour could.
+    #[test]
+    fn fits_a_direction_dependent_background() {
+        let b = Backdrop::new(
+            &Background::Learned(LearnedBackground {
+                freqs: 2,
+                width: 16,
+            }),
+            0,
+        );
+        let mut params = vec![0.0; b.len()];
+        b.init_into(1, &mut params);
+        let (train, test) = (rays(512, 2), rays(256, 3));
+        let (mut work, mut out) = (BackdropWork::default(), Vec::new());
+        let (mut m, mut v) = (vec![0.0f32; b.len()], vec![0.0f32; b.len()]);
+        let mse = |b: &Backdrop, p: &[f32], rays: &[Ray], work: &mut BackdropWork| {
+            let mut out = Vec::new();
+            b.colours(p, rays, work, &mut out);
+            let e: f32 = rays
+                .iter()
+                .zip(&out)
+                .map(|(r, c)| (0..3).map(|j| (c[j] - sky(r.dir)[j]).powi(2)).sum::<f32>())
+                .sum();
+            e / (3 * rays.len()) as f32
+        };
+        let before = mse(&b, &params, &test, &mut work);
+        for step in 1..=600 {
+            b.colours(&params, &train, &mut work, &mut out);
+            let d: Vec<[f32; 3]> = train
+                .iter()
+                .zip(&out)
+                .map(|(r, c)| {
+                    let s = sky(r.dir);
+                    std::array::from_fn(|j| 2.0 * (c[j] - s[j]) / (3 * train.len()) as f32)
+                })
+                .collect();
+            let mut grad = vec![0.0; b.len()];
+            b.backward(&params, &mut work, &d, &mut grad);
+            let (b1, b2, lr) = (0.9f32, 0.999f32, 1e-2f32);
+            for i in 0..params.len() {
+                m[i] = b1 * m[i] + (1.0 - b1) * grad[i];
+                v[i] = b2 * v[i] + (1.0 - b2) * grad[i] * grad[i];
+                let mh = m[i] / (1.0 - b1.powi(step));
+                let vh = v[i] / (1.0 - b2.powi(step));
+                params[i] -= lr * mh / (vh.sqrt() + 1e-8);
+            }
+        }
+        let after = mse(&b, &params, &test, &mut work);
+        // The best constant colour's error: the sky's variance.
+        let cols: Vec<[f32; 3]> = test.iter().map(|r| sky(r.dir)).collect();
+        let variance: f32 = (0..3)
+            .map(|j| {
+                let mean = cols.iter().map(|c| c[j]).sum::<f32>() / cols.len() as f32;
+                cols.iter().map(|c| (c[j] - mean).powi(2)).sum::<f32>()
+            })
+            .sum::<f32>()
+            / (3 * cols.len()) as f32;
+        assert!(
+            after < variance / 20.0,
+            "held-out MSE {before} → {after}; a constant: {variance}"
+        );
+    }
+
+    /// A colour is the same for every ray and has nothing to train.
+    #[test]
+    fn a_colour_is_constant() {
+        let b = Backdrop::new(&Background::Color([0.1, 0.2, 0.3]), 0);
+        let mut out = Vec::new();
+        b.colours(&[], &rays(5, 1), &mut BackdropWork::default(), &mut out);
+        assert_eq!(out, vec![[0.1, 0.2, 0.3]; 5]);
+        assert!(b.is_empty());
+        let data = Backdrop::new(&Background::Data, 0);
+        assert!(matches!(data, Backdrop::Color(c) if c == [0.0; 3]));
+    }
+}
