@@ -1,8 +1,11 @@
 //! Readers for input data sets.
 
+pub mod capture;
 pub mod export;
 pub mod image;
 pub mod nerf_synthetic;
+pub mod nerfstudio;
+pub mod normalize;
 pub mod npy;
 pub mod points;
 

@@ -1,0 +1,273 @@
+//! Real captures: frames (an image, an optional mask, an OpenGL
+//! camera-to-world pose and pixel intrinsics) read from nerfstudio's
+//! `transforms.json`, COLMAP's text model or LLFF's `poses_bounds.npy`,
+//! normalised into sdfl's scene frame and turned into training views.
+//!
+//! The three readers only parse; what they share (image sizes checked
+//! before decoding, the scene frame, splits, alpha over a background,
+//! masks) is done here once.
+
+use std::io;
+use std::path::{Path, PathBuf};
+
+use glam::DVec3;
+use sdfl_stdlib::camera::{Camera, GlPose};
+
+use super::image::{check_dataset, read_rgba_image};
+use super::normalize::{Orient, SceneFrame};
+use super::npy::RgbImage;
+use crate::train::TrainView;
+
+/// Lens distortion of a pixel camera (OpenCV's models).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Distortion {
+    None,
+    OpenCv { k1: f64, k2: f64, p1: f64, p2: f64 },
+    Fisheye { k1: f64, k2: f64, k3: f64, k4: f64 },
+}
+
+/// Pixel intrinsics of a `width × height` image, OpenCV convention: pixel
+/// `(i, j)` has its centre at `(i + ½, j + ½)`; x right, y down.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Intrinsics {
+    pub width: u32,
+    pub height: u32,
+    pub fx: f64,
+    pub fy: f64,
+    pub cx: f64,
+    pub cy: f64,
+    pub distortion: Distortion,
+}
+
+pub(crate) fn invalid(path: &Path, m: impl std::fmt::Display) -> io::Error {
+    io::Error::new(
+        io::ErrorKind::InvalidData,
+        format!("{}: {m}", path.display()),
+    )
+}
+
+/// Largest distortion coefficient accepted: real lenses stay well below 1;
+/// larger ones are garbage that would fold the image over.
+pub const MAX_DISTORTION: f64 = 10.0;
+
+/// Where each number of a frame's intrinsics came from, for messages.
+#[derive(Debug, Clone, Copy)]
+pub struct Keys {
+    pub fx: &'static str,
+    pub fy: &'static str,
+}
+
+impl Intrinsics {
+    /// Checks what a file gave: finite positive focal lengths in the range
+    /// `look_at(focal: ...)` allows (in its NDC units), a principal point
+    /// inside the image, distortion coefficients finite and small.
+    pub fn check_named(&self, keys: Keys, given: (f64, f64)) -> Result<(), String> {
+        let (w, h) = (self.width as f64, self.height as f64);
+        let (lo, hi) = sdfl_stdlib::precision::F32_SAFE;
+        for (fl, side, key, g) in [(self.fx, w, keys.fx, given.0), (self.fy, h, keys.fy, given.1)] {
+            let ndc = 2.0 * fl / side;
+            if !(fl.is_finite() && (lo..=hi).contains(&ndc)) {
+                return Err(format!(
+                    "`{key}` {} gives a focal length of {ndc:e} (in `look_at`'s units) for {}x{} images, outside {lo:e} to {hi:e}",
+                    sdfl_lang::fmt_num(g),
+                    self.width,
+                    self.height
+                ));
+            }
+        }
+        for (key, c, side) in [("cx", self.cx, w), ("cy", self.cy, h)] {
+            if !(c.is_finite() && (0.0..=side).contains(&c)) {
+                return Err(format!(
+                    "`{key}` {} puts the principal point outside the {}x{} image",
+                    sdfl_lang::fmt_num(c),
+                    self.width,
+                    self.height
+                ));
+            }
+        }
+        let ks: Vec<(&str, f64)> = match self.distortion {
+            Distortion::None => Vec::new(),
+            Distortion::OpenCv { k1, k2, p1, p2 } => {
+                vec![("k1", k1), ("k2", k2), ("p1", p1), ("p2", p2)]
+            }
+            Distortion::Fisheye { k1, k2, k3, k4 } => {
+                vec![("k1", k1), ("k2", k2), ("k3", k3), ("k4", k4)]
+            }
+        };
+        for (key, k) in ks {
+            if !(k.is_finite() && k.abs() <= MAX_DISTORTION) {
+                return Err(format!(
+                    "distortion `{key}` {} is out of range (|{key}| ≤ {MAX_DISTORTION})",
+                    sdfl_lang::fmt_num(k)
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    /// Whether sdfl's NDC camera (principal point at the centre, no
+    /// distortion, one focal for both axes) draws exactly these rays.
+    fn is_ndc(&self) -> bool {
+        let (w, h) = (self.width as f64, self.height as f64);
+        let close = |a: f64, b: f64| (a - b).abs() <= 1e-9 * a.abs().max(b.abs()).max(1.0);
+        // `Camera::from_opengl` decides whether the focal lengths fit.
+        self.distortion == Distortion::None && close(self.cx, w / 2.0) && close(self.cy, h / 2.0)
+    }
+}
+
+/// The sdfl camera of an OpenGL camera-to-world pose (camera looks down
+/// −z, +y up, +x right) with pixel intrinsics.
+pub fn camera_of(c2w: &[[f64; 4]; 4], k: &Intrinsics) -> Result<Camera, String> {
+    if !k.is_ndc() {
+        return Err(
+            "an off-centre principal point or lens distortion needs sdfl's pixel cameras (not in this build)"
+                .into(),
+        );
+    }
+    Camera::from_opengl(
+        &GlPose {
+            c2w: *c2w,
+            fl_x: k.fx,
+            fl_y: k.fy,
+        },
+        k.width,
+        k.height,
+    )
+}
+
+/// One frame of a capture, checked.
+#[derive(Debug, Clone)]
+pub struct CaptureFrame {
+    /// Where the frame sits in its file (0-based), for messages.
+    pub index: usize,
+    pub image: PathBuf,
+    /// Pixels whose mask is 0 are neither trained on nor scored.
+    pub mask: Option<PathBuf>,
+    /// Camera to world in OpenGL axes, in the data's own frame.
+    pub c2w: [[f64; 4]; 4],
+    pub intrinsics: Intrinsics,
+}
+
+/// A capture's frames, their split, and the file they came from.
+#[derive(Debug, Clone)]
+pub struct Capture {
+    /// The file that describes the frames (for messages).
+    pub source: PathBuf,
+    pub frames: Vec<CaptureFrame>,
+    /// Indices into `frames` held out as test views (sorted).
+    pub test: Vec<usize>,
+    /// nerfstudio's `applied_transform`: from the original (COLMAP) frame
+    /// to the file's, as rows of a 3×4 matrix.
+    pub applied: Option<[[f64; 4]; 3]>,
+}
+
+/// How a capture is normalised into the scene frame.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Normalize {
+    /// Centre and scale from the cameras; `false` keeps the data's frame.
+    pub enabled: bool,
+    pub orient: Orient,
+    /// The farthest camera coordinate after scaling (nerfstudio: 1).
+    pub extent: f64,
+}
+
+/// A capture's views, in the scene frame.
+#[derive(Debug, Clone)]
+pub struct CaptureViews {
+    pub train: Vec<TrainView>,
+    pub test: Vec<TrainView>,
+    /// The file name of each view, train then test (for messages).
+    pub names: Vec<String>,
+    /// From the data's frame into the scene frame; exporters map back
+    /// with [`SceneFrame::to_data`].
+    pub frame: SceneFrame,
+}
+
+/// Views held out: every `every`-th frame from the first (nerfstudio's
+/// "interval" split, LLFF's `llffhold`); none for 0.
+pub fn every_nth(n: usize, every: usize) -> Vec<usize> {
+    if every == 0 || n < 2 {
+        return Vec::new();
+    }
+    (0..n).step_by(every).collect()
+}
+
+/// Reads a capture's images (sizes checked before any is decoded), moves
+/// its cameras into the scene frame (`frame`, or one from the cameras by
+/// `normalize`) and composites images with alpha over `background`.
+pub fn load(
+    c: &Capture,
+    normalize: Normalize,
+    frame: Option<SceneFrame>,
+    background: DVec3,
+) -> io::Result<CaptureViews> {
+    check_dataset(c.frames.iter().map(|f| &f.image))?;
+    let frame = frame.unwrap_or_else(|| {
+        if normalize.enabled {
+            let poses: Vec<_> = c.frames.iter().map(|f| f.c2w).collect();
+            SceneFrame::from_cameras(&poses, normalize.orient, normalize.extent)
+        } else {
+            SceneFrame::IDENTITY
+        }
+    });
+    let frame = SceneFrame {
+        applied: c.applied,
+        ..frame
+    };
+    let cameras = c
+        .frames
+        .iter()
+        .map(|f| {
+            camera_of(&frame.pose_to_scene(&f.c2w), &f.intrinsics)
+                .map_err(|e| invalid(&c.source, format!("frame {}: {e}", f.index)))
+        })
+        .collect::<io::Result<Vec<_>>>()?;
+    let bg = background.as_vec3().to_array();
+    let (mut train, mut test, mut names) = (Vec::new(), Vec::new(), Vec::new());
+    let mut test_names = Vec::new();
+    for (k, (f, camera)) in c.frames.iter().zip(cameras).enumerate() {
+        let (w, h, rgba) = read_rgba_image(&f.image)?;
+        if (w, h) != (f.intrinsics.width, f.intrinsics.height) {
+            return Err(invalid(
+                &f.image,
+                format!(
+                    "{w}x{h} pixels, but frame {} of {} says {}x{}",
+                    f.index,
+                    c.source.display(),
+                    f.intrinsics.width,
+                    f.intrinsics.height
+                ),
+            ));
+        }
+        let pixels = rgba
+            .iter()
+            .map(|p| {
+                let a = p[3].clamp(0.0, 1.0);
+                [0, 1, 2].map(|c| p[c] * a + bg[c] * (1.0 - a))
+            })
+            .collect();
+        let view = TrainView {
+            camera,
+            image: RgbImage {
+                width: w,
+                height: h,
+                pixels,
+            },
+        };
+        let name = format!("{} frame {}", c.source.display(), f.index);
+        if c.test.binary_search(&k).is_ok() {
+            test.push(view);
+            test_names.push(name);
+        } else {
+            train.push(view);
+            names.push(name);
+        }
+    }
+    names.extend(test_names);
+    Ok(CaptureViews {
+        train,
+        test,
+        names,
+        frame,
+    })
+}
