@@ -12,6 +12,7 @@ use std::path::{Path, PathBuf};
 
 use glam::DVec3;
 use sdfl_stdlib::camera::{Camera, GlPose};
+use sdfl_stdlib::value::{CaptureFormat, CaptureOrient, CaptureSpec};
 
 use super::image::{check_dataset, read_rgba_image};
 use super::normalize::{Orient, SceneFrame};
@@ -64,7 +65,10 @@ impl Intrinsics {
     pub fn check_named(&self, keys: Keys, given: (f64, f64)) -> Result<(), String> {
         let (w, h) = (self.width as f64, self.height as f64);
         let (lo, hi) = sdfl_stdlib::precision::F32_SAFE;
-        for (fl, side, key, g) in [(self.fx, w, keys.fx, given.0), (self.fy, h, keys.fy, given.1)] {
+        for (fl, side, key, g) in [
+            (self.fx, w, keys.fx, given.0),
+            (self.fy, h, keys.fy, given.1),
+        ] {
             let ndc = 2.0 * fl / side;
             if !(fl.is_finite() && (lo..=hi).contains(&ndc)) {
                 return Err(format!(
@@ -138,8 +142,9 @@ pub fn camera_of(c2w: &[[f64; 4]; 4], k: &Intrinsics) -> Result<Camera, String> 
 /// One frame of a capture, checked.
 #[derive(Debug, Clone)]
 pub struct CaptureFrame {
-    /// Where the frame sits in its file (0-based), for messages.
-    pub index: usize,
+    /// The frame as its file names it (`frame 3`, `image a.jpg`), for
+    /// messages.
+    pub label: String,
     pub image: PathBuf,
     /// Pixels whose mask is 0 are neither trained on nor scored.
     pub mask: Option<PathBuf>,
@@ -159,6 +164,11 @@ pub struct Capture {
     /// nerfstudio's `applied_transform`: from the original (COLMAP) frame
     /// to the file's, as rows of a 3×4 matrix.
     pub applied: Option<[[f64; 4]; 3]>,
+    /// Sparse points of the reconstruction (COLMAP's `points3D.txt`), in
+    /// the data's frame, for the scene's bounds.
+    pub points: Vec<DVec3>,
+    /// The depth bounds of the frames (LLFF), in the data's units.
+    pub bounds: Option<(f64, f64)>,
 }
 
 /// How a capture is normalised into the scene frame.
@@ -181,6 +191,9 @@ pub struct CaptureViews {
     /// From the data's frame into the scene frame; exporters map back
     /// with [`SceneFrame::to_data`].
     pub frame: SceneFrame,
+    /// Lines for people: the scene frame, the points' and depths' extent
+    /// in it.
+    pub report: Vec<String>,
 }
 
 /// Views held out: every `every`-th frame from the first (nerfstudio's
@@ -219,7 +232,7 @@ pub fn load(
         .iter()
         .map(|f| {
             camera_of(&frame.pose_to_scene(&f.c2w), &f.intrinsics)
-                .map_err(|e| invalid(&c.source, format!("frame {}: {e}", f.index)))
+                .map_err(|e| invalid(&c.source, format!("{}: {e}", f.label)))
         })
         .collect::<io::Result<Vec<_>>>()?;
     let bg = background.as_vec3().to_array();
@@ -231,8 +244,8 @@ pub fn load(
             return Err(invalid(
                 &f.image,
                 format!(
-                    "{w}x{h} pixels, but frame {} of {} says {}x{}",
-                    f.index,
+                    "{w}x{h} pixels, but {} of {} says {}x{}",
+                    f.label,
                     c.source.display(),
                     f.intrinsics.width,
                     f.intrinsics.height
@@ -254,7 +267,7 @@ pub fn load(
                 pixels,
             },
         };
-        let name = format!("{} frame {}", c.source.display(), f.index);
+        let name = format!("{} {}", c.source.display(), f.label);
         if c.test.binary_search(&k).is_ok() {
             test.push(view);
             test_names.push(name);
@@ -264,10 +277,119 @@ pub fn load(
         }
     }
     names.extend(test_names);
+    let mut report = vec![frame.describe()];
+    if let Some((lo, hi)) = points_extent(&c.points, &frame) {
+        report.push(format!(
+            "scene frame: the middle 98% of {} sparse points span [{}, {}] x [{}, {}] x [{}, {}]",
+            c.points.len(),
+            short(lo.x),
+            short(hi.x),
+            short(lo.y),
+            short(hi.y),
+            short(lo.z),
+            short(hi.z)
+        ));
+    }
+    if let Some((near, far)) = c.bounds {
+        report.push(format!(
+            "scene frame: depth bounds {} to {} (NDC rays start at depth 1)",
+            short(near * frame.scale),
+            short(far * frame.scale)
+        ));
+    }
     Ok(CaptureViews {
         train,
         test,
         names,
         frame,
+        report,
     })
+}
+
+/// The format a capture directory holds: `transforms.json`, then a COLMAP
+/// text model, then `poses_bounds.npy`.
+pub fn detect(dir: &Path) -> Option<CaptureFormat> {
+    if dir
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("json"))
+        || dir.join("transforms.json").is_file()
+    {
+        Some(CaptureFormat::Nerfstudio)
+    } else if super::colmap::model_dir(dir).is_some() {
+        Some(CaptureFormat::Colmap)
+    } else if dir.join("poses_bounds.npy").is_file() {
+        Some(CaptureFormat::Llff)
+    } else {
+        None
+    }
+}
+
+/// Reads the capture `spec` names (relative to `base`): its frames, split,
+/// scene frame and images.
+pub fn read(spec: &CaptureSpec, base: &Path) -> io::Result<CaptureViews> {
+    let path = base.join(&spec.path);
+    let format = match spec.format {
+        CaptureFormat::Auto => detect(&path).ok_or_else(|| {
+            invalid(
+                &path,
+                "holds no transforms.json, COLMAP model (sparse/0/cameras.txt) or poses_bounds.npy",
+            )
+        })?,
+        f => f,
+    };
+    let normalize = Normalize {
+        enabled: spec.normalize,
+        orient: match spec.orient {
+            CaptureOrient::None => Orient::None,
+            CaptureOrient::Up => Orient::Up,
+        },
+        extent: spec.extent,
+    };
+    let (capture, frame) = match format {
+        CaptureFormat::Nerfstudio | CaptureFormat::Auto => {
+            let file = if path
+                .extension()
+                .is_some_and(|e| e.eq_ignore_ascii_case("json"))
+            {
+                path
+            } else {
+                path.join("transforms.json")
+            };
+            let t = super::nerfstudio::read_transforms_scaled(&file, spec.downscale)?;
+            (t.capture(spec.downscale, spec.test_every)?, None)
+        }
+        CaptureFormat::Colmap => (
+            super::colmap::read(&path, spec.downscale, spec.test_every)?,
+            None,
+        ),
+        CaptureFormat::Llff => {
+            let (c, frame) = super::llff::read(&path, spec.downscale, spec.test_every)?;
+            (c, spec.normalize.then_some(frame))
+        }
+    };
+    load(&capture, normalize, frame, spec.background)
+}
+
+fn short(x: f64) -> String {
+    sdfl_lang::fmt_num((x * 1000.0).round() / 1000.0)
+}
+
+/// The box of the middle 98% of `points` along each axis, in the scene
+/// frame (outliers of a sparse reconstruction left out).
+pub fn points_extent(points: &[DVec3], frame: &SceneFrame) -> Option<(DVec3, DVec3)> {
+    if points.is_empty() {
+        return None;
+    }
+    let moved: Vec<DVec3> = points.iter().map(|p| frame.to_scene(*p)).collect();
+    let n = moved.len();
+    let (lo_k, hi_k) = (n / 100, (n - 1) - n / 100);
+    let mut lo = DVec3::ZERO;
+    let mut hi = DVec3::ZERO;
+    for axis in 0..3 {
+        let mut v: Vec<f64> = moved.iter().map(|p| p[axis]).collect();
+        v.sort_by(f64::total_cmp);
+        lo[axis] = v[lo_k];
+        hi[axis] = v[hi_k];
+    }
+    Some((lo, hi))
 }

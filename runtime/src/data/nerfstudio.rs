@@ -39,9 +39,8 @@ pub enum CameraModel {
 impl CameraModel {
     fn parse(name: &str) -> Option<CameraModel> {
         match name {
-            "PINHOLE" | "SIMPLE_PINHOLE" | "SIMPLE_RADIAL" | "RADIAL" | "OPENCV" | "PERSPECTIVE" => {
-                Some(CameraModel::Perspective)
-            }
+            "PINHOLE" | "SIMPLE_PINHOLE" | "SIMPLE_RADIAL" | "RADIAL" | "OPENCV"
+            | "PERSPECTIVE" => Some(CameraModel::Perspective),
             "OPENCV_FISHEYE" | "FISHEYE" => Some(CameraModel::Fisheye),
             _ => None,
         }
@@ -92,7 +91,9 @@ impl Lens {
             if let Some(s) = s {
                 let max = super::image::MAX_SIDE as f64;
                 if !(s >= 1.0 && s <= max && s.fract() == 0.0) {
-                    return Err(format!("`{key}` {s} is not an image side (1 to {max} pixels)"));
+                    return Err(format!(
+                        "`{key}` {s} is not an image side (1 to {max} pixels)"
+                    ));
                 }
             }
             Ok(s)
@@ -298,10 +299,11 @@ pub fn read_transforms_scaled(path: &Path, downscale: u32) -> io::Result<Transfo
             .ok_or_else(|| {
                 at("`transform_matrix` is not a 4x4 list of numbers (a non-finite or non-number entry)")
             })?;
-        let lens = global
-            .over(&Lens::read(f).map_err(|e| at(&e))?);
+        let lens = global.over(&Lens::read(f).map_err(|e| at(&e))?);
         if lens.fl_x.is_none() && lens.camera_angle_x.is_none() {
-            return Err(at("no focal length: give `fl_x` (pixels) or `camera_angle_x`"));
+            return Err(at(
+                "no focal length: give `fl_x` (pixels) or `camera_angle_x`",
+            ));
         }
         let rel = relative(file_path, true).ok_or_else(|| at(&outside(file_path)))?;
         let image = inside(dir, &scaled(&rel, "images_"), file_path).map_err(|e| at(&e))?;
@@ -357,11 +359,18 @@ pub fn read_transforms_scaled(path: &Path, downscale: u32) -> io::Result<Transfo
     let applied = match root.get("applied_transform") {
         None | Some(Value::Null) => None,
         Some(v) => {
-            let m = matrix(v, &[3, 4])
-                .ok_or_else(|| invalid(path, "`applied_transform` is not a 3x4 list of finite numbers"))?;
+            let m = matrix(v, &[3, 4]).ok_or_else(|| {
+                invalid(
+                    path,
+                    "`applied_transform` is not a 3x4 list of finite numbers",
+                )
+            })?;
             let m = [m[0], m[1], m[2]];
             if !rigid(&m) {
-                return Err(invalid(path, "`applied_transform` is not a rotation and a translation"));
+                return Err(invalid(
+                    path,
+                    "`applied_transform` is not a rotation and a translation",
+                ));
             }
             Some(m)
         }
@@ -398,18 +407,31 @@ impl Transforms {
     /// `cx`/`cy` or the centre, distortion by `camera_model`; all scaled
     /// by `1/downscale` as nerfstudio does. Checked: a size the file
     /// states must match the image.
-    pub fn intrinsics(&self, k: usize, (w, h): (u32, u32), downscale: u32) -> Result<Intrinsics, String> {
+    pub fn intrinsics(
+        &self,
+        k: usize,
+        (w, h): (u32, u32),
+        downscale: u32,
+    ) -> Result<Intrinsics, String> {
         let l = &self.frames[k].lens;
         let d = downscale.max(1) as f64;
         let (wi, hi) = (w as f64, h as f64);
         // The file's size, at full resolution.
         for (key, given, img) in [("w", l.w, wi), ("h", l.h, hi)] {
             if let Some(g) = given {
-                let ok = if d == 1.0 { g == img } else { (g / d - img).abs() < 1.0 };
+                let ok = if d == 1.0 {
+                    g == img
+                } else {
+                    (g / d - img).abs() < 1.0
+                };
                 if !ok {
                     return Err(format!(
                         "`{key}` is {g} but the image is {w}x{h} pixels{}",
-                        if d > 1.0 { format!(" (read at 1/{d} of the size)") } else { String::new() }
+                        if d > 1.0 {
+                            format!(" (read at 1/{d} of the size)")
+                        } else {
+                            String::new()
+                        }
                     ));
                 }
             }
@@ -418,7 +440,9 @@ impl Transforms {
         let (fx, fx_key, fx_given) = match (l.fl_x, l.camera_angle_x) {
             (Some(f), _) => (f, "fl_x", f),
             (None, Some(a)) => (wf / 2.0 / (a / 2.0).tan(), "camera_angle_x", a),
-            (None, None) => return Err("no focal length: give `fl_x` (pixels) or `camera_angle_x`".into()),
+            (None, None) => {
+                return Err("no focal length: give `fl_x` (pixels) or `camera_angle_x`".into())
+            }
         };
         let (fy, fy_key, fy_given) = match (l.fl_y, l.camera_angle_y) {
             (Some(f), _) => (f, "fl_y", f),
@@ -456,7 +480,13 @@ impl Transforms {
             cy: l.cy.unwrap_or(hf / 2.0) / d,
             distortion,
         };
-        k.check_named(Keys { fx: fx_key, fy: fy_key }, (fx_given, fy_given))?;
+        k.check_named(
+            Keys {
+                fx: fx_key,
+                fy: fy_key,
+            },
+            (fx_given, fy_given),
+        )?;
         Ok(k)
     }
 
@@ -491,7 +521,7 @@ impl Transforms {
                 .intrinsics(k, size, downscale)
                 .map_err(|e| invalid(&self.file, format!("frame {k}: {e}")))?;
             frames.push(CaptureFrame {
-                index: k,
+                label: format!("frame {k}"),
                 image: f.image.clone(),
                 mask: f.mask.clone(),
                 c2w: f.pose,
@@ -502,7 +532,10 @@ impl Transforms {
         let any = train.is_some() || val.is_some() || test.is_some();
         let (train_set, test_set) = if any {
             let train = train.as_ref().ok_or_else(|| {
-                invalid(&self.file, "the file has split lists but no `train_filenames`")
+                invalid(
+                    &self.file,
+                    "the file has split lists but no `train_filenames`",
+                )
             })?;
             let train = self.named("train_filenames", train)?;
             let test = match (test, val) {
@@ -549,13 +582,18 @@ impl Transforms {
             }
         }
         if frames.len() == test.len() {
-            return Err(invalid(&self.file, "no training frames (every frame is held out)"));
+            return Err(invalid(
+                &self.file,
+                "no training frames (every frame is held out)",
+            ));
         }
         Ok(Capture {
             source: self.file.clone(),
             frames,
             test,
             applied: self.applied,
+            points: Vec::new(),
+            bounds: None,
         })
     }
 }

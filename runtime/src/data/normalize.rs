@@ -145,7 +145,14 @@ impl SceneFrame {
 /// `w × h` image with pixel focal `focal`. Returns the NDC origin and
 /// (unnormalised) direction; `t' ∈ [0, 1)` spans `near` to infinity.
 /// None for a ray parallel to the near plane or starting behind it.
-pub fn ndc_ray(w: f64, h: f64, focal: f64, near: f64, o: DVec3, d: DVec3) -> Option<(DVec3, DVec3)> {
+pub fn ndc_ray(
+    w: f64,
+    h: f64,
+    focal: f64,
+    near: f64,
+    o: DVec3,
+    d: DVec3,
+) -> Option<(DVec3, DVec3)> {
     if d.z.abs() < 1e-12 {
         return None;
     }
@@ -198,7 +205,10 @@ mod tests {
                 let a = k as f64 * 0.5;
                 let side = up.any_orthonormal_vector();
                 let side2 = up.cross(side);
-                pose((side * a.cos() + side2 * a.sin()) * 25.0 + up * 5.0 + off, up)
+                pose(
+                    (side * a.cos() + side2 * a.sin()) * 25.0 + up * 5.0 + off,
+                    up,
+                )
             })
             .collect();
         for orient in [Orient::None, Orient::Up] {
@@ -217,7 +227,11 @@ mod tests {
                     DVec3::new(m[0][1], m[1][1], m[2][1]),
                     DVec3::new(m[0][2], m[1][2], m[2][2]),
                 );
-                assert!((r.transpose() * r - DMat3::IDENTITY).abs().to_cols_array().iter().all(|e| *e < 1e-12));
+                assert!((r.transpose() * r - DMat3::IDENTITY)
+                    .abs()
+                    .to_cols_array()
+                    .iter()
+                    .all(|e| *e < 1e-12));
             }
             assert!((reach - 1.0).abs() < 1e-12, "{reach}");
             if orient == Orient::Up {
@@ -234,7 +248,10 @@ mod tests {
         }
         // A known case: two cameras at x = 1 and x = 5 → centre 3, scale ½.
         let f = SceneFrame::from_cameras(
-            &[pose(DVec3::new(1.0, 0.0, 0.0), DVec3::Z), pose(DVec3::new(5.0, 0.0, 0.0), DVec3::Z)],
+            &[
+                pose(DVec3::new(1.0, 0.0, 0.0), DVec3::Z),
+                pose(DVec3::new(5.0, 0.0, 0.0), DVec3::Z),
+            ],
             Orient::None,
             1.0,
         );
@@ -244,7 +261,10 @@ mod tests {
 
     #[test]
     fn up_opposite_to_z_is_a_half_turn() {
-        let poses = [pose(DVec3::new(0.0, 0.0, 3.0), -DVec3::Y), pose(DVec3::new(1.0, 0.0, 3.0), -DVec3::Y)];
+        let poses = [
+            pose(DVec3::new(0.0, 0.0, 3.0), -DVec3::Y),
+            pose(DVec3::new(1.0, 0.0, 3.0), -DVec3::Y),
+        ];
         // Mean up here is -y: turned onto +z, still a rotation.
         let f = SceneFrame::from_cameras(&poses, Orient::Up, 1.0);
         assert!(f.r().determinant() > 0.999);
@@ -259,7 +279,10 @@ mod tests {
         let (w, h, f, near) = (40.0, 30.0, 35.0, 1.0);
         for (o, d) in [
             (DVec3::ZERO, DVec3::new(0.1, -0.2, -1.0)),
-            (DVec3::new(0.3, 0.1, 0.2), DVec3::new(-0.3, 0.05, -1.0).normalize()),
+            (
+                DVec3::new(0.3, 0.1, 0.2),
+                DVec3::new(-0.3, 0.05, -1.0).normalize(),
+            ),
         ] {
             let (no, nd) = ndc_ray(w, h, f, near, o, d).unwrap();
             // The origin sits on the near plane: NDC z = -1.
@@ -270,7 +293,11 @@ mod tests {
                 // q = no + s·nd for some s in (0, 1).
                 let s = (q.z - no.z) / nd.z;
                 assert!(s > 0.0 && s < 1.0);
-                assert!((no + nd * s - q).length() < 1e-9, "{t}: {q} vs {}", no + nd * s);
+                assert!(
+                    (no + nd * s - q).length() < 1e-9,
+                    "{t}: {q} vs {}",
+                    no + nd * s
+                );
             }
         }
         // Hard case: a ray parallel to the near plane has no NDC image.

@@ -25,6 +25,10 @@ pub struct TrainReport {
     pub network_weights: Option<usize>,
     /// Held-out quality during and after training (empty without test views).
     pub held_out: Vec<HeldOut>,
+    /// A capture's normalisation: data frame → scene frame
+    /// (`to_scene(p) = scale·R·(p − center)`), so results map back.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub scene_frame: Option<crate::data::normalize::SceneFrame>,
     /// How well a distance field fits its points.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub fit: Option<crate::neural::distance::SdfFit>,
@@ -258,7 +262,12 @@ pub fn run_train_job(
         test: test_views,
         points,
         all_points,
+        scene_report,
+        scene_frame,
     } = load_views(&job.data, base).map_err(|e| crate::data::at_argument(job.data_span, e))?;
+    for line in &scene_report {
+        status(line);
+    }
     stages.push(("load data".to_string(), t.elapsed().as_secs_f64()));
     within_budget_once_read(job, size, &views, &test_views)?;
 
@@ -779,6 +788,7 @@ pub fn run_train_job(
         .unwrap_or_default();
     let warnings = crate::train::trainer::fit_warnings(&run.losses, &at_bounds);
     Ok(TrainReport {
+        scene_frame,
         name: job.name.clone(),
         iterations: run.step,
         resumed_from,
