@@ -41,12 +41,14 @@ pub struct LlffPose {
 pub fn parse(shape: &[usize], v: &[f64], at: &Path) -> io::Result<Vec<LlffPose>> {
     let n = match shape {
         [n, 17] if *n >= 1 && *n <= MAX_VIEWS => *n,
-        _ => return Err(invalid(
-            at,
-            format!(
+        _ => {
+            return Err(invalid(
+                at,
+                format!(
                 "shape {shape:?}, but poses_bounds.npy holds (N, 17) with N from 1 to {MAX_VIEWS}"
             ),
-        )),
+            ))
+        }
     };
     (0..n)
         .map(|k| {
