@@ -93,6 +93,14 @@ fn spec(path: &Path) -> CaptureSpec {
     }
 }
 
+/// The error of `r`, which must fail (without printing what it read).
+fn err<T>(r: std::io::Result<T>) -> String {
+    match r {
+        Ok(_) => panic!("expected an error"),
+        Err(e) => e.to_string(),
+    }
+}
+
 fn eye(c: &sdfl_stdlib::camera::Camera) -> DVec3 {
     c.eye
 }
@@ -384,9 +392,7 @@ fn garbage_numbers_name_the_frame() {
     }
     frames[1]["transform_matrix"] = pose_json(&scaled);
     nerfstudio(&dir, json!({"fl_x": 10.0}), frames, (12, 8));
-    let e = capture::read(&spec(&dir), Path::new("/"))
-        .unwrap_err()
-        .to_string();
+    let e = err(capture::read(&spec(&dir), Path::new("/")));
     assert!(e.contains("frame 1") && e.contains("orthonormal"), "{e}");
 }
 
@@ -466,10 +472,14 @@ fn normalisation_puts_the_cameras_in_the_unit_cube() {
     let back = f.to_data(eye(&v.test[0].camera));
     let want = DVec3::new(poses[0][0][3], poses[0][1][3], poses[0][2][3]);
     assert!((back - want).length() < 1e-9, "{back} vs {want}");
-    // Mean up turned to +z: every ring camera's up is now close to +z.
-    for t in &v.train {
-        assert!(t.camera.up.normalize().z > 0.9, "{:?}", t.camera.up);
-    }
+    // Mean up turned to +z (each ring camera tilts down at the centre).
+    let up: DVec3 = v
+        .train
+        .iter()
+        .chain(&v.test)
+        .map(|t| t.camera.up.normalize())
+        .sum();
+    assert!(up.normalize().z > 0.99, "{up}");
     assert!(v.report[0].contains("scene frame"), "{:?}", v.report);
     // normalize: false keeps the data's frame.
     s.normalize = false;
@@ -572,7 +582,7 @@ fn colmap_text_model_round_trips_a_known_pose() {
         ("nan", "1 PINHOLE 16 10 nan 12 8 5", "not a finite number"),
     ] {
         colmap_capture(&dir, cam, &poses, (16, 10));
-        let e = capture::read(&s, Path::new("/")).unwrap_err().to_string();
+        let e = err(capture::read(&s, Path::new("/")));
         assert!(
             e.contains(says) && e.contains("cameras.txt") && e.contains("line 2"),
             "{what}: {e}"
@@ -581,7 +591,7 @@ fn colmap_text_model_round_trips_a_known_pose() {
     let mut bad = poses.clone();
     bad[1].0 = DQuat::from_xyzw(0.0, 0.0, 0.0, 2.0);
     colmap_capture(&dir, "1 PINHOLE 16 10 12.0 12.0 8.0 5.0", &bad, (16, 10));
-    let e = capture::read(&s, Path::new("/")).unwrap_err().to_string();
+    let e = err(capture::read(&s, Path::new("/")));
     assert!(e.contains("quaternion") && e.contains("line 4"), "{e}");
 }
 
@@ -654,12 +664,8 @@ fn llff_forward_facing_scenes_are_recentred() {
     assert!(mean.length() < 1e-9, "{mean}");
     for t in v.train.iter().chain(&v.test) {
         assert!(((t.camera.at - t.camera.eye).normalize() + DVec3::Z).length() < 1e-9);
-        // 25 px focal at 30 px, read at half size: NDC 2·12.5/15.
-        assert!(
-            (t.camera.focal - 25.0 / 15.0).abs() < 1e-9,
-            "{}",
-            t.camera.focal
-        );
+        // 25 px focal, read at half size: NDC 2·12.5 over the shorter 10 px.
+        assert!((t.camera.focal - 2.5).abs() < 1e-9, "{}", t.camera.focal);
     }
     assert!(
         v.report.iter().any(|l| l.contains("depth bounds")),
@@ -668,17 +674,17 @@ fn llff_forward_facing_scenes_are_recentred() {
     );
     // Garbage: a scaled rotation, near ≥ far, the wrong shape.
     let mut bad = rows.clone();
-    bad[2][0] *= 3.0;
+    bad[2][1] *= 3.0;
     npy_f64(&dir.join("poses_bounds.npy"), &bad);
-    let e = capture::read(&s, Path::new("/")).unwrap_err().to_string();
+    let e = err(capture::read(&s, Path::new("/")));
     assert!(e.contains("frame 2") && e.contains("orthonormal"), "{e}");
     let mut bad = rows.clone();
     bad[3][16] = 1.0;
     npy_f64(&dir.join("poses_bounds.npy"), &bad);
-    let e = capture::read(&s, Path::new("/")).unwrap_err().to_string();
+    let e = err(capture::read(&s, Path::new("/")));
     assert!(e.contains("frame 3") && e.contains("near < far"), "{e}");
     npy_f64(&dir.join("poses_bounds.npy"), &rows[..3]);
-    let e = capture::read(&s, Path::new("/")).unwrap_err().to_string();
+    let e = err(capture::read(&s, Path::new("/")));
     assert!(e.contains("3 poses but 4 images"), "{e}");
 }
 
@@ -735,4 +741,196 @@ fn the_capture_built_in_checks_its_arguments_and_trains() {
         text.contains("scene_frame") && text.contains("\"scale\""),
         "{text}"
     );
+}
+
+/// The file's own forward model, written out here: a data-frame point
+/// through an OpenGL camera-to-world pose and OpenCV intrinsics to the
+/// pixel position (centres at i + ½).
+fn project(c2w: &[[f64; 4]; 4], k: &Intrinsics, p: DVec3) -> (f64, f64) {
+    let col = |c: usize| DVec3::new(c2w[0][c], c2w[1][c], c2w[2][c]);
+    let d = p - col(3);
+    // OpenCV camera axes: x right, y down, z forward.
+    let (x, y, z) = (d.dot(col(0)), -d.dot(col(1)), -d.dot(col(2)));
+    assert!(z > 0.0);
+    let (x, y) = (x / z, y / z);
+    let (xd, yd) = match k.distortion {
+        Distortion::None => (x, y),
+        Distortion::OpenCv { k1, k2, p1, p2 } => {
+            let r2 = x * x + y * y;
+            let radial = 1.0 + k1 * r2 + k2 * r2 * r2;
+            (
+                x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x),
+                y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y,
+            )
+        }
+        Distortion::Fisheye { k1, k2, k3, k4 } => {
+            let r = (x * x + y * y).sqrt();
+            let t = r.atan();
+            let t2 = t * t;
+            let rd = t * (1.0 + t2 * (k1 + t2 * (k2 + t2 * (k3 + t2 * k4))));
+            if r > 0.0 {
+                (x * rd / r, y * rd / r)
+            } else {
+                (0.0, 0.0)
+            }
+        }
+    };
+    (k.fx * xd + k.cx, k.fy * yd + k.cy)
+}
+
+/// For points seen by each loaded camera: the ray through the pixel where
+/// the file's model projects the point passes through it (to 1e-4 px,
+/// measured by projecting the ray's point at the same distance back).
+fn rays_hit_their_points(
+    v: &capture::CaptureViews,
+    files: &[([[f64; 4]; 4], Intrinsics)],
+    target: DVec3,
+) {
+    let views: Vec<_> = v.train.iter().chain(&v.test).collect();
+    assert_eq!(views.len(), files.len());
+    let mut worst: f64 = 0.0;
+    for (view, (c2w, k)) in views.iter().zip(files) {
+        let col = |c: usize| DVec3::new(c2w[0][c], c2w[1][c], c2w[2][c]);
+        let (right, up) = (col(0), col(1));
+        for (a, b) in [(0.0, 0.0), (0.9, 0.4), (-1.1, -0.6), (0.3, -0.9)] {
+            let p = target + right * a + up * b;
+            let (u, vv) = project(c2w, k, p);
+            assert!(
+                u > 0.0 && u < k.width as f64 && vv > 0.0 && vv < k.height as f64,
+                "{u} {vv}"
+            );
+            let cam = &view.camera;
+            let d = cam.pixel_direction(u - 0.5, vv - 0.5, k.width, k.height);
+            let ps = v.frame.to_scene(p);
+            let q = cam.eye + d * (ps - cam.eye).length();
+            let (u2, v2) = project(c2w, k, v.frame.to_data(q));
+            worst = worst.max((u2 - u).abs().max((v2 - vv).abs()));
+        }
+    }
+    assert!(worst < 1e-4, "{worst} px");
+}
+
+#[test]
+fn rays_through_pixels_hit_what_the_file_projects_there() {
+    let dir = case_dir("cap_rays");
+    let poses = ring(4);
+    let target = DVec3::new(10.0, -3.0, 5.0);
+    // Per frame: OPENCV on frames 0, 1 (off-centre, non-square), fisheye
+    // is file-wide, so a second capture below.
+    let ks: Vec<Intrinsics> = (0..4)
+        .map(|k| Intrinsics {
+            width: 40,
+            height: 24,
+            fx: 30.0 + k as f64,
+            fy: 31.5,
+            cx: 18.3 + k as f64,
+            cy: 13.1,
+            distortion: Distortion::OpenCv {
+                k1: -0.12,
+                k2: 0.03,
+                p1: 0.002,
+                p2: -0.001,
+            },
+        })
+        .collect();
+    let frames: Vec<Value> = (0..4)
+        .map(|k| {
+            let mut f = frame(k, &poses[k]);
+            let i = &ks[k];
+            for (key, val) in [
+                ("fl_x", i.fx),
+                ("fl_y", i.fy),
+                ("cx", i.cx),
+                ("cy", i.cy),
+                ("w", 40.0),
+                ("h", 24.0),
+            ] {
+                f[key] = json!(val);
+            }
+            for (key, val) in [("k1", -0.12), ("k2", 0.03), ("p1", 0.002), ("p2", -0.001)] {
+                f[key] = json!(val);
+            }
+            f
+        })
+        .collect();
+    nerfstudio(&dir, json!({"camera_model": "OPENCV"}), frames, (40, 24));
+    let mut s = spec(&dir);
+    s.test_every = 3;
+    let v = capture::read(&s, Path::new("/")).unwrap();
+    // Views come train then test: frames 1, 2 then 0, 3.
+    let order = [1, 2, 0, 3];
+    let files: Vec<_> = order.iter().map(|&k| (poses[k], ks[k])).collect();
+    rays_hit_their_points(&v, &files, target);
+
+    // Fisheye, file-wide, normalisation off.
+    let k = Intrinsics {
+        width: 40,
+        height: 24,
+        fx: 24.0,
+        fy: 24.5,
+        cx: 21.0,
+        cy: 11.2,
+        distortion: Distortion::Fisheye {
+            k1: 0.04,
+            k2: -0.01,
+            k3: 0.003,
+            k4: -0.0004,
+        },
+    };
+    let frames: Vec<Value> = (0..4).map(|i| frame(i, &poses[i])).collect();
+    nerfstudio(
+        &dir,
+        json!({"camera_model": "OPENCV_FISHEYE", "fl_x": k.fx, "fl_y": k.fy, "cx": k.cx, "cy": k.cy,
+               "k1": 0.04, "k2": -0.01, "k3": 0.003, "k4": -0.0004}),
+        frames,
+        (40, 24),
+    );
+    s.normalize = false;
+    s.test_every = 0;
+    let v = capture::read(&s, Path::new("/")).unwrap();
+    let files: Vec<_> = (0..4).map(|i| (poses[i], k)).collect();
+    rays_hit_their_points(&v, &files, target);
+}
+
+#[test]
+fn colmap_opencv_rays_hit_what_colmap_projects() {
+    let dir = case_dir("cap_colmap_rays");
+    let target = DVec3::new(0.1, 0.2, 0.0);
+    let eyes = [
+        DVec3::new(3.0, 1.0, -2.0),
+        DVec3::new(-2.0, 0.5, -3.0),
+        DVec3::new(0.5, 2.0, 3.0),
+    ];
+    let poses: Vec<_> = eyes
+        .iter()
+        .map(|e| colmap_pose(*e, target, DVec3::Y))
+        .collect();
+    colmap_capture(
+        &dir,
+        "1 OPENCV 40 24 30 31 18.5 12.7 -0.1 0.02 0.001 -0.002",
+        &poses,
+        (40, 24),
+    );
+    let v = capture::read(&spec(&dir), Path::new("/")).unwrap();
+    let k = Intrinsics {
+        width: 40,
+        height: 24,
+        fx: 30.0,
+        fy: 31.0,
+        cx: 18.5,
+        cy: 12.7,
+        distortion: Distortion::OpenCv {
+            k1: -0.1,
+            k2: 0.02,
+            p1: 0.001,
+            p2: -0.002,
+        },
+    };
+    // COLMAP's pose as an OpenGL camera-to-world, built here from the
+    // eye and target (not from the reader's conversion).
+    let files: Vec<_> = eyes
+        .iter()
+        .map(|e| (gl_pose(*e, target, DVec3::Y), k))
+        .collect();
+    rays_hit_their_points(&v, &files, target);
 }

@@ -11,7 +11,7 @@ use std::io;
 use std::path::{Path, PathBuf};
 
 use glam::DVec3;
-use sdfl_stdlib::camera::{Camera, GlPose};
+use sdfl_stdlib::camera::Camera;
 use sdfl_stdlib::value::{CaptureFormat, CaptureOrient, CaptureSpec};
 
 use super::image::{check_dataset, read_rgba_image};
@@ -19,26 +19,7 @@ use super::normalize::{Orient, SceneFrame};
 use super::npy::RgbImage;
 use crate::train::TrainView;
 
-/// Lens distortion of a pixel camera (OpenCV's models).
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub enum Distortion {
-    None,
-    OpenCv { k1: f64, k2: f64, p1: f64, p2: f64 },
-    Fisheye { k1: f64, k2: f64, k3: f64, k4: f64 },
-}
-
-/// Pixel intrinsics of a `width × height` image, OpenCV convention: pixel
-/// `(i, j)` has its centre at `(i + ½, j + ½)`; x right, y down.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Intrinsics {
-    pub width: u32,
-    pub height: u32,
-    pub fx: f64,
-    pub fy: f64,
-    pub cx: f64,
-    pub cy: f64,
-    pub distortion: Distortion,
-}
+pub use sdfl_stdlib::lens::{Distortion, Intrinsics};
 
 pub(crate) fn invalid(path: &Path, m: impl std::fmt::Display) -> io::Error {
     io::Error::new(
@@ -58,11 +39,16 @@ pub struct Keys {
     pub fy: &'static str,
 }
 
-impl Intrinsics {
+/// Checks of intrinsics read from a file, by the keys it used.
+pub trait CheckNamed {
     /// Checks what a file gave: finite positive focal lengths in the range
     /// `look_at(focal: ...)` allows (in its NDC units), a principal point
     /// inside the image, distortion coefficients finite and small.
-    pub fn check_named(&self, keys: Keys, given: (f64, f64)) -> Result<(), String> {
+    fn check_named(&self, keys: Keys, given: (f64, f64)) -> Result<(), String>;
+}
+
+impl CheckNamed for Intrinsics {
+    fn check_named(&self, keys: Keys, given: (f64, f64)) -> Result<(), String> {
         let (w, h) = (self.width as f64, self.height as f64);
         let (lo, hi) = sdfl_stdlib::precision::F32_SAFE;
         for (fl, side, key, g) in [
@@ -106,37 +92,15 @@ impl Intrinsics {
                 ));
             }
         }
-        Ok(())
-    }
-
-    /// Whether sdfl's NDC camera (principal point at the centre, no
-    /// distortion, one focal for both axes) draws exactly these rays.
-    fn is_ndc(&self) -> bool {
-        let (w, h) = (self.width as f64, self.height as f64);
-        let close = |a: f64, b: f64| (a - b).abs() <= 1e-9 * a.abs().max(b.abs()).max(1.0);
-        // `Camera::from_opengl` decides whether the focal lengths fit.
-        self.distortion == Distortion::None && close(self.cx, w / 2.0) && close(self.cy, h / 2.0)
+        // Then sdfl's own: the distortion one-to-one over the image.
+        self.check()
     }
 }
 
 /// The sdfl camera of an OpenGL camera-to-world pose (camera looks down
 /// −z, +y up, +x right) with pixel intrinsics.
 pub fn camera_of(c2w: &[[f64; 4]; 4], k: &Intrinsics) -> Result<Camera, String> {
-    if !k.is_ndc() {
-        return Err(
-            "an off-centre principal point or lens distortion needs sdfl's pixel cameras (not in this build)"
-                .into(),
-        );
-    }
-    Camera::from_opengl(
-        &GlPose {
-            c2w: *c2w,
-            fl_x: k.fx,
-            fl_y: k.fy,
-        },
-        k.width,
-        k.height,
-    )
+    Camera::from_opengl_intrinsics(c2w, *k)
 }
 
 /// One frame of a capture, checked.

@@ -16,7 +16,9 @@ use std::path::{Path, PathBuf};
 use glam::{DMat3, DQuat, DVec3};
 use sdfl_stdlib::builtins::MAX_VIEWS;
 
-use super::capture::{every_nth, invalid, Capture, CaptureFrame, Distortion, Intrinsics, Keys};
+use super::capture::{
+    every_nth, invalid, Capture, CaptureFrame, CheckNamed, Distortion, Intrinsics, Keys,
+};
 use super::image::{image_dimensions, open_regular};
 use super::nerfstudio::inside;
 

@@ -18,7 +18,9 @@ use std::path::{Path, PathBuf};
 use glam::{DMat3, DVec3};
 use sdfl_stdlib::builtins::MAX_VIEWS;
 
-use super::capture::{every_nth, invalid, Capture, CaptureFrame, Distortion, Intrinsics, Keys};
+use super::capture::{
+    every_nth, invalid, Capture, CaptureFrame, CheckNamed, Distortion, Intrinsics, Keys,
+};
 use super::image::image_dimensions;
 use super::nerfstudio::inside;
 use super::normalize::SceneFrame;

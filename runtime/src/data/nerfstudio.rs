@@ -17,7 +17,7 @@ use std::path::{Component, Path, PathBuf};
 use sdfl_stdlib::builtins::MAX_VIEWS;
 use serde_json::Value;
 
-use super::capture::{invalid, Capture, CaptureFrame, Distortion, Intrinsics, Keys};
+use super::capture::{invalid, Capture, CaptureFrame, CheckNamed, Distortion, Intrinsics, Keys};
 use super::export::INCOMPLETE;
 use super::image::{image_dimensions, open_regular};
 
