@@ -934,3 +934,44 @@ fn colmap_opencv_rays_hit_what_colmap_projects() {
         .collect();
     rays_hit_their_points(&v, &files, target);
 }
+
+#[test]
+fn masks_mark_the_pixels_to_leave_out() {
+    let dir = case_dir("cap_masks");
+    let poses = ring(2);
+    let mask = |path: &Path, w: u32, h: u32, keep: u32| {
+        fs::create_dir_all(path.parent().unwrap()).unwrap();
+        image::GrayImage::from_fn(w, h, |i, _| image::Luma([if i < keep { 255 } else { 0 }]))
+            .save(path)
+            .unwrap();
+    };
+    let frames: Vec<Value> = (0..2)
+        .map(|k| {
+            let mut f = frame(k, &poses[k]);
+            f["mask_path"] = json!(format!("masks/m_{k}.png"));
+            mask(&dir.join(format!("masks/m_{k}.png")), 8, 6, 3);
+            f
+        })
+        .collect();
+    nerfstudio(&dir, json!({"fl_x": 8.0}), frames.clone(), (8, 6));
+    let v = capture::read(&spec(&dir), Path::new("/")).unwrap();
+    let m = v.train[0].mask.as_ref().expect("a mask");
+    assert_eq!(m.len(), 48);
+    assert!(m.iter().enumerate().all(|(p, k)| *k == (p % 8 < 3)));
+    // A mask of the wrong size, and one that leaves nothing.
+    mask(&dir.join("masks/m_1.png"), 4, 6, 3);
+    let e = err(capture::read(&spec(&dir), Path::new("/")));
+    assert!(
+        e.contains("m_1.png") && e.contains("frame 1") && e.contains("4x6"),
+        "{e}"
+    );
+    mask(&dir.join("masks/m_1.png"), 8, 6, 0);
+    let e = err(capture::read(&spec(&dir), Path::new("/")));
+    assert!(e.contains("masks every pixel"), "{e}");
+    // Masks on some frames only: refused as nerfstudio does.
+    let mut some = frames;
+    some[1].as_object_mut().unwrap().remove("mask_path");
+    nerfstudio(&dir, json!({"fl_x": 8.0}), some, (8, 6));
+    let e = err(capture::read(&spec(&dir), Path::new("/")));
+    assert!(e.contains("1 of 2 frames have a `mask_path`"), "{e}");
+}

@@ -178,7 +178,11 @@ pub fn load(
     frame: Option<SceneFrame>,
     background: DVec3,
 ) -> io::Result<CaptureViews> {
-    check_dataset(c.frames.iter().map(|f| &f.image))?;
+    check_dataset(
+        c.frames
+            .iter()
+            .flat_map(|f| std::iter::once(&f.image).chain(f.mask.as_ref())),
+    )?;
     let frame = frame.unwrap_or_else(|| {
         if normalize.enabled {
             let poses: Vec<_> = c.frames.iter().map(|f| f.c2w).collect();
@@ -223,6 +227,10 @@ pub fn load(
                 [0, 1, 2].map(|c| p[c] * a + bg[c] * (1.0 - a))
             })
             .collect();
+        let mask = match &f.mask {
+            None => None,
+            Some(m) => Some(read_mask(m, (w, h), f, &c.source)?),
+        };
         let view = TrainView {
             camera,
             image: RgbImage {
@@ -230,6 +238,7 @@ pub fn load(
                 height: h,
                 pixels,
             },
+            mask,
         };
         let name = format!("{} {}", c.source.display(), f.label);
         if c.test.binary_search(&k).is_ok() {
@@ -332,6 +341,44 @@ pub fn read(spec: &CaptureSpec, base: &Path) -> io::Result<CaptureViews> {
         }
     };
     load(&capture, normalize, frame, spec.background)
+}
+
+/// A frame's mask: a pixel is kept where the mask image is not black (as
+/// nerfstudio reads `mask_path`: nonzero keeps), the image's size.
+fn read_mask(
+    path: &Path,
+    size: (u32, u32),
+    f: &CaptureFrame,
+    source: &Path,
+) -> io::Result<std::sync::Arc<[bool]>> {
+    let (w, h, rgba) = read_rgba_image(path)?;
+    if (w, h) != size {
+        return Err(invalid(
+            path,
+            format!(
+                "the mask of {} of {} is {w}x{h} pixels, its image {}x{}",
+                f.label,
+                source.display(),
+                size.0,
+                size.1
+            ),
+        ));
+    }
+    let keep: std::sync::Arc<[bool]> = rgba
+        .iter()
+        .map(|p| p[0].max(p[1]).max(p[2]) > 0.0)
+        .collect();
+    if !keep.iter().any(|k| *k) {
+        return Err(invalid(
+            path,
+            format!(
+                "the mask of {} of {} masks every pixel",
+                f.label,
+                source.display()
+            ),
+        ));
+    }
+    Ok(keep)
 }
 
 fn short(x: f64) -> String {

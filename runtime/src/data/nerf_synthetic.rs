@@ -101,6 +101,7 @@ fn read_frames(file: &Path, t: &Transforms, background: DVec3) -> io::Result<Vec
                 height: h,
                 pixels,
             },
+            mask: None,
         });
     }
     Ok(views)

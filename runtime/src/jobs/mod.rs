@@ -383,6 +383,7 @@ pub fn load_views(data: &Dataset, base: &Path) -> io::Result<Views> {
                         TrainView {
                             camera: *c,
                             image: load_image(&path)?,
+                            mask: None,
                         },
                         path.display().to_string(),
                     ))
@@ -409,7 +410,11 @@ pub fn load_views(data: &Dataset, base: &Path) -> io::Result<Views> {
                         pixels: colour,
                     };
                     Ok((
-                        TrainView { camera: *c, image },
+                        TrainView {
+                            camera: *c,
+                            image,
+                            mask: None,
+                        },
                         format!("rendered view {k}"),
                     ))
                 })
@@ -568,6 +573,7 @@ pub fn traced_views(job: &RenderJob) -> Vec<TrainView> {
                         .map(|p| [p[0], p[1], p[2]].map(|x| x as f32 / 255.0))
                         .collect(),
                 },
+                mask: None,
             }
         })
         .collect()

@@ -496,8 +496,34 @@ pub fn run_train_job(
         for v in &test_views {
             let (w, h) = (v.image.width, v.image.height);
             let (colour, _) = render_view(values, &v.camera, (w, h), false)?;
-            psnr += metrics::psnr(&colour, &v.image.pixels);
-            ssim += metrics::ssim(&colour, &v.image.pixels, w as usize, h as usize);
+            // Masked pixels are not scored: left out of PSNR, and the
+            // render's own colour in the target for SSIM's windows.
+            let target: std::borrow::Cow<[[f32; 3]]> = match &v.mask {
+                None => (&v.image.pixels[..]).into(),
+                Some(m) => v
+                    .image
+                    .pixels
+                    .iter()
+                    .zip(&colour)
+                    .zip(m.iter())
+                    .map(|((t, c), keep)| if *keep { *t } else { *c })
+                    .collect::<Vec<_>>()
+                    .into(),
+            };
+            psnr += match &v.mask {
+                None => metrics::psnr(&colour, &target),
+                Some(m) => {
+                    let kept = |img: &[[f32; 3]]| -> Vec<[f32; 3]> {
+                        img.iter()
+                            .zip(m.iter())
+                            .filter(|(_, k)| **k)
+                            .map(|(p, _)| *p)
+                            .collect()
+                    };
+                    metrics::psnr(&kept(&colour), &kept(&target))
+                }
+            };
+            ssim += metrics::ssim(&colour, &target, w as usize, h as usize);
             renders.push(colour);
         }
         let n = test_views.len().max(1) as f64;
