@@ -340,7 +340,7 @@ pub fn read_images(path: &Path) -> io::Result<Vec<ColmapImage>> {
 /// Reads the positions of `points3D.txt`, every n-th beyond [`MAX_POINTS`].
 pub fn read_points(path: &Path) -> io::Result<Vec<DVec3>> {
     let mut points = Vec::new();
-    let mut seen = 0usize;
+    let (mut seen, mut stride) = (0usize, 1usize);
     lines(path, |n, line| {
         let f: Vec<&str> = line.split_whitespace().collect();
         if f.is_empty() || f[0].starts_with('#') {
@@ -353,12 +353,20 @@ pub fn read_points(path: &Path) -> io::Result<Vec<DVec3>> {
             ));
         }
         let v = numbers(&f[1..4], path, n)?;
-        seen += 1;
-        // Keep a bounded, evenly thinned sample.
-        let stride = seen.div_ceil(MAX_POINTS).max(1);
-        if seen % stride == 0 && points.len() < MAX_POINTS {
+        // Every `stride`-th point; when the sample is full, every other
+        // one is dropped and the stride doubles: bounded and even.
+        if seen.is_multiple_of(stride) {
             points.push(DVec3::new(v[0], v[1], v[2]));
+            if points.len() >= MAX_POINTS {
+                let mut k = 0;
+                points.retain(|_| {
+                    k += 1;
+                    k % 2 == 1
+                });
+                stride *= 2;
+            }
         }
+        seen += 1;
         Ok(())
     })?;
     Ok(points)
