@@ -322,6 +322,11 @@ pub fn read_images(path: &Path) -> io::Result<Vec<ColmapImage>> {
         }
         // Names may hold spaces: the rest of the line.
         let name = f[9..].join(" ");
+        if name.len() > 4096 || name.contains('\0') {
+            return Err(at(
+                "the image name is not a file name (longer than 4096 bytes)".into(),
+            ));
+        }
         images.push(ColmapImage {
             line: n,
             camera,

@@ -260,6 +260,24 @@ mod tests {
     }
 
     #[test]
+    fn applied_transform_is_undone() {
+        // nerfstudio's usual one from COLMAP: swap x and y, flip z; moved.
+        let a = [
+            [0.0, 1.0, 0.0, 0.5],
+            [1.0, 0.0, 0.0, -2.0],
+            [0.0, 0.0, -1.0, 3.0],
+        ];
+        let f = SceneFrame {
+            applied: Some(a),
+            ..SceneFrame::IDENTITY
+        };
+        let p = DVec3::new(0.3, -1.2, 4.0);
+        let in_data = DVec3::new(p.y + 0.5, p.x - 2.0, -p.z + 3.0);
+        assert!((f.data_to_original(in_data) - p).length() < 1e-12);
+        assert_eq!(SceneFrame::IDENTITY.data_to_original(p), p);
+    }
+
+    #[test]
     fn up_opposite_to_z_is_a_half_turn() {
         let poses = [
             pose(DVec3::new(0.0, 0.0, 3.0), -DVec3::Y),
