@@ -178,7 +178,7 @@ fn one_intrinsics(a: &Args, outputs: &[Output], cameras: &[Camera]) -> Result<()
     let differs = cameras.iter().position(|c| {
         c.focal != first.focal || c.pixel_centers != first.pixel_centers || c.lens != first.lens
     });
-    match (outputs.iter().any(|o| o.kind == OutputKind::Dataset), differs) {
+    match (outputs.iter().any(|o| matches!(o.kind, OutputKind::Dataset { .. })), differs) {
         (true, Some(k)) => Err(value_error(
             a.get("camera").1,
             format!("camera {k} has another focal length or pixel-centre convention than camera 0, but a `dataset` output holds one for all views"),
@@ -457,7 +457,7 @@ fn train_losses(
         for field in ["before", "after"] {
             if let Value::List(items) = a.get(field).0 {
                 if items.iter().any(|o| {
-                    matches!(o, Value::Output(o) if matches!(o.kind, OutputKind::SamplePoints | OutputKind::Dataset))
+                    matches!(o, Value::Output(o) if matches!(o.kind, OutputKind::SamplePoints | OutputKind::Dataset { .. }))
                 }) {
                     return Err(value_error(
                         a.get(field).1,
