@@ -378,6 +378,33 @@ pub(crate) fn plan_text(program: &sdfl_stdlib::Program) -> String {
                     .map(|t| format!(", test views from split `{t}`"))
                     .unwrap_or_default()
             ),
+            sdfl_stdlib::value::Dataset::Capture(c) => format!(
+                "capture {} ({}{}), {}{}; the scene frame is reported when read",
+                c.path.display(),
+                c.format.name(),
+                if c.downscale > 1 {
+                    format!(", images_{}", c.downscale)
+                } else {
+                    String::new()
+                },
+                if c.test_every > 0 {
+                    format!("split lists, else every {}th frame held out", c.test_every)
+                } else {
+                    "split lists, else no test views".to_string()
+                },
+                if c.normalize {
+                    match c.orient {
+                        sdfl_stdlib::value::CaptureOrient::Up => {
+                            ", cameras centred into [-1, 1]^3, mean up turned to +z"
+                        }
+                        sdfl_stdlib::value::CaptureOrient::None => {
+                            ", cameras centred into [-1, 1]^3"
+                        }
+                    }
+                } else {
+                    ", the data's own frame"
+                }
+            ),
         };
         let _ = writeln!(o, "  data           {data}");
         let on_points = matches!(&*job.model, sdfl_stdlib::value::Field::NeuralSdf(_));

@@ -755,6 +755,71 @@ pub enum Dataset {
         test_split: Option<String>,
         background: DVec3,
     },
+    /// A real capture (`capture(...)`): nerfstudio's `transforms.json`,
+    /// COLMAP's text model or LLFF's `poses_bounds.npy`, normalised into
+    /// the scene frame. Cameras are known once the files are read.
+    Capture(Arc<CaptureSpec>),
+}
+
+/// The layout of a capture's files.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum CaptureFormat {
+    /// Decided by what the directory holds: `transforms.json`, then a
+    /// COLMAP model (`sparse/0/cameras.txt`, `sparse/cameras.txt` or
+    /// `cameras.txt`), then `poses_bounds.npy`.
+    Auto,
+    Nerfstudio,
+    Colmap,
+    Llff,
+}
+
+impl CaptureFormat {
+    pub const NAMES: [(&'static str, CaptureFormat); 4] = [
+        ("auto", CaptureFormat::Auto),
+        ("nerfstudio", CaptureFormat::Nerfstudio),
+        ("colmap", CaptureFormat::Colmap),
+        ("llff", CaptureFormat::Llff),
+    ];
+
+    pub fn name(self) -> &'static str {
+        Self::NAMES
+            .iter()
+            .find(|(_, f)| *f == self)
+            .map_or("auto", |(n, _)| n)
+    }
+}
+
+/// How a capture's cameras are turned when it is normalised.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum CaptureOrient {
+    /// The data's axes kept.
+    None,
+    /// The cameras' mean up turned onto +z (nerfstudio's "up").
+    Up,
+}
+
+/// What `capture(...)` reads, and how.
+#[derive(Debug, Clone)]
+pub struct CaptureSpec {
+    /// The directory (relative to the scene file), or a `transforms.json`.
+    pub path: std::path::PathBuf,
+    /// The `path` argument, where errors reading the capture point.
+    pub path_span: sdfl_lang::Span,
+    pub format: CaptureFormat,
+    /// Images read from `images_<downscale>` (1: `images`), intrinsics
+    /// scaled to match.
+    pub downscale: u32,
+    /// Without split lists in the data, every `test_every`-th frame is
+    /// held out (0: none).
+    pub test_every: usize,
+    /// Centre on the cameras and scale them into [−extent, extent]³
+    /// (`false`: the data's own frame).
+    pub normalize: bool,
+    pub orient: CaptureOrient,
+    /// The farthest camera coordinate after normalising.
+    pub extent: f64,
+    /// The colour behind transparent pixels of images with alpha.
+    pub background: DVec3,
 }
 
 impl Dataset {
@@ -783,7 +848,7 @@ impl Dataset {
         match self {
             Dataset::Files { cameras, .. } | Dataset::Rendered { cameras, .. } => cameras,
             Dataset::Traced { job, .. } => &job.cameras,
-            Dataset::NerfSynthetic { .. } | Dataset::Points { .. } => &[],
+            Dataset::NerfSynthetic { .. } | Dataset::Capture(_) | Dataset::Points { .. } => &[],
         }
     }
 
@@ -791,7 +856,10 @@ impl Dataset {
     pub fn test_views(&self) -> &[usize] {
         match self {
             Dataset::Rendered { test, .. } | Dataset::Traced { test, .. } => test,
-            Dataset::Files { .. } | Dataset::NerfSynthetic { .. } | Dataset::Points { .. } => &[],
+            Dataset::Files { .. }
+            | Dataset::NerfSynthetic { .. }
+            | Dataset::Capture(_)
+            | Dataset::Points { .. } => &[],
         }
     }
 }

@@ -483,7 +483,10 @@ fn training_steps(j: &TrainJob) -> f64 {
         Dataset::Traced { job, .. } => {
             Some(job.width as f64 * job.height as f64 * job.cameras.len() as f64)
         }
-        Dataset::Files { .. } | Dataset::NerfSynthetic { .. } | Dataset::Points { .. } => None,
+        Dataset::Files { .. }
+        | Dataset::NerfSynthetic { .. }
+        | Dataset::Capture(_)
+        | Dataset::Points { .. } => None,
     };
     match (j.epochs, pixels_of_data) {
         (Some(e), Some(px)) => e as f64 * (px / j.rays.max(1) as f64).ceil(),
@@ -492,7 +495,7 @@ fn training_steps(j: &TrainJob) -> f64 {
             let px = match &*j.data {
                 // Cameras unknown until read: as many pixels as a data set
                 // may decode to (12 bytes each).
-                Dataset::NerfSynthetic { .. } => 2e9 / 12.0,
+                Dataset::NerfSynthetic { .. } | Dataset::Capture(_) => 2e9 / 12.0,
                 _ => j.data.cameras().len() as f64 * 16_384.0 * 16_384.0,
             };
             e as f64 * (px / j.rays.max(1) as f64).ceil()
@@ -601,9 +604,10 @@ pub fn train_work(j: &TrainJob, size: Option<(u32, u32)>) -> Work {
             (w.evaluations, w.memory + px * 12.0)
         }
         // Files are checked against their declared sizes when read.
-        Dataset::Files { .. } | Dataset::NerfSynthetic { .. } | Dataset::Points { .. } => {
-            (0.0, 0.0)
-        }
+        Dataset::Files { .. }
+        | Dataset::NerfSynthetic { .. }
+        | Dataset::Capture(_)
+        | Dataset::Points { .. } => (0.0, 0.0),
     };
     let weights = match &*j.model {
         Field::Sdf(_) => scalars as f64,
@@ -676,7 +680,10 @@ pub fn train_work(j: &TrainJob, size: Option<(u32, u32)>) -> Work {
         } => (test.len(), *width as f64 * *height as f64),
         Dataset::Traced { job, test } => (test.len(), job.width as f64 * job.height as f64),
         // A NeRF-synthetic test split is counted when it is read.
-        Dataset::Files { .. } | Dataset::NerfSynthetic { .. } | Dataset::Points { .. } => (0, 0.0),
+        Dataset::Files { .. }
+        | Dataset::NerfSynthetic { .. }
+        | Dataset::Capture(_)
+        | Dataset::Points { .. } => (0, 0.0),
     };
     let held_out = held_out_cost(j, test_views, test_pixels);
     w.add(Stage::HeldOut, held_out.evaluations, held_out.memory);

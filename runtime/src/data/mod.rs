@@ -1,8 +1,13 @@
 //! Readers for input data sets.
 
+pub mod capture;
+pub mod colmap;
 pub mod export;
 pub mod image;
+pub mod llff;
 pub mod nerf_synthetic;
+pub mod nerfstudio;
+pub mod normalize;
 pub mod npy;
 pub mod points;
 

@@ -182,6 +182,12 @@ fn parse_header(h: &str) -> Result<std::collections::HashMap<String, HeaderValue
 /// The checked header of a float32 C-order `.npy` v1 file: its shape, and
 /// where the data starts.
 fn header_shape(bytes: &[u8]) -> Result<(Vec<usize>, usize), NpyError> {
+    header(bytes, false).map(|(s, start, _)| (s, start))
+}
+
+/// The shape, where the data start and the bytes of one value (`<f4`, or
+/// `<f8` as well when `f64_too`).
+fn header(bytes: &[u8], f64_too: bool) -> Result<(Vec<usize>, usize, u64), NpyError> {
     if bytes.len() < 10 || &bytes[..6] != MAGIC {
         return Err(NpyError::Format("missing \\x93NUMPY magic".into()));
     }
@@ -199,15 +205,16 @@ fn header_shape(bytes: &[u8]) -> Result<(Vec<usize>, usize), NpyError> {
     let header = std::str::from_utf8(&bytes[10..data_start])
         .map_err(|_| NpyError::Format("header is not ASCII".into()))?;
     let dict = parse_header(header)?;
-    match dict.get("descr") {
-        Some(HeaderValue::Str(d)) if d == "<f4" => {}
+    let width = match dict.get("descr") {
+        Some(HeaderValue::Str(d)) if d == "<f4" => 4u64,
+        Some(HeaderValue::Str(d)) if d == "<f8" && f64_too => 8,
         Some(HeaderValue::Str(d)) => {
             return Err(NpyError::Unsupported(format!(
                 "dtype {d} (only little-endian float32 '<f4')"
             )))
         }
         _ => return Err(NpyError::Format("header has no 'descr' string".into())),
-    }
+    };
     match dict.get("fortran_order") {
         Some(HeaderValue::Bool(false)) => {}
         Some(HeaderValue::Bool(true)) => {
@@ -221,14 +228,40 @@ fn header_shape(bytes: &[u8]) -> Result<(Vec<usize>, usize), NpyError> {
     // The declared shape is checked before anything is allocated for it.
     let fits = shape
         .iter()
-        .try_fold(4u64, |a, &d| a.checked_mul(d as u64))
+        .try_fold(width, |a, &d| a.checked_mul(d as u64))
         .is_some_and(|b| b <= MAX_ARRAY_BYTES);
     if !fits {
         return Err(NpyError::Unsupported(format!(
             "shape {shape:?} holds more than {MAX_ARRAY_BYTES} bytes"
         )));
     }
-    Ok((shape.clone(), data_start))
+    Ok((shape.clone(), data_start, width))
+}
+
+/// A float32 or float64 (`<f4`, `<f8`) `.npy` v1 file of any shape, as
+/// f64 (LLFF's `poses_bounds.npy` is float64).
+pub fn read_f64(path: impl AsRef<Path>) -> Result<(Vec<usize>, Vec<f64>), NpyError> {
+    let bytes = read_limited(path.as_ref())?;
+    let (shape, start, width) = header(&bytes, true)?;
+    let n: usize = shape.iter().product();
+    let data = &bytes[start..];
+    if data.len() as u64 != n as u64 * width {
+        return Err(NpyError::Format(format!(
+            "expected {} data bytes for shape {shape:?}, found {}",
+            n as u64 * width,
+            data.len()
+        )));
+    }
+    let values = if width == 8 {
+        data.chunks_exact(8)
+            .map(|b| f64::from_le_bytes(b.try_into().unwrap_or([0; 8])))
+            .collect()
+    } else {
+        data.chunks_exact(4)
+            .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]) as f64)
+            .collect()
+    };
+    Ok((shape, values))
 }
 
 /// An array of `shape` holds at most `max_values` numbers.

@@ -354,6 +354,10 @@ pub struct Views {
     /// All of the file's points in the same frame (`points` may keep only
     /// every n-th): what a trained surface is measured against.
     pub all_points: Vec<[f32; 3]>,
+    /// A capture's normalisation (data frame → scene frame) and the lines
+    /// that report it; exports map back with `SceneFrame::to_data`.
+    pub scene_frame: Option<crate::data::normalize::SceneFrame>,
+    pub scene_report: Vec<String>,
 }
 
 /// The views of a data set: read from files (relative to `base`),
@@ -378,6 +382,7 @@ pub fn load_views(data: &Dataset, base: &Path) -> io::Result<Views> {
                         TrainView {
                             camera: *c,
                             image: load_image(&path)?,
+                            mask: None,
                         },
                         path.display().to_string(),
                     ))
@@ -404,7 +409,11 @@ pub fn load_views(data: &Dataset, base: &Path) -> io::Result<Views> {
                         pixels: colour,
                     };
                     Ok((
-                        TrainView { camera: *c, image },
+                        TrainView {
+                            camera: *c,
+                            image,
+                            mask: None,
+                        },
                         format!("rendered view {k}"),
                     ))
                 })
@@ -461,6 +470,29 @@ pub fn load_views(data: &Dataset, base: &Path) -> io::Result<Views> {
                 test: test.into_iter().map(|(v, _)| v).collect(),
                 points: Vec::new(),
                 all_points: Vec::new(),
+                scene_frame: None,
+                scene_report: Vec::new(),
+            });
+        }
+        Dataset::Capture(spec) => {
+            let at = |e| crate::data::at_argument(spec.path_span, e);
+            let c = crate::data::capture::read(spec, base).map_err(at)?;
+            let named: Vec<(TrainView, String)> = c
+                .train
+                .into_iter()
+                .chain(c.test.iter().cloned())
+                .zip(c.names)
+                .collect();
+            check_finite(&named).map_err(at)?;
+            let mut train: Vec<TrainView> = named.into_iter().map(|(v, _)| v).collect();
+            let test = train.split_off(train.len() - c.test.len());
+            return Ok(Views {
+                train,
+                test,
+                points: Vec::new(),
+                all_points: Vec::new(),
+                scene_frame: Some(c.frame),
+                scene_report: c.report,
             });
         }
     };
@@ -479,6 +511,8 @@ pub fn load_views(data: &Dataset, base: &Path) -> io::Result<Views> {
         test,
         points: Vec::new(),
         all_points: Vec::new(),
+        scene_frame: None,
+        scene_report: Vec::new(),
     })
 }
 
@@ -501,6 +535,8 @@ fn load_points(path: &Path, every: usize, center: bool) -> io::Result<Views> {
         test: Vec::new(),
         points,
         all_points: all,
+        scene_frame: None,
+        scene_report: Vec::new(),
     })
 }
 
@@ -536,6 +572,7 @@ pub fn traced_views(job: &RenderJob) -> Vec<TrainView> {
                         .map(|p| [p[0], p[1], p[2]].map(|x| x as f32 / 255.0))
                         .collect(),
                 },
+                mask: None,
             }
         })
         .collect()

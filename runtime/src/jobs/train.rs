@@ -25,6 +25,10 @@ pub struct TrainReport {
     pub network_weights: Option<usize>,
     /// Held-out quality during and after training (empty without test views).
     pub held_out: Vec<HeldOut>,
+    /// A capture's normalisation: data frame → scene frame
+    /// (`to_scene(p) = scale·R·(p − center)`), so results map back.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub scene_frame: Option<crate::data::normalize::SceneFrame>,
     /// How well a distance field fits its points.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub fit: Option<crate::neural::distance::SdfFit>,
@@ -258,7 +262,12 @@ pub fn run_train_job(
         test: test_views,
         points,
         all_points,
+        scene_report,
+        scene_frame,
     } = load_views(&job.data, base).map_err(|e| crate::data::at_argument(job.data_span, e))?;
+    for line in &scene_report {
+        status(line);
+    }
     stages.push(("load data".to_string(), t.elapsed().as_secs_f64()));
     within_budget_once_read(job, size, &views, &test_views)?;
 
@@ -490,8 +499,34 @@ pub fn run_train_job(
         for v in &test_views {
             let (w, h) = (v.image.width, v.image.height);
             let (colour, _) = render_view(values, &v.camera, (w, h), false)?;
-            psnr += metrics::psnr(&colour, &v.image.pixels);
-            ssim += metrics::ssim(&colour, &v.image.pixels, w as usize, h as usize);
+            // Masked pixels are not scored: left out of PSNR, and the
+            // render's own colour in the target for SSIM's windows.
+            let target: std::borrow::Cow<[[f32; 3]]> = match &v.mask {
+                None => (&v.image.pixels[..]).into(),
+                Some(m) => v
+                    .image
+                    .pixels
+                    .iter()
+                    .zip(&colour)
+                    .zip(m.iter())
+                    .map(|((t, c), keep)| if *keep { *t } else { *c })
+                    .collect::<Vec<_>>()
+                    .into(),
+            };
+            psnr += match &v.mask {
+                None => metrics::psnr(&colour, &target),
+                Some(m) => {
+                    let kept = |img: &[[f32; 3]]| -> Vec<[f32; 3]> {
+                        img.iter()
+                            .zip(m.iter())
+                            .filter(|(_, k)| **k)
+                            .map(|(p, _)| *p)
+                            .collect()
+                    };
+                    metrics::psnr(&kept(&colour), &kept(&target))
+                }
+            };
+            ssim += metrics::ssim(&colour, &target, w as usize, h as usize);
             renders.push(colour);
         }
         let n = test_views.len().max(1) as f64;
@@ -782,6 +817,7 @@ pub fn run_train_job(
         .unwrap_or_default();
     let warnings = crate::train::trainer::fit_warnings(&run.losses, &at_bounds);
     Ok(TrainReport {
+        scene_frame,
         name: job.name.clone(),
         iterations: run.step,
         resumed_from,

@@ -25,6 +25,9 @@ use crate::volume::{random_rays, ImageSize, SplitMix64, Stratified};
 pub struct TrainView {
     pub camera: Camera,
     pub image: RgbImage,
+    /// Pixels to train on and score (row-major, `false`: masked out, as a
+    /// capture's `mask_path` says); `None`: every pixel.
+    pub mask: Option<std::sync::Arc<[bool]>>,
 }
 
 /// What a run needs besides the model.
@@ -97,7 +100,22 @@ impl<'a> TrainSetup<'a> {
         let step_seed = self.step_seed(step);
         let mut rng = SplitMix64::new(step_seed);
         let total = size.pixels() * cams.len();
-        let rays = random_rays(&cams, size, self.rays.min(total), &mut rng)?;
+        let mut rays = random_rays(&cams, size, self.rays.min(total), &mut rng)?;
+        // Masked pixels are drawn and dropped: the batch stays a function
+        // of (seed, step), a little smaller where masks cover the views.
+        if self.views.iter().any(|v| v.mask.is_some()) {
+            rays.retain(|r| {
+                self.views[r.view as usize]
+                    .mask
+                    .as_ref()
+                    .is_none_or(|m| m.get(r.pixel as usize).copied().unwrap_or(false))
+            });
+            if rays.is_empty() {
+                return Err(TrainError::Invalid(format!(
+                    "every ray of step {step}'s batch fell on masked pixels: the masks leave too little of the views"
+                )));
+            }
+        }
         let targets = rays
             .iter()
             .map(|r| self.views[r.view as usize].image.pixels[r.pixel as usize])
@@ -604,5 +622,58 @@ mod tests {
         }
         ck.params[0].values = vec![0.75];
         run.resume(&ck).unwrap();
+    }
+
+    /// Rays never fall on masked pixels; views without a mask keep all.
+    #[test]
+    fn batches_leave_out_masked_pixels() {
+        use glam::DVec3;
+        let cam = Camera::look_at(DVec3::new(0.0, 0.0, -3.0), DVec3::ZERO, DVec3::Y, 1.0);
+        let image = RgbImage {
+            width: 4,
+            height: 4,
+            pixels: vec![[0.5; 3]; 16],
+        };
+        // View 0: only the left column kept.
+        let mask: std::sync::Arc<[bool]> = (0..16).map(|i| i % 4 == 0).collect();
+        let views = [
+            TrainView {
+                camera: cam,
+                image: image.clone(),
+                mask: Some(mask.clone()),
+            },
+            TrainView {
+                camera: cam,
+                image,
+                mask: None,
+            },
+        ];
+        let mut s = setup(&[]);
+        s.sampler.samples = 4;
+        s.views = &views;
+        s.rays = 24;
+        let (mut seen0, mut seen1) = (0, 0);
+        for step in 0..20 {
+            let b = s.batch(step).unwrap();
+            assert_eq!(b.rays.len(), b.targets.len());
+            for r in &b.rays {
+                if r.view == 0 {
+                    assert!(mask[r.pixel as usize], "step {step}: pixel {}", r.pixel);
+                    seen0 += 1;
+                } else {
+                    seen1 += 1;
+                }
+            }
+        }
+        // Both views are trained on; the unmasked one about four times as often.
+        assert!(seen0 > 0 && seen1 > 2 * seen0, "{seen0} {seen1}");
+        // Every pixel masked: an error, not an empty batch.
+        let none: std::sync::Arc<[bool]> = vec![false; 16].into();
+        let all_masked = [TrainView {
+            mask: Some(none),
+            ..views[0].clone()
+        }];
+        s.views = &all_masked;
+        assert!(s.batch(0).is_err());
     }
 }

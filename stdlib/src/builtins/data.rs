@@ -191,3 +191,76 @@ pub(super) fn check_nerf_synthetic(
     }
     Ok(())
 }
+
+/// `capture(...)`: a real capture's directory (or transforms file), read
+/// when run; its path is checked here so `check` finds a missing one.
+pub(super) fn capture(a: &Args) -> Result<Value, Diag> {
+    let (path, path_span) = a.string("path")?;
+    if path.is_empty() || path.contains('\0') {
+        return Err(Diag::new(codes::PATH, path_span, "not a usable path")
+            .label("empty or holds a NUL byte")
+            .help("name the capture's directory, e.g. \"data/garden\""));
+    }
+    let choice = |name: &str, options: &[&str]| -> Result<usize, Diag> {
+        let (v, span) = a.string(name)?;
+        options.iter().position(|o| **o == *v).ok_or_else(|| {
+            value_error(
+                span,
+                format!("`{name}` must be one of {}", options.join(", ")),
+                "not an option",
+                format!(
+                    "use one of {}",
+                    options
+                        .iter()
+                        .map(|o| format!("\"{o}\""))
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                ),
+            )
+        })
+    };
+    let names: Vec<&str> = CaptureFormat::NAMES.iter().map(|(n, _)| *n).collect();
+    let format = CaptureFormat::NAMES[choice("format", &names)?].1;
+    let orient = [CaptureOrient::Up, CaptureOrient::None][choice("orient", &["up", "none"])?];
+    let downscale = a.count("downscale", 1, 8)? as u32;
+    if !downscale.is_power_of_two() {
+        return Err(value_error(
+            a.get("downscale").1,
+            format!("`downscale` must be 1, 2, 4 or 8, got {downscale}"),
+            "no such image folder",
+            "nerfstudio writes images_2, images_4 and images_8",
+        ));
+    }
+    let test_every = a.count("test_every", 0, MAX_VIEWS as u64)? as usize;
+    let is_json = Path::new(path.as_ref())
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("json"));
+    if is_json && !matches!(format, CaptureFormat::Auto | CaptureFormat::Nerfstudio) {
+        return Err(value_error(
+            a.get("format").1,
+            format!("a .json file is nerfstudio's format, not {}", format.name()),
+            "does not match the path",
+            "name the capture's directory, or use format: \"nerfstudio\"",
+        ));
+    }
+    check_input(
+        a,
+        Path::new(path.as_ref()),
+        path_span,
+        if is_json { Input::File } else { Input::Dir },
+    )?;
+    let (bg, bg_span) = (a.vec3("background")?, a.get("background").1);
+    Ok(Value::Dataset(Arc::new(Dataset::Capture(Arc::new(
+        CaptureSpec {
+            path: PathBuf::from(path.as_ref()),
+            path_span,
+            format,
+            downscale,
+            test_every,
+            normalize: !matches!(a.get("normalize").0, Value::Bool(false)),
+            orient,
+            extent: 1.0,
+            background: colour(bg, bg_span)?,
+        },
+    )))))
+}

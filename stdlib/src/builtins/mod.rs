@@ -19,10 +19,10 @@ use crate::param::{Arg, Bound, ParamDecl, ParamInit, ParamUse, MIN_BETA, MIN_LEN
 use crate::precision::{beta, f32_range};
 use crate::shape::{Axis, Shape};
 use crate::value::{
-    Backend, Dataset, DensityActivation, DensityKind, Encoding, Field, Harmonic, HashGridSpec,
-    HitTolerance, LastInterval, Loss, LossKind, MeshRegion, Nerf, NeuralSdf, NeuralSurface,
-    OccupancySpec, Optimizer, Output, OutputKind, Precision, RenderJob, Sampler, Schedule,
-    SdfField, TrainJob, Value, VolumeJob,
+    Backend, CaptureFormat, CaptureOrient, CaptureSpec, Dataset, DensityActivation, DensityKind,
+    Encoding, Field, Harmonic, HashGridSpec, HitTolerance, LastInterval, Loss, LossKind,
+    MeshRegion, Nerf, NeuralSdf, NeuralSurface, OccupancySpec, Optimizer, Output, OutputKind,
+    Precision, RenderJob, Sampler, Schedule, SdfField, TrainJob, Value, VolumeJob,
 };
 
 pub const SHAPE: Type = Type::Named("shape");
@@ -567,6 +567,21 @@ fn table() -> Vec<Builtin> {
                     background: colour(bg, bg_span)?,
                 })))
             },
+        ),
+        func(
+            "capture",
+            "A real capture: nerfstudio's `transforms.json` (as `ns-process-data` writes it: intrinsics global or per frame, `camera_model` PINHOLE / SIMPLE_PINHOLE / OPENCV / OPENCV_FISHEYE with its distortion, `mask_path`, split lists), COLMAP's text model (`sparse/0/cameras.txt`, `images.txt`, images in `images/`) or LLFF's `poses_bounds.npy` (forward-facing). Cameras are centred and scaled into the unit cube as nerfstudio does (the scene frame is reported); images with alpha are composited over `background`.",
+            vec![
+                req("path", Type::Str, "the capture's directory (relative to the scene file), or its transforms .json file"),
+                opt("format", Type::Str, "\"auto\"", "\"auto\" (by the files present: transforms.json, a COLMAP model, poses_bounds.npy), \"nerfstudio\", \"colmap\" or \"llff\""),
+                opt("downscale", Type::Number, "1", "read images from `images_<downscale>` (1, 2, 4 or 8), intrinsics scaled to match"),
+                opt("test_every", Type::Number, "8", "hold out every n-th frame (in file-name order) as a test view, where the data has no split lists (0: none)"),
+                opt("normalize", Type::Bool, "true", "centre the cameras and scale them into [-1, 1]^3 (LLFF: its own recentring, nearest bound at 4/3); false keeps the data's frame"),
+                opt("orient", Type::Str, "\"up\"", "\"up\": turn the cameras' mean up onto +z; \"none\": keep the data's axes"),
+                opt("background", Type::Vec3, "[1, 1, 1]", "colour behind transparent pixels (images with alpha)"),
+            ],
+            DATASET,
+            data::capture,
         ),
         func(
             "adam",

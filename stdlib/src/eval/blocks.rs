@@ -100,6 +100,7 @@ impl<'e> Evaluator<'e> {
                 }
                 crate::value::Dataset::Files { .. }
                 | crate::value::Dataset::NerfSynthetic { .. }
+                | crate::value::Dataset::Capture(_)
                 | crate::value::Dataset::Points { .. } => None,
             }),
         };

@@ -1,0 +1,406 @@
+//! Real captures: frames (an image, an optional mask, an OpenGL
+//! camera-to-world pose and pixel intrinsics) read from nerfstudio's
+//! `transforms.json`, COLMAP's text model or LLFF's `poses_bounds.npy`,
+//! normalised into sdfl's scene frame and turned into training views.
+//!
+//! The three readers only parse; what they share (image sizes checked
+//! before decoding, the scene frame, splits, alpha over a background,
+//! masks) is done here once.
+
+use std::io;
+use std::path::{Path, PathBuf};
+
+use glam::DVec3;
+use sdfl_stdlib::camera::Camera;
+use sdfl_stdlib::value::{CaptureFormat, CaptureOrient, CaptureSpec};
+
+use super::image::{check_dataset, read_rgba_image};
+use super::normalize::{Orient, SceneFrame};
+use super::npy::RgbImage;
+use crate::train::TrainView;
+
+pub use sdfl_stdlib::lens::{Distortion, Intrinsics};
+
+pub(crate) fn invalid(path: &Path, m: impl std::fmt::Display) -> io::Error {
+    io::Error::new(
+        io::ErrorKind::InvalidData,
+        format!("{}: {m}", path.display()),
+    )
+}
+
+/// Largest distortion coefficient accepted: real lenses stay well below 1;
+/// larger ones are garbage that would fold the image over.
+pub const MAX_DISTORTION: f64 = 10.0;
+
+/// Where each number of a frame's intrinsics came from, for messages.
+#[derive(Debug, Clone, Copy)]
+pub struct Keys {
+    pub fx: &'static str,
+    pub fy: &'static str,
+}
+
+/// Checks of intrinsics read from a file, by the keys it used.
+pub trait CheckNamed {
+    /// Checks what a file gave: finite positive focal lengths in the range
+    /// `look_at(focal: ...)` allows (in its NDC units), a principal point
+    /// inside the image, distortion coefficients finite and small.
+    fn check_named(&self, keys: Keys, given: (f64, f64)) -> Result<(), String>;
+}
+
+impl CheckNamed for Intrinsics {
+    fn check_named(&self, keys: Keys, given: (f64, f64)) -> Result<(), String> {
+        let (w, h) = (self.width as f64, self.height as f64);
+        let (lo, hi) = sdfl_stdlib::precision::F32_SAFE;
+        for (fl, side, key, g) in [
+            (self.fx, w, keys.fx, given.0),
+            (self.fy, h, keys.fy, given.1),
+        ] {
+            let ndc = 2.0 * fl / side;
+            if !(fl.is_finite() && (lo..=hi).contains(&ndc)) {
+                return Err(format!(
+                    "`{key}` {} gives a focal length of {ndc:e} (in `look_at`'s units) for {}x{} images, outside {lo:e} to {hi:e}",
+                    sdfl_lang::fmt_num(g),
+                    self.width,
+                    self.height
+                ));
+            }
+        }
+        for (key, c, side) in [("cx", self.cx, w), ("cy", self.cy, h)] {
+            if !(c.is_finite() && (0.0..=side).contains(&c)) {
+                return Err(format!(
+                    "`{key}` {} puts the principal point outside the {}x{} image",
+                    sdfl_lang::fmt_num(c),
+                    self.width,
+                    self.height
+                ));
+            }
+        }
+        let ks: Vec<(&str, f64)> = match self.distortion {
+            Distortion::None => Vec::new(),
+            Distortion::OpenCv { k1, k2, p1, p2 } => {
+                vec![("k1", k1), ("k2", k2), ("p1", p1), ("p2", p2)]
+            }
+            Distortion::Fisheye { k1, k2, k3, k4 } => {
+                vec![("k1", k1), ("k2", k2), ("k3", k3), ("k4", k4)]
+            }
+        };
+        for (key, k) in ks {
+            if !(k.is_finite() && k.abs() <= MAX_DISTORTION) {
+                return Err(format!(
+                    "distortion `{key}` {} is out of range (|{key}| ≤ {MAX_DISTORTION})",
+                    sdfl_lang::fmt_num(k)
+                ));
+            }
+        }
+        // Then sdfl's own: the distortion one-to-one over the image.
+        self.check()
+    }
+}
+
+/// The sdfl camera of an OpenGL camera-to-world pose (camera looks down
+/// −z, +y up, +x right) with pixel intrinsics.
+pub fn camera_of(c2w: &[[f64; 4]; 4], k: &Intrinsics) -> Result<Camera, String> {
+    Camera::from_opengl_intrinsics(c2w, *k)
+}
+
+/// One frame of a capture, checked.
+#[derive(Debug, Clone)]
+pub struct CaptureFrame {
+    /// The frame as its file names it (`frame 3`, `image a.jpg`), for
+    /// messages.
+    pub label: String,
+    pub image: PathBuf,
+    /// Pixels whose mask is 0 are neither trained on nor scored.
+    pub mask: Option<PathBuf>,
+    /// Camera to world in OpenGL axes, in the data's own frame.
+    pub c2w: [[f64; 4]; 4],
+    pub intrinsics: Intrinsics,
+}
+
+/// A capture's frames, their split, and the file they came from.
+#[derive(Debug, Clone)]
+pub struct Capture {
+    /// The file that describes the frames (for messages).
+    pub source: PathBuf,
+    pub frames: Vec<CaptureFrame>,
+    /// Indices into `frames` held out as test views (sorted).
+    pub test: Vec<usize>,
+    /// nerfstudio's `applied_transform`: from the original (COLMAP) frame
+    /// to the file's, as rows of a 3×4 matrix.
+    pub applied: Option<[[f64; 4]; 3]>,
+    /// Sparse points of the reconstruction (COLMAP's `points3D.txt`), in
+    /// the data's frame, for the scene's bounds.
+    pub points: Vec<DVec3>,
+    /// The depth bounds of the frames (LLFF), in the data's units.
+    pub bounds: Option<(f64, f64)>,
+}
+
+/// How a capture is normalised into the scene frame.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Normalize {
+    /// Centre and scale from the cameras; `false` keeps the data's frame.
+    pub enabled: bool,
+    pub orient: Orient,
+    /// The farthest camera coordinate after scaling (nerfstudio: 1).
+    pub extent: f64,
+}
+
+/// A capture's views, in the scene frame.
+#[derive(Debug, Clone)]
+pub struct CaptureViews {
+    pub train: Vec<TrainView>,
+    pub test: Vec<TrainView>,
+    /// The file name of each view, train then test (for messages).
+    pub names: Vec<String>,
+    /// From the data's frame into the scene frame; exporters map back
+    /// with [`SceneFrame::to_data`].
+    pub frame: SceneFrame,
+    /// Lines for people: the scene frame, the points' and depths' extent
+    /// in it.
+    pub report: Vec<String>,
+}
+
+/// Views held out: every `every`-th frame from the first (nerfstudio's
+/// "interval" split, LLFF's `llffhold`); none for 0.
+pub fn every_nth(n: usize, every: usize) -> Vec<usize> {
+    if every == 0 || n < 2 {
+        return Vec::new();
+    }
+    (0..n).step_by(every).collect()
+}
+
+/// Reads a capture's images (sizes checked before any is decoded), moves
+/// its cameras into the scene frame (`frame`, or one from the cameras by
+/// `normalize`) and composites images with alpha over `background`.
+pub fn load(
+    c: &Capture,
+    normalize: Normalize,
+    frame: Option<SceneFrame>,
+    background: DVec3,
+) -> io::Result<CaptureViews> {
+    check_dataset(
+        c.frames
+            .iter()
+            .flat_map(|f| std::iter::once(&f.image).chain(f.mask.as_ref())),
+    )?;
+    let frame = frame.unwrap_or_else(|| {
+        if normalize.enabled {
+            let poses: Vec<_> = c.frames.iter().map(|f| f.c2w).collect();
+            SceneFrame::from_cameras(&poses, normalize.orient, normalize.extent)
+        } else {
+            SceneFrame::IDENTITY
+        }
+    });
+    let frame = SceneFrame {
+        applied: c.applied,
+        ..frame
+    };
+    let cameras = c
+        .frames
+        .iter()
+        .map(|f| {
+            camera_of(&frame.pose_to_scene(&f.c2w), &f.intrinsics)
+                .map_err(|e| invalid(&c.source, format!("{}: {e}", f.label)))
+        })
+        .collect::<io::Result<Vec<_>>>()?;
+    let bg = background.as_vec3().to_array();
+    let (mut train, mut test, mut names) = (Vec::new(), Vec::new(), Vec::new());
+    let mut test_names = Vec::new();
+    for (k, (f, camera)) in c.frames.iter().zip(cameras).enumerate() {
+        let (w, h, rgba) = read_rgba_image(&f.image)?;
+        if (w, h) != (f.intrinsics.width, f.intrinsics.height) {
+            return Err(invalid(
+                &f.image,
+                format!(
+                    "{w}x{h} pixels, but {} of {} says {}x{}",
+                    f.label,
+                    c.source.display(),
+                    f.intrinsics.width,
+                    f.intrinsics.height
+                ),
+            ));
+        }
+        let pixels = rgba
+            .iter()
+            .map(|p| {
+                let a = p[3].clamp(0.0, 1.0);
+                [0, 1, 2].map(|c| p[c] * a + bg[c] * (1.0 - a))
+            })
+            .collect();
+        let mask = match &f.mask {
+            None => None,
+            Some(m) => Some(read_mask(m, (w, h), f, &c.source)?),
+        };
+        let view = TrainView {
+            camera,
+            image: RgbImage {
+                width: w,
+                height: h,
+                pixels,
+            },
+            mask,
+        };
+        let name = format!("{} {}", c.source.display(), f.label);
+        if c.test.binary_search(&k).is_ok() {
+            test.push(view);
+            test_names.push(name);
+        } else {
+            train.push(view);
+            names.push(name);
+        }
+    }
+    names.extend(test_names);
+    let mut report = vec![frame.describe()];
+    if let Some((lo, hi)) = points_extent(&c.points, &frame) {
+        report.push(format!(
+            "scene frame: the middle 98% of {} sparse points span [{}, {}] x [{}, {}] x [{}, {}]",
+            c.points.len(),
+            short(lo.x),
+            short(hi.x),
+            short(lo.y),
+            short(hi.y),
+            short(lo.z),
+            short(hi.z)
+        ));
+    }
+    if let Some((near, far)) = c.bounds {
+        report.push(format!(
+            "scene frame: depth bounds {} to {} (NDC rays start at depth 1)",
+            short(near * frame.scale),
+            short(far * frame.scale)
+        ));
+    }
+    Ok(CaptureViews {
+        train,
+        test,
+        names,
+        frame,
+        report,
+    })
+}
+
+/// The format a capture directory holds: `transforms.json`, then a COLMAP
+/// text model, then `poses_bounds.npy`.
+pub fn detect(dir: &Path) -> Option<CaptureFormat> {
+    if dir
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("json"))
+        || dir.join("transforms.json").is_file()
+    {
+        Some(CaptureFormat::Nerfstudio)
+    } else if super::colmap::model_dir(dir).is_some() {
+        Some(CaptureFormat::Colmap)
+    } else if dir.join("poses_bounds.npy").is_file() {
+        Some(CaptureFormat::Llff)
+    } else {
+        None
+    }
+}
+
+/// Reads the capture `spec` names (relative to `base`): its frames, split,
+/// scene frame and images.
+pub fn read(spec: &CaptureSpec, base: &Path) -> io::Result<CaptureViews> {
+    let path = base.join(&spec.path);
+    let format = match spec.format {
+        CaptureFormat::Auto => detect(&path).ok_or_else(|| {
+            invalid(
+                &path,
+                "holds no transforms.json, COLMAP model (sparse/0/cameras.txt) or poses_bounds.npy",
+            )
+        })?,
+        f => f,
+    };
+    let normalize = Normalize {
+        enabled: spec.normalize,
+        orient: match spec.orient {
+            CaptureOrient::None => Orient::None,
+            CaptureOrient::Up => Orient::Up,
+        },
+        extent: spec.extent,
+    };
+    let (capture, frame) = match format {
+        CaptureFormat::Nerfstudio | CaptureFormat::Auto => {
+            let file = if path
+                .extension()
+                .is_some_and(|e| e.eq_ignore_ascii_case("json"))
+            {
+                path
+            } else {
+                path.join("transforms.json")
+            };
+            let t = super::nerfstudio::read_transforms_scaled(&file, spec.downscale)?;
+            (t.capture(spec.downscale, spec.test_every)?, None)
+        }
+        CaptureFormat::Colmap => (
+            super::colmap::read(&path, spec.downscale, spec.test_every)?,
+            None,
+        ),
+        CaptureFormat::Llff => {
+            let (c, frame) = super::llff::read(&path, spec.downscale, spec.test_every)?;
+            (c, spec.normalize.then_some(frame))
+        }
+    };
+    load(&capture, normalize, frame, spec.background)
+}
+
+/// A frame's mask: a pixel is kept where the mask image is not black (as
+/// nerfstudio reads `mask_path`: nonzero keeps), the image's size.
+fn read_mask(
+    path: &Path,
+    size: (u32, u32),
+    f: &CaptureFrame,
+    source: &Path,
+) -> io::Result<std::sync::Arc<[bool]>> {
+    let (w, h, rgba) = read_rgba_image(path)?;
+    if (w, h) != size {
+        return Err(invalid(
+            path,
+            format!(
+                "the mask of {} of {} is {w}x{h} pixels, its image {}x{}",
+                f.label,
+                source.display(),
+                size.0,
+                size.1
+            ),
+        ));
+    }
+    let keep: std::sync::Arc<[bool]> = rgba
+        .iter()
+        .map(|p| p[0].max(p[1]).max(p[2]) > 0.0)
+        .collect();
+    if !keep.iter().any(|k| *k) {
+        return Err(invalid(
+            path,
+            format!(
+                "the mask of {} of {} masks every pixel",
+                f.label,
+                source.display()
+            ),
+        ));
+    }
+    Ok(keep)
+}
+
+fn short(x: f64) -> String {
+    sdfl_lang::fmt_num((x * 1000.0).round() / 1000.0)
+}
+
+/// The box of the middle 98% of `points` along each axis, in the scene
+/// frame (outliers of a sparse reconstruction left out).
+pub fn points_extent(points: &[DVec3], frame: &SceneFrame) -> Option<(DVec3, DVec3)> {
+    if points.is_empty() {
+        return None;
+    }
+    let moved: Vec<DVec3> = points.iter().map(|p| frame.to_scene(*p)).collect();
+    let n = moved.len();
+    let (lo_k, hi_k) = (n / 100, (n - 1) - n / 100);
+    let mut lo = DVec3::ZERO;
+    let mut hi = DVec3::ZERO;
+    for axis in 0..3 {
+        let mut v: Vec<f64> = moved.iter().map(|p| p[axis]).collect();
+        v.sort_by(f64::total_cmp);
+        lo[axis] = v[lo_k];
+        hi[axis] = v[hi_k];
+    }
+    Some((lo, hi))
+}
