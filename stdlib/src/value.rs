@@ -818,8 +818,10 @@ pub struct CaptureSpec {
     pub orient: CaptureOrient,
     /// The farthest camera coordinate after normalising.
     pub extent: f64,
-    /// The colour behind transparent pixels of images with alpha.
-    pub background: DVec3,
+    /// The colour behind transparent pixels of images with alpha; `None`
+    /// (not given): white there, and the world behind (a model on the
+    /// data's background learns it).
+    pub background: Option<DVec3>,
 }
 
 impl Dataset {
@@ -838,6 +840,9 @@ impl Dataset {
                 Field::NeuralSurface(s) => DataBackground::Color(DVec3::from_array(s.background)),
                 Field::Sdf(_) | Field::NeuralSdf(_) => DataBackground::Color(DVec3::ZERO),
             },
+            Dataset::Capture(c) => c
+                .background
+                .map_or(DataBackground::World, DataBackground::Color),
             Dataset::Files { .. } | Dataset::Points { .. } => DataBackground::Unknown,
         }
     }

@@ -340,7 +340,12 @@ pub fn read(spec: &CaptureSpec, base: &Path) -> io::Result<CaptureViews> {
             (c, spec.normalize.then_some(frame))
         }
     };
-    load(&capture, normalize, frame, spec.background)
+    load(
+        &capture,
+        normalize,
+        frame,
+        spec.background.unwrap_or(glam::DVec3::ONE),
+    )
 }
 
 /// A frame's mask: a pixel is kept where the mask image is not black (as

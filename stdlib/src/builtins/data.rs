@@ -249,7 +249,14 @@ pub(super) fn capture(a: &Args) -> Result<Value, Diag> {
         path_span,
         if is_json { Input::File } else { Input::Dir },
     )?;
-    let (bg, bg_span) = (a.vec3("background")?, a.get("background").1);
+    // Photographs have no alpha: unless the user names a colour, the
+    // background is the world, learned by a model left on the data's.
+    let background = if a.given("background") {
+        let (bg, bg_span) = (a.vec3("background")?, a.get("background").1);
+        Some(colour(bg, bg_span)?)
+    } else {
+        None
+    };
     Ok(Value::Dataset(Arc::new(Dataset::Capture(Arc::new(
         CaptureSpec {
             path: PathBuf::from(path.as_ref()),
@@ -260,7 +267,7 @@ pub(super) fn capture(a: &Args) -> Result<Value, Diag> {
             normalize: !matches!(a.get("normalize").0, Value::Bool(false)),
             orient,
             extent: 1.0,
-            background: colour(bg, bg_span)?,
+            background,
         },
     )))))
 }

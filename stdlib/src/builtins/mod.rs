@@ -578,7 +578,7 @@ fn table() -> Vec<Builtin> {
                 opt("test_every", Type::Number, "8", "hold out every n-th frame (in file-name order) as a test view, where the data has no split lists (0: none)"),
                 opt("normalize", Type::Bool, "true", "centre the cameras and scale them into [-1, 1]^3 (LLFF: its own recentring, nearest bound at 4/3); false keeps the data's frame"),
                 opt("orient", Type::Str, "\"up\"", "\"up\": turn the cameras' mean up onto +z; \"none\": keep the data's axes"),
-                opt("background", Type::Vec3, "[1, 1, 1]", "colour behind transparent pixels (images with alpha)"),
+                opt("background", Type::Vec3, "[1, 1, 1]", "colour behind transparent pixels of images with alpha; when given, also the model's background (not given: white there, and a model on the data's background learns the world behind)"),
             ],
             DATASET,
             data::capture,
