@@ -148,6 +148,63 @@ pub enum OutputKind {
         resolution: u32,
         region: MeshRegion,
     },
+    /// A radiance field's surface where its density (an opacity field's
+    /// per-sample opacity) crosses `level`, as a PLY mesh with normals and
+    /// vertex colours.
+    DensityMesh {
+        level: f64,
+        /// Grid cells along the region's longest side.
+        resolution: u32,
+        region: MeshRegion,
+    },
+    /// Where rays of the training cameras end (expected depth), coloured by
+    /// the rendered colour, where the accumulated opacity reaches
+    /// `min_opacity`: a PLY point cloud.
+    PointCloud { points: u32, min_opacity: f64 },
+    /// Expected depth over accumulated opacity per view as float32 `.npy`
+    /// (rows × columns), NaN where the opacity is below `min_opacity`.
+    RawDepth { min_opacity: f64 },
+    /// Depth per view colour-mapped, with a titled colour bar, as PNG.
+    DepthMap {
+        colormap: Colormap,
+        /// Depths at the colour map's ends; the views' own range when none.
+        range: Option<[f64; 2]>,
+        min_opacity: f64,
+    },
+}
+
+/// A colour map for depth images (from the `colorous` crate).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Colormap {
+    Turbo,
+    Viridis,
+    Inferno,
+    Magma,
+    Plasma,
+    Cividis,
+}
+
+impl Colormap {
+    pub const ALL: [Colormap; 6] = [
+        Colormap::Turbo,
+        Colormap::Viridis,
+        Colormap::Inferno,
+        Colormap::Magma,
+        Colormap::Plasma,
+        Colormap::Cividis,
+    ];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Colormap::Turbo => "turbo",
+            Colormap::Viridis => "viridis",
+            Colormap::Inferno => "inferno",
+            Colormap::Magma => "magma",
+            Colormap::Plasma => "plasma",
+            Colormap::Cividis => "cividis",
+        }
+    }
 }
 
 /// Where a mesh is extracted.
@@ -164,6 +221,19 @@ pub enum MeshRegion {
 }
 
 impl OutputKind {
+    /// Whether it asks a radiance field for density and colour at points
+    /// (a density mesh, a point cloud, depth with opacity): written for
+    /// fields (`volume`, `train` of a NeRF or an SDF field), not scenes.
+    pub fn field_export(&self) -> bool {
+        matches!(
+            self,
+            OutputKind::DensityMesh { .. }
+                | OutputKind::PointCloud { .. }
+                | OutputKind::RawDepth { .. }
+                | OutputKind::DepthMap { .. }
+        )
+    }
+
     /// Whether only a finished training run can write it.
     pub fn training_only(&self) -> bool {
         matches!(

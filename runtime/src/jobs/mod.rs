@@ -237,7 +237,12 @@ pub fn write_volume_outputs(
                 | OutputKind::Mask
                 // Written by the job, which knows the field's distance.
                 | OutputKind::Mesh { .. }
-                | OutputKind::GeometryGif { .. } => continue,
+                | OutputKind::GeometryGif { .. }
+                // Written by `export::write` from the field's density.
+                | OutputKind::DensityMesh { .. }
+                | OutputKind::PointCloud { .. }
+                | OutputKind::RawDepth { .. }
+                | OutputKind::DepthMap { .. } => continue,
                 OutputKind::Image => ("image", rgb8(&colour), (w, h)),
                 OutputKind::Depth => ("depth", crate::render::depth_image(&depth), (w, h)),
                 OutputKind::Grid => ("grid_image", figures::xy_grid_image(w, h), (w, h)),

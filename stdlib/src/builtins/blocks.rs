@@ -109,8 +109,19 @@ pub(crate) fn render_block(name: &str, a: &Args) -> Built<RenderJob> {
     let outputs = e.ok(outputs(a, "outputs", false).and_then(|outputs| {
         match outputs
             .iter()
-            .find(|o| o.kind == OutputKind::SamplePoints || o.kind.training_only())
+            .find(|o| {
+                o.kind == OutputKind::SamplePoints || o.kind.training_only() || o.kind.field_export()
+            })
         {
+            Some(o) if o.kind.field_export() => Err(value_error(
+                a.get("outputs").1,
+                format!(
+                    "`{}` needs a radiance field's density and opacity",
+                    o.path.display()
+                ),
+                "not a sphere-tracing output",
+                "ask for it from a `volume` or a `train` of a field; a scene's surface is `mesh(...)`, its depth `depth(...)`",
+            )),
             Some(o) => Err(value_error(
                 a.get("outputs").1,
                 format!(
@@ -308,6 +319,7 @@ pub(crate) fn train_block(name: &str, a: &Args) -> Built<TrainJob> {
     let after = e.ok(outputs(a, "after", true));
     if let Some(model) = &model {
         for outputs in [&before, &after].into_iter().flatten() {
+            e.ok(check_field_exports(outputs, model));
             e.ok(match &**model {
                 Field::Sdf(f) => check_meshes(outputs, Some(&f.shape)),
                 // Bounded by its points or the training `bounds`.
@@ -556,6 +568,7 @@ pub(crate) fn volume_block(name: &str, a: &Args, field: Arc<Field>) -> Built<Vol
         }
     }));
     if let Some(outputs) = &outputs {
+        e.ok(check_field_exports(outputs, &field));
         e.ok(check_meshes(outputs, field.as_sdf().map(|f| &*f.shape)));
     }
     let cameras = e.ok(camera_list(a, "camera"));
@@ -600,6 +613,61 @@ fn check_meshes(outputs: &[Output], shape: Option<&Shape>) -> Result<(), Diag> {
                 "needs a region",
                 "give the region: `mesh(\"scene.ply\", bounds: [[-2, -2, -2], [2, 2, 2]])`",
             ));
+        }
+    }
+    Ok(())
+}
+
+/// The region `bounds: "auto"` stands for in a `density_mesh` of `field`:
+/// a hash grid's box, else an occupancy grid's, else an SDF field's
+/// bounds (none for a harmonic NeRF without a grid, or an unbounded shape).
+pub fn field_region(field: &Field) -> Option<([f64; 3], [f64; 3])> {
+    match field {
+        Field::Nerf(n) => match (&n.position, &n.occupancy) {
+            (Encoding::HashGrid(g), _) => Some((g.min, g.max)),
+            (_, Some(o)) => Some((o.min, o.max)),
+            _ => None,
+        },
+        Field::Sdf(f) => f
+            .shape
+            .bounds()
+            .map(|b| (b.min.to_array(), b.max.to_array())),
+        Field::NeuralSdf(_) | Field::NeuralSurface(_) => None,
+    }
+}
+
+/// Density meshes, point clouds and depth with opacity ask a radiance
+/// field (a NeRF or an SDF field) for density and colour; a density mesh
+/// with `bounds: "auto"` needs a region the field knows.
+fn check_field_exports(outputs: &[Output], field: &Field) -> Result<(), Diag> {
+    let Some(o) = outputs.iter().find(|o| o.kind.field_export()) else {
+        return Ok(());
+    };
+    if matches!(field, Field::NeuralSdf(_) | Field::NeuralSurface(_)) {
+        return Err(value_error(
+            o.span,
+            format!(
+                "`{}` asks a radiance field for its density",
+                crate::outputs::kind_name(&o.kind)
+            ),
+            "not an output of a neural SDF",
+            "a neural SDF's surface is `mesh(...)`; its depth `depth(...)`",
+        ));
+    }
+    for o in outputs {
+        if let OutputKind::DensityMesh {
+            region: MeshRegion::Auto,
+            ..
+        } = o.kind
+        {
+            if field_region(field).is_none() {
+                return Err(value_error(
+                    o.span,
+                    "the field has no bounds of its own, so `bounds: \"auto\"` has no region",
+                    "needs a region",
+                    "give the region: `density_mesh(\"field.ply\", bounds: [[-1, -1, -1], [1, 1, 1]])`",
+                ));
+            }
         }
     }
     Ok(())

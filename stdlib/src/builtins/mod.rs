@@ -19,10 +19,10 @@ use crate::param::{Arg, Bound, ParamDecl, ParamInit, ParamUse, MIN_BETA, MIN_LEN
 use crate::precision::{beta, f32_range};
 use crate::shape::{Axis, Shape};
 use crate::value::{
-    Backend, Dataset, DensityActivation, DensityKind, Encoding, Field, Harmonic, HashGridSpec,
-    HitTolerance, LastInterval, Loss, LossKind, MeshRegion, Nerf, NeuralSdf, NeuralSurface,
-    OccupancySpec, Optimizer, Output, OutputKind, Precision, RenderJob, Sampler, Schedule,
-    SdfField, TrainJob, Value, VolumeJob,
+    Backend, Colormap, Dataset, DensityActivation, DensityKind, Encoding, Field, Harmonic,
+    HashGridSpec, HitTolerance, LastInterval, Loss, LossKind, MeshRegion, Nerf, NeuralSdf,
+    NeuralSurface, OccupancySpec, Optimizer, Output, OutputKind, Precision, RenderJob, Sampler,
+    Schedule, SdfField, TrainJob, Value, VolumeJob,
 };
 
 pub const SHAPE: Type = Type::Named("shape");
