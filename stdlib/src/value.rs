@@ -106,6 +106,27 @@ impl Value {
     }
 }
 
+impl Field {
+    /// The region `bounds: "auto"` stands for in a `density_mesh`: a hash
+    /// grid's box, else an occupancy grid's, else an SDF field's bounds
+    /// (none for a harmonic NeRF without a grid, an unbounded shape, or a
+    /// neural SDF, which has no density to mesh).
+    pub fn export_region(&self) -> Option<([f64; 3], [f64; 3])> {
+        match self {
+            Field::Nerf(n) => match (&n.position, &n.occupancy) {
+                (Encoding::HashGrid(g), _) => Some((g.min, g.max)),
+                (_, Some(o)) => Some((o.min, o.max)),
+                _ => None,
+            },
+            Field::Sdf(f) => f
+                .shape
+                .bounds()
+                .map(|b| (b.min.to_array(), b.max.to_array())),
+            Field::NeuralSdf(_) | Field::NeuralSurface(_) => None,
+        }
+    }
+}
+
 /// What an output file holds.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 #[serde(rename_all = "snake_case")]

@@ -618,24 +618,6 @@ fn check_meshes(outputs: &[Output], shape: Option<&Shape>) -> Result<(), Diag> {
     Ok(())
 }
 
-/// The region `bounds: "auto"` stands for in a `density_mesh` of `field`:
-/// a hash grid's box, else an occupancy grid's, else an SDF field's
-/// bounds (none for a harmonic NeRF without a grid, or an unbounded shape).
-pub fn field_region(field: &Field) -> Option<([f64; 3], [f64; 3])> {
-    match field {
-        Field::Nerf(n) => match (&n.position, &n.occupancy) {
-            (Encoding::HashGrid(g), _) => Some((g.min, g.max)),
-            (_, Some(o)) => Some((o.min, o.max)),
-            _ => None,
-        },
-        Field::Sdf(f) => f
-            .shape
-            .bounds()
-            .map(|b| (b.min.to_array(), b.max.to_array())),
-        Field::NeuralSdf(_) | Field::NeuralSurface(_) => None,
-    }
-}
-
 /// Density meshes, point clouds and depth with opacity ask a radiance
 /// field (a NeRF or an SDF field) for density and colour; a density mesh
 /// with `bounds: "auto"` needs a region the field knows.
@@ -660,7 +642,7 @@ fn check_field_exports(outputs: &[Output], field: &Field) -> Result<(), Diag> {
             ..
         } = o.kind
         {
-            if field_region(field).is_none() {
+            if field.export_region().is_none() {
                 return Err(value_error(
                     o.span,
                     "the field has no bounds of its own, so `bounds: \"auto\"` has no region",
