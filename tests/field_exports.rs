@@ -142,7 +142,7 @@ const NERF: &str = r#"
 let cams = orbit(radius: 2.5, up: [0, 1, 0], focal: 1, views: 6)
 let truth = volsdf(sphere(radius: 0.6), alpha: 10, beta: 0.05)
 train tiny {
-  model: nerf(layers: 1, width: 16, skips: [], color_width: 16, position: hashgrid(levels: 4, features: 2, log2_table: 10, min_res: 4, max_res: 32, min: [-1, -1, -1], max: [1, 1, 1])),
+  model: nerf(layers: 1, width: 16, skips: [], color_width: 16, density: "exp", position: hashgrid(levels: 4, features: 2, log2_table: 10, min_res: 4, max_res: 32, min: [-1, -1, -1], max: [1, 1, 1])),
   data: render_views(truth, cameras: cams, size: [16, 16], sampler: stratified(samples: 32, near: 1, far: 5)),
   sampler: stratified(samples: 24, near: 1, far: 5),
   rays: 128,
@@ -269,4 +269,71 @@ fn the_plan_counts_field_exports() {
     ] {
         assert!(text.contains(line), "{line} in\n{text}");
     }
+}
+
+/// A trained model rendered again from other cameras: the checkpoint is
+/// complete, so the run resumes at its last step, trains nothing and
+/// writes the outputs of the new views (views are not part of the run's
+/// fingerprint: the same model, data, sampler and optimiser).
+#[test]
+fn a_finished_run_renders_new_views_without_training() {
+    use sdfl_runtime::jobs::{run_train_job, TrainOptions};
+    let src = |views: &str| {
+        NERF.replace(
+            "views: orbit(radius: 2.5, up: [0, 1, 0], focal: 1, views: 2)",
+            views,
+        )
+        .replace(
+            "after: [",
+            "checkpoint: \"tiny.ckpt\",\n  after: [gif(\"tiny.gif\"), ",
+        )
+    };
+    let job = |views: &str| {
+        let p = sdfl_stdlib::load(&sdfl_lang::SourceFile::new("t.sdfl", src(views))).unwrap();
+        p.trains[0].clone()
+    };
+    let out = case_dir("field_exports_rerender");
+    let run = |j: &sdfl_stdlib::value::TrainJob| {
+        run_train_job(
+            j,
+            &out,
+            &out,
+            None,
+            TrainOptions { restart: false },
+            &|_| {},
+            &|_| {},
+        )
+        .unwrap()
+    };
+    let first = run(&job(
+        "views: orbit(radius: 2.5, up: [0, 1, 0], focal: 1, views: 2)",
+    ));
+    assert_eq!((first.iterations, first.resumed_from), (20, None));
+    let read =
+        || sdfl_runtime::train::checkpoint::Checkpoint::read(&out.join("tiny.ckpt")).unwrap();
+    let ck = read();
+    let depth0 = fs::read(out.join("nerf_depth_00.npy")).unwrap();
+
+    // Three new cameras, higher up: rendered, not trained.
+    let again = run(&job(
+        "views: [look_at([0, 2, 2], focal: 1.2), look_at([2, 1, 0], focal: 1.2), look_at([-1, 1, 2], focal: 1.2)]",
+    ));
+    assert_eq!((again.iterations, again.resumed_from), (20, Some(20)));
+    // The same weights and steps: nothing was trained.
+    let after = read();
+    assert_eq!(after.step, ck.step);
+    assert_eq!(after.losses, ck.losses);
+    assert_eq!(format!("{:?}", after.params), format!("{:?}", ck.params));
+    for k in 0..3 {
+        assert!(out.join(format!("nerf_depth_{k:02}.npy")).exists());
+        assert!(out.join(format!("nerf_depth_{k:02}.png")).exists());
+    }
+    // The new first view is another camera: another depth image.
+    assert_ne!(fs::read(out.join("nerf_depth_00.npy")).unwrap(), depth0);
+    let gif = image::codecs::gif::GifDecoder::new(std::io::Cursor::new(
+        fs::read(out.join("tiny.gif")).unwrap(),
+    ))
+    .unwrap();
+    use image::AnimationDecoder;
+    assert_eq!(gif.into_frames().count(), 3);
 }
