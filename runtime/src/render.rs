@@ -308,7 +308,7 @@ pub fn render_view(
     let (w, h) = (width as usize, height as usize);
     // Half a pixel's width per unit of distance, in the image's NDC.
     let footprint = match job.hit_tolerance {
-        HitTolerance::Pixel => 1.0 / ((width.max(height).max(2) - 1) as f64 * cam.focal) as f32,
+        HitTolerance::Pixel => cam.half_pixel_tangent(width, height) as f32,
         HitTolerance::Absolute => 0.0,
     };
     let settings = TraceSettings {
@@ -382,8 +382,9 @@ pub fn render_view(
         .fog
         .map_or(background64, |f| f.apply(background64, fog_far));
     let background = fogged_background.to_array().map(to_u8);
+    // The ray through fractional pixel (x, y).
     let direction = |x: f64, y: f64| -> (DVec3, Vec3A) {
-        let d64 = (ax * (x / cam.focal) + ay * (y / cam.focal) + az).normalize();
+        let d64 = cam.pixel_direction(x, y, width, height);
         (d64, d64.as_vec3().into())
     };
     // The shaded, fogged colour of a hit, and its normal if shading used it.
@@ -429,15 +430,13 @@ pub fn render_view(
                 let i1 = (i0 + TILE).min(w);
                 // The tile's rectangle on the image plane, half a pixel
                 // past its outer pixel centres (sub-pixel rays stay inside).
-                let (xa, ya) =
-                    cam.pixel_ndc_at(i0 as f64 - 0.5, rows.start as f64 - 0.5, width, height);
-                let (xb, yb) =
-                    cam.pixel_ndc_at(i1 as f64 - 0.5, rows.end as f64 - 0.5, width, height);
-                let tile = tiles.tile(
-                    (ax, ay, az),
-                    (xa / cam.focal, xb / cam.focal),
-                    (ya / cam.focal, yb / cam.focal),
+                let (tx, ty) = cam.tangent_bounds(
+                    (i0 as f64 - 0.5, rows.start as f64 - 0.5),
+                    (i1 as f64 - 0.5, rows.end as f64 - 0.5),
+                    width,
+                    height,
                 );
+                let tile = tiles.tile((ax, ay, az), tx, ty);
                 if tile.is_empty() && offsets.len() == 1 {
                     // Every ray misses: only the background to write.
                     rays += (nrows * (i1 - i0)) as u64;
@@ -460,11 +459,10 @@ pub fn render_view(
                 for (r, j) in rows.clone().enumerate() {
                     for i in i0..i1 {
                         let k = r * w + i;
-                        let (xn, yn) = cam.pixel_ndc(i as u32, j as u32, width, height);
                         if centre_separate || offsets.len() == 1 {
                             // The pixel centre: every quantity when it is the
                             // only ray, else depth, normals and the mask.
-                            let (d64, dir) = direction(xn, yn);
+                            let (d64, dir) = direction(i as f64, j as f64);
                             let hit = trace(dir, &settings);
                             if !hit.hit {
                                 if let (Some(c), false) = (col.as_deref_mut(), centre_separate) {
@@ -500,9 +498,7 @@ pub fn render_view(
                             };
                             let mut sum = DVec3::ZERO;
                             for (dx, dy) in &offsets {
-                                let (xs, ys) =
-                                    cam.pixel_ndc_at(i as f64 + dx, j as f64 + dy, width, height);
-                                let (d64, dir) = direction(xs, ys);
+                                let (d64, dir) = direction(i as f64 + dx, j as f64 + dy);
                                 let hit = trace(dir, &sub_settings);
                                 sum += if hit.hit {
                                     hits += 1;

@@ -1,18 +1,37 @@
 //! Cameras, exactly as in CONVENTIONS.md (PyTorch3D-style NDC): +x of the
-//! image points left, +y up; the corner pixel centres sit at NDC ±1.
+//! image points left, +y up; the corner pixel centres sit at NDC ±1. Pixels
+//! are square: the shorter side spans [-1, 1]. Cameras of real captures
+//! carry pixel intrinsics and distortion instead ([`Lens::Pixels`]).
 
 use glam::DVec3;
 use serde::Serialize;
 
-/// A perspective pinhole camera looking from `eye` towards `at`.
+pub use crate::lens::{Distortion, Intrinsics};
+
+/// A perspective camera looking from `eye` towards `at`.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct Camera {
     pub eye: DVec3,
     pub at: DVec3,
     pub up: DVec3,
-    /// Focal length in NDC units.
+    /// Focal length in NDC units (an [`Lens::Ndc`] camera's; a
+    /// [`Lens::Pixels`] camera keeps the equivalent of its `fy` here).
     pub focal: f64,
     pub pixel_centers: PixelCenters,
+    pub lens: Lens,
+}
+
+/// How pixels map to rays.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Lens {
+    /// The conventions' pinhole: `focal` in NDC of the shorter side, the
+    /// principal point at the centre, pixel centres by `pixel_centers`.
+    #[default]
+    Ndc,
+    /// A real camera's intrinsics (any principal point, `fx ≠ fy`,
+    /// distortion), scaled to the image size rendered.
+    Pixels(Intrinsics),
 }
 
 /// Where pixel centres sit in NDC.
@@ -43,6 +62,7 @@ impl Camera {
             up,
             focal,
             pixel_centers: PixelCenters::Corners,
+            lens: Lens::Ndc,
         }
     }
 
@@ -52,14 +72,12 @@ impl Camera {
     }
 
     /// NDC of the centre of pixel `(i, j)` of a `w × h` image, by this
-    /// camera's pixel-centre convention.
+    /// camera's pixel-centre convention (square pixels: the shorter side
+    /// spans [-1, 1]).
     pub fn pixel_ndc(&self, i: u32, j: u32, w: u32, h: u32) -> (f64, f64) {
         match self.pixel_centers {
             PixelCenters::Corners => pixel_ndc(i, j, w, h),
-            PixelCenters::Half => {
-                let axis = |k: u32, n: u32| 1.0 - (2.0 * k as f64 + 1.0) / n as f64;
-                (axis(i, w), axis(j, h))
-            }
+            PixelCenters::Half => self.pixel_ndc_at(i as f64, j as f64, w, h),
         }
     }
 
@@ -67,13 +85,119 @@ impl Camera {
     /// centres at whole numbers; `x + 0.5` is the pixel's right edge), for
     /// rays through a pixel off its centre (supersampling).
     pub fn pixel_ndc_at(&self, x: f64, y: f64, w: u32, h: u32) -> (f64, f64) {
+        let short = w.min(h);
         let axis = |k: f64, n: u32| match self.pixel_centers {
+            // The shorter side (and a square image's both) as the
+            // conventions write it, so square images keep their rays to
+            // the bit.
+            PixelCenters::Corners if n == short && n > 1 => 1.0 - 2.0 * k / (n - 1) as f64,
+            // The longer side at the shorter one's pixel pitch.
+            PixelCenters::Corners if short > 1 => (n as f64 - 1.0 - 2.0 * k) / (short - 1) as f64,
+            // A one-pixel side sits at 0; the other spans -1..1.
             PixelCenters::Corners if n > 1 => 1.0 - 2.0 * k / (n - 1) as f64,
-            // One pixel spans the whole of -1..1.
             PixelCenters::Corners => -2.0 * k,
-            PixelCenters::Half => 1.0 - (2.0 * k + 1.0) / n as f64,
+            PixelCenters::Half if n == short => 1.0 - (2.0 * k + 1.0) / n as f64,
+            PixelCenters::Half => (n as f64 - 2.0 * k - 1.0) / short as f64,
         };
         (axis(x, w), axis(y, h))
+    }
+
+    /// The point at depth one, in camera axes (left, up), that the ray
+    /// through fractional pixel `(x, y)` of a `w × h` image passes (pixel
+    /// centres at whole numbers): `x_ndc / focal` for the conventions'
+    /// pinhole; the undistorted normalised point for a real lens. A lens
+    /// point that cannot be undistorted (outside the image, where the
+    /// model folds) is taken as distorted, so rays stay finite.
+    pub fn tangent_at(&self, x: f64, y: f64, w: u32, h: u32) -> (f64, f64) {
+        match &self.lens {
+            Lens::Ndc => {
+                let (xn, yn) = self.pixel_ndc_at(x, y, w, h);
+                (xn / self.focal, yn / self.focal)
+            }
+            Lens::Pixels(k) => {
+                let k = k.scaled(w, h);
+                let (u, v) = (x + 0.5, y + 0.5);
+                let (xu, yu) = k
+                    .unproject(u, v)
+                    .unwrap_or(((u - k.cx) / k.fx, (v - k.cy) / k.fy));
+                // OpenCV's x right, y down against sdfl's left, up.
+                (-xu, -yu)
+            }
+        }
+    }
+
+    /// The world unit direction through fractional pixel `(x, y)` of a
+    /// `w × h` image (pixel centres at whole numbers).
+    pub fn pixel_direction(&self, x: f64, y: f64, w: u32, h: u32) -> DVec3 {
+        let (tx, ty) = self.tangent_at(x, y, w, h);
+        self.tangent_direction(tx, ty)
+    }
+
+    /// The world unit direction through the depth-one point `(tx, ty)`.
+    pub fn tangent_direction(&self, tx: f64, ty: f64) -> DVec3 {
+        let (x, y, z) = self.axes();
+        (x * tx + y * ty + z).normalize()
+    }
+
+    /// Whether rays are straight lines through a pinhole: the tangent of a
+    /// pixel is affine in its position, so a rectangle of pixels sees a
+    /// rectangle of the depth-one plane.
+    pub fn is_rectilinear(&self) -> bool {
+        match &self.lens {
+            Lens::Ndc => true,
+            Lens::Pixels(k) => k.distortion.is_none(),
+        }
+    }
+
+    /// The rectangle of the depth-one plane, `((x0, x1), (y0, y1))`, that
+    /// holds every ray through the pixel rectangle from `(x0, y0)` to
+    /// `(x1, y1)` (fractional pixels). A distorted lens's rectangle is found
+    /// along the edges and grown by a margin, as its edges bow.
+    pub fn tangent_bounds(
+        &self,
+        (x0, y0): (f64, f64),
+        (x1, y1): (f64, f64),
+        w: u32,
+        h: u32,
+    ) -> ((f64, f64), (f64, f64)) {
+        let (ax, ay) = self.tangent_at(x0, y0, w, h);
+        let (bx, by) = self.tangent_at(x1, y1, w, h);
+        if self.is_rectilinear() {
+            return ((ax, bx), (ay, by));
+        }
+        let (mut lo, mut hi) = ((ax.min(bx), ay.min(by)), (ax.max(bx), ay.max(by)));
+        let n = 8;
+        for s in 0..=n {
+            let f = s as f64 / n as f64;
+            for (x, y) in [
+                (x0 + (x1 - x0) * f, y0),
+                (x0 + (x1 - x0) * f, y1),
+                (x0, y0 + (y1 - y0) * f),
+                (x1, y0 + (y1 - y0) * f),
+            ] {
+                let (tx, ty) = self.tangent_at(x, y, w, h);
+                lo = (lo.0.min(tx), lo.1.min(ty));
+                hi = (hi.0.max(tx), hi.1.max(ty));
+            }
+        }
+        let m = 0.05 * (hi.0 - lo.0).max(hi.1 - lo.1);
+        ((lo.0 - m, hi.0 + m), (lo.1 - m, hi.1 + m))
+    }
+
+    /// Half a pixel's width on the depth-one plane at the image centre (for
+    /// hit tolerances scaled to pixels).
+    pub fn half_pixel_tangent(&self, w: u32, h: u32) -> f64 {
+        match &self.lens {
+            Lens::Ndc => {
+                // The side spanning [-1, 1]: the shorter, unless it is one pixel.
+                let side = if w.min(h) > 1 { w.min(h) } else { w.max(h) };
+                1.0 / ((side.max(2) - 1) as f64 * self.focal)
+            }
+            Lens::Pixels(k) => {
+                let k = k.scaled(w, h);
+                0.5 / k.fx.max(k.fy)
+            }
+        }
     }
 
     /// The camera axes `(x, y, z)`: the columns of `R`.
@@ -88,7 +212,14 @@ impl Camera {
     /// Whether the axes are well defined (eye ≠ at, up not parallel to the view).
     pub fn is_valid(&self) -> bool {
         let (x, y, z) = self.axes();
-        self.focal.is_finite() && self.focal > 0.0 && [x, y, z].iter().all(|v| v.is_finite())
+        let lens = match &self.lens {
+            Lens::Ndc => true,
+            Lens::Pixels(k) => k.check().is_ok(),
+        };
+        self.focal.is_finite()
+            && self.focal > 0.0
+            && [x, y, z].iter().all(|v| v.is_finite())
+            && lens
     }
 
     /// World-space unit direction of the ray through NDC point `(x_ndc, y_ndc)`:
@@ -96,8 +227,7 @@ impl Camera {
     /// minus the eye. With `p_cam = p·R + T`, `T = -eye·R`, that point is
     /// `eye + (x/f)·X + (y/f)·Y + Z`.
     pub fn ray_direction(&self, x_ndc: f64, y_ndc: f64) -> DVec3 {
-        let (x, y, z) = self.axes();
-        (x * (x_ndc / self.focal) + y * (y_ndc / self.focal) + z).normalize()
+        self.tangent_direction(x_ndc / self.focal, y_ndc / self.focal)
     }
 
     /// World → camera space: `p·R + T`.
@@ -170,12 +300,27 @@ impl Camera {
             .collect()
     }
 
-    /// This camera as an OpenGL pose for a `w × h` image. sdfl's camera
-    /// axes are (left, up, forward) (NDC +x points left), so right = −x,
-    /// up = y, back = −z. Pixel focal lengths follow the pixel-centre
-    /// convention: corner centres span `w - 1` pixels between NDC ±1, half
-    /// centres `w`; either way pixel `i` has OpenGL centre `i + ½`.
+    /// This camera as an OpenGL pose for a `w × h` image, with pixel focal
+    /// lengths (the principal point is the image centre for an
+    /// [`Lens::Ndc`] camera).
     pub fn to_opengl(&self, w: u32, h: u32) -> GlPose {
+        let (c2w, k) = self.to_opengl_intrinsics(w, h);
+        GlPose {
+            c2w,
+            fl_x: k.fx,
+            fl_y: k.fy,
+        }
+    }
+
+    /// This camera as an OpenGL camera-to-world pose and pixel intrinsics
+    /// for a `w × h` image. sdfl's camera axes are (left, up, forward) (NDC
+    /// +x points left), so right = −x, up = y, back = −z. An [`Lens::Ndc`]
+    /// camera gives its pinhole: one focal length (square pixels), the
+    /// principal point at the centre, and the pixel pitch of its
+    /// convention (corner centres put the NDC side's `s` pixels `s - 1`
+    /// pitches apart, half centres `s`); either way pixel `i` has OpenCV
+    /// centre `i + ½`.
+    pub fn to_opengl_intrinsics(&self, w: u32, h: u32) -> ([[f64; 4]; 4], Intrinsics) {
         let (x, y, z) = self.axes();
         let cols = [-x, y, -z, self.eye];
         let mut c2w = [[0.0; 4]; 4];
@@ -185,31 +330,42 @@ impl Camera {
             }
         }
         c2w[3] = [0.0, 0.0, 0.0, 1.0];
-        let span = |n: u32| match self.pixel_centers {
-            PixelCenters::Corners => (n.max(2) - 1) as f64,
-            PixelCenters::Half => n as f64,
+        let k = match &self.lens {
+            Lens::Pixels(k) => k.scaled(w, h),
+            Lens::Ndc => {
+                let short = w.min(h);
+                let pitches = match self.pixel_centers {
+                    PixelCenters::Corners if short > 1 => (short - 1) as f64,
+                    PixelCenters::Corners => (w.max(h).max(2) - 1) as f64,
+                    PixelCenters::Half => short as f64,
+                };
+                let fl = self.focal * pitches / 2.0;
+                Intrinsics::centred(w, h, fl, fl)
+            }
         };
-        GlPose {
-            c2w,
-            fl_x: self.focal * span(w) / 2.0,
-            fl_y: self.focal * span(h) / 2.0,
-        }
+        (c2w, k)
     }
 
-    /// The sdfl camera of an OpenGL pose for a `w × h` image (principal
-    /// point at the centre): the same ray through every pixel. The rotation
-    /// must be orthonormal and right-handed (within 1e-3) and the pixels
-    /// square in sdfl's NDC (one focal for both axes): `fl_x/w = fl_y/h`
-    /// (half-pixel centres, preferred) or `fl_x/(w-1) = fl_y/(h-1)`
-    /// (corner centres). The result's `at` is one unit ahead of the eye
-    /// and its `up` the pose's up axis.
+    /// The sdfl camera of an OpenGL pose for a `w × h` image with its
+    /// principal point at the centre: the same ray through every pixel.
+    /// See [`Self::from_opengl_intrinsics`].
     pub fn from_opengl(pose: &GlPose, w: u32, h: u32) -> Result<Camera, String> {
-        let m = &pose.c2w;
+        Self::from_opengl_intrinsics(&pose.c2w, Intrinsics::centred(w, h, pose.fl_x, pose.fl_y))
+    }
+
+    /// The sdfl camera of an OpenGL camera-to-world pose (nerfstudio's and
+    /// NeRF-synthetic's `transform_matrix`: the camera looks down −z, +y
+    /// up, +x right) with pixel intrinsics. The rotation must be
+    /// orthonormal and right-handed (within 1e-3) and the intrinsics pass
+    /// [`Intrinsics::check`]. A centred pinhole with square pixels becomes
+    /// the conventions' camera (half-pixel centres, as Blender renders);
+    /// anything else keeps its intrinsics as a [`Lens::Pixels`]. The
+    /// result's `at` is one unit ahead of the eye and its `up` the pose's
+    /// up axis.
+    pub fn from_opengl_intrinsics(c2w: &[[f64; 4]; 4], k: Intrinsics) -> Result<Camera, String> {
+        let m = c2w;
         if !m.iter().flatten().all(|v| v.is_finite()) {
             return Err("the matrix holds a non-finite number".into());
-        }
-        if !(pose.fl_x.is_finite() && pose.fl_x > 0.0 && pose.fl_y.is_finite() && pose.fl_y > 0.0) {
-            return Err("the focal length is not a positive finite number".into());
         }
         let bottom = [0.0, 0.0, 0.0, 1.0];
         if m[3].iter().zip(bottom).any(|(a, b)| (a - b).abs() > 1e-6) {
@@ -232,28 +388,27 @@ impl Camera {
         if eye.abs().max_element() > 1e18 {
             return Err("the camera position is out of range".into());
         }
-        let close = |a: f64, b: f64| (a - b).abs() <= 1e-6 * a.abs().max(b.abs());
-        let (wf, hf) = (w as f64, h as f64);
-        let (focal, centers) = if w == 1 || h == 1 {
-            // A one-pixel side's rays sit at NDC 0 whatever its focal: the
-            // other side alone decides (half centres fit any pixel focal).
-            let (fl, n) = if w == 1 {
-                (pose.fl_y, hf)
-            } else {
-                (pose.fl_x, wf)
-            };
-            (2.0 * fl / n, PixelCenters::Half)
-        } else if close(pose.fl_x / wf, pose.fl_y / hf) {
-            (2.0 * pose.fl_x / wf, PixelCenters::Half)
-        } else if w > 1 && h > 1 && close(pose.fl_x / (wf - 1.0), pose.fl_y / (hf - 1.0)) {
-            (2.0 * pose.fl_x / (wf - 1.0), PixelCenters::Corners)
-        } else {
+        k.check()?;
+        let close = |a: f64, b: f64| (a - b).abs() <= 1e-9 * a.abs().max(b.abs()).max(1.0);
+        let (wf, hf) = (k.width as f64, k.height as f64);
+        let short = k.width.min(k.height) as f64;
+        let pinhole = k.distortion.is_none()
+            && close(k.fx, k.fy)
+            && close(k.cx, wf / 2.0)
+            && close(k.cy, hf / 2.0);
+        let focal = 2.0 * k.fy / short;
+        let (lo, hi) = crate::precision::F32_SAFE;
+        if !(lo..=hi).contains(&focal) {
             return Err(format!(
-                "focal lengths {} and {} pixels for {w}x{h} images: sdfl cameras have one focal length for both NDC axes, so pixels must be square in NDC",
-                pose.fl_x, pose.fl_y
+                "the focal length of {} pixels for {}x{} images is {focal:e} in `look_at`'s units, outside {lo:e} to {hi:e}",
+                k.fy, k.width, k.height
             ));
-        };
-        let cam = Camera::look_at(eye, eye - back, up, focal).with_pixel_centers(centers);
+        }
+        let mut cam =
+            Camera::look_at(eye, eye - back, up, focal).with_pixel_centers(PixelCenters::Half);
+        if !pinhole {
+            cam.lens = Lens::Pixels(k);
+        }
         if !cam.is_valid() {
             return Err("the pose has no well-defined orientation".into());
         }
@@ -262,14 +417,19 @@ impl Camera {
 }
 
 /// NDC coordinates of the centre of pixel `(i, j)` (column, row from the top)
-/// of a `w × h` image: `x = 1 - 2i/(w-1)`, `y = 1 - 2j/(h-1)`. A dimension of
-/// one pixel sits at 0.
+/// of a `w × h` image: `x = 1 - 2i/(w-1)`, `y = 1 - 2j/(h-1)` on a square
+/// image. Pixels are square: the shorter side `s` spans [-1, 1] and the
+/// longer side keeps its pitch, `x = (w - 1 - 2i)/(s - 1)`. A dimension of
+/// one pixel sits at 0 (and the other spans [-1, 1]).
 pub fn pixel_ndc(i: u32, j: u32, w: u32, h: u32) -> (f64, f64) {
+    let short = w.min(h);
     let axis = |k: u32, n: u32| {
-        if n > 1 {
+        if n == 1 {
+            0.0
+        } else if n == short || short == 1 {
             1.0 - 2.0 * k as f64 / (n - 1) as f64
         } else {
-            0.0
+            (n as f64 - 1.0 - 2.0 * k as f64) / (short - 1) as f64
         }
     };
     (axis(i, w), axis(j, h))
@@ -428,9 +588,9 @@ mod tests {
         for r in 0..3 {
             mirrored.c2w[r][0] *= -1.0;
         }
-        let mut stretched = good;
-        stretched.fl_y *= 1.5;
-        for bad in [nan, scaled, mirrored, stretched] {
+        let mut negative = good;
+        negative.fl_y = -negative.fl_y;
+        for bad in [nan, scaled, mirrored, negative] {
             assert!(Camera::from_opengl(&bad, 8, 8).is_err());
         }
     }
@@ -447,5 +607,147 @@ mod tests {
         assert!(mean.length() < 0.1, "{mean}");
         let upper = Camera::sphere(50, 4.0, DVec3::Y, 1.0, true);
         assert!(upper.iter().all(|c| c.eye.y > 0.0 && c.is_valid()));
+    }
+
+    /// Non-square images have square pixels (CONVENTIONS.md): neighbouring
+    /// pixels are the same angle apart across and down at the centre, the
+    /// shorter side spans [-1, 1], and square images keep the formula.
+    #[test]
+    fn non_square_images_have_square_pixels() {
+        for centers in [PixelCenters::Corners, PixelCenters::Half] {
+            let cam = Camera::look_at(DVec3::new(0.0, 0.0, -3.0), DVec3::ZERO, DVec3::Y, 1.3)
+                .with_pixel_centers(centers);
+            for (w, h) in [(160, 80), (81, 161), (64, 64)] {
+                let (x0, y0) = cam.pixel_ndc(w / 2, h / 2, w, h);
+                let (x1, _) = cam.pixel_ndc(w / 2 + 1, h / 2, w, h);
+                let (_, y1) = cam.pixel_ndc(w / 2, h / 2 + 1, w, h);
+                assert!(((x0 - x1) - (y0 - y1)).abs() < 1e-12, "{centers:?} {w}x{h}");
+                // The shorter side's outer pixels at ±1 (corners) or half a
+                // pixel inside (half centres).
+                let short_end = if w <= h {
+                    cam.pixel_ndc(0, h / 2, w, h).0
+                } else {
+                    cam.pixel_ndc(w / 2, 0, w, h).1
+                };
+                let want = match centers {
+                    PixelCenters::Corners => 1.0,
+                    PixelCenters::Half => 1.0 - 1.0 / w.min(h) as f64,
+                };
+                assert!(
+                    (short_end - want).abs() < 1e-12,
+                    "{centers:?} {w}x{h}: {short_end}"
+                );
+            }
+            assert_eq!(
+                cam.pixel_ndc(0, 0, 64, 64),
+                cam.pixel_ndc_at(0.0, 0.0, 64, 64)
+            );
+        }
+        assert_eq!(pixel_ndc(0, 0, 256, 256), (1.0, 1.0));
+        let (x, y) = pixel_ndc(0, 0, 160, 80);
+        assert!((x - 159.0 / 79.0).abs() < 1e-12 && y == 1.0);
+    }
+
+    fn capture_lens() -> Intrinsics {
+        Intrinsics {
+            width: 96,
+            height: 64,
+            fx: 80.0,
+            fy: 78.5,
+            cx: 50.3,
+            cy: 30.1,
+            distortion: Distortion::OpenCv {
+                k1: -0.08,
+                k2: 0.01,
+                p1: 0.002,
+                p2: -0.001,
+            },
+        }
+    }
+
+    /// The ray through each pixel of a distorted, off-centre camera meets
+    /// points that the camera's own forward model (OpenCV, from the pose)
+    /// projects back onto that pixel, within 1e-4 px; at half the size the
+    /// same holds with the intrinsics scaled.
+    #[test]
+    fn lens_rays_project_back_to_their_pixels() {
+        let pose = Camera::look_at(
+            DVec3::new(1.0, 0.7, -2.5),
+            DVec3::new(0.1, 0.0, 0.2),
+            DVec3::Y,
+            1.0,
+        )
+        .to_opengl(8, 8)
+        .c2w;
+        let k = capture_lens();
+        let cam = Camera::from_opengl_intrinsics(&pose, k).unwrap();
+        assert!(matches!(cam.lens, Lens::Pixels(_)) && !cam.is_rectilinear());
+        let col = |c: usize| DVec3::new(pose[0][c], pose[1][c], pose[2][c]);
+        for (w, h) in [(96, 64), (48, 32)] {
+            let ks = k.scaled(w, h);
+            let mut worst: f64 = 0.0;
+            for j in 0..h {
+                for i in 0..w {
+                    let d = cam.pixel_direction(i as f64, j as f64, w, h);
+                    let p = cam.eye + d * 3.7;
+                    // OpenCV camera space: x right, y down, z forward.
+                    let q = p - col(3);
+                    let pc = [q.dot(col(0)), -q.dot(col(1)), -q.dot(col(2))];
+                    let (u, v) = ks.project(pc).unwrap();
+                    worst = worst.max(
+                        (u - (i as f64 + 0.5))
+                            .abs()
+                            .max((v - (j as f64 + 0.5)).abs()),
+                    );
+                }
+            }
+            assert!(worst < 1e-4, "{w}x{h}: {worst:e} px");
+        }
+        // And back: the pose and intrinsics written are the ones read.
+        let (c2w, k2) = cam.to_opengl_intrinsics(96, 64);
+        assert_eq!(k2, k);
+        for r in 0..4 {
+            for c in 0..4 {
+                assert!((c2w[r][c] - pose[r][c]).abs() < 1e-12);
+            }
+        }
+    }
+
+    /// A centred pinhole with square pixels stays the conventions' camera;
+    /// an off-centre or non-square-pixel pinhole keeps its intrinsics and
+    /// still casts rectilinear rays through the tiles' rectangles.
+    #[test]
+    fn pinholes_pick_their_lens() {
+        let pose = Camera::look_at(DVec3::new(0.0, 0.0, -3.0), DVec3::ZERO, DVec3::Y, 1.0)
+            .to_opengl(8, 8)
+            .c2w;
+        let centred =
+            Camera::from_opengl_intrinsics(&pose, Intrinsics::centred(40, 30, 35.0, 35.0)).unwrap();
+        assert_eq!(centred.lens, Lens::Ndc);
+        assert_eq!(centred.pixel_centers, PixelCenters::Half);
+        let off = Intrinsics {
+            cx: 22.0,
+            ..Intrinsics::centred(40, 30, 35.0, 34.0)
+        };
+        let cam = Camera::from_opengl_intrinsics(&pose, off).unwrap();
+        assert!(cam.is_rectilinear() && matches!(cam.lens, Lens::Pixels(_)));
+        // The rectangle of a block of pixels holds each of its rays.
+        let ((x0, x1), (y0, y1)) = cam.tangent_bounds((3.5, 4.5), (11.5, 12.5), 40, 30);
+        for (i, j) in [(4.0, 5.0), (11.0, 12.0), (7.3, 9.9)] {
+            let (tx, ty) = cam.tangent_at(i, j, 40, 30);
+            assert!(tx >= x0.min(x1) && tx <= x0.max(x1) && ty >= y0.min(y1) && ty <= y0.max(y1));
+        }
+        // A distorted lens's rectangle also holds its rays.
+        let bent = Camera::from_opengl_intrinsics(&pose, capture_lens()).unwrap();
+        let ((x0, x1), (y0, y1)) = bent.tangent_bounds((-0.5, -0.5), (7.5, 7.5), 96, 64);
+        for a in 0..=16 {
+            for b in 0..=16 {
+                let (tx, ty) =
+                    bent.tangent_at(-0.5 + a as f64 / 2.0, -0.5 + b as f64 / 2.0, 96, 64);
+                assert!(
+                    tx >= x0.min(x1) && tx <= x0.max(x1) && ty >= y0.min(y1) && ty <= y0.max(y1)
+                );
+            }
+        }
     }
 }

@@ -11,6 +11,7 @@ pub mod camera;
 pub mod effects;
 pub mod eval;
 pub mod imports;
+pub mod lens;
 pub mod material;
 pub mod num;
 pub mod outputs;

@@ -33,8 +33,7 @@ impl ImageSize {
 pub fn pixel_ray(cam: &Camera, size: ImageSize, view: u32, pixel: u32) -> Ray {
     let i = pixel % size.width;
     let j = pixel / size.width;
-    let (x, y) = cam.pixel_ndc(i, j, size.width, size.height);
-    let d = cam.ray_direction(x, y);
+    let d = cam.pixel_direction(i as f64, j as f64, size.width, size.height);
     Ray {
         origin: cam.eye.to_array().map(|v| v as f32),
         dir: d.to_array().map(|v| v as f32),

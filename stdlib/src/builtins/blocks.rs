@@ -186,9 +186,9 @@ fn one_intrinsics(a: &Args, outputs: &[Output], cameras: &[Camera]) -> Result<()
     let Some(first) = cameras.first() else {
         return Ok(());
     };
-    let differs = cameras
-        .iter()
-        .position(|c| c.focal != first.focal || c.pixel_centers != first.pixel_centers);
+    let differs = cameras.iter().position(|c| {
+        c.focal != first.focal || c.pixel_centers != first.pixel_centers || c.lens != first.lens
+    });
     match (outputs.iter().any(|o| o.kind == OutputKind::Dataset), differs) {
         (true, Some(k)) => Err(value_error(
             a.get("camera").1,

@@ -57,6 +57,7 @@ mod args;
 mod blocks;
 mod common;
 mod data;
+mod lens;
 mod materials;
 mod neural;
 mod outputs;
@@ -363,6 +364,20 @@ fn table() -> Vec<Builtin> {
                 }
                 Ok(Value::Camera(cam))
             },
+        ),
+        func(
+            "lens",
+            "The same cameras seen through a real camera's lens: pixel focal lengths, principal point and distortion (OpenCV's models, as COLMAP and nerfstudio name them), for `size` images (scaled to other sizes). Renders through these cameras are what such a camera records, and `dataset` outputs write them as its intrinsics.",
+            vec![
+                req("cameras", Type::OneOf(vec![CAMERA, Type::list(CAMERA)]), "the cameras (their poses are kept)"),
+                req("size", Type::list(Type::Number), "the image [width, height] the intrinsics are for"),
+                req("focal", Type::list(Type::Number), "[fx, fy] in pixels"),
+                opt("center", Type::list(Type::Number), "[]", "the principal point [cx, cy] in pixels (default: the image centre)"),
+                opt("model", Type::Str, "\"pinhole\"", "\"pinhole\", \"opencv\" (distortion [k1, k2, p1, p2]) or \"opencv_fisheye\" ([k1, k2, k3, k4])"),
+                opt("distortion", Type::list(Type::Number), "[]", "the model's coefficients"),
+            ],
+            Type::list(CAMERA),
+            lens::lens,
         ),
         func(
             "orbit",
