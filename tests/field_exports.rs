@@ -14,7 +14,7 @@ const SPHERE: &str = r#"
 let ball = paint(sphere(0.6), constant([0.2, 0.6, 0.9]))
 render field {
   scene: volsdf(ball, alpha: 100, beta: 0.01),
-  camera: [look_at([0, 0, 3], focal: 3), look_at([3, 0, 0], focal: 3), look_at([0, 3, 0.1], focal: 3), look_at([-2, -2, 1], focal: 3)],
+  camera: [look_at([0, 0, 3], focal: 4), look_at([3, 0, 0], focal: 4), look_at([0, 3, 0.1], focal: 4), look_at([-2, -2, 1], focal: 4)],
   size: [32, 24],
   sampler: stratified(samples: 256, near: 1, far: 5),
   outputs: [
