@@ -61,6 +61,7 @@ mod lens;
 mod materials;
 mod neural;
 mod outputs;
+pub mod paths;
 mod shapes;
 mod volumes;
 
@@ -717,5 +718,6 @@ fn table() -> Vec<Builtin> {
         ])
         .chain(neural::builtins())
         .chain(outputs::builtins())
+        .chain(paths::builtins())
         .collect()
 }
