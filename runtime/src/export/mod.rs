@@ -24,6 +24,7 @@ use crate::volume::rays::pixel_ray;
 use crate::volume::{DensityModel, ImageSize, Ray, SplitMix64, Stratified, VolumeError};
 
 pub mod depth;
+pub mod paths;
 pub mod ply;
 pub mod write;
 
