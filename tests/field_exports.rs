@@ -337,3 +337,40 @@ fn a_finished_run_renders_new_views_without_training() {
     use image::AnimationDecoder;
     assert_eq!(gif.into_frames().count(), 3);
 }
+
+/// `training_loop(...)` as `views` is made from the training cameras when
+/// the run has read them: the same cameras as `camera_loop` through them
+/// written out in the file.
+#[test]
+fn a_training_loop_is_the_loop_through_the_training_cameras() {
+    let depth = |views: &str, name: &str| {
+        let dir = case_dir(name);
+        let file = dir.join("t.sdfl");
+        let src = NERF.replace(
+            "views: orbit(radius: 2.5, up: [0, 1, 0], focal: 1, views: 2)",
+            views,
+        );
+        fs::write(&file, src).unwrap();
+        let out = dir.join("out");
+        let o = run_into(&dir, &file, &out, &[]);
+        assert_outcome(name, &o, Expect::Ok);
+        (0..5)
+            .map(|k| fs::read(out.join(format!("nerf_depth_{k:02}.npy"))).unwrap())
+            .collect::<Vec<_>>()
+    };
+    let at_run = depth(
+        "views: training_loop(frames: 5, keyframes: 3)",
+        "field_exports_loop_run",
+    );
+    let in_file = depth(
+        "views: camera_loop(cams, frames: 5, keyframes: 3)",
+        "field_exports_loop_file",
+    );
+    assert_eq!(at_run, in_file);
+    // Another path gives other pictures (the comparison can fail).
+    let other = depth(
+        "views: camera_loop(cams, frames: 5, keyframes: 2)",
+        "field_exports_loop_other",
+    );
+    assert_ne!(at_run, other);
+}

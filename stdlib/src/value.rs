@@ -41,6 +41,9 @@ pub enum Value {
     /// The shape of a network's hidden layers, for `nerf(network: ...)` and
     /// `neural_sdf(network: ...)`.
     Network(Arc<Mlp>),
+    /// Cameras known only when a `train` runs (a loop through the training
+    /// cameras of a data set read from files), as its `views`.
+    ViewPath(ViewPath),
     /// The value of an expression that already produced a diagnostic.
     /// Anything computed from it is poison too, silently.
     Poison,
@@ -65,6 +68,7 @@ impl Value {
             Value::Loss(_) => "loss",
             Value::Field(_) => "field",
             Value::Sampler(_) => "sampler",
+            Value::ViewPath(_) => "camera path",
             Value::Dataset(_) => "data set",
             Value::Optimizer(_) => "optimizer",
             Value::Encoding(_) => "encoding",
@@ -123,6 +127,22 @@ impl Field {
                 .bounds()
                 .map(|b| (b.min.to_array(), b.max.to_array())),
             Field::NeuralSdf(_) | Field::NeuralSurface(_) => None,
+        }
+    }
+}
+
+/// A `train`'s views resolved when it runs, from its training cameras.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ViewPath {
+    /// `camera_loop` through the training cameras.
+    TrainingLoop { frames: usize, keyframes: usize },
+}
+
+impl ViewPath {
+    pub fn frames(&self) -> usize {
+        match self {
+            ViewPath::TrainingLoop { frames, .. } => *frames,
         }
     }
 }
@@ -888,8 +908,11 @@ pub struct TrainJob {
     pub epochs: Option<usize>,
     pub seed: u64,
     pub backend: Backend,
-    /// Cameras and size for the before/after outputs.
+    /// Cameras and size for the before/after outputs (placeholders, as
+    /// many as it will have, where `view_path` makes them at run time).
     pub views: Vec<Camera>,
+    /// Views made from the training cameras when the run has read them.
+    pub view_path: Option<ViewPath>,
     pub width: u32,
     pub height: u32,
     pub before: Vec<Output>,

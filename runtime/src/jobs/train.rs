@@ -7,6 +7,7 @@ use crate::neural::distance::NeuralSdfObjective;
 use crate::neural::surface::SurfaceObjective;
 use crate::output::write_bytes;
 use crate::plot::{self, Axis, Chart, Scale, Series};
+use sdfl_stdlib::value::ViewPath;
 
 /// The learned parameters and how training went.
 #[derive(Debug, Clone, Serialize)]
@@ -261,6 +262,22 @@ pub fn run_train_job(
     } = load_views(&job.data, base).map_err(|e| crate::data::at_argument(job.data_span, e))?;
     stages.push(("load data".to_string(), t.elapsed().as_secs_f64()));
     within_budget_once_read(job, size, &views, &test_views)?;
+    // The before/after outputs' cameras: the statement's, or a path made
+    // from the training cameras now that they are read.
+    let out_views: Vec<Camera> = match job.view_path {
+        None => job.views.clone(),
+        Some(ViewPath::TrainingLoop { frames, keyframes }) => {
+            let train_cams: Vec<Camera> = views.iter().map(|v| v.camera).collect();
+            sdfl_stdlib::builtins::paths::camera_loop(&train_cams, frames, keyframes).map_err(
+                |e| {
+                    invalid(format!(
+                        "training `{}`: no loop through its training cameras: {e}",
+                        job.name
+                    ))
+                },
+            )?
+        }
+    };
 
     // The analytic model outlives the run that borrows it.
     let analytic = job.model.as_sdf().map(TrainModel::new);
@@ -414,7 +431,7 @@ pub fn run_train_job(
         let r = write_volume_outputs(
             &job.name,
             &view,
-            &job.views,
+            &out_views,
             wh,
             &job.sampler,
             outputs,
@@ -502,7 +519,7 @@ pub fn run_train_job(
         let cx = crate::export::write::ExportContext {
             out_dir,
             sampler: &job.sampler,
-            cameras: &job.views,
+            cameras: &out_views,
             size: wh,
             ray_views: &ray_views,
             auto_region: export_region(job),
@@ -574,6 +591,7 @@ pub fn run_train_job(
         );
         written.extend(write_geometry_gifs(
             job,
+            &out_views,
             &job.before,
             &run.values(),
             wh,
@@ -705,6 +723,7 @@ pub fn run_train_job(
     }
     written.extend(write_geometry_gifs(
         job,
+        &out_views,
         &job.after,
         &run.values(),
         wh,
@@ -892,6 +911,7 @@ fn export_region(job: &TrainJob) -> Option<([f64; 3], [f64; 3])> {
 /// sphere-traced from every view, normals as colours.
 fn write_geometry_gifs(
     job: &TrainJob,
+    cameras: &[Camera],
     outputs: &[Output],
     values: &[f32],
     (w, h): (u32, u32),
@@ -913,7 +933,7 @@ fn write_geometry_gifs(
             continue;
         };
         let mut gif = crate::output::GifWriter::create(&out_dir.join(&o.path), fps)?;
-        for cam in &job.views {
+        for cam in cameras {
             let size = ImageSize {
                 width: w,
                 height: h,

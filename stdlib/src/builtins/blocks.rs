@@ -218,7 +218,7 @@ pub(crate) fn train_sig() -> BlockSig {
             opt("epochs", Type::Number, "0", "passes over all training pixels (0: use `iterations`)"),
             opt("seed", Type::Number, "0", "seed of the ray batches and jitter"),
             opt("backend", Type::Str, "\"fused\"", "\"fused\" (one kernel per ray, hand-written backward) or \"dfdx\" (an autodiff graph)"),
-            opt("views", Type::OneOf(vec![CAMERA, Type::list(CAMERA)]), "orbit()", "cameras of the before/after outputs"),
+            opt("views", Type::OneOf(vec![CAMERA, Type::list(CAMERA), super::paths::VIEW_PATH]), "orbit()", "cameras of the before/after outputs, or `training_loop(...)`: a loop through the training cameras made when the run starts"),
             opt("size", Type::list(Type::Number), "[128, 128]", "size of the before/after outputs"),
             opt("before", Type::list(OUTPUT), "[]", "outputs rendered from the starting model"),
             opt("after", Type::list(OUTPUT), "[]", "outputs rendered from the trained model, and `loss_curve`, `psnr_curve` and `comparison` (the last two need held-out views)"),
@@ -345,7 +345,24 @@ pub(crate) fn train_block(name: &str, a: &Args) -> Built<TrainJob> {
     let rays = e.ok(a.count("rays", 1, 1 << 20));
     let iterations = e.ok(a.count("iterations", 0, 10_000_000));
     let seed = e.ok(a.count("seed", 0, u32::MAX as u64));
-    let views = e.ok(camera_list(a, "views"));
+    let view_path = match a.get("views").0 {
+        Value::ViewPath(p) => Some(*p),
+        _ => None,
+    };
+    let views = match view_path {
+        // As many placeholders as the path will have cameras: files and
+        // work are counted before the run makes them.
+        Some(p) => Some(vec![
+            Camera::look_at(
+                DVec3::Z * 3.0,
+                DVec3::ZERO,
+                DVec3::Y,
+                1.0
+            );
+            p.frames()
+        ]),
+        None => e.ok(camera_list(a, "views")),
+    };
     let eval_every = e.ok(a.count("eval_every", 0, 10_000_000));
     let bounds = e.ok(a.positive("bounds"));
     let (width, height) = size.unwrap_or((1, 1));
@@ -365,6 +382,7 @@ pub(crate) fn train_block(name: &str, a: &Args) -> Built<TrainJob> {
             seed: seed.unwrap_or(0),
             backend: backend.unwrap_or(Backend::Fused),
             views: views?,
+            view_path,
             width,
             height,
             before: before?,

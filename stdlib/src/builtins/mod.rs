@@ -22,7 +22,7 @@ use crate::value::{
     Backend, Colormap, Dataset, DensityActivation, DensityKind, Encoding, Field, Harmonic,
     HashGridSpec, HitTolerance, LastInterval, Loss, LossKind, MeshRegion, Nerf, NeuralSdf,
     NeuralSurface, OccupancySpec, Optimizer, Output, OutputKind, Precision, RenderJob, Sampler,
-    Schedule, SdfField, TrainJob, Value, VolumeJob,
+    Schedule, SdfField, TrainJob, Value, ViewPath, VolumeJob,
 };
 
 pub const SHAPE: Type = Type::Named("shape");

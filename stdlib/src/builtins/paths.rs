@@ -18,8 +18,24 @@ use super::*;
 /// Most frames of a path (as views: the most views of a statement).
 pub const MAX_FRAMES: u64 = MAX_VIEWS as u64;
 
+/// The type of `training_loop(...)`.
+pub const VIEW_PATH: Type = Type::Named("camera path");
+
 pub(crate) fn builtins() -> Vec<Builtin> {
     vec![func(
+        "training_loop",
+        "As a `train`'s `views`: `camera_loop` through the training cameras, made when the run has read its data (a data set from files has its cameras only then).",
+        vec![
+            opt("frames", Type::Number, "60", "cameras on the loop (1 to 10 000)"),
+            opt("keyframes", Type::Number, "8", "sectors of azimuth, one control point each (1 to 10 000)"),
+        ],
+        VIEW_PATH,
+        |a| {
+            let frames = a.count("frames", 1, MAX_FRAMES)? as usize;
+            let keyframes = a.count("keyframes", 1, MAX_FRAMES)? as usize;
+            Ok(Value::ViewPath(ViewPath::TrainingLoop { frames, keyframes }))
+        },
+    ), func(
         "camera_loop",
         "A smooth closed loop of `frames` cameras through (or near) `cameras`, looking at their common focus (the point nearest all their optical axes): a centripetal Catmull-Rom spline through the mean position of each of `keyframes` sectors of azimuth about the cameras' mean up axis (through each camera when `keyframes` ≥ their number); the cameras' mean focal length. Use it as a `train`'s `views` to render a trained model where its training cameras were.",
         vec![
