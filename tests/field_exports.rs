@@ -130,7 +130,7 @@ fn a_field_exports_its_surface_points_and_depth() {
 
     // Colour-mapped depth: the image beside its colour bar.
     let img = image::open(out.join("depth_00.png")).unwrap().to_rgb8();
-    assert_eq!(img.dimensions(), (32 + 120, 200));
+    assert_eq!(img.dimensions(), (32 + 150, 200));
     assert_eq!(img.get_pixel(0, 0).0, [0, 0, 0], "no depth: black");
     let c = img.get_pixel(16, 12).0;
     // Depth 2.4 in [2, 3] on viridis: blue-green, not an end colour.
@@ -186,7 +186,7 @@ fn a_trained_nerf_writes_its_exports() {
             .filter(|d| d.is_finite())
             .all(|d| (1.0..=5.0).contains(d)));
         let img = image::open(out.join(format!("nerf_depth_{k:02}.png"))).unwrap();
-        assert_eq!((img.width(), img.height()), (12 + 120, 200));
+        assert_eq!((img.width(), img.height()), (12 + 150, 200));
     }
 }
 

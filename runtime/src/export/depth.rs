@@ -81,7 +81,7 @@ pub fn depth_range(depth: &[f32], fixed: Option<[f64; 2]>) -> [f64; 2] {
 }
 
 /// Width of the colour bar panel beside a depth image.
-pub const BAR_WIDTH: u32 = 120;
+pub const BAR_WIDTH: u32 = 150;
 /// Smallest height of a depth map (the bar's ticks and title need room).
 pub const MIN_HEIGHT: u32 = 200;
 
@@ -106,6 +106,7 @@ pub fn depth_map(
             .margin_top(10)
             .margin_bottom(10)
             .margin_left(4)
+            .margin_right(16)
             .y_label_area_size(0)
             .right_y_label_area_size(70)
             .build_cartesian_2d(0f64..1f64, range[0]..range[1])
