@@ -228,13 +228,17 @@ pub(crate) fn plan_text(program: &sdfl_stdlib::Program) -> String {
         for d in job
             .outputs
             .iter()
-            .filter(|x| x.kind == sdfl_stdlib::OutputKind::Dataset)
+            .filter(|x| matches!(x.kind, sdfl_stdlib::OutputKind::Dataset { .. }))
         {
             let _ = writeln!(
                 o,
-                "  dataset        {}/transforms.json + r_0..r_{}.png (NeRF-synthetic: OpenGL poses, RGBA, alpha = hit mask)",
+                "  dataset        {}/transforms.json (nerfstudio) + transforms_{{train,val,test}}.json (Blender) + r_0..r_{}.png (OpenGL poses, RGBA, alpha = hit mask; {} held out)",
                 d.path.display(),
-                job.cameras.len() - 1
+                job.cameras.len() - 1,
+                match d.kind {
+                    sdfl_stdlib::OutputKind::Dataset { test_views, .. } => test_views,
+                    _ => 0,
+                }
             );
         }
         mesh_lines(&mut o, &job.outputs, "the scene's bounds");

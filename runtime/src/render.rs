@@ -69,7 +69,7 @@ impl Plan {
                 OutputKind::Normals => plan.normals.push(who),
                 OutputKind::Mask => plan.mask.push(who),
                 // RGBA: colour, with the hit mask as alpha.
-                OutputKind::Dataset => {
+                OutputKind::Dataset { .. } => {
                     plan.color.push(who.clone());
                     plan.mask.push(who);
                 }
@@ -691,8 +691,7 @@ pub fn run_job(
     let mut datasets: Vec<DatasetWriter> = job
         .outputs
         .iter()
-        .filter(|o| o.kind == OutputKind::Dataset)
-        .map(|o| DatasetWriter::new(out_dir, &o.path, (width, height)))
+        .filter_map(|o| DatasetWriter::for_output(out_dir, o, (width, height), views))
         .collect();
     let mut written = Vec::new();
     let (mut trace_s, mut encode_s) = (0.0, 0.0);
@@ -712,9 +711,9 @@ pub fn run_job(
         for o in &job.outputs {
             let rel = view_path(&o.path, k, views);
             let (kind, rgb): (&'static str, Option<Vec<u8>>) = match o.kind {
-                OutputKind::Gif { .. } | OutputKind::DepthGif { .. } | OutputKind::Dataset => {
-                    continue
-                }
+                OutputKind::Gif { .. }
+                | OutputKind::DepthGif { .. }
+                | OutputKind::Dataset { .. } => continue,
                 OutputKind::Image => ("image", view.color.clone()),
                 OutputKind::Normals => ("normal_map", view.normals.clone()),
                 OutputKind::Mask => (

@@ -272,7 +272,11 @@ fn a_written_nerf_synthetic_data_set_reads_back_as_the_render() {
     assert_eq!(again.train.len(), 4);
     assert_eq!(again.train[2].image.pixels, views[2].image.pixels);
     // A test split comes from its own file, never from the lone
-    // transforms.json that stands in for the training split.
+    // transforms.json that stands in for the training split. (`dataset`
+    // writes `transforms_test.json`, every view when none is held out: a
+    // set without one is made here.)
+    std::fs::remove_file(out.join("set/transforms_test.json")).unwrap();
+    std::fs::remove_file(out.join("set/transforms_train.json")).unwrap();
     let split = |test: &str| {
         load(&format!(
             "train t {{ model: sdf_volume(sphere(param(0.8))), iterations: 1, data: nerf_synthetic(\"set\", test_split: \"{test}\") }}"
@@ -424,10 +428,23 @@ fn dataset_files_are_claimed_before_anything_runs() {
     assert!(e.contains("directory"), "{e}");
 }
 
+/// Cameras of different focal lengths write their intrinsics per frame
+/// (nerfstudio's layout), each frame's its own.
 #[test]
-fn a_dataset_needs_one_focal_length() {
-    let e = load_err(
-        "render r { scene: sphere(), camera: [look_at([0, 0, -3]), look_at([0, 0, 3], focal: 2)], outputs: [dataset(\"set\")] }",
+fn a_dataset_of_two_focal_lengths_writes_them_per_frame() {
+    let p = load(
+        "render r { scene: sphere(), camera: [look_at([0, 0, -3]), look_at([0, 0, 3], focal: 2)], size: [8, 6], outputs: [dataset(\"set\")] }",
     );
-    assert!(e.contains("same `focal`"), "{e}");
+    let out = temp("two-focals");
+    run_job(&p.renders[0], &out, RunOptions::default(), &|_| {}).unwrap();
+    let doc: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("set/transforms.json")).unwrap()).unwrap();
+    let fl: Vec<f64> = doc["frames"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|f| f["fl_x"].as_f64().expect("per-frame fl_x"))
+        .collect();
+    // Corner centres on 6 rows: fl = focal·(6 − 1)/2.
+    assert_eq!(fl, vec![2.5, 5.0]);
 }

@@ -48,9 +48,18 @@ pub fn view_path(path: &Path, k: usize, n: usize) -> PathBuf {
 pub fn dataset_files(dir: &Path, views: usize) -> Vec<PathBuf> {
     (0..views)
         .map(|k| dir.join(format!("r_{k}.png")))
-        .chain([dir.join("transforms.json")])
+        .chain(DATASET_JSON.iter().map(|f| dir.join(f)))
         .collect()
 }
+
+/// The JSON files of a `dataset` output: one per split (Blender form), then
+/// the whole set (nerfstudio form), in the order they are finished.
+pub const DATASET_JSON: [&str; 4] = [
+    "transforms_train.json",
+    "transforms_val.json",
+    "transforms_test.json",
+    "transforms.json",
+];
 
 /// Whether an output kind is written once per view (else once per job).
 pub fn per_view(kind: &OutputKind) -> bool {
@@ -112,7 +121,7 @@ pub fn kind_name(kind: &OutputKind) -> &'static str {
         OutputKind::LossCurve => "loss_curve",
         OutputKind::PsnrCurve => "psnr_curve",
         OutputKind::Comparison => "comparison",
-        OutputKind::Dataset => "dataset",
+        OutputKind::Dataset { .. } => "dataset",
         OutputKind::Mesh { .. } => "mesh",
         OutputKind::GeometryGif { .. } => "geometry_gif",
         OutputKind::DensityMesh { .. } => "density_mesh",
@@ -176,12 +185,12 @@ impl Files {
 fn output_files(outputs: &[Output], views: usize, job: JobKind) -> Vec<(PathBuf, Span, String)> {
     let mut out = Vec::new();
     for o in outputs.iter().filter(|o| written_by(&o.kind, job)) {
-        if o.kind == OutputKind::Dataset {
+        if matches!(o.kind, OutputKind::Dataset { .. }) {
             for (k, path) in dataset_files(&o.path, views).into_iter().enumerate() {
                 let who = if k < views {
                     describe(o, k, views)
                 } else {
-                    "`dataset` writes its transforms.json".to_string()
+                    "`dataset` writes its transforms files".to_string()
                 };
                 out.push((path, o.span, who));
             }
@@ -200,11 +209,33 @@ fn file_count(outputs: &[Output], views: usize) -> u64 {
     outputs
         .iter()
         .map(|o| match o.kind {
-            OutputKind::Dataset => views as u64 + 1,
+            OutputKind::Dataset { .. } => views as u64 + DATASET_JSON.len() as u64,
             _ if per_view(&o.kind) => views as u64,
             _ => 1,
         })
         .sum()
+}
+
+/// A `dataset` must keep a training view: its held-out views are fewer
+/// than the statement's.
+fn held_out_errors<'a>(outputs: impl IntoIterator<Item = &'a Output>, views: usize) -> Vec<Diag> {
+    outputs
+        .into_iter()
+        .filter_map(|o| match o.kind {
+            OutputKind::Dataset { test_views, .. } if test_views > 0 && test_views >= views => {
+                Some(
+                    Diag::new(
+                        codes::VALUE,
+                        o.span,
+                        format!("`dataset` holds out {test_views} views of the statement's {views}, leaving none to train on"),
+                    )
+                    .label("no training view left")
+                    .help(format!("hold out fewer than {views} views (`test_views`), or use more cameras")),
+                )
+            }
+            _ => None,
+        })
+        .collect()
 }
 
 /// Checks the files of the job a statement just added to `program` (the
@@ -218,12 +249,14 @@ pub fn check_job(
 ) -> Vec<Diag> {
     let mut claims = Vec::new();
     let count;
+    let held;
     match kind {
         "train" => {
             let Some(j) = program.trains.last() else {
                 return Vec::new();
             };
             count = file_count(&j.before, j.views.len()) + file_count(&j.after, j.views.len());
+            held = held_out_errors(j.before.iter().chain(&j.after), j.views.len());
             if count <= MAX_FILES {
                 claims = output_files(&j.before, j.views.len(), JobKind::TrainBefore);
                 claims.extend(output_files(&j.after, j.views.len(), JobKind::TrainAfter));
@@ -241,6 +274,7 @@ pub fn check_job(
                 return Vec::new();
             };
             count = file_count(&j.outputs, j.cameras.len());
+            held = held_out_errors(&j.outputs, j.cameras.len());
             if count <= MAX_FILES {
                 claims = output_files(&j.outputs, j.cameras.len(), JobKind::Volume);
             }
@@ -250,6 +284,7 @@ pub fn check_job(
                 return Vec::new();
             };
             count = file_count(&j.outputs, j.cameras.len());
+            held = held_out_errors(&j.outputs, j.cameras.len());
             if count <= MAX_FILES {
                 claims = output_files(&j.outputs, j.cameras.len(), JobKind::Render);
             }
@@ -269,6 +304,9 @@ pub fn check_job(
         )
         .label("one file per output and view")
         .help("use fewer views, or a `gif(...)` output, which holds every view in one file")];
+    }
+    if !held.is_empty() {
+        return held;
     }
     // Names the file system refuses fail here, not after rendering.
     if let Some((path, span, _)) = claims.iter().find(|(p, _, _)| {
@@ -322,7 +360,7 @@ pub fn output_dirs(program: &Program) -> Vec<PathBuf> {
                 .flat_map(|j| j.before.iter().chain(&j.after)),
         );
     for o in outputs {
-        add(if o.kind == OutputKind::Dataset {
+        add(if matches!(o.kind, OutputKind::Dataset { .. }) {
             o.path.clone()
         } else {
             parent(&o.path)

@@ -176,9 +176,15 @@ pub enum OutputKind {
     PsnrCurve,
     /// Each held-out view: truth | render | error, stacked.
     Comparison,
-    /// A NeRF-synthetic data set in a directory: `transforms.json` and
-    /// `r_<k>.png` per view (RGBA, alpha = the hit mask).
-    Dataset,
+    /// A data set in a directory that NeRF codes read (see
+    /// `runtime::data::export`): `r_<k>.png` per view (RGBA, alpha = the
+    /// hit mask), `transforms_{train,val,test}.json` and `transforms.json`.
+    Dataset {
+        /// Views held out as the `val` and `test` splits (0: none).
+        test_views: usize,
+        /// Seed of the shuffle that picks them ([`held_out`]).
+        seed: u64,
+    },
     /// A neural SDF's surface sphere-traced from every view (normals as
     /// colours) as an animated GIF: the geometry of a model whose `gif`
     /// shows its volume-rendered colour.

@@ -231,7 +231,7 @@ fn bytes_per_pixel(kinds: impl Iterator<Item = OutputKind>, volume: bool) -> f64
             OutputKind::Normals => 3.0,
             OutputKind::Mask => 4.0,
             // Colour, mask and the RGBA frame being encoded.
-            OutputKind::Dataset => 8.0,
+            OutputKind::Dataset { .. } => 8.0,
             _ => 3.0,
         };
     }
@@ -378,7 +378,7 @@ pub fn render_work_of(j: &RenderJob, size: Option<(u32, u32)>, primitives: u64) 
                 | OutputKind::DepthGif { .. }
                 | OutputKind::Normals
                 | OutputKind::Mask
-                | OutputKind::Dataset
+                | OutputKind::Dataset { .. }
         )
     });
     let rays = if spp > 1.0 && geometry {

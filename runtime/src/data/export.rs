@@ -1,46 +1,185 @@
-//! Writing data sets that sdfl renders (the `dataset(...)` output).
+//! Writing data sets that sdfl renders (the `dataset(...)` output), in a
+//! layout that nerfstudio's `blender-data` and `nerfstudio-data` parsers,
+//! instant-ngp and sdfl's own `nerf_synthetic(...)` read unchanged:
+//!
+//! * `r_<k>.png`: view `k`, RGBA (alpha = the hit mask, or opaque).
+//! * `transforms_train.json`, `transforms_val.json`, `transforms_test.json`
+//!   (Blender form): `camera_angle_x`, and frames whose `file_path` is
+//!   `./r_<k>` *without* extension (the Blender parser appends `.png`;
+//!   instant-ngp and sdfl try the path, then with an image extension).
+//! * `transforms.json` (nerfstudio form): every frame with `file_path`
+//!   `r_<k>.png` *with* extension (the nerfstudio parser opens it as
+//!   given), `camera_model`, `train_filenames` / `val_filenames` /
+//!   `test_filenames`.
+//!
+//! Every file states the intrinsics in both spellings: `camera_angle_x`
+//! (Blender, sdfl) and `fl_x fl_y cx cy w h` with the distortion
+//! (`k1 k2 p1 p2`, or `k1..k4` and `is_fisheye` for a fisheye), at the top
+//! when every view shares them, else per frame. Poses are OpenGL
+//! camera-to-world matrices (`transform_matrix`: the camera looks down −z,
+//! +y up, +x right), pixel centres at `i + ½` (OpenCV's `cx`).
+//!
+//! instant-ngp is pointed at `transforms.json` (every view) or
+//! `transforms_train.json`: given the directory it loads every JSON file
+//! in it, so each view would count four times, held-out ones included.
+//!
+//! The `val` and `test` splits are the held-out views (the same views in
+//! both: nerfstudio evaluates on `val`, NeRF-synthetic codes on `test`);
+//! with none held out they list every view, so every parser finds them.
 
 use std::io;
 use std::path::{Path, PathBuf};
 
 use sdfl_stdlib::camera::Camera;
-use serde_json::{json, Value};
+use sdfl_stdlib::lens::{Distortion, Intrinsics};
+use sdfl_stdlib::outputs::DATASET_JSON;
+use sdfl_stdlib::value::held_out;
+use serde_json::{json, Map, Value};
 
 use crate::output::{write_bytes, write_png_rgba};
 use crate::render::Written;
 
-/// The key of the `transforms.json` a [`DatasetWriter`] leaves while it
+/// The key of the transforms files a [`DatasetWriter`] leaves while it
 /// writes.
 pub(crate) const INCOMPLETE: &str = "sdfl_incomplete";
 
-/// Writes a data set as NeRF-synthetic files: `r_<k>.png` (RGBA, alpha =
-/// the hit mask, or opaque) per view and, on [`DatasetWriter::finish`],
-/// `transforms.json`, each atomically. Until then `transforms.json` marks
-/// the set incomplete.
+/// The distortion keys and values of `d`. Only the model's own keys:
+/// instant-ngp reads `p1`, `p2` into the slots of `k3`, `k4`, so a fisheye
+/// file holding `p1` would lose its `k3`.
+fn distortion_keys(d: &Distortion) -> Vec<(&'static str, Value)> {
+    match *d {
+        Distortion::None => Vec::new(),
+        Distortion::OpenCv { k1, k2, p1, p2 } => vec![
+            ("k1", k1.into()),
+            ("k2", k2.into()),
+            ("p1", p1.into()),
+            ("p2", p2.into()),
+        ],
+        Distortion::Fisheye { k1, k2, k3, k4 } => vec![
+            ("k1", k1.into()),
+            ("k2", k2.into()),
+            ("k3", k3.into()),
+            ("k4", k4.into()),
+            // instant-ngp's switch to its fisheye model (nerfstudio
+            // takes `camera_model`).
+            ("is_fisheye", true.into()),
+        ],
+    }
+}
+
+fn is_fisheye(i: &Intrinsics) -> bool {
+    matches!(i.distortion, Distortion::Fisheye { .. })
+}
+
+/// `fl_x fl_y cx cy w h` and the distortion, as JSON keys.
+fn intrinsic_keys(i: &Intrinsics) -> Vec<(&'static str, Value)> {
+    let mut v: Vec<(&'static str, Value)> = vec![
+        ("fl_x", i.fx.into()),
+        ("fl_y", i.fy.into()),
+        ("cx", i.cx.into()),
+        ("cy", i.cy.into()),
+        ("w", i.width.into()),
+        ("h", i.height.into()),
+    ];
+    v.extend(distortion_keys(&i.distortion));
+    v
+}
+
+/// The horizontal field of view of a centred pinhole with `i`'s `fx`.
+fn camera_angle_x(i: &Intrinsics) -> f64 {
+    2.0 * (i.width as f64 / 2.0 / i.fx).atan()
+}
+
+/// Equal up to rounding (views of one camera model computed apart).
+fn same(a: &Intrinsics, b: &Intrinsics) -> bool {
+    let close = |x: f64, y: f64| (x - y).abs() <= 1e-9 * x.abs().max(y.abs()).max(1.0);
+    let all = |x: [f64; 4], y: [f64; 4]| x.iter().zip(&y).all(|(p, q)| close(*p, *q));
+    let lens = match (a.distortion, b.distortion) {
+        (Distortion::None, Distortion::None) => true,
+        (
+            Distortion::OpenCv { k1, k2, p1, p2 },
+            Distortion::OpenCv {
+                k1: q,
+                k2: r,
+                p1: s,
+                p2: t,
+            },
+        ) => all([k1, k2, p1, p2], [q, r, s, t]),
+        (
+            Distortion::Fisheye { k1, k2, k3, k4 },
+            Distortion::Fisheye {
+                k1: q,
+                k2: r,
+                k3: s,
+                k4: t,
+            },
+        ) => all([k1, k2, k3, k4], [q, r, s, t]),
+        _ => false,
+    };
+    lens && (a.width, a.height) == (b.width, b.height)
+        && all([a.fx, a.fy, a.cx, a.cy], [b.fx, b.fy, b.cx, b.cy])
+}
+
+struct FrameRecord {
+    k: usize,
+    c2w: [[f64; 4]; 4],
+    intrinsics: Intrinsics,
+}
+
+/// Writes a data set: `r_<k>.png` per view as it is pushed, and on
+/// [`DatasetWriter::finish`] the transforms files, each atomically. From the
+/// first view until then every transforms file marks the set incomplete.
 pub struct DatasetWriter {
     /// Relative to the output directory.
     dir: PathBuf,
     out_dir: PathBuf,
-    frames: Vec<Value>,
-    camera_angle_x: Option<f64>,
-    focal: Option<(f64, f64)>,
+    frames: Vec<FrameRecord>,
     size: (u32, u32),
+    /// Per view, whether it is held out.
+    held: Vec<bool>,
 }
 
 impl DatasetWriter {
-    pub fn new(out_dir: &Path, dir: &Path, (w, h): (u32, u32)) -> Self {
+    /// A writer of `views` views of `w × h`, `test_views` of them held out
+    /// by the seeded shuffle `render_views` uses.
+    pub fn new(
+        out_dir: &Path,
+        dir: &Path,
+        (w, h): (u32, u32),
+        views: usize,
+        test_views: usize,
+        seed: u64,
+    ) -> Self {
+        let mut held = vec![false; views];
+        for k in held_out(views, test_views, seed) {
+            held[k] = true;
+        }
         DatasetWriter {
             dir: dir.to_path_buf(),
             out_dir: out_dir.to_path_buf(),
             frames: Vec::new(),
-            camera_angle_x: None,
-            focal: None,
             size: (w, h),
+            held,
         }
     }
 
-    /// Writes view `k`: `rgb` (8-bit) and `alpha` (one byte a pixel; `None`
-    /// is opaque).
+    /// The writer of a `dataset(...)` output (`None` for other outputs).
+    pub fn for_output(
+        out_dir: &Path,
+        o: &sdfl_stdlib::value::Output,
+        size: (u32, u32),
+        views: usize,
+    ) -> Option<Self> {
+        match o.kind {
+            sdfl_stdlib::value::OutputKind::Dataset { test_views, seed } => {
+                Some(Self::new(out_dir, &o.path, size, views, test_views, seed))
+            }
+            _ => None,
+        }
+    }
+
+    /// Writes view `k` of an sdfl camera: `rgb` (8-bit) and `alpha` (one
+    /// byte a pixel; `None` is opaque).
     pub fn push(
         &mut self,
         k: usize,
@@ -48,7 +187,44 @@ impl DatasetWriter {
         rgb: &[u8],
         alpha: Option<&[u8]>,
     ) -> io::Result<Written> {
+        let (c2w, intrinsics) = camera.to_opengl_intrinsics(self.size.0, self.size.1);
+        self.push_view(k, c2w, intrinsics, rgb, alpha)
+    }
+
+    /// Writes view `k` with an OpenGL camera-to-world pose and pixel
+    /// intrinsics (for the image size the writer was made with).
+    pub fn push_view(
+        &mut self,
+        k: usize,
+        c2w: [[f64; 4]; 4],
+        intrinsics: Intrinsics,
+        rgb: &[u8],
+        alpha: Option<&[u8]>,
+    ) -> io::Result<Written> {
         let (w, h) = self.size;
+        let bad = |m: String| io::Error::new(io::ErrorKind::InvalidInput, m);
+        if (intrinsics.width, intrinsics.height) != (w, h) {
+            return Err(bad(format!(
+                "{}: view {k}'s intrinsics are for {}x{} images, the data set's are {w}x{h}",
+                self.dir.display(),
+                intrinsics.width,
+                intrinsics.height
+            )));
+        }
+        if self.frames.iter().any(|f| f.k == k) {
+            return Err(bad(format!(
+                "{}: view {k} written twice",
+                self.dir.display()
+            )));
+        }
+        if let Some(f) = self.frames.first() {
+            if is_fisheye(&f.intrinsics) != is_fisheye(&intrinsics) {
+                return Err(bad(format!(
+                    "{}: view {k} mixes a fisheye and a perspective lens, and a data set has one `camera_model`",
+                    self.dir.display()
+                )));
+            }
+        }
         let rgba: Vec<u8> = rgb
             .chunks_exact(3)
             .enumerate()
@@ -57,36 +233,17 @@ impl DatasetWriter {
         if self.frames.is_empty() {
             // Until `finish`, the data set says it is being written: a run
             // stopped half-way (or a rerun stopped over an older set) leaves
-            // a set that refuses to load, not a silent mix of two runs.
+            // a set that refuses to load in every reader, not a silent mix
+            // of two runs. (nerfstudio finds no `frames`; instant-ngp skips
+            // a file without them and then has no images.)
             let marker = format!("{{\"{INCOMPLETE}\": true}}\n");
-            write_bytes(
-                &self.out_dir.join(self.dir.join("transforms.json")),
-                marker.as_bytes(),
-            )?;
+            for name in DATASET_JSON {
+                write_bytes(&self.out_dir.join(self.dir.join(name)), marker.as_bytes())?;
+            }
         }
         let rel = self.dir.join(format!("r_{k}.png"));
         write_png_rgba(&self.out_dir.join(&rel), w, h, &rgba)?;
-        let pose = camera.to_opengl(w, h);
-        // One focal for the whole file: the first view's (the others are
-        // checked equal, as the format has one).
-        let focal = *self.focal.get_or_insert((pose.fl_x, pose.fl_y));
-        if (focal.0 - pose.fl_x).abs() > 1e-9 * focal.0
-            || (focal.1 - pose.fl_y).abs() > 1e-9 * focal.1
-        {
-            return Err(io::Error::new(
-                io::ErrorKind::InvalidInput,
-                format!(
-                    "{}: a NeRF-synthetic data set has one focal length, but view {k}'s differs from view 0's",
-                    self.dir.display()
-                ),
-            ));
-        }
-        self.camera_angle_x
-            .get_or_insert(2.0 * (w as f64 / 2.0 / pose.fl_x).atan());
-        self.frames.push(json!({
-            "file_path": format!("./r_{k}"),
-            "transform_matrix": pose.c2w,
-        }));
+        self.frames.push(FrameRecord { k, c2w, intrinsics });
         Ok(Written {
             path: rel,
             kind: "dataset",
@@ -97,25 +254,120 @@ impl DatasetWriter {
         })
     }
 
-    /// Writes `transforms.json` for the views pushed.
+    /// The four transforms files' names and contents, in the order they
+    /// are written.
+    fn documents(&self) -> Vec<(&'static str, Value)> {
+        let mut frames: Vec<&FrameRecord> = self.frames.iter().collect();
+        frames.sort_by_key(|f| f.k);
+        let first = frames.first().map(|f| f.intrinsics);
+        let shared = first.filter(|i| frames.iter().all(|f| same(&f.intrinsics, i)));
+        let held = |k: usize| self.held.get(k).copied().unwrap_or(false);
+        let any_held = frames.iter().any(|f| held(f.k));
+        // nerfstudio's `camera_model` is one for the set: OPENCV as soon as
+        // one view is distorted (pinhole views then have zeros).
+        let model = if frames.iter().any(|f| is_fisheye(&f.intrinsics)) {
+            "OPENCV_FISHEYE"
+        } else if frames
+            .iter()
+            .any(|f| f.intrinsics.distortion != Distortion::None)
+        {
+            "OPENCV"
+        } else {
+            "PINHOLE"
+        };
+        let widen = |i: Intrinsics| match (model, i.distortion) {
+            ("OPENCV", Distortion::None) => Intrinsics {
+                distortion: Distortion::OpenCv {
+                    k1: 0.0,
+                    k2: 0.0,
+                    p1: 0.0,
+                    p2: 0.0,
+                },
+                ..i
+            },
+            _ => i,
+        };
+        let top = || {
+            let mut m = Map::new();
+            m.insert("camera_model".into(), model.into());
+            // The Blender parser and sdfl read the field of view; with
+            // intrinsics per frame it is the first view's (the others'
+            // `fl_x` say theirs).
+            let angle = first.map_or(std::f64::consts::FRAC_PI_2, |i| camera_angle_x(&i));
+            m.insert("camera_angle_x".into(), angle.into());
+            if let Some(i) = shared {
+                m.extend(
+                    intrinsic_keys(&widen(i))
+                        .into_iter()
+                        .map(|(k, v)| (k.to_string(), v)),
+                );
+            }
+            m
+        };
+        let frame = |f: &FrameRecord, with_extension: bool| {
+            let mut m = Map::new();
+            let path = if with_extension {
+                format!("r_{}.png", f.k)
+            } else {
+                format!("./r_{}", f.k)
+            };
+            m.insert("file_path".into(), path.into());
+            m.insert("transform_matrix".into(), json!(f.c2w));
+            if shared.is_none() {
+                m.extend(
+                    intrinsic_keys(&widen(f.intrinsics))
+                        .into_iter()
+                        .map(|(k, v)| (k.to_string(), v)),
+                );
+            }
+            Value::Object(m)
+        };
+        let in_split = |split: &str, f: &FrameRecord| match split {
+            "train" => !held(f.k),
+            _ => !any_held || held(f.k),
+        };
+        let mut docs = Vec::new();
+        for (name, split) in DATASET_JSON.iter().zip(["train", "val", "test"]) {
+            let mut m = top();
+            m.insert(
+                "frames".into(),
+                frames
+                    .iter()
+                    .filter(|f| in_split(split, f))
+                    .map(|f| frame(f, false))
+                    .collect(),
+            );
+            docs.push((*name, Value::Object(m)));
+        }
+        let mut m = top();
+        m.insert(
+            "frames".into(),
+            frames.iter().map(|f| frame(f, true)).collect(),
+        );
+        for split in ["train", "val", "test"] {
+            m.insert(
+                format!("{split}_filenames"),
+                frames
+                    .iter()
+                    .filter(|f| in_split(split, f))
+                    .map(|f| Value::from(format!("r_{}.png", f.k)))
+                    .collect(),
+            );
+        }
+        docs.push((DATASET_JSON[3], Value::Object(m)));
+        docs
+    }
+
+    /// Writes the transforms files for the views pushed: the splits first,
+    /// `transforms.json` last.
     pub fn finish(self) -> io::Result<Written> {
         let (w, h) = self.size;
-        let (fl_x, fl_y) = self.focal.unwrap_or((1.0, 1.0));
-        let doc = json!({
-            "camera_angle_x": self.camera_angle_x.unwrap_or(std::f64::consts::FRAC_PI_2),
-            "fl_x": fl_x,
-            "fl_y": fl_y,
-            "cx": w as f64 / 2.0,
-            "cy": h as f64 / 2.0,
-            "w": w,
-            "h": h,
-            "frames": self.frames,
-        });
-        let rel = self.dir.join("transforms.json");
-        let text = serde_json::to_string_pretty(&doc).map_err(io::Error::other)?;
-        write_bytes(&self.out_dir.join(&rel), text.as_bytes())?;
+        for (name, doc) in self.documents() {
+            let text = serde_json::to_string_pretty(&doc).map_err(io::Error::other)?;
+            write_bytes(&self.out_dir.join(self.dir.join(name)), text.as_bytes())?;
+        }
         Ok(Written {
-            path: rel,
+            path: self.dir.join(DATASET_JSON[3]),
             kind: "dataset",
             width: w,
             height: h,
@@ -128,32 +380,151 @@ impl DatasetWriter {
 #[cfg(test)]
 mod writer_tests {
     use super::*;
-    use crate::data::nerf_synthetic::read_transforms;
+    use crate::data::nerf_synthetic::{read_transforms, transforms_path};
 
-    /// A data set whose writing stopped half-way refuses to load (it may
-    /// mix two runs' images); once finished it loads.
-    #[test]
-    fn a_data_set_written_half_way_refuses_to_load() {
-        let out = std::env::temp_dir().join(format!("sdfl-writer-{}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&out);
-        std::fs::create_dir_all(&out).unwrap();
-        let cam = Camera::look_at(
+    fn camera() -> Camera {
+        Camera::look_at(
             glam::DVec3::new(0.0, 0.0, -3.0),
             glam::DVec3::ZERO,
             glam::DVec3::Y,
             1.0,
-        );
+        )
+    }
+
+    /// A data set whose writing stopped half-way refuses to load from any
+    /// of its transforms files (it may mix two runs' images); once finished
+    /// every split loads.
+    #[test]
+    fn a_data_set_written_half_way_refuses_to_load() {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path();
         let rgb = vec![128u8; 4 * 4 * 3];
-        let mut w = DatasetWriter::new(&out, Path::new("set"), (4, 4));
-        w.push(0, &cam, &rgb, None).unwrap();
-        let err = read_transforms(&out.join("set/transforms.json"))
-            .unwrap_err()
-            .to_string();
-        assert!(err.contains("stopped while it wrote"), "{err}");
-        w.push(1, &cam, &rgb, None).unwrap();
+        let mut w = DatasetWriter::new(out, Path::new("set"), (4, 4), 3, 1, 0);
+        w.push(0, &camera(), &rgb, None).unwrap();
+        for name in DATASET_JSON {
+            let err = read_transforms(&out.join("set").join(name))
+                .unwrap_err()
+                .to_string();
+            assert!(err.contains("stopped while it wrote"), "{name}: {err}");
+        }
+        w.push(1, &camera(), &rgb, None).unwrap();
+        w.push(2, &camera(), &rgb, None).unwrap();
         w.finish().unwrap();
-        let t = read_transforms(&out.join("set/transforms.json")).unwrap();
-        assert_eq!(t.frames.len(), 2);
-        let _ = std::fs::remove_dir_all(&out);
+        let set = out.join("set");
+        let count = |split| {
+            read_transforms(&transforms_path(&set, split))
+                .unwrap()
+                .frames
+                .len()
+        };
+        assert_eq!((count("train"), count("val"), count("test")), (2, 1, 1));
+        assert_eq!(
+            read_transforms(&set.join("transforms.json"))
+                .unwrap()
+                .frames
+                .len(),
+            3
+        );
+    }
+
+    fn doc<'a>(docs: &'a [(&str, Value)], name: &str) -> &'a Value {
+        &docs.iter().find(|d| d.0 == name).unwrap().1
+    }
+
+    /// Distorted views write their model's keys only, at the top when the
+    /// views share them, per frame when they differ.
+    #[test]
+    fn distortion_and_per_frame_intrinsics() {
+        let dir = tempfile::tempdir().unwrap();
+        let rgb = vec![0u8; 6 * 4 * 3];
+        let c2w = [
+            [1.0, 0.0, 0.0, 0.0],
+            [0.0, 1.0, 0.0, 0.0],
+            [0.0, 0.0, 1.0, 2.0],
+            [0.0, 0.0, 0.0, 1.0],
+        ];
+        let base = Intrinsics {
+            width: 6,
+            height: 4,
+            fx: 5.0,
+            fy: 5.5,
+            cx: 3.25,
+            cy: 1.75,
+            distortion: Distortion::OpenCv {
+                k1: -0.1,
+                k2: 0.01,
+                p1: 1e-3,
+                p2: -2e-3,
+            },
+        };
+        let mut w = DatasetWriter::new(dir.path(), Path::new("a"), (6, 4), 2, 0, 0);
+        w.push_view(0, c2w, base, &rgb, None).unwrap();
+        w.push_view(1, c2w, base, &rgb, None).unwrap();
+        let docs = w.documents();
+        let t = doc(&docs, "transforms.json");
+        assert_eq!(t["camera_model"], "OPENCV");
+        assert_eq!(
+            (t["k1"].as_f64(), t["p2"].as_f64()),
+            (Some(-0.1), Some(-2e-3))
+        );
+        assert!(t.get("k3").is_none() && t.get("is_fisheye").is_none());
+        assert!(t["frames"][0].get("fl_x").is_none());
+        // Nothing held out: val and test list every view.
+        assert_eq!(t["val_filenames"], json!(["r_0.png", "r_1.png"]));
+        assert_eq!(
+            doc(&docs, "transforms_test.json")["frames"]
+                .as_array()
+                .unwrap()
+                .len(),
+            2
+        );
+
+        let fish = Intrinsics {
+            distortion: Distortion::Fisheye {
+                k1: 0.1,
+                k2: 0.0,
+                k3: -0.01,
+                k4: 0.0,
+            },
+            ..base
+        };
+        let mut w = DatasetWriter::new(dir.path(), Path::new("b"), (6, 4), 2, 1, 7);
+        w.push_view(0, c2w, fish, &rgb, None).unwrap();
+        w.push_view(1, c2w, Intrinsics { fx: 6.0, ..fish }, &rgb, None)
+            .unwrap();
+        let docs = w.documents();
+        let t = doc(&docs, "transforms.json");
+        assert_eq!(t["camera_model"], "OPENCV_FISHEYE");
+        assert!(t.get("fl_x").is_none() && t.get("k1").is_none());
+        let f1 = &t["frames"][1];
+        assert_eq!(
+            (f1["fl_x"].as_f64(), f1["k3"].as_f64()),
+            (Some(6.0), Some(-0.01))
+        );
+        assert_eq!(f1["is_fisheye"], true);
+        assert!(f1.get("p1").is_none());
+        // A mixed set is refused.
+        let err = w.push_view(2, c2w, base, &rgb, None).unwrap_err();
+        assert!(err.to_string().contains("one `camera_model`"), "{err}");
+        // A pinhole view beside distorted ones gets zeros under OPENCV.
+        let mut w = DatasetWriter::new(dir.path(), Path::new("c"), (6, 4), 2, 0, 0);
+        w.push_view(0, c2w, base, &rgb, None).unwrap();
+        w.push_view(
+            1,
+            c2w,
+            Intrinsics {
+                distortion: Distortion::None,
+                ..base
+            },
+            &rgb,
+            None,
+        )
+        .unwrap();
+        let docs = w.documents();
+        let f1 = &doc(&docs, "transforms.json")["frames"][1];
+        assert_eq!(
+            (f1["k1"].as_f64(), f1["p1"].as_f64()),
+            (Some(0.0), Some(0.0))
+        );
     }
 }

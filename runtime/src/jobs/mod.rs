@@ -188,8 +188,7 @@ pub fn write_volume_outputs(
     let mut gifs = Gifs::open(outputs, out_dir)?;
     let mut datasets: Vec<DatasetWriter> = outputs
         .iter()
-        .filter(|o| o.kind == OutputKind::Dataset)
-        .map(|o| DatasetWriter::new(out_dir, &o.path, (w, h)))
+        .filter_map(|o| DatasetWriter::for_output(out_dir, o, (w, h), cameras.len()))
         .collect();
     let wants_depth = outputs
         .iter()
@@ -201,7 +200,7 @@ pub fn write_volume_outputs(
                 | OutputKind::Gif { .. }
                 | OutputKind::DepthGif { .. }
                 | OutputKind::Depth
-                | OutputKind::Dataset
+                | OutputKind::Dataset { .. }
         )
     });
     let (mut render_s, mut encode_s) = (0.0, 0.0);
@@ -229,7 +228,7 @@ pub fn write_volume_outputs(
             let (kind, rgb, (pw, ph)) = match o.kind {
                 OutputKind::Gif { .. }
                 | OutputKind::DepthGif { .. }
-                | OutputKind::Dataset
+                | OutputKind::Dataset { .. }
                 | OutputKind::LossCurve
                 | OutputKind::PsnrCurve
                 | OutputKind::Comparison

@@ -310,6 +310,9 @@ pub fn run_train_job(
     };
     let fail = |e: TrainError| io::Error::other(format!("training `{}`: {e}", job.name));
     let mut run = Run::of(objective, job.optimizer.lr).map_err(fail)?;
+    // Checkpoints name and shape the tensors by role and carry the model.
+    let tensors = run.objective.tensors();
+    run.describe(crate::train::export_names::Layout::of(&job.model, &tensors));
     // Only a checkpoint needs the fingerprint (it walks the whole model).
     let fp = if job.checkpoint.is_some() {
         fingerprint(job, &views)

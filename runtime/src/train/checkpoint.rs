@@ -9,13 +9,21 @@ use std::io;
 use std::path::Path;
 
 use safetensors::tensor::{Dtype, SafeTensors, TensorView};
+use serde_json::Value;
+
+use super::export_names::Piece;
 
 use crate::output::Atomic;
 
 /// What changed between a checkpoint and the current run, part by part.
 pub const PARTS: [&str; 4] = ["model", "data", "sampler", "optimizer and objective"];
 
-const FORMAT: &str = "sdfl-train-checkpoint-1";
+/// This format: tensors named by role and shaped, the model's
+/// specification in the metadata (docs/checkpoints.md).
+pub const FORMAT: &str = "sdfl-checkpoint-2";
+/// The first format (flat `value.N`, `adam_m.N`, `adam_v.N` tensors),
+/// still read.
+const FORMAT_1: &str = "sdfl-train-checkpoint-1";
 
 /// A 64-bit FNV-1a hash: stable across platforms, versions and runs.
 #[derive(Debug, Clone, Copy)]
@@ -75,6 +83,12 @@ pub struct Checkpoint {
     /// Adam's update count (its bias correction).
     pub adam_steps: i32,
     pub params: Vec<ParamState>,
+    /// How each parameter is stored (parallel to `params`; a missing or
+    /// empty entry is stored whole, flat, under its name). Empty when read
+    /// from a first-format file.
+    pub pieces: Vec<Vec<Piece>>,
+    /// The model's specification (JSON; `Null` when unknown).
+    pub model: Value,
     pub losses: Vec<f32>,
     /// A model's state beyond its parameters (an occupancy grid), by name.
     pub state: Vec<(String, Vec<f32>)>,
@@ -93,35 +107,125 @@ fn invalid(path: &Path, what: impl std::fmt::Display) -> io::Error {
     )
 }
 
+/// `(rows, cols)` row-major → `(cols, rows)` row-major.
+fn transpose(v: &[f32], rows: usize, cols: usize) -> Vec<f32> {
+    let mut out = vec![0.0; v.len()];
+    for r in 0..rows {
+        for c in 0..cols {
+            out[c * rows + r] = v[r * cols + c];
+        }
+    }
+    out
+}
+
+/// The layout entry of one parameter in the metadata.
+#[derive(serde::Serialize, serde::Deserialize)]
+struct StoredParam {
+    param: String,
+    tensors: Vec<StoredPiece>,
+}
+
+#[derive(serde::Serialize, serde::Deserialize)]
+struct StoredPiece {
+    name: String,
+    shape: Vec<usize>,
+    #[serde(default)]
+    transposed: bool,
+}
+
 impl Checkpoint {
-    pub fn write(&self, path: &Path) -> io::Result<()> {
-        let mut buffers: Vec<(String, Vec<u8>, usize)> = Vec::new();
-        for (i, p) in self.params.iter().enumerate() {
-            for (kind, v) in [
-                ("value", &p.values),
-                ("adam_m", &p.adam_m),
-                ("adam_v", &p.adam_v),
-            ] {
-                buffers.push((format!("{kind}.{i}"), f32_bytes(v), v.len()));
+    /// The pieces parameter `i` is stored as.
+    fn pieces_of(&self, i: usize) -> Vec<Piece> {
+        match self.pieces.get(i) {
+            Some(p) if !p.is_empty() => p.clone(),
+            _ => {
+                let p = &self.params[i];
+                vec![Piece::flat(&p.name, p.values.len())]
             }
         }
-        buffers.push(("losses".into(), f32_bytes(&self.losses), self.losses.len()));
-        for (i, (_, v)) in self.state.iter().enumerate() {
-            buffers.push((format!("state.{i}"), f32_bytes(v), v.len()));
+    }
+
+    pub fn write(&self, path: &Path) -> io::Result<()> {
+        let mut buffers: Vec<(String, Vec<usize>, Vec<u8>)> = Vec::new();
+        let mut layout = Vec::new();
+        for (i, p) in self.params.iter().enumerate() {
+            let pieces = self.pieces_of(i);
+            let mut at = 0;
+            for piece in &pieces {
+                let n = piece.len().unwrap_or(usize::MAX);
+                if at + n > p.values.len() {
+                    return Err(invalid(
+                        path,
+                        format!("`{}` is not {} values", piece.name, n),
+                    ));
+                }
+                for (prefix, v) in [
+                    ("", &p.values),
+                    ("adam.m.", &p.adam_m),
+                    ("adam.v.", &p.adam_v),
+                ] {
+                    let part = &v[at..at + n];
+                    let stored = if piece.transposed {
+                        // Held (in, out), stored (out, in) = shape.
+                        transpose(part, piece.shape[1], piece.shape[0])
+                    } else {
+                        part.to_vec()
+                    };
+                    buffers.push((
+                        format!("{prefix}{}", piece.name),
+                        piece.shape.clone(),
+                        f32_bytes(&stored),
+                    ));
+                }
+                at += n;
+            }
+            if at != p.values.len() {
+                return Err(invalid(
+                    path,
+                    format!("`{}`'s pieces do not cover it", p.name),
+                ));
+            }
+            layout.push(StoredParam {
+                param: p.name.clone(),
+                tensors: pieces
+                    .into_iter()
+                    .map(|q| StoredPiece {
+                        name: q.name,
+                        shape: q.shape,
+                        transposed: q.transposed,
+                    })
+                    .collect(),
+            });
+        }
+        buffers.push((
+            "train.losses".into(),
+            vec![self.losses.len()],
+            f32_bytes(&self.losses),
+        ));
+        for (name, v) in &self.state {
+            buffers.push((format!("state.{name}"), vec![v.len()], f32_bytes(v)));
+        }
+        let mut seen = std::collections::HashSet::new();
+        if let Some((n, _, _)) = buffers.iter().find(|(n, _, _)| !seen.insert(n.as_str())) {
+            return Err(invalid(path, format!("two tensors named `{n}`")));
         }
         let views = buffers
             .iter()
-            .map(|(n, b, len)| Ok((n.clone(), TensorView::new(Dtype::F32, vec![*len], b)?)))
+            .map(|(n, shape, b)| Ok((n.clone(), TensorView::new(Dtype::F32, shape.clone(), b)?)))
             .collect::<Result<Vec<_>, safetensors::SafeTensorError>>()
             .map_err(|e| invalid(path, e))?;
         let mut meta = HashMap::new();
         meta.insert("format".to_string(), FORMAT.to_string());
+        meta.insert(
+            "sdfl_version".to_string(),
+            env!("CARGO_PKG_VERSION").to_string(),
+        );
+        meta.insert("model".to_string(), self.model.to_string());
         meta.insert("step".to_string(), self.step.to_string());
         meta.insert("adam_steps".to_string(), self.adam_steps.to_string());
-        let names: Vec<&str> = self.params.iter().map(|p| p.name.as_str()).collect();
         meta.insert(
-            "names".to_string(),
-            serde_json::to_string(&names).unwrap_or_default(),
+            "layout".to_string(),
+            serde_json::to_string(&layout).map_err(|e| invalid(path, e))?,
         );
         let state: Vec<&str> = self.state.iter().map(|s| s.0.as_str()).collect();
         meta.insert(
@@ -149,21 +253,32 @@ impl Checkpoint {
                 .cloned()
                 .ok_or_else(|| invalid(path, format!("no `{k}`: not an sdfl checkpoint")))
         };
-        if get("format")? != FORMAT {
-            return Err(invalid(path, "written by another version of sdfl"));
+        let format = get("format")?;
+        if format != FORMAT && format != FORMAT_1 {
+            return Err(invalid(
+                path,
+                format!("its format `{format}` is not one this sdfl reads ({FORMAT}, {FORMAT_1}): written by another version of sdfl"),
+            ));
         }
         let num = |k: &str| -> io::Result<i64> {
             get(k)?
                 .parse()
                 .map_err(|_| invalid(path, format!("bad `{k}`")))
         };
-        let names: Vec<String> =
-            serde_json::from_str(&get("names")?).map_err(|_| invalid(path, "bad `names`"))?;
         let tensors = SafeTensors::deserialize(&bytes).map_err(|e| invalid(path, e))?;
-        let read = |name: &str| -> io::Result<Vec<f32>> {
+        // A tensor's values, its shape checked against `shape` when given.
+        let read = |name: &str, shape: Option<&[usize]>| -> io::Result<Vec<f32>> {
             let t = tensors.tensor(name).map_err(|e| invalid(path, e))?;
             if t.dtype() != Dtype::F32 {
                 return Err(invalid(path, format!("`{name}` is not f32")));
+            }
+            if let Some(s) = shape {
+                if t.shape() != s {
+                    return Err(invalid(
+                        path,
+                        format!("`{name}` has shape {:?}, its layout says {s:?}", t.shape()),
+                    ));
+                }
             }
             Ok(t.data()
                 .chunks_exact(4)
@@ -171,29 +286,93 @@ impl Checkpoint {
                 .collect())
         };
         let mut params = Vec::new();
-        for (i, name) in names.into_iter().enumerate() {
-            params.push(ParamState {
-                name,
-                values: read(&format!("value.{i}"))?,
-                adam_m: read(&format!("adam_m.{i}"))?,
-                adam_v: read(&format!("adam_v.{i}"))?,
-            });
+        let mut pieces = Vec::new();
+        if format == FORMAT_1 {
+            let names: Vec<String> =
+                serde_json::from_str(&get("names")?).map_err(|_| invalid(path, "bad `names`"))?;
+            for (i, name) in names.into_iter().enumerate() {
+                params.push(ParamState {
+                    name,
+                    values: read(&format!("value.{i}"), None)?,
+                    adam_m: read(&format!("adam_m.{i}"), None)?,
+                    adam_v: read(&format!("adam_v.{i}"), None)?,
+                });
+            }
+        } else {
+            let layout: Vec<StoredParam> =
+                serde_json::from_str(&get("layout")?).map_err(|_| invalid(path, "bad `layout`"))?;
+            for p in layout {
+                let mut state = ParamState {
+                    name: p.param,
+                    values: Vec::new(),
+                    adam_m: Vec::new(),
+                    adam_v: Vec::new(),
+                };
+                let mut mine = Vec::new();
+                for q in p.tensors {
+                    let piece = Piece {
+                        name: q.name,
+                        shape: q.shape,
+                        transposed: q.transposed,
+                    };
+                    if piece.len().is_none() || (piece.transposed && piece.shape.len() != 2) {
+                        return Err(invalid(
+                            path,
+                            format!("`{}` has a bad shape {:?}", piece.name, piece.shape),
+                        ));
+                    }
+                    for (prefix, out) in [
+                        ("", &mut state.values),
+                        ("adam.m.", &mut state.adam_m),
+                        ("adam.v.", &mut state.adam_v),
+                    ] {
+                        let v = read(&format!("{prefix}{}", piece.name), Some(&piece.shape))?;
+                        if piece.transposed {
+                            out.extend(transpose(&v, piece.shape[0], piece.shape[1]));
+                        } else {
+                            out.extend(v);
+                        }
+                    }
+                    mine.push(piece);
+                }
+                params.push(state);
+                pieces.push(mine);
+            }
         }
+        let model = match meta.get("model") {
+            Some(m) => serde_json::from_str(m).map_err(|_| invalid(path, "bad `model`"))?,
+            None => Value::Null,
+        };
         // Checkpoints of models without state may have no list.
         let state_names: Vec<String> = match meta.get("state") {
             Some(s) => serde_json::from_str(s).map_err(|_| invalid(path, "bad `state`"))?,
             None => Vec::new(),
         };
+        let losses = read(
+            if format == FORMAT_1 {
+                "losses"
+            } else {
+                "train.losses"
+            },
+            None,
+        )?;
         let mut state = Vec::new();
         for (i, name) in state_names.into_iter().enumerate() {
-            state.push((name, read(&format!("state.{i}"))?));
+            let stored = if format == FORMAT_1 {
+                format!("state.{i}")
+            } else {
+                format!("state.{name}")
+            };
+            state.push((name, read(&stored, None)?));
         }
         let fp = |i: usize| get(&format!("fingerprint.{}", PARTS[i]));
         Ok(Checkpoint {
             step: usize::try_from(num("step")?).map_err(|_| invalid(path, "bad step"))?,
             adam_steps: i32::try_from(num("adam_steps")?).map_err(|_| invalid(path, "bad step"))?,
             params,
-            losses: read("losses")?,
+            pieces,
+            model,
+            losses,
             state,
             fingerprint: [fp(0)?, fp(1)?, fp(2)?, fp(3)?],
         })
@@ -289,6 +468,8 @@ mod tests {
                 adam_m: vec![0.1, -0.2],
                 adam_v: vec![1e-3, 0.0],
             }],
+            pieces: Vec::new(),
+            model: Value::Null,
             losses: vec![0.5, 0.25],
             state: vec![("occupancy.ema".into(), vec![0.0, 3.5])],
             fingerprint: Default::default(),
@@ -331,26 +512,83 @@ mod tests {
         }
     }
 
+    fn sample() -> Checkpoint {
+        Checkpoint {
+            step: 2,
+            adam_steps: 2,
+            params: vec![
+                ParamState {
+                    name: "torus.major".into(),
+                    values: vec![1.0, 2.0],
+                    adam_m: vec![0.1, -0.2],
+                    adam_v: vec![1e-3, 2e-3],
+                },
+                // A 3 × 2 (in, out) weight stored (out, in), and a bias.
+                ParamState {
+                    name: "trunk.0.weight".into(),
+                    values: vec![1.0, 2.0, 3.0, 4.0, 5.0, 6.0],
+                    adam_m: vec![0.0, 0.5, 1.0, 1.5, 2.0, 2.5],
+                    adam_v: vec![6.0, 5.0, 4.0, 3.0, 2.0, 1.0],
+                },
+            ],
+            pieces: vec![
+                Vec::new(),
+                vec![Piece {
+                    name: "layer.weight".into(),
+                    shape: vec![2, 3],
+                    transposed: true,
+                }],
+            ],
+            model: serde_json::json!({ "kind": "test" }),
+            losses: vec![0.5, 0.25],
+            state: vec![("occupancy.ema".into(), vec![0.0, 3.5, 1e-30])],
+            fingerprint: ["a".into(), "b".into(), "c".into(), "d".into()],
+        }
+    }
+
+    /// The tensors by name with their shapes, as any safetensors reader
+    /// sees them.
+    fn stored(path: &Path) -> Vec<(String, Vec<usize>, Vec<f32>)> {
+        let bytes = std::fs::read(path).unwrap();
+        let t = SafeTensors::deserialize(&bytes).unwrap();
+        let mut v: Vec<_> = t
+            .tensors()
+            .into_iter()
+            .map(|(n, x)| {
+                let f = x
+                    .data()
+                    .chunks_exact(4)
+                    .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+                    .collect();
+                (n, x.shape().to_vec(), f)
+            })
+            .collect();
+        v.sort_by(|a, b| a.0.cmp(&b.0));
+        v
+    }
+
     #[test]
     fn round_trips_and_rejects_foreign_files() {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("ck.safetensors");
-        let ck = Checkpoint {
-            step: 200,
-            adam_steps: 200,
-            params: vec![ParamState {
-                name: "torus.major".into(),
-                values: vec![1.0, 2.0],
-                adam_m: vec![0.1, -0.2],
-                adam_v: vec![1e-3, 2e-3],
-            }],
-            losses: vec![0.5, 0.25],
-            state: vec![("occupancy.ema".into(), vec![0.0, 3.5, 1e-30])],
-            fingerprint: ["a".into(), "b".into(), "c".into(), "d".into()],
-        };
+        let ck = sample();
         ck.write(&path).unwrap();
         let back = Checkpoint::read(&path).unwrap();
-        assert_eq!(back, ck);
+        let mut want = ck.clone();
+        want.pieces[0] = vec![Piece::flat("torus.major", 2)];
+        assert_eq!(back, want);
+        // Weights as (out, in): row o holds the inputs' weights of output o.
+        let t = stored(&path);
+        let find = |n: &str| t.iter().find(|x| x.0 == n).unwrap().clone();
+        assert_eq!(find("layer.weight").1, vec![2, 3]);
+        assert_eq!(find("layer.weight").2, vec![1.0, 3.0, 5.0, 2.0, 4.0, 6.0]);
+        assert_eq!(
+            find("adam.m.layer.weight").2,
+            vec![0.0, 1.0, 2.0, 0.5, 1.5, 2.5]
+        );
+        assert_eq!(find("adam.v.torus.major").2, vec![1e-3, 2e-3]);
+        assert_eq!(find("train.losses").2, vec![0.5, 0.25]);
+        assert_eq!(find("state.occupancy.ema").1, vec![3]);
         let other = ["a".to_string(), "x".into(), "c".into(), "y".into()];
         assert_eq!(
             back.differences(&other),
@@ -359,5 +597,83 @@ mod tests {
         std::fs::write(&path, b"{\"iteration\": 3}").unwrap();
         let e = Checkpoint::read(&path).unwrap_err().to_string();
         assert!(e.contains("ck.safetensors"), "{e}");
+    }
+
+    /// A file whose tensor disagrees with its stated shape, or whose names
+    /// collide, is refused with the tensor named.
+    #[test]
+    fn refuses_shapes_that_disagree() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("ck.safetensors");
+        let mut ck = sample();
+        ck.pieces[1][0].shape = vec![3, 2];
+        ck.pieces[1][0].transposed = false;
+        ck.write(&path).unwrap();
+        // Rewrite the layout to claim (2, 3) over a (3, 2) tensor.
+        let bytes = std::fs::read(&path).unwrap();
+        let (_, header) = SafeTensors::read_metadata(&bytes).unwrap();
+        let mut meta = header.metadata().clone().unwrap();
+        let layout =
+            meta["layout"].replace("[3,2],\"transposed\":false", "[2,3],\"transposed\":true");
+        assert_ne!(layout, meta["layout"]);
+        meta.insert("layout".into(), layout);
+        let t = SafeTensors::deserialize(&bytes).unwrap();
+        let bytes = safetensors::serialize(t.tensors(), &Some(meta)).unwrap();
+        std::fs::write(&path, bytes).unwrap();
+        let e = Checkpoint::read(&path).unwrap_err().to_string();
+        assert!(
+            e.contains("`layer.weight` has shape [3, 2], its layout says [2, 3]"),
+            "{e}"
+        );
+        let mut ck = sample();
+        ck.pieces[1][0].name = "torus.major".into();
+        let e = ck.write(&path).unwrap_err().to_string();
+        assert!(e.contains("two tensors named `torus.major`"), "{e}");
+    }
+
+    /// A first-format file (flat `value.N` tensors) still resumes.
+    #[test]
+    fn reads_the_first_format() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("old.safetensors");
+        let f = |v: &[f32]| f32_bytes(v);
+        let bufs = [
+            ("value.0", f(&[1.0, 2.0])),
+            ("adam_m.0", f(&[0.1, 0.2])),
+            ("adam_v.0", f(&[0.3, 0.4])),
+            ("losses", f(&[0.5])),
+            ("state.0", f(&[7.0])),
+        ];
+        let views: Vec<_> = bufs
+            .iter()
+            .map(|(n, b)| {
+                (
+                    n.to_string(),
+                    TensorView::new(Dtype::F32, vec![b.len() / 4], b).unwrap(),
+                )
+            })
+            .collect();
+        let mut meta = HashMap::new();
+        for (k, v) in [
+            ("format", FORMAT_1),
+            ("step", "1"),
+            ("adam_steps", "1"),
+            ("names", "[\"sphere.radius\"]"),
+            ("state", "[\"occupancy.ema\"]"),
+        ] {
+            meta.insert(k.to_string(), v.to_string());
+        }
+        for p in PARTS {
+            meta.insert(format!("fingerprint.{p}"), "f".into());
+        }
+        std::fs::write(&path, safetensors::serialize(views, &Some(meta)).unwrap()).unwrap();
+        let ck = Checkpoint::read(&path).unwrap();
+        assert_eq!(ck.params[0].name, "sphere.radius");
+        assert_eq!(ck.params[0].adam_v, vec![0.3, 0.4]);
+        assert_eq!(
+            (ck.losses.clone(), ck.state.clone()),
+            (vec![0.5], vec![("occupancy.ema".to_string(), vec![7.0])])
+        );
+        assert!(ck.pieces.is_empty());
     }
 }

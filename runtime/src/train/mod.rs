@@ -18,6 +18,7 @@
 //!   for fields whose evaluation is itself a dfdx graph.
 
 pub mod checkpoint;
+pub mod export_names;
 pub mod fused;
 pub mod graph;
 pub mod graph_ops;

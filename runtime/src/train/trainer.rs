@@ -13,6 +13,7 @@ use sdfl_stdlib::camera::Camera;
 use sdfl_stdlib::value::{Loss, Optimizer, Sampler};
 
 use super::checkpoint::{Checkpoint, ParamState};
+use super::export_names::{Layout, Piece};
 use super::fused::Batch;
 use super::objective::{Objective, TensorSpec};
 use super::{Adam, ParamId, ParamStore, TrainError};
@@ -167,6 +168,9 @@ pub struct Run<'m> {
     /// Steps done.
     pub step: usize,
     pub losses: Vec<f32>,
+    /// How checkpoints store the tensors (flat under their names until
+    /// [`Run::describe`]).
+    layout: Layout,
 }
 
 impl<'m> Run<'m> {
@@ -179,7 +183,9 @@ impl<'m> Run<'m> {
             .iter()
             .map(|p| store.add(&p.name, &init[p.offset..p.offset + p.len], true))
             .collect::<Result<_, _>>()?;
+        let layout = Layout::flat(&tensors, serde_json::Value::Null);
         Ok(Run {
+            layout,
             grad: vec![0.0; init.len()],
             objective,
             tensors,
@@ -189,6 +195,23 @@ impl<'m> Run<'m> {
             step: 0,
             losses: Vec::new(),
         })
+    }
+
+    /// Names, shapes and the specification checkpoints give the model's
+    /// tensors ([`Layout::of`] its field); a layout that does not cover
+    /// the tensors is ignored (they stay flat).
+    pub fn describe(&mut self, layout: Layout) {
+        let covers = layout.params.len() == self.tensors.len()
+            && layout.params.iter().zip(&self.tensors).all(|(pieces, t)| {
+                pieces
+                    .iter()
+                    .map(|p| p.len().unwrap_or(usize::MAX))
+                    .try_fold(0usize, |a, n| a.checked_add(n))
+                    == Some(t.len)
+            });
+        if covers {
+            self.layout = layout;
+        }
     }
 
     /// Continues from a checkpoint of the same model.
@@ -220,6 +243,34 @@ impl<'m> Run<'m> {
                 names(&theirs),
                 names(&ours)
             )));
+        }
+        // A file of this format stores each tensor as the model does (a
+        // first-format file has no pieces and is flat).
+        if !ck.pieces.is_empty() {
+            for (i, ours) in self.layout.params.iter().enumerate() {
+                let theirs = ck.pieces.get(i).map_or(&[][..], |p| &p[..]);
+                if theirs != &ours[..] {
+                    let show = |p: &[Piece]| {
+                        p.iter()
+                            .map(|q| {
+                                format!(
+                                    "`{}` {:?}{}",
+                                    q.name,
+                                    q.shape,
+                                    if q.transposed { " (out, in)" } else { "" }
+                                )
+                            })
+                            .collect::<Vec<_>>()
+                            .join(", ")
+                    };
+                    return Err(TrainError::Invalid(format!(
+                        "the checkpoint stores `{}` as {}, the model as {}",
+                        self.tensors[i].name,
+                        show(theirs),
+                        show(ours)
+                    )));
+                }
+            }
         }
         // Every value finite and in its parameter's range (what projection
         // keeps).
@@ -290,6 +341,8 @@ impl<'m> Run<'m> {
                     }
                 })
                 .collect(),
+            pieces: self.layout.params.clone(),
+            model: self.layout.model.clone(),
             losses: self.losses.clone(),
             state: self.objective.state(),
             fingerprint,

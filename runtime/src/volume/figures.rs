@@ -723,13 +723,17 @@ mod tests {
     #[test]
     fn rays_image_matches_hand_computation() {
         // Eye on -x looking at the origin, up +y: z = (1,0,0),
-        // x = cross(y, z) = (0,0,-1), y = (0,1,0). With f = 2 the top-left
-        // pixel (NDC (1, 1)) looks along x/2 + y/2 + z = (1, 0.5, -0.5),
-        // whose unit vector is (0.8165, 0.4082, 0.4082) → (208, 104, 104).
+        // x = cross(y, z) = (0,0,-1), y = (0,1,0). Pixels are square, so on
+        // a 5×3 image the top-left pixel is at NDC (2, 1) (the 3-pixel side
+        // spans ±1). With f = 2 it looks along x + y/2 + z = (1, 0.5, -1),
+        // whose unit vector is (2/3, 1/3, 2/3) → (170, 85, 170).
         let cam = Camera::look_at(DVec3::new(-2.5, 0.0, 0.0), DVec3::ZERO, DVec3::Y, 2.0);
         let img = rays_image(&cam, 5, 3);
         assert_eq!(img.len(), 5 * 3 * 3);
-        assert_eq!(pixel(&img, 5, 0, 0), [208, 104, 104]);
+        assert_eq!(pixel(&img, 5, 0, 0), [170, 85, 170]);
+        // A square image's corner keeps the conventions' NDC (1, 1):
+        // x/2 + y/2 + z = (1, 0.5, -0.5) → (208, 104, 104).
+        assert_eq!(pixel(&rays_image(&cam, 3, 3), 3, 0, 0), [208, 104, 104]);
         // The centre pixel looks straight at the target, along +x.
         assert_eq!(pixel(&img, 5, 2, 1), [255, 0, 0]);
         let bad = Camera::look_at(DVec3::ZERO, DVec3::ZERO, DVec3::Y, 1.0);

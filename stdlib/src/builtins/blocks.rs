@@ -147,9 +147,6 @@ pub(crate) fn render_block(name: &str, a: &Args) -> Built<RenderJob> {
     let (bg_span, bg) = (a.get("background").1, a.vec3("background"));
     let background = e.ok(bg.and_then(|bg| colour(bg, bg_span)));
     let cameras = e.ok(camera_list(a, "camera"));
-    if let (Some(outputs), Some(cameras)) = (&outputs, &cameras) {
-        e.ok(one_intrinsics(a, outputs, cameras));
-    }
     let material = e.ok(a.material("material"));
     let iterations = e.ok(a.count("iterations", 1, MAX_ITERATIONS as u64));
     let epsilon = e.ok(a.positive("epsilon"));
@@ -178,26 +175,6 @@ pub(crate) fn render_block(name: &str, a: &Args) -> Built<RenderJob> {
         })
     })();
     (job, e.diags)
-}
-
-/// A `dataset` output (NeRF-synthetic) holds one focal length for all its
-/// views: its cameras must share focal and pixel-centre convention.
-fn one_intrinsics(a: &Args, outputs: &[Output], cameras: &[Camera]) -> Result<(), Diag> {
-    let Some(first) = cameras.first() else {
-        return Ok(());
-    };
-    let differs = cameras.iter().position(|c| {
-        c.focal != first.focal || c.pixel_centers != first.pixel_centers || c.lens != first.lens
-    });
-    match (outputs.iter().any(|o| o.kind == OutputKind::Dataset), differs) {
-        (true, Some(k)) => Err(value_error(
-            a.get("camera").1,
-            format!("camera {k} has another focal length or pixel-centre convention than camera 0, but a `dataset` output holds one for all views"),
-            "cameras differ",
-            "give every camera of a `dataset` output the same `focal` and `pixel_centers`",
-        )),
-        _ => Ok(()),
-    }
 }
 
 // ------------------------------------------------- train and volume blocks
@@ -487,7 +464,7 @@ fn train_losses(
         for field in ["before", "after"] {
             if let Value::List(items) = a.get(field).0 {
                 if items.iter().any(|o| {
-                    matches!(o, Value::Output(o) if matches!(o.kind, OutputKind::SamplePoints | OutputKind::Dataset))
+                    matches!(o, Value::Output(o) if matches!(o.kind, OutputKind::SamplePoints | OutputKind::Dataset { .. }))
                 }) {
                     return Err(value_error(
                         a.get(field).1,
@@ -590,9 +567,6 @@ pub(crate) fn volume_block(name: &str, a: &Args, field: Arc<Field>) -> Built<Vol
         e.ok(check_meshes(outputs, field.as_sdf().map(|f| &*f.shape)));
     }
     let cameras = e.ok(camera_list(a, "camera"));
-    if let (Some(outputs), Some(cameras)) = (&outputs, &cameras) {
-        e.ok(one_intrinsics(a, outputs, cameras));
-    }
     let (width, height) = size.unwrap_or((1, 1));
     let job = (|| {
         Some(VolumeJob {

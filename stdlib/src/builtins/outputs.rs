@@ -50,13 +50,19 @@ pub(crate) fn builtins() -> Vec<Builtin> {
         output("mask", "Hit mask as PNG per view: white hit, black miss.", |a| out(a, OutputKind::Mask, "png")),
         func(
             "dataset",
-            "Every view as a NeRF-synthetic data set in directory `path`: `transforms.json` (camera-to-world poses in OpenGL axes, `camera_angle_x`, `fl_x`, `fl_y`) and `r_<k>.png` per view, RGBA with alpha = hit mask (opaque for fields). `nerf_synthetic(...)` reads it back.",
-            vec![req("path", Type::Str, "directory inside the output directory")],
+            "Every view as a data set in directory `path` that nerfstudio (its `blender-data` and `nerfstudio-data` parsers), instant-ngp and `nerf_synthetic(...)` read unchanged: `r_<k>.png` per view (RGBA, alpha = hit mask, opaque for fields); `transforms_train.json`, `transforms_val.json`, `transforms_test.json` (Blender form: `camera_angle_x`, `file_path` without extension, OpenGL camera-to-world `transform_matrix`); and `transforms.json` (nerfstudio form: `camera_model`, `fl_x fl_y cx cy w h` and distortion, globally or per frame, `file_path` with extension, `train_filenames`/`val_filenames`/`test_filenames`). `test_views` views, picked by a seeded shuffle, form the val and test splits; with none, val and test list every view.",
+            vec![
+                req("path", Type::Str, "directory inside the output directory"),
+                opt("test_views", Type::Number, "0", "views held out as the val and test splits (fewer than the views)"),
+                opt("seed", Type::Number, "0", "seed of the shuffle that picks the held-out views"),
+            ],
             OUTPUT,
             |a| {
                 let (path, span) = a.string("path")?;
                 let path = safe_output_path(&path, span)?;
-                Ok(Value::Output(Arc::new(Output { kind: OutputKind::Dataset, path, span: a.span })))
+                let test_views = a.count("test_views", 0, MAX_VIEWS as u64)? as usize;
+                let seed = a.count("seed", 0, u32::MAX as u64)?;
+                Ok(Value::Output(Arc::new(Output { kind: OutputKind::Dataset { test_views, seed }, path, span: a.span })))
             },
         ),
         animation("geometry_gif", "A neural SDF's surface, sphere-traced from every view with normals as colours, as an animated GIF (after `train`): the geometry of a `volsdf(neural_sdf(...))` whose `gif` shows its volume-rendered colour.", |a| out(a, OutputKind::GeometryGif { fps: a.positive("fps")? }, "gif")),
