@@ -139,6 +139,37 @@ fn mesh_lines(o: &mut String, outputs: &[sdfl_stdlib::Output], default_region: &
     }
 }
 
+/// A line per field export: what it marches or samples.
+fn export_lines(o: &mut String, outputs: &[sdfl_stdlib::Output], samples: usize, views: usize) {
+    use sdfl_stdlib::OutputKind as K;
+    use std::fmt::Write;
+    for x in outputs {
+        let p = x.path.display();
+        let _ = match x.kind {
+            K::DensityMesh {
+                level, resolution, ..
+            } => writeln!(
+                o,
+                "  density mesh   {p}: surface nets where the density reaches {level}, {resolution} cells along the longest side, at most {} grid evaluations, vertex colours",
+                (resolution as u64 + 5).pow(3)
+            ),
+            K::PointCloud {
+                points,
+                min_opacity,
+            } => writeln!(
+                o,
+                "  point cloud    {p}: up to {points} points where the training cameras' rays end (opacity ≥ {min_opacity}), at most {} rays of {samples} samples",
+                points as u64 * sdfl_stdlib::work::CLOUD_RAYS_PER_POINT
+            ),
+            K::RawDepth { .. } | K::DepthMap { .. } => writeln!(
+                o,
+                "  depth export   {p}: expected depth over opacity, one march of {samples} samples a ray over {views} views"
+            ),
+            _ => Ok(()),
+        };
+    }
+}
+
 pub(crate) fn plan_text(program: &sdfl_stdlib::Program) -> String {
     use std::fmt::Write;
     let mut o = String::new();
@@ -248,6 +279,7 @@ pub(crate) fn plan_text(program: &sdfl_stdlib::Program) -> String {
             &names(&|k| matches!(k, K::Grid | K::Rays | K::SamplePoints)),
         );
         mesh_lines(&mut o, &job.outputs, "the field's bounds");
+        export_lines(&mut o, &job.outputs, job.sampler.samples, job.cameras.len());
         let _ = writeln!(o, "  gradient tape  none (not training)");
         work_lines(&mut o, &sdfl_stdlib::work::volume_work(job, None));
     }
@@ -504,6 +536,9 @@ pub(crate) fn plan_text(program: &sdfl_stdlib::Program) -> String {
         };
         mesh_lines(&mut o, &job.before, &region);
         mesh_lines(&mut o, &job.after, &region);
+        for outputs in [&job.before, &job.after] {
+            export_lines(&mut o, outputs, job.sampler.samples, job.views.len());
+        }
         work_lines(&mut o, &sdfl_stdlib::work::train_work(job, None));
     }
     if o.is_empty() {

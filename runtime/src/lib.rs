@@ -3,6 +3,7 @@
 
 pub mod data;
 pub mod effects;
+pub mod export;
 pub mod interrupt;
 pub mod jobs;
 pub mod mesh;

@@ -84,7 +84,11 @@ impl Plan {
                 // Meshes sample the distance on a grid, not along rays.
                 OutputKind::Mesh { .. } => plan.meshes.push(who),
                 // Refused for renders when evaluated.
-                OutputKind::GeometryGif { .. } => {}
+                OutputKind::GeometryGif { .. }
+                | OutputKind::DensityMesh { .. }
+                | OutputKind::PointCloud { .. }
+                | OutputKind::RawDepth { .. }
+                | OutputKind::DepthMap { .. } => {}
             }
         }
         let shaded = !plan.color.is_empty();
@@ -734,7 +738,11 @@ pub fn run_job(
                 | OutputKind::PsnrCurve
                 | OutputKind::Comparison
                 | OutputKind::Mesh { .. }
-                | OutputKind::GeometryGif { .. } => continue,
+                | OutputKind::GeometryGif { .. }
+                | OutputKind::DensityMesh { .. }
+                | OutputKind::PointCloud { .. }
+                | OutputKind::RawDepth { .. }
+                | OutputKind::DepthMap { .. } => continue,
             };
             // The camera checks are written once, for the first view.
             let rel = if matches!(o.kind, OutputKind::Grid | OutputKind::Rays) {

@@ -65,7 +65,12 @@ pub const DATASET_JSON: [&str; 4] = [
 pub fn per_view(kind: &OutputKind) -> bool {
     matches!(
         kind,
-        OutputKind::Image | OutputKind::Depth | OutputKind::Normals | OutputKind::Mask
+        OutputKind::Image
+            | OutputKind::Depth
+            | OutputKind::Normals
+            | OutputKind::Mask
+            | OutputKind::RawDepth { .. }
+            | OutputKind::DepthMap { .. }
     )
 }
 
@@ -73,7 +78,11 @@ pub fn per_view(kind: &OutputKind) -> bool {
 /// (evaluation refuses the others, so this only mirrors it).
 fn written_by(kind: &OutputKind, job: JobKind) -> bool {
     match job {
-        JobKind::Render => !matches!(kind, OutputKind::SamplePoints) && !kind.training_only(),
+        JobKind::Render => {
+            !matches!(kind, OutputKind::SamplePoints)
+                && !kind.training_only()
+                && !kind.field_export()
+        }
         JobKind::Volume | JobKind::TrainBefore => {
             !matches!(kind, OutputKind::Normals | OutputKind::Mask) && !kind.training_only()
         }
@@ -115,6 +124,10 @@ pub fn kind_name(kind: &OutputKind) -> &'static str {
         OutputKind::Dataset { .. } => "dataset",
         OutputKind::Mesh { .. } => "mesh",
         OutputKind::GeometryGif { .. } => "geometry_gif",
+        OutputKind::DensityMesh { .. } => "density_mesh",
+        OutputKind::PointCloud { .. } => "point_cloud",
+        OutputKind::RawDepth { .. } => "raw_depth",
+        OutputKind::DepthMap { .. } => "depth_map",
     }
 }
 

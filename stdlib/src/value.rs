@@ -46,6 +46,9 @@ pub enum Value {
     Background(Background),
     /// Scene contraction for unbounded scenes: `contraction(...)`.
     Contraction(Contraction),
+    /// Cameras known only when a `train` runs (a loop through the training
+    /// cameras of a data set read from files), as its `views`.
+    ViewPath(ViewPath),
     /// The value of an expression that already produced a diagnostic.
     /// Anything computed from it is poison too, silently.
     Poison,
@@ -70,6 +73,7 @@ impl Value {
             Value::Loss(_) => "loss",
             Value::Field(_) => "field",
             Value::Sampler(_) => "sampler",
+            Value::ViewPath(_) => "camera path",
             Value::Dataset(_) => "data set",
             Value::Optimizer(_) => "optimizer",
             Value::Encoding(_) => "encoding",
@@ -110,6 +114,43 @@ impl Value {
         Value::List(Arc::new(
             v.to_array().iter().map(|x| Value::Number(*x)).collect(),
         ))
+    }
+}
+
+impl Field {
+    /// The region `bounds: "auto"` stands for in a `density_mesh`: a hash
+    /// grid's box, else an occupancy grid's, else an SDF field's bounds
+    /// (none for a harmonic NeRF without a grid, an unbounded shape, or a
+    /// neural SDF, which has no density to mesh).
+    pub fn export_region(&self) -> Option<([f64; 3], [f64; 3])> {
+        match self {
+            Field::Nerf(n) => match (&n.position, &n.occupancy) {
+                (Encoding::HashGrid(g), _) => Some((g.min, g.max)),
+                (_, Some(o)) => Some((o.min, o.max)),
+                _ => None,
+            },
+            Field::Sdf(f) => f
+                .shape
+                .bounds()
+                .map(|b| (b.min.to_array(), b.max.to_array())),
+            Field::NeuralSdf(_) | Field::NeuralSurface(_) => None,
+        }
+    }
+}
+
+/// A `train`'s views resolved when it runs, from its training cameras.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ViewPath {
+    /// `camera_loop` through the training cameras.
+    TrainingLoop { frames: usize, keyframes: usize },
+}
+
+impl ViewPath {
+    pub fn frames(&self) -> usize {
+        match self {
+            ViewPath::TrainingLoop { frames, .. } => *frames,
+        }
     }
 }
 
@@ -161,6 +202,63 @@ pub enum OutputKind {
         resolution: u32,
         region: MeshRegion,
     },
+    /// A radiance field's surface where its density (an opacity field's
+    /// per-sample opacity) crosses `level`, as a PLY mesh with normals and
+    /// vertex colours.
+    DensityMesh {
+        level: f64,
+        /// Grid cells along the region's longest side.
+        resolution: u32,
+        region: MeshRegion,
+    },
+    /// Where rays of the training cameras end (expected depth), coloured by
+    /// the rendered colour, where the accumulated opacity reaches
+    /// `min_opacity`: a PLY point cloud.
+    PointCloud { points: u32, min_opacity: f64 },
+    /// Expected depth over accumulated opacity per view as float32 `.npy`
+    /// (rows × columns), NaN where the opacity is below `min_opacity`.
+    RawDepth { min_opacity: f64 },
+    /// Depth per view colour-mapped, with a titled colour bar, as PNG.
+    DepthMap {
+        colormap: Colormap,
+        /// Depths at the colour map's ends; the views' own range when none.
+        range: Option<[f64; 2]>,
+        min_opacity: f64,
+    },
+}
+
+/// A colour map for depth images (from the `colorous` crate).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Colormap {
+    Turbo,
+    Viridis,
+    Inferno,
+    Magma,
+    Plasma,
+    Cividis,
+}
+
+impl Colormap {
+    pub const ALL: [Colormap; 6] = [
+        Colormap::Turbo,
+        Colormap::Viridis,
+        Colormap::Inferno,
+        Colormap::Magma,
+        Colormap::Plasma,
+        Colormap::Cividis,
+    ];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Colormap::Turbo => "turbo",
+            Colormap::Viridis => "viridis",
+            Colormap::Inferno => "inferno",
+            Colormap::Magma => "magma",
+            Colormap::Plasma => "plasma",
+            Colormap::Cividis => "cividis",
+        }
+    }
 }
 
 /// Where a mesh is extracted.
@@ -177,6 +275,19 @@ pub enum MeshRegion {
 }
 
 impl OutputKind {
+    /// Whether it asks a radiance field for density and colour at points
+    /// (a density mesh, a point cloud, depth with opacity): written for
+    /// fields (`volume`, `train` of a NeRF or an SDF field), not scenes.
+    pub fn field_export(&self) -> bool {
+        matches!(
+            self,
+            OutputKind::DensityMesh { .. }
+                | OutputKind::PointCloud { .. }
+                | OutputKind::RawDepth { .. }
+                | OutputKind::DepthMap { .. }
+        )
+    }
+
     /// Whether only a finished training run can write it.
     pub fn training_only(&self) -> bool {
         matches!(
@@ -1004,8 +1115,11 @@ pub struct TrainJob {
     pub epochs: Option<usize>,
     pub seed: u64,
     pub backend: Backend,
-    /// Cameras and size for the before/after outputs.
+    /// Cameras and size for the before/after outputs (placeholders, as
+    /// many as it will have, where `view_path` makes them at run time).
     pub views: Vec<Camera>,
+    /// Views made from the training cameras when the run has read them.
+    pub view_path: Option<ViewPath>,
     pub width: u32,
     pub height: u32,
     pub before: Vec<Output>,

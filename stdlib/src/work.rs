@@ -287,6 +287,67 @@ fn mesh_work<'a>(outputs: impl Iterator<Item = &'a OutputKind>, per_point: f64) 
     w
 }
 
+/// Rays a point cloud casts at most per point it keeps (it stops once it
+/// has its points; rays whose opacity is too low keep none).
+pub const CLOUD_RAYS_PER_POINT: u64 = 4;
+/// Rays a field export marches at a time (colour, depth, opacity and the
+/// samples' densities and colours of each).
+pub const EXPORT_RAY_CHUNK: usize = 4096;
+
+/// The field exports among `outputs` (density meshes, point clouds, depth
+/// with opacity): meshes on their grids and a colour query per vertex;
+/// each point cloud's rays; and one more pass over the `views` views of
+/// `px` pixels for the depth outputs. A sample costs `per_sample`
+/// evaluations, a ray `samples` samples.
+fn field_export_work(
+    outputs: &[crate::value::Output],
+    views: f64,
+    px: f64,
+    samples: f64,
+    per_sample: f64,
+) -> (Cost, Cost) {
+    let mut meshes = Cost::default();
+    let chunk = EXPORT_RAY_CHUNK as f64 * samples * 16.0;
+    for o in outputs {
+        let c = match o.kind {
+            OutputKind::DensityMesh { resolution, .. } => {
+                let c = mesh_cost(resolution, per_sample);
+                let n = resolution as f64 + 5.0;
+                let surface = (8.0 * n * n).min(MAX_MESH_VERTICES as f64);
+                Cost {
+                    evaluations: c.evaluations + surface * per_sample,
+                    memory: c.memory + surface * 16.0,
+                }
+            }
+            OutputKind::PointCloud { points, .. } => {
+                let rays = points as f64 * CLOUD_RAYS_PER_POINT as f64;
+                Cost {
+                    evaluations: rays * samples * per_sample,
+                    memory: points as f64 * 32.0 + chunk,
+                }
+            }
+            _ => continue,
+        };
+        meshes.evaluations += c.evaluations;
+        meshes.memory = meshes.memory.max(c.memory);
+    }
+    let depth = if outputs.iter().any(|o| {
+        matches!(
+            o.kind,
+            OutputKind::RawDepth { .. } | OutputKind::DepthMap { .. }
+        )
+    }) {
+        Cost {
+            evaluations: views * px * samples * per_sample,
+            // Colour, depth and opacity per pixel, the PNG's bytes and a chunk.
+            memory: px * 24.0 + chunk,
+        }
+    } else {
+        Cost::default()
+    };
+    (meshes, depth)
+}
+
 /// A Chamfer distance between a mesh and a reference: surface samples on
 /// both sides and a k-d tree over the larger (about 40 bytes a point).
 fn chamfer_cost() -> Cost {
@@ -457,6 +518,19 @@ pub fn volume_work(j: &VolumeJob, size: Option<(u32, u32)>) -> Work {
         px * bytes_per_pixel(j.outputs.iter().map(|o| o.kind.clone()), true),
     );
     w.add(Stage::Meshes, mesh.evaluations, mesh.memory);
+    let per_sample = match &*j.field {
+        Field::Sdf(f) => f.shape.evaluation_cost(),
+        _ => per_sample,
+    };
+    let (meshes, depth) = field_export_work(
+        &j.outputs,
+        j.cameras.len() as f64,
+        px,
+        j.sampler.samples as f64,
+        per_sample,
+    );
+    w.add(Stage::Meshes, meshes.evaluations, meshes.memory);
+    w.add(Stage::Views, depth.evaluations, depth.memory);
     w
 }
 
@@ -702,7 +776,7 @@ pub fn train_work(j: &TrainJob, size: Option<(u32, u32)>) -> Work {
                     | OutputKind::Comparison
                     | OutputKind::Mesh { .. }
                     | OutputKind::GeometryGif { .. }
-            )
+            ) && !o.kind.field_export()
         })
     };
     let passes = renders(&j.before) as u8 as f64 + renders(&j.after) as u8 as f64;
@@ -727,6 +801,18 @@ pub fn train_work(j: &TrainJob, size: Option<(u32, u32)>) -> Work {
                 + geometry_gifs * px * views * 96.0 * per_point,
             px * 16.0 + render_buffers(j),
         );
+    }
+
+    // Field exports march their own rays through the model.
+    let export_sample = match &*j.model {
+        Field::Sdf(f) => f.shape.evaluation_cost(),
+        Field::Nerf(n) => network(nerf_multiply_adds(n)),
+        _ => per_point,
+    };
+    for outputs in [&j.before, &j.after] {
+        let (meshes, depth) = field_export_work(outputs, views, px, samples, export_sample);
+        w.add(Stage::Meshes, meshes.evaluations, meshes.memory);
+        w.add(Stage::Outputs, depth.evaluations, depth.memory);
     }
 
     // Meshes; the first mesh after training is measured against the true

@@ -236,7 +236,12 @@ pub fn write_volume_outputs(
                 | OutputKind::Mask
                 // Written by the job, which knows the field's distance.
                 | OutputKind::Mesh { .. }
-                | OutputKind::GeometryGif { .. } => continue,
+                | OutputKind::GeometryGif { .. }
+                // Written by `export::write` from the field's density.
+                | OutputKind::DensityMesh { .. }
+                | OutputKind::PointCloud { .. }
+                | OutputKind::RawDepth { .. }
+                | OutputKind::DepthMap { .. } => continue,
                 OutputKind::Image => ("image", rgb8(&colour), (w, h)),
                 OutputKind::Depth => ("depth", crate::render::depth_image(&depth), (w, h)),
                 OutputKind::Grid => ("grid_image", figures::xy_grid_image(w, h), (w, h)),
@@ -306,6 +311,59 @@ pub fn run_volume_job(
         out_dir,
         progress,
     )?;
+    if job.outputs.iter().any(|o| o.kind.field_export()) {
+        let t = Instant::now();
+        let ray_views: Vec<(Camera, ImageSize)> = job
+            .cameras
+            .iter()
+            .map(|c| {
+                (
+                    *c,
+                    ImageSize {
+                        width: wh.0,
+                        height: wh.1,
+                    },
+                )
+            })
+            .collect();
+        let cx = crate::export::write::ExportContext {
+            out_dir,
+            sampler: &job.sampler,
+            cameras: &job.cameras,
+            size: wh,
+            ray_views: &ray_views,
+            auto_region: job.field.export_region(),
+            seed: 0,
+            to_data: glam::DAffine3::IDENTITY,
+        };
+        let written = match &*job.field {
+            Field::Sdf(f) => {
+                let lowered = LoweredField::new(f);
+                let field = crate::export::Analytic {
+                    field: |p: [f32; 3]| lowered.eval(p),
+                    model: density_model(f, &job.sampler),
+                };
+                crate::export::write::write_field_exports(&field, &job.outputs, &cx)?
+            }
+            Field::Nerf(n) => {
+                let model = NerfObjective::new(n, &job.sampler).map_err(invalid)?;
+                let params = model.initial();
+                let net = model.fine.as_ref().map_or(&model.net, |(f, _)| f);
+                let field = crate::export::NerfField {
+                    net,
+                    params: &params,
+                };
+                crate::export::write::write_field_exports(&field, &job.outputs, &cx)?
+            }
+            Field::NeuralSdf(_) | Field::NeuralSurface(_) => {
+                return Err(invalid("a neural SDF has no density to export"));
+            }
+        };
+        report.written.extend(written);
+        report
+            .stages
+            .push(("field exports".into(), t.elapsed().as_secs_f64()));
+    }
     let meshes: Vec<&Output> = job
         .outputs
         .iter()

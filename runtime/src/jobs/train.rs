@@ -7,6 +7,7 @@ use crate::neural::distance::NeuralSdfObjective;
 use crate::neural::surface::SurfaceObjective;
 use crate::output::write_bytes;
 use crate::plot::{self, Axis, Chart, Scale, Series};
+use sdfl_stdlib::value::ViewPath;
 
 /// The learned parameters and how training went.
 #[derive(Debug, Clone, Serialize)]
@@ -270,6 +271,22 @@ pub fn run_train_job(
     }
     stages.push(("load data".to_string(), t.elapsed().as_secs_f64()));
     within_budget_once_read(job, size, &views, &test_views)?;
+    // The before/after outputs' cameras: the statement's, or a path made
+    // from the training cameras now that they are read.
+    let out_views: Vec<Camera> = match job.view_path {
+        None => job.views.clone(),
+        Some(ViewPath::TrainingLoop { frames, keyframes }) => {
+            let train_cams: Vec<Camera> = views.iter().map(|v| v.camera).collect();
+            sdfl_stdlib::builtins::paths::camera_loop(&train_cams, frames, keyframes).map_err(
+                |e| {
+                    invalid(format!(
+                        "training `{}`: no loop through its training cameras: {e}",
+                        job.name
+                    ))
+                },
+            )?
+        }
+    };
 
     // The analytic model outlives the run that borrows it.
     let analytic = job.model.as_sdf().map(TrainModel::new);
@@ -426,7 +443,7 @@ pub fn run_train_job(
         let r = write_volume_outputs(
             &job.name,
             &view,
-            &job.views,
+            &out_views,
             wh,
             &job.sampler,
             outputs,
@@ -493,6 +510,69 @@ pub fn run_train_job(
                 _ => Err(invalid("only a distance field has a surface to mesh")),
             }
         };
+    // Field exports (density meshes, point clouds, depth with opacity) of
+    // the model at `values`: rays of the training views for point clouds.
+    let ray_views: Vec<(Camera, ImageSize)> = views
+        .iter()
+        .map(|v| {
+            (
+                v.camera,
+                ImageSize {
+                    width: v.image.width,
+                    height: v.image.height,
+                },
+            )
+        })
+        .collect();
+    let write_exports = |values: &[f32], outputs: &[Output]| -> io::Result<Vec<Written>> {
+        if !outputs.iter().any(|o| o.kind.field_export()) {
+            return Ok(Vec::new());
+        }
+        let cx = crate::export::write::ExportContext {
+            out_dir,
+            sampler: &job.sampler,
+            cameras: &out_views,
+            size: wh,
+            ray_views: &ray_views,
+            auto_region: export_region(job),
+            seed: job.seed,
+            // The data's own frame: the identity until a data set that was
+            // normalised when read passes the inverse of its normalisation
+            // here.
+            to_data: glam::DAffine3::IDENTITY,
+        };
+        match (&*job.model, &analytic) {
+            (Field::Nerf(_), _) => {
+                let guard = nerf_model.lock().expect("not poisoned");
+                let m = guard.as_ref().expect("a neural model");
+                // The network that renders: the fine one where there is one.
+                let net = m.fine.as_ref().map_or(&m.net, |(f, _)| f);
+                let field = crate::export::NerfField {
+                    net,
+                    params: values,
+                };
+                crate::export::write::write_field_exports(&field, outputs, &cx)
+            }
+            (Field::Sdf(f), Some(model)) => {
+                let args = model.plain(values);
+                let field = crate::export::Analytic {
+                    field: |p: [f32; 3]| {
+                        let q = V3::from_array(p.map(Dual::constant));
+                        let (d, c) = field_at(model, &args, q);
+                        (d.v, [c.x.v, c.y.v, c.z.v])
+                    },
+                    model: DensityModel {
+                        kind: f.density,
+                        alpha: args.scalar(&f.alpha).v,
+                        beta: args.scalar(&f.beta).v,
+                        last_interval: job.sampler.last_interval,
+                    },
+                };
+                crate::export::write::write_field_exports(&field, outputs, &cx)
+            }
+            _ => Err(invalid("only a radiance field has a density to export")),
+        }
+    };
     // The held-out views rendered at `values`, with their mean PSNR and SSIM.
     let evaluate = |values: &[f32]| -> io::Result<(f64, f64, Vec<Vec<[f32; 3]>>)> {
         let (mut psnr, mut ssim, mut renders) = (0.0, 0.0, Vec::new());
@@ -549,11 +629,13 @@ pub fn run_train_job(
         );
         written.extend(write_geometry_gifs(
             job,
+            &out_views,
             &job.before,
             &run.values(),
             wh,
             out_dir,
         )?);
+        written.extend(write_exports(&run.values(), &job.before)?);
     }
 
     let t = Instant::now();
@@ -670,7 +752,7 @@ pub fn run_train_job(
             !matches!(
                 o.kind,
                 OutputKind::LossCurve | OutputKind::Mesh { .. } | OutputKind::GeometryGif { .. }
-            )
+            ) && !o.kind.field_export()
         })
         .cloned()
         .collect();
@@ -679,11 +761,13 @@ pub fn run_train_job(
     }
     written.extend(write_geometry_gifs(
         job,
+        &out_views,
         &job.after,
         &run.values(),
         wh,
         out_dir,
     )?);
+    written.extend(write_exports(&run.values(), &job.after)?);
     let mut mesh_fit = None;
     for (w, mesh) in write_meshes(&run.values(), &job.after)? {
         // The first mesh against the data's points, or against the true
@@ -849,10 +933,24 @@ pub fn run_train_job(
     })
 }
 
+/// The region a `density_mesh` with `bounds: "auto"` covers: the
+/// field's own (a hash grid's box); for an analytic field, its starting
+/// bounds grown by half their size, as the fit moves the shape.
+fn export_region(job: &TrainJob) -> Option<([f64; 3], [f64; 3])> {
+    match &*job.model {
+        Field::Sdf(f) => f.shape.bounds().map(|b| {
+            let b = b.expand(0.5 * (b.max - b.min).max_element());
+            (b.min.to_array(), b.max.to_array())
+        }),
+        field => field.export_region(),
+    }
+}
+
 /// The `geometry_gif`s of a neural SDF model at `values`: its surface
 /// sphere-traced from every view, normals as colours.
 fn write_geometry_gifs(
     job: &TrainJob,
+    cameras: &[Camera],
     outputs: &[Output],
     values: &[f32],
     (w, h): (u32, u32),
@@ -874,7 +972,7 @@ fn write_geometry_gifs(
             continue;
         };
         let mut gif = crate::output::GifWriter::create(&out_dir.join(&o.path), fps)?;
-        for cam in &job.views {
+        for cam in cameras {
             let size = ImageSize {
                 width: w,
                 height: h,

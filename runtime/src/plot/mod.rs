@@ -212,7 +212,7 @@ fn draw_err(e: impl std::fmt::Debug) -> PlotError {
     PlotError::Draw(format!("{e:?}"))
 }
 
-fn register_font() {
+pub(crate) fn register_font() {
     static ONCE: Once = Once::new();
     ONCE.call_once(|| {
         // The embedded font parses (tested); were it not to, text would be

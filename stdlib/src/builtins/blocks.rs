@@ -109,8 +109,19 @@ pub(crate) fn render_block(name: &str, a: &Args) -> Built<RenderJob> {
     let outputs = e.ok(outputs(a, "outputs", false).and_then(|outputs| {
         match outputs
             .iter()
-            .find(|o| o.kind == OutputKind::SamplePoints || o.kind.training_only())
+            .find(|o| {
+                o.kind == OutputKind::SamplePoints || o.kind.training_only() || o.kind.field_export()
+            })
         {
+            Some(o) if o.kind.field_export() => Err(value_error(
+                a.get("outputs").1,
+                format!(
+                    "`{}` needs a radiance field's density and opacity",
+                    o.path.display()
+                ),
+                "not a sphere-tracing output",
+                "ask for it from a `volume` or a `train` of a field; a scene's surface is `mesh(...)`, its depth `depth(...)`",
+            )),
             Some(o) => Err(value_error(
                 a.get("outputs").1,
                 format!(
@@ -184,7 +195,7 @@ pub(crate) fn train_sig() -> BlockSig {
             opt("epochs", Type::Number, "0", "passes over all training pixels (0: use `iterations`)"),
             opt("seed", Type::Number, "0", "seed of the ray batches and jitter"),
             opt("backend", Type::Str, "\"fused\"", "\"fused\" (one kernel per ray, hand-written backward) or \"dfdx\" (an autodiff graph)"),
-            opt("views", Type::OneOf(vec![CAMERA, Type::list(CAMERA)]), "orbit()", "cameras of the before/after outputs"),
+            opt("views", Type::OneOf(vec![CAMERA, Type::list(CAMERA), super::paths::VIEW_PATH]), "orbit()", "cameras of the before/after outputs, or `training_loop(...)`: a loop through the training cameras made when the run starts"),
             opt("size", Type::list(Type::Number), "[128, 128]", "size of the before/after outputs"),
             opt("before", Type::list(OUTPUT), "[]", "outputs rendered from the starting model"),
             opt("after", Type::list(OUTPUT), "[]", "outputs rendered from the trained model, and `loss_curve`, `psnr_curve` and `comparison` (the last two need held-out views)"),
@@ -295,6 +306,7 @@ pub(crate) fn train_block(name: &str, a: &Args) -> Built<TrainJob> {
     let after = e.ok(outputs(a, "after", true));
     if let Some(model) = &model {
         for outputs in [&before, &after].into_iter().flatten() {
+            e.ok(check_field_exports(outputs, model));
             e.ok(match &**model {
                 Field::Sdf(f) => check_meshes(outputs, Some(&f.shape)),
                 // Bounded by its points or the training `bounds`.
@@ -320,7 +332,24 @@ pub(crate) fn train_block(name: &str, a: &Args) -> Built<TrainJob> {
     let rays = e.ok(a.count("rays", 1, 1 << 20));
     let iterations = e.ok(a.count("iterations", 0, 10_000_000));
     let seed = e.ok(a.count("seed", 0, u32::MAX as u64));
-    let views = e.ok(camera_list(a, "views"));
+    let view_path = match a.get("views").0 {
+        Value::ViewPath(p) => Some(*p),
+        _ => None,
+    };
+    let views = match view_path {
+        // As many placeholders as the path will have cameras: files and
+        // work are counted before the run makes them.
+        Some(p) => Some(vec![
+            Camera::look_at(
+                DVec3::Z * 3.0,
+                DVec3::ZERO,
+                DVec3::Y,
+                1.0
+            );
+            p.frames()
+        ]),
+        None => e.ok(camera_list(a, "views")),
+    };
     let eval_every = e.ok(a.count("eval_every", 0, 10_000_000));
     let bounds = e.ok(a.positive("bounds"));
     let (width, height) = size.unwrap_or((1, 1));
@@ -340,6 +369,7 @@ pub(crate) fn train_block(name: &str, a: &Args) -> Built<TrainJob> {
             seed: seed.unwrap_or(0),
             backend: backend.unwrap_or(Backend::Fused),
             views: views?,
+            view_path,
             width,
             height,
             before: before?,
@@ -627,6 +657,7 @@ pub(crate) fn volume_block(name: &str, a: &Args, field: Arc<Field>) -> Built<Vol
         }
     }));
     if let Some(outputs) = &outputs {
+        e.ok(check_field_exports(outputs, &field));
         e.ok(check_meshes(outputs, field.as_sdf().map(|f| &*f.shape)));
     }
     let cameras = e.ok(camera_list(a, "camera"));
@@ -668,6 +699,43 @@ fn check_meshes(outputs: &[Output], shape: Option<&Shape>) -> Result<(), Diag> {
                 "needs a region",
                 "give the region: `mesh(\"scene.ply\", bounds: [[-2, -2, -2], [2, 2, 2]])`",
             ));
+        }
+    }
+    Ok(())
+}
+
+/// Density meshes, point clouds and depth with opacity ask a radiance
+/// field (a NeRF or an SDF field) for density and colour; a density mesh
+/// with `bounds: "auto"` needs a region the field knows.
+fn check_field_exports(outputs: &[Output], field: &Field) -> Result<(), Diag> {
+    let Some(o) = outputs.iter().find(|o| o.kind.field_export()) else {
+        return Ok(());
+    };
+    if matches!(field, Field::NeuralSdf(_) | Field::NeuralSurface(_)) {
+        return Err(value_error(
+            o.span,
+            format!(
+                "`{}` asks a radiance field for its density",
+                crate::outputs::kind_name(&o.kind)
+            ),
+            "not an output of a neural SDF",
+            "a neural SDF's surface is `mesh(...)`; its depth `depth(...)`",
+        ));
+    }
+    for o in outputs {
+        if let OutputKind::DensityMesh {
+            region: MeshRegion::Auto,
+            ..
+        } = o.kind
+        {
+            if field.export_region().is_none() {
+                return Err(value_error(
+                    o.span,
+                    "the field has no bounds of its own, so `bounds: \"auto\"` has no region",
+                    "needs a region",
+                    "give the region: `density_mesh(\"field.ply\", bounds: [[-1, -1, -1], [1, 1, 1]])`",
+                ));
+            }
         }
     }
     Ok(())

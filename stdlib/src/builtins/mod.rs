@@ -19,10 +19,11 @@ use crate::param::{Arg, Bound, ParamDecl, ParamInit, ParamUse, MIN_BETA, MIN_LEN
 use crate::precision::{beta, f32_range};
 use crate::shape::{Axis, Shape};
 use crate::value::{
-    Backend, CaptureFormat, CaptureOrient, CaptureSpec, Dataset, DensityActivation, DensityKind,
-    Encoding, Field, Harmonic, HashGridSpec, HitTolerance, LastInterval, Loss, LossKind,
-    MeshRegion, Nerf, NeuralSdf, NeuralSurface, OccupancySpec, Optimizer, Output, OutputKind,
-    Precision, RenderJob, Sampler, Schedule, SdfField, TrainJob, Value, VolumeJob,
+    Backend, CaptureFormat, CaptureOrient, CaptureSpec, Colormap, Dataset, DensityActivation,
+    DensityKind, Encoding, Field, Harmonic, HashGridSpec, HitTolerance, LastInterval, Loss,
+    LossKind, MeshRegion, Nerf, NeuralSdf, NeuralSurface, OccupancySpec, Optimizer, Output,
+    OutputKind, Precision, RenderJob, Sampler, Schedule, SdfField, TrainJob, Value, ViewPath,
+    VolumeJob,
 };
 
 pub const SHAPE: Type = Type::Named("shape");
@@ -61,6 +62,7 @@ mod lens;
 mod materials;
 mod neural;
 mod outputs;
+pub mod paths;
 mod shapes;
 mod volumes;
 
@@ -732,5 +734,6 @@ fn table() -> Vec<Builtin> {
         ])
         .chain(neural::builtins())
         .chain(outputs::builtins())
+        .chain(paths::builtins())
         .collect()
 }

@@ -5,6 +5,8 @@ use super::*;
 
 /// Finest mesh grid: a billion evaluations, planes of a million points.
 pub const MAX_MESH_RESOLUTION: u32 = 1024;
+/// Most points of a point cloud (16 bytes each in memory, 15 in the file).
+pub const MAX_CLOUD_POINTS: u64 = 10_000_000;
 
 pub(crate) fn builtins() -> Vec<Builtin> {
     // An animated GIF of all views: a path and a frame rate.
@@ -84,6 +86,79 @@ pub(crate) fn builtins() -> Vec<Builtin> {
                 out(a, OutputKind::Mesh { resolution, region }, "ply")
             },
         ),
+        func(
+            "density_mesh",
+            "A radiance field's surface where its density reaches `level` (for the opacity form, its per-sample opacity), as a binary PLY triangle mesh with normals (pointing to lower density) and vertex colours (the field's colour seen along the reversed normal): surface nets on a grid, as nerfstudio's `ns-export`. Of a `volume` field or a trained NeRF or SDF field.",
+            vec![
+                req("path", Type::Str, "file name inside the output directory (.ply)"),
+                opt("level", Type::Number, "10", "the density (per unit length) the surface is drawn at (> 0)"),
+                opt("resolution", Type::Number, "128", "grid cells along the region's longest side (8 to 1024)"),
+                opt(
+                    "bounds",
+                    Type::OneOf(vec![Type::Str, Type::list(Type::Vec3)]),
+                    "\"auto\"",
+                    "the region: `[[x0, y0, z0], [x1, y1, z1]]`, or \"auto\": a hash grid's or occupancy grid's box, an SDF field's bounds",
+                ),
+            ],
+            OUTPUT,
+            |a| {
+                let level = a.positive("level")?;
+                f32_range(level, a.get("level").1, "level")?;
+                let resolution = a.count("resolution", 8, MAX_MESH_RESOLUTION as u64)? as u32;
+                let region = mesh_region(a)?;
+                out(a, OutputKind::DensityMesh { level, resolution, region }, "ply")
+            },
+        ),
+        func(
+            "point_cloud",
+            "Points where rays of the training cameras (a `volume`'s cameras) end: at the expected depth over the accumulated opacity, coloured by the rendered colour over the opacity, kept where the opacity reaches `min_opacity`; a binary PLY point cloud with colours, as nerfstudio's `ns-export pointcloud`. Rays go through seeded random pixels until `points` are kept or four times as many rays were cast.",
+            vec![
+                req("path", Type::Str, "file name inside the output directory (.ply)"),
+                opt("points", Type::Number, "100000", "points to keep (1 to 10 000 000)"),
+                opt("min_opacity", Type::Number, "0.5", "accumulated opacity a ray needs for its point (0 to 1)"),
+            ],
+            OUTPUT,
+            |a| {
+                let points = a.count("points", 1, MAX_CLOUD_POINTS)? as u32;
+                let min_opacity = opacity(a)?;
+                out(a, OutputKind::PointCloud { points, min_opacity }, "ply")
+            },
+        ),
+        func(
+            "raw_depth",
+            "Depth per view as a float32 `.npy` array of rows × columns (numpy's `np.load`): the expected depth along the ray divided by the accumulated opacity (distance from the camera centre along the ray, in scene units), NaN where the opacity is below `min_opacity`.",
+            vec![
+                req("path", Type::Str, "file name inside the output directory (.npy)"),
+                opt("min_opacity", Type::Number, "0.5", "accumulated opacity a pixel needs for a depth (0 to 1)"),
+            ],
+            OUTPUT,
+            |a| {
+                let min_opacity = opacity(a)?;
+                out(a, OutputKind::RawDepth { min_opacity }, "npy")
+            },
+        ),
+        func(
+            "depth_map",
+            "Depth per view (as `raw_depth`) colour-mapped, beside a colour bar whose axis is titled \"depth (scene units)\", as PNG; pixels below `min_opacity` black.",
+            vec![
+                req("path", Type::Str, "file name inside the output directory (.png)"),
+                opt("colormap", Type::Str, "\"turbo\"", "turbo, viridis, inferno, magma, plasma or cividis"),
+                opt(
+                    "range",
+                    Type::OneOf(vec![Type::Str, Type::list(Type::Number)]),
+                    "\"auto\"",
+                    "`[near, far]`: the depths at the colour map's ends (fixed across views), or \"auto\": each view's own range",
+                ),
+                opt("min_opacity", Type::Number, "0.5", "accumulated opacity a pixel needs for a depth (0 to 1)"),
+            ],
+            OUTPUT,
+            |a| {
+                let colormap = colormap(a)?;
+                let range = depth_range(a)?;
+                let min_opacity = opacity(a)?;
+                out(a, OutputKind::DepthMap { colormap, range, min_opacity }, "png")
+            },
+        ),
         output("grid_image", "The assignment's xy-grid visual check as PNG (NDC x, y as red, green).", |a| out(a, OutputKind::Grid, "png")),
         output("rays_image", "The assignment's ray-direction visual check as PNG (|direction| as RGB).", |a| out(a, OutputKind::Rays, "png")),
         output("sample_points", "The sample points along the first camera's rays, seen from the side, as PNG.", |a| out(a, OutputKind::SamplePoints, "png")),
@@ -141,6 +216,67 @@ fn mesh_region(a: &Args) -> Result<MeshRegion, Diag> {
                 ));
             }
             Ok(MeshRegion::Box { min, max })
+        }
+        _ => Err(wrong()),
+    }
+}
+
+/// `min_opacity`: an accumulated opacity in [0, 1].
+fn opacity(a: &Args) -> Result<f64, Diag> {
+    let x = a.number("min_opacity")?;
+    if !(0.0..=1.0).contains(&x) {
+        return Err(value_error(
+            a.get("min_opacity").1,
+            format!(
+                "`min_opacity` is an accumulated opacity from 0 to 1, got {}",
+                sdfl_lang::fmt_num(x)
+            ),
+            "out of range",
+            "use e.g. `min_opacity: 0.5` (0 keeps every ray)",
+        ));
+    }
+    Ok(x)
+}
+
+fn colormap(a: &Args) -> Result<Colormap, Diag> {
+    let (name, span) = a.string("colormap")?;
+    Colormap::ALL
+        .into_iter()
+        .find(|c| c.name() == &*name)
+        .ok_or_else(|| {
+            value_error(
+                span,
+                format!("unknown colour map `{name}`"),
+                "not a colour map",
+                "use \"turbo\", \"viridis\", \"inferno\", \"magma\", \"plasma\" or \"cividis\"",
+            )
+        })
+}
+
+fn depth_range(a: &Args) -> Result<Option<[f64; 2]>, Diag> {
+    let (v, span) = a.get("range");
+    let wrong = || {
+        value_error(
+            span,
+            "`range` is \"auto\" or `[near, far]` with 0 ≤ near < far",
+            "not a depth range",
+            "write `range: [2, 6]` (depths at the colour map's ends) or leave it out",
+        )
+    };
+    match v {
+        Value::Str(s) if &**s == "auto" => Ok(None),
+        Value::List(items) if items.len() == 2 => {
+            let n = |v: &Value| match v {
+                Value::Number(x) => Ok(*x),
+                _ => Err(wrong()),
+            };
+            let (lo, hi) = (n(&items[0])?, n(&items[1])?);
+            f32_range(lo, span, "range")?;
+            f32_range(hi, span, "range")?;
+            if !(lo >= 0.0 && lo < hi) {
+                return Err(wrong());
+            }
+            Ok(Some([lo, hi]))
         }
         _ => Err(wrong()),
     }

@@ -1,0 +1,224 @@
+//! Depth as numbers and as pictures: float32 `.npy` arrays (NaN where a
+//! ray found no surface), and depth colour-mapped with a standard colour
+//! map (the `colorous` crate's turbo, viridis, …) beside a colour bar whose
+//! axis is titled and ticked (plotters, with the charts' embedded font).
+
+use plotters::prelude::*;
+use sdfl_stdlib::value::Colormap;
+
+use super::RayEnd;
+
+/// Depth per pixel: `Σ wᵢtᵢ / Σ wᵢ` where the opacity reaches
+/// `min_opacity`, NaN elsewhere (no surface: NaN, not 0, so that a mean
+/// or a point cloud made from it cannot mistake it for the camera centre).
+pub fn depth_values(ends: &[RayEnd], min_opacity: f32) -> Vec<f32> {
+    ends.iter()
+        .map(|e| e.surface_depth(min_opacity).unwrap_or(f32::NAN))
+        .collect()
+}
+
+/// A float32 array of `rows × cols` as a `.npy` file (version 1.0,
+/// little-endian, C order).
+pub fn npy_bytes(values: &[f32], rows: usize, cols: usize) -> Vec<u8> {
+    debug_assert_eq!(values.len(), rows * cols);
+    let dict = format!("{{'descr': '<f4', 'fortran_order': False, 'shape': ({rows}, {cols}), }}");
+    // Magic (6), version (2), header length (2), then the header padded
+    // with spaces and ended by a newline to a multiple of 64 bytes.
+    let unpadded = 10 + dict.len() + 1;
+    let pad = unpadded.next_multiple_of(64) - unpadded;
+    let header_len = (dict.len() + pad + 1) as u16;
+    let mut out = Vec::with_capacity(unpadded + pad + values.len() * 4);
+    out.extend_from_slice(b"\x93NUMPY\x01\x00");
+    out.extend_from_slice(&header_len.to_le_bytes());
+    out.extend_from_slice(dict.as_bytes());
+    out.extend(std::iter::repeat_n(b' ', pad));
+    out.push(b'\n');
+    for v in values {
+        out.extend_from_slice(&v.to_le_bytes());
+    }
+    out
+}
+
+/// `map` at `x` in 0..1 (clamped; non-finite gives the low end).
+pub fn colour(map: Colormap, x: f64) -> [u8; 3] {
+    let g = match map {
+        Colormap::Turbo => colorous::TURBO,
+        Colormap::Viridis => colorous::VIRIDIS,
+        Colormap::Inferno => colorous::INFERNO,
+        Colormap::Magma => colorous::MAGMA,
+        Colormap::Plasma => colorous::PLASMA,
+        Colormap::Cividis => colorous::CIVIDIS,
+    };
+    let x = if x.is_finite() {
+        x.clamp(0.0, 1.0)
+    } else {
+        0.0
+    };
+    let c = g.eval_continuous(x);
+    [c.r, c.g, c.b]
+}
+
+/// The depths at a colour map's ends: `fixed`, else the finite values'
+/// own range (a single depth widened so that the range is not empty).
+pub fn depth_range(depth: &[f32], fixed: Option<[f64; 2]>) -> [f64; 2] {
+    if let Some(r) = fixed {
+        return r;
+    }
+    let (lo, hi) = depth
+        .iter()
+        .filter(|d| d.is_finite())
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &d| {
+            (lo.min(d as f64), hi.max(d as f64))
+        });
+    if !(lo.is_finite() && hi.is_finite()) {
+        return [0.0, 1.0];
+    }
+    if hi - lo < 1e-6 * hi.abs().max(1.0) {
+        let pad = 1e-3 * hi.abs().max(1.0);
+        return [lo - pad, hi + pad];
+    }
+    [lo, hi]
+}
+
+/// Width of the colour bar panel beside a depth image.
+pub const BAR_WIDTH: u32 = 150;
+/// Smallest height of a depth map (the bar's ticks and title need room).
+pub const MIN_HEIGHT: u32 = 200;
+
+/// A depth image colour-mapped over `range` with the colour bar at its
+/// right: `(width, height, rgb)`; pixels without depth black, the panel
+/// white below a short image.
+pub fn depth_map(
+    depth: &[f32],
+    (w, h): (u32, u32),
+    map: Colormap,
+    range: [f64; 2],
+) -> Result<(u32, u32, Vec<u8>), crate::plot::PlotError> {
+    let (tw, th) = (w + BAR_WIDTH, h.max(MIN_HEIGHT));
+    let mut rgb = vec![255u8; tw as usize * th as usize * 3];
+    let span = (range[1] - range[0]).max(f64::MIN_POSITIVE);
+    {
+        crate::plot::register_font();
+        let root = BitMapBackend::with_buffer(&mut rgb, (tw, th)).into_drawing_area();
+        let (_, bar) = root.split_horizontally(w);
+        let err = |e: &dyn std::fmt::Debug| crate::plot::PlotError::Draw(format!("{e:?}"));
+        let mut chart = ChartBuilder::on(&bar)
+            .margin_top(10)
+            .margin_bottom(10)
+            .margin_left(4)
+            .margin_right(16)
+            .y_label_area_size(0)
+            .right_y_label_area_size(70)
+            .build_cartesian_2d(0f64..1f64, range[0]..range[1])
+            .map_err(|e| err(&e))?;
+        chart
+            .configure_mesh()
+            .disable_x_mesh()
+            .disable_y_mesh()
+            .disable_x_axis()
+            .y_desc("depth (scene units)")
+            .y_labels(6)
+            .label_style(("sans-serif", 11))
+            .axis_desc_style(("sans-serif", 12))
+            .draw()
+            .map_err(|e| err(&e))?;
+        let steps = 256;
+        chart
+            .draw_series((0..steps).map(|k| {
+                let a = range[0] + span * k as f64 / steps as f64;
+                let b = range[0] + span * (k + 1) as f64 / steps as f64;
+                let c = colour(map, (k as f64 + 0.5) / steps as f64);
+                Rectangle::new([(0.0, a), (1.0, b)], RGBColor(c[0], c[1], c[2]).filled())
+            }))
+            .map_err(|e| err(&e))?;
+        root.present().map_err(|e| err(&e))?;
+    }
+    for j in 0..h as usize {
+        for i in 0..w as usize {
+            let d = depth[j * w as usize + i];
+            let c = if d.is_finite() {
+                colour(map, (d as f64 - range[0]) / span)
+            } else {
+                [0, 0, 0]
+            };
+            let o = (j * tw as usize + i) * 3;
+            rgb[o..o + 3].copy_from_slice(&c);
+        }
+    }
+    Ok((tw, th, rgb))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn npy_header_is_aligned_and_values_follow() {
+        let v = [1.5f32, f32::NAN, -2.0, 0.25, 3.0, 4.0];
+        let b = npy_bytes(&v, 2, 3);
+        assert_eq!(&b[..8], b"\x93NUMPY\x01\x00");
+        let hl = u16::from_le_bytes([b[8], b[9]]) as usize;
+        assert_eq!((10 + hl) % 64, 0);
+        let header = std::str::from_utf8(&b[10..10 + hl]).unwrap();
+        assert!(
+            header.contains("'shape': (2, 3)") && header.ends_with('\n'),
+            "{header}"
+        );
+        let body: Vec<f32> = b[10 + hl..]
+            .chunks(4)
+            .map(|c| f32::from_le_bytes(c.try_into().unwrap()))
+            .collect();
+        assert_eq!(body.len(), 6);
+        assert!(body[1].is_nan());
+        assert_eq!(body[0], 1.5);
+        assert_eq!(body[5], 4.0);
+    }
+
+    #[test]
+    fn colour_map_endpoints() {
+        // Turbo runs from near black through blue, green and yellow to dark
+        // red; viridis from dark purple to yellow.
+        assert_eq!(colour(Colormap::Turbo, 0.0), [34, 23, 27]);
+        let hi = colour(Colormap::Turbo, 1.0);
+        assert!(hi[0] > 100 && hi[1] < 30 && hi[2] < 30, "{hi:?}");
+        let mid = colour(Colormap::Turbo, 0.5);
+        assert!(mid[1] > mid[0] && mid[1] > mid[2], "{mid:?}");
+        assert_eq!(colour(Colormap::Viridis, 0.0), [68, 1, 84]);
+        assert_eq!(colour(Colormap::Viridis, 1.0), [253, 231, 37]);
+        // Out of range clamps, NaN is the low end.
+        assert_eq!(colour(Colormap::Viridis, 7.0), [253, 231, 37]);
+        assert_eq!(colour(Colormap::Viridis, f64::NAN), [68, 1, 84]);
+    }
+
+    #[test]
+    fn depth_map_has_its_bar_and_black_holes() {
+        let depth = [2.0, 3.0, f32::NAN, 4.0];
+        let r = depth_range(&depth, None);
+        assert_eq!(r, [2.0, 4.0]);
+        let (w, h, rgb) = depth_map(&depth, (2, 2), Colormap::Viridis, r).unwrap();
+        assert_eq!((w, h), (2 + BAR_WIDTH, MIN_HEIGHT));
+        assert_eq!(rgb.len(), (w * h * 3) as usize);
+        let px = |i: usize, j: usize| {
+            let o = (j * w as usize + i) * 3;
+            [rgb[o], rgb[o + 1], rgb[o + 2]]
+        };
+        assert_eq!(px(0, 0), [68, 1, 84]);
+        assert_eq!(px(1, 1), [253, 231, 37]);
+        assert_eq!(px(0, 1), [0, 0, 0]);
+        // The bar holds both ends of the map somewhere in its panel.
+        let bar: Vec<[u8; 3]> = (0..h as usize)
+            .flat_map(|j| (2..w as usize).map(move |i| (i, j)))
+            .map(|(i, j)| px(i, j))
+            .collect();
+        assert!(
+            bar.contains(&[253, 231, 37])
+                || bar.iter().any(|c| c[0] > 240 && c[1] > 220 && c[2] < 60)
+        );
+        assert!(bar.iter().any(|c| c[0] < 80 && c[1] < 10 && c[2] > 70));
+        // A fixed range is kept; a flat image gets a non-empty one.
+        assert_eq!(depth_range(&depth, Some([0.0, 9.0])), [0.0, 9.0]);
+        let flat = depth_range(&[3.0, 3.0], None);
+        assert!(flat[0] < 3.0 && flat[1] > 3.0);
+        assert_eq!(depth_range(&[f32::NAN], None), [0.0, 1.0]);
+    }
+}

@@ -1,0 +1,382 @@
+//! Exports from any radiance field (a NeRF, a hash grid, an analytic SDF
+//! field): a mesh where the density reaches a level, a coloured point
+//! cloud where the cameras' rays end, raw and colour-mapped depth, and the
+//! camera paths a trained model is rendered along.
+//!
+//! Every export asks the field the same thing, density and colour at
+//! points seen along directions ([`RadianceField`]), and marches its own
+//! rays ([`march_rays`]): stratified samples, weights from densities (or an
+//! opacity field's per-sample opacities), and per ray the composited
+//! colour, the expected depth `Σ wᵢtᵢ` and the accumulated opacity `Σ wᵢ`.
+//! Positions are mapped into the data's own frame by a `DAffine3` (the
+//! identity where the data had no normalisation).
+
+use glam::{DAffine3, DVec3};
+use rayon::prelude::*;
+use sdfl_stdlib::camera::Camera;
+use sdfl_stdlib::value::{DensityKind, LastInterval};
+
+use crate::mesh::{DistanceField, Mesh, MeshGrid};
+use crate::neural::nerf::{NerfNet, NerfWork};
+use crate::volume::composite::{weights_from_density, weights_from_opacity};
+use crate::volume::march::intervals_into;
+use crate::volume::rays::pixel_ray;
+use crate::volume::{DensityModel, ImageSize, Ray, SplitMix64, Stratified, VolumeError};
+
+pub mod depth;
+pub mod paths;
+pub mod ply;
+pub mod write;
+
+/// Samples a network pass evaluates at most (its buffers grow with it).
+const NETWORK_ROWS: usize = 65_536;
+
+/// A field that has density and colour everywhere.
+pub trait RadianceField: Sync {
+    /// Density (for [`Self::opacity_form`], a per-sample opacity) and colour
+    /// at `points` seen along the unit directions `dirs`.
+    fn query(
+        &self,
+        points: &[[f32; 3]],
+        dirs: &[[f32; 3]],
+        sigma: &mut [f32],
+        rgb: &mut [[f32; 3]],
+    );
+
+    /// Whether `query` gives each sample's opacity (the assignment's opacity
+    /// form) instead of a density per unit length.
+    fn opacity_form(&self) -> bool {
+        false
+    }
+}
+
+/// An SDF with a colour seen as a volume under a density model.
+pub struct Analytic<F> {
+    /// Point → (signed distance, colour).
+    pub field: F,
+    pub model: DensityModel,
+}
+
+impl<F: Fn([f32; 3]) -> (f32, [f32; 3]) + Sync> RadianceField for Analytic<F> {
+    fn query(&self, points: &[[f32; 3]], _: &[[f32; 3]], sigma: &mut [f32], rgb: &mut [[f32; 3]]) {
+        let m = &self.model;
+        let inv_beta = 1.0 / m.beta;
+        points
+            .par_iter()
+            .zip(sigma.par_iter_mut().zip(rgb.par_iter_mut()))
+            .with_min_len(256)
+            .for_each(|(p, (s, c))| {
+                let (d, col) = (self.field)(*p);
+                *s = crate::volume::march::density(m.kind, d, m.alpha, inv_beta);
+                *c = col;
+            });
+    }
+
+    fn opacity_form(&self) -> bool {
+        self.model.kind == DensityKind::Opacity
+    }
+}
+
+/// A NeRF network at its parameters (the fine network where there is one:
+/// the one that renders).
+pub struct NerfField<'a> {
+    pub net: &'a NerfNet,
+    pub params: &'a [f32],
+}
+
+impl RadianceField for NerfField<'_> {
+    fn query(
+        &self,
+        points: &[[f32; 3]],
+        dirs: &[[f32; 3]],
+        sigma: &mut [f32],
+        rgb: &mut [[f32; 3]],
+    ) {
+        let mut work = NerfWork::default();
+        for (start, p) in (0..points.len())
+            .step_by(NETWORK_ROWS)
+            .zip(points.chunks(NETWORK_ROWS))
+        {
+            let end = start + p.len();
+            let flat: &[f32] = bytemuck_flat(p);
+            let d: &[f32] = bytemuck_flat(&dirs[start..end]);
+            self.net.forward(self.params, flat, d, &mut work);
+            sigma[start..end].copy_from_slice(&work.sigma[..p.len()]);
+            for (c, w) in rgb[start..end].iter_mut().zip(work.rgb.chunks_exact(3)) {
+                *c = [w[0], w[1], w[2]];
+            }
+        }
+    }
+}
+
+/// `[[f32; 3]]` as a flat `[f32]` (the same memory).
+fn bytemuck_flat(p: &[[f32; 3]]) -> &[f32] {
+    p.as_flattened()
+}
+
+/// The end of one ray through a field.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct RayEnd {
+    /// `Σ wᵢcᵢ`, no background.
+    pub colour: [f32; 3],
+    /// `Σ wᵢtᵢ`: the expected depth, not yet divided by the opacity.
+    pub depth: f32,
+    /// `Σ wᵢ`, the accumulated opacity.
+    pub opacity: f32,
+}
+
+impl RayEnd {
+    /// The depth where the ray ends, `Σ wᵢtᵢ / Σ wᵢ`, where its opacity
+    /// reaches `min_opacity` (and is not 0).
+    pub fn surface_depth(&self, min_opacity: f32) -> Option<f32> {
+        (self.opacity > 0.0 && self.opacity >= min_opacity)
+            .then(|| self.depth / self.opacity)
+            .filter(|d| d.is_finite())
+    }
+
+    /// The colour seen where it ends, `Σ wᵢcᵢ / Σ wᵢ`, in 0..1.
+    pub fn surface_colour(&self) -> [f32; 3] {
+        self.colour
+            .map(|c| (c / self.opacity.max(1e-12)).clamp(0.0, 1.0))
+    }
+}
+
+/// Marches `rays` through `field` at the stratified depths of `sampler`
+/// (intervals closed by `last`), `chunk` rays at a time.
+pub fn march_rays(
+    field: &dyn RadianceField,
+    rays: &[Ray],
+    sampler: &Stratified,
+    last: LastInterval,
+) -> Result<Vec<RayEnd>, VolumeError> {
+    sampler.validate()?;
+    let t = sampler.depths();
+    let mut delta = Vec::new();
+    intervals_into(&t, last, &mut delta);
+    let n = t.len();
+    let per_chunk = (NETWORK_ROWS / n.max(1)).max(1);
+    let mut ends = vec![RayEnd::default(); rays.len()];
+    let (mut points, mut dirs) = (Vec::new(), Vec::new());
+    let (mut sigma, mut rgb) = (Vec::new(), Vec::new());
+    for (chunk, out) in rays.chunks(per_chunk).zip(ends.chunks_mut(per_chunk)) {
+        points.clear();
+        dirs.clear();
+        for r in chunk {
+            for &ti in &t {
+                points.push(std::array::from_fn(|a| r.origin[a] + ti * r.dir[a]));
+                dirs.push(r.dir);
+            }
+        }
+        sigma.resize(points.len(), 0.0);
+        rgb.resize(points.len(), [0.0; 3]);
+        field.query(&points, &dirs, &mut sigma, &mut rgb);
+        let opacity_form = field.opacity_form();
+        out.par_iter_mut().enumerate().for_each(|(i, end)| {
+            let (s, c) = (&sigma[i * n..(i + 1) * n], &rgb[i * n..(i + 1) * n]);
+            let mut w = vec![0.0f32; n];
+            // Non-finite densities (a diverged network) count as empty.
+            let s: Vec<f32> = s
+                .iter()
+                .map(|x| if x.is_finite() { x.max(0.0) } else { 0.0 })
+                .collect();
+            let ok = if opacity_form {
+                weights_from_opacity(&s, &mut w)
+            } else {
+                weights_from_density(&s, &delta, &mut w)
+            };
+            if ok.is_err() {
+                return;
+            }
+            let mut e = RayEnd::default();
+            for k in 0..n {
+                for a in 0..3 {
+                    e.colour[a] += w[k] * c[k][a];
+                }
+                e.depth += w[k] * t[k];
+                e.opacity += w[k];
+            }
+            *end = e;
+        });
+    }
+    Ok(ends)
+}
+
+/// Every pixel's ray end of one view, row-major from the top-left pixel.
+pub fn render_ends(
+    field: &dyn RadianceField,
+    cam: &Camera,
+    size: ImageSize,
+    sampler: &Stratified,
+    last: LastInterval,
+) -> Result<Vec<RayEnd>, VolumeError> {
+    let rays = crate::volume::camera_rays(cam, size)?;
+    march_rays(field, &rays, sampler, last)
+}
+
+/// A coloured point cloud.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Cloud {
+    pub points: Vec<[f32; 3]>,
+    pub colours: Vec<[u8; 3]>,
+    /// Rays it took.
+    pub rays: usize,
+}
+
+/// Up to `count` points where rays through seeded random pixels of `views`
+/// (each camera with its image size) end, where their opacity reaches
+/// `min_opacity`; at most `rays_per_point · count` rays are cast.
+#[allow(clippy::too_many_arguments)]
+pub fn point_cloud(
+    field: &dyn RadianceField,
+    views: &[(Camera, ImageSize)],
+    count: usize,
+    min_opacity: f32,
+    rays_per_point: usize,
+    sampler: &Stratified,
+    last: LastInterval,
+    seed: u64,
+    to_data: &DAffine3,
+) -> Result<Cloud, VolumeError> {
+    let mut cloud = Cloud::default();
+    let views: Vec<&(Camera, ImageSize)> = views.iter().filter(|(_, s)| s.pixels() > 0).collect();
+    if views.is_empty() {
+        return Err(VolumeError::Invalid("no views to cast rays from".into()));
+    }
+    if let Some((c, _)) = views.iter().find(|(c, _)| !c.is_valid()) {
+        let _ = c;
+        return Err(VolumeError::InvalidCamera);
+    }
+    let budget = count.saturating_mul(rays_per_point.max(1));
+    let batch = 16_384usize;
+    let mut rng = SplitMix64::new(seed ^ 0x0c10_0d00);
+    while cloud.points.len() < count && cloud.rays < budget {
+        let n = batch.min(budget - cloud.rays);
+        let rays: Vec<Ray> = (0..n)
+            .map(|_| {
+                let v = rng.below(views.len() as u64) as usize;
+                let (cam, size) = views[v];
+                let p = rng.below(size.pixels() as u64) as u32;
+                pixel_ray(cam, *size, v as u32, p)
+            })
+            .collect();
+        cloud.rays += n;
+        let ends = march_rays(field, &rays, sampler, last)?;
+        for (r, e) in rays.iter().zip(&ends) {
+            if cloud.points.len() >= count {
+                break;
+            }
+            let Some(d) = e.surface_depth(min_opacity) else {
+                continue;
+            };
+            let p =
+                DVec3::from(r.origin.map(f64::from)) + DVec3::from(r.dir.map(f64::from)) * d as f64;
+            let q = to_data.transform_point3(p);
+            if !q.is_finite() {
+                continue;
+            }
+            cloud.points.push(q.as_vec3().to_array());
+            cloud
+                .colours
+                .push(e.surface_colour().map(|c| (c * 255.0).round() as u8));
+        }
+    }
+    Ok(cloud)
+}
+
+/// A triangle mesh with a colour per vertex.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct ColouredMesh {
+    pub mesh: Mesh,
+    pub colours: Vec<[u8; 3]>,
+}
+
+/// The field seen as `level − density`: positive (outside) where the
+/// density is below `level`, so surface nets orient normals outwards.
+struct LevelSet<'a> {
+    field: &'a dyn RadianceField,
+    level: f32,
+}
+
+impl DistanceField for LevelSet<'_> {
+    fn distances(&self, points: &[[f32; 3]], out: &mut [f32]) {
+        // Density does not depend on the direction (a NeRF's density head
+        // sees the position only).
+        let dirs = vec![[0.0, 0.0, 1.0]; points.len()];
+        let mut rgb = vec![[0.0; 3]; points.len()];
+        self.field.query(points, &dirs, out, &mut rgb);
+        for o in out.iter_mut() {
+            // A non-finite density counts as empty space.
+            *o = if o.is_finite() {
+                self.level - *o
+            } else {
+                self.level
+            };
+        }
+    }
+}
+
+/// The surface where `field`'s density reaches `level` on `grid`, its
+/// vertices coloured by the field seen along the reversed normal (from
+/// outside) and moved with their normals into the data's frame by `to_data`.
+pub fn density_mesh(
+    field: &dyn RadianceField,
+    level: f32,
+    grid: &MeshGrid,
+    max_vertices: usize,
+    to_data: &DAffine3,
+) -> Result<ColouredMesh, crate::mesh::MeshError> {
+    let mut mesh =
+        crate::mesh::surface_nets(&LevelSet { field, level }, grid, max_vertices, &|_| {})?;
+    let dirs: Vec<[f32; 3]> = mesh
+        .normals
+        .iter()
+        .map(|n| {
+            let d = [-n[0], -n[1], -n[2]];
+            if d.iter().all(|x| *x == 0.0) {
+                [0.0, 0.0, 1.0]
+            } else {
+                d
+            }
+        })
+        .collect();
+    let mut sigma = vec![0.0; mesh.vertices.len()];
+    let mut rgb = vec![[0.0; 3]; mesh.vertices.len()];
+    field.query(&mesh.vertices, &dirs, &mut sigma, &mut rgb);
+    let colours = rgb
+        .iter()
+        .map(|c| {
+            c.map(|x| {
+                (if x.is_finite() {
+                    x.clamp(0.0, 1.0)
+                } else {
+                    0.0
+                } * 255.0)
+                    .round() as u8
+            })
+        })
+        .collect();
+    transform_mesh(&mut mesh, to_data);
+    Ok(ColouredMesh { mesh, colours })
+}
+
+/// Moves a mesh's vertices by `m` and its normals by the inverse transpose
+/// of `m`'s linear part (renormalised).
+pub fn transform_mesh(mesh: &mut Mesh, m: &DAffine3) {
+    if *m == DAffine3::IDENTITY {
+        return;
+    }
+    let normal_m = m.matrix3.inverse().transpose();
+    for v in &mut mesh.vertices {
+        *v = m
+            .transform_point3(DVec3::from(v.map(f64::from)))
+            .as_vec3()
+            .to_array();
+    }
+    for n in &mut mesh.normals {
+        let q = (normal_m * DVec3::from(n.map(f64::from))).normalize_or_zero();
+        *n = q.as_vec3().to_array();
+    }
+}
+
+#[cfg(test)]
+mod tests;

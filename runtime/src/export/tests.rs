@@ -1,0 +1,279 @@
+use glam::{DAffine3, DVec3};
+use sdfl_stdlib::camera::Camera;
+use sdfl_stdlib::value::{DensityKind, LastInterval};
+
+use super::*;
+
+const R: f32 = 0.6;
+const COLOUR: [f32; 3] = [0.2, 0.6, 0.9];
+
+/// A sphere of radius `R` at the origin, one colour, sharp VolSDF density.
+fn sphere(alpha: f32, beta: f32) -> Analytic<impl Fn([f32; 3]) -> (f32, [f32; 3]) + Sync> {
+    Analytic {
+        field: |p: [f32; 3]| {
+            let d = (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt() - R;
+            (d, COLOUR)
+        },
+        model: DensityModel {
+            kind: DensityKind::VolSdf,
+            alpha,
+            beta,
+            last_interval: LastInterval::Infinite,
+        },
+    }
+}
+
+fn cameras() -> Vec<(Camera, ImageSize)> {
+    [
+        [0.0, 0.0, 3.0],
+        [3.0, 1.0, 0.0],
+        [-2.0, 2.0, -1.0],
+        [0.5, -3.0, 0.5],
+    ]
+    .into_iter()
+    .map(|e| {
+        (
+            Camera::look_at(DVec3::from(e), DVec3::ZERO, DVec3::Y, 4.0),
+            ImageSize {
+                width: 24,
+                height: 16,
+            },
+        )
+    })
+    .collect()
+}
+
+#[test]
+fn a_density_mesh_of_a_sphere_lies_at_its_level() {
+    let f = sphere(50.0, 0.02);
+    // σ(d = 0) = α/2, and σ falls with d: the level α/2 is the sphere.
+    let grid = MeshGrid::covering([-1.0; 3], [1.0; 3], 48);
+    let m = density_mesh(&f, 25.0, &grid, 1 << 20, &DAffine3::IDENTITY).unwrap();
+    assert!(m.mesh.vertices.len() > 1000);
+    assert_eq!(m.colours.len(), m.mesh.vertices.len());
+    for (v, n) in m.mesh.vertices.iter().zip(&m.mesh.normals) {
+        let r = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+        assert!((r - R).abs() < 2e-3, "vertex at radius {r}");
+        // Normals point out, towards lower density.
+        let dot = (v[0] * n[0] + v[1] * n[1] + v[2] * n[2]) / r;
+        assert!(dot > 0.95, "normal {n:?} at {v:?}");
+    }
+    let want = COLOUR.map(|c| (c * 255.0).round() as u8);
+    assert!(m.colours.iter().all(|c| *c == want));
+    // A level above the peak density (α) has no surface.
+    let none = density_mesh(&f, 60.0, &grid, 1 << 20, &DAffine3::IDENTITY).unwrap();
+    assert!(none.mesh.vertices.is_empty());
+    // A higher level lies inside: σ = α(1 − e^{d/β}/2) = 0.75α at d = −β ln 2.
+    let inner = density_mesh(&f, 37.5, &grid, 1 << 20, &DAffine3::IDENTITY).unwrap();
+    let want_r = R - 0.02 * std::f32::consts::LN_2;
+    for v in &inner.mesh.vertices {
+        let r = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+        // The density is far from linear across a cell (β is half a
+        // cell): one Newton step leaves a tenth of a cell.
+        assert!(
+            (r - want_r).abs() < 4e-3,
+            "vertex at radius {r}, want {want_r}"
+        );
+    }
+}
+
+#[test]
+fn the_data_frame_transform_moves_vertices_and_normals() {
+    let f = sphere(50.0, 0.02);
+    let grid = MeshGrid::covering([-1.0; 3], [1.0; 3], 24);
+    let to_data = DAffine3::from_scale_rotation_translation(
+        DVec3::splat(2.0),
+        glam::DQuat::from_rotation_y(0.7),
+        DVec3::new(1.0, -2.0, 3.0),
+    );
+    let m = density_mesh(&f, 25.0, &grid, 1 << 20, &to_data).unwrap();
+    let c = DVec3::new(1.0, -2.0, 3.0);
+    for (v, n) in m.mesh.vertices.iter().zip(&m.mesh.normals) {
+        let p = DVec3::from(v.map(f64::from)) - c;
+        assert!((p.length() - 2.0 * R as f64).abs() < 6e-3, "{p}");
+        let n = DVec3::from(n.map(f64::from));
+        assert!(n.dot(p.normalize()) > 0.95);
+    }
+}
+
+/// The f64 reference of one ray's ends: densities of the sphere at the
+/// stratified depths, weights, `Σwt` and `Σw`.
+fn reference_end(origin: DVec3, dir: DVec3, s: &Stratified, alpha: f64, beta: f64) -> (f64, f64) {
+    let t: Vec<f64> = s.depths().iter().map(|&t| t as f64).collect();
+    let (mut trans, mut depth, mut acc) = (1.0, 0.0, 0.0);
+    for k in 0..t.len() {
+        let delta = if k + 1 < t.len() {
+            t[k + 1] - t[k]
+        } else {
+            1e10
+        };
+        let d = (origin + dir * t[k]).length() - R as f64;
+        let sigma = if d > 0.0 {
+            0.5 * alpha * (-d / beta).exp()
+        } else {
+            alpha * (1.0 - 0.5 * (d / beta).exp())
+        };
+        let w = trans * (1.0 - (-sigma * delta).exp());
+        depth += w * t[k];
+        acc += w;
+        trans *= (-sigma * delta).exp();
+    }
+    (depth, acc)
+}
+
+#[test]
+fn depth_is_the_expected_depth_over_the_opacity() {
+    let (alpha, beta) = (20.0, 0.05);
+    let f = sphere(alpha, beta);
+    let s = Stratified::new(128, 1.0, 5.0).unwrap();
+    let (cam, size) = cameras()[0];
+    let ends = render_ends(&f, &cam, size, &s, LastInterval::Infinite).unwrap();
+    let d = depth::depth_values(&ends, 0.5);
+    let (mut hits, mut misses) = (0, 0);
+    for (p, (e, d)) in ends.iter().zip(&d).enumerate() {
+        let r = crate::volume::rays::pixel_ray(&cam, size, 0, p as u32);
+        let (o, dir) = (
+            DVec3::from(r.origin.map(f64::from)),
+            DVec3::from(r.dir.map(f64::from)),
+        );
+        let (want_depth, want_acc) = reference_end(o, dir, &s, alpha as f64, beta as f64);
+        assert!(
+            (e.opacity as f64 - want_acc).abs() < 1e-4,
+            "{} vs {want_acc}",
+            e.opacity
+        );
+        assert!((e.depth as f64 - want_depth).abs() < 1e-3 * want_depth.max(1.0));
+        if want_acc >= 0.5 {
+            hits += 1;
+            let want = want_depth / want_acc;
+            assert!((*d as f64 - want).abs() < 1e-3 * want, "{d} vs {want}");
+            // And near the true hit where the ray meets the sphere head
+            // on (the density's bias is about β; grazing rays gather
+            // density along the surface before it).
+            let b = o.dot(dir);
+            let miss = (o.length_squared() - b * b).max(0.0).sqrt();
+            if miss < 0.5 * R as f64 {
+                let hit = -b - ((R * R) as f64 - miss * miss).sqrt();
+                assert!(
+                    (*d as f64 - hit).abs() < 2.0 * beta as f64,
+                    "{d} vs hit {hit}"
+                );
+            }
+        } else {
+            misses += 1;
+            assert!(d.is_nan());
+        }
+    }
+    assert!(hits > 20 && misses > 20, "{hits} hits, {misses} misses");
+}
+
+#[test]
+fn point_cloud_points_lie_on_the_surface_with_its_colour() {
+    let f = sphere(200.0, 0.005);
+    let s = Stratified::new(512, 1.0, 5.0).unwrap();
+    let views = cameras();
+    let cloud = point_cloud(
+        &f,
+        &views,
+        500,
+        0.9,
+        4,
+        &s,
+        LastInterval::Infinite,
+        7,
+        &DAffine3::IDENTITY,
+    )
+    .unwrap();
+    assert_eq!(cloud.points.len(), 500);
+    assert!(cloud.rays >= 500);
+    let want = COLOUR.map(|c| (c * 255.0).round() as u8);
+    for (p, c) in cloud.points.iter().zip(&cloud.colours) {
+        let r = (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
+        assert!((r - R).abs() < 0.02, "point at radius {r}");
+        assert!(
+            c.iter().zip(&want).all(|(a, b)| a.abs_diff(*b) <= 1),
+            "{c:?}"
+        );
+    }
+    // Seeded: the same cloud again.
+    let again = point_cloud(
+        &f,
+        &views,
+        500,
+        0.9,
+        4,
+        &s,
+        LastInterval::Infinite,
+        7,
+        &DAffine3::IDENTITY,
+    )
+    .unwrap();
+    assert_eq!(cloud, again);
+    // An empty field keeps nothing and stops after its ray budget.
+    let empty = Analytic {
+        field: |_: [f32; 3]| (10.0f32, COLOUR),
+        model: f.model,
+    };
+    let none = point_cloud(
+        &empty,
+        &views,
+        100,
+        0.5,
+        4,
+        &s,
+        LastInterval::Infinite,
+        1,
+        &DAffine3::IDENTITY,
+    )
+    .unwrap();
+    assert!(none.points.is_empty());
+    assert_eq!(none.rays, 400);
+}
+
+#[test]
+fn hostile_fields_give_finite_exports() {
+    // NaN and infinite densities and colours count as empty space.
+    let bad = Analytic {
+        field: |p: [f32; 3]| {
+            if p[0] > 0.0 {
+                (f32::NAN, [f32::NAN; 3])
+            } else {
+                (f32::NEG_INFINITY, [f32::INFINITY; 3])
+            }
+        },
+        model: sphere(50.0, 0.02).model,
+    };
+    let s = Stratified::new(32, 1.0, 5.0).unwrap();
+    let (cam, size) = cameras()[0];
+    let ends = render_ends(&bad, &cam, size, &s, LastInterval::Infinite).unwrap();
+    for e in &ends {
+        assert!(e.opacity.is_finite() && e.depth.is_finite());
+    }
+    let grid = MeshGrid::covering([-1.0; 3], [1.0; 3], 16);
+    let m = density_mesh(&bad, 1.0, &grid, 1 << 20, &DAffine3::IDENTITY).unwrap();
+    assert!(m.mesh.vertices.iter().flatten().all(|x| x.is_finite()));
+}
+
+#[test]
+fn ply_files_have_the_declared_sizes() {
+    let f = sphere(50.0, 0.02);
+    let grid = MeshGrid::covering([-1.0; 3], [1.0; 3], 16);
+    let m = density_mesh(&f, 25.0, &grid, 1 << 20, &DAffine3::IDENTITY).unwrap();
+    let b = ply::mesh_bytes(&m);
+    let end = b.windows(11).position(|w| w == b"end_header\n").unwrap() + 11;
+    let header = std::str::from_utf8(&b[..end]).unwrap();
+    assert!(header.contains(&format!("element vertex {}", m.mesh.vertices.len())));
+    assert!(header.contains("property uchar red"));
+    assert_eq!(
+        b.len() - end,
+        m.mesh.vertices.len() * 27 + m.mesh.triangles.len() * 13
+    );
+    let cloud = Cloud {
+        points: vec![[1.0, 2.0, 3.0]],
+        colours: vec![[4, 5, 6]],
+        rays: 1,
+    };
+    let b = ply::cloud_bytes(&cloud);
+    assert!(b.ends_with(&[4, 5, 6]));
+    assert_eq!(&b[b.len() - 15..b.len() - 11], &1.0f32.to_le_bytes());
+}

@@ -1,0 +1,192 @@
+//! Writing a statement's field exports: density meshes, point clouds and
+//! per-view depth, atomically through `crate::output`.
+
+use std::io;
+use std::path::Path;
+use std::time::Instant;
+
+use glam::DAffine3;
+use sdfl_stdlib::camera::Camera;
+use sdfl_stdlib::value::{MeshRegion, Output, OutputKind, Sampler};
+
+use super::{depth, ply, RadianceField};
+use crate::mesh::{MeshGrid, MeshStats};
+use crate::output::{write_bytes, write_png};
+use crate::render::Written;
+use crate::volume::{ImageSize, Stratified};
+
+/// What the field exports of one statement need besides the field.
+pub struct ExportContext<'a> {
+    pub out_dir: &'a Path,
+    pub sampler: &'a Sampler,
+    /// The views per-view outputs (depth) are rendered from, at `size`.
+    pub cameras: &'a [Camera],
+    pub size: (u32, u32),
+    /// The cameras a point cloud casts rays from (the training views, each
+    /// with its own image size).
+    pub ray_views: &'a [(Camera, ImageSize)],
+    /// The region `bounds: "auto"` stands for.
+    pub auto_region: Option<([f64; 3], [f64; 3])>,
+    pub seed: u64,
+    /// From the field's frame into the data's own (positions of meshes and
+    /// point clouds; depth is a length along the ray and is not moved).
+    pub to_data: DAffine3,
+}
+
+fn invalid(e: impl std::fmt::Display) -> io::Error {
+    io::Error::new(io::ErrorKind::InvalidInput, e.to_string())
+}
+
+/// Writes the field exports among `outputs`; the others are left to the
+/// caller.
+pub fn write_field_exports(
+    field: &dyn RadianceField,
+    outputs: &[Output],
+    cx: &ExportContext,
+) -> io::Result<Vec<Written>> {
+    let mut written = Vec::new();
+    if !outputs.iter().any(|o| o.kind.field_export()) {
+        return Ok(written);
+    }
+    let strat = Stratified::new(
+        cx.sampler.samples,
+        cx.sampler.near as f32,
+        cx.sampler.far as f32,
+    )
+    .map_err(invalid)?;
+    let last = cx.sampler.last_interval;
+    for o in outputs {
+        let t = Instant::now();
+        let path = cx.out_dir.join(&o.path);
+        let named = |e: &dyn std::fmt::Display| invalid(format!("`{}`: {e}", o.path.display()));
+        match o.kind {
+            OutputKind::DensityMesh {
+                level,
+                resolution,
+                region,
+            } => {
+                let (min, max) = match region {
+                    MeshRegion::Box { min, max } => (min, max),
+                    MeshRegion::Auto => cx
+                        .auto_region
+                        .ok_or_else(|| named(&"the field has no bounds: give the mesh `bounds`"))?,
+                };
+                let grid = MeshGrid::covering(min, max, resolution);
+                let m = super::density_mesh(
+                    field,
+                    level as f32,
+                    &grid,
+                    sdfl_stdlib::work::MAX_MESH_VERTICES,
+                    &cx.to_data,
+                )
+                .map_err(|e| named(&e))?;
+                write_bytes(&path, &ply::mesh_bytes(&m))?;
+                written.push(Written {
+                    path: o.path.clone(),
+                    kind: "density_mesh",
+                    width: 0,
+                    height: 0,
+                    frames: 0,
+                    mesh: Some(MeshStats {
+                        vertices: m.mesh.vertices.len(),
+                        triangles: m.mesh.triangles.len(),
+                        resolution,
+                        cell: grid.step,
+                        area: m.mesh.area(),
+                        seconds: t.elapsed().as_secs_f64(),
+                    }),
+                });
+            }
+            OutputKind::PointCloud {
+                points,
+                min_opacity,
+            } => {
+                let cloud = super::point_cloud(
+                    field,
+                    cx.ray_views,
+                    points as usize,
+                    min_opacity as f32,
+                    sdfl_stdlib::work::CLOUD_RAYS_PER_POINT as usize,
+                    &strat,
+                    last,
+                    cx.seed,
+                    &cx.to_data,
+                )
+                .map_err(|e| named(&e))?;
+                write_bytes(&path, &ply::cloud_bytes(&cloud))?;
+                // A cloud has vertices and no triangles.
+                written.push(Written {
+                    path: o.path.clone(),
+                    kind: "point_cloud",
+                    width: 0,
+                    height: 0,
+                    frames: 0,
+                    mesh: Some(MeshStats {
+                        vertices: cloud.points.len(),
+                        triangles: 0,
+                        resolution: 0,
+                        cell: 0.0,
+                        area: 0.0,
+                        seconds: t.elapsed().as_secs_f64(),
+                    }),
+                });
+            }
+            _ => {}
+        }
+    }
+    // Depth: one march per view serves every depth output.
+    let depths: Vec<&Output> = outputs
+        .iter()
+        .filter(|o| {
+            matches!(
+                o.kind,
+                OutputKind::RawDepth { .. } | OutputKind::DepthMap { .. }
+            )
+        })
+        .collect();
+    if depths.is_empty() {
+        return Ok(written);
+    }
+    let (w, h) = cx.size;
+    let size = ImageSize {
+        width: w,
+        height: h,
+    };
+    let n = cx.cameras.len();
+    for (k, cam) in cx.cameras.iter().enumerate() {
+        let ends = super::render_ends(field, cam, size, &strat, last).map_err(invalid)?;
+        for o in &depths {
+            let rel = sdfl_stdlib::outputs::view_path(&o.path, k, n);
+            let path = cx.out_dir.join(&rel);
+            let (kind, pw, ph) = match o.kind {
+                OutputKind::RawDepth { min_opacity } => {
+                    let d = depth::depth_values(&ends, min_opacity as f32);
+                    write_bytes(&path, &depth::npy_bytes(&d, h as usize, w as usize))?;
+                    ("raw_depth", w, h)
+                }
+                OutputKind::DepthMap {
+                    colormap,
+                    range,
+                    min_opacity,
+                } => {
+                    let d = depth::depth_values(&ends, min_opacity as f32);
+                    let r = depth::depth_range(&d, range);
+                    let (pw, ph, rgb) =
+                        depth::depth_map(&d, (w, h), colormap, r).map_err(invalid)?;
+                    write_png(&path, pw, ph, &rgb)?;
+                    ("depth_map", pw, ph)
+                }
+                _ => continue,
+            };
+            written.push(Written {
+                path: rel,
+                kind,
+                width: pw,
+                height: ph,
+                frames: 1,
+                mesh: None,
+            });
+        }
+    }
+    Ok(written)
+}

@@ -1,0 +1,325 @@
+//! Camera paths: a smooth closed loop through (or near) a set of cameras,
+//! looking at their common focus, for rendering a trained model from new
+//! views that stay where the training views were (an orbit of the equator
+//! leaves a hemisphere's views).
+//!
+//! The loop: the point nearest every camera's optical axis (least squares)
+//! is the focus; the mean of the cameras' `up` the axis; cameras are
+//! grouped into `keyframes` equal sectors of azimuth about that axis
+//! through the focus, each sector's mean position (at the sector's mean
+//! distance from the focus) a control point; a closed centripetal
+//! Catmull-Rom spline through the control points in order of azimuth gives
+//! the eyes, every frame looking at the focus with the cameras' mean focal
+//! length. With at least as many keyframes as cameras, each camera is a
+//! control point and the path passes through it.
+
+use super::*;
+
+/// Most frames of a path (as views: the most views of a statement).
+pub const MAX_FRAMES: u64 = MAX_VIEWS as u64;
+
+/// The type of `training_loop(...)`.
+pub const VIEW_PATH: Type = Type::Named("camera path");
+
+pub(crate) fn builtins() -> Vec<Builtin> {
+    vec![func(
+        "training_loop",
+        "As a `train`'s `views`: `camera_loop` through the training cameras, made when the run has read its data (a data set from files has its cameras only then).",
+        vec![
+            opt("frames", Type::Number, "60", "cameras on the loop (1 to 10 000)"),
+            opt("keyframes", Type::Number, "8", "sectors of azimuth, one control point each (1 to 10 000)"),
+        ],
+        VIEW_PATH,
+        |a| {
+            let frames = a.count("frames", 1, MAX_FRAMES)? as usize;
+            let keyframes = a.count("keyframes", 1, MAX_FRAMES)? as usize;
+            Ok(Value::ViewPath(ViewPath::TrainingLoop { frames, keyframes }))
+        },
+    ), func(
+        "camera_loop",
+        "A smooth closed loop of `frames` cameras through (or near) `cameras`, looking at their common focus (the point nearest all their optical axes): a centripetal Catmull-Rom spline through the mean position of each of `keyframes` sectors of azimuth about the cameras' mean up axis (through each camera when `keyframes` ≥ their number); the cameras' mean focal length. Use it as a `train`'s `views` to render a trained model where its training cameras were.",
+        vec![
+            req("cameras", Type::list(CAMERA), "the cameras to pass through (e.g. the training cameras)"),
+            opt("frames", Type::Number, "60", "cameras on the loop (1 to 10 000)"),
+            opt("keyframes", Type::Number, "8", "sectors of azimuth, one control point each (1 to 10 000)"),
+        ],
+        Type::list(CAMERA),
+        |a| {
+            let cams = camera_list(a, "cameras")?;
+            let frames = a.count("frames", 1, MAX_FRAMES)? as usize;
+            let keyframes = a.count("keyframes", 1, MAX_FRAMES)? as usize;
+            let path = camera_loop(&cams, frames, keyframes).map_err(|e| {
+                value_error(
+                    a.get("cameras").1,
+                    format!("no loop through these cameras: {e}"),
+                    "no loop",
+                    "give cameras around a common subject",
+                )
+            })?;
+            Ok(Value::List(Arc::new(path.into_iter().map(Value::Camera).collect())))
+        },
+    )]
+}
+
+/// The point nearest every camera's optical axis in the least-squares
+/// sense, pulled slightly towards the eyes' centroid so that parallel axes
+/// still give a point.
+pub fn common_focus(cams: &[Camera]) -> DVec3 {
+    let n = cams.len().max(1) as f64;
+    let centroid = cams.iter().map(|c| c.eye).sum::<DVec3>() / n;
+    let scale = cams
+        .iter()
+        .map(|c| (c.eye - centroid).length_squared())
+        .sum::<f64>()
+        / n;
+    let eps = 1e-6 * n;
+    let mut a = glam::DMat3::from_diagonal(DVec3::splat(eps));
+    let mut b = centroid * eps;
+    for c in cams {
+        let d = (c.at - c.eye).normalize_or_zero();
+        let m = glam::DMat3::IDENTITY - glam::DMat3::from_cols(d * d.x, d * d.y, d * d.z);
+        a += m;
+        b += m * c.eye;
+    }
+    let p = a.inverse() * b;
+    // A focus absurdly far away (nearly parallel axes) is no focus.
+    if p.is_finite() && (p - centroid).length_squared() <= 1e6 * scale.max(1e-12) {
+        p
+    } else {
+        centroid
+            + cams
+                .iter()
+                .map(|c| (c.at - c.eye).normalize_or_zero())
+                .sum::<DVec3>()
+                / n
+    }
+}
+
+/// A point of the centripetal Catmull-Rom segment from `p[1]` to `p[2]` at
+/// `u` in 0..1 (Barry and Goldman's pyramid; knots spaced by the square
+/// root of the distances, so the curve neither cusps nor self-intersects
+/// within a segment).
+fn catmull_rom(p: [DVec3; 4], u: f64) -> DVec3 {
+    let knot = |a: DVec3, b: DVec3| (a - b).length().sqrt().max(1e-9);
+    let t0 = 0.0;
+    let t1 = t0 + knot(p[0], p[1]);
+    let t2 = t1 + knot(p[1], p[2]);
+    let t3 = t2 + knot(p[2], p[3]);
+    let t = t1 + u * (t2 - t1);
+    let lerp = |a: DVec3, b: DVec3, ta: f64, tb: f64| {
+        a * ((tb - t) / (tb - ta)) + b * ((t - ta) / (tb - ta))
+    };
+    let a1 = lerp(p[0], p[1], t0, t1);
+    let a2 = lerp(p[1], p[2], t1, t2);
+    let a3 = lerp(p[2], p[3], t2, t3);
+    let b1 = lerp(a1, a2, t0, t2);
+    let b2 = lerp(a2, a3, t1, t3);
+    lerp(b1, b2, t1, t2)
+}
+
+/// The control points of the loop (see the module) with the focus and up
+/// axis.
+pub fn loop_controls(cams: &[Camera], keyframes: usize) -> (Vec<DVec3>, DVec3, DVec3) {
+    let focus = common_focus(cams);
+    let up = cams.iter().map(|c| c.up.normalize_or_zero()).sum::<DVec3>();
+    let up = if up.length() > 1e-9 {
+        up.normalize()
+    } else {
+        DVec3::Y
+    };
+    let (u, v) = up.any_orthonormal_pair();
+    let azimuth = |p: DVec3| {
+        let q = p - focus;
+        q.dot(v).atan2(q.dot(u))
+    };
+    let mut sorted: Vec<(f64, DVec3)> = cams.iter().map(|c| (azimuth(c.eye), c.eye)).collect();
+    sorted.sort_by(|a, b| a.0.total_cmp(&b.0));
+    if keyframes >= cams.len() {
+        return (sorted.into_iter().map(|(_, e)| e).collect(), focus, up);
+    }
+    let tau = std::f64::consts::TAU;
+    let mut sectors = vec![(DVec3::ZERO, 0.0, 0usize); keyframes];
+    for (a, e) in &sorted {
+        let k = (((a + std::f64::consts::PI) / tau * keyframes as f64) as usize).min(keyframes - 1);
+        sectors[k].0 += *e - focus;
+        sectors[k].1 += (*e - focus).length();
+        sectors[k].2 += 1;
+    }
+    let controls = sectors
+        .into_iter()
+        .filter(|s| s.2 > 0)
+        .map(|(sum, dist, n)| {
+            // The mean direction at the mean distance: averaging positions
+            // on a sphere would pull them inwards.
+            let dir = (sum / n as f64).normalize_or_zero();
+            focus + dir * (dist / n as f64)
+        })
+        .collect();
+    (controls, focus, up)
+}
+
+/// `frames` cameras on the closed loop through the controls of `cams`.
+pub fn camera_loop(
+    cams: &[Camera],
+    frames: usize,
+    keyframes: usize,
+) -> Result<Vec<Camera>, String> {
+    if cams.is_empty() {
+        return Err("no cameras".into());
+    }
+    if cams.len() == 1 {
+        // One camera has no focus of several axes: the path stays there.
+        return Ok(vec![cams[0]; frames]);
+    }
+    let (controls, focus, up) = loop_controls(cams, keyframes.max(1));
+    let focal = cams.iter().map(|c| c.focal).sum::<f64>() / cams.len() as f64;
+    let n = controls.len();
+    let path: Vec<Camera> = (0..frames)
+        .map(|k| {
+            let s = k as f64 * n as f64 / frames as f64;
+            let i = (s.floor() as usize).min(n - 1);
+            let at = |j: isize| controls[(i as isize + j).rem_euclid(n as isize) as usize];
+            let eye = catmull_rom([at(-1), at(0), at(1), at(2)], s - i as f64);
+            // The up axis, tilted where the view looks along it.
+            let fwd = (focus - eye).normalize_or_zero();
+            let cam_up = if fwd.cross(up).length() > 1e-6 {
+                up
+            } else {
+                up.any_orthogonal_vector()
+            };
+            Camera::look_at(eye, focus, cam_up, focal)
+        })
+        .collect();
+    if let Some(c) = path.iter().find(|c| !(c.is_valid() && c.eye.is_finite())) {
+        return Err(format!(
+            "a camera at {} does not look anywhere (an eye at the focus)",
+            c.eye
+        ));
+    }
+    Ok(path)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Cameras on a tilted, uneven ring around `focus`, looking at it.
+    fn ring(n: usize, focus: DVec3) -> Vec<Camera> {
+        (0..n)
+            .map(|k| {
+                let a = k as f64 / n as f64 * std::f64::consts::TAU + 0.3 * (k as f64).sin();
+                let r = 3.0 + 0.4 * (2.0 * a).cos();
+                let eye = focus + DVec3::new(r * a.cos(), 1.0 + 0.5 * (3.0 * a).sin(), r * a.sin());
+                Camera::look_at(eye, focus, DVec3::Y, 1.5)
+            })
+            .collect()
+    }
+
+    #[test]
+    fn the_focus_is_where_the_axes_meet() {
+        let f = DVec3::new(0.3, -0.2, 0.5);
+        let cams = ring(7, f);
+        assert!((common_focus(&cams) - f).length() < 1e-5);
+        // Parallel axes still give a finite point.
+        let par: Vec<Camera> = (0..3)
+            .map(|k| {
+                Camera::look_at(
+                    DVec3::new(k as f64, 0.0, 0.0),
+                    DVec3::new(k as f64, 0.0, -1.0),
+                    DVec3::Y,
+                    1.0,
+                )
+            })
+            .collect();
+        assert!(common_focus(&par).is_finite());
+    }
+
+    #[test]
+    fn a_loop_passes_through_its_cameras_and_is_smooth() {
+        let f = DVec3::new(0.3, -0.2, 0.5);
+        // Shuffled: the loop orders them by azimuth.
+        let mut cams = ring(6, f);
+        cams.swap(0, 3);
+        cams.swap(1, 5);
+        let frames = 6 * 20;
+        let path = camera_loop(&cams, frames, 8).unwrap();
+        assert_eq!(path.len(), frames);
+        // Every 20th frame is a camera.
+        for c in &cams {
+            let nearest = path
+                .iter()
+                .map(|p| (p.eye - c.eye).length())
+                .fold(f64::INFINITY, f64::min);
+            assert!(nearest < 1e-9, "{} misses {}", nearest, c.eye);
+        }
+        // Every frame looks at the focus.
+        for p in &path {
+            assert!((p.at - f).length() < 1e-5);
+            assert!((p.focal - 1.5).abs() < 1e-12);
+        }
+        // Smooth: steps of similar length, turning little between frames
+        // (the closed loop included: the last frame leads to the first).
+        let step = |k: usize| path[(k + 1) % frames].eye - path[k].eye;
+        let lengths: Vec<f64> = (0..frames).map(|k| step(k).length()).collect();
+        let mean = lengths.iter().sum::<f64>() / frames as f64;
+        assert!(
+            lengths.iter().all(|l| *l < 2.0 * mean && *l > 0.3 * mean),
+            "{lengths:?}"
+        );
+        for k in 0..frames {
+            let (a, b) = (step(k).normalize(), step((k + 1) % frames).normalize());
+            assert!(a.dot(b) > 0.9, "frame {k} turns by {}", a.dot(b).acos());
+        }
+    }
+
+    #[test]
+    fn keyframes_average_sectors_at_the_cameras_distance() {
+        // A hemisphere of views at many elevations: 4 keyframes go round at
+        // their mean distance, never inside it.
+        let cams: Vec<Camera> = (0..40)
+            .map(|k| {
+                let a = k as f64 * 2.399;
+                let el = 0.1 + 1.2 * (k as f64 / 40.0);
+                let eye = DVec3::new(el.cos() * a.cos(), el.sin(), el.cos() * a.sin()) * 3.5;
+                Camera::look_at(eye, DVec3::ZERO, DVec3::Y, 2.4)
+            })
+            .collect();
+        let (controls, focus, up) = loop_controls(&cams, 4);
+        assert_eq!(controls.len(), 4);
+        assert!(focus.length() < 1e-3, "{focus}");
+        assert!((up - DVec3::Y).length() < 1e-9);
+        for c in &controls {
+            assert!((c.length() - 3.5).abs() < 1e-6);
+            assert!(c.y > 0.0, "above the equator: {c}");
+        }
+        let path = camera_loop(&cams, 30, 4).unwrap();
+        assert!(path.iter().all(|p| p.eye.y > 0.0 && p.is_valid()));
+    }
+
+    #[test]
+    fn degenerate_cameras_are_refused_or_handled() {
+        assert!(camera_loop(&[], 10, 8).is_err());
+        let one = [Camera::look_at(
+            DVec3::new(0.0, 0.0, 3.0),
+            DVec3::ZERO,
+            DVec3::Y,
+            1.0,
+        )];
+        let path = camera_loop(&one, 5, 8).unwrap();
+        assert!(path.iter().all(|p| (p.eye - one[0].eye).length() < 1e-9));
+        // Cameras looking straight down the up axis still get an up vector.
+        let down: Vec<Camera> = (0..3)
+            .map(|k| {
+                Camera::look_at(
+                    DVec3::new(0.01 * k as f64, 3.0, 0.0),
+                    DVec3::ZERO,
+                    DVec3::Z,
+                    1.0,
+                )
+            })
+            .collect();
+        for p in camera_loop(&down, 9, 8).unwrap() {
+            assert!(p.is_valid());
+        }
+    }
+}
