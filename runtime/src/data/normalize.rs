@@ -63,6 +63,15 @@ impl SceneFrame {
         self.r().transpose() * (q / self.scale) + DVec3::from_array(self.center)
     }
 
+    /// [`Self::to_data`] as an affine map (for exports' positions and,
+    /// by its inverse transpose, normals).
+    pub fn to_data_affine(&self) -> glam::DAffine3 {
+        glam::DAffine3::from_mat3_translation(
+            self.r().transpose() * (1.0 / self.scale),
+            DVec3::from_array(self.center),
+        )
+    }
+
     /// A data-frame point in the original frame the data's was made from
     /// (nerfstudio's `applied_transform` undone; the data's frame without).
     pub fn data_to_original(&self, p: DVec3) -> DVec3 {
@@ -219,6 +228,8 @@ mod tests {
                 reach = reach.max(q.abs().max_element());
                 let back = f.to_data(q);
                 assert!((back - DVec3::new(p[0][3], p[1][3], p[2][3])).length() < 1e-9);
+                // The affine map that exports use is the same map.
+                assert!((f.to_data_affine().transform_point3(q) - back).length() < 1e-9);
                 // The moved pose is rigid and puts the eye where to_scene does.
                 let m = f.pose_to_scene(p);
                 assert!((DVec3::new(m[0][3], m[1][3], m[2][3]) - q).length() < 1e-12);

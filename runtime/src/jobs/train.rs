@@ -536,10 +536,11 @@ pub fn run_train_job(
             ray_views: &ray_views,
             auto_region: export_region(job),
             seed: job.seed,
-            // The data's own frame: the identity until a data set that was
-            // normalised when read passes the inverse of its normalisation
-            // here.
-            to_data: glam::DAffine3::IDENTITY,
+            // Meshes and points in the data's own frame (its file's), not
+            // the normalised one training ran in.
+            to_data: scene_frame
+                .as_ref()
+                .map_or(glam::DAffine3::IDENTITY, |f| f.to_data_affine()),
         };
         match (&*job.model, &analytic) {
             (Field::Nerf(_), _) => {
