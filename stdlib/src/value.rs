@@ -191,6 +191,8 @@ pub enum OutputKind {
         test_views: usize,
         /// Seed of the shuffle that picks them ([`held_out`]).
         seed: u64,
+        /// Images keep the hit mask as alpha (`false`: RGB, as photographs).
+        alpha: bool,
     },
     /// A neural SDF's surface sphere-traced from every view (normals as
     /// colours) as an animated GIF: the geometry of a model whose `gif`

@@ -36,7 +36,7 @@ use sdfl_stdlib::outputs::DATASET_JSON;
 use sdfl_stdlib::value::held_out;
 use serde_json::{json, Map, Value};
 
-use crate::output::{write_bytes, write_png_rgba};
+use crate::output::{write_bytes, write_png, write_png_rgba};
 use crate::render::Written;
 
 /// The key of the transforms files a [`DatasetWriter`] leaves while it
@@ -137,6 +137,9 @@ pub struct DatasetWriter {
     size: (u32, u32),
     /// Per view, whether it is held out.
     held: Vec<bool>,
+    /// Whether images keep an alpha channel (the hit mask); without, they
+    /// are RGB, as photographs are.
+    alpha: bool,
 }
 
 impl DatasetWriter {
@@ -160,7 +163,14 @@ impl DatasetWriter {
             frames: Vec::new(),
             size: (w, h),
             held,
+            alpha: true,
         }
+    }
+
+    /// Images without alpha (RGB PNGs), as a camera records them.
+    pub fn without_alpha(mut self) -> Self {
+        self.alpha = false;
+        self
     }
 
     /// The writer of a `dataset(...)` output (`None` for other outputs).
@@ -171,8 +181,13 @@ impl DatasetWriter {
         views: usize,
     ) -> Option<Self> {
         match o.kind {
-            sdfl_stdlib::value::OutputKind::Dataset { test_views, seed } => {
-                Some(Self::new(out_dir, &o.path, size, views, test_views, seed))
+            sdfl_stdlib::value::OutputKind::Dataset {
+                test_views,
+                seed,
+                alpha,
+            } => {
+                let w = Self::new(out_dir, &o.path, size, views, test_views, seed);
+                Some(if alpha { w } else { w.without_alpha() })
             }
             _ => None,
         }
@@ -242,7 +257,11 @@ impl DatasetWriter {
             }
         }
         let rel = self.dir.join(format!("r_{k}.png"));
-        write_png_rgba(&self.out_dir.join(&rel), w, h, &rgba)?;
+        if self.alpha {
+            write_png_rgba(&self.out_dir.join(&rel), w, h, &rgba)?;
+        } else {
+            write_png(&self.out_dir.join(&rel), w, h, rgb)?;
+        }
         self.frames.push(FrameRecord { k, c2w, intrinsics });
         Ok(Written {
             path: rel,

@@ -13,6 +13,7 @@ use serde_json::{json, Value};
 use sdfl_stdlib::value::{DensityActivation, Encoding, Field, Nerf};
 
 use super::TensorSpec;
+use crate::neural::background::Backdrop;
 use crate::neural::mlp::{Activation, Dense};
 use crate::neural::nerf::{NerfNet, PositionEncoding};
 
@@ -186,6 +187,27 @@ fn nerf_layout(spec: &Nerf, tensors: &[TensorSpec]) -> Option<Layout> {
             ));
         }
     }
+    // A learned background's layers, after the networks' (as the trainer
+    // lays them out).
+    let backdrop = Backdrop::new(&spec.background, 0);
+    for (name, d) in backdrop.layers() {
+        by_name.push((
+            format!("{name}.weight"),
+            vec![Piece {
+                name: format!("{name}.weight"),
+                shape: vec![d.out, d.fan_in()],
+                transposed: true,
+            }],
+        ));
+        by_name.push((
+            format!("{name}.bias"),
+            vec![Piece {
+                name: format!("{name}.bias"),
+                shape: vec![d.out],
+                transposed: false,
+            }],
+        ));
+    }
     let params = tensors
         .iter()
         .map(|t| {
@@ -197,10 +219,33 @@ fn nerf_layout(spec: &Nerf, tensors: &[TensorSpec]) -> Option<Layout> {
     if params.len() != by_name.len() {
         return None;
     }
-    Some(Layout {
-        params,
-        model: nerf_spec(spec, &coarse, fine.is_some()),
-    })
+    let mut model = nerf_spec(spec, &coarse, fine.is_some());
+    if let Value::Object(m) = &mut model {
+        let background_layers: Vec<Value> = backdrop
+            .layers()
+            .iter()
+            .zip([vec!["background_direction"], vec!["background.hidden"]])
+            .map(|((name, d), inputs)| layer_spec(name, &inputs, d))
+            .collect();
+        if !background_layers.is_empty() {
+            m.insert(
+                "background_direction_encoding".into(),
+                json!({
+                    "kind": "harmonic",
+                    "input": "the unit ray direction d (world axes)",
+                    "freqs": match spec.background {
+                        sdfl_stdlib::value::Background::Learned(l) => l.freqs,
+                        _ => 0,
+                    },
+                    "include_input": true,
+                    "order": "sin(2^k d_i) for i in 0..3 (outer), k in 0..freqs (inner); then cos likewise; then d",
+                }),
+            );
+            m.insert("background_layers".into(), Value::Array(background_layers));
+        }
+        m.insert("unbounded".into(), json!(spec.unbounded));
+    }
+    Some(Layout { params, model })
 }
 
 /// A dense layer: what it reads (names of earlier values, concatenated in
@@ -290,7 +335,9 @@ mod tests {
             skips: vec![2],
             color_width: 4,
             fine,
-            background: [1.0; 3],
+            background: sdfl_stdlib::value::Background::Color([1.0; 3]),
+            background_at: Default::default(),
+            unbounded: None,
             seed: 1,
             density: DensityActivation::Softplus,
             occupancy: None,
@@ -321,7 +368,14 @@ mod tests {
                 4,
             ),
         ] {
-            let spec = nerf(enc, fine);
+            let mut spec = nerf(enc, fine);
+            if fine > 0 {
+                // A learned background's layers are named too (not a flat
+                // fallback for the whole model).
+                spec.background = sdfl_stdlib::value::Background::Learned(
+                    sdfl_stdlib::value::LearnedBackground { freqs: 2, width: 5 },
+                );
+            }
             let tensors = NerfObjective::new(
                 &spec,
                 &Sampler {
@@ -367,6 +421,15 @@ mod tests {
                     .unwrap()
                     .clone()
             };
+            if fine > 0 {
+                // 3 + 3·2·2 encoded direction → 5 → RGB, weights (out, in).
+                assert_eq!(piece("background.hidden.weight").shape, vec![5, 15]);
+                assert_eq!(piece("background.out.weight").shape, vec![3, 5]);
+                assert_eq!(
+                    layout.model["background_layers"][1]["activation"],
+                    "sigmoid"
+                );
+            }
             let enc_w = if fine > 0 { 21 } else { 8 };
             // The skip layer reads the trunk's 8 and the encoding again.
             assert_eq!(

@@ -55,6 +55,7 @@ pub(crate) fn builtins() -> Vec<Builtin> {
                 req("path", Type::Str, "directory inside the output directory"),
                 opt("test_views", Type::Number, "0", "views held out as the val and test splits (fewer than the views)"),
                 opt("seed", Type::Number, "0", "seed of the shuffle that picks the held-out views"),
+                opt("alpha", Type::Bool, "true", "images keep the hit mask as alpha; `false` writes RGB images whose background is the scene's, as a camera records them"),
             ],
             OUTPUT,
             |a| {
@@ -62,7 +63,8 @@ pub(crate) fn builtins() -> Vec<Builtin> {
                 let path = safe_output_path(&path, span)?;
                 let test_views = a.count("test_views", 0, MAX_VIEWS as u64)? as usize;
                 let seed = a.count("seed", 0, u32::MAX as u64)?;
-                Ok(Value::Output(Arc::new(Output { kind: OutputKind::Dataset { test_views, seed }, path, span: a.span })))
+                let alpha = !matches!(a.get("alpha").0, Value::Bool(false));
+                Ok(Value::Output(Arc::new(Output { kind: OutputKind::Dataset { test_views, seed, alpha }, path, span: a.span })))
             },
         ),
         animation("geometry_gif", "A neural SDF's surface, sphere-traced from every view with normals as colours, as an animated GIF (after `train`): the geometry of a `volsdf(neural_sdf(...))` whose `gif` shows its volume-rendered colour.", |a| out(a, OutputKind::GeometryGif { fps: a.positive("fps")? }, "gif")),
