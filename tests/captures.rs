@@ -89,7 +89,7 @@ fn spec(path: &Path) -> CaptureSpec {
         normalize: true,
         orient: CaptureOrient::Up,
         extent: 1.0,
-        background: DVec3::ONE,
+        background: Some(DVec3::ONE),
     }
 }
 

@@ -68,7 +68,9 @@ fn fused_nerf_equals_the_dfdx_graph() {
         skips: vec![2],
         color_width: 8,
         fine: 0,
-        background: [0.2, 0.5, 0.9],
+        background: sdfl_stdlib::value::Background::Color([0.2, 0.5, 0.9]),
+        background_at: Default::default(),
+        unbounded: None,
         seed: 4,
         density: DensityActivation::Relu,
         occupancy: None,
@@ -108,7 +110,7 @@ fn fused_nerf_equals_the_dfdx_graph() {
         }
         targets.push([rng.next_f32(), rng.next_f32(), rng.next_f32()]);
     }
-    let bg = spec.background.map(|x| x as f32);
+    let bg = spec.background.color().expect("a colour").map(|x| x as f32);
 
     // Fused: network forward, per-ray compositing and MSE backward,
     // network backward.

@@ -582,7 +582,10 @@ fn held_out(a: &Args, data: &Dataset, after: &[Output]) -> Result<(), Diag> {
                 test_split: Some(_),
                 ..
             }
-        );
+        )
+        // A capture holds out its split list's test views, or every
+        // `test_every`-th frame.
+        || matches!(data, Dataset::Capture(c) if c.test_every > 0);
     match after
         .iter()
         .find(|o| matches!(o.kind, OutputKind::PsnrCurve | OutputKind::Comparison))
