@@ -14,7 +14,7 @@ use glam::DVec3;
 use sdfl_stdlib::camera::Camera;
 use sdfl_stdlib::value::{CaptureFormat, CaptureOrient, CaptureSpec};
 
-use super::image::{check_dataset, read_rgba_image};
+use super::image::{check_dataset, composite_over, read_rgba_image};
 use super::normalize::{Orient, SceneFrame};
 use super::npy::RgbImage;
 use crate::train::TrainView;
@@ -220,13 +220,7 @@ pub fn load(
                 ),
             ));
         }
-        let pixels = rgba
-            .iter()
-            .map(|p| {
-                let a = p[3].clamp(0.0, 1.0);
-                [0, 1, 2].map(|c| p[c] * a + bg[c] * (1.0 - a))
-            })
-            .collect();
+        let pixels = composite_over(&rgba, bg);
         let mask = match &f.mask {
             None => None,
             Some(m) => Some(read_mask(m, (w, h), f, &c.source)?),

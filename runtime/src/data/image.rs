@@ -162,6 +162,16 @@ pub fn read_rgba_image(path: &Path) -> io::Result<(u32, u32, Vec<[f32; 4]>)> {
 
 /// The bytes of a checkpoint: a regular file of at most 1 GiB, never read
 /// through a symbolic link; every error names the path.
+/// RGBA pixels composited over `background` (alpha clamped to [0, 1]).
+pub fn composite_over(rgba: &[[f32; 4]], background: [f32; 3]) -> Vec<[f32; 3]> {
+    rgba.iter()
+        .map(|p| {
+            let a = p[3].clamp(0.0, 1.0);
+            [0, 1, 2].map(|c| p[c] * a + background[c] * (1.0 - a))
+        })
+        .collect()
+}
+
 pub fn read_checkpoint_bytes(path: &Path) -> io::Result<Vec<u8>> {
     use std::io::Read;
     const MAX: u64 = 1 << 30;

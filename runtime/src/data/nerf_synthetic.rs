@@ -16,7 +16,7 @@ use std::path::{Path, PathBuf};
 use glam::DVec3;
 
 use super::capture::{camera_of, invalid};
-use super::image::{check_dataset, read_rgba_image};
+use super::image::{check_dataset, composite_over, read_rgba_image};
 use super::npy::RgbImage;
 use crate::train::TrainView;
 
@@ -87,13 +87,7 @@ fn read_frames(file: &Path, t: &Transforms, background: DVec3) -> io::Result<Vec
         let intrinsics = t.intrinsics(k, (w, h), 1).map_err(named)?;
         let camera = camera_of(&f.pose, &intrinsics).map_err(named)?;
         let bg = background.as_vec3().to_array();
-        let pixels = rgba
-            .iter()
-            .map(|p| {
-                let a = p[3].clamp(0.0, 1.0);
-                [0, 1, 2].map(|c| p[c] * a + bg[c] * (1.0 - a))
-            })
-            .collect();
+        let pixels = composite_over(&rgba, bg);
         views.push(TrainView {
             camera,
             image: RgbImage {
