@@ -60,7 +60,7 @@ fn describe_field(field: &sdfl_stdlib::value::Field) -> String {
             f.shape.primitive_count()
         ),
         Field::Nerf(n) => format!(
-            "NeRF: {} position, {}x{} ReLU trunk{}, {} density, {}; {} multiply-adds per sample{}; {}; {}",
+            "NeRF: {} position, {}x{} ReLU trunk{}, {} density, {}; {} multiply-adds per sample{}; {}; {}; {}{}",
             enc(&n.position),
             n.layers,
             n.width,
@@ -90,7 +90,32 @@ fn describe_field(field: &sdfl_stdlib::value::Field) -> String {
                 ),
                 None => "every sample evaluated (no occupancy grid)".into(),
             },
-            precision(n.precision)
+            precision(n.precision),
+            match &n.background {
+                sdfl_stdlib::value::Background::Data => "background: the data's".to_string(),
+                sdfl_stdlib::value::Background::Color(c) => format!(
+                    "background [{}, {}, {}]",
+                    sdfl_lang::fmt_num(c[0]),
+                    sdfl_lang::fmt_num(c[1]),
+                    sdfl_lang::fmt_num(c[2])
+                ),
+                sdfl_stdlib::value::Background::Learned(l) => format!(
+                    "background learned from the ray direction (harmonic({}), {} wide)",
+                    l.freqs, l.width
+                ),
+            },
+            match &n.unbounded {
+                Some(c) => format!(
+                    "; unbounded: positions outside [{}, {}, {}]..[{}, {}, {}] contracted into [-2, 2]^3 (mip-NeRF 360)",
+                    sdfl_lang::fmt_num(c.min[0]),
+                    sdfl_lang::fmt_num(c.min[1]),
+                    sdfl_lang::fmt_num(c.min[2]),
+                    sdfl_lang::fmt_num(c.max[0]),
+                    sdfl_lang::fmt_num(c.max[1]),
+                    sdfl_lang::fmt_num(c.max[2])
+                ),
+                None => String::new(),
+            }
         ),
     }
 }

@@ -378,3 +378,34 @@ fn plan_of_a_file_without_statements_says_so() {
     let text = String::from_utf8_lossy(&o.stdout);
     assert!(text.starts_with("no statements"), "{text}");
 }
+
+/// `plan` shows the background a NeRF trains with (the data's, resolved)
+/// and its contraction.
+#[test]
+fn plan_shows_the_background_and_the_contraction() {
+    let dir = temp("background");
+    let file = dir.join("bg.sdfl");
+    std::fs::write(
+        &file,
+        r#"
+let cams = orbit(views: 3)
+train t {
+  model: nerf(position: hashgrid(levels: 2, log2_table: 8), unbounded: contraction(min: [-2, -2, -2], max: [2, 2, 2])),
+  data: render_views(sphere(0.5), cameras: cams, size: [8, 8], background: [0.25, 0.5, 1]),
+}
+train l { model: nerf(background: learned_background(freqs: 3, width: 16)), data: render_views(sphere(0.5), cameras: cams, size: [8, 8]) }
+"#,
+    )
+    .unwrap();
+    let plan = sdfl(&["plan", file.to_str().unwrap()]);
+    let text = String::from_utf8_lossy(&plan.stdout);
+    assert!(text.contains("background [0.25, 0.5, 1]"), "{text}");
+    assert!(
+        text.contains("unbounded: positions outside [-2, -2, -2]..[2, 2, 2] contracted"),
+        "{text}"
+    );
+    assert!(
+        text.contains("background learned from the ray direction (harmonic(3), 16 wide)"),
+        "{text}"
+    );
+}
