@@ -98,3 +98,65 @@ fn renders_through_a_lens_follow_its_forward_model() {
         "the distortion must move the sphere visibly"
     );
 }
+
+/// nerfstudio's `camera_path.json` as cameras: each frame renders, looking
+/// where its `camera_to_world` looks; a missing file is a diagnostic at the
+/// argument.
+#[test]
+fn a_nerfstudio_camera_path_gives_the_cameras() {
+    let dir = std::env::temp_dir().join(format!("sdfl-camera-path-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    // Three cameras on a circle of radius 3 about the origin, looking at it
+    // (OpenGL: the camera looks down its −z, so +z points back at the eye).
+    let frames: Vec<serde_json::Value> = (0..3)
+        .map(|k| {
+            let a = k as f64 * 2.0;
+            let (eye, back) = ([3.0 * a.sin(), 0.0, 3.0 * a.cos()], [a.sin(), 0.0, a.cos()]);
+            let right = [back[2], 0.0, -back[0]];
+            let m = [
+                right[0], 0.0, back[0], eye[0], right[1], 1.0, back[1], eye[1], right[2], 0.0,
+                back[2], eye[2], 0.0, 0.0, 0.0, 1.0,
+            ];
+            serde_json::json!({ "camera_to_world": m, "fov": 40.0, "aspect": 1.0 })
+        })
+        .collect();
+    let doc = serde_json::json!({
+        "camera_type": "perspective", "render_width": 32, "render_height": 24,
+        "fps": 24, "seconds": 1, "camera_path": frames,
+    });
+    std::fs::write(dir.join("cp.json"), doc.to_string()).unwrap();
+    std::fs::write(
+        dir.join("path.sdfl"),
+        "render p { scene: sphere(0.5), camera: camera_path(\"cp.json\"), size: [32, 24], outputs: [mask(\"m.png\")] }\n",
+    )
+    .unwrap();
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_sdfl"))
+        .args(["run", "path.sdfl", "--out", "out"])
+        .current_dir(&dir)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    for k in 0..3 {
+        let img = image::open(dir.join(format!("out/m_{k:02}.png")))
+            .unwrap()
+            .to_luma8();
+        let mask: Vec<bool> = img.pixels().map(|p| p[0] > 127).collect();
+        let (_, (u, v)) = blob(32, &mask);
+        // The sphere at the centre of every view.
+        assert!(
+            (u - 16.0).abs() < 1.0 && (v - 12.0).abs() < 1.0,
+            "view {k}: ({u}, {v})"
+        );
+    }
+    std::fs::remove_file(dir.join("cp.json")).unwrap();
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_sdfl"))
+        .args(["check", "path.sdfl"])
+        .current_dir(&dir)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(err.contains("sdfl::io") && err.contains("cp.json"), "{err}");
+    let _ = std::fs::remove_dir_all(&dir);
+}

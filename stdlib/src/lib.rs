@@ -8,6 +8,7 @@
 
 pub mod builtins;
 pub mod camera;
+pub mod camera_path;
 pub mod effects;
 pub mod eval;
 pub mod imports;

@@ -24,7 +24,8 @@ use crate::volume::rays::pixel_ray;
 use crate::volume::{DensityModel, ImageSize, Ray, SplitMix64, Stratified, VolumeError};
 
 pub mod depth;
-pub mod paths;
+/// nerfstudio's `camera_path.json`, read when the file is evaluated.
+pub use sdfl_stdlib::camera_path as paths;
 pub mod ply;
 pub mod write;
 

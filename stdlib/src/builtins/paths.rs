@@ -58,6 +58,27 @@ pub(crate) fn builtins() -> Vec<Builtin> {
             })?;
             Ok(Value::List(Arc::new(path.into_iter().map(Value::Camera).collect())))
         },
+    ), func(
+        "camera_path",
+        "The cameras of nerfstudio's `camera_path.json` (what its viewer exports for `ns-render camera-path`): `camera_path[].camera_to_world` (OpenGL, row by row) and `fov` (vertical, degrees), read when the file is evaluated. Render at the path's `render_width` × `render_height` for its framing (the field of view is the shorter side's).",
+        vec![req("path", Type::Str, "the camera_path.json file (relative to the scene file)")],
+        Type::list(CAMERA),
+        |a| {
+            let (path, span) = a.string("path")?;
+            if path.is_empty() || path.contains('\0') {
+                return Err(Diag::new(codes::PATH, span, "not a usable path").label("empty or holds a NUL byte").help("name the camera_path.json file"));
+            }
+            let full = match &a.base {
+                Some(base) => base.join(path.as_ref()),
+                None => PathBuf::from(path.as_ref()),
+            };
+            let cams = crate::camera_path::read_camera_path(&full).map_err(|e| {
+                Diag::new(codes::IO, span, format!("cannot read the camera path: {e}"))
+                    .label("not a usable camera_path.json")
+                    .help("name a camera_path.json that nerfstudio's viewer exported (paths are relative to the scene file)")
+            })?;
+            Ok(Value::List(Arc::new(cams.cameras.into_iter().map(Value::Camera).collect())))
+        },
     )]
 }
 

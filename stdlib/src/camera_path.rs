@@ -10,15 +10,15 @@
 use std::io::{self, Read};
 use std::path::Path;
 
-use sdfl_stdlib::camera::{Camera, Intrinsics};
+use crate::camera::{Camera, Intrinsics};
 use serde_json::Value;
 
 /// Largest camera path file read.
 pub const MAX_BYTES: u64 = 64 << 20;
 /// Most cameras on a path (the most views of a statement).
-pub const MAX_CAMERAS: usize = sdfl_stdlib::builtins::MAX_VIEWS;
+pub const MAX_CAMERAS: usize = crate::builtins::MAX_VIEWS;
 /// Largest image side.
-pub const MAX_SIDE: u64 = sdfl_stdlib::builtins::MAX_IMAGE_SIDE as u64;
+pub const MAX_SIDE: u64 = crate::builtins::MAX_IMAGE_SIDE as u64;
 
 /// A camera path: its cameras for `width × height` images, and its frame
 /// rate.
@@ -32,7 +32,16 @@ pub struct CameraPath {
 
 /// Reads a `camera_path.json`: a regular file of at most [`MAX_BYTES`].
 pub fn read_camera_path(path: &Path) -> io::Result<CameraPath> {
-    let file = crate::data::image::open_regular(path)?;
+    // A regular file only (not a FIFO or a device, which could block).
+    let meta = std::fs::metadata(path)
+        .map_err(|e| io::Error::new(e.kind(), format!("{}: {e}", path.display())))?;
+    if !meta.is_file() {
+        return Err(io::Error::new(
+            io::ErrorKind::InvalidInput,
+            format!("{}: not a regular file", path.display()),
+        ));
+    }
+    let file = std::fs::File::open(path)?;
     let mut bytes = Vec::new();
     file.take(MAX_BYTES + 1).read_to_end(&mut bytes)?;
     if bytes.len() as u64 > MAX_BYTES {
