@@ -112,3 +112,49 @@ render capture {
         .collect();
     assert!(!points.is_empty() && points.iter().flatten().all(|v| v.is_finite()));
 }
+
+/// What sdfl writes, `capture(...)` reads: a data set with nothing held
+/// out (every view listed in all three splits) trains on every view; a
+/// principal point off the image, as `lens(...)` allows, reads back; and
+/// JPEG photographs decode.
+#[test]
+fn sdfl_reads_what_it_writes_and_photographs() {
+    let dir = case_dir("capture_roundtrip");
+    let data = dir.join("data.sdfl");
+    fs::write(
+        &data,
+        r#"let cams = for k in 0..4 { look_at(eye: [3 * cos(k * 90deg), 0.5, 3 * sin(k * 90deg)]) }
+render a { scene: sphere(0.5), camera: cams, size: [16, 12], outputs: [dataset("all")] }
+render b { scene: sphere(0.5), camera: lens(cams, size: [16, 12], focal: [14, 14], center: [-4, 6]), size: [16, 12], outputs: [dataset("off", test_views: 1)] }
+"#,
+    )
+    .unwrap();
+    let o = run_into(&dir, &data, &dir.join("set"), &[]);
+    assert_outcome("data", &o, Expect::Ok);
+    // The same views as JPEG photographs, named in transforms.json.
+    let jpg = dir.join("set/jpg");
+    fs::create_dir_all(&jpg).unwrap();
+    let mut doc: serde_json::Value =
+        serde_json::from_slice(&fs::read(dir.join("set/all/transforms.json")).unwrap()).unwrap();
+    for (k, f) in doc["frames"].as_array_mut().unwrap().iter_mut().enumerate() {
+        let png = image::open(dir.join("set/all").join(f["file_path"].as_str().unwrap())).unwrap();
+        png.to_rgb8().save(jpg.join(format!("v{k}.jpg"))).unwrap();
+        f["file_path"] = format!("v{k}.jpg").into();
+    }
+    for split in ["train_filenames", "val_filenames", "test_filenames"] {
+        doc.as_object_mut().unwrap().remove(split);
+    }
+    fs::write(jpg.join("transforms.json"), doc.to_string()).unwrap();
+    for (name, path) in [("all", "set/all"), ("off", "set/off"), ("jpg", "set/jpg")] {
+        let train = dir.join(format!("train_{name}.sdfl"));
+        fs::write(
+            &train,
+            format!(
+                "train t {{ model: nerf(position: hashgrid(levels: 2, log2_table: 8), layers: 1, width: 8, skips: []), data: capture(\"{path}\", test_every: 0), iterations: 2, rays: 64, sampler: stratified(samples: 8, near: 0.1, far: 4) }}\n"
+            ),
+        )
+        .unwrap();
+        let o = run_into(&dir, &train, &dir.join(format!("out_{name}")), &[]);
+        assert_outcome(name, &o, Expect::Ok);
+    }
+}

@@ -65,10 +65,12 @@ impl CheckNamed for Intrinsics {
                 ));
             }
         }
+        // The range `lens(...)` allows (an image away from the image), so
+        // what sdfl writes reads back.
         for (key, c, side) in [("cx", self.cx, w), ("cy", self.cy, h)] {
-            if !(c.is_finite() && (0.0..=side).contains(&c)) {
+            if !(c.is_finite() && c > -side && c < 2.0 * side) {
                 return Err(format!(
-                    "`{key}` {} puts the principal point outside the {}x{} image",
+                    "`{key}` {} puts the principal point more than an image away from the {}x{} image",
                     sdfl_lang::fmt_num(c),
                     self.width,
                     self.height
@@ -217,6 +219,17 @@ pub fn load(
                     c.source.display(),
                     f.intrinsics.width,
                     f.intrinsics.height
+                ),
+            ));
+        }
+        // Training batches draw from views of one size.
+        let first = &c.frames[0];
+        if (w, h) != (first.intrinsics.width, first.intrinsics.height) {
+            return Err(invalid(
+                &f.image,
+                format!(
+                    "{w}x{h} pixels, but {} has {}x{}: sdfl trains on images of one size (resize them, or downscale them alike)",
+                    first.label, first.intrinsics.width, first.intrinsics.height
                 ),
             ));
         }

@@ -198,7 +198,9 @@ fn camera(model: &str, p: &[f64], (w, h): (u32, u32)) -> Result<(Intrinsics, Key
 pub fn read_cameras(path: &Path) -> io::Result<HashMap<u64, ColmapCamera>> {
     let mut cams = HashMap::new();
     lines(path, |n, line| {
-        let f: Vec<&str> = line.split_whitespace().collect();
+        // No model has more than 12 parameters: more fields than that are
+        // refused below without collecting a long line whole.
+        let f: Vec<&str> = line.split_whitespace().take(32).collect();
         if f.is_empty() || f[0].starts_with('#') {
             return Ok(());
         }
@@ -347,7 +349,8 @@ pub fn read_points(path: &Path) -> io::Result<Vec<DVec3>> {
     let mut points = Vec::new();
     let (mut seen, mut stride) = (0usize, 1usize);
     lines(path, |n, line| {
-        let f: Vec<&str> = line.split_whitespace().collect();
+        // Only the id and position are read: a long line costs no memory.
+        let f: Vec<&str> = line.split_whitespace().take(4).collect();
         if f.is_empty() || f[0].starts_with('#') {
             return Ok(());
         }

@@ -550,14 +550,18 @@ impl Transforms {
         // Positions in sorted order.
         let (mut kept, mut held) = (Vec::new(), Vec::new());
         for (pos, &k) in order.iter().enumerate() {
-            let is_test = match &train_set {
-                Some(_) => test_set.contains(&k),
-                None => test_every > 0 && pos % test_every == 0 && order.len() > 1,
-            };
+            // A frame in the train list trains, even when the test list
+            // names it too (sdfl's `dataset` with nothing held out lists
+            // every view in all three, for parsers that need the splits).
             let is_train = match &train_set {
                 Some(t) => t.contains(&k),
-                None => !is_test,
+                None => !(test_every > 0 && pos % test_every == 0 && order.len() > 1),
             };
+            let is_test = !is_train
+                && match &train_set {
+                    Some(_) => test_set.contains(&k),
+                    None => true,
+                };
             if is_test {
                 held.push(pos);
             } else if is_train {
