@@ -769,13 +769,22 @@ fn summarise(r: &serde_json::Value, out: &Path, stdout: &mut Stdout) {
         _ => {}
     }
     for w in rep["written"].as_array().into_iter().flatten() {
-        if let Some(m) = w.get("mesh").filter(|m| m.is_object()) {
+        let cloud = w["kind"].as_str() == Some("point_cloud");
+        if let Some(m) = w.get("mesh").filter(|m| m.is_object() && cloud) {
+            // A point cloud: points, no surface.
+            say!(
+                "  {}: {} points, {:.2}s",
+                w["path"].as_str().unwrap_or("?"),
+                m["vertices"],
+                m["seconds"].as_f64().unwrap_or(0.0)
+            );
+        } else if let Some(m) = w.get("mesh").filter(|m| m.is_object()) {
             say!(
                 "  {}: {} vertices, {} triangles, area {:.4}, cell {:.4} ({} cells a side), {:.2}s",
                 w["path"].as_str().unwrap_or("?"),
                 m["vertices"],
                 m["triangles"],
-                m["area"].as_f64().unwrap_or(f64::NAN),
+                m["area"].as_f64().unwrap_or(f64::NAN) + 0.0,
                 m["cell"].as_f64().unwrap_or(f64::NAN),
                 m["resolution"],
                 m["seconds"].as_f64().unwrap_or(0.0)

@@ -336,6 +336,11 @@ fn garbage_numbers_name_the_frame() {
             "`fl_y`",
         ),
         (
+            "not a rigid pose's last row",
+            Box::new(|f: &mut Vec<Value>| f[2]["transform_matrix"][3] = json!([0, 0, 0, 5])),
+            "last row",
+        ),
+        (
             "cx outside",
             Box::new(|f: &mut Vec<Value>| f[2]["cx"] = json!(1e6)),
             "principal point",

@@ -299,6 +299,18 @@ pub fn read_transforms_scaled(path: &Path, downscale: u32) -> io::Result<Transfo
             .ok_or_else(|| {
                 at("`transform_matrix` is not a 4x4 list of numbers (a non-finite or non-number entry)")
             })?;
+        // A rigid pose's last row is [0, 0, 0, 1]; anything else is not a
+        // camera-to-world matrix (the reader would silently ignore it).
+        if pose[3]
+            .iter()
+            .zip([0.0, 0.0, 0.0, 1.0])
+            .any(|(a, b)| (a - b).abs() > 1e-6)
+        {
+            return Err(at(&format!(
+                "`transform_matrix`'s last row is {:?}, not [0, 0, 0, 1]",
+                pose[3]
+            )));
+        }
         let lens = global.over(&Lens::read(f).map_err(|e| at(&e))?);
         if lens.fl_x.is_none() && lens.camera_angle_x.is_none() {
             return Err(at(
