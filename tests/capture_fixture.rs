@@ -157,4 +157,20 @@ render b { scene: sphere(0.5), camera: lens(cams, size: [16, 12], focal: [14, 14
         let o = run_into(&dir, &train, &dir.join(format!("out_{name}")), &[]);
         assert_outcome(name, &o, Expect::Ok);
     }
+    // Every view trains there, so none is held out: an output that scores
+    // held-out views is refused once the data is read, before training.
+    let scored = dir.join("scored.sdfl");
+    fs::write(
+        &scored,
+        "train t { model: nerf(position: hashgrid(levels: 2, log2_table: 8), layers: 1, width: 8, skips: []), data: capture(\"set/all\"), iterations: 2, rays: 64, sampler: stratified(samples: 8, near: 0.1, far: 4), after: [comparison(\"c.png\")] }\n",
+    )
+    .unwrap();
+    let o = run_into(&dir, &scored, &dir.join("out_scored"), &[]);
+    assert_eq!(o.code, Some(1), "{}", o.stderr);
+    assert!(
+        o.stderr.contains("holds none out") && !o.stderr.contains("step 2"),
+        "{}",
+        o.stderr
+    );
+    assert!(!dir.join("out_scored/c.png").exists());
 }

@@ -391,7 +391,7 @@ fn c2w(k: usize) -> [[f64; 4]; 4] {
         DVec3::Y,
         1.2,
     );
-    cam.to_opengl(8, 6).c2w
+    cam.to_opengl_intrinsics(8, 6).0
 }
 
 /// Writes 12 views of 8 × 6 (so that `r_10` sorts before `r_2` as text)

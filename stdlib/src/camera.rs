@@ -259,18 +259,6 @@ impl Camera {
     }
 }
 
-/// A camera-to-world pose in OpenGL/Blender axes (NeRF-synthetic's
-/// `transform_matrix`): the camera looks down its −z, +y is up, +x right;
-/// row-major, columns = right, up, back, position. With pixel focal
-/// lengths and the principal point at the image centre.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct GlPose {
-    pub c2w: [[f64; 4]; 4],
-    /// Focal lengths in pixels (`fl_x`, `fl_y`).
-    pub fl_x: f64,
-    pub fl_y: f64,
-}
-
 impl Camera {
     /// `views` cameras on a Fibonacci lattice over the sphere (or the
     /// hemisphere above `up`) of `radius`, looking at the origin with `up`
@@ -298,18 +286,6 @@ impl Camera {
                 Camera::look_at(dir * radius, DVec3::ZERO, up, focal)
             })
             .collect()
-    }
-
-    /// This camera as an OpenGL pose for a `w × h` image, with pixel focal
-    /// lengths (the principal point is the image centre for an
-    /// [`Lens::Ndc`] camera).
-    pub fn to_opengl(&self, w: u32, h: u32) -> GlPose {
-        let (c2w, k) = self.to_opengl_intrinsics(w, h);
-        GlPose {
-            c2w,
-            fl_x: k.fx,
-            fl_y: k.fy,
-        }
     }
 
     /// This camera as an OpenGL camera-to-world pose and pixel intrinsics
@@ -344,13 +320,6 @@ impl Camera {
             }
         };
         (c2w, k)
-    }
-
-    /// The sdfl camera of an OpenGL pose for a `w × h` image with its
-    /// principal point at the centre: the same ray through every pixel.
-    /// See [`Self::from_opengl_intrinsics`].
-    pub fn from_opengl(pose: &GlPose, w: u32, h: u32) -> Result<Camera, String> {
-        Self::from_opengl_intrinsics(&pose.c2w, Intrinsics::centred(w, h, pose.fl_x, pose.fl_y))
     }
 
     /// The sdfl camera of an OpenGL camera-to-world pose (nerfstudio's and
@@ -535,7 +504,8 @@ mod tests {
         ];
         for cam in cams {
             for (w, h) in [(16, 16), (33, 20), (1, 7)] {
-                let back = Camera::from_opengl(&cam.to_opengl(w, h), w, h).unwrap();
+                let (c2w, k) = cam.to_opengl_intrinsics(w, h);
+                let back = Camera::from_opengl_intrinsics(&c2w, k).unwrap();
                 let err = same_rays(&cam, &back, w, h);
                 assert!(err < 1e-12, "{cam:?} {w}x{h}: {err}");
             }
@@ -552,16 +522,15 @@ mod tests {
         )
         .with_pixel_centers(PixelCenters::Half);
         let (w, h) = (40u32, 40u32);
-        let pose = cam.to_opengl(w, h);
-        let m = pose.c2w;
+        let (m, k) = cam.to_opengl_intrinsics(w, h);
         let col = |c: usize| DVec3::new(m[0][c], m[1][c], m[2][c]);
         for p in [DVec3::new(0.3, -0.2, 0.5), DVec3::new(-0.4, 0.6, 0.0)] {
             // OpenGL: camera coordinates, looking down −z; pixel centres at
             // i + ½ with rows going down.
             let d = p - col(3);
             let (xc, yc, zc) = (d.dot(col(0)), d.dot(col(1)), d.dot(col(2)));
-            let u = w as f64 / 2.0 + pose.fl_x * xc / -zc;
-            let v = h as f64 / 2.0 - pose.fl_y * yc / -zc;
+            let u = w as f64 / 2.0 + k.fx * xc / -zc;
+            let v = h as f64 / 2.0 - k.fy * yc / -zc;
             // sdfl: NDC by x = f·X/Z, half-pixel centres x = 1 - (2i+1)/W.
             let c = cam.to_camera(p);
             let (xn, yn) = (cam.focal * c.x / c.z, cam.focal * c.y / c.z);
@@ -576,22 +545,22 @@ mod tests {
 
     #[test]
     fn hostile_poses_are_refused() {
-        let good =
-            Camera::look_at(DVec3::new(0.0, 0.0, -3.0), DVec3::ZERO, DVec3::Y, 1.0).to_opengl(8, 8);
+        let good = Camera::look_at(DVec3::new(0.0, 0.0, -3.0), DVec3::ZERO, DVec3::Y, 1.0)
+            .to_opengl_intrinsics(8, 8);
         let mut nan = good;
-        nan.c2w[0][1] = f64::NAN;
+        nan.0[0][1] = f64::NAN;
         let mut scaled = good;
         for r in 0..3 {
-            scaled.c2w[r][0] *= 2.0;
+            scaled.0[r][0] *= 2.0;
         }
         let mut mirrored = good;
         for r in 0..3 {
-            mirrored.c2w[r][0] *= -1.0;
+            mirrored.0[r][0] *= -1.0;
         }
         let mut negative = good;
-        negative.fl_y = -negative.fl_y;
-        for bad in [nan, scaled, mirrored, negative] {
-            assert!(Camera::from_opengl(&bad, 8, 8).is_err());
+        negative.1.fy = -negative.1.fy;
+        for (c2w, k) in [nan, scaled, mirrored, negative] {
+            assert!(Camera::from_opengl_intrinsics(&c2w, k).is_err());
         }
     }
 
@@ -677,8 +646,8 @@ mod tests {
             DVec3::Y,
             1.0,
         )
-        .to_opengl(8, 8)
-        .c2w;
+        .to_opengl_intrinsics(8, 8)
+        .0;
         let k = capture_lens();
         let cam = Camera::from_opengl_intrinsics(&pose, k).unwrap();
         assert!(matches!(cam.lens, Lens::Pixels(_)) && !cam.is_rectilinear());
@@ -719,8 +688,8 @@ mod tests {
     #[test]
     fn pinholes_pick_their_lens() {
         let pose = Camera::look_at(DVec3::new(0.0, 0.0, -3.0), DVec3::ZERO, DVec3::Y, 1.0)
-            .to_opengl(8, 8)
-            .c2w;
+            .to_opengl_intrinsics(8, 8)
+            .0;
         let centred =
             Camera::from_opengl_intrinsics(&pose, Intrinsics::centred(40, 30, 35.0, 35.0)).unwrap();
         assert_eq!(centred.lens, Lens::Ndc);

@@ -271,6 +271,22 @@ pub fn run_train_job(
     }
     stages.push(("load data".to_string(), t.elapsed().as_secs_f64()));
     within_budget_once_read(job, size, &views, &test_views)?;
+    // Data read from files may hold no views out (a capture whose split
+    // lists name none): say so now, not after training.
+    if let Some(o) = job
+        .after
+        .iter()
+        .find(|o| matches!(o.kind, OutputKind::PsnrCurve | OutputKind::Comparison))
+        .filter(|_| test_views.is_empty())
+    {
+        return Err(crate::data::at_argument(
+            job.data_span,
+            invalid(format!(
+                "`{}` needs held-out views, and the data set read holds none out (its split lists name no test view, or `test_every: 0`)",
+                o.path.display()
+            )),
+        ));
+    }
     // The before/after outputs' cameras: the statement's, or a path made
     // from the training cameras now that they are read.
     let out_views: Vec<Camera> = match job.view_path {
@@ -856,15 +872,6 @@ pub fn run_train_job(
                 mesh: None,
             });
         }
-    } else if let Some(o) = job
-        .after
-        .iter()
-        .find(|o| matches!(o.kind, OutputKind::PsnrCurve | OutputKind::Comparison))
-    {
-        return Err(invalid(format!(
-            "`{}` needs held-out views: give the data set `test_views`",
-            o.path.display()
-        )));
     }
     let fit = match &*job.model {
         Field::NeuralSdf(n) => Some(crate::neural::distance::fit(
