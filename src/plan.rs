@@ -105,7 +105,8 @@ fn describe_field(field: &sdfl_stdlib::value::Field) -> String {
                 ),
             },
             match &n.unbounded {
-                Some(c) => format!(
+                Some(sdfl_stdlib::value::Unbounded::Ndc(_)) => "; unbounded: positions in the capture camera's NDC, samples evenly in disparity from its near plane".to_string(),
+                Some(sdfl_stdlib::value::Unbounded::Contract(c)) => format!(
                     "; unbounded: positions outside [{}, {}, {}]..[{}, {}, {}] contracted into [-2, 2]^3 (mip-NeRF 360)",
                     sdfl_lang::fmt_num(c.min[0]),
                     sdfl_lang::fmt_num(c.min[1]),
@@ -347,7 +348,10 @@ pub(crate) fn plan_text(program: &sdfl_stdlib::Program) -> String {
             }
             sdfl_stdlib::value::Field::Nerf(n) => {
                 use sdfl_runtime::train::Objective;
-                match sdfl_runtime::neural::field::NerfObjective::new(n, &job.sampler) {
+                match sdfl_runtime::neural::field::NerfObjective::new(
+                    &sdfl_runtime::neural::warp::for_layout(n),
+                    &job.sampler,
+                ) {
                     Ok(m) => format!(
                         "all {} weights in {} tensors{}",
                         m.initial().len(),

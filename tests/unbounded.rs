@@ -168,12 +168,12 @@ train t {
     let Field::Nerf(n) = &*p.trains[0].model else {
         panic!()
     };
-    assert_eq!(n.unbounded.unwrap().min, [-1.0; 3]);
+    assert_eq!(n.unbounded.unwrap().contraction().unwrap().min, [-1.0; 3]);
     let (p, _) = load(&good.replace("contraction(min: [-1, -1, -1], max: [1, 1, 1])", "true"));
     let Field::Nerf(n) = &*p.trains[0].model else {
         panic!()
     };
-    assert_eq!(n.unbounded.unwrap().max, [1.5; 3]);
+    assert_eq!(n.unbounded.unwrap().contraction().unwrap().max, [1.5; 3]);
 }
 
 /// The toy of the report, small: a little object in a world that reaches

@@ -75,6 +75,9 @@ pub mod codes {
     /// A warning: a NeRF's `background` disagrees with its training data's
     /// (a NeRF-synthetic set composited over white, a black model).
     pub const BACKGROUND_MISMATCH: &str = "sdfl::warn::background-mismatch";
+    /// A warning: a forward-facing (LLFF) capture trained by a NeRF with
+    /// ordinary rays, not its NDC.
+    pub const FORWARD_FACING: &str = "sdfl::warn::forward-facing";
 }
 
 /// A number in a message: plain when short, otherwise in short scientific

@@ -209,7 +209,10 @@ fn file_count(outputs: &[Output], views: usize) -> u64 {
     outputs
         .iter()
         .map(|o| match o.kind {
-            OutputKind::Dataset { .. } => views as u64 + DATASET_JSON.len() as u64,
+            OutputKind::Dataset { llff_bounds, .. } => {
+                let llff = llff_bounds.map_or(0, |_| views as u64 + 1);
+                views as u64 + DATASET_JSON.len() as u64 + llff
+            }
             _ if per_view(&o.kind) => views as u64,
             _ => 1,
         })

@@ -46,6 +46,8 @@ pub enum Value {
     Background(Background),
     /// Scene contraction for unbounded scenes: `contraction(...)`.
     Contraction(Contraction),
+    /// Forward-facing scenes in normalised device coordinates: `ndc()`.
+    Ndc,
     /// Cameras known only when a `train` runs (a loop through the training
     /// cameras of a data set read from files), as its `views`.
     ViewPath(ViewPath),
@@ -81,6 +83,7 @@ impl Value {
             Value::Network(_) => "network",
             Value::Background(_) => "background",
             Value::Contraction(_) => "contraction",
+            Value::Ndc => "ndc",
             Value::Poison => "invalid value",
         }
     }
@@ -193,6 +196,9 @@ pub enum OutputKind {
         seed: u64,
         /// Images keep the hit mask as alpha (`false`: RGB, as photographs).
         alpha: bool,
+        /// Also LLFF's layout (`poses_bounds.npy`, `images/`), every frame
+        /// with these depth bounds.
+        llff_bounds: Option<[f64; 2]>,
     },
     /// A neural SDF's surface sphere-traced from every view (normals as
     /// colours) as an animated GIF: the geometry of a model whose `gif`
@@ -605,8 +611,9 @@ pub struct Nerf {
     /// the `train` statement's agreement check.
     #[serde(skip)]
     pub background_at: WrittenAt,
-    /// Positions contracted (mip-NeRF 360) for an unbounded scene.
-    pub unbounded: Option<Contraction>,
+    /// How positions of an unbounded scene reach the encoding: contracted
+    /// (mip-NeRF 360) or in a forward-facing capture's NDC.
+    pub unbounded: Option<Unbounded>,
     /// Seed of the initial weights.
     pub seed: u64,
     /// How the density head's output becomes a density.
@@ -691,6 +698,42 @@ impl LearnedBackground {
 pub struct Contraction {
     pub min: [f64; 3],
     pub max: [f64; 3],
+}
+
+/// How a NeRF covers an unbounded scene. Serialised untagged: a
+/// contraction's record is its box, as before NDC existed.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+#[serde(untagged)]
+pub enum Unbounded {
+    /// Scene contraction (mip-NeRF 360).
+    Contract(Contraction),
+    /// Normalised device coordinates of a forward-facing capture's
+    /// reference camera (NeRF's LLFF scenes): known once the capture is
+    /// read (`None` until then).
+    Ndc(Option<NdcFrame>),
+}
+
+impl Unbounded {
+    /// The contraction, if this is one.
+    pub fn contraction(&self) -> Option<&Contraction> {
+        match self {
+            Unbounded::Contract(c) => Some(c),
+            Unbounded::Ndc(_) => None,
+        }
+    }
+}
+
+/// The camera NDC is taken from: a forward-facing capture's, in the scene
+/// frame its normalisation made (the reference camera at the origin,
+/// looking down −z), with its images' size and focal lengths in pixels.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct NdcFrame {
+    pub width: f64,
+    pub height: f64,
+    pub fx: f64,
+    pub fy: f64,
+    /// The depth of the near plane (NDC z = −1), in scene units.
+    pub near: f64,
 }
 
 /// The background a data set's images hold, for the model's to agree with.

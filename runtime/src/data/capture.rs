@@ -160,6 +160,17 @@ pub struct CaptureViews {
     /// Lines for people: the scene frame, the points' and depths' extent
     /// in it.
     pub report: Vec<String>,
+    /// A forward-facing capture's reference camera for NDC (LLFF,
+    /// normalised): `None` for other captures.
+    pub forward_facing: Option<ForwardFacing>,
+}
+
+/// A forward-facing capture (LLFF) as NDC needs it: the reference
+/// camera's frame, and the farthest depth bound in scene units.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ForwardFacing {
+    pub ndc: sdfl_stdlib::value::NdcFrame,
+    pub far: f64,
 }
 
 /// Views held out: every `every`-th frame from the first (nerfstudio's
@@ -283,6 +294,7 @@ pub fn load(
         names,
         frame,
         report,
+        forward_facing: None,
     })
 }
 
@@ -347,12 +359,30 @@ pub fn read(spec: &CaptureSpec, base: &Path) -> io::Result<CaptureViews> {
             (c, spec.normalize.then_some(frame))
         }
     };
-    load(
+    let llff = format == CaptureFormat::Llff && spec.normalize;
+    let mut views = load(
         &capture,
         normalize,
         frame,
         spec.background.unwrap_or(glam::DVec3::ONE),
-    )
+    )?;
+    // LLFF's normalisation puts the average camera at the origin looking
+    // down −z and the nearest bound at 1/BD_FACTOR: NDC's near plane is 1,
+    // as NeRF's. Every frame shares one camera (poses_bounds.npy's hwf).
+    if let (true, Some(first), Some((_, far))) = (llff, capture.frames.first(), capture.bounds) {
+        let i = &first.intrinsics;
+        views.forward_facing = Some(ForwardFacing {
+            ndc: sdfl_stdlib::value::NdcFrame {
+                width: i.width as f64,
+                height: i.height as f64,
+                fx: i.fx,
+                fy: i.fy,
+                near: 1.0,
+            },
+            far: far * views.frame.scale,
+        });
+    }
+    Ok(views)
 }
 
 /// A frame's mask: a pixel is kept where the mask image is not black (as

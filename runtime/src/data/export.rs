@@ -140,6 +140,8 @@ pub struct DatasetWriter {
     /// Whether images keep an alpha channel (the hit mask); without, they
     /// are RGB, as photographs are.
     alpha: bool,
+    /// LLFF's layout too, with these depth bounds for every frame.
+    llff_bounds: Option<[f64; 2]>,
 }
 
 impl DatasetWriter {
@@ -164,7 +166,15 @@ impl DatasetWriter {
             size: (w, h),
             held,
             alpha: true,
+            llff_bounds: None,
         }
+    }
+
+    /// Also LLFF's layout: `images/<kkkk>.png` in view order and
+    /// `poses_bounds.npy`, every frame with depth bounds `[near, far]`.
+    pub fn with_llff(mut self, bounds: [f64; 2]) -> Self {
+        self.llff_bounds = Some(bounds);
+        self
     }
 
     /// Images without alpha (RGB PNGs), as a camera records them.
@@ -185,9 +195,14 @@ impl DatasetWriter {
                 test_views,
                 seed,
                 alpha,
+                llff_bounds,
             } => {
                 let w = Self::new(out_dir, &o.path, size, views, test_views, seed);
-                Some(if alpha { w } else { w.without_alpha() })
+                let w = if alpha { w } else { w.without_alpha() };
+                Some(match llff_bounds {
+                    Some(b) => w.with_llff(b),
+                    None => w,
+                })
             }
             _ => None,
         }
@@ -257,10 +272,17 @@ impl DatasetWriter {
             }
         }
         let rel = self.dir.join(format!("r_{k}.png"));
-        if self.alpha {
-            write_png_rgba(&self.out_dir.join(&rel), w, h, &rgba)?;
-        } else {
-            write_png(&self.out_dir.join(&rel), w, h, rgb)?;
+        // LLFF pairs `poses_bounds.npy`'s rows with `images/` sorted by
+        // name: zero-padded view numbers sort in view order.
+        let llff = self
+            .llff_bounds
+            .map(|_| self.dir.join(format!("images/{k:04}.png")));
+        for path in std::iter::once(&rel).chain(llff.as_ref()) {
+            if self.alpha {
+                write_png_rgba(&self.out_dir.join(path), w, h, &rgba)?;
+            } else {
+                write_png(&self.out_dir.join(path), w, h, rgb)?;
+            }
         }
         self.frames.push(FrameRecord { k, c2w, intrinsics });
         Ok(Written {
@@ -381,6 +403,13 @@ impl DatasetWriter {
     /// `transforms.json` last.
     pub fn finish(self) -> io::Result<Written> {
         let (w, h) = self.size;
+        if let Some(bounds) = self.llff_bounds {
+            let bytes = self.poses_bounds(bounds)?;
+            write_bytes(
+                &self.out_dir.join(self.dir.join("poses_bounds.npy")),
+                &bytes,
+            )?;
+        }
         for (name, doc) in self.documents() {
             let text = serde_json::to_string_pretty(&doc).map_err(io::Error::other)?;
             write_bytes(&self.out_dir.join(self.dir.join(name)), text.as_bytes())?;
@@ -393,6 +422,49 @@ impl DatasetWriter {
             frames: 0,
             mesh: None,
         })
+    }
+}
+
+impl DatasetWriter {
+    /// `poses_bounds.npy`: per view in order, the OpenGL pose's rotation
+    /// columns in LLFF's axes (down, right, back), its position and the
+    /// height, width and focal length, row by row as a 3 × 5 matrix, then
+    /// the depth bounds. LLFF holds one centred pinhole for every view.
+    fn poses_bounds(&self, [near, far]: [f64; 2]) -> io::Result<Vec<u8>> {
+        let mut frames: Vec<&FrameRecord> = self.frames.iter().collect();
+        frames.sort_by_key(|f| f.k);
+        let refuse = |m: String| {
+            io::Error::new(
+                io::ErrorKind::InvalidInput,
+                format!("{}: LLFF's layout {m}", self.dir.display()),
+            )
+        };
+        let Some(first) = frames.first().map(|f| f.intrinsics) else {
+            return Err(refuse("needs at least one view".into()));
+        };
+        let i = first;
+        let (w, h) = (i.width as f64, i.height as f64);
+        let close = |x: f64, y: f64| (x - y).abs() <= 1e-9 * x.abs().max(y.abs()).max(1.0);
+        let centred_pinhole = i.distortion == Distortion::None
+            && close(i.fx, i.fy)
+            && close(i.cx, w / 2.0)
+            && close(i.cy, h / 2.0);
+        if !centred_pinhole || frames.iter().any(|f| !same(&f.intrinsics, &i)) {
+            return Err(refuse(
+                "holds one centred pinhole camera (one focal length, no distortion) for every view: write this set without `llff_bounds`".into(),
+            ));
+        }
+        let mut rows = Vec::with_capacity(frames.len() * 17);
+        for f in &frames {
+            let m = &f.c2w;
+            let hwf = [h, w, i.fx];
+            for (r, row) in m.iter().take(3).enumerate() {
+                let (right, up, back, t) = (row[0], row[1], row[2], row[3]);
+                rows.extend([-up, right, back, t, hwf[r]]);
+            }
+            rows.extend([near, far]);
+        }
+        Ok(crate::data::npy::encode_f64(&[frames.len(), 17], &rows))
     }
 }
 

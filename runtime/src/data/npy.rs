@@ -411,26 +411,48 @@ pub fn parse_npz_f32_at_most(
     parse_f32(&buf)
 }
 
-/// Serialises an image as an `(H, W, 3)` `<f4` `.npy` v1 file.
-pub fn encode_rgb_f32(img: &RgbImage) -> Vec<u8> {
-    let mut header = format!(
-        "{{'descr': '<f4', 'fortran_order': False, 'shape': ({}, {}, 3), }}",
-        img.height, img.width
-    );
-    // Pad with spaces so that the data starts at a multiple of 64, ending in '\n'.
-    while (10 + header.len() + 1) % 64 != 0 {
-        header.push(' ');
+/// A `.npy` v1 header for a little-endian, C-order array of `descr`
+/// (`<f4`, `<f8`) and `shape`, padded so the data starts at a multiple of
+/// 64 bytes.
+pub fn encode_header(descr: &str, shape: &[usize]) -> Vec<u8> {
+    let dims: String = match shape {
+        [n] => format!("{n},"),
+        _ => shape
+            .iter()
+            .map(|d| d.to_string())
+            .collect::<Vec<_>>()
+            .join(", "),
+    };
+    let mut dict = format!("{{'descr': '{descr}', 'fortran_order': False, 'shape': ({dims}), }}");
+    while (10 + dict.len() + 1) % 64 != 0 {
+        dict.push(' ');
     }
-    header.push('\n');
-    let mut out = Vec::with_capacity(10 + header.len() + img.pixels.len() * 12);
+    dict.push('\n');
+    let mut out = Vec::with_capacity(10 + dict.len());
     out.extend_from_slice(MAGIC);
     out.extend_from_slice(&[1, 0]);
-    out.extend_from_slice(&(header.len() as u16).to_le_bytes());
-    out.extend_from_slice(header.as_bytes());
+    out.extend_from_slice(&(dict.len() as u16).to_le_bytes());
+    out.extend_from_slice(dict.as_bytes());
+    out
+}
+
+/// Serialises an image as an `(H, W, 3)` `<f4` `.npy` v1 file.
+pub fn encode_rgb_f32(img: &RgbImage) -> Vec<u8> {
+    let mut out = encode_header("<f4", &[img.height as usize, img.width as usize, 3]);
     for p in &img.pixels {
         for v in p {
             out.extend_from_slice(&v.to_le_bytes());
         }
+    }
+    out
+}
+
+/// Serialises `values` as a `<f8` `.npy` v1 file of `shape`.
+pub fn encode_f64(shape: &[usize], values: &[f64]) -> Vec<u8> {
+    debug_assert_eq!(values.len(), shape.iter().product::<usize>());
+    let mut out = encode_header("<f8", shape);
+    for v in values {
+        out.extend_from_slice(&v.to_le_bytes());
     }
     out
 }

@@ -21,18 +21,7 @@ pub fn depth_values(ends: &[RayEnd], min_opacity: f32) -> Vec<f32> {
 /// little-endian, C order).
 pub fn npy_bytes(values: &[f32], rows: usize, cols: usize) -> Vec<u8> {
     debug_assert_eq!(values.len(), rows * cols);
-    let dict = format!("{{'descr': '<f4', 'fortran_order': False, 'shape': ({rows}, {cols}), }}");
-    // Magic (6), version (2), header length (2), then the header padded
-    // with spaces and ended by a newline to a multiple of 64 bytes.
-    let unpadded = 10 + dict.len() + 1;
-    let pad = unpadded.next_multiple_of(64) - unpadded;
-    let header_len = (dict.len() + pad + 1) as u16;
-    let mut out = Vec::with_capacity(unpadded + pad + values.len() * 4);
-    out.extend_from_slice(b"\x93NUMPY\x01\x00");
-    out.extend_from_slice(&header_len.to_le_bytes());
-    out.extend_from_slice(dict.as_bytes());
-    out.extend(std::iter::repeat_n(b' ', pad));
-    out.push(b'\n');
+    let mut out = crate::data::npy::encode_header("<f4", &[rows, cols]);
     for v in values {
         out.extend_from_slice(&v.to_le_bytes());
     }

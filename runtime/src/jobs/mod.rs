@@ -416,6 +416,8 @@ pub struct Views {
     /// that report it; exports map back with `SceneFrame::to_data`.
     pub scene_frame: Option<crate::data::normalize::SceneFrame>,
     pub scene_report: Vec<String>,
+    /// A forward-facing capture's camera for NDC (LLFF).
+    pub forward_facing: Option<crate::data::capture::ForwardFacing>,
 }
 
 /// The views of a data set: read from files (relative to `base`),
@@ -530,6 +532,7 @@ pub fn load_views(data: &Dataset, base: &Path) -> io::Result<Views> {
                 all_points: Vec::new(),
                 scene_frame: None,
                 scene_report: Vec::new(),
+                forward_facing: None,
             });
         }
         Dataset::Capture(spec) => {
@@ -551,6 +554,7 @@ pub fn load_views(data: &Dataset, base: &Path) -> io::Result<Views> {
                 all_points: Vec::new(),
                 scene_frame: Some(c.frame),
                 scene_report: c.report,
+                forward_facing: c.forward_facing,
             });
         }
     };
@@ -571,6 +575,7 @@ pub fn load_views(data: &Dataset, base: &Path) -> io::Result<Views> {
         all_points: Vec::new(),
         scene_frame: None,
         scene_report: Vec::new(),
+        forward_facing: None,
     })
 }
 
@@ -595,6 +600,7 @@ fn load_points(path: &Path, every: usize, center: bool) -> io::Result<Views> {
         all_points: all,
         scene_frame: None,
         scene_report: Vec::new(),
+        forward_facing: None,
     })
 }
 

@@ -94,7 +94,7 @@ pub fn step_memory(job: &TrainJob) -> u64 {
         // Every layer's activations and two adjoint buffers per sample,
         // the sample points, and the optimiser's copies of the weights.
         (Field::Nerf(n), _) => {
-            let net = NerfNet::new(n);
+            let net = NerfNet::new(&crate::neural::warp::for_layout(n));
             // The fine network sees the coarse and the fine samples.
             let per_ray = samples
                 + if n.fine > 0 {
@@ -231,6 +231,47 @@ pub struct TrainOptions {
     pub restart: bool,
 }
 
+/// A NeRF in NDC (`unbounded: ndc()`) takes its camera from the
+/// forward-facing capture just read: the job with it filled in, `None`
+/// when the model is not one.
+fn with_ndc_frame(
+    job: &TrainJob,
+    forward_facing: Option<crate::data::capture::ForwardFacing>,
+    status: &dyn Fn(&str),
+) -> io::Result<Option<TrainJob>> {
+    use sdfl_stdlib::value::Unbounded;
+    let Field::Nerf(n) = &*job.model else {
+        return Ok(None);
+    };
+    if n.unbounded != Some(Unbounded::Ndc(None)) {
+        return Ok(None);
+    }
+    let Some(ff) = forward_facing else {
+        return Err(crate::data::at_argument(
+            job.data_span,
+            invalid(format!(
+                "training `{}`: `unbounded: ndc()` needs a forward-facing capture, read and normalised (`capture(..., format: \"llff\")`); this data is not one, or `normalize: false` kept the data's frame",
+                job.name
+            )),
+        ));
+    };
+    if job.sampler.far < ff.far {
+        status(&format!(
+            "warning: NDC samples reach depth {} (the sampler's `far`), short of the capture's farthest bound {}: content beyond is cut off (give the sampler a larger `far`, e.g. 1000)",
+            sdfl_lang::fmt_num(job.sampler.far),
+            sdfl_lang::fmt_num((ff.far * 1000.0).round() / 1000.0)
+        ));
+    }
+    let model = sdfl_stdlib::value::Nerf {
+        unbounded: Some(Unbounded::Ndc(Some(ff.ndc))),
+        ..n.clone()
+    };
+    Ok(Some(TrainJob {
+        model: std::sync::Arc::new(Field::Nerf(model)),
+        ..job.clone()
+    }))
+}
+
 #[allow(clippy::too_many_arguments)]
 pub fn run_train_job(
     job: &TrainJob,
@@ -265,10 +306,19 @@ pub fn run_train_job(
         all_points,
         scene_report,
         scene_frame,
+        forward_facing,
     } = load_views(&job.data, base).map_err(|e| crate::data::at_argument(job.data_span, e))?;
     for line in &scene_report {
         status(line);
     }
+    let resolved;
+    let job = match with_ndc_frame(job, forward_facing, status)? {
+        Some(j) => {
+            resolved = j;
+            &resolved
+        }
+        None => job,
+    };
     stages.push(("load data".to_string(), t.elapsed().as_secs_f64()));
     within_budget_once_read(job, size, &views, &test_views)?;
     // Data read from files may hold no views out (a capture whose split

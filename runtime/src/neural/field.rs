@@ -14,9 +14,9 @@ use sdfl_stdlib::value::{LastInterval, Nerf, OccupancySpec, Sampler};
 
 use super::background::{Backdrop, BackdropWork};
 use super::composite::squared_error_backward_bg;
-use super::contract::Contract;
 use super::nerf::{NerfNet, NerfWork, PositionEncoding};
 use super::occupancy::{OccupancyConfig, OccupancyGrid, RaySamples};
+use super::warp::Warp;
 use crate::train::fused::Batch;
 use crate::train::{Objective, TensorSpec, TrainError};
 use crate::volume::importance::{merge_depths, sample_pdf, Spacing};
@@ -215,9 +215,9 @@ unsafe impl Sync for SharedSlice {}
 /// fixed-step range its samples cover.
 pub struct Occupancy {
     pub grid: OccupancyGrid,
-    /// In an unbounded scene the grid covers the contracted cube and
-    /// filters the sampler's own depths (rays are curves there).
-    contract: Option<Contract>,
+    /// In an unbounded scene the grid covers the contracted cube (or NDC's
+    /// box) and filters the sampler's own depths (rays are curves there).
+    warp: Option<Warp>,
     every: usize,
     near: f32,
     far: f32,
@@ -227,24 +227,24 @@ pub struct Occupancy {
 }
 
 impl Occupancy {
-    fn new(
-        spec: &OccupancySpec,
-        sampler: &Sampler,
-        contract: Option<Contract>,
-    ) -> Result<Self, String> {
-        let (step, min, max) = match &contract {
+    fn new(spec: &OccupancySpec, sampler: &Sampler, warp: Option<Warp>) -> Result<Self, String> {
+        let (step, min, max) = match &warp {
             None => (
                 ((sampler.far - sampler.near) / sampler.samples.max(1) as f64) as f32,
                 spec.min.map(|x| x as f32),
                 spec.max.map(|x| x as f32),
             ),
-            // The threshold's step in contracted units: a ray's samples
-            // span about 3 of them (across the inner box and the shell).
-            Some(_) => (
-                (3.0 / sampler.samples.max(1) as f64) as f32,
-                [-2.0; 3],
-                [2.0; 3],
-            ),
+            // The threshold's step in the box's units: a ray's samples
+            // span about `span` of them (contracted: across the inner box
+            // and the shell; NDC: from the near plane to infinity).
+            Some(w) => {
+                let (min, max) = w.cube();
+                (
+                    (w.span() / sampler.samples.max(1) as f64) as f32,
+                    min.map(|x| x as f32),
+                    max.map(|x| x as f32),
+                )
+            }
         };
         let mut cfg = OccupancyConfig::new(min, max);
         cfg.res = spec.resolution;
@@ -252,7 +252,7 @@ impl Occupancy {
         cfg.step_size = step;
         Ok(Occupancy {
             grid: OccupancyGrid::new(cfg)?,
-            contract,
+            warp,
             every: spec.every.max(1),
             near: sampler.near as f32,
             far: sampler.far as f32,
@@ -271,7 +271,7 @@ impl Occupancy {
         candidates: &Samples,
         out: &mut Samples,
     ) -> Result<(), VolumeError> {
-        if let Some(c) = self.contract {
+        if let Some(c) = self.warp {
             keep_occupied(&self.grid, &c, rays, candidates, out);
             return Ok(());
         }
@@ -287,11 +287,11 @@ impl Occupancy {
     fn update(&mut self, net: &NerfNet, values: &[f32], step: usize, seed: u64) {
         // An unbounded field starts transparent: the grid waits until it
         // has grown some density, rather than emptying every cell at once.
-        if self.contract.is_some() && step < UNBOUNDED_GRID_WARMUP {
+        if self.warp.is_some() && step < UNBOUNDED_GRID_WARMUP {
             return;
         }
         let work = &mut self.work;
-        let contract = self.contract;
+        let warp = self.warp;
         let mut dirs = Vec::new();
         let mut density = |points: &[[f32; 3]], out: &mut [f32]| {
             let flat: Vec<f32> = points.iter().flatten().copied().collect();
@@ -299,11 +299,11 @@ impl Occupancy {
             // The grid's points are in the encoding's space already.
             net.forward_encoded(values, &flat, &dirs, work);
             out.copy_from_slice(&work.sigma);
-            // In contracted space a cell's opacity is its density times
-            // the world length a contracted step spans there.
-            if let Some(c) = &contract {
+            // In a warped box a cell's opacity is its density times the
+            // world length a step of the box spans there.
+            if let Some(c) = &warp {
                 for (o, p) in out.iter_mut().zip(points) {
-                    *o *= c.world_per_contracted(*p);
+                    *o *= c.world_per_unit(*p);
                 }
             }
         };
@@ -320,7 +320,7 @@ const UNBOUNDED_GRID_WARMUP: usize = 256;
 /// cell of `grid` (over the contracted cube), each keeping its interval.
 fn keep_occupied(
     grid: &OccupancyGrid,
-    c: &Contract,
+    c: &Warp,
     rays: &[Ray],
     candidates: &Samples,
     out: &mut Samples,
@@ -352,7 +352,7 @@ fn keep_occupied(
 /// Per ray, stratified depths `depth_of(r)` on `[near, far]` moved to the
 /// contraction's linear-then-disparity spacing, into `out` (`n` a ray).
 fn unbounded_depths<'d>(
-    c: &Contract,
+    c: &Warp,
     rays: &[Ray],
     near: f64,
     far: f64,
@@ -403,7 +403,7 @@ impl NerfObjective {
         let occupancy = spec
             .occupancy
             .as_ref()
-            .map(|o| Occupancy::new(o, sampler, net.contract))
+            .map(|o| Occupancy::new(o, sampler, net.warp))
             .transpose()?;
         let first = net.len + fine.as_ref().map_or(0, |(f, _)| f.len);
         Ok(NerfObjective {
@@ -588,7 +588,7 @@ impl Objective for NerfObjective {
         let scale = (weight / (3 * rays.max(1)) as f64) as f32;
         let n = batch.samples;
         // The sampler's depths, spaced for an unbounded scene when it is one.
-        match &self.net.contract {
+        match &self.net.warp {
             Some(c) => {
                 unbounded_depths(
                     c,
@@ -726,13 +726,13 @@ pub fn render_nerf_view(
     ) {
         // Unbounded: the stratified depths spaced linearly through the
         // inner box, in disparity beyond it.
-        let contract = net.contract;
+        let contract = net.warp;
         if let Some(c) = &contract {
             unbounded_depths(c, chunk, t[0] as f64, t[n - 1] as f64, |_| &t, &mut mapped);
         }
         match occupancy {
-            Some(o) if o.contract.is_some() => {
-                let c = o.contract.as_ref().expect("just matched");
+            Some(o) if o.warp.is_some() => {
+                let c = o.warp.as_ref().expect("just matched");
                 candidates.fixed(chunk.len(), n, |r| &mapped[r * n..(r + 1) * n], last);
                 keep_occupied(&o.grid, c, chunk, &candidates, &mut samples);
             }
@@ -932,10 +932,12 @@ mod tests {
             background: sdfl_stdlib::value::Background::Learned(
                 sdfl_stdlib::value::LearnedBackground { freqs: 2, width: 5 },
             ),
-            unbounded: Some(sdfl_stdlib::value::Contraction {
-                min: [-0.5; 3],
-                max: [0.5; 3],
-            }),
+            unbounded: Some(sdfl_stdlib::value::Unbounded::Contract(
+                sdfl_stdlib::value::Contraction {
+                    min: [-0.5; 3],
+                    max: [0.5; 3],
+                },
+            )),
             ..small_spec()
         };
         objective_gradient_check(&spec);
@@ -1050,10 +1052,12 @@ mod tests {
             threshold: 0.01,
             every: 1,
         };
-        let c = Contract::new(&sdfl_stdlib::value::Contraction {
-            min: [-1.0; 3],
-            max: [1.0; 3],
-        });
+        let c = Warp::Contract(crate::neural::contract::Contract::new(
+            &sdfl_stdlib::value::Contraction {
+                min: [-1.0; 3],
+                max: [1.0; 3],
+            },
+        ));
         let sampler = Sampler {
             samples: 16,
             near: 0.5,

@@ -22,3 +22,4 @@ pub mod nerf;
 pub mod occupancy;
 pub mod sdf_net;
 pub mod surface;
+pub mod warp;

@@ -11,10 +11,10 @@
 
 use sdfl_stdlib::value::{DensityActivation, Encoding, HashGridSpec, Nerf};
 
-use super::contract::Contract;
 use super::encoding::Harmonic;
 use super::hashgrid::{HashGrid, HashGridConfig, Touched};
 use super::mlp::{Activation, Dense};
+use super::warp::Warp;
 use crate::volume::SplitMix64;
 
 /// A harmonic 3-vector encoding as the runtime computes it.
@@ -56,13 +56,9 @@ impl PositionEncoding {
 }
 
 /// The runtime's hash grid for a spec (the language checked its ranges);
-/// over the contracted cube [-2, 2]³ when `contracted`.
-pub fn hash_grid(g: &HashGridSpec, contracted: bool) -> Result<HashGrid, String> {
-    let (min, max) = if contracted {
-        ([-2.0; 3], [2.0; 3])
-    } else {
-        (g.min, g.max)
-    };
+/// over an unbounded scene's box (`warp`'s cube) when it is one.
+pub fn hash_grid(g: &HashGridSpec, warp: Option<&Warp>) -> Result<HashGrid, String> {
+    let (min, max) = warp.map_or((g.min, g.max), Warp::cube);
     HashGrid::new(HashGridConfig {
         levels: g.levels,
         features: g.features,
@@ -96,8 +92,9 @@ pub struct NerfNet {
     pub feature: Option<Dense>,
     pub color_hidden: Dense,
     pub color_out: Dense,
-    /// Positions contracted before they are encoded (unbounded scenes).
-    pub contract: Option<Contract>,
+    /// Positions contracted, or moved into NDC, before they are encoded
+    /// (unbounded scenes).
+    pub warp: Option<Warp>,
     /// The density starts near zero (unbounded scenes, learned
     /// backgrounds): at the usual start (density about 1 a unit
     /// everywhere) rays of many units are opaque, the background behind
@@ -120,10 +117,11 @@ impl NerfNet {
     /// The network with its parameters from `first` on in a flat vector
     /// holding others too (the coarse and fine networks of one model).
     pub fn try_new_at(spec: &Nerf, first: usize) -> Result<Self, String> {
+        let warp = spec.unbounded.as_ref().map(Warp::new).transpose()?;
         let position = match &spec.position {
             Encoding::Harmonic(h) => PositionEncoding::Harmonic(harmonic(h)),
             Encoding::HashGrid(g) => PositionEncoding::Grid {
-                grid: hash_grid(g, spec.unbounded.is_some())?,
+                grid: hash_grid(g, warp.as_ref())?,
                 offset: first,
             },
         };
@@ -178,7 +176,7 @@ impl NerfNet {
             feature,
             color_hidden,
             color_out,
-            contract: spec.unbounded.as_ref().map(Contract::new),
+            warp,
             transparent_start: spec.unbounded.is_some()
                 || matches!(spec.background, sdfl_stdlib::value::Background::Learned(_)),
             first,
@@ -236,7 +234,7 @@ impl NerfNet {
     /// and `work.rgb`; the intermediates stay in `work` for
     /// [`Self::backward`].
     pub fn forward(&self, params: &[f32], points: &[f32], dirs: &[f32], work: &mut NerfWork) {
-        match &self.contract {
+        match &self.warp {
             Some(c) => {
                 let mut contracted = std::mem::take(&mut work.contracted);
                 c.apply_all(points, &mut contracted);
@@ -434,7 +432,7 @@ impl NerfNet {
         if let Some((grid, offset)) = grid {
             touched.get_or_insert_with(|| grid.touched_set()).clear();
             // The grid saw the contracted points (kept by the forward pass).
-            let seen = if self.contract.is_some() {
+            let seen = if self.warp.is_some() {
                 &contracted[..]
             } else {
                 points

@@ -237,6 +237,7 @@ pub(crate) fn train_block(name: &str, a: &Args) -> Built<TrainJob> {
         (Some(m), Some(d)) => {
             let (m, warning) = backgrounds_agree(m, d, data_span);
             e.diags.extend(warning);
+            e.diags.extend(spaces_agree(&m, d, data_span));
             Some(m)
         }
         (m, _) => m,
@@ -463,6 +464,41 @@ fn backgrounds_agree(
         (Background::Color(_), DataBackground::Unknown) | (Background::Learned(_), _) => {
             (model, None)
         }
+    }
+}
+
+/// A NeRF in NDC needs a forward-facing capture; an LLFF capture under a
+/// bounded NeRF gets a warning (NeRF trains these scenes in NDC).
+fn spaces_agree(model: &Field, data: &Dataset, data_span: Span) -> Option<Diag> {
+    use crate::value::{CaptureFormat, Unbounded};
+    let Field::Nerf(n) = model else {
+        return None;
+    };
+    let format = match data {
+        Dataset::Capture(c) => Some(c.format),
+        _ => None,
+    };
+    match (&n.unbounded, format) {
+        (Some(Unbounded::Ndc(_)), Some(CaptureFormat::Llff | CaptureFormat::Auto)) => None,
+        (Some(Unbounded::Ndc(_)), _) => Some(
+            Diag::new(
+                codes::VALUE,
+                data_span,
+                "`unbounded: ndc()` maps positions through a forward-facing capture's camera, and this data is not one",
+            )
+            .label("not an LLFF capture")
+            .help("train on `capture(..., format: \"llff\")`, or use `unbounded: contraction()` for other unbounded scenes"),
+        ),
+        (None, Some(CaptureFormat::Llff)) => Some(
+            Diag::new(
+                codes::FORWARD_FACING,
+                data_span,
+                "a forward-facing capture trained with ordinary rays: content far behind the near bound has no bounded box to live in",
+            )
+            .label("an LLFF capture")
+            .help("give the NeRF `unbounded: ndc()` (the original NeRF's configuration for these scenes)"),
+        ),
+        _ => None,
     }
 }
 

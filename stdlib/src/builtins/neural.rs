@@ -2,12 +2,13 @@
 //! hidden layers (`mlp`), `neural_sdf` and `nerf` itself.
 
 use super::*;
-use crate::value::{Background, Contraction, LearnedBackground, Mlp, NeuralSdf};
+use crate::value::{Background, Contraction, LearnedBackground, Mlp, NeuralSdf, Unbounded};
 
 /// The type of a NeRF's `background`: a colour or a background value.
 pub(crate) const BACKGROUND: Type = Type::Named("background");
 /// The type of a NeRF's `unbounded`.
 pub(crate) const CONTRACTION: Type = Type::Named("contraction");
+pub(crate) const NDC: Type = Type::Named("ndc");
 /// The box a hash grid or occupancy grid covers by default (and the inner
 /// box of a contraction).
 const DEFAULT_BOX: ([f64; 3], [f64; 3]) = ([-1.5; 3], [1.5; 3]);
@@ -234,6 +235,13 @@ pub(crate) fn builtins() -> Vec<Builtin> {
             },
         ),
         func(
+            "ndc",
+            "Normalised device coordinates for forward-facing captures (the original NeRF's LLFF scenes, such as `nerf_fern`): positions are mapped through the projection of the capture's reference camera (the average camera, which an LLFF capture's normalisation puts at the origin looking down −z), so all depths from its near plane to infinity fit in [-1, 1]; samples are spaced evenly in NDC depth (evenly in disparity) from the near plane to the sampler's `far`, so give it a large `far` (e.g. 1000). Density is integrated over world lengths, so depth outputs are in scene units. Needs `capture(..., format: \"llff\")` data.",
+            vec![],
+            NDC,
+            |_| Ok(Value::Ndc),
+        ),
+        func(
             "mlp",
             "The hidden layers of a multilayer perceptron, as a value: `layers` of `width`, the layers in `skips` (counted from 0; 1 to `layers` − 1) seeing the network's input again. Define it once and give it to `nerf(network: ...)` or `neural_sdf(network: ...)`; the field decides the input (its encoding), the activation and the output heads.",
             vec![
@@ -260,7 +268,7 @@ pub(crate) fn builtins() -> Vec<Builtin> {
                 opt("color_width", Type::Number, "64", "width of the colour branch"),
                 opt("fine", Type::Number, "0", "fine samples per ray, drawn by inverse CDF from the coarse network's weights for a second (fine) network of the same shape; 0: one network"),
                 opt("background", Type::OneOf(vec![Type::Vec3, BACKGROUND]), "data_background()", "what a ray sees where it leaves the field: the training data's (`data_background()`), a colour `[r, g, b]`, or `learned_background()`"),
-                opt("unbounded", Type::OneOf(vec![CONTRACTION, Type::Bool]), "false", "an unbounded scene: `contraction(min, max)` (or `true`: the default inner box) contracts positions so the hash grid and occupancy grid cover all of space; `false`: the grids' boxes bound the scene"),
+                opt("unbounded", Type::OneOf(vec![CONTRACTION, NDC, Type::Bool]), "false", "an unbounded scene: `contraction(min, max)` (or `true`: the default inner box) contracts positions so the hash grid and occupancy grid cover all of space; `ndc()` maps a forward-facing capture's positions into its reference camera's NDC; `false`: the grids' boxes bound the scene"),
                 opt("seed", Type::Number, "0", "seed of the initial weights"),
                 opt("occupancy", OCCUPANCY, "occupancy_grid(resolution: 0)", "skip empty space with an occupancy grid while training and rendering (resolution 0: none)"),
                 opt("density", Type::Str, "\"relu\"", "density activation: \"relu\" (the NeRF paper; can die on dark scenes, every sample's gradient zero), \"softplus\" (Mip-NeRF: its gradient never vanishes) or \"exp\" (instant-ngp's truncated exponential, for hash grids)"),
@@ -280,13 +288,14 @@ pub(crate) fn builtins() -> Vec<Builtin> {
                     _ => Background::Color(colour(a.vec3("background")?, bg_span)?.to_array()),
                 };
                 let unbounded = match a.get("unbounded").0 {
-                    Value::Contraction(c) => Some(*c),
-                    Value::Bool(true) => Some(Contraction { min: DEFAULT_BOX.0, max: DEFAULT_BOX.1 }),
+                    Value::Contraction(c) => Some(Unbounded::Contract(*c)),
+                    Value::Ndc => Some(Unbounded::Ndc(None)),
+                    Value::Bool(true) => Some(Unbounded::Contract(Contraction { min: DEFAULT_BOX.0, max: DEFAULT_BOX.1 })),
                     Value::Bool(false) => None,
                     other => return Err(type_error(a.get("unbounded").1, "contraction", other)),
                 };
-                if unbounded.is_some() {
-                    unbounded_grids(a)?;
+                if let Some(u) = &unbounded {
+                    unbounded_grids(a, u)?;
                 }
                 let view_dependent = matches!(a.get("view_dependent").0, Value::Bool(true));
                 let direction = if view_dependent { Some(encoding("direction")?) } else { None };
@@ -360,10 +369,11 @@ pub(crate) fn builtins() -> Vec<Builtin> {
     ]
 }
 
-/// In an unbounded scene the grids cover the contracted cube [-2, 2]³:
-/// a box given to the hash grid or the occupancy grid would disagree with
-/// the contraction's inner box, so it is refused (one setting, not three).
-fn unbounded_grids(a: &Args) -> Result<(), Diag> {
+/// In an unbounded scene the grids cover the contracted cube [-2, 2]³
+/// (NDC's box): a box given to the hash grid or the occupancy grid would
+/// disagree with the contraction's inner box, so it is refused (one
+/// setting, not three).
+fn unbounded_grids(a: &Args, u: &Unbounded) -> Result<(), Diag> {
     let boxes = [
         (
             "position",
@@ -384,9 +394,15 @@ fn unbounded_grids(a: &Args) -> Result<(), Diag> {
         if b.is_some_and(|b| b != DEFAULT_BOX) {
             return Err(value_error(
                 a.get(name).1,
-                "in an unbounded scene the grids cover the contracted cube [-2, 2]³, not a box of their own",
+                match u {
+                    Unbounded::Contract(_) => "in an unbounded scene the grids cover the contracted cube [-2, 2]³, not a box of their own",
+                    Unbounded::Ndc(_) => "in NDC the grids cover the NDC box [-1.5, 1.5] x [-1.5, 1.5] x [-1, 1], not a box of their own",
+                },
                 "a box given here",
-                "drop `min` and `max` from this grid and give the inner box to `contraction(min: ..., max: ...)`",
+                match u {
+                    Unbounded::Contract(_) => "drop `min` and `max` from this grid and give the inner box to `contraction(min: ..., max: ...)`",
+                    Unbounded::Ndc(_) => "drop `min` and `max` from this grid",
+                },
             ));
         }
     }

@@ -56,6 +56,7 @@ pub(crate) fn builtins() -> Vec<Builtin> {
                 opt("test_views", Type::Number, "0", "views held out as the val and test splits (fewer than the views)"),
                 opt("seed", Type::Number, "0", "seed of the shuffle that picks the held-out views"),
                 opt("alpha", Type::Bool, "true", "images keep the hit mask as alpha; `false` writes RGB images whose background is the scene's, as a camera records them"),
+                opt("llff_bounds", Type::list(Type::Number), "[]", "`[near, far]`: also write LLFF's layout for forward-facing scenes (`poses_bounds.npy` with these depth bounds for every frame, and `images/` in view order), which `capture(..., format: \"llff\")` and the original NeRF's code read; needs one centred pinhole camera for all views"),
             ],
             OUTPUT,
             |a| {
@@ -64,7 +65,23 @@ pub(crate) fn builtins() -> Vec<Builtin> {
                 let test_views = a.count("test_views", 0, MAX_VIEWS as u64)? as usize;
                 let seed = a.count("seed", 0, u32::MAX as u64)?;
                 let alpha = !matches!(a.get("alpha").0, Value::Bool(false));
-                Ok(Value::Output(Arc::new(Output { kind: OutputKind::Dataset { test_views, seed, alpha }, path, span: a.span })))
+                let bounds: Vec<f64> = match a.get("llff_bounds").0 {
+                    Value::List(items) => items.iter().map(|v| if let Value::Number(x) = v { *x } else { f64::NAN }).collect(),
+                    _ => vec![f64::NAN],
+                };
+                let llff_bounds = match bounds.as_slice() {
+                    [] => None,
+                    &[near, far] if near > 0.0 && far > near && far.is_finite() => Some([near, far]),
+                    _ => {
+                        return Err(value_error(
+                            a.get("llff_bounds").1,
+                            "LLFF's depth bounds are two numbers, 0 < near < far",
+                            "not [near, far]",
+                            "write the nearest and farthest depth the cameras see, e.g. `llff_bounds: [2, 40]`",
+                        ))
+                    }
+                };
+                Ok(Value::Output(Arc::new(Output { kind: OutputKind::Dataset { test_views, seed, alpha, llff_bounds }, path, span: a.span })))
             },
         ),
         animation("geometry_gif", "A neural SDF's surface, sphere-traced from every view with normals as colours, as an animated GIF (after `train`): the geometry of a `volsdf(neural_sdf(...))` whose `gif` shows its volume-rendered colour.", |a| out(a, OutputKind::GeometryGif { fps: a.positive("fps")? }, "gif")),
