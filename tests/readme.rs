@@ -278,20 +278,18 @@ fn every_name_in_a_readme_table_is_sdfls() {
         .collect();
     let mut names = 0;
     let mut failures = Vec::new();
-    for (line, span) in code_spans(&rows) {
-        // Single words only: `sdfl run FILE` is a command, not a name.
-        for word in Some(span.as_str()).filter(|w| !w.contains(' ')) {
-            let bare = word
-                .chars()
-                .all(|c| c.is_ascii_lowercase() || c.is_ascii_digit() || c == '_')
-                && word.starts_with(|c: char| c.is_ascii_lowercase());
-            if !bare {
-                continue;
-            }
-            names += 1;
-            if env.builtin(word).is_none() && !KEYWORDS.contains(&word) {
-                failures.push(format!("table row {line}: `{word}` is no built-in"));
-            }
+    for (line, word) in code_spans(&rows) {
+        // Single lower-case words only: `sdfl run FILE` is a command, not a name.
+        let bare = word
+            .chars()
+            .all(|c| c.is_ascii_lowercase() || c.is_ascii_digit() || c == '_')
+            && word.starts_with(|c: char| c.is_ascii_lowercase());
+        if !bare {
+            continue;
+        }
+        names += 1;
+        if env.builtin(&word).is_none() && !KEYWORDS.contains(&word.as_str()) {
+            failures.push(format!("table row {line}: `{word}` is no built-in"));
         }
     }
     assert!(
