@@ -17,7 +17,7 @@ use sdfl_stdlib::value::{CaptureFormat, CaptureOrient, CaptureSpec};
 use super::image::{check_dataset, composite_over, read_rgba_image};
 use super::normalize::{Orient, SceneFrame};
 use super::npy::RgbImage;
-use crate::train::TrainView;
+use super::TrainView;
 
 pub use sdfl_stdlib::lens::{Distortion, Intrinsics};
 

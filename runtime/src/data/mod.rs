@@ -46,3 +46,13 @@ pub fn argument_span(e: &io::Error) -> Option<Span> {
         .and_then(|r| r.downcast_ref::<AtArgument>())
         .map(|a| a.span)
 }
+
+/// One training view: a camera and the image it sees.
+#[derive(Debug, Clone)]
+pub struct TrainView {
+    pub camera: sdfl_stdlib::camera::Camera,
+    pub image: npy::RgbImage,
+    /// Pixels to train on and score (row-major, `false`: masked out, as a
+    /// capture's `mask_path` says); `None`: every pixel.
+    pub mask: Option<std::sync::Arc<[bool]>>,
+}

@@ -18,7 +18,7 @@ use glam::DVec3;
 use super::capture::{camera_of, invalid};
 use super::image::{check_dataset, composite_over, read_rgba_image};
 use super::npy::RgbImage;
-use crate::train::TrainView;
+use super::TrainView;
 
 pub use super::nerfstudio::{read_transforms, Frame, Transforms, MAX_JSON_BYTES};
 

@@ -25,7 +25,7 @@ use crate::output::{to_u8, write_png};
 use crate::render::{render_view, view_path, Gifs, Needs, ViewScenes, Written};
 use crate::sdf::{LowerOptions, Lowered};
 use crate::train::checkpoint::{Checkpoint, Fnv};
-use crate::train::fused::field_at;
+use crate::train::model::field_at;
 use crate::train::{FieldObjective, Objective, Run, TrainError, TrainModel, TrainSetup, TrainView};
 use crate::volume::figures;
 use crate::volume::render::{render_field_image_with, DensityModel};

@@ -12,6 +12,7 @@
 //! partial sums are added in order, so a step is bit-identical whatever the
 //! thread count or scheduling: the basis of exact resumption.
 
+use super::model::field_at;
 use rayon::prelude::*;
 use sdfl_stdlib::num::{Dual, Real, V3};
 use sdfl_stdlib::shape::ArgSource;
@@ -61,22 +62,6 @@ impl Batch {
 pub struct LossGrad {
     pub loss: f64,
     pub grad: Vec<f64>,
-}
-
-/// The field of `model` at `p`: signed distance and colour.
-#[inline(always)]
-pub fn field_at<T: Real, A: sdfl_stdlib::shape::ArgSource<T>>(
-    model: &TrainModel,
-    args: &A,
-    p: V3<T>,
-) -> (T, V3<T>) {
-    let s = model.field.shape.sample(p, args);
-    let material = s.material.unwrap_or(&model.field.color);
-    // Fields refuse materials that need normals (painted ones too).
-    let c = material
-        .unlit_color(p, s.center, args)
-        .unwrap_or(V3::splat(T::lit(0.5)));
-    (s.d, c)
 }
 
 /// Samples whose adjoints are below this fraction of the ray's largest are

@@ -16,8 +16,9 @@ use rayon::prelude::*;
 use sdfl_stdlib::num::{Dual, Real, V3};
 use sdfl_stdlib::shape::ArgSource;
 
-use super::fused::{field_at, Batch, LossGrad, CHUNK};
+use super::fused::{Batch, LossGrad, CHUNK};
 use super::graph_ops::weights_from_log_keep;
+use super::model::field_at;
 use super::model::TrainModel;
 use super::TrainError;
 use crate::volume::march::{absorption, intervals_into, log_keep};

@@ -202,3 +202,19 @@ impl<F: Real, const N: usize> ArgSource<Dual<F, N>> for DualArgs<'_, F, N> {
         }
     }
 }
+
+/// The field of `model` at `p`: signed distance and colour.
+#[inline(always)]
+pub fn field_at<T: Real, A: sdfl_stdlib::shape::ArgSource<T>>(
+    model: &TrainModel,
+    args: &A,
+    p: V3<T>,
+) -> (T, V3<T>) {
+    let s = model.field.shape.sample(p, args);
+    let material = s.material.unwrap_or(&model.field.color);
+    // Fields refuse materials that need normals (painted ones too).
+    let c = material
+        .unlit_color(p, s.center, args)
+        .unwrap_or(V3::splat(T::lit(0.5)));
+    (s.d, c)
+}

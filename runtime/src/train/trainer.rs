@@ -17,18 +17,9 @@ use super::export_names::{Layout, Piece};
 use super::fused::Batch;
 use super::objective::{Objective, TensorSpec};
 use super::{Adam, ParamId, ParamStore, TrainError};
-use crate::data::npy::RgbImage;
 use crate::volume::{random_rays, ImageSize, SplitMix64, Stratified};
 
-/// One training view: a camera and the image it sees.
-#[derive(Debug, Clone)]
-pub struct TrainView {
-    pub camera: Camera,
-    pub image: RgbImage,
-    /// Pixels to train on and score (row-major, `false`: masked out, as a
-    /// capture's `mask_path` says); `None`: every pixel.
-    pub mask: Option<std::sync::Arc<[bool]>>,
-}
+pub use crate::data::TrainView;
 
 /// What a run needs besides the model.
 #[derive(Debug, Clone)]
@@ -537,6 +528,7 @@ mod warning_tests {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::data::npy::RgbImage;
     use crate::train::objective::TensorSpec;
     use sdfl_stdlib::param::Bound;
     use sdfl_stdlib::value::{LastInterval, Optimizer, Sampler, Schedule};

@@ -37,7 +37,7 @@ use sdfl_stdlib::num::{Real, V3};
 use sdfl_stdlib::param::{Arg, ParamInit};
 use sdfl_stdlib::shape::ArgSource;
 
-use super::fused::field_at;
+use super::model::field_at;
 use super::model::TrainModel;
 use crate::volume::march::{absorption, log_keep};
 
