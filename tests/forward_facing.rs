@@ -24,10 +24,6 @@ fn world() -> String {
     for (from, to) in [
         ("let columns = 6\n", "let columns = 4\n"),
         ("let rows = 5\n", "let rows = 4\n"),
-        (
-            "lens(cameras, size: [120, 90], focal: [105, 105], center: [60, 45])",
-            "lens(cameras, size: [48, 36], focal: [42, 42], center: [24, 18])",
-        ),
         ("size: [120, 90], background", "size: [48, 36], background"),
     ] {
         assert!(out.contains(from), "{from}");

@@ -513,28 +513,11 @@ impl Write for SharedFile {
     }
 }
 
-/// A perceptual colour map (inferno-like, five stops) for `x` in 0..1.
+/// The inferno colour map (perceptually uniform, dark to light) for `x`
+/// in 0..1 (clamped; non-finite is the dark end): depth images and GIFs,
+/// the same map as `depth_map(colormap: "inferno")`.
 pub fn colormap(x: f32) -> [u8; 3] {
-    const STOPS: [[f32; 3]; 5] = [
-        [0.0, 0.0, 4.0],
-        [87.0, 16.0, 110.0],
-        [188.0, 55.0, 84.0],
-        [249.0, 142.0, 9.0],
-        [252.0, 255.0, 164.0],
-    ];
-    let x = if x.is_finite() {
-        x.clamp(0.0, 1.0)
-    } else {
-        0.0
-    };
-    let f = x * 4.0;
-    let i = (f.floor() as usize).min(3);
-    let w = f - i as f32;
-    let mut out = [0u8; 3];
-    for c in 0..3 {
-        out[c] = (STOPS[i][c] * (1.0 - w) + STOPS[i + 1][c] * w).round() as u8;
-    }
-    out
+    crate::export::depth::colour(sdfl_stdlib::value::Colormap::Inferno, x as f64)
 }
 
 /// Linear 0..1 to 8 bits (no gamma: the assignment's images are linear).
