@@ -80,7 +80,9 @@ fn render(kind: DensityKind, reps: usize) -> (f64, f64) {
         (sdfl_stdlib::sdf::torus(q, 1.0, 0.3), [0.9, 0.5, 0.2])
     };
     timed(reps, || {
-        std::hint::black_box(render_field_image(field, model, &sampler, &cam, size).expect("render"));
+        std::hint::black_box(
+            render_field_image(field, model, &sampler, &cam, size).expect("render"),
+        );
     })
 }
 
