@@ -1,7 +1,6 @@
 //! Density benchmark: `cargo run --release -p sdfl-bench -- density [reps]`.
 //!
-//! What every density runs through, per density (`sdf_volume`, `volsdf`,
-//! `neus`): a 256² volume render of a torus (64 samples a ray, f32, all
+//! What every density runs through, per registered density: a 256² volume render of a torus (64 samples a ray, f32, all
 //! threads); the fused training kernel's loss and gradient on one batch of
 //! the torus fit (4096 rays × 64 samples); and, for the densities that take
 //! a neural SDF, one training step of a neural SDF seen as a volume (512
@@ -14,6 +13,7 @@ use sdfl_runtime::neural::surface::SurfaceObjective;
 use sdfl_runtime::train::{Run, TrainModel, TrainSetup};
 use sdfl_runtime::volume::{render_field_image, DensityModel, ImageSize, Stratified};
 use sdfl_stdlib::camera::Camera;
+use sdfl_stdlib::density::NeuralUse;
 use sdfl_stdlib::num::V3;
 use sdfl_stdlib::value::{DensityKind, Field, LastInterval};
 
@@ -59,10 +59,7 @@ fn timed(reps: usize, mut f: impl FnMut()) -> (f64, f64) {
 }
 
 fn render(kind: DensityKind, reps: usize) -> (f64, f64) {
-    let alpha = match kind {
-        DensityKind::Opacity => 1.0,
-        DensityKind::VolSdf | DensityKind::Neus => 20.0,
-    };
+    let alpha = kind.alpha_max().min(20.0) as f32;
     let model = DensityModel {
         kind,
         alpha,
@@ -125,16 +122,13 @@ pub fn main(reps: usize) {
             .build()
             .expect("thread pool");
         pool.install(|| {
-            for (name, kind) in [
-                ("sdf_volume", DensityKind::Opacity),
-                ("volsdf", DensityKind::VolSdf),
-                ("neus", DensityKind::Neus),
-            ] {
+            for &kind in DensityKind::ALL {
+                let name = kind.name();
                 let (med, min) = render(kind, reps);
                 println!("| render 256² | {name} | {threads} | {med:.2} | {min:.2} |");
                 let (med, min) = kernel(name, reps);
                 println!("| fused kernel | {name} | {threads} | {med:.2} | {min:.2} |");
-                if kind != DensityKind::Opacity {
+                if kind.neural() != NeuralUse::Refused {
                     let (med, min) = surface_step(name, reps);
                     println!("| neural surface step | {name} | {threads} | {med:.2} | {min:.2} |");
                 }

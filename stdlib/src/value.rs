@@ -369,7 +369,7 @@ pub enum Field {
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct NeuralSurface {
     pub sdf: NeuralSdf,
-    /// `VolSdf` or `Neus`.
+    /// A density that takes a neural SDF ([`DensityKind::neural`]).
     pub density: DensityKind,
     pub alpha: f64,
     /// The starting β when `train_beta`.

@@ -130,9 +130,10 @@ mod tests {
                 .zip(&delta)
                 .map(|(&z, &d)| {
                     let s = kind.sigma(sdf(z as f64), alpha, 1.0 / beta);
-                    match kind {
-                        DensityKind::Opacity => s,
-                        DensityKind::VolSdf | DensityKind::Neus => 1.0 - (-s * d as f64).exp(),
+                    if kind.per_sample_opacity() {
+                        s
+                    } else {
+                        1.0 - (-s * d as f64).exp()
                     }
                 })
                 .collect();

@@ -1,12 +1,14 @@
-//! A neural SDF seen as a volume and trained from images (VolSDF; NeuS-style
-//! density): samples along rays → the distance network with its exact
-//! gradient → density `σ(f)` and a colour network that sees the encoded
-//! point, the gradient (the surface normal) and the encoded view direction
-//! → compositing → MSE, plus the eikonal term `(‖∇f‖ − 1)²` at the samples.
+//! A neural SDF seen as a volume and trained from images (VolSDF; NeuS):
+//! samples along rays → the distance network with its exact gradient →
+//! each sample's optical depth `τ(f)` (the density's one definition,
+//! [`sdfl_stdlib::density`], through duals) and a colour network that sees
+//! the encoded point, the gradient (the surface normal) and the encoded
+//! view direction → compositing → MSE, plus the eikonal term `(‖∇f‖ − 1)²`
+//! at the samples.
 //!
-//! Backward: compositing gives `∂L/∂σ` and `∂L/∂c`; the colour network turns
+//! Backward: compositing gives `∂L/∂τ` and `∂L/∂c`; the colour network turns
 //! `∂L/∂c` into its weights' gradient and `∂L/∂∇f` (the normal is one of its
-//! inputs); `∂L/∂f = ∂L/∂σ·σ'(f)`. The distance network takes both adjoints
+//! inputs); `∂L/∂f = ∂L/∂τ·τ'(f)`. The distance network takes both adjoints
 //! at once ([`SdfNet::backward`]: its second-order pass through the tangents).
 
 use rayon::prelude::*;
