@@ -27,6 +27,7 @@ fn sigma_ref(kind: DensityKind, sdf: f64, alpha: f64, beta: f64) -> f64 {
             let s = sigmoid(-sdf / beta);
             alpha / beta * s * (1.0 - s)
         }
+        DensityKind::Logistic => alpha * sigmoid(-sdf / beta),
     }
 }
 
@@ -38,7 +39,7 @@ fn absorption_ref(kind: DensityKind, sdf: f64, alpha: f64, beta: f64, delta: f64
             let o = alpha * psi(-sdf, beta);
             (o, (1.0 - o).ln())
         }
-        DensityKind::VolSdf | DensityKind::Neus => {
+        DensityKind::VolSdf | DensityKind::Neus | DensityKind::Logistic => {
             let tau = sigma_ref(kind, sdf, alpha, beta) * delta;
             (1.0 - (-tau).exp(), -tau)
         }
@@ -55,7 +56,7 @@ fn neural_ref(
     delta: f64,
 ) -> f64 {
     match kind {
-        DensityKind::Opacity | DensityKind::VolSdf => {
+        DensityKind::Opacity | DensityKind::VolSdf | DensityKind::Logistic => {
             -absorption_ref(kind, f, alpha, beta, delta).1
         }
         DensityKind::Neus => match next {
