@@ -55,7 +55,6 @@ const CASES: &[(&str, &str)] = &[
     ("opacity at α = 1", "sdf_volume(sphere(0.9), alpha: param(1), beta: param(0.2))"),
     ("volsdf", "volsdf(sphere(0.9), alpha: param(8), beta: param(0.08), color: param([0.2, 0.4, 0.6]))"),
     ("neus", "neus(sphere(0.9), alpha: param(20), beta: param(0.07))"),
-    ("logistic", "logistic_volume(sphere(0.9), alpha: param(8), beta: param(0.08))"),
 ];
 
 #[test]

@@ -174,8 +174,6 @@ densities! {
     /// NeuS: the logistic density for shapes (part 8.3), the unbiased
     /// interval opacity for neural SDFs.
     Neus,
-    /// Scratch: σ = α·sigmoid(−sdf/β), the logistic CDF.
-    Logistic,
 }
 
 /// `α·Ψ_β(−sdf)` (Ψ_β the Laplace CDF) from one `e = exp(−|sdf|/β)`:
@@ -302,23 +300,6 @@ impl Density for Neus {
         } else {
             T::zero()
         }
-    }
-}
-
-impl Density for Logistic {
-    const KIND: DensityKind = DensityKind::Logistic;
-    const NAME: &'static str = "logistic_volume";
-    const TITLE: &'static str = "logistic";
-    const DOC: &'static str = "An SDF as a volume of density `alpha·sigmoid(-sdf/β)`.";
-    const ALPHA_DEFAULT: &'static str = "10";
-    const ALPHA_MAX: f64 = f64::INFINITY;
-    const NEURAL: NeuralUse = NeuralUse::PerSample;
-
-    #[inline(always)]
-    fn sigma<T: Real>(sdf: T, alpha: T, inv_beta: T) -> T {
-        let e = (-sdf.abs() * inv_beta).exp();
-        let one_e = T::one() + e;
-        T::if_gt(T::zero(), sdf, alpha / one_e, alpha * e / one_e)
     }
 }
 

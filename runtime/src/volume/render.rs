@@ -182,7 +182,6 @@ mod tests {
                 DensityKind::Opacity => (1.0, 1e-4, 0.1),
                 DensityKind::VolSdf => (10.0, 0.05, 0.1),
                 DensityKind::Neus => (50.0, 0.05, 0.3),
-                DensityKind::Logistic => (10.0, 0.05, 0.1),
             };
             let m = model(kind, alpha, beta);
             let img = render_field_image(sphere, m, &s, &cam, size).unwrap();

@@ -27,7 +27,6 @@ fn sigma_ref(kind: DensityKind, sdf: f64, alpha: f64, beta: f64) -> f64 {
             let s = sigmoid(-sdf / beta);
             alpha / beta * s * (1.0 - s)
         }
-        DensityKind::Logistic => alpha * sigmoid(-sdf / beta),
     }
 }
 
@@ -39,7 +38,7 @@ fn absorption_ref(kind: DensityKind, sdf: f64, alpha: f64, beta: f64, delta: f64
             let o = alpha * psi(-sdf, beta);
             (o, (1.0 - o).ln())
         }
-        DensityKind::VolSdf | DensityKind::Neus | DensityKind::Logistic => {
+        DensityKind::VolSdf | DensityKind::Neus => {
             let tau = sigma_ref(kind, sdf, alpha, beta) * delta;
             (1.0 - (-tau).exp(), -tau)
         }
@@ -56,7 +55,7 @@ fn neural_ref(
     delta: f64,
 ) -> f64 {
     match kind {
-        DensityKind::Opacity | DensityKind::VolSdf | DensityKind::Logistic => {
+        DensityKind::Opacity | DensityKind::VolSdf => {
             -absorption_ref(kind, f, alpha, beta, delta).1
         }
         DensityKind::Neus => match next {
