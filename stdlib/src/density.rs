@@ -5,7 +5,7 @@
 //! kernels, the neural surface and the f64 references all run the same
 //! code; derivatives come from [`crate::num::Dual`], none is written by hand.
 //!
-//! [`densities!`] lists the densities once: it makes [`DensityKind`] (one
+//! The `densities!` macro lists the densities once: it makes [`DensityKind`] (one
 //! variant each), the dispatch methods on it (exhaustive matches) and
 //! [`visit_densities`], which the built-ins table and the tests iterate, so
 //! a density left out of either cannot compile or fails a test.
@@ -20,7 +20,9 @@ use crate::num::Real;
 /// each formed without cancellation.
 #[derive(Debug, Clone, Copy)]
 pub struct Absorption<T> {
+    /// `a`: the share of light the sample stops.
     pub opacity: T,
+    /// `1 − a`: the share it lets through.
     pub keep: T,
 }
 
@@ -46,6 +48,7 @@ impl NeuralUse {
 /// One density. `inv_beta` is `1/β`, computed once per ray so that hot
 /// loops do not divide.
 pub trait Density {
+    /// Its variant of [`DensityKind`].
     const KIND: DensityKind;
     /// The built-in that makes a volume with it.
     const NAME: &'static str;
@@ -58,6 +61,7 @@ pub trait Density {
     /// The largest `alpha` (1 where it is an opacity); the smallest is
     /// [`ALPHA_MIN`] for all.
     const ALPHA_MAX: f64;
+    /// Whether, and how, it takes a neural SDF.
     const NEURAL: NeuralUse;
     /// Whether a sample absorbs a fixed opacity whatever its interval
     /// ([`Density::sigma`] is then that opacity, composited as one).
@@ -99,6 +103,7 @@ pub const ALPHA_MIN: f64 = 1e-6;
 
 /// Something done for every density ([`visit_densities`]).
 pub trait DensityVisitor {
+    /// Called once for each density `D`.
     fn visit<D: Density>(&mut self);
 }
 
@@ -127,18 +132,23 @@ macro_rules! densities {
             /// Every density, in the order listed.
             pub const ALL: &'static [DensityKind] = &[$(DensityKind::$name),*];
 
+            /// [`Density::NAME`].
             pub fn name(self) -> &'static str {
                 match self { $(DensityKind::$name => $name::NAME,)* }
             }
+            /// [`Density::TITLE`].
             pub fn title(self) -> &'static str {
                 match self { $(DensityKind::$name => $name::TITLE,)* }
             }
+            /// [`Density::ALPHA_MAX`].
             pub fn alpha_max(self) -> f64 {
                 match self { $(DensityKind::$name => $name::ALPHA_MAX,)* }
             }
+            /// [`Density::NEURAL`].
             pub fn neural(self) -> NeuralUse {
                 match self { $(DensityKind::$name => $name::NEURAL,)* }
             }
+            /// [`Density::PER_SAMPLE_OPACITY`].
             pub fn per_sample_opacity(self) -> bool {
                 match self { $(DensityKind::$name => $name::PER_SAMPLE_OPACITY,)* }
             }
