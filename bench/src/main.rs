@@ -11,7 +11,7 @@
 //! renderer (see `peer.rs`), `-- showcase` the showcase's trace with and
 //! without tiles.
 //! `cargo run --release -p sdfl-bench -- train` times training steps instead
-//! (see `train.rs`; `-- train 20 fused` the fused kernel only); `-- nerf` times NeRF steps and `-- neural-sdf` neural SDF steps (see `nerf.rs`).
+//! (see `train.rs`; `-- train 20 fused` the fused kernel only); `-- nerf` times NeRF steps and `-- neural-sdf` neural SDF steps (see `nerf.rs`); `-- density` what each density runs through (see `density.rs`).
 
 use std::time::Instant;
 
@@ -24,6 +24,7 @@ use sdfl_stdlib::shape::Shape;
 use sdfl_stdlib::RenderJob;
 use std::sync::Arc;
 
+mod density;
 mod nerf;
 mod peer;
 mod train;
@@ -264,6 +265,13 @@ fn main() {
             .unwrap_or(20);
         let only_fused = std::env::args().nth(3).as_deref() == Some("fused");
         return train::main(reps, only_fused);
+    }
+    if std::env::args().nth(1).as_deref() == Some("density") {
+        let reps = std::env::args()
+            .nth(2)
+            .and_then(|r| r.parse().ok())
+            .unwrap_or(10);
+        return density::main(reps);
     }
     if std::env::args().nth(1).as_deref() == Some("nerf") {
         let reps = std::env::args()

@@ -12,7 +12,7 @@ use sdfl_runtime::train::fused::{
 use sdfl_runtime::train::TrainModel;
 use sdfl_runtime::volume::{camera_rays, ImageSize, Stratified};
 use sdfl_stdlib::camera::Camera;
-use sdfl_stdlib::value::LastInterval;
+use sdfl_stdlib::value::{DensityKind, LastInterval};
 
 /// Models, each with every argument that can be trained marked `param`.
 const CASES: &[(&str, &str)] = &[
@@ -56,6 +56,17 @@ const CASES: &[(&str, &str)] = &[
     ("volsdf", "volsdf(sphere(0.9), alpha: param(8), beta: param(0.08), color: param([0.2, 0.4, 0.6]))"),
     ("neus", "neus(sphere(0.9), alpha: param(20), beta: param(0.07))"),
 ];
+
+#[test]
+fn every_density_has_a_row() {
+    for k in DensityKind::ALL {
+        let call = format!("{}(", k.name());
+        assert!(
+            CASES.iter().any(|(_, src)| src.starts_with(&call)),
+            "{k:?} has no row in CASES"
+        );
+    }
+}
 
 fn model(field: &str) -> TrainModel {
     let src = format!(
@@ -183,15 +194,25 @@ fn f32_kernel_matches_f64() {
 
 #[test]
 fn hard_cases_have_finite_values_and_gradients() {
-    // Tiny β, huge α and the assignment's infinite last interval.
-    let tiny = [
-        "volsdf(sphere(param(0.9)), alpha: param(1e4), beta: param(1e-4))",
-        "neus(sphere(param(0.9)), alpha: param(1e4), beta: param(1e-4))",
-        "sdf_volume(sphere(param(0.9)), alpha: param(1), beta: param(1e-4))",
-    ];
+    // Every density with tiny β, its largest α up to 1e4 and the
+    // assignment's infinite last interval.
+    let tiny: Vec<String> = DensityKind::ALL
+        .iter()
+        .map(|k| {
+            format!(
+                "{}(sphere(param(0.9)), alpha: param({}), beta: param(1e-4))",
+                k.name(),
+                k.alpha_max().min(1e4)
+            )
+        })
+        .collect();
     // A ray grazing the unit sphere: the eye 3 away, looking along a tangent.
     let grazing = batch([1.0, 0.0, -3.0], LastInterval::Infinite);
-    for src in tiny.iter().chain(CASES.iter().map(|c| &c.1)) {
+    for src in tiny
+        .iter()
+        .map(String::as_str)
+        .chain(CASES.iter().map(|c| c.1))
+    {
         let m = model(src);
         let v = m.initial_values();
         for b in [

@@ -9,6 +9,7 @@
 pub mod builtins;
 pub mod camera;
 pub mod camera_path;
+pub mod density;
 pub mod effects;
 pub mod eval;
 pub mod imports;

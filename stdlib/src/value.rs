@@ -352,17 +352,7 @@ pub enum HitTolerance {
     Absolute,
 }
 
-/// How an SDF becomes absorption in a volume.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
-#[serde(rename_all = "snake_case")]
-pub enum DensityKind {
-    /// The assignment's opacity form `α·Ψ_β(-sdf)` per sample (parts 1–2).
-    Opacity,
-    /// VolSDF: density `σ = α·Ψ_β(-sdf)` (part 7).
-    VolSdf,
-    /// NeuS-style logistic density (part 8.3).
-    Neus,
-}
+pub use crate::density::DensityKind;
 
 /// A field: something a ray marches through, with density and colour.
 #[derive(Debug, Clone)]
@@ -385,7 +375,7 @@ pub enum Field {
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct NeuralSurface {
     pub sdf: NeuralSdf,
-    /// `VolSdf` or `Neus`.
+    /// A density that takes a neural SDF ([`DensityKind::neural`]).
     pub density: DensityKind,
     pub alpha: f64,
     /// The starting β when `train_beta`.

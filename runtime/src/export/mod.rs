@@ -14,7 +14,7 @@
 use glam::{DAffine3, DVec3};
 use rayon::prelude::*;
 use sdfl_stdlib::camera::Camera;
-use sdfl_stdlib::value::{DensityKind, LastInterval};
+use sdfl_stdlib::value::LastInterval;
 
 use crate::mesh::{DistanceField, Mesh, MeshGrid};
 use crate::neural::nerf::{NerfNet, NerfWork};
@@ -68,13 +68,13 @@ impl<F: Fn([f32; 3]) -> (f32, [f32; 3]) + Sync> RadianceField for Analytic<F> {
             .with_min_len(256)
             .for_each(|(p, (s, c))| {
                 let (d, col) = (self.field)(*p);
-                *s = crate::volume::march::density(m.kind, d, m.alpha, inv_beta);
+                *s = m.kind.sigma(d, m.alpha, inv_beta);
                 *c = col;
             });
     }
 
     fn opacity_form(&self) -> bool {
-        self.model.kind == DensityKind::Opacity
+        self.model.kind.per_sample_opacity()
     }
 }
 

@@ -20,7 +20,7 @@ use sdfl_stdlib::value::{DensityKind, LastInterval};
 
 use super::model::TrainModel;
 use super::tape::{self, Tape};
-use crate::volume::march::{absorption, intervals_into, log_keep, march, Depths, RayColour};
+use crate::volume::march::{intervals_into, march, Depths, RayColour};
 use crate::volume::Ray;
 
 /// Most tangents carried per pass.
@@ -156,8 +156,8 @@ impl<F: Real> PlainMarch<F> {
     fn add(&mut self, kind: DensityKind, sdf: F, c: [F; 3], dk: f32, plain: &mut PlainSamples<F>) {
         let sdf = Dual::<F, 3>::seed(sdf, 0);
         let dk = Dual::lit(dk as f64);
-        let a = absorption(kind, sdf, self.alpha, self.inv_beta, dk);
-        let lk = log_keep(kind, sdf, self.alpha, self.inv_beta, dk);
+        let a = kind.absorption(sdf, self.alpha, self.inv_beta, dk);
+        let lk = kind.log_keep(sdf, self.alpha, self.inv_beta, dk);
         for i in 0..3 {
             self.colour[i] = self.colour[i] + self.trans * a.opacity.v * c[i];
         }

@@ -21,7 +21,7 @@ use super::graph_ops::weights_from_log_keep;
 use super::model::field_at;
 use super::model::TrainModel;
 use super::TrainError;
-use crate::volume::march::{absorption, intervals_into, log_keep};
+use crate::volume::march::intervals_into;
 
 /// Values per sample of the field op: opacity, `ln(1 − opacity)`, RGB.
 const OUT: usize = 5;
@@ -59,9 +59,12 @@ fn for_each_sample<F: Real, const N: usize>(
         let p = o + d * Dual::lit(tk as f64);
         let (sdf, c) = field_at(model, &args, p);
         let dk = Dual::lit(dk as f64);
-        let a = absorption(f.density, sdf, alpha, inv_beta, dk);
+        let a = f.density.absorption(sdf, alpha, inv_beta, dk);
         // Clamped so that exp(cumsum) never meets −∞·0 in the matmul.
-        let lk = log_keep(f.density, sdf, alpha, inv_beta, dk).max(Dual::lit(-1e4));
+        let lk = f
+            .density
+            .log_keep(sdf, alpha, inv_beta, dk)
+            .max(Dual::lit(-1e4));
         each(k, [a.opacity, lk, c.x, c.y, c.z]);
     }
 }

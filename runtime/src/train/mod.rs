@@ -13,9 +13,9 @@
 //!   compositing and loss as a dfdx autodiff graph.
 //! * [`checkpoint`]: safetensors checkpoints with a fingerprint of the run.
 //! * [`params`]: runtime-sized named parameters, Adam through dfdx's kernel.
-//! * [`graph_ops`]: differentiable compositing and SDF densities as dfdx
-//!   graph ops on `[rays, samples]` tensors (cumsum as a triangular matmul),
-//!   for fields whose evaluation is itself a dfdx graph.
+//! * [`graph_ops`]: differentiable compositing as dfdx graph ops on
+//!   `[rays, samples]` tensors (cumsum as a triangular matmul), for fields
+//!   whose evaluation is itself a dfdx graph.
 
 pub mod checkpoint;
 pub mod export_names;

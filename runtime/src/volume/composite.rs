@@ -7,7 +7,7 @@
 //! * [`weights_from_opacity`]: the assignment's per-sample opacity, which may
 //!   be exactly 1; composited as a running product, so no `ln 0` appears.
 //! * [`weights_from_log_keep`]: `ln(1 − opacity)` together with the opacity
-//!   (see [`crate::volume::density::sdf_log_keep`]); the form the trainers
+//!   (see [`sdfl_stdlib::density::Density::log_keep`]); the form the trainers
 //!   differentiate.
 //!
 //! All write into caller-provided slices so the hot loops do not allocate;

@@ -1,4 +1,5 @@
-//! One ray through a field, written once over [`Real`]: rendering runs it in
+//! One ray through a field, written once over [`Real`] (each density's
+//! formulas are in [`sdfl_stdlib::density`]): rendering runs it in
 //! f32, training in [`sdfl_stdlib::num::Dual`] numbers whose tangents are
 //! the derivatives with respect to every trainable parameter, and the
 //! reference tests in f64.
@@ -9,100 +10,9 @@
 //! `1 − (1 − e/2)`), so an opaque sample gives transmittance exactly 0 and
 //! finite derivatives, and the march stops there.
 
+pub use sdfl_stdlib::density::Absorption;
 use sdfl_stdlib::num::{Real, V3};
 use sdfl_stdlib::value::{DensityKind, LastInterval};
-
-/// What one sample absorbs: its opacity `a` and the kept fraction `1 − a`.
-#[derive(Debug, Clone, Copy)]
-pub struct Absorption<T> {
-    pub opacity: T,
-    pub keep: T,
-}
-
-/// The absorption of one sample with signed distance `sdf` over an interval
-/// of length `delta` (unused by the per-sample opacity form), given `1/β`
-/// (computed once per ray, so hot loops do not divide).
-///
-/// Every form evaluates one `exp(−|x|) ∈ [0, 1]`, so no branch can overflow
-/// and tiny β and huge |sdf| give finite values and derivatives.
-#[inline(always)]
-pub fn absorption<T: Real>(
-    kind: DensityKind,
-    sdf: T,
-    alpha: T,
-    inv_beta: T,
-    delta: T,
-) -> Absorption<T> {
-    let half = T::lit(0.5);
-    match kind {
-        DensityKind::Opacity => {
-            // o = α·Ψ_β(−sdf); keep = 1 − o, formed so it is exact at α = 1.
-            // Both sides are formed and one selected (lanes of samples
-            // may lie on both).
-            let e = (-sdf.abs() * inv_beta).exp();
-            let out = alpha * e * half;
-            let inside = T::zero();
-            Absorption {
-                opacity: T::if_gt(inside, sdf, alpha - out, out),
-                keep: T::if_gt(inside, sdf, (T::one() - alpha) + out, T::one() - out),
-            }
-        }
-        DensityKind::VolSdf | DensityKind::Neus => {
-            let sigma = density(kind, sdf, alpha, inv_beta);
-            let tau = sigma * delta;
-            Absorption {
-                opacity: -(-tau).exp_m1(),
-                keep: (-tau).exp(),
-            }
-        }
-    }
-}
-
-/// `ln(1 − a)` of [`absorption`], finite wherever the kept fraction
-/// underflows: inside a shape with α = 1 the opacity form keeps `e/2`, whose
-/// logarithm is `ln ½ − |sdf|/β` exactly; the density forms keep `exp(−σΔ)`.
-#[inline(always)]
-pub fn log_keep<T: Real>(kind: DensityKind, sdf: T, alpha: T, inv_beta: T, delta: T) -> T {
-    match kind {
-        DensityKind::Opacity => {
-            let half = T::lit(0.5);
-            let x = -sdf.abs() * inv_beta;
-            let e = x.exp();
-            let outside = (-(alpha * e * half)).ln_1p();
-            let inside = if alpha.val() == 1.0 {
-                // ln(e/2) without forming e/2, which may underflow; the
-                // second term is 0 at α = 1 but carries ∂/∂α = 1 − 2/e (e
-                // floored so that the tangent stays finite in f32).
-                let e = e.max(T::lit(1e-20));
-                T::lit(0.5f64.ln()) + x + (alpha - T::one()) * (T::one() - T::lit(2.0) / e)
-            } else {
-                ((T::one() - alpha) + alpha * e * half).ln()
-            };
-            T::if_gt(T::zero(), sdf, inside, outside)
-        }
-        DensityKind::VolSdf | DensityKind::Neus => -(density(kind, sdf, alpha, inv_beta) * delta),
-    }
-}
-
-/// The density `σ` of the VolSDF and NeuS forms (the opacity form has none).
-#[inline(always)]
-pub fn density<T: Real>(kind: DensityKind, sdf: T, alpha: T, inv_beta: T) -> T {
-    let half = T::lit(0.5);
-    match kind {
-        // σ = α·Ψ_β(−sdf).
-        DensityKind::VolSdf | DensityKind::Opacity => {
-            let e = (-sdf.abs() * inv_beta).exp();
-            let out = alpha * e * half;
-            T::if_gt(T::zero(), sdf, alpha - out, out)
-        }
-        // (α/β)·s(1 − s), s = sigmoid(−sdf/β), as e/(1 + e)² with e = exp(−|sdf|/β).
-        DensityKind::Neus => {
-            let e = (-sdf.abs() * inv_beta).exp();
-            let one_e = T::one() + e;
-            alpha * inv_beta * e / (one_e * one_e)
-        }
-    }
-}
 
 /// The sample depths and intervals of a ray.
 #[derive(Debug, Clone, Copy)]
@@ -161,7 +71,7 @@ pub fn march<T: Real>(
         }
         let t = T::lit(tk as f64);
         let (sdf, c) = field(o + d * t);
-        let a = absorption(kind, sdf, alpha, inv_beta, T::lit(dk as f64));
+        let a = kind.absorption(sdf, alpha, inv_beta, T::lit(dk as f64));
         let w = trans * a.opacity;
         colour = colour + c * w;
         acc = acc + w;
@@ -182,14 +92,13 @@ mod tests {
     use super::*;
     use sdfl_stdlib::num::Dual;
 
-    /// Textbook compositing in f64 with `exp(−Σσ_jΔ_j)`, safe where used.
-    fn reference(sigma: &[f64], delta: &[f64], c: &[f64]) -> f64 {
-        let mut t_acc = 0.0;
+    /// Textbook compositing in f64: `w_k = Π_{j<k}(1 − o_j)·o_k`.
+    fn reference(opacity: &[f64], c: &[f64]) -> f64 {
+        let mut trans = 1.0;
         let mut out = 0.0;
-        for k in 0..sigma.len() {
-            let w = (-t_acc).exp() * (1.0 - (-sigma[k] * delta[k]).exp());
-            out += w * c[k];
-            t_acc += sigma[k] * delta[k];
+        for k in 0..opacity.len() {
+            out += trans * opacity[k] * c[k];
+            trans *= 1.0 - opacity[k];
         }
         out
     }
@@ -201,8 +110,8 @@ mod tests {
         intervals_into(&t, LastInterval::Zero, &mut delta);
         // A sphere of radius 1 at distance 2 along the ray, colour = t.
         let sdf = |z: f64| (z - 2.0).abs() - 1.0;
-        for kind in [DensityKind::VolSdf, DensityKind::Neus] {
-            let (alpha, beta) = (4.0, 0.2);
+        for &kind in DensityKind::ALL {
+            let (alpha, beta) = (4.0f64.min(kind.alpha_max()), 0.2);
             let r = march::<f64>(
                 |p| (sdf(p.z), V3::splat(p.z / 4.0)),
                 kind,
@@ -216,13 +125,20 @@ mod tests {
                 },
                 true,
             );
-            let sig: Vec<f64> = t
+            let opacity: Vec<f64> = t
                 .iter()
-                .map(|&z| density(kind, sdf(z as f64), alpha, 1.0 / beta))
+                .zip(&delta)
+                .map(|(&z, &d)| {
+                    let s = kind.sigma(sdf(z as f64), alpha, 1.0 / beta);
+                    if kind.per_sample_opacity() {
+                        s
+                    } else {
+                        1.0 - (-s * d as f64).exp()
+                    }
+                })
                 .collect();
-            let d64: Vec<f64> = delta.iter().map(|&d| d as f64).collect();
             let c: Vec<f64> = t.iter().map(|&z| z as f64 / 4.0).collect();
-            let want = reference(&sig, &d64, &c);
+            let want = reference(&opacity, &c);
             assert!(
                 (r.colour.x - want).abs() < 1e-6,
                 "{kind:?}: {} vs {want}",
@@ -237,13 +153,9 @@ mod tests {
         for last in [LastInterval::Zero, LastInterval::Infinite] {
             let mut delta = Vec::new();
             intervals_into(&t, last, &mut delta);
-            for kind in [DensityKind::Opacity, DensityKind::VolSdf, DensityKind::Neus] {
+            for &kind in DensityKind::ALL {
                 for (beta, sdf0) in [(1e-4, -1e3), (1e-4, 0.0), (0.05, 1e6), (1e-4, 1e-9)] {
-                    let alpha = if kind == DensityKind::Opacity {
-                        1.0
-                    } else {
-                        1e4
-                    };
+                    let alpha = 1e4f64.min(kind.alpha_max());
                     let r = march::<Dual<f32, 3>>(
                         |p| {
                             let s = Dual::seed(sdf0 as f32, 0) + p.z * Dual::lit(0.0);

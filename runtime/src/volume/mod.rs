@@ -5,9 +5,8 @@
 //!   pixel), the linspace/jittered [`Stratified`] sampler, chunked iteration.
 //! * [`composite`]: weights from densities (log-space transmittance), from
 //!   opacities (may be exactly 1) or from `ln(1 − o)`; colour/depth aggregation.
-//! * [`density`]: Laplace CDF, the assignment's opacity and its `ln(1 − o)`,
-//!   VolSDF, NeuS, softplus — values and derivatives finite for β ≥ 1e-4 and
-//!   any |sdf|.
+//! * densities (the assignment's opacity, VolSDF, NeuS) are defined once in
+//!   [`sdfl_stdlib::density`], generic over the number type.
 //! * [`march`]: one ray through a field, generic over the number type: f32
 //!   rendering and forward-mode training gradients share it.
 //! * [`render`]: forward rendering of any `point → (sdf, colour)` field.
@@ -15,7 +14,6 @@
 //! Training (parameters, the fused kernel, Adam) is in [`crate::train`].
 
 pub mod composite;
-pub mod density;
 pub mod figures;
 pub mod importance;
 pub mod march;

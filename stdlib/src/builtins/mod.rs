@@ -429,9 +429,6 @@ fn table() -> Vec<Builtin> {
                 Ok(Value::Param(Arc::new(ParamDecl { id: 0, init, span, binding: None })))
             },
         ),
-        volumes::volume_fn("sdf_volume", "An SDF as a volume, the assignment's form: per-sample opacity `alpha·Ψ_β(-sdf)` (Laplace CDF), 0 < alpha ≤ 1.", DensityKind::Opacity, "1"),
-        volumes::volume_fn("volsdf", "An SDF as a VolSDF volume: density `σ = alpha·Ψ_β(-sdf)`.", DensityKind::VolSdf, "10"),
-        volumes::volume_fn("neus", "An SDF as a NeuS volume. A shape: logistic density `alpha·(1/β)·s(1-s)`, `s = sigmoid(-sdf/β)` (the course assignment's form). A `neural_sdf(...)`: NeuS's unbiased opacity between consecutive samples, `max(0, (Φ(f_k) − Φ(f_k+1))/Φ(f_k))` with `Φ = sigmoid(f/β)`, no `alpha`; nothing lies beyond the last sample, whatever the sampler's `last_interval`.", DensityKind::Neus, "1"),
         func(
             "stratified",
             "`samples` depths evenly spaced from `near` to `far` inclusive; `jitter` moves each within its interval while training.",
@@ -732,6 +729,7 @@ fn table() -> Vec<Builtin> {
             |a| Ok(Value::Number(random(a.number("seed")?, a.number("i")?))),
         ),
         ])
+        .chain(volumes::builtins())
         .chain(neural::builtins())
         .chain(outputs::builtins())
         .chain(paths::builtins())

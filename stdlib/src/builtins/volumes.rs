@@ -2,24 +2,28 @@
 //! model, `sdf_volume`, `volsdf` and `neus`.
 
 use super::*;
+use crate::density::{visit_densities, Density, DensityVisitor, NeuralUse, ALPHA_MIN};
 
-pub(super) fn volume_fn(
-    name: &'static str,
-    doc: &'static str,
-    density: DensityKind,
-    alpha_default: &'static str,
-) -> Builtin {
-    let eval: EvalFn = match density {
-        DensityKind::Opacity => |a| field(a, DensityKind::Opacity),
-        DensityKind::VolSdf => |a| field(a, DensityKind::VolSdf),
-        DensityKind::Neus => |a| field(a, DensityKind::Neus),
-    };
+/// One built-in per density, from its [`Density`] definition.
+pub(super) fn builtins() -> Vec<Builtin> {
+    struct Rows(Vec<Builtin>);
+    impl DensityVisitor for Rows {
+        fn visit<D: Density>(&mut self) {
+            self.0.push(volume_fn::<D>());
+        }
+    }
+    let mut rows = Rows(Vec::new());
+    visit_densities(&mut rows);
+    rows.0
+}
+
+fn volume_fn<D: Density>() -> Builtin {
     func(
-        name,
-        doc,
+        D::NAME,
+        D::DOC,
         vec![
             req("shape", Type::OneOf(vec![SHAPE, FIELD]), "the signed distance function: a shape, or a `neural_sdf(...)` to train from images"),
-            opt("alpha", Type::Number, alpha_default, "density scale (> 0)"),
+            opt("alpha", Type::Number, D::ALPHA_DEFAULT, "density scale (> 0)"),
             opt(
                 "beta",
                 Type::Number,
@@ -38,7 +42,7 @@ pub(super) fn volume_fn(
             opt("fine", Type::Number, "0", "a neural SDF's volume: samples per ray added where the surface is, placed by inverse CDF on the weights of a distance-only pass over the stratified samples (0: none)"),
         ],
         FIELD,
-        eval,
+        |a| field(a, D::KIND),
     )
 }
 
@@ -53,10 +57,10 @@ fn neural_surface(a: &Args, density: DensityKind, sdf: &NeuralSdf) -> Result<Val
             "leave `color` out",
         ));
     }
-    if density == DensityKind::Neus && given("alpha") {
+    if !density.neural().takes_alpha() && given("alpha") {
         return Err(value_error(
             a.get("alpha").1,
-            "a neural SDF's NeuS volume has no `alpha`",
+            format!("a neural SDF's {} volume has no `alpha`", density.title()),
             "not used",
             "leave `alpha` out: NeuS's opacity across a surface comes from the SDF and `beta` alone",
         ));
@@ -125,15 +129,21 @@ fn neural_surface(a: &Args, density: DensityKind, sdf: &NeuralSdf) -> Result<Val
 fn field(a: &Args, density: DensityKind) -> Result<Value, Diag> {
     if let Value::Field(f) = a.get("shape").0 {
         return match &**f {
-            Field::NeuralSdf(n) if density != DensityKind::Opacity => neural_surface(a, density, n),
+            Field::NeuralSdf(n) if density.neural() != NeuralUse::Refused => {
+                neural_surface(a, density, n)
+            }
             _ => Err(value_error(
                 a.get("shape").1,
                 "this field is not a distance function",
                 "not a shape or a `neural_sdf(...)`",
-                if density == DensityKind::Opacity {
-                    "the opacity form takes shapes; train a neural SDF from images with `volsdf` or `neus`"
+                if density.neural() == NeuralUse::Refused {
+                    format!(
+                        "the {} form takes shapes; train a neural SDF from images with {}",
+                        density.title(),
+                        names(|k| k.neural() != NeuralUse::Refused)
+                    )
                 } else {
-                    "give a shape or a `neural_sdf(...)`"
+                    "give a shape or a `neural_sdf(...)`".to_string()
                 },
             )),
         };
@@ -152,20 +162,27 @@ fn field(a: &Args, density: DensityKind) -> Result<Value, Diag> {
     }
     // α is an opacity (at most 1) in the assignment's form, a density scale
     // otherwise; trained values stay in range.
-    let alpha_bound = match density {
-        DensityKind::Opacity => Bound::Within(1e-6, 1.0),
-        DensityKind::VolSdf | DensityKind::Neus => Bound::AtLeast(1e-6),
+    let max = density.alpha_max();
+    let alpha_bound = if max.is_finite() {
+        Bound::Within(ALPHA_MIN, max)
+    } else {
+        Bound::AtLeast(ALPHA_MIN)
     };
-    let alpha = a.scalar_arg("alpha", Bound::AtLeast(1e-6))?;
-    if density == DensityKind::Opacity && alpha.value > 1.0 {
+    let alpha = a.scalar_arg("alpha", Bound::AtLeast(ALPHA_MIN))?;
+    if alpha.value > max {
+        let max = sdfl_lang::fmt_num(max);
         return Err(value_error(
             a.get("alpha").1,
             format!(
-                "`alpha` is an opacity here and must be at most 1, got {}",
+                "`alpha` of `{}` must be at most {max}, got {}",
+                density.name(),
                 alpha.value
             ),
-            "above 1",
-            "use `volsdf` for a density scale above 1",
+            format!("above {max}"),
+            format!(
+                "use {} for a density scale above {max}",
+                names(|k| k.alpha_max() > density.alpha_max())
+            ),
         ));
     }
     let alpha = Arg {
@@ -204,6 +221,16 @@ fn field(a: &Args, density: DensityKind) -> Result<Value, Diag> {
         },
         color,
     }))))
+}
+
+/// The densities' built-ins that `keep`, as "`a` or `b`".
+fn names(keep: impl Fn(DensityKind) -> bool) -> String {
+    let names: Vec<String> = DensityKind::ALL
+        .iter()
+        .filter(|&&k| keep(k))
+        .map(|k| format!("`{}`", k.name()))
+        .collect();
+    names.join(" or ")
 }
 
 /// Whether any `paint` in the tree uses a material that needs normals

@@ -1,16 +1,19 @@
-//! A neural SDF seen as a volume and trained from images (VolSDF; NeuS-style
-//! density): samples along rays → the distance network with its exact
-//! gradient → density `σ(f)` and a colour network that sees the encoded
-//! point, the gradient (the surface normal) and the encoded view direction
-//! → compositing → MSE, plus the eikonal term `(‖∇f‖ − 1)²` at the samples.
+//! A neural SDF seen as a volume and trained from images (VolSDF; NeuS):
+//! samples along rays → the distance network with its exact gradient →
+//! each sample's optical depth `τ(f)` (the density's one definition,
+//! [`sdfl_stdlib::density`], through duals) and a colour network that sees
+//! the encoded point, the gradient (the surface normal) and the encoded
+//! view direction → compositing → MSE, plus the eikonal term `(‖∇f‖ − 1)²`
+//! at the samples.
 //!
-//! Backward: compositing gives `∂L/∂σ` and `∂L/∂c`; the colour network turns
+//! Backward: compositing gives `∂L/∂τ` and `∂L/∂c`; the colour network turns
 //! `∂L/∂c` into its weights' gradient and `∂L/∂∇f` (the normal is one of its
-//! inputs); `∂L/∂f = ∂L/∂σ·σ'(f)`. The distance network takes both adjoints
+//! inputs); `∂L/∂f = ∂L/∂τ·τ'(f)`. The distance network takes both adjoints
 //! at once ([`SdfNet::backward`]: its second-order pass through the tangents).
 
 use rayon::prelude::*;
 use sdfl_stdlib::camera::Camera;
+use sdfl_stdlib::num::{Dual, Real};
 use sdfl_stdlib::value::{DensityKind, LastInterval, Loss, LossKind, NeuralSurface};
 
 use super::composite::{composite, squared_error_backward};
@@ -21,7 +24,6 @@ use super::mlp::{Activation, Dense};
 use super::sdf_net::{eikonal_loss, SdfNet, SdfWork};
 use crate::train::fused::Batch;
 use crate::train::{Objective, TensorSpec, TrainError};
-use crate::volume::density::{neus_interval_depth, volsdf_density_grad};
 use crate::volume::importance::Spacing;
 use crate::volume::{camera_rays, ImageSize, Ray, SplitMix64, Stratified, VolumeError};
 
@@ -181,42 +183,41 @@ impl ColorNet {
     }
 }
 
-/// What each sample absorbs, for rays of `n` samples with distances `f`.
-/// VolSDF: the density `σ(f_k)` (compositing multiplies it by the
-/// interval). NeuS: the optical depth of the interval from sample `k` to
-/// `k + 1` ([`neus_interval_depth`]; compositing then takes unit
-/// intervals), 0 for a ray's last sample. `slope[k] = ∂a_k/∂f_k`;
-/// `slope_next[k] = ∂a_k/∂f_{k+1}` (NeuS only, else 0).
+/// What each sample absorbs, as an optical depth, for rays of `n` samples
+/// with distances `f` and intervals `delta`: the density's one definition
+/// ([`DensityKind::neural_depth`]; compositing then takes unit intervals),
+/// its slopes by forward duals: `slope[k] = ∂τ_k/∂f_k`, `slope_next[k] =
+/// ∂τ_k/∂f_{k+1}` (0 where τ_k does not see the next sample) and
+/// `slope_beta[k] = ∂τ_k/∂β`.
 #[allow(clippy::too_many_arguments)]
 fn absorption(
     kind: DensityKind,
     f: &[f32],
+    delta: &[f32],
     n: usize,
     alpha: f32,
     beta: f32,
     out: &mut [f32],
     slope: &mut [f32],
     slope_next: &mut [f32],
+    slope_beta: &mut [f32],
 ) {
+    let inv_beta = Dual::<f32, 3>::one() / Dual::seed(beta, 2);
+    let alpha = Dual::lit(alpha as f64);
     out.par_chunks_mut(n)
         .zip(slope.par_chunks_mut(n))
-        .zip(slope_next.par_chunks_mut(n))
-        .zip(f.par_chunks(n))
-        .for_each(|(((a, s), s_next), f)| match kind {
-            DensityKind::Neus => {
-                for k in 0..n {
-                    (a[k], s[k], s_next[k]) = match f.get(k + 1) {
-                        Some(&f_next) => neus_interval_depth(f[k], f_next, beta),
-                        None => (0.0, 0.0, 0.0),
-                    };
-                }
-            }
-            // The evaluator allows only VolSDF and NeuS here.
-            DensityKind::VolSdf | DensityKind::Opacity => {
-                for k in 0..n {
-                    (a[k], s[k]) = volsdf_density_grad(f[k], alpha, beta);
-                    s_next[k] = 0.0;
-                }
+        .zip(
+            slope_next
+                .par_chunks_mut(n)
+                .zip(slope_beta.par_chunks_mut(n)),
+        )
+        .zip(f.par_chunks(n).zip(delta.par_chunks(n)))
+        .for_each(|(((a, s), (s_next, s_beta)), (f, delta))| {
+            for k in 0..n {
+                let next = f.get(k + 1).map(|&x| Dual::seed(x, 1));
+                let d = Dual::lit(delta[k] as f64);
+                let tau = kind.neural_depth(Dual::seed(f[k], 0), next, alpha, inv_beta, d);
+                (a[k], s[k], s_next[k], s_beta[k]) = (tau.v, tau.d[0], tau.d[1], tau.d[2]);
             }
         });
 }
@@ -240,7 +241,8 @@ pub struct SurfaceObjective {
     sigma: Vec<f32>,
     slope: Vec<f32>,
     slope_next: Vec<f32>,
-    /// Unit intervals, for NeuS's per-interval depths.
+    slope_beta: Vec<f32>,
+    /// Unit intervals: compositing takes optical depths.
     ones: Vec<f32>,
     d_sigma: Vec<f32>,
     d_rgb: Vec<f32>,
@@ -271,6 +273,7 @@ impl SurfaceObjective {
             sigma: Vec::new(),
             slope: Vec::new(),
             slope_next: Vec::new(),
+            slope_beta: Vec::new(),
             ones: Vec::new(),
             d_sigma: Vec::new(),
             d_rgb: Vec::new(),
@@ -327,28 +330,26 @@ impl SurfaceObjective {
     fn densities(&mut self, n: usize, b: f32) {
         let (a, kind) = (self.spec.alpha as f32, self.spec.density);
         let f = self.sdf_work.distance();
-        for v in [&mut self.sigma, &mut self.slope, &mut self.slope_next] {
+        for v in [
+            &mut self.sigma,
+            &mut self.slope,
+            &mut self.slope_next,
+            &mut self.slope_beta,
+        ] {
             v.resize(f.len(), 0.0);
         }
         absorption(
             kind,
             f,
+            &self.samples.delta,
             n,
             a,
             b,
             &mut self.sigma,
             &mut self.slope,
             &mut self.slope_next,
+            &mut self.slope_beta,
         );
-    }
-
-    /// The intervals compositing multiplies absorption by: the samples'
-    /// for a density, ones for NeuS's interval depths.
-    fn intervals<'a>(&self, samples: &'a [f32], ones: &'a [f32]) -> &'a [f32] {
-        match self.spec.density {
-            DensityKind::Neus => ones,
-            _ => samples,
-        }
     }
 
     /// Adds `spec.fine` samples per ray where the surface is: a
@@ -376,26 +377,28 @@ impl SurfaceObjective {
         self.sdf.distance(&params[..self.sdf.len], &points, &mut f);
         let span: f32 = coarse.t.chunks(n).map(|t| t[n - 1] - t[0]).sum::<f32>()
             / (coarse.rays().max(1) * (n - 1).max(1)) as f32;
-        let (mut a, mut s, mut s_next) = (vec![0.0; rows], vec![0.0; rows], vec![0.0; rows]);
+        let mut a = vec![0.0; rows];
+        let (mut s, mut s_next, mut s_beta) = (vec![0.0; rows], vec![0.0; rows], vec![0.0; rows]);
         absorption(
             self.spec.density,
             &f,
+            &coarse.delta,
             n,
             self.spec.alpha as f32,
             beta.max(0.5 * span),
             &mut a,
             &mut s,
             &mut s_next,
+            &mut s_beta,
         );
-        let neus = self.spec.density == DensityKind::Neus;
         let mut weights = vec![0.0; rows];
         weights
             .par_chunks_mut(n)
-            .zip(a.par_chunks(n).zip(coarse.delta.par_chunks(n)))
-            .for_each(|(w, (a, delta))| {
+            .zip(a.par_chunks(n))
+            .for_each(|(w, a)| {
                 let mut trans = 1.0f32;
                 for k in 0..n {
-                    let tau = if neus { a[k] } else { a[k] * delta[k] };
+                    let tau = a[k];
                     w[k] = trans * -(-tau).exp_m1();
                     trans *= (-tau).exp();
                 }
@@ -462,20 +465,22 @@ impl SurfaceObjective {
                 .forward(&params[..self.sdf.len], &points, &mut sdf_work);
             view.evaluated += points.len() / 3;
             let f = sdf_work.distance();
-            let (mut sigma, mut slope, mut slope_next) =
+            let mut sigma = vec![0.0; f.len()];
+            let (mut slope, mut slope_next, mut slope_beta) =
                 (vec![0.0; f.len()], vec![0.0; f.len()], vec![0.0; f.len()]);
             absorption(
                 self.spec.density,
                 f,
+                &samples.delta,
                 n,
                 a,
                 b,
                 &mut sigma,
                 &mut slope,
                 &mut slope_next,
+                &mut slope_beta,
             );
-            let ones = vec![1.0; f.len()];
-            let delta = self.intervals(&samples.delta, &ones);
+            let delta = vec![1.0; f.len()];
             self.color
                 .forward(params, &points, sdf_work.gradient(), &dirs, &mut color_work);
             let rgb = self.color.rgb(&color_work);
@@ -618,10 +623,7 @@ impl Objective for SurfaceObjective {
         let background = self.background();
         self.ones.resize(rows, 1.0);
         let (sigma, rgb) = (&self.sigma, self.color.rgb(&self.color_work));
-        let (t, delta) = (
-            &self.samples.t,
-            self.intervals(&self.samples.delta, &self.ones),
-        );
+        let (t, delta) = (&self.samples.t, &self.ones);
         let losses: Vec<f64> = self
             .d_sigma
             .par_chunks_mut(RAY_BLOCK * n)
@@ -665,21 +667,14 @@ impl Objective for SurfaceObjective {
             &mut self.color_work,
             grad,
         );
-        // A trained β: both absorptions depend on f/β alone but for VolSDF's
-        // α/β-free form, so ∂a_k/∂β = −(f_k·s_k + f_{k+1}·s'_k)/β with the
-        // slopes of [`absorption`]; through β = e^(rate·θ), times rate·β.
-        let f = self.sdf_work.distance();
+        // A trained β: ∂τ_k/∂β from [`absorption`]'s duals; through
+        // β = e^(rate·θ), times rate·β.
         let (slope, slope_next, d_sigma) = (&self.slope, &self.slope_next, &self.d_sigma);
         if let (Some(i), true) = (self.beta_at(), self.spec.train_beta) {
+            let slope_beta = &self.slope_beta;
             let d_beta: f64 = (0..rows)
                 .into_par_iter()
-                .map(|k| {
-                    let mut da_db = -(f[k] / beta) * slope[k];
-                    if slope_next[k] != 0.0 {
-                        da_db -= (f[k + 1] / beta) * slope_next[k];
-                    }
-                    (d_sigma[k] * da_db) as f64
-                })
+                .map(|k| (d_sigma[k] * slope_beta[k]) as f64)
                 .sum();
             grad[i] += (d_beta * beta as f64 * BETA_RATE as f64) as f32;
         }

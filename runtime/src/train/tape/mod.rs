@@ -39,7 +39,6 @@ use sdfl_stdlib::shape::ArgSource;
 
 use super::model::field_at;
 use super::model::TrainModel;
-use crate::volume::march::{absorption, log_keep};
 
 pub use kernel::{lanes_per_register, loss_and_grad};
 
@@ -420,8 +419,8 @@ impl Tape {
         let (sdf, c) = field_at(model, &args, V3::new(x, y, z));
         let alpha = args.scalar(&f.alpha);
         let inv_beta = Traced::one() / args.scalar(&f.beta);
-        let a = absorption(f.density, sdf, alpha, inv_beta, dk);
-        let lk = log_keep(f.density, sdf, alpha, inv_beta, dk);
+        let a = f.density.absorption(sdf, alpha, inv_beta, dk);
+        let lk = f.density.log_keep(sdf, alpha, inv_beta, dk);
         let outputs = [a.opacity, a.keep, lk, c.x, c.y, c.z].map(|t| t.0);
         let recorder = RECORDER.with(|r| std::mem::take(&mut *r.borrow_mut()));
         if let Some(why) = recorder.failed {
