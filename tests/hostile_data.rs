@@ -341,6 +341,7 @@ fn load_errors(dir: &Path, scene: &str) -> Vec<(&'static str, String, String, St
             .diags
             .into_iter()
             .map(|d| {
+                let d = d.into_data();
                 let under = scene
                     .get(d.span.start..d.span.end)
                     .unwrap_or("")

@@ -96,20 +96,70 @@ pub enum Severity {
 }
 
 /// One diagnostic: what went wrong, where, and what to do about it.
+///
+/// Boxed, so that `Result<T, Diag>` stays one pointer wide on the error
+/// side: results of every check and evaluation step carry a `Diag`, and an
+/// unboxed one (128 bytes) would be moved through each of them. Its fields
+/// are read and written through [`DiagData`] (`d.code`, `d.help = ...`).
+#[derive(Clone, PartialEq)]
+pub struct Diag(Box<DiagData>);
+
+/// The contents of a [`Diag`].
 #[derive(Debug, Clone, PartialEq)]
-pub struct Diag {
+pub struct DiagData {
+    /// The stable code, one of [`codes`].
     pub code: &'static str,
+    /// The sentence shown as the title of the report.
     pub message: String,
+    /// Where in the source the problem is.
     pub span: Span,
+    /// Shown under the primary span; empty for none.
     pub label: String,
+    /// What the user can do about it.
     pub help: Option<String>,
     /// Secondary spans, e.g. the earlier definition of a duplicate name.
     pub notes: Vec<(Span, String)>,
 }
 
+impl std::ops::Deref for Diag {
+    type Target = DiagData;
+    fn deref(&self) -> &DiagData {
+        &self.0
+    }
+}
+
+impl std::ops::DerefMut for Diag {
+    fn deref_mut(&mut self) -> &mut DiagData {
+        &mut self.0
+    }
+}
+
+impl fmt::Debug for Diag {
+    // As the unboxed struct printed, so test failures read the same.
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let d = &*self.0;
+        f.debug_struct("Diag")
+            .field("code", &d.code)
+            .field("message", &d.message)
+            .field("span", &d.span)
+            .field("label", &d.label)
+            .field("help", &d.help)
+            .field("notes", &d.notes)
+            .finish()
+    }
+}
+
+impl From<DiagData> for Diag {
+    fn from(d: DiagData) -> Self {
+        Diag(Box::new(d))
+    }
+}
+
 impl Diag {
+    /// An error (or warning, by its code) with no label, help or notes yet:
+    /// the builder methods below add them.
     pub fn new(code: &'static str, span: Span, message: impl Into<String>) -> Self {
-        Diag {
+        DiagData {
             code,
             message: message.into(),
             span,
@@ -117,6 +167,11 @@ impl Diag {
             help: None,
             notes: Vec::new(),
         }
+        .into()
+    }
+    /// The contents, owned (to move fields out).
+    pub fn into_data(self) -> DiagData {
+        *self.0
     }
     /// Warnings are the codes under `sdfl::warn::` (kept in the code, so a
     /// diagnostic's severity is as stable as its code).
@@ -127,14 +182,18 @@ impl Diag {
             Severity::Error
         }
     }
+    /// The text under the primary span.
     pub fn label(mut self, label: impl Into<String>) -> Self {
         self.label = label.into();
         self
     }
+    /// What the user can do about it.
     pub fn help(mut self, help: impl Into<String>) -> Self {
         self.help = Some(help.into());
         self
     }
+    /// A secondary span with its text (an earlier definition, the other
+    /// end of a collision).
     pub fn note(mut self, span: Span, text: impl Into<String>) -> Self {
         self.notes.push((span, text.into()));
         self
@@ -172,11 +231,12 @@ impl Diagnostics {
     /// loaded file.
     fn localised(&self, d: &Diag, main: &SourceFile) -> (Option<&SourceFile>, Diag) {
         let (file, span) = self.locate(d.span);
-        let mut local = Diag {
+        let mut local: Diag = DiagData {
             span,
             notes: Vec::new(),
-            ..d.clone()
-        };
+            ..(**d).clone()
+        }
+        .into();
         for (s, text) in &d.notes {
             let (note_file, s) = self.locate(*s);
             if note_file.map(|f| &f.name) == file.map(|f| &f.name) {
@@ -419,6 +479,16 @@ pub fn suggest<'a>(name: &str, candidates: impl IntoIterator<Item = &'a str>) ->
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_diag_is_one_pointer() {
+        // Results carrying it stay small (clippy's result_large_err).
+        assert_eq!(std::mem::size_of::<Diag>(), std::mem::size_of::<usize>());
+        assert_eq!(
+            std::mem::size_of::<Result<(), Diag>>(),
+            std::mem::size_of::<usize>()
+        );
+    }
 
     #[test]
     fn numbers_print_short() {

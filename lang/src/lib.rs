@@ -11,5 +11,5 @@ pub mod parse;
 pub mod span;
 pub mod types;
 
-pub use diag::{codes, fmt_num, render, Diag, Diagnostics, Severity, SourceFile};
+pub use diag::{codes, fmt_num, render, Diag, DiagData, Diagnostics, Severity, SourceFile};
 pub use span::Span;

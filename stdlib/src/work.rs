@@ -1000,7 +1000,7 @@ pub fn check_program(program: &Program, size: Option<(u32, u32)>) -> Result<(), 
             return Err(format!(
                 "`{name}`: {} with this --size; {}",
                 d.message,
-                d.help.unwrap_or_default()
+                d.help.as_deref().unwrap_or_default()
             ));
         }
     }
