@@ -31,7 +31,7 @@ mod train;
 /// Deterministic uniform numbers in [0, 1).
 pub struct Lcg(pub u64);
 impl Lcg {
-    pub fn next(&mut self) -> f64 {
+    pub fn uniform(&mut self) -> f64 {
         self.0 = self
             .0
             .wrapping_mul(6364136223846793005)
@@ -47,8 +47,8 @@ pub fn scattered_spheres(n: usize) -> Vec<(DVec3, f64)> {
     let r = 0.5 / (n as f64).cbrt();
     (0..n)
         .map(|_| {
-            let c = DVec3::new(rng.next(), rng.next(), rng.next()) * 2.0 - DVec3::ONE;
-            (c, r * (0.5 + 0.5 * rng.next()))
+            let c = DVec3::new(rng.uniform(), rng.uniform(), rng.uniform()) * 2.0 - DVec3::ONE;
+            (c, r * (0.5 + 0.5 * rng.uniform()))
         })
         .collect()
 }
@@ -71,7 +71,11 @@ fn sample_points(count: usize) -> Vec<Vec3A> {
     let mut rng = Lcg(99);
     (0..count)
         .map(|_| {
-            Vec3A::new(rng.next() as f32, rng.next() as f32, rng.next() as f32) * 3.0
+            Vec3A::new(
+                rng.uniform() as f32,
+                rng.uniform() as f32,
+                rng.uniform() as f32,
+            ) * 3.0
                 - Vec3A::splat(1.5)
         })
         .collect()

@@ -12,17 +12,26 @@ use crate::span::Span;
 /// Stable diagnostic codes. Tests and users may match on these strings, so
 /// they never change meaning; new codes are added, old ones are not reused.
 pub mod codes {
+    /// Text that is not sdfl: the parser's expected tokens are named.
     pub const SYNTAX: &str = "sdfl::syntax";
+    /// Brackets, `if`s or `for`s nested too deep to parse safely.
     pub const NESTING: &str = "sdfl::syntax::nesting";
+    /// A number literal that is not finite (`1e999`).
     pub const NUMBER: &str = "sdfl::syntax::number";
+    /// A string escape sdfl does not have (`\q`).
     pub const ESCAPE: &str = "sdfl::syntax::escape";
     /// A unit written apart from its number (`30 deg`), or one sdfl does
     /// not have (`50mm`, `0.5rad`).
     pub const UNIT: &str = "sdfl::syntax::unit";
+    /// A name that no `let`, parameter, loop or constant defines.
     pub const UNKNOWN_NAME: &str = "sdfl::name::unknown";
+    /// A call of a function that is neither built in nor a `fn`.
     pub const UNKNOWN_FUNCTION: &str = "sdfl::name::unknown-function";
+    /// A statement keyword that is not one of sdfl's (`render`, `train`…).
     pub const UNKNOWN_BLOCK: &str = "sdfl::name::unknown-block";
+    /// A name defined twice in one scope.
     pub const DUPLICATE_NAME: &str = "sdfl::name::duplicate";
+    /// A call of something that is a value, not a function.
     pub const NOT_CALLABLE: &str = "sdfl::name::not-callable";
     /// A `fn` named like a built-in function.
     pub const SHADOWS_BUILTIN: &str = "sdfl::name::shadows-builtin";
@@ -41,19 +50,33 @@ pub mod codes {
     /// A statement (`render`, `train`) in an imported file, which may hold
     /// only `let`s, `fn`s and `import`s.
     pub const IMPORT_STATEMENT: &str = "sdfl::import::statement";
+    /// A named argument the function does not take.
     pub const UNKNOWN_ARG: &str = "sdfl::arg::unknown";
+    /// A required argument left out.
     pub const MISSING_ARG: &str = "sdfl::arg::missing";
+    /// An argument given twice.
     pub const DUPLICATE_ARG: &str = "sdfl::arg::duplicate";
+    /// More positional arguments than the function has parameters.
     pub const TOO_MANY_ARGS: &str = "sdfl::arg::too-many";
+    /// A positional argument after a named one.
     pub const POSITIONAL_AFTER_NAMED: &str = "sdfl::arg::positional-after-named";
+    /// A statement field the statement does not take.
     pub const UNKNOWN_FIELD: &str = "sdfl::field::unknown";
+    /// A required statement field left out.
     pub const MISSING_FIELD: &str = "sdfl::field::missing";
+    /// A statement field given twice.
     pub const DUPLICATE_FIELD: &str = "sdfl::field::duplicate";
+    /// A value of the wrong type (a number where a shape is wanted).
     pub const TYPE: &str = "sdfl::type::mismatch";
+    /// A value of the right type outside its range (a negative radius, `near` ≥ `far`).
     pub const VALUE: &str = "sdfl::value::range";
+    /// Arithmetic without a result: division by zero, a non-finite result.
     pub const ARITHMETIC: &str = "sdfl::value::arithmetic";
+    /// Input beyond sdfl's limits on size: a statement, a list, a scene, a `fn`'s parameters.
     pub const TOO_LARGE: &str = "sdfl::limit::too-large";
+    /// An output or input path that escapes `--out` or that the file system refuses.
     pub const PATH: &str = "sdfl::path::escape";
+    /// A file that could not be read or written.
     pub const IO: &str = "sdfl::io";
     /// Two outputs (or an output and a checkpoint) write the same file.
     pub const OUTPUT_COLLISION: &str = "sdfl::path::collision";
@@ -91,7 +114,9 @@ pub fn fmt_num(x: f64) -> String {
 /// and the command goes on.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Severity {
+    /// The command fails (after reporting every diagnostic).
     Error,
+    /// Printed; the command goes on.
     Warning,
 }
 
@@ -203,6 +228,7 @@ impl Diag {
 /// Diagnostics collected while processing one source file.
 #[derive(Debug, Clone, Default)]
 pub struct Diagnostics {
+    /// In the order found; [`Diagnostics::sorted`] orders them by position.
     pub diags: Vec<Diag>,
     /// The files the loaded one imports, each with the offset its spans
     /// were moved to (past the loaded file's and each other's): a span at
@@ -251,9 +277,11 @@ impl Diagnostics {
         (file, local)
     }
 
+    /// Adds one.
     pub fn push(&mut self, d: Diag) {
         self.diags.push(d);
     }
+    /// Whether there are none, warnings included.
     pub fn is_empty(&self) -> bool {
         self.diags.is_empty()
     }
@@ -261,9 +289,11 @@ impl Diagnostics {
     pub fn has_errors(&self) -> bool {
         self.diags.iter().any(|d| d.severity() == Severity::Error)
     }
+    /// How many, warnings included.
     pub fn len(&self) -> usize {
         self.diags.len()
     }
+    /// Adds another file's (or stage's) diagnostics and imported files.
     pub fn extend(&mut self, other: Diagnostics) {
         self.diags.extend(other.diags);
         for f in other.files {
@@ -282,7 +312,9 @@ impl Diagnostics {
 /// A source file: its name (as shown to the user) and its text.
 #[derive(Debug, Clone, PartialEq)]
 pub struct SourceFile {
+    /// The name shown in reports.
     pub name: String,
+    /// The whole text.
     pub text: Arc<str>,
     /// Where it is on disk, when that differs from `name`: its `import`s
     /// are resolved from here (else from `name`).
@@ -290,6 +322,7 @@ pub struct SourceFile {
 }
 
 impl SourceFile {
+    /// A file shown as `name`, found on disk under that name too.
     pub fn new(name: impl Into<String>, text: impl Into<Arc<str>>) -> Self {
         SourceFile {
             name: name.into(),

@@ -432,7 +432,6 @@ pub fn surface_nets(
         prev = cur;
         progress(k as u64 + 1);
     }
-    drop(plane);
     if broken {
         return Err(MeshError::BoundBroken);
     }

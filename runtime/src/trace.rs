@@ -73,6 +73,10 @@ pub(crate) const PRECISION_TOLERANCE: f32 = 1.0 / 2_097_152.0;
 /// surface, so the trace returns to the previous point and steps `d` from
 /// there, unrelaxed for the rest of the ray (enhanced sphere tracing).
 #[inline]
+#[allow(
+    clippy::neg_cmp_op_on_partial_ord,
+    reason = "a NaN distance must end the ray as a miss"
+)]
 pub fn sphere_trace<D: Distance + ?Sized>(
     sdf: &D,
     origin: Vec3A,
@@ -163,6 +167,10 @@ pub fn sphere_trace<D: Distance + ?Sized>(
 /// at most [`REFINE_STEPS`], stopping below `epsilon` or where the distance
 /// stops shrinking (a ray grazing past keeps its footprint hit). Returns the
 /// refined `t` and the steps taken.
+#[allow(
+    clippy::neg_cmp_op_on_partial_ord,
+    reason = "a NaN distance must stop the refinement"
+)]
 fn refine<D: Distance + ?Sized>(
     sdf: &D,
     origin: Vec3A,

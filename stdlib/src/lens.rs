@@ -85,6 +85,10 @@ impl Distortion {
     /// The undistorted point whose distortion is `(xd, yd)`, by Newton's
     /// method from the distorted point; `None` where it does not converge
     /// (outside where the model is one-to-one).
+    #[allow(
+        clippy::neg_cmp_op_on_partial_ord,
+        reason = "a NaN must take the refusing branch, which !(x > t) says and x <= t does not"
+    )]
     pub fn undistort(&self, xd: f64, yd: f64) -> Option<(f64, f64)> {
         if !(xd.is_finite() && yd.is_finite()) {
             return None;
@@ -201,6 +205,10 @@ impl Intrinsics {
 
     /// The pixel `(u, v)` (OpenCV: centres at `i + ½`) where the camera-space
     /// point `p` (x right, y down, z forward) lands; `None` behind the camera.
+    #[allow(
+        clippy::neg_cmp_op_on_partial_ord,
+        reason = "a NaN must take the refusing branch, which !(x > t) says and x <= t does not"
+    )]
     pub fn project(&self, p: [f64; 3]) -> Option<(f64, f64)> {
         if !(p[2] > 0.0) {
             return None;
@@ -221,6 +229,10 @@ impl Intrinsics {
     /// distortion that does not map the image one-to-one (checked over a
     /// grid of the image: each point undistorts and distorts back within
     /// 1e-4 px, and the radial profile keeps increasing out to the corners).
+    #[allow(
+        clippy::neg_cmp_op_on_partial_ord,
+        reason = "a NaN must take the refusing branch, which !(x > t) says and x <= t does not"
+    )]
     pub fn check(&self) -> Result<(), String> {
         let (lo, hi) = FOCAL_PIXELS;
         if self.width == 0 || self.height == 0 {
@@ -413,7 +425,7 @@ mod tests {
             k3: 0.0,
             k4: 0.0,
         };
-        let r = (x * x + y * y as f64).sqrt();
+        let r = (x * x + y * y).sqrt();
         let t = r.atan();
         let rd = t * (1.0 + 0.1 * t * t);
         let got = f.distort(x, y);

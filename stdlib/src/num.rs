@@ -160,7 +160,7 @@ pub fn exp_f32(x: f32) -> f32 {
     let p = p * r + 8.333_452e-3;
     let p = p * r + 4.166_579_6e-2;
     let p = p * r + 1.666_666_5e-1;
-    let p = p * r + 5.000_000_1e-1;
+    let p = p * r + 0.5; // the fit's 0.500_000_01, as f32 rounds it
     let e_r = (p * r * r + r) + 1.0;
     let half = n_int >> 1;
     let scale = |k: i32| f32::from_bits((k.wrapping_add(127) as u32) << 23);
@@ -237,6 +237,10 @@ impl<F: Real, const N: usize> Dual<F, N> {
 impl<F: Real, const N: usize> Add for Dual<F, N> {
     type Output = Self;
     #[inline(always)]
+    #[allow(
+        clippy::needless_range_loop,
+        reason = "one index over self, o and the result keeps the per-lane formula readable; hot in training"
+    )]
     fn add(self, o: Self) -> Self {
         let mut d = self.d;
         for i in 0..N {
@@ -248,6 +252,10 @@ impl<F: Real, const N: usize> Add for Dual<F, N> {
 impl<F: Real, const N: usize> Sub for Dual<F, N> {
     type Output = Self;
     #[inline(always)]
+    #[allow(
+        clippy::needless_range_loop,
+        reason = "one index over self, o and the result keeps the per-lane formula readable; hot in training"
+    )]
     fn sub(self, o: Self) -> Self {
         let mut d = self.d;
         for i in 0..N {
@@ -259,6 +267,10 @@ impl<F: Real, const N: usize> Sub for Dual<F, N> {
 impl<F: Real, const N: usize> Mul for Dual<F, N> {
     type Output = Self;
     #[inline(always)]
+    #[allow(
+        clippy::needless_range_loop,
+        reason = "one index over self, o and the result keeps the per-lane formula readable; hot in training"
+    )]
     fn mul(self, o: Self) -> Self {
         let mut d = self.d;
         for i in 0..N {
@@ -270,6 +282,10 @@ impl<F: Real, const N: usize> Mul for Dual<F, N> {
 impl<F: Real, const N: usize> Div for Dual<F, N> {
     type Output = Self;
     #[inline(always)]
+    #[allow(
+        clippy::needless_range_loop,
+        reason = "one index over self, o and the result keeps the per-lane formula readable; hot in training"
+    )]
     fn div(self, o: Self) -> Self {
         let inv = F::one() / o.v;
         let q = self.v * inv;
@@ -348,6 +364,10 @@ impl<F: Real, const N: usize> Real for Dual<F, N> {
     }
     /// Selects value and tangents together, by the values.
     #[inline(always)]
+    #[allow(
+        clippy::needless_range_loop,
+        reason = "one index over self, o and the result keeps the per-lane formula readable; hot in training"
+    )]
     fn if_gt(a: Self, b: Self, then: Self, otherwise: Self) -> Self {
         let mut d = otherwise.d;
         for i in 0..N {

@@ -360,6 +360,10 @@ pub enum DensityKind {
 
 /// A field: something a ray marches through, with density and colour.
 #[derive(Debug, Clone)]
+#[allow(
+    clippy::large_enum_variant,
+    reason = "a program holds a few fields, built once and matched by reference"
+)]
 pub enum Field {
     /// An analytic SDF seen as a volume.
     Sdf(SdfField),

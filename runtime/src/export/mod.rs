@@ -190,8 +190,8 @@ pub fn march_rays(
             }
             let mut e = RayEnd::default();
             for k in 0..n {
-                for a in 0..3 {
-                    e.colour[a] += w[k] * c[k][a];
+                for (colour, c) in e.colour.iter_mut().zip(c[k]) {
+                    *colour += w[k] * c;
                 }
                 e.depth += w[k] * t[k];
                 e.opacity += w[k];

@@ -87,14 +87,14 @@ pub type FieldFn<'a> = &'a (dyn Fn([f32; 3]) -> (f32, [f32; 3]) + Sync);
 pub type ViewFn<'a> =
     &'a (dyn Fn(&Camera, (u32, u32), bool) -> io::Result<(Vec<[f32; 3]>, Vec<f32>)> + Sync);
 
+/// Renders one camera's view at a size (`true`: with depth): colours and
+/// depths, row by row.
+type ViewRenderer<'a> =
+    Box<dyn Fn(&Camera, (u32, u32), bool) -> io::Result<(Vec<[f32; 3]>, Vec<f32>)> + Sync + 'a>;
+
 /// A field as it is rendered from its file's values (a NeRF from its
 /// initial weights).
-fn field_view<'a>(
-    field: &'a Field,
-    sampler: &'a Sampler,
-) -> io::Result<
-    Box<dyn Fn(&Camera, (u32, u32), bool) -> io::Result<(Vec<[f32; 3]>, Vec<f32>)> + Sync + 'a>,
-> {
+fn field_view<'a>(field: &'a Field, sampler: &'a Sampler) -> io::Result<ViewRenderer<'a>> {
     let strat = stratified(sampler)?;
     Ok(match field {
         // The language refuses to render these; say so if one gets here.

@@ -123,6 +123,10 @@ pub fn piecewise(t: f64, near: f64, far: f64, exit: f64) -> f64 {
 
 /// The contraction of a point in inner-box coordinates (f32).
 #[inline]
+#[allow(
+    clippy::neg_cmp_op_on_partial_ord,
+    reason = "a NaN must take the identity branch"
+)]
 pub fn contract_f32(x: [f32; 3]) -> [f32; 3] {
     let m = x[0].abs().max(x[1].abs()).max(x[2].abs());
     if m.is_infinite() {

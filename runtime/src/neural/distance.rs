@@ -262,7 +262,7 @@ pub fn mesh_fit(
             (p.iter().step_by(every).copied().collect(), p.to_vec())
         }
         Reference::Surface(m) => (
-            m.sample_surface(MESH_FIT_POINTS, seed ^ 0x7472_7574_68),
+            m.sample_surface(MESH_FIT_POINTS, seed ^ 0x0074_7275_7468),
             m.sample_surface(SURFACE_SAMPLES, seed ^ 0x7472_7565),
         ),
     };

@@ -612,7 +612,7 @@ impl Objective for NerfObjective {
         }
         match &mut self.occupancy {
             Some(occ) => {
-                if batch.step % occ.every == 0 {
+                if batch.step.is_multiple_of(occ.every) {
                     occ.update(&self.net, values, batch.step, batch.seed);
                 }
                 occ.march(&batch.rays, &self.candidates, &mut self.samples)?;
@@ -802,6 +802,10 @@ pub fn render_nerf_view(
 /// `stop = 0` every sample is evaluated and the colours equal
 /// [`super::composite::composite`]'s bit for bit. Returns the samples evaluated.
 #[allow(clippy::too_many_arguments)]
+#[allow(
+    clippy::needless_range_loop,
+    reason = "c[j] pairs with rgb[3k + j]; per-sample hot path"
+)]
 fn composite_until_opaque(
     net: &NerfNet,
     params: &[f32],

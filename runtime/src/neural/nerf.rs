@@ -43,6 +43,10 @@ impl PositionEncoding {
     }
 
     /// Trainable scalars of the encoding.
+    #[allow(
+        clippy::len_without_is_empty,
+        reason = "a count of parameters, not of the encoding's contents"
+    )]
     pub fn len(&self) -> usize {
         match self {
             PositionEncoding::Harmonic(_) => 0,

@@ -248,7 +248,10 @@ impl Args {
     pub fn rest_numbers(&self) -> Result<Vec<f64>, Diag> {
         fn walk(v: &Value, span: Span, out: &mut Vec<f64>) -> Result<(), Diag> {
             match v {
-                Value::Number(x) => Ok(out.push(f32_range(*x, span, "x")?)),
+                Value::Number(x) => {
+                    out.push(f32_range(*x, span, "x")?);
+                    Ok(())
+                }
                 Value::List(items) => items.iter().try_for_each(|i| walk(i, span, out)),
                 other => Err(type_error(span, "number", other)),
             }
@@ -264,7 +267,10 @@ impl Args {
     pub fn rest_shapes(&self) -> Result<Vec<Arc<Shape>>, Diag> {
         fn walk(v: &Value, span: Span, out: &mut Vec<Arc<Shape>>) -> Result<(), Diag> {
             match v {
-                Value::Shape(s) => Ok(out.push(s.clone())),
+                Value::Shape(s) => {
+                    out.push(s.clone());
+                    Ok(())
+                }
                 Value::List(items) => items.iter().try_for_each(|i| walk(i, span, out)),
                 other => Err(type_error(span, "shape", other)),
             }

@@ -159,6 +159,10 @@ impl Default for Adam {
 impl HashGrid {
     /// The layout of `cfg`; refuses empty or absurd configurations (more
     /// than [`MAX_PARAMS`] params, resolutions beyond 2²⁰, an empty box).
+    #[allow(
+        clippy::needless_range_loop,
+        reason = "one axis index over the box's two corners and the result"
+    )]
     pub fn new(cfg: HashGridConfig) -> Result<Self, String> {
         let c = &cfg;
         if !(1..=64).contains(&c.levels) || !(1..=16).contains(&c.features) {

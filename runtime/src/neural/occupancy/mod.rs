@@ -517,6 +517,10 @@ impl RayCtx {
     /// Where the ray leaves the cube of `size` cells from cell `lo`, less the
     /// slack: no sample before it can lie beyond the cube.
     #[inline(always)]
+    #[allow(
+        clippy::needless_range_loop,
+        reason = "one axis index over the ray, the cell and the grid; per-sample hot path"
+    )]
     fn exit(&self, g: &OccupancyGrid, lo: [u32; 3], size: u32) -> f64 {
         let mut best = f64::INFINITY;
         for a in 0..3 {
