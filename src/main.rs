@@ -1,4 +1,5 @@
 //! `sdfl`: run, check and inspect scene files.
+#![warn(missing_docs)]
 
 use std::ffi::OsStr;
 use std::io::IsTerminal;

@@ -12,6 +12,7 @@
 //! without tiles.
 //! `cargo run --release -p sdfl-bench -- train` times training steps instead
 //! (see `train.rs`; `-- train 20 fused` the fused kernel only); `-- nerf` times NeRF steps and `-- neural-sdf` neural SDF steps (see `nerf.rs`).
+#![warn(missing_docs)]
 
 use std::time::Instant;
 
@@ -31,6 +32,7 @@ mod train;
 /// Deterministic uniform numbers in [0, 1).
 pub struct Lcg(pub u64);
 impl Lcg {
+    /// The next number: 53 high bits of the state, as a fraction.
     pub fn uniform(&mut self) -> f64 {
         self.0 = self
             .0

@@ -3,6 +3,7 @@
 //! This crate knows the syntax and the type system, never the built-ins'
 //! meaning: the standard library supplies their signatures through
 //! [`types::Env`]. It depends on neither the runtime nor dfdx.
+#![warn(missing_docs)]
 
 pub mod ast;
 pub mod check;
