@@ -24,9 +24,13 @@ pub const MAX_SIDE: u64 = crate::builtins::MAX_IMAGE_SIDE as u64;
 /// rate.
 #[derive(Debug, Clone, PartialEq)]
 pub struct CameraPath {
+    /// Its cameras in order, one per frame.
     pub cameras: Vec<Camera>,
+    /// Image width the path was made for, in pixels.
     pub width: u32,
+    /// Image height the path was made for, in pixels.
     pub height: u32,
+    /// Frames per second.
     pub fps: f64,
 }
 

@@ -16,10 +16,28 @@ pub enum Distortion {
     #[default]
     None,
     /// OpenCV's (COLMAP `OPENCV`): two radial and two tangential terms.
-    OpenCv { k1: f64, k2: f64, p1: f64, p2: f64 },
+    OpenCv {
+        /// Radial term in r².
+        k1: f64,
+        /// Radial term in r⁴.
+        k2: f64,
+        /// First tangential term.
+        p1: f64,
+        /// Second tangential term.
+        p2: f64,
+    },
     /// OpenCV's fisheye (COLMAP `OPENCV_FISHEYE`): the angle from the axis
     /// `θ` maps to the image radius `θ(1 + k1θ² + k2θ⁴ + k3θ⁶ + k4θ⁸)`.
-    Fisheye { k1: f64, k2: f64, k3: f64, k4: f64 },
+    Fisheye {
+        /// Term in θ².
+        k1: f64,
+        /// Term in θ⁴.
+        k2: f64,
+        /// Term in θ⁶.
+        k3: f64,
+        /// Term in θ⁸.
+        k4: f64,
+    },
 }
 
 /// Largest angle from the optical axis a fisheye lens may see: rays are
@@ -154,14 +172,19 @@ impl Distortion {
 /// Pixel intrinsics of a real camera for a `width × height` image.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct Intrinsics {
+    /// Image width in pixels.
     pub width: u32,
+    /// Image height in pixels.
     pub height: u32,
-    /// Focal lengths in pixels.
+    /// Horizontal focal length in pixels.
     pub fx: f64,
+    /// Vertical focal length in pixels.
     pub fy: f64,
-    /// The principal point in pixels (the image centre is `(w/2, h/2)`).
+    /// The principal point's x in pixels (the image centre is `(w/2, h/2)`).
     pub cx: f64,
+    /// The principal point's y in pixels.
     pub cy: f64,
+    /// How the lens bends rays away from a pinhole's.
     pub distortion: Distortion,
 }
 

@@ -18,6 +18,7 @@ pub const MAX_FILES: u64 = 100_000;
 /// Longest file or directory name, and whole relative path, of an output
 /// (the usual file system limits are 255 and 4096).
 pub const MAX_NAME_BYTES: usize = 255;
+/// Longest relative path of an output, in bytes.
 pub const MAX_PATH_BYTES: usize = 1024;
 
 /// The file name for view `k` of `n`: `{view}` is replaced by the padded

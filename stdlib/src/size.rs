@@ -82,6 +82,7 @@ const SMALL_LIST: usize = 16;
 const MEASURE_LIMIT: usize = MAX_DEPTH + 8;
 
 impl Sizes {
+    /// The expanded size of a value.
     pub fn of(&mut self, v: &Value) -> Size {
         self.value(v, 0)
     }
@@ -121,6 +122,7 @@ impl Sizes {
         }
     }
 
+    /// The expanded size of a shape tree at nesting `level`.
     pub fn shape(&mut self, sh: &Arc<Shape>, level: usize) -> Size {
         let key = Arc::as_ptr(sh) as usize;
         if let Some((_, s)) = self.shapes.get(&key) {

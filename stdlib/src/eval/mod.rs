@@ -38,6 +38,8 @@ const MAX_CALL_LABELS: usize = 6;
 /// the same depth (the evaluator recurses once per level).
 pub const MAX_EVAL_DEPTH: usize = sdfl_lang::parse::MAX_DEPTH;
 
+/// Evaluates a checked file into a [`Program`](crate::value::Program): unrolls loops, calls
+/// built-ins and `fn`s, and gathers every diagnostic.
 pub struct Evaluator<'e> {
     env: &'e StdEnv,
     /// The `fn`s defined so far.
@@ -77,6 +79,7 @@ pub struct Evaluator<'e> {
 }
 
 impl<'e> Evaluator<'e> {
+    /// An evaluator over the standard library `env`.
     pub fn new(env: &'e StdEnv) -> Self {
         Evaluator {
             env,
