@@ -8,6 +8,7 @@ use crate::sdf::Node;
 /// lowered [`Node`] is one; a screen tile's candidate members
 /// (`sdf::tiles::Tile`) are another.
 pub trait Distance {
+    /// The distance (or a lower bound on it) at `p`.
     fn dist(&self, p: Vec3A) -> f32;
 }
 
@@ -21,8 +22,11 @@ impl<T: Node + ?Sized> Distance for T {
 /// Settings of one trace.
 #[derive(Debug, Clone, Copy)]
 pub struct TraceSettings {
+    /// Where rays start.
     pub near: f32,
+    /// Where rays give up: farther is a miss.
     pub far: f32,
+    /// Most steps per ray.
     pub max_steps: u32,
     /// A ray hits where the distance falls below `max(epsilon, footprint·t)`.
     pub epsilon: f32,
@@ -43,7 +47,9 @@ pub struct TraceSettings {
 pub struct Hit {
     /// Ray parameter at the end (finite).
     pub t: f32,
+    /// Whether the ray hit a surface.
     pub hit: bool,
+    /// Steps taken.
     pub steps: u32,
     /// The steps ran out before the ray hit or passed `far`.
     pub undecided: bool,

@@ -122,10 +122,12 @@ impl Packed {
         Packed { k, n, kp, words }
     }
 
+    /// Rows of `B`.
     pub fn k(&self) -> usize {
         self.k
     }
 
+    /// Columns of `B`.
     pub fn n(&self) -> usize {
         self.n
     }

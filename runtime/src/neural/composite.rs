@@ -11,6 +11,7 @@
 /// The composite of one ray.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Composite {
+    /// `Σ w_k·c_k`, background included.
     pub colour: [f32; 3],
     /// `Σ w_k`, the ray's opacity.
     pub opacity: f32,

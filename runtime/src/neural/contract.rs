@@ -17,15 +17,18 @@ use sdfl_stdlib::value::Contraction;
 /// A contraction as the runtime computes it (f32).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Contract {
+    /// The inner box's centre.
     pub center: [f32; 3],
     /// 2 / (max − min) per axis: the inner box to [-1, 1]³.
     pub inv_half: [f32; 3],
     /// The inner box in world coordinates (f64: the rays' exits).
     pub min: [f64; 3],
+    /// The inner box's high corner in world coordinates.
     pub max: [f64; 3],
 }
 
 impl Contract {
+    /// The runtime's form of a scene file's `contraction(...)`.
     pub fn new(c: &Contraction) -> Self {
         Contract {
             center: std::array::from_fn(|a| (0.5 * (c.min[a] + c.max[a])) as f32),

@@ -38,6 +38,7 @@ pub fn available() -> bool {
 /// An operand read in place: element `(i, r)` at `data[i·rows + r·cols]`.
 #[derive(Debug, Clone, Copy)]
 pub struct Strided<'a> {
+    /// The operand's numbers.
     pub data: &'a [f32],
     /// Distance between consecutive rows.
     pub rows: usize,
