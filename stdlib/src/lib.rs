@@ -13,6 +13,7 @@ pub mod effects;
 pub mod eval;
 pub mod imports;
 pub mod lens;
+pub mod limits;
 pub mod material;
 pub mod num;
 pub mod outputs;

@@ -8,9 +8,12 @@ use std::sync::Arc;
 use sdfl_lang::diag::{codes, fmt_num, Diag};
 use sdfl_lang::Span;
 
-use crate::eval::MAX_DEPTH;
 use crate::shape::Shape;
 use crate::value::{Field, Value};
+
+/// Deepest nesting of shapes and lists (built through chains of `let`s,
+/// which brackets do not limit): tree walkers recurse this deep.
+pub const MAX_DEPTH: usize = 200;
 
 /// Most primitives one value may hold once expanded. Values are DAGs
 /// (`union(a, a)` shares `a`), but lowering and tracing copy every use, so

@@ -135,6 +135,16 @@ impl Value {
     }
 }
 
+/// A short description of a value for messages ("number 2", "list of 3
+/// items", "shape").
+pub(crate) fn describe(v: &Value) -> String {
+    match v {
+        Value::Number(x) => format!("number {}", sdfl_lang::fmt_num(*x)),
+        Value::List(items) => format!("list of {} items", items.len()),
+        other => other.type_name().to_string(),
+    }
+}
+
 impl Field {
     /// The region `bounds: "auto"` stands for in a `density_mesh`: a hash
     /// grid's box, else an occupancy grid's, else an SDF field's bounds

@@ -13,17 +13,16 @@ use sdfl_lang::Span;
 
 use crate::camera::{Camera, OrbitUp, PixelCenters};
 use crate::effects::{AmbientOcclusion, Fog, SoftShadows, MAX_SAMPLES_PER_PIXEL};
-use crate::eval::describe;
 use crate::material::{Effects, Light, Material};
 use crate::param::{Arg, Bound, ParamDecl, ParamInit, ParamUse, MIN_BETA, MIN_LENGTH};
 use crate::precision::{beta, f32_range};
 use crate::shape::{Axis, Shape};
 use crate::value::{
-    Backend, CaptureFormat, CaptureOrient, CaptureSpec, Colormap, Dataset, DensityActivation,
-    DensityKind, Encoding, Field, Harmonic, HashGridSpec, HitTolerance, LastInterval, Loss,
-    LossKind, MeshRegion, Nerf, NeuralSdf, NeuralSurface, OccupancySpec, Optimizer, Output,
-    OutputKind, Precision, RenderJob, Sampler, Schedule, SdfField, TrainJob, Value, ViewPath,
-    VolumeJob,
+    describe, Backend, CaptureFormat, CaptureOrient, CaptureSpec, Colormap, Dataset,
+    DensityActivation, DensityKind, Encoding, Field, Harmonic, HashGridSpec, HitTolerance,
+    LastInterval, Loss, LossKind, MeshRegion, Nerf, NeuralSdf, NeuralSurface, OccupancySpec,
+    Optimizer, Output, OutputKind, Precision, RenderJob, Sampler, Schedule, SdfField, TrainJob,
+    Value, ViewPath, VolumeJob,
 };
 
 /// The checker's type of shapes ([`Value::Shape`]).
@@ -58,15 +57,7 @@ pub const SHADOWS: Type = Type::Named("soft shadow");
 pub const OCCLUSION: Type = Type::Named("ambient occlusion");
 /// The checker's type of fog.
 pub const FOG: Type = Type::Named("fog");
-/// Most samples per ray.
-pub const MAX_SAMPLES: u64 = 4096;
-
-/// Largest image side in pixels.
-pub const MAX_IMAGE_SIDE: u32 = 16_384;
-/// Most camera views of one render.
-pub const MAX_VIEWS: usize = 10_000;
-/// Most sphere-tracing iterations per ray.
-pub const MAX_ITERATIONS: u32 = 100_000;
+pub use crate::limits::{MAX_IMAGE_SIDE, MAX_ITERATIONS, MAX_SAMPLES, MAX_VIEWS};
 
 /// Arguments bound to parameter names, each with the span it came from
 /// (the call's span for defaults).
