@@ -15,7 +15,7 @@ use crate::builtins::{Args, StdEnv};
 use crate::size::{
     fmt_bytes, fmt_count, size_error, Size, Sizes, BYTES_PER_PRIMITIVE, MAX_NODES, MAX_PRIMITIVES,
 };
-use crate::value::{describe, Program, Value};
+use crate::value::{describe, Program, StatementKind, Value};
 
 mod blocks;
 
