@@ -69,7 +69,7 @@ pub(crate) const PRECISION_TOLERANCE: f32 = 1.0 / 2_097_152.0;
 /// March from `near` until the distance is below the hit tolerance (a hit,
 /// also when the ray starts inside a shape; the tolerance is
 /// `max(epsilon, footprint·t)`, and at least what f32 resolves at the
-/// point's coordinates, [`PRECISION_TOLERANCE`]), `t` passes `far`, or the steps
+/// point's coordinates, `PRECISION_TOLERANCE`), `t` passes `far`, or the steps
 /// run out: then, with a pixel footprint, a ray that came within two
 /// footprints of a surface hits where it came closest, and any other is an
 /// undecided miss. Always returns finite values within `max_steps` steps.

@@ -9,7 +9,7 @@
 //! is two vector loads (a layer's weights, or the adjoints' rows, read in
 //! place, masked at the edges), an element of `A` one broadcast (at any
 //! strides, so `Xᵀ` needs no transpose). The sum over `r` runs in chunks of
-//! [`KC`] (a panel of `B` stays in L1), each element's products added in
+//! `KC` (a panel of `B` stays in L1), each element's products added in
 //! order of `r`: the result depends only on the operands, not on how rows
 //! are split among threads.
 //!

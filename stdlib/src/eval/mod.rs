@@ -36,7 +36,7 @@ const MAX_CALL_LABELS: usize = 6;
 /// the same depth (the evaluator recurses once per level).
 pub const MAX_EVAL_DEPTH: usize = sdfl_lang::parse::MAX_DEPTH;
 
-/// Evaluates a checked file into a [`Program`](crate::value::Program): unrolls loops, calls
+/// Evaluates a checked file into a [`Program`]: unrolls loops, calls
 /// built-ins and `fn`s, and gathers every diagnostic.
 pub struct Evaluator<'e> {
     env: &'e StdEnv,
