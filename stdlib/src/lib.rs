@@ -5,6 +5,7 @@
 //! [`load`] runs the whole front half of the pipeline:
 //! parse → resolve imports → check → evaluate, reporting every error of the
 //! file together.
+#![warn(missing_docs)]
 
 pub mod builtins;
 pub mod camera;
