@@ -1,4 +1,5 @@
 //! `sdfl`: run, check and inspect scene files.
+#![warn(missing_docs)]
 
 use std::ffi::OsStr;
 use std::io::IsTerminal;
@@ -10,7 +11,7 @@ use clap::{Parser, Subcommand};
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use sdfl_lang::SourceFile;
 use sdfl_runtime::{jobs, run_job, Plan, RunOptions};
-use sdfl_stdlib::value::Statement;
+use sdfl_stdlib::value::{Statement, StatementKind};
 
 #[macro_use]
 mod term;
@@ -479,7 +480,7 @@ fn execute(
     options: RunOptions,
     base: &Path,
     bar: &ProgressBar,
-) -> Result<Vec<serde_json::Value>, (String, std::io::Error)> {
+) -> Result<Vec<Report>, (String, std::io::Error)> {
     let mut reports = Vec::new();
     let io = |name: &str, e: std::io::Error| (name.to_string(), e);
     // In file order: a render after a `train` may read what it wrote.
@@ -491,7 +492,7 @@ fn execute(
                 bar.set_message(job.name.clone());
                 let r =
                     run_job(job, out, options, &|n| bar.inc(n)).map_err(|e| io(&job.name, e))?;
-                reports.push(serde_json::json!({"kind": "render", "report": r}));
+                reports.push(Report::new(statement.kind(), &r));
             }
             Statement::Volume(i) => {
                 let job = &program.volumes[i];
@@ -499,7 +500,7 @@ fn execute(
                 bar.set_message(job.name.clone());
                 let r = jobs::run_volume_job(job, out, options.size, &|n| bar.inc(n))
                     .map_err(|e| io(&job.name, e))?;
-                reports.push(serde_json::json!({"kind": "volume", "report": r}));
+                reports.push(Report::new(statement.kind(), &r));
             }
             Statement::Train(i) => {
                 let job = &program.trains[i];
@@ -518,7 +519,7 @@ fn execute(
                     &|m| bar.set_message(m.to_string()),
                 )
                 .map_err(|e| io(&job.name, e))?;
-                reports.push(serde_json::json!({"kind": "train", "report": r}));
+                reports.push(Report::new(statement.kind(), &r));
             }
         }
     }
@@ -632,10 +633,10 @@ fn run(file: Option<&Path>, out: &Path, options: RunOptions, json: bool) -> Exit
 
 /// A fit's warnings on stderr, with `--json` too (where they are also in
 /// each report's `warnings`).
-fn print_fit_warnings(reports: &[serde_json::Value]) {
+fn print_fit_warnings(reports: &[Report]) {
     for r in reports {
-        let name = r["report"]["name"].as_str().unwrap_or("?");
-        for w in r["report"]["warnings"].as_array().into_iter().flatten() {
+        let name = r.report["name"].as_str().unwrap_or("?");
+        for w in r.report["warnings"].as_array().into_iter().flatten() {
             say!(
                 "warning[{}]: `{name}`: {}",
                 sdfl_runtime::train::trainer::DIVERGED,
@@ -645,9 +646,25 @@ fn print_fit_warnings(reports: &[serde_json::Value]) {
     }
 }
 
+/// What one statement's job reports, as `--json` prints it.
+#[derive(serde::Serialize)]
+struct Report {
+    kind: StatementKind,
+    report: serde_json::Value,
+}
+
+impl Report {
+    fn new(kind: StatementKind, report: &impl serde::Serialize) -> Report {
+        Report {
+            kind,
+            report: serde_json::to_value(report).expect("reports are serialisable"),
+        }
+    }
+}
+
 /// A human summary of one job's JSON report on stderr; written paths on stdout.
-fn summarise(r: &serde_json::Value, out: &Path, stdout: &mut Stdout) {
-    let rep = &r["report"];
+fn summarise(r: &Report, out: &Path, stdout: &mut Stdout) {
+    let rep = &r.report;
     let stages: Vec<String> = rep["stages"]
         .as_array()
         .map(|a| {
@@ -663,8 +680,8 @@ fn summarise(r: &serde_json::Value, out: &Path, stdout: &mut Stdout) {
         })
         .unwrap_or_default();
     let name = rep["name"].as_str().unwrap_or("?");
-    match r["kind"].as_str() {
-        Some("render") => {
+    match r.kind {
+        StatementKind::Render => {
             let rays = rep["rays"].as_f64().unwrap_or(0.0).max(1.0);
             say!(
                 "{name}: {} primitives, {} views, {rays} rays ({:.1}% hit, {:.1} steps/ray); {}",
@@ -692,13 +709,13 @@ fn summarise(r: &serde_json::Value, out: &Path, stdout: &mut Stdout) {
                 );
             }
         }
-        Some("volume") => say!(
+        StatementKind::Volume => say!(
             "{name}: volume, {} views, {} samples/ray; {}",
             rep["views"],
             rep["samples_per_ray"],
             stages.join(", ")
         ),
-        Some("train") => {
+        StatementKind::Train => {
             // A run resumed at its last step trains nothing: no step time.
             let resumed = rep["resumed_from"].as_u64();
             let pace = if resumed.is_some() && resumed == rep["iterations"].as_u64() {
@@ -766,7 +783,6 @@ fn summarise(r: &serde_json::Value, out: &Path, stdout: &mut Stdout) {
                 );
             }
         }
-        _ => {}
     }
     for w in rep["written"].as_array().into_iter().flatten() {
         let cloud = w["kind"].as_str() == Some("point_cloud");

@@ -34,39 +34,29 @@ fn psnr(mse: f64) -> f64 {
 }
 
 /// Written colour images of a report set, by relative path.
-fn images_of(reports: &[serde_json::Value]) -> Vec<String> {
+fn images_of(reports: &[Report]) -> Vec<String> {
     reports
         .iter()
-        .flat_map(|r| {
-            r["report"]["written"]
-                .as_array()
-                .cloned()
-                .unwrap_or_default()
-        })
+        .flat_map(|r| r.report["written"].as_array().cloned().unwrap_or_default())
         .filter(|w| w["kind"] == "image")
         .filter_map(|w| w["path"].as_str().map(str::to_string))
         .collect()
 }
 
-fn params_of(reports: &[serde_json::Value]) -> Vec<f64> {
+fn params_of(reports: &[Report]) -> Vec<f64> {
     reports
         .iter()
-        .flat_map(|r| {
-            r["report"]["params"]
-                .as_array()
-                .cloned()
-                .unwrap_or_default()
-        })
+        .flat_map(|r| r.report["params"].as_array().cloned().unwrap_or_default())
         .flat_map(|p| p[1].as_array().cloned().unwrap_or_default())
         .filter_map(|v| v.as_f64())
         .collect()
 }
 
 /// The mean over a run's training statements of their last held-out PSNR.
-fn held_out_psnr(reports: &[serde_json::Value]) -> Option<f64> {
+fn held_out_psnr(reports: &[Report]) -> Option<f64> {
     let last: Vec<f64> = reports
         .iter()
-        .filter_map(|r| r["report"]["held_out"].as_array()?.last()?["psnr"].as_f64())
+        .filter_map(|r| r.report["held_out"].as_array()?.last()?["psnr"].as_f64())
         .collect();
     (!last.is_empty()).then(|| last.iter().sum::<f64>() / last.len() as f64)
 }
@@ -74,12 +64,12 @@ fn held_out_psnr(reports: &[serde_json::Value]) -> Option<f64> {
 /// The mean over a run's training statements of their mesh's Chamfer
 /// distance (to the data's points or the true surface).
 /// An empty mesh (no surface found) has no finite distance: infinity.
-fn mesh_chamfer(reports: &[serde_json::Value]) -> Option<f64> {
+fn mesh_chamfer(reports: &[Report]) -> Option<f64> {
     let c: Vec<f64> = reports
         .iter()
-        .filter(|r| r["report"]["mesh_fit"].is_object())
+        .filter(|r| r.report["mesh_fit"].is_object())
         .map(|r| {
-            r["report"]["mesh_fit"]["chamfer"]
+            r.report["mesh_fit"]["chamfer"]
                 .as_f64()
                 .unwrap_or(f64::INFINITY)
         })

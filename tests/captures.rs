@@ -314,12 +314,15 @@ fn downscaled_folders_scale_the_intrinsics() {
     assert!(e.contains("frame 1") && e.contains("`w`"), "{e}");
 }
 
+/// A test case: its name, how it spoils the frames, and what the error names.
+type Spoil<'a> = (&'a str, Box<dyn Fn(&mut Vec<Value>)>, &'a str);
+
 #[test]
 fn garbage_numbers_name_the_frame() {
     let dir = case_dir("cap_garbage");
     let poses = ring(3);
     let base = || -> Vec<Value> { (0..3).map(|k| frame(k, &poses[k])).collect() };
-    let cases: Vec<(&str, Box<dyn Fn(&mut Vec<Value>)>, &str)> = vec![
+    let cases: Vec<Spoil> = vec![
         (
             "negative focal",
             Box::new(|f: &mut Vec<Value>| f[2]["fl_x"] = json!(-5.0)),
@@ -390,9 +393,9 @@ fn garbage_numbers_name_the_frame() {
     // A scaled (non-rigid) pose: refused when the cameras are made.
     let mut frames = base();
     let mut scaled = poses[1];
-    for r in 0..3 {
-        for c in 0..3 {
-            scaled[r][c] *= 2.0;
+    for row in scaled.iter_mut().take(3) {
+        for x in row.iter_mut().take(3) {
+            *x *= 2.0;
         }
     }
     frames[1]["transform_matrix"] = pose_json(&scaled);

@@ -1018,7 +1018,7 @@ fn hostile_nerf_synthetic_data_sets_are_diagnostics() {
         ("nerf_nested", "[".repeat(200_000)),
         (
             "nerf_nonfinite",
-            format!("{{\"camera_angle_x\": 0.7, \"frames\": [{{\"file_path\": \"r\", \"transform_matrix\": [[1e999,0,0,0],[0,1,0,0],[0,0,1,3],[0,0,0,1]]}}]}}"),
+            "{\"camera_angle_x\": 0.7, \"frames\": [{\"file_path\": \"r\", \"transform_matrix\": [[1e999,0,0,0],[0,1,0,0],[0,0,1,3],[0,0,0,1]]}]}".to_string(),
         ),
         (
             "nerf_escape",

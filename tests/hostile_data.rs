@@ -341,6 +341,7 @@ fn load_errors(dir: &Path, scene: &str) -> Vec<(&'static str, String, String, St
             .diags
             .into_iter()
             .map(|d| {
+                let d = d.into_data();
                 let under = scene
                     .get(d.span.start..d.span.end)
                     .unwrap_or("")
@@ -556,9 +557,9 @@ fn too_many_points_are_refused_from_the_array_header() {
     Compress::new(Compression::best(), false)
         .compress_vec(&npy_head, &mut data, FlushCompress::Sync)
         .unwrap();
-    let zeros = zeros_deflated((rows * 12 >> 20) as usize);
+    let zeros = zeros_deflated(((rows * 12) >> 20) as usize);
     data.extend(&zeros);
-    let size = npy_head.len() as u64 + ((rows * 12 >> 20) << 20);
+    let size = npy_head.len() as u64 + (((rows * 12) >> 20) << 20);
     // One zip entry around that stream, its size declared truthfully.
     let z = zip_of("verts.npy", &data, size);
     let dir = case_dir("data_npz_too_many_points");

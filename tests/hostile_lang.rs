@@ -12,6 +12,10 @@ use std::process::{Command, Stdio};
 /// Runs `sdfl check FILE` and returns its stderr and the peak resident
 /// memory of the process in bytes (`wait4`'s rusage of that one child: other
 /// tests' children do not count).
+#[allow(
+    clippy::zombie_processes,
+    reason = "reaped by wait4 below, which also reads its peak memory"
+)]
 fn check_peak_memory(file: &Path) -> (Option<i32>, String, u64) {
     let err_path = file.with_extension("stderr");
     let child = Command::new(env!("CARGO_BIN_EXE_sdfl"))

@@ -191,8 +191,7 @@ fn png_views_load_as_linear_floats() {
         cameras: vec![cam],
     };
     let err = sdfl_runtime::jobs::load_views(&missing, &dir)
-        .err()
-        .expect("missing file fails")
+        .expect_err("missing file fails")
         .to_string();
     assert!(err.contains("nope.npy"), "{err}");
     let _ = std::fs::remove_dir_all(&dir);

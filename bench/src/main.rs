@@ -12,6 +12,7 @@
 //! without tiles.
 //! `cargo run --release -p sdfl-bench -- train` times training steps instead
 //! (see `train.rs`; `-- train 20 fused` the fused kernel only); `-- nerf` times NeRF steps and `-- neural-sdf` neural SDF steps (see `nerf.rs`); `-- density` what each density runs through (see `density.rs`).
+#![warn(missing_docs)]
 
 use std::time::Instant;
 
@@ -32,7 +33,8 @@ mod train;
 /// Deterministic uniform numbers in [0, 1).
 pub struct Lcg(pub u64);
 impl Lcg {
-    pub fn next(&mut self) -> f64 {
+    /// The next number: 53 high bits of the state, as a fraction.
+    pub fn uniform(&mut self) -> f64 {
         self.0 = self
             .0
             .wrapping_mul(6364136223846793005)
@@ -48,8 +50,8 @@ pub fn scattered_spheres(n: usize) -> Vec<(DVec3, f64)> {
     let r = 0.5 / (n as f64).cbrt();
     (0..n)
         .map(|_| {
-            let c = DVec3::new(rng.next(), rng.next(), rng.next()) * 2.0 - DVec3::ONE;
-            (c, r * (0.5 + 0.5 * rng.next()))
+            let c = DVec3::new(rng.uniform(), rng.uniform(), rng.uniform()) * 2.0 - DVec3::ONE;
+            (c, r * (0.5 + 0.5 * rng.uniform()))
         })
         .collect()
 }
@@ -72,7 +74,11 @@ fn sample_points(count: usize) -> Vec<Vec3A> {
     let mut rng = Lcg(99);
     (0..count)
         .map(|_| {
-            Vec3A::new(rng.next() as f32, rng.next() as f32, rng.next() as f32) * 3.0
+            Vec3A::new(
+                rng.uniform() as f32,
+                rng.uniform() as f32,
+                rng.uniform() as f32,
+            ) * 3.0
                 - Vec3A::splat(1.5)
         })
         .collect()

@@ -6,14 +6,20 @@ use crate::span::Span;
 /// A parsed file: its items in source order.
 #[derive(Debug, Clone, PartialEq)]
 pub struct File {
+    /// Top-level `let`s, blocks, `fn`s and `import`s.
     pub items: Vec<Item>,
 }
 
+/// A top-level item of a file.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Item {
+    /// `let name = value`
     Let(Let),
+    /// A statement such as `render name { ... }`.
     Block(Block),
+    /// `fn name(params) { body }`
     Fn(FnDef),
+    /// `import "path.sdfl"`
     Import(Import),
 }
 
@@ -24,81 +30,118 @@ pub struct Import {
     pub path: String,
     /// The span of the string literal.
     pub path_span: Span,
+    /// The whole item.
     pub span: Span,
 }
 
 /// `fn name(params) { body }`
 #[derive(Debug, Clone, PartialEq)]
 pub struct FnDef {
+    /// The function's name.
     pub name: Ident,
+    /// Its parameters in order; callers may name or place them.
     pub params: Vec<FnParam>,
+    /// Its `let`s and result, evaluated per call.
     pub body: Body,
+    /// The whole definition.
     pub span: Span,
 }
 
 /// A parameter of a `fn`, with its default (`None`: required).
 #[derive(Debug, Clone, PartialEq)]
 pub struct FnParam {
+    /// The parameter's name, bound in the body.
     pub name: Ident,
+    /// The value when a call leaves it out.
     pub default: Option<Expr>,
 }
 
 /// A name as written, with its span.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Ident {
+    /// The name's text.
     pub name: String,
+    /// Where it is written.
     pub span: Span,
 }
 
 /// `let name = value`
 #[derive(Debug, Clone, PartialEq)]
 pub struct Let {
+    /// The name bound.
     pub name: Ident,
+    /// The expression it stands for.
     pub value: Expr,
+    /// The whole binding.
     pub span: Span,
 }
 
 /// `kind name { field: value, ... }`
 #[derive(Debug, Clone, PartialEq)]
 pub struct Block {
+    /// The statement keyword as written (`render`, `train`, `volume`…).
     pub kind: Ident,
+    /// The statement's name, used in output paths and messages.
     pub name: Option<Ident>,
+    /// Its `name: value` fields in source order.
     pub fields: Vec<Field>,
+    /// The whole statement.
     pub span: Span,
 }
 
 /// `name: value` inside a block.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Field {
+    /// The field's name.
     pub name: Ident,
+    /// Its value.
     pub value: Expr,
 }
 
+/// An expression with the span of its text.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Expr {
+    /// What kind of expression, with its parts.
     pub kind: ExprKind,
+    /// The whole expression.
     pub span: Span,
 }
 
+/// A binary operator.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum BinOp {
+    /// `+`
     Add,
+    /// `-`
     Sub,
+    /// `*`
     Mul,
+    /// `/`
     Div,
+    /// `%`: the Euclidean remainder (not negative for a positive divisor).
     Rem,
+    /// `^`: a power.
     Pow,
+    /// `<`
     Lt,
+    /// `<=`
     Le,
+    /// `>`
     Gt,
+    /// `>=`
     Ge,
+    /// `==`
     Eq,
+    /// `!=`
     Ne,
+    /// `&&`, short-circuiting.
     And,
+    /// `||`, short-circuiting.
     Or,
 }
 
 impl BinOp {
+    /// The operator as written, for messages.
     pub fn symbol(self) -> &'static str {
         match self {
             BinOp::Add => "+",
@@ -135,23 +178,32 @@ impl BinOp {
     }
 }
 
+/// The kinds of expression.
 #[derive(Debug, Clone, PartialEq)]
 pub enum ExprKind {
     /// A number literal; degrees are already converted to radians.
     Number(f64),
+    /// `true` or `false`.
     Bool(bool),
+    /// A string literal, escapes resolved.
     Str(String),
+    /// A name: a `let`, a `fn` parameter, a `for` variable or a constant.
     Var(Ident),
+    /// `[a, b, c]`
     List(Vec<Expr>),
     /// `callee(args)`, or `receiver.callee(args)` with `method` set and the
     /// receiver as the first positional argument.
     Call {
+        /// The function called.
         callee: Ident,
+        /// Its arguments as written (a method's receiver first).
         args: Vec<Arg>,
+        /// Written as `receiver.callee(...)`.
         method: bool,
     },
     /// `value.name`: a vector component.
     Member(Box<Expr>, Ident),
+    /// `-value`
     Neg(Box<Expr>),
     /// `!value`
     Not(Box<Expr>),
@@ -160,13 +212,21 @@ pub enum ExprKind {
     /// `if cond { then } else { otherwise }`; `else if` is an `otherwise`
     /// body holding only another `If`.
     If {
+        /// The condition, a bool.
         cond: Box<Expr>,
+        /// The value when it holds.
         then: Body,
+        /// The value when it does not.
         otherwise: Body,
     },
+    /// `left op right`
     Binary(BinOp, Box<Expr>, Box<Expr>),
+    /// `for a in 0..n, b in list { body }`: a list of the body's values,
+    /// one per combination of the bindings.
     For {
+        /// The loop variables with what each runs over.
         bindings: Vec<Binding>,
+        /// The value computed per iteration.
         body: Body,
     },
 }
@@ -174,31 +234,43 @@ pub enum ExprKind {
 /// A call argument, named (`radius: 1`) or positional.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Arg {
+    /// The parameter named; `None` for a positional argument.
     pub name: Option<Ident>,
+    /// The argument's value.
     pub value: Expr,
 }
 
 /// `var in source` of a `for`.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Binding {
+    /// The loop variable.
     pub var: Ident,
+    /// What it runs over.
     pub source: Source,
 }
 
+/// What a `for` variable runs over.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Source {
+    /// `start..end` or `start..=end`, whole numbers.
     Range {
+        /// The first value.
         start: Expr,
+        /// The bound.
         end: Expr,
+        /// `..=`: the bound is included.
         inclusive: bool,
     },
+    /// The items of a list, in order.
     List(Expr),
 }
 
 /// `{ let a = ...; value }`
 #[derive(Debug, Clone, PartialEq)]
 pub struct Body {
+    /// Local bindings, each seeing those before it.
     pub lets: Vec<Let>,
+    /// The body's result.
     pub value: Box<Expr>,
 }
 
@@ -208,6 +280,7 @@ pub struct Body {
 /// parsed on its own and its tree moved to a range of offsets no other file
 /// uses, so one span still names one place in one file.
 pub trait Shift {
+    /// Moves every span by `by` bytes.
     fn shift(&mut self, by: usize);
 }
 

@@ -12,17 +12,26 @@ use crate::span::Span;
 /// Stable diagnostic codes. Tests and users may match on these strings, so
 /// they never change meaning; new codes are added, old ones are not reused.
 pub mod codes {
+    /// Text that is not sdfl: the parser's expected tokens are named.
     pub const SYNTAX: &str = "sdfl::syntax";
+    /// Brackets, `if`s or `for`s nested too deep to parse safely.
     pub const NESTING: &str = "sdfl::syntax::nesting";
+    /// A number literal that is not finite (`1e999`).
     pub const NUMBER: &str = "sdfl::syntax::number";
+    /// A string escape sdfl does not have (`\q`).
     pub const ESCAPE: &str = "sdfl::syntax::escape";
     /// A unit written apart from its number (`30 deg`), or one sdfl does
     /// not have (`50mm`, `0.5rad`).
     pub const UNIT: &str = "sdfl::syntax::unit";
+    /// A name that no `let`, parameter, loop or constant defines.
     pub const UNKNOWN_NAME: &str = "sdfl::name::unknown";
+    /// A call of a function that is neither built in nor a `fn`.
     pub const UNKNOWN_FUNCTION: &str = "sdfl::name::unknown-function";
+    /// A statement keyword that is not one of sdfl's (`render`, `train`…).
     pub const UNKNOWN_BLOCK: &str = "sdfl::name::unknown-block";
+    /// A name defined twice in one scope.
     pub const DUPLICATE_NAME: &str = "sdfl::name::duplicate";
+    /// A call of something that is a value, not a function.
     pub const NOT_CALLABLE: &str = "sdfl::name::not-callable";
     /// A `fn` named like a built-in function.
     pub const SHADOWS_BUILTIN: &str = "sdfl::name::shadows-builtin";
@@ -41,19 +50,33 @@ pub mod codes {
     /// A statement (`render`, `train`) in an imported file, which may hold
     /// only `let`s, `fn`s and `import`s.
     pub const IMPORT_STATEMENT: &str = "sdfl::import::statement";
+    /// A named argument the function does not take.
     pub const UNKNOWN_ARG: &str = "sdfl::arg::unknown";
+    /// A required argument left out.
     pub const MISSING_ARG: &str = "sdfl::arg::missing";
+    /// An argument given twice.
     pub const DUPLICATE_ARG: &str = "sdfl::arg::duplicate";
+    /// More positional arguments than the function has parameters.
     pub const TOO_MANY_ARGS: &str = "sdfl::arg::too-many";
+    /// A positional argument after a named one.
     pub const POSITIONAL_AFTER_NAMED: &str = "sdfl::arg::positional-after-named";
+    /// A statement field the statement does not take.
     pub const UNKNOWN_FIELD: &str = "sdfl::field::unknown";
+    /// A required statement field left out.
     pub const MISSING_FIELD: &str = "sdfl::field::missing";
+    /// A statement field given twice.
     pub const DUPLICATE_FIELD: &str = "sdfl::field::duplicate";
+    /// A value of the wrong type (a number where a shape is wanted).
     pub const TYPE: &str = "sdfl::type::mismatch";
+    /// A value of the right type outside its range (a negative radius, `near` ≥ `far`).
     pub const VALUE: &str = "sdfl::value::range";
+    /// Arithmetic without a result: division by zero, a non-finite result.
     pub const ARITHMETIC: &str = "sdfl::value::arithmetic";
+    /// Input beyond sdfl's limits on size: a statement, a list, a scene, a `fn`'s parameters.
     pub const TOO_LARGE: &str = "sdfl::limit::too-large";
+    /// An output or input path that escapes `--out` or that the file system refuses.
     pub const PATH: &str = "sdfl::path::escape";
+    /// A file that could not be read or written.
     pub const IO: &str = "sdfl::io";
     /// Two outputs (or an output and a checkpoint) write the same file.
     pub const OUTPUT_COLLISION: &str = "sdfl::path::collision";
@@ -94,25 +117,77 @@ pub fn fmt_num(x: f64) -> String {
 /// and the command goes on.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Severity {
+    /// The command fails (after reporting every diagnostic).
     Error,
+    /// Printed; the command goes on.
     Warning,
 }
 
 /// One diagnostic: what went wrong, where, and what to do about it.
+///
+/// Boxed, so that `Result<T, Diag>` stays one pointer wide on the error
+/// side: results of every check and evaluation step carry a `Diag`, and an
+/// unboxed one (128 bytes) would be moved through each of them. Its fields
+/// are read and written through [`DiagData`] (`d.code`, `d.help = ...`).
+#[derive(Clone, PartialEq)]
+pub struct Diag(Box<DiagData>);
+
+/// The contents of a [`Diag`].
 #[derive(Debug, Clone, PartialEq)]
-pub struct Diag {
+pub struct DiagData {
+    /// The stable code, one of [`codes`].
     pub code: &'static str,
+    /// The sentence shown as the title of the report.
     pub message: String,
+    /// Where in the source the problem is.
     pub span: Span,
+    /// Shown under the primary span; empty for none.
     pub label: String,
+    /// What the user can do about it.
     pub help: Option<String>,
     /// Secondary spans, e.g. the earlier definition of a duplicate name.
     pub notes: Vec<(Span, String)>,
 }
 
+impl std::ops::Deref for Diag {
+    type Target = DiagData;
+    fn deref(&self) -> &DiagData {
+        &self.0
+    }
+}
+
+impl std::ops::DerefMut for Diag {
+    fn deref_mut(&mut self) -> &mut DiagData {
+        &mut self.0
+    }
+}
+
+impl fmt::Debug for Diag {
+    // As the unboxed struct printed, so test failures read the same.
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let d = &*self.0;
+        f.debug_struct("Diag")
+            .field("code", &d.code)
+            .field("message", &d.message)
+            .field("span", &d.span)
+            .field("label", &d.label)
+            .field("help", &d.help)
+            .field("notes", &d.notes)
+            .finish()
+    }
+}
+
+impl From<DiagData> for Diag {
+    fn from(d: DiagData) -> Self {
+        Diag(Box::new(d))
+    }
+}
+
 impl Diag {
+    /// An error (or warning, by its code) with no label, help or notes yet:
+    /// the builder methods below add them.
     pub fn new(code: &'static str, span: Span, message: impl Into<String>) -> Self {
-        Diag {
+        DiagData {
             code,
             message: message.into(),
             span,
@@ -120,6 +195,11 @@ impl Diag {
             help: None,
             notes: Vec::new(),
         }
+        .into()
+    }
+    /// The contents, owned (to move fields out).
+    pub fn into_data(self) -> DiagData {
+        *self.0
     }
     /// Warnings are the codes under `sdfl::warn::` (kept in the code, so a
     /// diagnostic's severity is as stable as its code).
@@ -130,14 +210,18 @@ impl Diag {
             Severity::Error
         }
     }
+    /// The text under the primary span.
     pub fn label(mut self, label: impl Into<String>) -> Self {
         self.label = label.into();
         self
     }
+    /// What the user can do about it.
     pub fn help(mut self, help: impl Into<String>) -> Self {
         self.help = Some(help.into());
         self
     }
+    /// A secondary span with its text (an earlier definition, the other
+    /// end of a collision).
     pub fn note(mut self, span: Span, text: impl Into<String>) -> Self {
         self.notes.push((span, text.into()));
         self
@@ -147,6 +231,7 @@ impl Diag {
 /// Diagnostics collected while processing one source file.
 #[derive(Debug, Clone, Default)]
 pub struct Diagnostics {
+    /// In the order found; [`Diagnostics::sorted`] orders them by position.
     pub diags: Vec<Diag>,
     /// The files the loaded one imports, each with the offset its spans
     /// were moved to (past the loaded file's and each other's): a span at
@@ -175,11 +260,12 @@ impl Diagnostics {
     /// loaded file.
     fn localised(&self, d: &Diag, main: &SourceFile) -> (Option<&SourceFile>, Diag) {
         let (file, span) = self.locate(d.span);
-        let mut local = Diag {
+        let mut local: Diag = DiagData {
             span,
             notes: Vec::new(),
-            ..d.clone()
-        };
+            ..(**d).clone()
+        }
+        .into();
         for (s, text) in &d.notes {
             let (note_file, s) = self.locate(*s);
             if note_file.map(|f| &f.name) == file.map(|f| &f.name) {
@@ -194,9 +280,11 @@ impl Diagnostics {
         (file, local)
     }
 
+    /// Adds one.
     pub fn push(&mut self, d: Diag) {
         self.diags.push(d);
     }
+    /// Whether there are none, warnings included.
     pub fn is_empty(&self) -> bool {
         self.diags.is_empty()
     }
@@ -204,9 +292,11 @@ impl Diagnostics {
     pub fn has_errors(&self) -> bool {
         self.diags.iter().any(|d| d.severity() == Severity::Error)
     }
+    /// How many, warnings included.
     pub fn len(&self) -> usize {
         self.diags.len()
     }
+    /// Adds another file's (or stage's) diagnostics and imported files.
     pub fn extend(&mut self, other: Diagnostics) {
         self.diags.extend(other.diags);
         for f in other.files {
@@ -225,7 +315,9 @@ impl Diagnostics {
 /// A source file: its name (as shown to the user) and its text.
 #[derive(Debug, Clone, PartialEq)]
 pub struct SourceFile {
+    /// The name shown in reports.
     pub name: String,
+    /// The whole text.
     pub text: Arc<str>,
     /// Where it is on disk, when that differs from `name`: its `import`s
     /// are resolved from here (else from `name`).
@@ -233,6 +325,7 @@ pub struct SourceFile {
 }
 
 impl SourceFile {
+    /// A file shown as `name`, found on disk under that name too.
     pub fn new(name: impl Into<String>, text: impl Into<Arc<str>>) -> Self {
         SourceFile {
             name: name.into(),
@@ -422,6 +515,16 @@ pub fn suggest<'a>(name: &str, candidates: impl IntoIterator<Item = &'a str>) ->
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_diag_is_one_pointer() {
+        // Results carrying it stay small (clippy's result_large_err).
+        assert_eq!(std::mem::size_of::<Diag>(), std::mem::size_of::<usize>());
+        assert_eq!(
+            std::mem::size_of::<Result<(), Diag>>(),
+            std::mem::size_of::<usize>()
+        );
+    }
 
     #[test]
     fn numbers_print_short() {

@@ -9,12 +9,16 @@ pub enum Type {
     /// Unknown (after an error) or deliberately open: accepts and is accepted
     /// by everything, so one mistake does not cascade.
     Any,
+    /// A number (f64 in the language, f32 at run time).
     Number,
+    /// `true` or `false`.
     Bool,
+    /// A string.
     Str,
     /// Three numbers. A list of numbers is accepted where a vector is wanted;
     /// its length is checked when the value is known.
     Vec3,
+    /// A list whose items are all of this type.
     List(Box<Type>),
     /// A domain type of the standard library: `shape`, `material`, `camera`…
     Named(&'static str),
@@ -23,6 +27,7 @@ pub enum Type {
 }
 
 impl Type {
+    /// A list of `of`.
     pub fn list(of: Type) -> Type {
         Type::List(Box::new(of))
     }
@@ -52,6 +57,7 @@ impl Type {
         }
     }
 
+    /// Whether arithmetic applies: numbers, vectors, lists of them (or unknown).
     pub fn is_numeric(&self) -> bool {
         matches!(self, Type::Number | Type::Vec3 | Type::Any)
             || matches!(self, Type::List(e) if e.is_numeric())
@@ -84,14 +90,18 @@ impl fmt::Display for Type {
 /// One parameter of a built-in function or one field of a block.
 #[derive(Debug, Clone)]
 pub struct Param {
+    /// The name a caller writes (`radius:`).
     pub name: &'static str,
+    /// The type accepted.
     pub ty: Type,
     /// The default as written in docs; `None` means the parameter is required.
     pub default: Option<&'static str>,
+    /// One line for help texts and the reference.
     pub doc: &'static str,
 }
 
 impl Param {
+    /// A parameter a caller must give.
     pub fn required(name: &'static str, ty: Type, doc: &'static str) -> Self {
         Param {
             name,
@@ -100,6 +110,7 @@ impl Param {
             doc,
         }
     }
+    /// A parameter with a default, shown as written in `default`.
     pub fn optional(
         name: &'static str,
         ty: Type,
@@ -118,17 +129,20 @@ impl Param {
 /// The signature of a built-in function.
 #[derive(Debug, Clone)]
 pub struct Signature {
+    /// The function's name.
     pub name: &'static str,
+    /// Its parameters, in positional order.
     pub params: Vec<Param>,
     /// Extra positional arguments of this type (lists of it are flattened),
     /// as in `union(a, b, c)`.
     pub rest: Option<Param>,
+    /// The type of its result.
     pub returns: Type,
+    /// One line for help texts and the reference.
     pub doc: &'static str,
 }
 
 impl Signature {
-    /// `name(a: number, b: shape = ...)`, for help texts.
     /// The parameter a positional argument at `index` binds to: none for a
     /// function with rest arguments, whose positional arguments are all
     /// rest and whose parameters are named only (`smooth_union(a, b, c, k: 0.2)`).
@@ -140,6 +154,7 @@ impl Signature {
         }
     }
 
+    /// `name(a: number, b: shape = ...)`, for help texts.
     pub fn synopsis(&self) -> String {
         let mut parts: Vec<String> = Vec::new();
         if let Some(r) = &self.rest {
@@ -159,18 +174,27 @@ impl Signature {
 /// The signature of a block statement (`render`, …).
 #[derive(Debug, Clone)]
 pub struct BlockSig {
+    /// The statement keyword.
     pub kind: &'static str,
+    /// The fields it takes.
     pub fields: Vec<Param>,
+    /// One line for help texts and the reference.
     pub doc: &'static str,
 }
 
 /// What the checker knows of the standard library.
 pub trait Env {
+    /// The built-in function of that name.
     fn function(&self, name: &str) -> Option<&Signature>;
+    /// The statement of that keyword.
     fn block(&self, kind: &str) -> Option<&BlockSig>;
+    /// The type of the built-in constant of that name (`pi`, colours…).
     fn constant(&self, name: &str) -> Option<Type>;
+    /// Every built-in function's name, for suggestions.
     fn function_names(&self) -> Vec<&'static str>;
+    /// Every statement keyword, for suggestions.
     fn block_names(&self) -> Vec<&'static str>;
+    /// Every constant's name, for suggestions.
     fn constant_names(&self) -> Vec<&'static str>;
 }
 

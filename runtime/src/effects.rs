@@ -40,6 +40,7 @@ pub struct Counters {
 }
 
 impl Counters {
+    /// The totals so far.
     pub fn stats(&self) -> EffectStats {
         EffectStats {
             shadow_rays: self.shadow_rays.get(),
@@ -51,12 +52,14 @@ impl Counters {
 
 /// The scene around one shaded surface point.
 pub struct SurfacePoint<'a> {
+    /// The scene's distance field.
     pub sdf: &'a dyn Node,
     /// `1 / L`, `L` the scene's Lipschitz bound: distances are scaled by it,
     /// so bound SDFs never overstate the free space.
     pub inv_lipschitz: f32,
     /// The hit point and its unit normal.
     pub p: Vec3A,
+    /// The unit normal at `p`.
     pub n: Vec3A,
     /// Where shadow rays give up (the render's `far`).
     pub far: f32,
@@ -66,6 +69,7 @@ pub struct SurfacePoint<'a> {
     /// tolerance): shadow rays start and step at least this far, since
     /// finer detail is not resolved in the image.
     pub pixel: f32,
+    /// Where the work is counted.
     pub counters: &'a Counters,
 }
 

@@ -150,6 +150,7 @@ pub fn exit_code(signal: i32) -> u8 {
 pub struct Graceful(());
 
 impl Graceful {
+    /// Starts deferring stop signals (SIGINT, SIGTERM, SIGHUP) to the holder.
     pub fn begin() -> Graceful {
         let mut s = state();
         s.graceful = true;
@@ -184,12 +185,15 @@ pub fn stop_requested() -> Option<i32> {
 /// The error of a run stopped by a signal: not a failure of the input.
 #[derive(Debug)]
 pub struct Stopped {
+    /// The signal's number.
     pub signal: i32,
     /// Where it stopped and what was kept.
     pub message: String,
 }
 
 impl Stopped {
+    /// The error for a stop by `signal`, with `message` (where it stopped,
+    /// what was kept).
     pub fn error(signal: i32, message: String) -> io::Error {
         io::Error::new(io::ErrorKind::Interrupted, Stopped { signal, message })
     }

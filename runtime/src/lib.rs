@@ -1,5 +1,6 @@
 //! The sdfl runtime: lowering of scenes to fast evaluators, sphere tracing,
 //! volume rendering, dfdx training, data sets, and writing outputs.
+#![warn(missing_docs)]
 
 pub mod data;
 pub mod effects;

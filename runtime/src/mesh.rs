@@ -26,12 +26,17 @@ use crate::volume::SplitMix64;
 /// What a written mesh holds.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
 pub struct MeshStats {
+    /// Vertices written.
     pub vertices: usize,
+    /// Triangles written.
     pub triangles: usize,
     /// Grid cells along the region's longest side, and their size.
     pub resolution: u32,
+    /// The cells' side.
     pub cell: f64,
+    /// Total surface area.
     pub area: f64,
+    /// Seconds the extraction took.
     pub seconds: f64,
 }
 
@@ -164,7 +169,9 @@ impl<F: DistanceField> DistanceField for Lipschitz<F> {
 /// A triangle mesh with one normal per vertex.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct Mesh {
+    /// Vertex positions.
     pub vertices: Vec<[f32; 3]>,
+    /// Unit normal per vertex.
     pub normals: Vec<[f32; 3]>,
     /// Counter-clockwise seen from outside.
     pub triangles: Vec<[u32; 3]>,
@@ -173,8 +180,11 @@ pub struct Mesh {
 /// The sampling grid: `points` grid points per axis from `min`, `step` apart.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct MeshGrid {
+    /// The grid's low corner.
     pub min: [f64; 3],
+    /// Distance between grid points.
     pub step: f64,
+    /// Grid points along x, y and z.
     pub points: [usize; 3],
 }
 
@@ -432,7 +442,6 @@ pub fn surface_nets(
         prev = cur;
         progress(k as u64 + 1);
     }
-    drop(plane);
     if broken {
         return Err(MeshError::BoundBroken);
     }

@@ -290,6 +290,8 @@ pub struct Atomic {
 }
 
 impl Atomic {
+    /// A temporary file beside `path` (its directory created), to become
+    /// `path` on commit.
     pub fn create(path: &Path) -> io::Result<Atomic> {
         let dir = match path.parent() {
             Some(d) if !d.as_os_str().is_empty() => d,
@@ -356,6 +358,7 @@ impl Atomic {
         self.file.as_mut().expect("writer used after commit")
     }
 
+    /// Flushes, syncs and renames the file into place.
     pub fn commit(mut self) -> io::Result<()> {
         let file = self.file.take().expect("committed once");
         let file = file
@@ -444,10 +447,12 @@ pub struct GifWriter {
     file: SharedFile,
     path: PathBuf,
     delay: Delay,
+    /// Frames written so far.
     pub frames: usize,
 }
 
 impl GifWriter {
+    /// An animated GIF at `path`, looping, at `fps` frames per second.
     pub fn create(path: &Path, fps: f64) -> io::Result<GifWriter> {
         let file = SharedFile(Arc::new(Mutex::new(Some(Atomic::create(path)?))));
         let mut encoder = GifEncoder::new_with_speed(file.clone(), 10);
@@ -464,6 +469,7 @@ impl GifWriter {
         })
     }
 
+    /// Appends one RGB8 frame.
     pub fn push(&mut self, width: u32, height: u32, rgb: &[u8]) -> io::Result<()> {
         let rgba: Vec<u8> = rgb
             .chunks_exact(3)
@@ -477,6 +483,7 @@ impl GifWriter {
         Ok(())
     }
 
+    /// Writes the trailer and renames the file into place.
     pub fn finish(self) -> io::Result<()> {
         // Dropping the encoder writes the GIF trailer into the file.
         drop(self.encoder);

@@ -27,9 +27,13 @@ const BAND_ROWS: usize = TILE;
 /// Quantities no output needs are never computed.
 #[derive(Debug, Clone, Default, Serialize)]
 pub struct Plan {
+    /// The outputs (by path) that need shaded colour.
     pub color: Vec<String>,
+    /// The outputs that need hit depth.
     pub depth: Vec<String>,
+    /// The outputs that need surface normals.
     pub normals: Vec<String>,
+    /// The outputs that need the hit mask.
     pub mask: Vec<String>,
     /// Surface meshes (the distance on a grid).
     pub meshes: Vec<String>,
@@ -54,11 +58,14 @@ pub struct Plan {
 /// shaded sample.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct ShadowPlan {
+    /// The soft-shadow setting.
     pub shadows: SoftShadows,
+    /// Lights a shaded sample marches towards.
     pub lights: usize,
 }
 
 impl Plan {
+    /// What `job`'s outputs need.
     pub fn of(job: &RenderJob) -> Plan {
         let mut plan = Plan::default();
         for o in &job.outputs {
@@ -214,10 +221,13 @@ pub struct ViewScenes<'a> {
     scene: Lowered,
     /// Seconds spent lowering, and how many times the scene was lowered.
     pub lower_s: f64,
+    /// Times the scene was lowered.
     pub lowerings: usize,
 }
 
 impl<'a> ViewScenes<'a> {
+    /// The scene of `cameras` lowered once (relative to their mean eye when
+    /// they are far from the origin).
     pub fn new(
         shape: &'a sdfl_stdlib::shape::Shape,
         options: LowerOptions,
@@ -259,14 +269,21 @@ impl<'a> ViewScenes<'a> {
 
 /// Per-view buffers; `None` for quantities the plan does not need.
 pub struct ViewBuffers {
+    /// Image width in pixels.
     pub width: u32,
+    /// Image height in pixels.
     pub height: u32,
+    /// Shaded colour, RGB8 row by row.
     pub color: Option<Vec<u8>>,
     /// Hit depth `t`, 0 for misses.
     pub depth: Option<Vec<f32>>,
+    /// Normals as RGB8 colours, `(n + 1) / 2`.
     pub normals: Option<Vec<u8>>,
+    /// 255 where the ray hit, 0 where it missed.
     pub mask: Option<Vec<u8>>,
+    /// Primary rays that hit.
     pub hits: u64,
+    /// Sphere-tracing steps of all primary rays.
     pub steps: u64,
     /// Rays whose steps ran out before they hit or passed `far`.
     pub undecided: u64,
@@ -279,9 +296,13 @@ pub struct ViewBuffers {
 /// Which quantities to compute for each pixel.
 #[derive(Debug, Clone, Copy)]
 pub struct Needs {
+    /// Shaded colour.
     pub color: bool,
+    /// Hit depth.
     pub depth: bool,
+    /// Surface normals.
     pub normals: bool,
+    /// The hit mask.
     pub mask: bool,
 }
 
@@ -548,10 +569,15 @@ fn split<T>(buf: Option<&mut [T]>, chunk: usize, bands: usize) -> Vec<Option<&mu
 /// A file that was written.
 #[derive(Debug, Clone, Serialize)]
 pub struct Written {
+    /// The file, relative to the output directory.
     pub path: PathBuf,
+    /// What it holds (`image`, `gif`, `mesh`…), for the report.
     pub kind: &'static str,
+    /// Width in pixels (0 for files that are not images).
     pub width: u32,
+    /// Height in pixels (0 for files that are not images).
     pub height: u32,
+    /// Frames of an animation; 1 for a still image, 0 for other files.
     pub frames: usize,
     /// What a mesh holds.
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -631,23 +657,32 @@ impl Gifs {
 /// What a job did and how long each stage took.
 #[derive(Debug, Clone, Serialize)]
 pub struct JobReport {
+    /// The statement's name.
     pub name: String,
+    /// Primitives of the lowered scene.
     pub primitives: usize,
+    /// Nodes of its bounding volume hierarchy.
     pub bvh_nodes: usize,
+    /// Its Lipschitz bound (steps are divided by it).
     pub lipschitz: f32,
+    /// Views rendered.
     pub views: usize,
     /// Primary rays traced: pixels × views × samples per pixel (and the
     /// pixel centres where supersampled colour and depth, normals or a
     /// mask are both asked for); `hits` of them hit.
     pub rays: u64,
+    /// Primary rays that hit.
     pub hits: u64,
+    /// Sphere-tracing steps of all primary rays.
     pub steps: u64,
     /// Rays whose steps ran out before they hit or passed `far` (shown as
     /// misses: more `iterations` or `hit_tolerance: "pixel"` decide them).
     pub undecided: u64,
     /// Shadow rays and occlusion samples (all 0 unless a material asks).
     pub effects: EffectStats,
+    /// What was computed, for which output.
     pub plan: Plan,
+    /// The files written.
     pub written: Vec<Written>,
     /// (stage, seconds)
     pub stages: Vec<(String, f64)>,

@@ -8,6 +8,7 @@ use crate::sdf::Node;
 /// lowered [`Node`] is one; a screen tile's candidate members
 /// (`sdf::tiles::Tile`) are another.
 pub trait Distance {
+    /// The distance (or a lower bound on it) at `p`.
     fn dist(&self, p: Vec3A) -> f32;
 }
 
@@ -21,8 +22,11 @@ impl<T: Node + ?Sized> Distance for T {
 /// Settings of one trace.
 #[derive(Debug, Clone, Copy)]
 pub struct TraceSettings {
+    /// Where rays start.
     pub near: f32,
+    /// Where rays give up: farther is a miss.
     pub far: f32,
+    /// Most steps per ray.
     pub max_steps: u32,
     /// A ray hits where the distance falls below `max(epsilon, footprint·t)`.
     pub epsilon: f32,
@@ -43,7 +47,9 @@ pub struct TraceSettings {
 pub struct Hit {
     /// Ray parameter at the end (finite).
     pub t: f32,
+    /// Whether the ray hit a surface.
     pub hit: bool,
+    /// Steps taken.
     pub steps: u32,
     /// The steps ran out before the ray hit or passed `far`.
     pub undecided: bool,
@@ -63,7 +69,7 @@ pub(crate) const PRECISION_TOLERANCE: f32 = 1.0 / 2_097_152.0;
 /// March from `near` until the distance is below the hit tolerance (a hit,
 /// also when the ray starts inside a shape; the tolerance is
 /// `max(epsilon, footprint·t)`, and at least what f32 resolves at the
-/// point's coordinates, [`PRECISION_TOLERANCE`]), `t` passes `far`, or the steps
+/// point's coordinates, `PRECISION_TOLERANCE`), `t` passes `far`, or the steps
 /// run out: then, with a pixel footprint, a ray that came within two
 /// footprints of a surface hits where it came closest, and any other is an
 /// undecided miss. Always returns finite values within `max_steps` steps.
@@ -73,6 +79,10 @@ pub(crate) const PRECISION_TOLERANCE: f32 = 1.0 / 2_097_152.0;
 /// surface, so the trace returns to the previous point and steps `d` from
 /// there, unrelaxed for the rest of the ray (enhanced sphere tracing).
 #[inline]
+#[allow(
+    clippy::neg_cmp_op_on_partial_ord,
+    reason = "a NaN distance must end the ray as a miss"
+)]
 pub fn sphere_trace<D: Distance + ?Sized>(
     sdf: &D,
     origin: Vec3A,
@@ -163,6 +173,10 @@ pub fn sphere_trace<D: Distance + ?Sized>(
 /// at most [`REFINE_STEPS`], stopping below `epsilon` or where the distance
 /// stops shrinking (a ray grazing past keeps its footprint hit). Returns the
 /// refined `t` and the steps taken.
+#[allow(
+    clippy::neg_cmp_op_on_partial_ord,
+    reason = "a NaN distance must stop the refinement"
+)]
 fn refine<D: Distance + ?Sized>(
     sdf: &D,
     origin: Vec3A,

@@ -53,6 +53,10 @@ fn leaf(dev: &Cpu, v: &[f32], cols: usize) -> Traced2 {
 }
 
 #[test]
+#[allow(
+    clippy::needless_range_loop,
+    reason = "r picks the ray's slices of several buffers"
+)]
 fn fused_nerf_equals_the_dfdx_graph() {
     let spec = Nerf {
         position: Encoding::Harmonic(Harmonic {

@@ -16,17 +16,21 @@ use serde_json::Value;
 /// Largest camera path file read.
 pub const MAX_BYTES: u64 = 64 << 20;
 /// Most cameras on a path (the most views of a statement).
-pub const MAX_CAMERAS: usize = crate::builtins::MAX_VIEWS;
+pub const MAX_CAMERAS: usize = crate::limits::MAX_VIEWS;
 /// Largest image side.
-pub const MAX_SIDE: u64 = crate::builtins::MAX_IMAGE_SIDE as u64;
+pub const MAX_SIDE: u64 = crate::limits::MAX_IMAGE_SIDE as u64;
 
 /// A camera path: its cameras for `width × height` images, and its frame
 /// rate.
 #[derive(Debug, Clone, PartialEq)]
 pub struct CameraPath {
+    /// Its cameras in order, one per frame.
     pub cameras: Vec<Camera>,
+    /// Image width the path was made for, in pixels.
     pub width: u32,
+    /// Image height the path was made for, in pixels.
     pub height: u32,
+    /// Frames per second.
     pub fps: f64,
 }
 

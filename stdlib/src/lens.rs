@@ -16,10 +16,28 @@ pub enum Distortion {
     #[default]
     None,
     /// OpenCV's (COLMAP `OPENCV`): two radial and two tangential terms.
-    OpenCv { k1: f64, k2: f64, p1: f64, p2: f64 },
+    OpenCv {
+        /// Radial term in r².
+        k1: f64,
+        /// Radial term in r⁴.
+        k2: f64,
+        /// First tangential term.
+        p1: f64,
+        /// Second tangential term.
+        p2: f64,
+    },
     /// OpenCV's fisheye (COLMAP `OPENCV_FISHEYE`): the angle from the axis
     /// `θ` maps to the image radius `θ(1 + k1θ² + k2θ⁴ + k3θ⁶ + k4θ⁸)`.
-    Fisheye { k1: f64, k2: f64, k3: f64, k4: f64 },
+    Fisheye {
+        /// Term in θ².
+        k1: f64,
+        /// Term in θ⁴.
+        k2: f64,
+        /// Term in θ⁶.
+        k3: f64,
+        /// Term in θ⁸.
+        k4: f64,
+    },
 }
 
 /// Largest angle from the optical axis a fisheye lens may see: rays are
@@ -85,6 +103,10 @@ impl Distortion {
     /// The undistorted point whose distortion is `(xd, yd)`, by Newton's
     /// method from the distorted point; `None` where it does not converge
     /// (outside where the model is one-to-one).
+    #[allow(
+        clippy::neg_cmp_op_on_partial_ord,
+        reason = "a NaN must take the refusing branch, which !(x > t) says and x <= t does not"
+    )]
     pub fn undistort(&self, xd: f64, yd: f64) -> Option<(f64, f64)> {
         if !(xd.is_finite() && yd.is_finite()) {
             return None;
@@ -150,14 +172,19 @@ impl Distortion {
 /// Pixel intrinsics of a real camera for a `width × height` image.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct Intrinsics {
+    /// Image width in pixels.
     pub width: u32,
+    /// Image height in pixels.
     pub height: u32,
-    /// Focal lengths in pixels.
+    /// Horizontal focal length in pixels.
     pub fx: f64,
+    /// Vertical focal length in pixels.
     pub fy: f64,
-    /// The principal point in pixels (the image centre is `(w/2, h/2)`).
+    /// The principal point's x in pixels (the image centre is `(w/2, h/2)`).
     pub cx: f64,
+    /// The principal point's y in pixels.
     pub cy: f64,
+    /// How the lens bends rays away from a pinhole's.
     pub distortion: Distortion,
 }
 
@@ -201,6 +228,10 @@ impl Intrinsics {
 
     /// The pixel `(u, v)` (OpenCV: centres at `i + ½`) where the camera-space
     /// point `p` (x right, y down, z forward) lands; `None` behind the camera.
+    #[allow(
+        clippy::neg_cmp_op_on_partial_ord,
+        reason = "a NaN must take the refusing branch, which !(x > t) says and x <= t does not"
+    )]
     pub fn project(&self, p: [f64; 3]) -> Option<(f64, f64)> {
         if !(p[2] > 0.0) {
             return None;
@@ -221,6 +252,10 @@ impl Intrinsics {
     /// distortion that does not map the image one-to-one (checked over a
     /// grid of the image: each point undistorts and distorts back within
     /// 1e-4 px, and the radial profile keeps increasing out to the corners).
+    #[allow(
+        clippy::neg_cmp_op_on_partial_ord,
+        reason = "a NaN must take the refusing branch, which !(x > t) says and x <= t does not"
+    )]
     pub fn check(&self) -> Result<(), String> {
         let (lo, hi) = FOCAL_PIXELS;
         if self.width == 0 || self.height == 0 {
@@ -413,7 +448,7 @@ mod tests {
             k3: 0.0,
             k4: 0.0,
         };
-        let r = (x * x + y * y as f64).sqrt();
+        let r = (x * x + y * y).sqrt();
         let t = r.atan();
         let rd = t * (1.0 + 0.1 * t * t);
         let got = f.distort(x, y);

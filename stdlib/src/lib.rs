@@ -5,6 +5,7 @@
 //! [`load`] runs the whole front half of the pipeline:
 //! parse → resolve imports → check → evaluate, reporting every error of the
 //! file together.
+#![warn(missing_docs)]
 
 pub mod builtins;
 pub mod camera;
@@ -14,6 +15,7 @@ pub mod effects;
 pub mod eval;
 pub mod imports;
 pub mod lens;
+pub mod limits;
 pub mod material;
 pub mod num;
 pub mod outputs;

@@ -8,6 +8,8 @@ use crate::param::{Arg, ParamUse};
 use crate::shape::ArgSource;
 
 #[derive(Debug, Clone, PartialEq)]
+/// How a surface point is coloured: a colour, or shading of an albedo under
+/// lights.
 pub enum Material {
     /// `clamp(|p - c|, 0.02, 0.98)` componentwise, `c` the primitive's centre.
     Rainbow,
@@ -17,20 +19,30 @@ pub enum Material {
     /// directional light coming from `light` (unit vector towards the
     /// light); `ao` and `shadow` are 1 unless the material asks for them.
     Lambert {
+        /// The surface colour before lighting (itself a material).
         albedo: Box<Material>,
+        /// Unit vector towards the light.
         light: DVec3,
+        /// Fraction of the albedo lit regardless of the light.
         ambient: f64,
+        /// Soft shadows and ambient occlusion, if asked for.
         effects: Effects,
     },
     /// The surface normal as a colour, `(n + 1) / 2`.
     Normals,
     /// Blinn-Phong under directional lights: see [`blinn_phong`].
     Phong {
+        /// The surface colour before lighting (itself a material).
         albedo: Box<Material>,
+        /// The directional lights, each with its colour.
         lights: Vec<Light>,
+        /// Fraction of the albedo lit regardless of the lights.
         ambient: f64,
+        /// Strength of the highlights.
         specular: f64,
+        /// Exponent of the highlights: larger is sharper.
         shininess: f64,
+        /// Soft shadows and ambient occlusion, if asked for.
         effects: Effects,
     },
 }

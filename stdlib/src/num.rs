@@ -24,14 +24,21 @@ pub trait Real:
     fn lit(x: f64) -> Self;
     /// The value, for comparisons and branches.
     fn val(self) -> f64;
+    /// √x.
     fn sqrt(self) -> Self;
+    /// |x|.
     fn abs(self) -> Self;
+    /// eˣ.
     fn exp(self) -> Self;
+    /// The natural logarithm.
     fn ln(self) -> Self;
+    /// `ln(1 + x)` without cancellation near 0.
     fn ln_1p(self) -> Self;
     /// `exp(x) − 1` without cancellation near 0.
     fn exp_m1(self) -> Self;
+    /// sin x (radians).
     fn sin(self) -> Self;
+    /// cos x (radians).
     fn cos(self) -> Self;
     /// The larger of the two (the first on ties).
     fn max(self, o: Self) -> Self;
@@ -43,14 +50,17 @@ pub trait Real:
     /// packs of points whose lanes disagree.
     fn if_gt(a: Self, b: Self, then: Self, otherwise: Self) -> Self;
     #[inline(always)]
+    /// `x` limited to `lo..=hi`.
     fn clamp(self, lo: f64, hi: f64) -> Self {
         self.max(Self::lit(lo)).min(Self::lit(hi))
     }
     #[inline(always)]
+    /// The constant 0.
     fn zero() -> Self {
         Self::lit(0.0)
     }
     #[inline(always)]
+    /// The constant 1.
     fn one() -> Self {
         Self::lit(1.0)
     }
@@ -160,7 +170,7 @@ pub fn exp_f32(x: f32) -> f32 {
     let p = p * r + 8.333_452e-3;
     let p = p * r + 4.166_579_6e-2;
     let p = p * r + 1.666_666_5e-1;
-    let p = p * r + 5.000_000_1e-1;
+    let p = p * r + 0.5; // the fit's 0.500_000_01, as f32 rounds it
     let e_r = (p * r * r + r) + 1.0;
     let half = n_int >> 1;
     let scale = |k: i32| f32::from_bits((k.wrapping_add(127) as u32) << 23);
@@ -201,7 +211,9 @@ pub fn ln_1p_unit_f32(e: f32) -> f32 {
 /// A value with `N` forward-mode tangents over the base type `F`.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Dual<F, const N: usize> {
+    /// The value.
     pub v: F,
+    /// Its derivatives with respect to `N` chosen inputs.
     pub d: [F; N],
 }
 
@@ -237,6 +249,10 @@ impl<F: Real, const N: usize> Dual<F, N> {
 impl<F: Real, const N: usize> Add for Dual<F, N> {
     type Output = Self;
     #[inline(always)]
+    #[allow(
+        clippy::needless_range_loop,
+        reason = "one index over self, o and the result keeps the per-lane formula readable; hot in training"
+    )]
     fn add(self, o: Self) -> Self {
         let mut d = self.d;
         for i in 0..N {
@@ -248,6 +264,10 @@ impl<F: Real, const N: usize> Add for Dual<F, N> {
 impl<F: Real, const N: usize> Sub for Dual<F, N> {
     type Output = Self;
     #[inline(always)]
+    #[allow(
+        clippy::needless_range_loop,
+        reason = "one index over self, o and the result keeps the per-lane formula readable; hot in training"
+    )]
     fn sub(self, o: Self) -> Self {
         let mut d = self.d;
         for i in 0..N {
@@ -259,6 +279,10 @@ impl<F: Real, const N: usize> Sub for Dual<F, N> {
 impl<F: Real, const N: usize> Mul for Dual<F, N> {
     type Output = Self;
     #[inline(always)]
+    #[allow(
+        clippy::needless_range_loop,
+        reason = "one index over self, o and the result keeps the per-lane formula readable; hot in training"
+    )]
     fn mul(self, o: Self) -> Self {
         let mut d = self.d;
         for i in 0..N {
@@ -270,6 +294,10 @@ impl<F: Real, const N: usize> Mul for Dual<F, N> {
 impl<F: Real, const N: usize> Div for Dual<F, N> {
     type Output = Self;
     #[inline(always)]
+    #[allow(
+        clippy::needless_range_loop,
+        reason = "one index over self, o and the result keeps the per-lane formula readable; hot in training"
+    )]
     fn div(self, o: Self) -> Self {
         let inv = F::one() / o.v;
         let q = self.v * inv;
@@ -348,6 +376,10 @@ impl<F: Real, const N: usize> Real for Dual<F, N> {
     }
     /// Selects value and tangents together, by the values.
     #[inline(always)]
+    #[allow(
+        clippy::needless_range_loop,
+        reason = "one index over self, o and the result keeps the per-lane formula readable; hot in training"
+    )]
     fn if_gt(a: Self, b: Self, then: Self, otherwise: Self) -> Self {
         let mut d = otherwise.d;
         for i in 0..N {
@@ -363,41 +395,52 @@ impl<F: Real, const N: usize> Real for Dual<F, N> {
 /// A 3-vector over any [`Real`].
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct V3<T> {
+    /// The first coordinate.
     pub x: T,
+    /// The second coordinate.
     pub y: T,
+    /// The third coordinate.
     pub z: T,
 }
 
 impl<T: Real> V3<T> {
     #[inline(always)]
+    /// A vector of three coordinates.
     pub fn new(x: T, y: T, z: T) -> Self {
         V3 { x, y, z }
     }
     #[inline(always)]
+    /// All three coordinates `v`.
     pub fn splat(v: T) -> Self {
         V3 { x: v, y: v, z: v }
     }
     #[inline(always)]
+    /// A constant vector (no derivatives).
     pub fn lit(v: [f64; 3]) -> Self {
         V3::new(T::lit(v[0]), T::lit(v[1]), T::lit(v[2]))
     }
     #[inline(always)]
+    /// `f` of each coordinate.
     pub fn map(self, f: impl Fn(T) -> T) -> Self {
         V3::new(f(self.x), f(self.y), f(self.z))
     }
     #[inline(always)]
+    /// `f` of each pair of coordinates.
     pub fn zip(self, o: Self, f: impl Fn(T, T) -> T) -> Self {
         V3::new(f(self.x, o.x), f(self.y, o.y), f(self.z, o.z))
     }
     #[inline(always)]
+    /// The dot product.
     pub fn dot(self, o: Self) -> T {
         self.x * o.x + self.y * o.y + self.z * o.z
     }
     #[inline(always)]
+    /// The Euclidean length.
     pub fn length(self) -> T {
         self.dot(self).sqrt()
     }
     #[inline(always)]
+    /// Componentwise |v|.
     pub fn abs(self) -> Self {
         V3::new(self.x.abs(), self.y.abs(), self.z.abs())
     }
@@ -407,14 +450,17 @@ impl<T: Real> V3<T> {
         V3::new(self.x.max(s), self.y.max(s), self.z.max(s))
     }
     #[inline(always)]
+    /// The largest coordinate.
     pub fn max_element(self) -> T {
         self.x.max(self.y).max(self.z)
     }
     #[inline(always)]
+    /// The smallest coordinate.
     pub fn min_element(self) -> T {
         self.x.min(self.y).min(self.z)
     }
     #[inline(always)]
+    /// The cross product.
     pub fn cross(self, o: Self) -> Self {
         V3::new(
             self.y * o.z - self.z * o.y,
@@ -423,10 +469,12 @@ impl<T: Real> V3<T> {
         )
     }
     #[inline(always)]
+    /// The coordinates as an array.
     pub fn to_array(self) -> [T; 3] {
         [self.x, self.y, self.z]
     }
     #[inline(always)]
+    /// A vector from an array of coordinates.
     pub fn from_array(a: [T; 3]) -> Self {
         V3::new(a[0], a[1], a[2])
     }

@@ -11,13 +11,14 @@ use std::path::{Path, PathBuf};
 use sdfl_lang::diag::{codes, Diag};
 use sdfl_lang::Span;
 
-use crate::value::{Output, OutputKind, Program};
+use crate::value::{Output, OutputKind, Program, StatementKind};
 
 /// Most files one scene file may write (all statements, all views).
 pub const MAX_FILES: u64 = 100_000;
 /// Longest file or directory name, and whole relative path, of an output
 /// (the usual file system limits are 255 and 4096).
 pub const MAX_NAME_BYTES: usize = 255;
+/// Longest relative path of an output, in bytes.
 pub const MAX_PATH_BYTES: usize = 1024;
 
 /// The file name for view `k` of `n`: `{view}` is replaced by the padded
@@ -242,11 +243,11 @@ fn held_out_errors<'a>(outputs: impl IntoIterator<Item = &'a Output>, views: usi
 }
 
 /// Checks the files of the job a statement just added to `program` (the
-/// last one of its kind; `kind` is the statement's keyword) against those
+/// last one of its kind) against those
 /// of earlier statements. `field` gives the span of a statement field.
 pub fn check_job(
     program: &Program,
-    kind: &str,
+    kind: StatementKind,
     files: &mut Files,
     field: &dyn Fn(&str) -> Span,
 ) -> Vec<Diag> {
@@ -254,7 +255,7 @@ pub fn check_job(
     let count;
     let held;
     match kind {
-        "train" => {
+        StatementKind::Train => {
             let Some(j) = program.trains.last() else {
                 return Vec::new();
             };
@@ -272,7 +273,7 @@ pub fn check_job(
                 }
             }
         }
-        "volume" => {
+        StatementKind::Volume => {
             let Some(j) = program.volumes.last() else {
                 return Vec::new();
             };
@@ -282,7 +283,7 @@ pub fn check_job(
                 claims = output_files(&j.outputs, j.cameras.len(), JobKind::Volume);
             }
         }
-        _ => {
+        StatementKind::Render => {
             let Some(j) = program.renders.last() else {
                 return Vec::new();
             };
@@ -295,7 +296,7 @@ pub fn check_job(
     }
     let total = count + files.files.len() as u64;
     if total > MAX_FILES {
-        let span = if kind == "train" {
+        let span = if kind == StatementKind::Train {
             field("after")
         } else {
             field("outputs")

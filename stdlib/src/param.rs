@@ -16,7 +16,9 @@ use sdfl_lang::Span;
 /// The initial value of a parameter: a number or a vector.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum ParamInit {
+    /// `param(0.5)`: one number.
     Scalar(f64),
+    /// `param([0, 1, 0])`: three numbers trained together.
     Vec3(DVec3),
 }
 
@@ -28,9 +30,11 @@ impl ParamInit {
             ParamInit::Vec3(_) => 3,
         }
     }
+    /// Never: a parameter holds one or three numbers.
     pub fn is_empty(&self) -> bool {
         false
     }
+    /// The starting numbers, in order.
     pub fn values(&self) -> Vec<f64> {
         match self {
             ParamInit::Scalar(x) => vec![*x],
@@ -44,6 +48,7 @@ impl ParamInit {
 pub struct ParamDecl {
     /// Dense number within the file, in evaluation order (indexes tables).
     pub id: usize,
+    /// The starting value.
     pub init: ParamInit,
     /// The `param(...)` call.
     pub span: Span,
@@ -66,6 +71,7 @@ impl std::fmt::Debug for ParamDecl {
 /// The range an argument must stay in.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Bound {
+    /// Any finite value.
     Free,
     /// At least this (a positive floor for radii, sizes, β, k).
     AtLeast(f64),
@@ -85,6 +91,7 @@ impl Bound {
             _ => Bound::Within(lo, hi),
         }
     }
+    /// The lowest and highest values allowed (infinite where open).
     pub fn limits(self) -> (f64, f64) {
         match self {
             Bound::Free => (f64::NEG_INFINITY, f64::INFINITY),
@@ -114,7 +121,9 @@ pub const MIN_BETA: f64 = 1e-4;
 /// An argument read from a parameter.
 #[derive(Debug, Clone)]
 pub struct ParamUse {
+    /// The parameter read.
     pub decl: Arc<ParamDecl>,
+    /// The range this use needs; a parameter used twice keeps both.
     pub bound: Bound,
     /// Where it is used, `torus.major`: its name in reports unless a `let`
     /// names it.
@@ -131,14 +140,18 @@ impl PartialEq for ParamUse {
 /// parameter it reads when trainable.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Arg<T> {
+    /// The value (the parameter's starting value when trainable).
     pub value: T,
+    /// The parameter it reads, if trainable.
     pub param: Option<ParamUse>,
 }
 
 impl<T> Arg<T> {
+    /// A value that never trains.
     pub fn fixed(value: T) -> Self {
         Arg { value, param: None }
     }
+    /// Whether it reads a `param(...)`.
     pub fn is_param(&self) -> bool {
         self.param.is_some()
     }

@@ -8,9 +8,12 @@ use std::sync::Arc;
 use sdfl_lang::diag::{codes, fmt_num, Diag};
 use sdfl_lang::Span;
 
-use crate::eval::MAX_DEPTH;
 use crate::shape::Shape;
 use crate::value::{Field, Value};
+
+/// Deepest nesting of shapes and lists (built through chains of `let`s,
+/// which brackets do not limit): tree walkers recurse this deep.
+pub const MAX_DEPTH: usize = 200;
 
 /// Most primitives one value may hold once expanded. Values are DAGs
 /// (`union(a, a)` shares `a`), but lowering and tracing copy every use, so
@@ -82,6 +85,7 @@ const SMALL_LIST: usize = 16;
 const MEASURE_LIMIT: usize = MAX_DEPTH + 8;
 
 impl Sizes {
+    /// The expanded size of a value.
     pub fn of(&mut self, v: &Value) -> Size {
         self.value(v, 0)
     }
@@ -121,6 +125,7 @@ impl Sizes {
         }
     }
 
+    /// The expanded size of a shape tree at nesting `level`.
     pub fn shape(&mut self, sh: &Arc<Shape>, level: usize) -> Size {
         let key = Arc::as_ptr(sh) as usize;
         if let Some((_, s)) = self.shapes.get(&key) {

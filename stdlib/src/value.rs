@@ -11,12 +11,19 @@ use crate::param::{Arg, ParamDecl};
 use crate::shape::Shape;
 
 #[derive(Debug, Clone)]
+/// A value of the scene language: what an expression evaluates to.
 pub enum Value {
+    /// A number (f64 while evaluating; checked to fit f32 where the runtime uses it).
     Number(f64),
+    /// `true` or `false`.
     Bool(bool),
+    /// A string (paths, names, options such as `"bf16"`).
     Str(Arc<str>),
+    /// A list; three numbers are also a vector.
     List(Arc<Vec<Value>>),
+    /// A signed distance shape.
     Shape(Arc<Shape>),
+    /// How a surface is shaded.
     Material(Arc<Material>),
     /// A directional light of a `phong` material.
     Light(crate::material::Light),
@@ -26,17 +33,25 @@ pub enum Value {
     Occlusion(crate::effects::AmbientOcclusion),
     /// Fog of a `render`.
     Fog(crate::effects::Fog),
+    /// A camera (`look_at`, `orbit`'s items…).
     Camera(Camera),
+    /// An output file a statement writes.
     Output(Arc<Output>),
     /// A number or vector marked trainable with `param(...)`.
     Param(Arc<ParamDecl>),
     /// A training objective term.
     Loss(Loss),
+    /// A volume: an SDF seen as one, or a neural field.
     Field(Arc<Field>),
+    /// Where samples fall along each ray.
     Sampler(Sampler),
+    /// The images (or points) a `train` fits.
     Dataset(Arc<Dataset>),
+    /// The optimiser of a `train`.
     Optimizer(Optimizer),
+    /// A neural field's input encoding.
     Encoding(Encoding),
+    /// An occupancy grid that skips empty space.
     Occupancy(OccupancySpec),
     /// The shape of a network's hidden layers, for `nerf(network: ...)` and
     /// `neural_sdf(network: ...)`.
@@ -57,6 +72,7 @@ pub enum Value {
 }
 
 impl Value {
+    /// The name of its type in messages ("a shape", "an output").
     pub fn type_name(&self) -> &'static str {
         match self {
             Value::Number(_) => "number",
@@ -88,6 +104,7 @@ impl Value {
         }
     }
 
+    /// Whether it is, or holds, [`Value::Poison`].
     pub fn is_poison(&self) -> bool {
         match self {
             Value::Poison => true,
@@ -113,10 +130,21 @@ impl Value {
         }
     }
 
+    /// A list of three numbers.
     pub fn from_vec3(v: DVec3) -> Value {
         Value::List(Arc::new(
             v.to_array().iter().map(|x| Value::Number(*x)).collect(),
         ))
+    }
+}
+
+/// A short description of a value for messages ("number 2", "list of 3
+/// items", "shape").
+pub(crate) fn describe(v: &Value) -> String {
+    match v {
+        Value::Number(x) => format!("number {}", sdfl_lang::fmt_num(*x)),
+        Value::List(items) => format!("list of {} items", items.len()),
+        other => other.type_name().to_string(),
     }
 }
 
@@ -146,10 +174,16 @@ impl Field {
 #[serde(rename_all = "snake_case")]
 pub enum ViewPath {
     /// `camera_loop` through the training cameras.
-    TrainingLoop { frames: usize, keyframes: usize },
+    TrainingLoop {
+        /// Views made along the loop.
+        frames: usize,
+        /// Sectors of azimuth, one control point each.
+        keyframes: usize,
+    },
 }
 
 impl ViewPath {
+    /// How many views it makes.
     pub fn frames(&self) -> usize {
         match self {
             ViewPath::TrainingLoop { frames, .. } => *frames,
@@ -164,10 +198,16 @@ pub enum OutputKind {
     /// Shaded colour, one PNG per view.
     Image,
     /// Shaded colour of all views as an animated GIF.
-    Gif { fps: f64 },
+    Gif {
+        /// Frames per second.
+        fps: f64,
+    },
     /// Depth of all views, colour-mapped as [`OutputKind::Depth`], as an
     /// animated GIF.
-    DepthGif { fps: f64 },
+    DepthGif {
+        /// Frames per second.
+        fps: f64,
+    },
     /// Hit depth normalised by its maximum and colour-mapped, PNG per view.
     Depth,
     /// Surface normals as colours, PNG per view.
@@ -203,34 +243,50 @@ pub enum OutputKind {
     /// A neural SDF's surface sphere-traced from every view (normals as
     /// colours) as an animated GIF: the geometry of a model whose `gif`
     /// shows its volume-rendered colour.
-    GeometryGif { fps: f64 },
+    GeometryGif {
+        /// Frames per second.
+        fps: f64,
+    },
     /// The surface (zero level set) as a triangle mesh in a PLY file.
     Mesh {
         /// Grid cells along the region's longest side.
         resolution: u32,
+        /// Where the grid lies.
         region: MeshRegion,
     },
     /// A radiance field's surface where its density (an opacity field's
     /// per-sample opacity) crosses `level`, as a PLY mesh with normals and
     /// vertex colours.
     DensityMesh {
+        /// The density (or opacity) whose level set is the surface.
         level: f64,
         /// Grid cells along the region's longest side.
         resolution: u32,
+        /// Where the grid lies.
         region: MeshRegion,
     },
     /// Where rays of the training cameras end (expected depth), coloured by
     /// the rendered colour, where the accumulated opacity reaches
     /// `min_opacity`: a PLY point cloud.
-    PointCloud { points: u32, min_opacity: f64 },
+    PointCloud {
+        /// Points kept (spread over the views).
+        points: u32,
+        /// Rays less opaque than this give no point.
+        min_opacity: f64,
+    },
     /// Expected depth over accumulated opacity per view as float32 `.npy`
     /// (rows × columns), NaN where the opacity is below `min_opacity`.
-    RawDepth { min_opacity: f64 },
+    RawDepth {
+        /// Pixels less opaque than this are NaN.
+        min_opacity: f64,
+    },
     /// Depth per view colour-mapped, with a titled colour bar, as PNG.
     DepthMap {
+        /// The colour map.
         colormap: Colormap,
         /// Depths at the colour map's ends; the views' own range when none.
         range: Option<[f64; 2]>,
+        /// Pixels less opaque than this have no depth.
         min_opacity: f64,
     },
 }
@@ -239,15 +295,22 @@ pub enum OutputKind {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Colormap {
+    /// Google's rainbow-like map, the default.
     Turbo,
+    /// Perceptually uniform blue to yellow.
     Viridis,
+    /// Perceptually uniform black to yellow through red.
     Inferno,
+    /// Perceptually uniform black to white through purple.
     Magma,
+    /// Perceptually uniform blue to yellow through magenta.
     Plasma,
+    /// Viridis readable with colour-vision deficiencies.
     Cividis,
 }
 
 impl Colormap {
+    /// Every colour map, in the order help texts list them.
     pub const ALL: [Colormap; 6] = [
         Colormap::Turbo,
         Colormap::Viridis,
@@ -257,6 +320,7 @@ impl Colormap {
         Colormap::Cividis,
     ];
 
+    /// The name written in scene files.
     pub fn name(self) -> &'static str {
         match self {
             Colormap::Turbo => "turbo",
@@ -276,8 +340,11 @@ pub enum MeshRegion {
     /// The shape's bounds; for a neural SDF, its training points' (or the
     /// training `bounds`).
     Auto,
+    /// An explicit box.
     Box {
+        /// Its low corner.
         min: [f64; 3],
+        /// Its high corner.
         max: [f64; 3],
     },
 }
@@ -308,7 +375,9 @@ impl OutputKind {
 /// A requested output file, relative to the output directory.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct Output {
+    /// What the file holds.
     pub kind: OutputKind,
+    /// The file, relative to the output directory.
     pub path: PathBuf,
     /// The call that asked for it (for diagnostics about its files).
     #[serde(skip)]
@@ -318,17 +387,29 @@ pub struct Output {
 /// One `render` statement, fully evaluated and validated.
 #[derive(Debug, Clone)]
 pub struct RenderJob {
+    /// The statement's name, the stem of its files.
     pub name: String,
+    /// The shape traced.
     pub scene: Arc<Shape>,
+    /// How hits are shaded.
     pub material: Arc<Material>,
+    /// The views, one image (or frame) each.
     pub cameras: Vec<Camera>,
+    /// Image width in pixels.
     pub width: u32,
+    /// Image height in pixels.
     pub height: u32,
+    /// Where rays start (distance from the camera).
     pub near: f64,
+    /// Where rays give up: farther is a miss.
     pub far: f64,
+    /// Most sphere-tracing steps per ray.
     pub iterations: u32,
+    /// A ray hits where the distance falls below this (see `hit_tolerance`).
     pub epsilon: f64,
+    /// How `epsilon` is applied.
     pub hit_tolerance: HitTolerance,
+    /// The colour of misses.
     pub background: DVec3,
     /// Exponential fog by distance, over hits and misses (at `far`).
     pub fog: Option<crate::effects::Fog>,
@@ -336,6 +417,7 @@ pub struct RenderJob {
     /// see `effects::subpixel_offsets`). Depth, normals and the mask are
     /// the pixel centre's.
     pub samples_per_pixel: u32,
+    /// The files it writes.
     pub outputs: Vec<Output>,
 }
 
@@ -356,6 +438,10 @@ pub use crate::density::DensityKind;
 
 /// A field: something a ray marches through, with density and colour.
 #[derive(Debug, Clone)]
+#[allow(
+    clippy::large_enum_variant,
+    reason = "a program holds a few fields, built once and matched by reference"
+)]
 pub enum Field {
     /// An analytic SDF seen as a volume.
     Sdf(SdfField),
@@ -374,9 +460,11 @@ pub enum Field {
 /// encoded view direction.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct NeuralSurface {
+    /// The distance network.
     pub sdf: NeuralSdf,
     /// A density that takes a neural SDF ([`DensityKind::neural`]).
     pub density: DensityKind,
+    /// Density scale α (the density inside, far from the surface).
     pub alpha: f64,
     /// The starting β when `train_beta`.
     pub beta: f64,
@@ -389,8 +477,11 @@ pub struct NeuralSurface {
     /// `color_width`, sigmoid colour; the point encoded with
     /// `color_freqs` harmonics, the direction with 2.
     pub color_layers: usize,
+    /// Width of the colour network's hidden layers.
     pub color_width: usize,
+    /// Harmonic frequencies of the point the colour network sees.
     pub color_freqs: usize,
+    /// Whether colour also sees the view direction.
     pub view_dependent: bool,
     /// Seen through wherever the volume is not opaque.
     pub background: [f64; 3],
@@ -400,6 +491,7 @@ pub struct NeuralSurface {
 }
 
 impl NeuralSurface {
+    /// Harmonic frequencies of the view direction.
     pub const DIRECTION_FREQS: usize = 2;
 
     /// Width of the colour network's input.
@@ -430,8 +522,11 @@ impl NeuralSurface {
 /// that holds it decides the input, the activation and the heads.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Mlp {
+    /// Hidden layers.
     pub layers: usize,
+    /// Units per hidden layer.
     pub width: usize,
+    /// Layers (from 1) that see the input again.
     pub skips: Vec<usize>,
 }
 
@@ -442,13 +537,19 @@ pub struct Mlp {
 /// initialisation).
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct NeuralSdf {
+    /// The encoding of the point.
     pub encoding: Harmonic,
+    /// Hidden softplus layers.
     pub layers: usize,
+    /// Units per hidden layer.
     pub width: usize,
+    /// Layers (from 1) that see the encoding again.
     pub skips: Vec<usize>,
     /// Softplus sharpness: large is close to ReLU with smooth curvature.
     pub beta: f64,
+    /// Radius of the sphere the initial weights describe.
     pub radius: f64,
+    /// Seed of the initial weights.
     pub seed: u64,
 }
 
@@ -463,6 +564,7 @@ impl Field {
         }
     }
 
+    /// The analytic SDF field, if it is one.
     pub fn as_sdf(&self) -> Option<&SdfField> {
         match self {
             Field::Sdf(s) => Some(s),
@@ -474,10 +576,16 @@ impl Field {
 /// An SDF seen as a volume with a colour.
 #[derive(Debug, Clone)]
 pub struct SdfField {
+    /// The shape whose distance becomes density.
     pub shape: Arc<Shape>,
+    /// How distance becomes density.
     pub density: DensityKind,
+    /// Density scale α, possibly trained.
     pub alpha: Arg<f64>,
+    /// Sharpness β (the density's falloff width), possibly trained.
     pub beta: Arg<f64>,
+    /// The colour of samples whose primitive has no material of its own
+    /// (an unlit material's colour at the point).
     pub color: Arc<Material>,
 }
 
@@ -512,7 +620,9 @@ impl NeuralSdf {
 /// `k < freqs`, and `x` itself when `include_input`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
 pub struct Harmonic {
+    /// Frequencies `2^0 … 2^(freqs−1)` per coordinate.
     pub freqs: usize,
+    /// Whether the coordinates themselves are features too.
     pub include_input: bool,
 }
 
@@ -522,12 +632,19 @@ pub struct Harmonic {
 /// trilinearly interpolated.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
 pub struct HashGridSpec {
+    /// Number of grids.
     pub levels: u32,
+    /// Trainable numbers per table row.
     pub features: u32,
+    /// Each table holds at most `2^log2_table` rows.
     pub log2_table: u32,
+    /// Cells a side of the coarsest grid.
     pub min_res: u32,
+    /// Cells a side of the finest grid.
     pub max_res: u32,
+    /// The box's low corner; positions outside it are clamped.
     pub min: [f64; 3],
+    /// The box's high corner.
     pub max: [f64; 3],
 }
 
@@ -572,7 +689,9 @@ impl HashGridSpec {
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Encoding {
+    /// Sines and cosines of the position (NeRF).
     Harmonic(Harmonic),
+    /// A multiresolution hash grid (instant-ngp).
     HashGrid(HashGridSpec),
 }
 
@@ -581,11 +700,13 @@ pub enum Encoding {
 /// sees the view direction through a narrower branch, density never does.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct Nerf {
+    /// The encoding of the sample position.
     pub position: Encoding,
     /// `Some` for a view-dependent colour.
     pub direction: Option<Encoding>,
     /// Hidden layers of the trunk and their width.
     pub layers: usize,
+    /// Units per trunk layer.
     pub width: usize,
     /// Trunk layers whose input is the previous layer and the encoded
     /// position again.
@@ -658,7 +779,9 @@ impl Background {
 /// of `width` to a sigmoid colour.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
 pub struct LearnedBackground {
+    /// Frequencies of the direction's encoding.
     pub freqs: usize,
+    /// Units of the hidden layer.
     pub width: usize,
 }
 
@@ -686,7 +809,9 @@ impl LearnedBackground {
 /// grid then cover.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
 pub struct Contraction {
+    /// The inner box's low corner.
     pub min: [f64; 3],
+    /// The inner box's high corner.
     pub max: [f64; 3],
 }
 
@@ -757,10 +882,15 @@ pub enum Precision {
 /// density times the step exceeds `threshold`.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
 pub struct OccupancySpec {
+    /// Cells a side.
     pub resolution: u32,
+    /// The grid's low corner.
     pub min: [f64; 3],
+    /// The grid's high corner.
     pub max: [f64; 3],
+    /// A cell is occupied where density × step exceeds this.
     pub threshold: f64,
+    /// Training steps between refreshes.
     pub every: usize,
 }
 
@@ -833,10 +963,15 @@ impl Nerf {
 /// (inclusive), optionally jittered within each interval while training.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
 pub struct Sampler {
+    /// Samples per ray.
     pub samples: usize,
+    /// Depth of the first sample.
     pub near: f64,
+    /// Depth of the last sample.
     pub far: f64,
+    /// Whether training jitters each sample within its interval.
     pub jitter: bool,
+    /// How long the last interval is.
     pub last_interval: LastInterval,
 }
 
@@ -859,15 +994,22 @@ pub enum LastInterval {
 pub enum Dataset {
     /// Images read from files (`.npy` float32 H×W×3, or PNG).
     Files {
+        /// The image files, one per camera.
         images: Vec<std::path::PathBuf>,
+        /// The camera of each image.
         cameras: Vec<Camera>,
     },
     /// Views rendered by sdfl from a field: self-contained, with ground truth.
     Rendered {
+        /// The field rendered.
         field: Arc<Field>,
+        /// Every view, held-out ones included.
         cameras: Vec<Camera>,
+        /// Image width in pixels.
         width: u32,
+        /// Image height in pixels.
         height: u32,
+        /// How the field is rendered.
         sampler: Sampler,
         /// Indices into `cameras` held out as test views (sorted).
         test: Vec<usize>,
@@ -876,6 +1018,7 @@ pub enum Dataset {
     /// (its cameras, size, material, background and tracing settings; no
     /// outputs), so the pixels are exactly what that `render` draws.
     Traced {
+        /// The `render` job whose views are the data.
         job: Arc<RenderJob>,
         /// Indices into the job's cameras held out as test views (sorted).
         test: Vec<usize>,
@@ -884,8 +1027,11 @@ pub enum Dataset {
     /// `path` (relative to the scene file); every `every`-th point kept,
     /// moved to their mean when `center`.
     Points {
+        /// The file of points.
         path: std::path::PathBuf,
+        /// Keep every `every`-th point.
         every: usize,
+        /// Move the points to their mean.
         center: bool,
     },
     /// A NeRF-synthetic (Blender) data set: `transforms_<split>.json` and
@@ -896,9 +1042,11 @@ pub enum Dataset {
         path: std::path::PathBuf,
         /// The `path` argument, where errors reading the data set point.
         path_span: sdfl_lang::Span,
+        /// The split trained on (`train`, `val`, `test`).
         split: String,
         /// The split read as test views, if any.
         test_split: Option<String>,
+        /// The colour transparent pixels are composited over.
         background: DVec3,
     },
     /// A real capture (`capture(...)`): nerfstudio's `transforms.json`,
@@ -914,12 +1062,16 @@ pub enum CaptureFormat {
     /// COLMAP model (`sparse/0/cameras.txt`, `sparse/cameras.txt` or
     /// `cameras.txt`), then `poses_bounds.npy`.
     Auto,
+    /// nerfstudio's `transforms.json`.
     Nerfstudio,
+    /// A COLMAP text model.
     Colmap,
+    /// LLFF's `poses_bounds.npy`.
     Llff,
 }
 
 impl CaptureFormat {
+    /// Each format with the name scene files write.
     pub const NAMES: [(&'static str, CaptureFormat); 4] = [
         ("auto", CaptureFormat::Auto),
         ("nerfstudio", CaptureFormat::Nerfstudio),
@@ -927,6 +1079,7 @@ impl CaptureFormat {
         ("llff", CaptureFormat::Llff),
     ];
 
+    /// The name scene files write.
     pub fn name(self) -> &'static str {
         Self::NAMES
             .iter()
@@ -951,6 +1104,7 @@ pub struct CaptureSpec {
     pub path: std::path::PathBuf,
     /// The `path` argument, where errors reading the capture point.
     pub path_span: sdfl_lang::Span,
+    /// The layout of its files.
     pub format: CaptureFormat,
     /// Images read from `images_<downscale>` (1: `images`), intrinsics
     /// scaled to match.
@@ -961,6 +1115,7 @@ pub struct CaptureSpec {
     /// Centre on the cameras and scale them into [−extent, extent]³
     /// (`false`: the data's own frame).
     pub normalize: bool,
+    /// How the cameras are turned when normalising.
     pub orient: CaptureOrient,
     /// The farthest camera coordinate after normalising.
     pub extent: f64,
@@ -1041,7 +1196,9 @@ pub fn held_out(n: usize, test: usize, seed: u64) -> Vec<usize> {
 /// Adam with a learning-rate schedule.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
 pub struct Optimizer {
+    /// The base learning rate.
     pub lr: f64,
+    /// How it changes with the step.
     pub schedule: Schedule,
 }
 
@@ -1049,15 +1206,20 @@ pub struct Optimizer {
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Schedule {
+    /// The same learning rate throughout.
     Constant,
     /// Multiplied by `factor` every `every` steps.
     Step {
+        /// Multiplier applied each time.
         factor: f64,
+        /// Steps between multiplications.
         every: usize,
     },
     /// `lr·factor^(step/every)`: the same decay as `Step`, spread smoothly.
     Exponential {
+        /// Multiplier over `every` steps.
         factor: f64,
+        /// Steps over which the rate is multiplied by `factor`.
         every: usize,
     },
 }
@@ -1090,7 +1252,10 @@ pub enum LossKind {
     /// exact (no finite differences).
     Eikonal,
     /// Mean exp(−alpha·|f|) at random points: no surface away from the data.
-    Inter { alpha: f64 },
+    Inter {
+        /// How fast the penalty falls with |f|.
+        alpha: f64,
+    },
 }
 
 impl LossKind {
@@ -1104,7 +1269,9 @@ impl LossKind {
 /// A weighted loss term.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
 pub struct Loss {
+    /// Which term.
     pub kind: LossKind,
+    /// Its weight in the sum.
     pub weight: f64,
 }
 
@@ -1123,41 +1290,61 @@ pub enum Backend {
 /// A `render` statement whose scene is a field: volume rendering.
 #[derive(Debug, Clone)]
 pub struct VolumeJob {
+    /// The statement's name, the stem of its files.
     pub name: String,
+    /// The volume rendered.
     pub field: Arc<Field>,
+    /// The views, one image (or frame) each.
     pub cameras: Vec<Camera>,
+    /// Image width in pixels.
     pub width: u32,
+    /// Image height in pixels.
     pub height: u32,
+    /// Where samples fall along each ray.
     pub sampler: Sampler,
+    /// The files it writes.
     pub outputs: Vec<Output>,
 }
 
 /// A `train` statement.
 #[derive(Debug, Clone)]
 pub struct TrainJob {
+    /// The statement's name, the stem of its files.
     pub name: String,
+    /// The field trained.
     pub model: Arc<Field>,
+    /// What it is fitted to.
     pub data: Arc<Dataset>,
     /// The `data` argument, where errors reading the data set point.
     pub data_span: sdfl_lang::Span,
+    /// Where samples fall along each training ray.
     pub sampler: Sampler,
+    /// Rays per step.
     pub rays: usize,
+    /// The optimiser and its learning-rate schedule.
     pub optimizer: Optimizer,
+    /// The objective's terms.
     pub losses: Vec<Loss>,
     /// Optimiser steps, unless `epochs` is given.
     pub iterations: usize,
     /// Passes over all training pixels: steps = epochs × ⌈pixels / rays⌉.
     pub epochs: Option<usize>,
+    /// Seed of the batches (a step's rays are a function of seed and step).
     pub seed: u64,
+    /// How gradients are computed.
     pub backend: Backend,
     /// Cameras and size for the before/after outputs (placeholders, as
     /// many as it will have, where `view_path` makes them at run time).
     pub views: Vec<Camera>,
     /// Views made from the training cameras when the run has read them.
     pub view_path: Option<ViewPath>,
+    /// Width of the before/after images.
     pub width: u32,
+    /// Height of the before/after images.
     pub height: u32,
+    /// Outputs of the model as it starts.
     pub before: Vec<Output>,
+    /// Outputs of the trained model.
     pub after: Vec<Output>,
     /// Where to keep a resumable checkpoint (relative to the output dir).
     pub checkpoint: Option<std::path::PathBuf>,
@@ -1170,24 +1357,89 @@ pub struct TrainJob {
 /// Everything a scene file asks for, by kind, each in file order.
 #[derive(Debug, Clone, Default)]
 pub struct Program {
+    /// `render` statements of shapes.
     pub renders: Vec<RenderJob>,
+    /// `render` statements of fields (volume rendering).
     pub volumes: Vec<VolumeJob>,
+    /// `train` statements.
     pub trains: Vec<TrainJob>,
     /// Every statement in file order (statements run in this order).
     pub order: Vec<Statement>,
 }
 
+/// What a statement runs: a `render` of a shape, a `render` of a field
+/// (volume rendering) or a `train`. Named in reports as `render`, `volume`
+/// and `train`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum StatementKind {
+    /// A shape sphere-traced.
+    Render,
+    /// A field volume-rendered.
+    Volume,
+    /// A field trained.
+    Train,
+}
+
+impl StatementKind {
+    /// The kind of a statement written with `keyword` (`render`, `train`),
+    /// whose `scene` field (if any) holds a field.
+    pub fn of(keyword: &str, scene_is_field: bool) -> StatementKind {
+        match (keyword, scene_is_field) {
+            ("train", _) => StatementKind::Train,
+            (_, true) => StatementKind::Volume,
+            _ => StatementKind::Render,
+        }
+    }
+
+    /// The statement of this kind at `index` of its list in a [`Program`].
+    pub fn at(self, index: usize) -> Statement {
+        match self {
+            StatementKind::Render => Statement::Render(index),
+            StatementKind::Volume => Statement::Volume(index),
+            StatementKind::Train => Statement::Train(index),
+        }
+    }
+}
+
 /// A statement of a [`Program`]: which list, and where in it.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Statement {
+    /// The `render` of a shape at this index of [`Program::renders`].
     Render(usize),
+    /// The volume render at this index of [`Program::volumes`].
     Volume(usize),
+    /// The `train` at this index of [`Program::trains`].
     Train(usize),
+}
+
+impl Statement {
+    /// What it runs.
+    pub fn kind(self) -> StatementKind {
+        match self {
+            Statement::Render(_) => StatementKind::Render,
+            Statement::Volume(_) => StatementKind::Volume,
+            Statement::Train(_) => StatementKind::Train,
+        }
+    }
 }
 
 #[cfg(test)]
 mod tests {
-    use super::held_out;
+    use super::{held_out, StatementKind};
+
+    #[test]
+    fn statement_kinds_round_trip_and_read_their_keyword() {
+        use StatementKind::*;
+        for k in [Render, Volume, Train] {
+            assert_eq!(k.at(3).kind(), k);
+        }
+        assert_eq!(StatementKind::of("train", true), Train);
+        assert_eq!(StatementKind::of("render", true), Volume);
+        assert_eq!(StatementKind::of("render", false), Render);
+        let names = [Render, Volume, Train].map(|k| serde_json::to_string(&k).unwrap());
+        assert_eq!(names, ["\"render\"", "\"volume\"", "\"train\""]);
+    }
 
     #[test]
     fn held_out_views_are_a_seeded_sorted_subset() {

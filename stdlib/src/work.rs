@@ -76,7 +76,9 @@ impl Stage {
 /// (on top of what the whole statement holds).
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct Cost {
+    /// SDF (or network) evaluations, an upper bound.
     pub evaluations: f64,
+    /// Bytes held.
     pub memory: f64,
 }
 
@@ -139,6 +141,7 @@ impl Work {
             .unwrap_or(Stage::Training)
     }
 
+    /// The whole statement in one phrase, for messages.
     pub fn describe(&self) -> String {
         format!(
             "at most {} SDF evaluations, about {} of memory",
@@ -359,6 +362,7 @@ fn chamfer_cost() -> Cost {
     }
 }
 
+/// What a `render` of a shape costs (at `size` when `--size` overrides it).
 pub fn render_work(j: &RenderJob, size: Option<(u32, u32)>) -> Work {
     render_work_of(j, size, j.scene.primitive_count() as u64)
 }
@@ -496,6 +500,7 @@ fn nerf_bytes_per_sample(n: &crate::value::Nerf) -> f64 {
 /// Samples a NeRF render or refresh evaluates in one pass.
 const NETWORK_PASS: f64 = 65_536.0;
 
+/// What a volume `render` costs (at `size` when `--size` overrides it).
 pub fn volume_work(j: &VolumeJob, size: Option<(u32, u32)>) -> Work {
     let px = pixels((j.width, j.height), size);
     // A network's sample costs its multiply-adds and holds its activations
@@ -634,6 +639,7 @@ pub fn held_out_cost(j: &TrainJob, views: usize, pixels: f64) -> Cost {
     }
 }
 
+/// What a `train` costs (at `size` when `--size` overrides its images).
 pub fn train_work(j: &TrainJob, size: Option<(u32, u32)>) -> Work {
     let samples = j.sampler.samples as f64;
     let iterations = training_steps(j);
@@ -1000,7 +1006,7 @@ pub fn check_program(program: &Program, size: Option<(u32, u32)>) -> Result<(), 
             return Err(format!(
                 "`{name}`: {} with this --size; {}",
                 d.message,
-                d.help.unwrap_or_default()
+                d.help.as_deref().unwrap_or_default()
             ));
         }
     }

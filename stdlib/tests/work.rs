@@ -107,20 +107,18 @@ fn an_occupancy_grid_refreshed_every_step_is_refused() {
 /// plan of 6e8 evaluations: refused, naming the held-out evaluation.
 #[test]
 fn held_out_views_scored_every_step_are_refused() {
-    let src = format!(
-        r#"
+    let src = r#"
 let truth = volsdf(sphere(0.6), alpha: 10, beta: 0.05)
-train t {{
+train t {
   model: nerf(layers: 2, width: 64, skips: []),
   data: render_views(truth, cameras: orbit(radius: 3, views: 1000), size: [32, 32], test_views: 999),
   sampler: stratified(samples: 1024, near: 1, far: 5),
   rays: 64,
   iterations: 1000,
   eval_every: 1,
-}}
-"#
-    );
-    let found = codes_and_messages(&src);
+}
+"#;
+    let found = codes_and_messages(src);
     assert!(
         found
             .iter()

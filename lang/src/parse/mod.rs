@@ -24,9 +24,14 @@ use crate::span::Span;
 mod errors;
 use errors::{next_item_start, prescan, syntax_error};
 
-#[derive(pest_derive::Parser)]
-#[grammar = "sdfl.pest"]
-struct SdflParser;
+/// The parser pest derives from the grammar, and its `Rule`s.
+mod grammar {
+    #![allow(missing_docs, reason = "pest_derive generates the Rule enum")]
+    #[derive(pest_derive::Parser)]
+    #[grammar = "sdfl.pest"]
+    pub(crate) struct SdflParser;
+}
+use grammar::{Rule, SdflParser};
 
 /// Deepest bracket nesting accepted (a `for` whose body has not started
 /// yet counts as one more level: `for a in for b in ...` nests too).

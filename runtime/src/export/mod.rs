@@ -55,6 +55,7 @@ pub trait RadianceField: Sync {
 pub struct Analytic<F> {
     /// Point → (signed distance, colour).
     pub field: F,
+    /// How distance becomes density.
     pub model: DensityModel,
 }
 
@@ -81,7 +82,9 @@ impl<F: Fn([f32; 3]) -> (f32, [f32; 3]) + Sync> RadianceField for Analytic<F> {
 /// A NeRF network at its parameters (the fine network where there is one:
 /// the one that renders).
 pub struct NerfField<'a> {
+    /// The network.
     pub net: &'a NerfNet,
+    /// Its parameters.
     pub params: &'a [f32],
 }
 
@@ -190,8 +193,8 @@ pub fn march_rays(
             }
             let mut e = RayEnd::default();
             for k in 0..n {
-                for a in 0..3 {
-                    e.colour[a] += w[k] * c[k][a];
+                for (colour, c) in e.colour.iter_mut().zip(c[k]) {
+                    *colour += w[k] * c;
                 }
                 e.depth += w[k] * t[k];
                 e.opacity += w[k];
@@ -217,7 +220,9 @@ pub fn render_ends(
 /// A coloured point cloud.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct Cloud {
+    /// Point positions.
     pub points: Vec<[f32; 3]>,
+    /// Colour per point.
     pub colours: Vec<[u8; 3]>,
     /// Rays it took.
     pub rays: usize,
@@ -287,7 +292,9 @@ pub fn point_cloud(
 /// A triangle mesh with a colour per vertex.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct ColouredMesh {
+    /// Positions, normals and triangles.
     pub mesh: Mesh,
+    /// Colour per vertex.
     pub colours: Vec<[u8; 3]>,
 }
 

@@ -17,16 +17,20 @@ use crate::volume::{ImageSize, Stratified};
 
 /// What the field exports of one statement need besides the field.
 pub struct ExportContext<'a> {
+    /// The output directory.
     pub out_dir: &'a Path,
+    /// Where samples fall along each ray.
     pub sampler: &'a Sampler,
     /// The views per-view outputs (depth) are rendered from, at `size`.
     pub cameras: &'a [Camera],
+    /// Image size of `cameras`' views.
     pub size: (u32, u32),
     /// The cameras a point cloud casts rays from (the training views, each
     /// with its own image size).
     pub ray_views: &'a [(Camera, ImageSize)],
     /// The region `bounds: "auto"` stands for.
     pub auto_region: Option<([f64; 3], [f64; 3])>,
+    /// Seed of the point cloud's rays.
     pub seed: u64,
     /// From the field's frame into the data's own (positions of meshes and
     /// point clouds; depth is a length along the ray and is not moved).

@@ -87,14 +87,14 @@ pub type FieldFn<'a> = &'a (dyn Fn([f32; 3]) -> (f32, [f32; 3]) + Sync);
 pub type ViewFn<'a> =
     &'a (dyn Fn(&Camera, (u32, u32), bool) -> io::Result<(Vec<[f32; 3]>, Vec<f32>)> + Sync);
 
+/// Renders one camera's view at a size (`true`: with depth): colours and
+/// depths, row by row.
+type ViewRenderer<'a> =
+    Box<dyn Fn(&Camera, (u32, u32), bool) -> io::Result<(Vec<[f32; 3]>, Vec<f32>)> + Sync + 'a>;
+
 /// A field as it is rendered from its file's values (a NeRF from its
 /// initial weights).
-fn field_view<'a>(
-    field: &'a Field,
-    sampler: &'a Sampler,
-) -> io::Result<
-    Box<dyn Fn(&Camera, (u32, u32), bool) -> io::Result<(Vec<[f32; 3]>, Vec<f32>)> + Sync + 'a>,
-> {
+fn field_view<'a>(field: &'a Field, sampler: &'a Sampler) -> io::Result<ViewRenderer<'a>> {
     let strat = stratified(sampler)?;
     Ok(match field {
         // The language refuses to render these; say so if one gets here.
@@ -164,10 +164,15 @@ fn rgb8(colour: &[[f32; 3]]) -> Vec<u8> {
 /// What a volume or training job did.
 #[derive(Debug, Clone, Serialize)]
 pub struct VolumeReport {
+    /// The statement's name.
     pub name: String,
+    /// Views rendered.
     pub views: usize,
+    /// Samples per ray.
     pub samples_per_ray: usize,
+    /// The files written.
     pub written: Vec<Written>,
+    /// (stage, seconds)
     pub stages: Vec<(String, f64)>,
 }
 
@@ -293,6 +298,8 @@ pub fn write_volume_outputs(
     })
 }
 
+/// Renders a volume `render` statement's views and writes its outputs into
+/// `out_dir` (at `size` when `--size` overrides it); `progress` counts views.
 pub fn run_volume_job(
     job: &VolumeJob,
     out_dir: &Path,
@@ -405,7 +412,9 @@ fn load_image(path: &Path) -> io::Result<RgbImage> {
 /// A data set's views: those to train on and those held out for testing.
 #[derive(Debug, Clone)]
 pub struct Views {
+    /// Views trained on.
     pub train: Vec<TrainView>,
+    /// Views held out for testing.
     pub test: Vec<TrainView>,
     /// A point cloud's points (no views then).
     pub points: Vec<[f32; 3]>,
@@ -415,6 +424,7 @@ pub struct Views {
     /// A capture's normalisation (data frame → scene frame) and the lines
     /// that report it; exports map back with `SceneFrame::to_data`.
     pub scene_frame: Option<crate::data::normalize::SceneFrame>,
+    /// Lines describing the normalisation, for the run's report.
     pub scene_report: Vec<String>,
     /// A forward-facing capture's camera for NDC (LLFF).
     pub forward_facing: Option<crate::data::capture::ForwardFacing>,

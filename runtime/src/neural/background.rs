@@ -15,10 +15,15 @@ use crate::volume::{Ray, SplitMix64};
 /// parameters (after the field's networks).
 #[derive(Debug, Clone)]
 pub struct LearnedNet {
+    /// The encoding of the ray's direction.
     pub encoding: Harmonic,
+    /// The hidden ReLU layer.
     pub hidden: Dense,
+    /// The sigmoid colour layer.
     pub out: Dense,
+    /// Where its parameters start in the flat vector.
     pub first: usize,
+    /// How many parameters it has.
     pub len: usize,
 }
 
@@ -35,7 +40,9 @@ pub struct BackdropWork {
 /// The background of a NeRF as the runtime computes it.
 #[derive(Debug, Clone)]
 pub enum Backdrop {
+    /// A fixed colour.
     Color([f32; 3]),
+    /// A colour learned from the ray's direction.
     Learned(LearnedNet),
 }
 
@@ -59,6 +66,7 @@ impl Backdrop {
         }
     }
 
+    /// Whether it has no parameters (a fixed colour).
     pub fn is_empty(&self) -> bool {
         self.len() == 0
     }
@@ -116,6 +124,7 @@ impl Backdrop {
 }
 
 impl LearnedNet {
+    /// The network `spec` describes, its parameters from `first` on.
     pub fn new(spec: &LearnedBackground, first: usize) -> Self {
         let encoding = Harmonic {
             dims: 3,

@@ -70,7 +70,7 @@ const MR: usize = 12;
 const KC: usize = 256;
 
 /// The right operand `B` (`k × n`), rounded to bf16 and laid out for the
-/// kernel: panels of [`NR`] columns; in each, for every pair of rows
+/// kernel: panels of `NR` columns; in each, for every pair of rows
 /// `2p, 2p + 1`, one 32-bit word per column holding `B[2p][j]` in its low
 /// half and `B[2p + 1][j]` in its high half (zeros past `k` and `n`).
 #[derive(Debug, Clone)]
@@ -122,10 +122,12 @@ impl Packed {
         Packed { k, n, kp, words }
     }
 
+    /// Rows of `B`.
     pub fn k(&self) -> usize {
         self.k
     }
 
+    /// Columns of `B`.
     pub fn n(&self) -> usize {
         self.n
     }

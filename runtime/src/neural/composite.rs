@@ -11,6 +11,7 @@
 /// The composite of one ray.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Composite {
+    /// `Σ w_k·c_k`, background included.
     pub colour: [f32; 3],
     /// `Σ w_k`, the ray's opacity.
     pub opacity: f32,
@@ -43,8 +44,8 @@ pub fn composite(
         out.depth += w * t[k];
         trans *= (-tau).exp();
     }
-    for i in 0..3 {
-        out.colour[i] += trans * background[i];
+    for (c, b) in out.colour.iter_mut().zip(background) {
+        *c += trans * b;
     }
     out
 }
@@ -183,8 +184,8 @@ mod tests {
         let c = composite(&sigma, &rgb, &t, &delta, bg);
         let f = |v: &[f32]| v.iter().map(|&x| x as f64).collect::<Vec<_>>();
         let want = reference(&f(&sigma), &f(&rgb), &f(&delta), bg.map(|x| x as f64));
-        for i in 0..3 {
-            assert!((c.colour[i] as f64 - want[i]).abs() < 1e-6);
+        for (c, want) in c.colour.iter().zip(want) {
+            assert!((*c as f64 - want).abs() < 1e-6);
         }
     }
 

@@ -17,15 +17,18 @@ use sdfl_stdlib::value::Contraction;
 /// A contraction as the runtime computes it (f32).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Contract {
+    /// The inner box's centre.
     pub center: [f32; 3],
     /// 2 / (max − min) per axis: the inner box to [-1, 1]³.
     pub inv_half: [f32; 3],
     /// The inner box in world coordinates (f64: the rays' exits).
     pub min: [f64; 3],
+    /// The inner box's high corner in world coordinates.
     pub max: [f64; 3],
 }
 
 impl Contract {
+    /// The runtime's form of a scene file's `contraction(...)`.
     pub fn new(c: &Contraction) -> Self {
         Contract {
             center: std::array::from_fn(|a| (0.5 * (c.min[a] + c.max[a])) as f32),
@@ -123,6 +126,10 @@ pub fn piecewise(t: f64, near: f64, far: f64, exit: f64) -> f64 {
 
 /// The contraction of a point in inner-box coordinates (f32).
 #[inline]
+#[allow(
+    clippy::neg_cmp_op_on_partial_ord,
+    reason = "a NaN must take the identity branch"
+)]
 pub fn contract_f32(x: [f32; 3]) -> [f32; 3] {
     let m = x[0].abs().max(x[1].abs()).max(x[2].abs());
     if m.is_infinite() {

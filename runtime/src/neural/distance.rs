@@ -58,6 +58,7 @@ pub fn random_points(n: usize, bounds: f32, rng: &mut SplitMix64, out: &mut Vec<
 
 /// A neural SDF being fitted to points.
 pub struct NeuralSdfObjective {
+    /// The network and where its parameters lie.
     pub net: SdfNet,
     spec: NeuralSdf,
     weights: SdfLoss,
@@ -67,6 +68,8 @@ pub struct NeuralSdfObjective {
 }
 
 impl NeuralSdfObjective {
+    /// An objective for `spec` with the `losses` terms, drawing random points
+    /// in the cube of half-extent `bounds`.
     pub fn new(spec: &NeuralSdf, losses: &[Loss], bounds: f64) -> Self {
         NeuralSdfObjective {
             net: sdf_net(spec),
@@ -232,11 +235,13 @@ pub struct MeshFit {
     pub chamfer: f64,
     /// Mean distance from a reference point to the mesh, and back.
     pub points_to_mesh: f64,
+    /// Mean distance from a mesh sample to the nearest reference point.
     pub mesh_to_points: f64,
     /// What the points are from: "data" or "true surface".
     pub against: &'static str,
     /// Points and mesh samples compared.
     pub points: usize,
+    /// Mesh samples compared.
     pub samples: usize,
 }
 
@@ -249,6 +254,8 @@ pub enum Reference<'a> {
     Surface(&'a crate::mesh::Mesh),
 }
 
+/// How well `mesh` passes through `reference`: the chamfer distance both
+/// ways (`against` names the reference in reports; `seed` picks samples).
 pub fn mesh_fit(
     mesh: &crate::mesh::Mesh,
     reference: Reference,
@@ -262,7 +269,7 @@ pub fn mesh_fit(
             (p.iter().step_by(every).copied().collect(), p.to_vec())
         }
         Reference::Surface(m) => (
-            m.sample_surface(MESH_FIT_POINTS, seed ^ 0x7472_7574_68),
+            m.sample_surface(MESH_FIT_POINTS, seed ^ 0x0074_7275_7468),
             m.sample_surface(SURFACE_SAMPLES, seed ^ 0x7472_7565),
         ),
     };
@@ -345,7 +352,9 @@ mod tests {
 /// A network at `params` as a distance field: values alone, or with the
 /// exact gradient.
 pub struct NetDistance<'a> {
+    /// The network.
     pub net: &'a SdfNet,
+    /// Its parameters.
     pub params: &'a [f32],
 }
 
@@ -366,8 +375,11 @@ impl crate::mesh::DistanceField for NetDistance<'_> {
 /// How a neural SDF is sphere-traced.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct TraceSettings {
+    /// Where rays start.
     pub near: f32,
+    /// Where rays give up: farther is a miss.
     pub far: f32,
+    /// Most steps per ray.
     pub iterations: usize,
     /// A ray hits when |f| falls below this.
     pub epsilon: f32,
@@ -390,7 +402,9 @@ impl Default for TraceSettings {
 /// A sphere-traced view of a neural SDF: normals shaded as colours
 /// (`(n + 1)/2`, black where rays miss) and hit depth (0 on misses).
 pub struct TracedView {
+    /// Colour per pixel, row by row.
     pub colour: Vec<[f32; 3]>,
+    /// Hit depth per pixel (0 on misses).
     pub depth: Vec<f32>,
 }
 

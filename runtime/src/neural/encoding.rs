@@ -12,12 +12,16 @@ const ROW_BLOCK: usize = 1024;
 /// within the sines, then the cosines).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Harmonic {
+    /// Dimensions of the input (3 for positions and directions).
     pub dims: usize,
+    /// Frequencies `2^0 … 2^(freqs−1)` per dimension.
     pub freqs: usize,
+    /// Whether the input itself is a feature too.
     pub include_input: bool,
 }
 
 impl Harmonic {
+    /// Features per input.
     pub fn width(&self) -> usize {
         self.dims * 2 * self.freqs + if self.include_input { self.dims } else { 0 }
     }
@@ -36,6 +40,7 @@ impl Harmonic {
     }
 
     #[inline]
+    /// Encodes one input `x` into `row`.
     pub fn encode_one(&self, x: &[f32], row: &mut [f32]) {
         let (d, f) = (self.dims, self.freqs);
         for i in 0..d {

@@ -38,8 +38,11 @@ const SEGMENT: usize = 16;
 /// `t[offsets[r]..offsets[r + 1]]`, each with its interval in `delta`.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct Samples {
+    /// Ray `r`'s samples are `offsets[r]..offsets[r + 1]` (one entry more than rays).
     pub offsets: Vec<usize>,
+    /// Sample depths along each ray.
     pub t: Vec<f32>,
+    /// Each sample's interval.
     pub delta: Vec<f32>,
 }
 
@@ -65,6 +68,7 @@ impl Samples {
         }
     }
 
+    /// Rays in the batch.
     pub fn rays(&self) -> usize {
         self.offsets.len().saturating_sub(1)
     }
@@ -214,6 +218,7 @@ unsafe impl Sync for SharedSlice {}
 /// An occupancy grid in use: the grid, how often it is refreshed, and the
 /// fixed-step range its samples cover.
 pub struct Occupancy {
+    /// The grid.
     pub grid: OccupancyGrid,
     /// In an unbounded scene the grid covers the contracted cube (or NDC's
     /// box) and filters the sampler's own depths (rays are curves there).
@@ -368,8 +373,11 @@ fn unbounded_depths<'d>(
 /// A NeRF being trained: the coarse network, and the fine one with its
 /// sample count when hierarchical.
 pub struct NerfObjective {
+    /// The coarse network.
     pub net: NerfNet,
+    /// The fine network and its samples per ray, when hierarchical.
     pub fine: Option<(NerfNet, usize)>,
+    /// An occupancy grid that skips empty space, if any.
     pub occupancy: Option<Occupancy>,
     seed: u64,
     /// Behind the field: a colour, or learned (parameters after the
@@ -612,7 +620,7 @@ impl Objective for NerfObjective {
         }
         match &mut self.occupancy {
             Some(occ) => {
-                if batch.step % occ.every == 0 {
+                if batch.step.is_multiple_of(occ.every) {
                     occ.update(&self.net, values, batch.step, batch.seed);
                 }
                 occ.march(&batch.rays, &self.candidates, &mut self.samples)?;
@@ -680,7 +688,9 @@ impl Objective for NerfObjective {
 
 /// A rendered view: colour and expected depth per pixel.
 pub struct NerfView {
+    /// Colour per pixel, row by row.
     pub colour: Vec<[f32; 3]>,
+    /// Expected depth per pixel.
     pub depth: Vec<f32>,
     /// Network evaluations it took.
     pub evaluated: usize,
@@ -802,6 +812,10 @@ pub fn render_nerf_view(
 /// `stop = 0` every sample is evaluated and the colours equal
 /// [`super::composite::composite`]'s bit for bit. Returns the samples evaluated.
 #[allow(clippy::too_many_arguments)]
+#[allow(
+    clippy::needless_range_loop,
+    reason = "c[j] pairs with rgb[3k + j]; per-sample hot path"
+)]
 fn composite_until_opaque(
     net: &NerfNet,
     params: &[f32],

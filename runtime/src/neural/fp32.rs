@@ -9,7 +9,7 @@
 //! is two vector loads (a layer's weights, or the adjoints' rows, read in
 //! place, masked at the edges), an element of `A` one broadcast (at any
 //! strides, so `Xᵀ` needs no transpose). The sum over `r` runs in chunks of
-//! [`KC`] (a panel of `B` stays in L1), each element's products added in
+//! `KC` (a panel of `B` stays in L1), each element's products added in
 //! order of `r`: the result depends only on the operands, not on how rows
 //! are split among threads.
 //!
@@ -38,6 +38,7 @@ pub fn available() -> bool {
 /// An operand read in place: element `(i, r)` at `data[i·rows + r·cols]`.
 #[derive(Debug, Clone, Copy)]
 pub struct Strided<'a> {
+    /// The operand's numbers.
     pub data: &'a [f32],
     /// Distance between consecutive rows.
     pub rows: usize,

@@ -30,11 +30,19 @@ fn harmonic(h: &sdfl_stdlib::value::Harmonic) -> Harmonic {
 /// whose tables come first in the network's parameters.
 #[derive(Debug, Clone)]
 pub enum PositionEncoding {
+    /// Sines and cosines of the position.
     Harmonic(Harmonic),
-    Grid { grid: HashGrid, offset: usize },
+    /// A trainable hash grid.
+    Grid {
+        /// The grid's levels and tables.
+        grid: HashGrid,
+        /// Where its tables start in the flat parameters.
+        offset: usize,
+    },
 }
 
 impl PositionEncoding {
+    /// Features per position.
     pub fn width(&self) -> usize {
         match self {
             PositionEncoding::Harmonic(h) => h.width(),
@@ -43,6 +51,10 @@ impl PositionEncoding {
     }
 
     /// Trainable scalars of the encoding.
+    #[allow(
+        clippy::len_without_is_empty,
+        reason = "a count of parameters, not of the encoding's contents"
+    )]
     pub fn len(&self) -> usize {
         match self {
             PositionEncoding::Harmonic(_) => 0,
@@ -50,6 +62,7 @@ impl PositionEncoding {
         }
     }
 
+    /// Whether it has parameters of its own (a hash grid).
     pub fn is_trainable(&self) -> bool {
         self.len() > 0
     }
@@ -84,13 +97,19 @@ fn as_points(flat: &[f32]) -> &[[f32; 3]] {
 /// The network's layers and where each lives in the flat parameters.
 #[derive(Debug, Clone)]
 pub struct NerfNet {
+    /// How sample positions are encoded.
     pub position: PositionEncoding,
+    /// How view directions are encoded (view-dependent colour only).
     pub direction: Option<Harmonic>,
+    /// Hidden layers of the trunk.
     pub trunk: Vec<Dense>,
+    /// The density head.
     pub density: Dense,
     /// The trunk's features before the direction joins (view-dependent only).
     pub feature: Option<Dense>,
+    /// The colour branch's hidden layer.
     pub color_hidden: Dense,
+    /// The colour head (sigmoid).
     pub color_out: Dense,
     /// Positions contracted, or moved into NDC, before they are encoded
     /// (unbounded scenes).
@@ -104,6 +123,7 @@ pub struct NerfNet {
     pub transparent_start: bool,
     /// Where its parameters start in the flat vector, and how many.
     pub first: usize,
+    /// How many parameters it has.
     pub len: usize,
 }
 
@@ -450,12 +470,19 @@ impl NerfNet {
 /// Buffers of a forward and backward pass, grown to the largest batch seen.
 #[derive(Debug, Default)]
 pub struct NerfWork {
+    /// Encoded positions, one row per sample.
     pub enc: Vec<f32>,
+    /// Encoded directions, one row per sample.
     pub dir_enc: Vec<f32>,
+    /// Each trunk layer's activations.
     pub hidden: Vec<Vec<f32>>,
+    /// Densities, one per sample.
     pub sigma: Vec<f32>,
+    /// The trunk's features where the direction joins.
     pub feature: Vec<f32>,
+    /// The colour branch's hidden activations.
     pub color_hidden: Vec<f32>,
+    /// Colours, three per sample.
     pub rgb: Vec<f32>,
     d_a: Vec<f32>,
     d_b: Vec<f32>,

@@ -28,8 +28,9 @@ static FONT: &[u8] = include_bytes!("../../assets/DejaVuSans.ttf");
 /// Registered as the generic family, which plotters' defaults also name.
 const FAMILY: &str = "sans-serif";
 
-/// Smallest and largest image side [`render`] draws.
+/// Smallest image side [`render`] draws (width, height).
 pub const MIN_SIDE: (u32, u32) = (200, 150);
+/// Largest image side [`render`] draws.
 pub const MAX_SIDE: u32 = 8192;
 /// Nonzero magnitudes outside this range are not drawn (noted): plotters'
 /// tick search needs spans and ratios that stay finite.
@@ -63,6 +64,7 @@ pub enum Scale {
     /// Logarithmic when every value is positive and they span ≥ 2 decades.
     #[default]
     Auto,
+    /// Values to pixels in proportion.
     Linear,
     /// Logarithmic; values ≤ 0 are skipped and noted.
     Log,
@@ -71,7 +73,9 @@ pub enum Scale {
 /// An axis: its title with units (`"time per run (s)"`) and scale.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Axis {
+    /// The title with units, drawn along the axis.
     pub title: String,
+    /// How values map to pixels.
     pub scale: Scale,
 }
 
@@ -84,6 +88,7 @@ impl Axis {
         }
     }
 
+    /// The same axis with `scale`.
     pub fn scale(self, scale: Scale) -> Axis {
         Axis { scale, ..self }
     }
@@ -92,8 +97,11 @@ impl Axis {
 /// A data point, with an optional label drawn beside it.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Point {
+    /// Horizontal value.
     pub x: f64,
+    /// Vertical value.
     pub y: f64,
+    /// Drawn beside the point, if any.
     pub label: Option<String>,
 }
 
@@ -101,7 +109,9 @@ pub struct Point {
 /// where a point is skipped), with markers when it is short.
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct Series {
+    /// Shown in the legend when the chart has two or more named series.
     pub name: String,
+    /// In drawing order.
     pub points: Vec<Point>,
 }
 
@@ -139,20 +149,28 @@ impl Series {
 /// What to draw. A legend is drawn when more than one series has a name.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Chart {
+    /// Drawn above the plot.
     pub title: String,
+    /// The horizontal axis.
     pub x: Axis,
+    /// The vertical axis.
     pub y: Axis,
+    /// The data, each with its own colour.
     pub series: Vec<Series>,
 }
 
 /// A drawn chart.
 #[derive(Debug, Clone)]
 pub struct Plot {
+    /// Image width in pixels.
     pub width: u32,
+    /// Image height in pixels.
     pub height: u32,
     /// RGB8, row-major from the top-left.
     pub rgb: Vec<u8>,
+    /// Whether the x axis came out logarithmic.
     pub log_x: bool,
+    /// Whether the y axis came out logarithmic.
     pub log_y: bool,
     /// The plotting area in pixels: `[left, top, right, bottom)`.
     pub area: [i32; 4],
@@ -182,7 +200,12 @@ impl Plot {
 #[derive(Debug, Clone, PartialEq)]
 pub enum PlotError {
     /// Outside [`MIN_SIDE`]..=[`MAX_SIDE`].
-    Size { width: u32, height: u32 },
+    Size {
+        /// The width asked for.
+        width: u32,
+        /// The height asked for.
+        height: u32,
+    },
     /// The drawing library failed.
     Draw(String),
 }

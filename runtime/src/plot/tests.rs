@@ -85,8 +85,8 @@ fn series_get_distinct_colours_and_a_legend() {
     let b = Series::new("held out", decay(200, 0.01));
     let c = Series::new("", vec![(50.0, 0.5), (150.0, 0.3)]);
     let p = render(&chart(vec![a, b, c]), 640, 400).unwrap();
-    for k in 0..3 {
-        assert!(count_in_area(&p, PALETTE[k]) > 10, "series {k}");
+    for (k, &colour) in PALETTE.iter().take(3).enumerate() {
+        assert!(count_in_area(&p, colour) > 10, "series {k}");
     }
     // One series: no legend; two named series: a legend box, whose
     // swatches add colour to a corner of the plot.

@@ -4,9 +4,15 @@
 
 use super::*;
 
+/// The arguments of one call of a built-in (or one statement's fields),
+/// bound to parameter names, defaults filled in.
 pub struct Args {
+    /// By parameter name: the value and where it was written (the call, for a
+    /// default).
     pub named: HashMap<&'static str, (Value, Span)>,
+    /// Extra positional arguments, for built-ins with rest parameters.
     pub rest: Vec<(Value, Span)>,
+    /// The whole call.
     pub span: Span,
     /// The built-in or block the arguments are for (names trainable
     /// arguments, `torus.major`).
@@ -40,6 +46,7 @@ pub(crate) fn type_error(span: Span, want: &str, got: &Value) -> Diag {
 }
 
 impl Args {
+    /// No arguments yet, for the call at `span`.
     pub fn new(span: Span) -> Self {
         Args {
             named: HashMap::new(),
@@ -63,6 +70,7 @@ impl Args {
         (v, *s)
     }
 
+    /// A number in f32's range (not a `param`).
     pub fn number(&self, name: &str) -> Result<f64, Diag> {
         match self.get(name) {
             (Value::Number(x), s) => f32_range(*x, s, name),
@@ -165,6 +173,7 @@ impl Args {
         Ok(x as u64)
     }
 
+    /// A vector in f32's range (a number `x` is `[x, x, x]`; not a `param`).
     pub fn vec3(&self, name: &str) -> Result<DVec3, Diag> {
         let (v, s) = self.get(name);
         match v {
@@ -207,6 +216,7 @@ impl Args {
         }
     }
 
+    /// A string, with where it was written.
     pub fn string(&self, name: &str) -> Result<(Arc<str>, Span), Diag> {
         match self.get(name) {
             (Value::Str(s), span) => Ok((s.clone(), span)),
@@ -214,6 +224,7 @@ impl Args {
         }
     }
 
+    /// A shape.
     pub fn shape(&self, name: &str) -> Result<Arc<Shape>, Diag> {
         match self.get(name) {
             (Value::Shape(s), _) => Ok(s.clone()),
@@ -248,7 +259,10 @@ impl Args {
     pub fn rest_numbers(&self) -> Result<Vec<f64>, Diag> {
         fn walk(v: &Value, span: Span, out: &mut Vec<f64>) -> Result<(), Diag> {
             match v {
-                Value::Number(x) => Ok(out.push(f32_range(*x, span, "x")?)),
+                Value::Number(x) => {
+                    out.push(f32_range(*x, span, "x")?);
+                    Ok(())
+                }
                 Value::List(items) => items.iter().try_for_each(|i| walk(i, span, out)),
                 other => Err(type_error(span, "number", other)),
             }
@@ -264,7 +278,10 @@ impl Args {
     pub fn rest_shapes(&self) -> Result<Vec<Arc<Shape>>, Diag> {
         fn walk(v: &Value, span: Span, out: &mut Vec<Arc<Shape>>) -> Result<(), Diag> {
             match v {
-                Value::Shape(s) => Ok(out.push(s.clone())),
+                Value::Shape(s) => {
+                    out.push(s.clone());
+                    Ok(())
+                }
                 Value::List(items) => items.iter().try_for_each(|i| walk(i, span, out)),
                 other => Err(type_error(span, "shape", other)),
             }

@@ -13,44 +13,51 @@ use sdfl_lang::Span;
 
 use crate::camera::{Camera, OrbitUp, PixelCenters};
 use crate::effects::{AmbientOcclusion, Fog, SoftShadows, MAX_SAMPLES_PER_PIXEL};
-use crate::eval::describe;
 use crate::material::{Effects, Light, Material};
 use crate::param::{Arg, Bound, ParamDecl, ParamInit, ParamUse, MIN_BETA, MIN_LENGTH};
 use crate::precision::{beta, f32_range};
 use crate::shape::{Axis, Shape};
 use crate::value::{
-    Backend, CaptureFormat, CaptureOrient, CaptureSpec, Colormap, Dataset, DensityActivation,
-    DensityKind, Encoding, Field, Harmonic, HashGridSpec, HitTolerance, LastInterval, Loss,
-    LossKind, MeshRegion, Nerf, NeuralSdf, NeuralSurface, OccupancySpec, Optimizer, Output,
-    OutputKind, Precision, RenderJob, Sampler, Schedule, SdfField, TrainJob, Value, ViewPath,
-    VolumeJob,
+    describe, Backend, CaptureFormat, CaptureOrient, CaptureSpec, Colormap, Dataset,
+    DensityActivation, DensityKind, Encoding, Field, Harmonic, HashGridSpec, HitTolerance,
+    LastInterval, Loss, LossKind, MeshRegion, Nerf, NeuralSdf, NeuralSurface, OccupancySpec,
+    Optimizer, Output, OutputKind, Precision, RenderJob, Sampler, Schedule, SdfField, TrainJob,
+    Value, ViewPath, VolumeJob,
 };
 
+/// The checker's type of shapes ([`Value::Shape`]).
 pub const SHAPE: Type = Type::Named("shape");
+/// The checker's type of materials.
 pub const MATERIAL: Type = Type::Named("material");
+/// The checker's type of cameras.
 pub const CAMERA: Type = Type::Named("camera");
+/// The checker's type of output files.
 pub const OUTPUT: Type = Type::Named("output");
+/// The checker's type of fields (volumes, neural fields).
 pub const FIELD: Type = Type::Named("field");
+/// The checker's type of ray samplers.
 pub const SAMPLER: Type = Type::Named("sampler");
+/// The checker's type of training data.
 pub const DATASET: Type = Type::Named("data set");
+/// The checker's type of optimisers.
 pub const OPTIMIZER: Type = Type::Named("optimizer");
+/// The checker's type of loss terms.
 pub const LOSS: Type = Type::Named("loss");
+/// The checker's type of input encodings.
 pub const ENCODING: Type = Type::Named("encoding");
+/// The checker's type of occupancy grids.
 pub const OCCUPANCY: Type = Type::Named("occupancy grid");
+/// The checker's type of network layouts.
 pub const NETWORK: Type = Type::Named("network");
+/// The checker's type of lights.
 pub const LIGHT: Type = Type::Named("light");
+/// The checker's type of soft shadows.
 pub const SHADOWS: Type = Type::Named("soft shadow");
+/// The checker's type of ambient occlusion.
 pub const OCCLUSION: Type = Type::Named("ambient occlusion");
+/// The checker's type of fog.
 pub const FOG: Type = Type::Named("fog");
-/// Most samples per ray.
-pub const MAX_SAMPLES: u64 = 4096;
-
-/// Largest image side in pixels.
-pub const MAX_IMAGE_SIDE: u32 = 16_384;
-/// Most camera views of one render.
-pub const MAX_VIEWS: usize = 10_000;
-/// Most sphere-tracing iterations per ray.
-pub const MAX_ITERATIONS: u32 = 100_000;
+pub use crate::limits::{MAX_IMAGE_SIDE, MAX_ITERATIONS, MAX_SAMPLES, MAX_VIEWS};
 
 /// Arguments bound to parameter names, each with the span it came from
 /// (the call's span for defaults).
@@ -77,10 +84,15 @@ use data::render_views;
 use data::{check_input, Input};
 use materials::{effects, fog_option, phong, samples_per_pixel};
 
+/// How a built-in computes its value from its checked arguments.
 pub type EvalFn = fn(&Args) -> Result<Value, Diag>;
 
+/// A built-in function: its signature (for the checker, help and docs) and
+/// its evaluation.
 pub struct Builtin {
+    /// Parameters, types, defaults and docs.
     pub sig: Signature,
+    /// Computes the value.
     pub eval: EvalFn,
 }
 
@@ -112,22 +124,27 @@ impl StdEnv {
         })
     }
 
+    /// The built-in function of that name.
     pub fn builtin(&self, name: &str) -> Option<&Builtin> {
         self.index.get(name).map(|i| &self.builtins[*i])
     }
 
+    /// Every built-in function, in the order the reference lists them.
     pub fn builtins(&self) -> &[Builtin] {
         &self.builtins
     }
 
+    /// The statement of that keyword.
     pub fn block_sig(&self, kind: &str) -> Option<&BlockSig> {
         self.blocks.iter().find(|b| b.kind == kind)
     }
 
+    /// Every statement's signature.
     pub fn blocks(&self) -> &[BlockSig] {
         &self.blocks
     }
 
+    /// The value of the built-in constant of that name (`pi`, `tau`).
     pub fn constant_value(&self, name: &str) -> Option<Value> {
         self.constants
             .iter()

@@ -163,7 +163,7 @@ pub(crate) fn builtins() -> Vec<Builtin> {
                         format!(
                             "this hash grid holds {} trainable numbers (about {} MB with their gradient and Adam's moments), more than {}",
                             spec.param_count(),
-                            spec.param_count() * 16 >> 20,
+                            (spec.param_count() * 16) >> 20,
                             MAX_GRID_PARAMS
                         ),
                         "too large",

@@ -33,16 +33,21 @@ impl<'e> Evaluator<'e> {
             .name
             .as_ref()
             .map_or_else(|| format!("{}{index}", b.kind.name), |n| n.name.clone());
-        let (added, errors) = match (sig.kind, args.named.get("scene")) {
-            ("train", _) => {
+        let scene_field = match args.named.get("scene") {
+            Some((Value::Field(f), _)) => Some(f.clone()),
+            _ => None,
+        };
+        let kind = StatementKind::of(sig.kind, scene_field.is_some());
+        let (added, errors) = match (kind, scene_field) {
+            (StatementKind::Train, _) => {
                 let (job, errors) = crate::builtins::train_block(&name, &args);
                 (job.map(|j| program.trains.push(j)), errors)
             }
-            (_, Some((Value::Field(f), _))) => {
-                let (job, errors) = crate::builtins::volume_block(&name, &args, f.clone());
+            (StatementKind::Volume, Some(f)) => {
+                let (job, errors) = crate::builtins::volume_block(&name, &args, f);
                 (job.map(|j| program.volumes.push(j)), errors)
             }
-            _ => {
+            (StatementKind::Render | StatementKind::Volume, _) => {
                 let (job, errors) = crate::builtins::render_block(&name, &args);
                 (job.map(|j| program.renders.push(j)), errors)
             }
@@ -57,33 +62,28 @@ impl<'e> Evaluator<'e> {
             return;
         }
         let field = |name: &str| args.named.get(name).map_or(b.kind.span, |(_, s)| *s);
-        let kind = match (sig.kind, args.named.get("scene")) {
-            ("train", _) => "train",
-            (_, Some((Value::Field(_), _))) => "volume",
-            _ => "render",
-        };
-        program.order.push(match kind {
-            "train" => crate::value::Statement::Train(program.trains.len() - 1),
-            "volume" => crate::value::Statement::Volume(program.volumes.len() - 1),
-            _ => crate::value::Statement::Render(program.renders.len() - 1),
-        });
+        program.order.push(kind.at(match kind {
+            StatementKind::Render => program.renders.len(),
+            StatementKind::Volume => program.volumes.len(),
+            StatementKind::Train => program.trains.len(),
+        } - 1));
         // A `param` outside a `train` model keeps its starting value.
         let untrained = match kind {
-            "render" => program.renders.last().and_then(|j| {
+            StatementKind::Render => program.renders.last().and_then(|j| {
                 let mut first = None;
                 j.scene.visit_params(&mut |u| {
                     first.get_or_insert(u.decl.span);
                 });
                 first.map(|s| (s, "this render draws it at its starting value"))
             }),
-            "volume" => program.volumes.last().and_then(|j| {
+            StatementKind::Volume => program.volumes.last().and_then(|j| {
                 let mut first = None;
                 j.field.visit_params(&mut |u| {
                     first.get_or_insert(u.decl.span);
                 });
                 first.map(|s| (s, "this render draws it at its starting value"))
             }),
-            _ => program.trains.last().and_then(|j| match &*j.data {
+            StatementKind::Train => program.trains.last().and_then(|j| match &*j.data {
                 crate::value::Dataset::Rendered { field, .. } => {
                     let mut first = None;
                     field.visit_params(&mut |u| {
@@ -125,13 +125,13 @@ impl<'e> Evaluator<'e> {
             .map_or(b.kind.span, |n| b.kind.span.to(n.span));
         let default_far;
         let (w, what, scene, reach) = match kind {
-            "train" => {
+            StatementKind::Train => {
                 let j = program.trains.last().expect("just added");
                 let w = work::train_work(j, None);
                 let scene = j.model.as_sdf().map(|f| f.shape.clone());
                 (w, "iterations or rays", scene, None)
             }
-            "volume" => {
+            StatementKind::Volume => {
                 let j = program.volumes.last().expect("just added");
                 let reach = (
                     &j.cameras,
@@ -146,7 +146,7 @@ impl<'e> Evaluator<'e> {
                     Some(reach),
                 )
             }
-            _ => {
+            StatementKind::Render => {
                 let j = program.renders.last().expect("just added");
                 let prims = self.sizes.shape(&j.scene, 0).primitives;
                 default_far = format!("`far` is {} unless given", fmt_num(j.far));

@@ -15,7 +15,7 @@ use crate::builtins::{Args, StdEnv};
 use crate::size::{
     fmt_bytes, fmt_count, size_error, Size, Sizes, BYTES_PER_PRIMITIVE, MAX_NODES, MAX_PRIMITIVES,
 };
-use crate::value::{Program, Value};
+use crate::value::{describe, Program, StatementKind, Value};
 
 mod blocks;
 
@@ -24,9 +24,7 @@ pub const MAX_LOOP: u64 = 1_000_000;
 /// Most loop iterations and calls in a whole file: a bound on evaluation
 /// time.
 pub const MAX_WORK: u64 = 2_000_000;
-/// Deepest nesting of shapes and lists (built through chains of `let`s,
-/// which brackets do not limit): tree walkers recurse this deep.
-pub const MAX_DEPTH: usize = 200;
+pub use crate::size::MAX_DEPTH;
 
 /// Most call sites labelled on one error inside a `fn` (the others are
 /// counted).
@@ -38,6 +36,8 @@ const MAX_CALL_LABELS: usize = 6;
 /// the same depth (the evaluator recurses once per level).
 pub const MAX_EVAL_DEPTH: usize = sdfl_lang::parse::MAX_DEPTH;
 
+/// Evaluates a checked file into a [`Program`]: unrolls loops, calls
+/// built-ins and `fn`s, and gathers every diagnostic.
 pub struct Evaluator<'e> {
     env: &'e StdEnv,
     /// The `fn`s defined so far.
@@ -77,6 +77,7 @@ pub struct Evaluator<'e> {
 }
 
 impl<'e> Evaluator<'e> {
+    /// An evaluator over the standard library `env`.
     pub fn new(env: &'e StdEnv) -> Self {
         Evaluator {
             env,
@@ -948,14 +949,5 @@ fn name_param(v: &mut Value, name: &str) {
         if decl.binding.is_none() {
             Arc::make_mut(decl).binding = Some(name.to_string());
         }
-    }
-}
-
-/// A short description of a value for messages.
-pub(crate) fn describe(v: &Value) -> String {
-    match v {
-        Value::Number(x) => format!("number {}", fmt_num(*x)),
-        Value::List(items) => format!("list of {} items", items.len()),
-        other => other.type_name().to_string(),
     }
 }

@@ -49,7 +49,9 @@ pub struct HashGridConfig {
     pub min_res: u32,
     /// N_max, resolution of the finest level.
     pub max_res: u32,
+    /// The box's low corner; positions outside are clamped into it.
     pub bbox_min: [f32; 3],
+    /// The box's high corner.
     pub bbox_max: [f32; 3],
 }
 
@@ -95,9 +97,11 @@ pub struct Touched {
 }
 
 impl Touched {
+    /// Forgets every touched row (after a step's update).
     pub fn clear(&mut self) {
         self.bits.iter_mut().for_each(|w| *w = 0);
     }
+    /// Whether a step's forward pass read `row` of `level`.
     pub fn is_touched(&self, level: usize, row: usize) -> bool {
         self.bits[self.words[level] + row / 64] >> (row % 64) & 1 == 1
     }
@@ -138,9 +142,13 @@ fn set_bits(words: &[u64]) -> impl Iterator<Item = usize> + '_ {
 /// Adam's hyper-parameters for [`HashGrid::sparse_adam_update`].
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Adam {
+    /// Learning rate.
     pub lr: f32,
+    /// Decay of the first moment.
     pub beta1: f32,
+    /// Decay of the second moment.
     pub beta2: f32,
+    /// Added to the second moment's root, against division by zero.
     pub eps: f32,
 }
 
@@ -159,6 +167,10 @@ impl Default for Adam {
 impl HashGrid {
     /// The layout of `cfg`; refuses empty or absurd configurations (more
     /// than [`MAX_PARAMS`] params, resolutions beyond 2²⁰, an empty box).
+    #[allow(
+        clippy::needless_range_loop,
+        reason = "one axis index over the box's two corners and the result"
+    )]
     pub fn new(cfg: HashGridConfig) -> Result<Self, String> {
         let c = &cfg;
         if !(1..=64).contains(&c.levels) || !(1..=16).contains(&c.features) {
@@ -221,9 +233,11 @@ impl HashGrid {
         })
     }
 
+    /// Its levels, features and box.
     pub fn config(&self) -> &HashGridConfig {
         &self.cfg
     }
+    /// Trainable numbers in all tables.
     pub fn param_count(&self) -> usize {
         self.params
     }

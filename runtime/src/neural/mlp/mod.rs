@@ -42,11 +42,15 @@ pub const BF16_MIN: usize = 16;
 /// A pointwise nonlinearity after a layer.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Activation {
+    /// `x`: a linear layer.
     Identity,
+    /// `max(x, 0)`.
     Relu,
+    /// `1 / (1 + e^−x)`.
     Sigmoid,
     /// `ln(1 + e^(βx))/β`, computed without overflow.
     Softplus {
+        /// Sharpness: large is close to ReLU.
         beta: f32,
     },
     /// `e^min(x, 15)`: a density that never dies at initialisation
@@ -164,7 +168,9 @@ fn softplus_lanes(y: &mut [f32], slope: Option<&mut [f32]>, beta: f32) {
 pub struct Dense {
     /// Widths of the input parts, in order.
     pub parts: Vec<usize>,
+    /// Output width.
     pub out: usize,
+    /// The nonlinearity after the products.
     pub act: Activation,
     /// Offset of `W` (`Σ parts × out`) in the flat parameters; `b` follows.
     pub offset: usize,
@@ -196,6 +202,8 @@ impl Products {
 }
 
 impl Dense {
+    /// A layer from inputs of widths `parts` to `out` units, its parameters
+    /// at `offset` in the flat vector.
     pub fn new(parts: &[usize], out: usize, act: Activation, offset: usize) -> Self {
         Dense {
             parts: parts.to_vec(),
@@ -248,6 +256,7 @@ impl Dense {
             .collect()
     }
 
+    /// Input width: the parts together.
     pub fn fan_in(&self) -> usize {
         self.parts.iter().sum()
     }
@@ -257,6 +266,7 @@ impl Dense {
         (self.fan_in() + 1) * self.out
     }
 
+    /// Whether it has no parameters.
     pub fn is_empty(&self) -> bool {
         self.len() == 0
     }

@@ -34,7 +34,9 @@ const UPDATE_CHUNK: usize = 1 << 16;
 pub struct OccupancyConfig {
     /// R, cells per axis (≤ 512).
     pub res: u32,
+    /// The grid's low corner.
     pub bbox_min: [f32; 3],
+    /// The grid's high corner.
     pub bbox_max: [f32; 3],
     /// Occupied when `ema · step_size > threshold`.
     pub threshold: f32,
@@ -46,6 +48,7 @@ pub struct OccupancyConfig {
     /// cells with `index ≡ step (mod subsets)` (and decay only those), which
     /// spreads the cost. `subsets = 1`: every cell every update.
     pub warmup: u64,
+    /// Cells are refreshed one subset in `subsets` per update after warm-up.
     pub subsets: u32,
 }
 
@@ -73,8 +76,11 @@ impl OccupancyConfig {
 /// each with its interval in `dt`.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct RaySamples {
+    /// Ray `r`'s samples are `offsets[r]..offsets[r + 1]` (one entry more than rays).
     pub offsets: Vec<usize>,
+    /// Sample depths along each ray.
     pub t: Vec<f32>,
+    /// Each sample's interval.
     pub dt: Vec<f32>,
 }
 
@@ -192,6 +198,7 @@ impl OccupancyGrid {
         Ok(grid)
     }
 
+    /// Its resolution, box and thresholds.
     pub fn config(&self) -> &OccupancyConfig {
         &self.cfg
     }
@@ -199,12 +206,15 @@ impl OccupancyGrid {
     pub fn set_enabled(&mut self, on: bool) {
         self.enabled = on;
     }
+    /// Whether it skips empty cells (else it samples at every step).
     pub fn is_enabled(&self) -> bool {
         self.enabled
     }
+    /// Cells in the grid (`res³`).
     pub fn cells(&self) -> usize {
         self.ema.len()
     }
+    /// Each cell's decaying maximum of density.
     pub fn ema(&self) -> &[f32] {
         &self.ema
     }
@@ -213,6 +223,7 @@ impl OccupancyGrid {
         let r = self.cfg.res as usize;
         cell[0] as usize + r * (cell[1] as usize + r * cell[2] as usize)
     }
+    /// Whether the cell at `index` (see [`Self::index`]) is occupied.
     pub fn is_occupied(&self, index: usize) -> bool {
         self.bits[index / 64] >> (index % 64) & 1 == 1
     }
@@ -276,6 +287,7 @@ impl OccupancyGrid {
         let b = c.map(|v| (v / BLOCK) as usize);
         b[0] + nb * (b[1] + nb * b[2])
     }
+    /// Occupied cells.
     pub fn occupied_count(&self) -> usize {
         self.blocks.iter().map(|&n| n as usize).sum()
     }
@@ -517,6 +529,10 @@ impl RayCtx {
     /// Where the ray leaves the cube of `size` cells from cell `lo`, less the
     /// slack: no sample before it can lie beyond the cube.
     #[inline(always)]
+    #[allow(
+        clippy::needless_range_loop,
+        reason = "one axis index over the ray, the cell and the grid; per-sample hot path"
+    )]
     fn exit(&self, g: &OccupancyGrid, lo: [u32; 3], size: u32) -> f64 {
         let mut best = f64::INFINITY;
         for a in 0..3 {

@@ -136,6 +136,7 @@ impl SdfNet {
         }
     }
 
+    /// Units per hidden layer.
     pub fn width(&self) -> usize {
         self.hidden[0].out
     }
