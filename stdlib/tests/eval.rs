@@ -141,7 +141,9 @@ fn radius_of(expr: &str) -> f64 {
     let program =
         load(&SourceFile::new("math.sdfl", src)).unwrap_or_else(|d| panic!("{expr}: {d:?}"));
     match &*program.renders[0].scene {
-        sdfl_stdlib::shape::Shape::Sphere { radius, .. } => radius.value,
+        sdfl_stdlib::shape::Shape::Prim(sdfl_stdlib::shape::Primitive::Sphere(
+            sdfl_stdlib::shape::Sphere { radius, .. },
+        )) => radius.value,
         other => panic!("{other:?}"),
     }
 }
@@ -255,7 +257,9 @@ fn functions_bind_arguments_like_builtins() {
         );
         let p = load(&SourceFile::new("f.sdfl", src)).unwrap_or_else(|d| panic!("{call}: {d:?}"));
         match &*p.renders[0].scene {
-            sdfl_stdlib::shape::Shape::Sphere { radius, .. } => radius.value,
+            sdfl_stdlib::shape::Shape::Prim(sdfl_stdlib::shape::Primitive::Sphere(
+                sdfl_stdlib::shape::Sphere { radius, .. },
+            )) => radius.value,
             other => panic!("{other:?}"),
         }
     };
@@ -270,7 +274,7 @@ fn functions_bind_arguments_like_builtins() {
                render r { scene: sphere(v[0]), camera: look_at([0, 0, 5]), outputs: [image(\"a.png\")] }";
     let p = load(&SourceFile::new("t", src)).unwrap();
     assert!(
-        matches!(&*p.renders[0].scene, sdfl_stdlib::shape::Shape::Sphere { radius, .. } if radius.value == 1.0)
+        matches!(&*p.renders[0].scene, sdfl_stdlib::shape::Shape::Prim(sdfl_stdlib::shape::Primitive::Sphere(sdfl_stdlib::shape::Sphere { radius, .. })) if radius.value == 1.0)
     );
     // A call's cost is bounded: so is a `fn`'s parameter count.
     let params: Vec<String> = (0..=sdfl_lang::check::MAX_FN_PARAMS)

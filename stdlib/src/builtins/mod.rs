@@ -17,7 +17,9 @@ use crate::eval::describe;
 use crate::material::{Effects, Light, Material};
 use crate::param::{Arg, Bound, ParamDecl, ParamInit, ParamUse, MIN_BETA, MIN_LENGTH};
 use crate::precision::{beta, f32_range};
-use crate::shape::{Axis, Shape};
+use crate::shape::{
+    ArgKind, ArgReader, Axis, CappedCone, Check, Cuboid, Declared, KindVisitor, Primitive, Shape,
+};
 use crate::value::{
     Backend, CaptureFormat, CaptureOrient, CaptureSpec, Colormap, Dataset, DensityActivation,
     DensityKind, Encoding, Field, Harmonic, HashGridSpec, HitTolerance, LastInterval, Loss,
