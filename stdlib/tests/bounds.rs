@@ -15,94 +15,25 @@ fn v3(r: f64) -> impl Strategy<Value = DVec3> {
     (-r..r, -r..r, -r..r).prop_map(|(x, y, z)| DVec3::new(x, y, z))
 }
 
+/// A uniform `0..1` generator from a seed.
+fn uniform(seed: u64) -> impl FnMut() -> f64 {
+    let mut s = seed;
+    move || {
+        s = s
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        (s >> 11) as f64 / (1u64 << 53) as f64
+    }
+}
+
+/// Every registered primitive with bounds (not planes), drawn from its
+/// declared ranges: a new primitive joins these tests by being declared.
 fn leaf() -> impl Strategy<Value = Shape> {
-    prop_oneof![
-        (v3(1.0), 0.05f64..1.0).prop_map(|(c, r)| Shape::from(Sphere {
-            center: c.into(),
-            radius: r.into()
-        })),
-        (v3(1.0), v3(1.0)).prop_map(|(c, s)| Shape::from(Cuboid {
-            center: c.into(),
-            size: (s.abs() + DVec3::splat(0.05)).into()
-        })),
-        (v3(1.0), v3(1.0)).prop_map(|(c, s)| Shape::from(BoxFrame {
-            center: c.into(),
-            size: (s.abs() + DVec3::splat(0.3)).into(),
-            thickness: 0.05.into()
-        })),
-        (v3(1.0), 0.3f64..1.0, 0.05f64..0.25, axis()).prop_map(|(c, a, b, axis)| Shape::from(
-            Torus {
-                center: c.into(),
-                major: a.into(),
-                minor: b.into(),
-                axis,
-            }
-        )),
-        (v3(1.0), 0.1f64..0.5, 0.0f64..0.5, axis()).prop_map(|(c, a, b, axis)| Shape::from(
-            RoundCone {
-                center: c.into(),
-                bottom: a.into(),
-                top: (a * 0.3 + 0.02).into(),
-                height: (a + b + 0.05).into(),
-                axis,
-            }
-        )),
-        (v3(1.0), 0.05f64..0.8, 0.05f64..1.0, axis()).prop_map(|(c, r, h, axis)| Shape::from(
-            HexPrism {
-                center: c.into(),
-                radius: r.into(),
-                height: h.into(),
-                axis,
-            }
-        )),
-        (v3(1.0), 0.05f64..1.0, 0.05f64..1.0, axis()).prop_map(|(c, s, h, axis)| Shape::from(
-            TriPrism {
-                center: c.into(),
-                side: s.into(),
-                height: h.into(),
-                axis,
-            }
-        )),
-        (v3(1.0), 0.05f64..1.0, 0.2f64..0.6, axis()).prop_map(|(c, l, r, axis)| Shape::from(
-            Link {
-                center: c.into(),
-                length: l.into(),
-                major: r.into(),
-                minor: (r * 0.3).into(),
-                axis,
-            }
-        )),
-        (v3(1.0), 0.05f64..1.0).prop_map(|(c, s)| Shape::from(Octahedron {
-            center: c.into(),
-            size: s.into()
-        })),
-        (v3(1.0), 0.05f64..1.0, 0.0f64..0.6, 0.0f64..0.6, axis()).prop_map(|(c, h, b, t, axis)| {
-            Shape::from(CappedCone {
-                center: c.into(),
-                height: h.into(),
-                bottom: (b + 0.01).into(),
-                top: t.into(),
-                axis,
-            })
-        }),
-        (v3(1.0), v3(1.0)).prop_map(|(c, r)| Shape::from(Ellipsoid {
-            center: c.into(),
-            radii: (r.abs() + DVec3::splat(0.02)).into()
-        })),
-        (v3(1.0), v3(1.0), 0.05f64..0.5).prop_map(|(a, b, r)| Shape::from(Capsule {
-            a: a.into(),
-            b: b.into(),
-            radius: r.into()
-        })),
-        (v3(1.0), 0.05f64..1.0, 0.05f64..1.0, axis()).prop_map(|(c, r, h, axis)| Shape::from(
-            Cylinder {
-                center: c.into(),
-                radius: r.into(),
-                height: h.into(),
-                axis,
-            }
-        )),
-    ]
+    let bounded: Vec<usize> = (0..Primitive::SPECS.len())
+        .filter(|&k| Primitive::random(k, &mut uniform(1)).bounds().is_some())
+        .collect();
+    (prop::sample::select(bounded), any::<u64>())
+        .prop_map(|(k, seed)| Shape::Prim(Primitive::random(k, &mut uniform(seed))))
 }
 
 fn tree() -> impl Strategy<Value = Shape> {

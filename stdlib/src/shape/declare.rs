@@ -304,6 +304,22 @@ macro_rules! read_field {
     };
 }
 
+/// A field as an [`ArgValue`].
+macro_rules! arg_value {
+    (scalar, $x:expr) => {
+        ArgValue::Scalar($x)
+    };
+    (point, $x:expr) => {
+        ArgValue::Vector($x)
+    };
+    (vector, $x:expr) => {
+        ArgValue::Vector($x)
+    };
+    (axis, $x:expr) => {
+        ArgValue::Axis(*$x)
+    };
+}
+
 /// `f(field)` when the field is of kind `$want`.
 macro_rules! visit_field {
     (scalar, scalar, $x:expr, $f:ident) => {
@@ -494,6 +510,15 @@ macro_rules! primitives {
                 }
             }
 
+            /// A valid primitive of kind `kind` (an index into
+            /// [`Self::SPECS`]) drawn from its declared ranges, `rng`
+            /// uniform in `0..1`: what the tests iterate.
+            pub fn random(kind: usize, rng: &mut dyn FnMut() -> f64) -> Primitive {
+                const DRAW: &[fn(&mut dyn FnMut() -> f64) -> Primitive] =
+                    &[$( |r| Primitive::$Name(<$Name as Declared>::random(r)), )+];
+                DRAW[kind](rng)
+            }
+
             /// Calls `v.visit::<K>()` for every primitive kind `K`, in entry order.
             pub fn for_each_kind(v: &mut impl KindVisitor) {
                 $( v.visit::<$Name>(); )+
@@ -553,6 +578,13 @@ macro_rules! primitives {
                 out
             }
 
+            /// Its arguments in declaration order (the built-in's).
+            pub fn args(&self) -> Vec<ArgValue<'_>> {
+                match self {
+                    $( Primitive::$Name(x) => vec![$( arg_value!($kind, &x.$field) ),+], )+
+                }
+            }
+
             /// Calls `w.with(x)` with the primitive as its own type.
             pub fn with<W: WithDeclared>(&self, w: W) -> W::Out {
                 match self {
@@ -564,9 +596,17 @@ macro_rules! primitives {
 }
 
 pub(crate) use {
-    arg_kind, default_text, draw_field, field_ty, gather_field, map_field, point_field, primitives,
-    read_field, same_fixed_field, visit_field,
+    arg_kind, arg_value, default_text, draw_field, field_ty, gather_field, map_field, point_field,
+    primitives, read_field, same_fixed_field, visit_field,
 };
+
+/// One argument of a primitive ([`Primitive::args`]).
+#[derive(Debug, Clone, Copy)]
+pub enum ArgValue<'a> {
+    Scalar(&'a Arg<f64>),
+    Vector(&'a Arg<DVec3>),
+    Axis(super::Axis),
+}
 
 /// Code generic over one primitive, given as its own type
 /// ([`Primitive::with`]): the runtime's lowering to its f32 leaf.

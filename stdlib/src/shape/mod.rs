@@ -24,8 +24,8 @@ pub mod declare;
 mod primitives;
 pub use bounds::Aabb;
 pub use declare::{
-    ArgKind, ArgReader, ArgSpec, Check, Declared, Family, Invalid, Ir, KindVisitor, Num, PrimSpec,
-    Val, WithDeclared,
+    ArgKind, ArgReader, ArgSpec, ArgValue, Check, Declared, Family, Invalid, Ir, KindVisitor, Num,
+    PrimSpec, Val, WithDeclared,
 };
 pub use primitives::*;
 
