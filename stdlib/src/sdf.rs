@@ -84,6 +84,20 @@ pub fn torus<T: Real>(q: V3<T>, major: T, minor: T) -> T {
     (a * a + q.z * q.z).sqrt() - minor
 }
 
+/// Inigo Quilez's capped torus: the arc of the torus (`major`, `minor`) in
+/// the XY plane within `angle` of +Y on either side (`q` in its frame,
+/// [`along`]); exact. The nearest point of the arc's centre circle is the
+/// point's own direction inside the arc, else the arc's end.
+#[inline(always)]
+pub fn capped_torus<T: Real>(q: V3<T>, angle: T, major: T, minor: T) -> T {
+    let (s, c) = (angle.sin(), angle.cos());
+    let x = q.x.abs();
+    // `q·e` for the nearest point `major·e` of the centre circle's arc.
+    let k = T::if_gt(c * x, s * q.y, x * s + q.y * c, (x * x + q.y * q.y).sqrt());
+    let sq = q.dot(q) + major * major - T::lit(2.0) * major * k;
+    sq.max(T::zero()).sqrt() - minor
+}
+
 /// Segment `a`–`b` thickened by `radius`.
 #[inline(always)]
 pub fn capsule<T: Real>(p: V3<T>, a: V3<T>, b: V3<T>, radius: T) -> T {

@@ -64,6 +64,29 @@ fn every_primitive_keeps_its_bounds_and_lipschitz_constant() {
     });
 }
 
+/// No primitive's value overstates the distance to its surface: the ball
+/// of radius `|d(p)|` around `p` holds no point on the other side (an exact
+/// value or a bound alike; what sphere tracing and culling rely on).
+#[test]
+fn no_primitive_overstates_its_distance() {
+    each_kind(|spec, s, rng| {
+        for _ in 0..40 {
+            let p = point(rng, 1.5);
+            let d = s.distance(p);
+            for _ in 0..150 {
+                let u = point(rng, 1.0).normalize_or(DVec3::X);
+                let q = p + u * d.abs() * (0.9 + 0.0999 * rng());
+                let e = s.distance(q);
+                assert!(
+                    e * d.signum() >= -1e-9,
+                    "{}: {e} at {q}, within {d} of {p}",
+                    spec.name
+                );
+            }
+        }
+    });
+}
+
 /// An exact primitive's value is a distance: its gradient has length 1
 /// and the point it leads to, `p − d·∇d`, lies on the surface. Points on
 /// the medial axis (where the gradient jumps) are skipped.

@@ -278,4 +278,23 @@ primitives! {
     lipschitz = 1.0;
     lanes = true;
     check(_s) = ok();
+
+    CappedTorus "capped_torus" "Inigo Quilez's capped torus: the part of a torus (`major`, `minor`) around the Z axis (or `axis`) within `angle` of +Y on either side, its ends rounded (exact; `angle: 180deg` is the whole torus)." {
+        angle: scalar(Check::Within(0.0, std::f64::consts::PI), "120deg", 0.2..3.0, "half the opening: the arc spans `angle` each side of +Y (radians; 0..180deg)"),
+        major: scalar(Check::Length, "1", 0.3..1.0, "distance from the centre to the tube's centre (> 0)"),
+        minor: scalar(Check::Length, "0.25", 0.05..0.25, "radius of the tube (> 0)"),
+        center: point(Check::Free, "[0, 0, 0]", -1.0..1.0, centre!()),
+        axis: axis(Check::Axis, "\"z\"", 0.0..1.0, axis_doc!()),
+    }
+    distance(s, p) = sdf::capped_torus(sdf::along(p, s.center, s.axis), s.angle, s.major, s.minor);
+    center(s) = s.center;
+    // The whole torus's box.
+    bounds(s) = {
+        let (r, m) = (s.major, s.minor);
+        Some(Aabb::around(s.center, s.axis.to_world(DVec3::new(r + m, r + m, m))))
+    };
+    exactness = Exact;
+    lipschitz = 1.0;
+    lanes = true;
+    check(_s) = ok();
 }
