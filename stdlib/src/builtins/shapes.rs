@@ -6,14 +6,6 @@ use super::*;
 /// The shape built-ins, in the order `sdfl docs` lists them.
 pub(super) fn builtins() -> Vec<Builtin> {
     let center = || opt("center", Type::Vec3, "[0, 0, 0]", "centre of the shape");
-    let axis = || {
-        opt(
-            "axis",
-            Type::Str,
-            "\"z\"",
-            "the axis the shape is built along: \"x\", \"y\" or \"z\"",
-        )
-    };
     // Any number of shapes (lists flattened), blended pairwise in order;
     // `k` is named.
     let smooth = |name: &'static str, doc: &'static str, eval: EvalFn| Builtin {
@@ -32,23 +24,19 @@ pub(super) fn builtins() -> Vec<Builtin> {
     };
     let mut rows = Vec::new();
     Primitive::for_each_kind(&mut Rows(&mut rows));
+    // `cone` also takes its base's `radius` (a `capped_cone` with `top: 0`),
+    // first, so `cone(0.5, 1)` keeps its meaning.
+    let cone = rows
+        .iter_mut()
+        .find(|r| r.sig.name == "cone")
+        .expect("a declared cone");
+    cone.sig.params.insert(
+        0,
+        opt("radius", Type::Number, "0.5", "radius of the base (> 0): a `capped_cone` with `top: 0`, unless `angle` is given instead"),
+    );
+    cone.eval = cone_by_radius_or_angle;
     rows.extend(vec![
         // ---- shapes that are sugar over primitives
-        func(
-            "cone",
-            "A pointed cone along the Z axis (or `axis`): base of `radius` at -height/2, tip at +height/2 (exact; `capped_cone` with `top: 0`).",
-            vec![
-                opt("radius", Type::Number, "0.5", "radius of the base (> 0)"),
-                opt("height", Type::Number, "1", "full height (> 0)"),
-                center(),
-                axis(),
-            ],
-            SHAPE,
-            |a| {
-                let top = Arg { value: 0.0, param: None };
-                shape(CappedCone { center: a.vec3_arg("center", Bound::Free)?, height: a.length_arg("height")?, bottom: a.length_arg("radius")?, top, axis: axis_arg(a)? }.into())
-            },
-        ),
         func(
             "rounded_box",
             "A box of full side lengths `size` with edges rounded by `radius`: sugar for `round(box(size - 2·radius), radius)`, so it spans exactly `size` (exact outside, a bound inside). Not trainable: write `round(box(size: param(..)), param(..))` to fit one.",
@@ -292,6 +280,34 @@ pub(super) fn builtins() -> Vec<Builtin> {
         ),
     ]);
     rows
+}
+
+/// `cone(angle:, ...)`: the declared cone; otherwise by its base's `radius`.
+fn cone_by_radius_or_angle(a: &Args) -> Result<Value, Diag> {
+    if a.given("angle") {
+        if a.given("radius") {
+            return Err(value_error(
+                a.get("radius").1,
+                "`cone` with both `radius` and `angle`",
+                "both given",
+                "give the base's `radius` or the side's `angle`, not both",
+            ));
+        }
+        return build_primitive::<crate::shape::Cone>(a);
+    }
+    let top = Arg {
+        value: 0.0,
+        param: None,
+    };
+    let bottom = a.length_arg("radius")?;
+    let cone = CappedCone {
+        center: a.vec3_arg("center", Bound::Free)?,
+        height: a.length_arg("height")?,
+        bottom,
+        top,
+        axis: axis_arg(a)?,
+    };
+    shape(cone.into())
 }
 
 /// Collects every primitive's built-in row ([`primitive_row`]).

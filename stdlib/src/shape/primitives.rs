@@ -297,4 +297,21 @@ primitives! {
     lipschitz = 1.0;
     lanes = true;
     check(_s) = ok();
+
+    Cone "cone" "A pointed cone along the Z axis (or `axis`), as SDF artists write it: `cone(angle:, height:)`, its side at `angle` to the axis, tip at +height/2, base of radius height·tan(angle) at -height/2 (exact)." {
+        height: scalar(Check::Length, "1", 0.1..1.0, "full height (> 0)"),
+        center: point(Check::Free, "[0, 0, 0]", -1.0..1.0, centre!()),
+        axis: axis(Check::Axis, "\"z\"", 0.0..1.0, axis_doc!()),
+        angle: scalar(Check::Within(0.001, 1.56), "30deg", 0.1..1.3, "angle between the side and the axis (radians; below 90deg)"),
+    }
+    distance(s, p) = sdf::cone(sdf::along(p, s.center, s.axis), s.angle, s.height);
+    center(s) = s.center;
+    bounds(s) = {
+        let r = s.height * s.angle.tan();
+        Some(Aabb::around(s.center, s.axis.to_world(DVec3::new(r, r, s.height * 0.5))))
+    };
+    exactness = Exact;
+    lipschitz = 1.0;
+    lanes = true;
+    check(_s) = ok();
 }
