@@ -759,3 +759,116 @@ fn elongate_and_mirror_match_their_constructions() {
         );
     }
 }
+
+#[test]
+fn capped_torus_is_exact() {
+    let c = DVec3::new(0.1, -0.2, 0.05);
+    let (a, r, m) = (2.0, 0.6, 0.15);
+    // The arc's nearest point by its angle from +Y, clamped to the arc.
+    let inside = |q: DVec3| {
+        let phi = q.x.atan2(q.y).clamp(-a, a);
+        let on = DVec3::new(r * phi.sin(), r * phi.cos(), 0.0);
+        (q - on).length() < m
+    };
+    check_along_axes(
+        |axis| {
+            Shape::from(CappedTorus {
+                center: c.into(),
+                angle: a.into(),
+                major: r.into(),
+                minor: m.into(),
+                axis,
+            })
+        },
+        inside,
+        c,
+    );
+}
+
+/// Hard cases: a capped torus open by 180° is the torus, and one closed to
+/// 0° the ball at its arc's one point; on its axis every arc point is as near.
+#[test]
+fn capped_torus_at_its_limits() {
+    let mut rng = Lcg(5);
+    let whole = Shape::from(CappedTorus {
+        center: DVec3::ZERO.into(),
+        angle: std::f64::consts::PI.into(),
+        major: 0.7.into(),
+        minor: 0.2.into(),
+        axis: Axis::Y,
+    });
+    let torus = Shape::from(Torus {
+        center: DVec3::ZERO.into(),
+        major: 0.7.into(),
+        minor: 0.2.into(),
+        axis: Axis::Y,
+    });
+    let closed = Shape::from(CappedTorus {
+        center: DVec3::ZERO.into(),
+        angle: 0.0.into(),
+        major: 0.7.into(),
+        minor: 0.2.into(),
+        axis: Axis::Z,
+    });
+    for _ in 0..500 {
+        let p = rng.in_box(DVec3::splat(-2.0), DVec3::splat(2.0));
+        assert!((whole.distance(p) - torus.distance(p)).abs() < 1e-9, "{p}");
+        let ball = (p - DVec3::new(0.0, 0.7, 0.0)).length() - 0.2;
+        assert!((closed.distance(p) - ball).abs() < 1e-9, "{p}");
+    }
+    let z = 0.3;
+    let on_axis = closed.distance(DVec3::new(0.0, 0.0, z));
+    assert!((on_axis - ((0.7f64 * 0.7 + z * z).sqrt() - 0.2)).abs() < 1e-12);
+}
+
+#[test]
+fn cone_by_angle_is_exact() {
+    let c = DVec3::new(-0.1, 0.2, 0.05);
+    let (a, h) = (0.5f64, 0.9);
+    let inside = |q: DVec3| {
+        let r = (q.x * q.x + q.y * q.y).sqrt();
+        q.z.abs() < h / 2.0 && r < (h / 2.0 - q.z) * a.tan()
+    };
+    check_along_axes(
+        |axis| {
+            Shape::from(Cone {
+                center: c.into(),
+                angle: a.into(),
+                height: h.into(),
+                axis,
+            })
+        },
+        inside,
+        c,
+    );
+}
+
+/// The two forms of `cone` are one solid: by the side's angle, and by the
+/// base's radius (a capped cone with no top), both exact, agree.
+#[test]
+fn cone_forms_agree() {
+    let mut rng = Lcg(9);
+    for (radius, height) in [(0.5, 1.0), (1e-3, 1.0), (3.0, 0.2)] {
+        let by_angle = Shape::from(Cone {
+            center: DVec3::ZERO.into(),
+            angle: f64::atan2(radius, height).into(),
+            height: height.into(),
+            axis: Axis::X,
+        });
+        let by_radius = Shape::from(CappedCone {
+            center: DVec3::ZERO.into(),
+            height: height.into(),
+            bottom: radius.into(),
+            top: 0.0.into(),
+            axis: Axis::X,
+        });
+        for _ in 0..500 {
+            let p = rng.in_box(DVec3::splat(-2.0), DVec3::splat(2.0));
+            let (a, b) = (by_angle.distance(p), by_radius.distance(p));
+            assert!(
+                (a - b).abs() < 1e-9,
+                "{radius}, {height}: {a} vs {b} at {p}"
+            );
+        }
+    }
+}
