@@ -23,7 +23,7 @@ use sdfl_stdlib::num::{Real, V3};
 use sdfl_stdlib::param::Arg;
 use sdfl_stdlib::sdf;
 use sdfl_stdlib::shape::{
-    cells, repeat_ranges, Aabb, Declared, Ir, KindVisitor, Num, Plane, Primitive, Shape,
+    cells, repeat_ranges, Aabb, Declared, Family, Ir, KindVisitor, Num, Plane, Primitive, Shape,
     WithDeclared,
 };
 

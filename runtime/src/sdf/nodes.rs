@@ -29,11 +29,25 @@ pub(super) fn v3(p: Vec3A) -> V3<f32> {
     V3::new(p.x, p.y, p.z)
 }
 
+/// A vector of a leaf's arguments, 16-byte aligned: the formula reads it
+/// with one aligned load (an unaligned one across a cache line costs the
+/// per-point evaluator a quarter of its speed).
+#[derive(Clone, Copy)]
+#[repr(C, align(16))]
+pub(super) struct A3(pub(super) V3<f32>);
+
+/// A leaf's arguments as stored: f32, vectors aligned.
+pub(super) struct Stored;
+impl Family for Stored {
+    type S = f32;
+    type V = A3;
+}
+
 /// One primitive's values in f32, for any declared kind `K`: the one leaf
 /// of every primitive. It evaluates the formula its declaration gives, in
 /// f32, or on eight lanes at once where the declaration says the formula
 /// never branches on the point (else lane by lane).
-pub(super) struct PrimOf<K: Declared>(pub(super) K::Of<Num<f32>>);
+pub(super) struct PrimOf<K: Declared>(pub(super) K::Of<Stored>);
 
 impl<K: Declared> Clone for PrimOf<K> {
     #[inline(always)]
@@ -45,10 +59,10 @@ impl<K: Declared> Clone for PrimOf<K> {
 impl<K: Declared> PrimOf<K> {
     /// The primitive's arguments at their values, in f32.
     pub(super) fn new(x: &K) -> Self {
-        PrimOf(K::map::<Ir, Num<f32>>(
+        PrimOf(K::map::<Ir, Stored>(
             x.ir(),
             |a| a.value as f32,
-            |a| V3::lit(a.value.to_array()),
+            |a| A3(V3::lit(a.value.to_array())),
         ))
     }
 }
@@ -56,13 +70,13 @@ impl<K: Declared> PrimOf<K> {
 impl<K: Declared> Prim for PrimOf<K> {
     #[inline(always)]
     fn local(&self, p: Vec3A) -> f32 {
-        K::distance(&self.0, v3(p))
+        K::distance(&K::map::<Stored, Num<f32>>(&self.0, |x| *x, |v| v.0), v3(p))
     }
     #[inline(always)]
     fn local8(&self, p: P8) -> F8 {
         if K::SPEC.lanes {
             K::distance(
-                &K::map::<Num<f32>, Num<F8>>(&self.0, |x| s8(*x), |v| v8(*v)),
+                &K::map::<Stored, Num<F8>>(&self.0, |x| s8(*x), |v| v8(v.0)),
                 p,
             )
         } else {
@@ -152,13 +166,17 @@ pub(super) trait Lanewise: Prim + Clone {
 impl<K: Declared> Lanewise for PrimOf<K> {
     #[inline(always)]
     fn members8(ms: [&Self; LANES], p: Vec3A) -> F8 {
-        let at = K::gather::<Num<F8>>(ms.map(|m| &m.0), F8, |v| {
-            V3::new(
-                F8(std::array::from_fn(|i| v[i].x)),
-                F8(std::array::from_fn(|i| v[i].y)),
-                F8(std::array::from_fn(|i| v[i].z)),
-            )
-        });
+        let at = K::gather::<Stored, Num<F8>>(
+            ms.map(|m| &m.0),
+            |x| F8(x.map(|x| *x)),
+            |v| {
+                V3::new(
+                    F8(std::array::from_fn(|i| v[i].0.x)),
+                    F8(std::array::from_fn(|i| v[i].0.y)),
+                    F8(std::array::from_fn(|i| v[i].0.z)),
+                )
+            },
+        );
         K::distance(&at, v8(v3(p)))
     }
 }

@@ -145,14 +145,14 @@ pub trait Declared: Clone + Into<Primitive> + 'static {
     fn check(x: &Self::Of<Val>) -> Result<(), Invalid>;
     /// Eight members' values as lanes (`s` and `v` build a lane type from
     /// eight values); the fixed arguments (axes) are the first member's.
-    fn gather<G: Family>(
-        ms: [&Self::Of<Num<f32>>; 8],
-        s: impl Fn([f32; 8]) -> G::S,
-        v: impl Fn([V3<f32>; 8]) -> G::V,
+    fn gather<F: Family, G: Family>(
+        ms: [&Self::Of<F>; 8],
+        s: impl Fn([&F::S; 8]) -> G::S,
+        v: impl Fn([&F::V; 8]) -> G::V,
     ) -> Self::Of<G>;
     /// Whether two members share their fixed arguments (axes), so they can
     /// be evaluated together by [`Declared::gather`].
-    fn same_fixed(a: &Self::Of<Num<f32>>, b: &Self::Of<Num<f32>>) -> bool;
+    fn same_fixed<F: Family>(a: &Self::Of<F>, b: &Self::Of<F>) -> bool;
     /// The primitive from a call's arguments, each read and checked as
     /// declared (not yet [`Declared::check`]ed).
     fn read(r: &mut dyn ArgReader) -> Result<Self, Diag>;
@@ -255,10 +255,10 @@ macro_rules! gather_field {
         $ms[0].$f
     };
     (scalar, $ms:ident, $f:ident, $s:ident, $v:ident) => {
-        $s(std::array::from_fn(|i| $ms[i].$f))
+        $s(std::array::from_fn(|i| &$ms[i].$f))
     };
     ($other:ident, $ms:ident, $f:ident, $s:ident, $v:ident) => {
-        $v(std::array::from_fn(|i| $ms[i].$f))
+        $v(std::array::from_fn(|i| &$ms[i].$f))
     };
 }
 
@@ -466,15 +466,15 @@ macro_rules! primitives {
                     $checks
                 }
                 #[inline(always)]
-                fn gather<G: Family>(
-                    ms: [&generic::$Name<Num<f32>>; 8],
-                    s: impl Fn([f32; 8]) -> G::S,
-                    v: impl Fn([V3<f32>; 8]) -> G::V,
+                fn gather<F: Family, G: Family>(
+                    ms: [&generic::$Name<F>; 8],
+                    s: impl Fn([&F::S; 8]) -> G::S,
+                    v: impl Fn([&F::V; 8]) -> G::V,
                 ) -> generic::$Name<G> {
                     let _ = (&s, &v);
                     generic::$Name { $( $field: gather_field!($kind, ms, $field, s, v), )+ }
                 }
-                fn same_fixed(a: &generic::$Name<Num<f32>>, b: &generic::$Name<Num<f32>>) -> bool {
+                fn same_fixed<F: Family>(a: &generic::$Name<F>, b: &generic::$Name<F>) -> bool {
                     let _ = (a, b);
                     true $( && same_fixed_field!($kind, a.$field, b.$field) )+
                 }
