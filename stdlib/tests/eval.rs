@@ -486,3 +486,29 @@ train surface {
     };
     assert_eq!((s.sdf.layers, s.sdf.width, &s.sdf.skips), (3, 24, &vec![2]));
 }
+
+/// `cone` by the side's `angle` (the declared primitive) or by the base's
+/// `radius` (a capped cone), never both; positional arguments keep the
+/// radius form's order.
+#[test]
+fn cone_by_angle_or_by_radius() {
+    let scene = |call: &str| {
+        let src = format!(
+            "render r {{ scene: {call}, camera: look_at([0, 0, -3]), outputs: [image(\"a.png\")] }}"
+        );
+        load(&SourceFile::new("t", src)).map(|p| p.renders[0].scene.name())
+    };
+    assert_eq!(scene("cone(angle: 30deg, height: 1)").unwrap(), "cone");
+    assert_eq!(
+        scene("cone(radius: 0.5, height: 1)").unwrap(),
+        "capped_cone"
+    );
+    assert_eq!(scene("cone(0.5, 1)").unwrap(), "capped_cone");
+    assert_eq!(scene("cone()").unwrap(), "capped_cone");
+    assert_eq!(
+        codes_of("let c = cone(radius: 0.5, angle: 0.3)"),
+        [codes::VALUE]
+    );
+    assert_eq!(codes_of("let c = cone(angle: 2)"), [codes::VALUE]);
+    assert_eq!(codes_of("let c = capped_torus(angle: -1)"), [codes::VALUE]);
+}
