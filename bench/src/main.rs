@@ -21,7 +21,7 @@ use sdfl_runtime::render::{render_view, Needs, ViewBuffers};
 use sdfl_runtime::{LowerOptions, Lowered};
 use sdfl_stdlib::camera::Camera;
 use sdfl_stdlib::material::Material;
-use sdfl_stdlib::shape::Shape;
+use sdfl_stdlib::shape::{Shape, Sphere};
 use sdfl_stdlib::RenderJob;
 use std::sync::Arc;
 
@@ -61,10 +61,10 @@ fn scene(spheres: &[(DVec3, f64)]) -> Shape {
         spheres
             .iter()
             .map(|(c, r)| {
-                Arc::new(Shape::Sphere {
+                Arc::new(Shape::from(Sphere {
                     center: (*c).into(),
                     radius: (*r).into(),
-                })
+                }))
             })
             .collect(),
     )

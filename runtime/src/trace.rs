@@ -248,12 +248,13 @@ mod tests {
     /// nearer: the ray must still find it (it was a miss once).
     #[test]
     fn relaxed_steps_never_leap_past_far_over_a_surface() {
-        let torus = Shape::Torus {
+        let torus: Shape = sdfl_stdlib::shape::Torus {
             center: Arg::fixed(glam::DVec3::ZERO),
             major: Arg::fixed(1.0),
             minor: Arg::fixed(0.3),
             axis: sdfl_stdlib::sdf::Axis::Z,
-        };
+        }
+        .into();
         let scene = Lowered::new(&torus, LowerOptions::default());
         let origin = Vec3A::new(0.0, 0.0, -4.0);
         for far in [4.0f32, 5.0, 10.0] {

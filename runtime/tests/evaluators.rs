@@ -7,7 +7,7 @@ use std::sync::Arc;
 
 use glam::{DVec3, Vec3A};
 use sdfl_runtime::{LowerOptions, Lowered};
-use sdfl_stdlib::shape::{Axis, Shape};
+use sdfl_stdlib::shape::*;
 
 struct Lcg(u64);
 impl Lcg {
@@ -29,11 +29,11 @@ impl Lcg {
 fn primitive(rng: &mut Lcg) -> Shape {
     let c = rng.v3(2.0);
     match (rng.next() * 7.0) as u32 {
-        0 => Shape::Sphere {
+        0 => Shape::from(Sphere {
             center: c.into(),
             radius: rng.range(0.05, 0.4).into(),
-        },
-        1 => Shape::Box {
+        }),
+        1 => Shape::from(Cuboid {
             center: c.into(),
             size: DVec3::new(
                 rng.range(0.1, 0.6),
@@ -41,35 +41,35 @@ fn primitive(rng: &mut Lcg) -> Shape {
                 rng.range(0.1, 0.6),
             )
             .into(),
-        },
-        2 => Shape::BoxFrame {
+        }),
+        2 => Shape::from(BoxFrame {
             center: c.into(),
             size: DVec3::splat(rng.range(0.4, 0.8)).into(),
             thickness: 0.05.into(),
-        },
-        3 => Shape::Torus {
+        }),
+        3 => Shape::from(Torus {
             center: c.into(),
             major: rng.range(0.2, 0.4).into(),
             minor: rng.range(0.03, 0.1).into(),
             axis: Axis::Z,
-        },
-        4 => Shape::Capsule {
+        }),
+        4 => Shape::from(Capsule {
             a: c.into(),
             b: (c + rng.v3(0.3)).into(),
             radius: rng.range(0.03, 0.2).into(),
-        },
-        5 => Shape::Cylinder {
+        }),
+        5 => Shape::from(Cylinder {
             center: c.into(),
             radius: rng.range(0.05, 0.3).into(),
             height: rng.range(0.1, 0.6).into(),
             axis: Axis::Z,
-        },
+        }),
         // Fields evaluate in the order written: the random draws keep their order.
         _ => Shape::Rotate {
-            shape: Arc::new(Shape::Box {
+            shape: Arc::new(Shape::from(Cuboid {
                 center: DVec3::ZERO.into(),
                 size: DVec3::splat(rng.range(0.1, 0.5)).into(),
-            }),
+            })),
             axis: rng.v3(1.0).normalize(),
             angle: rng.range(-3.0, 3.0).into(),
         },
@@ -111,49 +111,49 @@ fn random_scene(seed: u64, n: usize, with_bounds_ops: bool) -> Shape {
         members.push(Arc::new(Shape::Round(c.clone(), 0.07.into())));
         members.push(Arc::new(Shape::Onion(d.clone(), 0.03.into())));
         members.push(Arc::new(Shape::Xor(c, d)));
-        members.push(Arc::new(Shape::Ellipsoid {
+        members.push(Arc::new(Shape::from(Ellipsoid {
             center: rng.v3(2.0).into(),
             radii: DVec3::new(0.5, 0.1, 0.2).into(),
-        }));
-        members.push(Arc::new(Shape::Octahedron {
+        })));
+        members.push(Arc::new(Shape::from(Octahedron {
             center: rng.v3(2.0).into(),
             size: 0.3.into(),
-        }));
-        members.push(Arc::new(Shape::CappedCone {
+        })));
+        members.push(Arc::new(Shape::from(CappedCone {
             center: rng.v3(2.0).into(),
             height: 0.5.into(),
             bottom: 0.25.into(),
             top: 0.05.into(),
             axis: Axis::Y,
-        }));
+        })));
         // The newer primitives along every axis, and the domain operators
         // (each lowered as a warp node, some under transforms).
-        members.push(Arc::new(Shape::RoundCone {
+        members.push(Arc::new(Shape::from(RoundCone {
             center: rng.v3(2.0).into(),
             bottom: 0.2.into(),
             top: 0.08.into(),
             height: 0.4.into(),
             axis: Axis::X,
-        }));
-        members.push(Arc::new(Shape::HexPrism {
+        })));
+        members.push(Arc::new(Shape::from(HexPrism {
             center: rng.v3(2.0).into(),
             radius: 0.2.into(),
             height: 0.3.into(),
             axis: Axis::Y,
-        }));
-        members.push(Arc::new(Shape::TriPrism {
+        })));
+        members.push(Arc::new(Shape::from(TriPrism {
             center: rng.v3(2.0).into(),
             side: 0.4.into(),
             height: 0.2.into(),
             axis: Axis::Z,
-        }));
-        members.push(Arc::new(Shape::Link {
+        })));
+        members.push(Arc::new(Shape::from(Link {
             center: rng.v3(2.0).into(),
             length: 0.3.into(),
             major: 0.15.into(),
             minor: 0.04.into(),
             axis: Axis::X,
-        }));
+        })));
         let (e, f) = (Arc::new(primitive(&mut rng)), Arc::new(primitive(&mut rng)));
         members.push(Arc::new(Shape::Elongate(
             e.clone(),
@@ -174,10 +174,10 @@ fn random_scene(seed: u64, n: usize, with_bounds_ops: bool) -> Shape {
         )));
         let small: Vec<Arc<Shape>> = (0..3)
             .map(|_| {
-                Arc::new(Shape::Sphere {
+                Arc::new(Shape::from(Sphere {
                     center: rng.v3(0.3).into(),
                     radius: 0.1.into(),
-                })
+                }))
             })
             .collect();
         members.push(Arc::new(Shape::Repeat {
@@ -314,10 +314,10 @@ fn unions_with_bounds_transforms_and_nesting() {
 fn planes_are_never_culled() {
     let mut rng = Lcg(5);
     let mut members: Vec<Arc<Shape>> = (0..100).map(|_| Arc::new(primitive(&mut rng))).collect();
-    members.push(Arc::new(Shape::Plane {
-        normal: DVec3::Y,
+    members.push(Arc::new(Shape::from(Plane {
+        normal: DVec3::Y.into(),
         height: (-2.5).into(),
-    }));
+    })));
     check_scene(&Shape::Union(members), 5);
 }
 
@@ -383,68 +383,117 @@ fn assert_batch_equals_points(name: &str, e: &Lowered, points: &[Vec3A], exact: 
     }
 }
 
-/// A primitive of one kind (`kind` 0..9) at a random place.
-fn primitive_of_kind(rng: &mut Lcg, kind: u32) -> Shape {
+/// A primitive of every declared kind (`kind` < `Primitive::SPECS.len()`)
+/// drawn from its ranges and moved to a random place, and after them a
+/// transformed leaf (not packed).
+fn primitive_of_kind(rng: &mut Lcg, kind: usize) -> Shape {
     let c = rng.v3(2.0);
-    let size = DVec3::new(
-        rng.range(0.1, 0.6),
-        rng.range(0.1, 0.6),
-        rng.range(0.1, 0.6),
-    );
-    match kind {
-        0 => Shape::Sphere {
-            center: c.into(),
+    if kind < Primitive::SPECS.len() {
+        let mut p = Primitive::random(kind, &mut || rng.next());
+        for pt in p.points_mut() {
+            *pt += c;
+        }
+        return Shape::Prim(p);
+    }
+    Shape::Translate(
+        Arc::new(Shape::from(Sphere {
+            center: DVec3::ZERO.into(),
             radius: rng.range(0.05, 0.4).into(),
-        },
-        1 => Shape::Box {
-            center: c.into(),
-            size: size.into(),
-        },
-        2 => Shape::Torus {
-            center: c.into(),
-            major: rng.range(0.2, 0.4).into(),
-            minor: rng.range(0.03, 0.1).into(),
-            axis: [Axis::X, Axis::Y, Axis::Z][(rng.next() * 3.0) as usize],
-        },
-        3 => Shape::Cylinder {
-            center: c.into(),
-            radius: rng.range(0.05, 0.3).into(),
-            height: rng.range(0.1, 0.6).into(),
-            axis: [Axis::X, Axis::Y, Axis::Z][(rng.next() * 3.0) as usize],
-        },
-        4 => Shape::Ellipsoid {
-            center: c.into(),
-            radii: size.into(),
-        },
-        5 => Shape::Octahedron {
-            center: c.into(),
-            size: rng.range(0.1, 0.5).into(),
-        },
-        6 => Shape::BoxFrame {
-            center: c.into(),
-            size: size.into(),
-            thickness: 0.05.into(),
-        },
-        // Not packed: a branchy formula (lane by lane) and a transformed leaf.
-        7 => Shape::Capsule {
-            a: c.into(),
-            b: (c + rng.v3(0.3)).into(),
-            radius: rng.range(0.03, 0.2).into(),
-        },
-        _ => Shape::Translate(
-            Arc::new(Shape::Sphere {
-                center: DVec3::ZERO.into(),
-                radius: rng.range(0.05, 0.4).into(),
-            }),
-            c.into(),
-        ),
+        })),
+        c.into(),
+    )
+}
+
+/// Every declared primitive in the evaluator suite: unions of it (plain,
+/// culled, packed, relative to an origin), and under transforms, against
+/// the f64 reference.
+#[test]
+fn every_primitive_agrees_with_the_reference() {
+    let mut rng = Lcg(23);
+    for kind in 0..Primitive::SPECS.len() {
+        let members: Vec<Arc<Shape>> = (0..24)
+            .map(|i| {
+                let s = Arc::new(primitive_of_kind(&mut rng, kind));
+                match i % 3 {
+                    0 => s,
+                    1 => Arc::new(Shape::Rotate {
+                        shape: s,
+                        axis: rng.v3(1.0).normalize(),
+                        angle: rng.range(-3.0, 3.0).into(),
+                    }),
+                    _ => Arc::new(Shape::Scale(s, rng.range(0.5, 1.5).into())),
+                }
+            })
+            .collect();
+        check_scene(&Shape::Union(members), 100 + kind as u64);
+    }
+}
+
+/// The tracer on every declared primitive: every ray from outside towards
+/// a point inside a random instance hits, where the f64 reference is within
+/// the hit tolerance of the surface.
+#[test]
+fn every_primitive_traces_to_its_surface() {
+    use sdfl_runtime::trace::{sphere_trace, TraceSettings};
+    let mut rng = Lcg(31);
+    for (kind, spec) in Primitive::SPECS.iter().enumerate() {
+        let mut hits = 0;
+        for _ in 0..40 {
+            let s = primitive_of_kind(&mut rng, kind);
+            let l = Lowered::new(&s, LowerOptions::default());
+            let settings = TraceSettings {
+                near: 0.0,
+                far: 40.0,
+                max_steps: 512,
+                epsilon: 1e-5,
+                footprint: 0.0,
+                relax: false,
+                lipschitz: l.lipschitz,
+            };
+            // A point inside: every ray from outside towards it hits.
+            let (lo, hi) = match s.bounds() {
+                Some(b) => (b.min, b.max),
+                None => {
+                    let c = s.primitive_center().expect("a primitive");
+                    (c - DVec3::ONE, c + DVec3::ONE)
+                }
+            };
+            let target = (0..10_000)
+                .map(|_| lo + (hi - lo) * DVec3::new(rng.next(), rng.next(), rng.next()))
+                .find(|p| s.distance(*p) < 0.0)
+                .expect("a point inside");
+            let origin = target + rng.v3(1.0).normalize_or(DVec3::X) * 6.0;
+            // A ray starting inside hits where it starts.
+            if s.distance(origin) <= 0.0 {
+                continue;
+            }
+            let dir = (target - origin).normalize();
+            let h = sphere_trace(
+                &*l.root,
+                origin.as_vec3().into(),
+                dir.as_vec3().into(),
+                &settings,
+            );
+            assert!(h.hit, "{}: a ray towards {target} misses", spec.name);
+            {
+                hits += 1;
+                let at = origin + dir * h.t as f64;
+                let d = s.distance(at);
+                assert!(
+                    d.abs() <= 1e-4,
+                    "{}: the ray stops {d} from the surface at {at}",
+                    spec.name
+                );
+            }
+        }
+        assert!(hits >= 10, "{}: only {hits} rays start outside", spec.name);
     }
 }
 
 #[test]
 fn packed_unions_of_one_kind_equal_the_per_point_path() {
     let mut rng = Lcg(41);
-    for kind in 0..9 {
+    for kind in 0..=Primitive::SPECS.len() {
         for n in [1, 2, 7, 8, 9, 15, 16, 17, 100, 200] {
             let members: Vec<Shape> = (0..n).map(|_| primitive_of_kind(&mut rng, kind)).collect();
             let shape = Shape::Union(members.iter().cloned().map(Arc::new).collect());
@@ -500,16 +549,16 @@ fn degenerate_unions_stay_exact() {
     // no bound separates them), and copies under different transforms or
     // materials, mixed with distinct members: culled equals naive.
     let mut rng = Lcg(41);
-    let sphere = Arc::new(Shape::Sphere {
+    let sphere = Arc::new(Shape::from(Sphere {
         center: DVec3::new(0.3, -0.2, 0.1).into(),
         radius: 0.6.into(),
-    });
+    }));
     let mut members: Vec<Arc<Shape>> = vec![sphere.clone(); 300];
     members.extend((0..300).map(|i| {
-        Arc::new(Shape::Box {
+        Arc::new(Shape::from(Cuboid {
             center: DVec3::new(i as f64 * 1e-9, 0.0, 0.0).into(),
             size: DVec3::splat(0.8).into(),
-        })
+        }))
     }));
     members.extend((0..50).map(|_| Arc::new(Shape::Translate(sphere.clone(), DVec3::X.into()))));
     members.extend((0..50).map(|_| Arc::new(Shape::Scale(sphere.clone(), 0.5.into()))));
@@ -535,10 +584,10 @@ fn degenerate_unions_stay_exact() {
 /// as the reference's for points near the original (copy at the origin).
 #[test]
 fn warped_primitives_keep_world_centres() {
-    let ball = Arc::new(Shape::Sphere {
+    let ball = Arc::new(Shape::from(Sphere {
         center: DVec3::new(0.2, 0.1, 0.0).into(),
         radius: 0.3.into(),
-    });
+    }));
     let shape = Shape::Translate(
         Arc::new(Shape::Scale(
             Arc::new(Shape::Twist(

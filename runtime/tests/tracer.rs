@@ -10,7 +10,7 @@ use sdfl_runtime::trace::{normal, normal_step, sphere_trace, TraceSettings};
 use sdfl_runtime::{LowerOptions, Lowered};
 use sdfl_stdlib::camera::Camera;
 use sdfl_stdlib::material::Material;
-use sdfl_stdlib::shape::Shape;
+use sdfl_stdlib::shape::*;
 use sdfl_stdlib::{Output, OutputKind, RenderJob};
 
 fn lower(s: &Shape) -> Lowered {
@@ -30,10 +30,10 @@ fn settings(l: &Lowered) -> TraceSettings {
 }
 
 fn unit_sphere() -> Shape {
-    Shape::Sphere {
+    Shape::from(Sphere {
         center: DVec3::ZERO.into(),
         radius: 1.0.into(),
-    }
+    })
 }
 
 #[test]
@@ -76,10 +76,10 @@ fn rays_starting_inside_hit_at_once() {
 
 #[test]
 fn rays_parallel_to_a_plane_stay_bounded() {
-    let l = lower(&Shape::Plane {
-        normal: DVec3::Y,
+    let l = lower(&Shape::from(Plane {
+        normal: DVec3::Y.into(),
         height: 0.0.into(),
-    });
+    }));
     let s = TraceSettings {
         max_steps: 64,
         ..settings(&l)
@@ -95,10 +95,10 @@ fn normals_are_finite_at_singular_points() {
     // The gradient of |p| - r is undefined at the centre.
     let n = normal(&*sphere.root, Vec3A::ZERO, 5e-4, fallback);
     assert!(n.is_finite() && (n.length() - 1.0).abs() < 1e-5, "{n}");
-    let cube = lower(&Shape::Box {
+    let cube = lower(&Shape::from(Cuboid {
         center: DVec3::ZERO.into(),
         size: DVec3::ONE.into(),
-    });
+    }));
     for p in [
         Vec3A::new(0.5, 0.5, 0.5), // corner
         Vec3A::new(0.5, 0.5, 0.0), // edge
@@ -130,10 +130,10 @@ fn first_crossing(shape: &Shape, o: DVec3, d: DVec3, far: f64) -> Option<f64> {
 fn lipschitz_scaled_steps_do_not_tunnel_through_thin_bound_shapes() {
     // A thin sheet with a strong displacement: gradient up to 1 + √3·a·f.
     let sheet = Shape::Displace {
-        shape: Arc::new(Shape::Box {
+        shape: Arc::new(Shape::from(Cuboid {
             center: DVec3::ZERO.into(),
             size: DVec3::new(8.0, 0.02, 8.0).into(),
-        }),
+        })),
         amplitude: 0.15.into(),
         frequency: 12.0.into(),
     };
@@ -175,10 +175,10 @@ fn lipschitz_scaled_steps_do_not_tunnel_through_thin_bound_shapes() {
 fn twisted_and_bent_thin_plates_are_hit_where_first_crossed() {
     // Thin plates turned fast: the warped field's gradient reaches
     // 1 + |rate|·R, and the tracer's steps are shortened by that.
-    let plate = Arc::new(Shape::Box {
+    let plate = Arc::new(Shape::from(Cuboid {
         center: DVec3::ZERO.into(),
         size: DVec3::new(2.4, 0.03, 2.0).into(),
-    });
+    }));
     for shape in [
         Shape::Twist(plate.clone(), 2.5.into()),
         Shape::Bend(plate.clone(), 1.2.into()),
@@ -521,10 +521,10 @@ fn normals_far_from_the_origin_are_unit_and_accurate() {
         (DVec3::new(1e5, 0.0, 0.0), 1e4, DVec3::ZERO),
     ];
     for (center, radius, eye) in cases {
-        let shape = Shape::Sphere {
+        let shape = Shape::from(Sphere {
             center: center.into(),
             radius: radius.into(),
-        };
+        });
         let scene = Lowered::relative_to(&shape, LowerOptions::default(), eye);
         let o: Vec3A = (eye - scene.origin).as_vec3().into();
         let s = TraceSettings {

@@ -84,6 +84,42 @@ pub fn torus<T: Real>(q: V3<T>, major: T, minor: T) -> T {
     (a * a + q.z * q.z).sqrt() - minor
 }
 
+/// Inigo Quilez's capped torus: the arc of the torus (`major`, `minor`) in
+/// the XY plane within `angle` of +Y on either side (`q` in its frame,
+/// [`along`]); exact. The nearest point of the arc's centre circle is the
+/// point's own direction inside the arc, else the arc's end.
+#[inline(always)]
+pub fn capped_torus<T: Real>(q: V3<T>, angle: T, major: T, minor: T) -> T {
+    let (s, c) = (angle.sin(), angle.cos());
+    let x = q.x.abs();
+    // `q·e` for the nearest point `major·e` of the centre circle's arc.
+    let k = T::if_gt(c * x, s * q.y, x * s + q.y * c, (x * x + q.y * q.y).sqrt());
+    let sq = q.dot(q) + major * major - T::lit(2.0) * major * k;
+    sq.max(T::zero()).sqrt() - minor
+}
+
+/// A pointed cone along Z whose side makes `angle` with the axis: tip at
+/// `z = +height/2`, base of radius `height·tan(angle)` at `−height/2` (`q`
+/// in its frame, [`along`]); exact (Inigo Quilez's cone, in this frame).
+/// In its section (`r`, `y` from the tip) the nearest point is on the side
+/// (tip to base rim) or on the base.
+#[inline(always)]
+pub fn cone<T: Real>(q: V3<T>, angle: T, height: T) -> T {
+    let rim = height * angle.sin() / angle.cos();
+    let r = (q.x * q.x + q.y * q.y).sqrt();
+    let y = q.z - height * T::lit(0.5);
+    // Side: the segment from the tip (0, 0) to the rim (rim, −height).
+    let t = ((r * rim - y * height) / (rim * rim + height * height)).clamp(0.0, 1.0);
+    let (ax, ay) = (r - rim * t, y + height * t);
+    // Base: the segment from the axis to the rim at y = −height.
+    let bx = r - r.min(rim);
+    let by = y + height;
+    let d = (ax * ax + ay * ay).min(bx * bx + by * by).sqrt();
+    // Inside: below the side and above the base.
+    let s = (r * height + y * rim).max(-by);
+    T::if_gt(s, T::zero(), d, -d)
+}
+
 /// Segment `a`–`b` thickened by `radius`.
 #[inline(always)]
 pub fn capsule<T: Real>(p: V3<T>, a: V3<T>, b: V3<T>, radius: T) -> T {

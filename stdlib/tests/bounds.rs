@@ -5,7 +5,7 @@ use std::sync::Arc;
 
 use glam::DVec3;
 use proptest::prelude::*;
-use sdfl_stdlib::shape::{Axis, Exactness, Shape};
+use sdfl_stdlib::shape::*;
 
 fn axis() -> impl Strategy<Value = Axis> {
     prop_oneof![Just(Axis::X), Just(Axis::Y), Just(Axis::Z)]
@@ -15,82 +15,25 @@ fn v3(r: f64) -> impl Strategy<Value = DVec3> {
     (-r..r, -r..r, -r..r).prop_map(|(x, y, z)| DVec3::new(x, y, z))
 }
 
+/// A uniform `0..1` generator from a seed.
+fn uniform(seed: u64) -> impl FnMut() -> f64 {
+    let mut s = seed;
+    move || {
+        s = s
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        (s >> 11) as f64 / (1u64 << 53) as f64
+    }
+}
+
+/// Every registered primitive with bounds (not planes), drawn from its
+/// declared ranges: a new primitive joins these tests by being declared.
 fn leaf() -> impl Strategy<Value = Shape> {
-    prop_oneof![
-        (v3(1.0), 0.05f64..1.0).prop_map(|(c, r)| Shape::Sphere {
-            center: c.into(),
-            radius: r.into()
-        }),
-        (v3(1.0), v3(1.0)).prop_map(|(c, s)| Shape::Box {
-            center: c.into(),
-            size: (s.abs() + DVec3::splat(0.05)).into()
-        }),
-        (v3(1.0), v3(1.0)).prop_map(|(c, s)| Shape::BoxFrame {
-            center: c.into(),
-            size: (s.abs() + DVec3::splat(0.3)).into(),
-            thickness: 0.05.into()
-        }),
-        (v3(1.0), 0.3f64..1.0, 0.05f64..0.25, axis()).prop_map(|(c, a, b, axis)| Shape::Torus {
-            center: c.into(),
-            major: a.into(),
-            minor: b.into(),
-            axis,
-        }),
-        (v3(1.0), 0.1f64..0.5, 0.0f64..0.5, axis()).prop_map(|(c, a, b, axis)| Shape::RoundCone {
-            center: c.into(),
-            bottom: a.into(),
-            top: (a * 0.3 + 0.02).into(),
-            height: (a + b + 0.05).into(),
-            axis,
-        }),
-        (v3(1.0), 0.05f64..0.8, 0.05f64..1.0, axis()).prop_map(|(c, r, h, axis)| Shape::HexPrism {
-            center: c.into(),
-            radius: r.into(),
-            height: h.into(),
-            axis,
-        }),
-        (v3(1.0), 0.05f64..1.0, 0.05f64..1.0, axis()).prop_map(|(c, s, h, axis)| Shape::TriPrism {
-            center: c.into(),
-            side: s.into(),
-            height: h.into(),
-            axis,
-        }),
-        (v3(1.0), 0.05f64..1.0, 0.2f64..0.6, axis()).prop_map(|(c, l, r, axis)| Shape::Link {
-            center: c.into(),
-            length: l.into(),
-            major: r.into(),
-            minor: (r * 0.3).into(),
-            axis,
-        }),
-        (v3(1.0), 0.05f64..1.0).prop_map(|(c, s)| Shape::Octahedron {
-            center: c.into(),
-            size: s.into()
-        }),
-        (v3(1.0), 0.05f64..1.0, 0.0f64..0.6, 0.0f64..0.6, axis()).prop_map(|(c, h, b, t, axis)| {
-            Shape::CappedCone {
-                center: c.into(),
-                height: h.into(),
-                bottom: (b + 0.01).into(),
-                top: t.into(),
-                axis,
-            }
-        }),
-        (v3(1.0), v3(1.0)).prop_map(|(c, r)| Shape::Ellipsoid {
-            center: c.into(),
-            radii: (r.abs() + DVec3::splat(0.02)).into()
-        }),
-        (v3(1.0), v3(1.0), 0.05f64..0.5).prop_map(|(a, b, r)| Shape::Capsule {
-            a: a.into(),
-            b: b.into(),
-            radius: r.into()
-        }),
-        (v3(1.0), 0.05f64..1.0, 0.05f64..1.0, axis()).prop_map(|(c, r, h, axis)| Shape::Cylinder {
-            center: c.into(),
-            radius: r.into(),
-            height: h.into(),
-            axis,
-        }),
-    ]
+    let bounded: Vec<usize> = (0..Primitive::SPECS.len())
+        .filter(|&k| Primitive::random(k, &mut uniform(1)).bounds().is_some())
+        .collect();
+    (prop::sample::select(bounded), any::<u64>())
+        .prop_map(|(k, seed)| Shape::Prim(Primitive::random(k, &mut uniform(seed))))
 }
 
 fn tree() -> impl Strategy<Value = Shape> {
@@ -242,10 +185,10 @@ proptest! {
 /// and never cull it); a limited one is bounded by its end copies.
 #[test]
 fn infinite_repeat_is_unbounded() {
-    let child = Arc::new(Shape::Sphere {
+    let child = Arc::new(Shape::from(Sphere {
         center: DVec3::new(0.1, 0.0, 0.0).into(),
         radius: 0.3.into(),
-    });
+    }));
     let r = |count| Shape::Repeat {
         shape: child.clone(),
         spacing: DVec3::new(1.0, 0.0, 1.5).into(),

@@ -141,7 +141,9 @@ fn radius_of(expr: &str) -> f64 {
     let program =
         load(&SourceFile::new("math.sdfl", src)).unwrap_or_else(|d| panic!("{expr}: {d:?}"));
     match &*program.renders[0].scene {
-        sdfl_stdlib::shape::Shape::Sphere { radius, .. } => radius.value,
+        sdfl_stdlib::shape::Shape::Prim(sdfl_stdlib::shape::Primitive::Sphere(
+            sdfl_stdlib::shape::Sphere { radius, .. },
+        )) => radius.value,
         other => panic!("{other:?}"),
     }
 }
@@ -255,7 +257,9 @@ fn functions_bind_arguments_like_builtins() {
         );
         let p = load(&SourceFile::new("f.sdfl", src)).unwrap_or_else(|d| panic!("{call}: {d:?}"));
         match &*p.renders[0].scene {
-            sdfl_stdlib::shape::Shape::Sphere { radius, .. } => radius.value,
+            sdfl_stdlib::shape::Shape::Prim(sdfl_stdlib::shape::Primitive::Sphere(
+                sdfl_stdlib::shape::Sphere { radius, .. },
+            )) => radius.value,
             other => panic!("{other:?}"),
         }
     };
@@ -270,7 +274,7 @@ fn functions_bind_arguments_like_builtins() {
                render r { scene: sphere(v[0]), camera: look_at([0, 0, 5]), outputs: [image(\"a.png\")] }";
     let p = load(&SourceFile::new("t", src)).unwrap();
     assert!(
-        matches!(&*p.renders[0].scene, sdfl_stdlib::shape::Shape::Sphere { radius, .. } if radius.value == 1.0)
+        matches!(&*p.renders[0].scene, sdfl_stdlib::shape::Shape::Prim(sdfl_stdlib::shape::Primitive::Sphere(sdfl_stdlib::shape::Sphere { radius, .. })) if radius.value == 1.0)
     );
     // A call's cost is bounded: so is a `fn`'s parameter count.
     let params: Vec<String> = (0..=sdfl_lang::check::MAX_FN_PARAMS)
@@ -481,4 +485,30 @@ train surface {
         panic!("a neural surface")
     };
     assert_eq!((s.sdf.layers, s.sdf.width, &s.sdf.skips), (3, 24, &vec![2]));
+}
+
+/// `cone` by the side's `angle` (the declared primitive) or by the base's
+/// `radius` (a capped cone), never both; positional arguments keep the
+/// radius form's order.
+#[test]
+fn cone_by_angle_or_by_radius() {
+    let scene = |call: &str| {
+        let src = format!(
+            "render r {{ scene: {call}, camera: look_at([0, 0, -3]), outputs: [image(\"a.png\")] }}"
+        );
+        load(&SourceFile::new("t", src)).map(|p| p.renders[0].scene.name())
+    };
+    assert_eq!(scene("cone(angle: 30deg, height: 1)").unwrap(), "cone");
+    assert_eq!(
+        scene("cone(radius: 0.5, height: 1)").unwrap(),
+        "capped_cone"
+    );
+    assert_eq!(scene("cone(0.5, 1)").unwrap(), "capped_cone");
+    assert_eq!(scene("cone()").unwrap(), "capped_cone");
+    assert_eq!(
+        codes_of("let c = cone(radius: 0.5, angle: 0.3)"),
+        [codes::VALUE]
+    );
+    assert_eq!(codes_of("let c = cone(angle: 2)"), [codes::VALUE]);
+    assert_eq!(codes_of("let c = capped_torus(angle: -1)"), [codes::VALUE]);
 }

@@ -6,7 +6,7 @@ use std::f64::consts::TAU;
 use std::sync::Arc;
 
 use glam::{DQuat, DVec3};
-use sdfl_stdlib::shape::{Axis, Exactness, Shape};
+use sdfl_stdlib::shape::*;
 
 /// Deterministic uniform numbers in [0, 1).
 struct Lcg(u64);
@@ -92,10 +92,10 @@ fn sphere() {
         })
         .collect();
     check(
-        &Shape::Sphere {
+        &Shape::from(Sphere {
             center: c.into(),
             radius: r.into(),
-        },
+        }),
         &surface,
         |p| (p - c).length() < r,
         0.02,
@@ -108,10 +108,10 @@ fn box_() {
     let surface = box_surface(c, size / 2.0, 0.01);
     let inside = |p: DVec3| ((p - c).abs() - size / 2.0).max_element() < 0.0;
     check(
-        &Shape::Box {
+        &Shape::from(Cuboid {
             center: c.into(),
             size: size.into(),
-        },
+        }),
         &surface,
         inside,
         0.01,
@@ -147,11 +147,11 @@ fn box_frame() {
         .collect();
     let inside = |p: DVec3| edges.iter().any(|e| inside_edge(p, *e));
     check(
-        &Shape::BoxFrame {
+        &Shape::from(BoxFrame {
             center: c.into(),
             size: size.into(),
             thickness: e.into(),
-        },
+        }),
         &surface,
         inside,
         0.008,
@@ -176,12 +176,12 @@ fn torus() {
         a * a + q.z * q.z < small * small
     };
     check(
-        &Shape::Torus {
+        &Shape::from(Torus {
             center: c.into(),
             major: big.into(),
             minor: small.into(),
             axis: Axis::Z,
-        },
+        }),
         &surface,
         inside,
         0.01,
@@ -219,11 +219,11 @@ fn capsule() {
         (p - a - (b - a) * h).length() < r
     };
     check(
-        &Shape::Capsule {
+        &Shape::from(Capsule {
             a: a.into(),
             b: b.into(),
             radius: r.into(),
-        },
+        }),
         &surface,
         inside,
         0.012,
@@ -255,12 +255,12 @@ fn cylinder() {
         (q.x * q.x + q.y * q.y).sqrt() < r && q.z.abs() < h / 2.0
     };
     check(
-        &Shape::Cylinder {
+        &Shape::from(Cylinder {
             center: c.into(),
             radius: r.into(),
             height: h.into(),
             axis: Axis::Z,
-        },
+        }),
         &surface,
         inside,
         0.01,
@@ -276,10 +276,10 @@ fn rotated_scaled_translated_box_stays_exact() {
     let shape = Shape::Translate(
         Arc::new(Shape::Scale(
             Arc::new(Shape::Rotate {
-                shape: Arc::new(Shape::Box {
+                shape: Arc::new(Shape::from(Cuboid {
                     center: DVec3::ZERO.into(),
                     size: size.into(),
-                }),
+                })),
                 axis,
                 angle: angle.into(),
             }),
@@ -301,10 +301,10 @@ fn rotated_scaled_translated_box_stays_exact() {
 #[test]
 fn plane_is_signed_distance_to_the_plane() {
     let n = DVec3::new(1.0, 2.0, 2.0) / 3.0;
-    let plane = Shape::Plane {
-        normal: n,
+    let plane = Shape::from(Plane {
+        normal: n.into(),
         height: 0.5.into(),
-    };
+    });
     let mut rng = Lcg(7);
     for _ in 0..100 {
         let p = rng.in_box(DVec3::splat(-3.0), DVec3::splat(3.0));
@@ -322,10 +322,10 @@ fn plane_is_signed_distance_to_the_plane() {
 #[test]
 fn ellipsoid_bound_never_overestimates() {
     let (c, r) = (DVec3::new(0.2, -0.1, 0.3), DVec3::new(1.0, 0.3, 0.6));
-    let shape = Shape::Ellipsoid {
+    let shape = Shape::from(Ellipsoid {
         center: c.into(),
         radii: r.into(),
-    };
+    });
     let mut surface = Vec::new();
     let n = 240;
     for i in 0..n {
@@ -369,13 +369,13 @@ fn capped_cone_is_exact() {
     let c = DVec3::new(0.1, 0.2, -0.1);
     let (h, r1, r2) = (1.2, 0.6, 0.25);
     for (bottom, top) in [(r1, r2), (r2, r1), (r1, 0.0)] {
-        let shape = Shape::CappedCone {
+        let shape = Shape::from(CappedCone {
             center: c.into(),
             height: h.into(),
             bottom: bottom.into(),
             top: top.into(),
             axis: Axis::Z,
-        };
+        });
         let spacing = 0.01;
         let radius_at = |z: f64| bottom + (top - bottom) * (z / h + 0.5);
         let mut surface = Vec::new();
@@ -504,12 +504,14 @@ fn round_cone_is_exact() {
         f1.min(f2) < 0.0
     };
     check_along_axes(
-        |axis| Shape::RoundCone {
-            center: c.into(),
-            bottom: r1.into(),
-            top: r2.into(),
-            height: h.into(),
-            axis,
+        |axis| {
+            Shape::from(RoundCone {
+                center: c.into(),
+                bottom: r1.into(),
+                top: r2.into(),
+                height: h.into(),
+                axis,
+            })
         },
         inside,
         c,
@@ -526,11 +528,13 @@ fn hex_prism_is_exact() {
             && q.z.abs() <= h / 2.0
     };
     check_along_axes(
-        |axis| Shape::HexPrism {
-            center: c.into(),
-            radius: r.into(),
-            height: h.into(),
-            axis,
+        |axis| {
+            Shape::from(HexPrism {
+                center: c.into(),
+                radius: r.into(),
+                height: h.into(),
+                axis,
+            })
         },
         inside,
         c,
@@ -547,11 +551,13 @@ fn tri_prism_is_exact() {
         q.y >= -side / (2.0 * k) && k * q.x.abs() + q.y <= side / k && q.z.abs() <= h / 2.0
     };
     check_along_axes(
-        |axis| Shape::TriPrism {
-            center: c.into(),
-            side: side.into(),
-            height: h.into(),
-            axis,
+        |axis| {
+            Shape::from(TriPrism {
+                center: c.into(),
+                side: side.into(),
+                height: h.into(),
+                axis,
+            })
         },
         inside,
         c,
@@ -572,12 +578,14 @@ fn link_is_exact() {
         }
     };
     check_along_axes(
-        |axis| Shape::Link {
-            center: c.into(),
-            length: len.into(),
-            major: big.into(),
-            minor: small.into(),
-            axis,
+        |axis| {
+            Shape::from(Link {
+                center: c.into(),
+                length: len.into(),
+                major: big.into(),
+                minor: small.into(),
+                axis,
+            })
         },
         inside,
         c,
@@ -589,34 +597,40 @@ fn torus_cylinder_and_cone_along_each_axis() {
     let c = DVec3::new(0.1, 0.2, -0.1);
     let (big, small) = (0.5, 0.15);
     check_along_axes(
-        |axis| Shape::Torus {
-            center: c.into(),
-            major: big.into(),
-            minor: small.into(),
-            axis,
+        |axis| {
+            Shape::from(Torus {
+                center: c.into(),
+                major: big.into(),
+                minor: small.into(),
+                axis,
+            })
         },
         |q| ((q.x * q.x + q.y * q.y).sqrt() - big).powi(2) + q.z * q.z < small * small,
         c,
     );
     let (r, h) = (0.35, 0.8);
     check_along_axes(
-        |axis| Shape::Cylinder {
-            center: c.into(),
-            radius: r.into(),
-            height: h.into(),
-            axis,
+        |axis| {
+            Shape::from(Cylinder {
+                center: c.into(),
+                radius: r.into(),
+                height: h.into(),
+                axis,
+            })
         },
         |q| (q.x * q.x + q.y * q.y).sqrt() < r && q.z.abs() < h / 2.0,
         c,
     );
     // A pointed cone (`top: 0`).
     check_along_axes(
-        |axis| Shape::CappedCone {
-            center: c.into(),
-            height: h.into(),
-            bottom: r.into(),
-            top: 0.0.into(),
-            axis,
+        |axis| {
+            Shape::from(CappedCone {
+                center: c.into(),
+                height: h.into(),
+                bottom: r.into(),
+                top: 0.0.into(),
+                axis,
+            })
         },
         |q| q.z.abs() < h / 2.0 && (q.x * q.x + q.y * q.y).sqrt() < r * (0.5 - q.z / h),
         c,
@@ -624,10 +638,10 @@ fn torus_cylinder_and_cone_along_each_axis() {
 }
 
 fn ball(c: DVec3, r: f64) -> Arc<Shape> {
-    Arc::new(Shape::Sphere {
+    Arc::new(Shape::from(Sphere {
         center: c.into(),
         radius: r.into(),
-    })
+    }))
 }
 
 /// The union of the copies, written out.
@@ -657,10 +671,10 @@ fn repeat_is_the_union_of_its_copies() {
     let child = |c: DVec3, r: f64| {
         Arc::new(Shape::Union(vec![
             ball(c, r),
-            Arc::new(Shape::Box {
+            Arc::new(Shape::from(Cuboid {
                 center: (c + DVec3::new(0.2, -0.1, 0.0)).into(),
                 size: DVec3::new(0.3, 0.5, r).into(),
-            }),
+            })),
         ]))
     };
     let spacing = DVec3::new(1.0, 0.8, 0.0);
@@ -714,23 +728,23 @@ fn elongate_and_mirror_match_their_constructions() {
     // Cut at the plane x = 0 through the sphere's centre.
     let s = ball(DVec3::new(0.0, 0.2, -0.1), 0.3);
     let long = Shape::Elongate(s.clone(), DVec3::new(0.5, 0.0, 0.0).into());
-    let capsule = Shape::Capsule {
+    let capsule = Shape::from(Capsule {
         a: DVec3::new(-0.5, 0.2, -0.1).into(),
         b: DVec3::new(0.5, 0.2, -0.1).into(),
         radius: 0.3.into(),
-    };
-    let right = Arc::new(Shape::Box {
+    });
+    let right = Arc::new(Shape::from(Cuboid {
         center: DVec3::new(0.6, 0.1, 0.0).into(),
         size: DVec3::new(0.4, 0.3, 0.5).into(),
-    });
+    }));
     let mirrored = Shape::Mirror(right.clone(), Axis::X);
     assert_eq!(mirrored.exactness(), Exactness::Exact);
     let both = Shape::Union(vec![
         right,
-        Arc::new(Shape::Box {
+        Arc::new(Shape::from(Cuboid {
             center: DVec3::new(-0.6, 0.1, 0.0).into(),
             size: DVec3::new(0.4, 0.3, 0.5).into(),
-        }),
+        })),
     ]);
     let mut rng = Lcg(9);
     for _ in 0..2000 {
@@ -743,5 +757,118 @@ fn elongate_and_mirror_match_their_constructions() {
             (mirrored.distance(p) - both.distance(p)).abs() < 1e-12,
             "mirror at {p}"
         );
+    }
+}
+
+#[test]
+fn capped_torus_is_exact() {
+    let c = DVec3::new(0.1, -0.2, 0.05);
+    let (a, r, m) = (2.0, 0.6, 0.15);
+    // The arc's nearest point by its angle from +Y, clamped to the arc.
+    let inside = |q: DVec3| {
+        let phi = q.x.atan2(q.y).clamp(-a, a);
+        let on = DVec3::new(r * phi.sin(), r * phi.cos(), 0.0);
+        (q - on).length() < m
+    };
+    check_along_axes(
+        |axis| {
+            Shape::from(CappedTorus {
+                center: c.into(),
+                angle: a.into(),
+                major: r.into(),
+                minor: m.into(),
+                axis,
+            })
+        },
+        inside,
+        c,
+    );
+}
+
+/// Hard cases: a capped torus open by 180° is the torus, and one closed to
+/// 0° the ball at its arc's one point; on its axis every arc point is as near.
+#[test]
+fn capped_torus_at_its_limits() {
+    let mut rng = Lcg(5);
+    let whole = Shape::from(CappedTorus {
+        center: DVec3::ZERO.into(),
+        angle: std::f64::consts::PI.into(),
+        major: 0.7.into(),
+        minor: 0.2.into(),
+        axis: Axis::Y,
+    });
+    let torus = Shape::from(Torus {
+        center: DVec3::ZERO.into(),
+        major: 0.7.into(),
+        minor: 0.2.into(),
+        axis: Axis::Y,
+    });
+    let closed = Shape::from(CappedTorus {
+        center: DVec3::ZERO.into(),
+        angle: 0.0.into(),
+        major: 0.7.into(),
+        minor: 0.2.into(),
+        axis: Axis::Z,
+    });
+    for _ in 0..500 {
+        let p = rng.in_box(DVec3::splat(-2.0), DVec3::splat(2.0));
+        assert!((whole.distance(p) - torus.distance(p)).abs() < 1e-9, "{p}");
+        let ball = (p - DVec3::new(0.0, 0.7, 0.0)).length() - 0.2;
+        assert!((closed.distance(p) - ball).abs() < 1e-9, "{p}");
+    }
+    let z = 0.3;
+    let on_axis = closed.distance(DVec3::new(0.0, 0.0, z));
+    assert!((on_axis - ((0.7f64 * 0.7 + z * z).sqrt() - 0.2)).abs() < 1e-12);
+}
+
+#[test]
+fn cone_by_angle_is_exact() {
+    let c = DVec3::new(-0.1, 0.2, 0.05);
+    let (a, h) = (0.5f64, 0.9);
+    let inside = |q: DVec3| {
+        let r = (q.x * q.x + q.y * q.y).sqrt();
+        q.z.abs() < h / 2.0 && r < (h / 2.0 - q.z) * a.tan()
+    };
+    check_along_axes(
+        |axis| {
+            Shape::from(Cone {
+                center: c.into(),
+                angle: a.into(),
+                height: h.into(),
+                axis,
+            })
+        },
+        inside,
+        c,
+    );
+}
+
+/// The two forms of `cone` are one solid: by the side's angle, and by the
+/// base's radius (a capped cone with no top), both exact, agree.
+#[test]
+fn cone_forms_agree() {
+    let mut rng = Lcg(9);
+    for (radius, height) in [(0.5, 1.0), (1e-3, 1.0), (3.0, 0.2)] {
+        let by_angle = Shape::from(Cone {
+            center: DVec3::ZERO.into(),
+            angle: f64::atan2(radius, height).into(),
+            height: height.into(),
+            axis: Axis::X,
+        });
+        let by_radius = Shape::from(CappedCone {
+            center: DVec3::ZERO.into(),
+            height: height.into(),
+            bottom: radius.into(),
+            top: 0.0.into(),
+            axis: Axis::X,
+        });
+        for _ in 0..500 {
+            let p = rng.in_box(DVec3::splat(-2.0), DVec3::splat(2.0));
+            let (a, b) = (by_angle.distance(p), by_radius.distance(p));
+            assert!(
+                (a - b).abs() < 1e-9,
+                "{radius}, {height}: {a} vs {b} at {p}"
+            );
+        }
     }
 }

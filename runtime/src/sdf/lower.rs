@@ -56,82 +56,11 @@ impl Lowering {
         let f = |a: &Arg<f64>| a.value as f32;
         let c = |a: &Arg<DVec3>| V3::lit(a.value.to_array());
         match shape {
-            Shape::Sphere { center, radius } => self.leaf(
-                Sphere {
-                    c: c(center),
-                    r: f(radius),
-                },
+            Shape::Prim(x) => x.with(LowerLeaf {
+                lowering: self,
                 shape,
                 frame,
-            ),
-            Shape::Box { center, size } => self.leaf(
-                BoxPrim {
-                    c: c(center),
-                    size: c(size),
-                },
-                shape,
-                frame,
-            ),
-            Shape::BoxFrame {
-                center,
-                size,
-                thickness,
-            } => self.leaf(
-                BoxFrame {
-                    c: c(center),
-                    size: c(size),
-                    thickness: f(thickness),
-                },
-                shape,
-                frame,
-            ),
-            Shape::Torus {
-                center,
-                major,
-                minor,
-                axis,
-            } => self.leaf(
-                Torus {
-                    c: c(center),
-                    axis: *axis,
-                    major: f(major),
-                    minor: f(minor),
-                },
-                shape,
-                frame,
-            ),
-            Shape::Capsule { a, b, radius } => self.leaf(
-                Capsule {
-                    a: c(a),
-                    b: c(b),
-                    r: f(radius),
-                },
-                shape,
-                frame,
-            ),
-            Shape::Cylinder {
-                center,
-                radius,
-                height,
-                axis,
-            } => self.leaf(
-                Cylinder {
-                    c: c(center),
-                    axis: *axis,
-                    r: f(radius),
-                    height: f(height),
-                },
-                shape,
-                frame,
-            ),
-            Shape::Plane { normal, height } => self.leaf(
-                Plane {
-                    n: V3::lit(normal.to_array()),
-                    h: f(height),
-                },
-                shape,
-                frame,
-            ),
+            }),
             Shape::Union(_) => {
                 let mut members = Vec::new();
                 self.union_members(shape, frame, &mut members);
@@ -167,39 +96,6 @@ impl Lowering {
                 painted.material = Some(m.clone());
                 self.lower(s, &painted)
             }
-            Shape::Octahedron { center, size } => self.leaf(
-                Octahedron {
-                    c: c(center),
-                    size: f(size),
-                },
-                shape,
-                frame,
-            ),
-            Shape::CappedCone {
-                center,
-                height,
-                bottom,
-                top,
-                axis,
-            } => self.leaf(
-                CappedCone {
-                    c: c(center),
-                    axis: *axis,
-                    height: f(height),
-                    bottom: f(bottom),
-                    top: f(top),
-                },
-                shape,
-                frame,
-            ),
-            Shape::Ellipsoid { center, radii } => self.leaf(
-                Ellipsoid {
-                    c: c(center),
-                    radii: c(radii),
-                },
-                shape,
-                frame,
-            ),
             // Offsets are in the shape's units: scaled like its distances.
             Shape::Round(s, r) => Box::new(Offset {
                 inner: self.lower(s, frame),
@@ -212,70 +108,6 @@ impl Lowering {
                 shell: true,
             }),
             Shape::Xor(a, b) => Box::new(Xor(self.lower(a, frame), self.lower(b, frame))),
-            Shape::RoundCone {
-                center,
-                bottom,
-                top,
-                height,
-                axis,
-            } => self.leaf(
-                RoundCone {
-                    c: c(center),
-                    axis: *axis,
-                    bottom: f(bottom),
-                    top: f(top),
-                    height: f(height),
-                },
-                shape,
-                frame,
-            ),
-            Shape::HexPrism {
-                center,
-                radius,
-                height,
-                axis,
-            } => self.leaf(
-                HexPrism {
-                    c: c(center),
-                    axis: *axis,
-                    radius: f(radius),
-                    height: f(height),
-                },
-                shape,
-                frame,
-            ),
-            Shape::TriPrism {
-                center,
-                side,
-                height,
-                axis,
-            } => self.leaf(
-                TriPrism {
-                    c: c(center),
-                    axis: *axis,
-                    side: f(side),
-                    height: f(height),
-                },
-                shape,
-                frame,
-            ),
-            Shape::Link {
-                center,
-                length,
-                major,
-                minor,
-                axis,
-            } => self.leaf(
-                Link {
-                    c: c(center),
-                    axis: *axis,
-                    length: f(length),
-                    major: f(major),
-                    minor: f(minor),
-                },
-                shape,
-                frame,
-            ),
             Shape::Elongate(s, h) => self.warp(s, WarpOp::Elongate(c(h)), frame),
             Shape::Mirror(s, axis) => self.warp(s, WarpOp::Mirror(axis.index()), frame),
             Shape::Repeat {
@@ -464,24 +296,26 @@ impl Lowering {
 /// differs. `None` for anything but a primitive.
 pub(super) fn anchored(shape: &Shape, frame: &Frame) -> Option<(Shape, DVec3)> {
     let mut moved = shape.clone();
-    if let Some(center) = moved.center_arg_mut() {
-        let by = std::mem::replace(&mut center.value, DVec3::ZERO);
-        return Some((moved, by));
-    }
-    let by = match &mut moved {
-        Shape::Capsule { a, b, .. } => {
-            let by = (a.value + b.value) * 0.5;
-            a.value -= by;
-            b.value -= by;
-            by
-        }
-        Shape::Plane { normal, height } => {
+    let Shape::Prim(p) = &mut moved else {
+        return None;
+    };
+    let by = match p {
+        // A plane has no centre: its point nearest the origin of the frame.
+        Primitive::Plane(Plane { normal, height }) => {
+            let n = normal.value;
             let e = frame.to_local.translation;
-            let by = e - (e.dot(*normal) - height.value) * *normal;
-            height.value -= normal.dot(by);
+            let by = e - (e.dot(n) - height.value) * n;
+            height.value -= n.dot(by);
             by
         }
-        _ => return None,
+        // Every other primitive at its centre, its points moved with it.
+        other => {
+            let by = other.center();
+            for pt in other.points_mut() {
+                *pt -= by;
+            }
+            by
+        }
     };
     Some((moved, by))
 }
@@ -587,16 +421,41 @@ pub(super) fn dedup_primitives(members: Vec<(&Shape, Frame)>) -> Vec<(&Shape, Fr
 /// least two; the rest unchanged. The minimum is the same; only which of
 /// two members at exactly equal distance names the point may change.
 pub(super) fn pack_union(nodes: Vec<Box<dyn Node>>) -> Vec<Box<dyn Node>> {
-    let mut out = Vec::new();
-    let mut rest = pack_kind::<Sphere>(nodes, &mut out);
-    rest = pack_kind::<BoxPrim>(rest, &mut out);
-    rest = pack_kind::<Torus>(rest, &mut out);
-    rest = pack_kind::<Cylinder>(rest, &mut out);
-    rest = pack_kind::<Ellipsoid>(rest, &mut out);
-    rest = pack_kind::<Octahedron>(rest, &mut out);
-    rest = pack_kind::<BoxFrame>(rest, &mut out);
-    out.extend(rest);
-    out
+    struct Packer {
+        rest: Vec<Box<dyn Node>>,
+        out: Vec<Box<dyn Node>>,
+    }
+    impl KindVisitor for Packer {
+        fn visit<K: Declared>(&mut self) {
+            // Only formulas that run on lanes gain from packing.
+            if K::SPEC.lanes {
+                let rest = std::mem::take(&mut self.rest);
+                self.rest = pack_kind::<PrimOf<K>>(rest, &mut self.out);
+            }
+        }
+    }
+    let mut p = Packer {
+        rest: nodes,
+        out: Vec::new(),
+    };
+    Primitive::for_each_kind(&mut p);
+    p.out.extend(p.rest);
+    p.out
+}
+
+/// Lowers a primitive to its leaf ([`Primitive::with`]).
+struct LowerLeaf<'a> {
+    lowering: &'a mut Lowering,
+    shape: &'a Shape,
+    frame: &'a Frame,
+}
+
+impl WithDeclared for LowerLeaf<'_> {
+    type Out = Box<dyn Node>;
+    fn with<K: Declared>(self, x: &K) -> Box<dyn Node> {
+        self.lowering
+            .leaf(PrimOf::<K>::new(x), self.shape, self.frame)
+    }
 }
 
 /// A leaf of kind `P` in world coordinates (its value is the formula's):
@@ -611,17 +470,35 @@ fn packable<P: Prim + Clone>(n: &dyn Node) -> Option<(P, u32)> {
 /// A culled union's members as one [`MemberTable`] when all are packable
 /// primitives of one [`Lanewise`] kind.
 pub(super) fn member_table(members: &[Box<dyn Node>]) -> Option<Box<dyn MemberTable>> {
-    fn of<P: Lanewise>(members: &[Box<dyn Node>]) -> Option<Box<dyn MemberTable>> {
-        let (prims, ids) = members
-            .iter()
-            .map(|m| packable::<P>(m.as_ref()))
-            .collect::<Option<(Vec<P>, Vec<u32>)>>()?;
-        Some(Box::new(Packed { prims, ids }))
+    struct Table<'a> {
+        members: &'a [Box<dyn Node>],
+        found: Option<Box<dyn MemberTable>>,
     }
-    of::<Sphere>(members)
-        .or_else(|| of::<BoxPrim>(members))
-        .or_else(|| of::<Ellipsoid>(members))
-        .or_else(|| of::<Octahedron>(members))
+    impl KindVisitor for Table<'_> {
+        fn visit<K: Declared>(&mut self) {
+            if self.found.is_some() || !K::SPEC.lanes {
+                return;
+            }
+            let Some((prims, ids)) = self
+                .members
+                .iter()
+                .map(|m| packable::<PrimOf<K>>(m.as_ref()))
+                .collect::<Option<(Vec<_>, Vec<u32>)>>()
+            else {
+                return;
+            };
+            // Eight members evaluated together share their axes.
+            if prims.iter().all(|p| K::same_fixed(&p.0, &prims[0].0)) {
+                self.found = Some(Box::new(Packed { prims, ids }));
+            }
+        }
+    }
+    let mut t = Table {
+        members,
+        found: None,
+    };
+    Primitive::for_each_kind(&mut t);
+    t.found
 }
 
 fn pack_kind<P: Prim + Clone>(

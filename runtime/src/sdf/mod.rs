@@ -22,7 +22,10 @@ use sdfl_stdlib::material::Material;
 use sdfl_stdlib::num::{Real, V3};
 use sdfl_stdlib::param::Arg;
 use sdfl_stdlib::sdf;
-use sdfl_stdlib::shape::{cells, repeat_ranges, Aabb, Axis, Shape};
+use sdfl_stdlib::shape::{
+    cells, repeat_ranges, Aabb, Declared, Family, Ir, KindVisitor, Num, Plane, Primitive, Shape,
+    WithDeclared,
+};
 
 mod bvh;
 pub mod lanes;

@@ -311,6 +311,7 @@ impl Distance for Tile<'_> {
 mod tests {
     use super::*;
     use crate::trace::normal_step;
+    use sdfl_stdlib::shape::{Cuboid, Sphere, Torus};
 
     struct Rng(u64);
     impl Rng {
@@ -334,32 +335,40 @@ mod tests {
             .map(|k| {
                 let c = rng.v(1.0);
                 Arc::new(match k % kinds {
-                    0 => Shape::Sphere {
+                    0 => Sphere {
                         center: c.into(),
                         radius: (r * (0.3 + rng.next())).into(),
-                    },
+                    }
+                    .into(),
                     1 => Shape::Rotate {
-                        shape: Arc::new(Shape::Box {
-                            center: c.into(),
-                            size: (DVec3::splat(r) + rng.v(r * 0.5).abs()).into(),
-                        }),
+                        shape: Arc::new(
+                            Cuboid {
+                                center: c.into(),
+                                size: (DVec3::splat(r) + rng.v(r * 0.5).abs()).into(),
+                            }
+                            .into(),
+                        ),
                         axis: rng.v(1.0).normalize(),
                         angle: (rng.next() * 3.0).into(),
                     },
-                    _ => Shape::Torus {
+                    _ => Torus {
                         center: c.into(),
                         major: r.into(),
                         minor: (r * 0.3).into(),
                         axis: sdfl_stdlib::sdf::Axis::Y,
-                    },
+                    }
+                    .into(),
                 })
             })
             .collect();
         if plane {
-            members.push(Arc::new(Shape::Plane {
-                normal: DVec3::Y,
-                height: (-1.2).into(),
-            }));
+            members.push(Arc::new(
+                Plane {
+                    normal: DVec3::Y.into(),
+                    height: (-1.2).into(),
+                }
+                .into(),
+            ));
         }
         Shape::Union(members)
     }

@@ -16,7 +16,9 @@ use crate::effects::{AmbientOcclusion, Fog, SoftShadows, MAX_SAMPLES_PER_PIXEL};
 use crate::material::{Effects, Light, Material};
 use crate::param::{Arg, Bound, ParamDecl, ParamInit, ParamUse, MIN_BETA, MIN_LENGTH};
 use crate::precision::{beta, f32_range};
-use crate::shape::{Axis, Shape};
+use crate::shape::{
+    ArgKind, ArgReader, Axis, CappedCone, Check, Cuboid, Declared, KindVisitor, Primitive, Shape,
+};
 use crate::value::{
     describe, Backend, CaptureFormat, CaptureOrient, CaptureSpec, Colormap, Dataset,
     DensityActivation, DensityKind, Encoding, Field, Harmonic, HashGridSpec, HitTolerance,

@@ -6,14 +6,6 @@ use super::*;
 /// The shape built-ins, in the order `sdfl docs` lists them.
 pub(super) fn builtins() -> Vec<Builtin> {
     let center = || opt("center", Type::Vec3, "[0, 0, 0]", "centre of the shape");
-    let axis = || {
-        opt(
-            "axis",
-            Type::Str,
-            "\"z\"",
-            "the axis the shape is built along: \"x\", \"y\" or \"z\"",
-        )
-    };
     // Any number of shapes (lists flattened), blended pairwise in order;
     // `k` is named.
     let smooth = |name: &'static str, doc: &'static str, eval: EvalFn| Builtin {
@@ -30,142 +22,21 @@ pub(super) fn builtins() -> Vec<Builtin> {
         },
         eval,
     };
-    vec![
-        // ---- shapes
-        func(
-            "sphere",
-            "A sphere: `|p - center| - radius` (exact).",
-            vec![opt("radius", Type::Number, "1", "radius (> 0)"), center()],
-            SHAPE,
-            |a| shape(Shape::Sphere { center: a.vec3_arg("center", Bound::Free)?, radius: a.length_arg("radius")? }),
-        ),
-        func(
-            "box",
-            "A box with full side lengths `size` (exact).",
-            vec![opt("size", num_or_vec(), "[1, 1, 1]", "side lengths (> 0); a number for a cube"), center()],
-            SHAPE,
-            |a| shape(Shape::Box { center: a.vec3_arg("center", Bound::Free)?, size: a.vec3_arg("size", Bound::AtLeast(MIN_LENGTH))? }),
-        ),
-        func(
-            "box_frame",
-            "The edges of a box: side lengths `size`, edge `thickness` (exact).",
-            vec![
-                opt("size", num_or_vec(), "[1, 1, 1]", "side lengths (> 0)"),
-                opt("thickness", Type::Number, "0.05", "edge thickness (> 0, below half the smallest side)"),
-                center(),
-            ],
-            SHAPE,
-            |a| {
-                let size = a.vec3_arg("size", Bound::AtLeast(MIN_LENGTH))?;
-                let thickness = a.length_arg("thickness")?;
-                if thickness.value >= size.value.min_element() * 0.5 {
-                    return Err(value_error(
-                        a.get("thickness").1,
-                        format!("`thickness` {} is not below half the smallest side {}", thickness.value, size.value.min_element()),
-                        "too thick",
-                        "a frame this thick is a solid box: use `box`, or thinner edges",
-                    ));
-                }
-                shape(Shape::BoxFrame { center: a.vec3_arg("center", Bound::Free)?, size, thickness })
-            },
-        ),
-        func(
-            "ellipsoid",
-            "An ellipsoid with semi-axes `radii` (a bound with Lipschitz constant 1).",
-            vec![opt("radii", num_or_vec(), "[1, 0.5, 0.5]", "semi-axes (> 0); a number for a sphere"), center()],
-            SHAPE,
-            |a| shape(Shape::Ellipsoid { center: a.vec3_arg("center", Bound::Free)?, radii: a.vec3_arg("radii", Bound::AtLeast(MIN_LENGTH))? }),
-        ),
-        func(
-            "octahedron",
-            "An octahedron with vertices at `±size` on each axis (a bound with Lipschitz constant 1).",
-            vec![opt("size", Type::Number, "1", "distance from the centre to a vertex (> 0)"), center()],
-            SHAPE,
-            |a| shape(Shape::Octahedron { center: a.vec3_arg("center", Bound::Free)?, size: a.length_arg("size")? }),
-        ),
-        func(
-            "capped_cone",
-            "A cone cut at both ends, along the Z axis (or `axis`): radius `bottom` at z = -height/2, `top` at +height/2 (exact; `top: 0` is a cone).",
-            vec![
-                opt("height", Type::Number, "1", "full height (> 0)"),
-                opt("bottom", Type::Number, "0.5", "radius of the lower cap (≥ 0)"),
-                opt("top", Type::Number, "0.2", "radius of the upper cap (≥ 0)"),
-                center(),
-                axis(),
-            ],
-            SHAPE,
-            |a| {
-                let radius = |name| a.scalar_arg(name, Bound::Within(0.0, f64::MAX));
-                let (bottom, top) = (radius("bottom")?, radius("top")?);
-                if bottom.value <= 0.0 && top.value <= 0.0 {
-                    return Err(value_error(a.span, "a cone with no radius at either end", "both radii 0", "give `bottom` or `top` a radius above 0"));
-                }
-                shape(Shape::CappedCone { center: a.vec3_arg("center", Bound::Free)?, height: a.length_arg("height")?, bottom, top, axis: axis_arg(a)? })
-            },
-        ),
-        func(
-            "cone",
-            "A pointed cone along the Z axis (or `axis`): base of `radius` at -height/2, tip at +height/2 (exact; `capped_cone` with `top: 0`).",
-            vec![
-                opt("radius", Type::Number, "0.5", "radius of the base (> 0)"),
-                opt("height", Type::Number, "1", "full height (> 0)"),
-                center(),
-                axis(),
-            ],
-            SHAPE,
-            |a| {
-                let top = Arg { value: 0.0, param: None };
-                shape(Shape::CappedCone { center: a.vec3_arg("center", Bound::Free)?, height: a.length_arg("height")?, bottom: a.length_arg("radius")?, top, axis: axis_arg(a)? })
-            },
-        ),
-        func(
-            "round_cone",
-            "Two spheres, radius `bottom` at z = -height/2 and `top` at +height/2, joined by the cone tangent to both (their convex hull; exact). Needs |bottom - top| < height.",
-            vec![
-                opt("bottom", Type::Number, "0.5", "radius of the lower sphere (> 0)"),
-                opt("top", Type::Number, "0.2", "radius of the upper sphere (> 0)"),
-                opt("height", Type::Number, "1", "distance between the spheres' centres (> |bottom - top|)"),
-                center(),
-                axis(),
-            ],
-            SHAPE,
-            |a| {
-                let (bottom, top, height) = (a.length_arg("bottom")?, a.length_arg("top")?, a.length_arg("height")?);
-                if (bottom.value - top.value).abs() >= height.value {
-                    return Err(value_error(
-                        a.get("height").1,
-                        format!("`height` {} is not above |bottom - top| = |{} - {}|", sdfl_lang::fmt_num(height.value), sdfl_lang::fmt_num(bottom.value), sdfl_lang::fmt_num(top.value)),
-                        "one sphere holds the other",
-                        "make `height` larger than |bottom - top|, or use `sphere`",
-                    ));
-                }
-                shape(Shape::RoundCone { center: a.vec3_arg("center", Bound::Free)?, bottom, top, height, axis: axis_arg(a)? })
-            },
-        ),
-        func(
-            "hex_prism",
-            "A hexagonal prism along the Z axis (or `axis`): flat sides `radius` from the axis, two of them parallel to X, full `height` (exact).",
-            vec![
-                opt("radius", Type::Number, "0.5", "distance from the axis to each flat side (> 0)"),
-                opt("height", Type::Number, "1", "full height (> 0)"),
-                center(),
-                axis(),
-            ],
-            SHAPE,
-            |a| shape(Shape::HexPrism { center: a.vec3_arg("center", Bound::Free)?, radius: a.length_arg("radius")?, height: a.length_arg("height")?, axis: axis_arg(a)? }),
-        ),
-        func(
-            "tri_prism",
-            "A prism along the Z axis (or `axis`) over an equilateral triangle of `side`, centred on its centroid with a vertex towards +Y, full `height` (exact).",
-            vec![
-                opt("side", Type::Number, "1", "side of the triangle (> 0)"),
-                opt("height", Type::Number, "1", "full height (> 0)"),
-                center(),
-                axis(),
-            ],
-            SHAPE,
-            |a| shape(Shape::TriPrism { center: a.vec3_arg("center", Bound::Free)?, side: a.length_arg("side")?, height: a.length_arg("height")?, axis: axis_arg(a)? }),
-        ),
+    let mut rows = Vec::new();
+    Primitive::for_each_kind(&mut Rows(&mut rows));
+    // `cone` also takes its base's `radius` (a `capped_cone` with `top: 0`),
+    // first, so `cone(0.5, 1)` keeps its meaning.
+    let cone = rows
+        .iter_mut()
+        .find(|r| r.sig.name == "cone")
+        .expect("a declared cone");
+    cone.sig.params.insert(
+        0,
+        opt("radius", Type::Number, "0.5", "radius of the base (> 0): a `capped_cone` with `top: 0`, unless `angle` is given instead"),
+    );
+    cone.eval = cone_by_radius_or_angle;
+    rows.extend(vec![
+        // ---- shapes that are sugar over primitives
         func(
             "rounded_box",
             "A box of full side lengths `size` with edges rounded by `radius`: sugar for `round(box(size - 2·radius), radius)`, so it spans exactly `size` (exact outside, a bound inside). Not trainable: write `round(box(size: param(..)), param(..))` to fit one.",
@@ -189,67 +60,9 @@ pub(super) fn builtins() -> Vec<Builtin> {
                         "use a smaller radius, or `sphere`/`capsule`",
                     ));
                 }
-                let inner = Shape::Box { center: a.vec3_arg("center", Bound::Free)?, size: (size.value - DVec3::splat(2.0 * radius.value)).into() };
+                let inner: Shape = Cuboid { center: a.vec3_arg("center", Bound::Free)?, size: (size.value - DVec3::splat(2.0 * radius.value)).into() }.into();
                 shape(Shape::Round(Arc::new(inner), radius))
             },
-        ),
-        func(
-            "link",
-            "A chain link around the Z axis (or `axis`): a torus (`major`, `minor`) cut across Y and pulled apart by straight parts of `length` (exact).",
-            vec![
-                opt("length", Type::Number, "1", "length of the straight parts (> 0)"),
-                opt("major", Type::Number, "0.4", "distance from the centre line to the tube's centre (> 0)"),
-                opt("minor", Type::Number, "0.1", "radius of the tube (> 0)"),
-                center(),
-                axis(),
-            ],
-            SHAPE,
-            |a| shape(Shape::Link { center: a.vec3_arg("center", Bound::Free)?, length: a.length_arg("length")?, major: a.length_arg("major")?, minor: a.length_arg("minor")?, axis: axis_arg(a)? }),
-        ),
-        func(
-            "torus",
-            "A torus around the Z axis (or `axis`), in the XY plane (exact).",
-            vec![
-                opt("major", Type::Number, "1", "distance from the centre to the tube's centre (> 0)"),
-                opt("minor", Type::Number, "0.25", "radius of the tube (> 0)"),
-                center(),
-                axis(),
-            ],
-            SHAPE,
-            |a| shape(Shape::Torus { center: a.vec3_arg("center", Bound::Free)?, major: a.length_arg("major")?, minor: a.length_arg("minor")?, axis: axis_arg(a)? }),
-        ),
-        func(
-            "capsule",
-            "A segment from `a` to `b` thickened by `radius` (exact).",
-            vec![
-                req("a", Type::Vec3, "one end"),
-                req("b", Type::Vec3, "the other end"),
-                opt("radius", Type::Number, "0.25", "radius (> 0)"),
-            ],
-            SHAPE,
-            |a| shape(Shape::Capsule { a: a.vec3_arg("a", Bound::Free)?, b: a.vec3_arg("b", Bound::Free)?, radius: a.length_arg("radius")? }),
-        ),
-        func(
-            "cylinder",
-            "A capped cylinder along the Z axis (or `axis`) (exact).",
-            vec![
-                opt("radius", Type::Number, "0.5", "radius (> 0)"),
-                opt("height", Type::Number, "1", "full height (> 0)"),
-                center(),
-                axis(),
-            ],
-            SHAPE,
-            |a| shape(Shape::Cylinder { center: a.vec3_arg("center", Bound::Free)?, radius: a.length_arg("radius")?, height: a.length_arg("height")?, axis: axis_arg(a)? }),
-        ),
-        func(
-            "plane",
-            "The half-space below a plane: `dot(p, normal) - height` (exact, unbounded).",
-            vec![
-                opt("normal", Type::Vec3, "[0, 1, 0]", "the plane's normal (nonzero)"),
-                opt("height", Type::Number, "0", "offset along the normal"),
-            ],
-            SHAPE,
-            |a| shape(Shape::Plane { normal: a.direction("normal")?, height: a.scalar_arg("height", Bound::Free)? }),
         ),
         // ---- combinators
         variadic(
@@ -465,5 +278,105 @@ pub(super) fn builtins() -> Vec<Builtin> {
             SHAPE,
             |a| shape(Shape::Paint(a.shape("shape")?, a.material("material")?)),
         ),
-    ]
+    ]);
+    rows
+}
+
+/// `cone(angle:, ...)`: the declared cone; otherwise by its base's `radius`.
+fn cone_by_radius_or_angle(a: &Args) -> Result<Value, Diag> {
+    if a.given("angle") {
+        if a.given("radius") {
+            return Err(value_error(
+                a.get("radius").1,
+                "`cone` with both `radius` and `angle`",
+                "both given",
+                "give the base's `radius` or the side's `angle`, not both",
+            ));
+        }
+        return build_primitive::<crate::shape::Cone>(a);
+    }
+    let top = Arg {
+        value: 0.0,
+        param: None,
+    };
+    let bottom = a.length_arg("radius")?;
+    let cone = CappedCone {
+        center: a.vec3_arg("center", Bound::Free)?,
+        height: a.length_arg("height")?,
+        bottom,
+        top,
+        axis: axis_arg(a)?,
+    };
+    shape(cone.into())
+}
+
+/// Collects every primitive's built-in row ([`primitive_row`]).
+struct Rows<'a>(&'a mut Vec<Builtin>);
+
+impl KindVisitor for Rows<'_> {
+    fn visit<K: Declared>(&mut self) {
+        self.0.push(primitive_row::<K>());
+    }
+}
+
+/// The built-in of primitive `K`, from its declaration: the signature
+/// (types from the arguments' kinds and checks, defaults, docs) and the
+/// evaluation (each argument read and checked as declared, then the
+/// checks between arguments).
+fn primitive_row<K: Declared>() -> Builtin {
+    let spec = K::SPEC;
+    let params = spec
+        .args
+        .iter()
+        .map(|a| {
+            let ty = match (a.kind, a.check) {
+                (ArgKind::Scalar, _) => Type::Number,
+                (ArgKind::Axis, _) => Type::Str,
+                (_, Check::Size) => num_or_vec(),
+                (ArgKind::Point | ArgKind::Vector, _) => Type::Vec3,
+            };
+            match a.default {
+                Some(d) => opt(a.name, ty, d, a.doc),
+                None => req(a.name, ty, a.doc),
+            }
+        })
+        .collect();
+    func(spec.name, spec.doc, params, SHAPE, build_primitive::<K>)
+}
+
+fn build_primitive<K: Declared>(a: &Args) -> Result<Value, Diag> {
+    let x = K::read(&mut Reader(a))?;
+    if let Err(e) = K::check(&crate::shape::declare::values(&x)) {
+        let span = e.arg.map_or(a.span, |n| a.get(n).1);
+        return Err(value_error(span, e.message, e.label, e.help));
+    }
+    shape(x.into().into())
+}
+
+/// A call's arguments read as a primitive declares them.
+struct Reader<'a>(&'a Args);
+
+/// The range a trained value is kept in.
+fn bound_of(check: Check) -> Bound {
+    match check {
+        Check::Length | Check::Size => Bound::AtLeast(MIN_LENGTH),
+        Check::NonNegative => Bound::Within(0.0, f64::MAX),
+        Check::Within(lo, hi) => Bound::Within(lo, hi),
+        Check::Free | Check::Direction | Check::Axis => Bound::Free,
+    }
+}
+
+impl ArgReader for Reader<'_> {
+    fn scalar(&mut self, name: &'static str, check: Check) -> Result<Arg<f64>, Diag> {
+        self.0.scalar_arg(name, bound_of(check))
+    }
+    fn vector(&mut self, name: &'static str, check: Check) -> Result<Arg<DVec3>, Diag> {
+        match check {
+            Check::Direction => Ok(self.0.direction(name)?.into()),
+            _ => self.0.vec3_arg(name, bound_of(check)),
+        }
+    }
+    fn axis(&mut self, _name: &'static str) -> Result<Axis, Diag> {
+        axis_arg(self.0)
+    }
 }

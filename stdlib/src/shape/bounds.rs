@@ -56,18 +56,7 @@ impl Aabb {
 impl Shape {
     pub fn exactness(&self) -> Exactness {
         match self {
-            Shape::Sphere { .. }
-            | Shape::Box { .. }
-            | Shape::BoxFrame { .. }
-            | Shape::Torus { .. }
-            | Shape::Capsule { .. }
-            | Shape::Cylinder { .. }
-            | Shape::CappedCone { .. }
-            | Shape::RoundCone { .. }
-            | Shape::HexPrism { .. }
-            | Shape::TriPrism { .. }
-            | Shape::Link { .. }
-            | Shape::Plane { .. } => Exactness::Exact,
+            Shape::Prim(x) => x.spec().exactness,
             // Disjoint copies of an exact shape: their union is exact.
             Shape::Repeat {
                 shape,
@@ -93,11 +82,7 @@ impl Shape {
             }
             // Offsets of exact distances are exact outside; inside (and
             // for a shell, on both sides) only a bound in general.
-            Shape::Ellipsoid { .. }
-            | Shape::Octahedron { .. }
-            | Shape::Round(..)
-            | Shape::Onion(..)
-            | Shape::Xor(..) => Exactness::Bound,
+            Shape::Round(..) | Shape::Onion(..) | Shape::Xor(..) => Exactness::Bound,
             // A union of exact SDFs is exact outside but only a bound inside.
             Shape::Union(c) if c.len() == 1 => c[0].exactness(),
             Shape::Intersection(c) if c.len() == 1 => c[0].exactness(),
@@ -194,7 +179,7 @@ impl Shape {
                 amplitude,
                 frequency,
             } => shape.lipschitz() + 3f64.sqrt() * amplitude.value.abs() * frequency.value.abs(),
-            _ => 1.0,
+            Shape::Prim(x) => x.spec().lipschitz,
         }
     }
 
@@ -202,108 +187,7 @@ impl Shape {
     /// `None` for unbounded shapes (planes).
     pub fn bounds(&self) -> Option<Aabb> {
         match self {
-            Shape::Sphere { center, radius } => {
-                Some(Aabb::around(center.value, DVec3::splat(radius.value)))
-            }
-            Shape::Box { center, size } | Shape::BoxFrame { center, size, .. } => {
-                Some(Aabb::around(center.value, size.value * 0.5))
-            }
-            // The circumscribed sphere's cube: the bound grows like a
-            // distance only beyond that sphere.
-            Shape::Ellipsoid { center, radii } => Some(Aabb::around(
-                center.value,
-                DVec3::splat(radii.value.max_element()),
-            )),
-            Shape::Torus {
-                center,
-                major,
-                minor,
-                axis,
-            } => {
-                let (r, m) = (major.value, minor.value);
-                Some(Aabb::around(
-                    center.value,
-                    axis.to_world(DVec3::new(r + m, r + m, m)),
-                ))
-            }
-            Shape::RoundCone {
-                center,
-                bottom,
-                top,
-                height,
-                axis,
-            } => {
-                let (b, t, h) = (bottom.value, top.value, height.value * 0.5);
-                let r = b.max(t);
-                let (lo, hi) = (DVec3::new(-r, -r, -h - b), DVec3::new(r, r, h + t));
-                let c = center.value;
-                Some(Aabb::new(c + axis.to_world(lo), c + axis.to_world(hi)))
-            }
-            Shape::HexPrism {
-                center,
-                radius,
-                height,
-                axis,
-            } => {
-                let r = radius.value;
-                let half = DVec3::new(r * 2.0 / 3f64.sqrt(), r, height.value * 0.5);
-                Some(Aabb::around(center.value, axis.to_world(half)))
-            }
-            Shape::TriPrism {
-                center,
-                side,
-                height,
-                axis,
-            } => {
-                let (s, h) = (side.value, height.value * 0.5);
-                let inr = s / (2.0 * 3f64.sqrt());
-                let (lo, hi) = (
-                    DVec3::new(-s * 0.5, -inr, -h),
-                    DVec3::new(s * 0.5, 2.0 * inr, h),
-                );
-                let c = center.value;
-                Some(Aabb::new(c + axis.to_world(lo), c + axis.to_world(hi)))
-            }
-            Shape::Link {
-                center,
-                length,
-                major,
-                minor,
-                axis,
-            } => {
-                let (r, m) = (major.value, minor.value);
-                let half = DVec3::new(r + m, length.value * 0.5 + r + m, m);
-                Some(Aabb::around(center.value, axis.to_world(half)))
-            }
-            Shape::Capsule { a, b, radius } => {
-                Some(Aabb::new(a.value.min(b.value), a.value.max(b.value)).expand(radius.value))
-            }
-            Shape::Cylinder {
-                center,
-                radius,
-                height,
-                axis,
-            } => Some(Aabb::around(
-                center.value,
-                axis.to_world(DVec3::new(radius.value, radius.value, height.value * 0.5)),
-            )),
-            Shape::Octahedron { center, size } => {
-                Some(Aabb::around(center.value, DVec3::splat(size.value)))
-            }
-            Shape::CappedCone {
-                center,
-                height,
-                bottom,
-                top,
-                axis,
-            } => {
-                let r = bottom.value.max(top.value);
-                Some(Aabb::around(
-                    center.value,
-                    axis.to_world(DVec3::new(r, r, height.value * 0.5)),
-                ))
-            }
-            Shape::Plane { .. } => None,
+            Shape::Prim(x) => x.bounds(),
             Shape::Union(children) => {
                 let mut acc: Option<Aabb> = None;
                 for c in children {

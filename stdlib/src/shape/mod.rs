@@ -20,7 +20,14 @@ use crate::sdf;
 pub use crate::sdf::Axis;
 
 mod bounds;
+pub mod declare;
+mod primitives;
 pub use bounds::Aabb;
+pub use declare::{
+    ArgKind, ArgReader, ArgSpec, ArgValue, Check, Declared, Family, Invalid, Ir, KindVisitor, Num,
+    PrimSpec, Val, WithDeclared,
+};
+pub use primitives::*;
 
 /// Whether a shape's value is the exact Euclidean distance to its surface or
 /// only a bound on it (still safe for sphere tracing with its Lipschitz bound).
@@ -32,93 +39,8 @@ pub enum Exactness {
 
 #[derive(Debug, Clone, PartialEq)]
 pub enum Shape {
-    Sphere {
-        center: Arg<DVec3>,
-        radius: Arg<f64>,
-    },
-    /// `size` holds the full side lengths.
-    Box {
-        center: Arg<DVec3>,
-        size: Arg<DVec3>,
-    },
-    BoxFrame {
-        center: Arg<DVec3>,
-        size: Arg<DVec3>,
-        thickness: Arg<f64>,
-    },
-    /// Vertices at `±size` on each axis (a bound).
-    Octahedron {
-        center: Arg<DVec3>,
-        size: Arg<f64>,
-    },
-    /// Along `axis`: full `height`, radius `bottom` at the lower cap, `top` at the upper.
-    CappedCone {
-        center: Arg<DVec3>,
-        height: Arg<f64>,
-        bottom: Arg<f64>,
-        top: Arg<f64>,
-        axis: Axis,
-    },
-    /// Spheres of radius `bottom` and `top` `height` apart along `axis`,
-    /// and the cone tangent to both.
-    RoundCone {
-        center: Arg<DVec3>,
-        bottom: Arg<f64>,
-        top: Arg<f64>,
-        height: Arg<f64>,
-        axis: Axis,
-    },
-    /// Flat sides `radius` from the axis, full `height`.
-    HexPrism {
-        center: Arg<DVec3>,
-        radius: Arg<f64>,
-        height: Arg<f64>,
-        axis: Axis,
-    },
-    /// Equilateral triangle of `side`, full `height`.
-    TriPrism {
-        center: Arg<DVec3>,
-        side: Arg<f64>,
-        height: Arg<f64>,
-        axis: Axis,
-    },
-    /// A torus pulled apart by straight parts of `length` (in its frame, along Y).
-    Link {
-        center: Arg<DVec3>,
-        length: Arg<f64>,
-        major: Arg<f64>,
-        minor: Arg<f64>,
-        axis: Axis,
-    },
-    /// Semi-axes `radii` (a bound).
-    Ellipsoid {
-        center: Arg<DVec3>,
-        radii: Arg<DVec3>,
-    },
-    /// Around `axis` (in the XY plane for Z).
-    Torus {
-        center: Arg<DVec3>,
-        major: Arg<f64>,
-        minor: Arg<f64>,
-        axis: Axis,
-    },
-    Capsule {
-        a: Arg<DVec3>,
-        b: Arg<DVec3>,
-        radius: Arg<f64>,
-    },
-    /// Capped, along `axis`.
-    Cylinder {
-        center: Arg<DVec3>,
-        radius: Arg<f64>,
-        height: Arg<f64>,
-        axis: Axis,
-    },
-    /// `dot(p, normal) - height`; `normal` is unit length.
-    Plane {
-        normal: DVec3,
-        height: Arg<f64>,
-    },
+    /// An analytic primitive (declared in `primitives.rs`).
+    Prim(Primitive),
     Union(Vec<Arc<Shape>>),
     Intersection(Vec<Arc<Shape>>),
     /// The first shape minus the second.
@@ -169,6 +91,12 @@ pub enum Shape {
     Bend(Arc<Shape>, Arg<f64>),
     /// Non-uniform scale: `max(min(s)·d(p/s), box)`, a bound.
     ScaleXyz(Arc<Shape>, Arg<DVec3>),
+}
+
+impl From<Primitive> for Shape {
+    fn from(p: Primitive) -> Shape {
+        Shape::Prim(p)
+    }
 }
 
 /// Where the numeric arguments of a shape come from when it is evaluated:
@@ -244,28 +172,6 @@ fn rot<T: Real>(p: V3<T>, axis: DVec3, angle: T) -> V3<T> {
     sdf::rotate(p, V3::lit(axis.to_array()), angle)
 }
 
-/// `Some(f(center))` for the primitives with a `center` argument (the one
-/// list of them), `None` otherwise.
-macro_rules! centred {
-    ($shape:expr, $c:ident => $e:expr) => {
-        match $shape {
-            Shape::Sphere { center: $c, .. }
-            | Shape::Box { center: $c, .. }
-            | Shape::BoxFrame { center: $c, .. }
-            | Shape::Torus { center: $c, .. }
-            | Shape::Cylinder { center: $c, .. }
-            | Shape::Ellipsoid { center: $c, .. }
-            | Shape::Octahedron { center: $c, .. }
-            | Shape::CappedCone { center: $c, .. }
-            | Shape::RoundCone { center: $c, .. }
-            | Shape::HexPrism { center: $c, .. }
-            | Shape::TriPrism { center: $c, .. }
-            | Shape::Link { center: $c, .. } => Some($e),
-            _ => None,
-        }
-    };
-}
-
 impl Shape {
     /// The signed distance (or bound) at `p`, evaluated directly in f64.
     pub fn distance(&self, p: DVec3) -> f64 {
@@ -276,116 +182,9 @@ impl Shape {
     /// the one walk of the tree that every non-culled evaluator shares.
     pub fn sample<'s, T: Real, A: ArgSource<T>>(&'s self, p: V3<T>, args: &A) -> Sample<'s, T> {
         match self {
-            Shape::Sphere { center, radius } => {
-                let c = args.vector(center);
-                Sample::prim(sdf::sphere(p, c, args.scalar(radius)), c)
-            }
-            Shape::Box { center, size } => {
-                let c = args.vector(center);
-                Sample::prim(sdf::cuboid(p, c, args.vector(size)), c)
-            }
-            Shape::BoxFrame {
-                center,
-                size,
-                thickness,
-            } => {
-                let c = args.vector(center);
-                let d = sdf::box_frame(p, c, args.vector(size), args.scalar(thickness));
+            Shape::Prim(x) => {
+                let (d, c) = x.sample(p, args);
                 Sample::prim(d, c)
-            }
-            Shape::Ellipsoid { center, radii } => {
-                let c = args.vector(center);
-                Sample::prim(sdf::ellipsoid(p, c, args.vector(radii)), c)
-            }
-            Shape::Octahedron { center, size } => {
-                let c = args.vector(center);
-                Sample::prim(sdf::octahedron(p, c, args.scalar(size)), c)
-            }
-            Shape::CappedCone {
-                center,
-                height,
-                bottom,
-                top,
-                axis,
-            } => {
-                let c = args.vector(center);
-                let (h, b, t) = (args.scalar(height), args.scalar(bottom), args.scalar(top));
-                Sample::prim(sdf::capped_cone(sdf::along(p, c, *axis), h, b, t), c)
-            }
-            Shape::RoundCone {
-                center,
-                bottom,
-                top,
-                height,
-                axis,
-            } => {
-                let c = args.vector(center);
-                let (b, t, h) = (args.scalar(bottom), args.scalar(top), args.scalar(height));
-                Sample::prim(sdf::round_cone(sdf::along(p, c, *axis), b, t, h), c)
-            }
-            Shape::HexPrism {
-                center,
-                radius,
-                height,
-                axis,
-            } => {
-                let c = args.vector(center);
-                let (r, h) = (args.scalar(radius), args.scalar(height));
-                Sample::prim(sdf::hex_prism(sdf::along(p, c, *axis), r, h), c)
-            }
-            Shape::TriPrism {
-                center,
-                side,
-                height,
-                axis,
-            } => {
-                let c = args.vector(center);
-                let (s, h) = (args.scalar(side), args.scalar(height));
-                Sample::prim(sdf::tri_prism(sdf::along(p, c, *axis), s, h), c)
-            }
-            Shape::Link {
-                center,
-                length,
-                major,
-                minor,
-                axis,
-            } => {
-                let c = args.vector(center);
-                let (l, a, b) = (args.scalar(length), args.scalar(major), args.scalar(minor));
-                Sample::prim(sdf::link(sdf::along(p, c, *axis), l, a, b), c)
-            }
-            Shape::Torus {
-                center,
-                major,
-                minor,
-                axis,
-            } => {
-                let c = args.vector(center);
-                let q = sdf::along(p, c, *axis);
-                Sample::prim(sdf::torus(q, args.scalar(major), args.scalar(minor)), c)
-            }
-            Shape::Capsule { a, b, radius } => {
-                let (a, b) = (args.vector(a), args.vector(b));
-                let d = sdf::capsule(p, a, b, args.scalar(radius));
-                Sample::prim(d, (a + b) * T::lit(0.5))
-            }
-            Shape::Cylinder {
-                center,
-                radius,
-                height,
-                axis,
-            } => {
-                let c = args.vector(center);
-                let q = sdf::along(p, c, *axis);
-                Sample::prim(
-                    sdf::cylinder(q, args.scalar(radius), args.scalar(height)),
-                    c,
-                )
-            }
-            Shape::Plane { normal, height } => {
-                let n = V3::lit(normal.to_array());
-                let h = args.scalar(height);
-                Sample::prim(sdf::plane(p, n, h), n * h)
             }
             // Ties go to the first child, as in the lowered evaluators.
             Shape::Union(children) => children
@@ -565,58 +364,8 @@ impl Shape {
             }
         };
         match self {
-            Shape::Sphere { radius, .. } => s1(radius),
-            Shape::BoxFrame { thickness, .. } => s1(thickness),
-            Shape::Torus { major, minor, .. } => {
-                s1(major);
-                s1(minor)
-            }
-            Shape::Capsule { radius, .. } => s1(radius),
-            Shape::Cylinder { radius, height, .. } => {
-                s1(radius);
-                s1(height)
-            }
-            Shape::Plane { height, .. } => s1(height),
-            Shape::Octahedron { size, .. } => s1(size),
-            Shape::RoundCone {
-                bottom,
-                top,
-                height,
-                ..
-            } => {
-                s1(bottom);
-                s1(top);
-                s1(height)
-            }
-            Shape::HexPrism { radius, height, .. } => {
-                s1(radius);
-                s1(height)
-            }
-            Shape::TriPrism { side, height, .. } => {
-                s1(side);
-                s1(height)
-            }
-            Shape::Link {
-                length,
-                major,
-                minor,
-                ..
-            } => {
-                s1(length);
-                s1(major);
-                s1(minor)
-            }
+            Shape::Prim(x) => x.visit_params(f),
             Shape::Twist(_, k) | Shape::Bend(_, k) => s1(k),
-            Shape::CappedCone {
-                height,
-                bottom,
-                top,
-                ..
-            } => {
-                s1(height);
-                s1(bottom);
-                s1(top)
-            }
             Shape::SmoothUnion(_, _, k)
             | Shape::SmoothIntersection(_, _, k)
             | Shape::SmoothSubtraction(_, _, k) => s1(k),
@@ -630,40 +379,22 @@ impl Shape {
                 s1(amplitude);
                 s1(frequency)
             }
-            _ => {}
-        }
-        let mut v3 = |a: &'s Arg<DVec3>| {
-            if let Some(u) = &a.param {
-                f(u)
+            Shape::Elongate(_, v) | Shape::ScaleXyz(_, v) | Shape::Translate(_, v) => {
+                if let Some(u) = &v.param {
+                    f(u)
+                }
             }
-        };
-        match self {
-            Shape::Sphere { center, .. }
-            | Shape::Torus { center, .. }
-            | Shape::Cylinder { center, .. }
-            | Shape::Octahedron { center, .. }
-            | Shape::CappedCone { center, .. }
-            | Shape::RoundCone { center, .. }
-            | Shape::HexPrism { center, .. }
-            | Shape::TriPrism { center, .. }
-            | Shape::Link { center, .. } => v3(center),
-            Shape::Elongate(_, v) | Shape::ScaleXyz(_, v) => v3(v),
-            Shape::Repeat { spacing, .. } => v3(spacing),
-            Shape::Box { center, size } | Shape::BoxFrame { center, size, .. } => {
-                v3(center);
-                v3(size)
+            Shape::Repeat { spacing, .. } => {
+                if let Some(u) = &spacing.param {
+                    f(u)
+                }
             }
-            Shape::Ellipsoid { center, radii } => {
-                v3(center);
-                v3(radii)
-            }
-            Shape::Capsule { a, b, .. } => {
-                v3(a);
-                v3(b)
-            }
-            Shape::Translate(_, by) => v3(by),
             Shape::Paint(_, m) => m.visit_params(f),
-            _ => {}
+            Shape::Union(_)
+            | Shape::Intersection(_)
+            | Shape::Subtraction(..)
+            | Shape::Xor(..)
+            | Shape::Mirror(..) => {}
         }
         for c in self.children() {
             c.visit_params(f);
@@ -693,40 +424,16 @@ impl Shape {
             | Shape::Twist(s, _)
             | Shape::Bend(s, _)
             | Shape::ScaleXyz(s, _) => vec![s],
-            Shape::Sphere { .. }
-            | Shape::Ellipsoid { .. }
-            | Shape::Octahedron { .. }
-            | Shape::CappedCone { .. }
-            | Shape::RoundCone { .. }
-            | Shape::HexPrism { .. }
-            | Shape::TriPrism { .. }
-            | Shape::Link { .. }
-            | Shape::Box { .. }
-            | Shape::BoxFrame { .. }
-            | Shape::Torus { .. }
-            | Shape::Capsule { .. }
-            | Shape::Cylinder { .. }
-            | Shape::Plane { .. } => Vec::new(),
+            Shape::Prim(_) => Vec::new(),
         }
-    }
-
-    /// The `center` argument of a primitive that has one.
-    pub fn center_arg(&self) -> Option<&Arg<DVec3>> {
-        centred!(self, center => center)
-    }
-
-    /// [`Self::center_arg`], to move it.
-    pub fn center_arg_mut(&mut self) -> Option<&mut Arg<DVec3>> {
-        centred!(self, center => center)
     }
 
     /// The centre used by the rainbow material, for primitives (in the
     /// primitive's own frame).
     pub fn primitive_center(&self) -> Option<DVec3> {
         match self {
-            Shape::Capsule { a, b, .. } => Some((a.value + b.value) * 0.5),
-            Shape::Plane { normal, height } => Some(*normal * height.value),
-            _ => self.center_arg().map(|c| c.value),
+            Shape::Prim(x) => Some(x.center()),
+            _ => None,
         }
     }
 
@@ -808,13 +515,7 @@ impl Shape {
 
     pub fn name(&self) -> &'static str {
         match self {
-            Shape::Sphere { .. } => "sphere",
-            Shape::Box { .. } => "box",
-            Shape::BoxFrame { .. } => "box_frame",
-            Shape::Torus { .. } => "torus",
-            Shape::Capsule { .. } => "capsule",
-            Shape::Cylinder { .. } => "cylinder",
-            Shape::Plane { .. } => "plane",
+            Shape::Prim(x) => x.spec().name,
             Shape::Union(_) => "union",
             Shape::Intersection(_) => "intersection",
             Shape::Subtraction(..) => "subtraction",
@@ -826,16 +527,9 @@ impl Shape {
             Shape::Scale(..) => "scale",
             Shape::Displace { .. } => "displace",
             Shape::Paint(..) => "paint",
-            Shape::Ellipsoid { .. } => "ellipsoid",
-            Shape::Octahedron { .. } => "octahedron",
-            Shape::CappedCone { .. } => "capped_cone",
             Shape::Round(..) => "round",
             Shape::Onion(..) => "onion",
             Shape::Xor(..) => "xor",
-            Shape::RoundCone { .. } => "round_cone",
-            Shape::HexPrism { .. } => "hex_prism",
-            Shape::TriPrism { .. } => "tri_prism",
-            Shape::Link { .. } => "link",
             Shape::Elongate(..) => "elongate",
             Shape::Repeat { .. } => "repeat",
             Shape::Mirror(..) => "mirror",
