@@ -90,7 +90,7 @@ fn describe_field(field: &sdfl_stdlib::value::Field) -> String {
                 ),
                 None => "every sample evaluated (no occupancy grid)".into(),
             },
-            precision(n.precision),
+            sdfl_runtime::describe::precision(n.precision),
             match &n.background {
                 sdfl_stdlib::value::Background::Data => "background: the data's".to_string(),
                 sdfl_stdlib::value::Background::Color(c) => format!(
@@ -118,21 +118,6 @@ fn describe_field(field: &sdfl_stdlib::value::Field) -> String {
                 None => String::new(),
             }
         ),
-    }
-}
-
-/// Which number format a network's layer products run in, here.
-fn precision(p: sdfl_stdlib::value::Precision) -> String {
-    use sdfl_stdlib::value::Precision;
-    let min = sdfl_runtime::neural::mlp::BF16_MIN;
-    match (p, sdfl_runtime::neural::bf16::available()) {
-        (Precision::Fp32, _) => "layer products in fp32".into(),
-        (Precision::Bf16, true) => format!(
-            "layer products in bf16 with fp32 sums (this CPU has AVX-512 BF16; layers narrower than {min} stay fp32)"
-        ),
-        (Precision::Bf16, false) => {
-            "layer products in fp32: bf16 asked for, but this CPU lacks AVX-512 BF16".into()
-        }
     }
 }
 
@@ -312,60 +297,7 @@ pub(crate) fn plan_text(program: &sdfl_stdlib::Program) -> String {
     for job in &program.trains {
         let _ = writeln!(o, "train {}", job.name);
         let _ = writeln!(o, "  model          {}", describe_field(&job.model));
-        let trainable = match &*job.model {
-            sdfl_stdlib::value::Field::NeuralSdf(n) => {
-                format!(
-                    "all {} weights, starting as a sphere of radius {}",
-                    sdfl_runtime::neural::distance::sdf_net(n).len,
-                    n.radius
-                )
-            }
-            sdfl_stdlib::value::Field::NeuralSurface(n) => {
-                use sdfl_runtime::train::Objective;
-                let m = sdfl_runtime::neural::surface::SurfaceObjective::new(n, &job.losses);
-                let beta = usize::from(n.train_beta || n.beta_end.is_some());
-                format!(
-                    "all {} weights (distance network {}, colour network {}){}, the distance starting as a sphere of radius {}",
-                    m.initial().len() - beta,
-                    m.sdf.len,
-                    m.initial().len() - m.sdf.len - beta,
-                    match (n.train_beta, n.beta_end) {
-                        (true, _) => format!(", and beta from {} (as ln(beta)/20: it moves 20 times faster than a weight; kept in 1e-4..10)", n.beta),
-                        (false, Some(end)) => format!(" (beta is not trained: it falls geometrically from {} to {end} over the steps)", n.beta),
-                        (false, None) => String::new(),
-                    },
-                    n.sdf.radius
-                )
-            }
-            sdfl_stdlib::value::Field::Sdf(f) => {
-                let model = sdfl_runtime::train::TrainModel::new(f);
-                let params: Vec<String> = model
-                    .params
-                    .iter()
-                    .map(|p| format!("{} ({})", p.name, p.len))
-                    .collect();
-                format!("{} (gradients only for these)", params.join(", "))
-            }
-            sdfl_stdlib::value::Field::Nerf(n) => {
-                use sdfl_runtime::train::Objective;
-                match sdfl_runtime::neural::field::NerfObjective::new(
-                    &sdfl_runtime::neural::warp::for_layout(n),
-                    &job.sampler,
-                ) {
-                    Ok(m) => format!(
-                        "all {} weights in {} tensors{}",
-                        m.initial().len(),
-                        m.tensors().len(),
-                        if m.fine.is_some() {
-                            " (coarse and fine networks)"
-                        } else {
-                            ""
-                        }
-                    ),
-                    Err(e) => format!("none: {e}"),
-                }
-            }
-        };
+        let trainable = sdfl_runtime::describe::trainable(job);
         let _ = writeln!(o, "  trainable      {trainable}");
         let data = match &*job.data {
             sdfl_stdlib::value::Dataset::Points {
@@ -544,7 +476,7 @@ pub(crate) fn plan_text(program: &sdfl_stdlib::Program) -> String {
                     "none: fused layer kernels with a hand-written backward through the network and the compositing; renders stop each ray once less than 1e-4 of its light is left".to_string(),
                 (_, sdfl_stdlib::value::Backend::Dfdx) =>
                     "dfdx autodiff graph over [rays, samples], the field as a custom op".to_string(),
-                (field, sdfl_stdlib::value::Backend::Fused) => fused_kernel(field, job.sampler.samples),
+                (field, sdfl_stdlib::value::Backend::Fused) => sdfl_runtime::describe::fused_kernel(field, job.sampler.samples),
             }
         );
         if !on_points {
@@ -583,27 +515,5 @@ fn work_lines(o: &mut String, work: &sdfl_stdlib::work::Work) {
     let _ = writeln!(o, "  work           {}", work.describe());
     for line in work.stage_lines() {
         let _ = writeln!(o, "    {line}");
-    }
-}
-
-/// What the fused kernel runs for an analytic field: its traced tape (at
-/// the starting values) or, where the field branches on the sample,
-/// forward-mode tangents.
-fn fused_kernel(field: &sdfl_stdlib::value::Field, samples: usize) -> String {
-    let Some(sdf) = field.as_sdf() else {
-        return "fused per-ray kernel".into();
-    };
-    let model = sdfl_runtime::train::TrainModel::new(sdf);
-    let values: Vec<f32> = model.initial_values().iter().map(|&x| x as f32).collect();
-    match sdfl_runtime::train::fused::tape_for(&model, &values, samples) {
-        Ok(tape) => format!(
-            "traced each step: {} operations a sample forward, {} in reverse on 16 samples at a time, one reverse pass for all {} scalars",
-            tape.len(),
-            tape.reverse_len(),
-            model.scalars
-        ),
-        Err(why) => format!(
-            "fused per-ray kernel: forward-mode tangents for each parameter (not traced: {why})"
-        ),
     }
 }

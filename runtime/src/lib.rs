@@ -3,6 +3,7 @@
 #![warn(missing_docs)]
 
 pub mod data;
+pub mod describe;
 pub mod effects;
 pub mod export;
 pub mod interrupt;
