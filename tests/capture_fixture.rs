@@ -69,14 +69,7 @@ render capture {
     )
     .unwrap();
     // Training takes longer than the hostile runner's hang guard allows.
-    let o = std::process::Command::new(env!("CARGO_BIN_EXE_sdfl"))
-        .args(["run", "train.sdfl", "--out", "out", "--json"])
-        .current_dir(&dir)
-        .output()
-        .unwrap();
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let report: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
-    let r = &report["jobs"][0]["report"];
+    let r = &common::run_report(&dir, "train.sdfl");
     // Held-out views are fitted, not a blur (18.3 dB measured at this
     // size; the long example reaches 30.8 dB). Exact rays through the lens
     // are tested in stdlib::lens and tests/cameras.rs.

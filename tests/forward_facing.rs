@@ -74,14 +74,7 @@ fn an_llff_set_sdfl_writes_trains_in_ndc() {
     )
     .unwrap();
     // Training takes longer than the hostile runner's hang guard allows.
-    let o = std::process::Command::new(env!("CARGO_BIN_EXE_sdfl"))
-        .args(["run", "train.sdfl", "--out", "out", "--json"])
-        .current_dir(&dir)
-        .output()
-        .unwrap();
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let report: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
-    let r = &report["jobs"][0]["report"];
+    let r = &common::run_report(&dir, "train.sdfl");
     // Held-out views fitted, the wall included: measured 31.8 dB here. On
     // 64×48 images at 600 steps, NDC gave 32.0 dB, a contraction 28.4 and
     // ordinary rays in a bounded box 17.2; README.md has the long

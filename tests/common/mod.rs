@@ -151,3 +151,17 @@ pub fn run_into(dir: &Path, file: &Path, out: &Path, extra: &[&str]) -> Outcome 
     args.extend_from_slice(extra);
     sdfl(dir, &args)
 }
+
+/// `sdfl run FILE --out out --json` in `dir` without the hang guard (for
+/// training runs longer than [`TIME_LIMIT`]): the JSON report of its first
+/// statement, after asserting that the run succeeded.
+pub fn run_report(dir: &Path, file: &str) -> serde_json::Value {
+    let o = Command::new(env!("CARGO_BIN_EXE_sdfl"))
+        .args(["run", file, "--out", "out", "--json"])
+        .current_dir(dir)
+        .output()
+        .expect("the sdfl binary runs");
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let report: serde_json::Value = serde_json::from_slice(&o.stdout).expect("--json prints JSON");
+    report["jobs"][0]["report"].clone()
+}
