@@ -11,13 +11,18 @@ pub use crate::lens::{Distortion, Intrinsics};
 /// A perspective camera looking from `eye` towards `at`.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct Camera {
+    /// The camera's position: where every ray starts.
     pub eye: DVec3,
+    /// The point the camera looks at, on the optical axis.
     pub at: DVec3,
+    /// Roughly up: the image's +y is its component orthogonal to the view direction.
     pub up: DVec3,
     /// Focal length in NDC units (an [`Lens::Ndc`] camera's; a
     /// [`Lens::Pixels`] camera keeps the equivalent of its `fy` here).
     pub focal: f64,
+    /// Where pixel centres sit in NDC.
     pub pixel_centers: PixelCenters,
+    /// How pixels map to rays: NDC pinhole or a real camera's intrinsics.
     pub lens: Lens,
 }
 
@@ -50,11 +55,14 @@ pub enum PixelCenters {
 /// The up axis of an orbit: the two orbits of the conventions.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum OrbitUp {
+    /// Around +y in the plane y = 0, +y up.
     Y,
+    /// Around +z at height z = 2, looking down at the origin, +z up.
     Z,
 }
 
 impl Camera {
+    /// An NDC pinhole camera at `eye` looking at `at`, with corner pixel centres.
     pub fn look_at(eye: DVec3, at: DVec3, up: DVec3, focal: f64) -> Self {
         Camera {
             eye,
@@ -66,6 +74,7 @@ impl Camera {
         }
     }
 
+    /// The same camera with pixel centres placed by `pixel_centers`.
     pub fn with_pixel_centers(mut self, pixel_centers: PixelCenters) -> Self {
         self.pixel_centers = pixel_centers;
         self

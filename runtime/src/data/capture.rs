@@ -35,7 +35,9 @@ pub const MAX_DISTORTION: f64 = 10.0;
 /// Where each number of a frame's intrinsics came from, for messages.
 #[derive(Debug, Clone, Copy)]
 pub struct Keys {
+    /// The key that gave the horizontal focal length.
     pub fx: &'static str,
+    /// The key that gave the vertical focal length.
     pub fy: &'static str,
 }
 
@@ -111,11 +113,13 @@ pub struct CaptureFrame {
     /// The frame as its file names it (`frame 3`, `image a.jpg`), for
     /// messages.
     pub label: String,
+    /// The frame's image file, resolved against the capture's directory.
     pub image: PathBuf,
     /// Pixels whose mask is 0 are neither trained on nor scored.
     pub mask: Option<PathBuf>,
     /// Camera to world in OpenGL axes, in the data's own frame.
     pub c2w: [[f64; 4]; 4],
+    /// Pixel intrinsics and distortion at the image's full resolution.
     pub intrinsics: Intrinsics,
 }
 
@@ -124,6 +128,7 @@ pub struct CaptureFrame {
 pub struct Capture {
     /// The file that describes the frames (for messages).
     pub source: PathBuf,
+    /// Every registered frame, in the file's order.
     pub frames: Vec<CaptureFrame>,
     /// Indices into `frames` held out as test views (sorted).
     pub test: Vec<usize>,
@@ -142,6 +147,7 @@ pub struct Capture {
 pub struct Normalize {
     /// Centre and scale from the cameras; `false` keeps the data's frame.
     pub enabled: bool,
+    /// Which way the scene frame's up axis is chosen.
     pub orient: Orient,
     /// The farthest camera coordinate after scaling (nerfstudio: 1).
     pub extent: f64,
@@ -150,7 +156,9 @@ pub struct Normalize {
 /// A capture's views, in the scene frame.
 #[derive(Debug, Clone)]
 pub struct CaptureViews {
+    /// Views trained on.
     pub train: Vec<TrainView>,
+    /// Views held out and only scored.
     pub test: Vec<TrainView>,
     /// The file name of each view, train then test (for messages).
     pub names: Vec<String>,
@@ -169,7 +177,9 @@ pub struct CaptureViews {
 /// camera's frame, and the farthest depth bound in scene units.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ForwardFacing {
+    /// The reference camera's frame that NDC rays are warped into.
     pub ndc: sdfl_stdlib::value::NdcFrame,
+    /// The farthest depth bound, in scene units: NDC's far plane.
     pub far: f64,
 }
 

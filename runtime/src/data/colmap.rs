@@ -95,8 +95,11 @@ fn numbers(fields: &[&str], path: &Path, n: usize) -> io::Result<Vec<f64>> {
 /// One camera of `cameras.txt`: its size and intrinsics at that size.
 #[derive(Debug, Clone, Copy)]
 pub struct ColmapCamera {
+    /// Image width in pixels the intrinsics are given at.
     pub width: u32,
+    /// Image height in pixels the intrinsics are given at.
     pub height: u32,
+    /// Focal lengths, principal point and distortion at that size.
     pub intrinsics: Intrinsics,
     keys: Keys,
 }
@@ -256,7 +259,9 @@ pub fn read_cameras(path: &Path) -> io::Result<HashMap<u64, ColmapCamera>> {
 pub struct ColmapImage {
     /// Line of `images.txt`, for messages.
     pub line: usize,
+    /// `CAMERA_ID` of the camera in `cameras.txt` that took this image.
     pub camera: u64,
+    /// The image's file name, relative to the images folder.
     pub name: String,
     /// OpenGL camera-to-world (camera looks down −z, +y up).
     pub c2w: [[f64; 4]; 4],

@@ -172,6 +172,7 @@ pub fn composite_over(rgba: &[[f32; 4]], background: [f32; 3]) -> Vec<[f32; 3]> 
         .collect()
 }
 
+/// Reads a checkpoint file whole, refusing symbolic links on its path and files over 1 GiB.
 pub fn read_checkpoint_bytes(path: &Path) -> io::Result<Vec<u8>> {
     use std::io::Read;
     const MAX: u64 = 1 << 30;

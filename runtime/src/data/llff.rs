@@ -35,7 +35,9 @@ pub struct LlffPose {
     pub c2w: [[f64; 4]; 4],
     /// Full-resolution height, width and focal length in pixels.
     pub hwf: [f64; 3],
+    /// Nearest scene depth seen by this camera, in the data's units.
     pub near: f64,
+    /// Farthest scene depth seen by this camera, in the data's units.
     pub far: f64,
 }
 

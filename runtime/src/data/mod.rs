@@ -20,7 +20,9 @@ use sdfl_lang::Span;
 /// diagnostic points at the argument rather than the statement.
 #[derive(Debug)]
 pub struct AtArgument {
+    /// The argument that named the input.
     pub span: Span,
+    /// What went wrong reading it.
     pub error: io::Error,
 }
 
@@ -50,7 +52,9 @@ pub fn argument_span(e: &io::Error) -> Option<Span> {
 /// One training view: a camera and the image it sees.
 #[derive(Debug, Clone)]
 pub struct TrainView {
+    /// The camera the image was taken with, in the scene frame.
     pub camera: sdfl_stdlib::camera::Camera,
+    /// The image the camera sees: the training target.
     pub image: npy::RgbImage,
     /// Pixels to train on and score (row-major, `false`: masked out, as a
     /// capture's `mask_path` says); `None`: every pixel.

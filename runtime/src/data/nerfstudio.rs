@@ -50,13 +50,21 @@ impl CameraModel {
 /// The intrinsics keys of one object (the file's top level or a frame).
 #[derive(Debug, Clone, Copy, Default)]
 pub struct Lens {
+    /// `fl_x`: horizontal focal length in pixels.
     pub fl_x: Option<f64>,
+    /// `fl_y`: vertical focal length in pixels.
     pub fl_y: Option<f64>,
+    /// `cx`: principal point's column in pixels.
     pub cx: Option<f64>,
+    /// `cy`: principal point's row in pixels.
     pub cy: Option<f64>,
+    /// `w`: image width in pixels the intrinsics are given at.
     pub w: Option<f64>,
+    /// `h`: image height in pixels the intrinsics are given at.
     pub h: Option<f64>,
+    /// `camera_angle_x`: horizontal field of view in radians (Blender files).
     pub camera_angle_x: Option<f64>,
+    /// `camera_angle_y`: vertical field of view in radians.
     pub camera_angle_y: Option<f64>,
     /// `k1 k2 k3 k4 p1 p2`.
     pub k: [Option<f64>; 6],
@@ -142,7 +150,9 @@ pub struct Frame {
     /// The image path as written, components normalised (for split lists
     /// and downscaled folders).
     pub rel: PathBuf,
+    /// The frame's `mask_path`, resolved: pixels masked 0 are ignored.
     pub mask: Option<PathBuf>,
+    /// `transform_matrix`: OpenGL camera-to-world.
     pub pose: [[f64; 4]; 4],
     /// This frame's intrinsics keys with the file's applied.
     pub lens: Lens,
@@ -151,11 +161,15 @@ pub struct Frame {
 /// A transforms file, checked (not its images).
 #[derive(Debug, Clone)]
 pub struct Transforms {
+    /// The transforms file itself (for messages and resolving paths).
     pub file: PathBuf,
+    /// `camera_model`: the lens model the distortion keys follow.
     pub model: CameraModel,
+    /// Every frame, in the file's order.
     pub frames: Vec<Frame>,
     /// `train_filenames`, `val_filenames`, `test_filenames` where given.
     pub splits: [Option<Vec<PathBuf>>; 3],
+    /// `applied_transform`: rows of the 3×4 map from the original (COLMAP) frame to the file's.
     pub applied: Option<[[f64; 4]; 3]>,
 }
 

@@ -33,6 +33,7 @@ pub struct SceneFrame {
 }
 
 impl SceneFrame {
+    /// No change: the scene frame is the data's frame.
     pub const IDENTITY: SceneFrame = SceneFrame {
         scale: 1.0,
         center: [0.0; 3],
@@ -44,6 +45,7 @@ impl SceneFrame {
         DMat3::from_cols_array_2d(&self.rotation).transpose()
     }
 
+    /// The frame that subtracts `center`, rotates by `rotation` and scales by `scale`.
     pub fn new(scale: f64, center: DVec3, rotation: DMat3) -> SceneFrame {
         SceneFrame {
             scale,

@@ -10,14 +10,18 @@ const MAGIC: &[u8] = b"\x93NUMPY";
 /// An RGB float image, row-major from the top-left pixel.
 #[derive(Debug, Clone, PartialEq)]
 pub struct RgbImage {
+    /// Columns.
     pub width: u32,
+    /// Rows.
     pub height: u32,
+    /// Linear RGB of each pixel, `width × height` of them.
     pub pixels: Vec<[f32; 3]>,
 }
 
 /// Why a `.npy` file could not be read.
 #[derive(Debug)]
 pub enum NpyError {
+    /// The file could not be opened or read.
     Io(std::io::Error),
     /// Not a `.npy` file, or a malformed header.
     Format(String),
@@ -294,7 +298,9 @@ pub fn read_shape(path: impl AsRef<Path>) -> Result<Vec<usize>, NpyError> {
 /// A float32 array of any shape, C order.
 #[derive(Debug, Clone, PartialEq)]
 pub struct F32Array {
+    /// The array's dimensions, outermost first.
     pub shape: Vec<usize>,
+    /// The elements in C (row-major) order.
     pub data: Vec<f32>,
 }
 

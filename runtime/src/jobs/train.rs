@@ -12,11 +12,15 @@ use sdfl_stdlib::value::ViewPath;
 /// The learned parameters and how training went.
 #[derive(Debug, Clone, Serialize)]
 pub struct TrainReport {
+    /// The `train` statement's name, which its outputs and checkpoint carry.
     pub name: String,
     /// Steps done in all (a resumed run counts the earlier ones).
     pub iterations: usize,
+    /// The checkpoint's step this run resumed from; `None` for a fresh start.
     pub resumed_from: Option<usize>,
+    /// Loss of the last step.
     pub final_loss: f32,
+    /// Mean wall-clock seconds per training step of this run.
     pub seconds_per_step: f64,
     /// Learned values by parameter name (`box.center`, or a `let` name);
     /// empty for a neural field (its weights are in the checkpoint).
@@ -37,7 +41,9 @@ pub struct TrainReport {
     /// points, or against the true surface of a scene sdfl rendered.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub mesh_fit: Option<crate::neural::distance::MeshFit>,
+    /// Files written after training (images, meshes, exports), relative to `--out`.
     pub written: Vec<Written>,
+    /// Wall-clock seconds of each stage (load data, train, held-out evaluation…).
     pub stages: Vec<(String, f64)>,
     /// What looks wrong with the fit (code `sdfl::warn::diverged`): a loss
     /// that ended far above its lowest, parameters held at their range.
@@ -47,11 +53,13 @@ pub struct TrainReport {
 /// Quality on the held-out views at a step.
 #[derive(Debug, Clone, Copy, Serialize)]
 pub struct HeldOut {
+    /// The training step evaluated at.
     pub step: usize,
     /// Seconds of training so far (evaluation excluded).
     pub seconds: f64,
     /// Mean over the views of each view's PSNR (dB).
     pub psnr: f64,
+    /// Mean over the views of each view's SSIM.
     pub ssim: f64,
 }
 
@@ -80,6 +88,9 @@ fn comparison_image(views: &[TrainView], renders: &[Vec<[f32; 3]>]) -> (u32, u32
     }
     (3 * w, h, out)
 }
+
+/// Held-out mean PSNR, mean SSIM, and each view's render.
+type Evaluation = (f64, f64, Vec<Vec<[f32; 3]>>);
 
 /// How often a checkpoint is written.
 const CHECKPOINT_EVERY: usize = 100;
@@ -272,6 +283,9 @@ fn with_ndc_frame(
     }))
 }
 
+/// Runs one `train` statement: loads its data, resumes from its checkpoint
+/// if any, trains, scores the held-out views and writes its outputs under
+/// `out_dir`.
 #[allow(clippy::too_many_arguments)]
 pub fn run_train_job(
     job: &TrainJob,
@@ -641,7 +655,7 @@ pub fn run_train_job(
         }
     };
     // The held-out views rendered at `values`, with their mean PSNR and SSIM.
-    let evaluate = |values: &[f32]| -> io::Result<(f64, f64, Vec<Vec<[f32; 3]>>)> {
+    let evaluate = |values: &[f32]| -> io::Result<Evaluation> {
         let (mut psnr, mut ssim, mut renders) = (0.0, 0.0, Vec::new());
         for v in &test_views {
             let (w, h) = (v.image.width, v.image.height);
@@ -766,9 +780,12 @@ pub fn run_train_job(
             }
             status(&line);
         }
-        if checkpoint_path.is_some() && r.step % CHECKPOINT_EVERY == 0 {
+        if let Some(path) = checkpoint_path
+            .as_ref()
+            .filter(|_| r.step % CHECKPOINT_EVERY == 0)
+        {
             last_good = r.checkpoint(fp.clone());
-            if let Err(e) = last_good.write(checkpoint_path.as_ref().expect("checked")) {
+            if let Err(e) = last_good.write(path) {
                 io_error = Some(e);
                 return ControlFlow::Break(());
             }

@@ -17,7 +17,9 @@ use super::contract::Contract;
 /// An unbounded scene's map from world positions to the encoding's box.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Warp {
+    /// Scene contraction: the unbounded outside squashed into a shell.
     Contract(Contract),
+    /// Forward-facing NDC of a reference camera.
     Ndc(Ndc),
 }
 
@@ -132,6 +134,7 @@ pub struct Ndc {
 }
 
 impl Ndc {
+    /// The warp of `f`'s reference camera; an error for a degenerate focal length, image size or near plane.
     pub fn new(f: &NdcFrame) -> Result<Self, String> {
         let ax = -2.0 * f.fx / f.width;
         let ay = -2.0 * f.fy / f.height;
@@ -156,6 +159,7 @@ impl Ndc {
         z.min(-1e-3 * self.near)
     }
 
+    /// The NDC of world point `p`.
     #[inline]
     pub fn apply(&self, p: [f32; 3]) -> [f32; 3] {
         let z = self.z_of(p[2]);
@@ -194,7 +198,8 @@ impl Ndc {
     ) {
         let n = self.near as f64;
         let (oz, dz) = (o[2] as f64, d[2] as f64);
-        if !(dz < -1e-9) {
+        // NaN directions too: they head nowhere.
+        if dz.is_nan() || dz >= -1e-9 {
             out.extend(t.iter().map(|_| 0.0));
             return;
         }

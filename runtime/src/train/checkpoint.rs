@@ -36,6 +36,7 @@ impl Default for Fnv {
 }
 
 impl Fnv {
+    /// Hashes raw bytes.
     pub fn bytes(&mut self, b: &[u8]) -> &mut Self {
         for &x in b {
             self.0 ^= x as u64;
@@ -43,15 +44,18 @@ impl Fnv {
         }
         self
     }
+    /// Hashes a string and a terminator, so that consecutive strings cannot run together.
     pub fn str(&mut self, s: &str) -> &mut Self {
         self.bytes(s.as_bytes()).bytes(&[0xff])
     }
+    /// Hashes floats by their exact bits (little-endian), so any change of value changes the hash.
     pub fn f32s(&mut self, v: &[f32]) -> &mut Self {
         for x in v {
             self.bytes(&x.to_bits().to_le_bytes());
         }
         self
     }
+    /// The hash as 16 hex digits.
     pub fn finish(&self) -> String {
         format!("{:016x}", self.0)
     }
@@ -69,9 +73,13 @@ impl std::fmt::Write for Fnv {
 /// One parameter's state.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ParamState {
+    /// The trainer's name of the parameter.
     pub name: String,
+    /// Its current values, flat.
     pub values: Vec<f32>,
+    /// Adam's first-moment estimate, one per value.
     pub adam_m: Vec<f32>,
+    /// Adam's second-moment estimate, one per value.
     pub adam_v: Vec<f32>,
 }
 
@@ -82,6 +90,7 @@ pub struct Checkpoint {
     pub step: usize,
     /// Adam's update count (its bias correction).
     pub adam_steps: i32,
+    /// Every parameter's values and Adam moments, in the trainer's order.
     pub params: Vec<ParamState>,
     /// How each parameter is stored (parallel to `params`; a missing or
     /// empty entry is stored whole, flat, under its name). Empty when read
@@ -89,6 +98,7 @@ pub struct Checkpoint {
     pub pieces: Vec<Vec<Piece>>,
     /// The model's specification (JSON; `Null` when unknown).
     pub model: Value,
+    /// The loss of every step done, so a resumed run's history is whole.
     pub losses: Vec<f32>,
     /// A model's state beyond its parameters (an occupancy grid), by name.
     pub state: Vec<(String, Vec<f32>)>,
@@ -145,6 +155,7 @@ impl Checkpoint {
         }
     }
 
+    /// Writes the checkpoint as a safetensors file, atomically: a crash never leaves half a file at `path`.
     pub fn write(&self, path: &Path) -> io::Result<()> {
         let mut buffers: Vec<(String, Vec<usize>, Vec<u8>)> = Vec::new();
         let mut layout = Vec::new();
@@ -241,6 +252,7 @@ impl Checkpoint {
         f.commit()
     }
 
+    /// Reads a checkpoint of either format, refusing a malformed or hostile file with an error (never a panic).
     pub fn read(path: &Path) -> io::Result<Checkpoint> {
         let bytes = crate::data::image::read_checkpoint_bytes(path)?;
         let (_, header) = SafeTensors::read_metadata(&bytes).map_err(|e| invalid(path, e))?;

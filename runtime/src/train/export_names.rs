@@ -20,7 +20,9 @@ use crate::neural::nerf::{NerfNet, PositionEncoding};
 /// One tensor of a checkpoint file.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Piece {
+    /// The tensor's name in the file.
     pub name: String,
+    /// The tensor's dimensions as stored.
     pub shape: Vec<usize>,
     /// Stored as `(out, in)` = `shape`, held by the trainer as the
     /// row-major transpose `(in, out)`.
@@ -42,6 +44,7 @@ impl Piece {
         self.shape.iter().try_fold(1usize, |a, &d| a.checked_mul(d))
     }
 
+    /// Whether the piece holds no scalars.
     pub fn is_empty(&self) -> bool {
         self.len() == Some(0)
     }
@@ -51,7 +54,9 @@ impl Piece {
 /// the model's specification.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Layout {
+    /// Each parameter tensor's pieces, in the trainer's order.
     pub params: Vec<Vec<Piece>>,
+    /// The model's specification (JSON), stored in the file's metadata.
     pub model: Value,
 }
 

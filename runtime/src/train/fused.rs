@@ -31,12 +31,17 @@ const BLOCK: usize = 64;
 /// A batch of rays with their target colours and sample depths.
 #[derive(Debug, Clone)]
 pub struct Batch {
+    /// The camera rays of the batch, in the scene frame.
     pub rays: Vec<Ray>,
+    /// The colour each ray's pixel should have.
     pub targets: Vec<[f32; 3]>,
     /// `samples` depths per ray, all rays alike (`shared`) or one row each.
     pub depths: Vec<f32>,
+    /// Samples per ray.
     pub samples: usize,
+    /// Whether every ray uses the same row of depths.
     pub shared: bool,
+    /// How much the last sample of a ray absorbs.
     pub last_interval: LastInterval,
     /// The step's seed, for anything else a model draws at random (fine
     /// samples), so a step stays a function of (seed, step).
@@ -48,6 +53,7 @@ pub struct Batch {
 }
 
 impl Batch {
+    /// The sample depths along ray `ray`.
     pub fn depths_of(&self, ray: usize) -> &[f32] {
         if self.shared {
             &self.depths[..self.samples]
@@ -60,7 +66,9 @@ impl Batch {
 /// The loss and its gradient with respect to every scalar of the model.
 #[derive(Debug, Clone, PartialEq)]
 pub struct LossGrad {
+    /// The batch's loss.
     pub loss: f64,
+    /// ∂loss/∂scalar, in the model's flat order.
     pub grad: Vec<f64>,
 }
 
@@ -158,8 +166,8 @@ impl<F: Real> PlainMarch<F> {
         let dk = Dual::lit(dk as f64);
         let a = kind.absorption(sdf, self.alpha, self.inv_beta, dk);
         let lk = kind.log_keep(sdf, self.alpha, self.inv_beta, dk);
-        for i in 0..3 {
-            self.colour[i] = self.colour[i] + self.trans * a.opacity.v * c[i];
+        for (colour, c) in self.colour.iter_mut().zip(c) {
+            *colour = *colour + self.trans * a.opacity.v * c;
         }
         let values = [
             c[0],
@@ -317,6 +325,10 @@ fn ray_grad<F: Real, const N: usize>(
             let c = [c.x, c.y, c.z];
             // field += adjoint · tangents.
             let (d_sdf, d_colour) = adj;
+            #[allow(
+                clippy::needless_range_loop,
+                reason = "`i` is the tangent index of the field and of every dual"
+            )]
             for i in 0..N {
                 field[i] = field[i]
                     + d_sdf * sdf.d[i]
@@ -404,8 +416,8 @@ fn pass<F: Real, const N: usize>(
     let mut total = (0.0, vec![0.0; N], 0.0, 0.0);
     for (l, g, a, b) in blocks {
         total.0 += l;
-        for i in 0..N {
-            total.1[i] += g[i];
+        for (t, g) in total.1.iter_mut().zip(&g) {
+            *t += g;
         }
         total.2 += a;
         total.3 += b;
@@ -581,7 +593,7 @@ pub fn render_rays(
             let args = model.plain(values);
             let f = &model.field;
             let (alpha, beta) = (args.scalar(&f.alpha).v, args.scalar(&f.beta).v);
-            let c = march(
+            march(
                 |p: V3<f32>| {
                     let q = V3::new(
                         Dual::constant(p.x),
@@ -598,8 +610,7 @@ pub fn render_rays(
                 r.dir,
                 Depths { t, delta: &delta },
                 true,
-            );
-            c
+            )
         })
         .collect()
 }

@@ -108,8 +108,8 @@ fn field_op(
                     for_each_sample::<f32, CHUNK>(&model, &values, first, &batch, r, |k, v| {
                         for (j, x) in v.iter().enumerate() {
                             let gk = row[k * OUT + j];
-                            for i in 0..CHUNK {
-                                acc[i] += gk * x.d[i];
+                            for (a, &d) in acc.iter_mut().zip(&x.d) {
+                                *a += gk * d;
                             }
                         }
                     });

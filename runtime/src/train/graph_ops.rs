@@ -217,7 +217,7 @@ mod tests {
         for r in 0..R {
             let s: f32 = wv[r * N..(r + 1) * N].iter().sum();
             assert!(
-                s <= 1.0 + 1e-6 && s >= 1.0 - 1e-6,
+                (1.0 - 1e-6..=1.0 + 1e-6).contains(&s),
                 "an opaque sample stops the ray: {s}"
             );
         }

@@ -15,6 +15,7 @@ use sdfl_stdlib::value::SdfField;
 /// One trainable parameter.
 #[derive(Debug, Clone)]
 pub struct ModelParam {
+    /// The `param(...)` call that declares it.
     pub decl: Arc<ParamDecl>,
     /// Its `let` name, or where it is first used (`torus.major`), made
     /// unique with `#2`, `#3`….
@@ -23,13 +24,16 @@ pub struct ModelParam {
     pub bound: Bound,
     /// First scalar in the flat vector.
     pub offset: usize,
+    /// Number of scalars it holds.
     pub len: usize,
 }
 
 /// A field and its parameters.
 #[derive(Debug, Clone)]
 pub struct TrainModel {
+    /// The signed-distance field, colour and density being fitted.
     pub field: SdfField,
+    /// Each distinct `param(...)` the field uses, in order of first use.
     pub params: Vec<ModelParam>,
     /// Flat offset of each `ParamDecl::id`, `usize::MAX` for parameters of
     /// the file that this model does not use.
@@ -43,6 +47,7 @@ pub struct TrainModel {
 }
 
 impl TrainModel {
+    /// The model of `field`: each of its parameters once, laid out in a flat vector.
     pub fn new(field: &SdfField) -> Self {
         let mut params: Vec<ModelParam> = Vec::new();
         // Each `param(...)` call once, however often it is used.

@@ -12,8 +12,11 @@ use super::TrainError;
 /// One named tensor of a model's flat parameter vector.
 #[derive(Debug, Clone, PartialEq)]
 pub struct TensorSpec {
+    /// The tensor's name, as reports and checkpoints show it.
     pub name: String,
+    /// First scalar in the flat parameter vector.
     pub offset: usize,
+    /// Number of scalars.
     pub len: usize,
 }
 
@@ -62,12 +65,15 @@ pub trait Objective {
 /// An analytic field's `param(...)` arguments, fitted through the fused
 /// kernel or the dfdx graph.
 pub struct FieldObjective<'m> {
+    /// The field and its parameters' layout.
     pub model: &'m TrainModel,
+    /// Which differentiation computes the gradient: the fused kernel or the dfdx graph.
     pub backend: Backend,
     dev: dfdx::prelude::Cpu,
 }
 
 impl<'m> FieldObjective<'m> {
+    /// The objective of `model`, differentiated by `backend`.
     pub fn new(model: &'m TrainModel, backend: Backend) -> Self {
         // No allocation cache: dfdx's keeps every dropped buffer for good
         // (5 MB a step on a box fit).

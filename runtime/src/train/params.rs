@@ -105,14 +105,17 @@ impl ParamStore {
         self.dev.tensor_to_vec(&self.params[id.0].tensor)
     }
 
+    /// The parameter's name, as reports and checkpoints show it.
     pub fn name(&self, id: ParamId) -> &str {
         &self.params[id.0].name
     }
 
+    /// Whether the optimiser updates this parameter (a frozen one keeps its values).
     pub fn is_trainable(&self, id: ParamId) -> bool {
         self.params[id.0].trainable
     }
 
+    /// Freezes or unfreezes a parameter for the optimiser.
     pub fn set_trainable(&mut self, id: ParamId, trainable: bool) {
         self.params[id.0].trainable = trainable;
     }
@@ -172,6 +175,7 @@ impl ParamStore {
 /// Adam over a [`ParamStore`], using dfdx's Adam kernel.
 #[derive(Debug, Clone)]
 pub struct Adam {
+    /// dfdx's settings: learning rate, moment decays, ε.
     pub cfg: AdamConfig,
     step: i32,
 }

@@ -24,13 +24,19 @@ pub use crate::data::TrainView;
 /// What a run needs besides the model.
 #[derive(Debug, Clone)]
 pub struct TrainSetup<'a> {
+    /// The views whose pixels the rays are drawn from (empty for a point cloud).
     pub views: &'a [TrainView],
     /// A point cloud: batches are `rays` of its points instead of rays.
     pub points: &'a [[f32; 3]],
+    /// Where along each ray samples are placed.
     pub sampler: Sampler,
+    /// Rays (or points) per step.
     pub rays: usize,
+    /// The optimiser and its learning rate schedule.
     pub optimizer: Optimizer,
+    /// The weighted loss terms.
     pub losses: &'a [Loss],
+    /// Seed of every random draw: a run is a function of (seed, step).
     pub seed: u64,
 }
 
@@ -167,6 +173,7 @@ impl<'a> TrainSetup<'a> {
 /// The state of a run: the model, its parameters in the store, Adam,
 /// losses so far.
 pub struct Run<'m> {
+    /// The model's loss and gradient.
     pub objective: Box<dyn Objective + 'm>,
     tensors: Vec<TensorSpec>,
     store: ParamStore,
@@ -176,6 +183,7 @@ pub struct Run<'m> {
     grad: Vec<f32>,
     /// Steps done.
     pub step: usize,
+    /// The loss of every step done.
     pub losses: Vec<f32>,
     /// How checkpoints store the tensors (flat under their names until
     /// [`Run::describe`]).
@@ -333,6 +341,7 @@ impl<'m> Run<'m> {
             .collect()
     }
 
+    /// A checkpoint of the run now, stamped with `fingerprint` (one hash per part of the setup) so a resume can check it continues the same run.
     pub fn checkpoint(&self, fingerprint: [String; 4]) -> Checkpoint {
         Checkpoint {
             step: self.step,

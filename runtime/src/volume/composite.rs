@@ -121,8 +121,11 @@ pub fn transmittance<F: Float>(sigma: &[F], delta: &[F]) -> Result<F, VolumeErro
 /// ray. A ray with all-zero weights (empty space) has depth 0.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Composite<F> {
+    /// `Σ w_k c_k`: the colour the ray gathers.
     pub colour: [F; 3],
+    /// `Σ w_k t_k`: the expected depth of what the ray hits.
     pub depth: F,
+    /// `Σ w_k`: how much of the ray is absorbed (1 − final transmittance).
     pub opacity: F,
 }
 

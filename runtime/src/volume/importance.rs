@@ -120,7 +120,7 @@ pub fn sample_pdf(
     spacing: Spacing,
     out: &mut [f32],
 ) -> Result<(), VolumeError> {
-    if n < 2 || t.len() != w.len() || t.len() % n != 0 || out.len() != t.len() / n * m {
+    if n < 2 || t.len() != w.len() || !t.len().is_multiple_of(n) || out.len() != t.len() / n * m {
         return Err(VolumeError::Invalid(format!(
             "sample_pdf: n={n} ≥ 2 coarse depths per ray, {} depths, {} weights, {} slots for m={m}",
             t.len(),
@@ -181,9 +181,11 @@ pub fn merge_depths(
     m: usize,
     out: &mut [f32],
 ) -> Result<(), VolumeError> {
-    let rays = if n == 0 { 0 } else { coarse.len() / n };
-    let ok =
-        n > 0 && coarse.len() % n == 0 && fine.len() == rays * m && out.len() == rays * (n + m);
+    let rays = coarse.len().checked_div(n).unwrap_or(0);
+    let ok = n > 0
+        && coarse.len().is_multiple_of(n)
+        && fine.len() == rays * m
+        && out.len() == rays * (n + m);
     if !ok {
         return Err(VolumeError::Invalid(format!(
             "merge_depths: {} coarse (n={n}), {} fine (m={m}), {} slots",

@@ -17,6 +17,7 @@ use sdfl_stdlib::value::{DensityKind, LastInterval};
 /// The sample depths and intervals of a ray.
 #[derive(Debug, Clone, Copy)]
 pub struct Depths<'a> {
+    /// The sample depths along the ray, ascending.
     pub t: &'a [f32],
     /// `t[k+1] − t[k]`, the last one per [`LastInterval`].
     pub delta: &'a [f32],
@@ -37,6 +38,7 @@ pub fn intervals_into(t: &[f32], last: LastInterval, out: &mut Vec<f32>) {
 /// The composite of one ray.
 #[derive(Debug, Clone, Copy)]
 pub struct RayColour<T> {
+    /// `Σ w_k c_k`.
     pub colour: V3<T>,
     /// `Σ w_k t_k` (0 unless asked for).
     pub depth: T,
@@ -46,6 +48,10 @@ pub struct RayColour<T> {
 
 /// Marches one ray: `field(p)` gives the signed distance and colour at `p`.
 #[inline(always)]
+#[allow(
+    clippy::too_many_arguments,
+    reason = "the hot loop's inputs, passed apart so each monomorphises and inlines"
+)]
 pub fn march<T: Real>(
     field: impl Fn(V3<T>) -> (T, V3<T>),
     kind: DensityKind,

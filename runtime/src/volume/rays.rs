@@ -10,20 +10,27 @@ use super::VolumeError;
 /// (`row·width + column`) it came from.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Ray {
+    /// Where the ray starts (a pinhole camera's eye).
     pub origin: [f32; 3],
+    /// Unit direction of travel.
     pub dir: [f32; 3],
+    /// Index of the view (camera) the ray belongs to.
     pub view: u32,
+    /// The pixel, `row·width + column`.
     pub pixel: u32,
 }
 
 /// An image size; pixel `(i, j)` is column `i` from the left, row `j` from the top.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct ImageSize {
+    /// Columns.
     pub width: u32,
+    /// Rows.
     pub height: u32,
 }
 
 impl ImageSize {
+    /// Number of pixels, `width × height`.
     pub fn pixels(&self) -> usize {
         self.width as usize * self.height as usize
     }
@@ -97,9 +104,11 @@ pub fn for_each_ray_chunk<T: Send>(
 pub struct SplitMix64(u64);
 
 impl SplitMix64 {
+    /// A generator whose stream is fixed by `seed`.
     pub fn new(seed: u64) -> Self {
         SplitMix64(seed)
     }
+    /// The next 64 random bits.
     pub fn next_u64(&mut self) -> u64 {
         self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
         let mut z = self.0;
@@ -165,12 +174,16 @@ pub fn random_rays(
 /// inclusive (linspace).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Stratified {
+    /// Number of depths, at least 2.
     pub n: usize,
+    /// The first depth, ≥ 0.
     pub near: f32,
+    /// The last depth, beyond `near`.
     pub far: f32,
 }
 
 impl Stratified {
+    /// The sampler, or an error unless `n ≥ 2` and `0 ≤ near < far`, both finite.
     pub fn new(n: usize, near: f32, far: f32) -> Result<Self, VolumeError> {
         let s = Stratified { n, near, far };
         s.validate()?;

@@ -14,15 +14,19 @@ use super::{Composite, VolumeError};
 /// How an SDF becomes absorption, with its constants.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct DensityModel {
+    /// How distance becomes density (or opacity).
     pub kind: DensityKind,
     /// An opacity scale `0 < α ≤ 1` for [`DensityKind::Opacity`], a density
     /// scale `α > 0` otherwise.
     pub alpha: f32,
+    /// The width of the surface's transition `β > 0`, in scene units.
     pub beta: f32,
+    /// How much the last sample of a ray absorbs.
     pub last_interval: LastInterval,
 }
 
 impl DensityModel {
+    /// Checks `α` against the kind's range and `β > 0`, both finite.
     pub fn validate(&self) -> Result<(), VolumeError> {
         let alpha = self.alpha;
         if !(alpha > 0.0 && alpha as f64 <= self.kind.alpha_max() && alpha.is_finite()) {
@@ -44,8 +48,11 @@ impl DensityModel {
 /// A rendered image: row-major from the top-left pixel.
 #[derive(Debug, Clone, PartialEq)]
 pub struct RenderedImage {
+    /// The image's size.
     pub size: ImageSize,
+    /// Each pixel's colour.
     pub colour: Vec<[f32; 3]>,
+    /// Each pixel's expected depth along its ray.
     pub depth: Vec<f32>,
 }
 

@@ -208,13 +208,8 @@ fn dual_derivatives_match_finite_differences_of_the_reference() {
                     let ib = Dual::one() / b;
                     let at = format!("{kind:?} sdf {sdf} α {alpha} β {beta}");
                     let check = |what: &str, got: Dual<f64, 4>, want: [f64; 4]| {
-                        for i in 0..4 {
-                            assert!(
-                                close(got.d[i], want[i], 1e-5, 1e-7),
-                                "∂{what}/∂x{i} {at}: {} vs {}",
-                                got.d[i],
-                                want[i]
-                            );
+                        for (i, (&g, &w)) in got.d.iter().zip(&want).enumerate() {
+                            assert!(close(g, w, 1e-5, 1e-7), "∂{what}/∂x{i} {at}: {g} vs {w}");
                         }
                     };
                     check(
@@ -247,12 +242,10 @@ fn dual_derivatives_match_finite_differences_of_the_reference() {
                         let [f, n, a, b, d] = seeds(y);
                         let got = kind.neural_depth(f, Some(n), a, Dual::one() / b, d);
                         let want = fd(|[f, n, a, b, d]| neural_ref(kind, f, Some(n), a, b, d), y);
-                        for i in 0..5 {
+                        for (i, (&g, &w)) in got.d.iter().zip(&want).enumerate() {
                             assert!(
-                                close(got.d[i], want[i], 1e-5, 1e-7),
-                                "∂τ/∂x{i} {at} next {next}: {} vs {}",
-                                got.d[i],
-                                want[i]
+                                close(g, w, 1e-5, 1e-7),
+                                "∂τ/∂x{i} {at} next {next}: {g} vs {w}"
                             );
                         }
                     }

@@ -224,7 +224,9 @@ fn absorption(
 
 /// A neural SDF with a colour network, fitted to images.
 pub struct SurfaceObjective {
+    /// The signed-distance network whose zero set is the surface.
     pub sdf: SdfNet,
+    /// The colour of each sample from its point, normal and (when view dependent) direction.
     pub color: ColorNet,
     spec: NeuralSurface,
     /// Weight of the eikonal term (the trainer weighs the colour term).
@@ -252,6 +254,7 @@ pub struct SurfaceObjective {
 }
 
 impl SurfaceObjective {
+    /// The objective of `spec`, weighing its eikonal term as `losses` says.
     pub fn new(spec: &NeuralSurface, losses: &[Loss]) -> Self {
         let sdf = sdf_net(&spec.sdf);
         let color = ColorNet::new(spec, sdf.len);
@@ -546,7 +549,7 @@ impl Objective for SurfaceObjective {
             .sdf
             .init_geometric(self.spec.sdf.seed, self.spec.sdf.radius as f32);
         v.resize(self.color.end(), 0.0);
-        let mut rng = SplitMix64::new(self.spec.sdf.seed ^ 0x636f_6c6f_72);
+        let mut rng = SplitMix64::new(self.spec.sdf.seed ^ 0x0063_6f6c_6f72);
         for d in &self.color.layers {
             d.init(&mut v, &mut rng);
         }

@@ -185,7 +185,7 @@ fn rays_of_group(
     let used = rays.len() * chunks;
     if n == 0 {
         for &r in rays {
-            *loss = *loss + ray_loss(batch, r, [0.0; 3], scale).0;
+            *loss += ray_loss(batch, r, [0.0; 3], scale).0;
         }
         return;
     }
@@ -198,6 +198,10 @@ fn rays_of_group(
         for c in 0..chunks {
             let col = g * chunks + c;
             let mut x = [[0.0f32; W]; 4];
+            #[allow(
+                clippy::needless_range_loop,
+                reason = "lane `i` picks the sample and addresses every coordinate's row"
+            )]
             for i in 0..W {
                 let k = (c * W + i).min(n - 1);
                 for a in 0..3 {
@@ -233,14 +237,14 @@ fn rays_of_group(
         while kept < n && t != 0.0 {
             let k = kept;
             for (j, colour) in colour.iter_mut().enumerate() {
-                *colour = *colour + t * opacity[k] * c[j][k];
+                *colour += t * opacity[k] * c[j][k];
             }
             trans[k] = t;
-            t = t * keep[k];
+            t *= keep[k];
             kept += 1;
         }
         let (l, g_colour) = ray_loss(batch, r, colour, scale);
-        *loss = *loss + l;
+        *loss += l;
         // ∂L/∂ln(1 − o_k) is the suffix sum Σ_{j>k} (g·c_j)·w_j.
         let mut suffix = 0.0f32;
         let mut largest = 0.0f64;
@@ -262,7 +266,7 @@ fn rays_of_group(
             for (j, x) in seed.into_iter().enumerate() {
                 seeds[j * lanes + k] = x;
             }
-            suffix = suffix + gc * w;
+            suffix += gc * w;
         }
         // Samples past the spent point and negligible ones are left out:
         // their seeds are not added and their lanes not summed, so nothing
@@ -311,7 +315,7 @@ fn ray_loss(batch: &Batch, r: usize, colour: [f32; 3], scale: f32) -> (f32, [f32
     let mut g = [0.0f32; 3];
     for i in 0..3 {
         let e = colour[i] - target[i];
-        loss = loss + e * e * scale;
+        loss += e * e * scale;
         g[i] = 2.0 * e * scale;
     }
     (loss, g)

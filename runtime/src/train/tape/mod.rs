@@ -599,6 +599,7 @@ impl Tape {
         self.forward.len()
     }
 
+    /// Whether the tape has no instructions.
     pub fn is_empty(&self) -> bool {
         self.forward.is_empty()
     }
