@@ -1,6 +1,6 @@
-//! Lowering of the shape IR to a fast f32 evaluator: [`nodes`] (the
+//! Lowering of the shape IR to a fast f32 evaluator: `nodes` (the
 //! primitives, each calling its one formula in `sdfl_stdlib::sdf`, and the
-//! combinators), [`bvh`] (culled unions) and [`lower`] (the shape tree to
+//! combinators), `bvh` (culled unions) and `lower` (the shape tree to
 //! nodes, transforms pushed into leaves).
 //!
 //! A [`Shape`] is lowered once into a tree of trait objects (a closure tree

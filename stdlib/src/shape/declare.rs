@@ -1,4 +1,4 @@
-//! The machinery behind one declaration per primitive: [`primitives!`]
+//! The machinery behind one declaration per primitive: `primitives!`
 //! turns each entry of `primitives.rs` (name, doc, arguments with their
 //! checks, defaults and test ranges, the formula call, bounds, exactness)
 //! into a struct generic over where its numbers come from ([`Family`]),
