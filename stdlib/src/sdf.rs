@@ -6,6 +6,7 @@
 
 use crate::num::{Real, V3};
 
+/// Sphere of `radius` around `center` (exact).
 #[inline(always)]
 pub fn sphere<T: Real>(p: V3<T>, center: V3<T>, radius: T) -> T {
     (p - center).length() - radius
@@ -156,12 +157,16 @@ pub fn extrude<T: Real>(d2: T, z: T, half: T) -> T {
 /// Which world axis a shape built along Z is laid along.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum Axis {
+    /// The world X axis.
     X,
+    /// The world Y axis.
     Y,
+    /// The world Z axis (a shape's own frame unchanged).
     Z,
 }
 
 impl Axis {
+    /// The axis's component index in a vector (X 0, Y 1, Z 2).
     pub fn index(self) -> usize {
         self as usize
     }
@@ -272,6 +277,8 @@ pub fn smooth_min<T: Real>(a: T, b: T, k: T) -> T {
     a.min(b) - h * h * k * T::lit(0.25)
 }
 
+/// Polynomial smooth maximum over radius `k` (`max` when `k ≤ 0`): smooth
+/// intersection and subtraction.
 #[inline(always)]
 pub fn smooth_max<T: Real>(a: T, b: T, k: T) -> T {
     -smooth_min(-a, -b, k)

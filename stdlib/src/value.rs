@@ -843,9 +843,13 @@ impl Unbounded {
 /// looking down −z), with its images' size and focal lengths in pixels.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
 pub struct NdcFrame {
+    /// Image width in pixels.
     pub width: f64,
+    /// Image height in pixels.
     pub height: f64,
+    /// Horizontal focal length in pixels.
     pub fx: f64,
+    /// Vertical focal length in pixels.
     pub fy: f64,
     /// The depth of the near plane (NDC z = −1), in scene units.
     pub near: f64,

@@ -146,6 +146,7 @@ macro_rules! lane_type {
         pub struct $name(pub [f32; $n]);
 
         impl $name {
+            /// Every lane set to `x`.
             #[inline(always)]
             pub fn splat(x: f32) -> Self {
                 $name([x; $n])

@@ -1,6 +1,6 @@
-//! Lowering of the shape IR to a fast f32 evaluator: [`nodes`] (the
+//! Lowering of the shape IR to a fast f32 evaluator: `nodes` (the
 //! primitives, each calling its one formula in `sdfl_stdlib::sdf`, and the
-//! combinators), [`bvh`] (culled unions) and [`lower`] (the shape tree to
+//! combinators), `bvh` (culled unions) and `lower` (the shape tree to
 //! nodes, transforms pushed into leaves).
 //!
 //! A [`Shape`] is lowered once into a tree of trait objects (a closure tree
@@ -40,6 +40,7 @@ use nodes::*;
 
 /// One lowered node: a signed distance (or bound) in world units.
 pub trait Node: Send + Sync + std::any::Any {
+    /// The signed distance (or bound) at `p`, in the evaluator's coordinates.
     fn dist(&self, p: Vec3A) -> f32;
     /// The distance and the id of the primitive attaining it.
     fn dist_id(&self, p: Vec3A) -> (f32, u32);
@@ -61,6 +62,7 @@ pub struct PrimInfo {
     pub center: DVec3,
     /// The material painted on it, if any (else the render's material).
     pub material: Option<Arc<Material>>,
+    /// The primitive's built-in name (`sphere`, `box`...), for reports.
     pub kind: &'static str,
 }
 
@@ -110,12 +112,16 @@ impl LowerOptions {
 /// lowered relative to a point near the camera, a scene far from the world
 /// origin is evaluated in f32 on coordinates as small as those near it.
 pub struct Lowered {
+    /// The evaluator: the root of the lowered node tree.
     pub root: Box<dyn Node>,
     /// The world point the evaluator's coordinates are relative to (zero:
     /// world coordinates, exactly as lowered without an origin).
     pub origin: DVec3,
+    /// A bound on the gradient's norm: the tracer steps `d / lipschitz`.
     pub lipschitz: f32,
+    /// Shading data per primitive, indexed by the id [`Node::dist_id`] returns.
     pub prims: Vec<PrimInfo>,
+    /// How many BVH nodes culling built (0: none), for reports and benches.
     pub bvh_nodes: usize,
     /// The top-level union's members with their boxes, for culling per
     /// screen tile, when the root is not already such a union (small

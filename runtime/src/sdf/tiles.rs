@@ -28,7 +28,9 @@ const MAX_TILE_MEMBERS: usize = 48;
 /// with `D` the farthest point of the member's box from the eye.
 #[derive(Debug, Clone, Copy)]
 pub struct Margin {
+    /// The constant part, in world units.
     pub abs: f32,
+    /// The part growing with the distance `D` from the eye (per unit of `D`).
     pub per_distance: f32,
 }
 
@@ -69,6 +71,8 @@ pub struct Frustum {
 }
 
 impl Frustum {
+    /// The rays from `eye` along `x·ax + y·ay + az` for `x` in `x0..x1` and
+    /// `y` in `y0..y1` (either order): a screen tile's pyramid.
     pub fn new(
         eye: Vec3A,
         (ax, ay, az): (DVec3, DVec3, DVec3),

@@ -99,13 +99,13 @@ pub(super) fn builtins() -> Vec<Builtin> {
             |a| shape(Shape::Subtraction(a.shape("a")?, a.shape("b")?)),
         ),
         smooth("smooth_union", "Union of any number of shapes or lists, blended over radius `k` (polynomial smooth minimum, folded left: `smooth_union(a, b, c)` is `smooth_union(smooth_union(a, b), c)`; a bound).", |a| {
-            blend(a, |x, y, k| Shape::SmoothUnion(x, y, k))
+            blend(a, Shape::SmoothUnion)
         }),
         smooth("smooth_intersection", "Intersection of any number of shapes or lists, blended over radius `k`, folded left like `smooth_union` (a bound).", |a| {
-            blend(a, |x, y, k| Shape::SmoothIntersection(x, y, k))
+            blend(a, Shape::SmoothIntersection)
         }),
         smooth("smooth_subtraction", "The first shape minus each of the others, blended over radius `k` (a bound).", |a| {
-            blend(a, |x, y, k| Shape::SmoothSubtraction(x, y, k))
+            blend(a, Shape::SmoothSubtraction)
         }),
         // ---- transforms
         func(

@@ -8,26 +8,34 @@ use super::*;
 /// An axis-aligned box.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Aabb {
+    /// The corner with the smallest coordinates.
     pub min: DVec3,
+    /// The corner with the largest coordinates.
     pub max: DVec3,
 }
 
 impl Aabb {
+    /// The box between two corners (`min ≤ max` per axis for a non-empty box).
     pub fn new(min: DVec3, max: DVec3) -> Self {
         Aabb { min, max }
     }
+    /// The box centred on `center` with half extents `half`.
     pub fn around(center: DVec3, half: DVec3) -> Self {
         Aabb::new(center - half, center + half)
     }
+    /// The smallest box holding both: the bounds of a union.
     pub fn union(self, o: Aabb) -> Aabb {
         Aabb::new(self.min.min(o.min), self.max.max(o.max))
     }
+    /// The box grown by `by` on every side (a shape rounded or displaced).
     pub fn expand(self, by: f64) -> Aabb {
         Aabb::new(self.min - DVec3::splat(by), self.max + DVec3::splat(by))
     }
+    /// The box's centre point.
     pub fn center(self) -> DVec3 {
         (self.min + self.max) * 0.5
     }
+    /// The box's volume (0 when empty or flat): a BVH split's cost.
     pub fn volume(self) -> f64 {
         let e = (self.max - self.min).max(DVec3::ZERO);
         e.x * e.y * e.z
@@ -54,6 +62,7 @@ impl Aabb {
 }
 
 impl Shape {
+    /// Whether the shape's value is the exact distance or only a bound.
     pub fn exactness(&self) -> Exactness {
         match self {
             Shape::Prim(x) => x.spec().exactness,

@@ -1,4 +1,4 @@
-//! The machinery behind one declaration per primitive: [`primitives!`]
+//! The machinery behind one declaration per primitive: `primitives!`
 //! turns each entry of `primitives.rs` (name, doc, arguments with their
 //! checks, defaults and test ranges, the formula call, bounds, exactness)
 //! into a struct generic over where its numbers come from ([`Family`]),
@@ -85,11 +85,15 @@ pub enum Check {
 /// One argument of a primitive, as its entry declares it.
 #[derive(Debug, Clone, Copy)]
 pub struct ArgSpec {
+    /// The keyword the argument is passed by in sdfl.
     pub name: &'static str,
+    /// Scalar, point, vector or axis: how it is read and trained.
     pub kind: ArgKind,
+    /// The values the argument accepts (checked when the call is read).
     pub check: Check,
     /// sdfl source text; `None`: required.
     pub default: Option<&'static str>,
+    /// One line for the built-in's reference (`sdfl help`).
     pub doc: &'static str,
     /// Values the tests draw from (each component of a vector).
     pub range: (f64, f64),
@@ -100,8 +104,11 @@ pub struct ArgSpec {
 pub struct PrimSpec {
     /// The built-in's name (also the kind in reports).
     pub name: &'static str,
+    /// What the primitive is, for the built-in's reference.
     pub doc: &'static str,
+    /// Its arguments, in declaration order.
     pub args: &'static [ArgSpec],
+    /// Whether its formula is an exact distance or only a bound.
     pub exactness: Exactness,
     /// A bound on the gradient's norm.
     pub lipschitz: f64,
@@ -116,8 +123,11 @@ pub struct PrimSpec {
 pub struct Invalid {
     /// The argument the diagnostic points at (`None`: the whole call).
     pub arg: Option<&'static str>,
+    /// What is wrong, with the offending values.
     pub message: String,
+    /// The label under the argument's span.
     pub label: &'static str,
+    /// How to make the arguments valid.
     pub help: &'static str,
 }
 
@@ -126,6 +136,7 @@ pub struct Invalid {
 pub trait Declared: Clone + Into<Primitive> + 'static {
     /// The struct in any family (`Self` is `Of<Ir>`).
     type Of<F: Family>: Clone + Send + Sync + 'static;
+    /// The entry's declaration (its row of [`Primitive::SPECS`]).
     const SPEC: &'static PrimSpec;
     /// The struct with each number mapped.
     fn map<F: Family, G: Family>(
@@ -164,14 +175,19 @@ pub trait Declared: Clone + Into<Primitive> + 'static {
 /// Reads a call's arguments by name and declared check (the built-ins'
 /// argument list implements it).
 pub trait ArgReader {
+    /// The number argument `name` (or a `param`), refused unless `check` holds.
     fn scalar(&mut self, name: &'static str, check: Check) -> Result<Arg<f64>, Diag>;
+    /// The vector argument `name` (or a `param`), refused unless `check`
+    /// holds; a direction is normalised and fixed.
     fn vector(&mut self, name: &'static str, check: Check) -> Result<Arg<DVec3>, Diag>;
+    /// The axis name argument `name` (`x`, `y` or `z`).
     fn axis(&mut self, name: &'static str) -> Result<super::Axis, Diag>;
 }
 
 /// Code generic over the primitive kinds, called once per kind by
 /// [`Primitive::for_each_kind`] (the runtime's packing, the tests).
 pub trait KindVisitor {
+    /// Called with each primitive kind `K` in turn.
     fn visit<K: Declared>(&mut self);
 }
 
@@ -603,14 +619,19 @@ pub(crate) use {
 /// One argument of a primitive ([`Primitive::args`]).
 #[derive(Debug, Clone, Copy)]
 pub enum ArgValue<'a> {
+    /// A number, with its parameter if trainable.
     Scalar(&'a Arg<f64>),
+    /// A point or vector, with its parameter if trainable.
     Vector(&'a Arg<DVec3>),
+    /// An axis (fixed, never trained).
     Axis(super::Axis),
 }
 
 /// Code generic over one primitive, given as its own type
 /// ([`Primitive::with`]): the runtime's lowering to its f32 leaf.
 pub trait WithDeclared {
+    /// What the code returns.
     type Out;
+    /// Called once with the primitive as its declared type `K`.
     fn with<K: Declared>(self, x: &K) -> Self::Out;
 }

@@ -33,34 +33,53 @@ pub use primitives::*;
 /// only a bound on it (still safe for sphere tracing with its Lipschitz bound).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
 pub enum Exactness {
+    /// The value is the Euclidean distance to the surface.
     Exact,
+    /// The value only bounds the distance (never overshoots it, up to the
+    /// Lipschitz bound), so sphere tracing stays safe but steps shorter.
     Bound,
 }
 
+/// A shape tree: primitives at the leaves, combinators and transforms
+/// above them; children are shared (`Arc`) so a scene can reuse a part.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Shape {
     /// An analytic primitive (declared in `primitives.rs`).
     Prim(Primitive),
+    /// Inside any of the shapes: the minimum of their distances (a bound).
     Union(Vec<Arc<Shape>>),
+    /// Inside all of the shapes: the maximum of their distances (a bound).
     Intersection(Vec<Arc<Shape>>),
     /// The first shape minus the second.
     Subtraction(Arc<Shape>, Arc<Shape>),
+    /// Union blended over radius `k` (polynomial smooth minimum; a bound).
     SmoothUnion(Arc<Shape>, Arc<Shape>, Arg<f64>),
+    /// Intersection blended over radius `k` (smooth maximum; a bound).
     SmoothIntersection(Arc<Shape>, Arc<Shape>, Arg<f64>),
+    /// The first shape minus the second, blended over radius `k` (a bound).
     SmoothSubtraction(Arc<Shape>, Arc<Shape>, Arg<f64>),
+    /// The shape moved by an offset (distances unchanged: exact stays exact).
     Translate(Arc<Shape>, Arg<DVec3>),
     /// Rotation of the shape by `angle` around the unit `axis` through the
     /// origin (points are rotated back by `-angle`).
     Rotate {
+        /// The shape rotated.
         shape: Arc<Shape>,
+        /// Unit rotation axis (fixed, not trainable).
         axis: DVec3,
+        /// Rotation angle in radians.
         angle: Arg<f64>,
     },
+    /// Uniform scale about the origin by `s > 0`: `s·d(p/s)`, exact when
+    /// the shape is.
     Scale(Arc<Shape>, Arg<f64>),
     /// Adds `amplitude·sin(fx)·sin(fy)·sin(fz)`: a bound, Lipschitz `1 + √3·a·f`.
     Displace {
+        /// The shape whose surface is rippled.
         shape: Arc<Shape>,
+        /// Height `a` of the ripples, in world units.
         amplitude: Arg<f64>,
+        /// Angular frequency `f` of the ripples, per world unit.
         frequency: Arg<f64>,
     },
     /// Gives its primitives a material.
@@ -79,8 +98,11 @@ pub enum Shape {
     /// Copies `spacing` apart (a zero component: not repeated on that axis),
     /// `count` per axis centred on the origin (0: infinitely many).
     Repeat {
+        /// The shape copied.
         shape: Arc<Shape>,
+        /// Distance between neighbouring copies per axis (0: not repeated).
         spacing: Arg<DVec3>,
+        /// Copies per axis (0: infinitely many, the shape unbounded there).
         count: [u32; 3],
     },
     /// The shape's half on the positive side of `axis`, reflected to the other.
@@ -102,7 +124,9 @@ impl From<Primitive> for Shape {
 /// Where the numeric arguments of a shape come from when it is evaluated:
 /// their fixed values ([`Fixed`]), or trainable values with tangents.
 pub trait ArgSource<T: Real> {
+    /// The value (and tangent, when trained) of a scalar argument.
     fn scalar(&self, a: &Arg<f64>) -> T;
+    /// The value (and tangents, when trained) of a vector argument.
     fn vector(&self, a: &Arg<DVec3>) -> V3<T>;
 }
 
@@ -124,6 +148,7 @@ impl<T: Real> ArgSource<T> for Fixed {
 /// of the primitive that attains it (what the rainbow colour needs).
 #[derive(Debug, Clone, Copy)]
 pub struct Sample<'s, T> {
+    /// Signed distance (or bound) from the point to the shape's surface.
     pub d: T,
     /// World-space centre of the attaining primitive.
     pub center: V3<T>,
@@ -513,6 +538,8 @@ impl Shape {
         }
     }
 
+    /// The built-in that makes this node (a primitive's own name): its kind
+    /// in reports and the primitive table.
     pub fn name(&self) -> &'static str {
         match self {
             Shape::Prim(x) => x.spec().name,
