@@ -168,7 +168,7 @@ fn available_memory() -> u64 {
 }
 
 /// The fingerprint of what a run depends on: one hash per
-/// [`checkpoint::PARTS`] entry (not the step count, so a run can be
+/// [`crate::train::checkpoint::PARTS`] entry (not the step count, so a run can be
 /// continued for longer).
 pub fn fingerprint(job: &TrainJob, views: &[TrainView]) -> [String; 4] {
     use std::fmt::Write;
