@@ -385,17 +385,19 @@ pub(crate) fn plan_text(program: &sdfl_stdlib::Program) -> String {
                 } else {
                     "split lists, else no test views".to_string()
                 },
-                if c.normalize {
-                    match c.orient {
-                        sdfl_stdlib::value::CaptureOrient::Up => {
-                            ", cameras centred into [-1, 1]^3, mean up turned to +z"
-                        }
-                        sdfl_stdlib::value::CaptureOrient::None => {
-                            ", cameras centred into [-1, 1]^3"
-                        }
+                match (c.normalize, c.format, c.orient) {
+                    (false, _, _) => ", the data's own frame".to_string(),
+                    (true, sdfl_stdlib::value::CaptureFormat::Llff, _) => {
+                        ", recentred on the average camera (looking down -z), the nearest depth bound at 4/3 (as NeRF does)".to_string()
                     }
-                } else {
-                    ", the data's own frame"
+                    (true, _, orient) => format!(
+                        ", cameras centred into [-{e}, {e}]^3{}",
+                        match orient {
+                            sdfl_stdlib::value::CaptureOrient::Up => ", mean up turned to +z",
+                            sdfl_stdlib::value::CaptureOrient::None => "",
+                        },
+                        e = sdfl_lang::fmt_num(c.extent)
+                    ),
                 }
             ),
         };
