@@ -660,6 +660,10 @@ pub(crate) fn volume_block(name: &str, a: &Args, field: Arc<Field>) -> Built<Vol
     if matches!(*field, Field::NeuralSdf(_) | Field::NeuralSurface(_)) {
         e.ok::<()>(Err(super::not_a_volume(a.get("scene").1)));
     }
+    e.ok(super::common::ndc_outside_training(
+        &field,
+        a.get("scene").1,
+    ));
     let size = e.ok(image_size(a, "size"));
     // Sphere tracing's effects: asked of a volume, say so.
     let spp = e.ok(samples_per_pixel(a));

@@ -240,6 +240,24 @@ pub(crate) fn not_a_volume(span: Span) -> Diag {
     )
 }
 
+/// A NeRF in NDC (`unbounded: ndc()`) takes its camera from the capture
+/// it trains on: rendered outside a `train` it has none.
+pub(crate) fn ndc_outside_training(field: &crate::value::Field, span: Span) -> Result<(), Diag> {
+    match field {
+        crate::value::Field::Nerf(n)
+            if matches!(n.unbounded, Some(crate::value::Unbounded::Ndc(_))) =>
+        {
+            Err(value_error(
+                span,
+                "a NeRF in NDC (`unbounded: ndc()`) takes its camera from the forward-facing capture it trains on, and is rendered by that `train`",
+                "rendered outside a `train`",
+                "train it on `capture(..., format: \"llff\")` and ask for its outputs in `after: [...]`, or use `unbounded: contraction()` here",
+            ))
+        }
+        _ => Ok(()),
+    }
+}
+
 /// Arguments that are angles in radians.
 const ANGLES: &[(&str, &str)] = &[
     ("rotate", "angle"),

@@ -43,6 +43,7 @@ pub(super) fn render_views(a: &Args) -> Result<Value, Diag> {
             return Err(not_a_volume(scene_span));
         }
         Value::Field(field) => {
+            super::common::ndc_outside_training(field, scene_span)?;
             refuse(
                 &[
                     "material",
