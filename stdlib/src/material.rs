@@ -4,8 +4,8 @@ use glam::DVec3;
 
 use crate::effects::{AmbientOcclusion, Open, SoftShadows, Surroundings};
 use crate::num::{Real, V3};
+use crate::param::ArgSource;
 use crate::param::{Arg, ParamUse};
-use crate::shape::ArgSource;
 
 #[derive(Debug, Clone, PartialEq)]
 /// How a surface point is coloured: a colour, or shading of an albedo under
@@ -288,7 +288,7 @@ impl Material {
             }
             Material::Normals => (n + DVec3::ONE) * 0.5,
             unlit => unlit
-                .unlit_color(p.into(), center.into(), &crate::shape::Fixed)
+                .unlit_color(p.into(), center.into(), &crate::param::Fixed)
                 .map(DVec3::from)
                 .unwrap_or(DVec3::ZERO),
         }

@@ -11,6 +11,8 @@
 use std::sync::Arc;
 
 use glam::DVec3;
+
+use crate::num::{Real, V3};
 use sdfl_lang::Span;
 
 /// The initial value of a parameter: a number or a vector.
@@ -165,6 +167,29 @@ impl From<f64> for Arg<f64> {
 impl From<DVec3> for Arg<DVec3> {
     fn from(v: DVec3) -> Self {
         Arg::fixed(v)
+    }
+}
+
+/// Where the numeric arguments of a shape come from when it is evaluated:
+/// their fixed values ([`Fixed`]), or trainable values with tangents.
+pub trait ArgSource<T: Real> {
+    /// The value (and tangent, when trained) of a scalar argument.
+    fn scalar(&self, a: &Arg<f64>) -> T;
+    /// The value (and tangents, when trained) of a vector argument.
+    fn vector(&self, a: &Arg<DVec3>) -> V3<T>;
+}
+
+/// Every argument at its value (no parameters): the reference evaluator.
+pub struct Fixed;
+
+impl<T: Real> ArgSource<T> for Fixed {
+    #[inline(always)]
+    fn scalar(&self, a: &Arg<f64>) -> T {
+        T::lit(a.value)
+    }
+    #[inline(always)]
+    fn vector(&self, a: &Arg<DVec3>) -> V3<T> {
+        V3::lit(a.value.to_array())
     }
 }
 

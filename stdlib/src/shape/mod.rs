@@ -121,28 +121,7 @@ impl From<Primitive> for Shape {
     }
 }
 
-/// Where the numeric arguments of a shape come from when it is evaluated:
-/// their fixed values ([`Fixed`]), or trainable values with tangents.
-pub trait ArgSource<T: Real> {
-    /// The value (and tangent, when trained) of a scalar argument.
-    fn scalar(&self, a: &Arg<f64>) -> T;
-    /// The value (and tangents, when trained) of a vector argument.
-    fn vector(&self, a: &Arg<DVec3>) -> V3<T>;
-}
-
-/// Every argument at its value (no parameters): the reference evaluator.
-pub struct Fixed;
-
-impl<T: Real> ArgSource<T> for Fixed {
-    #[inline(always)]
-    fn scalar(&self, a: &Arg<f64>) -> T {
-        T::lit(a.value)
-    }
-    #[inline(always)]
-    fn vector(&self, a: &Arg<DVec3>) -> V3<T> {
-        V3::lit(a.value.to_array())
-    }
-}
+pub use crate::param::{ArgSource, Fixed};
 
 /// A shape evaluated at a point: the distance, and the centre and material
 /// of the primitive that attains it (what the rainbow colour needs).
