@@ -60,14 +60,6 @@ impl Contract {
         }
     }
 
-    /// Every row of 3 of `points` contracted into `out` (resized).
-    pub fn apply_all(&self, points: &[f32], out: &mut Vec<f32>) {
-        out.resize(points.len(), 0.0);
-        for (o, p) in out.chunks_mut(3).zip(points.chunks(3)) {
-            o.copy_from_slice(&self.apply([p[0], p[1], p[2]]));
-        }
-    }
-
     /// Where the ray `o + t·d` leaves the inner box, within `[near, far]`
     /// (`near` where it misses the box or has left it).
     pub fn exit(&self, o: [f32; 3], d: [f32; 3], near: f64, far: f64) -> f64 {
