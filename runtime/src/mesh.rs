@@ -3,15 +3,21 @@
 //!
 //! Surface nets: the field is sampled on a grid one plane at a time (memory
 //! grows with the square of the resolution, not its cube); every cell whose
-//! corners change sign gets one vertex at the mean of its edges' crossings,
-//! and every grid edge that changes sign becomes a quad joining the four
-//! cells around it, oriented so that its normal points to positive values
-//! (outside). Vertices are then projected onto the surface along the
-//! gradient (one Newton step, never farther than a cell), which removes most
-//! of the grid's bias at little cost: the surface has far fewer vertices than
-//! the grid has points. A field without holes in the region gives a closed,
-//! consistently oriented mesh (tested through its Euler characteristic).
+//! corners change sign gets one vertex per separate piece of surface in it
+//! (its crossed edges joined across the cell's faces, ambiguous faces
+//! decided by the asymptotic decider) at the mean of the piece's edge
+//! crossings, and every grid edge that changes sign becomes a quad joining
+//! the pieces of the four cells around it, oriented so that its normal
+//! points to positive values (outside). Vertices are then projected onto
+//! the surface along the gradient (one Newton step, never farther than a
+//! cell), which removes most of the grid's bias at little cost: the surface
+//! has far fewer vertices than the grid has points. A field without holes
+//! in the region gives a closed, consistently oriented 2-manifold mesh:
+//! every edge in exactly two triangles, one fan of triangles around every
+//! vertex (tested on thin tubes, blobs and a gyroid, and through the Euler
+//! characteristic).
 
+use std::collections::HashMap;
 use std::io::{self, Write};
 use std::path::Path;
 
@@ -242,6 +248,165 @@ const CELL_EDGES: [(usize, usize); 12] = [
     (3, 7),
 ];
 
+/// The corners `[c00, c10, c01, c11]` of each cell face (ordered by the two
+/// axes in the face, so both cells sharing it see the same order) and its
+/// edges `[c00–c10, c10–c11, c01–c11, c00–c01]` as [`CELL_EDGES`] numbers.
+const CELL_FACES: [([usize; 4], [usize; 4]); 6] = {
+    let mut faces = [([0; 4], [0; 4]); 6];
+    let mut f = 0;
+    while f < 6 {
+        let (axis, side) = (f / 2, f % 2);
+        let (u, v) = ((axis + 1) % 3, (axis + 2) % 3);
+        let (u, v) = if u < v { (u, v) } else { (v, u) };
+        let at = side << axis;
+        let c = [at, at | 1 << u, at | 1 << v, at | 1 << u | 1 << v];
+        let pairs = [(c[0], c[1]), (c[1], c[3]), (c[2], c[3]), (c[0], c[2])];
+        let mut k = 0;
+        while k < 4 {
+            let mut e = 0;
+            while CELL_EDGES[e].0 != pairs[k].0 || CELL_EDGES[e].1 != pairs[k].1 {
+                e += 1;
+            }
+            faces[f].1[k] = e;
+            k += 1;
+        }
+        faces[f].0 = c;
+        f += 1;
+    }
+    faces
+};
+
+/// The separate pieces of surface in one cell: crossed edges joined where
+/// the surface runs from one to the other across a cell face. A cell where
+/// two pieces meet at a single vertex would make the mesh non-manifold
+/// there (two surfaces touching at a point or along an edge); each piece
+/// gets its own vertex instead, as in manifold dual contouring.
+struct CellPieces {
+    /// How many pieces (0 to 4).
+    count: u8,
+    /// Two bits per cell edge: the piece that crosses it.
+    packed: u32,
+    crossed: u16,
+    /// Per face with all four edges crossed: whether the corners kept apart
+    /// are inside, and whether one piece crosses the face twice.
+    ambiguous: [Option<(bool, bool)>; 6],
+}
+
+impl CellPieces {
+    /// The pieces of a cell with corner values `corner`.
+    fn of(corner: &[f32; 8]) -> CellPieces {
+        let inside = |v: f32| v < 0.0;
+        let mut crossed = 0u16;
+        for (e, &(a, b)) in CELL_EDGES.iter().enumerate() {
+            if inside(corner[a]) != inside(corner[b]) {
+                crossed |= 1 << e;
+            }
+        }
+        if crossed == 0 {
+            return CellPieces {
+                count: 0,
+                packed: 0,
+                crossed,
+                ambiguous: [None; 6],
+            };
+        }
+        let mut parent: [u8; 12] = std::array::from_fn(|e| e as u8);
+        fn root(parent: &mut [u8; 12], mut e: u8) -> u8 {
+            while parent[e as usize] != e {
+                e = parent[e as usize];
+            }
+            e
+        }
+        let mut join = |a: usize, b: usize| {
+            let (ra, rb) = (root(&mut parent, a as u8), root(&mut parent, b as u8));
+            parent[ra as usize] = rb;
+        };
+        let mut ambiguous = [None; 6];
+        for (f, (c, e)) in CELL_FACES.into_iter().enumerate() {
+            let on = e.map(|e| crossed >> e & 1 == 1);
+            match on.iter().filter(|&&x| x).count() {
+                2 => {
+                    let mut it = (0..4).filter(|&k| on[k]);
+                    let (a, b) = (it.next().unwrap(), it.next().unwrap());
+                    join(e[a], e[b]);
+                }
+                4 => {
+                    // Diagonal corners alike: the bilinear interpolant's
+                    // saddle decides which pair the surface keeps apart
+                    // (the asymptotic decider). It depends on the face
+                    // alone, so both cells sharing it agree.
+                    let v = c.map(|c| corner[c]);
+                    let [a, b, cc, d] = v.map(|x| x as f64);
+                    let saddle = (a * d - b * cc) / (a + d - b - cc);
+                    let joins_00_11 = inside(saddle as f32) == inside(v[0]);
+                    if joins_00_11 {
+                        // The surface cuts off c10 and c01.
+                        join(e[0], e[1]);
+                        join(e[2], e[3]);
+                    } else {
+                        join(e[0], e[3]);
+                        join(e[1], e[2]);
+                    }
+                    ambiguous[f] = Some(inside(v[if joins_00_11 { 1 } else { 0 }]));
+                }
+                _ => {}
+            }
+        }
+        // Edges 0 and 2 of a face lie in its two different strips.
+        let ambiguous = std::array::from_fn(|f| {
+            let e = CELL_FACES[f].1;
+            ambiguous[f].map(|cut_inside: bool| {
+                let twice = root(&mut parent, e[0] as u8) == root(&mut parent, e[2] as u8);
+                (cut_inside, twice)
+            })
+        });
+        let (mut count, mut packed) = (0u8, 0u32);
+        let mut label = [u8::MAX; 12];
+        for e in 0..12 {
+            if crossed >> e & 1 == 0 {
+                continue;
+            }
+            let r = root(&mut parent, e as u8) as usize;
+            if label[r] == u8::MAX {
+                label[r] = count;
+                count += 1;
+            }
+            packed |= (label[r] as u32) << (2 * e);
+        }
+        CellPieces {
+            count,
+            packed,
+            crossed,
+            ambiguous,
+        }
+    }
+
+    /// The piece crossing cell edge `e`, if it is crossed.
+    fn piece(&self, e: usize) -> Option<usize> {
+        (self.crossed >> e & 1 == 1).then_some((self.packed >> (2 * e) & 3) as usize)
+    }
+}
+
+/// A cell's vertices: the first, and each crossed edge's piece.
+#[derive(Clone, Copy)]
+struct CellVertices {
+    first: u32,
+    pieces: u32,
+}
+
+impl CellVertices {
+    const NONE: CellVertices = CellVertices {
+        first: NO_VERTEX,
+        pieces: 0,
+    };
+
+    /// The vertex of the piece crossing cell edge `e` (meaningless where
+    /// the edge is not crossed: quads are only made of crossed edges).
+    fn at(&self, e: usize) -> u32 {
+        self.first.wrapping_add(self.pieces >> (2 * e) & 3)
+    }
+}
+
 /// Why a mesh could not be made.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum MeshError {
@@ -339,11 +504,19 @@ pub fn surface_nets(
     };
     let inside = |v: f32| v < 0.0;
     let mut below = plane(0);
-    let mut prev = vec![NO_VERTEX; cx * cy];
+    let mut prev = vec![CellVertices::NONE; cx * cy];
     let mut quads: Vec<[u32; 4]> = Vec::new();
+    // Ambiguous faces crossed twice by one piece of a cell, by (lowest
+    // corner, normal axis): which corners the face keeps apart, and how
+    // many of its two cells do so. Where both do, the pieces meet along two
+    // strips and `strips` holds the quads to separate.
+    let mut twice: HashMap<(usize, u8), (bool, u8)> = HashMap::new();
+    // (quad, face, its grid edge's inside end, outside end).
+    let mut strips: Vec<(usize, (usize, u8), usize, usize)> = Vec::new();
+    let point = |p: [usize; 3]| p[0] + nx * (p[1] + ny * p[2]);
     for k in 0..nz - 1 {
         let above = plane(k + 1);
-        let mut cur = vec![NO_VERTEX; cx * cy];
+        let mut cur = vec![CellVertices::NONE; cx * cy];
         for j in 0..cy {
             for i in 0..cx {
                 let at = |c: usize| {
@@ -352,48 +525,80 @@ pub fn surface_nets(
                     layer[(j + dj) * nx + i + di]
                 };
                 let corner: [f32; 8] = std::array::from_fn(at);
-                let signs = corner.iter().filter(|&&v| inside(v)).count();
-                if signs == 0 || signs == 8 {
+                let pieces = CellPieces::of(&corner);
+                if pieces.count == 0 {
                     continue;
                 }
-                let (mut sum, mut n) = ([0.0f64; 3], 0.0);
-                for &(a, b) in &CELL_EDGES {
-                    let (fa, fb) = (corner[a], corner[b]);
-                    if inside(fa) == inside(fb) {
-                        continue;
+                for (f, a) in pieces.ambiguous.iter().enumerate() {
+                    if let Some((cut_inside, true)) = *a {
+                        let (axis, side) = (f / 2, f % 2);
+                        let mut o = [i, j, k];
+                        o[axis] += side;
+                        let key = (o[0] + nx * (o[1] + ny * o[2]), axis as u8);
+                        twice.entry(key).or_insert((cut_inside, 0)).1 += 1;
                     }
+                }
+                let first = mesh.vertices.len();
+                if first + pieces.count as usize > max_vertices.min(NO_VERTEX as usize) {
+                    return Err(MeshError::TooManyVertices(max_vertices));
+                }
+                // One vertex per piece, at the mean of its edges' crossings.
+                let mut sum = [[0.0f64; 3]; 4];
+                let mut n = [0.0f64; 4];
+                for (e, &(a, b)) in CELL_EDGES.iter().enumerate() {
+                    let Some(piece) = pieces.piece(e) else {
+                        continue;
+                    };
+                    let (fa, fb) = (corner[a], corner[b]);
                     let t = fa as f64 / (fa as f64 - fb as f64);
                     let t = if t.is_finite() {
                         t.clamp(0.0, 1.0)
                     } else {
                         0.5
                     };
-                    for (axis, s) in sum.iter_mut().enumerate() {
+                    for (axis, s) in sum[piece].iter_mut().enumerate() {
                         let (oa, ob) = ((a >> axis) & 1, (b >> axis) & 1);
                         *s += oa as f64 + (ob as f64 - oa as f64) * t;
                     }
-                    n += 1.0;
+                    n[piece] += 1.0;
                 }
                 let base = [i, j, k];
-                let v: [f32; 3] = std::array::from_fn(|a| {
-                    (grid.min[a] + (base[a] as f64 + sum[a] / n) * grid.step) as f32
-                });
-                if mesh.vertices.len() >= max_vertices.min(NO_VERTEX as usize) {
-                    return Err(MeshError::TooManyVertices(max_vertices));
+                for p in 0..pieces.count as usize {
+                    mesh.vertices.push(std::array::from_fn(|a| {
+                        (grid.min[a] + (base[a] as f64 + sum[p][a] / n[p]) * grid.step) as f32
+                    }));
                 }
-                cur[j * cx + i] = mesh.vertices.len() as u32;
-                mesh.vertices.push(v);
+                cur[j * cx + i] = CellVertices {
+                    first: first as u32,
+                    pieces: pieces.packed,
+                };
             }
         }
         let below_at = |i: usize, j: usize| below[j * nx + i];
         // A quad `[v00, v10, v11, v01]` in the plane of the two other axes
         // (cyclic after the edge's axis) faces +axis; flip it when the
         // field grows towards -axis.
-        let mut quad = |from: f32, to: f32, q: [u32; 4]| {
+        // The quad of the grid edge from `at` one step along `axis`.
+        let mut quad = |from: f32, to: f32, at: [usize; 3], axis: usize, q: [u32; 4]| {
             if inside(from) == inside(to) {
                 return;
             }
-            debug_assert!(q.iter().all(|&v| v != NO_VERTEX));
+            if !twice.is_empty() {
+                let mut end = at;
+                end[axis] += 1;
+                let (i_end, o_end) = if inside(from) { (at, end) } else { (end, at) };
+                // The four faces around the edge.
+                for b in (0..3).filter(|&b| b != axis) {
+                    for back in 0..=at[b].min(1) {
+                        let mut corner = at;
+                        corner[b] -= back;
+                        let key = (point(corner), (3 - axis - b) as u8);
+                        if twice.get(&key).is_some_and(|t| t.1 == 2) {
+                            strips.push((quads.len(), key, point(i_end), point(o_end)));
+                        }
+                    }
+                }
+            }
             quads.push(if inside(from) {
                 q
             } else {
@@ -401,14 +606,22 @@ pub fn surface_nets(
             });
         };
         // Edges along z between planes k and k+1: the cells around them
-        // are all in this layer.
+        // are all in this layer. Each cell gives the vertex of its piece
+        // of surface that crosses the edge (named by its cell-edge number).
         for j in 1..cy {
             for i in 1..cx {
-                let c = |i: usize, j: usize| cur[j * cx + i];
+                let c = |i: usize, j: usize, e: usize| cur[j * cx + i].at(e);
                 quad(
                     below_at(i, j),
                     above[j * nx + i],
-                    [c(i - 1, j - 1), c(i, j - 1), c(i, j), c(i - 1, j)],
+                    [i, j, k],
+                    2,
+                    [
+                        c(i - 1, j - 1, 11),
+                        c(i, j - 1, 10),
+                        c(i, j, 8),
+                        c(i - 1, j, 9),
+                    ],
                 );
             }
         }
@@ -416,15 +629,17 @@ pub fn surface_nets(
         // this layer and the one before.
         if k > 0 {
             let (p, c) = (
-                |i: usize, j: usize| prev[j * cx + i],
-                |i: usize, j: usize| cur[j * cx + i],
+                |i: usize, j: usize, e: usize| prev[j * cx + i].at(e),
+                |i: usize, j: usize, e: usize| cur[j * cx + i].at(e),
             );
             for j in 1..cy {
                 for i in 0..cx {
                     quad(
                         below_at(i, j),
                         below_at(i + 1, j),
-                        [p(i, j - 1), p(i, j), c(i, j), c(i, j - 1)],
+                        [i, j, k],
+                        0,
+                        [p(i, j - 1, 3), p(i, j, 2), c(i, j, 0), c(i, j - 1, 1)],
                     );
                 }
             }
@@ -433,7 +648,9 @@ pub fn surface_nets(
                     quad(
                         below_at(i, j),
                         below_at(i, j + 1),
-                        [p(i - 1, j), c(i - 1, j), c(i, j), p(i, j)],
+                        [i, j, k],
+                        1,
+                        [p(i - 1, j, 7), c(i - 1, j, 5), c(i, j, 4), p(i, j, 6)],
                     );
                 }
             }
@@ -445,13 +662,24 @@ pub fn surface_nets(
     if broken {
         return Err(MeshError::BoundBroken);
     }
+    let polygons = separate_strips(&mut mesh, &quads, &strips, &twice, max_vertices)?;
     refine(field, grid.step as f32, &mut mesh);
     let v = &mesh.vertices;
     let len2 = |a: u32, b: u32| {
         let (a, b) = (v[a as usize], v[b as usize]);
         (0..3).map(|k| (a[k] - b[k]).powi(2)).sum::<f32>()
     };
-    for q in quads {
+    for (n, q) in quads.into_iter().enumerate() {
+        if let Some((p, from)) = polygons.get(&n) {
+            // A fan from the inserted vertex: its diagonals reach vertices
+            // of this quad alone, so no edge is made twice.
+            let at = p.iter().position(|x| x == from).expect("inserted vertex");
+            for k in 1..p.len() - 1 {
+                let (a, b) = ((at + k) % p.len(), (at + k + 1) % p.len());
+                mesh.triangles.push([p[at], p[a], p[b]]);
+            }
+            continue;
+        }
         // Split along the shorter diagonal: better-shaped triangles.
         if len2(q[0], q[2]) <= len2(q[1], q[3]) {
             mesh.triangles.push([q[0], q[1], q[2]]);
@@ -462,6 +690,72 @@ pub fn surface_nets(
         }
     }
     Ok(mesh)
+}
+
+/// Where a face is crossed twice by one piece of each of its cells, the
+/// two pieces' vertices X and Y would share an edge with four quads (the
+/// surface meets itself along two strips across the face). Each strip gets
+/// a vertex of its own between X and Y, in its two quads, which become
+/// polygons. Returns them by quad, with the first inserted vertex.
+fn separate_strips(
+    mesh: &mut Mesh,
+    quads: &[[u32; 4]],
+    strips: &[(usize, (usize, u8), usize, usize)],
+    twice: &HashMap<(usize, u8), (bool, u8)>,
+    max_vertices: usize,
+) -> Result<HashMap<usize, (Vec<u32>, u32)>, MeshError> {
+    let mut polygons: HashMap<usize, (Vec<u32>, u32)> = HashMap::new();
+    let mut by_face: HashMap<(usize, u8), Vec<(usize, usize, usize)>> = HashMap::new();
+    for &(q, face, i_end, o_end) in strips {
+        by_face.entry(face).or_default().push((q, i_end, o_end));
+    }
+    let mut faces: Vec<_> = by_face.into_iter().collect();
+    // Deterministic vertex numbering.
+    faces.sort_unstable_by_key(|f| f.0);
+    for (face, four) in faces {
+        let cut_inside = twice[&face].0;
+        // X and Y: the vertices all four quads share.
+        let shared: Vec<u32> = quads[four[0].0]
+            .iter()
+            .copied()
+            .filter(|v| four.iter().all(|&(q, ..)| quads[q].contains(v)))
+            .collect();
+        if four.len() != 4 || shared.len() != 2 {
+            debug_assert!(false, "a face crossed twice on both sides has four quads");
+            continue;
+        }
+        let (x, y) = (shared[0], shared[1]);
+        // A strip cuts off one corner of the face: its two edges share
+        // that corner, the end of the class kept apart.
+        let corner =
+            |&(_, i_end, o_end): &(usize, usize, usize)| if cut_inside { i_end } else { o_end };
+        for a in 0..4 {
+            for b in a + 1..4 {
+                if corner(&four[a]) != corner(&four[b]) {
+                    continue;
+                }
+                if mesh.vertices.len() >= max_vertices.min(NO_VERTEX as usize) {
+                    return Err(MeshError::TooManyVertices(max_vertices));
+                }
+                let m = mesh.vertices.len() as u32;
+                let (px, py) = (mesh.vertices[x as usize], mesh.vertices[y as usize]);
+                mesh.vertices
+                    .push(std::array::from_fn(|k| 0.5 * (px[k] + py[k])));
+                for q in [four[a].0, four[b].0] {
+                    let entry = polygons.entry(q).or_insert_with(|| (quads[q].to_vec(), m));
+                    let p = &mut entry.0;
+                    let n = p.len();
+                    if let Some(k) = (0..n).find(|&k| {
+                        let (u, w) = (p[k], p[(k + 1) % n]);
+                        (u == x && w == y) || (u == y && w == x)
+                    }) {
+                        p.insert(k + 1, m);
+                    }
+                }
+            }
+        }
+    }
+    Ok(polygons)
 }
 
 /// Moves each vertex onto the surface by one Newton step along the
@@ -781,6 +1075,140 @@ mod tests {
         };
         let m = mesh_of(&plane, -1.0, 1.0, 8);
         assert!(m.vertices.iter().all(|v| v[2].abs() < 1e-6));
+    }
+
+    /// Every edge of `m` borders exactly two triangles, once in each
+    /// direction (closed and consistently oriented), and the triangles
+    /// around each vertex form one fan (no two surfaces meeting at a point).
+    fn assert_two_manifold(m: &Mesh, what: &str) {
+        use std::collections::HashMap;
+        let mut edges: HashMap<(u32, u32), u32> = HashMap::new();
+        for t in &m.triangles {
+            for k in 0..3 {
+                *edges.entry((t[k], t[(k + 1) % 3])).or_default() += 1;
+            }
+        }
+        let bad = edges
+            .iter()
+            .filter(|(&(a, b), &n)| n != 1 || edges.get(&(b, a)) != Some(&1))
+            .count();
+        assert_eq!(
+            bad, 0,
+            "{what}: {bad} directed edges not shared by exactly two triangles"
+        );
+        // Around each vertex, "next" maps the far corner of one triangle to
+        // that of the next: a 2-manifold vertex has a single cycle.
+        let mut next: HashMap<u32, Vec<(u32, u32)>> = HashMap::new();
+        for t in &m.triangles {
+            for k in 0..3 {
+                next.entry(t[k])
+                    .or_default()
+                    .push((t[(k + 1) % 3], t[(k + 2) % 3]));
+            }
+        }
+        for (v, fan) in &next {
+            let step: HashMap<u32, u32> = fan.iter().copied().collect();
+            let (start, mut at, mut n) = (fan[0].0, fan[0].1, 1);
+            while at != start && n <= fan.len() {
+                at = step[&at];
+                n += 1;
+            }
+            assert_eq!(
+                n,
+                fan.len(),
+                "{what}: vertex {v} has {} triangles in more than one fan",
+                fan.len()
+            );
+        }
+        assert!(
+            m.vertices
+                .iter()
+                .enumerate()
+                .all(|(i, _)| next.contains_key(&(i as u32))),
+            "{what}: a vertex without triangles"
+        );
+    }
+
+    /// Fields whose grids have cells with two or more pieces of surface
+    /// (diagonal corners on a face or through a cell, thin walls, many small
+    /// blobs) still give closed 2-manifold meshes, as a `trimesh`
+    /// watertightness check would ask.
+    #[test]
+    fn closed_surfaces_give_two_manifold_meshes() {
+        let gyroid = |p: &[[f32; 3]], o: &mut [f32]| {
+            for (p, o) in p.iter().zip(o) {
+                let [x, y, z] = p.map(|c| c * 9.0);
+                let g = x.sin() * y.cos() + y.sin() * z.cos() + z.sin() * x.cos();
+                // Closed inside a sphere: the gyroid shell cut by it.
+                let r = (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt() - 0.9;
+                *o = (g.abs() - 0.2).max(r);
+            }
+        };
+        assert_two_manifold(&mesh_of(&gyroid, -1.0, 1.0, 24), "gyroid shell");
+        assert_two_manifold(
+            &mesh_of(&sphere(0.8, [0.01, 0.02, 0.03]), -1.0, 1.0, 16),
+            "sphere",
+        );
+        for res in [12, 17, 20, 23, 31] {
+            assert_two_manifold(&mesh_of(&torus(0.6, 0.06), -1.0, 1.0, res), "thin torus");
+        }
+        // Thin tubes in every direction, about a cell across.
+        let mut rng = SplitMix64::new(5);
+        for trial in 0..40 {
+            let tubes: Vec<([f32; 3], [f32; 3], f32)> = (0..8)
+                .map(|_| {
+                    let a = [0; 3].map(|_| rng.next_f32() * 1.4 - 0.7);
+                    let b = [0; 3].map(|_| rng.next_f32() * 1.4 - 0.7);
+                    (a, b, 0.03 + 0.05 * rng.next_f32())
+                })
+                .collect();
+            let f = |p: &[[f32; 3]], o: &mut [f32]| {
+                for (p, o) in p.iter().zip(o) {
+                    *o = tubes
+                        .iter()
+                        .map(|(a, b, r)| {
+                            let pa: [f32; 3] = std::array::from_fn(|k| p[k] - a[k]);
+                            let ba: [f32; 3] = std::array::from_fn(|k| b[k] - a[k]);
+                            let dot =
+                                |x: [f32; 3], y: [f32; 3]| x[0] * y[0] + x[1] * y[1] + x[2] * y[2];
+                            let h = (dot(pa, ba) / dot(ba, ba)).clamp(0.0, 1.0);
+                            let d: [f32; 3] = std::array::from_fn(|k| pa[k] - ba[k] * h);
+                            dot(d, d).sqrt() - r
+                        })
+                        .fold(f32::INFINITY, f32::min);
+                }
+            };
+            assert_two_manifold(
+                &mesh_of(&f, -1.0, 1.0, 16 + trial % 9),
+                &format!("tubes {trial}"),
+            );
+        }
+        // Blobs of random size and place, many of them near cell size, so
+        // that cells see every marching-cubes case including ambiguous ones.
+        let mut rng = SplitMix64::new(11);
+        for trial in 0..80 {
+            let balls: Vec<([f32; 3], f32)> = (0..30)
+                .map(|_| {
+                    let c = [0; 3].map(|_| rng.next_f32() * 1.6 - 0.8);
+                    (c, 0.02 + 0.12 * rng.next_f32())
+                })
+                .collect();
+            let f = |p: &[[f32; 3]], o: &mut [f32]| {
+                for (p, o) in p.iter().zip(o) {
+                    *o = balls
+                        .iter()
+                        .map(|(c, r)| {
+                            let d = [p[0] - c[0], p[1] - c[1], p[2] - c[2]];
+                            (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt() - r
+                        })
+                        .fold(f32::INFINITY, f32::min);
+                }
+            };
+            assert_two_manifold(
+                &mesh_of(&f, -1.0, 1.0, 14 + trial % 7),
+                &format!("blobs {trial}"),
+            );
+        }
     }
 
     #[test]
