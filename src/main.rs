@@ -17,6 +17,7 @@ use sdfl_stdlib::value::{Statement, StatementKind};
 mod term;
 mod plan;
 mod sweep;
+mod view;
 mod watch;
 
 use plan::plan_text;
@@ -102,6 +103,21 @@ enum Command {
         /// Stop after this many runs (the first, then one per change).
         #[arg(long)]
         max_runs: Option<usize>,
+    },
+    /// Serve a local web viewer of a file on 127.0.0.1: orbit and zoom its
+    /// render scenes, reloaded on save; training curves and held-out views
+    /// from OUT while a run (here or in another process) trains.
+    View {
+        file: PathBuf,
+        /// Where training writes its metrics and held-out views.
+        #[arg(long, default_value = "out")]
+        out: PathBuf,
+        /// Port on 127.0.0.1 (0 picks a free one and prints it).
+        #[arg(long, default_value_t = 7878)]
+        port: u16,
+        /// Worker threads for tracing frames (default: all cores).
+        #[arg(long)]
+        threads: Option<usize>,
     },
     /// The assignment's part 0: transmittance through three slabs; prints
     /// the four transmittances and writes the figure.
@@ -231,7 +247,9 @@ fn parse_set(s: &str) -> Result<(String, Vec<f64>), String> {
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let threads = match cli.command {
-        Command::Run { threads, .. } | Command::Watch { threads, .. } => threads,
+        Command::Run { threads, .. }
+        | Command::Watch { threads, .. }
+        | Command::View { threads, .. } => threads,
         _ => None,
     };
     if matches!(
@@ -240,6 +258,7 @@ fn main() -> ExitCode {
             | Command::Sweep { .. }
             | Command::Transmittance { .. }
             | Command::Watch { .. }
+            | Command::View { .. }
     ) {
         if set_up_threads(threads, std::env::var_os("RAYON_NUM_THREADS").as_deref()).is_err() {
             return ExitCode::FAILURE;
@@ -308,6 +327,12 @@ fn main() -> ExitCode {
             },
             max_runs,
         }),
+        Command::View {
+            file,
+            out,
+            port,
+            threads: _,
+        } => view::view(view::View { file, out, port }),
         Command::Transmittance { out } => {
             let (w, h) = (640, 360);
             let (rgb, t) = sdfl_runtime::volume::figures::transmittance_figure(w, h);

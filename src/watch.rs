@@ -88,21 +88,26 @@ pub fn watch(w: Watch) -> ExitCode {
             "watch: waiting for {} to change (Ctrl-C stops)",
             w.file.display()
         );
-        let mut now = sources_stamp(&w.file);
-        while seen == now {
-            std::thread::sleep(POLL);
-            now = sources_stamp(&w.file);
+        next_change(&w.file, seen);
+    }
+}
+
+/// Waits until the sources' stamp differs from `seen` and has settled
+/// (unchanged for one more poll, so that a save written in several steps,
+/// truncated then filled, is read whole); returns the new stamp.
+pub fn next_change(file: &Path, seen: String) -> String {
+    let mut now = sources_stamp(file);
+    while seen == now {
+        std::thread::sleep(POLL);
+        now = sources_stamp(file);
+    }
+    loop {
+        std::thread::sleep(POLL);
+        let later = sources_stamp(file);
+        if later == now {
+            return now;
         }
-        // Settled: unchanged for one more poll (a save written in several
-        // steps, truncated then filled, is read whole).
-        loop {
-            std::thread::sleep(POLL);
-            let later = sources_stamp(&w.file);
-            if later == now {
-                break;
-            }
-            now = later;
-        }
+        now = later;
     }
 }
 
@@ -364,7 +369,7 @@ fn stamp(path: &Path) -> Option<(u64, u64)> {
 /// import) is saved: their names, sizes and modification times, and the
 /// content of the small ones (an edit within the file system's time
 /// resolution keeps the time).
-fn sources_stamp(file: &Path) -> String {
+pub fn sources_stamp(file: &Path) -> String {
     let mut h = Fnv::default();
     let mut files = vec![file.to_path_buf()];
     let dir = match file.parent() {
