@@ -170,3 +170,65 @@ fn a_save_runs_the_changed_statement_and_diagnostics_show_at_once() {
         "{seen:#?}"
     );
 }
+
+#[test]
+fn a_longer_training_run_resumes_from_its_checkpoint() {
+    let dir = temp("train");
+    let (file, out) = (dir.join("scene.sdfl"), dir.join("out"));
+    let train = |iterations: usize| {
+        format!(
+            "let target = sdf_volume(sphere(1), color: [0.2, 0.6, 0.9])\n\
+             let sampler = stratified(samples: 8, near: 0, far: 6)\n\
+             train fit {{\n\
+               model: sdf_volume(sphere(1, center: param([0.3, 0.2, 0])), color: param([0.3, 0.1, 0.1])),\n\
+               data: render_views(target, cameras: [look_at(eye: [0, 0, -3])], size: [16, 16], sampler: sampler),\n\
+               sampler: sampler, rays: 64, optimizer: adam(lr: 1e-2), iterations: {iterations},\n\
+               checkpoint: \"fit.ckpt\",\n\
+             }}\n"
+        )
+    };
+    std::fs::write(&file, train(10)).unwrap();
+    let (ok, lines, err) = watch_once(&file, &out);
+    assert!(ok, "{err}");
+    assert_eq!(lines, ["ran fit"]);
+    let (_, lines, _) = watch_once(&file, &out);
+    assert_eq!(lines, ["skipped fit"]);
+    // More steps: the statement runs again, from the kept checkpoint.
+    std::fs::write(&file, train(20)).unwrap();
+    let (ok, lines, err) = watch_once(&file, &out);
+    assert!(ok, "{err}");
+    assert_eq!(lines, ["ran fit"]);
+    assert!(err.contains("resumed at 10"), "{err}");
+}
+
+#[test]
+fn a_changed_data_file_runs_its_training_again() {
+    let dir = temp("data");
+    let (file, out) = (dir.join("scene.sdfl"), dir.join("out"));
+    let view = |g: u8| {
+        image::RgbImage::from_pixel(16, 16, image::Rgb([20, g, 200]))
+            .save(dir.join("view.png"))
+            .unwrap()
+    };
+    view(100);
+    std::fs::write(
+        &file,
+        "let sampler = stratified(samples: 8, near: 0, far: 6)\n\
+         train fit {\n\
+           model: sdf_volume(sphere(1, center: param([0.3, 0.2, 0])), color: param([0.3, 0.1, 0.1])),\n\
+           data: views([\"view.png\"], cameras: [look_at(eye: [0, 0, -3])]),\n\
+           sampler: sampler, rays: 64, optimizer: adam(lr: 1e-2), iterations: 5,\n\
+         }\n",
+    )
+    .unwrap();
+    let (ok, lines, err) = watch_once(&file, &out);
+    assert!(ok, "{err}");
+    assert_eq!(lines, ["ran fit"]);
+    let (_, lines, _) = watch_once(&file, &out);
+    assert_eq!(lines, ["skipped fit"]);
+    // The same size, other pixels: the scene file is unchanged, its input is not.
+    view(101);
+    let (ok, lines, err) = watch_once(&file, &out);
+    assert!(ok, "{err}");
+    assert_eq!(lines, ["ran fit"]);
+}
