@@ -65,6 +65,7 @@ impl Server {
             .and_then(|r| r.split('/').next())
             .unwrap_or_else(|| panic!("no address in {line:?}"))
             .to_string();
+        assert!(addr.starts_with("127.0.0.1:"), "served on {addr}");
         Server { child, addr }
     }
 
