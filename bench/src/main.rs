@@ -11,7 +11,7 @@
 //! renderer (see `peer.rs`), `-- showcase` the showcase's trace with and
 //! without tiles.
 //! `cargo run --release -p sdfl-bench -- train` times training steps instead
-//! (see `train.rs`; `-- train 20 fused` the fused kernel only); `-- nerf` times NeRF steps and `-- neural-sdf` neural SDF steps (see `nerf.rs`); `-- density` what each density runs through (see `density.rs`).
+//! (see `train.rs`; `-- train 20 fused` the fused kernel only); `-- nerf` times NeRF steps and `-- neural-sdf` neural SDF steps (see `nerf.rs`); `-- density` what each density runs through (see `density.rs`); `-- view` the frames per second of `sdfl view` (see `view.rs`).
 #![warn(missing_docs)]
 
 use std::time::Instant;
@@ -29,6 +29,7 @@ mod density;
 mod nerf;
 mod peer;
 mod train;
+mod view;
 
 /// Deterministic uniform numbers in [0, 1).
 pub struct Lcg(pub u64);
@@ -257,6 +258,14 @@ fn showcase_main(reps: usize) {
 }
 
 fn main() {
+    if std::env::args().nth(1).as_deref() == Some("view") {
+        let file = std::env::args().nth(2);
+        let frames = std::env::args().nth(3).and_then(|r| r.parse().ok());
+        return view::main(
+            file.as_deref().unwrap_or("examples/large_scene.sdfl"),
+            frames.unwrap_or(60),
+        );
+    }
     if std::env::args().nth(1).as_deref() == Some("showcase") {
         let reps = std::env::args()
             .nth(2)

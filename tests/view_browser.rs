@@ -1,0 +1,157 @@
+//! `sdfl view`'s page in a real headless browser (Chromium, Debian's
+//! package; `.ci/run` installs it when missing). The page must load the
+//! scenes, request a frame and draw it: its frame counter passes 0 and the
+//! canvas in a screenshot is not blank.
+//!
+//! Without a browser this test fails, naming what to install: set
+//! `SDFL_BROWSER` to another Chromium-like binary to use that one.
+
+use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+
+fn temp(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("sdfl-browser-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+/// The browser: `SDFL_BROWSER`, else the first of Chromium's names on PATH.
+fn browser() -> PathBuf {
+    if let Some(b) = std::env::var_os("SDFL_BROWSER") {
+        return PathBuf::from(b);
+    }
+    let names = [
+        "chromium",
+        "chromium-headless-shell",
+        "chromium-browser",
+        "google-chrome",
+    ];
+    let path = std::env::var_os("PATH").unwrap_or_default();
+    for dir in std::env::split_paths(&path) {
+        for n in names {
+            let p = dir.join(n);
+            if p.is_file() {
+                return p;
+            }
+        }
+    }
+    panic!(
+        "no headless browser found (tried {names:?} on PATH): install Debian's `chromium` \
+         (`apt-get install -y chromium`, as .ci/run does) or set SDFL_BROWSER"
+    );
+}
+
+struct Server(Child);
+
+impl Drop for Server {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+/// `sdfl view` on a free port: the server and its URL.
+fn serve(file: &Path, out: &Path) -> (Server, String) {
+    let mut child = Command::new(env!("CARGO_BIN_EXE_sdfl"))
+        .args(["view", file.to_str().unwrap(), "--port", "0"])
+        .args(["--out", out.to_str().unwrap()])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let mut line = String::new();
+    BufReader::new(child.stdout.take().unwrap())
+        .read_line(&mut line)
+        .unwrap();
+    let url = line
+        .split_whitespace()
+        .find(|w| w.starts_with("http://"))
+        .unwrap_or_else(|| panic!("no address in {line:?}"))
+        .to_string();
+    (Server(child), url)
+}
+
+/// Headless Chromium on `url` with `args`, its own profile; stdout.
+fn chromium(profile: &Path, url: &str, args: &[&str]) -> Vec<u8> {
+    let out = Command::new(browser())
+        .args([
+            "--headless",
+            // Root in containers has no user namespaces for the sandbox;
+            // the page is our own, on 127.0.0.1.
+            "--no-sandbox",
+            "--disable-gpu",
+            "--no-first-run",
+            "--hide-scrollbars",
+            // JavaScript runs (and fetches complete) for this much virtual
+            // time before the DOM or the screenshot is taken.
+            "--virtual-time-budget=20000",
+            &format!("--user-data-dir={}", profile.display()),
+        ])
+        .args(args)
+        .arg(url)
+        .output()
+        .expect("the browser starts");
+    assert!(
+        out.status.success(),
+        "the browser failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    out.stdout
+}
+
+#[test]
+fn the_page_draws_frames_in_a_headless_browser() {
+    let dir = temp("page");
+    let file = dir.join("scene.sdfl");
+    std::fs::write(
+        &file,
+        "render ball {\n\
+           scene: union(sphere(0.8), box(size: [0.5, 0.5, 0.5], center: [1, 0, 0])),\n\
+           material: lambert(albedo: [0.9, 0.5, 0.3], light: [1, 1, -1]),\n\
+           camera: look_at(eye: [1, 1, -3], at: [0, 0, 0], up: [0, 1, 0], focal: 1.5),\n\
+           size: [64, 64], background: [0, 0, 0],\n\
+           outputs: [image(\"ball.png\")],\n\
+         }\n",
+    )
+    .unwrap();
+    let (_server, url) = serve(&file, &dir.join("out"));
+
+    let dom = chromium(&dir.join("profile-dom"), &url, &["--dump-dom"]);
+    let dom = String::from_utf8_lossy(&dom);
+    let frames: u64 = dom
+        .split("data-frames=\"")
+        .nth(1)
+        .and_then(|r| r.split('"').next())
+        .and_then(|n| n.parse().ok())
+        .unwrap_or_else(|| panic!("no frame counter in the page: {dom}"));
+    assert!(frames > 0, "the page drew no frame: {dom}");
+    assert!(dom.contains("ball (2 primitives)"), "{dom}");
+
+    let shot = dir.join("shot.png");
+    chromium(
+        &dir.join("profile-shot"),
+        &url,
+        &[
+            &format!("--screenshot={}", shot.display()),
+            "--window-size=800,600",
+        ],
+    );
+    let img = image::open(&shot).unwrap().to_rgb8();
+    // The canvas starts at (12, 40) and is 512 px wide: the ball, shaded
+    // orange, lies within it on a black background.
+    let orange = (12..524)
+        .flat_map(|x| (40..552).map(move |y| (x, y)))
+        .filter(|&(x, y)| x < img.width() && y < img.height())
+        .filter(|&(x, y)| {
+            let p = img.get_pixel(x, y).0;
+            p[0] > 60 && p[0] > p[2] + 30
+        })
+        .count();
+    assert!(
+        orange > 5000,
+        "the canvas shows no scene ({orange} orange pixels); screenshot at {}",
+        shot.display()
+    );
+}
