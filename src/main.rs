@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::time::Instant;
 
-use clap::{Parser, Subcommand};
+use clap::{CommandFactory, Parser, Subcommand};
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use sdfl_lang::SourceFile;
 use sdfl_runtime::{jobs, run_job, Plan, RunOptions};
@@ -15,6 +15,8 @@ use sdfl_stdlib::value::{Statement, StatementKind};
 
 #[macro_use]
 mod term;
+mod completions;
+mod fmt;
 mod plan;
 mod sweep;
 
@@ -93,6 +95,10 @@ enum Command {
     },
     /// List the built-in functions and statements, or describe one.
     Docs { name: Option<String> },
+    /// Format files in place in the canonical layout (comments kept).
+    Fmt(fmt::FmtArgs),
+    /// Print the shell's completion script, e.g. `sdfl completions bash`.
+    Completions { shell: clap_complete::Shell },
 }
 
 /// Most worker threads per core: more only spend time spawning and
@@ -272,6 +278,11 @@ fn main() -> ExitCode {
             size,
         } => sweep(&file, &set.0, &set.1, &out, size),
         Command::Docs { name } => docs(name.as_deref()),
+        Command::Fmt(args) => fmt::fmt(&args),
+        Command::Completions { shell } => {
+            Stdout::new().print(&completions::completion_script(shell, &mut Cli::command()));
+            ExitCode::SUCCESS
+        }
         Command::Transmittance { out } => {
             let (w, h) = (640, 360);
             let (rgb, t) = sdfl_runtime::volume::figures::transmittance_figure(w, h);
