@@ -121,7 +121,7 @@ impl Token {
         Doc::Concat(vec![self.lead, Doc::Text(self.text), self.trail])
     }
     /// The token printed as `text` instead (a comma only when broken).
-    fn as_doc(self, doc: Doc) -> Doc {
+    fn printed_as(self, doc: Doc) -> Doc {
         Doc::Concat(vec![self.lead, doc, self.trail])
     }
 }
@@ -256,7 +256,7 @@ impl<'a> Formatter<'a> {
                 let mut docs = vec![self.token("import").doc(), Doc::text(" ")];
                 docs.push(self.atom(i.path_span));
                 if let Some(semi) = self.optional(";") {
-                    docs.push(semi.as_doc(Doc::Concat(Vec::new())));
+                    docs.push(semi.printed_as(Doc::Concat(Vec::new())));
                 }
                 Doc::Concat(docs)
             }
@@ -271,7 +271,7 @@ impl<'a> Formatter<'a> {
         docs.push(Doc::text(" "));
         docs.push(self.expr(&l.value));
         if let Some(semi) = self.optional(";") {
-            docs.push(semi.as_doc(Doc::Concat(Vec::new())));
+            docs.push(semi.printed_as(Doc::Concat(Vec::new())));
         }
         Doc::Concat(docs)
     }
@@ -373,7 +373,7 @@ impl<'a> Formatter<'a> {
             } else {
                 let comma = Doc::IfBreak(",");
                 match self.optional(",") {
-                    Some(t) => inner.push(t.as_doc(comma)),
+                    Some(t) => inner.push(t.printed_as(comma)),
                     None => inner.push(comma),
                 }
             }

@@ -34,9 +34,9 @@ pub fn trivia(text: &str, mut pos: usize) -> (Vec<Comment<'_>>, usize, usize) {
         let rest = &text[pos..];
         let len = if rest.starts_with("//") {
             rest.find('\n').unwrap_or(rest.len())
-        } else if rest.starts_with("/*") {
+        } else if let Some(body) = rest.strip_prefix("/*") {
             // Parsed files close every block comment.
-            rest[2..].find("*/").map_or(rest.len(), |n| n + 4)
+            body.find("*/").map_or(rest.len(), |n| n + 4)
         } else {
             return (comments, pos, newlines);
         };
