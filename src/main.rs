@@ -224,7 +224,10 @@ fn main() -> ExitCode {
     };
     if matches!(
         cli.command,
-        Command::Run { .. } | Command::Sweep { .. } | Command::Transmittance { .. }
+        Command::Run { .. }
+            | Command::Sweep { .. }
+            | Command::Transmittance { .. }
+            | Command::Fmt(_)
     ) {
         if set_up_threads(threads, std::env::var_os("RAYON_NUM_THREADS").as_deref()).is_err() {
             return ExitCode::FAILURE;
