@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::time::Instant;
 
-use clap::{Parser, Subcommand};
+use clap::{CommandFactory, Parser, Subcommand};
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use sdfl_lang::SourceFile;
 use sdfl_runtime::{jobs, run_job, Plan, RunOptions};
@@ -15,6 +15,8 @@ use sdfl_stdlib::value::{Statement, StatementKind};
 
 #[macro_use]
 mod term;
+mod completions;
+mod fmt;
 mod plan;
 mod sweep;
 mod view;
@@ -127,6 +129,10 @@ enum Command {
     },
     /// List the built-in functions and statements, or describe one.
     Docs { name: Option<String> },
+    /// Format files in place in the canonical layout (comments kept).
+    Fmt(fmt::FmtArgs),
+    /// Print the shell's completion script, e.g. `sdfl completions bash`.
+    Completions { shell: clap_complete::Shell },
 }
 
 /// Most worker threads per core: more only spend time spawning and
@@ -259,6 +265,7 @@ fn main() -> ExitCode {
             | Command::Transmittance { .. }
             | Command::Watch { .. }
             | Command::View { .. }
+            | Command::Fmt(_)
     ) {
         if set_up_threads(threads, std::env::var_os("RAYON_NUM_THREADS").as_deref()).is_err() {
             return ExitCode::FAILURE;
@@ -333,6 +340,11 @@ fn main() -> ExitCode {
             port,
             threads: _,
         } => view::view(view::View { file, out, port }),
+        Command::Fmt(args) => fmt::fmt(&args),
+        Command::Completions { shell } => {
+            Stdout::new().print(&completions::completion_script(shell, &mut Cli::command()));
+            ExitCode::SUCCESS
+        }
         Command::Transmittance { out } => {
             let (w, h) = (640, 360);
             let (rgb, t) = sdfl_runtime::volume::figures::transmittance_figure(w, h);

@@ -24,7 +24,10 @@ fn world() -> String {
     for (from, to) in [
         ("let columns = 6\n", "let columns = 4\n"),
         ("let rows = 5\n", "let rows = 4\n"),
-        ("size: [120, 90], background", "size: [48, 36], background"),
+        (
+            "size: [120, 90],\n  background",
+            "size: [48, 36],\n  background",
+        ),
     ] {
         assert!(out.contains(from), "{from}");
         out = out.replace(from, to);

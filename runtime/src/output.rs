@@ -358,6 +358,14 @@ impl Atomic {
         self.file.as_mut().expect("writer used after commit")
     }
 
+    /// Gives the file `permissions` before it is renamed into place (a
+    /// file rewritten in place keeps its mode).
+    pub fn set_permissions(&mut self, permissions: fs::Permissions) -> io::Result<()> {
+        let file = &self.writer().get_ref().inner;
+        file.set_permissions(permissions)
+            .map_err(|e| with_path(&self.path, e))
+    }
+
     /// Flushes, syncs and renames the file into place.
     pub fn commit(mut self) -> io::Result<()> {
         let file = self.file.take().expect("committed once");
