@@ -78,6 +78,7 @@ fn mesh_chamfer(reports: &[serde_json::Value]) -> Option<f64> {
 }
 
 /// One setting's measures, for the plots.
+#[derive(Clone, Copy)]
 struct Quality {
     value: f64,
     secs: f64,
@@ -172,8 +173,12 @@ pub(super) fn tables(name: &str, rows: &[(Row, PathBuf)]) -> std::io::Result<Tab
     }
     // Points in the order of the swept value, so the line runs along it.
     quality.sort_by(|a, b| a.value.total_cmp(&b.value));
-    let against_time = plot(name, &reference, held_out_any, &quality, Against::Time)?;
-    let against_value = plot(name, &reference, held_out_any, &quality, Against::Value)?;
+    let png = |against| {
+        let chart = chart(name, &reference, held_out_any, &quality, against);
+        sdfl_runtime::plot::render(&chart, 640, 400).and_then(|p| p.png())
+    };
+    let against_time = png(Against::Time)?;
+    let against_value = png(Against::Value)?;
     Ok(Tables {
         markdown,
         csv,
@@ -197,13 +202,13 @@ enum Against {
 /// Settings identical to the reference (the reference itself, and any
 /// whose PSNR is infinite or parameter error zero) are drawn as their own
 /// marked series at the best end of the axis, not dropped.
-fn plot(
+fn chart(
     name: &str,
     reference: &str,
     held_out_any: bool,
     quality: &[Quality],
     against: Against,
-) -> std::io::Result<Vec<u8>> {
+) -> Chart {
     let images_any = quality.iter().any(|q| q.psnr.is_some());
     // (title, the measure, whether higher is better)
     let (y_title, pick, higher): (String, fn(&Quality) -> Option<f64>, bool) = if held_out_any {
@@ -281,11 +286,76 @@ fn plot(
             name.to_string(),
         ),
     };
-    let chart = Chart {
+    Chart {
         title: format!("Sweep of `{name}`: {quality_name} against {against_what}"),
         x: Axis::new(x_title),
         y: Axis::new(y_title),
         series,
-    };
-    Ok(sdfl_runtime::plot::render(&chart, 640, 400).and_then(|p| p.png())?)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn q(value: f64, psnr: f64, is_ref: bool) -> Quality {
+        Quality {
+            value,
+            secs: value / 10.0,
+            held: None,
+            psnr: Some(psnr),
+            perr: None,
+            is_ref,
+        }
+    }
+
+    #[test]
+    fn points_follow_the_value_and_identical_settings_are_marked() {
+        // As `tables` hands them over: sorted by value, the reference (16)
+        // listed last in `--set` but not the largest.
+        let mut quality = vec![
+            q(8.0, 30.0, false),
+            q(2.0, 20.0, false),
+            q(32.0, f64::INFINITY, false),
+            q(4.0, 25.0, false),
+            q(16.0, f64::INFINITY, true),
+        ];
+        quality.sort_by(|a, b| a.value.total_cmp(&b.value));
+        let by_value = chart("n", "n=16", false, &quality, Against::Value);
+        assert_eq!(by_value.series.len(), 2);
+        let xs = |s: &Series| s.points.iter().map(|p| p.x).collect::<Vec<_>>();
+        assert_eq!(xs(&by_value.series[0]), [2.0, 4.0, 8.0]);
+        // Both identical settings drawn, above the best finite PSNR.
+        let marked = &by_value.series[1];
+        assert_eq!(xs(marked), [16.0, 32.0]);
+        assert!(marked.points.iter().all(|p| p.y.is_finite() && p.y > 30.0));
+        let labels: Vec<&str> = marked
+            .points
+            .iter()
+            .filter_map(|p| p.label.as_deref())
+            .collect();
+        assert!(
+            labels[0].ends_with("(reference)") && labels[1].ends_with("(= ref)"),
+            "{labels:?}"
+        );
+        // Against time, in the order of the value too (not of time).
+        let by_time = chart("n", "n=16", false, &quality, Against::Time);
+        let labels: Vec<&str> = by_time.series[0]
+            .points
+            .iter()
+            .filter_map(|p| p.label.as_deref())
+            .collect();
+        assert_eq!(labels, ["n=2", "n=4", "n=8"]);
+        // Held-out PSNR is absolute: nothing is marked, the reference is a point.
+        let held: Vec<Quality> = quality
+            .iter()
+            .map(|x| Quality {
+                held: Some(x.value),
+                ..*x
+            })
+            .collect();
+        let held_out = chart("n", "n=16", true, &held, Against::Value);
+        assert_eq!(held_out.series.len(), 1);
+        assert_eq!(xs(&held_out.series[0]), [2.0, 4.0, 8.0, 16.0, 32.0]);
+    }
 }

@@ -1,0 +1,264 @@
+//! `sdfl sweep` that stops, resumes and spreads: a row per finished
+//! setting, reruns that skip what is done (and redo what changed), shards
+//! and `--collect`, and a sweep killed halfway. Every setting here is an
+//! analytic volume render of a few pixels, not training.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output, Stdio};
+use std::time::{Duration, Instant};
+
+fn sdfl(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_sdfl"))
+        .args(args)
+        .output()
+        .expect("sdfl runs")
+}
+
+fn temp(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("sdfl-sweep-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+fn ok(out: &Output) -> String {
+    let err = String::from_utf8_lossy(&out.stderr).into_owned();
+    assert!(out.status.success(), "{err}");
+    err
+}
+
+const SCENE: &str =
+    "let samples = 8\nrender v { scene: sdf_volume(box(size: 1.5)), camera: look_at([0, 0, -3]),\n\
+     sampler: stratified(samples: samples), outputs: [image(\"v.png\")], size: [12, 12] }\n";
+
+/// A sweep's command line over `samples` into `out`, with `extra` flags.
+fn sweep(scene: &Path, out: &Path, extra: &[&str]) -> Output {
+    let mut args = vec![
+        "sweep",
+        scene.to_str().unwrap(),
+        "--set",
+        "samples=4,8,16,32",
+        "--out",
+        out.to_str().unwrap(),
+    ];
+    args.extend(extra);
+    sdfl(&args)
+}
+
+/// The CSV without its seconds column (the one thing two runs differ in).
+fn without_seconds(csv: &str) -> Vec<String> {
+    csv.lines()
+        .map(|l| {
+            let mut cells: Vec<&str> = l.split(',').collect();
+            cells.remove(1);
+            cells.join(",")
+        })
+        .collect()
+}
+
+#[test]
+fn reruns_skip_finished_settings_and_redo_edited_ones() {
+    let tmp = temp("rerun");
+    let scene = tmp.join("scene.sdfl");
+    std::fs::write(&scene, SCENE).unwrap();
+    let out = tmp.join("out");
+    let first = ok(&sweep(&scene, &out, &[]));
+    assert_eq!(first.matches(": done in").count(), 4, "{first}");
+    let row = out.join("rows").join("samples=8.json");
+    let before = std::fs::read(&row).unwrap();
+    let csv = std::fs::read_to_string(out.join("sweep.csv")).unwrap();
+
+    let again = ok(&sweep(&scene, &out, &[]));
+    for v in [4, 8, 16, 32] {
+        assert!(
+            again.contains(&format!("samples={v}: skipped (done)")),
+            "{again}"
+        );
+    }
+    assert!(!again.contains("done in"), "{again}");
+    assert_eq!(
+        std::fs::read(&row).unwrap(),
+        before,
+        "a skipped row is not rewritten"
+    );
+    assert_eq!(
+        std::fs::read_to_string(out.join("sweep.csv")).unwrap(),
+        csv,
+        "the table is rebuilt from the same rows"
+    );
+
+    // A setting whose outputs were removed runs again; the others do not.
+    std::fs::remove_file(out.join("samples=16").join("v.png")).unwrap();
+    let partial = ok(&sweep(&scene, &out, &[]));
+    assert!(
+        partial.contains("samples=16: running again: its output samples=16/v.png is gone"),
+        "{partial}"
+    );
+    assert_eq!(partial.matches("skipped (done)").count(), 3, "{partial}");
+
+    // An edit to the file changes every setting's fingerprint: all rerun.
+    std::fs::write(&scene, SCENE.replace("size: 1.5", "size: 1.2")).unwrap();
+    let edited = ok(&sweep(&scene, &out, &[]));
+    assert!(!edited.contains("skipped"), "{edited}");
+    assert_eq!(
+        edited
+            .matches("running again: the file or the setting changed")
+            .count(),
+        4,
+        "{edited}"
+    );
+    // So does another `--size`.
+    let resized = ok(&sweep(&scene, &out, &["--size", "10x10"]));
+    assert!(!resized.contains("skipped"), "{resized}");
+}
+
+#[test]
+fn two_shards_and_a_collect_give_the_table_of_one_run() {
+    let tmp = temp("shards");
+    let scene = tmp.join("scene.sdfl");
+    std::fs::write(&scene, SCENE).unwrap();
+    let whole = tmp.join("whole");
+    ok(&sweep(&scene, &whole, &[]));
+
+    // Each shard on its own "machine" (folder), then copied together.
+    let merged = tmp.join("merged");
+    for i in 0..2 {
+        let dir = tmp.join(format!("shard{i}"));
+        let shard = format!("{i}/2");
+        let err = ok(&sweep(&scene, &dir, &["--shard", &shard]));
+        assert!(
+            err.contains(&format!("shard {i}/2: 2 of its 2 settings run")),
+            "{err}"
+        );
+        assert!(
+            !dir.join("sweep.csv").exists(),
+            "a shard writes rows, not the table"
+        );
+        // Round-robin: shard 0 has the 1st and 3rd settings.
+        let mine = if i == 0 { ["4", "16"] } else { ["8", "32"] };
+        for v in mine {
+            assert!(dir.join("rows").join(format!("samples={v}.json")).is_file());
+        }
+        copy_tree(&dir, &merged);
+    }
+    // A collect before every shard's rows are in says which are missing.
+    let early = sweep(&scene, &tmp.join("shard0"), &["--collect"]);
+    assert_eq!(early.status.code(), Some(1));
+    let err = String::from_utf8_lossy(&early.stderr);
+    assert!(
+        err.contains("samples=8: no row yet") && err.contains("samples=32: no row yet"),
+        "{err}"
+    );
+
+    let collected = sweep(&scene, &merged, &["--collect"]);
+    let err = ok(&collected);
+    assert!(!err.contains("done in"), "collect runs nothing: {err}");
+    let read = |d: &Path| std::fs::read_to_string(d.join("sweep.csv")).unwrap();
+    assert_eq!(
+        without_seconds(&read(&merged)),
+        without_seconds(&read(&whole))
+    );
+    assert_eq!(read(&merged).lines().count(), 5);
+    assert!(merged.join("sweep.png").is_file() && merged.join("sweep_value.png").is_file());
+    // The table printed is the one written.
+    assert_eq!(
+        String::from_utf8_lossy(&collected.stdout),
+        std::fs::read_to_string(merged.join("sweep.md")).unwrap()
+    );
+    // `--shard` is checked: 0-based, below the count.
+    let bad = sweep(&scene, &merged, &["--shard", "2/2"]);
+    assert_eq!(bad.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&bad.stderr).contains("below the count"));
+}
+
+fn copy_tree(from: &Path, to: &Path) {
+    std::fs::create_dir_all(to).unwrap();
+    for e in std::fs::read_dir(from).unwrap() {
+        let e = e.unwrap();
+        let dest = to.join(e.file_name());
+        if e.file_type().unwrap().is_dir() {
+            copy_tree(&e.path(), &dest);
+        } else {
+            std::fs::copy(e.path(), dest).unwrap();
+        }
+    }
+}
+
+/// A sweep stopped by SIGTERM after its first setting finished resumes
+/// without redoing it.
+#[cfg(unix)]
+#[test]
+fn a_sweep_killed_halfway_resumes_without_redoing_finished_settings() {
+    let tmp = temp("killed");
+    let scene = tmp.join("scene.sdfl");
+    // The first setting is tiny; the next ones take seconds, so the stop
+    // lands inside the second.
+    std::fs::write(
+        &scene,
+        "let n = 8\nrender v { scene: sdf_volume(box(size: 1.5)), camera: look_at([0, 0, -3]),\n\
+         sampler: stratified(samples: 256), outputs: [image(\"v.png\")], size: [n, n] }\n",
+    )
+    .unwrap();
+    let out = tmp.join("out");
+    let args = |out: &Path| {
+        vec![
+            "sweep".to_string(),
+            scene.display().to_string(),
+            "--set".into(),
+            "n=8,700,24".into(),
+            "--out".into(),
+            out.display().to_string(),
+        ]
+    };
+    let child = Command::new(env!("CARGO_BIN_EXE_sdfl"))
+        .args(args(&out))
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let first = out.join("rows").join("n=8.json");
+    let t = Instant::now();
+    while !first.exists() {
+        assert!(
+            t.elapsed() < Duration::from_secs(60),
+            "the first setting never finished"
+        );
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    // SAFETY: signalling our own child by its id.
+    assert_eq!(unsafe { libc::kill(child.id() as i32, libc::SIGTERM) }, 0);
+    let stopped = child.wait_with_output().unwrap();
+    let err = String::from_utf8_lossy(&stopped.stderr);
+    assert_eq!(stopped.status.code(), Some(143), "{err}");
+    assert!(
+        !out.join("rows").join("n=700.json").exists(),
+        "the stop landed after the second setting: {err}"
+    );
+    let kept = std::fs::read(&first).unwrap();
+
+    let resumed = sdfl(&args(&out).iter().map(String::as_str).collect::<Vec<_>>());
+    let err = ok(&resumed);
+    assert!(err.contains("n=8: skipped (done)"), "{err}");
+    assert!(
+        err.contains("n=700: done in") && err.contains("n=24: done in"),
+        "{err}"
+    );
+    assert_eq!(
+        std::fs::read(&first).unwrap(),
+        kept,
+        "the finished setting was not redone"
+    );
+    let csv = std::fs::read_to_string(out.join("sweep.csv")).unwrap();
+    assert_eq!(csv.lines().count(), 4, "{csv}");
+    // No half-written file is left behind.
+    let mut stack = vec![out.clone()];
+    while let Some(d) = stack.pop() {
+        for e in std::fs::read_dir(d).unwrap() {
+            let p = e.unwrap().path();
+            assert!(!p.to_string_lossy().ends_with(".tmp"), "{}", p.display());
+            if p.is_dir() {
+                stack.push(p);
+            }
+        }
+    }
+}
