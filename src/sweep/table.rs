@@ -187,6 +187,9 @@ pub(super) fn tables(name: &str, rows: &[(Row, PathBuf)]) -> std::io::Result<Tab
     })
 }
 
+/// One measure of a setting (none where it does not apply).
+type Measure = fn(&Quality) -> Option<f64>;
+
 /// The horizontal axis of a sweep's plot.
 #[derive(Clone, Copy)]
 enum Against {
@@ -211,7 +214,7 @@ fn chart(
 ) -> Chart {
     let images_any = quality.iter().any(|q| q.psnr.is_some());
     // (title, the measure, whether higher is better)
-    let (y_title, pick, higher): (String, fn(&Quality) -> Option<f64>, bool) = if held_out_any {
+    let (y_title, pick, higher): (String, Measure, bool) = if held_out_any {
         ("held-out PSNR (dB)".into(), |q| q.held, true)
     } else if images_any {
         (format!("PSNR vs {reference} (dB)"), |q| q.psnr, true)
