@@ -95,6 +95,10 @@ enum Command {
         /// (every shard's, copied into one folder).
         #[arg(long, conflicts_with = "shard")]
         collect: bool,
+        /// Run nothing: list the settings (of this shard) and whether each
+        /// is done or to run.
+        #[arg(long)]
+        dry_run: bool,
     },
     /// The assignment's part 0: transmittance through three slabs; prints
     /// the four transmittances and writes the figure.
@@ -283,6 +287,7 @@ fn main() -> ExitCode {
             size,
             shard,
             collect,
+            dry_run,
         } => sweep(sweep::SweepArgs {
             file: &file,
             name: &set.0,
@@ -291,6 +296,7 @@ fn main() -> ExitCode {
             size,
             shard,
             collect,
+            dry_run,
         }),
         Command::Docs { name } => docs(name.as_deref()),
         Command::Transmittance { out } => {

@@ -262,3 +262,123 @@ fn a_sweep_killed_halfway_resumes_without_redoing_finished_settings() {
         }
     }
 }
+
+/// The `sdfl sweep` command lines of a cluster example, in file order
+/// (the text from `sdfl sweep` to the end of its line or quote).
+fn sweep_commands(text: &str) -> Vec<Vec<String>> {
+    text.lines()
+        .filter_map(|l| l.find("sdfl sweep").map(|at| &l[at..]))
+        .map(|c| {
+            c.split('"')
+                .next()
+                .unwrap()
+                .split_whitespace()
+                .map(str::to_string)
+                .collect()
+        })
+        .collect()
+}
+
+/// The value of flag `--name` in a command line.
+fn flag<'a>(command: &'a [String], name: &str) -> &'a str {
+    let at = command
+        .iter()
+        .position(|a| a == name)
+        .unwrap_or_else(|| panic!("{name} in {command:?}"));
+    &command[at + 1]
+}
+
+/// Runs a cluster example's shard command for every index the scheduler
+/// gives (with `--dry-run`: nothing runs) and its collect command, from the
+/// repository's root as the examples say: every flag is one sdfl knows,
+/// the file loads with every setting, and the shards cover each setting
+/// exactly once.
+fn check_cluster_example(file: &str, index_var: &str, tasks: usize) {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let text = std::fs::read_to_string(root.join("examples/cluster").join(file)).unwrap();
+    let commands = sweep_commands(&text);
+    let shard: Vec<&Vec<String>> = commands
+        .iter()
+        .filter(|c| c.contains(&"--shard".to_string()))
+        .collect();
+    let collect: Vec<&Vec<String>> = commands
+        .iter()
+        .filter(|c| c.contains(&"--collect".to_string()))
+        .collect();
+    assert_eq!(shard.len(), 1, "{file}: one shard command: {commands:?}");
+    let shard = shard[0];
+    assert_eq!(
+        flag(shard, "--shard"),
+        format!("${index_var}/{tasks}"),
+        "{file}"
+    );
+    let dry = |args: &[String]| {
+        let out = Command::new(env!("CARGO_BIN_EXE_sdfl"))
+            .current_dir(root)
+            .args(&args[1..])
+            .arg("--dry-run")
+            .output()
+            .unwrap();
+        assert!(
+            out.status.success(),
+            "{file}: {args:?}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        String::from_utf8_lossy(&out.stdout)
+            .lines()
+            .map(|l| l.split(':').next().unwrap().to_string())
+            .collect::<Vec<String>>()
+    };
+    let set = flag(shard, "--set");
+    let (name, values) = set.split_once('=').unwrap();
+    let mut covered: Vec<String> = Vec::new();
+    for i in 0..tasks {
+        let with_index: Vec<String> = shard
+            .iter()
+            .map(|a| a.replace(&format!("${index_var}"), &i.to_string()))
+            .collect();
+        covered.extend(dry(&with_index));
+    }
+    let all: Vec<String> = values.split(',').map(|v| format!("{name}={v}")).collect();
+    covered.sort();
+    let mut want = all.clone();
+    want.sort();
+    assert_eq!(covered, want, "{file}: the shards cover every setting once");
+    // The collect step: the same file, settings and folder.
+    // (Kubernetes keeps it in its own Job file.)
+    if let Some(collect) = collect.first() {
+        for f in ["--set", "--out"] {
+            assert_eq!(flag(collect, f), flag(shard, f), "{file}: {f}");
+        }
+        assert_eq!(collect[2], shard[2], "{file}: the same scene file");
+        assert_eq!(dry(collect), all, "{file}");
+    }
+}
+
+#[test]
+fn the_cluster_examples_name_real_flags_and_cover_every_setting() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/cluster");
+    let slurm = std::fs::read_to_string(root.join("sweep.slurm")).unwrap();
+    assert!(slurm.lines().any(|l| l == "#SBATCH --array=0-3"), "{slurm}");
+    assert!(slurm.contains("--collect"), "the collect step is shown");
+    check_cluster_example("sweep.slurm", "SLURM_ARRAY_TASK_ID", 4);
+
+    let job = std::fs::read_to_string(root.join("sweep-job.yaml")).unwrap();
+    for key in [
+        "completionMode: Indexed",
+        "completions: 4",
+        "parallelism: 4",
+    ] {
+        assert!(job.lines().any(|l| l.trim() == key), "{key}");
+    }
+    check_cluster_example("sweep-job.yaml", "JOB_COMPLETION_INDEX", 4);
+    // Its collect Job: the same sweep, with `--collect`.
+    let collect =
+        sweep_commands(&std::fs::read_to_string(root.join("sweep-collect-job.yaml")).unwrap());
+    let shard = &sweep_commands(&job)[0];
+    assert_eq!(collect.len(), 1);
+    let mut want = shard.clone();
+    let at = want.iter().position(|a| a == "--shard").unwrap();
+    want.splice(at..at + 2, ["--collect".to_string()]);
+    assert_eq!(collect[0], want);
+}

@@ -32,6 +32,8 @@ pub(crate) struct SweepArgs<'a> {
     pub shard: Option<Shard>,
     /// `--collect`: only the table, from the rows on disk.
     pub collect: bool,
+    /// `--dry-run`: only say which settings would run.
+    pub dry_run: bool,
 }
 
 /// One setting, evaluated.
@@ -60,10 +62,16 @@ pub(crate) fn sweep(a: SweepArgs) -> ExitCode {
     let Ok(src) = read(a.file) else {
         return ExitCode::FAILURE;
     };
-    let Ok((out, _lock)) = out_dir(a.out) else {
-        return ExitCode::FAILURE;
+    // A dry run writes nothing, not even `--out`.
+    let held = if a.dry_run {
+        None
+    } else {
+        let Ok(held) = out_dir(a.out) else {
+            return ExitCode::FAILURE;
+        };
+        Some(held)
     };
-    let out = out.as_path();
+    let out = held.as_ref().map_or(a.out, |(out, _lock)| out.as_path());
     // Every setting this command needs, evaluated before anything runs.
     let mut settings = Vec::new();
     for (position, &value) in a.values.iter().enumerate() {
@@ -83,6 +91,18 @@ pub(crate) fn sweep(a: SweepArgs) -> ExitCode {
             fingerprint: rows::fingerprint(&program, a.name, value, a.size),
             program,
         });
+    }
+    if a.dry_run {
+        let mut stdout = Stdout::new();
+        for s in &settings {
+            let state = match rows::find(out, &s.label, &s.fingerprint) {
+                Found::Done(_) => "done (skipped)".to_string(),
+                Found::Missing => "to run".to_string(),
+                Found::Stale(why) => format!("to run again: {why}"),
+            };
+            stdout.line(&format!("{}: {state}", s.label));
+        }
+        return ExitCode::SUCCESS;
     }
     if !a.collect {
         let mut skipped = 0;
