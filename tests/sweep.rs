@@ -382,3 +382,58 @@ fn the_cluster_examples_name_real_flags_and_cover_every_setting() {
     want.splice(at..at + 2, ["--collect".to_string()]);
     assert_eq!(collect[0], want);
 }
+
+/// The fewer-views examples score every setting on the same held-out
+/// views (the same camera poses), and train on fewer views as a subset of
+/// more; a setting past the fixed camera set is refused.
+#[test]
+fn fewer_views_examples_hold_out_the_same_views_for_every_count() {
+    use sdfl_stdlib::camera::Camera;
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    for (file, counts, held) in [
+        ("fewer_views_nerf.sdfl", &[5, 10, 20][..], 4),
+        ("fewer_views_volsdf.sdfl", &[5, 10, 20][..], 4),
+        ("nerf_views.sdfl", &[5, 10, 20, 50, 90][..], 10),
+    ] {
+        let path = root.join("examples").join(file);
+        let src = sdfl_lang::SourceFile::new(
+            path.display().to_string(),
+            std::fs::read_to_string(&path).unwrap(),
+        );
+        let split = |k: usize| -> Result<(Vec<Camera>, Vec<Camera>), String> {
+            let program = sdfl_stdlib::load_with(&src, &[("train_views".to_string(), k as f64)])
+                .map_err(|d| format!("{d:?}"))?;
+            let data = &program.trains[0].data;
+            let test = data.test_views();
+            let (held, train): (Vec<_>, Vec<_>) = data
+                .cameras()
+                .iter()
+                .enumerate()
+                .partition(|(i, _)| test.contains(i));
+            let cams = |v: Vec<(usize, &Camera)>| v.into_iter().map(|(_, c)| *c).collect();
+            Ok((cams(held), cams(train)))
+        };
+        let (first_held, first_train) = split(counts[0]).unwrap();
+        assert_eq!(first_held.len(), held, "{file}");
+        let mut fewer = first_train;
+        for &k in &counts[1..] {
+            let (held_k, train_k) = split(k).unwrap();
+            assert_eq!(
+                held_k, first_held,
+                "{file}: the held-out poses for {k} views"
+            );
+            assert_eq!(train_k.len(), k, "{file}");
+            assert!(
+                train_k.iter().all(|c| !held_k.contains(c)),
+                "{file}: no test view is trained on"
+            );
+            assert!(
+                fewer.iter().all(|c| train_k.contains(c)),
+                "{file}: fewer views are a subset of {k}"
+            );
+            fewer = train_k;
+        }
+        let too_many = split(counts[counts.len() - 1] + 1).unwrap_err();
+        assert!(too_many.contains("are not held out"), "{file}: {too_many}");
+    }
+}
