@@ -210,7 +210,7 @@ fn a_sweep_killed_halfway_resumes_without_redoing_finished_settings() {
             out.display().to_string(),
         ]
     };
-    let child = Command::new(env!("CARGO_BIN_EXE_sdfl"))
+    let mut child = Command::new(env!("CARGO_BIN_EXE_sdfl"))
         .args(args(&out))
         .stdout(Stdio::null())
         .stderr(Stdio::piped())
@@ -436,4 +436,77 @@ fn fewer_views_examples_hold_out_the_same_views_for_every_count() {
         let too_many = split(counts[counts.len() - 1] + 1).unwrap_err();
         assert!(too_many.contains("are not held out"), "{file}: {too_many}");
     }
+}
+
+/// A training setting stopped by SIGTERM resumes from its checkpoint when
+/// the sweep is run again, and ends where an uninterrupted run ends.
+#[cfg(unix)]
+#[test]
+fn an_interrupted_training_setting_resumes_from_its_checkpoint() {
+    let tmp = temp("resume");
+    let scene = tmp.join("fit.sdfl");
+    std::fs::write(
+        &scene,
+        "let n = 2\nlet cams = orbit(views: 2)\n\
+         train fit { model: sdf_volume(sphere(param(0.8))), data: render_views(sdf_volume(sphere()), cameras: cams, size: [8, 8]), rays: 64, iterations: n, checkpoint: \"fit.ckpt\" }\n",
+    )
+    .unwrap();
+    let args = |out: &Path| {
+        vec![
+            "sweep".to_string(),
+            scene.display().to_string(),
+            "--set".into(),
+            "n=2,40000".into(),
+            "--out".into(),
+            out.display().to_string(),
+        ]
+    };
+    let run = |out: &Path| sdfl(&args(out).iter().map(String::as_str).collect::<Vec<_>>());
+    let out = tmp.join("out");
+    let mut child = Command::new(env!("CARGO_BIN_EXE_sdfl"))
+        .args(args(&out))
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    // Past the first setting and the second's first checkpoint (step 0).
+    let checkpoint = out.join("n=40000").join("fit.ckpt");
+    let t = Instant::now();
+    while !checkpoint.exists() {
+        assert!(t.elapsed() < Duration::from_secs(60), "no checkpoint");
+        assert!(
+            child.try_wait().unwrap().is_none(),
+            "the sweep ended before its checkpoint"
+        );
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    std::thread::sleep(Duration::from_millis(300));
+    // SAFETY: signalling our own child by its id.
+    assert_eq!(unsafe { libc::kill(child.id() as i32, libc::SIGTERM) }, 0);
+    let stopped = child.wait_with_output().unwrap();
+    let err = String::from_utf8_lossy(&stopped.stderr);
+    assert_eq!(stopped.status.code(), Some(143), "{err}");
+    assert!(!out.join("rows").join("n=40000.json").exists(), "{err}");
+
+    let err = ok(&run(&out));
+    assert!(err.contains("n=2: skipped (done)"), "{err}");
+    assert!(
+        err.contains("n=40000: resuming where an interrupted run stopped"),
+        "{err}"
+    );
+    let row = |out: &Path| -> serde_json::Value {
+        serde_json::from_slice(&std::fs::read(out.join("rows").join("n=40000.json")).unwrap())
+            .unwrap()
+    };
+    let resumed = row(&out);
+    let from = resumed["reports"][0]["resumed_from"].as_u64();
+    assert!(from.is_some_and(|k| k > 0 && k < 40000), "{resumed}");
+    assert!(!out.join("rows").join("n=40000.started.json").exists());
+    // Bit-identical to a sweep that was never stopped.
+    let whole = tmp.join("whole");
+    ok(&run(&whole));
+    assert_eq!(
+        resumed["reports"][0]["params"],
+        row(&whole)["reports"][0]["params"]
+    );
 }

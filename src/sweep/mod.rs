@@ -134,17 +134,39 @@ pub(crate) fn sweep(a: SweepArgs) -> ExitCode {
     collect(a.name, &settings, out)
 }
 
-/// Runs one setting from scratch in its folder and writes its row.
+/// Runs one setting in its folder and writes its row: from scratch, or,
+/// where an interrupted run of the same fingerprint left it, resumed
+/// (training from its checkpoint; the rest again).
 fn run_setting(src: &SourceFile, a: &SweepArgs, out: &Path, s: &Setting) -> Result<(), ExitCode> {
-    // Its folder (made by sdfl) is emptied first, so no checkpoint of an
-    // earlier run (interrupted, or of another version of the file) is
-    // resumed.
     let dir = out.join(&s.label);
-    if dir.exists() {
-        if let Err(e) = std::fs::remove_dir_all(&dir) {
-            say!("error[sdfl::io]: cannot clear {}: {e}", dir.display());
-            return Err(ExitCode::FAILURE);
+    let io_error = |what: &str, e: std::io::Error| {
+        interrupt::wait_if_exiting();
+        say!("error[sdfl::io]: {what} {}: {e}", s.label);
+        ExitCode::FAILURE
+    };
+    let earlier = rows::started(out, &s.label, &s.fingerprint).filter(|_| dir.is_dir());
+    let before = match &earlier {
+        Some(mark) => {
+            say!("{}: resuming where an interrupted run stopped", s.label);
+            mark.seconds
         }
+        None => {
+            // The folder (made by sdfl) is emptied first, so no checkpoint
+            // of another version of the file is resumed.
+            if dir.exists() {
+                if let Err(e) = std::fs::remove_dir_all(&dir) {
+                    return Err(io_error("cannot clear the folder of", e));
+                }
+            }
+            0.0
+        }
+    };
+    let mark = |seconds| rows::Started {
+        fingerprint: s.fingerprint.clone(),
+        seconds,
+    };
+    if let Err(e) = rows::mark_started(out, &s.label, &mark(before)) {
+        return Err(io_error("cannot mark the start of", e));
     }
     let bar = progress_bar(work(&s.program, a.size), false);
     bar.set_message(s.label.clone());
@@ -155,7 +177,7 @@ fn run_setting(src: &SourceFile, a: &SweepArgs, out: &Path, s: &Setting) -> Resu
         RunOptions {
             size: a.size,
             no_cull: false,
-            restart: true,
+            restart: earlier.is_none(),
         },
         &base_dir(Some(a.file)),
         &bar,
@@ -163,6 +185,12 @@ fn run_setting(src: &SourceFile, a: &SweepArgs, out: &Path, s: &Setting) -> Resu
         Ok(r) => r,
         Err((job, e)) => {
             bar.abandon();
+            if Stopped::of(&e).is_some() {
+                // Stopped by a signal after a training step: the time so
+                // far counts towards the resumed run's.
+                let seconds = before + t.elapsed().as_secs_f64();
+                let _ = rows::mark_started(out, &s.label, &mark(seconds));
+            }
             return Err(failed(src, &job, &e));
         }
     };
@@ -172,13 +200,14 @@ fn run_setting(src: &SourceFile, a: &SweepArgs, out: &Path, s: &Setting) -> Resu
         name: a.name.to_string(),
         value: s.value,
         fingerprint: s.fingerprint.clone(),
-        seconds: t.elapsed().as_secs_f64(),
+        seconds: before + t.elapsed().as_secs_f64(),
         reports: reports.into_iter().map(|r| r.report).collect(),
     };
     if let Err(e) = rows::write(out, &s.label, &row) {
-        interrupt::wait_if_exiting();
-        say!("error[sdfl::io]: writing the row of {}: {e}", s.label);
-        return Err(ExitCode::FAILURE);
+        return Err(io_error("writing the row of", e));
+    }
+    if let Err(e) = rows::unmark(out, &s.label) {
+        return Err(io_error("cannot remove the start mark of", e));
     }
     say!("{}: done in {:.1} s", s.label, row.seconds);
     Ok(())

@@ -131,6 +131,47 @@ pub(super) fn write(out: &Path, label: &str, row: &Row) -> std::io::Result<()> {
     sdfl_runtime::output::write_bytes(&row_path(out, label), &json)
 }
 
+/// A setting that has started and not finished: written before it runs,
+/// removed once its row is written. A rerun that finds one for the same
+/// fingerprint resumes the setting where it stopped (training from its
+/// checkpoint) rather than from scratch.
+#[derive(serde::Serialize, serde::Deserialize)]
+pub(super) struct Started {
+    /// [`fingerprint`] of the setting's program.
+    pub fingerprint: String,
+    /// Seconds spent in earlier attempts that stopped on a signal (a
+    /// `kill -9` leaves no time to count them).
+    pub seconds: f64,
+}
+
+fn started_path(out: &Path, label: &str) -> PathBuf {
+    out.join("rows").join(format!("{label}.started.json"))
+}
+
+/// The mark of an unfinished setting, if it is for `fingerprint`.
+pub(super) fn started(out: &Path, label: &str, fingerprint: &str) -> Option<Started> {
+    let f = sdfl_runtime::data::image::open_regular(&started_path(out, label)).ok()?;
+    let mut bytes = Vec::new();
+    f.take(1 << 16).read_to_end(&mut bytes).ok()?;
+    serde_json::from_slice::<Started>(&bytes)
+        .ok()
+        .filter(|s| s.fingerprint == fingerprint)
+}
+
+/// Marks a setting as started (atomically).
+pub(super) fn mark_started(out: &Path, label: &str, mark: &Started) -> std::io::Result<()> {
+    let json = serde_json::to_vec(mark).map_err(std::io::Error::other)?;
+    sdfl_runtime::output::write_bytes(&started_path(out, label), &json)
+}
+
+/// Removes a finished setting's mark.
+pub(super) fn unmark(out: &Path, label: &str) -> std::io::Result<()> {
+    match std::fs::remove_file(started_path(out, label)) {
+        Err(e) if e.kind() != std::io::ErrorKind::NotFound => Err(e),
+        _ => Ok(()),
+    }
+}
+
 /// A slice of a sweep's settings: shard `index` of `count`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub(crate) struct Shard {
