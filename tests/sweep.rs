@@ -223,6 +223,10 @@ fn a_sweep_killed_halfway_resumes_without_redoing_finished_settings() {
             t.elapsed() < Duration::from_secs(60),
             "the first setting never finished"
         );
+        assert!(
+            child.try_wait().unwrap().is_none(),
+            "the sweep ended before its first row"
+        );
         std::thread::sleep(Duration::from_millis(5));
     }
     // SAFETY: signalling our own child by its id.
