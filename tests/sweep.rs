@@ -96,6 +96,15 @@ fn reruns_skip_finished_settings_and_redo_edited_ones() {
     );
     assert_eq!(partial.matches("skipped (done)").count(), 3, "{partial}");
 
+    // A comment changes nothing the file computes: still done.
+    std::fs::write(&scene, format!("// the box, sampled\n{SCENE}")).unwrap();
+    let commented = ok(&sweep(&scene, &out, &[]));
+    assert_eq!(
+        commented.matches("skipped (done)").count(),
+        4,
+        "{commented}"
+    );
+
     // An edit to the file changes every setting's fingerprint: all rerun.
     std::fs::write(&scene, SCENE.replace("size: 1.5", "size: 1.2")).unwrap();
     let edited = ok(&sweep(&scene, &out, &[]));

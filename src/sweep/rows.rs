@@ -50,24 +50,63 @@ pub(super) fn row_path(out: &Path, label: &str) -> PathBuf {
 
 /// What a setting computes, as a hash: the evaluated program (every
 /// statement, imported files spliced in, the swept value substituted; its
-/// `Debug` form, spans included), the setting, `--size` and the sdfl
-/// version. An edit that changes what the file evaluates to (or moves a
-/// statement) changes it; a change inside a data file the program reads
-/// when it runs does not (delete the rows to rerun).
+/// `Debug` form without source positions), the setting, `--size` and the
+/// sdfl version. An edit that changes what the file evaluates to changes
+/// it; one that only moves text (a comment, blank lines) does not, nor
+/// does a change inside a data file the program reads when it runs
+/// (delete the rows to rerun).
 pub(super) fn fingerprint(
     program: &sdfl_stdlib::Program,
     name: &str,
     value: f64,
     size: Option<(u32, u32)>,
 ) -> String {
-    let mut h = Fnv::default();
+    let mut h = WithoutSpans::default();
     let _ = write!(
         h,
         "sdfl {} sweep row {ROW_FORMAT}\n{name}={:016x}\n{size:?}\n{program:?}",
         env!("CARGO_PKG_VERSION"),
         value.to_bits()
     );
-    h.finish()
+    h.hash.finish()
+}
+
+/// A hash of `Debug` text that leaves out the offsets of every
+/// `Span { start: N, end: M }` (where in the file a value was written),
+/// streamed: the text of a large program is never held whole.
+#[derive(Default)]
+struct WithoutSpans {
+    hash: Fnv,
+    /// The last bytes hashed, to recognise where offsets follow.
+    tail: Vec<u8>,
+    /// Inside a span, between its start and its end.
+    in_span: bool,
+    /// Dropping the digits of an offset.
+    skipping: bool,
+}
+
+impl std::fmt::Write for WithoutSpans {
+    fn write_str(&mut self, s: &str) -> std::fmt::Result {
+        const START: &[u8] = b"Span { start: ";
+        const END: &[u8] = b", end: ";
+        for &b in s.as_bytes() {
+            if self.skipping && b.is_ascii_digit() {
+                continue;
+            }
+            self.skipping = false;
+            self.hash.bytes(&[b]);
+            self.tail.push(b);
+            if self.tail.len() > 2 * START.len() {
+                self.tail.drain(..START.len());
+            }
+            if self.tail.ends_with(START) {
+                (self.in_span, self.skipping) = (true, true);
+            } else if self.in_span && self.tail.ends_with(END) {
+                (self.in_span, self.skipping) = (false, true);
+            }
+        }
+        Ok(())
+    }
 }
 
 /// What `OUT/rows/` holds for a setting.
@@ -244,5 +283,32 @@ mod tests {
         assert_ne!(a, fingerprint(&load(text, 8.0), "n", 8.0, Some((4, 4))));
         let edited = text.replace("sphere()", "sphere(0.9)");
         assert_ne!(a, fingerprint(&load(&edited, 8.0), "n", 8.0, None));
+        // Moving the text (a comment above) changes no value: the same.
+        let moved = format!("// a comment\n\n{text}");
+        assert_ne!(
+            format!("{:?}", load(&moved, 8.0)),
+            format!("{:?}", load(text, 8.0)),
+            "the spans moved"
+        );
+        assert_eq!(a, fingerprint(&load(&moved, 8.0), "n", 8.0, None));
+    }
+
+    #[test]
+    fn only_span_offsets_are_left_out_of_the_hash() {
+        let hash = |text: &str| {
+            let mut h = WithoutSpans::default();
+            // In pieces, as `Debug` writes.
+            for piece in text.split_inclusive(' ') {
+                h.write_str(piece).unwrap();
+            }
+            h.hash.finish()
+        };
+        let a = hash("Job { span: Span { start: 12, end: 30 }, n: 5 }");
+        assert_eq!(a, hash("Job { span: Span { start: 7, end: 1234 }, n: 5 }"));
+        assert_ne!(a, hash("Job { span: Span { start: 12, end: 30 }, n: 6 }"));
+        assert_ne!(
+            hash("Other { start: 1, end: 2 }"),
+            hash("Other { start: 1, end: 3 }")
+        );
     }
 }
