@@ -73,10 +73,10 @@ enum Command {
     /// Re-run a file over settings of a top-level `let` and tabulate time
     /// against error (PSNR against the last setting's images, or parameter
     /// distance for training); writes sweep.csv, sweep.md and sweep.png.
-    /// Each setting runs from scratch in OUT/NAME=VALUE/, emptied first;
-    /// its row is written to OUT/rows/NAME=VALUE.json when it finishes, and
-    /// a rerun skips the settings whose row stands for the same file and
-    /// setting.
+    /// Each setting runs in OUT/NAME=VALUE/ (emptied first, unless an
+    /// interrupted run of the same setting is resumed); its row goes to
+    /// OUT/rows/NAME=VALUE.json when it finishes, and a rerun skips the
+    /// settings whose row stands for the same file and setting.
     Sweep {
         file: PathBuf,
         /// NAME=V1,V2,...: the values of `let NAME`; the last is the reference.

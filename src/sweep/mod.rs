@@ -3,7 +3,8 @@
 //!
 //! Each setting's row is written when it finishes (`rows.rs`), and the
 //! table and plots are rebuilt from the rows on disk (`table.rs`): a rerun
-//! skips the settings already done, `--shard I/N` runs one slice of the
+//! skips the settings already done and resumes one that was interrupted
+//! (training from its checkpoint), `--shard I/N` runs one slice of the
 //! settings (for a scheduler's job array), and `--collect` merges the
 //! slices' rows, copied into one `--out`, into the table. Past one machine
 //! sdfl runs on such an existing scheduler, not one of its own.
