@@ -77,7 +77,10 @@ enum Command {
     /// Re-run a file over settings of a top-level `let` and tabulate time
     /// against error (PSNR against the last setting's images, or parameter
     /// distance for training); writes sweep.csv, sweep.md and sweep.png.
-    /// Each setting runs from scratch in OUT/NAME=VALUE/, emptied first.
+    /// Each setting runs in OUT/NAME=VALUE/ (emptied first, unless an
+    /// interrupted run of the same setting is resumed); its row goes to
+    /// OUT/rows/NAME=VALUE.json when it finishes, and a rerun skips the
+    /// settings whose row stands for the same file and setting.
     Sweep {
         file: PathBuf,
         /// NAME=V1,V2,...: the values of `let NAME`; the last is the reference.
@@ -88,6 +91,18 @@ enum Command {
         /// Override every image size, as WIDTHxHEIGHT.
         #[arg(long, value_parser = parse_size)]
         size: Option<(u32, u32)>,
+        /// I/N: run only shard I of N (from 0; setting k of `--set` is
+        /// shard k mod N's) and write its rows, not the table.
+        #[arg(long, value_parser = sweep::parse_shard)]
+        shard: Option<sweep::Shard>,
+        /// Run nothing: write the table and plots from the rows in OUT
+        /// (every shard's, copied into one folder).
+        #[arg(long, conflicts_with = "shard")]
+        collect: bool,
+        /// Run nothing: list the settings (of this shard) and whether each
+        /// is done or to run.
+        #[arg(long)]
+        dry_run: bool,
     },
     /// Run a scene file, then again each time it is saved: only statements
     /// whose inputs changed run again (fingerprints kept in
@@ -317,7 +332,19 @@ fn main() -> ExitCode {
             set,
             out,
             size,
-        } => sweep(&file, &set.0, &set.1, &out, size),
+            shard,
+            collect,
+            dry_run,
+        } => sweep(sweep::SweepArgs {
+            file: &file,
+            name: &set.0,
+            values: &set.1,
+            out: &out,
+            size,
+            shard,
+            collect,
+            dry_run,
+        }),
         Command::Docs { name } => docs(name.as_deref()),
         Command::Watch {
             file,

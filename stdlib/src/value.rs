@@ -1197,6 +1197,44 @@ pub fn held_out(n: usize, test: usize, seed: u64) -> Vec<usize> {
     test
 }
 
+/// `k` training views among `eyes` (camera positions) that are not in
+/// `held` (sorted indices held out), spread out: the first view not held
+/// out, then each next the one farthest from those picked (ties to the
+/// lowest index). Deterministic, and nested: the views for `k` are among
+/// those for any larger `k`, so a fewer-views sweep only ever takes views
+/// away, and never changes what it is scored on. Sorted; `k` is at most
+/// the views not held out.
+pub fn spread_views(eyes: &[DVec3], held: &[usize], k: usize) -> Vec<usize> {
+    let mut free: Vec<usize> = (0..eyes.len())
+        .filter(|i| held.binary_search(i).is_err())
+        .collect();
+    let mut picked = Vec::with_capacity(k.min(free.len()));
+    // Squared distance of each free view to the nearest picked one.
+    let mut nearest = vec![f64::INFINITY; free.len()];
+    while picked.len() < k && !free.is_empty() {
+        // The first free view while none is picked (all at ∞), then the farthest.
+        let (at, _) = nearest
+            .iter()
+            .enumerate()
+            .fold((0, f64::NEG_INFINITY), |best, (j, &d)| {
+                if d > best.1 {
+                    (j, d)
+                } else {
+                    best
+                }
+            });
+        // `remove` keeps `free` in index order, for the tie rule.
+        let view = free.remove(at);
+        nearest.remove(at);
+        for (j, &f) in free.iter().enumerate() {
+            nearest[j] = nearest[j].min(eyes[f].distance_squared(eyes[view]));
+        }
+        picked.push(view);
+    }
+    picked.sort_unstable();
+    picked
+}
+
 /// Adam with a learning-rate schedule.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
 pub struct Optimizer {
@@ -1430,7 +1468,8 @@ impl Statement {
 
 #[cfg(test)]
 mod tests {
-    use super::{held_out, StatementKind};
+    use super::{held_out, spread_views, StatementKind};
+    use glam::DVec3;
 
     #[test]
     fn statement_kinds_round_trip_and_read_their_keyword() {
@@ -1458,5 +1497,63 @@ mod tests {
         assert!(held_out(5, 0, 1).is_empty());
         assert_eq!(held_out(3, 3, 9), vec![0, 1, 2]);
         assert!(held_out(0, 2, 0).is_empty());
+    }
+
+    #[test]
+    fn spread_views_are_nested_far_apart_and_never_held_out() {
+        // On a line: the first, the far end, then the middle.
+        let line: Vec<DVec3> = (0..=10).map(|x| DVec3::new(x as f64, 0.0, 0.0)).collect();
+        assert_eq!(spread_views(&line, &[], 3), [0, 5, 10]);
+        assert_eq!(spread_views(&line, &[0, 10], 2), [1, 9]);
+        // Hard case: every camera at one place: ties go to the lowest index.
+        let same = vec![DVec3::ONE; 6];
+        assert_eq!(spread_views(&same, &[1], 3), [0, 2, 3]);
+        // Asking for more than there are gives every view not held out.
+        assert_eq!(spread_views(&same, &[1], 9), [0, 2, 3, 4, 5]);
+        assert!(spread_views(&[], &[], 3).is_empty());
+
+        // On a Fibonacci sphere: nested, and within the greedy rule's
+        // factor of 2 of the best smallest gap (brute force over subsets).
+        let eyes: Vec<DVec3> = crate::camera::Camera::sphere(16, 3.0, DVec3::Y, 1.0, false)
+            .iter()
+            .map(|c| c.eye)
+            .collect();
+        let held = held_out(eyes.len(), 4, 7);
+        let gap = |set: &[usize]| {
+            let mut g = f64::INFINITY;
+            for (i, &a) in set.iter().enumerate() {
+                for &b in &set[i + 1..] {
+                    g = g.min(eyes[a].distance(eyes[b]));
+                }
+            }
+            g
+        };
+        let free: Vec<usize> = (0..eyes.len()).filter(|i| !held.contains(i)).collect();
+        let mut before: Vec<usize> = Vec::new();
+        for k in 1..=free.len() {
+            let picked = spread_views(&eyes, &held, k);
+            assert_eq!(picked.len(), k);
+            assert!(picked.iter().all(|p| !held.contains(p)));
+            assert!(before.iter().all(|b| picked.contains(b)), "k = {k}: nested");
+            if (2..=4).contains(&k) {
+                let mut best = 0.0f64;
+                let n = free.len();
+                for mask in 0u32..1 << n {
+                    if mask.count_ones() as usize == k {
+                        let set: Vec<usize> = (0..n)
+                            .filter(|j| mask >> j & 1 == 1)
+                            .map(|j| free[j])
+                            .collect();
+                        best = best.max(gap(&set));
+                    }
+                }
+                assert!(
+                    gap(&picked) >= 0.5 * best - 1e-12,
+                    "k = {k}: {} vs best {best}",
+                    gap(&picked)
+                );
+            }
+            before = picked;
+        }
     }
 }

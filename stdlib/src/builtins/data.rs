@@ -37,6 +37,7 @@ pub(super) fn render_views(a: &Args) -> Result<Value, Diag> {
         tests,
         a.count("split_seed", 0, u32::MAX as u64)?,
     );
+    let (cameras, test) = training_subset(a, cameras, test)?;
     let (scene, scene_span) = a.get("scene");
     let data = match scene {
         Value::Field(field) if matches!(**field, Field::NeuralSdf(_)) => {
@@ -106,6 +107,47 @@ pub(super) fn render_views(a: &Args) -> Result<Value, Diag> {
         other => return Err(type_error(scene_span, "shape or field", other)),
     };
     Ok(Value::Dataset(Arc::new(data)))
+}
+
+/// `train_views: k`: the test views are held out of all the cameras first
+/// (so they do not depend on `k`), then `k` training views are taken from
+/// the rest, spread out ([`crate::value::spread_views`]); the other
+/// cameras are dropped. Returns the cameras kept, in their order, and the
+/// test views' indices among them. `0` keeps every camera.
+fn training_subset(
+    a: &Args,
+    cameras: Vec<Camera>,
+    test: Vec<usize>,
+) -> Result<(Vec<Camera>, Vec<usize>), Diag> {
+    let rest = cameras.len() - test.len();
+    let k = a.count("train_views", 0, MAX_VIEWS as u64)? as usize;
+    if k == 0 || k == rest {
+        return Ok((cameras, test));
+    }
+    if k > rest {
+        return Err(value_error(
+            a.get("train_views").1,
+            format!(
+                "{k} training views asked for, but {rest} of the {} cameras are not held out",
+                cameras.len()
+            ),
+            "more than the cameras left",
+            format!("give at most {rest}, or more cameras (a fixed set, larger than any `train_views` a sweep asks for)"),
+        ));
+    }
+    let eyes: Vec<DVec3> = cameras.iter().map(|c| c.eye).collect();
+    let train = crate::value::spread_views(&eyes, &test, k);
+    let mut kept = Vec::with_capacity(k + test.len());
+    let mut test_at = Vec::with_capacity(test.len());
+    for (i, camera) in cameras.into_iter().enumerate() {
+        if test.binary_search(&i).is_ok() {
+            test_at.push(kept.len());
+            kept.push(camera);
+        } else if train.binary_search(&i).is_ok() {
+            kept.push(camera);
+        }
+    }
+    Ok((kept, test_at))
 }
 
 /// What an input path must name.

@@ -510,7 +510,7 @@ fn table() -> Vec<Builtin> {
         ),
         func(
             "render_views",
-            "Views rendered by sdfl itself, with known ground truth: a field is volume-rendered (with `sampler`), a shape sphere-traced exactly as a `render` statement draws it (with `material`, `background`, `near`, `far`, `iterations`). `test_views` of the cameras, picked by a seeded shuffle, are held out as test views.",
+            "Views rendered by sdfl itself, with known ground truth: a field is volume-rendered (with `sampler`), a shape sphere-traced exactly as a `render` statement draws it (with `material`, `background`, `near`, `far`, `iterations`). `test_views` of the cameras, picked by a seeded shuffle, are held out as test views; `train_views` trains on fewer of the rest.",
             vec![
                 req("scene", Type::OneOf(vec![SHAPE, FIELD]), "a field (volume-rendered) or a shape (sphere-traced)"),
                 req("cameras", Type::list(CAMERA), "one camera per view"),
@@ -524,6 +524,7 @@ fn table() -> Vec<Builtin> {
                 opt("hit_tolerance", Type::Str, "\"pixel\"", "shapes only: \"pixel\", a ray hits within half a pixel's width of the surface (silhouettes grow by up to that), as a `render` draws; \"absolute\", within 1e-5 with plain steps: each pixel shows what the thin ray through its centre meets, as training rays are cast (raise `iterations` for grazing rays)"),
                 opt("test_views", Type::Number, "0", "how many cameras to hold out as test views (fewer than the cameras)"),
                 opt("split_seed", Type::Number, "0", "seed of the shuffle that picks the test views"),
+                opt("train_views", Type::Number, "0", "train on only this many of the cameras not held out (0: all), spread out: the first, then each next the farthest from those taken. The test views are held out of all the cameras first, so a fewer-views sweep over a fixed camera set scores every setting on the same views, and fewer views are a subset of more"),
             ],
             DATASET,
             render_views,

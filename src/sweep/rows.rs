@@ -1,0 +1,314 @@
+//! One finished setting of a sweep on disk: its row file, written when the
+//! setting finishes, and the fingerprint that says whether the row still
+//! stands for the file and the setting.
+//!
+//! A setting `NAME=VALUE` runs in `OUT/NAME=VALUE/` and, once it has
+//! finished, its row goes to `OUT/rows/NAME=VALUE.json` (atomically): the
+//! seconds it took and each statement's report. The table and plots are
+//! rebuilt from these files, so a sweep can stop and resume, and shards run
+//! apart can be copied into one `--out` and collected.
+
+use std::fmt::Write as _;
+use std::io::Read as _;
+use std::path::{Path, PathBuf};
+
+use sdfl_runtime::train::checkpoint::Fnv;
+
+/// The row file's format: a row of another format is run again.
+pub(super) const ROW_FORMAT: u32 = 1;
+
+/// Largest row file read (reports of a few statements; a file this large
+/// in `rows/` is not one sdfl wrote).
+const MAX_ROW_BYTES: u64 = 64 << 20;
+
+/// One finished setting.
+#[derive(serde::Serialize, serde::Deserialize)]
+pub(super) struct Row {
+    /// [`ROW_FORMAT`].
+    pub format: u32,
+    /// The swept `let`.
+    pub name: String,
+    /// Its value in this setting.
+    pub value: f64,
+    /// [`fingerprint`] of the setting's program when it ran.
+    pub fingerprint: String,
+    /// Wall-clock seconds the setting's statements took.
+    pub seconds: f64,
+    /// Each statement's report, as `sdfl run --json` prints it (`report`).
+    pub reports: Vec<serde_json::Value>,
+}
+
+/// A setting's name: `NAME=VALUE`, also its folder's and its row's.
+pub(super) fn label(name: &str, value: f64) -> String {
+    format!("{name}={value}")
+}
+
+/// Where a setting's row is kept.
+pub(super) fn row_path(out: &Path, label: &str) -> PathBuf {
+    out.join("rows").join(format!("{label}.json"))
+}
+
+/// What a setting computes, as a hash: the evaluated program (every
+/// statement, imported files spliced in, the swept value substituted; its
+/// `Debug` form without source positions), the setting, `--size` and the
+/// sdfl version. An edit that changes what the file evaluates to changes
+/// it; one that only moves text (a comment, blank lines) does not, nor
+/// does a change inside a data file the program reads when it runs
+/// (delete the rows to rerun).
+pub(super) fn fingerprint(
+    program: &sdfl_stdlib::Program,
+    name: &str,
+    value: f64,
+    size: Option<(u32, u32)>,
+) -> String {
+    let mut h = WithoutSpans::default();
+    let _ = write!(
+        h,
+        "sdfl {} sweep row {ROW_FORMAT}\n{name}={:016x}\n{size:?}\n{program:?}",
+        env!("CARGO_PKG_VERSION"),
+        value.to_bits()
+    );
+    h.hash.finish()
+}
+
+/// A hash of `Debug` text that leaves out the offsets of every
+/// `Span { start: N, end: M }` (where in the file a value was written),
+/// streamed: the text of a large program is never held whole.
+#[derive(Default)]
+struct WithoutSpans {
+    hash: Fnv,
+    /// The last bytes hashed, to recognise where offsets follow.
+    tail: Vec<u8>,
+    /// Inside a span, between its start and its end.
+    in_span: bool,
+    /// Dropping the digits of an offset.
+    skipping: bool,
+}
+
+impl std::fmt::Write for WithoutSpans {
+    fn write_str(&mut self, s: &str) -> std::fmt::Result {
+        const START: &[u8] = b"Span { start: ";
+        const END: &[u8] = b", end: ";
+        for &b in s.as_bytes() {
+            if self.skipping && b.is_ascii_digit() {
+                continue;
+            }
+            self.skipping = false;
+            self.hash.bytes(&[b]);
+            self.tail.push(b);
+            if self.tail.len() > 2 * START.len() {
+                self.tail.drain(..START.len());
+            }
+            if self.tail.ends_with(START) {
+                (self.in_span, self.skipping) = (true, true);
+            } else if self.in_span && self.tail.ends_with(END) {
+                (self.in_span, self.skipping) = (false, true);
+            }
+        }
+        Ok(())
+    }
+}
+
+/// What `OUT/rows/` holds for a setting.
+pub(super) enum Found {
+    /// A row that still stands for the setting.
+    Done(Row),
+    /// No row: the setting has not finished.
+    Missing,
+    /// A row that no longer stands for the setting, and why.
+    Stale(String),
+}
+
+/// The row of setting `label` under `out`, checked against `fingerprint`
+/// and against its outputs still being on disk (in `OUT/label/`).
+pub(super) fn find(out: &Path, label: &str, fingerprint: &str) -> Found {
+    let path = row_path(out, label);
+    let bytes = match sdfl_runtime::data::image::open_regular(&path).and_then(|f| {
+        let mut bytes = Vec::new();
+        f.take(MAX_ROW_BYTES + 1).read_to_end(&mut bytes)?;
+        Ok(bytes)
+    }) {
+        Ok(b) if b.len() as u64 <= MAX_ROW_BYTES => b,
+        Ok(_) => return Found::Stale("its row file is too large to be one sdfl wrote".into()),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Found::Missing,
+        Err(e) => return Found::Stale(format!("its row file cannot be read ({e})")),
+    };
+    let row: Row = match serde_json::from_slice(&bytes) {
+        Ok(r) => r,
+        Err(_) => return Found::Stale("its row file is not a sweep row".into()),
+    };
+    if row.format != ROW_FORMAT {
+        return Found::Stale("its row was written by another version of sdfl".into());
+    }
+    if row.fingerprint != fingerprint {
+        return Found::Stale("the file or the setting changed since it ran".into());
+    }
+    let dir = out.join(label);
+    let lost = written(&row.reports)
+        .into_iter()
+        .find(|rel| !dir.join(rel).exists());
+    if let Some(rel) = lost {
+        return Found::Stale(format!("its output {label}/{rel} is gone"));
+    }
+    Found::Done(row)
+}
+
+/// Paths (relative to the setting's folder) of what a setting's
+/// statements wrote.
+pub(super) fn written(reports: &[serde_json::Value]) -> Vec<String> {
+    reports
+        .iter()
+        .flat_map(|r| r["written"].as_array().cloned().unwrap_or_default())
+        .filter_map(|w| w["path"].as_str().map(str::to_string))
+        .collect()
+}
+
+/// Writes a finished setting's row (atomically: a sweep stopped while
+/// writing it leaves no row, and the setting runs again).
+pub(super) fn write(out: &Path, label: &str, row: &Row) -> std::io::Result<()> {
+    let json = serde_json::to_vec_pretty(row).map_err(std::io::Error::other)?;
+    sdfl_runtime::output::write_bytes(&row_path(out, label), &json)
+}
+
+/// A setting that has started and not finished: written before it runs,
+/// removed once its row is written. A rerun that finds one for the same
+/// fingerprint resumes the setting where it stopped (training from its
+/// checkpoint) rather than from scratch.
+#[derive(serde::Serialize, serde::Deserialize)]
+pub(super) struct Started {
+    /// [`fingerprint`] of the setting's program.
+    pub fingerprint: String,
+    /// Seconds spent in earlier attempts that stopped on a signal (a
+    /// `kill -9` leaves no time to count them).
+    pub seconds: f64,
+}
+
+fn started_path(out: &Path, label: &str) -> PathBuf {
+    out.join("rows").join(format!("{label}.started.json"))
+}
+
+/// The mark of an unfinished setting, if it is for `fingerprint`.
+pub(super) fn started(out: &Path, label: &str, fingerprint: &str) -> Option<Started> {
+    let f = sdfl_runtime::data::image::open_regular(&started_path(out, label)).ok()?;
+    let mut bytes = Vec::new();
+    f.take(1 << 16).read_to_end(&mut bytes).ok()?;
+    serde_json::from_slice::<Started>(&bytes)
+        .ok()
+        .filter(|s| s.fingerprint == fingerprint)
+}
+
+/// Marks a setting as started (atomically).
+pub(super) fn mark_started(out: &Path, label: &str, mark: &Started) -> std::io::Result<()> {
+    let json = serde_json::to_vec(mark).map_err(std::io::Error::other)?;
+    sdfl_runtime::output::write_bytes(&started_path(out, label), &json)
+}
+
+/// Removes a finished setting's mark.
+pub(super) fn unmark(out: &Path, label: &str) -> std::io::Result<()> {
+    match std::fs::remove_file(started_path(out, label)) {
+        Err(e) if e.kind() != std::io::ErrorKind::NotFound => Err(e),
+        _ => Ok(()),
+    }
+}
+
+/// A slice of a sweep's settings: shard `index` of `count`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) struct Shard {
+    /// 0-based, as Slurm's `SLURM_ARRAY_TASK_ID` (with `--array=0-…`)
+    /// and Kubernetes' `JOB_COMPLETION_INDEX` count.
+    pub index: usize,
+    /// How many shards the settings are spread over.
+    pub count: usize,
+}
+
+impl Shard {
+    /// Whether the setting at `position` in `--set` is this shard's:
+    /// round-robin over the settings in order, so every shard gets a
+    /// share of cheap and costly settings when they are listed by cost.
+    pub fn owns(&self, position: usize) -> bool {
+        position % self.count == self.index
+    }
+}
+
+/// Parses `--shard I/N` (0 ≤ I < N).
+pub(crate) fn parse_shard(s: &str) -> Result<Shard, String> {
+    let (i, n) = s
+        .split_once('/')
+        .ok_or("expected I/N, e.g. 0/4 (shard I of N, counted from 0)")?;
+    let index: usize = i
+        .trim()
+        .parse()
+        .map_err(|_| format!("bad shard index `{i}`"))?;
+    let count: usize = n
+        .trim()
+        .parse()
+        .map_err(|_| format!("bad shard count `{n}`"))?;
+    if count == 0 || index >= count {
+        return Err(format!(
+            "shard {index} of {count}: the index counts from 0 and must be below the count"
+        ));
+    }
+    Ok(Shard { index, count })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn shards_split_the_settings_round_robin() {
+        let shards: Vec<Shard> = (0..3)
+            .map(|i| parse_shard(&format!("{i}/3")).unwrap())
+            .collect();
+        for position in 0..10 {
+            let owners = shards.iter().filter(|s| s.owns(position)).count();
+            assert_eq!(owners, 1, "setting {position} belongs to exactly one shard");
+        }
+        assert!(shards[1].owns(4) && shards[0].owns(3));
+        for bad in ["3/3", "1/0", "x/2", "1", "-1/2", "1/2/3"] {
+            assert!(parse_shard(bad).is_err(), "{bad}");
+        }
+        assert_eq!(parse_shard(" 2 / 4").unwrap(), Shard { index: 2, count: 4 });
+    }
+
+    #[test]
+    fn the_fingerprint_follows_the_program_and_the_setting() {
+        let src = |text: &str| sdfl_lang::SourceFile::new("s.sdfl", text);
+        let text = "let n = 8\nrender v { scene: sphere(), camera: look_at([0, 0, -3]), outputs: [image(\"a.png\")], size: [n, n] }\n";
+        let load =
+            |t: &str, v: f64| sdfl_stdlib::load_with(&src(t), &[("n".to_string(), v)]).unwrap();
+        let a = fingerprint(&load(text, 8.0), "n", 8.0, None);
+        assert_eq!(a, fingerprint(&load(text, 8.0), "n", 8.0, None));
+        assert_ne!(a, fingerprint(&load(text, 9.0), "n", 9.0, None));
+        assert_ne!(a, fingerprint(&load(text, 8.0), "n", 8.0, Some((4, 4))));
+        let edited = text.replace("sphere()", "sphere(0.9)");
+        assert_ne!(a, fingerprint(&load(&edited, 8.0), "n", 8.0, None));
+        // Moving the text (a comment above) changes no value: the same.
+        let moved = format!("// a comment\n\n{text}");
+        assert_ne!(
+            format!("{:?}", load(&moved, 8.0)),
+            format!("{:?}", load(text, 8.0)),
+            "the spans moved"
+        );
+        assert_eq!(a, fingerprint(&load(&moved, 8.0), "n", 8.0, None));
+    }
+
+    #[test]
+    fn only_span_offsets_are_left_out_of_the_hash() {
+        let hash = |text: &str| {
+            let mut h = WithoutSpans::default();
+            // In pieces, as `Debug` writes.
+            for piece in text.split_inclusive(' ') {
+                h.write_str(piece).unwrap();
+            }
+            h.hash.finish()
+        };
+        let a = hash("Job { span: Span { start: 12, end: 30 }, n: 5 }");
+        assert_eq!(a, hash("Job { span: Span { start: 7, end: 1234 }, n: 5 }"));
+        assert_ne!(a, hash("Job { span: Span { start: 12, end: 30 }, n: 6 }"));
+        assert_ne!(
+            hash("Other { start: 1, end: 2 }"),
+            hash("Other { start: 1, end: 3 }")
+        );
+    }
+}
