@@ -949,6 +949,36 @@ impl<'e> Evaluator<'e> {
     }
 }
 
+/// The top-level `let`s of a file (parsed, checked and evaluated; its
+/// statements are not run), for tests that read values.
+#[doc(hidden)]
+pub fn globals_of(src: &str) -> Result<HashMap<String, Value>, Diagnostics> {
+    let file = sdfl_lang::parse::parse(src)?;
+    let env = StdEnv::get();
+    let checked = sdfl_lang::check::check(&file, env);
+    if checked.has_errors() {
+        return Err(checked);
+    }
+    let mut ev = Evaluator::new(env);
+    for item in &file.items {
+        match item {
+            Item::Let(l) => {
+                let v = ev.expr(&l.value);
+                ev.globals.insert(l.name.name.clone(), v);
+            }
+            Item::Fn(f) => {
+                ev.fns.insert(f.name.name.clone(), Arc::new(f.clone()));
+            }
+            Item::Block(_) | Item::Import(_) => {}
+        }
+    }
+    if ev.diags.has_errors() {
+        Err(ev.diags.sorted())
+    } else {
+        Ok(ev.globals)
+    }
+}
+
 fn item_span(item: &Item) -> Span {
     match item {
         Item::Let(l) => l.span,

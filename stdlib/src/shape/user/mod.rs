@@ -25,7 +25,6 @@ use sdfl_lang::Span;
 use super::{Aabb, ArgSource};
 use crate::num::{Real, V3};
 use crate::param::{Arg, ParamUse};
-use crate::sdf;
 
 /// The built-in that makes a user shape.
 pub const BUILTIN: &str = "sdf";
@@ -517,6 +516,22 @@ fn mul_range(a: (f64, f64), b: (f64, f64)) -> (f64, f64) {
     )
 }
 
+/// The range of `sin` over `lo..=hi`: the ends, and ±1 where a peak
+/// (`π/2 + 2kπ`) or trough (`-π/2 + 2kπ`) lies between them.
+fn sin_range(lo: f64, hi: f64) -> (f64, f64) {
+    use std::f64::consts::{FRAC_PI_2, TAU};
+    if !(hi - lo < TAU) {
+        return (-1.0, 1.0);
+    }
+    // Whether `c + 2kπ` lies in the range for some whole k.
+    let holds = |c: f64| ((lo - c) / TAU).ceil() * TAU + c <= hi;
+    let (a, b) = (lo.sin(), hi.sin());
+    let low = if holds(-FRAC_PI_2) { -1.0 } else { a.min(b) };
+    let high = if holds(FRAC_PI_2) { 1.0 } else { a.max(b) };
+    // Rounding of the ends' sines: widened by an ulp's worth.
+    (low - 1e-15, high + 1e-15)
+}
+
 fn bounds_of(op: &Op, at: &[Bounds], lo: DVec3, hi: DVec3, args: &[f64]) -> Bounds {
     let g = |a: u32| at[a as usize];
     match *op {
@@ -628,11 +643,14 @@ fn bounds_of(op: &Op, at: &[Bounds], lo: DVec3, hi: DVec3, args: &[f64]) -> Boun
         }
         Op::Sin(a) | Op::Cos(a) => {
             let a = g(a);
-            Bounds {
-                lo: -1.0,
-                hi: 1.0,
-                ..a
-            }
+            // cos x = sin(x + π/2).
+            let shift = if matches!(op, Op::Cos(_)) {
+                std::f64::consts::FRAC_PI_2
+            } else {
+                0.0
+            };
+            let (l, h) = sin_range(a.lo + shift, a.hi + shift);
+            Bounds { lo: l, hi: h, ..a }
         }
         Op::Exp(a) => {
             let a = g(a);
@@ -782,11 +800,15 @@ pub fn clipped<T: Real>(p: V3<T>, b: &Aabb, inv_l: f64, f: impl FnOnce(V3<T>) ->
         p.z.clamp(b.min.z, b.max.z),
     );
     let inside = f(q) * T::lit(inv_l);
-    let boxed = sdf::cuboid(
-        p,
-        V3::lit(b.center().to_array()),
-        V3::lit((b.max - b.min).to_array()),
-    );
+    // The box's distance, its offsets capped at `FAR` (so squares stay
+    // finite in f32 at any coordinate; a capped offset only lowers the
+    // bound, which stays 1-Lipschitz).
+    const FAR: f64 = 1e15;
+    let c = b.center();
+    let h = (b.max - b.min) * 0.5;
+    let off = |x: T, c: f64, h: f64| (x - T::lit(c)).abs().min(T::lit(FAR)) - T::lit(h);
+    let o = V3::new(off(p.x, c.x, h.x), off(p.y, c.y, h.y), off(p.z, c.z, h.z));
+    let boxed = o.max_s(T::zero()).length() + o.max_element().min(T::zero());
     inside.max(boxed)
 }
 
