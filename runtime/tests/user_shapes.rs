@@ -202,11 +202,9 @@ fn a_user_written_torus_renders_as_the_built_in_torus() {
     let (ma, mb) = (a.mask.as_ref().unwrap(), b.mask.as_ref().unwrap());
     let hits = mb.iter().filter(|&&m| m > 0).count();
     assert!(hits > 500, "the torus is in view");
-    // Silhouette pixels are decided by the closest approach the tracer's
-    // steps find, and the user shape's steps differ outside its box.
     let mask_diff = ma.iter().zip(mb).filter(|(x, y)| x != y).count();
     assert!(
-        mask_diff * 50 <= hits,
+        mask_diff * 200 <= hits,
         "{mask_diff} of {hits} pixels hit one torus only"
     );
     let (ca, cb) = (a.color.as_ref().unwrap(), b.color.as_ref().unwrap());

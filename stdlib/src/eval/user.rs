@@ -68,7 +68,18 @@ impl<'e> Evaluator<'e> {
             Ok(s) => Value::Shape(Arc::new(Shape::User(Arc::new(s)))),
             // Stopped by the work limit, which reported it.
             Err(_) if self.aborted => Value::Poison,
-            Err(Some(d)) => self.error(d),
+            Err(Some(mut d)) => {
+                // Inside the `fn`'s body: say which `sdf` compiled it.
+                if !(site.start <= d.span.start && d.span.end <= site.end)
+                    && !d
+                        .notes
+                        .iter()
+                        .any(|(s, _)| site.start <= s.start && s.end <= site.end)
+                {
+                    d = d.note(site, "compiled as a shape here");
+                }
+                self.error(d)
+            }
             // An argument that was reported already.
             Err(None) => Value::Poison,
         }
