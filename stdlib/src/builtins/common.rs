@@ -5,17 +5,6 @@ use super::*;
 
 /// `min`/`max` of the rest arguments, lists flattened.
 pub(super) fn extreme(a: &Args, name: &str, pick: fn(f64, f64) -> f64) -> Result<Value, Diag> {
-    // Two values of which one is a vector: componentwise (GLSL's `max(v, 0)`).
-    if let [(x, _), (y, _)] = a.rest.as_slice() {
-        if let (Some((xs, lx)), Some((ys, ly))) = (super::numbers_of(x), super::numbers_of(y)) {
-            let n = xs.len().max(ys.len());
-            if (lx || ly) && (xs.len() == ys.len() || xs.len() == 1 || ys.len() == 1) && n > 0 {
-                let at = |v: &[f64], i: usize| if v.len() == 1 { v[0] } else { v[i] };
-                let zs = (0..n).map(|i| Value::Number(pick(at(&xs, i), at(&ys, i))));
-                return Ok(Value::List(std::sync::Arc::new(zs.collect())));
-            }
-        }
-    }
     let xs = a.rest_numbers()?;
     match xs.into_iter().reduce(pick) {
         Some(x) => Ok(Value::Number(x)),

@@ -835,14 +835,14 @@ fn table() -> Vec<Builtin> {
         ),
         variadic(
             "min",
-            "The smallest of one or more numbers; lists are flattened: `min(a, b, c)`, `min(xs)`. Of two values where one is a vector, the smaller of each component (GLSL's `min(v, 0)`).",
+            "The smallest of one or more numbers; lists are flattened: `min(a, b, c)`, `min(xs)`.",
             req("x", Type::Number, "numbers or lists of numbers"),
             Type::Any,
             |a| extreme(a, "min", f64::min),
         ),
         variadic(
             "max",
-            "The largest of one or more numbers; lists are flattened: `max(a, b, c)`, `max(xs)`. Of two values where one is a vector, the larger of each component (GLSL's `max(v, 0)`).",
+            "The largest of one or more numbers; lists are flattened: `max(a, b, c)`, `max(xs)`.",
             req("x", Type::Number, "numbers or lists of numbers"),
             Type::Any,
             |a| extreme(a, "max", f64::max),

@@ -1,14 +1,14 @@
-//! The compiled tape against the language's own evaluation of the `fn`,
-//! interval bounds against samples, derivatives against finite
-//! differences, hard points.
+//! User shapes (`sdf(f, ...)`): the compiled tape against the language's
+//! own evaluation, interval bounds, derivatives, hard points.
 
-use super::*;
-use crate::eval::globals_of;
-use crate::num::Dual;
-use crate::param::Fixed;
-use crate::shape::Shape;
-use crate::value::Value;
+use glam::DVec3;
 use proptest::prelude::*;
+use sdfl_stdlib::eval::globals_of;
+use sdfl_stdlib::num::{Dual, V3};
+use sdfl_stdlib::param::Fixed;
+use sdfl_stdlib::shape::user::UserShape;
+use sdfl_stdlib::shape::Shape;
+use sdfl_stdlib::value::Value;
 
 /// Functions written as users write them, with the arguments `sdf` and a
 /// direct call pass: every construct the compiler knows.
@@ -18,11 +18,11 @@ const FNS: &[(&str, &str)] = &[
         "major: 0.8",
     ),
     (
-        "fn f(p, b: [0.6, 0.4, 0.5], r: 0.1) { let q = abs(p) - b; length(max(q, 0)) + min(max(q.x, max(q.y, q.z)), 0) - r }",
+        "fn f(p, b: [0.6, 0.4, 0.5], r: 0.1) { let q = abs(p) - b; length([max(q.x, 0), max(q.y, 0), max(q.z, 0)]) + min(max(q.x, max(q.y, q.z)), 0) - r }",
         "r: 0.05",
     ),
     (
-        "fn f(p, h: [0.5, 0.7]) { let d = abs([length(p.xz), p.y]) - h; min(max(d.x, d.y), 0) + length(max(d, 0)) }",
+        "fn f(p, h: [0.5, 0.7]) { let d = abs([length(p.xz), p.y]) - h; min(max(d.x, d.y), 0) + length([max(d.x, 0), max(d.y, 0)]) }",
         "",
     ),
     (
@@ -202,11 +202,11 @@ fn the_users_torus_equals_the_built_in_torus_inside_its_box() {
         "fn f(p, major: 1, minor: 0.25) { length([length(p.xy) - major, p.z]) - minor }",
         "",
     );
-    let torus = crate::shape::Torus {
+    let torus = sdfl_stdlib::shape::Torus {
         major: 1.0.into(),
         minor: 0.25.into(),
         center: DVec3::ZERO.into(),
-        axis: crate::shape::Axis::Z,
+        axis: sdfl_stdlib::shape::Axis::Z,
     };
     let t: Shape = torus.into();
     // Derived: exactly 1 (the lengths' Jacobians have disjoint coordinates).

@@ -811,6 +811,3 @@ pub fn clipped<T: Real>(p: V3<T>, b: &Aabb, inv_l: f64, f: impl FnOnce(V3<T>) ->
     let boxed = o.max_s(T::zero()).length() + o.max_element().min(T::zero());
     inside.max(boxed)
 }
-
-#[cfg(test)]
-mod tests;
