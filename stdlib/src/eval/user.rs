@@ -70,12 +70,8 @@ impl<'e> Evaluator<'e> {
             Err(_) if self.aborted => Value::Poison,
             Err(Some(mut d)) => {
                 // Inside the `fn`'s body: say which `sdf` compiled it.
-                if !(site.start <= d.span.start && d.span.end <= site.end)
-                    && !d
-                        .notes
-                        .iter()
-                        .any(|(s, _)| site.start <= s.start && s.end <= site.end)
-                {
+                let within = |s: Span| site.start <= s.start && s.end <= site.end;
+                if !within(d.span) && !d.notes.iter().any(|(s, _)| within(*s)) {
                     d = d.note(site, "compiled as a shape here");
                 }
                 self.error(d)

@@ -520,7 +520,8 @@ fn mul_range(a: (f64, f64), b: (f64, f64)) -> (f64, f64) {
 /// (`π/2 + 2kπ`) or trough (`-π/2 + 2kπ`) lies between them.
 fn sin_range(lo: f64, hi: f64) -> (f64, f64) {
     use std::f64::consts::{FRAC_PI_2, TAU};
-    if !(hi - lo < TAU) {
+    // NaN widths too.
+    if (hi - lo).partial_cmp(&TAU) != Some(std::cmp::Ordering::Less) {
         return (-1.0, 1.0);
     }
     // Whether `c + 2kπ` lies in the range for some whole k.
