@@ -10,6 +10,8 @@
 //! `-- frames` times frames (depth + normals) against fidget's own voxel
 //! renderer (see `peer.rs`), `-- showcase` the showcase's trace with and
 //! without tiles.
+//! `-- user` times a torus the user writes (`sdf(torus_d, ...)`) against
+//! the built-in one and fidget's JIT on the same expression (see `user.rs`).
 //! `cargo run --release -p sdfl-bench -- train` times training steps instead
 //! (see `train.rs`; `-- train 20 fused` the fused kernel only); `-- nerf` times NeRF steps and `-- neural-sdf` neural SDF steps (see `nerf.rs`); `-- density` what each density runs through (see `density.rs`); `-- view` the frames per second of `sdfl view` (see `view.rs`).
 #![warn(missing_docs)]
@@ -29,6 +31,7 @@ mod density;
 mod nerf;
 mod peer;
 mod train;
+mod user;
 mod view;
 
 /// Deterministic uniform numbers in [0, 1).
@@ -272,6 +275,13 @@ fn main() {
             .and_then(|r| r.parse().ok())
             .unwrap_or(5);
         return showcase_main(reps);
+    }
+    if std::env::args().nth(1).as_deref() == Some("user") {
+        let reps = std::env::args()
+            .nth(2)
+            .and_then(|r| r.parse().ok())
+            .unwrap_or(5);
+        return user::main(reps);
     }
     if std::env::args().nth(1).as_deref() == Some("train") {
         let reps = std::env::args()

@@ -78,9 +78,14 @@ impl FidgetScene {
             !spheres.is_empty(),
             "fidget scene needs at least one sphere"
         );
+        Self::build(|ctx| sphere_union(ctx, spheres))
+    }
+
+    /// The expression `expr` builds, JIT-compiled (timed as in [`Self::new`]).
+    pub fn build(expr: impl FnOnce(&mut Context) -> Node) -> Self {
         let start = Instant::now();
         let mut ctx = Context::new();
-        let root = sphere_union(&mut ctx, spheres);
+        let root = expr(&mut ctx);
         let shape = JitShape::new(&ctx, root).expect("fidget shape");
         let tape = shape.ez_float_slice_tape();
         FidgetScene {
@@ -153,6 +158,23 @@ impl FidgetScene {
     }
 }
 
+/// IQ's torus about Z, `|(|p.xy| - major, p.z)| - minor`, in `ctx`.
+pub fn torus(ctx: &mut Context, major: f64, minor: f64) -> Node {
+    let (x, y, z) = (ctx.x(), ctx.y(), ctx.z());
+    let (x2, y2, z2) = (
+        ctx.square(x).unwrap(),
+        ctx.square(y).unwrap(),
+        ctx.square(z).unwrap(),
+    );
+    let xy = ctx.add(x2, y2).unwrap();
+    let ring = ctx.sqrt(xy).unwrap();
+    let across = ctx.sub(ring, major as f32).unwrap();
+    let a2 = ctx.square(across).unwrap();
+    let sum = ctx.add(a2, z2).unwrap();
+    let len = ctx.sqrt(sum).unwrap();
+    ctx.sub(len, minor as f32).unwrap()
+}
+
 /// Array-of-structs points to x, y and z slices.
 fn split(points: &[Vec3A]) -> (Vec<f32>, Vec<f32>, Vec<f32>) {
     (
@@ -180,8 +202,13 @@ pub struct FidgetFrame {
 
 impl FidgetFrame {
     pub fn new(spheres: &[(DVec3, f64)], size: u32) -> Self {
+        Self::build(|ctx| sphere_union(ctx, spheres), size)
+    }
+
+    /// fidget's renderer on the expression `expr` builds.
+    pub fn build(expr: impl FnOnce(&mut Context) -> Node, size: u32) -> Self {
         let mut ctx = Context::new();
-        let root = sphere_union(&mut ctx, spheres);
+        let root = expr(&mut ctx);
         let shape = JitShape::new(&ctx, root).expect("fidget shape");
         // Screen NDC (x, y, z) in [-1, 1]³ (z = 1 nearest) → model. The
         // distance along z from the eye is 1/w with w = P + Q·z: 2 at the

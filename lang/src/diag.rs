@@ -84,6 +84,13 @@ pub mod codes {
     pub const PRECISION: &str = "sdfl::value::precision";
     /// A run whose estimated work or memory is beyond what sdfl accepts.
     pub const WORK: &str = "sdfl::limit::work";
+    /// A `fn` used as a shape (`sdf(f)`) does what a shape's function
+    /// cannot: gives no number, calls what is no operation on numbers
+    /// (`random`, a shape), loops.
+    pub const SHAPE_FN: &str = "sdfl::fn::shape";
+    /// A shape's function that interval arithmetic over its bound box finds
+    /// can be infinite (a division by a range holding 0).
+    pub const SHAPE_UNBOUNDED: &str = "sdfl::fn::unbounded";
     /// A warning: the camera cannot reach the scene within `far`.
     pub const MISSES_SCENE: &str = "sdfl::warn::misses-scene";
     /// A warning: a `param(...)` where nothing trains it (a render, or the

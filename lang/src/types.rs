@@ -136,6 +136,9 @@ pub struct Signature {
     /// Extra positional arguments of this type (lists of it are flattened),
     /// as in `union(a, b, c)`.
     pub rest: Option<Param>,
+    /// Extra named arguments of this type, passed on by the built-in
+    /// (`sdf(f, major: 1)` passes `major` to the `fn` `f`).
+    pub named_rest: Option<Param>,
     /// The type of its result.
     pub returns: Type,
     /// One line for help texts and the reference.
@@ -160,6 +163,10 @@ impl Signature {
         if let Some(r) = &self.rest {
             parts.push(format!("{}: {}...", r.name, r.ty));
         }
+        let named_rest = self
+            .named_rest
+            .as_ref()
+            .map(|r| format!("<{}>: {}...", r.name, r.ty));
         // Parameters of `fn`s are untyped (`Any`): shown by name only.
         parts.extend(self.params.iter().map(|p| match (p.default, &p.ty) {
             (Some(d), Type::Any) => format!("{}: {d}", p.name),
@@ -167,6 +174,7 @@ impl Signature {
             (Some(d), t) => format!("{}: {t} = {d}", p.name),
             (None, t) => format!("{}: {t}", p.name),
         }));
+        parts.extend(named_rest);
         format!("{}({})", self.name, parts.join(", "))
     }
 }

@@ -40,6 +40,14 @@ pub trait Real:
     fn sin(self) -> Self;
     /// cos x (radians).
     fn cos(self) -> Self;
+    /// The largest whole number ≤ x, derivative 0 (piecewise constant).
+    /// The default reads the value: types that record a computation
+    /// (the training tape) then treat it as a branch on the value, and fall
+    /// back to a path that evaluates each sample.
+    #[inline(always)]
+    fn floor(self) -> Self {
+        Self::lit(self.val().floor())
+    }
     /// The larger of the two (the first on ties).
     fn max(self, o: Self) -> Self;
     /// The smaller of the two (the first on ties).
@@ -76,6 +84,10 @@ macro_rules! real_float {
             #[inline(always)]
             fn val(self) -> f64 {
                 self as f64
+            }
+            #[inline(always)]
+            fn floor(self) -> Self {
+                <$t>::floor(self)
             }
             #[inline(always)]
             fn sqrt(self) -> Self {
@@ -328,6 +340,10 @@ impl<F: Real, const N: usize> Real for Dual<F, N> {
     #[inline(always)]
     fn val(self) -> f64 {
         self.v.val()
+    }
+    #[inline(always)]
+    fn floor(self) -> Self {
+        Dual::constant(self.v.floor())
     }
     #[inline(always)]
     fn sqrt(self) -> Self {

@@ -66,6 +66,8 @@ pub enum Value {
     /// Cameras known only when a `train` runs (a loop through the training
     /// cameras of a data set read from files), as its `views`.
     ViewPath(ViewPath),
+    /// A `fn` named as a value (`sdf(torus_d)`).
+    Function(Arc<sdfl_lang::ast::FnDef>),
     /// The value of an expression that already produced a diagnostic.
     /// Anything computed from it is poison too, silently.
     Poison,
@@ -100,6 +102,7 @@ impl Value {
             Value::Background(_) => "background",
             Value::Contraction(_) => "contraction",
             Value::Ndc => "ndc",
+            Value::Function(_) => "function",
             Value::Poison => "invalid value",
         }
     }

@@ -47,7 +47,16 @@ fn every_default_evaluates() {
             Some(_) => "sphere(), ",
             None => "",
         };
-        let src = format!("let x = {}({rest}{})", b.sig.name, args.join(", "));
+        // `sdf` takes a `fn` defined in the file.
+        let (prelude, args) = if b.sig.name == "sdf" {
+            (
+                "fn f(p) { length(p) - 1 }\n",
+                vec!["f".to_string(), "bound: 1".to_string()],
+            )
+        } else {
+            ("", args)
+        };
+        let src = format!("{prelude}let x = {}({rest}{})", b.sig.name, args.join(", "));
         let r = load(&SourceFile::new("t", src.clone()));
         // Outputs need a .gif name etc.; only defaults matter here, so any
         // failure must be a value error of the placeholder arguments.

@@ -43,6 +43,25 @@ fn list_depth(t: &Type) -> usize {
     }
 }
 
+/// The type of a `fn` named as a value (`sdf(torus_d)`).
+pub const FUNCTION: Type = Type::Named("function");
+
+/// The components a member names (`.x` → `[0]`, `.xz` → `[0, 2]`): one to
+/// four of `x`, `y`, `z`; `None` for any other name.
+pub fn swizzle(name: &str) -> Option<Vec<usize>> {
+    if name.is_empty() || name.len() > 4 {
+        return None;
+    }
+    name.chars()
+        .map(|c| match c {
+            'x' => Some(0),
+            'y' => Some(1),
+            'z' => Some(2),
+            _ => None,
+        })
+        .collect()
+}
+
 /// Check a file. Returns the diagnostics (empty when the file is fine).
 pub fn check(file: &File, env: &dyn Env) -> Diagnostics {
     // Sized up front: a file of a million `let`s must not hold the table
@@ -267,6 +286,7 @@ impl<'f> Checker<'_, 'f> {
             name: intern(&name.name),
             params,
             rest: None,
+            named_rest: None,
             returns,
             doc: "",
         };
@@ -448,7 +468,7 @@ impl<'f> Checker<'_, 'f> {
             ExprKind::Call { callee, args, .. } => self.call(callee, args, e.span),
             ExprKind::Member(recv, name) => {
                 let t = self.expr(recv);
-                if !matches!(name.name.as_str(), "x" | "y" | "z") {
+                let Some(picked) = swizzle(&name.name) else {
                     self.diags.push(
                         Diag::new(
                             codes::UNKNOWN_FIELD,
@@ -456,10 +476,10 @@ impl<'f> Checker<'_, 'f> {
                             format!("no member `{}`", name.name),
                         )
                         .label("unknown member")
-                        .help("vectors have the members `.x`, `.y` and `.z`"),
+                        .help("vectors have the members `.x`, `.y` and `.z`, and swizzles of them such as `.xz` or `.zyx`"),
                     );
                     return Type::Any;
-                }
+                };
                 if !Type::Vec3.accepts(&t) {
                     self.diags.push(
                         Diag::new(
@@ -472,7 +492,11 @@ impl<'f> Checker<'_, 'f> {
                     );
                     return Type::Any;
                 }
-                Type::Number
+                match picked.len() {
+                    1 => Type::Number,
+                    3 => Type::Vec3,
+                    _ => Type::list(Type::Number),
+                }
             }
             ExprKind::Neg(inner) => {
                 let t = self.expr(inner);
@@ -682,6 +706,10 @@ impl<'f> Checker<'_, 'f> {
         if let Some(t) = self.lookup(&id.name) {
             return t;
         }
+        // A `fn` defined above, as a value (`sdf(torus_d)`).
+        if self.fns.contains_key(&id.name) && self.env.function(&id.name).is_none() {
+            return FUNCTION;
+        }
         let mut d = Diag::new(
             codes::UNKNOWN_NAME,
             id.span,
@@ -818,6 +846,25 @@ impl<'f> Checker<'_, 'f> {
                     seen_named = true;
                     match sig.params.iter().find(|p| p.name == name.name) {
                         Some(p) => p,
+                        // Passed on by the built-in under its own name.
+                        None if sig.named_rest.is_some() => {
+                            let rest = sig.named_rest.clone().expect("checked above");
+                            let at = name.span;
+                            if let Some(first) = given.insert(intern(&name.name), at) {
+                                self.diags.push(
+                                    Diag::new(
+                                        codes::DUPLICATE_ARG,
+                                        at,
+                                        format!("`{}` is given twice", name.name),
+                                    )
+                                    .label("given again here")
+                                    .note(first, "first given here")
+                                    .help(format!("signature: {}", sig.synopsis())),
+                                );
+                            }
+                            self.expect_type(&rest, ty, arg.value.span);
+                            continue;
+                        }
                         None => {
                             let names: Vec<&str> = sig.params.iter().map(|p| p.name).collect();
                             let help = match suggest(&name.name, names.iter().copied()) {

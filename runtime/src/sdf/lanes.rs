@@ -226,6 +226,10 @@ macro_rules! lane_type {
                 self.map(f32::sqrt)
             }
             #[inline(always)]
+            fn floor(self) -> Self {
+                self.map(f32::floor)
+            }
+            #[inline(always)]
             fn abs(self) -> Self {
                 self.map(f32::abs)
             }

@@ -61,6 +61,7 @@ impl Lowering {
                 shape,
                 frame,
             }),
+            Shape::User(u) => self.leaf(UserPrim::new(u), shape, frame),
             Shape::Union(_) => {
                 let mut members = Vec::new();
                 self.union_members(shape, frame, &mut members);

@@ -200,6 +200,7 @@ fn func(
             name,
             params,
             rest: None,
+            named_rest: None,
             returns,
             doc,
         },
@@ -219,6 +220,7 @@ fn variadic(
             name,
             params: Vec::new(),
             rest: Some(rest),
+            named_rest: None,
             returns,
             doc,
         },
@@ -238,6 +240,103 @@ fn math1(name: &'static str, doc: &'static str, eval: EvalFn) -> Builtin {
         Type::Number,
         eval,
     )
+}
+
+/// A number or a vector: the componentwise math built-ins' argument.
+fn num_or_list() -> Type {
+    Type::OneOf(vec![Type::Number, Type::list(Type::Number)])
+}
+
+/// A math built-in of one number, or of each component of a vector.
+fn each(name: &'static str, doc: &'static str, eval: EvalFn) -> Builtin {
+    func(
+        name,
+        doc,
+        vec![req("x", num_or_list(), "a number or a vector")],
+        Type::Any,
+        eval,
+    )
+}
+
+/// The numbers of a number (one) or a list of numbers, and whether it was
+/// a list.
+pub(crate) fn numbers_of(v: &Value) -> Option<(Vec<f64>, bool)> {
+    match v {
+        Value::Number(x) => Some((vec![*x], false)),
+        Value::List(items) => items
+            .iter()
+            .map(|i| match i {
+                Value::Number(x) => Some(*x),
+                _ => None,
+            })
+            .collect::<Option<Vec<f64>>>()
+            .map(|xs| (xs, true)),
+        _ => None,
+    }
+}
+
+/// A number, or a list of the numbers.
+fn numbers_value(xs: Vec<f64>, scalar: bool) -> Value {
+    if scalar {
+        Value::Number(xs[0])
+    } else {
+        Value::List(Arc::new(xs.into_iter().map(Value::Number).collect()))
+    }
+}
+
+/// `f` of `x`, or of each of its components.
+fn map_each(a: &Args, name: &str, f: impl Fn(f64) -> f64) -> Result<Value, Diag> {
+    let (v, span) = a.get("x");
+    let Some((xs, list)) = numbers_of(v) else {
+        return Err(type_error(span, "number or a vector", v));
+    };
+    let ys: Vec<f64> = xs.into_iter().map(f).collect();
+    if let Some(bad) = ys.iter().find(|y| !y.is_finite()) {
+        return finite(*bad, a, name);
+    }
+    Ok(numbers_value(ys, !list))
+}
+
+/// `f` of `x` and `y` (numbers broadcast over the other's components).
+fn zip_each(a: &Args, name: &str, f: impl Fn(f64, f64) -> f64) -> Result<Value, Diag> {
+    let (vx, sx) = a.get("x");
+    let (vy, sy) = a.get("y");
+    let (Some((xs, lx)), Some((ys, ly))) = (numbers_of(vx), numbers_of(vy)) else {
+        let (v, s) = if numbers_of(vx).is_none() {
+            (vx, sx)
+        } else {
+            (vy, sy)
+        };
+        return Err(type_error(s, "number or a vector", v));
+    };
+    let n = xs.len().max(ys.len());
+    if (lx && ly && xs.len() != ys.len()) || n == 0 {
+        return Err(value_error(
+            a.span,
+            format!(
+                "`{name}` of vectors of {} and {} numbers",
+                xs.len(),
+                ys.len()
+            ),
+            "lengths differ",
+            "give vectors of the same length, or a number",
+        ));
+    }
+    let pick = |v: &[f64], i: usize| if v.len() == 1 { v[0] } else { v[i] };
+    let zs: Vec<f64> = (0..n).map(|i| f(pick(&xs, i), pick(&ys, i))).collect();
+    if let Some(bad) = zs.iter().find(|z| !z.is_finite()) {
+        return finite(*bad, a, name);
+    }
+    Ok(numbers_value(zs, !(lx || ly)))
+}
+
+/// A vector of 1 to 4 numbers.
+fn small_vector(a: &Args, name: &str) -> Result<Vec<f64>, Diag> {
+    let (v, span) = a.get(name);
+    match numbers_of(v) {
+        Some((xs, true)) if (1..=4).contains(&xs.len()) => Ok(xs),
+        _ => Err(type_error(span, "vector of up to 4 numbers", v)),
+    }
 }
 
 fn finite(x: f64, args: &Args, what: &str) -> Result<Value, Diag> {
@@ -639,17 +738,24 @@ fn table() -> Vec<Builtin> {
             |a| Ok(Value::Loss(Loss { kind: LossKind::Mse, weight: a.positive("weight")? })),
         ),
         // ---- math
-        math1("sin", "Sine (radians).", |a| finite(a.number("x")?.sin(), a, "sin")),
-        math1("cos", "Cosine (radians).", |a| finite(a.number("x")?.cos(), a, "cos")),
+        each("sin", "Sine (radians); of each component of a vector.", |a| map_each(a, "sin", f64::sin)),
+        each("cos", "Cosine (radians); of each component of a vector.", |a| map_each(a, "cos", f64::cos)),
         math1("tan", "Tangent (radians).", |a| finite(a.number("x")?.tan(), a, "tan")),
-        math1("sqrt", "Square root (of a number ≥ 0).", |a| finite(a.number("x")?.sqrt(), a, "sqrt")),
-        math1("abs", "Absolute value.", |a| finite(a.number("x")?.abs(), a, "abs")),
-        math1("floor", "Largest whole number ≤ x.", |a| finite(a.number("x")?.floor(), a, "floor")),
-        math1("fract", "The fractional part `x - floor(x)`.", |a| {
-            let x = a.number("x")?;
-            finite(x - x.floor(), a, "fract")
+        each("sqrt", "Square root (of a number ≥ 0); of each component of a vector.", |a| map_each(a, "sqrt", f64::sqrt)),
+        each("abs", "Absolute value; of each component of a vector.", |a| map_each(a, "abs", f64::abs)),
+        each("floor", "Largest whole number ≤ x; of each component of a vector.", |a| map_each(a, "floor", f64::floor)),
+        each("fract", "The fractional part `x - floor(x)`; of each component of a vector.", |a| map_each(a, "fract", |x| x - x.floor())),
+        each("sign", "-1, 0 or 1 as x is negative, zero or positive; of each component of a vector.", |a| {
+            map_each(a, "sign", |x| if x > 0.0 { 1.0 } else if x < 0.0 { -1.0 } else { 0.0 })
         }),
-        math1("exp", "e to the power x.", |a| finite(a.number("x")?.exp(), a, "exp")),
+        each("exp", "e to the power x; of each component of a vector.", |a| map_each(a, "exp", f64::exp)),
+        func(
+            "mod",
+            "GLSL's `mod`: `x - y·floor(x/y)` (the sign of `y`); of each component when either is a vector.",
+            vec![req("x", num_or_list(), "the dividend"), req("y", num_or_list(), "the divisor (nonzero)")],
+            Type::Any,
+            |a| zip_each(a, "mod", |x, y| x - y * (x / y).floor()),
+        ),
         math1("log", "Natural logarithm (of a number > 0).", |a| finite(a.number("x")?.ln(), a, "log")),
         func(
             "clamp",
@@ -688,15 +794,22 @@ fn table() -> Vec<Builtin> {
                 }
             },
         ),
-        func("length", "Length of a vector.", vec![req("v", Type::Vec3, "the vector")], Type::Number, |a| {
-            finite(a.vec3("v")?.length(), a, "length")
+        func("length", "Length of a vector (of 2, 3 or 4 numbers).", vec![req("v", Type::list(Type::Number), "the vector")], Type::Number, |a| {
+            let v = small_vector(a, "v")?;
+            finite(v.iter().map(|x| x * x).sum::<f64>().sqrt(), a, "length")
         }),
         func(
             "dot",
-            "Dot product of two vectors.",
-            vec![req("a", Type::Vec3, "first vector"), req("b", Type::Vec3, "second vector")],
+            "Dot product of two vectors (of the same length).",
+            vec![req("a", Type::list(Type::Number), "first vector"), req("b", Type::list(Type::Number), "second vector")],
             Type::Number,
-            |a| finite(a.vec3("a")?.dot(a.vec3("b")?), a, "dot"),
+            |a| {
+                let (x, y) = (small_vector(a, "a")?, small_vector(a, "b")?);
+                if x.len() != y.len() {
+                    return Err(value_error(a.span, format!("`dot` of vectors of {} and {} numbers", x.len(), y.len()), "lengths differ", "give vectors of the same length"));
+                }
+                finite(x.iter().zip(&y).map(|(x, y)| x * y).sum(), a, "dot")
+            },
         ),
         func(
             "cross",
@@ -705,8 +818,13 @@ fn table() -> Vec<Builtin> {
             Type::Vec3,
             |a| Ok(Value::from_vec3(a.vec3("a")?.cross(a.vec3("b")?))),
         ),
-        func("normalize", "The vector scaled to length 1 (nonzero).", vec![req("v", Type::Vec3, "the vector")], Type::Vec3, |a| {
-            Ok(Value::from_vec3(a.direction("v")?))
+        func("normalize", "The vector (of 2, 3 or 4 numbers) scaled to length 1 (nonzero).", vec![req("v", Type::list(Type::Number), "the vector")], Type::Any, |a| {
+            let v = small_vector(a, "v")?;
+            let len = v.iter().map(|x| x * x).sum::<f64>().sqrt();
+            if len <= 1e-12 {
+                return Err(value_error(a.get("v").1, "`v` must be a nonzero vector", "zero vector", "give a direction such as [0, 0, 1]"));
+            }
+            Ok(numbers_value(v.iter().map(|x| x / len).collect(), false))
         }),
         math1("radians", "Degrees to radians.", |a| finite(a.number("x")?.to_radians(), a, "radians")),
         func(
@@ -720,14 +838,14 @@ fn table() -> Vec<Builtin> {
             "min",
             "The smallest of one or more numbers; lists are flattened: `min(a, b, c)`, `min(xs)`.",
             req("x", Type::Number, "numbers or lists of numbers"),
-            Type::Number,
+            Type::Any,
             |a| extreme(a, "min", f64::min),
         ),
         variadic(
             "max",
             "The largest of one or more numbers; lists are flattened: `max(a, b, c)`, `max(xs)`.",
             req("x", Type::Number, "numbers or lists of numbers"),
-            Type::Number,
+            Type::Any,
             |a| extreme(a, "max", f64::max),
         ),
         func(

@@ -17,6 +17,7 @@ pub(super) fn builtins() -> Vec<Builtin> {
                 SHAPE,
                 "two or more shapes, or lists of shapes (the blend radius is named: `k: 0.2`)",
             )),
+            named_rest: None,
             returns: SHAPE,
             doc,
         },
@@ -36,6 +37,23 @@ pub(super) fn builtins() -> Vec<Builtin> {
     );
     cone.eval = cone_by_radius_or_angle;
     rows.extend(vec![
+        // ---- shapes written by the user
+        Builtin {
+            sig: Signature {
+                name: crate::shape::user::BUILTIN,
+                params: vec![
+                    req("f", sdfl_lang::check::FUNCTION, "a `fn` of the point giving its signed distance, GLSL-style: `fn torus_d(p, major: 1, minor: 0.25) { length([length(p.xz) - major, p.y]) - minor }`"),
+                    req("bound", num_or_vec(), "the box the shape lies in, from -bound to +bound (a number: a cube); the function is evaluated only inside it and bounded by interval arithmetic over it"),
+                    opt("lipschitz", Type::Number, "0", "a bound on the function's gradient norm (its value is divided by it); 0: derived by interval arithmetic over the box, or 1 where none is derived"),
+                ],
+                rest: None,
+                named_rest: Some(req("argument", Type::Any, "the `fn`'s other arguments, by name (`major: param(0.8)` trains)")),
+                returns: SHAPE,
+                doc: "A shape written as a `fn` of the point: compiled once into a flat list of operations (vectors as numbers), run by every evaluator (f64, f32 lanes, training). Its value is `max(f(clamp(p, box)) / L, box(p))`: exact inside the box where `f` is, a bound beyond it.",
+            },
+            // Evaluated by the evaluator (it compiles the `fn`'s body).
+            eval: |a| Err(value_error(a.span, "`sdf` outside the evaluator", "not compiled", "evaluate the file with `stdlib::load`")),
+        },
         // ---- shapes that are sugar over primitives
         func(
             "rounded_box",

@@ -18,6 +18,7 @@ use crate::size::{
 use crate::value::{describe, Program, StatementKind, Value};
 
 mod blocks;
+mod user;
 
 /// Most iterations of one `for` binding.
 pub const MAX_LOOP: u64 = 1_000_000;
@@ -348,7 +349,10 @@ impl<'e> Evaluator<'e> {
             ExprKind::Str(s) => Value::Str(s.as_str().into()),
             // The checker has resolved every name; an unknown one here means
             // the file was not checked, which is poison rather than a panic.
-            ExprKind::Var(id) => self.lookup(&id.name).unwrap_or(Value::Poison),
+            ExprKind::Var(id) => self
+                .lookup(&id.name)
+                .or_else(|| self.fns.get(&id.name).cloned().map(Value::Function))
+                .unwrap_or(Value::Poison),
             ExprKind::List(items) => {
                 let items: Vec<Value> = items.iter().map(|i| self.expr(i)).collect();
                 // A list holding poison is poison: the depth of what was
@@ -365,21 +369,24 @@ impl<'e> Evaluator<'e> {
                 if matches!(v, Value::Poison) {
                     return Value::Poison;
                 }
-                let idx = match name.name.as_str() {
-                    "x" => 0,
-                    "y" => 1,
-                    _ => 2,
+                let picks = sdfl_lang::check::swizzle(&name.name).unwrap_or_default();
+                let comps = match crate::builtins::numbers_of(&v) {
+                    Some((xs, true)) if picks.iter().all(|&k| k < xs.len()) => Some(xs),
+                    _ => None,
                 };
-                match v.as_vec3() {
-                    Some(p) => Value::Number(p[idx]),
+                match comps {
+                    Some(xs) if picks.len() == 1 => Value::Number(xs[picks[0]]),
+                    Some(xs) => Value::List(Arc::new(
+                        picks.iter().map(|&k| Value::Number(xs[k])).collect(),
+                    )),
                     None => self.error(
                         Diag::new(
                             codes::TYPE,
                             recv.span,
-                            format!("`.{}` needs a vector of three numbers", name.name),
+                            format!("`.{}` needs a vector with those components", name.name),
                         )
                         .label(format!("this is a {}", describe(&v)))
-                        .help("components exist on vectors `[x, y, z]`"),
+                        .help("components exist on vectors `[x, y, z]` (`.x` the first, `.z` the third)"),
                     ),
                 }
             }
@@ -865,6 +872,8 @@ impl<'e> Evaluator<'e> {
         bound.owner = sig.name;
         bound.base = self.base.clone();
         let mut poisoned = false;
+        // Named arguments the built-in passes on (`sdf(f, major: 1)`).
+        let mut extra = Vec::new();
         for (i, a) in args.iter().enumerate() {
             let v = self.expr(&a.value);
             poisoned |= matches!(v, Value::Poison);
@@ -872,11 +881,14 @@ impl<'e> Evaluator<'e> {
                 Some(n) => sig.params.iter().find(|p| p.name == n.name).map(|p| p.name),
                 None => sig.positional(i).map(|p| p.name),
             };
-            match slot {
-                Some(name) => {
+            match (slot, &a.name) {
+                (Some(name), _) => {
                     bound.named.insert(name, (v, a.value.span));
                 }
-                None => bound.rest.push((v, a.value.span)),
+                (None, Some(n)) if sig.named_rest.is_some() => {
+                    extra.push((n.clone(), v, a.value.span));
+                }
+                (None, _) => bound.rest.push((v, a.value.span)),
             }
         }
         if poisoned {
@@ -900,6 +912,9 @@ impl<'e> Evaluator<'e> {
         }
         for w in crate::builtins::unit_warnings(sig.name, &bound) {
             self.report(w);
+        }
+        if sig.name == crate::shape::user::BUILTIN {
+            return self.user_shape(&bound, extra, span);
         }
         match (builtin.eval)(&bound) {
             Ok(Value::Param(mut decl)) => {
@@ -931,6 +946,36 @@ impl<'e> Evaluator<'e> {
             Some(d) => self.error(d),
             None => v,
         }
+    }
+}
+
+/// The top-level `let`s of a file (parsed, checked and evaluated; its
+/// statements are not run), for tests that read values.
+#[doc(hidden)]
+pub fn globals_of(src: &str) -> Result<HashMap<String, Value>, Diagnostics> {
+    let file = sdfl_lang::parse::parse(src)?;
+    let env = StdEnv::get();
+    let checked = sdfl_lang::check::check(&file, env);
+    if checked.has_errors() {
+        return Err(checked);
+    }
+    let mut ev = Evaluator::new(env);
+    for item in &file.items {
+        match item {
+            Item::Let(l) => {
+                let v = ev.expr(&l.value);
+                ev.globals.insert(l.name.name.clone(), v);
+            }
+            Item::Fn(f) => {
+                ev.fns.insert(f.name.name.clone(), Arc::new(f.clone()));
+            }
+            Item::Block(_) | Item::Import(_) => {}
+        }
+    }
+    if ev.diags.has_errors() {
+        Err(ev.diags.sorted())
+    } else {
+        Ok(ev.globals)
     }
 }
 

@@ -66,6 +66,8 @@ impl Shape {
     pub fn exactness(&self) -> Exactness {
         match self {
             Shape::Prim(x) => x.spec().exactness,
+            // Clipped to its box and scaled by its Lipschitz bound.
+            Shape::User(_) => Exactness::Bound,
             // Disjoint copies of an exact shape: their union is exact.
             Shape::Repeat {
                 shape,
@@ -189,6 +191,8 @@ impl Shape {
                 frequency,
             } => shape.lipschitz() + 3f64.sqrt() * amplitude.value.abs() * frequency.value.abs(),
             Shape::Prim(x) => x.spec().lipschitz,
+            // Divided by its own bound (see `user`).
+            Shape::User(_) => 1.0,
         }
     }
 
@@ -197,6 +201,7 @@ impl Shape {
     pub fn bounds(&self) -> Option<Aabb> {
         match self {
             Shape::Prim(x) => x.bounds(),
+            Shape::User(u) => Some(u.bound),
             Shape::Union(children) => {
                 let mut acc: Option<Aabb> = None;
                 for c in children {

@@ -22,12 +22,14 @@ pub use crate::sdf::Axis;
 mod bounds;
 pub mod declare;
 mod primitives;
+pub mod user;
 pub use bounds::Aabb;
 pub use declare::{
     ArgKind, ArgReader, ArgSpec, ArgValue, Check, Declared, Family, Invalid, Ir, KindVisitor, Num,
     PrimSpec, Val, WithDeclared,
 };
 pub use primitives::*;
+pub use user::UserShape;
 
 /// Whether a shape's value is the exact Euclidean distance to its surface or
 /// only a bound on it (still safe for sphere tracing with its Lipschitz bound).
@@ -46,6 +48,8 @@ pub enum Exactness {
 pub enum Shape {
     /// An analytic primitive (declared in `primitives.rs`).
     Prim(Primitive),
+    /// A shape the user wrote as a `fn` of the point (`sdf(f, ...)`).
+    User(Arc<UserShape>),
     /// Inside any of the shapes: the minimum of their distances (a bound).
     Union(Vec<Arc<Shape>>),
     /// Inside all of the shapes: the maximum of their distances (a bound).
@@ -190,6 +194,7 @@ impl Shape {
                 let (d, c) = x.sample(p, args);
                 Sample::prim(d, c)
             }
+            Shape::User(u) => Sample::prim(u.sample(p, args), V3::lit(u.bound.center().to_array())),
             // Ties go to the first child, as in the lowered evaluators.
             Shape::Union(children) => children
                 .iter()
@@ -369,6 +374,7 @@ impl Shape {
         };
         match self {
             Shape::Prim(x) => x.visit_params(f),
+            Shape::User(u) => u.visit_params(f),
             Shape::Twist(_, k) | Shape::Bend(_, k) => s1(k),
             Shape::SmoothUnion(_, _, k)
             | Shape::SmoothIntersection(_, _, k)
@@ -428,7 +434,7 @@ impl Shape {
             | Shape::Twist(s, _)
             | Shape::Bend(s, _)
             | Shape::ScaleXyz(s, _) => vec![s],
-            Shape::Prim(_) => Vec::new(),
+            Shape::Prim(_) | Shape::User(_) => Vec::new(),
         }
     }
 
@@ -437,6 +443,7 @@ impl Shape {
     pub fn primitive_center(&self) -> Option<DVec3> {
         match self {
             Shape::Prim(x) => Some(x.center()),
+            Shape::User(u) => Some(u.bound.center()),
             _ => None,
         }
     }
@@ -522,6 +529,7 @@ impl Shape {
     pub fn name(&self) -> &'static str {
         match self {
             Shape::Prim(x) => x.spec().name,
+            Shape::User(_) => user::BUILTIN,
             Shape::Union(_) => "union",
             Shape::Intersection(_) => "intersection",
             Shape::Subtraction(..) => "subtraction",
