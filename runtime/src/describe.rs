@@ -4,6 +4,8 @@
 
 use sdfl_stdlib::value::TrainJob;
 
+pub use crate::train::field::Description;
+
 /// Which number format a network's layer products run in, here.
 pub fn precision(p: sdfl_stdlib::value::Precision) -> String {
     use sdfl_stdlib::value::Precision;
@@ -19,33 +21,16 @@ pub fn precision(p: sdfl_stdlib::value::Precision) -> String {
     }
 }
 
-/// What a `train` statement trains: its parameters or weights, counted
-/// from the trained field the runtime would build.
-pub fn trainable(job: &TrainJob) -> String {
+/// What a `train` statement trains and how, from the trained field the
+/// runtime would build; what cannot be built (a NeRF whose grid does not
+/// fit) says why.
+pub fn train(job: &TrainJob) -> Description {
     match crate::jobs::trained_field(job, job.iterations, &[]) {
-        Ok(field) => field.describe().trainable,
-        Err(e) => format!("none: {e}"),
-    }
-}
-
-/// What the fused kernel runs for an analytic field: its traced tape (at
-/// the starting values) or, where the field branches on the sample,
-/// forward-mode tangents.
-pub fn fused_kernel(field: &sdfl_stdlib::value::Field, samples: usize) -> String {
-    let Some(sdf) = field.as_sdf() else {
-        return "fused per-ray kernel".into();
-    };
-    let model = crate::train::TrainModel::new(sdf);
-    let values: Vec<f32> = model.initial_values().iter().map(|&x| x as f32).collect();
-    match crate::train::fused::tape_for(&model, &values, samples) {
-        Ok(tape) => format!(
-            "traced each step: {} operations a sample forward, {} in reverse on 16 samples at a time, one reverse pass for all {} scalars",
-            tape.len(),
-            tape.reverse_len(),
-            model.scalars
-        ),
-        Err(why) => format!(
-            "fused per-ray kernel: forward-mode tangents for each parameter (not traced: {why})"
-        ),
+        Ok(field) => field.describe(),
+        Err(e) => Description {
+            trainable: format!("none: {e}"),
+            gradient: "none: the model cannot be built".into(),
+            mesh_region: "none".into(),
+        },
     }
 }

@@ -367,13 +367,18 @@ impl TrainedField for Trained<NeuralSdfObjective> {
         Some(fit(&o.net, values, points, o.bounds, seed))
     }
 
+    fn is_network(&self) -> bool {
+        true
+    }
+
     fn describe(&self) -> Description {
         Description {
-            network: true,
             trainable: format!(
                 "all {} weights, starting as a sphere of radius {}",
                 self.objective.net.len, self.objective.spec.radius
             ),
+            gradient: "none: the exact gradient of f by a reverse pass in the forward; a hand-written reverse-over-reverse backward".into(),
+            mesh_region: "the points' box grown by a tenth of its diagonal".into(),
         }
     }
 }

@@ -932,10 +932,13 @@ impl TrainedField for Trained<NerfObjective> {
         Vec::new()
     }
 
+    fn is_network(&self) -> bool {
+        true
+    }
+
     fn describe(&self) -> Description {
         let tensors = self.objective.tensors();
         Description {
-            network: true,
             trainable: format!(
                 "all {} weights in {} tensors{}",
                 tensors.iter().map(|t| t.len).sum::<usize>(),
@@ -946,6 +949,8 @@ impl TrainedField for Trained<NerfObjective> {
                     ""
                 }
             ),
+            gradient: "none: fused layer kernels with a hand-written backward through the network and the compositing; renders stop each ray once less than 1e-4 of its light is left".into(),
+            mesh_region: "the starting bounds grown by half".into(),
         }
     }
 }

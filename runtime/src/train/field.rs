@@ -32,14 +32,16 @@ pub struct View {
     pub depth: Vec<f32>,
 }
 
-/// What a trained field is, for reports and `sdfl plan`.
+/// What a trained field is and how it trains, for `sdfl plan`.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Description {
-    /// Whether its values are a network's weights (reports count them
-    /// rather than list them).
-    pub network: bool,
     /// What training changes: its parameters or weights, counted.
     pub trainable: String,
+    /// How its gradient is computed (a traced tape, forward-mode
+    /// tangents, hand-written backward passes, a dfdx graph).
+    pub gradient: String,
+    /// The region a mesh with `bounds: "auto"` covers.
+    pub mesh_region: String,
 }
 
 /// A field being trained, as the job uses it between and after steps.
@@ -96,7 +98,11 @@ pub trait TrainedField: Objective + Sync {
         None
     }
 
-    /// What the field is.
+    /// Whether its values are a network's weights (reports count them
+    /// rather than list them, and progress shows none).
+    fn is_network(&self) -> bool;
+
+    /// What the field is and how it trains.
     fn describe(&self) -> Description;
 }
 
@@ -272,18 +278,45 @@ impl TrainedField for Trained<FieldObjective<'_>> {
             .collect()
     }
 
+    fn is_network(&self) -> bool {
+        false
+    }
+
     fn describe(&self) -> Description {
-        let params: Vec<String> = self
-            .objective
-            .model
+        let model = &*self.objective.model;
+        let params: Vec<String> = model
             .params
             .iter()
             .map(|p| format!("{} ({})", p.name, p.len))
             .collect();
         Description {
-            network: false,
             trainable: format!("{} (gradients only for these)", params.join(", ")),
+            gradient: match self.objective.backend {
+                Backend::Dfdx => {
+                    "dfdx autodiff graph over [rays, samples], the field as a custom op".into()
+                }
+                Backend::Fused => fused_kernel(model, self.viewing.sampler.samples),
+            },
+            mesh_region: "the starting bounds grown by half".into(),
         }
+    }
+}
+
+/// What the fused kernel runs for an analytic field: its traced tape (at
+/// the starting values) or, where the field branches on the sample,
+/// forward-mode tangents.
+fn fused_kernel(model: &super::TrainModel, samples: usize) -> String {
+    let values: Vec<f32> = model.initial_values().iter().map(|&x| x as f32).collect();
+    match super::fused::tape_for(model, &values, samples) {
+        Ok(tape) => format!(
+            "traced each step: {} operations a sample forward, {} in reverse on 16 samples at a time, one reverse pass for all {} scalars",
+            tape.len(),
+            tape.reverse_len(),
+            model.scalars
+        ),
+        Err(why) => format!(
+            "fused per-ray kernel: forward-mode tangents for each parameter (not traced: {why})"
+        ),
     }
 }
 

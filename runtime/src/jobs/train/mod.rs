@@ -133,7 +133,7 @@ pub fn run_train_job(
         None => job.iterations,
     };
     let field = trained_field(job, steps, &points).map_err(invalid)?;
-    let network = field.describe().network;
+    let network = field.is_network();
     let fail = |e: TrainError| io::Error::other(format!("training `{}`: {e}", job.name));
     let mut run = Run::of(field, job.optimizer.lr).map_err(fail)?;
     // Checkpoints name and shape the tensors by role and carry the model.

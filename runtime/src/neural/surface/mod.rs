@@ -771,12 +771,16 @@ impl TrainedField for Trained<SurfaceObjective> {
             .collect()
     }
 
+    fn is_network(&self) -> bool {
+        true
+    }
+
     fn describe(&self) -> Description {
         let (o, n) = (&self.objective, &self.objective.spec);
         let beta = usize::from(o.beta_at().is_some());
         let weights = o.tensors().iter().map(|t| t.len).sum::<usize>() - beta;
+        let bounds = self.viewing.region.map_or(0.0, |r| r.1[0]);
         Description {
-            network: true,
             trainable: format!(
                 "all {weights} weights (distance network {}, colour network {}){}, the distance starting as a sphere of radius {}",
                 o.sdf.len,
@@ -788,6 +792,8 @@ impl TrainedField for Trained<SurfaceObjective> {
                 },
                 n.sdf.radius
             ),
+            gradient: "none: the distance network's exact gradient by a reverse pass in the forward; colour network, density and compositing by hand-written backward passes".into(),
+            mesh_region: format!("[-{bounds}, {bounds}]^3"),
         }
     }
 }
