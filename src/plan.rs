@@ -297,8 +297,8 @@ pub(crate) fn plan_text(program: &sdfl_stdlib::Program) -> String {
     for job in &program.trains {
         let _ = writeln!(o, "train {}", job.name);
         let _ = writeln!(o, "  model          {}", describe_field(&job.model));
-        let trainable = sdfl_runtime::describe::trainable(job);
-        let _ = writeln!(o, "  trainable      {trainable}");
+        let described = sdfl_runtime::describe::train(job);
+        let _ = writeln!(o, "  trainable      {}", described.trainable);
         let data = match &*job.data {
             sdfl_stdlib::value::Dataset::Points {
                 path,
@@ -466,21 +466,7 @@ pub(crate) fn plan_text(program: &sdfl_stdlib::Program) -> String {
                 None => format!("{} iterations", job.iterations),
             }
         );
-        let _ = writeln!(
-            o,
-            "  gradient tape  {}",
-            match (&*job.model, job.backend) {
-                (sdfl_stdlib::value::Field::NeuralSdf(_), _) =>
-                    "none: the exact gradient of f by a reverse pass in the forward; a hand-written reverse-over-reverse backward".to_string(),
-                (sdfl_stdlib::value::Field::NeuralSurface(_), _) =>
-                    "none: the distance network's exact gradient by a reverse pass in the forward; colour network, density and compositing by hand-written backward passes".to_string(),
-                (sdfl_stdlib::value::Field::Nerf(_), _) =>
-                    "none: fused layer kernels with a hand-written backward through the network and the compositing; renders stop each ray once less than 1e-4 of its light is left".to_string(),
-                (_, sdfl_stdlib::value::Backend::Dfdx) =>
-                    "dfdx autodiff graph over [rays, samples], the field as a custom op".to_string(),
-                (field, sdfl_stdlib::value::Backend::Fused) => sdfl_runtime::describe::fused_kernel(field, job.sampler.samples),
-            }
-        );
+        let _ = writeln!(o, "  gradient tape  {}", described.gradient);
         if !on_points {
             let _ = writeln!(o, "  depth          skipped (the loss uses colour only)");
         }
@@ -490,13 +476,7 @@ pub(crate) fn plan_text(program: &sdfl_stdlib::Program) -> String {
             job.before.len(),
             job.after.len()
         );
-        let region = if on_points {
-            "the points' box grown by a tenth of its diagonal".to_string()
-        } else if matches!(&*job.model, sdfl_stdlib::value::Field::NeuralSurface(_)) {
-            format!("[-{0}, {0}]^3", job.bounds)
-        } else {
-            "the starting bounds grown by half".to_string()
-        };
+        let region = described.mesh_region;
         mesh_lines(&mut o, &job.before, &region);
         mesh_lines(&mut o, &job.after, &region);
         for outputs in [&job.before, &job.after] {

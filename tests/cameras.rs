@@ -3,6 +3,7 @@
 //! model puts them.
 
 use sdfl_lang::SourceFile;
+use sdfl_runtime::output::WrittenKind;
 use sdfl_runtime::{run_job, RunOptions};
 
 /// Renders the one `render` statement of `text` and returns its first
@@ -26,7 +27,11 @@ fn mask_of(name: &str, text: &str) -> (u32, u32, Vec<bool>) {
         &|_| {},
     )
     .unwrap();
-    let mask = report.written.iter().find(|w| w.kind == "mask").unwrap();
+    let mask = report
+        .written
+        .iter()
+        .find(|w| w.kind == WrittenKind::Mask)
+        .unwrap();
     let img = image::open(out.join(&mask.path)).unwrap().to_luma8();
     let _ = std::fs::remove_dir_all(&out);
     let (w, h) = img.dimensions();

@@ -5,6 +5,7 @@
 use std::path::{Path, PathBuf};
 
 use sdfl_lang::SourceFile;
+use sdfl_runtime::output::WrittenKind;
 use sdfl_runtime::{run_job, RunOptions};
 
 const SIZE: (u32, u32) = (96, 96);
@@ -81,7 +82,7 @@ fn examples_match_their_golden_images() {
             // Data sets are checked by runtime/tests/views.rs.
             for w in written
                 .iter()
-                .filter(|w| w.kind != "gif" && w.kind != "dataset")
+                .filter(|w| w.kind != WrittenKind::Gif && w.kind != WrittenKind::Dataset)
             {
                 let file_name = w.path.to_string_lossy().into_owned();
                 if !is_first_view(&file_name) {
@@ -113,7 +114,7 @@ fn examples_match_their_golden_images() {
                 }
             }
             // Every GIF has one frame per view.
-            for w in written.iter().filter(|w| w.kind == "gif") {
+            for w in written.iter().filter(|w| w.kind == WrittenKind::Gif) {
                 assert_eq!(w.frames, views);
                 assert!(out.join(&w.path).metadata().unwrap().len() > 0);
             }

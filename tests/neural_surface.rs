@@ -10,6 +10,7 @@ use std::path::PathBuf;
 
 use sdfl_lang::SourceFile;
 use sdfl_runtime::jobs::{run_train_job, TrainOptions, TrainReport};
+use sdfl_runtime::output::WrittenKind;
 
 const SCENE: &str = r#"
 let cams = orbit(radius: 3, up: [0, 1, 0], focal: 1.5, views: 12)
@@ -118,7 +119,7 @@ fn learns_a_sphere_from_its_images(density: &str, measure_start: bool) {
     let gif = end
         .written
         .iter()
-        .find(|w| w.kind == "geometry_gif")
+        .find(|w| w.kind == WrittenKind::GeometryGif)
         .unwrap();
     assert_eq!(gif.frames, 1);
     assert!(dir.join("geometry.gif").is_file());

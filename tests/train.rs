@@ -9,6 +9,7 @@ use std::path::{Path, PathBuf};
 
 use sdfl_lang::SourceFile;
 use sdfl_runtime::jobs::{run_train_job, TrainOptions};
+use sdfl_runtime::output::WrittenKind;
 use sdfl_runtime::train::checkpoint::Checkpoint;
 
 const WANT: [f32; 6] = [0.25, 0.25, 0.0, 2.0, 1.5, 1.5];
@@ -56,8 +57,8 @@ fn train_box_recovers_the_box_and_resumes() {
     let r = run_train_job(job, &out, &base, Some((32, 32)), RESUME, &|_| {}, &|_| {}).unwrap();
     assert_eq!(r.iterations, job.iterations);
     assert!(max_error(&r.params) < 0.01, "{:?}", r.params);
-    assert!(r.written.iter().any(|w| w.kind == "loss_curve"));
-    assert!(r.written.iter().any(|w| w.kind == "gif"));
+    assert!(r.written.iter().any(|w| w.kind == WrittenKind::LossCurve));
+    assert!(r.written.iter().any(|w| w.kind == WrittenKind::Gif));
     // The checkpoint holds the final state; a second run resumes from it.
     let cp = Checkpoint::read(&out.join("train_box.ckpt")).unwrap();
     assert_eq!(cp.step, job.iterations);

@@ -26,25 +26,9 @@ use rayon::prelude::*;
 use sdfl_stdlib::value::{MeshRegion, Output, OutputKind};
 
 use crate::output::Atomic;
-use crate::render::Written;
+pub use crate::output::MeshStats;
+use crate::output::{Written, WrittenKind};
 use crate::volume::SplitMix64;
-
-/// What a written mesh holds.
-#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
-pub struct MeshStats {
-    /// Vertices written.
-    pub vertices: usize,
-    /// Triangles written.
-    pub triangles: usize,
-    /// Grid cells along the region's longest side, and their size.
-    pub resolution: u32,
-    /// The cells' side.
-    pub cell: f64,
-    /// Total surface area.
-    pub area: f64,
-    /// Seconds the extraction took.
-    pub seconds: f64,
-}
 
 /// Extracts and writes the `mesh` output `o` of `field`. `auto` is the
 /// region `bounds: "auto"` stands for (none for unbounded shapes, which
@@ -106,7 +90,7 @@ pub fn write_mesh(
     };
     let written = Written {
         path: o.path.clone(),
-        kind: "mesh",
+        kind: WrittenKind::Mesh,
         width: 0,
         height: 0,
         frames: 0,

@@ -1,4 +1,5 @@
-//! Image quality against ground truth: PSNR and SSIM, on colours in 0..1.
+//! Quality against ground truth: PSNR and SSIM of images (colours in
+//! 0..1), and how well a distance field fits its points.
 
 /// Peak signal-to-noise ratio in dB for a peak of 1: `−10·log10(MSE)`
 /// over every channel of every pixel (∞ for identical images).
@@ -76,6 +77,20 @@ pub fn ssim(a: &[[f32; 3]], b: &[[f32; 3]], width: usize, height: usize) -> f64 
         }
     }
     total / count.max(1) as f64
+}
+
+/// How well a trained distance field fits its points.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct SdfFit {
+    /// Mean |f| at the data points.
+    pub surface_mean_abs: f64,
+    /// Mean (‖∇f‖ − 1)² at the data points and as many random points.
+    pub eikonal: f64,
+    /// Symmetric Chamfer distance (mean of both directions' mean nearest
+    /// distance) between surface samples of the field and the data points.
+    pub chamfer: f64,
+    /// Surface samples found (random points projected onto f = 0).
+    pub surface_samples: usize,
 }
 
 #[cfg(test)]

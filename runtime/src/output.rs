@@ -545,6 +545,84 @@ pub fn to_u8(x: f64) -> u8 {
     }
 }
 
+/// A file that was written, as reports list it.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct Written {
+    /// The file, relative to the output directory.
+    pub path: PathBuf,
+    /// What it holds.
+    pub kind: WrittenKind,
+    /// Width in pixels (0 for files that are not images).
+    pub width: u32,
+    /// Height in pixels (0 for files that are not images).
+    pub height: u32,
+    /// Frames of an animation; 1 for a still image, 0 for other files.
+    pub frames: usize,
+    /// What a mesh holds.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub mesh: Option<MeshStats>,
+}
+
+/// What a written file holds; reports spell it in snake case (`image`,
+/// `grid_image`, `rays_image`, …).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum WrittenKind {
+    /// A colour image of a view.
+    Image,
+    /// An animation, colour or colour-mapped depth, one frame per view.
+    Gif,
+    /// Colour-mapped depth of a view.
+    Depth,
+    /// Normals as colours.
+    NormalMap,
+    /// Which pixels hit the surface.
+    Mask,
+    /// The camera's grid of pixel positions.
+    GridImage,
+    /// The camera's rays.
+    RaysImage,
+    /// Stratified sample points along rays.
+    SamplePoints,
+    /// Training loss over the steps.
+    LossCurve,
+    /// Held-out PSNR over training time.
+    PsnrCurve,
+    /// Held-out views: truth, render and error.
+    Comparison,
+    /// A data set of views (images and poses).
+    Dataset,
+    /// A surface mesh of a distance field.
+    Mesh,
+    /// A neural SDF's surface traced from every view.
+    GeometryGif,
+    /// A mesh of a density's level set.
+    DensityMesh,
+    /// Points where rays' opacity gathers.
+    PointCloud,
+    /// Depths as an array.
+    RawDepth,
+    /// Depths as a colour-mapped image.
+    DepthMap,
+}
+
+/// What a written mesh holds.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct MeshStats {
+    /// Vertices written.
+    pub vertices: usize,
+    /// Triangles written.
+    pub triangles: usize,
+    /// Grid cells along the region's longest side, and their size.
+    pub resolution: u32,
+    /// The cells' side.
+    pub cell: f64,
+    /// Total surface area.
+    pub area: f64,
+    /// Seconds the extraction took.
+    pub seconds: f64,
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -15,7 +15,7 @@ use serde::Serialize;
 
 use crate::data::export::DatasetWriter;
 use crate::effects::{Counters, EffectStats, SurfacePoint};
-use crate::output::{colormap, to_u8, write_png, GifWriter};
+use crate::output::{colormap, to_u8, write_png, GifWriter, Written, WrittenKind};
 use crate::sdf::tiles::{Margin, TILE};
 use crate::sdf::{LowerOptions, Lowered};
 use crate::trace::{normal, normal_step, TraceSettings};
@@ -566,24 +566,6 @@ fn split<T>(buf: Option<&mut [T]>, chunk: usize, bands: usize) -> Vec<Option<&mu
     }
 }
 
-/// A file that was written.
-#[derive(Debug, Clone, Serialize)]
-pub struct Written {
-    /// The file, relative to the output directory.
-    pub path: PathBuf,
-    /// What it holds (`image`, `gif`, `mesh`…), for the report.
-    pub kind: &'static str,
-    /// Width in pixels (0 for files that are not images).
-    pub width: u32,
-    /// Height in pixels (0 for files that are not images).
-    pub height: u32,
-    /// Frames of an animation; 1 for a still image, 0 for other files.
-    pub frames: usize,
-    /// What a mesh holds.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub mesh: Option<crate::mesh::MeshStats>,
-}
-
 /// The GIF outputs of a job, open for one frame per view; each shows
 /// colour or (colour-mapped) depth.
 pub(crate) struct Gifs(Vec<(GifWriter, PathBuf, bool)>);
@@ -643,7 +625,7 @@ impl Gifs {
                 g.finish()?;
                 Ok(Written {
                     path,
-                    kind: "gif",
+                    kind: WrittenKind::Gif,
                     width,
                     height,
                     frames,
@@ -745,25 +727,28 @@ pub fn run_job(
         let t = Instant::now();
         for o in &job.outputs {
             let rel = view_path(&o.path, k, views);
-            let (kind, rgb): (&'static str, Option<Vec<u8>>) = match o.kind {
+            let (kind, rgb): (WrittenKind, Option<Vec<u8>>) = match o.kind {
                 OutputKind::Gif { .. }
                 | OutputKind::DepthGif { .. }
                 | OutputKind::Dataset { .. } => continue,
-                OutputKind::Image => ("image", view.color.clone()),
-                OutputKind::Normals => ("normal_map", view.normals.clone()),
+                OutputKind::Image => (WrittenKind::Image, view.color.clone()),
+                OutputKind::Normals => (WrittenKind::NormalMap, view.normals.clone()),
                 OutputKind::Mask => (
-                    "mask",
+                    WrittenKind::Mask,
                     view.mask
                         .as_ref()
                         .map(|m| m.iter().flat_map(|v| [*v; 3]).collect()),
                 ),
-                OutputKind::Depth => ("depth", view.depth.as_ref().map(|d| depth_image(d))),
+                OutputKind::Depth => (
+                    WrittenKind::Depth,
+                    view.depth.as_ref().map(|d| depth_image(d)),
+                ),
                 OutputKind::Rays if k == 0 => (
-                    "rays_image",
+                    WrittenKind::RaysImage,
                     Some(crate::volume::figures::rays_image(cam, width, height)),
                 ),
                 OutputKind::Grid if k == 0 => (
-                    "grid_image",
+                    WrittenKind::GridImage,
                     Some(crate::volume::figures::xy_grid_image(width, height)),
                 ),
                 OutputKind::Grid

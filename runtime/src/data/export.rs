@@ -37,7 +37,7 @@ use sdfl_stdlib::value::held_out;
 use serde_json::{json, Map, Value};
 
 use crate::output::{write_bytes, write_png, write_png_rgba};
-use crate::render::Written;
+use crate::output::{Written, WrittenKind};
 
 /// The key of the transforms files a [`DatasetWriter`] leaves while it
 /// writes.
@@ -287,7 +287,7 @@ impl DatasetWriter {
         self.frames.push(FrameRecord { k, c2w, intrinsics });
         Ok(Written {
             path: rel,
-            kind: "dataset",
+            kind: WrittenKind::Dataset,
             width: w,
             height: h,
             frames: 1,
@@ -416,7 +416,7 @@ impl DatasetWriter {
         }
         Ok(Written {
             path: self.dir.join(DATASET_JSON[3]),
-            kind: "dataset",
+            kind: WrittenKind::Dataset,
             width: w,
             height: h,
             frames: 0,

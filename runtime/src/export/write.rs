@@ -12,7 +12,7 @@ use sdfl_stdlib::value::{MeshRegion, Output, OutputKind, Sampler};
 use super::{depth, ply, RadianceField};
 use crate::mesh::{MeshGrid, MeshStats};
 use crate::output::{write_bytes, write_png};
-use crate::render::Written;
+use crate::output::{Written, WrittenKind};
 use crate::volume::{ImageSize, Stratified};
 
 /// What the field exports of one statement need besides the field.
@@ -87,7 +87,7 @@ pub fn write_field_exports(
                 write_bytes(&path, &ply::mesh_bytes(&m))?;
                 written.push(Written {
                     path: o.path.clone(),
-                    kind: "density_mesh",
+                    kind: WrittenKind::DensityMesh,
                     width: 0,
                     height: 0,
                     frames: 0,
@@ -121,7 +121,7 @@ pub fn write_field_exports(
                 // A cloud has vertices and no triangles.
                 written.push(Written {
                     path: o.path.clone(),
-                    kind: "point_cloud",
+                    kind: WrittenKind::PointCloud,
                     width: 0,
                     height: 0,
                     frames: 0,
@@ -166,7 +166,7 @@ pub fn write_field_exports(
                 OutputKind::RawDepth { min_opacity } => {
                     let d = depth::depth_values(&ends, min_opacity as f32);
                     write_bytes(&path, &depth::npy_bytes(&d, h as usize, w as usize))?;
-                    ("raw_depth", w, h)
+                    (WrittenKind::RawDepth, w, h)
                 }
                 OutputKind::DepthMap {
                     colormap,
@@ -178,7 +178,7 @@ pub fn write_field_exports(
                     let (pw, ph, rgb) =
                         depth::depth_map(&d, (w, h), colormap, r).map_err(invalid)?;
                     write_png(&path, pw, ph, &rgb)?;
-                    ("depth_map", pw, ph)
+                    (WrittenKind::DepthMap, pw, ph)
                 }
                 _ => continue,
             };

@@ -9,8 +9,8 @@ use std::time::Instant;
 use glam::Vec3A;
 use sdfl_stdlib::camera::Camera;
 use sdfl_stdlib::material::Material;
-use sdfl_stdlib::num::{Dual, V3};
-use sdfl_stdlib::shape::{ArgSource, Fixed};
+use sdfl_stdlib::num::V3;
+use sdfl_stdlib::shape::Fixed;
 use sdfl_stdlib::value::{Backend, Dataset, Field, Output, Sampler, SdfField, TrainJob, VolumeJob};
 use sdfl_stdlib::OutputKind;
 use sdfl_stdlib::RenderJob;
@@ -21,12 +21,11 @@ use crate::data::npy::RgbImage;
 use crate::metrics;
 use crate::neural::field::NerfObjective;
 use crate::neural::nerf::{NerfNet, NerfWork};
-use crate::output::{to_u8, write_png};
-use crate::render::{render_view, view_path, Gifs, Needs, ViewScenes, Written};
+use crate::output::{to_u8, write_png, Written, WrittenKind};
+use crate::render::{render_view, view_path, Gifs, Needs, ViewScenes};
 use crate::sdf::{LowerOptions, Lowered};
 use crate::train::checkpoint::{Checkpoint, Fnv};
-use crate::train::model::field_at;
-use crate::train::{FieldObjective, Objective, Run, TrainError, TrainModel, TrainSetup, TrainView};
+use crate::train::{Objective, Run, TrainError, TrainModel, TrainSetup, TrainView};
 use crate::volume::figures;
 use crate::volume::render::{render_field_image_with, DensityModel};
 use crate::volume::{ImageSize, Stratified};
@@ -247,14 +246,14 @@ pub fn write_volume_outputs(
                 | OutputKind::PointCloud { .. }
                 | OutputKind::RawDepth { .. }
                 | OutputKind::DepthMap { .. } => continue,
-                OutputKind::Image => ("image", rgb8(&colour), (w, h)),
-                OutputKind::Depth => ("depth", crate::render::depth_image(&depth), (w, h)),
-                OutputKind::Grid => ("grid_image", figures::xy_grid_image(w, h), (w, h)),
-                OutputKind::Rays => ("rays_image", figures::rays_image(cam, w, h), (w, h)),
+                OutputKind::Image => (WrittenKind::Image, rgb8(&colour), (w, h)),
+                OutputKind::Depth => (WrittenKind::Depth, crate::render::depth_image(&depth), (w, h)),
+                OutputKind::Grid => (WrittenKind::GridImage, figures::xy_grid_image(w, h), (w, h)),
+                OutputKind::Rays => (WrittenKind::RaysImage, figures::rays_image(cam, w, h), (w, h)),
                 OutputKind::SamplePoints => {
                     let stride = (w.max(h) / 16).max(1);
                     (
-                        "sample_points",
+                        WrittenKind::SamplePoints,
                         figures::sample_points_image(cam, &strat, w, h, stride, 256, 256),
                         (256, 256),
                     )
@@ -674,4 +673,6 @@ fn check_finite(views: &[(TrainView, String)]) -> io::Result<()> {
 
 mod train;
 
-pub use train::{fingerprint, run_train_job, step_memory, HeldOut, TrainOptions, TrainReport};
+pub use train::{
+    fingerprint, run_train_job, step_memory, trained_field, HeldOut, TrainOptions, TrainReport,
+};

@@ -11,8 +11,10 @@ use sdfl_stdlib::value::{Loss, LossKind, NeuralSdf};
 use sdfl_stdlib::work::{FIT_CHUNK, FIT_PROBES as PROBES, MESH_FIT_POINTS, SURFACE_SAMPLES};
 
 use super::sdf_net::{SdfLoss, SdfNet, SdfNetSpec, SdfWork};
+use crate::mesh::DistanceField;
+use crate::train::field::{Description, Region, View};
 use crate::train::fused::Batch;
-use crate::train::{Objective, TensorSpec, TrainError};
+use crate::train::{Objective, TensorSpec, TrainError, Trained, TrainedField};
 use crate::volume::SplitMix64;
 
 /// The runtime network of a language spec.
@@ -137,19 +139,7 @@ impl Objective for NeuralSdfObjective {
     }
 }
 
-/// How well a trained distance field fits its points.
-#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
-pub struct SdfFit {
-    /// Mean |f| at the data points.
-    pub surface_mean_abs: f64,
-    /// Mean (‖∇f‖ − 1)² at the data points and as many random points.
-    pub eikonal: f64,
-    /// Symmetric Chamfer distance (mean of both directions' mean nearest
-    /// distance) between surface samples of the field and the data points.
-    pub chamfer: f64,
-    /// Surface samples found (random points projected onto f = 0).
-    pub surface_samples: usize,
-}
+pub use crate::metrics::SdfFit;
 
 /// Measures `net` at `params` against `points`: |f| and the eikonal term
 /// there, and the Chamfer distance to surface samples found by projecting
@@ -309,6 +299,88 @@ pub fn mean_nearest(a: &[[f32; 3]], b: &[[f32; 3]]) -> f64 {
         })
         .collect();
     sums.iter().sum::<f64>() / a.len().max(1) as f64
+}
+
+/// The surface of `net` at `params` traced from `cam` out to `far`,
+/// normals as colours.
+pub fn geometry_view(
+    net: &SdfNet,
+    params: &[f32],
+    cam: &sdfl_stdlib::camera::Camera,
+    size: crate::volume::ImageSize,
+    far: f64,
+) -> Result<TracedView, String> {
+    let settings = TraceSettings {
+        far: far as f32,
+        ..Default::default()
+    };
+    trace_view(net, params, cam, size, settings).map_err(|e| e.to_string())
+}
+
+impl TrainedField for Trained<NeuralSdfObjective> {
+    fn render_view(
+        &self,
+        values: &[f32],
+        cam: &sdfl_stdlib::camera::Camera,
+        size: crate::volume::ImageSize,
+        _want_depth: bool,
+    ) -> Result<View, String> {
+        let far = self.viewing.sampler.far;
+        let v = geometry_view(&self.objective.net, values, cam, size, far)?;
+        Ok(View {
+            colour: v.colour,
+            depth: v.depth,
+        })
+    }
+
+    fn surface<'a>(&'a self, values: &'a [f32]) -> Option<Box<dyn DistanceField + 'a>> {
+        let net = &self.objective.net;
+        // Trained with the eikonal term, not bounded: a margin of 2.
+        let field = NetDistance {
+            net,
+            params: values,
+        };
+        Some(Box::new(crate::mesh::Lipschitz(field, 2.0)))
+    }
+
+    fn region(&self) -> Option<Region> {
+        self.viewing.region
+    }
+
+    fn geometry_view(
+        &self,
+        values: &[f32],
+        cam: &sdfl_stdlib::camera::Camera,
+        size: crate::volume::ImageSize,
+    ) -> Option<Result<Vec<[f32; 3]>, String>> {
+        let net = &self.objective.net;
+        let far = self.viewing.sampler.far;
+        Some(geometry_view(net, &values[..net.len], cam, size, far).map(|v| v.colour))
+    }
+
+    fn reported(&self, _values: &[f32]) -> Vec<(String, Vec<f32>)> {
+        Vec::new()
+    }
+
+    fn fit_to_points(&self, values: &[f32], points: &[[f32; 3]], seed: u64) -> Option<SdfFit> {
+        let o = &self.objective;
+        Some(fit(&o.net, values, points, o.bounds, seed))
+    }
+
+    fn is_network(&self) -> bool {
+        true
+    }
+
+    fn describe(&self) -> Description {
+        Description {
+            trainable: format!(
+                "all {} weights, starting as a sphere of radius {}",
+                self.objective.net.len, self.objective.spec.radius
+            ),
+            gradient: "none: the exact gradient of f by a reverse pass in the forward; a hand-written reverse-over-reverse backward".into(),
+            mesh_region: "the points' box grown by a tenth of its diagonal".into(),
+        }
+    }
 }
 
 #[cfg(test)]

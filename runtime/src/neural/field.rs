@@ -17,8 +17,9 @@ use super::composite::squared_error_backward_bg;
 use super::nerf::{NerfNet, NerfWork, PositionEncoding};
 use super::occupancy::{OccupancyConfig, OccupancyGrid, RaySamples};
 use super::warp::Warp;
+use crate::train::field::{Description, Region, View};
 use crate::train::fused::Batch;
-use crate::train::{Objective, TensorSpec, TrainError};
+use crate::train::{Objective, TensorSpec, TrainError, Trained, TrainedField};
 use crate::volume::importance::{merge_depths, sample_pdf, Spacing};
 use crate::volume::march::intervals_into;
 use crate::volume::{camera_rays, ImageSize, Ray, SplitMix64, Stratified, VolumeError};
@@ -889,6 +890,69 @@ fn composite_until_opaque(
         *d = dep;
     }
     evaluated
+}
+
+impl TrainedField for Trained<NerfObjective> {
+    fn render_view(
+        &self,
+        values: &[f32],
+        cam: &Camera,
+        size: ImageSize,
+        _want_depth: bool,
+    ) -> Result<View, String> {
+        let (strat, last) = (&self.viewing.strat, self.viewing.sampler.last_interval);
+        let v = self
+            .objective
+            .render_view(values, strat, last, cam, size)
+            .map_err(|e| e.to_string())?;
+        Ok(View {
+            colour: v.colour,
+            depth: v.depth,
+        })
+    }
+
+    fn radiance<'a>(
+        &'a self,
+        values: &'a [f32],
+    ) -> Option<Box<dyn crate::export::RadianceField + 'a>> {
+        let o = &self.objective;
+        // The network that renders: the fine one where there is one.
+        let net = o.fine.as_ref().map_or(&o.net, |(f, _)| f);
+        Some(Box::new(crate::export::NerfField {
+            net,
+            params: values,
+        }))
+    }
+
+    fn region(&self) -> Option<Region> {
+        self.viewing.region
+    }
+
+    fn reported(&self, _values: &[f32]) -> Vec<(String, Vec<f32>)> {
+        Vec::new()
+    }
+
+    fn is_network(&self) -> bool {
+        true
+    }
+
+    fn describe(&self) -> Description {
+        let tensors = self.objective.tensors();
+        Description {
+            trainable: format!(
+                "all {} weights in {} tensors{}",
+                tensors.iter().map(|t| t.len).sum::<usize>(),
+                tensors.len(),
+                if self.objective.fine.is_some() {
+                    " (coarse and fine networks)"
+                } else {
+                    ""
+                }
+            ),
+            gradient: "none: fused layer kernels with a hand-written backward through the network and the compositing; renders stop each ray once less than 1e-4 of its light is left".into(),
+            mesh_region: "the starting bounds grown by half".into(),
+        }
+    }
 }
 
 #[cfg(test)]

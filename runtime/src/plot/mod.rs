@@ -13,8 +13,9 @@
 //! or with [`Scale::Auto`] when its values are all positive and span two
 //! decades or more.
 //!
-//! The assignment's check figures (grid, rays, sample points,
-//! transmittance) stay hand-drawn in [`crate::volume::figures`].
+//! The assignment's transmittance figure ([`crate::volume::figures`]) is
+//! drawn with plotters too, on this module's font; its pixel checks (grid,
+//! rays) are images by definition.
 
 use std::ops::Range;
 use std::sync::Once;
@@ -26,7 +27,7 @@ use plotters::style::text_anchor::{HPos, Pos, VPos};
 /// DejaVu Sans 2.37 (licence in `runtime/assets/DejaVuSans.LICENSE.md`).
 static FONT: &[u8] = include_bytes!("../../assets/DejaVuSans.ttf");
 /// Registered as the generic family, which plotters' defaults also name.
-const FAMILY: &str = "sans-serif";
+pub(crate) const FAMILY: &str = "sans-serif";
 
 /// Smallest image side [`render`] draws (width, height).
 pub const MIN_SIDE: (u32, u32) = (200, 150);

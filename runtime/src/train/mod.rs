@@ -11,6 +11,8 @@
 //!   projection into range), the loop.
 //! * [`graph`]: the `dfdx` backend: the field as a custom dfdx op, the
 //!   compositing and loss as a dfdx autodiff graph.
+//! * [`field`]: the trained field as the job sees it (render a view, a
+//!   distance for meshes, a density for exports, reported parameters).
 //! * [`checkpoint`]: safetensors checkpoints with a fingerprint of the run.
 //! * [`params`]: runtime-sized named parameters, Adam through dfdx's kernel.
 //! * [`graph_ops`]: differentiable compositing as dfdx graph ops on
@@ -19,6 +21,7 @@
 
 pub mod checkpoint;
 pub mod export_names;
+pub mod field;
 pub mod fused;
 pub mod graph;
 pub mod graph_ops;
@@ -28,6 +31,7 @@ pub mod params;
 pub mod tape;
 pub mod trainer;
 
+pub use field::{Trained, TrainedField, Viewing};
 pub use model::TrainModel;
 pub use objective::{FieldObjective, Objective, TensorSpec};
 pub use params::{Adam, ParamId, ParamStore};

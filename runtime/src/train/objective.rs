@@ -65,8 +65,9 @@ pub trait Objective {
 /// An analytic field's `param(...)` arguments, fitted through the fused
 /// kernel or the dfdx graph.
 pub struct FieldObjective<'m> {
-    /// The field and its parameters' layout.
-    pub model: &'m TrainModel,
+    /// The field and its parameters' layout (borrowed, or owned by a
+    /// trained field).
+    pub model: std::borrow::Cow<'m, TrainModel>,
     /// Which differentiation computes the gradient: the fused kernel or the dfdx graph.
     pub backend: Backend,
     dev: dfdx::prelude::Cpu,
@@ -79,9 +80,18 @@ impl<'m> FieldObjective<'m> {
         // (5 MB a step on a box fit).
         let dev = dfdx::prelude::Cpu::default();
         FieldObjective {
-            model,
+            model: std::borrow::Cow::Borrowed(model),
             backend,
             dev,
+        }
+    }
+
+    /// The objective of `model`, which it keeps.
+    pub fn owning(model: TrainModel, backend: Backend) -> FieldObjective<'static> {
+        FieldObjective {
+            model: std::borrow::Cow::Owned(model),
+            backend,
+            dev: dfdx::prelude::Cpu::default(),
         }
     }
 }
@@ -115,9 +125,9 @@ impl Objective for FieldObjective<'_> {
         grad: &mut [f32],
     ) -> Result<f64, TrainError> {
         let lg = match self.backend {
-            Backend::Fused => loss_and_grad_f32(self.model, values, batch, weight),
+            Backend::Fused => loss_and_grad_f32(&self.model, values, batch, weight),
             Backend::Dfdx => {
-                super::graph::loss_and_grad(&self.dev, self.model, values, batch, weight)?
+                super::graph::loss_and_grad(&self.dev, &self.model, values, batch, weight)?
             }
         };
         for (g, v) in grad.iter_mut().zip(&lg.grad) {

@@ -171,10 +171,11 @@ impl<'a> TrainSetup<'a> {
 }
 
 /// The state of a run: the model, its parameters in the store, Adam,
-/// losses so far.
-pub struct Run<'m> {
+/// losses so far. The model is any [`Objective`]; a job's is a
+/// [`super::TrainedField`], which it renders and meshes between steps.
+pub struct Run<O: Objective + ?Sized = dyn Objective> {
     /// The model's loss and gradient.
-    pub objective: Box<dyn Objective + 'm>,
+    pub objective: Box<O>,
     tensors: Vec<TensorSpec>,
     store: ParamStore,
     ids: Vec<ParamId>,
@@ -190,9 +191,9 @@ pub struct Run<'m> {
     layout: Layout,
 }
 
-impl<'m> Run<'m> {
+impl<O: Objective + ?Sized> Run<O> {
     /// A fresh run of any model at its starting values.
-    pub fn of(objective: Box<dyn Objective + 'm>, lr: f64) -> Result<Self, TrainError> {
+    pub fn of(objective: Box<O>, lr: f64) -> Result<Self, TrainError> {
         let mut store = ParamStore::new();
         let init = objective.initial();
         let tensors = objective.tensors();
@@ -424,7 +425,7 @@ impl<'m> Run<'m> {
         &mut self,
         setup: &TrainSetup,
         steps: usize,
-        mut each: impl FnMut(&Run, f32) -> ControlFlow<()>,
+        mut each: impl FnMut(&Self, f32) -> ControlFlow<()>,
     ) -> Result<(), TrainError> {
         while self.step < steps {
             let loss = self.advance(setup)?;

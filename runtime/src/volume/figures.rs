@@ -5,8 +5,9 @@
 //! [`crate::output::write_png`]'s job. Charts for people (loss curves,
 //! sweeps) are [`crate::plot`]'s.
 //!
-//! The transmittance figure's text uses a built-in 3×5 pixel font (digits,
-//! A–Z, a little punctuation; lower case is drawn as upper case).
+//! The transmittance figure is a chart, drawn with plotters on
+//! [`crate::plot`]'s font; the sample-point view is a projection of
+//! points and lines, rasterised here (no text or axes).
 
 use glam::DVec3;
 use sdfl_stdlib::camera::{pixel_ndc, Camera};
@@ -14,6 +15,8 @@ use sdfl_stdlib::camera::{pixel_ndc, Camera};
 use super::composite::transmittance;
 use super::rays::{camera_rays, pixel_ray, ImageSize, Stratified};
 use crate::output::{colormap, to_u8};
+use plotters::prelude::*;
+use plotters::style::text_anchor::{HPos, Pos, VPos};
 
 /// The "xy grid" check: RGB = `((x_ndc+1)/2.001, (y_ndc+1)/2.001, 0)`.
 /// The top-left pixel is yellow, the bottom-right black.
@@ -223,9 +226,11 @@ pub fn sample_points_image(
 /// in f32 with the runtime's [`transmittance`]
 /// (≈ e^-2, e^-30.5, e^-32.5, e^-2.5).
 ///
-/// The plot has the distance from the eye horizontally, the slabs as bands
-/// whose height and shade grow with σ (σ written on each), and `T(x, s)` on a
-/// log scale from 1 down to 1e-15 with markers at x, y1..y4.
+/// Drawn with plotters ([`crate::plot`]'s font): the distance from the eye
+/// horizontally, the slabs as bands whose height and shade grow with σ
+/// (σ written on each), and `T(x, s)` on a log axis from 1 down to 1e-15
+/// with markers at x, y1..y4. An image smaller than a chart can hold
+/// ([`crate::plot::MIN_SIDE`]) is left white.
 pub fn transmittance_figure(width: u32, height: u32) -> (Vec<u8>, [f64; 4]) {
     let sigma = [0.0f32, 1.0, 0.5, 10.0];
     let delta = [1.0f32, 2.0, 1.0, 3.0];
@@ -241,102 +246,166 @@ pub fn transmittance_figure(width: u32, height: u32) -> (Vec<u8>, [f64; 4]) {
             .collect();
         transmittance(&sigma, &cut).map_or(f64::NAN, |v| v as f64)
     };
-
-    let xr = Range { lo: -0.3, hi: 7.3 };
-    let yr = Range { lo: -15.5, hi: 0.5 };
-    let yticks: Vec<(f64, String)> = (0..=15)
-        .map(|k| {
-            let e = -(k as i64);
-            let label = if k % 3 == 0 {
-                decade_label(e)
-            } else {
-                String::new()
-            };
-            (e as f64, label)
-        })
-        .collect();
-    let names = ["X", "Y1", "Y2", "Y3", "Y4"];
-    let marks = [0.0, 1.0, 3.0, 4.0, 7.0];
-    let xticks: Vec<(f64, String)> = marks
-        .iter()
-        .zip(names)
-        .map(|(&s, n)| (s, n.to_string()))
-        .collect();
-    let mut cv = Canvas::new(width, height, WHITE);
-    if cv.px.is_empty() {
-        return (cv.px, values);
+    let mut rgb = vec![255u8; width as usize * height as usize * 3];
+    let (min_w, min_h) = crate::plot::MIN_SIDE;
+    if (min_w..=crate::plot::MAX_SIDE).contains(&width)
+        && (min_h..=crate::plot::MAX_SIDE).contains(&height)
+    {
+        let slabs: Vec<(f64, f64, f64)> = (1..4)
+            .map(|k| {
+                let (a, d) = (starts[k] as f64, delta[k] as f64);
+                (a, a + d, sigma[k] as f64)
+            })
+            .collect();
+        // A failed drawing leaves the image as far as it got; the values stand.
+        let _ = draw_transmittance(&mut rgb, (width, height), &slabs, &t_at);
     }
-    let (fr, st) = make_frame(width, height, xr, yr, &yticks, true);
+    (rgb, values)
+}
 
+/// The curve's colour.
+const CURVE: RGBColor = RGBColor(200, 30, 30);
+
+/// Draws the transmittance figure into `rgb`: `slabs` as (start, end, σ),
+/// `t_at(s)` the transmittance from the eye to distance `s`.
+fn draw_transmittance(
+    rgb: &mut [u8],
+    (width, height): (u32, u32),
+    slabs: &[(f64, f64, f64)],
+    t_at: &dyn Fn(f64) -> f64,
+) -> Result<(), String> {
+    let err = |e: &dyn std::fmt::Debug| format!("{e:?}");
+    crate::plot::register_font();
+    let root = BitMapBackend::with_buffer(rgb, (width, height)).into_drawing_area();
+    root.fill(&WHITE).map_err(|e| err(&e))?;
+    // Sizes in pixels at 640 × 400, scaled with the image.
+    let scale = (width as f64 / 640.0)
+        .min(height as f64 / 400.0)
+        .clamp(0.6, 4.0);
+    let px = |v: f64| (v * scale).round().max(1.0) as u32;
+    let font = |size: f64| (crate::plot::FAMILY, size * scale).into_font();
+    let ink = RGBColor(40, 40, 40);
+    let (lo, hi) = (1e-15f64, 1.0f64);
+    let mut chart = ChartBuilder::on(&root)
+        .caption(
+            "Transmittance from the eye x through three slabs",
+            font(19.0).color(&ink),
+        )
+        .margin(px(10.0))
+        .margin_right(px(22.0))
+        .x_label_area_size(px(46.0))
+        .y_label_area_size(px(70.0))
+        .build_cartesian_2d(-0.3f64..7.3f64, (lo / 3.0..hi * 3.0).log_scale())
+        .map_err(|e| err(&e))?;
+    let decade = |v: &f64| {
+        let e = v.log10().round();
+        if e == 0.0 {
+            "1".to_string()
+        } else {
+            format!("1e{e}")
+        }
+    };
+    chart
+        .configure_mesh()
+        .x_labels(8)
+        .y_labels(6)
+        .x_label_formatter(&|v| format!("{v}"))
+        .y_label_formatter(&decade)
+        .x_desc("distance s from the eye x along the ray (m)")
+        .y_desc("T(x, s), log scale")
+        .label_style(font(14.0).color(&ink))
+        .axis_desc_style(font(16.0).color(&ink))
+        .bold_line_style(RGBColor(225, 225, 225))
+        .light_line_style(WHITE)
+        .axis_style(ink)
+        .draw()
+        .map_err(|e| err(&e))?;
     // Bands: height and shade by ln(1 + σ), so σ = 0.5 and 1 stay visible
-    // beside σ = 10.
-    let smax = (1.0 + 10.0f64).ln();
-    for k in 1..4 {
-        let g = (1.0 + sigma[k] as f64).ln() / smax;
-        let (a, _) = fr.px(starts[k] as f64, 0.0);
-        let (b, _) = fr.px((starts[k] + delta[k]) as f64, 0.0);
-        let top = fr.b - (0.15 + 0.8 * g) * (fr.b - fr.t);
-        let shade = mix(WHITE, [70, 110, 190], 0.2 + 0.5 * g);
-        cv.fill(
-            a.round() as i64,
-            top.round() as i64,
-            b.round() as i64,
-            fr.b as i64,
-            shade,
+    // beside σ = 10 (top: the highest band reaches the top of the axis).
+    let most = slabs.iter().map(|s| (1.0 + s.2).ln()).fold(0.0, f64::max);
+    // The y axis from lo/3 to 3, as a fraction of its (log) height.
+    let (bottom, span) = ((lo / 3.0).log10(), (9.0 / lo).log10());
+    let at = |u: f64| 10f64.powf(bottom + u * span);
+    let top_at = |g: f64| at(0.15 + 0.8 * g);
+    for &(a, b, sigma) in slabs {
+        let g = (1.0 + sigma).ln() / most.max(1e-12);
+        let shade = |k: usize| {
+            let base = [70u8, 110, 190][k] as f64;
+            (255.0 + (base - 255.0) * (0.2 + 0.5 * g)).round() as u8
+        };
+        let fill = RGBColor(shade(0), shade(1), shade(2));
+        let top = top_at(g);
+        chart
+            .draw_series(std::iter::once(Rectangle::new(
+                [(a, lo / 3.0), (b, top)],
+                fill.filled(),
+            )))
+            .map_err(|e| err(&e))?;
+        let text_ink = if g > 0.5 {
+            WHITE
+        } else {
+            RGBColor(30, 50, 110)
+        };
+        let label = Text::new(
+            format!("σ = {sigma}"),
+            (0.5 * (a + b), top / 2.5),
+            font(14.0)
+                .color(&text_ink)
+                .pos(Pos::new(HPos::Center, VPos::Top)),
         );
-        if st.labels {
-            let label = format!("{}", sigma[k]);
-            let tw = text_width(&label, st.scale);
-            let cx = (0.5 * (a + b)).round() as i64;
-            // Inside the band's top: the densest band reaches the frame top.
-            let ty = top.round() as i64 + 3 * st.scale;
-            let ink = if g > 0.5 { WHITE } else { [30, 50, 110] };
-            cv.text(cx - tw / 2, ty, &label, st.scale, ink);
-        }
+        chart
+            .draw_series(std::iter::once(label))
+            .map_err(|e| err(&e))?;
     }
-    draw_grid(&mut cv, &fr, &[], &yticks);
-    for &s in &marks {
-        let (x, _) = fr.px(s, 0.0);
-        cv.dashed_vline(x.round() as i64, fr.t as i64, fr.b as i64, [150, 150, 150]);
+    // The named points, each a dashed line with its name at the bottom.
+    let marks = [
+        (0.0, "x"),
+        (1.0, "y1"),
+        (3.0, "y2"),
+        (4.0, "y3"),
+        (7.0, "y4"),
+    ];
+    for &(s, name) in &marks {
+        let dashes = (0..24).map(|k| {
+            let u = k as f64 / 24.0;
+            PathElement::new(
+                vec![(s, at(u)), (s, at(u + 0.5 / 24.0))],
+                RGBColor(150, 150, 150),
+            )
+        });
+        chart.draw_series(dashes).map_err(|e| err(&e))?;
+        let label = Text::new(
+            name.to_string(),
+            (s + 0.08, lo / 1.5),
+            font(15.0)
+                .color(&ink)
+                .pos(Pos::new(HPos::Left, VPos::Bottom)),
+        );
+        chart
+            .draw_series(std::iter::once(label))
+            .map_err(|e| err(&e))?;
     }
-    let red = [200, 30, 30];
-    let n = ((fr.r - fr.l).max(1.0) as usize).max(2) * 2;
-    let mut prev: Option<(f64, f64)> = None;
-    for k in 0..=n {
+    let n = 4 * width as usize;
+    let curve = (0..=n).map(|k| {
         let s = 7.0 * k as f64 / n as f64;
-        let p = fr.px(s, t_at(s).log10());
-        if let Some(q) = prev {
-            cv.line(q, p, st.scale / 2, red);
-        }
-        prev = Some(p);
-    }
-    for &s in &marks {
-        let (x, y) = fr.px(s, t_at(s).log10());
-        cv.dot(x, y, st.scale + 1, red);
-    }
-    draw_axes(&mut cv, &fr, &st, &xticks, &yticks);
-    if st.labels {
-        cv.text(
-            fr.l as i64,
-            2 * st.scale,
-            "T(X,S), LOG SCALE.  BANDS: DENSITY",
-            st.scale,
-            AXIS,
-        );
-    }
-    (cv.px, values)
+        (s, t_at(s))
+    });
+    chart
+        .draw_series(LineSeries::new(curve, CURVE.stroke_width(px(2.0))))
+        .map_err(|e| err(&e))?;
+    chart
+        .draw_series(
+            marks
+                .iter()
+                .map(|&(s, _)| Circle::new((s, t_at(s)), px(4.0), CURVE.filled())),
+        )
+        .map_err(|e| err(&e))?;
+    root.present().map_err(|e| err(&e))?;
+    Ok(())
 }
 
 // ---------------------------------------------------------------------------
 // Drawing
-
-const WHITE: [u8; 3] = [255, 255, 255];
-const AXIS: [u8; 3] = [40, 40, 40];
-const GRID: [u8; 3] = [226, 226, 226];
-fn mix(a: [u8; 3], b: [u8; 3], t: f64) -> [u8; 3] {
-    let t = t.clamp(0.0, 1.0);
-    [0, 1, 2].map(|i| (a[i] as f64 * (1.0 - t) + b[i] as f64 * t).round() as u8)
-}
 
 /// An RGB8 image; every write is clipped to it.
 struct Canvas {
@@ -401,34 +470,6 @@ impl Canvas {
             self.dot(a.0 + t * dx, a.1 + t * dy, r, c);
         }
     }
-
-    fn dashed_vline(&mut self, x: i64, y0: i64, y1: i64, c: [u8; 3]) {
-        for y in y0.min(y1)..=y0.max(y1) {
-            if y.rem_euclid(6) < 3 {
-                self.fill(x, y, x, y, c);
-            }
-        }
-    }
-
-    /// Draws `s` with its top-left corner at `(x, y)`.
-    fn text(&mut self, x: i64, y: i64, s: &str, scale: i64, c: [u8; 3]) {
-        for (n, ch) in s.chars().enumerate() {
-            let g = glyph(ch);
-            let gx = x + n as i64 * 4 * scale;
-            for row in 0..5 {
-                for col in 0..3 {
-                    if g >> (14 - (row * 3 + col)) & 1 == 1 {
-                        let (px, py) = (gx + col * scale, y + row * scale);
-                        self.fill(px, py, px + scale - 1, py + scale - 1, c);
-                    }
-                }
-            }
-        }
-    }
-}
-
-fn text_width(s: &str, scale: i64) -> i64 {
-    (s.chars().count() as i64 * 4 * scale - scale).max(0)
 }
 
 /// Cohen–Sutherland clipping of a segment to a rectangle; `None` when it
@@ -479,219 +520,6 @@ fn clip(
         }
     }
     None
-}
-
-/// 3×5 glyphs, row-major from the top, most significant bit first.
-fn glyph(c: char) -> u16 {
-    match c.to_ascii_uppercase() {
-        '0' => 0b111_101_101_101_111,
-        '1' => 0b010_110_010_010_111,
-        '2' => 0b111_001_111_100_111,
-        '3' => 0b111_001_111_001_111,
-        '4' => 0b101_101_111_001_001,
-        '5' => 0b111_100_111_001_111,
-        '6' => 0b111_100_111_101_111,
-        '7' => 0b111_001_001_001_001,
-        '8' => 0b111_101_111_101_111,
-        '9' => 0b111_101_111_001_111,
-        'A' => 0b010_101_111_101_101,
-        'B' => 0b110_101_110_101_110,
-        'C' => 0b011_100_100_100_011,
-        'D' => 0b110_101_101_101_110,
-        'E' => 0b111_100_110_100_111,
-        'F' => 0b111_100_110_100_100,
-        'G' => 0b011_100_101_101_011,
-        'H' => 0b101_101_111_101_101,
-        'I' => 0b111_010_010_010_111,
-        'J' => 0b001_001_001_101_010,
-        'K' => 0b101_101_110_101_101,
-        'L' => 0b100_100_100_100_111,
-        'M' => 0b101_111_111_101_101,
-        'N' => 0b110_101_101_101_101,
-        'O' => 0b010_101_101_101_010,
-        'P' => 0b110_101_110_100_100,
-        'Q' => 0b010_101_101_110_011,
-        'R' => 0b110_101_110_101_101,
-        'S' => 0b011_100_010_001_110,
-        'T' => 0b111_010_010_010_010,
-        'U' => 0b101_101_101_101_111,
-        'V' => 0b101_101_101_101_010,
-        'W' => 0b101_101_111_111_101,
-        'X' => 0b101_101_010_101_101,
-        'Y' => 0b101_101_010_010_010,
-        'Z' => 0b111_001_010_100_111,
-        '-' => 0b000_000_111_000_000,
-        '+' => 0b000_010_111_010_000,
-        '.' => 0b000_000_000_000_010,
-        ',' => 0b000_000_000_010_100,
-        ':' => 0b000_010_000_010_000,
-        '_' => 0b000_000_000_000_111,
-        '=' => 0b000_111_000_111_000,
-        '/' => 0b001_001_010_100_100,
-        '%' => 0b101_001_010_100_101,
-        '(' => 0b010_100_100_100_010,
-        ')' => 0b010_001_001_001_010,
-        '[' => 0b110_100_100_100_110,
-        ']' => 0b011_001_001_001_011,
-        _ => 0,
-    }
-}
-
-// ---------------------------------------------------------------------------
-// Axes
-
-/// A data interval mapped onto the plot area.
-#[derive(Debug, Clone, Copy, PartialEq)]
-struct Range {
-    lo: f64,
-    hi: f64,
-}
-
-impl Range {
-    /// `v`'s position in the range, 0 at `lo` and 1 at `hi`; 0.5 when the
-    /// range is degenerate.
-    fn unit(&self, v: f64) -> f64 {
-        let d = self.hi * 0.5 - self.lo * 0.5;
-        if d > 0.0 && d.is_finite() {
-            (v * 0.5 - self.lo * 0.5) / d
-        } else {
-            0.5
-        }
-    }
-}
-
-/// The plot area in pixels (left, top, right, bottom) and its data ranges.
-struct Frame {
-    l: f64,
-    t: f64,
-    r: f64,
-    b: f64,
-    xr: Range,
-    yr: Range,
-}
-
-impl Frame {
-    fn px(&self, x: f64, y: f64) -> (f64, f64) {
-        (
-            self.l + self.xr.unit(x) * (self.r - self.l),
-            self.b - self.yr.unit(y) * (self.b - self.t),
-        )
-    }
-}
-
-struct Style {
-    /// Font pixel size and line width unit.
-    scale: i64,
-    /// Whether the image is large enough for text.
-    labels: bool,
-}
-
-/// Margins sized to the y tick labels, so they never overlap the plot.
-fn make_frame(
-    w: u32,
-    h: u32,
-    xr: Range,
-    yr: Range,
-    yticks: &[(f64, String)],
-    title: bool,
-) -> (Frame, Style) {
-    let scale = (w.min(h) as i64 / 240).clamp(1, 8);
-    let labels = w >= 64 && h >= 48;
-    let tick = 3 * scale;
-    let (w, h) = (w as i64, h as i64);
-    let (left, right, top, bottom) = if labels {
-        let yw = yticks
-            .iter()
-            .map(|t| text_width(&t.1, scale))
-            .max()
-            .unwrap_or(0);
-        let top = if title { 10 * scale } else { 4 * scale };
-        (
-            (yw + tick + 3 * scale + 1).min(w / 2),
-            8 * scale + 2,
-            top + 2,
-            tick + 8 * scale + 1,
-        )
-    } else {
-        (1, 1, 1, 1)
-    };
-    let l = left.min(w - 1);
-    let t = top.min(h - 1);
-    let r = (w - 1 - right).max(l);
-    let b = (h - 1 - bottom).max(t);
-    let fr = Frame {
-        l: l as f64,
-        t: t as f64,
-        r: r as f64,
-        b: b as f64,
-        xr,
-        yr,
-    };
-    (fr, Style { scale, labels })
-}
-
-/// `10^e` as "0.001" … "10000", else "1e-14".
-fn decade_label(e: i64) -> String {
-    match e {
-        0..=4 => format!("1{}", "0".repeat(e as usize)),
-        -3..=-1 => format!("0.{}1", "0".repeat((-e - 1) as usize)),
-        _ => format!("1e{e}"),
-    }
-}
-
-fn draw_grid(cv: &mut Canvas, fr: &Frame, xt: &[(f64, String)], yt: &[(f64, String)]) {
-    for (x, _) in xt {
-        let (px, _) = fr.px(*x, 0.0);
-        cv.line((px, fr.t), (px, fr.b), 0, GRID);
-    }
-    for (y, _) in yt {
-        let (_, py) = fr.px(0.0, *y);
-        cv.line((fr.l, py), (fr.r, py), 0, GRID);
-    }
-}
-
-/// The frame box, outward tick marks and their labels; a label that would
-/// overlap one already drawn is left out.
-fn draw_axes(cv: &mut Canvas, fr: &Frame, st: &Style, xt: &[(f64, String)], yt: &[(f64, String)]) {
-    let (l, t, r, b) = (fr.l, fr.t, fr.r, fr.b);
-    for (p, q) in [
-        ((l, t), (r, t)),
-        ((r, t), (r, b)),
-        ((l, b), (r, b)),
-        ((l, t), (l, b)),
-    ] {
-        cv.line(p, q, 0, AXIS);
-    }
-    let s = st.scale;
-    let tick = 3 * s;
-    let mut drawn: Vec<[i64; 4]> = Vec::new();
-    let mut label = |cv: &mut Canvas, x: i64, y: i64, text: &str| {
-        let bx = [x - s, y - s, x + text_width(text, s) + s, y + 6 * s];
-        let free = drawn
-            .iter()
-            .all(|d| bx[2] < d[0] || d[2] < bx[0] || bx[3] < d[1] || d[3] < bx[1]);
-        if free && !text.is_empty() {
-            cv.text(x, y, text, s, AXIS);
-            drawn.push(bx);
-        }
-    };
-    for (x, text) in xt {
-        let (px, _) = fr.px(*x, 0.0);
-        cv.line((px, b), (px, b + tick as f64), s / 2, AXIS);
-        if st.labels {
-            let x0 = px.round() as i64 - text_width(text, s) / 2;
-            label(cv, x0, b as i64 + tick + 2 * s, text);
-        }
-    }
-    for (y, text) in yt {
-        let (_, py) = fr.px(0.0, *y);
-        let len = if text.is_empty() { tick / 2 + 1 } else { tick };
-        cv.line((l - len as f64, py), (l, py), s / 2, AXIS);
-        if st.labels {
-            let x0 = l as i64 - tick - 2 * s - text_width(text, s);
-            label(cv, x0, py.round() as i64 - 2 * s, text);
-        }
-    }
 }
 
 #[cfg(test)]
@@ -809,27 +637,12 @@ mod tests {
     }
 
     #[test]
-    fn ranges_and_decade_labels() {
-        let r = Range { lo: -2.0, hi: 2.0 };
-        assert!((r.unit(0.0) - 0.5).abs() < 1e-12 && r.unit(2.0) == 1.0);
-        let r = Range {
-            lo: -f64::MAX,
-            hi: f64::MAX,
-        };
-        assert!((r.unit(0.0) - 0.5).abs() < 1e-12 && r.unit(f64::MAX) <= 1.0);
-        assert_eq!(Range { lo: 1.0, hi: 1.0 }.unit(1.0), 0.5);
-        assert_eq!(decade_label(-3), "0.001");
-        assert_eq!(decade_label(2), "100");
-        assert_eq!(decade_label(-14), "1e-14");
-    }
-
-    #[test]
-    fn clipping_and_text_stay_in_bounds() {
-        let mut cv = Canvas::new(10, 10, WHITE);
+    fn clipping_stays_in_bounds() {
+        const AXIS: [u8; 3] = [40, 40, 40];
+        let mut cv = Canvas::new(10, 10, [255; 3]);
         cv.line((-1e300, 5.0), (1e300, 5.0), 1, AXIS);
         cv.line((f64::NAN, 0.0), (3.0, 3.0), 0, AXIS);
         cv.line((-50.0, -50.0), (-20.0, -1.0), 0, AXIS);
-        cv.text(-3, 8, "1E-14 ?", 2, AXIS);
         cv.dot(f64::INFINITY, 2.0, 3, AXIS);
         assert_eq!(cv.px.len(), 300);
         assert_eq!(&cv.px[(5 * 10 + 9) * 3..][..3], &AXIS);

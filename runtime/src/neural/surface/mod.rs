@@ -22,8 +22,11 @@ use super::encoding::Harmonic;
 use super::field::{fine_samples, NerfView, Samples};
 use super::mlp::{Activation, Dense};
 use super::sdf_net::{eikonal_loss, SdfNet, SdfWork};
+use crate::mesh::DistanceField;
+use crate::neural::distance::{geometry_view, NetDistance};
+use crate::train::field::{Description, Region, View};
 use crate::train::fused::Batch;
-use crate::train::{Objective, TensorSpec, TrainError};
+use crate::train::{Objective, TensorSpec, TrainError, Trained, TrainedField};
 use crate::volume::importance::Spacing;
 use crate::volume::{camera_rays, ImageSize, Ray, SplitMix64, Stratified, VolumeError};
 
@@ -714,6 +717,84 @@ impl Objective for SurfaceObjective {
             &mut grad[..self.sdf.len],
         );
         Ok(loss)
+    }
+}
+
+impl TrainedField for Trained<SurfaceObjective> {
+    fn render_view(
+        &self,
+        values: &[f32],
+        cam: &Camera,
+        size: ImageSize,
+        _want_depth: bool,
+    ) -> Result<View, String> {
+        let (strat, last) = (&self.viewing.strat, self.viewing.sampler.last_interval);
+        let v = self
+            .objective
+            .render_view(values, strat, last, cam, size)
+            .map_err(|e| e.to_string())?;
+        Ok(View {
+            colour: v.colour,
+            depth: v.depth,
+        })
+    }
+
+    fn surface<'a>(&'a self, values: &'a [f32]) -> Option<Box<dyn DistanceField + 'a>> {
+        let field = NetDistance {
+            net: &self.objective.sdf,
+            params: self.objective.sdf_params(values),
+        };
+        Some(Box::new(crate::mesh::Lipschitz(field, 2.0)))
+    }
+
+    fn region(&self) -> Option<Region> {
+        self.viewing.region
+    }
+
+    fn geometry_view(
+        &self,
+        values: &[f32],
+        cam: &Camera,
+        size: ImageSize,
+    ) -> Option<Result<Vec<[f32; 3]>, String>> {
+        let (net, far) = (&self.objective.sdf, self.viewing.sampler.far);
+        let params = self.objective.sdf_params(values);
+        Some(geometry_view(net, params, cam, size, far).map(|v| v.colour))
+    }
+
+    /// A trained or scheduled β, by its value (it is kept as `ln β / BETA_RATE`).
+    fn reported(&self, values: &[f32]) -> Vec<(String, Vec<f32>)> {
+        let o = &self.objective;
+        o.beta_at()
+            .map(|_| ("beta".to_string(), vec![o.beta(values)]))
+            .into_iter()
+            .collect()
+    }
+
+    fn is_network(&self) -> bool {
+        true
+    }
+
+    fn describe(&self) -> Description {
+        let (o, n) = (&self.objective, &self.objective.spec);
+        let beta = usize::from(o.beta_at().is_some());
+        let weights = o.tensors().iter().map(|t| t.len).sum::<usize>() - beta;
+        let bounds = self.viewing.region.map_or(0.0, |r| r.1[0]);
+        Description {
+            trainable: format!(
+                "all {weights} weights (distance network {}, colour network {}){}, the distance starting as a sphere of radius {}",
+                o.sdf.len,
+                weights - o.sdf.len,
+                match (n.train_beta, n.beta_end) {
+                    (true, _) => format!(", and beta from {} (as ln(beta)/{BETA_RATE}: it moves {BETA_RATE} times faster than a weight; kept in 1e-4..10)", n.beta),
+                    (false, Some(end)) => format!(" (beta is not trained: it falls geometrically from {} to {end} over the steps)", n.beta),
+                    (false, None) => String::new(),
+                },
+                n.sdf.radius
+            ),
+            gradient: "none: the distance network's exact gradient by a reverse pass in the forward; colour network, density and compositing by hand-written backward passes".into(),
+            mesh_region: format!("[-{bounds}, {bounds}]^3"),
+        }
     }
 }
 

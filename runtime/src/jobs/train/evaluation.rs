@@ -1,0 +1,114 @@
+//! Held-out evaluation: the trained field renders the views held out of
+//! training, scored by PSNR and SSIM (masked pixels left out), during
+//! training and at its end.
+
+use super::super::*;
+use crate::train::TrainedField;
+
+/// Quality on the held-out views at a step.
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct HeldOut {
+    /// The training step evaluated at.
+    pub step: usize,
+    /// Seconds of training so far (evaluation excluded).
+    pub seconds: f64,
+    /// Mean over the views of each view's PSNR (dB).
+    pub psnr: f64,
+    /// Mean over the views of each view's SSIM.
+    pub ssim: f64,
+}
+
+/// Each held-out view as a row: truth | render | |error|×4.
+pub(super) fn comparison_image(
+    views: &[TrainView],
+    renders: &[Vec<[f32; 3]>],
+) -> (u32, u32, Vec<u8>) {
+    let w = views.iter().map(|v| v.image.width).max().unwrap_or(1);
+    let h: u32 = views.iter().map(|v| v.image.height).sum::<u32>().max(1);
+    let mut out = vec![0u8; (3 * w * h * 3) as usize];
+    let mut y0 = 0;
+    for (v, r) in views.iter().zip(renders) {
+        let (vw, vh) = (v.image.width, v.image.height);
+        for y in 0..vh {
+            for x in 0..vw {
+                let i = (y * vw + x) as usize;
+                let (t, c) = (v.image.pixels[i], r[i]);
+                let err = [0, 1, 2].map(|k| (4.0 * (t[k] - c[k]).abs()).min(1.0));
+                for (panel, px) in [t, c, err].iter().enumerate() {
+                    let o = 3 * (((y0 + y) * 3 * w) + panel as u32 * w + x) as usize;
+                    for k in 0..3 {
+                        out[o + k] = to_u8(px[k] as f64);
+                    }
+                }
+            }
+        }
+        y0 += vh;
+    }
+    (3 * w, h, out)
+}
+
+/// The held-out views' mean PSNR and SSIM at some values, with each
+/// view's render.
+pub(super) struct Evaluation {
+    /// Mean over the views of each view's PSNR (dB).
+    pub psnr: f64,
+    /// Mean over the views of each view's SSIM.
+    pub ssim: f64,
+    /// Each view's colours, row by row.
+    pub renders: Vec<Vec<[f32; 3]>>,
+}
+
+/// The held-out `views` rendered by `field` at `values` and scored.
+pub(super) fn evaluate(
+    field: &dyn TrainedField,
+    values: &[f32],
+    views: &[TrainView],
+) -> io::Result<Evaluation> {
+    let (mut psnr, mut ssim, mut renders) = (0.0, 0.0, Vec::new());
+    for v in views {
+        let (w, h) = (v.image.width, v.image.height);
+        let size = ImageSize {
+            width: w,
+            height: h,
+        };
+        let colour = field
+            .render_view(values, &v.camera, size, false)
+            .map_err(invalid)?
+            .colour;
+        // Masked pixels are not scored: left out of PSNR, and the
+        // render's own colour in the target for SSIM's windows.
+        let target: std::borrow::Cow<[[f32; 3]]> = match &v.mask {
+            None => (&v.image.pixels[..]).into(),
+            Some(m) => v
+                .image
+                .pixels
+                .iter()
+                .zip(&colour)
+                .zip(m.iter())
+                .map(|((t, c), keep)| if *keep { *t } else { *c })
+                .collect::<Vec<_>>()
+                .into(),
+        };
+        psnr += match &v.mask {
+            None => metrics::psnr(&colour, &target),
+            Some(m) => {
+                let kept = |img: &[[f32; 3]]| -> Vec<[f32; 3]> {
+                    img.iter()
+                        .zip(m.iter())
+                        .filter(|(_, k)| **k)
+                        .map(|(p, _)| *p)
+                        .collect()
+                };
+                metrics::psnr(&kept(&colour), &kept(&target))
+            }
+        };
+        ssim += metrics::ssim(&colour, &target, w as usize, h as usize);
+        renders.push(colour);
+    }
+    let n = views.len().max(1) as f64;
+    Ok(Evaluation {
+        psnr: psnr / n,
+        ssim: ssim / n,
+        renders,
+    })
+}

@@ -1,0 +1,310 @@
+//! Running `train` statements: the data read and checked, the trained
+//! field built ([`field`]: the one place that tells model kinds apart),
+//! resumed from its checkpoint ([`resume`]), trained with a held-out
+//! evaluation every `eval_every` steps ([`evaluation`]), and its outputs
+//! written ([`outputs`]); [`budget`] refuses runs too large before any
+//! step.
+
+use super::*;
+use sdfl_stdlib::value::ViewPath;
+
+mod budget;
+mod evaluation;
+mod field;
+mod outputs;
+mod resume;
+
+pub use budget::step_memory;
+pub use evaluation::HeldOut;
+pub use field::trained_field;
+pub use resume::fingerprint;
+
+use evaluation::evaluate;
+use resume::{Checkpoints, CHECKPOINT_EVERY};
+
+/// The learned parameters and how training went.
+#[derive(Debug, Clone, Serialize)]
+pub struct TrainReport {
+    /// The `train` statement's name, which its outputs and checkpoint carry.
+    pub name: String,
+    /// Steps done in all (a resumed run counts the earlier ones).
+    pub iterations: usize,
+    /// The checkpoint's step this run resumed from; `None` for a fresh start.
+    pub resumed_from: Option<usize>,
+    /// Loss of the last step.
+    pub final_loss: f32,
+    /// Mean wall-clock seconds per training step of this run.
+    pub seconds_per_step: f64,
+    /// Learned values by parameter name (`box.center`, or a `let` name);
+    /// empty for a neural field (its weights are in the checkpoint).
+    pub params: Vec<(String, Vec<f32>)>,
+    /// Weights of a neural field.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub network_weights: Option<usize>,
+    /// Held-out quality during and after training (empty without test views).
+    pub held_out: Vec<HeldOut>,
+    /// A capture's normalisation: data frame → scene frame
+    /// (`to_scene(p) = scale·R·(p − center)`), so results map back.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub scene_frame: Option<crate::data::normalize::SceneFrame>,
+    /// How well a distance field fits its points.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub fit: Option<crate::neural::distance::SdfFit>,
+    /// The first mesh written after training, against all the data's
+    /// points, or against the true surface of a scene sdfl rendered.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub mesh_fit: Option<crate::neural::distance::MeshFit>,
+    /// Files written after training (images, meshes, exports), relative to `--out`.
+    pub written: Vec<Written>,
+    /// Wall-clock seconds of each stage (load data, train, held-out evaluation…).
+    pub stages: Vec<(String, f64)>,
+    /// What looks wrong with the fit (code `sdfl::warn::diverged`): a loss
+    /// that ended far above its lowest, parameters held at their range.
+    pub warnings: Vec<String>,
+}
+
+/// Options of a training run that are not in the file.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct TrainOptions {
+    /// Start over instead of resuming an existing checkpoint.
+    pub restart: bool,
+}
+
+/// Runs one `train` statement: loads its data, resumes from its checkpoint
+/// if any, trains, scores the held-out views and writes its outputs under
+/// `out_dir`.
+#[allow(clippy::too_many_arguments)]
+pub fn run_train_job(
+    job: &TrainJob,
+    out_dir: &Path,
+    base: &Path,
+    size: Option<(u32, u32)>,
+    options: TrainOptions,
+    progress: &(dyn Fn(u64) + Sync),
+    status: &dyn Fn(&str),
+) -> io::Result<TrainReport> {
+    budget::step_fits_in_memory(job)?;
+    let mut stages = Vec::new();
+    let t = Instant::now();
+    let Views {
+        train: views,
+        test: test_views,
+        points,
+        all_points,
+        scene_report,
+        scene_frame,
+        forward_facing,
+    } = load_views(&job.data, base).map_err(|e| crate::data::at_argument(job.data_span, e))?;
+    for line in &scene_report {
+        status(line);
+    }
+    let resolved;
+    let job = match field::with_ndc_frame(job, forward_facing, status)? {
+        Some(j) => {
+            resolved = j;
+            &resolved
+        }
+        None => job,
+    };
+    stages.push(("load data".to_string(), t.elapsed().as_secs_f64()));
+    budget::within_budget_once_read(job, size, &views, &test_views)?;
+    budget::held_out_views_present(job, &test_views)?;
+    let outputs = outputs::Outputs {
+        job,
+        out_dir,
+        cameras: output_cameras(job, &views)?,
+        size: size.unwrap_or((job.width, job.height)),
+        ray_views: views
+            .iter()
+            .map(|v| {
+                let (width, height) = (v.image.width, v.image.height);
+                (v.camera, ImageSize { width, height })
+            })
+            .collect(),
+        to_data: scene_frame
+            .as_ref()
+            .map_or(glam::DAffine3::IDENTITY, |f| f.to_data_affine()),
+    };
+
+    let mut setup = TrainSetup::of(job, &views);
+    setup.points = &points;
+    let steps = match job.epochs {
+        Some(e) => e.saturating_mul(setup.steps_per_epoch()),
+        None => job.iterations,
+    };
+    let field = trained_field(job, steps, &points).map_err(invalid)?;
+    let network = field.is_network();
+    let fail = |e: TrainError| io::Error::other(format!("training `{}`: {e}", job.name));
+    let mut run = Run::of(field, job.optimizer.lr).map_err(fail)?;
+    // Checkpoints name and shape the tensors by role and carry the model.
+    let tensors = run.objective.tensors();
+    run.describe(crate::train::export_names::Layout::of(&job.model, &tensors));
+    let checkpoints = Checkpoints::of(job, &views, out_dir);
+    let resumed_from = checkpoints.resume_or_start(&mut run, steps, options.restart)?;
+    let mut written = Vec::new();
+    if !job.before.is_empty() {
+        written.extend(outputs.before(&*run.objective, &run.values())?);
+    }
+
+    let t = Instant::now();
+    let done_before = run.step;
+    let mut last_good = checkpoints.of_run(&run);
+    let mut io_error = None;
+    let mut held_out: Vec<HeldOut> = Vec::new();
+    // Seconds spent evaluating, left out of the training time.
+    let mut eval_s = 0.0;
+    // A signal stops training after a step, with a checkpoint of it.
+    let graceful = crate::interrupt::Graceful::begin();
+    let result = run.run_to(&setup, steps, |r, loss| {
+        // Each step.
+        progress(1);
+        if let Some(signal) = crate::interrupt::stop_requested() {
+            let kept = match &checkpoints.path {
+                Some(cp) => match checkpoints.write(r) {
+                    Ok(()) => format!("; {} holds it: run again to resume", cp.display()),
+                    Err(e) => format!(
+                        "; its checkpoint failed ({e}), {} holds step {}",
+                        cp.display(),
+                        last_good.step
+                    ),
+                },
+                None => "; no `checkpoint` is named, so it is lost".to_string(),
+            };
+            io_error = Some(crate::interrupt::Stopped::error(
+                signal,
+                format!(
+                    "training `{}` at step {} of {steps}{kept}",
+                    job.name, r.step
+                ),
+            ));
+            return ControlFlow::Break(());
+        }
+        // Each held-out evaluation.
+        if job.eval_every > 0 && !test_views.is_empty() && r.step % job.eval_every == 0 {
+            let te = Instant::now();
+            match evaluate(&*r.objective, &r.values(), &test_views) {
+                Ok(e) => held_out.push(HeldOut {
+                    step: r.step,
+                    seconds: t.elapsed().as_secs_f64() - eval_s,
+                    psnr: e.psnr,
+                    ssim: e.ssim,
+                }),
+                Err(e) => {
+                    io_error = Some(e);
+                    return ControlFlow::Break(());
+                }
+            }
+            eval_s += te.elapsed().as_secs_f64();
+        }
+        if r.step % 10 == 0 {
+            // The same names as the report, the JSON and the checkpoint.
+            let mut line = format!("{} loss {loss:.3e}", job.name);
+            if let Some(h) = held_out.last() {
+                line += &format!("  held-out PSNR {:.2} dB (step {})", h.psnr, h.step);
+            }
+            let shown = if network { 0 } else { 4 };
+            for (name, v) in r.named_values().iter().take(shown) {
+                let v: Vec<String> = v.iter().map(|x| format!("{x:.3}")).collect();
+                line += &format!("  {name} {}", v.join(","));
+            }
+            status(&line);
+        }
+        // Each checkpoint.
+        if checkpoints.path.is_some() && r.step % CHECKPOINT_EVERY == 0 {
+            last_good = checkpoints.of_run(r);
+            if let Err(e) = checkpoints.write(r) {
+                io_error = Some(e);
+                return ControlFlow::Break(());
+            }
+        }
+        ControlFlow::Continue(())
+    });
+    drop(graceful);
+    let train_s = t.elapsed().as_secs_f64() - eval_s;
+    stages.push(("train".to_string(), train_s));
+    if eval_s > 0.0 {
+        stages.push(("held-out evaluation".to_string(), eval_s));
+    }
+    if let Some(e) = io_error {
+        return Err(e);
+    }
+    if let Err(e) = result {
+        let kept = checkpoints
+            .path
+            .as_ref()
+            .map(|p| {
+                format!(
+                    "; the last good checkpoint (step {}) is kept at {}",
+                    last_good.step,
+                    p.display()
+                )
+            })
+            .unwrap_or_default();
+        let message = format!(
+            "training `{}` stopped at step {}: {e}{kept}",
+            job.name,
+            run.step + 1
+        );
+        return Err(match e {
+            // Not an I/O error: the numbers went bad.
+            TrainError::Gradient(_) => io::Error::other(crate::train::NonFinite(message)),
+            _ => io::Error::other(message),
+        });
+    }
+    checkpoints.write(&run)?;
+
+    let t = Instant::now();
+    let (field, values) = (&*run.objective, run.values());
+    let (after, mesh_fit) = outputs.after(field, &values, &all_points)?;
+    written.extend(after);
+    written.extend(outputs.loss_curves(&run.losses)?);
+    if !test_views.is_empty() {
+        let e = evaluate(field, &values, &test_views)?;
+        if held_out.last().map(|h| h.step) != Some(run.step) {
+            held_out.push(HeldOut {
+                step: run.step,
+                seconds: train_s,
+                psnr: e.psnr,
+                ssim: e.ssim,
+            });
+        }
+        written.extend(outputs.held_out(&held_out, &test_views, &e.renders)?);
+    }
+    let fit = field.fit_to_points(&values, &points, job.seed);
+    stages.push(("outputs".to_string(), t.elapsed().as_secs_f64()));
+    let steps_run = (run.step - done_before).max(1);
+    let warnings = crate::train::trainer::fit_warnings(&run.losses, &field.held_at_bounds(&values));
+    Ok(TrainReport {
+        scene_frame,
+        name: job.name.clone(),
+        iterations: run.step,
+        resumed_from,
+        final_loss: run.losses.last().copied().unwrap_or(f32::NAN),
+        seconds_per_step: train_s / steps_run as f64,
+        params: field.reported(&values),
+        network_weights: network.then_some(values.len()),
+        held_out,
+        fit,
+        mesh_fit,
+        written,
+        stages,
+        warnings,
+    })
+}
+
+/// The cameras of the before and after outputs: the statement's, or a
+/// loop through the training cameras now that they are read.
+fn output_cameras(job: &TrainJob, views: &[TrainView]) -> io::Result<Vec<Camera>> {
+    match job.view_path {
+        None => Ok(job.views.clone()),
+        Some(ViewPath::TrainingLoop { frames, keyframes }) => {
+            let train_cams: Vec<Camera> = views.iter().map(|v| v.camera).collect();
+            sdfl_stdlib::builtins::paths::camera_loop(&train_cams, frames, keyframes).map_err(|e| {
+                invalid(format!(
+                    "training `{}`: no loop through its training cameras: {e}",
+                    job.name
+                ))
+            })
+        }
+    }
+}
