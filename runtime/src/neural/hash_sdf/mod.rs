@@ -32,7 +32,7 @@
 
 use rayon::prelude::*;
 
-use super::hashgrid::{HashGrid, HashGridConfig};
+use super::hashgrid::{HashGrid, HashGridConfig, Touched};
 use crate::mesh::DistanceField;
 use crate::volume::SplitMix64;
 
@@ -487,8 +487,11 @@ impl HashSdf {
     /// The loss `surface·mean_s|f| + eikonal·mean(‖∇f‖ − 1)²` at `surface`
     /// points (the shape's) and `random` points (in the volume), the
     /// eikonal mean over both sets, with `∇f` as `eikonal` says and the
-    /// first `active` levels. Overwrites `grad` with `∂L/∂params`; `f`
-    /// and `∇f` stay in `work` (surface points first). At `∇f = 0` the
+    /// first `active` levels. *Adds* `∂L/∂params` to `grad` and marks the
+    /// table rows it wrote in `touched` (a set of [`Self::grid`]'s), so a
+    /// step costs O(touched rows), not O(tables): [`HashGrid::sparse_adam_update`]
+    /// on the tables' part clears exactly those. `f` and `∇f` stay in
+    /// `work` (surface points first). At `∇f = 0` the
     /// eikonal adjoint is 0 (the least-norm subgradient), at `f = 0` the
     /// surface one.
     #[allow(clippy::too_many_arguments)]
@@ -502,6 +505,7 @@ impl HashSdf {
         active: usize,
         work: &mut HashSdfWork,
         grad: &mut [f32],
+        touched: &mut Touched,
     ) -> f64 {
         self.check_params(params);
         assert_eq!(grad.len(), self.len, "gradient");
@@ -630,13 +634,13 @@ impl HashSdf {
                 }
             }
         });
-        g_tables.fill(0.0);
         self.tables_backward(
             &at[..n * probes],
             &d_feat[..n * probes * feat],
             nt,
             active,
             g_tables,
+            touched,
         );
         chunks[..nchunks].iter().map(|c| c.loss).sum()
     }
@@ -650,6 +654,7 @@ impl HashSdf {
         nt: usize,
         active: usize,
         grad: &mut [f32],
+        touched: &mut Touched,
     ) {
         let f = self.grid.config().features as usize;
         let e = self.grid.output_dim();
@@ -663,11 +668,21 @@ impl HashSdf {
             parts[l] = a;
             rest = b;
         }
+        let (words, bits) = touched.words_mut();
+        assert_eq!(words.len(), levels + 1, "a touched set of this grid");
+        let mut marks: [&mut [u64]; 64] = std::array::from_fn(|_| Default::default());
+        let mut rest = bits;
+        for (l, w) in words.windows(2).enumerate() {
+            let (a, b) = std::mem::take(&mut rest).split_at_mut(w[1] - w[0]);
+            marks[l] = a;
+            rest = b;
+        }
         let active = active.min(levels);
         parts[..active]
             .par_iter_mut()
+            .zip(marks[..active].par_iter_mut())
             .enumerate()
-            .for_each(|(l, g)| {
+            .for_each(|(l, (g, bits))| {
                 for (p, d) in probes.iter().zip(d_feat.chunks_exact(feat)) {
                     let dv = &d[l * f..][..f];
                     if nt == 0 {
@@ -676,7 +691,9 @@ impl HashSdf {
                         }
                         let (rows, w) = self.grid.corners_at(l, *p);
                         for c in 0..8 {
-                            let g = &mut g[rows[c] as usize * f..][..f];
+                            let r = rows[c] as usize;
+                            bits[r / 64] |= 1 << (r % 64);
+                            let g = &mut g[r * f..][..f];
                             for k in 0..f {
                                 g[k] += w[c] * dv[k];
                             }
@@ -684,7 +701,9 @@ impl HashSdf {
                     } else {
                         let (rows, w, dw) = self.grid.corners_dx(l, *p);
                         for c in 0..8 {
-                            let g = &mut g[rows[c] as usize * f..][..f];
+                            let r = rows[c] as usize;
+                            bits[r / 64] |= 1 << (r % 64);
+                            let g = &mut g[r * f..][..f];
                             for k in 0..f {
                                 let mut s = w[c] * dv[k];
                                 for a in 0..3 {

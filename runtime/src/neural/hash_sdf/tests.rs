@@ -281,9 +281,18 @@ fn check_param_gradient(eik: Eikonal, active: usize, beta: f32, seed: u64) {
         eikonal: 0.7,
     };
     let mut work = HashSdfWork::default();
+    let mut touched = net.grid().touched_set();
     let mut grad = vec![0.0; net.param_count()];
     let loss = net.loss_and_grad(
-        &params, &surface, &random, &w, eik, active, &mut work, &mut grad,
+        &params,
+        &surface,
+        &random,
+        &w,
+        eik,
+        active,
+        &mut work,
+        &mut grad,
+        &mut touched,
     );
     let mut p64: Vec<f64> = params.iter().map(|&v| v as f64).collect();
     let ref_loss = reference_loss(&net, &sp, &p64, &surface, &random, &w, eik, active);
@@ -293,6 +302,17 @@ fn check_param_gradient(eik: Eikonal, active: usize, beta: f32, seed: u64) {
     );
     // Touched table entries, some untouched ones, and MLP weights.
     let tables = net.table_params();
+    let f = sp.grid.features as usize;
+    let offsets = net.grid().level_offsets();
+    for i in 0..tables {
+        let l = offsets.iter().rposition(|&o| o <= i).unwrap();
+        if grad[i] != 0.0 {
+            assert!(
+                touched.is_touched(l, (i - offsets[l]) / f),
+                "row of entry {i} marked"
+            );
+        }
+    }
     let touched: Vec<usize> = (0..tables).filter(|&i| grad[i] != 0.0).collect();
     assert!(touched.len() > 50, "the points reach the tables");
     let mut rng = SplitMix64::new(seed + 3);
@@ -339,6 +359,7 @@ fn hash_sdf_progressive_levels_leave_fine_tables_alone() {
     let params = random_params(&net, 41);
     let pts = random_points(100, 42, 0.9);
     let mut work = HashSdfWork::default();
+    let mut touched = net.grid().touched_set();
     let mut grad = vec![0.0; net.param_count()];
     let w = HashSdfLoss::default();
     net.loss_and_grad(
@@ -350,6 +371,7 @@ fn hash_sdf_progressive_levels_leave_fine_tables_alone() {
         2,
         &mut work,
         &mut grad,
+        &mut touched,
     );
     let offsets = net.grid().level_offsets();
     assert!(grad[offsets[2]..net.table_params()]
@@ -378,12 +400,34 @@ fn hash_sdf_is_bit_identical_at_any_thread_count() {
                 .unwrap();
             pool.install(|| {
                 let mut work = HashSdfWork::default();
+                let mut touched = net.grid().touched_set();
                 let mut grad = vec![0.0; net.param_count()];
                 let w = HashSdfLoss::default();
                 // Twice on one workspace: a grown workspace gives the same.
-                net.loss_and_grad(&params, &surface, &random, &w, eik, 4, &mut work, &mut grad);
-                let l =
-                    net.loss_and_grad(&params, &surface, &random, &w, eik, 4, &mut work, &mut grad);
+                net.loss_and_grad(
+                    &params,
+                    &surface,
+                    &random,
+                    &w,
+                    eik,
+                    4,
+                    &mut work,
+                    &mut grad,
+                    &mut touched,
+                );
+                grad.fill(0.0);
+                let l = net.loss_and_grad(
+                    &params,
+                    &surface,
+                    &random,
+                    &w,
+                    eik,
+                    4,
+                    &mut work,
+                    &mut grad,
+                    &mut touched,
+                );
+                grad.fill(0.0);
                 (
                     l.to_bits(),
                     grad.iter().map(|g| g.to_bits()).collect::<Vec<_>>(),
@@ -457,9 +501,20 @@ fn hash_sdf_hard_points_stay_finite() {
     for eik in [Eikonal::Exact, Eikonal::FiniteDifference { step: 1e-3 }] {
         for params in [&params, &silent] {
             let mut work = HashSdfWork::default();
+            let mut touched = net.grid().touched_set();
             let mut grad = vec![0.0; net.param_count()];
             let w = HashSdfLoss::default();
-            let l = net.loss_and_grad(params, &hard, &hard, &w, eik, 4, &mut work, &mut grad);
+            let l = net.loss_and_grad(
+                params,
+                &hard,
+                &hard,
+                &w,
+                eik,
+                4,
+                &mut work,
+                &mut grad,
+                &mut touched,
+            );
             assert!(l.is_finite(), "{eik:?}: loss {l}");
             assert!(grad.iter().all(|g| g.is_finite()), "{eik:?}");
         }
@@ -550,6 +605,7 @@ fn hash_sdf_fits_a_box_in_a_few_hundred_steps() {
     let n = params.len();
     let (mut m, mut v, mut grad) = (vec![0f32; n], vec![0f32; n], vec![0f32; n]);
     let mut work = HashSdfWork::default();
+    let mut touched = net.grid().touched_set();
     let mut rng = SplitMix64::new(12);
     let w = HashSdfLoss {
         surface: 1.0,
@@ -574,6 +630,7 @@ fn hash_sdf_fits_a_box_in_a_few_hundred_steps() {
             active,
             &mut work,
             &mut grad,
+            &mut touched,
         );
         let bc1 = 1.0 - b1.powi(step as i32);
         let bc2 = 1.0 - b2.powi(step as i32);
@@ -581,6 +638,7 @@ fn hash_sdf_fits_a_box_in_a_few_hundred_steps() {
             m[i] = b1 * m[i] + (1.0 - b1) * grad[i];
             v[i] = b2 * v[i] + (1.0 - b2) * grad[i] * grad[i];
             params[i] -= lr * (m[i] / bc1) / ((v[i] / bc2).sqrt() + 1e-15);
+            grad[i] = 0.0;
         }
     }
     let test = box_surface(4000, half, &mut SplitMix64::new(99));
@@ -602,6 +660,11 @@ fn hash_sdf_fits_a_box_in_a_few_hundred_steps() {
         / mesh.vertices.len().max(1) as f64;
     let to_mesh = mean_nearest(&test, &mesh.vertices);
     eprintln!("box fit: mean |f| {mean_abs:.4}, mesh→box {to_box:.4}, box→mesh {to_mesh:.4}");
-    assert!(mean_abs < 0.01, "mean |f| on the surface {mean_abs}");
-    assert!(to_box + to_mesh < 0.04, "Chamfer {to_box} + {to_mesh}");
+    assert!(mean_abs < 0.005, "mean |f| on the surface {mean_abs}");
+    // Mesh vertices lie on the box; the samples are within about half a
+    // cell (0.04) of a vertex.
+    assert!(
+        to_box < 0.006 && to_mesh < 0.025,
+        "Chamfer {to_box} + {to_mesh}"
+    );
 }

@@ -114,6 +114,11 @@ impl Touched {
         let words = &self.bits[self.words[level]..self.words[level + 1]];
         set_bits(words)
     }
+    /// Each level's first word (one more entry at the end) and the bits,
+    /// for callers that mark rows themselves.
+    pub(crate) fn words_mut(&mut self) -> (&[usize], &mut [u64]) {
+        (&self.words, &mut self.bits)
+    }
     fn split_mut(&mut self) -> Vec<&mut [u64]> {
         let mut rest = &mut self.bits[..];
         let mut out = Vec::with_capacity(self.words.len() - 1);
