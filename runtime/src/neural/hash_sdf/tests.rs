@@ -3,6 +3,11 @@
 //! points, the sphere start, progressive levels, thread-count invariance
 //! and a fit of a box.
 
+#![allow(
+    clippy::needless_range_loop,
+    reason = "axis and entry indices address several arrays at once"
+)]
+
 use super::*;
 use crate::mesh::{surface_nets, MeshGrid};
 use crate::neural::distance::mean_nearest;
