@@ -28,6 +28,7 @@ use sdfl_stdlib::RenderJob;
 use std::sync::Arc;
 
 mod density;
+mod hash_sdf;
 mod nerf;
 mod peer;
 mod train;
@@ -311,6 +312,13 @@ fn main() {
             .and_then(|r| r.parse().ok())
             .unwrap_or(10);
         return nerf::neural_sdf_main(reps);
+    }
+    if std::env::args().nth(1).as_deref() == Some("hash-sdf") {
+        let reps = std::env::args()
+            .nth(2)
+            .and_then(|r| r.parse().ok())
+            .unwrap_or(20);
+        return hash_sdf::main(reps);
     }
     if std::env::args().nth(1).as_deref() == Some("frames") {
         let sizes: Vec<usize> = std::env::args()

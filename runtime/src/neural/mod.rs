@@ -5,7 +5,7 @@
 //! sweep ([`composite`]), the NeRF as a trainable model and a renderable
 //! field ([`field`]), the occupancy grid that skips empty space
 //! ([`occupancy`]); the neural SDF with its exact input gradient
-//! ([`sdf_net`]), as a model fitted to points ([`distance`]) and as a
+//! ([`sdf_net`]) and on a hash grid ([`hash_sdf`]), as a model fitted to points ([`distance`]) and as a
 //! volume with a colour network fitted to images ([`surface`]).
 
 pub mod background;
@@ -16,6 +16,7 @@ pub mod distance;
 pub mod encoding;
 pub mod field;
 pub mod fp32;
+pub mod hash_sdf;
 pub mod hashgrid;
 pub mod mlp;
 pub mod nerf;

@@ -114,6 +114,11 @@ impl Touched {
         let words = &self.bits[self.words[level]..self.words[level + 1]];
         set_bits(words)
     }
+    /// Each level's first word (one more entry at the end) and the bits,
+    /// for callers that mark rows themselves.
+    pub(crate) fn words_mut(&mut self) -> (&[usize], &mut [u64]) {
+        (&self.words, &mut self.bits)
+    }
     fn split_mut(&mut self) -> Vec<&mut [u64]> {
         let mut rest = &mut self.bits[..];
         let mut out = Vec::with_capacity(self.words.len() - 1);
@@ -327,6 +332,52 @@ impl HashGrid {
             weights[c] = wt[0][x] * wt[1][y] * wt[2][z];
         }
         (rows, weights)
+    }
+
+    /// Rows and trilinear weights of the 8 corners of level `l` around
+    /// point `p` (unnormalised): what [`Self::encode`] reads.
+    #[inline(always)]
+    pub(crate) fn corners_at(&self, l: usize, p: [f32; 3]) -> ([u32; 8], [f32; 8]) {
+        Self::corners(&self.levels[l], self.normalise(p))
+    }
+
+    /// As [`Self::corners_at`], with each weight's derivative by `p`. An
+    /// axis clamped to the box (outside it, or NaN) has derivative 0; on
+    /// the box's faces and at interior cell faces the derivative is the
+    /// one-sided one of the cell the point is assigned to (always finite).
+    #[inline(always)]
+    #[allow(
+        clippy::type_complexity,
+        clippy::needless_range_loop,
+        reason = "rows, weights and their gradients per corner; one axis index"
+    )]
+    pub(crate) fn corners_dx(&self, l: usize, p: [f32; 3]) -> ([u32; 8], [f32; 8], [[f32; 3]; 8]) {
+        let level = &self.levels[l];
+        let u = self.normalise(p);
+        let (rows, weights) = Self::corners(level, u);
+        let res = level.res;
+        let mut wt = [[0f32; 2]; 3];
+        let mut slope = [0f32; 3];
+        for a in 0..3 {
+            let x = u[a] * res as f32;
+            let i = (x as u32).min(res - 1);
+            let frac = x - i as f32;
+            wt[a] = [1.0 - frac, frac];
+            let raw = (p[a] - self.cfg.bbox_min[a]) * self.inv_extent[a];
+            if (0.0..=1.0).contains(&raw) {
+                slope[a] = res as f32 * self.inv_extent[a];
+            }
+        }
+        let mut dw = [[0f32; 3]; 8];
+        for c in 0..8 {
+            let bit = [c & 1, (c >> 1) & 1, c >> 2];
+            for a in 0..3 {
+                let (b0, b1) = ((a + 1) % 3, (a + 2) % 3);
+                let sign = if bit[a] == 1 { 1.0 } else { -1.0 };
+                dw[c][a] = sign * slope[a] * wt[b0][bit[b0]] * wt[b1][bit[b1]];
+            }
+        }
+        (rows, weights, dw)
     }
 
     fn check(&self, what: &str, got: usize, want: usize) {

@@ -1,0 +1,138 @@
+//! Hash-grid SDF step benchmark: `cargo run --release -p sdfl-bench --
+//! hash-sdf [reps]`.
+//!
+//! One training step (forward, `∇f`, the loss's backward, and the sparse
+//! Adam update of the touched table rows) of the hash-grid SDF on 4096
+//! points (2048 on a sphere, 2048 in the box), with the exact eikonal term
+//! and with Neuralangelo's central differences; and the same batch through
+//! the existing harmonic-encoding SDF network's `loss_and_grad` (IGR's
+//! 6 × 128) for comparison. Timed in turns so load falls on all alike.
+
+use std::time::Instant;
+
+use sdfl_runtime::neural::hash_sdf::{Eikonal, HashSdf, HashSdfLoss, HashSdfSpec, HashSdfWork};
+use sdfl_runtime::neural::hashgrid::Adam;
+use sdfl_runtime::neural::sdf_net::{SdfLoss, SdfNet, SdfNetSpec, SdfWork};
+use sdfl_runtime::volume::SplitMix64;
+
+fn median_min(mut ms: Vec<f64>) -> (f64, f64) {
+    ms.sort_by(f64::total_cmp);
+    (ms[ms.len() / 2], ms[0])
+}
+
+fn load() -> String {
+    std::fs::read_to_string("/proc/loadavg")
+        .map(|s| s.split_whitespace().take(3).collect::<Vec<_>>().join(" "))
+        .unwrap_or_else(|_| "unknown".into())
+}
+
+/// Prints step times of the three methods, `reps` turns each.
+pub fn main(reps: usize) {
+    let n = 2048;
+    let mut rng = SplitMix64::new(7);
+    let surface: Vec<[f32; 3]> = (0..n)
+        .map(|_| {
+            let v = [0, 1, 2].map(|_| 2.0 * rng.next_f32() - 1.0);
+            let l = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt().max(1e-6);
+            v.map(|x| 0.6 * x / l)
+        })
+        .collect();
+    let random: Vec<[f32; 3]> = (0..n)
+        .map(|_| [0, 1, 2].map(|_| 2.0 * rng.next_f32() - 1.0))
+        .collect();
+    let spec = HashSdfSpec::default();
+    let net = HashSdf::new(&spec).expect("hash SDF");
+    let mut params = net.init(1);
+    let tables = net.table_params();
+    let mut grad = vec![0.0; params.len()];
+    let (mut m, mut v) = (vec![0.0; tables], vec![0.0; tables]);
+    let mut touched = net.grid().touched_set();
+    let mut work = HashSdfWork::default();
+    let loss = HashSdfLoss::default();
+    let mut step = 0u64;
+    // Returns the ms of `loss_and_grad` alone.
+    let mut hash_step = |eik: Eikonal| {
+        let t = Instant::now();
+        net.loss_and_grad(
+            &params,
+            &surface,
+            &random,
+            &loss,
+            eik,
+            net.levels(),
+            &mut work,
+            &mut grad,
+            &mut touched,
+        );
+        let loss_ms = t.elapsed().as_secs_f64() * 1e3;
+        step += 1;
+        let (p, g) = (&mut params[..tables], &mut grad[..tables]);
+        net.grid()
+            .sparse_adam_update(p, g, &mut m, &mut v, &mut touched, step, Adam::default())
+            .expect("adam");
+        grad[tables..].fill(0.0);
+        loss_ms
+    };
+    let mlp = SdfNet::new(&SdfNetSpec::default());
+    let mlp_params = mlp.init_geometric(1, 0.5);
+    let mut mlp_grad = vec![0.0; mlp.len];
+    let mut mlp_work = SdfWork::default();
+    let flat = |p: &[[f32; 3]]| p.iter().flatten().copied().collect::<Vec<f32>>();
+    let (s_flat, r_flat) = (flat(&surface), flat(&random));
+    let mut mlp_step = || {
+        mlp.loss_and_grad(
+            &mlp_params,
+            &s_flat,
+            &r_flat,
+            &SdfLoss::default(),
+            &mut mlp_work,
+            &mut mlp_grad,
+        );
+    };
+    let fd = Eikonal::FiniteDifference { step: 1.0 / 2048.0 };
+    println!(
+        "hash grid: {} levels × {} features, 2^{} rows, res {}..{}, {} × {} softplus MLP; {} params",
+        spec.grid.levels,
+        spec.grid.features,
+        spec.grid.log2_table,
+        spec.grid.min_res,
+        spec.grid.max_res,
+        spec.layers,
+        spec.width,
+        net.param_count()
+    );
+    println!(
+        "load before: {}; threads {}",
+        load(),
+        rayon::current_num_threads()
+    );
+    // Warm-up (grows the workspaces).
+    hash_step(Eikonal::Exact);
+    hash_step(fd);
+    mlp_step();
+    let mut ms = [(); 5].map(|_| Vec::new());
+    for _ in 0..reps {
+        let t = Instant::now();
+        ms[3].push(hash_step(Eikonal::Exact));
+        ms[0].push(t.elapsed().as_secs_f64() * 1e3);
+        let t = Instant::now();
+        ms[4].push(hash_step(fd));
+        ms[1].push(t.elapsed().as_secs_f64() * 1e3);
+        let t = Instant::now();
+        mlp_step();
+        ms[2].push(t.elapsed().as_secs_f64() * 1e3);
+    }
+    let [exact, fdiff, igr, exact_loss, fd_loss] = ms.map(median_min);
+    println!("| step of 4096 points | ms (median) | ms (min) | / hash exact (median) |");
+    println!("|---|---:|---:|---:|");
+    for (name, (med, min)) in [
+        ("hash SDF, exact eikonal", exact),
+        ("hash SDF, finite-difference eikonal", fdiff),
+        ("harmonic MLP SDF 6 × 128 (sdf_net, no update)", igr),
+        ("hash SDF, exact, loss_and_grad only", exact_loss),
+        ("hash SDF, differences, loss_and_grad only", fd_loss),
+    ] {
+        println!("| {name} | {med:.2} | {min:.2} | {:.2} |", med / exact.0);
+    }
+    println!("load after: {}", load());
+}
