@@ -495,8 +495,7 @@ pub fn surface_nets(
     // many of its two cells do so. Where both do, the pieces meet along two
     // strips and `strips` holds the quads to separate.
     let mut twice: HashMap<(usize, u8), (bool, u8)> = HashMap::new();
-    // (quad, face, its grid edge's inside end, outside end).
-    let mut strips: Vec<(usize, (usize, u8), usize, usize)> = Vec::new();
+    let mut strips: Vec<Strip> = Vec::new();
     let point = |p: [usize; 3]| p[0] + nx * (p[1] + ny * p[2]);
     for k in 0..nz - 1 {
         let above = plane(k + 1);
@@ -676,6 +675,10 @@ pub fn surface_nets(
     Ok(mesh)
 }
 
+/// A quad on a face crossed twice on both sides: (quad, face as (lowest
+/// corner, normal axis), its grid edge's inside end, outside end).
+type Strip = (usize, (usize, u8), usize, usize);
+
 /// Where a face is crossed twice by one piece of each of its cells, the
 /// two pieces' vertices X and Y would share an edge with four quads (the
 /// surface meets itself along two strips across the face). Each strip gets
@@ -684,7 +687,7 @@ pub fn surface_nets(
 fn separate_strips(
     mesh: &mut Mesh,
     quads: &[[u32; 4]],
-    strips: &[(usize, (usize, u8), usize, usize)],
+    strips: &[Strip],
     twice: &HashMap<(usize, u8), (bool, u8)>,
     max_vertices: usize,
 ) -> Result<HashMap<usize, (Vec<u32>, u32)>, MeshError> {
