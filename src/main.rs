@@ -2,13 +2,11 @@
 #![warn(missing_docs)]
 
 use std::ffi::OsStr;
-use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::time::Instant;
 
 use clap::{Parser, Subcommand};
-use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use sdfl_lang::SourceFile;
 use sdfl_runtime::{jobs, run_job, Plan, RunOptions};
 use sdfl_stdlib::value::{Statement, StatementKind};
@@ -16,9 +14,11 @@ use sdfl_stdlib::value::{Statement, StatementKind};
 #[macro_use]
 mod term;
 mod plan;
+mod progress;
 mod sweep;
 
 use plan::plan_text;
+use progress::Progress;
 use sdfl_runtime::interrupt::{self, Stopped};
 use sdfl_runtime::output::OutDir;
 use sweep::sweep;
@@ -479,89 +479,46 @@ fn execute(
     out: &Path,
     options: RunOptions,
     base: &Path,
-    bar: &ProgressBar,
+    progress: &Progress,
 ) -> Result<Vec<Report>, (String, std::io::Error)> {
     let mut reports = Vec::new();
     let io = |name: &str, e: std::io::Error| (name.to_string(), e);
+    let size = options.size;
+    let inc = |n| progress.inc(n);
     // In file order: a render after a `train` may read what it wrote.
     for statement in &program.order {
         match *statement {
             Statement::Render(i) => {
                 let job = &program.renders[i];
                 interrupt::running(&job.name);
-                bar.set_message(job.name.clone());
-                let r =
-                    run_job(job, out, options, &|n| bar.inc(n)).map_err(|e| io(&job.name, e))?;
+                let px = progress::pixels(job.width, job.height, job.cameras.len(), size);
+                progress.start(&job.name, px, false);
+                let r = run_job(job, out, options, &inc).map_err(|e| io(&job.name, e))?;
                 reports.push(Report::new(statement.kind(), &r));
             }
             Statement::Volume(i) => {
                 let job = &program.volumes[i];
                 interrupt::running(&job.name);
-                bar.set_message(job.name.clone());
-                let r = jobs::run_volume_job(job, out, options.size, &|n| bar.inc(n))
-                    .map_err(|e| io(&job.name, e))?;
+                let px = progress::pixels(job.width, job.height, job.cameras.len(), size);
+                progress.start(&job.name, px, false);
+                let r = jobs::run_volume_job(job, out, size, &inc).map_err(|e| io(&job.name, e))?;
                 reports.push(Report::new(statement.kind(), &r));
             }
             Statement::Train(i) => {
                 let job = &program.trains[i];
                 interrupt::running(&job.name);
-                bar.set_message(job.name.clone());
+                progress.start(&job.name, job.iterations as u64, true);
                 let train = jobs::TrainOptions {
                     restart: options.restart,
                 };
-                let r = jobs::run_train_job(
-                    job,
-                    out,
-                    base,
-                    options.size,
-                    train,
-                    &|n| bar.inc(n),
-                    &|m| bar.set_message(m.to_string()),
-                )
-                .map_err(|e| io(&job.name, e))?;
+                let r =
+                    jobs::run_train_job(job, out, base, size, train, &|e| progress.train_event(e))
+                        .map_err(|e| io(&job.name, e))?;
                 reports.push(Report::new(statement.kind(), &r));
             }
         }
     }
     Ok(reports)
-}
-
-/// Pixels and iterations of a program, for the progress bar.
-fn work(program: &sdfl_stdlib::Program, size: Option<(u32, u32)>) -> u64 {
-    let px = |w: u32, h: u32, n: usize| {
-        let (w, h) = size.unwrap_or((w, h));
-        w as u64 * h as u64 * n as u64
-    };
-    program
-        .renders
-        .iter()
-        .map(|j| px(j.width, j.height, j.cameras.len()))
-        .sum::<u64>()
-        + program
-            .volumes
-            .iter()
-            .map(|j| px(j.width, j.height, j.cameras.len()))
-            .sum::<u64>()
-        + program
-            .trains
-            .iter()
-            .map(|j| j.iterations as u64)
-            .sum::<u64>()
-}
-
-fn progress_bar(total: u64, hidden: bool) -> ProgressBar {
-    let bar = ProgressBar::new(total);
-    if hidden || !std::io::stderr().is_terminal() {
-        bar.set_draw_target(ProgressDrawTarget::hidden());
-    }
-    bar.set_style(
-        ProgressStyle::with_template(
-            "{msg:>12} [{bar:40}] {percent:>3}% {elapsed_precise} eta {eta}",
-        )
-        .expect("valid template")
-        .progress_chars("=> "),
-    );
-    bar
 }
 
 fn base_dir(file: Option<&Path>) -> PathBuf {
@@ -602,15 +559,14 @@ fn run(file: Option<&Path>, out: &Path, options: RunOptions, json: bool) -> Exit
         return ExitCode::FAILURE;
     }
     let load_s = t0.elapsed().as_secs_f64();
-    let bar = progress_bar(work(&program, options.size), json);
-    let reports = match execute(&program, out, options, &base_dir(file), &bar) {
+    let every = progress::interval(std::env::var_os("SDFL_PROGRESS_SECS").as_deref());
+    let progress = Progress::new(json, every);
+    let result = execute(&program, out, options, &base_dir(file), &progress);
+    progress.finish();
+    let reports = match result {
         Ok(r) => r,
-        Err((job, e)) => {
-            bar.abandon();
-            return failed(&src, &job, &e);
-        }
+        Err((job, e)) => return failed(&src, &job, &e),
     };
-    bar.finish_and_clear();
     print_fit_warnings(&reports);
     if json {
         let summary = serde_json::json!({

@@ -118,8 +118,8 @@ pub(crate) fn sweep(
                 return ExitCode::FAILURE;
             }
         }
-        let bar = progress_bar(work(&program, size), false);
-        bar.set_message(format!("{name}={v}"));
+        say!("{name}={v}");
+        let progress = Progress::new(false, progress::interval(None));
         let t = Instant::now();
         match execute(
             &program,
@@ -130,14 +130,14 @@ pub(crate) fn sweep(
                 restart: true,
             },
             &base_dir(Some(file)),
-            &bar,
+            &progress,
         ) {
             Ok(reports) => {
-                bar.finish_and_clear();
+                progress.finish();
                 rows.push((*v, t.elapsed().as_secs_f64(), dir, reports));
             }
             Err((job, e)) => {
-                bar.abandon();
+                progress.finish();
                 return failed(&src, &job, &e);
             }
         }

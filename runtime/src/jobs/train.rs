@@ -50,18 +50,8 @@ pub struct TrainReport {
     pub warnings: Vec<String>,
 }
 
-/// Quality on the held-out views at a step.
-#[derive(Debug, Clone, Copy, Serialize)]
-pub struct HeldOut {
-    /// The training step evaluated at.
-    pub step: usize,
-    /// Seconds of training so far (evaluation excluded).
-    pub seconds: f64,
-    /// Mean over the views of each view's PSNR (dB).
-    pub psnr: f64,
-    /// Mean over the views of each view's SSIM.
-    pub ssim: f64,
-}
+pub use crate::train::log::HeldOut;
+use crate::train::log::{first_view, History, Observer, TrainEvent, TrainLog};
 
 /// Each held-out view as a row: truth | render | |error|×4.
 fn comparison_image(views: &[TrainView], renders: &[Vec<[f32; 3]>]) -> (u32, u32, Vec<u8>) {
@@ -293,9 +283,9 @@ pub fn run_train_job(
     base: &Path,
     size: Option<(u32, u32)>,
     options: TrainOptions,
-    progress: &(dyn Fn(u64) + Sync),
-    status: &dyn Fn(&str),
+    observer: &Observer,
 ) -> io::Result<TrainReport> {
+    let status = |m: &str| observer(&TrainEvent::Note(m));
     let wh = size.unwrap_or((job.width, job.height));
     let mut written = Vec::new();
     let mut stages = Vec::new();
@@ -326,7 +316,7 @@ pub fn run_train_job(
         status(line);
     }
     let resolved;
-    let job = match with_ndc_frame(job, forward_facing, status)? {
+    let job = match with_ndc_frame(job, forward_facing, &status)? {
         Some(j) => {
             resolved = j;
             &resolved
@@ -410,6 +400,7 @@ pub fn run_train_job(
     };
     let checkpoint_path: Option<PathBuf> = job.checkpoint.as_ref().map(|c| out_dir.join(c));
     let mut resumed_from = None;
+    let mut history = History::default();
     if let Some(cp) = checkpoint_path
         .as_ref()
         .filter(|p| p.exists() && !options.restart)
@@ -441,6 +432,7 @@ pub fn run_train_job(
             e => refused(&e),
         })?;
         resumed_from = Some(run.step);
+        history = ck.history;
     }
     // A checkpoint exists from the start, so a run that diverges at once
     // still leaves a good state to resume from.
@@ -719,20 +711,32 @@ pub fn run_train_job(
         written.extend(write_exports(&run.values(), &job.before)?);
     }
 
+    let mut log = TrainLog::open(
+        out_dir,
+        &job.name,
+        job.optimizer,
+        &run.losses,
+        history,
+        steps,
+        observer,
+    )?;
     let t = Instant::now();
     let done_before = run.step;
     let mut last_good = run.checkpoint(fp.clone());
     let mut io_error = None;
-    let mut held_out: Vec<HeldOut> = Vec::new();
     // Seconds spent evaluating, left out of the training time.
     let mut eval_s = 0.0;
     // A signal stops training after a step, with a checkpoint of it.
     let graceful = crate::interrupt::Graceful::begin();
     let result = run.run_to(&setup, steps, |r, loss| {
-        progress(1);
+        log.step(r.step, loss);
         if let Some(signal) = crate::interrupt::stop_requested() {
             let kept = match &checkpoint_path {
-                Some(cp) => match r.checkpoint(fp.clone()).write(cp) {
+                Some(cp) => match r
+                    .checkpoint(fp.clone())
+                    .with_history(log.history())
+                    .write(cp)
+                {
                     Ok(()) => format!("; {} holds it: run again to resume", cp.display()),
                     Err(e) => format!(
                         "; its checkpoint failed ({e}), {} holds step {}",
@@ -754,12 +758,10 @@ pub fn run_train_job(
         if job.eval_every > 0 && !test_views.is_empty() && r.step % job.eval_every == 0 {
             let te = Instant::now();
             match sync(r.objective.state()).and_then(|_| evaluate(&r.values())) {
-                Ok((psnr, ssim, _)) => held_out.push(HeldOut {
-                    step: r.step,
-                    seconds: t.elapsed().as_secs_f64() - eval_s,
-                    psnr,
-                    ssim,
-                }),
+                Ok((psnr, ssim, renders)) => {
+                    let took = te.elapsed().as_secs_f64();
+                    log.evaluated(r.step, psnr, ssim, took, first_view(&test_views, &renders));
+                }
                 Err(e) => {
                     io_error = Some(e);
                     return ControlFlow::Break(());
@@ -770,7 +772,7 @@ pub fn run_train_job(
         if r.step % 10 == 0 {
             // The same names as the report, the JSON and the checkpoint.
             let mut line = format!("{} loss {loss:.3e}", job.name);
-            if let Some(h) = held_out.last() {
+            if let Some(h) = log.held_out().last() {
                 line += &format!("  held-out PSNR {:.2} dB (step {})", h.psnr, h.step);
             }
             let shown = if analytic.is_some() { 4 } else { 0 };
@@ -778,13 +780,13 @@ pub fn run_train_job(
                 let v: Vec<String> = v.iter().map(|x| format!("{x:.3}")).collect();
                 line += &format!("  {name} {}", v.join(","));
             }
-            status(&line);
+            observer(&TrainEvent::Status(&line));
         }
         if let Some(path) = checkpoint_path
             .as_ref()
             .filter(|_| r.step % CHECKPOINT_EVERY == 0)
         {
-            last_good = r.checkpoint(fp.clone());
+            last_good = r.checkpoint(fp.clone()).with_history(log.history());
             if let Err(e) = last_good.write(path) {
                 io_error = Some(e);
                 return ControlFlow::Break(());
@@ -824,7 +826,9 @@ pub fn run_train_job(
         });
     }
     if let Some(cp) = &checkpoint_path {
-        run.checkpoint(fp.clone()).write(cp)?;
+        run.checkpoint(fp.clone())
+            .with_history(log.history())
+            .write(cp)?;
     }
 
     let t = Instant::now();
@@ -896,14 +900,8 @@ pub fn run_train_job(
     if !test_views.is_empty() {
         let values = run.values();
         let (psnr, ssim, renders) = evaluate(&values)?;
-        if held_out.last().map(|h| h.step) != Some(run.step) {
-            held_out.push(HeldOut {
-                step: run.step,
-                seconds: train_s,
-                psnr,
-                ssim,
-            });
-        }
+        log.evaluated(run.step, psnr, ssim, 0.0, first_view(&test_views, &renders));
+        let held_out = log.held_out();
         for o in &job.after {
             let (pw, ph) = match o.kind {
                 OutputKind::PsnrCurve => {
@@ -940,6 +938,7 @@ pub fn run_train_job(
             });
         }
     }
+    let held_out = log.finish()?;
     let fit = match &*job.model {
         Field::NeuralSdf(n) => Some(crate::neural::distance::fit(
             &crate::neural::distance::sdf_net(n),

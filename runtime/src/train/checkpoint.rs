@@ -12,6 +12,7 @@ use safetensors::tensor::{Dtype, SafeTensors, TensorView};
 use serde_json::Value;
 
 use super::export_names::Piece;
+use super::log::{HeldOut, History};
 
 use crate::output::Atomic;
 
@@ -24,6 +25,8 @@ pub const FORMAT: &str = "sdfl-checkpoint-2";
 /// The first format (flat `value.N`, `adam_m.N`, `adam_v.N` tensors),
 /// still read.
 const FORMAT_1: &str = "sdfl-train-checkpoint-1";
+/// The tensor of held-out scores (f64 rows: step, seconds, PSNR, SSIM).
+const HELD_OUT: &str = "train.held_out";
 
 /// A 64-bit FNV-1a hash: stable across platforms, versions and runs.
 #[derive(Debug, Clone, Copy)]
@@ -104,6 +107,11 @@ pub struct Checkpoint {
     pub state: Vec<(String, Vec<f32>)>,
     /// One hash per entry of [`PARTS`].
     pub fingerprint: [String; 4],
+    /// Held-out scores and training time so far, so a resumed run's report
+    /// and plots show the whole run. Empty when read from a checkpoint
+    /// written before sdfl kept it: such a file still resumes (its
+    /// parameters are what matter; only the earlier scores are unknown).
+    pub history: History,
 }
 
 fn f32_bytes(v: &[f32]) -> Vec<u8> {
@@ -220,9 +228,22 @@ impl Checkpoint {
         if let Some((n, _, _)) = buffers.iter().find(|(n, _, _)| !seen.insert(n.as_str())) {
             return Err(invalid(path, format!("two tensors named `{n}`")));
         }
+        // Held-out scores as f64 rows (a PSNR may be infinite, which JSON
+        // cannot hold): step, seconds, PSNR, SSIM.
+        let held_out: Vec<u8> = self
+            .history
+            .held_out
+            .iter()
+            .flat_map(|h| [h.step as f64, h.seconds, h.psnr, h.ssim])
+            .flat_map(f64::to_le_bytes)
+            .collect();
         let views = buffers
             .iter()
             .map(|(n, shape, b)| Ok((n.clone(), TensorView::new(Dtype::F32, shape.clone(), b)?)))
+            .chain(std::iter::once(
+                TensorView::new(Dtype::F64, vec![self.history.held_out.len(), 4], &held_out)
+                    .map(|t| (HELD_OUT.to_string(), t)),
+            ))
             .collect::<Result<Vec<_>, safetensors::SafeTensorError>>()
             .map_err(|e| invalid(path, e))?;
         let mut meta = HashMap::new();
@@ -246,6 +267,10 @@ impl Checkpoint {
         for (part, fp) in PARTS.iter().zip(&self.fingerprint) {
             meta.insert(format!("fingerprint.{part}"), fp.clone());
         }
+        meta.insert(
+            "train_seconds".to_string(),
+            self.history.seconds.to_string(),
+        );
         let bytes = safetensors::serialize(views, &Some(meta)).map_err(|e| invalid(path, e))?;
         let mut f = Atomic::create(path)?;
         io::Write::write_all(f.writer(), &bytes)?;
@@ -378,6 +403,39 @@ impl Checkpoint {
             state.push((name, read(&stored, None)?));
         }
         let fp = |i: usize| get(&format!("fingerprint.{}", PARTS[i]));
+        // Written by sdfl before it kept the history: none.
+        let history = match meta.get("train_seconds") {
+            None => History::default(),
+            Some(secs) => {
+                let t = tensors.tensor(HELD_OUT).map_err(|e| invalid(path, e))?;
+                if t.dtype() != Dtype::F64 || t.shape().len() != 2 || t.shape()[1] != 4 {
+                    return Err(invalid(path, format!("`{HELD_OUT}` is not f64 rows of 4")));
+                }
+                let v: Vec<f64> = t
+                    .data()
+                    .chunks_exact(8)
+                    .map(|c| f64::from_le_bytes(c.try_into().expect("8 bytes")))
+                    .collect();
+                let mut held_out = Vec::new();
+                for r in v.chunks_exact(4) {
+                    if !(r[0] >= 0.0 && r[0] <= usize::MAX as f64 && r[0].fract() == 0.0) {
+                        return Err(invalid(path, format!("a held-out step is {}", r[0])));
+                    }
+                    held_out.push(HeldOut {
+                        step: r[0] as usize,
+                        seconds: r[1],
+                        psnr: r[2],
+                        ssim: r[3],
+                    });
+                }
+                History {
+                    seconds: secs
+                        .parse()
+                        .map_err(|_| invalid(path, "bad `train_seconds`"))?,
+                    held_out,
+                }
+            }
+        };
         Ok(Checkpoint {
             step: usize::try_from(num("step")?).map_err(|_| invalid(path, "bad step"))?,
             adam_steps: i32::try_from(num("adam_steps")?).map_err(|_| invalid(path, "bad step"))?,
@@ -387,6 +445,7 @@ impl Checkpoint {
             losses,
             state,
             fingerprint: [fp(0)?, fp(1)?, fp(2)?, fp(3)?],
+            history,
         })
     }
 
@@ -451,7 +510,32 @@ impl Checkpoint {
                 return Err(format!("`{name}`[{k}] is {}", v[k]));
             }
         }
+        let h = &self.history;
+        if !(h.seconds.is_finite() && h.seconds >= 0.0) {
+            return Err(format!("its training time is {} s", h.seconds));
+        }
+        let mut last = 0;
+        for e in &h.held_out {
+            // PSNR is +∞ for a perfect render.
+            let fine = e.seconds.is_finite()
+                && (0.0..=h.seconds).contains(&e.seconds)
+                && !e.psnr.is_nan()
+                && e.psnr > f64::NEG_INFINITY
+                && e.ssim.is_finite();
+            if e.step <= last && last > 0 || e.step > self.step || !fine {
+                return Err(format!(
+                    "its held-out score of step {} (PSNR {}, {} s) is out of order or out of range",
+                    e.step, e.psnr, e.seconds
+                ));
+            }
+            last = e.step;
+        }
         Ok(())
+    }
+
+    /// The checkpoint carrying `history`.
+    pub fn with_history(self, history: History) -> Checkpoint {
+        Checkpoint { history, ..self }
     }
 
     /// The parts of the run that differ from `fingerprint` (empty: same run).
@@ -485,6 +569,15 @@ mod tests {
             losses: vec![0.5, 0.25],
             state: vec![("occupancy.ema".into(), vec![0.0, 3.5])],
             fingerprint: Default::default(),
+            history: History {
+                seconds: 2.0,
+                held_out: vec![HeldOut {
+                    step: 2,
+                    seconds: 1.5,
+                    psnr: f64::INFINITY,
+                    ssim: 1.0,
+                }],
+            },
         };
         good.check(2).unwrap();
         type Tamper = fn(&mut Checkpoint);
@@ -515,6 +608,10 @@ mod tests {
             (|c| c.step = 1, "2 losses for 1 steps"),
             (|c| c.adam_steps = -1, "Adam's step count -1"),
             (|c| c.state[0].1[1] = f32::NAN, "`occupancy.ema`[1] is NaN"),
+            (|c| c.history.seconds = -1.0, "training time is -1 s"),
+            (|c| c.history.held_out[0].step = 3, "score of step 3"),
+            (|c| c.history.held_out[0].psnr = f64::NAN, "PSNR NaN"),
+            (|c| c.history.held_out[0].seconds = 9.0, "9 s"),
         ];
         for (tamper, says) in cases {
             let mut c = good.clone();
@@ -555,6 +652,23 @@ mod tests {
             losses: vec![0.5, 0.25],
             state: vec![("occupancy.ema".into(), vec![0.0, 3.5, 1e-30])],
             fingerprint: ["a".into(), "b".into(), "c".into(), "d".into()],
+            history: History {
+                seconds: 12.25,
+                held_out: vec![
+                    HeldOut {
+                        step: 1,
+                        seconds: 0.5,
+                        psnr: 21.5,
+                        ssim: 0.75,
+                    },
+                    HeldOut {
+                        step: 2,
+                        seconds: 12.0,
+                        psnr: f64::INFINITY,
+                        ssim: 1.0,
+                    },
+                ],
+            },
         }
     }
 
@@ -687,5 +801,7 @@ mod tests {
             (vec![0.5], vec![("occupancy.ema".to_string(), vec![7.0])])
         );
         assert!(ck.pieces.is_empty());
+        // Written before checkpoints kept a history: an empty one.
+        assert_eq!(ck.history, History::default());
     }
 }

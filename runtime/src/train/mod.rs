@@ -12,6 +12,8 @@
 //! * [`graph`]: the `dfdx` backend: the field as a custom dfdx op, the
 //!   compositing and loss as a dfdx autodiff graph.
 //! * [`checkpoint`]: safetensors checkpoints with a fingerprint of the run.
+//! * [`log`]: what a run reports as it goes: events for an observer, a
+//!   metrics CSV, TensorBoard events and the current held-out view.
 //! * [`params`]: runtime-sized named parameters, Adam through dfdx's kernel.
 //! * [`graph_ops`]: differentiable compositing as dfdx graph ops on
 //!   `[rays, samples]` tensors (cumsum as a triangular matmul), for fields
@@ -22,6 +24,7 @@ pub mod export_names;
 pub mod fused;
 pub mod graph;
 pub mod graph_ops;
+pub mod log;
 pub mod model;
 pub mod objective;
 pub mod params;

@@ -364,6 +364,7 @@ impl<'m> Run<'m> {
             losses: self.losses.clone(),
             state: self.objective.state(),
             fingerprint,
+            history: Default::default(),
         }
     }
 
