@@ -13,6 +13,7 @@ use sdfl_stdlib::value::{Statement, StatementKind};
 
 #[macro_use]
 mod term;
+mod json;
 mod plan;
 mod progress;
 mod sweep;
@@ -67,6 +68,9 @@ enum Command {
     Check {
         #[arg(required = true)]
         files: Vec<PathBuf>,
+        /// Print every file's diagnostics as JSON on stdout (for editors).
+        #[arg(long)]
+        json: bool,
     },
     /// Show what each statement of a file will compute, and why.
     Plan { file: PathBuf },
@@ -244,7 +248,8 @@ fn main() -> ExitCode {
             },
             json,
         ),
-        Command::Check { files } => {
+        Command::Check { files, json: true } => check_json(&files),
+        Command::Check { files, json: false } => {
             let mut ok = true;
             for f in &files {
                 match read(f).and_then(|src| load(&src).map(|_| ())) {
@@ -313,6 +318,14 @@ const MAX_SOURCE_BYTES: u64 = 64 << 20;
 /// Reads a scene file: a regular file (not a FIFO or `/dev/zero`, which
 /// would block or never end) of at most [`MAX_SOURCE_BYTES`].
 fn read(path: &Path) -> Result<SourceFile, ()> {
+    read_source(path).map_err(|e| say!("error[sdfl::io]: {e}\n  help: {READ_HELP}"))
+}
+
+/// What to do when a scene file cannot be read.
+const READ_HELP: &str = "give the path of a .sdfl file";
+
+/// Reads a scene file, or says why it cannot.
+fn read_source(path: &Path) -> Result<SourceFile, String> {
     use std::io::Read;
     let bytes = sdfl_runtime::data::image::open_regular(path).and_then(|f| {
         let mut bytes = Vec::new();
@@ -330,27 +343,56 @@ fn read(path: &Path) -> Result<SourceFile, ()> {
             let text = String::from_utf8_lossy(&bytes).into_owned();
             Ok(SourceFile::new(path.display().to_string(), text))
         }
-        Err(e) => {
-            say!("error[sdfl::io]: cannot read the scene file: {e}\n  help: give the path of a .sdfl file");
-            Err(())
-        }
+        Err(e) => Err(format!("cannot read the scene file: {e}")),
     }
 }
 
 /// Loads a file, printing its diagnostics: errors fail, warnings do not.
 fn load(src: &SourceFile) -> Result<sdfl_stdlib::Program, ()> {
+    load_diagnosed(src).map(|p| p.0).map_err(drop)
+}
+
+/// [`load`], also returning the diagnostics (the warnings on success).
+fn load_diagnosed(
+    src: &SourceFile,
+) -> Result<(sdfl_stdlib::Program, sdfl_lang::Diagnostics), sdfl_lang::Diagnostics> {
     let color = term::color();
     match sdfl_stdlib::load_warned(src) {
         Ok((program, warnings)) => {
             if !warnings.is_empty() {
                 say_raw(&sdfl_lang::render(src, &warnings, color));
             }
-            Ok(program)
+            Ok((program, warnings))
         }
         Err(diags) => {
             say_raw(&sdfl_lang::render(src, &diags, color));
-            Err(())
+            Err(diags)
         }
+    }
+}
+
+/// `sdfl check --json`: each file's diagnostics (also rendered on stderr).
+fn check_json(files: &[PathBuf]) -> ExitCode {
+    let entries = files
+        .iter()
+        .map(|f| {
+            let name = f.display().to_string();
+            let diags = match read_source(f) {
+                Err(e) => vec![json::unplaced(&name, sdfl_lang::codes::IO, &e, READ_HELP)],
+                Ok(src) => match load_diagnosed(&src) {
+                    Ok((_, warnings)) => json::diagnostics(&src, &warnings),
+                    Err(errors) => json::diagnostics(&src, &errors),
+                },
+            };
+            json::checked(&name, diags)
+        })
+        .collect();
+    let report = json::check_report(entries);
+    Stdout::new().line(&serde_json::to_string_pretty(&report).expect("serialisable"));
+    if report["ok"] == true {
+        ExitCode::SUCCESS
+    } else {
+        ExitCode::FAILURE
     }
 }
 
@@ -360,6 +402,14 @@ fn load(src: &SourceFile) -> Result<sdfl_stdlib::Program, ()> {
 /// work, and held (the lock) so that a run starting there meanwhile does
 /// not take this one's temporary files for stale ones.
 fn out_dir(out: &Path) -> Result<(PathBuf, OutDir), ()> {
+    open_out_dir(out).map_err(|e| say!("error[sdfl::io]: {e}\n  help: {OUT_DIR_HELP}"))
+}
+
+/// What to do when `--out` cannot be used.
+const OUT_DIR_HELP: &str = "give `--out` a directory that can be created and written";
+
+/// [`out_dir`], saying why not instead of printing it.
+fn open_out_dir(out: &Path) -> Result<(PathBuf, OutDir), String> {
     let made = sdfl_runtime::output::ensure_dir(out).or_else(|e| {
         // `--out` itself may be a link the user chose; follow that one.
         if out.is_dir() {
@@ -382,13 +432,10 @@ fn out_dir(out: &Path) -> Result<(PathBuf, OutDir), ()> {
             }
             Ok((p, lock))
         }
-        Err(e) => {
-            say!(
-                "error[sdfl::io]: cannot use {} as the output directory: {e}\n  help: give `--out` a directory that can be created and written",
-                out.display()
-            );
-            Err(())
-        }
+        Err(e) => Err(format!(
+            "cannot use {} as the output directory: {e}",
+            out.display()
+        )),
     }
 }
 
@@ -396,19 +443,78 @@ fn out_dir(out: &Path) -> Result<(PathBuf, OutDir), ()> {
 /// diagnostic and 1, or, for a stop by a signal, where it stopped and
 /// 128 + the signal.
 fn failed(src: &SourceFile, job: &str, e: &std::io::Error) -> ExitCode {
+    failed_as(src, job, e, false)
+}
+
+/// [`failed`], also printing the failure as JSON on stdout with `json`.
+fn failed_as(src: &SourceFile, job: &str, e: &std::io::Error, json: bool) -> ExitCode {
     // Refused because a signal is stopping the process: that thread
     // reports and exits (130 or 143); returning 1 first would race it.
     interrupt::wait_if_exiting();
     if let Some(stop) = Stopped::of(e) {
         say!("sdfl: {stop}");
+        if json {
+            let stopped = serde_json::json!({ "signal": stop.signal, "message": stop.to_string() });
+            print_json(&json::run_failed(&src.name, Vec::new(), Some(stopped)));
+        }
         return ExitCode::from(interrupt::exit_code(stop.signal));
     }
-    say_raw(&runtime_error(src, job, e));
+    let (diag, placed) = runtime_diag(src, job, e);
+    let mut diags = sdfl_lang::Diagnostics::default();
+    diags.push(diag);
+    if json {
+        let d = &diags.diags[0];
+        let d = if placed {
+            json::diagnostic(src, &diags, d)
+        } else {
+            json::unplaced(
+                &src.name,
+                d.code,
+                &d.message,
+                d.help.as_deref().unwrap_or(""),
+            )
+        };
+        print_json(&json::run_failed(&src.name, vec![d], None));
+    }
+    say_raw(&if placed {
+        sdfl_lang::render(src, &diags, term::color())
+    } else {
+        let d = &diags.diags[0];
+        format!(
+            "error[{}]: `{job}`: {e}\n  help: {}\n",
+            d.code,
+            d.help.as_deref().unwrap_or("")
+        )
+    });
     ExitCode::FAILURE
 }
 
-/// A run-time error as a diagnostic at the statement that failed.
-fn runtime_error(src: &SourceFile, job: &str, e: &std::io::Error) -> String {
+/// A report on stdout as pretty JSON.
+fn print_json(v: &serde_json::Value) {
+    Stdout::new().line(&serde_json::to_string_pretty(v).expect("serialisable"));
+}
+
+/// A failure before any statement ran, as `error[code]: message` and
+/// help on stderr, and with `json` as a JSON report on stdout.
+fn failed_early(file: &str, code: &str, message: &str, help: &str, json: bool) -> ExitCode {
+    if help.is_empty() {
+        say!("error[{code}]: {message}");
+    } else {
+        say!("error[{code}]: {message}\n  help: {help}");
+    }
+    if json {
+        print_json(&json::run_failed(
+            file,
+            vec![json::unplaced(file, code, message, help)],
+            None,
+        ));
+    }
+    ExitCode::FAILURE
+}
+
+/// A run-time error as a diagnostic at the statement that failed, and
+/// whether it has a place in the file.
+fn runtime_diag(src: &SourceFile, job: &str, e: &std::io::Error) -> (sdfl_lang::Diag, bool) {
     use std::io::ErrorKind as K;
     let help = match e.kind() {
         K::PermissionDenied => {
@@ -441,13 +547,7 @@ fn runtime_error(src: &SourceFile, job: &str, e: &std::io::Error) -> String {
     let diag = sdfl_lang::Diag::new(code, span.unwrap_or_default(), e.to_string())
         .label(label)
         .help(help);
-    let mut diags = sdfl_lang::Diagnostics::default();
-    diags.push(diag);
-    if span.is_some() {
-        sdfl_lang::render(src, &diags, term::color())
-    } else {
-        format!("error[{code}]: `{job}`: {e}\n  help: {help}\n")
-    }
+    (diag, span.is_some())
 }
 
 /// The span of the statement named `job` (as `stdlib::eval` names them:
@@ -514,7 +614,13 @@ fn execute(
                 let r =
                     jobs::run_train_job(job, out, base, size, train, &|e| progress.train_event(e))
                         .map_err(|e| io(&job.name, e))?;
-                reports.push(Report::new(statement.kind(), &r));
+                let mut report = Report::new(statement.kind(), &r);
+                if let (Some(o), serde_json::Value::Object(files)) =
+                    (report.report.as_object_mut(), json::train_files(job))
+                {
+                    o.extend(files);
+                }
+                reports.push(report);
             }
         }
     }
@@ -530,33 +636,47 @@ fn base_dir(file: Option<&Path>) -> PathBuf {
 fn run(file: Option<&Path>, out: &Path, options: RunOptions, json: bool) -> ExitCode {
     let t0 = Instant::now();
     let src = match file {
-        Some(f) => match read(f) {
+        Some(f) => match read_source(f) {
             Ok(s) => s,
-            Err(()) => return ExitCode::FAILURE,
+            Err(e) => {
+                let name = f.display().to_string();
+                return failed_early(&name, sdfl_lang::codes::IO, &e, READ_HELP, json);
+            }
         },
         None => SourceFile::new("showcase.sdfl (built in)", SHOWCASE),
     };
-    let Ok(program) = load(&src) else {
-        return ExitCode::FAILURE;
+    let (program, warnings) = match load_diagnosed(&src) {
+        Ok(p) => p,
+        Err(diags) => {
+            if json {
+                print_json(&json::run_failed(
+                    &src.name,
+                    json::diagnostics(&src, &diags),
+                    None,
+                ));
+            }
+            return ExitCode::FAILURE;
+        }
     };
+    let early =
+        |code: &str, message: &str, help: &str| failed_early(&src.name, code, message, help, json);
     if let Err(e) = sdfl_stdlib::work::check_program(&program, options.size) {
-        say!("error[{}]: {e}", sdfl_lang::codes::WORK);
-        return ExitCode::FAILURE;
+        // The message says what to lower.
+        return early(sdfl_lang::codes::WORK, &e.to_string(), "");
     }
     // Written under the canonical directory, reported as the user named it.
     let shown = out;
-    let Ok((out, _lock)) = out_dir(out) else {
-        return ExitCode::FAILURE;
+    let (out, _lock) = match open_out_dir(out) {
+        Ok(o) => o,
+        Err(e) => return early(sdfl_lang::codes::IO, &e, OUT_DIR_HELP),
     };
     let out = out.as_path();
     // Every directory outputs go to, before any work.
     let dirs = sdfl_stdlib::outputs::output_dirs(&program);
     if let Err(e) = sdfl_runtime::output::check_output_dirs(out, &dirs) {
-        say!(
-            "error[{}]: cannot write the outputs: {e}\n  help: move what is in the way, or choose another `--out`",
-            sdfl_lang::codes::IO
-        );
-        return ExitCode::FAILURE;
+        let message = format!("cannot write the outputs: {e}");
+        let help = "move what is in the way, or choose another `--out`";
+        return early(sdfl_lang::codes::IO, &message, help);
     }
     let load_s = t0.elapsed().as_secs_f64();
     let every = progress::interval(std::env::var_os("SDFL_PROGRESS_SECS").as_deref());
@@ -565,7 +685,7 @@ fn run(file: Option<&Path>, out: &Path, options: RunOptions, json: bool) -> Exit
     progress.finish();
     let reports = match result {
         Ok(r) => r,
-        Err((job, e)) => return failed(&src, &job, &e),
+        Err((job, e)) => return failed_as(&src, &job, &e, json),
     };
     print_fit_warnings(&reports);
     if json {
@@ -577,7 +697,8 @@ fn run(file: Option<&Path>, out: &Path, options: RunOptions, json: bool) -> Exit
             "total_seconds": t0.elapsed().as_secs_f64(),
             "jobs": reports,
         });
-        Stdout::new().line(&serde_json::to_string_pretty(&summary).expect("serialisable"));
+        let warnings = json::diagnostics(&src, &warnings);
+        print_json(&json::run_succeeded(summary, warnings));
         return ExitCode::SUCCESS;
     }
     let mut stdout = Stdout::new();

@@ -25,8 +25,50 @@ pub const FORMAT: &str = "sdfl-checkpoint-2";
 /// The first format (flat `value.N`, `adam_m.N`, `adam_v.N` tensors),
 /// still read.
 const FORMAT_1: &str = "sdfl-train-checkpoint-1";
-/// The tensor of held-out scores (f64 rows: step, seconds, PSNR, SSIM).
-const HELD_OUT: &str = "train.held_out";
+/// The metadata entry of the run's [`History`].
+const HISTORY: &str = "history";
+
+/// The history as the metadata holds it: JSON whose numbers are strings
+/// as Rust prints an f64 (exact when read back, and `inf` for the PSNR of
+/// a perfect render, which JSON numbers cannot hold):
+/// `{"seconds": "12.5", "held_out": [[100, "3.2", "27.31", "0.91"], ...]}`.
+fn stored_history(h: &History) -> String {
+    let rows: Vec<Value> = h
+        .held_out
+        .iter()
+        .map(|e| {
+            serde_json::json!([
+                e.step,
+                e.seconds.to_string(),
+                e.psnr.to_string(),
+                e.ssim.to_string()
+            ])
+        })
+        .collect();
+    serde_json::json!({ "seconds": h.seconds.to_string(), "held_out": rows }).to_string()
+}
+
+/// [`stored_history`] read back; `None` if malformed.
+fn read_history(text: &str) -> Option<History> {
+    let v: Value = serde_json::from_str(text).ok()?;
+    let num = |v: &Value| v.as_str()?.parse::<f64>().ok();
+    let held_out = v["held_out"]
+        .as_array()?
+        .iter()
+        .map(|r| {
+            Some(HeldOut {
+                step: usize::try_from(r.get(0)?.as_u64()?).ok()?,
+                seconds: num(r.get(1)?)?,
+                psnr: num(r.get(2)?)?,
+                ssim: num(r.get(3)?)?,
+            })
+        })
+        .collect::<Option<Vec<_>>>()?;
+    Some(History {
+        seconds: num(&v["seconds"])?,
+        held_out,
+    })
+}
 
 /// A 64-bit FNV-1a hash: stable across platforms, versions and runs.
 #[derive(Debug, Clone, Copy)]
@@ -228,22 +270,9 @@ impl Checkpoint {
         if let Some((n, _, _)) = buffers.iter().find(|(n, _, _)| !seen.insert(n.as_str())) {
             return Err(invalid(path, format!("two tensors named `{n}`")));
         }
-        // Held-out scores as f64 rows (a PSNR may be infinite, which JSON
-        // cannot hold): step, seconds, PSNR, SSIM.
-        let held_out: Vec<u8> = self
-            .history
-            .held_out
-            .iter()
-            .flat_map(|h| [h.step as f64, h.seconds, h.psnr, h.ssim])
-            .flat_map(f64::to_le_bytes)
-            .collect();
         let views = buffers
             .iter()
             .map(|(n, shape, b)| Ok((n.clone(), TensorView::new(Dtype::F32, shape.clone(), b)?)))
-            .chain(std::iter::once(
-                TensorView::new(Dtype::F64, vec![self.history.held_out.len(), 4], &held_out)
-                    .map(|t| (HELD_OUT.to_string(), t)),
-            ))
             .collect::<Result<Vec<_>, safetensors::SafeTensorError>>()
             .map_err(|e| invalid(path, e))?;
         let mut meta = HashMap::new();
@@ -267,10 +296,7 @@ impl Checkpoint {
         for (part, fp) in PARTS.iter().zip(&self.fingerprint) {
             meta.insert(format!("fingerprint.{part}"), fp.clone());
         }
-        meta.insert(
-            "train_seconds".to_string(),
-            self.history.seconds.to_string(),
-        );
+        meta.insert(HISTORY.to_string(), stored_history(&self.history));
         let bytes = safetensors::serialize(views, &Some(meta)).map_err(|e| invalid(path, e))?;
         let mut f = Atomic::create(path)?;
         io::Write::write_all(f.writer(), &bytes)?;
@@ -404,37 +430,9 @@ impl Checkpoint {
         }
         let fp = |i: usize| get(&format!("fingerprint.{}", PARTS[i]));
         // Written by sdfl before it kept the history: none.
-        let history = match meta.get("train_seconds") {
+        let history = match meta.get(HISTORY) {
             None => History::default(),
-            Some(secs) => {
-                let t = tensors.tensor(HELD_OUT).map_err(|e| invalid(path, e))?;
-                if t.dtype() != Dtype::F64 || t.shape().len() != 2 || t.shape()[1] != 4 {
-                    return Err(invalid(path, format!("`{HELD_OUT}` is not f64 rows of 4")));
-                }
-                let v: Vec<f64> = t
-                    .data()
-                    .chunks_exact(8)
-                    .map(|c| f64::from_le_bytes(c.try_into().expect("8 bytes")))
-                    .collect();
-                let mut held_out = Vec::new();
-                for r in v.chunks_exact(4) {
-                    if !(r[0] >= 0.0 && r[0] <= usize::MAX as f64 && r[0].fract() == 0.0) {
-                        return Err(invalid(path, format!("a held-out step is {}", r[0])));
-                    }
-                    held_out.push(HeldOut {
-                        step: r[0] as usize,
-                        seconds: r[1],
-                        psnr: r[2],
-                        ssim: r[3],
-                    });
-                }
-                History {
-                    seconds: secs
-                        .parse()
-                        .map_err(|_| invalid(path, "bad `train_seconds`"))?,
-                    held_out,
-                }
-            }
+            Some(h) => read_history(h).ok_or_else(|| invalid(path, format!("bad `{HISTORY}`")))?,
         };
         Ok(Checkpoint {
             step: usize::try_from(num("step")?).map_err(|_| invalid(path, "bad step"))?,
