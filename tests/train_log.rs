@@ -91,7 +91,7 @@ fn crc32c(bytes: &[u8]) -> u32 {
 
 fn masked(bytes: &[u8]) -> u32 {
     let c = crc32c(bytes);
-    ((c >> 15) | (c << 17)).wrapping_add(0xa282_ead8)
+    c.rotate_right(15).wrapping_add(0xa282_ead8)
 }
 
 /// Every record of a TFRecord file, asserting whole records and checksums.
@@ -256,7 +256,7 @@ fn a_piped_run_shows_progress_lines_and_writes_its_logs() {
         let (loss, secs): (f32, f64) = (r[2].parse().unwrap(), r[1].parse().unwrap());
         assert!(loss >= 0.0 && secs >= 0.0, "{r:?}");
         // Scores exactly on the evaluated steps.
-        assert_eq!(r[4].is_empty(), k as usize % 10 != 0, "{r:?}");
+        assert_eq!(r[4].is_empty(), !(k as usize).is_multiple_of(10), "{r:?}");
     }
     let scored: Vec<(usize, f64)> = rows
         .iter()
@@ -364,14 +364,15 @@ fn a_run_killed_and_resumed_logs_what_an_unstopped_run_logs() {
     wait(&|| ckpt.exists());
     let first = fs::metadata(&ckpt).map(|m| m.ino()).unwrap_or(0);
     wait(&|| fs::metadata(&ckpt).is_ok_and(|m| m.ino() != first));
-    // A few more steps logged past it, then SIGKILL: nothing is tidied.
+    // A few more steps logged past it (rows the resume must drop; their
+    // truncation is also unit-tested in `train::log`), then SIGKILL.
     std::thread::sleep(std::time::Duration::from_millis(30));
     child.kill().unwrap();
     child.wait().unwrap();
     let at = sdfl_runtime::train::checkpoint::Checkpoint::read(&ckpt)
         .unwrap()
         .step as u64;
-    assert!(at >= 100 && at % 100 == 0, "{at}");
+    assert!(at >= 100 && at.is_multiple_of(100), "{at}");
     let rows_before = fs::read_to_string(out.join("t.metrics.csv"))
         .unwrap()
         .lines()
@@ -409,7 +410,10 @@ fn a_run_killed_and_resumed_logs_what_an_unstopped_run_logs() {
     assert!(secs.windows(2).all(|w| w[0] <= w[1]), "{secs:?}");
     // The whole curve, scored before and after the kill.
     let scores = held_out_scores(&resumed);
-    assert_eq!(scores.len() as u64, n / 10 + u64::from(n % 10 != 0));
+    assert_eq!(
+        scores.len() as u64,
+        n / 10 + u64::from(!n.is_multiple_of(10))
+    );
     assert_eq!(scores, held_out_scores(&whole));
     // TensorBoard: each step once, the same values.
     let tb = |d: &str| scalars(&dir.join(d).join("tensorboard/t/events.out.tfevents.sdfl"));
@@ -484,12 +488,14 @@ fn json_reports_carry_a_version_the_checkpoint_and_diagnostics() {
         "warns.sdfl",
         "render r {\n  scene: sphere(),\n  camera: look_at(eye: [0, 0, -8]),\n  outputs: [image(\"r.png\")],\n}\n",
     );
+    // Named as the run above named them, so the objects are the same.
+    assert!(good.exists() && bad.exists() && warns.exists());
     let args = [
         "check",
         "--json",
-        good.to_str().unwrap(),
-        bad.to_str().unwrap(),
-        warns.to_str().unwrap(),
+        "t.sdfl",
+        "bad.sdfl",
+        "warns.sdfl",
         "missing.sdfl",
     ];
     let o = sdfl_env(&dir, &args, &[]);
