@@ -119,7 +119,8 @@ pub(crate) fn sweep(
             }
         }
         say!("{name}={v}");
-        let progress = Progress::new(false, progress::interval(None));
+        let every = progress::interval(std::env::var_os("SDFL_PROGRESS_SECS").as_deref());
+        let progress = Progress::new(false, every);
         let t = Instant::now();
         match execute(
             &program,

@@ -749,6 +749,21 @@ mod tests {
             e.contains("`layer.weight` has shape [3, 2], its layout says [2, 3]"),
             "{e}"
         );
+        // A history that is not the stored form is refused by name.
+        sample().write(&path).unwrap();
+        let bytes = std::fs::read(&path).unwrap();
+        let (_, header) = SafeTensors::read_metadata(&bytes).unwrap();
+        let mut meta = header.metadata().clone().unwrap();
+        assert!(meta[HISTORY].contains("\"inf\""), "{}", meta[HISTORY]);
+        meta.insert(HISTORY.into(), "{\"seconds\": 1}".into());
+        let t = SafeTensors::deserialize(&bytes).unwrap();
+        std::fs::write(
+            &path,
+            safetensors::serialize(t.tensors(), &Some(meta)).unwrap(),
+        )
+        .unwrap();
+        let e = Checkpoint::read(&path).unwrap_err().to_string();
+        assert!(e.contains("bad `history`"), "{e}");
         let mut ck = sample();
         ck.pieces[1][0].name = "torus.major".into();
         let e = ck.write(&path).unwrap_err().to_string();
