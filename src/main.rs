@@ -2,13 +2,11 @@
 #![warn(missing_docs)]
 
 use std::ffi::OsStr;
-use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::time::Instant;
 
 use clap::{CommandFactory, Parser, Subcommand};
-use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use sdfl_lang::SourceFile;
 use sdfl_runtime::{jobs, run_job, Plan, RunOptions};
 use sdfl_stdlib::value::{Statement, StatementKind};
@@ -17,12 +15,15 @@ use sdfl_stdlib::value::{Statement, StatementKind};
 mod term;
 mod completions;
 mod fmt;
+mod json;
 mod plan;
+mod progress;
 mod sweep;
 mod view;
 mod watch;
 
 use plan::plan_text;
+use progress::Progress;
 use sdfl_runtime::interrupt::{self, Stopped};
 use sdfl_runtime::output::OutDir;
 use sweep::sweep;
@@ -71,6 +72,9 @@ enum Command {
     Check {
         #[arg(required = true)]
         files: Vec<PathBuf>,
+        /// Print every file's diagnostics as JSON on stdout (for editors).
+        #[arg(long)]
+        json: bool,
     },
     /// Show what each statement of a file will compute, and why.
     Plan { file: PathBuf },
@@ -306,7 +310,8 @@ fn main() -> ExitCode {
             },
             json,
         ),
-        Command::Check { files } => {
+        Command::Check { files, json: true } => check_json(&files),
+        Command::Check { files, json: false } => {
             let mut ok = true;
             for f in &files {
                 match read(f).and_then(|src| load(&src).map(|_| ())) {
@@ -413,6 +418,14 @@ const MAX_SOURCE_BYTES: u64 = 64 << 20;
 /// Reads a scene file: a regular file (not a FIFO or `/dev/zero`, which
 /// would block or never end) of at most [`MAX_SOURCE_BYTES`].
 fn read(path: &Path) -> Result<SourceFile, ()> {
+    read_source(path).map_err(|e| say!("error[sdfl::io]: {e}\n  help: {READ_HELP}"))
+}
+
+/// What to do when a scene file cannot be read.
+const READ_HELP: &str = "give the path of a .sdfl file";
+
+/// Reads a scene file, or says why it cannot.
+fn read_source(path: &Path) -> Result<SourceFile, String> {
     use std::io::Read;
     let bytes = sdfl_runtime::data::image::open_regular(path).and_then(|f| {
         let mut bytes = Vec::new();
@@ -430,27 +443,56 @@ fn read(path: &Path) -> Result<SourceFile, ()> {
             let text = String::from_utf8_lossy(&bytes).into_owned();
             Ok(SourceFile::new(path.display().to_string(), text))
         }
-        Err(e) => {
-            say!("error[sdfl::io]: cannot read the scene file: {e}\n  help: give the path of a .sdfl file");
-            Err(())
-        }
+        Err(e) => Err(format!("cannot read the scene file: {e}")),
     }
 }
 
 /// Loads a file, printing its diagnostics: errors fail, warnings do not.
 fn load(src: &SourceFile) -> Result<sdfl_stdlib::Program, ()> {
+    load_diagnosed(src).map(|p| p.0).map_err(drop)
+}
+
+/// [`load`], also returning the diagnostics (the warnings on success).
+fn load_diagnosed(
+    src: &SourceFile,
+) -> Result<(sdfl_stdlib::Program, sdfl_lang::Diagnostics), sdfl_lang::Diagnostics> {
     let color = term::color();
     match sdfl_stdlib::load_warned(src) {
         Ok((program, warnings)) => {
             if !warnings.is_empty() {
                 say_raw(&sdfl_lang::render(src, &warnings, color));
             }
-            Ok(program)
+            Ok((program, warnings))
         }
         Err(diags) => {
             say_raw(&sdfl_lang::render(src, &diags, color));
-            Err(())
+            Err(diags)
         }
+    }
+}
+
+/// `sdfl check --json`: each file's diagnostics (also rendered on stderr).
+fn check_json(files: &[PathBuf]) -> ExitCode {
+    let entries = files
+        .iter()
+        .map(|f| {
+            let name = f.display().to_string();
+            let diags = match read_source(f) {
+                Err(e) => vec![json::unplaced(&name, sdfl_lang::codes::IO, &e, READ_HELP)],
+                Ok(src) => match load_diagnosed(&src) {
+                    Ok((_, warnings)) => json::diagnostics(&src, &warnings),
+                    Err(errors) => json::diagnostics(&src, &errors),
+                },
+            };
+            json::checked(&name, diags)
+        })
+        .collect();
+    let report = json::check_report(entries);
+    Stdout::new().line(&serde_json::to_string_pretty(&report).expect("serialisable"));
+    if report["ok"] == true {
+        ExitCode::SUCCESS
+    } else {
+        ExitCode::FAILURE
     }
 }
 
@@ -460,6 +502,14 @@ fn load(src: &SourceFile) -> Result<sdfl_stdlib::Program, ()> {
 /// work, and held (the lock) so that a run starting there meanwhile does
 /// not take this one's temporary files for stale ones.
 fn out_dir(out: &Path) -> Result<(PathBuf, OutDir), ()> {
+    open_out_dir(out).map_err(|e| say!("error[sdfl::io]: {e}\n  help: {OUT_DIR_HELP}"))
+}
+
+/// What to do when `--out` cannot be used.
+const OUT_DIR_HELP: &str = "give `--out` a directory that can be created and written";
+
+/// [`out_dir`], saying why not instead of printing it.
+fn open_out_dir(out: &Path) -> Result<(PathBuf, OutDir), String> {
     let made = sdfl_runtime::output::ensure_dir(out).or_else(|e| {
         // `--out` itself may be a link the user chose; follow that one.
         if out.is_dir() {
@@ -482,13 +532,10 @@ fn out_dir(out: &Path) -> Result<(PathBuf, OutDir), ()> {
             }
             Ok((p, lock))
         }
-        Err(e) => {
-            say!(
-                "error[sdfl::io]: cannot use {} as the output directory: {e}\n  help: give `--out` a directory that can be created and written",
-                out.display()
-            );
-            Err(())
-        }
+        Err(e) => Err(format!(
+            "cannot use {} as the output directory: {e}",
+            out.display()
+        )),
     }
 }
 
@@ -496,19 +543,78 @@ fn out_dir(out: &Path) -> Result<(PathBuf, OutDir), ()> {
 /// diagnostic and 1, or, for a stop by a signal, where it stopped and
 /// 128 + the signal.
 fn failed(src: &SourceFile, job: &str, e: &std::io::Error) -> ExitCode {
+    failed_as(src, job, e, false)
+}
+
+/// [`failed`], also printing the failure as JSON on stdout with `json`.
+fn failed_as(src: &SourceFile, job: &str, e: &std::io::Error, json: bool) -> ExitCode {
     // Refused because a signal is stopping the process: that thread
     // reports and exits (130 or 143); returning 1 first would race it.
     interrupt::wait_if_exiting();
     if let Some(stop) = Stopped::of(e) {
         say!("sdfl: {stop}");
+        if json {
+            let stopped = serde_json::json!({ "signal": stop.signal, "message": stop.to_string() });
+            print_json(&json::run_failed(&src.name, Vec::new(), Some(stopped)));
+        }
         return ExitCode::from(interrupt::exit_code(stop.signal));
     }
-    say_raw(&runtime_error(src, job, e));
+    let (diag, placed) = runtime_diag(src, job, e);
+    let mut diags = sdfl_lang::Diagnostics::default();
+    diags.push(diag);
+    if json {
+        let d = &diags.diags[0];
+        let d = if placed {
+            json::diagnostic(src, &diags, d)
+        } else {
+            json::unplaced(
+                &src.name,
+                d.code,
+                &d.message,
+                d.help.as_deref().unwrap_or(""),
+            )
+        };
+        print_json(&json::run_failed(&src.name, vec![d], None));
+    }
+    say_raw(&if placed {
+        sdfl_lang::render(src, &diags, term::color())
+    } else {
+        let d = &diags.diags[0];
+        format!(
+            "error[{}]: `{job}`: {e}\n  help: {}\n",
+            d.code,
+            d.help.as_deref().unwrap_or("")
+        )
+    });
     ExitCode::FAILURE
 }
 
-/// A run-time error as a diagnostic at the statement that failed.
-fn runtime_error(src: &SourceFile, job: &str, e: &std::io::Error) -> String {
+/// A report on stdout as pretty JSON.
+fn print_json(v: &serde_json::Value) {
+    Stdout::new().line(&serde_json::to_string_pretty(v).expect("serialisable"));
+}
+
+/// A failure before any statement ran, as `error[code]: message` and
+/// help on stderr, and with `json` as a JSON report on stdout.
+fn failed_early(file: &str, code: &str, message: &str, help: &str, json: bool) -> ExitCode {
+    if help.is_empty() {
+        say!("error[{code}]: {message}");
+    } else {
+        say!("error[{code}]: {message}\n  help: {help}");
+    }
+    if json {
+        print_json(&json::run_failed(
+            file,
+            vec![json::unplaced(file, code, message, help)],
+            None,
+        ));
+    }
+    ExitCode::FAILURE
+}
+
+/// A run-time error as a diagnostic at the statement that failed, and
+/// whether it has a place in the file.
+fn runtime_diag(src: &SourceFile, job: &str, e: &std::io::Error) -> (sdfl_lang::Diag, bool) {
     use std::io::ErrorKind as K;
     let help = match e.kind() {
         K::PermissionDenied => {
@@ -541,13 +647,7 @@ fn runtime_error(src: &SourceFile, job: &str, e: &std::io::Error) -> String {
     let diag = sdfl_lang::Diag::new(code, span.unwrap_or_default(), e.to_string())
         .label(label)
         .help(help);
-    let mut diags = sdfl_lang::Diagnostics::default();
-    diags.push(diag);
-    if span.is_some() {
-        sdfl_lang::render(src, &diags, term::color())
-    } else {
-        format!("error[{code}]: `{job}`: {e}\n  help: {help}\n")
-    }
+    (diag, span.is_some())
 }
 
 /// The span of the statement named `job` (as `stdlib::eval` names them:
@@ -579,89 +679,52 @@ fn execute(
     out: &Path,
     options: RunOptions,
     base: &Path,
-    bar: &ProgressBar,
+    progress: &Progress,
 ) -> Result<Vec<Report>, (String, std::io::Error)> {
     let mut reports = Vec::new();
     let io = |name: &str, e: std::io::Error| (name.to_string(), e);
+    let size = options.size;
+    let inc = |n| progress.inc(n);
     // In file order: a render after a `train` may read what it wrote.
     for statement in &program.order {
         match *statement {
             Statement::Render(i) => {
                 let job = &program.renders[i];
                 interrupt::running(&job.name);
-                bar.set_message(job.name.clone());
-                let r =
-                    run_job(job, out, options, &|n| bar.inc(n)).map_err(|e| io(&job.name, e))?;
+                let px = progress::pixels(job.width, job.height, job.cameras.len(), size);
+                progress.start(&job.name, px, false);
+                let r = run_job(job, out, options, &inc).map_err(|e| io(&job.name, e))?;
                 reports.push(Report::new(statement.kind(), &r));
             }
             Statement::Volume(i) => {
                 let job = &program.volumes[i];
                 interrupt::running(&job.name);
-                bar.set_message(job.name.clone());
-                let r = jobs::run_volume_job(job, out, options.size, &|n| bar.inc(n))
-                    .map_err(|e| io(&job.name, e))?;
+                let px = progress::pixels(job.width, job.height, job.cameras.len(), size);
+                progress.start(&job.name, px, false);
+                let r = jobs::run_volume_job(job, out, size, &inc).map_err(|e| io(&job.name, e))?;
                 reports.push(Report::new(statement.kind(), &r));
             }
             Statement::Train(i) => {
                 let job = &program.trains[i];
                 interrupt::running(&job.name);
-                bar.set_message(job.name.clone());
+                progress.start(&job.name, job.iterations as u64, true);
                 let train = jobs::TrainOptions {
                     restart: options.restart,
                 };
-                let r = jobs::run_train_job(
-                    job,
-                    out,
-                    base,
-                    options.size,
-                    train,
-                    &|n| bar.inc(n),
-                    &|m| bar.set_message(m.to_string()),
-                )
-                .map_err(|e| io(&job.name, e))?;
-                reports.push(Report::new(statement.kind(), &r));
+                let r =
+                    jobs::run_train_job(job, out, base, size, train, &|e| progress.train_event(e))
+                        .map_err(|e| io(&job.name, e))?;
+                let mut report = Report::new(statement.kind(), &r);
+                if let (Some(o), serde_json::Value::Object(files)) =
+                    (report.report.as_object_mut(), json::train_files(job))
+                {
+                    o.extend(files);
+                }
+                reports.push(report);
             }
         }
     }
     Ok(reports)
-}
-
-/// Pixels and iterations of a program, for the progress bar.
-fn work(program: &sdfl_stdlib::Program, size: Option<(u32, u32)>) -> u64 {
-    let px = |w: u32, h: u32, n: usize| {
-        let (w, h) = size.unwrap_or((w, h));
-        w as u64 * h as u64 * n as u64
-    };
-    program
-        .renders
-        .iter()
-        .map(|j| px(j.width, j.height, j.cameras.len()))
-        .sum::<u64>()
-        + program
-            .volumes
-            .iter()
-            .map(|j| px(j.width, j.height, j.cameras.len()))
-            .sum::<u64>()
-        + program
-            .trains
-            .iter()
-            .map(|j| j.iterations as u64)
-            .sum::<u64>()
-}
-
-fn progress_bar(total: u64, hidden: bool) -> ProgressBar {
-    let bar = ProgressBar::new(total);
-    if hidden || !std::io::stderr().is_terminal() {
-        bar.set_draw_target(ProgressDrawTarget::hidden());
-    }
-    bar.set_style(
-        ProgressStyle::with_template(
-            "{msg:>12} [{bar:40}] {percent:>3}% {elapsed_precise} eta {eta}",
-        )
-        .expect("valid template")
-        .progress_chars("=> "),
-    );
-    bar
 }
 
 fn base_dir(file: Option<&Path>) -> PathBuf {
@@ -673,44 +736,57 @@ fn base_dir(file: Option<&Path>) -> PathBuf {
 fn run(file: Option<&Path>, out: &Path, options: RunOptions, json: bool) -> ExitCode {
     let t0 = Instant::now();
     let src = match file {
-        Some(f) => match read(f) {
+        Some(f) => match read_source(f) {
             Ok(s) => s,
-            Err(()) => return ExitCode::FAILURE,
+            Err(e) => {
+                let name = f.display().to_string();
+                return failed_early(&name, sdfl_lang::codes::IO, &e, READ_HELP, json);
+            }
         },
         None => SourceFile::new("showcase.sdfl (built in)", SHOWCASE),
     };
-    let Ok(program) = load(&src) else {
-        return ExitCode::FAILURE;
+    let (program, warnings) = match load_diagnosed(&src) {
+        Ok(p) => p,
+        Err(diags) => {
+            if json {
+                print_json(&json::run_failed(
+                    &src.name,
+                    json::diagnostics(&src, &diags),
+                    None,
+                ));
+            }
+            return ExitCode::FAILURE;
+        }
     };
+    let early =
+        |code: &str, message: &str, help: &str| failed_early(&src.name, code, message, help, json);
     if let Err(e) = sdfl_stdlib::work::check_program(&program, options.size) {
-        say!("error[{}]: {e}", sdfl_lang::codes::WORK);
-        return ExitCode::FAILURE;
+        // The message says what to lower.
+        return early(sdfl_lang::codes::WORK, &e.to_string(), "");
     }
     // Written under the canonical directory, reported as the user named it.
     let shown = out;
-    let Ok((out, _lock)) = out_dir(out) else {
-        return ExitCode::FAILURE;
+    let (out, _lock) = match open_out_dir(out) {
+        Ok(o) => o,
+        Err(e) => return early(sdfl_lang::codes::IO, &e, OUT_DIR_HELP),
     };
     let out = out.as_path();
     // Every directory outputs go to, before any work.
     let dirs = sdfl_stdlib::outputs::output_dirs(&program);
     if let Err(e) = sdfl_runtime::output::check_output_dirs(out, &dirs) {
-        say!(
-            "error[{}]: cannot write the outputs: {e}\n  help: move what is in the way, or choose another `--out`",
-            sdfl_lang::codes::IO
-        );
-        return ExitCode::FAILURE;
+        let message = format!("cannot write the outputs: {e}");
+        let help = "move what is in the way, or choose another `--out`";
+        return early(sdfl_lang::codes::IO, &message, help);
     }
     let load_s = t0.elapsed().as_secs_f64();
-    let bar = progress_bar(work(&program, options.size), json);
-    let reports = match execute(&program, out, options, &base_dir(file), &bar) {
+    let every = progress::interval(std::env::var_os("SDFL_PROGRESS_SECS").as_deref());
+    let progress = Progress::new(json, every);
+    let result = execute(&program, out, options, &base_dir(file), &progress);
+    progress.finish();
+    let reports = match result {
         Ok(r) => r,
-        Err((job, e)) => {
-            bar.abandon();
-            return failed(&src, &job, &e);
-        }
+        Err((job, e)) => return failed_as(&src, &job, &e, json),
     };
-    bar.finish_and_clear();
     print_fit_warnings(&reports);
     if json {
         let summary = serde_json::json!({
@@ -721,7 +797,8 @@ fn run(file: Option<&Path>, out: &Path, options: RunOptions, json: bool) -> Exit
             "total_seconds": t0.elapsed().as_secs_f64(),
             "jobs": reports,
         });
-        Stdout::new().line(&serde_json::to_string_pretty(&summary).expect("serialisable"));
+        let warnings = json::diagnostics(&src, &warnings);
+        print_json(&json::run_succeeded(summary, warnings));
         return ExitCode::SUCCESS;
     }
     let mut stdout = Stdout::new();

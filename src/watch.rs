@@ -160,11 +160,12 @@ fn run_once(w: &Watch, out: &Path, base: &Path, stdout: &mut Stdout) -> Result<b
             order: vec![statement],
             ..program.clone()
         };
-        let bar = crate::progress_bar(crate::work(&one, w.options.size), false);
+        let every = crate::progress::interval(std::env::var_os("SDFL_PROGRESS_SECS").as_deref());
+        let bar = crate::progress::Progress::new(false, every);
         let t = std::time::Instant::now();
         match crate::execute(&one, out, w.options, base, &bar) {
             Ok(reports) => {
-                bar.finish_and_clear();
+                bar.finish();
                 stdout.line(&format!("ran {name} ({:.2} s)", t.elapsed().as_secs_f64()));
                 crate::print_fit_warnings(&reports);
                 let mut outputs = Vec::new();
@@ -187,7 +188,7 @@ fn run_once(w: &Watch, out: &Path, base: &Path, stdout: &mut Stdout) -> Result<b
                 );
             }
             Err((job, e)) => {
-                bar.abandon();
+                bar.finish();
                 store.save(out);
                 let code = crate::failed(&src, &job, &e);
                 if sdfl_runtime::interrupt::Stopped::of(&e).is_some() {

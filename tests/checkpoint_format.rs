@@ -213,7 +213,7 @@ fn check(name: &str, model: &str, expect: &[(&str, Vec<usize>)]) {
         .clone();
     let out = temp(name);
     let opts = TrainOptions { restart: false };
-    run_train_job(&job, &out, Path::new("."), None, opts, &|_| {}, &|_| {}).unwrap();
+    run_train_job(&job, &out, Path::new("."), None, opts, &|_| {}).unwrap();
     let path = out.join("tiny.ckpt");
     let file = read_safetensors(&path);
     assert_eq!(file.meta["format"], "sdfl-checkpoint-2");

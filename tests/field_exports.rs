@@ -301,7 +301,6 @@ fn a_finished_run_renders_new_views_without_training() {
             None,
             TrainOptions { restart: false },
             &|_| {},
-            &|_| {},
         )
         .unwrap()
     };

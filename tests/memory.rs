@@ -13,6 +13,7 @@ use std::sync::Mutex;
 
 use sdfl_lang::SourceFile;
 use sdfl_runtime::jobs::{run_train_job, TrainOptions};
+use sdfl_runtime::train::log::TrainEvent;
 
 /// The system allocator, counting live and peak bytes.
 struct Counting;
@@ -80,7 +81,10 @@ fn profile(src: &str, dir: &Path) -> (Profile, f64) {
     let steps = Mutex::new(Vec::new());
     let start = LIVE.load(Ordering::Relaxed);
     PEAK.store(start, Ordering::Relaxed);
-    let record = |_| {
+    let record = |e: &TrainEvent| {
+        if !matches!(e, TrainEvent::Step { .. }) {
+            return;
+        }
         let live = LIVE.load(Ordering::Relaxed);
         if let Ok(mut s) = steps.lock() {
             s.push(live);
@@ -94,7 +98,6 @@ fn profile(src: &str, dir: &Path) -> (Profile, f64) {
         None,
         TrainOptions { restart: true },
         &record,
-        &|_| {},
     )
     .unwrap();
     let peak = PEAK.load(Ordering::Relaxed).saturating_sub(start);

@@ -42,7 +42,7 @@ fn temp(name: &str) -> PathBuf {
 }
 
 fn run(job: &sdfl_stdlib::value::TrainJob, out: &Path) -> std::io::Result<TrainReport> {
-    run_train_job(job, out, Path::new("."), None, RESUME, &|_| {}, &|_| {})
+    run_train_job(job, out, Path::new("."), None, RESUME, &|_| {})
 }
 
 #[test]

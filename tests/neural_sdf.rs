@@ -42,7 +42,7 @@ fn run(iterations: usize, dir: &Path) -> TrainReport {
         .clone();
     let out = dir.join("out");
     let opts = TrainOptions { restart: false };
-    run_train_job(&job, &out, dir, None, opts, &|_| {}, &|_| {}).unwrap()
+    run_train_job(&job, &out, dir, None, opts, &|_| {}).unwrap()
 }
 
 #[test]

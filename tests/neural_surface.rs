@@ -60,7 +60,7 @@ fn run(density: &str, iterations: usize, mesh: bool, out: &std::path::Path) -> T
         .trains[0]
         .clone();
     let opts = TrainOptions { restart: false };
-    run_train_job(&job, out, out, None, opts, &|_| {}, &|_| {}).unwrap()
+    run_train_job(&job, out, out, None, opts, &|_| {}).unwrap()
 }
 
 /// The symmetric Chamfer distance between the extracted mesh and the true
@@ -159,7 +159,7 @@ fn an_annealed_beta_ends_at_beta_end() {
             .trains[0]
             .clone();
         let opts = TrainOptions { restart: false };
-        let r = run_train_job(&job, &dir, &dir, None, opts, &|_| {}, &|_| {}).unwrap();
+        let r = run_train_job(&job, &dir, &dir, None, opts, &|_| {}).unwrap();
         let (name, b) = &r.params[0];
         assert_eq!(name, "beta");
         assert!((b[0] - want).abs() < 1e-6, "{iterations} steps: β {b:?}");

@@ -54,7 +54,7 @@ fn train_box_recovers_the_box_and_resumes() {
     let program = sdfl_stdlib::load(&src).unwrap();
     let job = &program.trains[0];
     let out = temp("box");
-    let r = run_train_job(job, &out, &base, Some((32, 32)), RESUME, &|_| {}, &|_| {}).unwrap();
+    let r = run_train_job(job, &out, &base, Some((32, 32)), RESUME, &|_| {}).unwrap();
     assert_eq!(r.iterations, job.iterations);
     assert!(max_error(&r.params) < 0.01, "{:?}", r.params);
     assert!(r.written.iter().any(|w| w.kind == WrittenKind::LossCurve));
@@ -62,7 +62,7 @@ fn train_box_recovers_the_box_and_resumes() {
     // The checkpoint holds the final state; a second run resumes from it.
     let cp = Checkpoint::read(&out.join("train_box.ckpt")).unwrap();
     assert_eq!(cp.step, job.iterations);
-    let again = run_train_job(job, &out, &base, Some((16, 16)), RESUME, &|_| {}, &|_| {}).unwrap();
+    let again = run_train_job(job, &out, &base, Some((16, 16)), RESUME, &|_| {}).unwrap();
     assert_eq!(again.resumed_from, Some(job.iterations));
     assert_eq!(again.params, r.params);
     let _ = std::fs::remove_dir_all(&out);
@@ -84,7 +84,6 @@ fn train_box_from_the_assignment_data() {
         &base,
         Some((16, 16)),
         RESUME,
-        &|_| {},
         &|_| {},
     )
     .unwrap();
@@ -126,17 +125,9 @@ fn divergence_stops_with_the_checkpoint_kept() {
         }
     "#;
     let program = sdfl_stdlib::load(&SourceFile::new("blowup.sdfl", src)).unwrap();
-    let err = run_train_job(
-        &program.trains[0],
-        &out,
-        &out,
-        None,
-        RESUME,
-        &|_| {},
-        &|_| {},
-    )
-    .unwrap_err()
-    .to_string();
+    let err = run_train_job(&program.trains[0], &out, &out, None, RESUME, &|_| {})
+        .unwrap_err()
+        .to_string();
     assert!(
         err.contains("blowup")
             && err.contains("loss is inf")
@@ -208,7 +199,6 @@ fn run_example(name: &str, out: &Path) -> Vec<(String, Vec<f32>)> {
         &base,
         Some((8, 8)),
         RESUME,
-        &|_| {},
         &|_| {},
     )
     .unwrap();
@@ -302,7 +292,7 @@ fn a_resumed_run_is_the_same_run() {
     let whole = temp("whole");
     let parts = temp("parts");
     let run = |job: &sdfl_stdlib::value::TrainJob, out: &Path| {
-        run_train_job(job, out, Path::new("."), None, RESUME, &|_| {}, &|_| {}).unwrap()
+        run_train_job(job, out, Path::new("."), None, RESUME, &|_| {}).unwrap()
     };
     let uninterrupted = run(&small_fit(40, 0.3), &whole);
     let first = run(&small_fit(25, 0.3), &parts);
@@ -329,7 +319,6 @@ fn a_checkpoint_from_another_run_is_refused() {
             Path::new("."),
             None,
             TrainOptions { restart },
-            &|_| {},
             &|_| {},
         )
     };
@@ -399,7 +388,6 @@ fn edits_that_do_not_change_the_run_still_resume() {
             Path::new("."),
             None,
             RESUME,
-            &|_| {},
             &|_| {},
         )
         .unwrap()

@@ -224,7 +224,6 @@ train toy {
             None,
             sdfl_runtime::jobs::TrainOptions { restart: true },
             &|_| {},
-            &|_| {},
         )
         .unwrap();
         r.held_out.last().expect("held-out views").psnr
@@ -271,7 +270,6 @@ train u {
             std::path::Path::new("."),
             None,
             sdfl_runtime::jobs::TrainOptions { restart: false },
-            &|_| {},
             &|_| {},
         )
         .unwrap()

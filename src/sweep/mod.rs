@@ -169,8 +169,9 @@ fn run_setting(src: &SourceFile, a: &SweepArgs, out: &Path, s: &Setting) -> Resu
     if let Err(e) = rows::mark_started(out, &s.label, &mark(before)) {
         return Err(io_error("cannot mark the start of", e));
     }
-    let bar = progress_bar(work(&s.program, a.size), false);
-    bar.set_message(s.label.clone());
+    say!("{}", s.label);
+    let every = crate::progress::interval(std::env::var_os("SDFL_PROGRESS_SECS").as_deref());
+    let bar = crate::progress::Progress::new(false, every);
     let t = Instant::now();
     let reports = match execute(
         &s.program,
@@ -185,7 +186,7 @@ fn run_setting(src: &SourceFile, a: &SweepArgs, out: &Path, s: &Setting) -> Resu
     ) {
         Ok(r) => r,
         Err((job, e)) => {
-            bar.abandon();
+            bar.finish();
             if Stopped::of(&e).is_some() {
                 // Stopped by a signal after a training step: the time so
                 // far counts towards the resumed run's.
@@ -195,7 +196,7 @@ fn run_setting(src: &SourceFile, a: &SweepArgs, out: &Path, s: &Setting) -> Resu
             return Err(failed(src, &job, &e));
         }
     };
-    bar.finish_and_clear();
+    bar.finish();
     let row = Row {
         format: rows::ROW_FORMAT,
         name: a.name.to_string(),

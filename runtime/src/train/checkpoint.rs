@@ -12,6 +12,7 @@ use safetensors::tensor::{Dtype, SafeTensors, TensorView};
 use serde_json::Value;
 
 use super::export_names::Piece;
+use super::log::{HeldOut, History};
 
 use crate::output::Atomic;
 
@@ -24,6 +25,50 @@ pub const FORMAT: &str = "sdfl-checkpoint-2";
 /// The first format (flat `value.N`, `adam_m.N`, `adam_v.N` tensors),
 /// still read.
 const FORMAT_1: &str = "sdfl-train-checkpoint-1";
+/// The metadata entry of the run's [`History`].
+const HISTORY: &str = "history";
+
+/// The history as the metadata holds it: JSON whose numbers are strings
+/// as Rust prints an f64 (exact when read back, and `inf` for the PSNR of
+/// a perfect render, which JSON numbers cannot hold):
+/// `{"seconds": "12.5", "held_out": [[100, "3.2", "27.31", "0.91"], ...]}`.
+fn stored_history(h: &History) -> String {
+    let rows: Vec<Value> = h
+        .held_out
+        .iter()
+        .map(|e| {
+            serde_json::json!([
+                e.step,
+                e.seconds.to_string(),
+                e.psnr.to_string(),
+                e.ssim.to_string()
+            ])
+        })
+        .collect();
+    serde_json::json!({ "seconds": h.seconds.to_string(), "held_out": rows }).to_string()
+}
+
+/// [`stored_history`] read back; `None` if malformed.
+fn read_history(text: &str) -> Option<History> {
+    let v: Value = serde_json::from_str(text).ok()?;
+    let num = |v: &Value| v.as_str()?.parse::<f64>().ok();
+    let held_out = v["held_out"]
+        .as_array()?
+        .iter()
+        .map(|r| {
+            Some(HeldOut {
+                step: usize::try_from(r.get(0)?.as_u64()?).ok()?,
+                seconds: num(r.get(1)?)?,
+                psnr: num(r.get(2)?)?,
+                ssim: num(r.get(3)?)?,
+            })
+        })
+        .collect::<Option<Vec<_>>>()?;
+    Some(History {
+        seconds: num(&v["seconds"])?,
+        held_out,
+    })
+}
 
 /// A 64-bit FNV-1a hash: stable across platforms, versions and runs.
 #[derive(Debug, Clone, Copy)]
@@ -104,6 +149,11 @@ pub struct Checkpoint {
     pub state: Vec<(String, Vec<f32>)>,
     /// One hash per entry of [`PARTS`].
     pub fingerprint: [String; 4],
+    /// Held-out scores and training time so far, so a resumed run's report
+    /// and plots show the whole run. Empty when read from a checkpoint
+    /// written before sdfl kept it: such a file still resumes (its
+    /// parameters are what matter; only the earlier scores are unknown).
+    pub history: History,
 }
 
 fn f32_bytes(v: &[f32]) -> Vec<u8> {
@@ -246,6 +296,7 @@ impl Checkpoint {
         for (part, fp) in PARTS.iter().zip(&self.fingerprint) {
             meta.insert(format!("fingerprint.{part}"), fp.clone());
         }
+        meta.insert(HISTORY.to_string(), stored_history(&self.history));
         let bytes = safetensors::serialize(views, &Some(meta)).map_err(|e| invalid(path, e))?;
         let mut f = Atomic::create(path)?;
         io::Write::write_all(f.writer(), &bytes)?;
@@ -378,6 +429,11 @@ impl Checkpoint {
             state.push((name, read(&stored, None)?));
         }
         let fp = |i: usize| get(&format!("fingerprint.{}", PARTS[i]));
+        // Written by sdfl before it kept the history: none.
+        let history = match meta.get(HISTORY) {
+            None => History::default(),
+            Some(h) => read_history(h).ok_or_else(|| invalid(path, format!("bad `{HISTORY}`")))?,
+        };
         Ok(Checkpoint {
             step: usize::try_from(num("step")?).map_err(|_| invalid(path, "bad step"))?,
             adam_steps: i32::try_from(num("adam_steps")?).map_err(|_| invalid(path, "bad step"))?,
@@ -387,6 +443,7 @@ impl Checkpoint {
             losses,
             state,
             fingerprint: [fp(0)?, fp(1)?, fp(2)?, fp(3)?],
+            history,
         })
     }
 
@@ -451,7 +508,32 @@ impl Checkpoint {
                 return Err(format!("`{name}`[{k}] is {}", v[k]));
             }
         }
+        let h = &self.history;
+        if !(h.seconds.is_finite() && h.seconds >= 0.0) {
+            return Err(format!("its training time is {} s", h.seconds));
+        }
+        let mut last = 0;
+        for e in &h.held_out {
+            // PSNR is +∞ for a perfect render.
+            let fine = e.seconds.is_finite()
+                && (0.0..=h.seconds).contains(&e.seconds)
+                && !e.psnr.is_nan()
+                && e.psnr > f64::NEG_INFINITY
+                && e.ssim.is_finite();
+            if e.step <= last && last > 0 || e.step > self.step || !fine {
+                return Err(format!(
+                    "its held-out score of step {} (PSNR {}, {} s) is out of order or out of range",
+                    e.step, e.psnr, e.seconds
+                ));
+            }
+            last = e.step;
+        }
         Ok(())
+    }
+
+    /// The checkpoint carrying `history`.
+    pub fn with_history(self, history: History) -> Checkpoint {
+        Checkpoint { history, ..self }
     }
 
     /// The parts of the run that differ from `fingerprint` (empty: same run).
@@ -485,6 +567,15 @@ mod tests {
             losses: vec![0.5, 0.25],
             state: vec![("occupancy.ema".into(), vec![0.0, 3.5])],
             fingerprint: Default::default(),
+            history: History {
+                seconds: 2.0,
+                held_out: vec![HeldOut {
+                    step: 2,
+                    seconds: 1.5,
+                    psnr: f64::INFINITY,
+                    ssim: 1.0,
+                }],
+            },
         };
         good.check(2).unwrap();
         type Tamper = fn(&mut Checkpoint);
@@ -515,6 +606,10 @@ mod tests {
             (|c| c.step = 1, "2 losses for 1 steps"),
             (|c| c.adam_steps = -1, "Adam's step count -1"),
             (|c| c.state[0].1[1] = f32::NAN, "`occupancy.ema`[1] is NaN"),
+            (|c| c.history.seconds = -1.0, "training time is -1 s"),
+            (|c| c.history.held_out[0].step = 3, "score of step 3"),
+            (|c| c.history.held_out[0].psnr = f64::NAN, "PSNR NaN"),
+            (|c| c.history.held_out[0].seconds = 9.0, "9 s"),
         ];
         for (tamper, says) in cases {
             let mut c = good.clone();
@@ -555,6 +650,23 @@ mod tests {
             losses: vec![0.5, 0.25],
             state: vec![("occupancy.ema".into(), vec![0.0, 3.5, 1e-30])],
             fingerprint: ["a".into(), "b".into(), "c".into(), "d".into()],
+            history: History {
+                seconds: 12.25,
+                held_out: vec![
+                    HeldOut {
+                        step: 1,
+                        seconds: 0.5,
+                        psnr: 21.5,
+                        ssim: 0.75,
+                    },
+                    HeldOut {
+                        step: 2,
+                        seconds: 12.0,
+                        psnr: f64::INFINITY,
+                        ssim: 1.0,
+                    },
+                ],
+            },
         }
     }
 
@@ -637,6 +749,21 @@ mod tests {
             e.contains("`layer.weight` has shape [3, 2], its layout says [2, 3]"),
             "{e}"
         );
+        // A history that is not the stored form is refused by name.
+        sample().write(&path).unwrap();
+        let bytes = std::fs::read(&path).unwrap();
+        let (_, header) = SafeTensors::read_metadata(&bytes).unwrap();
+        let mut meta = header.metadata().clone().unwrap();
+        assert!(meta[HISTORY].contains("\"inf\""), "{}", meta[HISTORY]);
+        meta.insert(HISTORY.into(), "{\"seconds\": 1}".into());
+        let t = SafeTensors::deserialize(&bytes).unwrap();
+        std::fs::write(
+            &path,
+            safetensors::serialize(t.tensors(), &Some(meta)).unwrap(),
+        )
+        .unwrap();
+        let e = Checkpoint::read(&path).unwrap_err().to_string();
+        assert!(e.contains("bad `history`"), "{e}");
         let mut ck = sample();
         ck.pieces[1][0].name = "torus.major".into();
         let e = ck.write(&path).unwrap_err().to_string();
@@ -687,5 +814,7 @@ mod tests {
             (vec![0.5], vec![("occupancy.ema".to_string(), vec![7.0])])
         );
         assert!(ck.pieces.is_empty());
+        // Written before checkpoints kept a history: an empty one.
+        assert_eq!(ck.history, History::default());
     }
 }

@@ -14,6 +14,8 @@
 //! * [`field`]: the trained field as the job sees it (render a view, a
 //!   distance for meshes, a density for exports, reported parameters).
 //! * [`checkpoint`]: safetensors checkpoints with a fingerprint of the run.
+//! * [`log`]: what a run reports as it goes: events for an observer, a
+//!   metrics CSV, TensorBoard events and the current held-out view.
 //! * [`params`]: runtime-sized named parameters, Adam through dfdx's kernel.
 //! * [`graph_ops`]: differentiable compositing as dfdx graph ops on
 //!   `[rays, samples]` tensors (cumsum as a triangular matmul), for fields
@@ -25,6 +27,7 @@ pub mod field;
 pub mod fused;
 pub mod graph;
 pub mod graph_ops;
+pub mod log;
 pub mod model;
 pub mod objective;
 pub mod params;

@@ -365,6 +365,7 @@ impl<O: Objective + ?Sized> Run<O> {
             losses: self.losses.clone(),
             state: self.objective.state(),
             fingerprint,
+            history: Default::default(),
         }
     }
 

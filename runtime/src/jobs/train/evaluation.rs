@@ -5,18 +5,7 @@
 use super::super::*;
 use crate::train::TrainedField;
 
-/// Quality on the held-out views at a step.
-#[derive(Debug, Clone, Copy, Serialize)]
-pub struct HeldOut {
-    /// The training step evaluated at.
-    pub step: usize,
-    /// Seconds of training so far (evaluation excluded).
-    pub seconds: f64,
-    /// Mean over the views of each view's PSNR (dB).
-    pub psnr: f64,
-    /// Mean over the views of each view's SSIM.
-    pub ssim: f64,
-}
+pub use crate::train::log::HeldOut;
 
 /// Each held-out view as a row: truth | render | |error|×4.
 pub(super) fn comparison_image(

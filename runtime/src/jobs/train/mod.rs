@@ -14,6 +14,7 @@ mod field;
 mod outputs;
 mod resume;
 
+use crate::train::log::{first_view, Observer, TrainEvent, TrainLog};
 pub use budget::step_memory;
 pub use evaluation::HeldOut;
 pub use field::trained_field;
@@ -80,9 +81,9 @@ pub fn run_train_job(
     base: &Path,
     size: Option<(u32, u32)>,
     options: TrainOptions,
-    progress: &(dyn Fn(u64) + Sync),
-    status: &dyn Fn(&str),
+    observer: &Observer,
 ) -> io::Result<TrainReport> {
+    let status = |m: &str| observer(&TrainEvent::Note(m));
     budget::step_fits_in_memory(job)?;
     let mut stages = Vec::new();
     let t = Instant::now();
@@ -99,7 +100,7 @@ pub fn run_train_job(
         status(line);
     }
     let resolved;
-    let job = match field::with_ndc_frame(job, forward_facing, status)? {
+    let job = match field::with_ndc_frame(job, forward_facing, &status)? {
         Some(j) => {
             resolved = j;
             &resolved
@@ -140,27 +141,35 @@ pub fn run_train_job(
     let tensors = run.objective.tensors();
     run.describe(crate::train::export_names::Layout::of(&job.model, &tensors));
     let checkpoints = Checkpoints::of(job, &views, out_dir);
-    let resumed_from = checkpoints.resume_or_start(&mut run, steps, options.restart)?;
+    let (resumed_from, history) = checkpoints.resume_or_start(&mut run, steps, options.restart)?;
     let mut written = Vec::new();
     if !job.before.is_empty() {
         written.extend(outputs.before(&*run.objective, &run.values())?);
     }
 
+    let mut log = TrainLog::open(
+        out_dir,
+        &job.name,
+        job.optimizer,
+        &run.losses,
+        history,
+        steps,
+        observer,
+    )?;
     let t = Instant::now();
     let done_before = run.step;
-    let mut last_good = checkpoints.of_run(&run);
+    let mut last_good = checkpoints.of_run(&run, log.history());
     let mut io_error = None;
-    let mut held_out: Vec<HeldOut> = Vec::new();
     // Seconds spent evaluating, left out of the training time.
     let mut eval_s = 0.0;
     // A signal stops training after a step, with a checkpoint of it.
     let graceful = crate::interrupt::Graceful::begin();
     let result = run.run_to(&setup, steps, |r, loss| {
         // Each step.
-        progress(1);
+        log.step(r.step, loss);
         if let Some(signal) = crate::interrupt::stop_requested() {
             let kept = match &checkpoints.path {
-                Some(cp) => match checkpoints.write(r) {
+                Some(cp) => match checkpoints.write(r, log.history()) {
                     Ok(()) => format!("; {} holds it: run again to resume", cp.display()),
                     Err(e) => format!(
                         "; its checkpoint failed ({e}), {} holds step {}",
@@ -183,12 +192,11 @@ pub fn run_train_job(
         if job.eval_every > 0 && !test_views.is_empty() && r.step % job.eval_every == 0 {
             let te = Instant::now();
             match evaluate(&*r.objective, &r.values(), &test_views) {
-                Ok(e) => held_out.push(HeldOut {
-                    step: r.step,
-                    seconds: t.elapsed().as_secs_f64() - eval_s,
-                    psnr: e.psnr,
-                    ssim: e.ssim,
-                }),
+                Ok(e) => {
+                    let took = te.elapsed().as_secs_f64();
+                    let first = first_view(&test_views, &e.renders);
+                    log.evaluated(r.step, e.psnr, e.ssim, took, first);
+                }
                 Err(e) => {
                     io_error = Some(e);
                     return ControlFlow::Break(());
@@ -199,7 +207,7 @@ pub fn run_train_job(
         if r.step % 10 == 0 {
             // The same names as the report, the JSON and the checkpoint.
             let mut line = format!("{} loss {loss:.3e}", job.name);
-            if let Some(h) = held_out.last() {
+            if let Some(h) = log.held_out().last() {
                 line += &format!("  held-out PSNR {:.2} dB (step {})", h.psnr, h.step);
             }
             let shown = if network { 0 } else { 4 };
@@ -207,12 +215,12 @@ pub fn run_train_job(
                 let v: Vec<String> = v.iter().map(|x| format!("{x:.3}")).collect();
                 line += &format!("  {name} {}", v.join(","));
             }
-            status(&line);
+            observer(&TrainEvent::Status(&line));
         }
         // Each checkpoint.
         if checkpoints.path.is_some() && r.step % CHECKPOINT_EVERY == 0 {
-            last_good = checkpoints.of_run(r);
-            if let Err(e) = checkpoints.write(r) {
+            last_good = checkpoints.of_run(r, log.history());
+            if let Err(e) = last_good.write(checkpoints.path.as_ref().expect("named")) {
                 io_error = Some(e);
                 return ControlFlow::Break(());
             }
@@ -251,7 +259,7 @@ pub fn run_train_job(
             _ => io::Error::other(message),
         });
     }
-    checkpoints.write(&run)?;
+    checkpoints.write(&run, log.history())?;
 
     let t = Instant::now();
     let (field, values) = (&*run.objective, run.values());
@@ -260,16 +268,11 @@ pub fn run_train_job(
     written.extend(outputs.loss_curves(&run.losses)?);
     if !test_views.is_empty() {
         let e = evaluate(field, &values, &test_views)?;
-        if held_out.last().map(|h| h.step) != Some(run.step) {
-            held_out.push(HeldOut {
-                step: run.step,
-                seconds: train_s,
-                psnr: e.psnr,
-                ssim: e.ssim,
-            });
-        }
-        written.extend(outputs.held_out(&held_out, &test_views, &e.renders)?);
+        let first = first_view(&test_views, &e.renders);
+        log.evaluated(run.step, e.psnr, e.ssim, 0.0, first);
+        written.extend(outputs.held_out(log.held_out(), &test_views, &e.renders)?);
     }
+    let held_out = log.finish()?;
     let fit = field.fit_to_points(&values, &points, job.seed);
     stages.push(("outputs".to_string(), t.elapsed().as_secs_f64()));
     let steps_run = (run.step - done_before).max(1);

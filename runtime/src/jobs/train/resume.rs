@@ -3,6 +3,7 @@
 //! run) and writing them as training goes.
 
 use super::super::*;
+use crate::train::log::History;
 use crate::train::Objective;
 
 /// How often a checkpoint is written.
@@ -59,19 +60,20 @@ impl Checkpoints {
     /// Resumes `run` from the checkpoint where there is one (unless
     /// `restart`), refusing one of another run or beyond `steps`; else
     /// writes one of the start, so that a run that diverges at once still
-    /// leaves a good state to resume from. The step resumed from, if any.
+    /// leaves a good state to resume from. The step resumed from, if any,
+    /// and the history the checkpoint carries.
     pub fn resume_or_start<O: Objective + ?Sized>(
         &self,
         run: &mut Run<O>,
         steps: usize,
         restart: bool,
-    ) -> io::Result<Option<usize>> {
+    ) -> io::Result<(Option<usize>, History)> {
         let Some(cp) = &self.path else {
-            return Ok(None);
+            return Ok((None, History::default()));
         };
         if !cp.exists() || restart {
-            self.write(run)?;
-            return Ok(None);
+            self.write(run, History::default())?;
+            return Ok((None, History::default()));
         }
         let refused = |e: &dyn std::fmt::Display| {
             invalid(format!(
@@ -99,18 +101,20 @@ impl Checkpoints {
             TrainError::Invalid(m) => refused(&m),
             e => refused(&e),
         })?;
-        Ok(Some(run.step))
+        Ok((Some(run.step), ck.history))
     }
 
-    /// `run` as it is now.
-    pub fn of_run<O: Objective + ?Sized>(&self, run: &Run<O>) -> Checkpoint {
+    /// `run` as it is now, with its `history`.
+    pub fn of_run<O: Objective + ?Sized>(&self, run: &Run<O>, history: History) -> Checkpoint {
         run.checkpoint(self.fingerprint.clone())
+            .with_history(history)
     }
 
-    /// Writes `run` as it is now, where a checkpoint is named.
-    pub fn write<O: Objective + ?Sized>(&self, run: &Run<O>) -> io::Result<()> {
+    /// Writes `run` as it is now, with its `history`, where a checkpoint
+    /// is named.
+    pub fn write<O: Objective + ?Sized>(&self, run: &Run<O>, history: History) -> io::Result<()> {
         match &self.path {
-            Some(cp) => self.of_run(run).write(cp),
+            Some(cp) => self.of_run(run, history).write(cp),
             None => Ok(()),
         }
     }
