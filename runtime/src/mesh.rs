@@ -692,7 +692,9 @@ fn separate_strips(
     max_vertices: usize,
 ) -> Result<HashMap<usize, (Vec<u32>, u32)>, MeshError> {
     let mut polygons: HashMap<usize, (Vec<u32>, u32)> = HashMap::new();
-    let mut by_face: HashMap<(usize, u8), Vec<(usize, usize, usize)>> = HashMap::new();
+    // A face's quads: (quad, inside end, outside end).
+    type Ends = Vec<(usize, usize, usize)>;
+    let mut by_face: HashMap<(usize, u8), Ends> = HashMap::new();
     for &(q, face, i_end, o_end) in strips {
         by_face.entry(face).or_default().push((q, i_end, o_end));
     }

@@ -124,7 +124,7 @@ impl Viewing {
         let strat = Stratified::new(sampler.samples, sampler.near as f32, sampler.far as f32)
             .map_err(|e| e.to_string())?;
         Ok(Viewing {
-            sampler: sampler.clone(),
+            sampler: *sampler,
             strat,
             region,
         })
@@ -208,7 +208,7 @@ impl TrainedField for Trained<FieldObjective<'_>> {
             (d.v, [c.x.v, c.y.v, c.z.v])
         };
         let img = render_field_image_with(
-            &eval,
+            eval,
             self.density(&args),
             &self.viewing.strat,
             cam,
