@@ -218,9 +218,13 @@ pub fn run_train_job(
             observer(&TrainEvent::Status(&line));
         }
         // Each checkpoint.
-        if checkpoints.path.is_some() && r.step % CHECKPOINT_EVERY == 0 {
+        if let Some(path) = checkpoints
+            .path
+            .as_ref()
+            .filter(|_| r.step % CHECKPOINT_EVERY == 0)
+        {
             last_good = checkpoints.of_run(r, log.history());
-            if let Err(e) = last_good.write(checkpoints.path.as_ref().expect("named")) {
+            if let Err(e) = last_good.write(path) {
                 io_error = Some(e);
                 return ControlFlow::Break(());
             }
