@@ -482,6 +482,12 @@ pub(crate) fn plan_text(program: &sdfl_stdlib::Program) -> String {
         for outputs in [&job.before, &job.after] {
             export_lines(&mut o, outputs, job.sampler.samples, job.views.len());
         }
+        let _ = writeln!(o, "  logs           {}", sdfl_runtime::describe::logs(job));
+        let _ = writeln!(
+            o,
+            "  checkpoint     {}",
+            sdfl_runtime::describe::checkpoint(job)
+        );
         work_lines(&mut o, &sdfl_stdlib::work::train_work(job, None));
     }
     if o.is_empty() {

@@ -325,6 +325,34 @@ train f { model: nerf(), data: render_views(volsdf(sphere(0.5)), cameras: cams, 
 }
 
 #[test]
+fn plan_lists_each_trainings_logs_and_checkpoint() {
+    let dir = temp("plan_logs");
+    let file = dir.join("logs.sdfl");
+    std::fs::write(
+        &file,
+        r#"
+let cams = orbit(views: 4)
+let data = render_views(volsdf(sphere(0.5)), cameras: cams, size: [8, 8], test_views: 1)
+train fit { model: volsdf(sphere(param(0.4))), data: data, eval_every: 25, checkpoint: "ck/fit.ckpt" }
+train quiet { model: volsdf(sphere(param(0.4))), data: render_views(volsdf(sphere(0.5)), cameras: cams, size: [8, 8]), eval_every: 0 }
+"#,
+    )
+    .unwrap();
+    let plan = sdfl(&["plan", file.to_str().unwrap()]);
+    let text = String::from_utf8_lossy(&plan.stdout);
+    assert!(plan.status.success(), "{text}");
+    for line in [
+        "  logs           fit.metrics.csv and tensorboard/fit/ (every step), fit.heldout.png (each held-out evaluation: every 25 steps and at the end)\n",
+        "  checkpoint     ck/fit.ckpt every 100 steps, when stopped by a signal, and at the end\n",
+        "  logs           quiet.metrics.csv and tensorboard/quiet/ (every step), no quiet.heldout.png (no views held out)\n",
+        "  checkpoint     none (no `checkpoint` named: a stopped run starts over)\n",
+    ] {
+        assert!(text.contains(line), "{line}{text}");
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
 fn docs_describe_the_syntax_and_the_new_builtins() {
     for (name, wants) in [
         ("if", "else if"),

@@ -2,7 +2,8 @@
 //! lines on a piped stderr, the metrics CSV and TensorBoard events (valid
 //! TFRecord framing and Event protobufs, read here independently of the
 //! writer), a run killed with SIGKILL and resumed logging the same steps
-//! as one never stopped, and the `--json` reports (schema version,
+//! as one never stopped (one stopped by SIGTERM at an evaluation step
+//! too), and the `--json` reports (schema version,
 //! checkpoint, diagnostics on failure, `check --json`).
 #![cfg(unix)]
 
@@ -19,6 +20,11 @@ use serde_json::Value;
 
 /// A small fit scored on one held-out view every 10 steps.
 fn training(iterations: u64) -> String {
+    training_scored_every(iterations, 10)
+}
+
+/// A small fit scored on one held-out view every `eval_every` steps.
+fn training_scored_every(iterations: u64, eval_every: u64) -> String {
     format!(
         "let cameras = [look_at(eye: [0, 0, -3]), look_at(eye: [3, 0, 0]), look_at(eye: [-3, 0, 0]), look_at(eye: [0, 0, 3])]
 let sampler = stratified(samples: 16, near: 0, far: 6)
@@ -30,7 +36,7 @@ train t {{
   rays: 64,
   optimizer: adam(lr: 1e-2, decay: 0.5, decay_every: 20, schedule: \"exponential\"),
   iterations: {iterations},
-  eval_every: 10,
+  eval_every: {eval_every},
   size: [16, 16],
   checkpoint: \"t.ckpt\",
 }}
@@ -421,6 +427,85 @@ fn a_run_killed_and_resumed_logs_what_an_unstopped_run_logs() {
         v.into_iter().map(|(s, t, x)| (s, t, x.to_bits())).collect()
     };
     assert_eq!(strip(tb("killed")), strip(tb("whole")));
+}
+
+#[test]
+fn a_run_stopped_by_a_signal_at_an_evaluation_step_resumes_to_the_same_log() {
+    // Scored at every step, so the signal lands on an evaluation step
+    // whenever it comes: the stop (checked before that step's evaluation,
+    // to stay prompt) leaves the evaluation to the resumed run.
+    let dir = case_dir("log_sigterm_at_evaluation");
+    let file = write(&dir, "t.sdfl", &training_scored_every(10_000_000, 1));
+    let out = dir.join("stopped");
+    let stderr_path = dir.join("stderr.txt");
+    let mut child = Command::new(env!("CARGO_BIN_EXE_sdfl"))
+        .args(["run", file.to_str().unwrap(), "--out"])
+        .arg(&out)
+        .stdin(Stdio::null())
+        .stdout(Stdio::null())
+        .stderr(fs::File::create(&stderr_path).unwrap())
+        .spawn()
+        .unwrap();
+    let t0 = Instant::now();
+    let rows = || fs::read_to_string(out.join("t.metrics.csv")).map_or(0, |t| t.lines().count());
+    while rows() < 20 {
+        assert!(t0.elapsed() < TIME_LIMIT, "no steps logged");
+        std::thread::sleep(std::time::Duration::from_millis(5));
+    }
+    // SAFETY: kill(2) on a child we started and have not yet reaped.
+    assert_eq!(
+        unsafe { libc::kill(child.id() as libc::pid_t, libc::SIGTERM) },
+        0
+    );
+    assert_eq!(child.wait().unwrap().code(), Some(143));
+    let stderr = fs::read_to_string(&stderr_path).unwrap();
+    let at = sdfl_runtime::train::checkpoint::Checkpoint::read(&out.join("t.ckpt"))
+        .unwrap()
+        .step as u64;
+    assert!(
+        at >= 20 && stderr.contains(&format!("at step {at} ")),
+        "step {at}: {stderr}"
+    );
+
+    // Resumed to 3 steps past the stop, against a run never stopped.
+    let n = at + 3;
+    let file = write(&dir, "t.sdfl", &training_scored_every(n, 1));
+    let run = |out: &str| {
+        let o = sdfl_env(
+            &dir,
+            &["run", file.to_str().unwrap(), "--out", out, "--json"],
+            &[],
+        );
+        assert!(o.status.success(), "{}", text(&o.stderr));
+        let v: Value = serde_json::from_slice(&o.stdout).unwrap();
+        v["jobs"][0]["report"].clone()
+    };
+    let resumed = run("stopped");
+    assert_eq!(resumed["resumed_from"].as_u64(), Some(at));
+    let whole = run("whole");
+    let (a, b) = (
+        csv_rows(&dir.join("stopped/t.metrics.csv")),
+        csv_rows(&dir.join("whole/t.metrics.csv")),
+    );
+    assert_eq!(a.len() as u64, n);
+    // The stop's own step is scored, as every other one.
+    let row = &a[at as usize - 1];
+    assert!(!row[4].is_empty() && !row[5].is_empty(), "{row:?}");
+    assert_eq!(untimed(&a), untimed(&b));
+    let scores = held_out_scores(&resumed);
+    assert_eq!(scores.len() as u64, n);
+    assert_eq!(scores, held_out_scores(&whole));
+    let tb = |d: &str| -> Vec<(u64, String, u32)> {
+        scalars(&dir.join(d).join("tensorboard/t/events.out.tfevents.sdfl"))
+            .into_iter()
+            .map(|(s, t, x)| (s, t, x.to_bits()))
+            .collect()
+    };
+    assert_eq!(tb("stopped"), tb("whole"));
+    assert_eq!(
+        fs::read(dir.join("stopped/t.heldout.png")).unwrap(),
+        fs::read(dir.join("whole/t.heldout.png")).unwrap()
+    );
 }
 
 #[test]

@@ -34,3 +34,46 @@ pub fn train(job: &TrainJob) -> Description {
         },
     }
 }
+
+/// The logs a `train` statement writes as it goes and how often, named as
+/// [`crate::train::log`] writes them; the held-out image's renders are the
+/// held-out evaluation's (costed with the statement's work).
+pub fn logs(job: &TrainJob) -> String {
+    use sdfl_stdlib::value::Dataset;
+    let logs = sdfl_stdlib::outputs::TrainingLogs::of(&job.name);
+    let image = logs.held_out_image.display();
+    let when = match job.eval_every {
+        0 => "at the end".to_string(),
+        n => format!("every {n} steps and at the end"),
+    };
+    // Read data sets hold views out or not once read.
+    let held_out = match &*job.data {
+        Dataset::Rendered { test, .. } | Dataset::Traced { test, .. } if test.is_empty() => {
+            format!("no {image} (no views held out)")
+        }
+        Dataset::Points { .. } => format!("no {image} (no views held out)"),
+        Dataset::Rendered { .. } | Dataset::Traced { .. } => {
+            format!("{image} (each held-out evaluation: {when})")
+        }
+        Dataset::Files { .. } | Dataset::NerfSynthetic { .. } | Dataset::Capture(_) => {
+            format!("{image} (each held-out evaluation, if the data holds views out: {when})")
+        }
+    };
+    format!(
+        "{} and {}/ (every step), {held_out}",
+        logs.metrics_csv.display(),
+        logs.tensorboard.display()
+    )
+}
+
+/// When a `train` statement writes its checkpoint.
+pub fn checkpoint(job: &TrainJob) -> String {
+    match &job.checkpoint {
+        Some(path) => format!(
+            "{} every {} steps, when stopped by a signal, and at the end",
+            path.display(),
+            crate::jobs::CHECKPOINT_EVERY
+        ),
+        None => "none (no `checkpoint` named: a stopped run starts over)".into(),
+    }
+}

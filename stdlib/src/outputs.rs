@@ -2,8 +2,8 @@
 //! output of every statement (one file per view where outputs are per
 //! view) and checkpoints. Two writers of one file, or a file where another
 //! output needs a directory, are diagnostics with both spans, before
-//! anything runs. The runtime names files with the same [`view_path`], so
-//! both sides agree on every name.
+//! anything runs. The runtime names files with the same [`view_path`] and
+//! [`TrainingLogs`], so both sides agree on every name.
 
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
@@ -62,6 +62,42 @@ pub const DATASET_JSON: [&str; 4] = [
     "transforms.json",
 ];
 
+/// The event file's name in a training run's TensorBoard directory: fixed,
+/// so a resumed run continues the same file (TensorBoard reads every file
+/// whose name holds `tfevents`).
+pub const EVENTS_FILE: &str = "events.out.tfevents.sdfl";
+
+/// The logs a `train` statement writes as it goes, relative to the output
+/// directory: the one place that names them, for the runtime that writes
+/// them and for [`check_job`], which keeps every other output off them.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct TrainingLogs {
+    /// `<name>.metrics.csv`: a row per step, scores where evaluated.
+    pub metrics_csv: PathBuf,
+    /// `tensorboard/<name>`: the run's TensorBoard directory, kept to
+    /// itself (TensorBoard reads every event file in it).
+    pub tensorboard: PathBuf,
+    /// `<name>.heldout.png`: the first held-out view beside its truth,
+    /// replaced at each held-out evaluation.
+    pub held_out_image: PathBuf,
+}
+
+impl TrainingLogs {
+    /// The logs of training `name`.
+    pub fn of(name: &str) -> TrainingLogs {
+        TrainingLogs {
+            metrics_csv: PathBuf::from(format!("{name}.metrics.csv")),
+            tensorboard: Path::new("tensorboard").join(name),
+            held_out_image: PathBuf::from(format!("{name}.heldout.png")),
+        }
+    }
+
+    /// The event file in [`TrainingLogs::tensorboard`].
+    pub fn events(&self) -> PathBuf {
+        self.tensorboard.join(EVENTS_FILE)
+    }
+}
+
 /// Whether an output kind is written once per view (else once per job).
 pub fn per_view(kind: &OutputKind) -> bool {
     matches!(
@@ -99,12 +135,32 @@ enum JobKind {
     TrainAfter,
 }
 
-/// Files claimed so far, with who writes each, and the directories they
-/// need.
+/// Who writes a file or keeps a directory, in a diagnostic's words.
+#[derive(Clone)]
+struct Writer {
+    span: Span,
+    who: String,
+    /// The training whose log this is, if it is one.
+    log_of: Option<String>,
+}
+
+impl Writer {
+    fn output(span: Span, who: String) -> Writer {
+        Writer {
+            span,
+            who,
+            log_of: None,
+        }
+    }
+}
+
+/// Files claimed so far, with who writes each, the directories they
+/// need, and the directories one writer keeps to itself.
 #[derive(Default)]
 pub struct Files {
-    files: HashMap<PathBuf, (Span, String)>,
-    dirs: HashMap<PathBuf, (Span, String)>,
+    files: HashMap<PathBuf, Writer>,
+    dirs: HashMap<PathBuf, Writer>,
+    kept: HashMap<PathBuf, Writer>,
 }
 
 /// The built-in that asks for an output of this kind.
@@ -141,45 +197,130 @@ fn describe(o: &Output, k: usize, n: usize) -> String {
     }
 }
 
-impl Files {
-    /// Claims `path` for `who` at `span`; a diagnostic when it is taken.
-    fn claim(&mut self, path: PathBuf, span: Span, who: String) -> Option<Diag> {
-        let clash = |first: &(Span, String), what: &str| {
-            Diag::new(
-                codes::OUTPUT_COLLISION,
-                span,
-                format!("`{}` {what}", path.display()),
+/// Two writers of one path: the diagnostic points at the user's output
+/// (a training log is not what its author can rename), the other writer
+/// in a note.
+fn clash(path: &Path, what: &str, new: &Writer, first: &Writer) -> Diag {
+    let (at, other) = if new.log_of.is_some() && first.log_of.is_none() {
+        (first, new)
+    } else {
+        (new, first)
+    };
+    let note = match other.log_of {
+        Some(_) => other.who.clone(),
+        None => format!("{} first", other.who),
+    };
+    let help = match at.log_of.as_ref().or(other.log_of.as_ref()) {
+        Some(name) => {
+            let logs = TrainingLogs::of(name);
+            format!(
+                "`{}`, `{}` and `{}/` are the logs of training `{name}`: give the output another name",
+                logs.metrics_csv.display(),
+                logs.held_out_image.display(),
+                logs.tensorboard.display()
             )
-            .label(who.clone())
-            .note(first.0, format!("{} first", first.1))
-            .help("give each output its own file name; outputs with several views add `_NN` to theirs")
-        };
+        }
+        None => {
+            "give each output its own file name; outputs with several views add `_NN` to theirs"
+                .to_string()
+        }
+    };
+    Diag::new(
+        codes::OUTPUT_COLLISION,
+        at.span,
+        format!("`{}` {what}", path.display()),
+    )
+    .label(at.who.clone())
+    .note(other.span, note)
+    .help(help)
+}
+
+const INSIDE_KEPT: &str = "is inside a directory that a training run keeps to itself";
+
+impl Files {
+    /// Claims the file `path` for `writer`; a diagnostic when it is taken.
+    fn claim(&mut self, path: PathBuf, writer: Writer) -> Option<Diag> {
         if let Some(first) = self.files.get(&path) {
-            return Some(clash(first, "is written twice"));
+            return Some(clash(&path, "is written twice", &writer, first));
         }
         if let Some(first) = self.dirs.get(&path) {
-            return Some(clash(
-                first,
-                "is a file here but a directory for another output",
-            ));
+            let what = "is a file here but a directory for another output";
+            return Some(clash(&path, what, &writer, first));
         }
         for dir in path.ancestors().skip(1) {
             if dir.as_os_str().is_empty() {
                 break;
             }
             if let Some(first) = self.files.get(dir) {
-                return Some(clash(
-                    first,
-                    "needs a directory where another output writes a file",
-                ));
+                let what = "needs a directory where another output writes a file";
+                return Some(clash(&path, what, &writer, first));
+            }
+            if let Some(keeper) = self.kept.get(dir) {
+                return Some(clash(&path, INSIDE_KEPT, &writer, keeper));
+            }
+        }
+        self.need_dirs(&path, &writer);
+        self.files.insert(path, writer);
+        None
+    }
+
+    /// Keeps the directory `dir` (and all that will be in it) for
+    /// `writer`; a diagnostic when a file is claimed in it or where it is.
+    /// Kept even so, so that later outputs in it are found too.
+    fn keep(&mut self, dir: PathBuf, writer: Writer) -> Option<Diag> {
+        let clash = self.keep_clash(&dir, &writer);
+        self.need_dirs(&dir.join(EVENTS_FILE), &writer);
+        self.kept.insert(dir, writer);
+        clash
+    }
+
+    fn keep_clash(&self, dir: &Path, writer: &Writer) -> Option<Diag> {
+        if let Some(first) = self.files.get(dir) {
+            let what = "is a file here but a directory for another output";
+            return Some(clash(dir, what, writer, first));
+        }
+        // Outputs of earlier statements inside it (one walk per training).
+        if let Some((path, first)) = self.files.iter().find(|(p, _)| p.starts_with(dir)) {
+            return Some(clash(path, INSIDE_KEPT, writer, first));
+        }
+        dir.ancestors().skip(1).find_map(|up| {
+            let first = self.files.get(up)?;
+            let what = "needs a directory where another output writes a file";
+            Some(clash(dir, what, writer, first))
+        })
+    }
+
+    /// Notes the directories `path` needs.
+    fn need_dirs(&mut self, path: &Path, writer: &Writer) {
+        for dir in path.ancestors().skip(1) {
+            if dir.as_os_str().is_empty() {
+                break;
             }
             self.dirs
                 .entry(dir.to_path_buf())
-                .or_insert_with(|| (span, who.clone()));
+                .or_insert_with(|| writer.clone());
         }
-        self.files.insert(path, (span, who));
-        None
     }
+}
+
+/// What training `name` logs to, claimed at `span` (its name).
+fn log_claims(name: &str, span: Span) -> (Vec<(PathBuf, Writer)>, (PathBuf, Writer)) {
+    let logs = TrainingLogs::of(name);
+    let writer = |who: &str| Writer {
+        span,
+        who: format!("training `{name}` {who}"),
+        log_of: Some(name.to_string()),
+    };
+    (
+        vec![
+            (logs.metrics_csv, writer("logs its metrics to it")),
+            (logs.held_out_image, writer("shows its held-out view in it")),
+        ],
+        (
+            logs.tensorboard,
+            writer("keeps its TensorBoard events in it"),
+        ),
+    )
 }
 
 /// The files of `outputs` for `views` cameras, with who writes each.
@@ -244,14 +385,18 @@ fn held_out_errors<'a>(outputs: impl IntoIterator<Item = &'a Output>, views: usi
 
 /// Checks the files of the job a statement just added to `program` (the
 /// last one of its kind) against those
-/// of earlier statements. `field` gives the span of a statement field.
+/// of earlier statements. `field` gives the span of a statement field,
+/// `name` the span of the statement's name (where a training's logs,
+/// named after it, are claimed).
 pub fn check_job(
     program: &Program,
     kind: StatementKind,
     files: &mut Files,
     field: &dyn Fn(&str) -> Span,
+    name: Span,
 ) -> Vec<Diag> {
     let mut claims = Vec::new();
+    let mut logs = None;
     let count;
     let held;
     match kind {
@@ -271,6 +416,7 @@ pub fn check_job(
                         "the checkpoint is kept in it".to_string(),
                     ));
                 }
+                logs = Some(log_claims(&j.name, name));
             }
         }
         StatementKind::Volume => {
@@ -313,13 +459,21 @@ pub fn check_job(
         return held;
     }
     // Names the file system refuses fail here, not after rendering.
-    if let Some((path, span, _)) = claims.iter().find(|(p, _, _)| {
+    let log_paths = logs.iter().flat_map(|(files, (dir, w))| {
+        let events = (dir.join(EVENTS_FILE), w.span);
+        files
+            .iter()
+            .map(|(p, w)| (p.clone(), w.span))
+            .chain([events])
+    });
+    let paths = claims.iter().map(|(p, span, _)| (p.clone(), *span));
+    if let Some((path, span)) = paths.chain(log_paths).find(|(p, _)| {
         p.as_os_str().len() > MAX_PATH_BYTES
             || p.components().any(|c| c.as_os_str().len() > MAX_NAME_BYTES)
     }) {
         return vec![Diag::new(
             codes::PATH,
-            *span,
+            span,
             format!(
                 "output path of {} bytes is too long",
                 path.as_os_str().len()
@@ -332,9 +486,20 @@ pub fn check_job(
     }
     // One diagnostic per pair of clashing outputs, not one per view.
     let mut seen = std::collections::HashSet::new();
-    claims
+    let mut found: Vec<Diag> = claims
         .into_iter()
-        .filter_map(|(path, span, who)| files.claim(path, span, who))
+        .filter_map(|(path, span, who)| files.claim(path, Writer::output(span, who)))
+        .collect();
+    if let Some((log_files, (dir, keeper))) = logs {
+        found.extend(
+            log_files
+                .into_iter()
+                .filter_map(|(path, w)| files.claim(path, w)),
+        );
+        found.extend(files.keep(dir, keeper));
+    }
+    found
+        .into_iter()
         .filter(|d| seen.insert((d.span, d.notes.first().map(|n| n.0))))
         .take(10)
         .collect()

@@ -673,6 +673,8 @@ fn check_finite(views: &[(TrainView, String)]) -> io::Result<()> {
 
 mod train;
 
+pub(crate) use train::CHECKPOINT_EVERY;
+
 pub use train::{
     fingerprint, run_train_job, step_memory, trained_field, HeldOut, TrainOptions, TrainReport,
 };

@@ -96,17 +96,17 @@ pub struct History {
 /// The CSV's first line.
 pub const CSV_HEADER: &str = "step,seconds,loss,lr,psnr,ssim";
 
-/// The event file's name: fixed, so a resumed run continues the same file
-/// (TensorBoard reads every file whose name holds `tfevents`).
-pub const EVENTS_FILE: &str = "events.out.tfevents.sdfl";
+pub use sdfl_stdlib::outputs::{TrainingLogs, EVENTS_FILE};
 
 /// Where the logs of training `name` go under `out_dir`: the CSV, the
-/// event file and the held-out image.
+/// event file and the held-out image, named by [`TrainingLogs`] (which
+/// the file's check keeps other outputs off).
 pub fn paths(out_dir: &Path, name: &str) -> (PathBuf, PathBuf, PathBuf) {
+    let logs = TrainingLogs::of(name);
     (
-        out_dir.join(format!("{name}.metrics.csv")),
-        out_dir.join("tensorboard").join(name).join(EVENTS_FILE),
-        out_dir.join(format!("{name}.heldout.png")),
+        out_dir.join(&logs.metrics_csv),
+        out_dir.join(logs.events()),
+        out_dir.join(&logs.held_out_image),
     )
 }
 

@@ -111,7 +111,9 @@ impl<'e> Evaluator<'e> {
                     .help("`param(...)` is fitted only inside a `train` statement's `model`; write the number itself here"),
             );
         }
-        let mut found = crate::outputs::check_job(program, kind, &mut self.files, &field);
+        let name_span = b.name.as_ref().map_or(b.kind.span, |n| n.span);
+        let mut found =
+            crate::outputs::check_job(program, kind, &mut self.files, &field, name_span);
         // A job with errors holds placeholders: only its outputs are
         // checked (against the others'); its cost and reach are not.
         if failed {

@@ -47,6 +47,28 @@ pub(super) struct Evaluation {
     pub renders: Vec<Vec<[f32; 3]>>,
 }
 
+/// Whether a held-out evaluation is due after step `step`: every
+/// `eval_every` steps, where there are views to score.
+pub(super) fn due(job: &TrainJob, step: usize, views: &[TrainView]) -> bool {
+    step > 0 && job.eval_every > 0 && !views.is_empty() && step.is_multiple_of(job.eval_every)
+}
+
+/// Scores the held-out `views` at step `step` into `log`.
+pub(super) fn evaluate_into(
+    log: &mut crate::train::log::TrainLog,
+    step: usize,
+    field: &dyn TrainedField,
+    values: &[f32],
+    views: &[TrainView],
+) -> io::Result<()> {
+    let t = std::time::Instant::now();
+    let e = evaluate(field, values, views)?;
+    let took = t.elapsed().as_secs_f64();
+    let first = crate::train::log::first_view(views, &e.renders);
+    log.evaluated(step, e.psnr, e.ssim, took, first);
+    Ok(())
+}
+
 /// The held-out `views` rendered by `field` at `values` and scored.
 pub(super) fn evaluate(
     field: &dyn TrainedField,

@@ -20,8 +20,9 @@ pub use evaluation::HeldOut;
 pub use field::trained_field;
 pub use resume::fingerprint;
 
-use evaluation::evaluate;
-use resume::{Checkpoints, CHECKPOINT_EVERY};
+use evaluation::{evaluate, evaluate_into};
+use resume::Checkpoints;
+pub(crate) use resume::CHECKPOINT_EVERY;
 
 /// The learned parameters and how training went.
 #[derive(Debug, Clone, Serialize)]
@@ -162,6 +163,20 @@ pub fn run_train_job(
     let mut io_error = None;
     // Seconds spent evaluating, left out of the training time.
     let mut eval_s = 0.0;
+    // A stop by signal comes before its step's evaluation (stopping stays
+    // prompt): the resumed run scores that step first, as an unstopped run did.
+    let scored = |log: &TrainLog| log.held_out().last().map(|h| h.step) == Some(run.step);
+    if resumed_from.is_some() && evaluation::due(job, run.step, &test_views) && !scored(&log) {
+        let te = Instant::now();
+        evaluate_into(
+            &mut log,
+            run.step,
+            &*run.objective,
+            &run.values(),
+            &test_views,
+        )?;
+        eval_s += te.elapsed().as_secs_f64();
+    }
     // A signal stops training after a step, with a checkpoint of it.
     let graceful = crate::interrupt::Graceful::begin();
     let result = run.run_to(&setup, steps, |r, loss| {
@@ -189,18 +204,12 @@ pub fn run_train_job(
             return ControlFlow::Break(());
         }
         // Each held-out evaluation.
-        if job.eval_every > 0 && !test_views.is_empty() && r.step % job.eval_every == 0 {
+        if evaluation::due(job, r.step, &test_views) {
             let te = Instant::now();
-            match evaluate(&*r.objective, &r.values(), &test_views) {
-                Ok(e) => {
-                    let took = te.elapsed().as_secs_f64();
-                    let first = first_view(&test_views, &e.renders);
-                    log.evaluated(r.step, e.psnr, e.ssim, took, first);
-                }
-                Err(e) => {
-                    io_error = Some(e);
-                    return ControlFlow::Break(());
-                }
+            let scored = evaluate_into(&mut log, r.step, &*r.objective, &r.values(), &test_views);
+            if let Err(e) = scored {
+                io_error = Some(e);
+                return ControlFlow::Break(());
             }
             eval_s += te.elapsed().as_secs_f64();
         }

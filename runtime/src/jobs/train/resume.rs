@@ -7,7 +7,7 @@ use crate::train::log::History;
 use crate::train::Objective;
 
 /// How often a checkpoint is written.
-pub(super) const CHECKPOINT_EVERY: usize = 100;
+pub(crate) const CHECKPOINT_EVERY: usize = 100;
 
 /// The fingerprint of what a run depends on: one hash per
 /// [`crate::train::checkpoint::PARTS`] entry (not the step count, so a run can be
