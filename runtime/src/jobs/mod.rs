@@ -674,5 +674,6 @@ fn check_finite(views: &[(TrainView, String)]) -> io::Result<()> {
 mod train;
 
 pub use train::{
-    fingerprint, run_train_job, step_memory, trained_field, HeldOut, TrainOptions, TrainReport,
+    checkpoint_path, fingerprint, run_train_job, step_memory, trained_field, CheckpointStamp,
+    CheckpointedField, FieldUnavailable, HeldOut, TrainOptions, TrainReport,
 };
