@@ -255,7 +255,7 @@ fn serve(shared: &Shared, port: u16, request: &tiny_http::Request) -> Result<Bod
 /// (it refines through the still sides in order).
 const SCENE_SIDES: (u32, [u32; 2]) = (64, [256, 512]);
 /// The same for trained fields, which render more slowly.
-const FIELD_SIDES: (u32, [u32; 2]) = (field::MOVING_SIDE, [192, 384]);
+const FIELD_SIDES: (u32, [u32; 2]) = (field::MOVING_SIDE, [128, 384]);
 
 /// A camera, size and frame sides as the page receives them.
 fn view_entry(
