@@ -398,9 +398,7 @@ fn a_trained_field_is_rendered_from_its_latest_checkpoint() {
     let t = server.json("/api/train");
     assert!(t["trains"][0]["checkpoint"]["bytes"].as_u64().unwrap() > 0);
     // Another camera sees another image.
-    let (status, png) = server.get(&format!(
-        "/api/field?train=fit&eye=3,0.2,0.1&at=0,0,0&size=40x24"
-    ));
+    let (status, png) = server.get("/api/field?train=fit&eye=3,0.2,0.1&at=0,0,0&size=40x24");
     assert_eq!(status, 200);
     assert_ne!(image::load_from_memory(&png).unwrap().to_rgb8(), newer);
 }
