@@ -126,8 +126,9 @@ enum Command {
         max_runs: Option<usize>,
     },
     /// Serve a local web viewer of a file on 127.0.0.1: orbit and zoom its
-    /// render scenes, reloaded on save; training curves and held-out views
-    /// from OUT while a run (here or in another process) trains.
+    /// render scenes and trained fields (from their checkpoints in OUT),
+    /// reloaded on save; training curves and held-out views from OUT while
+    /// a run (here or in another process) trains.
     View {
         file: PathBuf,
         /// Where training writes its metrics and held-out views.

@@ -316,3 +316,197 @@ fn training_metrics_and_the_held_out_view_are_read_from_out() {
     assert_eq!(status, 200);
     assert_eq!(image::load_from_memory(&png).unwrap().to_rgb8(), img);
 }
+
+/// A fit whose field is kept in `fit.ckpt` (`iterations` steps), with a
+/// held-out view scored every 5 steps.
+fn training(iterations: usize, shape: &str) -> String {
+    format!(
+        "let target = sdf_volume(sphere(1), color: [0.2, 0.6, 0.9])\n\
+         train fit {{\n\
+           model: sdf_volume({shape}, color: param([0.3, 0.1, 0.1])),\n\
+           data: render_views(target, cameras: [look_at(eye: [0, 0, -3]), look_at(eye: [3, 0, 0]), look_at(eye: [0, 3, 0.1])], size: [16, 16], sampler: stratified(samples: 8, near: 0, far: 6), test_views: 1),\n\
+           sampler: stratified(samples: 8, near: 0, far: 6), rays: 64, optimizer: adam(lr: 5e-2), iterations: {iterations},\n\
+           eval_every: 5, checkpoint: \"fit.ckpt\",\n\
+         }}\n"
+    )
+}
+
+const SPHERE: &str = "sphere(1, center: param([0.3, 0.2, 0]))";
+
+/// `sdfl run FILE --out OUT`, which must succeed.
+fn run(file: &Path, out: &Path) {
+    let run = Command::new(env!("CARGO_BIN_EXE_sdfl"))
+        .args([
+            "run",
+            file.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ])
+        .args(["--threads", "2"])
+        .output()
+        .unwrap();
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+}
+
+const FIELD: &str = "/api/field?train=fit&eye=0.5,0.4,-3&at=0,0,0&up=0,1,0&focal=1.5";
+
+#[test]
+fn a_trained_field_is_rendered_from_its_latest_checkpoint() {
+    let dir = temp("field");
+    let (file, out) = (dir.join("fit.sdfl"), dir.join("out"));
+    save(&file, &training(10, SPHERE));
+    run(&file, &out);
+    let server = Server::start(&file, &out);
+    let scenes = server.json("/api/scenes");
+    let fit = &scenes["scenes"][0];
+    assert_eq!(
+        (&fit["kind"], &fit["name"]),
+        (&"train".into(), &"fit".into())
+    );
+    assert!(fit["moving"].as_u64().unwrap() < fit["still"][0].as_u64().unwrap());
+
+    let frame = |target: &str| {
+        let (status, png) = server.get(target);
+        assert_eq!(status, 200, "{}", String::from_utf8_lossy(&png));
+        image::load_from_memory(&png).unwrap().to_rgb8()
+    };
+    let first = frame(&format!("{FIELD}&size=40x24"));
+    assert_eq!(first.dimensions(), (40, 24));
+    // The sphere, bluish where it is, in front of a background.
+    let colours: std::collections::HashSet<_> = first.pixels().map(|p| p.0).collect();
+    assert!(colours.len() > 10, "a flat frame: {colours:?}");
+    let shown = |s: &Server| s.json("/api/train")["trains"][0]["field_step"].clone();
+    assert_eq!(shown(&server), 10);
+
+    // Training goes on in another process (another file, the same model,
+    // the same checkpoint), as `sdfl run` beside `sdfl view` does.
+    let longer = dir.join("longer.sdfl");
+    std::fs::write(&longer, training(40, SPHERE)).unwrap();
+    run(&longer, &out);
+    // A frame while the camera moves keeps the field as read…
+    let draft = frame(&format!("{FIELD}&size=40x24&draft=1"));
+    assert_eq!(draft, first);
+    assert_eq!(shown(&server), 10);
+    // …a still one reads the newer checkpoint.
+    let newer = frame(&format!("{FIELD}&size=40x24"));
+    assert_eq!(shown(&server), 40);
+    assert_ne!(newer, first, "the field moved on between steps 10 and 40");
+    let t = server.json("/api/train");
+    assert!(t["trains"][0]["checkpoint"]["bytes"].as_u64().unwrap() > 0);
+    // Another camera sees another image.
+    let (status, png) = server.get("/api/field?train=fit&eye=3,0.2,0.1&at=0,0,0&size=40x24");
+    assert_eq!(status, 200);
+    assert_ne!(image::load_from_memory(&png).unwrap().to_rgb8(), newer);
+}
+
+#[test]
+fn a_missing_corrupt_or_foreign_checkpoint_is_refused_and_the_server_carries_on() {
+    let dir = temp("checkpoint");
+    let (file, out) = (dir.join("fit.sdfl"), dir.join("out"));
+    save(&file, &training(10, SPHERE));
+    std::fs::create_dir_all(&out).unwrap();
+    let server = Server::start(&file, &out);
+    let target = format!("{FIELD}&size=16x16");
+    let refused = |want: u16, says: &str| {
+        let (status, body) = server.get(&target);
+        let body = String::from_utf8_lossy(&body);
+        assert_eq!(status, want, "{body}");
+        assert!(body.contains(says), "{body}");
+    };
+    refused(404, "has no checkpoint yet");
+    let ckpt = out.join("fit.ckpt");
+    std::fs::write(&ckpt, b"not a checkpoint at all").unwrap();
+    refused(409, "fit.ckpt");
+
+    // A real checkpoint cut short, then one with a flipped byte inside.
+    let good_dir = dir.join("good");
+    run(&file, &good_dir);
+    let good = std::fs::read(good_dir.join("fit.ckpt")).unwrap();
+    std::fs::write(&ckpt, &good[..good.len() / 2]).unwrap();
+    refused(409, "fit.ckpt");
+    let mut flipped = good.clone();
+    let k = flipped.len() - 5;
+    flipped[k] ^= 0xff;
+    std::fs::write(&ckpt, &flipped).unwrap();
+    let (status, _) = server.get(&target);
+    assert!(
+        status == 200 || status == 409,
+        "a flipped value is read or refused, never a crash: {status}"
+    );
+
+    // A checkpoint of another model under the same name.
+    let other_dir = dir.join("other");
+    let other = dir.join("other.sdfl");
+    std::fs::write(
+        &other,
+        training(10, "box(size: param([1, 1, 1]), center: [0, 0, 0])"),
+    )
+    .unwrap();
+    run(&other, &other_dir);
+    std::fs::copy(other_dir.join("fit.ckpt"), &ckpt).unwrap();
+    refused(409, "another model");
+
+    // The right one is shown again.
+    std::fs::write(&ckpt, &good).unwrap();
+    refused(200, "");
+
+    // A statement that keeps no checkpoint says how to keep one.
+    save(
+        &file,
+        &training(10, SPHERE).replace("checkpoint: \"fit.ckpt\",", ""),
+    );
+    for _ in 0..600 {
+        let (status, body) = server.get(&target);
+        if status == 404 {
+            assert!(String::from_utf8_lossy(&body).contains("names no `checkpoint`"));
+            return;
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    panic!("the reload never dropped the checkpoint");
+}
+
+#[test]
+fn hostile_field_requests_are_refused() {
+    let dir = temp("field-hostile");
+    let (file, out) = (dir.join("fit.sdfl"), dir.join("out"));
+    save(&file, &training(5, SPHERE));
+    run(&file, &out);
+    let server = Server::start(&file, &out);
+    let at = "/api/field?train=fit&eye=1,1,-3&at=0,0,0";
+    let cases: &[(&str, u16)] = &[
+        ("/api/field", 400),
+        (
+            "/api/field?train=../out/fit.ckpt&eye=1,1,1&at=0,0,0&size=8x8",
+            400,
+        ),
+        ("/api/field?train=nope&eye=1,1,1&at=0,0,0&size=8x8", 404),
+        ("/api/field?train=fit&at=0,0,0&size=8x8", 400),
+        (&format!("{at}&size=100000x100000"), 400),
+        (&format!("{at}&size=0x8"), 400),
+        (&format!("{at}&size=8x8&focal=0"), 400),
+        (&format!("{at}&size=8x8&focal=inf"), 400),
+        (&format!("{at}&size=8x8&up=0,0,0"), 400),
+        ("/api/field?train=fit&eye=0,0,0&at=0,0,0&size=8x8", 400),
+        ("/api/field?train=fit&eye=nan,0,0&at=0,0,0&size=8x8", 400),
+        ("/api/field?train=fit&eye=1e300,0,0&at=0,0,0&size=8x8", 400),
+        ("/api/field?train=fit&eye=1,2&at=0,0,0&size=8x8", 400),
+        ("/api/field?train=%ZZ", 400),
+    ];
+    for (target, want) in cases {
+        let (status, body) = server.get(target);
+        assert_eq!(
+            status,
+            *want,
+            "{target}: {}",
+            String::from_utf8_lossy(&body)
+        );
+        assert!(!body.is_empty(), "{target}: a refusal says why");
+    }
+    let (status, png) = server.get(&format!("{at}&size=8x8"));
+    assert_eq!(status, 200, "{}", String::from_utf8_lossy(&png));
+}

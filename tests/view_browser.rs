@@ -155,3 +155,94 @@ fn the_page_draws_frames_in_a_headless_browser() {
         shot.display()
     );
 }
+
+#[test]
+fn the_page_shows_a_trained_field_and_its_training_panel() {
+    let dir = temp("field");
+    let (file, out) = (dir.join("fit.sdfl"), dir.join("out"));
+    std::fs::write(
+        &file,
+        "let target = sdf_volume(sphere(1), color: [0.2, 0.6, 0.9])\n\
+         train fit {\n\
+           model: sdf_volume(sphere(1, center: param([0.3, 0.2, 0])), color: param([0.3, 0.1, 0.1])),\n\
+           data: render_views(target, cameras: [look_at(eye: [0, 0, -3]), look_at(eye: [3, 0, 0]), look_at(eye: [0, 3, 0.1])], size: [16, 16], sampler: stratified(samples: 8, near: 0, far: 6), test_views: 1),\n\
+           sampler: stratified(samples: 8, near: 0, far: 6), rays: 64, optimizer: adam(lr: 5e-2), iterations: 30,\n\
+           eval_every: 5, checkpoint: \"fit.ckpt\",\n\
+         }\n",
+    )
+    .unwrap();
+    let run = Command::new(env!("CARGO_BIN_EXE_sdfl"))
+        .args([
+            "run",
+            file.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ])
+        .output()
+        .unwrap();
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let (_server, url) = serve(&file, &out);
+
+    let dom = chromium(&dir.join("profile-dom"), &url, &["--dump-dom"]);
+    let dom = String::from_utf8_lossy(&dom);
+    let frames: u64 = dom
+        .split("data-frames=\"")
+        .nth(1)
+        .and_then(|r| r.split('"').next())
+        .and_then(|n| n.parse().ok())
+        .unwrap_or_else(|| panic!("no frame counter in the page: {dom}"));
+    assert!(frames > 0, "the page drew no frame of the field: {dom}");
+    for shown in [
+        "fit (trained field)",
+        "train fit",
+        "step 30 of 30",
+        "held-out PSNR (dB)",
+        "/api/heldout?train=fit",
+        "field on view: checkpoint of step 30",
+    ] {
+        assert!(dom.contains(shown), "the page lacks {shown:?}: {dom}");
+    }
+
+    let shot = dir.join("shot.png");
+    chromium(
+        &dir.join("profile-shot"),
+        &url,
+        &[
+            &format!("--screenshot={}", shot.display()),
+            "--window-size=1000,700",
+        ],
+    );
+    let img = image::open(&shot).unwrap().to_rgb8();
+    let count =
+        |xs: std::ops::Range<u32>, ys: std::ops::Range<u32>, f: &dyn Fn([u8; 3]) -> bool| {
+            xs.flat_map(|x| ys.clone().map(move |y| (x, y)))
+                .filter(|&(x, y)| x < img.width() && y < img.height() && f(img.get_pixel(x, y).0))
+                .count()
+        };
+    // The canvas (from (12, 40), 512 px) shows the field: many colours.
+    let mut colours = std::collections::HashSet::new();
+    for x in (12..524).step_by(4) {
+        for y in (40..552).step_by(4) {
+            colours.insert(img.get_pixel(x, y).0);
+        }
+    }
+    assert!(
+        colours.len() > 50,
+        "the canvas shows no field ({} colours); screenshot at {}",
+        colours.len(),
+        shot.display()
+    );
+    // The panel to its right draws the loss curve (#6cf).
+    let loss = count(540..1000, 0..700, &|p| {
+        p[0].abs_diff(0x66) < 40 && p[1].abs_diff(0xcc) < 40 && p[2] > 0xd0
+    });
+    assert!(
+        loss > 50,
+        "no loss curve in the panel ({loss} pixels); screenshot at {}",
+        shot.display()
+    );
+}

@@ -2,8 +2,10 @@
 //! only (tiny_http).
 //!
 //! The page (`page.html`, embedded) orbits and zooms the file's `render`
-//! scenes with frames traced by sdfl on request (small while the camera
-//! moves, larger when it stops), reloads when the file is saved (a
+//! scenes, and the fields its `train` statements keep in checkpoints, with
+//! frames rendered by sdfl on request (small while the camera moves,
+//! larger when it stops; a field's frame reads a newer checkpoint when
+//! training has written one), reloads when the file is saved (a
 //! version counter it polls), and shows each `train` statement's loss and
 //! PSNR curves and its current held-out view beside its truth, read from
 //! the files training writes in `--out` (`<name>.metrics.csv`,
@@ -14,6 +16,7 @@
 //! never used as paths as given; parameters are checked and capped
 //! ([`request`]); frames are traced one at a time.
 
+mod field;
 mod frame;
 mod metrics;
 pub mod request;
@@ -67,7 +70,9 @@ struct Shared {
     out: PathBuf,
     loaded: Mutex<Loaded>,
     /// Frames are traced one at a time (each uses every core).
-    tracing: Mutex<()>,
+    tracing: Arc<Mutex<()>>,
+    /// The trained fields on view.
+    fields: field::Fields,
 }
 
 fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
@@ -91,6 +96,8 @@ pub fn view(v: View) -> ExitCode {
         say!("error[sdfl::io]: the server has no IP address");
         return ExitCode::FAILURE;
     };
+    let tracing = Arc::new(Mutex::new(()));
+    let base = v.file.parent().map(Path::to_path_buf).unwrap_or_default();
     let shared = Arc::new(Shared {
         file: v.file.clone(),
         out: v.out.clone(),
@@ -100,7 +107,8 @@ pub fn view(v: View) -> ExitCode {
             diagnostics: String::new(),
             lowered: HashMap::new(),
         }),
-        tracing: Mutex::new(()),
+        tracing: tracing.clone(),
+        fields: field::Fields::start(v.out.clone(), base, tracing),
     });
     reload(&shared);
     crate::Stdout::new().line(&format!(
@@ -237,31 +245,89 @@ fn serve(shared: &Shared, port: u16, request: &tiny_http::Request) -> Result<Bod
         }))),
         Route::Scenes => Ok(json(&scenes(program.as_deref()))),
         Route::Frame => frame(shared, &target, program),
+        Route::Field => field_frame(shared, &target, version, program),
         Route::Train => Ok(json(&trains(shared, program.as_deref()))),
         Route::HeldOut => held_out(shared, &target, program.as_deref()),
     }
 }
 
-/// Every `render` statement with its first camera and size.
+/// Frame sides the page asks for while a camera moves and once it stops
+/// (it refines through the still sides in order).
+const SCENE_SIDES: (u32, [u32; 2]) = (64, [256, 512]);
+/// The same for trained fields, which render more slowly.
+const FIELD_SIDES: (u32, [u32; 2]) = (field::MOVING_SIDE, [128, 384]);
+
+/// A camera, size and frame sides as the page receives them.
+fn view_entry(
+    kind: &str,
+    name: &str,
+    c: &sdfl_stdlib::camera::Camera,
+    (width, height): (u32, u32),
+    (moving, still): (u32, [u32; 2]),
+) -> serde_json::Value {
+    serde_json::json!({
+        "kind": kind,
+        "name": name,
+        "eye": c.eye.to_array(),
+        "at": c.at.to_array(),
+        "up": c.up.to_array(),
+        "focal": c.focal,
+        "width": width,
+        "height": height,
+        "moving": moving,
+        "still": still,
+    })
+}
+
+/// Every `render` statement with its first camera and size, then every
+/// `train` statement (its field, seen from its checkpoint).
 fn scenes(program: Option<&Program>) -> serde_json::Value {
-    let list: Vec<serde_json::Value> = program
-        .into_iter()
-        .flat_map(|p| &p.renders)
+    let renders = program.into_iter().flat_map(|p| &p.renders);
+    let mut list: Vec<serde_json::Value> = renders
         .filter_map(|job| {
             let c = frame::initial_camera(job)?;
-            Some(serde_json::json!({
-                "name": job.name,
-                "eye": c.eye.to_array(),
-                "at": c.at.to_array(),
-                "up": c.up.to_array(),
-                "focal": c.focal,
-                "width": job.width,
-                "height": job.height,
-                "primitives": job.scene.primitive_count(),
-            }))
+            let mut e = view_entry(
+                "render",
+                &job.name,
+                &c,
+                (job.width, job.height),
+                SCENE_SIDES,
+            );
+            e["primitives"] = job.scene.primitive_count().into();
+            Some(e)
         })
         .collect();
+    for job in program.into_iter().flat_map(|p| &p.trains) {
+        let c = field::initial_camera(job);
+        let mut e = view_entry("train", &job.name, &c, (job.width, job.height), FIELD_SIDES);
+        e["checkpoint"] = job.checkpoint.is_some().into();
+        list.push(e);
+    }
     serde_json::json!({ "scenes": list })
+}
+
+/// The camera a frame request asks for; `up` and `focal` default to the
+/// statement's (`first`).
+fn frame_camera(
+    t: &Target,
+    first: Option<&sdfl_stdlib::camera::Camera>,
+) -> Result<frame::FrameCamera, Refusal> {
+    let up = match t.get("up") {
+        Some(s) => request::vec3("up", s)?,
+        None => first.map_or(glam::DVec3::Y, |c| c.up),
+    };
+    let focal = match t.get("focal") {
+        Some(s) => request::focal(s)?,
+        None => first.map_or(1.5, |c| c.focal),
+    };
+    Ok(frame::FrameCamera {
+        eye: request::vec3("eye", t.require("eye")?)?,
+        at: request::vec3("at", t.require("at")?)?,
+        up,
+        focal,
+        size: request::size(t.require("size")?)?,
+        draft: matches!(t.get("draft"), Some("1" | "true")),
+    })
 }
 
 fn frame(shared: &Shared, t: &Target, program: Option<Arc<Program>>) -> Result<Body, Refusal> {
@@ -273,23 +339,7 @@ fn frame(shared: &Shared, t: &Target, program: Option<Arc<Program>>) -> Result<B
         .iter()
         .find(|j| j.name == name)
         .ok_or_else(|| Refusal::missing(format!("no render statement named `{name}`")))?;
-    let first = frame::initial_camera(job);
-    let up = match t.get("up") {
-        Some(s) => request::vec3("up", s)?,
-        None => first.map_or(glam::DVec3::Y, |c| c.up),
-    };
-    let focal = match t.get("focal") {
-        Some(s) => request::focal(s)?,
-        None => first.map_or(1.5, |c| c.focal),
-    };
-    let camera = frame::FrameCamera {
-        eye: request::vec3("eye", t.require("eye")?)?,
-        at: request::vec3("at", t.require("at")?)?,
-        up,
-        focal,
-        size: request::size(t.require("size")?)?,
-        draft: matches!(t.get("draft"), Some("1" | "true")),
-    };
+    let camera = frame_camera(t, frame::initial_camera(job).as_ref())?;
     let _one_at_a_time = lock(&shared.tracing);
     let world = {
         let cached = lock(&shared.loaded).lowered.get(name).cloned();
@@ -309,33 +359,62 @@ fn frame(shared: &Shared, t: &Target, program: Option<Arc<Program>>) -> Result<B
     Ok((frame::render(job, &world, camera)?, PNG))
 }
 
-/// Each `train` statement's curves (from its metrics file, if any yet)
-/// and whether it has a held-out view.
+/// A frame of a `train` statement's field at its latest checkpoint: a
+/// frame while the camera moves (`draft`) reuses the field as last read,
+/// a still one first reads a newer checkpoint if training wrote one.
+fn field_frame(
+    shared: &Shared,
+    t: &Target,
+    version: u64,
+    program: Option<Arc<Program>>,
+) -> Result<Body, Refusal> {
+    let name = request::name("train", t.require("train")?)?;
+    let program =
+        program.ok_or_else(|| Refusal::missing("the file has errors: nothing to render"))?;
+    let job = program
+        .trains
+        .iter()
+        .find(|j| j.name == name)
+        .ok_or_else(|| Refusal::missing(format!("no train statement named `{name}`")))?;
+    let camera = frame_camera(t, Some(&field::initial_camera(job)))?;
+    Ok((shared.fields.frame(job, version, camera)?, PNG))
+}
+
+/// Each `train` statement's curves (from its metrics file, if any yet),
+/// whether it has a held-out view, and its checkpoint's version (the page
+/// asks for a new frame of a field whose checkpoint changed).
 fn trains(shared: &Shared, program: Option<&Program>) -> serde_json::Value {
+    let shown = shared.fields.steps();
     let list: Vec<serde_json::Value> = program
         .into_iter()
         .flat_map(|p| &p.trains)
         .map(|job| {
-            let curves = metrics::read(&metrics_path(&shared.out, &job.name));
+            let (csv, _, heldout) = log_paths(&shared.out, &job.name);
+            let checkpoint = sdfl_runtime::jobs::checkpoint_path(job, &shared.out)
+                .and_then(|p| sdfl_runtime::jobs::CheckpointStamp::of(&p))
+                .map(|s| {
+                    let modified = s
+                        .modified
+                        .and_then(|t| t.duration_since(std::time::UNIX_EPOCH).ok())
+                        .map_or(0, |d| d.as_millis() as u64);
+                    serde_json::json!({ "bytes": s.bytes, "modified_ms": modified })
+                });
             serde_json::json!({
                 "name": job.name,
                 "iterations": job.iterations,
-                "metrics": curves,
-                "heldout": held_out_path(&shared.out, &job.name).is_file(),
+                "metrics": metrics::read(&csv),
+                "heldout": heldout.is_file(),
+                "checkpoint": checkpoint,
+                "field_step": shown.get(&job.name),
             })
         })
         .collect();
     serde_json::json!({ "trains": list })
 }
 
-/// `<out>/<train name>.metrics.csv` (h-log's file contract).
-fn metrics_path(out: &Path, train: &str) -> PathBuf {
-    out.join(format!("{train}.metrics.csv"))
-}
-
-/// `<out>/<train name>.heldout.png`.
-fn held_out_path(out: &Path, train: &str) -> PathBuf {
-    out.join(format!("{train}.heldout.png"))
+/// Where training `train` writes its metrics, events and held-out view.
+fn log_paths(out: &Path, train: &str) -> (PathBuf, PathBuf, PathBuf) {
+    sdfl_runtime::train::log::paths(out, train)
 }
 
 fn held_out(shared: &Shared, t: &Target, program: Option<&Program>) -> Result<Body, Refusal> {
@@ -346,7 +425,7 @@ fn held_out(shared: &Shared, t: &Target, program: Option<&Program>) -> Result<Bo
             "no train statement named `{name}`"
         )));
     }
-    let path = held_out_path(&shared.out, name);
+    let (_, _, path) = log_paths(&shared.out, name);
     let missing = || Refusal::missing(format!("`{name}` has no held-out view yet"));
     let file = sdfl_runtime::data::image::open_regular(&path).map_err(|_| missing())?;
     let mut bytes = Vec::new();

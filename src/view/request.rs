@@ -52,8 +52,10 @@ pub enum Route {
     Version,
     /// The program's scenes (its `render` statements) and their cameras.
     Scenes,
-    /// One frame, as PNG.
+    /// One frame of a scene, as PNG.
     Frame,
+    /// One frame of a trained field at its latest checkpoint, as PNG.
+    Field,
     /// The training runs' metrics.
     Train,
     /// A training run's current held-out view beside its truth, as PNG.
@@ -68,6 +70,7 @@ impl Route {
             "/api/version" => Route::Version,
             "/api/scenes" => Route::Scenes,
             "/api/frame" => Route::Frame,
+            "/api/field" => Route::Field,
             "/api/train" => Route::Train,
             "/api/heldout" => Route::HeldOut,
             _ => return None,

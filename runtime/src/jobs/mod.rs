@@ -676,5 +676,6 @@ mod train;
 pub(crate) use train::CHECKPOINT_EVERY;
 
 pub use train::{
-    fingerprint, run_train_job, step_memory, trained_field, HeldOut, TrainOptions, TrainReport,
+    checkpoint_path, fingerprint, run_train_job, step_memory, trained_field, CheckpointStamp,
+    CheckpointedField, FieldUnavailable, HeldOut, TrainOptions, TrainReport,
 };

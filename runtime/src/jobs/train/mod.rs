@@ -13,12 +13,14 @@ mod evaluation;
 mod field;
 mod outputs;
 mod resume;
+mod view;
 
 use crate::train::log::{first_view, Observer, TrainEvent, TrainLog};
 pub use budget::step_memory;
 pub use evaluation::HeldOut;
 pub use field::trained_field;
 pub use resume::fingerprint;
+pub use view::{checkpoint_path, CheckpointStamp, CheckpointedField, FieldUnavailable};
 
 use evaluation::{evaluate, evaluate_into};
 use resume::Checkpoints;
