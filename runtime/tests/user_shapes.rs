@@ -139,10 +139,14 @@ fn box_points(s: &Shape, rng: &mut Lcg) -> Vec<Vec3A> {
     pts
 }
 
+/// Operations with a constant on either side (fused after the closure
+/// of the value they read), ties of `min`/`max` with the constant first.
+const CONSTANT_FIRST: &str = "fn mixed(p) { min(0.3, max(0.2, 1.5 - length(p)) / 2) + 2 * abs(p.y) - 1 / (2 + p.x * p.x) + max(0, p.z) - min(p.x, 0) }\nlet s = sdf(mixed, bound: [1, 0.8, 0.6])";
+
 #[test]
 fn compiled_code_and_its_columns_equal_the_tape_interpreter_bit_for_bit() {
     let mut rng = Lcg(11);
-    for src in SHAPES {
+    for src in SHAPES.iter().chain(&[CONSTANT_FIRST]) {
         let s = shape(src);
         let l = Lowered::new(&s, LowerOptions::default());
         let pts = box_points(&s, &mut rng);

@@ -36,6 +36,17 @@ struct Env<'a> {
     vals: &'a [Cell<f32>],
 }
 
+impl Env<'_> {
+    /// Value `i`.
+    #[inline(always)]
+    fn read(&self, i: u16) -> f32 {
+        debug_assert!((i as usize) < self.vals.len());
+        // SAFETY: a tree's operands index the point's coordinates or its
+        // shared values, and `Tree::eval` gives that many (see `Tree::new`).
+        unsafe { self.vals.get_unchecked(i as usize).get() }
+    }
+}
+
 /// Where a value of the [`Tree`] comes from.
 enum Operand {
     /// A coordinate of the point, or a value used more than once (computed
@@ -56,7 +67,7 @@ struct Mem(u16);
 impl Arg for Mem {
     #[inline(always)]
     fn get(&self, e: &Env) -> f32 {
-        e.vals[self.0 as usize].get()
+        e.read(self.0)
     }
 }
 
@@ -80,51 +91,75 @@ impl Arg for Operand {
     #[inline(always)]
     fn get(&self, e: &Env) -> f32 {
         match self {
-            Operand::Mem(i) => e.vals[*i as usize].get(),
+            Operand::Mem(i) => e.read(*i),
             Operand::Lit(c) => *c,
             Operand::Call(x) => x(e),
         }
     }
 }
 
-/// The closure of `f` over operands `x(k)`, one closure type per
-/// operation (the operation fixed in it).
+/// An operation with a constant applied to a closure's result before it
+/// returns (fused: one call fewer): `v + c`, `c - v`, `max(v, c)`...,
+/// computed as the tape's instruction computes it ([`Func::apply`], the
+/// operands in the tape's order).
+#[derive(Debug, Clone, Copy)]
+enum Post {
+    None,
+    /// `f(v, c)`: the value first.
+    Then(Func, f32),
+    /// `f(c, v)`: the constant first.
+    After(Func, f32),
+}
+
+impl Post {
+    #[inline(always)]
+    fn apply(self, v: f32) -> f32 {
+        match self {
+            Post::None => v,
+            Post::Then(f, c) => f.apply(|k| if k == 0 { v } else { c }),
+            Post::After(f, c) => f.apply(|k| if k == 0 { c } else { v }),
+        }
+    }
+}
+
+/// The closure of `f` over operands `x(k)`, then `post`, one closure type
+/// per operation (the operation fixed in it).
 macro_rules! closure_of {
-    ($f:expr, $e:ident, $x:expr) => {
+    ($f:expr, $post:ident, $e:ident, $x:expr) => {
         match $f {
-            Func::Add => Box::new(move |$e: &Env| Func::Add.apply($x)),
-            Func::Sub => Box::new(move |$e: &Env| Func::Sub.apply($x)),
-            Func::Mul => Box::new(move |$e: &Env| Func::Mul.apply($x)),
-            Func::Div => Box::new(move |$e: &Env| Func::Div.apply($x)),
-            Func::Min => Box::new(move |$e: &Env| Func::Min.apply($x)),
-            Func::Max => Box::new(move |$e: &Env| Func::Max.apply($x)),
-            Func::Neg => Box::new(move |$e: &Env| Func::Neg.apply($x)),
-            Func::Abs => Box::new(move |$e: &Env| Func::Abs.apply($x)),
-            Func::Sqrt => Box::new(move |$e: &Env| Func::Sqrt.apply($x)),
-            Func::Sin => Box::new(move |$e: &Env| Func::Sin.apply($x)),
-            Func::Cos => Box::new(move |$e: &Env| Func::Cos.apply($x)),
-            Func::Exp => Box::new(move |$e: &Env| Func::Exp.apply($x)),
-            Func::Floor => Box::new(move |$e: &Env| Func::Floor.apply($x)),
-            Func::Hypot2 => Box::new(move |$e: &Env| Func::Hypot2.apply($x)),
-            Func::Hypot3 => Box::new(move |$e: &Env| Func::Hypot3.apply($x)),
-            Func::IfGt => Box::new(move |$e: &Env| Func::IfGt.apply($x)),
+            Func::Add => Box::new(move |$e: &Env| $post.apply(Func::Add.apply($x))),
+            Func::Sub => Box::new(move |$e: &Env| $post.apply(Func::Sub.apply($x))),
+            Func::Mul => Box::new(move |$e: &Env| $post.apply(Func::Mul.apply($x))),
+            Func::Div => Box::new(move |$e: &Env| $post.apply(Func::Div.apply($x))),
+            Func::Min => Box::new(move |$e: &Env| $post.apply(Func::Min.apply($x))),
+            Func::Max => Box::new(move |$e: &Env| $post.apply(Func::Max.apply($x))),
+            Func::Neg => Box::new(move |$e: &Env| $post.apply(Func::Neg.apply($x))),
+            Func::Abs => Box::new(move |$e: &Env| $post.apply(Func::Abs.apply($x))),
+            Func::Sqrt => Box::new(move |$e: &Env| $post.apply(Func::Sqrt.apply($x))),
+            Func::Sin => Box::new(move |$e: &Env| $post.apply(Func::Sin.apply($x))),
+            Func::Cos => Box::new(move |$e: &Env| $post.apply(Func::Cos.apply($x))),
+            Func::Exp => Box::new(move |$e: &Env| $post.apply(Func::Exp.apply($x))),
+            Func::Floor => Box::new(move |$e: &Env| $post.apply(Func::Floor.apply($x))),
+            Func::Hypot2 => Box::new(move |$e: &Env| $post.apply(Func::Hypot2.apply($x))),
+            Func::Hypot3 => Box::new(move |$e: &Env| $post.apply(Func::Hypot3.apply($x))),
+            Func::IfGt => Box::new(move |$e: &Env| $post.apply(Func::IfGt.apply($x))),
         }
     };
 }
 
 /// A one-operand operation's closure, its operand's kind known.
-fn unary<A: Arg>(f: Func, a: A) -> Expr {
-    closure_of!(f, e, |_| a.get(e))
+fn unary<A: Arg>(f: Func, post: Post, a: A) -> Expr {
+    closure_of!(f, post, e, |_| a.get(e))
 }
 
 /// A two-operand operation's closure, both operands' kinds known.
-fn binary<A: Arg, B: Arg>(f: Func, a: A, b: B) -> Expr {
-    closure_of!(f, e, |k| if k == 0 { a.get(e) } else { b.get(e) })
+fn binary<A: Arg, B: Arg>(f: Func, post: Post, a: A, b: B) -> Expr {
+    closure_of!(f, post, e, |k| if k == 0 { a.get(e) } else { b.get(e) })
 }
 
 /// Any operation's closure, operands read by their kind.
-fn general(f: Func, o: [Operand; 4]) -> Expr {
-    closure_of!(f, e, |k| o[k].get(e))
+fn general(f: Func, post: Post, o: [Operand; 4]) -> Expr {
+    closure_of!(f, post, e, |k| o[k].get(e))
 }
 
 /// A tape as closures for one point (see the module): the shared values
@@ -141,7 +176,7 @@ const MAX_DEPTH: usize = 32;
 
 /// Values (the point's and the shared ones) kept on the stack (more take
 /// the heap).
-const STACK_VALS: usize = 32;
+const STACK_VALS: usize = 16;
 
 impl Tree {
     /// The closures of a tape without arguments (baked).
@@ -246,32 +281,72 @@ impl TreeBuilder<'_> {
 
     /// The closure computing value `i` from its operands.
     fn expr(&self, i: usize) -> Expr {
+        self.expr_then(i, Post::None)
+    }
+
+    /// For a two-operand instruction of operands `a` and `b`: the one that
+    /// is a value read only here, whether it comes first, and the other,
+    /// a constant.
+    fn fusable(&self, a: u32, b: u32) -> Option<(usize, bool, f32)> {
+        let single = |i: u32| {
+            let i = i as usize;
+            (self.ops[i].func().is_some() && self.slot[i] == u16::MAX).then_some(i)
+        };
+        let lit = |i: u32| match self.ops[i as usize] {
+            Op::Const(c) => Some(c as f32),
+            _ => None,
+        };
+        match (single(a), lit(b), single(b), lit(a)) {
+            (Some(v), Some(c), ..) => Some((v, true, c)),
+            (_, _, Some(v), Some(c)) => Some((v, false, c)),
+            _ => None,
+        }
+    }
+
+    /// The closure computing value `i`, then `post`.
+    fn expr_then(&self, i: usize, post: Post) -> Expr {
         let (f, src) = self.ops[i].func().expect("a computed value");
+        // `v op c` (or `c op v`) of a value read only here: that value's
+        // closure with this operation fused after it.
+        let fuses = matches!(
+            f,
+            Func::Add | Func::Sub | Func::Mul | Func::Div | Func::Min | Func::Max
+        );
+        if let (Post::None, true) = (post, fuses) {
+            if let Some((v, first, c)) = self.fusable(src[0], src[1]) {
+                let post = if first {
+                    Post::Then(f, c)
+                } else {
+                    Post::After(f, c)
+                };
+                return self.expr_then(v, post);
+            }
+        }
         let mut o: [Operand; 4] = std::array::from_fn(|_| Operand::Lit(0.0));
         for (k, &a) in src[..arity(f)].iter().enumerate() {
             o[k] = self.operand(a, false);
         }
         match arity(f) {
             1 => match o.into_iter().next().expect("one operand") {
-                Operand::Mem(x) => unary(f, Mem(x)),
-                Operand::Lit(x) => unary(f, Lit(x)),
-                Operand::Call(x) => unary(f, Call(x)),
+                Operand::Mem(x) => unary(f, post, Mem(x)),
+                Operand::Lit(x) => unary(f, post, Lit(x)),
+                Operand::Call(x) => unary(f, post, Call(x)),
             },
             2 => match {
                 let [a, b, ..] = o;
                 (a, b)
             } {
-                (Operand::Mem(x), Operand::Mem(y)) => binary(f, Mem(x), Mem(y)),
-                (Operand::Mem(x), Operand::Lit(y)) => binary(f, Mem(x), Lit(y)),
-                (Operand::Mem(x), Operand::Call(y)) => binary(f, Mem(x), Call(y)),
-                (Operand::Lit(x), Operand::Mem(y)) => binary(f, Lit(x), Mem(y)),
-                (Operand::Lit(x), Operand::Lit(y)) => binary(f, Lit(x), Lit(y)),
-                (Operand::Lit(x), Operand::Call(y)) => binary(f, Lit(x), Call(y)),
-                (Operand::Call(x), Operand::Mem(y)) => binary(f, Call(x), Mem(y)),
-                (Operand::Call(x), Operand::Lit(y)) => binary(f, Call(x), Lit(y)),
-                (Operand::Call(x), Operand::Call(y)) => binary(f, Call(x), Call(y)),
+                (Operand::Mem(x), Operand::Mem(y)) => binary(f, post, Mem(x), Mem(y)),
+                (Operand::Mem(x), Operand::Lit(y)) => binary(f, post, Mem(x), Lit(y)),
+                (Operand::Mem(x), Operand::Call(y)) => binary(f, post, Mem(x), Call(y)),
+                (Operand::Lit(x), Operand::Mem(y)) => binary(f, post, Lit(x), Mem(y)),
+                (Operand::Lit(x), Operand::Lit(y)) => binary(f, post, Lit(x), Lit(y)),
+                (Operand::Lit(x), Operand::Call(y)) => binary(f, post, Lit(x), Call(y)),
+                (Operand::Call(x), Operand::Mem(y)) => binary(f, post, Call(x), Mem(y)),
+                (Operand::Call(x), Operand::Lit(y)) => binary(f, post, Call(x), Lit(y)),
+                (Operand::Call(x), Operand::Call(y)) => binary(f, post, Call(x), Call(y)),
             },
-            _ => general(f, o),
+            _ => general(f, post, o),
         }
     }
 }
