@@ -326,16 +326,15 @@ impl TreeBuilder<'_> {
         for (k, &a) in src[..arity(f)].iter().enumerate() {
             o[k] = self.operand(a, false);
         }
-        match arity(f) {
-            1 => match o.into_iter().next().expect("one operand") {
+        let arity = arity(f);
+        let [a, b, c, d] = o;
+        match arity {
+            1 => match a {
                 Operand::Mem(x) => unary(f, post, Mem(x)),
                 Operand::Lit(x) => unary(f, post, Lit(x)),
                 Operand::Call(x) => unary(f, post, Call(x)),
             },
-            2 => match {
-                let [a, b, ..] = o;
-                (a, b)
-            } {
+            2 => match (a, b) {
                 (Operand::Mem(x), Operand::Mem(y)) => binary(f, post, Mem(x), Mem(y)),
                 (Operand::Mem(x), Operand::Lit(y)) => binary(f, post, Mem(x), Lit(y)),
                 (Operand::Mem(x), Operand::Call(y)) => binary(f, post, Mem(x), Call(y)),
@@ -346,7 +345,7 @@ impl TreeBuilder<'_> {
                 (Operand::Call(x), Operand::Lit(y)) => binary(f, post, Call(x), Lit(y)),
                 (Operand::Call(x), Operand::Call(y)) => binary(f, post, Call(x), Call(y)),
             },
-            _ => general(f, post, o),
+            _ => general(f, post, [a, b, c, d]),
         }
     }
 }
