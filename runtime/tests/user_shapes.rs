@@ -183,8 +183,13 @@ fn wide(n: usize) -> Arc<Shape> {
         body.push_str(&format!("let t{k} = {}; ", chunk.join(" + ")));
         parts.push(format!("t{k}"));
     }
+    // Up to 300 terms also read a second time (kept as shared values).
+    let again = match names.len() {
+        0..=300 => format!(" + max({}) / 8", names.join(", ")),
+        _ => String::new(),
+    };
     let src = format!(
-        "fn wide(p) {{ {body} ({}) / {n} + length(p.yz) - 1 }}\nlet s = sdf(wide, bound: 1.5)",
+        "fn wide(p) {{ {body} ({}) / {n}{again} + length(p.yz) - 1 }}\nlet s = sdf(wide, bound: 1.5)",
         parts.join(" + ")
     );
     shape(&src)
@@ -193,9 +198,10 @@ fn wide(n: usize) -> Arc<Shape> {
 #[test]
 fn code_with_more_registers_than_the_stack_holds_equals_the_interpreter() {
     let mut rng = Lcg(12);
-    // 40 terms: over the per-point stack file (64), fewer packs per pass;
-    // 1100: over the column buffer, on the heap.
-    for n in [40, 1100] {
+    // 40 terms: more shared values than the small per-point array holds,
+    // fewer packs per pass; 300: past the larger array, on the heap; 1100:
+    // past the column buffer, on the heap.
+    for n in [40, 300, 1100] {
         let s = wide(n);
         let Shape::User(u) = &*s else {
             panic!("not a user shape")

@@ -174,9 +174,11 @@ pub(super) struct Tree {
 /// stack whatever the tape.
 const MAX_DEPTH: usize = 32;
 
-/// Values (the point's and the shared ones) kept on the stack (more take
-/// the heap).
+/// Values (the point's and the shared ones) kept in a small array on the
+/// stack, or else in a larger one (more take the heap, an allocation per
+/// point: only tapes far larger than any of the examples).
 const STACK_VALS: usize = 16;
+const LARGE_STACK_VALS: usize = 256;
 
 impl Tree {
     /// The closures of a tape without arguments (baked).
@@ -238,6 +240,9 @@ impl Tree {
         let n = INPUTS + self.shared.len();
         if n <= STACK_VALS {
             let vals = [const { Cell::new(0.0f32) }; STACK_VALS];
+            self.run(q, &vals)
+        } else if n <= LARGE_STACK_VALS {
+            let vals = [const { Cell::new(0.0f32) }; LARGE_STACK_VALS];
             self.run(q, &vals)
         } else {
             let vals = vec![Cell::new(0.0f32); n];
