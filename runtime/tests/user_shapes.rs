@@ -16,6 +16,7 @@ use sdfl_runtime::volume::{camera_rays, ImageSize, Stratified};
 use sdfl_runtime::{LowerOptions, Lowered};
 use sdfl_stdlib::camera::Camera;
 use sdfl_stdlib::eval::globals_of;
+use sdfl_stdlib::num::V3;
 use sdfl_stdlib::shape::Shape;
 use sdfl_stdlib::value::{LastInterval, Value};
 use sdfl_stdlib::RenderJob;
@@ -93,6 +94,127 @@ fn the_f32_leaf_and_its_lanes_match_the_f64_reference() {
                     "{src} at {p}: lanes {b}, f64 {want}"
                 );
             }
+        }
+    }
+}
+
+/// The f32 value the tape's own interpreter gives (`clipped` over the
+/// baked tape): what the compiled register code must equal bit for bit.
+fn interpreted(s: &Shape, p: Vec3A) -> f32 {
+    let Shape::User(u) = s else {
+        panic!("not a user shape")
+    };
+    let baked = u.tape.bake(&u.arg_values());
+    let q = V3::new(p.x, p.y, p.z);
+    sdfl_stdlib::shape::user::clipped(q, &u.bound, 1.0 / u.lipschitz, |q| baked.eval(q, &[]))
+}
+
+/// Points that test the box: random ones in and around it, on its faces,
+/// edges and corners (and an ulp either side), far away and huge.
+fn box_points(s: &Shape, rng: &mut Lcg) -> Vec<Vec3A> {
+    let b = s.bounds().expect("a user shape is bounded");
+    let (lo, hi) = (b.min.as_vec3(), b.max.as_vec3());
+    let mut pts: Vec<Vec3A> = (0..300).map(|_| rng.v3(2.5).as_vec3().into()).collect();
+    for i in 0..27 {
+        let pick = |k: usize, l: f32, h: f32| match (i / 3usize.pow(k as u32)) % 3 {
+            0 => l,
+            1 => 0.5 * (l + h),
+            _ => h,
+        };
+        let c = Vec3A::new(
+            pick(0, lo.x, hi.x),
+            pick(1, lo.y, hi.y),
+            pick(2, lo.z, hi.z),
+        );
+        pts.push(c);
+        pts.push(Vec3A::new(c.x.next_up(), c.y.next_down(), c.z.next_up()));
+        pts.push(Vec3A::new(c.x.next_down(), c.y.next_up(), c.z.next_down()));
+    }
+    pts.extend([
+        Vec3A::new(1e20, -3e19, 7.0),
+        Vec3A::new(-1e30, 1e30, 1e30),
+        Vec3A::new(1e-30, -1e-30, 0.0),
+        Vec3A::new(-0.0, 0.0, -0.0),
+    ]);
+    pts
+}
+
+/// Operations with a constant on either side (fused after the closure
+/// of the value they read), ties of `min`/`max` with the constant first.
+const CONSTANT_FIRST: &str = "fn mixed(p) { min(0.3, max(0.2, 1.5 - length(p)) / 2) + 2 * abs(p.y) - 1 / (2 + p.x * p.x) + max(0, p.z) - min(p.x, 0) }\nlet s = sdf(mixed, bound: [1, 0.8, 0.6])";
+
+#[test]
+fn compiled_code_and_its_columns_equal_the_tape_interpreter_bit_for_bit() {
+    let mut rng = Lcg(11);
+    for src in SHAPES.iter().chain(&[CONSTANT_FIRST]) {
+        let s = shape(src);
+        let l = Lowered::new(&s, LowerOptions::default());
+        let pts = box_points(&s, &mut rng);
+        let mut batch = vec![0.0f32; pts.len()];
+        l.eval_batch(&pts, &mut batch);
+        for (p, b) in pts.iter().zip(&batch) {
+            let want = interpreted(&s, *p);
+            let got = l.dist(*p);
+            assert_eq!(
+                got.to_bits(),
+                want.to_bits(),
+                "{src} at {p}: {got} vs {want}"
+            );
+            assert_eq!(
+                b.to_bits(),
+                want.to_bits(),
+                "{src} at {p}: lanes {b} vs {want}"
+            );
+        }
+    }
+}
+
+/// A function whose `n` terms are all live at once before they are summed:
+/// `n` constants and `n` products in registers together.
+fn wide(n: usize) -> Arc<Shape> {
+    let mut body = String::new();
+    for i in 0..n {
+        body.push_str(&format!("let a{i} = p.x * {}; ", 1.0 + i as f64 / 1024.0));
+    }
+    // Summed in parts of 100 (an expression holds at most 512 operators).
+    let names: Vec<String> = (0..n).map(|i| format!("a{i}")).collect();
+    let mut parts = Vec::new();
+    for (k, chunk) in names.chunks(100).enumerate() {
+        body.push_str(&format!("let t{k} = {}; ", chunk.join(" + ")));
+        parts.push(format!("t{k}"));
+    }
+    // Up to 300 terms also read a second time (kept as shared values).
+    let again = match names.len() {
+        0..=300 => format!(" + max({}) / 8", names.join(", ")),
+        _ => String::new(),
+    };
+    let src = format!(
+        "fn wide(p) {{ {body} ({}) / {n}{again} + length(p.yz) - 1 }}\nlet s = sdf(wide, bound: 1.5)",
+        parts.join(" + ")
+    );
+    shape(&src)
+}
+
+#[test]
+fn code_with_more_registers_than_the_stack_holds_equals_the_interpreter() {
+    let mut rng = Lcg(12);
+    // 40 terms: more shared values than the small per-point array holds,
+    // fewer packs per pass; 300: past the larger array, on the heap; 1100:
+    // past the column buffer, on the heap.
+    for n in [40, 300, 1100] {
+        let s = wide(n);
+        let Shape::User(u) = &*s else {
+            panic!("not a user shape")
+        };
+        assert!(u.tape.ops().len() > 2 * n, "{n} terms compiled");
+        let l = Lowered::new(&s, LowerOptions::default());
+        let pts: Vec<Vec3A> = (0..200).map(|_| rng.v3(2.0).as_vec3().into()).collect();
+        let mut batch = vec![0.0f32; pts.len()];
+        l.eval_batch(&pts, &mut batch);
+        for (p, b) in pts.iter().zip(&batch) {
+            let want = interpreted(&s, *p);
+            assert_eq!(l.dist(*p).to_bits(), want.to_bits(), "{n} terms at {p}");
+            assert_eq!(b.to_bits(), want.to_bits(), "{n} terms at {p}: lanes");
         }
     }
 }

@@ -17,18 +17,24 @@ pub(super) struct Lowering {
 
 impl Lowering {
     pub(super) fn leaf<P: Prim>(&mut self, prim: P, shape: &Shape, frame: &Frame) -> Box<dyn Node> {
-        let id = self.prims.len() as u32;
-        self.prims.push(PrimInfo {
-            center: self.world_center(shape, frame),
-            material: frame.material.clone(),
-            kind: shape.name(),
-        });
+        let id = self.prim_id(shape, frame);
         Box::new(Leaf {
             prim,
             xform: frame.xform(),
             scale: frame.scale as f32,
             id,
         })
+    }
+
+    /// A new primitive id for `shape` in `frame`, with its shading data.
+    fn prim_id(&mut self, shape: &Shape, frame: &Frame) -> u32 {
+        let id = self.prims.len() as u32;
+        self.prims.push(PrimInfo {
+            center: self.world_center(shape, frame),
+            material: frame.material.clone(),
+            kind: shape.name(),
+        });
+        id
     }
 
     /// A primitive's centre in the world (the rainbow's `c`).
@@ -61,7 +67,10 @@ impl Lowering {
                 shape,
                 frame,
             }),
-            Shape::User(u) => self.leaf(UserPrim::new(u), shape, frame),
+            Shape::User(u) => {
+                let id = self.prim_id(shape, frame);
+                Box::new(UserLeaf::new(u, frame.xform(), frame.scale as f32, id))
+            }
             Shape::Union(_) => {
                 let mut members = Vec::new();
                 self.union_members(shape, frame, &mut members);

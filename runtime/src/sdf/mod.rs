@@ -32,11 +32,13 @@ pub mod lanes;
 mod lower;
 mod nodes;
 pub mod tiles;
+mod user;
 
 use bvh::*;
 use lanes::{per_lane, F8, LANES, P8};
 use lower::*;
 use nodes::*;
+use user::UserLeaf;
 
 /// One lowered node: a signed distance (or bound) in world units.
 pub trait Node: Send + Sync + std::any::Any {

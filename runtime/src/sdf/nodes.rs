@@ -85,38 +85,6 @@ impl<K: Declared> Prim for PrimOf<K> {
     }
 }
 
-/// A shape the user wrote (`sdf(f, ...)`), in f32: its compiled function
-/// with the arguments' values folded in, on one point or on eight lanes
-/// (the function has no branch on the point: selects only).
-pub(super) struct UserPrim {
-    tape: sdfl_stdlib::shape::user::Tape,
-    bound: sdfl_stdlib::shape::Aabb,
-    inv_l: f64,
-}
-
-impl UserPrim {
-    pub(super) fn new(u: &sdfl_stdlib::shape::UserShape) -> Self {
-        UserPrim {
-            tape: u.tape.bake(&u.arg_values()),
-            bound: u.bound,
-            inv_l: 1.0 / u.lipschitz,
-        }
-    }
-}
-
-impl Prim for UserPrim {
-    #[inline(always)]
-    fn local(&self, p: Vec3A) -> f32 {
-        sdfl_stdlib::shape::user::clipped(v3(p), &self.bound, self.inv_l, |q| {
-            self.tape.eval(q, &[])
-        })
-    }
-    #[inline(always)]
-    fn local8(&self, p: P8) -> F8 {
-        sdfl_stdlib::shape::user::clipped(p, &self.bound, self.inv_l, |q| self.tape.eval(q, &[]))
-    }
-}
-
 /// A primitive placed in the world.
 pub(super) struct Leaf<P> {
     pub(super) prim: P,

@@ -103,7 +103,34 @@ impl Op {
         }
     }
 
+    /// The arithmetic it computes and its operands (unused ones 0);
+    /// `None` for the point's coordinates, constants and arguments. What
+    /// compilers of the tape into other forms read (the runtime's register
+    /// code), so every form computes with [`Func::apply`].
+    pub fn func(&self) -> Option<(Func, [u32; 4])> {
+        Some(match *self {
+            Op::Input(_) | Op::Const(_) | Op::Arg(_) => return None,
+            Op::Add(a, b) => (Func::Add, [a, b, 0, 0]),
+            Op::Sub(a, b) => (Func::Sub, [a, b, 0, 0]),
+            Op::Mul(a, b) => (Func::Mul, [a, b, 0, 0]),
+            Op::Div(a, b) => (Func::Div, [a, b, 0, 0]),
+            Op::Min(a, b) => (Func::Min, [a, b, 0, 0]),
+            Op::Max(a, b) => (Func::Max, [a, b, 0, 0]),
+            Op::Neg(a) => (Func::Neg, [a, 0, 0, 0]),
+            Op::Abs(a) => (Func::Abs, [a, 0, 0, 0]),
+            Op::Sqrt(a) => (Func::Sqrt, [a, 0, 0, 0]),
+            Op::Sin(a) => (Func::Sin, [a, 0, 0, 0]),
+            Op::Cos(a) => (Func::Cos, [a, 0, 0, 0]),
+            Op::Exp(a) => (Func::Exp, [a, 0, 0, 0]),
+            Op::Floor(a) => (Func::Floor, [a, 0, 0, 0]),
+            Op::Hypot2(a, b) => (Func::Hypot2, [a, b, 0, 0]),
+            Op::Hypot3(a, b, c) => (Func::Hypot3, [a, b, c, 0]),
+            Op::IfGt(a, b, c, d) => (Func::IfGt, [a, b, c, d]),
+        })
+    }
+
     /// The operation on values of any number type (`r` reads an operand).
+    /// Each arm names its [`Func`], so the match on it folds away.
     #[inline(always)]
     fn apply<T: Real>(&self, p: &V3<T>, args: &[T], r: impl Fn(u32) -> T) -> T {
         match *self {
@@ -112,28 +139,92 @@ impl Op {
             Op::Input(_) => p.z,
             Op::Const(c) => T::lit(c),
             Op::Arg(i) => args[i as usize],
-            Op::Add(a, b) => r(a) + r(b),
-            Op::Sub(a, b) => r(a) - r(b),
-            Op::Mul(a, b) => r(a) * r(b),
-            Op::Div(a, b) => r(a) / r(b),
-            Op::Min(a, b) => r(a).min(r(b)),
-            Op::Max(a, b) => r(a).max(r(b)),
-            Op::Neg(a) => -r(a),
-            Op::Abs(a) => r(a).abs(),
-            Op::Sqrt(a) => r(a).max(T::zero()).sqrt(),
-            Op::Sin(a) => r(a).sin(),
-            Op::Cos(a) => r(a).cos(),
-            Op::Exp(a) => r(a).exp(),
-            Op::Floor(a) => r(a).floor(),
-            Op::Hypot2(a, b) => {
-                let (a, b) = (r(a), r(b));
+            Op::Add(a, b) => Func::Add.apply(|k| r([a, b][k])),
+            Op::Sub(a, b) => Func::Sub.apply(|k| r([a, b][k])),
+            Op::Mul(a, b) => Func::Mul.apply(|k| r([a, b][k])),
+            Op::Div(a, b) => Func::Div.apply(|k| r([a, b][k])),
+            Op::Min(a, b) => Func::Min.apply(|k| r([a, b][k])),
+            Op::Max(a, b) => Func::Max.apply(|k| r([a, b][k])),
+            Op::Neg(a) => Func::Neg.apply(|_| r(a)),
+            Op::Abs(a) => Func::Abs.apply(|_| r(a)),
+            Op::Sqrt(a) => Func::Sqrt.apply(|_| r(a)),
+            Op::Sin(a) => Func::Sin.apply(|_| r(a)),
+            Op::Cos(a) => Func::Cos.apply(|_| r(a)),
+            Op::Exp(a) => Func::Exp.apply(|_| r(a)),
+            Op::Floor(a) => Func::Floor.apply(|_| r(a)),
+            Op::Hypot2(a, b) => Func::Hypot2.apply(|k| r([a, b][k])),
+            Op::Hypot3(a, b, c) => Func::Hypot3.apply(|k| r([a, b, c][k])),
+            Op::IfGt(a, b, t, e) => Func::IfGt.apply(|k| r([a, b, t, e][k])),
+        }
+    }
+}
+
+/// The arithmetic of an instruction, apart from where its operands are:
+/// the one definition of what each operation computes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Func {
+    /// `a + b`.
+    Add,
+    /// `a - b`.
+    Sub,
+    /// `a · b`.
+    Mul,
+    /// `a / b`.
+    Div,
+    /// The smaller (the first on ties).
+    Min,
+    /// The larger (the first on ties).
+    Max,
+    /// `-a`.
+    Neg,
+    /// `|a|`.
+    Abs,
+    /// `√max(a, 0)`.
+    Sqrt,
+    /// `sin a`.
+    Sin,
+    /// `cos a`.
+    Cos,
+    /// `eᵃ`.
+    Exp,
+    /// The largest whole number ≤ a.
+    Floor,
+    /// `√(a² + b²)`.
+    Hypot2,
+    /// `√(a² + b² + c²)`.
+    Hypot3,
+    /// `c` where `a > b`, else `d`.
+    IfGt,
+}
+
+impl Func {
+    /// The operation on values of any number type; `x(k)` gives operand
+    /// `k` (read only for the operands the operation has).
+    #[inline(always)]
+    pub fn apply<T: Real>(self, x: impl Fn(usize) -> T) -> T {
+        match self {
+            Func::Add => x(0) + x(1),
+            Func::Sub => x(0) - x(1),
+            Func::Mul => x(0) * x(1),
+            Func::Div => x(0) / x(1),
+            Func::Min => x(0).min(x(1)),
+            Func::Max => x(0).max(x(1)),
+            Func::Neg => -x(0),
+            Func::Abs => x(0).abs(),
+            Func::Sqrt => x(0).max(T::zero()).sqrt(),
+            Func::Sin => x(0).sin(),
+            Func::Cos => x(0).cos(),
+            Func::Exp => x(0).exp(),
+            Func::Floor => x(0).floor(),
+            Func::Hypot2 => {
+                let (a, b) = (x(0), x(1));
                 (a * a + b * b).sqrt()
             }
-            Op::Hypot3(a, b, c) => {
-                let (a, b, c) = (r(a), r(b), r(c));
+            Func::Hypot3 => {
+                let (a, b, c) = (x(0), x(1), x(2));
                 (a * a + b * b + c * c).sqrt()
             }
-            Op::IfGt(a, b, t, e) => T::if_gt(r(a), r(b), r(t), r(e)),
+            Func::IfGt => T::if_gt(x(0), x(1), x(2), x(3)),
         }
     }
 }
@@ -273,6 +364,11 @@ impl Tape {
     /// Where instruction `i` comes from in the source.
     pub fn span(&self, i: usize) -> Span {
         self.spans[i]
+    }
+
+    /// The instruction whose value is the result.
+    pub fn out(&self) -> u32 {
+        self.out
     }
 
     /// How many argument numbers it reads.
