@@ -30,6 +30,10 @@ sdfl's `Run::advance` times it. The targets are the data set's when
 otherwise (the work is the same).
 
     python bench/pytorch/neus_bench.py [reps] [threads] [--volsdf] [--data DIR]
+    python bench/pytorch/neus_bench.py --check DIR/neus.txt     # same step as sdfl?
+    python bench/pytorch/neus_bench.py --check DIR/volsdf.txt --volsdf
+
+(`cargo run --release -p sdfl-bench -- surface check DIR` writes DIR/*.txt.)
 
 Prints one Markdown row: implementation, model, threads, median and
 minimum step ms.
@@ -238,13 +242,68 @@ class Trainer:
         return loss.item()
 
 
+def check(path, volsdf):
+    """Compares this model's loss and gradient, in float64, with sdfl's on
+    the same parameters and batch (`sdfl-bench surface check DIR` writes
+    them): prints the relative difference of the loss and, per tensor, the
+    largest gradient difference over the tensor's largest gradient."""
+    rows = {}
+    for line in open(path):
+        words = line.split()
+        key, vals = (" ".join(words[:2]), words[2:]) if words[0] in ("param", "grad") else (words[0], words[1:])
+        rows[key] = torch.tensor([float(v) for v in vals], dtype=torch.float64)
+    model = Surface(volsdf=volsdf).double()
+
+    def tensor_of(name):
+        if name == "log_beta":
+            return model.log_beta, None
+        net, *rest = name.split(".")
+        if net == "sdf":
+            layer = model.sdf.out if rest[0] == "output" else model.sdf.hidden[int(rest[1])]
+        else:
+            layer = model.color.out if rest[0] == "out" else model.color.hidden[int(rest[0])]
+        p = layer.weight if rest[-1] == "weight" else layer.bias
+        # sdfl keeps a layer's weights input-major: (fan_in, out).
+        shape = (p.shape[1], p.shape[0]) if rest[-1] == "weight" else None
+        return p, shape
+
+    def as_torch(v, shape):
+        return v.reshape(shape).T if shape else v.reshape(-1)
+
+    names = [k[6:] for k in rows if k.startswith("param ")]
+    with torch.no_grad():
+        for name in names:
+            p, shape = tensor_of(name)
+            p.copy_(as_torch(rows["param " + name], shape).reshape(p.shape))
+    n = int(rows["samples"][0])
+    o, d = rows["origins"].reshape(-1, 3), rows["dirs"].reshape(-1, 3)
+    t, target = rows["depths"].reshape(-1, n), rows["targets"].reshape(-1, 3)
+    colour, eikonal = model.render(o, d, t, 0)
+    loss = ((colour - target) ** 2).mean() + 0.02 * eikonal
+    loss.backward()
+    ref = rows["loss"][0].item()
+    print(f"loss: PyTorch {loss.item():.6e}, sdfl {ref:.6e}, relative difference {abs(loss.item() - ref) / abs(ref):.1e}")
+    print("| tensor | max abs gradient (sdfl) | max abs difference / max abs gradient |")
+    print("|---|---:|---:|")
+    for name in names:
+        p, shape = tensor_of(name)
+        g = p.grad.reshape(-1) if p.grad is not None else torch.zeros(p.numel(), dtype=torch.float64)
+        want = as_torch(rows["grad " + name], shape).reshape(-1)
+        scale = want.abs().max().item()
+        err = (g - want).abs().max().item()
+        print(f"| {name} | {scale:.3e} | {err / scale if scale > 0 else err:.1e} |")
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("reps", nargs="?", type=int, default=10)
     ap.add_argument("threads", nargs="?", type=int, default=1)
     ap.add_argument("--volsdf", action="store_true")
     ap.add_argument("--data", default=None)
+    ap.add_argument("--check", default=None, help="compare with sdfl's step written by `sdfl-bench surface check`")
     args = ap.parse_args()
+    if args.check:
+        return check(args.check, args.volsdf)
     torch.set_num_threads(args.threads)
     torch.manual_seed(0)
     if args.data:

@@ -315,6 +315,12 @@ fn main() {
         return nerf::neural_sdf_main(reps);
     }
     if std::env::args().nth(1).as_deref() == Some("surface") {
+        if std::env::args().nth(2).as_deref() == Some("check") {
+            let dir = std::env::args()
+                .nth(3)
+                .unwrap_or_else(|| "surface_check".into());
+            return surface::check(std::path::Path::new(&dir));
+        }
         let reps = std::env::args()
             .nth(2)
             .and_then(|r| r.parse().ok())

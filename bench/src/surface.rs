@@ -12,6 +12,9 @@
 //! sdfl, so that load on a shared machine falls on both alike; the ratio
 //! is of the means of the two medians each. Without PyTorch (or Python)
 //! the sdfl rows are printed alone, with a line saying why.
+//!
+//! `-- surface check DIR` writes sdfl's parameters, one batch and its loss
+//! and gradient for `neus_bench.py --check` to compare ([`check`]).
 
 use std::path::Path;
 use std::process::Command;
@@ -171,4 +174,75 @@ pub fn main(reps: usize, threads: &[usize]) {
         }
     }
     println!("load average after: {}", load());
+}
+
+/// Writes, for each example's model, what it takes to check that the
+/// PyTorch peer computes the same step (`neus_bench.py --check FILE`):
+/// the initial parameters by tensor name (sdfl's layout: a layer's
+/// weights input-major), one batch of 64 rays (origins, directions,
+/// depths, targets) and sdfl's loss and gradient on it, as lines of
+/// `name value value ...`, into `dir/neus.txt` and `dir/volsdf.txt`.
+pub fn check(dir: &Path) {
+    use sdfl_runtime::train::Objective;
+    use std::fmt::Write as _;
+    std::fs::create_dir_all(dir).expect("output directory");
+    let examples = [
+        ("neus", include_str!("../../examples/neus.sdfl")),
+        ("volsdf", include_str!("../../examples/volsdf.sdfl")),
+    ];
+    for (name, src) in examples {
+        let (job, views) = crate::train::prepare(src);
+        let Field::NeuralSurface(spec) = &*job.model else {
+            panic!("not a neural surface")
+        };
+        let mut setup = TrainSetup::of(&job, &views);
+        setup.rays = 64;
+        let batch = setup.batch(0).expect("batch");
+        let mut model = SurfaceObjective::new(spec, &job.losses).with_steps(job.iterations);
+        let values = model.initial();
+        let mut grad = vec![0.0; values.len()];
+        let loss = model
+            .loss_and_grad(&values, &batch, 1.0, &mut grad)
+            .expect("loss");
+        let mut text = String::new();
+        let mut line = |key: &str, xs: &mut dyn Iterator<Item = f64>| {
+            text.push_str(key);
+            for x in xs {
+                write!(text, " {x:e}").expect("string");
+            }
+            text.push('\n');
+        };
+        line("loss", &mut std::iter::once(loss));
+        line("samples", &mut std::iter::once(batch.samples as f64));
+        line(
+            "origins",
+            &mut batch.rays.iter().flat_map(|r| r.origin.map(f64::from)),
+        );
+        line(
+            "dirs",
+            &mut batch.rays.iter().flat_map(|r| r.dir.map(f64::from)),
+        );
+        line(
+            "depths",
+            &mut (0..batch.rays.len()).flat_map(|r| batch.depths_of(r).iter().map(|&t| t as f64)),
+        );
+        line(
+            "targets",
+            &mut batch.targets.iter().flat_map(|t| t.map(f64::from)),
+        );
+        for t in model.tensors() {
+            let range = t.offset..t.offset + t.len;
+            line(
+                &format!("param {}", t.name),
+                &mut values[range.clone()].iter().map(|&v| v as f64),
+            );
+            line(
+                &format!("grad {}", t.name),
+                &mut grad[range].iter().map(|&v| v as f64),
+            );
+        }
+        let path = dir.join(format!("{name}.txt"));
+        std::fs::write(&path, text).expect("write");
+        println!("{}: sdfl's loss {loss:.6e} on 64 rays", path.display());
+    }
 }
