@@ -188,8 +188,9 @@ class Surface(nn.Module):
 
 
 def orbit_rays(views=40, radius=3.0, focal=1.2, size=64):
-    """Every pixel's ray of sdfl's `orbit(radius, up: [0, 1, 0], focal, views)`
-    (pixel centres spanning NDC [-1, 1])."""
+    """Every pixel's ray of an orbit like sdfl's `orbit(radius, up: [0, 1, 0],
+    focal, views)` (pixel centres spanning NDC [-1, 1]); for timing only,
+    where the step's work does not depend on which pixels are which."""
     origins, dirs = [], []
     ndc = 1.0 - 2.0 * np.arange(size) / (size - 1)
     for k in range(views):
