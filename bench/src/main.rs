@@ -31,6 +31,7 @@ mod density;
 mod hash_sdf;
 mod nerf;
 mod peer;
+mod surface;
 mod train;
 mod user;
 mod view;
@@ -312,6 +313,23 @@ fn main() {
             .and_then(|r| r.parse().ok())
             .unwrap_or(10);
         return nerf::neural_sdf_main(reps);
+    }
+    if std::env::args().nth(1).as_deref() == Some("surface") {
+        if std::env::args().nth(2).as_deref() == Some("check") {
+            let dir = std::env::args()
+                .nth(3)
+                .unwrap_or_else(|| "surface_check".into());
+            return surface::check(std::path::Path::new(&dir));
+        }
+        let reps = std::env::args()
+            .nth(2)
+            .and_then(|r| r.parse().ok())
+            .unwrap_or(10);
+        let threads: Vec<usize> = std::env::args()
+            .nth(3)
+            .map(|s| s.split(',').filter_map(|x| x.parse().ok()).collect())
+            .unwrap_or_else(|| vec![1, 2]);
+        return surface::main(reps, &threads);
     }
     if std::env::args().nth(1).as_deref() == Some("hash-sdf") {
         let reps = std::env::args()
