@@ -79,6 +79,21 @@ fn a_resumed_hash_grid_sdf_run_is_the_same_run() {
     write_sphere_points(&parts, 2000);
     run(30, 4, &whole);
     run(13, 4, &parts);
+    // Steps 0..=12 read 2 + 12/4 = 5 levels: the finer three are still
+    // at their zero start (no gradient, so Adam left them), the coarser
+    // ones trained.
+    let early = Checkpoint::read(&parts.join("out/fit.ckpt")).unwrap();
+    for p in &early.params {
+        if let Some(l) = p.name.strip_prefix("grid.level") {
+            let level: usize = l.parse().unwrap();
+            assert_eq!(
+                p.values.iter().all(|&v| v == 0.0),
+                level >= 5,
+                "{} at step 13",
+                p.name
+            );
+        }
+    }
     let resumed = run(30, 4, &parts);
     assert_eq!(resumed.resumed_from, Some(13));
     let a = Checkpoint::read(&whole.join("out/fit.ckpt")).unwrap();
