@@ -254,8 +254,8 @@ pub fn write_volume_outputs(
                     let stride = (w.max(h) / 16).max(1);
                     (
                         WrittenKind::SamplePoints,
-                        figures::sample_points_image(cam, &strat, w, h, stride, 256, 256),
-                        (256, 256),
+                        figures::sample_points_image(cam, &strat, w, h, stride, 512, 512),
+                        (512, 512),
                     )
                 }
             };

@@ -5,9 +5,8 @@
 //! [`crate::output::write_png`]'s job. Charts for people (loss curves,
 //! sweeps) are [`crate::plot`]'s.
 //!
-//! The transmittance figure is a chart, drawn with plotters on
-//! [`crate::plot`]'s font; the sample-point view is a projection of
-//! points and lines, rasterised here (no text or axes).
+//! The transmittance figure and the sample-point view are charts, drawn
+//! with plotters on [`crate::plot`]'s font: one plotting stack.
 
 use glam::DVec3;
 use sdfl_stdlib::camera::{pixel_ndc, Camera};
@@ -45,11 +44,11 @@ pub fn rays_image(cam: &Camera, width: u32, height: u32) -> Vec<u8> {
 }
 
 /// More sample points than this are thinned by coarsening the ray stride,
-/// so a large image at stride 1 stays quick and bounded in memory.
-const MAX_POINTS: u64 = 1 << 22;
+/// so a large image at stride 1 stays quick and the chart legible.
+const MAX_POINTS: u64 = 1 << 15;
 
 /// Colour of a sample at depth `t`: the colour map from 0.2 up, because its
-/// low end is nearly black and would vanish on the black background.
+/// low end is nearly black.
 fn depth_colour(t: f64, near: f64, far: f64) -> [u8; 3] {
     let u = if far > near {
         (t - near) / (far - near)
@@ -59,16 +58,21 @@ fn depth_colour(t: f64, near: f64, far: f64) -> [u8; 3] {
     colormap((0.2 + 0.8 * u.clamp(0.0, 1.0)) as f32)
 }
 
+/// The eye's marker colour.
+const EYE: RGBColor = RGBColor(220, 30, 30);
+
 /// The sample points `eye + t_k·d` of every `rays_stride`-th pixel (in both
-/// directions, from the top-left) of a `width × height` image of `cam`, seen
-/// from an oblique viewpoint beside the frustum so their spacing along each
-/// ray is visible. The view is chosen from the camera pose and near/far and
-/// fitted to the frame: the camera's up stays up, the frustum (grey) and the
-/// eye (white) are drawn, points are coloured by depth (dark purple at near
-/// to yellow at far) and splatted with a z-buffer onto black.
+/// directions, from the top-left) of a `width × height` image of `cam`, as a
+/// 3-D chart with titled world axes, drawn with plotters: the frustum in
+/// grey, the eye in red, points coloured by depth (dark purple at near to
+/// yellow at far, as the legend says) and painted far to near. The world
+/// axis closest to the camera's up is drawn vertical, and the chart is
+/// turned so the frustum is seen from its side, where the spacing along each
+/// ray shows.
 ///
-/// An invalid camera gives a black image; an invalid sampler draws the
-/// frustum to depth 1 without points.
+/// An invalid camera, or an image smaller than a chart can hold
+/// ([`crate::plot::MIN_SIDE`]), gives a white image; an invalid sampler
+/// draws the frustum to depth 1 without points.
 #[allow(clippy::too_many_arguments)]
 pub fn sample_points_image(
     cam: &Camera,
@@ -79,9 +83,12 @@ pub fn sample_points_image(
     out_width: u32,
     out_height: u32,
 ) -> Vec<u8> {
-    let mut cv = Canvas::new(out_width, out_height, [0; 3]);
-    if cv.px.is_empty() || !cam.is_valid() {
-        return cv.px;
+    let mut rgb = vec![255u8; out_width as usize * out_height as usize * 3];
+    let (min_w, min_h) = crate::plot::MIN_SIDE;
+    let drawable = (min_w..=crate::plot::MAX_SIDE).contains(&out_width)
+        && (min_h..=crate::plot::MAX_SIDE).contains(&out_height);
+    if !drawable || !cam.is_valid() {
+        return rgb;
     }
     let valid = sampler.validate().is_ok();
     let depths: Vec<f64> = if valid {
@@ -101,7 +108,6 @@ pub fn sample_points_image(
         let r = pixel_ray(cam, size, 0, j * width + i);
         DVec3::new(r.dir[0] as f64, r.dir[1] as f64, r.dir[2] as f64)
     };
-
     let mut stride = rays_stride.max(1) as u64;
     let count =
         |s: u64| (width as u64).div_ceil(s) * (height as u64).div_ceil(s) * depths.len() as u64;
@@ -117,7 +123,6 @@ pub fn sample_points_image(
             }
         }
     }
-
     // Frustum: the corner rays, cut at near and far.
     let corners: Vec<DVec3> = if indexable && width > 0 && height > 0 {
         let (r, b) = (width - 1, height - 1);
@@ -128,96 +133,200 @@ pub fn sample_points_image(
     } else {
         Vec::new()
     };
-    let far_pts: Vec<DVec3> = corners.iter().map(|&d| cam.eye + d * far).collect();
-    let near_pts: Vec<DVec3> = corners.iter().map(|&d| cam.eye + d * near).collect();
-
-    // Viewer: beside the camera (along its x), a little above and ahead, far
-    // enough back that everything lies in front of it.
-    let (ax, ay, az) = cam.axes();
-    let mid = cam.eye + az * (0.5 * (near + far));
-    let radius = std::iter::once(cam.eye)
-        .chain(std::iter::once(cam.eye + az * far))
-        .chain(far_pts.iter().copied())
-        .chain(points.iter().map(|p| p.0))
-        .map(|p| (p - mid).length())
-        .filter(|r| r.is_finite())
-        .fold(0.0f64, f64::max);
-    let radius = if radius > 0.0 { radius } else { 1.0 };
-    let side = (ax + ay * 0.6 + az * 0.25).normalize();
-    let viewer = Camera::look_at(mid + side * (3.0 * radius), mid, ay, 1.0);
-    let min_depth = radius * 1e-9;
-    let project = |p: DVec3| {
-        let c = viewer.to_camera(p);
-        (c.z > min_depth).then(|| (c.x / c.z, c.y / c.z, c.z))
+    let frustum = Frustum {
+        eye: cam.eye,
+        forward: cam.axes().2,
+        up: cam.axes().1,
+        far: corners.iter().map(|&d| cam.eye + d * far).collect(),
+        near: if near > 0.0 {
+            corners.iter().map(|&d| cam.eye + d * near).collect()
+        } else {
+            Vec::new()
+        },
+        depth: (near, far),
     };
+    // A failed drawing leaves the image as far as it got.
+    let _ = draw_sample_points(&mut rgb, (out_width, out_height), &frustum, &points);
+    rgb
+}
 
-    // Fit the projected extent into the frame, keeping the aspect ratio.
-    let (mut x0, mut x1, mut y0, mut y1) = (f64::MAX, f64::MIN, f64::MAX, f64::MIN);
-    let all = std::iter::once(cam.eye)
-        .chain(far_pts.iter().copied())
-        .chain(near_pts.iter().copied())
-        .chain(points.iter().map(|p| p.0));
-    for (x, y, _) in all.filter_map(project) {
-        x0 = x0.min(x);
-        x1 = x1.max(x);
-        y0 = y0.min(y);
-        y1 = y1.max(y);
+/// What the sample-point chart shows besides the points.
+struct Frustum {
+    eye: DVec3,
+    /// The camera's viewing direction and up, for turning the chart.
+    forward: DVec3,
+    up: DVec3,
+    /// Corner points at the far and (when positive) near depth.
+    far: Vec<DVec3>,
+    near: Vec<DVec3>,
+    /// The sampler's near and far depth, for the colours and legend.
+    depth: (f64, f64),
+}
+
+/// Draws the sample-point chart into `rgb`; `points` are (position, depth).
+fn draw_sample_points(
+    rgb: &mut [u8],
+    (width, height): (u32, u32),
+    fr: &Frustum,
+    points: &[(DVec3, f64)],
+) -> Result<(), String> {
+    let err = |e: &dyn std::fmt::Debug| format!("{e:?}");
+    // Chart axes (x, vertical, depth) as world axes: the vertical one is
+    // the world axis closest to the camera's up, the others in cyclic order.
+    let v = (0..3)
+        .max_by(|&a, &b| fr.up[a].abs().total_cmp(&fr.up[b].abs()))
+        .unwrap_or(1);
+    let axes = [(v + 1) % 3, v, (v + 2) % 3];
+    let chart_of = |p: DVec3| (p[axes[0]], p[axes[1]], p[axes[2]]);
+
+    // A cube around everything, so the geometry is not stretched.
+    let all = || {
+        std::iter::once(fr.eye)
+            .chain(fr.far.iter().copied())
+            .chain(points.iter().map(|p| p.0))
+            .filter(|p| p.is_finite())
+    };
+    let (lo, hi) = all().fold(
+        (DVec3::splat(f64::MAX), DVec3::splat(f64::MIN)),
+        |(l, h), p| (l.min(p), h.max(p)),
+    );
+    let centre = (lo + hi) * 0.5;
+    let half = 0.55 * (hi - lo).max_element().max(1e-9);
+    if !(centre.is_finite() && half.is_finite()) {
+        return Ok(());
     }
-    let (w, h) = ((out_width - 1) as f64, (out_height - 1) as f64);
-    let fits = [(w, x1 - x0), (h, y1 - y0)]
-        .iter()
-        .filter(|(_, span)| *span > 0.0)
-        .map(|(n, span)| n / span)
-        .fold(f64::INFINITY, f64::min);
-    let scale = if fits.is_finite() { 0.9 * fits } else { 1.0 };
-    let (xm, ym) = (0.5 * (x0 + x1), 0.5 * (y0 + y1));
-    // NDC +x points left and +y up.
-    let to_px =
-        |(x, y, z): (f64, f64, f64)| (0.5 * w - (x - xm) * scale, 0.5 * h - (y - ym) * scale, z);
+    let range = |k: usize| centre[axes[k]] - half..centre[axes[k]] + half;
 
-    let thick = (out_width.min(out_height) as i64 / 512).max(0);
-    let grey = [110, 110, 110];
-    let seg = |cv: &mut Canvas, a: DVec3, b: DVec3, c: [u8; 3]| {
-        if let (Some(p), Some(q)) = (project(a).map(to_px), project(b).map(to_px)) {
-            cv.line((p.0, p.1), (q.0, q.1), thick, c);
-        }
-    };
-    for k in 0..far_pts.len() {
-        let next = (k + 1) % far_pts.len();
-        seg(&mut cv, cam.eye, far_pts[k], grey);
-        seg(&mut cv, far_pts[k], far_pts[next], grey);
-        if near > 0.0 {
-            seg(&mut cv, near_pts[k], near_pts[next], grey);
-        }
-    }
-
-    let splat = if out_width.min(out_height) >= 256 {
-        1
-    } else {
-        0
-    };
-    let mut zbuf = vec![f64::INFINITY; out_width as usize * out_height as usize];
-    for &(p, t) in &points {
-        let Some((px, py, z)) = project(p).map(to_px) else {
-            continue;
+    crate::plot::register_font();
+    let root = BitMapBackend::with_buffer(rgb, (width, height)).into_drawing_area();
+    root.fill(&WHITE).map_err(|e| err(&e))?;
+    let scale = (width.min(height) as f64 / 512.0).clamp(0.5, 4.0);
+    let px = |v: f64| (v * scale).round().max(1.0) as u32;
+    let font = |size: f64| (crate::plot::FAMILY, size * scale).into_font();
+    let ink = RGBColor(40, 40, 40);
+    let mut chart = ChartBuilder::on(&root)
+        .caption(
+            "Sample points along the camera's rays",
+            font(19.0).color(&ink),
+        )
+        .margin(px(12.0))
+        .build_cartesian_3d(range(0), range(1), range(2))
+        .map_err(|e| err(&e))?;
+    // Turn the chart about its vertical axis until the camera's viewing
+    // direction lies most nearly across the page: depth along each ray shows.
+    let pitch = 0.35;
+    let side_on = |yaw: f64, chart: &mut ChartContext<_, _>| {
+        chart.with_projection(|mut pb| {
+            pb.yaw = yaw;
+            pb.pitch = pitch;
+            pb.scale = 0.85;
+            pb.into_matrix()
+        });
+        let depth = |p: DVec3| {
+            let (x, y, z) = chart_of(p);
+            chart.as_coord_spec().projected_depth(&x, &y, &z) as f64
         };
-        let c = depth_colour(t, near, far);
-        let (cx, cy) = (px.round() as i64, py.round() as i64);
-        for y in cy - splat..=cy + splat {
-            for x in cx - splat..=cx + splat {
-                if let Some(k) = cv.index(x, y) {
-                    if z < zbuf[k / 3] {
-                        zbuf[k / 3] = z;
-                        cv.px[k..k + 3].copy_from_slice(&c);
-                    }
-                }
-            }
+        (depth(fr.eye + fr.forward * half) - depth(fr.eye)).abs()
+    };
+    // Yaws within 25° of an axis flatten the chart (an axis points at
+    // the reader), so those are not tried.
+    let yaw = (0..72)
+        .filter(|k| (5..=13).contains(&(k % 18)))
+        .map(|k| k as f64 * std::f64::consts::PI / 36.0)
+        .min_by(|&a, &b| side_on(a, &mut chart).total_cmp(&side_on(b, &mut chart)))
+        .unwrap_or(0.5);
+    side_on(yaw, &mut chart);
+    let names = ["x", "y", "z"];
+    chart
+        .configure_axes()
+        .label_style(font(12.0).color(&ink))
+        .x_formatter(&|v| format!("{names_x} {v:.1}", names_x = names[axes[0]]))
+        .y_formatter(&|v| format!("{names_y} {v:.1}", names_y = names[axes[1]]))
+        .z_formatter(&|v| format!("{names_z} {v:.1}", names_z = names[axes[2]]))
+        .x_labels(4)
+        .y_labels(4)
+        .z_labels(4)
+        .light_grid_style(RGBColor(240, 240, 240))
+        .bold_grid_style(RGBColor(215, 215, 215))
+        .axis_panel_style(RGBColor(248, 248, 248))
+        .draw()
+        .map_err(|e| err(&e))?;
+
+    let grey = RGBColor(130, 130, 130).stroke_width(px(1.0));
+    let mut edges: Vec<(DVec3, DVec3)> = Vec::new();
+    for k in 0..fr.far.len() {
+        let next = (k + 1) % fr.far.len();
+        edges.push((fr.eye, fr.far[k]));
+        edges.push((fr.far[k], fr.far[next]));
+        if !fr.near.is_empty() {
+            edges.push((fr.near[k], fr.near[next]));
         }
     }
-    if let Some((px, py, _)) = project(cam.eye).map(to_px) {
-        cv.dot(px, py, 1 + 2 * splat, [255, 255, 255]);
+    chart
+        .draw_series(
+            edges
+                .iter()
+                .map(|&(a, b)| PathElement::new(vec![chart_of(a), chart_of(b)], grey)),
+        )
+        .map_err(|e| err(&e))?;
+    // Far to near, so nearer points cover farther ones.
+    let mut order: Vec<(i32, usize)> = points
+        .iter()
+        .enumerate()
+        .filter(|(_, p)| p.0.is_finite())
+        .map(|(k, p)| {
+            let (x, y, z) = chart_of(p.0);
+            (chart.as_coord_spec().projected_depth(&x, &y, &z), k)
+        })
+        .collect();
+    order.sort_by(|a, b| b.cmp(a));
+    let (near, far) = fr.depth;
+    let dot = px(1.5);
+    chart
+        .draw_series(order.iter().map(|&(_, k)| {
+            let (p, t) = points[k];
+            let [r, g, b] = depth_colour(t, near, far);
+            Circle::new(chart_of(p), dot, RGBColor(r, g, b).filled())
+        }))
+        .map_err(|e| err(&e))?;
+    chart
+        .draw_series(std::iter::once(Circle::new(
+            chart_of(fr.eye),
+            px(5.0),
+            EYE.filled(),
+        )))
+        .map_err(|e| err(&e))?;
+
+    // Legend: the eye and the depth colours, top left below the caption.
+    let (lx, ly) = (px(14.0) as i32, px(48.0) as i32);
+    let line = px(18.0) as i32;
+    let swatch = |c: [u8; 3]| RGBColor(c[0], c[1], c[2]).filled();
+    let legend: [(String, ShapeStyle); 3] = [
+        ("eye".to_string(), EYE.filled()),
+        (
+            format!("near, t = {near}"),
+            swatch(depth_colour(near, near, far)),
+        ),
+        (
+            format!("far, t = {far}"),
+            swatch(depth_colour(far, near, far)),
+        ),
+    ];
+    for (k, (label, style)) in legend.iter().enumerate() {
+        let y = ly + k as i32 * line;
+        root.draw(&Circle::new((lx, y), px(5.0), *style))
+            .map_err(|e| err(&e))?;
+        root.draw(&Text::new(
+            label.clone(),
+            (lx + px(12.0) as i32, y),
+            font(13.0)
+                .color(&ink)
+                .pos(Pos::new(HPos::Left, VPos::Center)),
+        ))
+        .map_err(|e| err(&e))?;
     }
-    cv.px
+    root.present().map_err(|e| err(&e))?;
+    Ok(())
 }
 
 /// The assignment's part 0: a ray from y4 back to the eye at x through
@@ -404,124 +513,6 @@ fn draw_transmittance(
     Ok(())
 }
 
-// ---------------------------------------------------------------------------
-// Drawing
-
-/// An RGB8 image; every write is clipped to it.
-struct Canvas {
-    w: i64,
-    h: i64,
-    px: Vec<u8>,
-}
-
-impl Canvas {
-    fn new(w: u32, h: u32, bg: [u8; 3]) -> Canvas {
-        let n = w as usize * h as usize;
-        Canvas {
-            w: w as i64,
-            h: h as i64,
-            px: bg.iter().copied().cycle().take(n * 3).collect(),
-        }
-    }
-
-    fn index(&self, x: i64, y: i64) -> Option<usize> {
-        (x >= 0 && y >= 0 && x < self.w && y < self.h).then(|| (y * self.w + x) as usize * 3)
-    }
-
-    /// Fills the rectangle between two corners, inclusive.
-    fn fill(&mut self, x0: i64, y0: i64, x1: i64, y1: i64, c: [u8; 3]) {
-        let (xa, xb) = (x0.min(x1).max(0), x0.max(x1).min(self.w - 1));
-        let (ya, yb) = (y0.min(y1).max(0), y0.max(y1).min(self.h - 1));
-        for y in ya..=yb {
-            for x in xa..=xb {
-                if let Some(k) = self.index(x, y) {
-                    self.px[k..k + 3].copy_from_slice(&c);
-                }
-            }
-        }
-    }
-
-    /// A square of half-width `r` centred at a (sub)pixel position.
-    fn dot(&mut self, x: f64, y: f64, r: i64, c: [u8; 3]) {
-        if x.is_finite() && y.is_finite() {
-            let (x, y) = (x.round() as i64, y.round() as i64);
-            self.fill(x - r, y - r, x + r, y + r, c);
-        }
-    }
-
-    /// A segment of half-width `r`, clipped to the image first so that far
-    /// off-screen ends cost nothing.
-    fn line(&mut self, a: (f64, f64), b: (f64, f64), r: i64, c: [u8; 3]) {
-        let m = (r + 1) as f64;
-        let Some((a, b)) = clip(
-            a,
-            b,
-            -m,
-            self.w as f64 - 1.0 + m,
-            -m,
-            self.h as f64 - 1.0 + m,
-        ) else {
-            return;
-        };
-        let (dx, dy) = (b.0 - a.0, b.1 - a.1);
-        let n = dx.abs().max(dy.abs()).ceil() as i64;
-        for k in 0..=n {
-            let t = if n == 0 { 0.0 } else { k as f64 / n as f64 };
-            self.dot(a.0 + t * dx, a.1 + t * dy, r, c);
-        }
-    }
-}
-
-/// Cohen–Sutherland clipping of a segment to a rectangle; `None` when it
-/// misses or is not finite. Each cut sets the crossed coordinate exactly, so
-/// very long segments keep their position (a parametric clip loses it).
-fn clip(
-    mut a: (f64, f64),
-    mut b: (f64, f64),
-    xmin: f64,
-    xmax: f64,
-    ymin: f64,
-    ymax: f64,
-) -> Option<((f64, f64), (f64, f64))> {
-    let finite = |p: (f64, f64)| p.0.is_finite() && p.1.is_finite();
-    let code = |p: (f64, f64)| {
-        (p.0 < xmin) as u8
-            | ((p.0 > xmax) as u8) << 1
-            | ((p.1 < ymin) as u8) << 2
-            | ((p.1 > ymax) as u8) << 3
-    };
-    // `u + d·r`, d given halved, with every partial sum finite for r in [0, 1].
-    let lerp = |u: f64, d_half: f64, r: f64| u + d_half * r + d_half * r;
-    for _ in 0..16 {
-        if !(finite(a) && finite(b)) {
-            return None;
-        }
-        let (ca, cb) = (code(a), code(b));
-        if ca | cb == 0 {
-            return Some((a, b));
-        }
-        if ca & cb != 0 {
-            return None;
-        }
-        let c = if ca != 0 { ca } else { cb };
-        // Halves: differences of coordinates near ±f64::MAX overflow.
-        let (dx, dy) = (b.0 * 0.5 - a.0 * 0.5, b.1 * 0.5 - a.1 * 0.5);
-        let p = if c & 3 != 0 {
-            let x = if c & 1 != 0 { xmin } else { xmax };
-            (x, lerp(a.1, dy, (x * 0.5 - a.0 * 0.5) / dx))
-        } else {
-            let y = if c & 4 != 0 { ymin } else { ymax };
-            (lerp(a.0, dx, (y * 0.5 - a.1 * 0.5) / dy), y)
-        };
-        if ca != 0 {
-            a = p;
-        } else {
-            b = p;
-        }
-    }
-    None
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -573,20 +564,41 @@ mod tests {
         Camera::look_at(DVec3::new(0.0, 4.0, 2.0), DVec3::ZERO, DVec3::Z, 2.0)
     }
 
+    /// Pixels that are not white.
+    fn inked(img: &[u8]) -> usize {
+        img.chunks_exact(3)
+            .filter(|p| p != &[255, 255, 255])
+            .count()
+    }
+
     #[test]
     fn sample_points_show_near_and_far() {
         let s = Stratified::new(32, 2.0, 6.0).unwrap();
-        let img = sample_points_image(&nerf_cam(), &s, 32, 32, 8, 200, 150);
-        assert_eq!(img.len(), 200 * 150 * 3);
+        let img = sample_points_image(&nerf_cam(), &s, 32, 32, 8, 400, 300);
+        assert_eq!(img.len(), 400 * 300 * 3);
         let cs = colours(&img);
-        assert!(img.iter().any(|&v| v > 0));
         let (near, far) = (depth_colour(2.0, 2.0, 6.0), depth_colour(6.0, 2.0, 6.0));
         assert_ne!(near, far);
         assert!(cs.contains(&near) && cs.contains(&far), "{cs:?}");
-        assert!(cs.contains(&[255, 255, 255]), "the eye is drawn");
-        // Points fill a fair part of the frame: the fit works.
-        let lit = img.chunks_exact(3).filter(|p| p != &[0, 0, 0]).count();
-        assert!(lit > 200, "{lit}");
+        let eye = [EYE.0, EYE.1, EYE.2];
+        assert!(cs.contains(&eye), "the eye is drawn");
+        // Every depth colour is there, not only the legend's two.
+        for t in s.depths() {
+            assert!(cs.contains(&depth_colour(t as f64, 2.0, 6.0)), "t = {t}");
+        }
+    }
+
+    #[test]
+    fn sample_points_of_a_camera_looking_down_an_axis() {
+        // The camera's forward along a chart axis is the case where a turn
+        // of the chart is needed to see the depths apart.
+        let cam = Camera::look_at(DVec3::new(0.0, 0.0, 4.0), DVec3::ZERO, DVec3::Y, 1.0);
+        let s = Stratified::new(64, 1.0, 7.0).unwrap();
+        let img = sample_points_image(&cam, &s, 3, 3, 1, 400, 400);
+        let cs = colours(&img);
+        for t in s.depths() {
+            assert!(cs.contains(&depth_colour(t as f64, 1.0, 7.0)), "t = {t}");
+        }
     }
 
     #[test]
@@ -594,28 +606,34 @@ mod tests {
         let s = Stratified::new(16, 0.0, 5.0).unwrap();
         let cam = nerf_cam();
         for stride in [0, 1, 3, u32::MAX] {
-            let img = sample_points_image(&cam, &s, 20, 10, stride, 64, 40);
-            assert_eq!(img.len(), 64 * 40 * 3);
-            assert!(img.iter().any(|&v| v > 0), "stride {stride}");
+            let img = sample_points_image(&cam, &s, 20, 10, stride, 256, 256);
+            assert_eq!(img.len(), 256 * 256 * 3);
+            assert!(inked(&img) > 1000, "stride {stride}");
         }
         // Stride 1 on a large image is thinned, not slow or huge.
         let big = Stratified::new(128, 2.0, 6.0).unwrap();
-        let img = sample_points_image(&cam, &big, 1024, 1024, 1, 32, 32);
-        assert_eq!(img.len(), 32 * 32 * 3);
-        assert!(sample_points_image(&cam, &s, 20, 10, 1, 0, 40).is_empty());
-        assert_eq!(sample_points_image(&cam, &s, 20, 10, 1, 1, 1).len(), 3);
-        assert!(sample_points_image(&cam, &s, 0, 0, 1, 16, 16)
-            .iter()
-            .any(|&v| v > 0));
+        let img = sample_points_image(&cam, &big, 1024, 1024, 1, 256, 256);
+        assert_eq!(img.len(), 256 * 256 * 3);
+        // Too small for a chart: white, of the right size.
+        for (w, h) in [(0, 40), (1, 1), (64, 40), (199, 400)] {
+            let img = sample_points_image(&cam, &s, 20, 10, 1, w, h);
+            assert_eq!(img.len(), (w * h * 3) as usize);
+            assert_eq!(inked(&img), 0, "{w}×{h}");
+        }
+        assert!(inked(&sample_points_image(&cam, &s, 0, 0, 1, 256, 256)) > 0);
         let bad = Camera::look_at(DVec3::ZERO, DVec3::ZERO, DVec3::Y, 1.0);
-        assert_eq!(sample_points_image(&bad, &s, 8, 8, 1, 4, 4), vec![0; 48]);
+        assert_eq!(inked(&sample_points_image(&bad, &s, 8, 8, 1, 256, 256)), 0);
         let invalid = Stratified {
             n: 1,
             near: 3.0,
             far: 1.0,
         };
-        let img = sample_points_image(&cam, &invalid, 8, 8, 1, 32, 32);
-        assert_eq!(img.len(), 32 * 32 * 3);
+        let img = sample_points_image(&cam, &invalid, 8, 8, 1, 256, 256);
+        assert!(inked(&img) > 0, "the frustum to depth 1");
+        // Extreme depths stay finite work.
+        let huge = Stratified::new(8, 0.0, 3e38).unwrap();
+        let img = sample_points_image(&cam, &huge, 8, 8, 1, 256, 256);
+        assert_eq!(img.len(), 256 * 256 * 3);
     }
 
     #[test]
@@ -634,26 +652,6 @@ mod tests {
             assert_eq!(img.len(), (w * h * 3) as usize);
             assert_eq!(v, t);
         }
-    }
-
-    #[test]
-    fn clipping_stays_in_bounds() {
-        const AXIS: [u8; 3] = [40, 40, 40];
-        let mut cv = Canvas::new(10, 10, [255; 3]);
-        cv.line((-1e300, 5.0), (1e300, 5.0), 1, AXIS);
-        cv.line((f64::NAN, 0.0), (3.0, 3.0), 0, AXIS);
-        cv.line((-50.0, -50.0), (-20.0, -1.0), 0, AXIS);
-        cv.dot(f64::INFINITY, 2.0, 3, AXIS);
-        assert_eq!(cv.px.len(), 300);
-        assert_eq!(&cv.px[(5 * 10 + 9) * 3..][..3], &AXIS);
-        assert_eq!(
-            clip((0.0, 0.0), (20.0, 0.0), 0.0, 9.0, 0.0, 9.0),
-            Some(((0.0, 0.0), (9.0, 0.0)))
-        );
-        let m = f64::MAX;
-        let c = clip((-m, -m), (m, m), 0.0, 9.0, 0.0, 9.0).unwrap();
-        assert!((c.0 .0 - c.0 .1).abs() < 1e-9 && (c.1 .0 - 9.0).abs() < 1e-9);
-        assert_eq!(clip((-m, 20.0), (m, 20.0), 0.0, 9.0, 0.0, 9.0), None);
     }
 
     /// Writes the figures as PNGs for a look: `SDFL_WRITE_FIGURES=1 cargo test -p sdfl-runtime

@@ -1,0 +1,148 @@
+//! `train` statements: optimiser, schedule, losses and gradient backend.
+
+use std::sync::Arc;
+
+use super::{Dataset, Field, Output, Sampler, ViewPath};
+use crate::camera::Camera;
+
+/// A `train` statement.
+#[derive(Debug, Clone)]
+pub struct TrainJob {
+    /// The statement's name, the stem of its files.
+    pub name: String,
+    /// The field trained.
+    pub model: Arc<Field>,
+    /// What it is fitted to.
+    pub data: Arc<Dataset>,
+    /// The `data` argument, where errors reading the data set point.
+    pub data_span: sdfl_lang::Span,
+    /// Where samples fall along each training ray.
+    pub sampler: Sampler,
+    /// Rays per step.
+    pub rays: usize,
+    /// The optimiser and its learning-rate schedule.
+    pub optimizer: Optimizer,
+    /// The objective's terms.
+    pub losses: Vec<Loss>,
+    /// Optimiser steps, unless `epochs` is given.
+    pub iterations: usize,
+    /// Passes over all training pixels: steps = epochs × ⌈pixels / rays⌉.
+    pub epochs: Option<usize>,
+    /// Seed of the batches (a step's rays are a function of seed and step).
+    pub seed: u64,
+    /// How gradients are computed.
+    pub backend: Backend,
+    /// Cameras and size for the before/after outputs (placeholders, as
+    /// many as it will have, where `view_path` makes them at run time).
+    pub views: Vec<Camera>,
+    /// Views made from the training cameras when the run has read them.
+    pub view_path: Option<ViewPath>,
+    /// Width of the before/after images.
+    pub width: u32,
+    /// Height of the before/after images.
+    pub height: u32,
+    /// Outputs of the model as it starts.
+    pub before: Vec<Output>,
+    /// Outputs of the trained model.
+    pub after: Vec<Output>,
+    /// Where to keep a resumable checkpoint (relative to the output dir).
+    pub checkpoint: Option<std::path::PathBuf>,
+    /// Steps between held-out evaluations (0: at the end only).
+    pub eval_every: usize,
+    /// Half-extent of the cube random points are drawn in (distance fields).
+    pub bounds: f64,
+}
+
+/// Adam with a learning-rate schedule.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct Optimizer {
+    /// The base learning rate.
+    pub lr: f64,
+    /// How it changes with the step.
+    pub schedule: Schedule,
+}
+
+/// How the learning rate changes with the step.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Schedule {
+    /// The same learning rate throughout.
+    Constant,
+    /// Multiplied by `factor` every `every` steps.
+    Step {
+        /// Multiplier applied each time.
+        factor: f64,
+        /// Steps between multiplications.
+        every: usize,
+    },
+    /// `lr·factor^(step/every)`: the same decay as `Step`, spread smoothly.
+    Exponential {
+        /// Multiplier over `every` steps.
+        factor: f64,
+        /// Steps over which the rate is multiplied by `factor`.
+        every: usize,
+    },
+}
+
+impl Optimizer {
+    /// The learning rate of step `step` (counted from 0).
+    pub fn lr_at(&self, step: usize) -> f64 {
+        match self.schedule {
+            Schedule::Constant => self.lr,
+            Schedule::Step { factor, every } if every > 0 => {
+                self.lr * factor.powi((step / every) as i32)
+            }
+            Schedule::Step { .. } => self.lr,
+            Schedule::Exponential { factor, every } => {
+                self.lr * factor.powf(step as f64 / every.max(1) as f64)
+            }
+        }
+    }
+}
+
+/// A term of a training objective.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum LossKind {
+    /// Mean squared error of rendered against true pixel colours.
+    Mse,
+    /// Mean |f| of a distance field at the surface points.
+    Surface,
+    /// Mean (‖∇f‖ − 1)² at the surface and the random points, the gradient
+    /// exact (no finite differences).
+    Eikonal,
+    /// Mean exp(−alpha·|f|) at random points: no surface away from the data.
+    Inter {
+        /// How fast the penalty falls with |f|.
+        alpha: f64,
+    },
+}
+
+impl LossKind {
+    /// Whether the term compares rendered colours (else it is a distance
+    /// field's term on points).
+    pub fn on_images(&self) -> bool {
+        matches!(self, LossKind::Mse)
+    }
+}
+
+/// A weighted loss term.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct Loss {
+    /// Which term.
+    pub kind: LossKind,
+    /// Its weight in the sum.
+    pub weight: f64,
+}
+
+/// How a training step computes its gradient.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Backend {
+    /// One fused kernel per ray: forward-mode parameter tangents through the
+    /// field, a hand-written backward through compositing.
+    Fused,
+    /// A dfdx autodiff graph over `[rays, samples]` tensors, the field as a
+    /// custom op.
+    Dfdx,
+}
