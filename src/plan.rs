@@ -18,8 +18,8 @@ fn describe_field(field: &sdfl_stdlib::value::Field) -> String {
     };
     match field {
         Field::NeuralSdf(n) => format!(
-            "neural SDF: harmonic({}) position, {}x{} softplus(beta {}) layers{}; {} multiply-adds per point and 3x that for its exact gradient",
-            n.encoding.freqs,
+            "neural SDF: {} position, {}x{} softplus(beta {}) layers{}; {} multiply-adds per point and 3x that for its exact gradient",
+            enc(&n.encoding),
             n.layers,
             n.width,
             n.beta,
@@ -31,7 +31,7 @@ fn describe_field(field: &sdfl_stdlib::value::Field) -> String {
             n.multiply_adds()
         ),
         Field::NeuralSurface(n) => format!(
-            "neural SDF as a {:?} volume (alpha {}, beta {}{}): harmonic({}) position, {}x{} softplus layers with the exact gradient at every sample; colour network {}x{} ReLU on the point, the normal{}; {} multiply-adds per sample",
+            "neural SDF as a {:?} volume (alpha {}, beta {}{}): {} position, {}x{} softplus layers with the exact gradient at every sample; colour network {}x{} ReLU on the point, the normal{}; {} multiply-adds per sample",
             n.density,
             n.alpha,
             n.beta,
@@ -40,7 +40,7 @@ fn describe_field(field: &sdfl_stdlib::value::Field) -> String {
                 (false, Some(end)) => format!(" falling to {end} over the steps"),
                 (false, None) => String::new(),
             },
-            n.sdf.encoding.freqs,
+            enc(&n.sdf.encoding),
             n.sdf.layers,
             n.sdf.width,
             n.color_layers,

@@ -17,11 +17,16 @@ use crate::train::fused::Batch;
 use crate::train::{Objective, TensorSpec, TrainError, Trained, TrainedField};
 use crate::volume::SplitMix64;
 
-/// The runtime network of a language spec.
+/// The runtime network of a harmonic language spec (a hash grid's is a
+/// [`super::hash_sdf::HashSdf`]: the trained field matches the encoding
+/// before it asks for this).
 pub fn sdf_net(spec: &NeuralSdf) -> SdfNet {
+    let encoding = spec
+        .harmonic()
+        .expect("a harmonic neural SDF: the hash grid's network is built elsewhere");
     SdfNet::new(&SdfNetSpec {
-        freqs: spec.encoding.freqs,
-        include_input: spec.encoding.include_input,
+        freqs: encoding.freqs,
+        include_input: encoding.include_input,
         layers: spec.layers,
         width: spec.width,
         skips: spec.skips.clone(),
@@ -148,8 +153,26 @@ pub use crate::metrics::SdfFit;
 /// within 1e-3 of the surface.
 pub fn fit(net: &SdfNet, params: &[f32], points: &[[f32; 3]], bounds: f32, seed: u64) -> SdfFit {
     let mut work = SdfWork::default();
+    fit_with(
+        &mut |flat| distances_and_gradients(net, params, flat, &mut work),
+        points,
+        bounds,
+        seed,
+    )
+}
+
+/// `f` and `∇f` (three a point) at flat points (rows of 3).
+pub type DistanceGradients<'a> = dyn FnMut(&[f32]) -> (Vec<f32>, Vec<f32>) + 'a;
+
+/// [`fit`] for any field whose `f` and `∇f` at flat points `eval` gives.
+pub fn fit_with(
+    eval: &mut DistanceGradients<'_>,
+    points: &[[f32; 3]],
+    bounds: f32,
+    seed: u64,
+) -> SdfFit {
     let flat: Vec<f32> = points.iter().flatten().copied().collect();
-    let (f, g) = distances_and_gradients(net, params, &flat, &mut work);
+    let (f, g) = eval(&flat);
     let n = points.len().max(1) as f64;
     let surface_mean_abs = f.iter().map(|f| f.abs() as f64).sum::<f64>() / n;
     let eik = |g: &[f32]| {
@@ -164,12 +187,12 @@ pub fn fit(net: &SdfNet, params: &[f32], points: &[[f32; 3]], bounds: f32, seed:
     let mut rng = SplitMix64::new(seed ^ 0x6368_616d);
     let mut probe = Vec::new();
     random_points(points.len(), bounds, &mut rng, &mut probe);
-    let (_, g) = distances_and_gradients(net, params, &probe, &mut work);
+    let (_, g) = eval(&probe);
     eikonal = (eikonal + eik(&g)) / (2.0 * n);
     // Many probes, so the surface samples are dense next to the points
     // (sparse samples would bias the Chamfer distance upwards).
     random_points(PROBES.max(points.len()), bounds, &mut rng, &mut probe);
-    let (mut f, mut g) = distances_and_gradients(net, params, &probe, &mut work);
+    let (mut f, mut g) = eval(&probe);
     for _ in 0..8 {
         for (i, p) in probe.chunks_mut(3).enumerate() {
             let gi = &g[3 * i..3 * i + 3];
@@ -178,7 +201,7 @@ pub fn fit(net: &SdfNet, params: &[f32], points: &[[f32; 3]], bounds: f32, seed:
                 p[k] -= f[i] * gi[k] / len2;
             }
         }
-        (f, g) = distances_and_gradients(net, params, &probe, &mut work);
+        (f, g) = eval(&probe);
     }
     let found: Vec<[f32; 3]> = probe
         .chunks(3)
@@ -493,6 +516,16 @@ pub fn trace_view(
     size: crate::volume::ImageSize,
     s: TraceSettings,
 ) -> Result<TracedView, crate::volume::VolumeError> {
+    trace_field(&NetDistance { net, params }, cam, size, s)
+}
+
+/// [`trace_view`] for any distance field with an exact gradient.
+pub fn trace_field(
+    field: &dyn DistanceField,
+    cam: &sdfl_stdlib::camera::Camera,
+    size: crate::volume::ImageSize,
+    s: TraceSettings,
+) -> Result<TracedView, crate::volume::VolumeError> {
     let rays = crate::volume::camera_rays(cam, size)?;
     let n = rays.len();
     let mut t = vec![s.near; n];
@@ -501,7 +534,7 @@ pub fn trace_view(
         depth: vec![0.0; n],
     };
     let mut active: Vec<usize> = (0..n).collect();
-    let (mut points, mut f, mut hits) = (Vec::new(), Vec::new(), Vec::new());
+    let (mut points, mut f, mut hits): (Vec<[f32; 3]>, _, _) = (Vec::new(), Vec::new(), Vec::new());
     for _ in 0..s.iterations {
         if active.is_empty() {
             break;
@@ -509,12 +542,12 @@ pub fn trace_view(
         points.clear();
         for &r in &active {
             let ray = &rays[r];
-            points.extend((0..3).map(|k| ray.origin[k] + t[r] * ray.dir[k]));
+            points.push(std::array::from_fn(|k| ray.origin[k] + t[r] * ray.dir[k]));
         }
         // Distances alone (no tangents), a bounded batch at a time.
         f.resize(active.len(), 0.0);
-        for (p, f) in points.chunks(3 * TRACE_ROWS).zip(f.chunks_mut(TRACE_ROWS)) {
-            net.distance(params, p, f);
+        for (p, f) in points.chunks(TRACE_ROWS).zip(f.chunks_mut(TRACE_ROWS)) {
+            field.distances(p, f);
         }
         let mut still = Vec::with_capacity(active.len());
         for (i, &r) in active.iter().enumerate() {
@@ -530,15 +563,17 @@ pub fn trace_view(
         active = still;
     }
     // Normals where the rays hit: the exact gradient there.
-    let mut work = SdfWork::default();
+    let mut g = Vec::new();
     for block in hits.chunks(TRACE_ROWS) {
         points.clear();
         for &r in block {
             let ray = &rays[r];
-            points.extend((0..3).map(|k| ray.origin[k] + t[r] * ray.dir[k]));
+            points.push(std::array::from_fn(|k| ray.origin[k] + t[r] * ray.dir[k]));
         }
-        net.forward(params, &points, &mut work);
-        for (&r, g) in block.iter().zip(work.gradient().chunks(3)) {
+        f.resize(block.len(), 0.0);
+        g.resize(block.len(), [0.0; 3]);
+        field.gradients(&points, 0.0, &mut f, &mut g);
+        for (&r, g) in block.iter().zip(&g) {
             let len = (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt().max(1e-12);
             view.colour[r] = [0, 1, 2].map(|k| 0.5 * (g[k] / len + 1.0));
             view.depth[r] = t[r];
@@ -551,15 +586,17 @@ pub fn trace_view(
 mod trace_tests {
     use super::*;
     use sdfl_stdlib::camera::Camera;
-    use sdfl_stdlib::value::Harmonic;
+    use sdfl_stdlib::value::{Encoding, Harmonic};
 
     #[test]
     fn a_sphere_initialised_network_traces_as_a_sphere() {
         let spec = NeuralSdf {
-            encoding: Harmonic {
+            encoding: Encoding::Harmonic(Harmonic {
                 freqs: 2,
                 include_input: true,
-            },
+            }),
+            level_every: 0,
+            eikonal_step: None,
             layers: 3,
             width: 32,
             skips: vec![],

@@ -24,32 +24,47 @@ pub(crate) fn builtins() -> Vec<Builtin> {
     vec![
         func(
             "neural_sdf",
-            "A neural signed distance function (IGR; the assignment's part 6): the harmonic encoding of the point, `layers` softplus layers of `width` (the encoding again at the `skips`), a linear distance. Its weights start as the SDF of a sphere of `radius` (geometric initialisation). Trained from a point cloud with `surface()`, `eikonal()` and `inter()` losses; the eikonal term uses the exact input gradient.",
+            "A neural signed distance function (IGR; the assignment's part 6): the encoded point, `layers` softplus layers of `width` (the encoding again at the `skips`), a linear distance, starting as the SDF of a sphere of `radius`. With a harmonic encoding the weights describe the sphere (geometric initialisation); with `encoding: hashgrid(...)` (NeuS2, instant-nsr) a small network adds a residual to the sphere's distance about the grid's centre, and without `network`, `layers`, `width` or `skips` it is one layer of 64 without skips. Trained from a point cloud with `surface()`, `eikonal()` and `inter()` losses; the eikonal term uses the exact input gradient (or, on a hash grid with `eikonal_step`, central differences).",
             vec![
-                opt("encoding", ENCODING, "harmonic(freqs: 4)", "encoding of the point (harmonic)"),
-                opt("layers", Type::Number, "6", "hidden layers"),
-                opt("width", Type::Number, "128", "width of the hidden layers"),
-                opt("skips", Type::list(Type::Number), "[3]", "hidden layers (counted from 0; 1 to `layers` − 1) that see the encoding again"),
+                opt("encoding", ENCODING, "harmonic(freqs: 4)", "encoding of the point: harmonic, or a hash grid"),
+                opt("layers", Type::Number, "6", "hidden layers (a hash grid's: 1)"),
+                opt("width", Type::Number, "128", "width of the hidden layers (a hash grid's: 64)"),
+                opt("skips", Type::list(Type::Number), "[3]", "hidden layers (counted from 0; 1 to `layers` − 1) that see the encoding again (a hash grid's: none)"),
                 opt("beta", Type::Number, "100", "softplus sharpness (> 0): large is close to ReLU, with curvature"),
                 opt("radius", Type::Number, "1", "radius of the sphere the weights start as (> 0)"),
                 opt("seed", Type::Number, "0", "seed of the initial weights"),
                 opt("network", NETWORK, "mlp()", "the hidden layers as one value, `mlp(...)` (instead of `layers`, `width`, `skips`)"),
+                opt("level_every", Type::Number, "0", "a hash grid's levels switched on coarse to fine: a quarter of them at first, one more every this many steps (0: all from the start)"),
+                opt("eikonal_step", Type::Number, "0", "a hash grid's eikonal term with ∇f by central differences of this step (Neuralangelo: seven values a point, no second derivatives); 0: the exact gradient"),
             ],
             FIELD,
             |a| {
                 let encoding = match a.get("encoding").0 {
-                    Value::Encoding(Encoding::Harmonic(h)) => *h,
-                    Value::Encoding(Encoding::HashGrid(_)) => {
-                        return Err(value_error(
-                            a.get("encoding").1,
-                            "a neural SDF takes a harmonic encoding",
-                            "a hash grid",
-                            "use `harmonic(freqs: 4)`",
-                        ))
-                    }
+                    Value::Encoding(e) => *e,
                     other => return Err(type_error(a.get("encoding").1, "encoding", other)),
                 };
-                let Mlp { layers, width, skips } = hidden_layers(a)?;
+                let hash = matches!(encoding, Encoding::HashGrid(_));
+                let Mlp { layers, width, skips } = if hash { hash_sdf_layers(a)? } else { hidden_layers(a)? };
+                let level_every = a.count("level_every", 0, 1 << 30)? as usize;
+                let step = a.number("eikonal_step")?;
+                if !(step >= 0.0 && step.is_finite()) {
+                    return Err(value_error(
+                        a.get("eikonal_step").1,
+                        "the eikonal step must be a finite number ≥ 0",
+                        "out of range",
+                        "e.g. `eikonal_step: 0.005` (a fraction of the finest cell), or 0 for the exact gradient",
+                    ));
+                }
+                if !hash {
+                    if let Some(name) = ["level_every", "eikonal_step"].into_iter().find(|n| a.given(n)) {
+                        return Err(value_error(
+                            a.get(name).1,
+                            format!("`{name}` applies to a hash-grid SDF"),
+                            "not with a harmonic encoding",
+                            format!("give `encoding: hashgrid(...)`, or leave `{name}` out"),
+                        ));
+                    }
+                }
                 Ok(Value::Field(Arc::new(Field::NeuralSdf(NeuralSdf {
                     encoding,
                     layers,
@@ -58,6 +73,8 @@ pub(crate) fn builtins() -> Vec<Builtin> {
                     beta: a.positive("beta")?,
                     radius: a.positive("radius")?,
                     seed: a.count("seed", 0, u32::MAX as u64)?,
+                    level_every,
+                    eikonal_step: (step > 0.0).then_some(step),
                 }))))
             },
         ),
@@ -435,6 +452,67 @@ fn hidden_layers(a: &Args) -> Result<Mlp, Diag> {
         (Value::Network(m), _) => Ok((**m).clone()),
         (other, span) => Err(type_error(span, "network", other)),
     }
+}
+
+/// A hash-grid SDF's hidden layers: as [`hidden_layers`], but one layer
+/// of 64 where none is given, and no skips (the network sees features,
+/// not the point, so repeating them adds nothing).
+fn hash_sdf_layers(a: &Args) -> Result<Mlp, Diag> {
+    let given = ["network", "layers", "width", "skips"]
+        .into_iter()
+        .any(|n| a.given(n));
+    let mlp = if !given {
+        Mlp {
+            layers: 1,
+            width: 64,
+            skips: Vec::new(),
+        }
+    } else if a.given("network") {
+        hidden_layers(a)?
+    } else {
+        let layers = if a.given("layers") {
+            a.count("layers", 1, 32)? as usize
+        } else {
+            1
+        };
+        let width = if a.given("width") {
+            a.count("width", 1, 4096)? as usize
+        } else {
+            64
+        };
+        if layers * width * width > MAX_NETWORK_WEIGHTS {
+            return Err(value_error(
+                a.get("width").1,
+                format!("{layers} layers of {width} hold more than {MAX_NETWORK_WEIGHTS} weights"),
+                "too wide for its depth",
+                "use fewer or narrower layers",
+            ));
+        }
+        let skips = if a.given("skips") {
+            skip_layers(a, layers)?
+        } else {
+            Vec::new()
+        };
+        Mlp {
+            layers,
+            width,
+            skips,
+        }
+    };
+    if !mlp.skips.is_empty() {
+        let name = if a.given("network") {
+            "network"
+        } else {
+            "skips"
+        };
+        return Err(value_error(
+            a.get(name).1,
+            "a hash-grid SDF's network has no skips",
+            "skips with a hash grid",
+            "give `skips: []` (e.g. `mlp(layers: 1, width: 64, skips: [])`)",
+        ));
+    }
+    Ok(mlp)
 }
 
 /// The `layers` and `width` of a network, refused past

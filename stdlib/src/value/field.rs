@@ -97,14 +97,15 @@ impl SdfField {
 }
 
 /// A neural signed distance function (IGR; the course assignment's part 6):
-/// the harmonic encoding of the point, `layers` hidden softplus layers of
-/// `width` (the encoding again at the skips), a linear distance; its
-/// weights start as the SDF of a sphere of `radius` (geometric
-/// initialisation).
+/// the encoded point, `layers` hidden softplus layers of `width` (the
+/// encoding again at the skips), a linear distance; it starts as the SDF
+/// of a sphere of `radius`. With a harmonic encoding the weights describe
+/// the sphere (geometric initialisation); with a hash grid (NeuS2,
+/// instant-nsr) the network adds a residual to the sphere's distance.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct NeuralSdf {
-    /// The encoding of the point.
-    pub encoding: Harmonic,
+    /// The encoding of the point: harmonic, or a hash grid.
+    pub encoding: Encoding,
     /// Hidden softplus layers.
     pub layers: usize,
     /// Units per hidden layer.
@@ -117,18 +118,50 @@ pub struct NeuralSdf {
     pub radius: f64,
     /// Seed of the initial weights.
     pub seed: u64,
+    /// A hash grid's levels switched on coarse to fine: one more every
+    /// this many steps from a quarter of them (0: all from the start).
+    pub level_every: usize,
+    /// The eikonal term's `∇f` on a hash grid by central differences of
+    /// this step (Neuralangelo); `None`: exact.
+    pub eikonal_step: Option<f64>,
 }
 
 impl NeuralSdf {
     /// Width of the encoded point.
     pub fn encoding_width(&self) -> usize {
-        3 * 2 * self.encoding.freqs + if self.encoding.include_input { 3 } else { 0 }
+        self.encoding.width()
     }
 
-    /// Multiply-adds of one point's distance (its gradient costs three more).
+    /// The harmonic encoding, where it is one.
+    pub fn harmonic(&self) -> Option<Harmonic> {
+        match self.encoding {
+            Encoding::Harmonic(h) => Some(h),
+            Encoding::HashGrid(_) => None,
+        }
+    }
+
+    /// Multiply-adds of one point's distance (its gradient costs three
+    /// more); a hash grid interpolates eight corners a level.
     pub fn multiply_adds(&self) -> usize {
         let (e, w) = (self.encoding_width(), self.width);
-        e * w + (self.layers - 1) * w * w + self.skips.len() * e * w + w
+        let lookups = match &self.encoding {
+            Encoding::HashGrid(g) => (g.levels * 8 * (g.features + 4)) as usize,
+            Encoding::Harmonic(_) => 0,
+        };
+        lookups + e * w + (self.layers - 1) * w * w + self.skips.len() * e * w + w
+    }
+
+    /// Trainable numbers: the layers' weights and biases, and a hash
+    /// grid's tables.
+    pub fn weights(&self) -> u64 {
+        let (e, w) = (self.encoding_width(), self.width);
+        let layers = e * w + (self.layers - 1) * w * w + self.skips.len() * e * w + w;
+        let biases = self.layers * w + 1;
+        let grid = match &self.encoding {
+            Encoding::HashGrid(g) => g.param_count(),
+            Encoding::Harmonic(_) => 0,
+        };
+        grid + (layers + biases) as u64
     }
 }
 

@@ -30,11 +30,20 @@ pub fn step_memory(job: &TrainJob) -> u64 {
         }
         // Values and three tangents per layer, forward and back, for a
         // surface and a random point per ray.
-        (Field::NeuralSdf(n), _) => {
-            let net = crate::neural::distance::sdf_net(n);
-            crate::neural::sdf_net::SdfWork::bytes_for(&net, 2 * rays as usize)
-                + 24 * net.len as u64
-        }
+        (Field::NeuralSdf(n), _) => match &n.encoding {
+            sdfl_stdlib::value::Encoding::Harmonic(_) => {
+                let net = crate::neural::distance::sdf_net(n);
+                crate::neural::sdf_net::SdfWork::bytes_for(&net, 2 * rays as usize)
+                    + 24 * net.len as u64
+            }
+            // The network's buffers, the tables' gradient and the
+            // optimiser's copies.
+            sdfl_stdlib::value::Encoding::HashGrid(g) => {
+                use crate::neural::hash_sdf::objective::HashSdfObjective;
+                HashSdfObjective::new(n, g, &job.losses, job.bounds)
+                    .map_or(0, |o| o.step_bytes(2 * rays as usize))
+            }
+        },
         // The distance network's values and reverse pass at every sample,
         // plus the colour network's activations and the adjoints.
         (Field::NeuralSurface(n), _) => {

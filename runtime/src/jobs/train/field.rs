@@ -5,10 +5,11 @@
 
 use super::super::*;
 use crate::neural::distance::NeuralSdfObjective;
+use crate::neural::hash_sdf::objective::HashSdfObjective;
 use crate::neural::surface::SurfaceObjective;
 use crate::train::field::{analytic, Region, Viewing};
 use crate::train::{Trained, TrainedField};
-use sdfl_stdlib::value::Unbounded;
+use sdfl_stdlib::value::{Encoding, Unbounded};
 
 /// The field `job` trains over `steps` steps (a scheduled β reaches its
 /// end at the last), on `points` where it fits a point cloud. An NDC
@@ -26,10 +27,19 @@ pub fn trained_field(
             objective: NerfObjective::new(&crate::neural::warp::for_layout(n), &job.sampler)?,
             viewing: viewing(job.model.export_region())?,
         }),
-        Field::NeuralSdf(n) => Box::new(Trained {
-            objective: NeuralSdfObjective::new(n, &job.losses, job.bounds),
-            viewing: viewing(Some(mesh_region(points, job.bounds)))?,
-        }),
+        Field::NeuralSdf(n) => {
+            let viewing = viewing(Some(mesh_region(points, job.bounds)))?;
+            match &n.encoding {
+                Encoding::Harmonic(_) => Box::new(Trained {
+                    objective: NeuralSdfObjective::new(n, &job.losses, job.bounds),
+                    viewing,
+                }),
+                Encoding::HashGrid(g) => Box::new(Trained {
+                    objective: HashSdfObjective::new(n, g, &job.losses, job.bounds)?,
+                    viewing,
+                }),
+            }
+        }
         Field::NeuralSurface(n) => Box::new(Trained {
             objective: SurfaceObjective::new(n, &job.losses).with_steps(steps),
             viewing: viewing(Some(mesh_region(&[], job.bounds)))?,

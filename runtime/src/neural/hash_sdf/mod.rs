@@ -96,6 +96,11 @@ pub struct HashSdfLoss {
     pub surface: f32,
     /// λ, of `mean(‖∇f‖ − 1)²` over all points.
     pub eikonal: f32,
+    /// Of `mean exp(−α|f|)` over the random points (keeps the surface
+    /// away from where there is no data).
+    pub inter: f32,
+    /// α, the inter term's sharpness.
+    pub alpha: f32,
 }
 
 impl Default for HashSdfLoss {
@@ -103,6 +108,8 @@ impl Default for HashSdfLoss {
         HashSdfLoss {
             surface: 1.0,
             eikonal: 0.1,
+            inter: 0.0,
+            alpha: 100.0,
         }
     }
 }
@@ -184,6 +191,19 @@ impl HashSdf {
     /// Trainable numbers in the tables (the params' first part).
     pub fn table_params(&self) -> usize {
         self.grid.param_count()
+    }
+    /// The layers' parameter blocks after the tables, in order, named:
+    /// per hidden layer `W` then `b`, then the output's.
+    pub fn layer_sizes(&self) -> Vec<(String, usize)> {
+        let w = self.width;
+        let mut sizes = Vec::with_capacity(2 * self.hidden.len() + 2);
+        for (i, &(input, _)) in self.hidden.iter().enumerate() {
+            sizes.push((format!("layer{i}.weight"), input * w));
+            sizes.push((format!("layer{i}.bias"), w));
+        }
+        sizes.push(("output.weight".into(), w));
+        sizes.push(("output.bias".into(), 1));
+        sizes
     }
     /// Number of levels (the most that can be active).
     pub fn levels(&self) -> usize {
@@ -484,9 +504,9 @@ impl HashSdf {
             });
     }
 
-    /// The loss `surface·mean_s|f| + eikonal·mean(‖∇f‖ − 1)²` at `surface`
-    /// points (the shape's) and `random` points (in the volume), the
-    /// eikonal mean over both sets, with `∇f` as `eikonal` says and the
+    /// The loss `surface·mean_s|f| + eikonal·mean(‖∇f‖ − 1)² +
+    /// inter·mean_r exp(−α|f|)` at `surface` points (the shape's) and
+    /// `random` points (in the volume), the eikonal mean over both sets, with `∇f` as `eikonal` says and the
     /// first `active` levels. *Adds* `∂L/∂params` to `grad` and marks the
     /// table rows it wrote in `touched` (a set of [`Self::grid`]'s), so a
     /// step costs O(touched rows), not O(tables): [`HashGrid::sparse_adam_update`]
@@ -521,6 +541,10 @@ impl HashSdf {
         let mlp = self.len - self.table_params();
         let k_s = weights.surface as f64 / ns.max(1) as f64;
         let k_e = weights.eikonal as f64 / n.max(1) as f64;
+        let inter = Inter {
+            k: weights.inter as f64 / random.len().max(1) as f64,
+            alpha: weights.alpha as f64,
+        };
         let point = |i: usize| if i < ns { surface[i] } else { random[i - ns] };
         let HashSdfWork {
             chunks,
@@ -549,7 +573,7 @@ impl HashSdf {
                     match eikonal {
                         Eikonal::Exact => {
                             let (f, g) = self.value_grad(params, p, active, &mut cw.buf);
-                            let (l, df, dg) = point_loss(f, g, i < ns, k_s, k_e);
+                            let (l, df, dg) = point_loss(f, g, i < ns, k_s, k_e, inter);
                             loss += l;
                             let t = self.tangent_out::<3>();
                             let buf = &cw.buf[..t + 3];
@@ -589,7 +613,7 @@ impl HashSdf {
                                     0.0
                                 }
                             });
-                            let (l, df, dg) = point_loss(fv[0], g, i < ns, k_s, k_e);
+                            let (l, df, dg) = point_loss(fv[0], g, i < ns, k_s, k_e, inter);
                             loss += l;
                             let mut d = [0f32; FD_PROBES];
                             d[0] = df;
@@ -718,15 +742,33 @@ impl HashSdf {
     }
 }
 
+/// The inter term's weight a random point and its sharpness.
+#[derive(Clone, Copy)]
+struct Inter {
+    k: f64,
+    alpha: f64,
+}
+
 /// One point's loss and its adjoints of `f` and `∇f`.
 #[inline(always)]
-fn point_loss(f: f32, g: [f32; 3], on_surface: bool, k_s: f64, k_e: f64) -> (f64, f32, [f32; 3]) {
+fn point_loss(
+    f: f32,
+    g: [f32; 3],
+    on_surface: bool,
+    k_s: f64,
+    k_e: f64,
+    inter: Inter,
+) -> (f64, f32, [f32; 3]) {
     let mut loss = 0.0;
     let mut df = 0.0;
+    let v = f as f64;
     if on_surface {
-        let v = f as f64;
         loss += k_s * v.abs();
         df = (k_s * sign(v)) as f32;
+    } else if inter.k != 0.0 {
+        let e = (-inter.alpha * v.abs()).exp();
+        loss += inter.k * e;
+        df = to_f32(-inter.k * inter.alpha * sign(v) * e);
     }
     let v = g.map(|x| x as f64);
     let norm = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
@@ -846,6 +888,22 @@ impl HashSdfWork {
         self.rows = rows;
     }
 
+    /// Bytes [`HashSdf::loss_and_grad`] holds for `rows` points with
+    /// `probes` evaluations each (1: the exact eikonal form, 7: the
+    /// finite differences), at most.
+    pub fn bytes_for(net: &HashSdf, rows: usize, probes: usize) -> u64 {
+        let nchunks = rows.div_ceil(CHUNK) as u64;
+        let cap = nchunks * CHUNK as u64;
+        let (e, w) = (net.grid.output_dim() as u64, net.width as u64);
+        let nt = if probes == 1 { 3 } else { 0 };
+        let per_chunk = 4
+            * (probes as u64 * net.scratch_len::<3>() as u64
+                + 2 * (1 + nt) * e.max(w)
+                + (net.len - net.table_params()) as u64);
+        let per_point = 4 * (probes as u64 * (3 + (1 + nt) * e) + 4);
+        nchunks * per_chunk + cap * per_point
+    }
+
     /// `f` at the last loss's points (surface points first).
     pub fn distance(&self) -> &[f32] {
         &self.f[..self.rows]
@@ -880,6 +938,8 @@ impl DistanceField for HashSdfField<'_> {
         self.net.gradients(self.params, points, self.active, f, g)
     }
 }
+
+pub mod objective;
 
 #[cfg(test)]
 mod tests;

@@ -180,11 +180,14 @@ fn reference_loss(
 ) -> f64 {
     let (ns, n) = (surface.len(), surface.len() + random.len());
     let (k_s, k_e) = (w.surface as f64 / ns as f64, w.eikonal as f64 / n as f64);
+    let k_i = w.inter as f64 / random.len() as f64;
     let mut loss = 0.0;
     for (i, &p) in surface.iter().chain(random).enumerate() {
         let r = reference(net, sp, params, p, active);
         if i < ns {
             loss += k_s * r.v.abs();
+        } else {
+            loss += k_i * (-(w.alpha as f64) * r.v.abs()).exp();
         }
         let g: [f64; 3] = match eik {
             Eikonal::Exact => r.d,
@@ -284,6 +287,8 @@ fn check_param_gradient(eik: Eikonal, active: usize, beta: f32, seed: u64) {
     let w = HashSdfLoss {
         surface: 1.0,
         eikonal: 0.7,
+        inter: 0.5,
+        alpha: 3.0,
     };
     let mut work = HashSdfWork::default();
     let mut touched = net.grid().touched_set();
@@ -615,6 +620,7 @@ fn hash_sdf_fits_a_box_in_a_few_hundred_steps() {
     let w = HashSdfLoss {
         surface: 1.0,
         eikonal: 0.1,
+        ..HashSdfLoss::default()
     };
     let (b1, b2, lr) = (0.9f32, 0.99f32, 5e-3f32);
     let steps = 300;

@@ -7,16 +7,18 @@ use sdfl_stdlib::value::{Harmonic as HarmonicSpec, NeuralSdf};
 fn spec(density: DensityKind, view_dependent: bool) -> NeuralSurface {
     NeuralSurface {
         sdf: NeuralSdf {
-            encoding: HarmonicSpec {
+            encoding: sdfl_stdlib::value::Encoding::Harmonic(HarmonicSpec {
                 freqs: 2,
                 include_input: true,
-            },
+            }),
             layers: 2,
             width: 8,
             skips: vec![],
             beta: 20.0,
             radius: 0.5,
             seed: 3,
+            level_every: 0,
+            eikonal_step: None,
         },
         density,
         alpha: 10.0,
