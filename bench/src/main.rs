@@ -13,7 +13,7 @@
 //! `-- user` times a torus the user writes (`sdf(torus_d, ...)`) against
 //! the built-in one and fidget's JIT on the same expression (see `user.rs`).
 //! `cargo run --release -p sdfl-bench -- train` times training steps instead
-//! (see `train.rs`; `-- train 20 fused` the fused kernel only); `-- nerf` times NeRF steps and `-- neural-sdf` neural SDF steps (see `nerf.rs`); `-- density` what each density runs through (see `density.rs`); `-- view` the frames per second of `sdfl view` (see `view.rs`).
+//! (see `train.rs`; `-- train 20 fused` the fused kernel only); `-- nerf` times NeRF steps and `-- neural-sdf` neural SDF steps (see `nerf.rs`); `-- density` what each density runs through (see `density.rs`); `-- view` the frames per second of `sdfl view` (see `view.rs`); `-- surface` a neural surface step against PyTorch and `-- hash-sdf` the hash-grid SDF step (see `surface.rs`, `hash_sdf.rs`).
 #![warn(missing_docs)]
 
 use std::time::Instant;
