@@ -252,10 +252,12 @@ pub fn write_volume_outputs(
                 OutputKind::Rays => (WrittenKind::RaysImage, figures::rays_image(cam, w, h), (w, h)),
                 OutputKind::SamplePoints => {
                     let stride = (w.max(h) / 16).max(1);
+                    // A chart needs room for its text: twice the image's side.
+                    let side = w.max(h).saturating_mul(2).clamp(256, 1024);
                     (
                         WrittenKind::SamplePoints,
-                        figures::sample_points_image(cam, &strat, w, h, stride, 512, 512),
-                        (512, 512),
+                        figures::sample_points_image(cam, &strat, w, h, stride, side, side),
+                        (side, side),
                     )
                 }
             };
