@@ -35,7 +35,7 @@ pub fn sdf_net(spec: &NeuralSdf) -> SdfNet {
 }
 
 /// The loss weights of a `train` statement's terms (summed per kind).
-fn weights(losses: &[Loss]) -> SdfLoss {
+pub(crate) fn weights(losses: &[Loss]) -> SdfLoss {
     let mut w = SdfLoss {
         surface: 0.0,
         eikonal: 0.0,

@@ -103,6 +103,30 @@ impl Op {
         }
     }
 
+    /// The same operation on operands renamed by `m` (a tape rewritten
+    /// into another: baked, pruned).
+    fn map_operands(self, m: impl Fn(u32) -> u32) -> Op {
+        match self {
+            Op::Input(_) | Op::Const(_) | Op::Arg(_) => self,
+            Op::Add(a, c) => Op::Add(m(a), m(c)),
+            Op::Sub(a, c) => Op::Sub(m(a), m(c)),
+            Op::Mul(a, c) => Op::Mul(m(a), m(c)),
+            Op::Div(a, c) => Op::Div(m(a), m(c)),
+            Op::Min(a, c) => Op::Min(m(a), m(c)),
+            Op::Max(a, c) => Op::Max(m(a), m(c)),
+            Op::Neg(a) => Op::Neg(m(a)),
+            Op::Abs(a) => Op::Abs(m(a)),
+            Op::Sqrt(a) => Op::Sqrt(m(a)),
+            Op::Sin(a) => Op::Sin(m(a)),
+            Op::Cos(a) => Op::Cos(m(a)),
+            Op::Exp(a) => Op::Exp(m(a)),
+            Op::Floor(a) => Op::Floor(m(a)),
+            Op::Hypot2(a, c) => Op::Hypot2(m(a), m(c)),
+            Op::Hypot3(a, c, d) => Op::Hypot3(m(a), m(c), m(d)),
+            Op::IfGt(a, c, d, e) => Op::IfGt(m(a), m(c), m(d), m(e)),
+        }
+    }
+
     /// The arithmetic it computes and its operands (unused ones 0);
     /// `None` for the point's coordinates, constants and arguments. What
     /// compilers of the tape into other forms read (the runtime's register
@@ -415,23 +439,7 @@ impl Tape {
             let m = |a: u32| map[a as usize];
             let op = match *op {
                 Op::Arg(i) => Op::Const(args[i as usize]),
-                Op::Input(_) | Op::Const(_) => *op,
-                Op::Add(a, c) => Op::Add(m(a), m(c)),
-                Op::Sub(a, c) => Op::Sub(m(a), m(c)),
-                Op::Mul(a, c) => Op::Mul(m(a), m(c)),
-                Op::Div(a, c) => Op::Div(m(a), m(c)),
-                Op::Min(a, c) => Op::Min(m(a), m(c)),
-                Op::Max(a, c) => Op::Max(m(a), m(c)),
-                Op::Neg(a) => Op::Neg(m(a)),
-                Op::Abs(a) => Op::Abs(m(a)),
-                Op::Sqrt(a) => Op::Sqrt(m(a)),
-                Op::Sin(a) => Op::Sin(m(a)),
-                Op::Cos(a) => Op::Cos(m(a)),
-                Op::Exp(a) => Op::Exp(m(a)),
-                Op::Floor(a) => Op::Floor(m(a)),
-                Op::Hypot2(a, c) => Op::Hypot2(m(a), m(c)),
-                Op::Hypot3(a, c, d) => Op::Hypot3(m(a), m(c), m(d)),
-                Op::IfGt(a, c, d, e) => Op::IfGt(m(a), m(c), m(d), m(e)),
+                op => op.map_operands(m),
             };
             map.push(b.push(op, *span));
         }
@@ -458,25 +466,7 @@ impl Tape {
                 continue;
             }
             let m = |a: u32| map[a as usize];
-            let op = match self.ops[i] {
-                op @ (Op::Arg(_) | Op::Input(_) | Op::Const(_)) => op,
-                Op::Add(a, c) => Op::Add(m(a), m(c)),
-                Op::Sub(a, c) => Op::Sub(m(a), m(c)),
-                Op::Mul(a, c) => Op::Mul(m(a), m(c)),
-                Op::Div(a, c) => Op::Div(m(a), m(c)),
-                Op::Min(a, c) => Op::Min(m(a), m(c)),
-                Op::Max(a, c) => Op::Max(m(a), m(c)),
-                Op::Neg(a) => Op::Neg(m(a)),
-                Op::Abs(a) => Op::Abs(m(a)),
-                Op::Sqrt(a) => Op::Sqrt(m(a)),
-                Op::Sin(a) => Op::Sin(m(a)),
-                Op::Cos(a) => Op::Cos(m(a)),
-                Op::Exp(a) => Op::Exp(m(a)),
-                Op::Floor(a) => Op::Floor(m(a)),
-                Op::Hypot2(a, c) => Op::Hypot2(m(a), m(c)),
-                Op::Hypot3(a, c, d) => Op::Hypot3(m(a), m(c), m(d)),
-                Op::IfGt(a, c, d, e) => Op::IfGt(m(a), m(c), m(d), m(e)),
-            };
+            let op = self.ops[i].map_operands(m);
             map[i] = b.push(op, self.spans[i]);
         }
         let out = map[self.out as usize];

@@ -10,7 +10,7 @@
 //! is the one trained with the active ones (renders, meshes and fits need
 //! not know the step).
 
-use sdfl_stdlib::value::{HashGridSpec, Loss, LossKind, NeuralSdf};
+use sdfl_stdlib::value::{HashGridSpec, Loss, NeuralSdf};
 use sdfl_stdlib::work::FIT_CHUNK;
 
 use super::{progressive_levels, Eikonal, HashSdf, HashSdfField, HashSdfLoss, HashSdfSpec};
@@ -42,27 +42,16 @@ pub fn hash_sdf(spec: &NeuralSdf, grid: &HashGridSpec) -> Result<HashSdf, String
     })
 }
 
-/// The loss weights of a `train` statement's terms (summed per kind).
+/// The loss weights of a `train` statement's terms, read as for the
+/// harmonic network.
 fn weights(losses: &[Loss]) -> HashSdfLoss {
-    let mut w = HashSdfLoss {
-        surface: 0.0,
-        eikonal: 0.0,
-        inter: 0.0,
-        alpha: 100.0,
-    };
-    for l in losses {
-        match l.kind {
-            LossKind::Surface => w.surface += l.weight as f32,
-            LossKind::Eikonal => w.eikonal += l.weight as f32,
-            LossKind::Inter { alpha } => {
-                w.inter += l.weight as f32;
-                w.alpha = alpha as f32;
-            }
-            // The language keeps image terms off distance fields.
-            LossKind::Mse => {}
-        }
+    let w = crate::neural::distance::weights(losses);
+    HashSdfLoss {
+        surface: w.surface,
+        eikonal: w.eikonal,
+        inter: w.inter,
+        alpha: w.alpha,
     }
-    w
 }
 
 /// A hash-grid SDF being fitted to points.
