@@ -2,20 +2,12 @@
 //! transmittance, as a user calls them.
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
 
-fn sdfl(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_sdfl"))
-        .args(args)
-        .output()
-        .expect("sdfl runs")
-}
+mod common;
+use common::run_sdfl as sdfl;
 
 fn temp(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("sdfl-cli-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
+    common::temp_dir("cli", name)
 }
 
 fn example(name: &str) -> String {

@@ -3,20 +3,13 @@
 
 use std::io::Write;
 use std::path::PathBuf;
-use std::process::{Command, Output, Stdio};
+use std::process::{Command, Stdio};
 
-fn sdfl(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_sdfl"))
-        .args(args)
-        .output()
-        .expect("sdfl runs")
-}
+mod common;
+use common::run_sdfl as sdfl;
 
 fn temp(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("sdfl-editors-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
+    common::temp_dir("editors", name)
 }
 
 const MESSY: &str = "let  a=[1,2]  // two\nrender r{scene:sphere(a[0]),outputs:[image(\"r.png\")]}";

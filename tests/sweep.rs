@@ -7,18 +7,11 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
-fn sdfl(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_sdfl"))
-        .args(args)
-        .output()
-        .expect("sdfl runs")
-}
+mod common;
+use common::run_sdfl as sdfl;
 
 fn temp(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("sdfl-sweep-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
+    common::temp_dir("sweep", name)
 }
 
 fn ok(out: &Output) -> String {

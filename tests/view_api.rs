@@ -7,11 +7,10 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::Duration;
 
+mod common;
+
 fn temp(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("sdfl-view-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
+    common::temp_dir("view", name)
 }
 
 /// Saved as editors do: written beside, then renamed into place.

@@ -10,11 +10,10 @@ use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 
+mod common;
+
 fn temp(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("sdfl-browser-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
+    common::temp_dir("browser", name)
 }
 
 /// The browser: `SDFL_BROWSER`, else the first of Chromium's names on PATH.

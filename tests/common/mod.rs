@@ -5,7 +5,7 @@
 
 use std::fs;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Stdio};
+use std::process::{Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
 /// Longest any one command may take (the slowest cases need about a second).
@@ -164,4 +164,22 @@ pub fn run_report(dir: &Path, file: &str) -> serde_json::Value {
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let report: serde_json::Value = serde_json::from_slice(&o.stdout).expect("--json prints JSON");
     report["jobs"][0]["report"].clone()
+}
+
+/// Runs `sdfl` with `args` and waits for it, output captured: for commands
+/// that end quickly by design (the hostile runner above bounds the time).
+pub fn run_sdfl(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_sdfl"))
+        .args(args)
+        .output()
+        .expect("sdfl runs")
+}
+
+/// A fresh, empty directory `sdfl-<suite>-<pid>-<name>` in the system's
+/// temporary directory.
+pub fn temp_dir(suite: &str, name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("sdfl-{suite}-{}-{name}", std::process::id()));
+    let _ = fs::remove_dir_all(&d);
+    fs::create_dir_all(&d).expect("temp dir is writable");
+    d
 }
