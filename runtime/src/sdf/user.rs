@@ -629,6 +629,9 @@ impl Node for UserLeaf {
         }
         user_packs(self, p, out)
     }
+    fn traces_in_packs(&self) -> bool {
+        true
+    }
 }
 
 /// Packs per pass through the code (the columns of 64 registers fit the
