@@ -135,7 +135,7 @@ pub struct March {
 impl March {
     /// The march of the ray `origin + t·dir` with settings `s`, and its
     /// first step.
-    #[inline]
+    #[inline(always)]
     pub fn start(origin: Vec3A, dir: Vec3A, s: &TraceSettings) -> (March, Step) {
         let t = s.near;
         let march = March {
@@ -169,7 +169,7 @@ impl March {
 
     /// The next step of the march after the distance `d` at the point of
     /// its last step.
-    #[inline]
+    #[inline(always)]
     #[allow(
         clippy::neg_cmp_op_on_partial_ord,
         reason = "a NaN distance must end the ray as a miss"
@@ -232,7 +232,7 @@ impl March {
     }
 
     /// The march's next step, or its end when its steps ran out.
-    #[inline]
+    #[inline(always)]
     fn next_step(&mut self) -> Step {
         self.step += 1;
         if self.step < self.s.max_steps {
@@ -245,6 +245,7 @@ impl March {
     /// Out of steps: a ray that came within two footprints of a surface
     /// (creeping along it at a grazing angle) is decided at pixel
     /// resolution as a hit there; any other is undecided.
+    #[inline(always)]
     fn out_of_steps(&self) -> Hit {
         let s = &self.s;
         if self.best_err < 2.0 * s.footprint {
@@ -266,7 +267,7 @@ impl March {
     /// The refinement of a hit at `t` with distance `r` after `steps` of
     /// its steps: another step towards the surface while `r ≥ epsilon` and
     /// fewer than [`REFINE_STEPS`] were taken, else the hit.
-    #[inline]
+    #[inline(always)]
     fn refine_from(&mut self, steps: u32, r: f32) -> Step {
         if r >= self.s.epsilon && steps < REFINE_STEPS {
             self.refine = Some((steps, r));
@@ -284,7 +285,7 @@ impl March {
     /// A refinement step's distance `d`: it stops where the distance stops
     /// shrinking (a ray grazing past keeps its footprint hit), at most
     /// [`REFINE_STEPS`] steps, below `epsilon`.
-    #[inline]
+    #[inline(always)]
     #[allow(
         clippy::neg_cmp_op_on_partial_ord,
         reason = "a NaN distance must stop the refinement"

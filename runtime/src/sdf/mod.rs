@@ -250,7 +250,11 @@ impl Lowered {
             }
             self.root.dist_packs(&packs[..count], &mut dists[..count]);
             for (o, d) in out.chunks_mut(LANES).zip(&dists) {
-                o.copy_from_slice(&d.0[..o.len()]);
+                match o.first_chunk_mut::<LANES>() {
+                    // A whole pack: a copy of fixed size (no call).
+                    Some(o) => *o = d.0,
+                    None => o.copy_from_slice(&d.0[..o.len()]),
+                }
             }
         }
     }
