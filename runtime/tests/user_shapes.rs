@@ -148,7 +148,9 @@ const CONSTANT_FIRST: &str = "fn mixed(p) { min(0.3, max(0.2, 1.5 - length(p)) /
 #[test]
 fn compiled_code_and_its_columns_equal_the_tape_interpreter_bit_for_bit() {
     let mut rng = Lcg(11);
-    for src in SHAPES.iter().chain(&[CONSTANT_FIRST]) {
+    // The sheet: divided by its derived bound (the products by 1 the
+    // others skip are taken).
+    for src in SHAPES.iter().chain(&[CONSTANT_FIRST, SHEET]) {
         let s = shape(src);
         let l = Lowered::new(&s, LowerOptions::default());
         let pts = box_points(&s, &mut rng);
@@ -167,6 +169,29 @@ fn compiled_code_and_its_columns_equal_the_tape_interpreter_bit_for_bit() {
                 want.to_bits(),
                 "{src} at {p}: lanes {b} vs {want}"
             );
+        }
+    }
+}
+
+#[test]
+fn placed_user_shapes_in_packs_equal_them_point_by_point() {
+    // Moved, turned and scaled (the leaf's frame and its scale factor),
+    // batches of every length up to three passes of 32 packs and a part.
+    let mut rng = Lcg(13);
+    for src in [
+        "let s = scale(rotate(translate(sdf(torus_d, bound: [1.5, 1.5, 0.5]), [0.2, -0.1, 0.3]), 0.7, axis: [1, 1, 0]), 1.7)",
+        "fn sheet(p) { abs(p.y - 0.15 * sin(12 * p.x) * sin(12 * p.z)) - 0.01 }\nlet s = scale(sdf(sheet, bound: [2, 0.2, 2]), 0.5)",
+    ] {
+        let s = shape(src);
+        let l = Lowered::new(&s, LowerOptions::default());
+        let pts: Vec<Vec3A> = (0..800).map(|_| rng.v3(3.0).as_vec3().into()).collect();
+        for len in [1, 7, 8, 9, 16, 17, 255, 256, 257, 800] {
+            let mut batch = vec![0.0f32; len];
+            l.eval_batch(&pts[..len], &mut batch);
+            for (p, b) in pts.iter().zip(&batch) {
+                let want = l.dist(*p);
+                assert_eq!(b.to_bits(), want.to_bits(), "{src} at {p}, {len}: {b} vs {want}");
+            }
         }
     }
 }

@@ -359,6 +359,30 @@ mod tests {
     }
 
     #[test]
+    fn packs_hold_their_points_lane_by_lane() {
+        let pts: Vec<Vec3A> = (0..8)
+            .map(|i| {
+                let f = i as f32;
+                Vec3A::new(f - 3.5, [-0.0, 1e30, -f32::INFINITY, 2.0][i % 4], f * 1e-38)
+            })
+            .collect();
+        // Whole packs (transposed in registers) and partial ones (the
+        // last point repeated).
+        for n in 1..=8 {
+            let p = pack(&pts[..n]);
+            for i in 0..LANES {
+                let want = pts[i.min(n - 1)];
+                let got = lane(&p, i);
+                assert_eq!(
+                    got.to_array().map(f32::to_bits),
+                    want.to_array().map(f32::to_bits),
+                    "{n} points, lane {i}"
+                );
+            }
+        }
+    }
+
+    #[test]
     fn a_constant_pack_has_a_value() {
         assert_eq!(F8::splat(0.5).val(), 0.5);
         let mixed = F8([0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]);
