@@ -9,7 +9,10 @@
 //! - frames: 512² colour frames (all threads) of each torus, and depth +
 //!   normals of the user torus against fidget's voxel renderer.
 //!
-//! Best of `reps`, the contenders alternating so they see the same load.
+//! `-- user [rounds]` (default 5): each round times every contender in
+//! turn (best of a few passes); figures are medians over the rounds and
+//! ratios the median of the rounds' ratios (their range in brackets), so
+//! both contenders of a ratio saw the same load.
 
 use std::sync::Arc;
 
@@ -44,13 +47,38 @@ fn builtin_torus() -> Shape {
     })
 }
 
-/// Points per second of `f` over `points` (best of `reps`).
-fn rate(reps: usize, points: &[Vec3A], mut f: impl FnMut()) -> f64 {
-    points.len() as f64 / best_of(reps, &mut f)
+/// Points per second of `f` over `points` (best of `passes`).
+fn rate(passes: usize, points: &[Vec3A], mut f: impl FnMut()) -> f64 {
+    points.len() as f64 / best_of(passes, &mut f)
 }
 
-/// Runs the comparison and prints two Markdown tables.
-pub fn main(reps: usize) {
+/// Passes per contender in a round (its best is the round's figure).
+const PASSES: usize = 3;
+
+/// The median of `xs` and their range, as `median (lo–hi)`.
+fn spread(xs: &mut [f64]) -> (f64, f64, f64) {
+    xs.sort_by(f64::total_cmp);
+    let n = xs.len();
+    let median = if n % 2 == 1 {
+        xs[n / 2]
+    } else {
+        0.5 * (xs[n / 2 - 1] + xs[n / 2])
+    };
+    (median, xs[0], xs[n - 1])
+}
+
+/// A ratio's median over the rounds, with its range.
+fn ratio_cell(xs: &mut [f64]) -> String {
+    let (m, lo, hi) = spread(xs);
+    format!("**{m:.2}** ({lo:.2}–{hi:.2})")
+}
+
+/// Runs the comparison and prints two Markdown tables: each figure the
+/// median over `rounds` rounds, each round timing every contender in turn
+/// (best of a few passes), so the ratios pair contenders that saw the same
+/// load; ratios are the median of the rounds' ratios, with their range.
+pub fn main(rounds: usize) {
+    let rounds = rounds.max(1);
     let (user, builtin) = (user_torus(), builtin_torus());
     let (lu, lb) = (
         Lowered::new(&user, LowerOptions::default()),
@@ -70,40 +98,54 @@ pub fn main(reps: usize) {
     fidget.check_against(&lb, &points[..2000]);
 
     let mut out = vec![0f32; points.len()];
-    let (mut ub, mut bb, mut up, mut bp, mut fj) = (0f64, 0f64, 0f64, 0f64, 0f64);
-    for _ in 0..reps {
-        ub = ub.max(rate(1, &points, || lu.eval_batch(&points, &mut out)));
-        bb = bb.max(rate(1, &points, || lb.eval_batch(&points, &mut out)));
-        up = up.max(rate(1, &points, || {
+    // Per round: user batched, built-in batched, user per point, built-in
+    // per point, fidget JIT (points/s).
+    let mut r: [Vec<f64>; 5] = Default::default();
+    for _ in 0..rounds {
+        r[0].push(rate(PASSES, &points, || lu.eval_batch(&points, &mut out)));
+        r[1].push(rate(PASSES, &points, || lb.eval_batch(&points, &mut out)));
+        r[2].push(rate(PASSES, &points, || {
             for (p, o) in points.iter().zip(out.iter_mut()) {
                 *o = lu.dist(*p);
             }
         }));
-        bp = bp.max(rate(1, &points, || {
+        r[3].push(rate(PASSES, &points, || {
             for (p, o) in points.iter().zip(out.iter_mut()) {
                 *o = lb.dist(*p);
             }
         }));
-        fj = fj.max(fidget.throughput(&points, 1).0);
+        r[4].push(fidget.throughput(&points, 1).0);
         std::hint::black_box(&out);
     }
+    let per_round =
+        |a: usize, b: usize| -> Vec<f64> { (0..rounds).map(|k| r[a][k] / r[b][k]).collect() };
+    let (mut ub_bb, mut ub_fj, mut up_bp, mut up_fj) = (
+        per_round(0, 1),
+        per_round(0, 4),
+        per_round(2, 3),
+        per_round(2, 4),
+    );
+    let med = |k: usize| spread(&mut r[k].clone()).0 / 1e6;
+    println!(
+        "Medians over {rounds} rounds (ratios: median of the rounds' ratios, range in brackets).\n"
+    );
     println!("| torus evaluation, one thread | user Mpts/s | built-in Mpts/s | fidget JIT Mpts/s | **user / built-in** | **user / fidget** |");
     println!("|---|---:|---:|---:|---:|---:|");
     println!(
-        "| batched (`eval_batch`) | {:.1} | {:.1} | {:.1} | **{:.2}** | **{:.2}** |",
-        ub / 1e6,
-        bb / 1e6,
-        fj / 1e6,
-        ub / bb,
-        ub / fj
+        "| batched (`eval_batch`) | {:.1} | {:.1} | {:.1} | {} | {} |",
+        med(0),
+        med(1),
+        med(4),
+        ratio_cell(&mut ub_bb),
+        ratio_cell(&mut ub_fj)
     );
     println!(
-        "| per point (`dist`) | {:.1} | {:.1} | {:.1} | **{:.2}** | **{:.2}** |",
-        up / 1e6,
-        bp / 1e6,
-        fj / 1e6,
-        up / bp,
-        up / fj
+        "| per point (`dist`) | {:.1} | {:.1} | {:.1} | {} | {} |",
+        med(2),
+        med(3),
+        med(4),
+        ratio_cell(&mut up_bp),
+        ratio_cell(&mut up_fj)
     );
 
     let colour = Needs {
@@ -119,29 +161,37 @@ pub fn main(reps: usize) {
         mask: false,
     };
     let voxels = peer::FidgetFrame::build(|ctx| peer::torus(ctx, 1.0, 0.25), FRAME);
-    let (mut uf, mut bf, mut ug, mut fv) =
-        (f64::INFINITY, f64::INFINITY, f64::INFINITY, f64::INFINITY);
+    // Per round: user colour, built-in colour, user geometry, fidget voxels (s).
+    let mut f: [Vec<f64>; 4] = Default::default();
     let (mut hits_u, mut hits_b) = (0, 0);
-    for _ in 0..reps {
-        let (s, v) = frame(&lu, &user, colour, 1);
-        uf = uf.min(s);
+    for _ in 0..rounds {
+        let (s, v) = frame(&lu, &user, colour, PASSES);
+        f[0].push(s);
         hits_u = v.hits;
-        let (s, v) = frame(&lb, &builtin, colour, 1);
-        bf = bf.min(s);
+        let (s, v) = frame(&lb, &builtin, colour, PASSES);
+        f[1].push(s);
         hits_b = v.hits;
-        ug = ug.min(frame(&lu, &user, geometry, 1).0);
-        fv = fv.min(voxels.render().0);
+        f[2].push(frame(&lu, &user, geometry, PASSES).0);
+        f[3].push(
+            (0..PASSES)
+                .map(|_| voxels.render().0)
+                .fold(f64::INFINITY, f64::min),
+        );
     }
+    let ratios =
+        |a: usize, b: usize| -> Vec<f64> { (0..rounds).map(|k| f[a][k] / f[b][k]).collect() };
+    let (mut ub, mut fu) = (ratios(0, 1), ratios(3, 2));
+    let ms = |k: usize| spread(&mut f[k].clone()).0 * 1e3;
     println!();
     println!("| torus frame {FRAME}², all threads | user ms | built-in ms | **user / built-in time** | user depth+normals ms | fidget voxel ms | **fidget / user time** | hits user / built-in |");
     println!("|---|---:|---:|---:|---:|---:|---:|---:|");
     println!(
-        "| colour; depth + normals | {:.2} | {:.2} | **{:.2}** | {:.2} | {:.2} | **{:.2}** | {hits_u} / {hits_b} |",
-        uf * 1e3,
-        bf * 1e3,
-        uf / bf,
-        ug * 1e3,
-        fv * 1e3,
-        fv / ug
+        "| colour; depth + normals | {:.2} | {:.2} | {} | {:.2} | {:.2} | {} | {hits_u} / {hits_b} |",
+        ms(0),
+        ms(1),
+        ratio_cell(&mut ub),
+        ms(2),
+        ms(3),
+        ratio_cell(&mut fu)
     );
 }

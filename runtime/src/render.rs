@@ -470,12 +470,40 @@ pub fn render_view(
                     }
                     continue;
                 }
-                let mut trace = |d: Vec3A, s: &TraceSettings| {
-                    let hit = tile.trace(d, s);
+                // Where the tile's rays are marched together, all of them
+                // first, in the order the loop below asks for them.
+                let mut traced = tile.traces_in_packs().then(|| {
+                    let mut rays = Vec::new();
+                    for j in rows.clone() {
+                        for i in i0..i1 {
+                            if centre_separate || offsets.len() == 1 {
+                                rays.push((direction(i as f64, j as f64), settings));
+                            }
+                            if offsets.len() > 1 && col.is_some() {
+                                for (dx, dy) in &offsets {
+                                    let d = direction(i as f64 + dx, j as f64 + dy);
+                                    rays.push((d, sub_settings));
+                                }
+                            }
+                        }
+                    }
+                    let dirs: Vec<_> = rays.iter().map(|((_, d), s)| (*d, *s)).collect();
+                    let hits = tile.trace_packs(&dirs);
+                    rays.into_iter().map(|(d, _)| d).zip(hits)
+                });
+                // The ray through fractional pixel (x, y) and where it ends.
+                let mut trace = |x: f64, y: f64, s: &TraceSettings| {
+                    let ((d64, dir), hit) = match traced.as_mut() {
+                        Some(t) => t.next().expect("every ray is traced"),
+                        None => {
+                            let (d64, dir) = direction(x, y);
+                            ((d64, dir), tile.trace(dir, s))
+                        }
+                    };
                     steps += hit.steps as u64;
                     undecided += hit.undecided as u64;
                     rays += 1;
-                    hit
+                    (d64, dir, hit)
                 };
                 for (r, j) in rows.clone().enumerate() {
                     for i in i0..i1 {
@@ -483,8 +511,7 @@ pub fn render_view(
                         if centre_separate || offsets.len() == 1 {
                             // The pixel centre: every quantity when it is the
                             // only ray, else depth, normals and the mask.
-                            let (d64, dir) = direction(i as f64, j as f64);
-                            let hit = trace(dir, &settings);
+                            let (d64, dir, hit) = trace(i as f64, j as f64, &settings);
                             if !hit.hit {
                                 if let (Some(c), false) = (col.as_deref_mut(), centre_separate) {
                                     c[k * 3..k * 3 + 3].copy_from_slice(&background);
@@ -519,8 +546,8 @@ pub fn render_view(
                             };
                             let mut sum = DVec3::ZERO;
                             for (dx, dy) in &offsets {
-                                let (d64, dir) = direction(i as f64 + dx, j as f64 + dy);
-                                let hit = trace(dir, &sub_settings);
+                                let (d64, dir, hit) =
+                                    trace(i as f64 + dx, j as f64 + dy, &sub_settings);
                                 sum += if hit.hit {
                                     hits += 1;
                                     shade(&hit, d64, dir, &counters).0

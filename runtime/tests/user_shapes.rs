@@ -9,7 +9,9 @@ use std::sync::Arc;
 use glam::{DVec3, Vec3A};
 use sdfl_lang::SourceFile;
 use sdfl_runtime::render::{render_view, Needs, Plan};
-use sdfl_runtime::trace::{sphere_trace, TraceSettings};
+use sdfl_runtime::sdf::lanes::{F8, P8};
+use sdfl_runtime::sdf::Node;
+use sdfl_runtime::trace::{sphere_trace, sphere_trace_packs, March, Step, TraceSettings};
 use sdfl_runtime::train::fused::{loss_and_grad_f32, loss_and_grad_f64, traced, Batch};
 use sdfl_runtime::train::TrainModel;
 use sdfl_runtime::volume::{camera_rays, ImageSize, Stratified};
@@ -146,7 +148,9 @@ const CONSTANT_FIRST: &str = "fn mixed(p) { min(0.3, max(0.2, 1.5 - length(p)) /
 #[test]
 fn compiled_code_and_its_columns_equal_the_tape_interpreter_bit_for_bit() {
     let mut rng = Lcg(11);
-    for src in SHAPES.iter().chain(&[CONSTANT_FIRST]) {
+    // The sheet: divided by its derived bound (the products by 1 the
+    // others skip are taken).
+    for src in SHAPES.iter().chain(&[CONSTANT_FIRST, SHEET]) {
         let s = shape(src);
         let l = Lowered::new(&s, LowerOptions::default());
         let pts = box_points(&s, &mut rng);
@@ -165,6 +169,29 @@ fn compiled_code_and_its_columns_equal_the_tape_interpreter_bit_for_bit() {
                 want.to_bits(),
                 "{src} at {p}: lanes {b} vs {want}"
             );
+        }
+    }
+}
+
+#[test]
+fn placed_user_shapes_in_packs_equal_them_point_by_point() {
+    // Moved, turned and scaled (the leaf's frame and its scale factor),
+    // batches of every length up to three passes of 32 packs and a part.
+    let mut rng = Lcg(13);
+    for src in [
+        "let s = scale(rotate(translate(sdf(torus_d, bound: [1.5, 1.5, 0.5]), [0.2, -0.1, 0.3]), 0.7, axis: [1, 1, 0]), 1.7)",
+        "fn sheet(p) { abs(p.y - 0.15 * sin(12 * p.x) * sin(12 * p.z)) - 0.01 }\nlet s = scale(sdf(sheet, bound: [2, 0.2, 2]), 0.5)",
+    ] {
+        let s = shape(src);
+        let l = Lowered::new(&s, LowerOptions::default());
+        let pts: Vec<Vec3A> = (0..800).map(|_| rng.v3(3.0).as_vec3().into()).collect();
+        for len in [1, 7, 8, 9, 16, 17, 255, 256, 257, 800] {
+            let mut batch = vec![0.0f32; len];
+            l.eval_batch(&pts[..len], &mut batch);
+            for (p, b) in pts.iter().zip(&batch) {
+                let want = l.dist(*p);
+                assert_eq!(b.to_bits(), want.to_bits(), "{src} at {p}, {len}: {b} vs {want}");
+            }
         }
     }
 }
@@ -346,6 +373,123 @@ fn a_user_written_torus_renders_as_the_built_in_torus() {
         .sum::<f64>()
         / ca.len() as f64;
     assert!(mean < 1.0, "mean difference {mean}/255");
+}
+
+/// The wavy sheet (not a distance: its values are divided by the derived
+/// bound, and the tracer's steps by the scene's).
+const SHEET: &str = "fn sheet(p) { abs(p.y - 0.15 * sin(12 * p.x) * sin(12 * p.z)) - 0.01 }\nlet s = sdf(sheet, bound: [2, 0.2, 2])";
+
+#[test]
+fn rays_marched_in_packs_end_as_rays_marched_one_by_one() {
+    let mut rng = Lcg(21);
+    for src in SHAPES.iter().chain(&[CONSTANT_FIRST, SHEET]) {
+        let s = shape(src);
+        let l = Lowered::new(&s, LowerOptions::default());
+        assert!(l.root.traces_in_packs(), "a user shape traces in packs");
+        // Relaxed and plain steps, footprint hits and their refinement,
+        // steps running out (none at all too), rays ending at `far`, from
+        // inside the box and outside it; 37 rays (a partial pack).
+        for (k, (relax, footprint, max_steps, far)) in [
+            (false, 0.0, 200, 8.0),
+            (true, 2e-3, 200, 8.0),
+            (true, 2e-2, 12, 8.0),
+            (false, 0.0, 3, 8.0),
+            (true, 1e-3, 0, 8.0),
+            (true, 1e-3, 200, 1.3),
+        ]
+        .into_iter()
+        .enumerate()
+        {
+            let settings = TraceSettings {
+                near: if k == 5 { 0.2 } else { 0.0 },
+                far,
+                max_steps,
+                epsilon: 1e-5,
+                footprint,
+                relax,
+                lipschitz: l.lipschitz,
+            };
+            let eye: Vec3A = rng.v3(if k % 2 == 0 { 3.0 } else { 0.5 }).as_vec3().into();
+            let rays: Vec<(Vec3A, Step)> = (0..37)
+                .map(|_| {
+                    let aim: Vec3A = rng.v3(0.6).as_vec3().into();
+                    let dir = (aim - eye).normalize();
+                    (dir, Step::At(Vec3A::ZERO))
+                })
+                .collect();
+            let marches = rays
+                .iter()
+                .map(|(dir, _)| March::start(eye, *dir, &settings))
+                .collect();
+            let packed = sphere_trace_packs(&*l.root, marches);
+            let mut hits = 0;
+            for ((dir, _), got) in rays.iter().zip(&packed) {
+                let want = sphere_trace(&*l.root, eye, *dir, &settings);
+                hits += want.hit as usize;
+                assert_eq!(
+                    (got.t.to_bits(), got.hit, got.steps, got.undecided),
+                    (want.t.to_bits(), want.hit, want.steps, want.undecided),
+                    "{src}, settings {k}, ray {dir}: {got:?} vs {want:?}"
+                );
+            }
+            // Every other eye sits outside the box: some rays hit.
+            assert!(max_steps < 20 || k % 2 == 1 || hits > 0, "{src}, {k}");
+        }
+    }
+}
+
+/// A scene's root marched ray by ray (its distances unchanged).
+struct OneByOne(Box<dyn Node>);
+
+impl Node for OneByOne {
+    fn dist(&self, p: Vec3A) -> f32 {
+        self.0.dist(p)
+    }
+    fn dist_id(&self, p: Vec3A) -> (f32, u32) {
+        self.0.dist_id(p)
+    }
+    fn dist_packs(&self, p: &[P8], out: &mut [F8]) {
+        self.0.dist_packs(p, out)
+    }
+}
+
+#[test]
+fn a_frame_traced_in_packs_equals_the_frame_traced_ray_by_ray() {
+    let frames: Vec<_> = [true, false]
+        .into_iter()
+        .map(|packs| {
+            let mut job = render_job(shape("let s = sdf(torus_d, bound: [1.5, 1.5, 0.5])"));
+            // Two rays per pixel: colour from sub-pixel rays (their own
+            // settings), depth and normals from the pixel centres.
+            job.samples_per_pixel = 2;
+            let mut l = Lowered::new(&job.scene, LowerOptions::default());
+            if !packs {
+                l.root = Box::new(OneByOne(l.root));
+            }
+            assert_eq!(l.root.traces_in_packs(), packs);
+            let needs = Needs {
+                color: true,
+                depth: true,
+                normals: true,
+                mask: true,
+            };
+            render_view(&l, &job, &job.cameras[0], (64, 48), needs, &|_| {})
+        })
+        .collect();
+    let (a, b) = (&frames[0], &frames[1]);
+    assert!(a.hits > 100, "the torus is in view: {} hits", a.hits);
+    assert_eq!(
+        (a.hits, a.steps, a.rays, a.undecided),
+        (b.hits, b.steps, b.rays, b.undecided)
+    );
+    assert_eq!(a.color, b.color);
+    assert_eq!(a.mask, b.mask);
+    assert_eq!(a.normals, b.normals);
+    let bits = |d: &Option<Vec<f32>>| {
+        d.as_ref()
+            .map(|d| d.iter().map(|x| x.to_bits()).collect::<Vec<_>>())
+    };
+    assert_eq!(bits(&a.depth), bits(&b.depth));
 }
 
 fn model(field: &str) -> TrainModel {

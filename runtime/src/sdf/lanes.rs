@@ -33,6 +33,10 @@ pub type P8 = V3<F8>;
 /// last point (so they stay finite and cost nothing special).
 #[inline(always)]
 pub fn pack(points: &[Vec3A]) -> P8 {
+    #[cfg(target_arch = "x86_64")]
+    if let Some(full) = points.first_chunk::<LANES>() {
+        return pack_whole(full);
+    }
     let last = points.len().min(LANES) - 1;
     let (mut x, mut y, mut z) = ([0.0; LANES], [0.0; LANES], [0.0; LANES]);
     for i in 0..LANES {
@@ -42,6 +46,52 @@ pub fn pack(points: &[Vec3A]) -> P8 {
         z[i] = p.z;
     }
     V3::new(F8(x), F8(y), F8(z))
+}
+
+/// A whole pack, transposed four points at a time in SSE registers (the
+/// baseline of x86-64; lane by lane, each coordinate would be stored
+/// alone and read back as part of a pack).
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+fn pack_whole(points: &[Vec3A; LANES]) -> P8 {
+    use std::arch::x86_64::{
+        __m128, _mm_movehl_ps, _mm_movelh_ps, _mm_unpackhi_ps, _mm_unpacklo_ps,
+    };
+    // Four points' x, y and z.
+    let four = |q: &[Vec3A]| -> [[f32; 4]; 3] {
+        let [a, b, c, d] = [0, 1, 2, 3].map(|i| __m128::from(q[i]));
+        // SAFETY: SSE is part of x86-64's baseline: every such CPU runs it.
+        let xyz = unsafe {
+            let (ab_lo, cd_lo) = (_mm_unpacklo_ps(a, b), _mm_unpacklo_ps(c, d));
+            let (ab_hi, cd_hi) = (_mm_unpackhi_ps(a, b), _mm_unpackhi_ps(c, d));
+            [
+                _mm_movelh_ps(ab_lo, cd_lo),
+                _mm_movehl_ps(cd_lo, ab_lo),
+                _mm_movelh_ps(ab_hi, cd_hi),
+            ]
+        };
+        xyz.map(|v| Vec4Bits::from(v).0)
+    };
+    let (lo, hi) = (four(&points[..4]), four(&points[4..]));
+    let join = |k: usize| {
+        let mut r = [0.0; LANES];
+        r[..4].copy_from_slice(&lo[k]);
+        r[4..].copy_from_slice(&hi[k]);
+        F8(r)
+    };
+    V3::new(join(0), join(1), join(2))
+}
+
+/// The four lanes of an SSE register.
+#[cfg(target_arch = "x86_64")]
+struct Vec4Bits([f32; 4]);
+
+#[cfg(target_arch = "x86_64")]
+impl From<std::arch::x86_64::__m128> for Vec4Bits {
+    #[inline(always)]
+    fn from(v: std::arch::x86_64::__m128) -> Self {
+        Vec4Bits(glam::Vec4::from(v).to_array())
+    }
 }
 
 /// Lane `i` of a pack of points.
@@ -306,6 +356,30 @@ mod tests {
         check(a.min(b), &|x, y| Real::min(x, y));
         check(a.max(b), &|x, y| Real::max(x, y));
         check(a.abs().sqrt(), &|x, _| x.abs().sqrt());
+    }
+
+    #[test]
+    fn packs_hold_their_points_lane_by_lane() {
+        let pts: Vec<Vec3A> = (0..8)
+            .map(|i| {
+                let f = i as f32;
+                Vec3A::new(f - 3.5, [-0.0, 1e30, -f32::INFINITY, 2.0][i % 4], f * 1e-38)
+            })
+            .collect();
+        // Whole packs (transposed in registers) and partial ones (the
+        // last point repeated).
+        for n in 1..=8 {
+            let p = pack(&pts[..n]);
+            for i in 0..LANES {
+                let want = pts[i.min(n - 1)];
+                let got = lane(&p, i);
+                assert_eq!(
+                    got.to_array().map(f32::to_bits),
+                    want.to_array().map(f32::to_bits),
+                    "{n} points, lane {i}"
+                );
+            }
+        }
     }
 
     #[test]

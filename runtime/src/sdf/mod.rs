@@ -55,6 +55,14 @@ pub trait Node: Send + Sync + std::any::Any {
             *o = per_lane(q, |x| self.dist(x));
         }
     }
+    /// Whether [`Node::dist_packs`] is so much cheaper per point than
+    /// [`Node::dist`] that the tracer marches rays together
+    /// (`trace::sphere_trace_packs`) rather than one by one: a user's
+    /// shape, whose code runs column by column over packs but one
+    /// instruction at a time for a point.
+    fn traces_in_packs(&self) -> bool {
+        false
+    }
 }
 
 /// What a primitive id stands for, for shading.
@@ -242,7 +250,11 @@ impl Lowered {
             }
             self.root.dist_packs(&packs[..count], &mut dists[..count]);
             for (o, d) in out.chunks_mut(LANES).zip(&dists) {
-                o.copy_from_slice(&d.0[..o.len()]);
+                match o.first_chunk_mut::<LANES>() {
+                    // A whole pack: a copy of fixed size (no call).
+                    Some(o) => *o = d.0,
+                    None => o.copy_from_slice(&d.0[..o.len()]),
+                }
             }
         }
     }

@@ -14,7 +14,9 @@
 //! a dropped one. Rays that enter no kept box end as misses unmarched.
 
 use super::*;
-use crate::trace::{normal, sphere_trace, Distance, Hit, TraceSettings};
+use crate::trace::{
+    normal, sphere_trace, sphere_trace_packs, Distance, Hit, March, Step, TraceSettings,
+};
 
 /// Tile side in pixels.
 pub const TILE: usize = 8;
@@ -245,6 +247,46 @@ impl Tile<'_> {
     /// it enters none before `far`); a scene that is no union is marched
     /// whole from `near`.
     pub fn trace(&self, dir: Vec3A, s: &TraceSettings) -> Hit {
+        let s = match self.settings(dir, s) {
+            Ok(s) => s,
+            Err(miss) => return miss,
+        };
+        match self.members {
+            Some(_) => sphere_trace(self, self.scene.eye, dir, &s),
+            None => sphere_trace(self.scene.root, self.scene.eye, dir, &s),
+        }
+    }
+
+    /// Whether the tile's rays are best marched together
+    /// ([`Tile::trace_packs`]): it marches the whole scene, and the scene
+    /// evaluates packs of points much faster than points one by one
+    /// ([`Node::traces_in_packs`]).
+    pub fn traces_in_packs(&self) -> bool {
+        !self.empty && self.members.is_none() && self.scene.root.traces_in_packs()
+    }
+
+    /// [`Tile::trace`] of each ray (direction, settings), the rays marched
+    /// together ([`sphere_trace_packs`]) where the tile marches the whole
+    /// scene; each ends as [`Tile::trace`] ends it.
+    pub fn trace_packs(&self, rays: &[(Vec3A, TraceSettings)]) -> Vec<Hit> {
+        if self.members.is_some() {
+            return rays.iter().map(|(d, s)| self.trace(*d, s)).collect();
+        }
+        let marches = rays
+            .iter()
+            .map(|(dir, s)| match self.settings(*dir, s) {
+                Ok(s) => March::start(self.scene.eye, *dir, &s),
+                // An ended march (its settings unused).
+                Err(miss) => (March::start(self.scene.eye, *dir, s).0, Step::End(miss)),
+            })
+            .collect();
+        sphere_trace_packs(self.scene.root, marches)
+    }
+
+    /// The settings a ray of the tile marches with (from where it enters
+    /// the candidates' box), or its miss when it cannot meet them.
+    #[inline]
+    fn settings(&self, dir: Vec3A, s: &TraceSettings) -> Result<TraceSettings, Hit> {
         let miss = Hit {
             t: s.far,
             hit: false,
@@ -252,7 +294,7 @@ impl Tile<'_> {
             undecided: false,
         };
         if self.empty {
-            return miss;
+            return Err(miss);
         }
         let mut near = s.near;
         if let Some((lo, hi)) = self.bounds {
@@ -262,14 +304,10 @@ impl Tile<'_> {
                         near = near.max(t_in);
                     }
                 }
-                _ => return miss,
+                _ => return Err(miss),
             }
         }
-        let s = TraceSettings { near, ..*s };
-        match self.members {
-            Some(_) => sphere_trace(self, self.scene.eye, dir, &s),
-            None => sphere_trace(self.scene.root, self.scene.eye, dir, &s),
-        }
+        Ok(TraceSettings { near, ..*s })
     }
 }
 

@@ -23,6 +23,7 @@
 use std::cell::Cell;
 use std::mem::MaybeUninit;
 
+use super::lanes::F16;
 use super::*;
 use sdfl_stdlib::shape::user::{Func, Op, Tape};
 use sdfl_stdlib::shape::UserShape;
@@ -455,11 +456,11 @@ impl Program {
     /// `i`'s packs at `cols[i·n..(i + 1)·n]`), the inputs' columns written;
     /// the result's column is returned.
     #[inline(always)]
-    fn run_columns<'a>(&self, cols: &'a mut [MaybeUninit<F8>], n: usize) -> &'a [F8] {
+    fn run_columns<'a, L: Wide>(&self, cols: &'a mut [MaybeUninit<L>], n: usize) -> &'a [L] {
         let cols = &mut cols[..self.regs * n];
         for (i, c) in self.consts.iter().enumerate() {
             for slot in &mut cols[(INPUTS + i) * n..(INPUTS + i + 1) * n] {
-                slot.write(F8::splat(*c));
+                slot.write(L::splat(*c));
             }
         }
         let base = cols.as_mut_ptr();
@@ -467,14 +468,14 @@ impl Program {
             // SAFETY: as in `run`, column by column: each column lies
             // within `cols`, and the result's never overlaps an operand's.
             unsafe {
-                let col = |r: u16| base.add(r as usize * n) as *const F8;
+                let col = |r: u16| base.add(r as usize * n) as *const L;
                 let (a, b, c, d) = (
                     col(ins.src[0]),
                     col(ins.src[1]),
                     col(ins.src[2]),
                     col(ins.src[3]),
                 );
-                let dst = base.add(ins.dst as usize * n) as *mut F8;
+                let dst = base.add(ins.dst as usize * n) as *mut L;
                 // One loop per operation, the operation fixed in it.
                 macro_rules! over {
                     ($f:expr) => {
@@ -506,7 +507,7 @@ impl Program {
         }
         let out = self.out as usize * n;
         // SAFETY: every register's column is written (see `Program`).
-        unsafe { std::slice::from_raw_parts(cols[out..out + n].as_ptr() as *const F8, n) }
+        unsafe { std::slice::from_raw_parts(cols[out..out + n].as_ptr() as *const L, n) }
     }
 }
 
@@ -616,18 +617,35 @@ impl Node for UserLeaf {
         (self.dist(p), self.id)
     }
     fn dist_packs(&self, p: &[P8], out: &mut [F8]) {
+        #[cfg(target_arch = "x86_64")]
+        {
+            #[target_feature(enable = "avx512f")]
+            unsafe fn avx512(leaf: &UserLeaf, p: &[P8], out: &mut [F8]) {
+                let mut cols = [MaybeUninit::<F16>::uninit(); COLUMN_BUFFER / 2];
+                user_packs(leaf, p, out, &mut cols)
+            }
+            if crate::neural::fp32::available() {
+                // SAFETY: the CPU supports AVX-512 F (checked just above).
+                return unsafe { avx512(self, p, out) };
+            }
+        }
         #[cfg(any(target_arch = "x86_64", target_arch = "x86"))]
         {
             #[target_feature(enable = "avx2")]
             unsafe fn avx2(leaf: &UserLeaf, p: &[P8], out: &mut [F8]) {
-                user_packs(leaf, p, out)
+                let mut cols = [MaybeUninit::<F8>::uninit(); COLUMN_BUFFER];
+                user_packs(leaf, p, out, &mut cols)
             }
             if lanes::has_avx2() {
                 // SAFETY: the CPU supports AVX2 (checked just above).
                 return unsafe { avx2(self, p, out) };
             }
         }
-        user_packs(self, p, out)
+        let mut cols = [MaybeUninit::<F8>::uninit(); COLUMN_BUFFER];
+        user_packs(self, p, out, &mut cols)
+    }
+    fn traces_in_packs(&self) -> bool {
+        true
     }
 }
 
@@ -635,39 +653,170 @@ impl Node for UserLeaf {
 /// stack buffer; more registers take fewer packs per pass).
 const COLUMN_PACKS: usize = BATCH_PACKS;
 
-/// F8 values in the stack buffer of [`user_packs`] (64 KiB).
+/// F8 values in the stack buffer of the columns (64 KiB).
 const COLUMN_BUFFER: usize = 2048;
 
+/// The lanes the column code runs on: one pack of points ([`F8`]), or two
+/// side by side ([`F16`], one AVX-512 register, where the CPU has it);
+/// each lane's operations are the same f32 operations either way.
+trait Wide: Real {
+    /// Packs of points side by side.
+    const PACKS: usize;
+    /// Every lane `x`.
+    fn splat(x: f32) -> Self;
+    /// The lanes of `PACKS` packs.
+    fn join(p: &[F8]) -> Self;
+    /// Its lanes as packs (the first `out.len()` of them).
+    fn split(self, out: &mut [F8]);
+}
+
+impl Wide for F8 {
+    const PACKS: usize = 1;
+    #[inline(always)]
+    fn splat(x: f32) -> Self {
+        F8::splat(x)
+    }
+    #[inline(always)]
+    fn join(p: &[F8]) -> Self {
+        p[0]
+    }
+    #[inline(always)]
+    fn split(self, out: &mut [F8]) {
+        out[0] = self;
+    }
+}
+
+impl Wide for F16 {
+    const PACKS: usize = 2;
+    #[inline(always)]
+    fn splat(x: f32) -> Self {
+        F16::splat(x)
+    }
+    #[inline(always)]
+    fn join(p: &[F8]) -> Self {
+        let mut r = [0.0; 16];
+        r[..LANES].copy_from_slice(&p[0].0);
+        r[LANES..].copy_from_slice(&p[1].0);
+        F16(r)
+    }
+    #[inline(always)]
+    fn split(self, out: &mut [F8]) {
+        for (k, o) in out.iter_mut().enumerate().take(2) {
+            o.0.copy_from_slice(&self.0[k * LANES..(k + 1) * LANES]);
+        }
+    }
+}
+
 /// [`UserLeaf::dist`] of every pack: the box's clamp and distance pack by
-/// pack, the code column by column.
+/// pack, the code column by column (in `stack`'s columns when they fit),
+/// `L::PACKS` packs side by side.
 #[inline(always)]
-fn user_packs(leaf: &UserLeaf, p: &[P8], out: &mut [F8]) {
+fn user_packs<L: Wide>(leaf: &UserLeaf, p: &[P8], out: &mut [F8], stack: &mut [MaybeUninit<L>]) {
     let regs = leaf.program.regs;
     let mut heap = Vec::new();
-    let mut stack = [MaybeUninit::<F8>::uninit(); COLUMN_BUFFER];
-    let per_pass = (COLUMN_BUFFER / regs).clamp(1, COLUMN_PACKS);
-    let cols: &mut [MaybeUninit<F8>] = if regs * per_pass <= COLUMN_BUFFER {
-        &mut stack
+    let per_pass = (stack.len() / regs).clamp(1, COLUMN_PACKS / L::PACKS);
+    let cols: &mut [MaybeUninit<L>] = if regs * per_pass <= stack.len() {
+        stack
     } else {
         heap.resize(regs * per_pass, MaybeUninit::uninit());
         &mut heap
     };
     let c = &leaf.clip;
-    let mut boxed = [F8::splat(0.0); COLUMN_PACKS];
-    for (p, out) in p.chunks(per_pass).zip(out.chunks_mut(per_pass)) {
-        let n = p.len();
-        for (j, p) in p.iter().enumerate() {
-            let p = leaf.xform.apply8(*p);
-            let q = c.clamp(p);
+    let mut boxed = [MaybeUninit::<L>::uninit(); COLUMN_PACKS];
+    let (inv_l, scale) = (L::splat(c.inv_l), L::splat(leaf.scale));
+    // Products by 1 change no value (the tape's inputs are NaN-free, and
+    // a NaN times 1 is that NaN): skipped.
+    let unscaled = c.inv_l == 1.0 && leaf.scale == 1.0;
+    let step = per_pass * L::PACKS;
+    for (p, out) in p.chunks(step).zip(out.chunks_mut(step)) {
+        let n = p.len().div_ceil(L::PACKS);
+        for j in 0..n {
+            // The packs side by side (past the end: the last again).
+            let mut side = [[F8::splat(0.0); 2]; 3];
+            for k in 0..L::PACKS {
+                let q = leaf.xform.apply8(p[(j * L::PACKS + k).min(p.len() - 1)]);
+                (side[0][k], side[1][k], side[2][k]) = (q.x, q.y, q.z);
+            }
+            let [x, y, z] = side.map(|s| L::join(&s[..L::PACKS]));
+            let w = V3::new(x, y, z);
+            let q = c.clamp(w);
             cols[j].write(q.x);
             cols[n + j].write(q.y);
             cols[2 * n + j].write(q.z);
-            boxed[j] = Clip::boxed(c.offsets(p));
+            boxed[j].write(Clip::boxed(c.offsets(w)));
         }
         let f = leaf.program.run_columns(cols, n);
-        let (inv_l, scale) = (F8::splat(c.inv_l), F8::splat(leaf.scale));
-        for ((o, f), b) in out.iter_mut().zip(f).zip(&boxed) {
-            *o = Real::max(*f * inv_l, *b) * scale;
+        for (j, (f, b)) in f.iter().zip(&boxed[..n]).enumerate() {
+            // SAFETY: the first `n` were written just above.
+            let b = unsafe { b.assume_init() };
+            let v = if unscaled {
+                Real::max(*f, b)
+            } else {
+                Real::max(*f * inv_l, b) * scale
+            };
+            let end = ((j + 1) * L::PACKS).min(out.len());
+            let o = &mut out[j * L::PACKS..end];
+            v.split(o);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use sdfl_stdlib::eval::globals_of;
+    use sdfl_stdlib::shape::Shape;
+    use sdfl_stdlib::value::Value;
+
+    /// The column code one pack wide (what a CPU without AVX-512 runs)
+    /// equals it two packs wide, bit for bit, on every lane; this machine
+    /// may pick either in `dist_packs`, so both are called by name here.
+    #[test]
+    fn one_pack_wide_equals_two_packs_wide() {
+        let src = "fn twisted(p, k: 1.5) { let c = cos(k * p.y); let s = sin(k * p.y); let q = [c * p.x - s * p.z, p.y, s * p.x + c * p.z]; let d = abs(q) - [0.4, 0.8, 0.2]; length(max(d, 0)) + min(max(d.x, max(d.y, d.z)), 0) }\nlet s = sdf(twisted, bound: [0.5, 0.8, 0.5])";
+        let Some(Value::Shape(shape)) = globals_of(src).expect("parses").remove("s") else {
+            panic!("not a shape");
+        };
+        let Shape::User(u) = &*shape else {
+            panic!("not a user shape");
+        };
+        let leaf = UserLeaf::new(u, Frame::identity().xform(), 1.0, 0);
+        // Odd pack counts (a half-used F16), hard values, and points
+        // outside the bound box.
+        for packs in [1, 3, 7, 40, 301] {
+            let points: Vec<Vec3A> = (0..packs * LANES)
+                .map(|i| {
+                    let t = i as f32 * 0.618_034;
+                    match i % 11 {
+                        0 => Vec3A::new(-0.0, 0.0, -0.0),
+                        1 => Vec3A::new(1e30, -1e30, 3.0),
+                        2 => Vec3A::new(f32::MIN_POSITIVE / 4.0, 0.8, -0.5),
+                        _ => Vec3A::new(t.sin(), (1.3 * t).cos(), (0.7 * t).sin()) * 0.9,
+                    }
+                })
+                .collect();
+            let p: Vec<P8> = points.chunks(LANES).map(lanes::pack).collect();
+            let mut narrow = vec![F8::splat(0.0); packs];
+            let mut wide = vec![F8::splat(0.0); packs];
+            let mut cols8 = vec![MaybeUninit::<F8>::uninit(); COLUMN_BUFFER];
+            let mut cols16 = vec![MaybeUninit::<F16>::uninit(); COLUMN_BUFFER / 2];
+            user_packs(&leaf, &p, &mut narrow, &mut cols8);
+            user_packs(&leaf, &p, &mut wide, &mut cols16);
+            for (k, (a, b)) in narrow.iter().zip(&wide).enumerate() {
+                for i in 0..LANES {
+                    assert_eq!(
+                        a.0[i].to_bits(),
+                        b.0[i].to_bits(),
+                        "pack {k} lane {i} of {packs}"
+                    );
+                    let one = leaf.dist(points[k * LANES + i]);
+                    assert_eq!(
+                        a.0[i].to_bits(),
+                        one.to_bits(),
+                        "pack {k} lane {i}: point by point"
+                    );
+                }
+            }
         }
     }
 }
