@@ -114,6 +114,23 @@ impl Default for HashSdfLoss {
     }
 }
 
+/// Lower bounds on `|f|` at the random points and the weight of the hinge
+/// `mean_r max(0, at_least_r − |f|)`: SAL's unsigned distance to the data,
+/// used one-sided. A surface lies no closer to a point than the data's
+/// nearest sample less their spacing, so with `at_least` the distance to
+/// the nearest sample less that margin the true SDF pays nothing, while a
+/// zero crossing far from every sample (a leftover of the starting
+/// sphere, a sheet across a concavity) does. A hash grid needs it where an
+/// MLP does not: its features are local, so nothing else moves a surface
+/// that no point touches.
+#[derive(Debug, Clone, Copy)]
+pub struct Clearance<'a> {
+    /// Weight of the hinge's mean over the random points.
+    pub weight: f32,
+    /// Per random point, the least `|f|` allowed (or empty: none).
+    pub at_least: &'a [f32],
+}
+
 /// A hash-grid SDF: the layout only; params live with the caller.
 #[derive(Debug, Clone)]
 pub struct HashSdf {
@@ -474,12 +491,87 @@ impl HashSdf {
         assert_eq!(points.len(), out.len(), "one distance a point");
         out.par_chunks_mut(CHUNK)
             .zip(points.par_chunks(CHUNK))
-            .for_each(|(out, pts)| {
-                let mut s = Scratch::new(self, 0);
-                for (o, &p) in out.iter_mut().zip(pts) {
-                    *o = self.value(params, p, active, &mut s.buf);
+            .for_each_init(
+                || Block::new(self),
+                |block, (out, pts)| self.values_block(params, pts, active, block, out),
+            );
+    }
+
+    /// [`Self::distances`] one point at a time through [`Self::value`]:
+    /// the reference that the blocked pass is tested and benchmarked
+    /// against (the same bits, several times slower).
+    pub fn distances_pointwise(
+        &self,
+        params: &[f32],
+        points: &[[f32; 3]],
+        active: usize,
+        out: &mut [f32],
+    ) {
+        self.check_params(params);
+        assert_eq!(points.len(), out.len(), "one distance a point");
+        out.par_chunks_mut(CHUNK)
+            .zip(points.par_chunks(CHUNK))
+            .for_each_init(
+                || Scratch::new(self, 0),
+                |s, (out, pts)| {
+                    for (o, &p) in out.iter_mut().zip(pts) {
+                        *o = self.value(params, p, active, &mut s.buf);
+                    }
+                },
+            );
+    }
+
+    /// [`Self::value`] at up to [`CHUNK`] points at once, the same bits:
+    /// each layer's sums run across the points (vector lanes), every
+    /// point's sum still in `mlp_forward`'s order (bias, then the inputs
+    /// in turn), and the same softplus.
+    fn values_block(
+        &self,
+        params: &[f32],
+        pts: &[[f32; 3]],
+        active: usize,
+        block: &mut Block,
+        out: &mut [f32],
+    ) {
+        let n = pts.len();
+        debug_assert!(n <= CHUNK && out.len() == n);
+        let Block { point, x, y } = block;
+        let e = self.grid.output_dim();
+        // Features point-major from `encode`, stored feature-major.
+        for (i, &p) in pts.iter().enumerate() {
+            self.encode::<0>(params, p, active, point);
+            for (k, &v) in point[..e].iter().enumerate() {
+                x[k * CHUNK + i] = v;
+            }
+        }
+        let (w, beta) = (self.width, self.beta);
+        for &(input, off) in &self.hidden {
+            let weights = &params[off..][..input * w];
+            let bias = &params[off + input * w..][..w];
+            for j in 0..w {
+                let z = &mut y[j * CHUNK..][..n];
+                z.fill(bias[j]);
+                for (k, &wk) in weights[j * input..][..input].iter().enumerate() {
+                    for (z, &xk) in z.iter_mut().zip(&x[k * CHUNK..][..n]) {
+                        *z += wk * xk;
+                    }
                 }
-            });
+                for z in z {
+                    *z = softplus(*z, beta).0;
+                }
+            }
+            std::mem::swap(x, y);
+        }
+        let wo = &params[self.output..][..w];
+        out.fill(params[self.output + w]);
+        for (j, &wj) in wo.iter().enumerate() {
+            for (o, &h) in out.iter_mut().zip(&x[j * CHUNK..][..n]) {
+                *o += wj * h;
+            }
+        }
+        for (o, &p) in out.iter_mut().zip(pts) {
+            *o += self.sphere(p).0;
+        }
     }
 
     /// `f` and the exact `∇f` at `points`, with the first `active` levels.
@@ -496,12 +588,14 @@ impl HashSdf {
         f.par_chunks_mut(CHUNK)
             .zip(g.par_chunks_mut(CHUNK))
             .zip(points.par_chunks(CHUNK))
-            .for_each(|((f, g), pts)| {
-                let mut s = Scratch::new(self, 3);
-                for ((f, g), &p) in f.iter_mut().zip(g.iter_mut()).zip(pts) {
-                    (*f, *g) = self.value_grad(params, p, active, &mut s.buf);
-                }
-            });
+            .for_each_init(
+                || Scratch::new(self, 3),
+                |s, ((f, g), pts)| {
+                    for ((f, g), &p) in f.iter_mut().zip(g.iter_mut()).zip(pts) {
+                        (*f, *g) = self.value_grad(params, p, active, &mut s.buf);
+                    }
+                },
+            );
     }
 
     /// The loss `surface·mean_s|f| + eikonal·mean(‖∇f‖ − 1)² +
@@ -527,7 +621,37 @@ impl HashSdf {
         grad: &mut [f32],
         touched: &mut Touched,
     ) -> f64 {
+        let none = Clearance {
+            weight: 0.0,
+            at_least: &[],
+        };
+        self.loss_and_grad_clear(
+            params, surface, random, weights, none, eikonal, active, work, grad, touched,
+        )
+    }
+
+    /// [`Self::loss_and_grad`] plus the clearance hinge
+    /// `clearance.weight · mean_r max(0, at_least_r − |f|)` over the random
+    /// points (see [`Clearance`]).
+    #[allow(clippy::too_many_arguments)]
+    pub fn loss_and_grad_clear(
+        &self,
+        params: &[f32],
+        surface: &[[f32; 3]],
+        random: &[[f32; 3]],
+        weights: &HashSdfLoss,
+        clearance: Clearance<'_>,
+        eikonal: Eikonal,
+        active: usize,
+        work: &mut HashSdfWork,
+        grad: &mut [f32],
+        touched: &mut Touched,
+    ) -> f64 {
         self.check_params(params);
+        assert!(
+            clearance.at_least.is_empty() || clearance.at_least.len() == random.len(),
+            "one clearance a random point"
+        );
         assert_eq!(grad.len(), self.len, "gradient");
         let (ns, n) = (surface.len(), surface.len() + random.len());
         let probes = match eikonal {
@@ -544,6 +668,17 @@ impl HashSdf {
         let inter = Inter {
             k: weights.inter as f64 / random.len().max(1) as f64,
             alpha: weights.alpha as f64,
+            k_clear: clearance.weight as f64 / random.len().max(1) as f64,
+        };
+        let role = |i: usize| {
+            if i < ns {
+                Role::Surface
+            } else {
+                let at_least = clearance.at_least.get(i - ns);
+                Role::Random {
+                    at_least: at_least.copied().unwrap_or(f32::NEG_INFINITY),
+                }
+            }
         };
         let point = |i: usize| if i < ns { surface[i] } else { random[i - ns] };
         let HashSdfWork {
@@ -573,7 +708,7 @@ impl HashSdf {
                     match eikonal {
                         Eikonal::Exact => {
                             let (f, g) = self.value_grad(params, p, active, &mut cw.buf);
-                            let (l, df, dg) = point_loss(f, g, i < ns, k_s, k_e, inter);
+                            let (l, df, dg) = point_loss(f, g, role(i), k_s, k_e, inter);
                             loss += l;
                             let t = self.tangent_out::<3>();
                             let buf = &cw.buf[..t + 3];
@@ -613,7 +748,7 @@ impl HashSdf {
                                     0.0
                                 }
                             });
-                            let (l, df, dg) = point_loss(fv[0], g, i < ns, k_s, k_e, inter);
+                            let (l, df, dg) = point_loss(fv[0], g, role(i), k_s, k_e, inter);
                             loss += l;
                             let mut d = [0f32; FD_PROBES];
                             d[0] = df;
@@ -742,11 +877,21 @@ impl HashSdf {
     }
 }
 
-/// The inter term's weight a random point and its sharpness.
+/// The random points' terms: the inter term's weight a point and its
+/// sharpness, and the clearance hinge's weight a point.
 #[derive(Clone, Copy)]
 struct Inter {
     k: f64,
     alpha: f64,
+    k_clear: f64,
+}
+
+/// Which set a point belongs to: a surface point, or a random one with its
+/// lower bound on `|f|` (the clearance; `−∞` where there is none).
+#[derive(Clone, Copy)]
+enum Role {
+    Surface,
+    Random { at_least: f32 },
 }
 
 /// One point's loss and its adjoints of `f` and `∇f`.
@@ -754,22 +899,33 @@ struct Inter {
 fn point_loss(
     f: f32,
     g: [f32; 3],
-    on_surface: bool,
+    role: Role,
     k_s: f64,
     k_e: f64,
     inter: Inter,
 ) -> (f64, f32, [f32; 3]) {
     let mut loss = 0.0;
-    let mut df = 0.0;
     let v = f as f64;
-    if on_surface {
-        loss += k_s * v.abs();
-        df = (k_s * sign(v)) as f32;
-    } else if inter.k != 0.0 {
-        let e = (-inter.alpha * v.abs()).exp();
-        loss += inter.k * e;
-        df = to_f32(-inter.k * inter.alpha * sign(v) * e);
-    }
+    let df = match role {
+        Role::Surface => {
+            loss += k_s * v.abs();
+            (k_s * sign(v)) as f32
+        }
+        Role::Random { at_least } => {
+            let mut d = 0.0;
+            if inter.k != 0.0 {
+                let e = (-inter.alpha * v.abs()).exp();
+                loss += inter.k * e;
+                d = -inter.k * inter.alpha * sign(v) * e;
+            }
+            let gap = at_least as f64 - v.abs();
+            if inter.k_clear != 0.0 && gap > 0.0 {
+                loss += inter.k_clear * gap;
+                d -= inter.k_clear * sign(v);
+            }
+            to_f32(d)
+        }
+    };
     let v = g.map(|x| x as f64);
     let norm = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
     loss += k_e * (norm - 1.0) * (norm - 1.0);
@@ -826,6 +982,25 @@ impl Scratch {
         };
         Scratch {
             buf: vec![0.0; len],
+        }
+    }
+}
+
+/// The buffers of [`HashSdf::values_block`]: one point's features, and
+/// two layers' values feature-major (`max(E, width) × CHUNK`).
+struct Block {
+    point: Vec<f32>,
+    x: Vec<f32>,
+    y: Vec<f32>,
+}
+
+impl Block {
+    fn new(net: &HashSdf) -> Self {
+        let rows = net.grid.output_dim().max(net.width) * CHUNK;
+        Block {
+            point: vec![0.0; net.scratch_len::<0>()],
+            x: vec![0.0; rows],
+            y: vec![0.0; rows],
         }
     }
 }
