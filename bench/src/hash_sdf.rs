@@ -195,6 +195,25 @@ fn mesh(turns: usize) {
         active: net.levels(),
     };
     let grid = MeshGrid::covering([-0.8; 3], [0.8; 3], 192);
+    // The distances alone, at every grid point of a plane's worth × 64.
+    let plane: Vec<[f32; 3]> = (0..193 * 193 * 64)
+        .map(|i| {
+            let (a, b, c) = (i % 193, (i / 193) % 193, i / (193 * 193));
+            [a, b, c].map(|v| -0.8 + 1.6 * v as f32 / 192.0)
+        })
+        .collect();
+    let mut out = vec![0.0; plane.len()];
+    let t = Instant::now();
+    net.distances(&params, &plane, net.levels(), &mut out);
+    let blocked_s = t.elapsed().as_secs_f64();
+    let t = Instant::now();
+    net.distances_pointwise(&params, &plane, net.levels(), &mut out);
+    let pointwise_s = t.elapsed().as_secs_f64();
+    println!(
+        "distances at {} points: blocked {blocked_s:.2} s, point at a time {pointwise_s:.2} s ({:.2}×)",
+        plane.len(),
+        pointwise_s / blocked_s
+    );
     println!("load before meshing: {}", load());
     let (mut blocked, mut pointwise) = (Vec::new(), Vec::new());
     let mut vertices = 0;

@@ -535,13 +535,28 @@ impl HashSdf {
     ) {
         let n = pts.len();
         debug_assert!(n <= CHUNK && out.len() == n);
-        let Block { point, x, y } = block;
-        let e = self.grid.output_dim();
-        // Features point-major from `encode`, stored feature-major.
-        for (i, &p) in pts.iter().enumerate() {
-            self.encode::<0>(params, p, active, point);
-            for (k, &v) in point[..e].iter().enumerate() {
-                x[k * CHUNK + i] = v;
+        let Block { x, y } = block;
+        // Features feature-major, a level at a time over the block (its
+        // table stays in cache), each summed over the corners in
+        // `encode`'s order from 0.
+        let f = self.grid.config().features as usize;
+        let levels = self.offsets.len() - 1;
+        for (l, &off) in self.offsets[..levels].iter().enumerate() {
+            let feats = &mut x[l * f * CHUNK..][..f * CHUNK];
+            if l >= active {
+                feats.fill(0.0);
+                continue;
+            }
+            let table = &params[off..];
+            for (i, &p) in pts.iter().enumerate() {
+                let (rows, w) = self.grid.corners_at(l, p);
+                for k in 0..f {
+                    let mut acc = 0.0;
+                    for c in 0..8 {
+                        acc += w[c] * table[rows[c] as usize * f + k];
+                    }
+                    feats[k * CHUNK + i] = acc;
+                }
             }
         }
         let (w, beta) = (self.width, self.beta);
@@ -557,7 +572,7 @@ impl HashSdf {
                     }
                 }
                 for z in z {
-                    *z = softplus(*z, beta).0;
+                    *z = softplus_value(*z, beta);
                 }
             }
             std::mem::swap(x, y);
@@ -968,6 +983,20 @@ fn softplus(z: f32, beta: f32) -> (f32, f32) {
     (sp, s)
 }
 
+/// Below this `ln(1 + e)` rounds to `e` in f32: its relative deficit
+/// `e/2` is under half an ulp (and libm returns `e` there).
+const LN_1P_IS_IDENTITY: f32 = 1.0 / (1u32 << 24) as f32;
+
+/// [`softplus`]'s value, the same bits, without the logarithm where it
+/// is the identity: a saturated unit (`|βz| > 16.6`) costs an exponential
+/// only.
+#[inline(always)]
+fn softplus_value(z: f32, beta: f32) -> f32 {
+    let e = (-(beta * z).abs()).exp();
+    let ln = if e < LN_1P_IS_IDENTITY { e } else { e.ln_1p() };
+    z.max(0.0) + ln / beta
+}
+
 /// One point's forward scratch (or seven, for the finite differences).
 struct Scratch {
     buf: Vec<f32>,
@@ -986,10 +1015,9 @@ impl Scratch {
     }
 }
 
-/// The buffers of [`HashSdf::values_block`]: one point's features, and
-/// two layers' values feature-major (`max(E, width) × CHUNK`).
+/// The buffers of [`HashSdf::values_block`]: two layers' values
+/// feature-major (`max(E, width) × CHUNK`).
 struct Block {
-    point: Vec<f32>,
     x: Vec<f32>,
     y: Vec<f32>,
 }
@@ -998,7 +1026,6 @@ impl Block {
     fn new(net: &HashSdf) -> Self {
         let rows = net.grid.output_dim().max(net.width) * CHUNK;
         Block {
-            point: vec![0.0; net.scratch_len::<0>()],
             x: vec![0.0; rows],
             y: vec![0.0; rows],
         }

@@ -857,3 +857,54 @@ fn hash_sdf_clearance_removes_the_stray_surface() {
     let (stray, all) = fit_two_spheres(1.0);
     assert!(all > 500 && stray == 0, "{stray} of {all} stray");
 }
+
+/// The value-only softplus is `softplus`'s value bit for bit: across the
+/// threshold where the logarithm is skipped, at saturation and at extremes.
+#[test]
+fn hash_sdf_softplus_value_is_the_softplus() {
+    let beta = 100.0f32;
+    let mut z: Vec<f32> = (-40000..=40000).map(|i| i as f32 * 1e-5).collect();
+    // βz about the threshold ln(2^24) ≈ 16.64, every f32 near it.
+    let edge = (2f32.powi(24)).ln() / beta;
+    for s in [edge, -edge] {
+        let mut v = s * 0.999;
+        while v.abs() < edge.abs() * 1.001 {
+            z.push(v);
+            v = f32::from_bits(v.to_bits() + 1);
+        }
+    }
+    z.extend([
+        0.0,
+        -0.0,
+        1e-30,
+        -1e-30,
+        1.04,
+        -1.04,
+        1.05,
+        -1.05,
+        1e30,
+        -1e30,
+        f32::MAX,
+        -f32::MAX,
+    ]);
+    let mut rng = SplitMix64::new(9);
+    z.extend((0..200_000).map(|_| (rng.next_f32() * 2.0 - 1.0) * 0.5));
+    for beta in [beta, 10.0, 1.0] {
+        for &z in &z {
+            assert_eq!(
+                softplus_value(z, beta).to_bits(),
+                softplus(z, beta).0.to_bits(),
+                "softplus_{beta}({z})"
+            );
+        }
+    }
+    // ln(1 + e) = e below the threshold, for every exponent there.
+    let mut e = LN_1P_IS_IDENTITY;
+    for _ in 0..2_000_000 {
+        e = f32::from_bits(e.to_bits() - 37);
+        if e <= 0.0 {
+            break;
+        }
+        assert_eq!(e.ln_1p().to_bits(), e.to_bits(), "ln_1p({e})");
+    }
+}
