@@ -497,9 +497,9 @@ impl HashSdf {
             );
     }
 
-    /// [`Self::distances`] one point at a time through [`Self::value`]:
+    /// [`Self::distances`] one point at a time through `value`:
     /// the reference that the blocked pass is tested and benchmarked
-    /// against (the same bits, several times slower).
+    /// against (the same bits, slower).
     pub fn distances_pointwise(
         &self,
         params: &[f32],
