@@ -7,11 +7,21 @@
 //! and with Neuralangelo's central differences; and the same batch through
 //! the existing harmonic-encoding SDF network's `loss_and_grad` (IGR's
 //! 6 × 128) for comparison. Timed in turns so load falls on all alike.
+//!
+//! Then meshing: surface nets at 192 cells a side over the field of
+//! `examples/neural_sdf_fast.sdfl`'s shape (16 levels of 2^16 rows, 16 to
+//! 128 cells, one layer of 64; its tables given bumps), through the
+//! blocked `distances` and through the point-at-a-time reference, in
+//! turns; the two meshes must be the same bits.
 
 use std::time::Instant;
 
-use sdfl_runtime::neural::hash_sdf::{Eikonal, HashSdf, HashSdfLoss, HashSdfSpec, HashSdfWork};
+use sdfl_runtime::mesh::{surface_nets, DistanceField, Lipschitz, Mesh, MeshGrid};
+use sdfl_runtime::neural::hash_sdf::{
+    Eikonal, HashSdf, HashSdfField, HashSdfLoss, HashSdfSpec, HashSdfWork,
+};
 use sdfl_runtime::neural::hashgrid::Adam;
+use sdfl_runtime::neural::hashgrid::HashGridConfig;
 use sdfl_runtime::neural::sdf_net::{SdfLoss, SdfNet, SdfNetSpec, SdfWork};
 use sdfl_runtime::volume::SplitMix64;
 
@@ -135,4 +145,105 @@ pub fn main(reps: usize) {
         println!("| {name} | {med:.2} | {min:.2} | {:.2} |", med / exact.0);
     }
     println!("load after: {}", load());
+    mesh(reps.div_ceil(10).max(1));
+}
+
+/// The field through [`HashSdf::distances_pointwise`]: meshing as it was.
+struct Pointwise<'a>(HashSdfField<'a>);
+
+impl DistanceField for Pointwise<'_> {
+    fn distances(&self, points: &[[f32; 3]], out: &mut [f32]) {
+        let f = &self.0;
+        f.net.distances_pointwise(f.params, points, f.active, out)
+    }
+    fn gradients(&self, points: &[[f32; 3]], h: f32, f: &mut [f32], g: &mut [[f32; 3]]) {
+        self.0.gradients(points, h, f, g)
+    }
+}
+
+/// Seconds to mesh `field` (claimed 2-Lipschitz, as a trained one is), and the mesh.
+fn time_mesh<F: DistanceField>(field: F, grid: &MeshGrid) -> (f64, Mesh) {
+    let t = Instant::now();
+    let m = surface_nets(&Lipschitz(field, 2.0), grid, usize::MAX, &|_| {}).expect("mesh");
+    (t.elapsed().as_secs_f64(), m)
+}
+
+/// Times meshing the example's field both ways, `turns` each.
+fn mesh(turns: usize) {
+    let spec = HashSdfSpec {
+        grid: HashGridConfig {
+            levels: 16,
+            features: 2,
+            log2_table: 16,
+            min_res: 16,
+            max_res: 128,
+            bbox_min: [-1.2; 3],
+            bbox_max: [1.2; 3],
+        },
+        ..HashSdfSpec::default()
+    };
+    let net = HashSdf::new(&spec).expect("hash SDF");
+    let mut params = net.init(3);
+    // Bumps of about a hundredth on the sphere (features of ±0.05).
+    let mut rng = SplitMix64::new(4);
+    for v in &mut params[..net.table_params()] {
+        *v = (2.0 * rng.next_f32() - 1.0) * 0.05;
+    }
+    let field = || HashSdfField {
+        net: &net,
+        params: &params,
+        active: net.levels(),
+    };
+    let grid = MeshGrid::covering([-0.8; 3], [0.8; 3], 192);
+    // The distances alone, at every grid point of a plane's worth × 64.
+    let plane: Vec<[f32; 3]> = (0..193 * 193 * 64)
+        .map(|i| {
+            let (a, b, c) = (i % 193, (i / 193) % 193, i / (193 * 193));
+            [a, b, c].map(|v| -0.8 + 1.6 * v as f32 / 192.0)
+        })
+        .collect();
+    let mut out = vec![0.0; plane.len()];
+    let t = Instant::now();
+    net.distances(&params, &plane, net.levels(), &mut out);
+    let blocked_s = t.elapsed().as_secs_f64();
+    let t = Instant::now();
+    net.distances_pointwise(&params, &plane, net.levels(), &mut out);
+    let pointwise_s = t.elapsed().as_secs_f64();
+    println!(
+        "distances at {} points: blocked {blocked_s:.2} s, point at a time {pointwise_s:.2} s ({:.2}×)",
+        plane.len(),
+        pointwise_s / blocked_s
+    );
+    println!("load before meshing: {}", load());
+    let (mut blocked, mut pointwise) = (Vec::new(), Vec::new());
+    let mut vertices = 0;
+    for _ in 0..turns {
+        let (t, a) = time_mesh(field(), &grid);
+        blocked.push(t);
+        let (t, b) = time_mesh(Pointwise(field()), &grid);
+        pointwise.push(t);
+        let bits = |m: &Mesh| {
+            m.vertices
+                .iter()
+                .flatten()
+                .map(|v| v.to_bits())
+                .collect::<Vec<_>>()
+        };
+        assert!(
+            bits(&a) == bits(&b) && a.triangles == b.triangles,
+            "the blocked pass gives the reference's mesh"
+        );
+        vertices = a.vertices.len();
+    }
+    let (b, p) = (median_min(blocked), median_min(pointwise));
+    println!("| mesh, 192 cells a side ({vertices} vertices) | s (median) | s (min) | / blocked (median) |");
+    println!("|---|---:|---:|---:|");
+    println!("| blocked distances | {:.2} | {:.2} | 1.00 |", b.0, b.1);
+    println!(
+        "| point at a time (before) | {:.2} | {:.2} | {:.2} |",
+        p.0,
+        p.1,
+        p.0 / b.0
+    );
+    println!("load after meshing: {}", load());
 }

@@ -114,6 +114,23 @@ impl Default for HashSdfLoss {
     }
 }
 
+/// Lower bounds on `|f|` at the random points and the weight of the hinge
+/// `mean_r max(0, at_least_r − |f|)`: SAL's unsigned distance to the data,
+/// used one-sided. A surface lies no closer to a point than the data's
+/// nearest sample less their spacing, so with `at_least` the distance to
+/// the nearest sample less that margin the true SDF pays nothing, while a
+/// zero crossing far from every sample (a leftover of the starting
+/// sphere, a sheet across a concavity) does. A hash grid needs it where an
+/// MLP does not: its features are local, so nothing else moves a surface
+/// that no point touches.
+#[derive(Debug, Clone, Copy)]
+pub struct Clearance<'a> {
+    /// Weight of the hinge's mean over the random points.
+    pub weight: f32,
+    /// Per random point, the least `|f|` allowed (or empty: none).
+    pub at_least: &'a [f32],
+}
+
 /// A hash-grid SDF: the layout only; params live with the caller.
 #[derive(Debug, Clone)]
 pub struct HashSdf {
@@ -474,12 +491,102 @@ impl HashSdf {
         assert_eq!(points.len(), out.len(), "one distance a point");
         out.par_chunks_mut(CHUNK)
             .zip(points.par_chunks(CHUNK))
-            .for_each(|(out, pts)| {
-                let mut s = Scratch::new(self, 0);
-                for (o, &p) in out.iter_mut().zip(pts) {
-                    *o = self.value(params, p, active, &mut s.buf);
+            .for_each_init(
+                || Block::new(self),
+                |block, (out, pts)| self.values_block(params, pts, active, block, out),
+            );
+    }
+
+    /// [`Self::distances`] one point at a time through `value`:
+    /// the reference that the blocked pass is tested and benchmarked
+    /// against (the same bits, slower).
+    pub fn distances_pointwise(
+        &self,
+        params: &[f32],
+        points: &[[f32; 3]],
+        active: usize,
+        out: &mut [f32],
+    ) {
+        self.check_params(params);
+        assert_eq!(points.len(), out.len(), "one distance a point");
+        out.par_chunks_mut(CHUNK)
+            .zip(points.par_chunks(CHUNK))
+            .for_each_init(
+                || Scratch::new(self, 0),
+                |s, (out, pts)| {
+                    for (o, &p) in out.iter_mut().zip(pts) {
+                        *o = self.value(params, p, active, &mut s.buf);
+                    }
+                },
+            );
+    }
+
+    /// [`Self::value`] at up to [`CHUNK`] points at once, the same bits:
+    /// each layer's sums run across the points (vector lanes), every
+    /// point's sum still in `mlp_forward`'s order (bias, then the inputs
+    /// in turn), and the same softplus.
+    fn values_block(
+        &self,
+        params: &[f32],
+        pts: &[[f32; 3]],
+        active: usize,
+        block: &mut Block,
+        out: &mut [f32],
+    ) {
+        let n = pts.len();
+        debug_assert!(n <= CHUNK && out.len() == n);
+        let Block { x, y } = block;
+        // Features feature-major, a level at a time over the block (its
+        // table stays in cache), each summed over the corners in
+        // `encode`'s order from 0.
+        let f = self.grid.config().features as usize;
+        let levels = self.offsets.len() - 1;
+        for (l, &off) in self.offsets[..levels].iter().enumerate() {
+            let feats = &mut x[l * f * CHUNK..][..f * CHUNK];
+            if l >= active {
+                feats.fill(0.0);
+                continue;
+            }
+            let table = &params[off..];
+            for (i, &p) in pts.iter().enumerate() {
+                let (rows, w) = self.grid.corners_at(l, p);
+                for k in 0..f {
+                    let mut acc = 0.0;
+                    for c in 0..8 {
+                        acc += w[c] * table[rows[c] as usize * f + k];
+                    }
+                    feats[k * CHUNK + i] = acc;
                 }
-            });
+            }
+        }
+        let (w, beta) = (self.width, self.beta);
+        for &(input, off) in &self.hidden {
+            let weights = &params[off..][..input * w];
+            let bias = &params[off + input * w..][..w];
+            for j in 0..w {
+                let z = &mut y[j * CHUNK..][..n];
+                z.fill(bias[j]);
+                for (k, &wk) in weights[j * input..][..input].iter().enumerate() {
+                    for (z, &xk) in z.iter_mut().zip(&x[k * CHUNK..][..n]) {
+                        *z += wk * xk;
+                    }
+                }
+                for z in z {
+                    *z = softplus_value(*z, beta);
+                }
+            }
+            std::mem::swap(x, y);
+        }
+        let wo = &params[self.output..][..w];
+        out.fill(params[self.output + w]);
+        for (j, &wj) in wo.iter().enumerate() {
+            for (o, &h) in out.iter_mut().zip(&x[j * CHUNK..][..n]) {
+                *o += wj * h;
+            }
+        }
+        for (o, &p) in out.iter_mut().zip(pts) {
+            *o += self.sphere(p).0;
+        }
     }
 
     /// `f` and the exact `∇f` at `points`, with the first `active` levels.
@@ -496,12 +603,14 @@ impl HashSdf {
         f.par_chunks_mut(CHUNK)
             .zip(g.par_chunks_mut(CHUNK))
             .zip(points.par_chunks(CHUNK))
-            .for_each(|((f, g), pts)| {
-                let mut s = Scratch::new(self, 3);
-                for ((f, g), &p) in f.iter_mut().zip(g.iter_mut()).zip(pts) {
-                    (*f, *g) = self.value_grad(params, p, active, &mut s.buf);
-                }
-            });
+            .for_each_init(
+                || Scratch::new(self, 3),
+                |s, ((f, g), pts)| {
+                    for ((f, g), &p) in f.iter_mut().zip(g.iter_mut()).zip(pts) {
+                        (*f, *g) = self.value_grad(params, p, active, &mut s.buf);
+                    }
+                },
+            );
     }
 
     /// The loss `surface·mean_s|f| + eikonal·mean(‖∇f‖ − 1)² +
@@ -527,7 +636,37 @@ impl HashSdf {
         grad: &mut [f32],
         touched: &mut Touched,
     ) -> f64 {
+        let none = Clearance {
+            weight: 0.0,
+            at_least: &[],
+        };
+        self.loss_and_grad_clear(
+            params, surface, random, weights, none, eikonal, active, work, grad, touched,
+        )
+    }
+
+    /// [`Self::loss_and_grad`] plus the clearance hinge
+    /// `clearance.weight · mean_r max(0, at_least_r − |f|)` over the random
+    /// points (see [`Clearance`]).
+    #[allow(clippy::too_many_arguments)]
+    pub fn loss_and_grad_clear(
+        &self,
+        params: &[f32],
+        surface: &[[f32; 3]],
+        random: &[[f32; 3]],
+        weights: &HashSdfLoss,
+        clearance: Clearance<'_>,
+        eikonal: Eikonal,
+        active: usize,
+        work: &mut HashSdfWork,
+        grad: &mut [f32],
+        touched: &mut Touched,
+    ) -> f64 {
         self.check_params(params);
+        assert!(
+            clearance.at_least.is_empty() || clearance.at_least.len() == random.len(),
+            "one clearance a random point"
+        );
         assert_eq!(grad.len(), self.len, "gradient");
         let (ns, n) = (surface.len(), surface.len() + random.len());
         let probes = match eikonal {
@@ -544,6 +683,17 @@ impl HashSdf {
         let inter = Inter {
             k: weights.inter as f64 / random.len().max(1) as f64,
             alpha: weights.alpha as f64,
+            k_clear: clearance.weight as f64 / random.len().max(1) as f64,
+        };
+        let role = |i: usize| {
+            if i < ns {
+                Role::Surface
+            } else {
+                let at_least = clearance.at_least.get(i - ns);
+                Role::Random {
+                    at_least: at_least.copied().unwrap_or(f32::NEG_INFINITY),
+                }
+            }
         };
         let point = |i: usize| if i < ns { surface[i] } else { random[i - ns] };
         let HashSdfWork {
@@ -573,7 +723,7 @@ impl HashSdf {
                     match eikonal {
                         Eikonal::Exact => {
                             let (f, g) = self.value_grad(params, p, active, &mut cw.buf);
-                            let (l, df, dg) = point_loss(f, g, i < ns, k_s, k_e, inter);
+                            let (l, df, dg) = point_loss(f, g, role(i), k_s, k_e, inter);
                             loss += l;
                             let t = self.tangent_out::<3>();
                             let buf = &cw.buf[..t + 3];
@@ -613,7 +763,7 @@ impl HashSdf {
                                     0.0
                                 }
                             });
-                            let (l, df, dg) = point_loss(fv[0], g, i < ns, k_s, k_e, inter);
+                            let (l, df, dg) = point_loss(fv[0], g, role(i), k_s, k_e, inter);
                             loss += l;
                             let mut d = [0f32; FD_PROBES];
                             d[0] = df;
@@ -742,11 +892,21 @@ impl HashSdf {
     }
 }
 
-/// The inter term's weight a random point and its sharpness.
+/// The random points' terms: the inter term's weight a point and its
+/// sharpness, and the clearance hinge's weight a point.
 #[derive(Clone, Copy)]
 struct Inter {
     k: f64,
     alpha: f64,
+    k_clear: f64,
+}
+
+/// Which set a point belongs to: a surface point, or a random one with its
+/// lower bound on `|f|` (the clearance; `−∞` where there is none).
+#[derive(Clone, Copy)]
+enum Role {
+    Surface,
+    Random { at_least: f32 },
 }
 
 /// One point's loss and its adjoints of `f` and `∇f`.
@@ -754,22 +914,33 @@ struct Inter {
 fn point_loss(
     f: f32,
     g: [f32; 3],
-    on_surface: bool,
+    role: Role,
     k_s: f64,
     k_e: f64,
     inter: Inter,
 ) -> (f64, f32, [f32; 3]) {
     let mut loss = 0.0;
-    let mut df = 0.0;
     let v = f as f64;
-    if on_surface {
-        loss += k_s * v.abs();
-        df = (k_s * sign(v)) as f32;
-    } else if inter.k != 0.0 {
-        let e = (-inter.alpha * v.abs()).exp();
-        loss += inter.k * e;
-        df = to_f32(-inter.k * inter.alpha * sign(v) * e);
-    }
+    let df = match role {
+        Role::Surface => {
+            loss += k_s * v.abs();
+            (k_s * sign(v)) as f32
+        }
+        Role::Random { at_least } => {
+            let mut d = 0.0;
+            if inter.k != 0.0 {
+                let e = (-inter.alpha * v.abs()).exp();
+                loss += inter.k * e;
+                d = -inter.k * inter.alpha * sign(v) * e;
+            }
+            let gap = at_least as f64 - v.abs();
+            if inter.k_clear != 0.0 && gap > 0.0 {
+                loss += inter.k_clear * gap;
+                d -= inter.k_clear * sign(v);
+            }
+            to_f32(d)
+        }
+    };
     let v = g.map(|x| x as f64);
     let norm = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
     loss += k_e * (norm - 1.0) * (norm - 1.0);
@@ -812,6 +983,20 @@ fn softplus(z: f32, beta: f32) -> (f32, f32) {
     (sp, s)
 }
 
+/// Below this `ln(1 + e)` rounds to `e` in f32: its relative deficit
+/// `e/2` is under half an ulp (and libm returns `e` there).
+const LN_1P_IS_IDENTITY: f32 = 1.0 / (1u32 << 24) as f32;
+
+/// [`softplus`]'s value, the same bits, without the logarithm where it
+/// is the identity: a saturated unit (`|βz| > 16.6`) costs an exponential
+/// only.
+#[inline(always)]
+fn softplus_value(z: f32, beta: f32) -> f32 {
+    let e = (-(beta * z).abs()).exp();
+    let ln = if e < LN_1P_IS_IDENTITY { e } else { e.ln_1p() };
+    z.max(0.0) + ln / beta
+}
+
 /// One point's forward scratch (or seven, for the finite differences).
 struct Scratch {
     buf: Vec<f32>,
@@ -826,6 +1011,23 @@ impl Scratch {
         };
         Scratch {
             buf: vec![0.0; len],
+        }
+    }
+}
+
+/// The buffers of [`HashSdf::values_block`]: two layers' values
+/// feature-major (`max(E, width) × CHUNK`).
+struct Block {
+    x: Vec<f32>,
+    y: Vec<f32>,
+}
+
+impl Block {
+    fn new(net: &HashSdf) -> Self {
+        let rows = net.grid.output_dim().max(net.width) * CHUNK;
+        Block {
+            x: vec![0.0; rows],
+            y: vec![0.0; rows],
         }
     }
 }

@@ -2,8 +2,13 @@
 //! ([`HashSdfObjective`]), the twin of [`crate::neural::distance`]'s
 //! harmonic one: each step's surface points come from the batch, as many
 //! random points are drawn in `[-bounds, bounds]³` from the step's seed,
-//! and the loss (surface, eikonal, inter) is [`HashSdf::loss_and_grad`]
-//! with the levels the step has switched on.
+//! and the loss (surface, eikonal, inter) is [`HashSdf::loss_and_grad_clear`]
+//! with the levels the step has switched on, plus the clearance hinge
+//! ([`Clearance`]): each random point's distance to the step's nearest
+//! surface point, less two of their mean spacings, bounds `|f|` from
+//! below, so no surface is left where no point is (without it the
+//! starting sphere survives between the bunny's ears: Chamfer 0.0121
+//! against 0.0069 with it).
 //!
 //! Levels not yet on start at zero: they get no gradient, so Adam leaves
 //! them at zero until they switch on, and the field read with all levels
@@ -14,7 +19,7 @@ use sdfl_stdlib::value::{HashGridSpec, Loss, NeuralSdf};
 use sdfl_stdlib::work::FIT_CHUNK;
 
 use super::{progressive_levels, Eikonal, HashSdf, HashSdfField, HashSdfLoss, HashSdfSpec};
-use super::{HashSdfWork, CHUNK};
+use super::{Clearance, HashSdfWork, CHUNK};
 use crate::mesh::DistanceField;
 use crate::neural::distance::{fit_with, random_points, trace_field, SdfFit, TraceSettings};
 use crate::neural::hashgrid::{HashGridConfig, Touched};
@@ -22,6 +27,8 @@ use crate::train::field::{Description, Region, View};
 use crate::train::fused::Batch;
 use crate::train::{Objective, TensorSpec, TrainError, Trained, TrainedField};
 use crate::volume::SplitMix64;
+use kiddo::{ImmutableKdTree, SquaredEuclidean};
+use rayon::prelude::*;
 
 /// The runtime network of a hash-grid language spec.
 pub fn hash_sdf(spec: &NeuralSdf, grid: &HashGridSpec) -> Result<HashSdf, String> {
@@ -67,6 +74,8 @@ pub struct HashSdfObjective {
     /// need them; cleared each step so the set stays the step's).
     touched: Touched,
     random: Vec<f32>,
+    /// Per random point, the least `|f|` the clearance term allows.
+    at_least: Vec<f32>,
 }
 
 impl HashSdfObjective {
@@ -91,6 +100,7 @@ impl HashSdfObjective {
             bounds: bounds as f32,
             work: HashSdfWork::default(),
             random: Vec::new(),
+            at_least: Vec::new(),
         })
     }
 
@@ -108,7 +118,11 @@ impl HashSdfObjective {
             Eikonal::Exact => 1,
             Eikonal::FiniteDifference { .. } => 7,
         };
-        HashSdfWork::bytes_for(&self.net, rows, probes) + 24 * self.net.param_count() as u64
+        // The clearances and their k-d tree over the surface points.
+        let clearance = 48 * rows as u64;
+        HashSdfWork::bytes_for(&self.net, rows, probes)
+            + 24 * self.net.param_count() as u64
+            + clearance
     }
 }
 
@@ -173,11 +187,19 @@ impl Objective for HashSdfObjective {
         };
         self.touched.clear();
         let active = self.active_levels(batch.step);
-        Ok(self.net.loss_and_grad(
+        let surface = batch.points.as_chunks::<3>().0;
+        let random = self.random.as_chunks::<3>().0;
+        clearances(surface, random, MARGIN, &mut self.at_least);
+        let clearance = Clearance {
+            weight: CLEARANCE * scale,
+            at_least: &self.at_least,
+        };
+        Ok(self.net.loss_and_grad_clear(
             values,
-            batch.points.as_chunks::<3>().0,
-            self.random.as_chunks::<3>().0,
+            surface,
+            random,
             &w,
+            clearance,
             self.eikonal,
             active,
             &mut self.work,
@@ -185,6 +207,53 @@ impl Objective for HashSdfObjective {
             &mut self.touched,
         ))
     }
+}
+
+/// Weight of the clearance hinge (see [`Clearance`]), as the surface term's.
+const CLEARANCE: f32 = 1.0;
+/// The clearance's margin in the data's spacings (the mean distance from a
+/// sample to its nearest neighbour): a surface between samples lies within
+/// about one spacing of one.
+const MARGIN: f32 = 2.0;
+
+const TWO: std::num::NonZero<usize> = std::num::NonZero::<usize>::MIN.saturating_add(1);
+
+/// Per random point, its distance to the nearest surface point less
+/// `margin` times the surface points' mean spacing: the least `|f|` of a
+/// surface through the points (exact k-d tree distances, the same at any
+/// thread count).
+pub(super) fn clearances(
+    surface: &[[f32; 3]],
+    random: &[[f32; 3]],
+    margin: f32,
+    out: &mut Vec<f32>,
+) {
+    out.clear();
+    if surface.len() < 2 {
+        out.resize(random.len(), f32::NEG_INFINITY);
+        return;
+    }
+    let tree: ImmutableKdTree<f32, 3> = ImmutableKdTree::new_from_slice(surface);
+    let spacing: Vec<f64> = surface
+        .par_chunks(1024)
+        .map(|c| {
+            c.iter()
+                .map(|p| {
+                    // The point itself, then its nearest neighbour.
+                    let two = tree.nearest_n::<SquaredEuclidean>(p, TWO);
+                    two.last().map_or(0.0, |n| (n.distance as f64).sqrt())
+                })
+                .sum::<f64>()
+        })
+        .collect();
+    let spacing = spacing.iter().sum::<f64>() / surface.len() as f64;
+    let less = (margin as f64 * spacing) as f32;
+    out.resize(random.len(), 0.0);
+    out.par_iter_mut()
+        .zip(random.par_iter())
+        .for_each(|(o, p)| {
+            *o = tree.nearest_one::<SquaredEuclidean>(p).distance.sqrt() - less;
+        });
 }
 
 impl HashSdfObjective {
@@ -286,7 +355,7 @@ impl TrainedField for Trained<HashSdfObjective> {
         };
         Description {
             trainable: format!(
-                "all {} numbers ({} in the {levels} levels' tables), starting as a sphere of radius {} about the grid's centre{growth}",
+                "all {} numbers ({} in the {levels} levels' tables), starting as a sphere of radius {} about the grid's centre{growth}; at the random points |f| is held to at least the distance to the nearest surface point less {MARGIN} of their mean spacings (weight {CLEARANCE})",
                 o.net.param_count(),
                 o.net.table_params(),
                 o.spec.radius
@@ -299,5 +368,53 @@ impl TrainedField for Trained<HashSdfObjective> {
             },
             mesh_region: "the points' box grown by a tenth of its diagonal".into(),
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn brute_nearest(p: [f32; 3], set: &[[f32; 3]], skip: Option<usize>) -> f64 {
+        set.iter()
+            .enumerate()
+            .filter(|&(i, _)| Some(i) != skip)
+            .map(|(_, q)| {
+                (0..3)
+                    .map(|a| (p[a] as f64 - q[a] as f64).powi(2))
+                    .sum::<f64>()
+                    .sqrt()
+            })
+            .fold(f64::INFINITY, f64::min)
+    }
+
+    #[test]
+    fn clearances_are_brute_force_distances_less_the_margin() {
+        let mut rng = SplitMix64::new(5);
+        let mut cloud = |n: usize, s: f32| -> Vec<[f32; 3]> {
+            (0..n)
+                .map(|_| std::array::from_fn(|_| (rng.next_f32() * 2.0 - 1.0) * s))
+                .collect()
+        };
+        let mut surface = cloud(300, 0.5);
+        // A repeated sample: spacing 0 for both copies.
+        surface.push(surface[0]);
+        let random = cloud(200, 1.5);
+        let mut out = Vec::new();
+        clearances(&surface, &random, 2.0, &mut out);
+        let spacing = (0..surface.len())
+            .map(|i| brute_nearest(surface[i], &surface, Some(i)))
+            .sum::<f64>()
+            / surface.len() as f64;
+        assert_eq!(out.len(), random.len());
+        for (o, &p) in out.iter().zip(&random) {
+            let want = brute_nearest(p, &surface, None) - 2.0 * spacing;
+            assert!((*o as f64 - want).abs() < 1e-5, "{o} vs {want}");
+        }
+        // Too few samples to have a spacing: no bound anywhere.
+        clearances(&surface[..1], &random, 2.0, &mut out);
+        assert!(out.len() == random.len() && out.iter().all(|&o| o == f32::NEG_INFINITY));
+        clearances(&[], &random, 2.0, &mut out);
+        assert!(out.iter().all(|&o| o == f32::NEG_INFINITY));
     }
 }

@@ -175,12 +175,14 @@ fn reference_loss(
     surface: &[[f32; 3]],
     random: &[[f32; 3]],
     w: &HashSdfLoss,
+    clear: (f64, &[f32]),
     eik: Eikonal,
     active: usize,
 ) -> f64 {
     let (ns, n) = (surface.len(), surface.len() + random.len());
     let (k_s, k_e) = (w.surface as f64 / ns as f64, w.eikonal as f64 / n as f64);
     let k_i = w.inter as f64 / random.len() as f64;
+    let k_c = clear.0 / random.len() as f64;
     let mut loss = 0.0;
     for (i, &p) in surface.iter().chain(random).enumerate() {
         let r = reference(net, sp, params, p, active);
@@ -188,6 +190,7 @@ fn reference_loss(
             loss += k_s * r.v.abs();
         } else {
             loss += k_i * (-(w.alpha as f64) * r.v.abs()).exp();
+            loss += k_c * (clear.1[i - ns] as f64 - r.v.abs()).max(0.0);
         }
         let g: [f64; 3] = match eik {
             Eikonal::Exact => r.d,
@@ -290,22 +293,40 @@ fn check_param_gradient(eik: Eikonal, active: usize, beta: f32, seed: u64) {
         inter: 0.5,
         alpha: 3.0,
     };
+    // Clearances from 0 to 1.2 (|f| is at most about 1 here): the hinge
+    // active at some random points, not at others.
+    let mut rng = SplitMix64::new(seed + 4);
+    let at_least: Vec<f32> = random.iter().map(|_| rng.next_f32() * 1.2).collect();
+    let clearance = Clearance {
+        weight: 0.8,
+        at_least: &at_least,
+    };
+    let clear = (clearance.weight as f64, &at_least[..]);
     let mut work = HashSdfWork::default();
     let mut touched = net.grid().touched_set();
     let mut grad = vec![0.0; net.param_count()];
-    let loss = net.loss_and_grad(
+    let loss = net.loss_and_grad_clear(
         &params,
         &surface,
         &random,
         &w,
+        clearance,
         eik,
         active,
         &mut work,
         &mut grad,
         &mut touched,
     );
+    let f = work.distance();
+    let hinged = (0..random.len())
+        .filter(|&i| at_least[i] > f[surface.len() + i].abs())
+        .count();
+    assert!(
+        hinged > 5 && hinged < random.len() - 5,
+        "{hinged} of the random points under their clearance"
+    );
     let mut p64: Vec<f64> = params.iter().map(|&v| v as f64).collect();
-    let ref_loss = reference_loss(&net, &sp, &p64, &surface, &random, &w, eik, active);
+    let ref_loss = reference_loss(&net, &sp, &p64, &surface, &random, &w, clear, eik, active);
     assert!(
         (loss - ref_loss).abs() < 1e-4 * (1.0 + ref_loss.abs()),
         "{loss} vs {ref_loss}"
@@ -336,9 +357,9 @@ fn check_param_gradient(eik: Eikonal, active: usize, beta: f32, seed: u64) {
         let h = 1e-6;
         let v = p64[i];
         p64[i] = v + h;
-        let up = reference_loss(&net, &sp, &p64, &surface, &random, &w, eik, active);
+        let up = reference_loss(&net, &sp, &p64, &surface, &random, &w, clear, eik, active);
         p64[i] = v - h;
-        let down = reference_loss(&net, &sp, &p64, &surface, &random, &w, eik, active);
+        let down = reference_loss(&net, &sp, &p64, &surface, &random, &w, clear, eik, active);
         p64[i] = v;
         let fd = (up - down) / (2.0 * h);
         let got = grad[i] as f64;
@@ -678,4 +699,212 @@ fn hash_sdf_fits_a_box_in_a_few_hundred_steps() {
         to_box < 0.006 && to_mesh < 0.025,
         "Chamfer {to_box} + {to_mesh}"
     );
+}
+
+/// The blocked distance pass gives `value`'s bits at every point: partial
+/// blocks, both network depths, some levels off, and hard points.
+#[test]
+fn hash_sdf_blocked_distances_are_the_pointwise_values() {
+    for (layers, width, active, seed) in [(2, 8, 4, 50), (1, 16, 3, 51), (2, 5, 1, 52)] {
+        let sp = HashSdfSpec {
+            layers,
+            width,
+            ..spec(100.0)
+        };
+        let net = HashSdf::new(&sp).unwrap();
+        let params = random_params(&net, seed);
+        let mut pts = random_points(300, seed + 1, 1.3);
+        pts.extend([
+            [0.0, 0.0, 0.5],
+            [1.0, 1.0, 1.0],
+            [3.0, -7.0, 0.1],
+            [1e30, -1e30, 1e30],
+            [f32::MAX, 0.0, -f32::MAX],
+            [0.0; 3],
+        ]);
+        for n in [1, CHUNK - 1, CHUNK, CHUNK + 1, pts.len()] {
+            let pts = &pts[..n];
+            let mut blocked = vec![f32::NAN; n];
+            let mut pointwise = vec![0.0; n];
+            net.distances(&params, pts, active, &mut blocked);
+            net.distances_pointwise(&params, pts, active, &mut pointwise);
+            let mut s = Scratch::new(&net, 0);
+            for (i, &p) in pts.iter().enumerate() {
+                let v = net.value(&params, p, active, &mut s.buf);
+                assert!(v.is_finite(), "{p:?}");
+                assert_eq!(blocked[i].to_bits(), v.to_bits(), "{p:?}, {n} points");
+                assert_eq!(pointwise[i].to_bits(), v.to_bits(), "{p:?}");
+            }
+        }
+    }
+}
+
+/// `n` points on two spheres of radius 0.25 at x = ±0.5, and the distance
+/// to them.
+fn two_spheres(n: usize, rng: &mut SplitMix64) -> Vec<[f32; 3]> {
+    (0..n)
+        .map(|i| {
+            let v: [f32; 3] = std::array::from_fn(|_| rng.next_f32() * 2.0 - 1.0);
+            let l = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt().max(1e-6);
+            let c = if i % 2 == 0 { 0.5 } else { -0.5 };
+            [c + 0.25 * v[0] / l, 0.25 * v[1] / l, 0.25 * v[2] / l]
+        })
+        .collect()
+}
+
+fn two_spheres_distance(p: [f32; 3]) -> f64 {
+    [0.5f64, -0.5]
+        .iter()
+        .map(|&c| {
+            let d = [p[0] as f64 - c, p[1] as f64, p[2] as f64];
+            (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt() - 0.25
+        })
+        .fold(f64::INFINITY, f64::min)
+}
+
+/// Fits two small spheres that sit across the starting sphere (radius 0.5)
+/// and returns the mesh vertices farther than 0.1 from them, and all.
+fn fit_two_spheres(clearance: f32) -> (usize, usize) {
+    let sp = HashSdfSpec {
+        grid: HashGridConfig {
+            levels: 8,
+            features: 2,
+            log2_table: 15,
+            min_res: 4,
+            max_res: 64,
+            bbox_min: [-1.0; 3],
+            bbox_max: [1.0; 3],
+        },
+        layers: 1,
+        width: 32,
+        beta: 100.0,
+        radius: 0.5,
+    };
+    let net = HashSdf::new(&sp).unwrap();
+    let mut params = net.init(21);
+    let n = params.len();
+    let (mut m, mut v, mut grad) = (vec![0f32; n], vec![0f32; n], vec![0f32; n]);
+    let mut work = HashSdfWork::default();
+    let mut touched = net.grid().touched_set();
+    let mut rng = SplitMix64::new(22);
+    let data = two_spheres(1500, &mut rng);
+    let w = HashSdfLoss {
+        surface: 1.0,
+        eikonal: 0.02,
+        inter: 0.1,
+        alpha: 100.0,
+    };
+    let (b1, b2, lr) = (0.9f32, 0.99f32, 5e-3f32);
+    let (mut surface, mut random, mut at_least) = (Vec::new(), Vec::new(), Vec::new());
+    for step in 1..=300 {
+        surface.clear();
+        surface.extend((0..512).map(|_| data[(rng.next_u64() % data.len() as u64) as usize]));
+        random.clear();
+        random.extend((0..512).map(|_| std::array::from_fn(|_| rng.next_f32() * 2.0 - 1.0)));
+        objective::clearances(&surface, &random, 2.0, &mut at_least);
+        let clear = Clearance {
+            weight: clearance,
+            at_least: &at_least,
+        };
+        let active = progressive_levels(step, 8, 2, 25);
+        net.loss_and_grad_clear(
+            &params,
+            &surface,
+            &random,
+            &w,
+            clear,
+            Eikonal::Exact,
+            active,
+            &mut work,
+            &mut grad,
+            &mut touched,
+        );
+        let bc1 = 1.0 - b1.powi(step as i32);
+        let bc2 = 1.0 - b2.powi(step as i32);
+        for i in 0..n {
+            m[i] = b1 * m[i] + (1.0 - b1) * grad[i];
+            v[i] = b2 * v[i] + (1.0 - b2) * grad[i] * grad[i];
+            params[i] -= lr * (m[i] / bc1) / ((v[i] / bc2).sqrt() + 1e-15);
+            grad[i] = 0.0;
+        }
+    }
+    let field = HashSdfField {
+        net: &net,
+        params: &params,
+        active: 8,
+    };
+    let grid = MeshGrid::covering([-1.0; 3], [1.0; 3], 48);
+    let mesh = surface_nets(&field, &grid, 1 << 22, &|_| {}).unwrap();
+    let stray = mesh
+        .vertices
+        .iter()
+        .filter(|&&p| two_spheres_distance(p) > 0.1)
+        .count();
+    eprintln!(
+        "two spheres, clearance {clearance}: {stray} of {} vertices stray",
+        mesh.vertices.len()
+    );
+    (stray, mesh.vertices.len())
+}
+
+/// Without the clearance term the starting sphere survives where no point
+/// pulls it (stray surface between and around the two spheres); with it,
+/// the mesh is the two spheres.
+#[test]
+fn hash_sdf_clearance_removes_the_stray_surface() {
+    let (stray, all) = fit_two_spheres(0.0);
+    assert!(stray > all / 20, "the hard case: {stray} of {all} stray");
+    let (stray, all) = fit_two_spheres(1.0);
+    assert!(all > 500 && stray == 0, "{stray} of {all} stray");
+}
+
+/// The value-only softplus is `softplus`'s value bit for bit: across the
+/// threshold where the logarithm is skipped, at saturation and at extremes.
+#[test]
+fn hash_sdf_softplus_value_is_the_softplus() {
+    let beta = 100.0f32;
+    let mut z: Vec<f32> = (-40000..=40000).map(|i| i as f32 * 1e-5).collect();
+    // βz about the threshold ln(2^24) ≈ 16.64, every f32 near it.
+    let edge = (2f32.powi(24)).ln() / beta;
+    for s in [edge, -edge] {
+        let mut v = s * 0.999;
+        while v.abs() < edge.abs() * 1.001 {
+            z.push(v);
+            v = f32::from_bits(v.to_bits() + 1);
+        }
+    }
+    z.extend([
+        0.0,
+        -0.0,
+        1e-30,
+        -1e-30,
+        1.04,
+        -1.04,
+        1.05,
+        -1.05,
+        1e30,
+        -1e30,
+        f32::MAX,
+        -f32::MAX,
+    ]);
+    let mut rng = SplitMix64::new(9);
+    z.extend((0..200_000).map(|_| (rng.next_f32() * 2.0 - 1.0) * 0.5));
+    for beta in [beta, 10.0, 1.0] {
+        for &z in &z {
+            assert_eq!(
+                softplus_value(z, beta).to_bits(),
+                softplus(z, beta).0.to_bits(),
+                "softplus_{beta}({z})"
+            );
+        }
+    }
+    // ln(1 + e) = e below the threshold, for every exponent there.
+    let mut e = LN_1P_IS_IDENTITY;
+    for _ in 0..2_000_000 {
+        e = f32::from_bits(e.to_bits() - 37);
+        if e <= 0.0 {
+            break;
+        }
+        assert_eq!(e.ln_1p().to_bits(), e.to_bits(), "ln_1p({e})");
+    }
 }
