@@ -290,6 +290,25 @@ impl SurfaceObjective {
         })
     }
 
+    /// Bytes a step holds for `rays` rays of `samples` stratified samples
+    /// (and the fine ones): the distance network's buffers, the colour
+    /// network's activations and the adjoints, the weights with their
+    /// gradient and Adam's moments, and the pass that places fine samples.
+    pub fn step_bytes(&self, rays: usize, samples: usize) -> u64 {
+        let n = &self.spec;
+        let rows = rays * (samples + n.fine);
+        let placing = if n.fine > 0 {
+            self.sdf.placing_bytes(rays * samples)
+        } else {
+            0
+        };
+        let colour = 3 * n.color_input() + 3 * n.color_layers * n.color_width + 24;
+        self.sdf.bytes_for(rows)
+            + (4 * rows * colour) as u64
+            + 24 * (self.sdf.len() + n.color_multiply_adds()) as u64
+            + placing
+    }
+
     /// A run of `steps` steps: a scheduled β reaches `beta_end` at the last.
     pub fn with_steps(mut self, steps: usize) -> Self {
         self.steps = steps;
