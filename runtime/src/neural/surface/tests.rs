@@ -520,7 +520,7 @@ fn hash_surface_gradient_is_bit_identical_at_any_thread_count() {
                 )
             })
         };
-        assert!(300 * 32 > crate::neural::hash_sdf::volume::BLOCK);
+        const { assert!(300 * 32 > crate::neural::hash_sdf::volume::BLOCK) };
         assert_eq!(run(1), run(2), "eikonal step {step}");
     }
 }
