@@ -9,7 +9,9 @@
 //! Backward: compositing gives `∂L/∂τ` and `∂L/∂c`; the colour network turns
 //! `∂L/∂c` into its weights' gradient and `∂L/∂∇f` (the normal is one of its
 //! inputs); `∂L/∂f = ∂L/∂τ·τ'(f)`. The distance network takes both adjoints
-//! at once ([`SdfNet::backward`]: its second-order pass through the tangents).
+//! at once ([`SurfaceSdf::backward`]: a second-order pass through the
+//! tangents). It is the harmonic MLP or the hash-grid SDF ([`geometry`]),
+//! the one place the two are told apart.
 
 use rayon::prelude::*;
 use sdfl_stdlib::camera::Camera;
@@ -843,7 +845,7 @@ impl TrainedField for Trained<SurfaceObjective> {
     }
 }
 
-mod geometry;
+pub mod geometry;
 
 #[cfg(test)]
 mod tests;
