@@ -102,7 +102,9 @@ fn surface_step(kind: &str, reps: usize) -> (f64, f64) {
         panic!("not a neural SDF's volume")
     };
     let setup = TrainSetup::of(&job, &views);
-    let model = SurfaceObjective::new(spec, &job.losses).with_steps(1000);
+    let model = SurfaceObjective::new(spec, &job.losses)
+        .expect("a harmonic surface builds")
+        .with_steps(1000);
     let mut run = Run::of(Box::new(model), 5e-4).expect("run");
     for _ in 0..2 {
         run.advance(&setup).expect("step");

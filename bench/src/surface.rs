@@ -98,7 +98,9 @@ fn sdfl_step(job: &TrainJob, views: &[TrainView], reps: usize) -> (f64, f64) {
         panic!("not a neural surface")
     };
     let setup = TrainSetup::of(job, views);
-    let model = SurfaceObjective::new(spec, &job.losses).with_steps(job.iterations);
+    let model = SurfaceObjective::new(spec, &job.losses)
+        .expect("a harmonic surface builds")
+        .with_steps(job.iterations);
     let mut run = Run::of(Box::new(model), job.optimizer.lr).expect("run");
     for _ in 0..2 {
         run.advance(&setup).expect("step");
@@ -198,7 +200,9 @@ pub fn check(dir: &Path) {
         let mut setup = TrainSetup::of(&job, &views);
         setup.rays = 64;
         let batch = setup.batch(0).expect("batch");
-        let mut model = SurfaceObjective::new(spec, &job.losses).with_steps(job.iterations);
+        let mut model = SurfaceObjective::new(spec, &job.losses)
+            .expect("a harmonic surface builds")
+            .with_steps(job.iterations);
         let values = model.initial();
         let mut grad = vec![0.0; values.len()];
         let loss = model

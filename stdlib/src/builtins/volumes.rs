@@ -49,14 +49,6 @@ fn volume_fn<D: Density>() -> Builtin {
 /// A neural SDF as a volume with a learnt colour.
 fn neural_surface(a: &Args, density: DensityKind, sdf: &NeuralSdf) -> Result<Value, Diag> {
     let given = |name: &str| a.get(name).1 != a.span;
-    if sdf.harmonic().is_none() {
-        return Err(value_error(
-            a.get("shape").1,
-            "a hash-grid SDF is not yet trained from images",
-            "a hash-grid `neural_sdf`",
-            "give it a harmonic encoding here (`neural_sdf(encoding: harmonic(freqs: 4), ...)`), or fit the hash-grid SDF to points",
-        ));
-    }
     if given("color") {
         return Err(value_error(
             a.get("color").1,

@@ -47,23 +47,8 @@ pub fn step_memory(job: &TrainJob) -> u64 {
         // The distance network's values and reverse pass at every sample,
         // plus the colour network's activations and the adjoints.
         (Field::NeuralSurface(n), _) => {
-            let net = crate::neural::distance::sdf_net(&n.sdf);
-            let rows = rays * (samples + n.fine as u64);
-            // Fine samples: a distance-only pass over the stratified ones
-            // (points, the encoding, two layers' values, the weights).
-            let placing = if n.fine > 0 {
-                rays * samples * 4 * (net.encoding.width() as u64 + 2 * net.width() as u64 + 16)
-            } else {
-                0
-            };
-            crate::neural::sdf_net::SdfWork::bytes_for(&net, rows as usize)
-                + rows
-                    * 4
-                    * (3 * n.color_input() as u64
-                        + 3 * n.color_layers as u64 * n.color_width as u64
-                        + 24)
-                + 24 * (net.len + n.color_multiply_adds()) as u64
-                + placing
+            crate::neural::surface::SurfaceObjective::new(n, &job.losses)
+                .map_or(0, |o| o.step_bytes(rays as usize, samples as usize))
         }
         (Field::Sdf(_), Backend::Fused) => 0,
         (Field::Sdf(_), Backend::Dfdx) => {

@@ -41,7 +41,7 @@ pub fn trained_field(
             }
         }
         Field::NeuralSurface(n) => Box::new(Trained {
-            objective: SurfaceObjective::new(n, &job.losses).with_steps(steps),
+            objective: SurfaceObjective::new(n, &job.losses)?.with_steps(steps),
             viewing: viewing(Some(mesh_region(&[], job.bounds)))?,
         }),
     })

@@ -1142,6 +1142,7 @@ impl DistanceField for HashSdfField<'_> {
 }
 
 pub mod objective;
+pub mod volume;
 
 #[cfg(test)]
 mod tests;

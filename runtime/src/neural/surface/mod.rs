@@ -9,7 +9,9 @@
 //! Backward: compositing gives `∂L/∂τ` and `∂L/∂c`; the colour network turns
 //! `∂L/∂c` into its weights' gradient and `∂L/∂∇f` (the normal is one of its
 //! inputs); `∂L/∂f = ∂L/∂τ·τ'(f)`. The distance network takes both adjoints
-//! at once ([`SdfNet::backward`]: its second-order pass through the tangents).
+//! at once ([`SurfaceSdf::backward`]: a second-order pass through the
+//! tangents). It is the harmonic MLP or the hash-grid SDF ([`geometry`]),
+//! the one place the two are told apart.
 
 use rayon::prelude::*;
 use sdfl_stdlib::camera::Camera;
@@ -17,18 +19,18 @@ use sdfl_stdlib::num::{Dual, Real};
 use sdfl_stdlib::value::{DensityKind, LastInterval, Loss, LossKind, NeuralSurface};
 
 use super::composite::{composite, squared_error_backward};
-use super::distance::sdf_net;
+use super::distance::{trace_field, TraceSettings};
 use super::encoding::Harmonic;
 use super::field::{fine_samples, NerfView, Samples};
 use super::mlp::{Activation, Dense};
-use super::sdf_net::{eikonal_loss, SdfNet, SdfWork};
+use super::sdf_net::eikonal_loss;
 use crate::mesh::DistanceField;
-use crate::neural::distance::{geometry_view, NetDistance};
 use crate::train::field::{Description, Region, View};
 use crate::train::fused::Batch;
 use crate::train::{Objective, TensorSpec, TrainError, Trained, TrainedField};
 use crate::volume::importance::Spacing;
 use crate::volume::{camera_rays, ImageSize, Ray, SplitMix64, Stratified, VolumeError};
+pub use geometry::{GeometryWork, HashSurface, Levels, SurfaceField, SurfaceSdf};
 
 /// A trained β is kept as `θ = ln β / BETA_RATE`: Adam's steps in θ are
 /// about the learning rate whatever the gradient's scale, so this makes
@@ -228,7 +230,7 @@ fn absorption(
 /// A neural SDF with a colour network, fitted to images.
 pub struct SurfaceObjective {
     /// The signed-distance network whose zero set is the surface.
-    pub sdf: SdfNet,
+    pub sdf: SurfaceSdf,
     /// The colour of each sample from its point, normal and (when view dependent) direction.
     pub color: ColorNet,
     spec: NeuralSurface,
@@ -240,7 +242,7 @@ pub struct SurfaceObjective {
     samples: Samples,
     points: Vec<f32>,
     dirs: Vec<f32>,
-    sdf_work: SdfWork,
+    sdf_work: GeometryWork,
     color_work: ColorWork,
     /// Per sample: what it absorbs ([`absorption`]) and its slopes.
     sigma: Vec<f32>,
@@ -257,11 +259,12 @@ pub struct SurfaceObjective {
 }
 
 impl SurfaceObjective {
-    /// The objective of `spec`, weighing its eikonal term as `losses` says.
-    pub fn new(spec: &NeuralSurface, losses: &[Loss]) -> Self {
-        let sdf = sdf_net(&spec.sdf);
-        let color = ColorNet::new(spec, sdf.len);
-        SurfaceObjective {
+    /// The objective of `spec`, weighing its eikonal term as `losses`
+    /// says; refuses a hash grid the runtime cannot build.
+    pub fn new(spec: &NeuralSurface, losses: &[Loss]) -> Result<Self, String> {
+        let sdf = SurfaceSdf::new(&spec.sdf)?;
+        let color = ColorNet::new(spec, sdf.len());
+        Ok(SurfaceObjective {
             eikonal: losses
                 .iter()
                 .filter(|l| l.kind == LossKind::Eikonal)
@@ -274,7 +277,7 @@ impl SurfaceObjective {
             samples: Samples::default(),
             points: Vec::new(),
             dirs: Vec::new(),
-            sdf_work: SdfWork::default(),
+            sdf_work: GeometryWork::default(),
             color_work: ColorWork::default(),
             sigma: Vec::new(),
             slope: Vec::new(),
@@ -286,7 +289,26 @@ impl SurfaceObjective {
             d_f: Vec::new(),
             d_g: Vec::new(),
             d_normal: Vec::new(),
-        }
+        })
+    }
+
+    /// Bytes a step holds for `rays` rays of `samples` stratified samples
+    /// (and the fine ones): the distance network's buffers, the colour
+    /// network's activations and the adjoints, the weights with their
+    /// gradient and Adam's moments, and the pass that places fine samples.
+    pub fn step_bytes(&self, rays: usize, samples: usize) -> u64 {
+        let n = &self.spec;
+        let rows = rays * (samples + n.fine);
+        let placing = if n.fine > 0 {
+            self.sdf.placing_bytes(rays * samples)
+        } else {
+            0
+        };
+        let colour = 3 * n.color_input() + 3 * n.color_layers * n.color_width + 24;
+        self.sdf.bytes_for(rows)
+            + (4 * rows * colour) as u64
+            + 24 * (self.sdf.len() + n.color_multiply_adds()) as u64
+            + placing
     }
 
     /// A run of `steps` steps: a scheduled β reaches `beta_end` at the last.
@@ -310,7 +332,7 @@ impl SurfaceObjective {
 
     /// The distance network's share of the parameters.
     pub fn sdf_params<'p>(&self, params: &'p [f32]) -> &'p [f32] {
-        &params[..self.sdf.len]
+        &params[..self.sdf.len()]
     }
 
     /// Where `log β` is kept when β is trained or scheduled (after the
@@ -335,7 +357,7 @@ impl SurfaceObjective {
 
     fn densities(&mut self, n: usize, b: f32) {
         let (a, kind) = (self.spec.alpha as f32, self.spec.density);
-        let f = self.sdf_work.distance();
+        let f = self.sdf.distances(&self.sdf_work);
         for v in [
             &mut self.sigma,
             &mut self.slope,
@@ -368,6 +390,7 @@ impl SurfaceObjective {
     fn upsample(
         &self,
         params: &[f32],
+        levels: Levels,
         beta: f32,
         rays: &[Ray],
         coarse: &Samples,
@@ -380,7 +403,8 @@ impl SurfaceObjective {
         coarse.points(rays, &mut points, &mut dirs);
         let rows = points.len() / 3;
         let mut f = vec![0.0; rows];
-        self.sdf.distance(&params[..self.sdf.len], &points, &mut f);
+        self.sdf
+            .distance(&params[..self.sdf.len()], &points, levels, &mut f);
         let span: f32 = coarse.t.chunks(n).map(|t| t[n - 1] - t[0]).sum::<f32>()
             / (coarse.rays().max(1) * (n - 1).max(1)) as f32;
         let mut a = vec![0.0; rows];
@@ -443,7 +467,7 @@ impl SurfaceObjective {
         let per_pass = (RENDER_ROWS / n).max(1);
         let (mut samples, mut points, mut dirs) = (Samples::default(), Vec::new(), Vec::new());
         let mut coarse = Samples::default();
-        let (mut sdf_work, mut color_work) = (SdfWork::default(), ColorWork::default());
+        let (mut sdf_work, mut color_work) = (GeometryWork::default(), ColorWork::default());
         let (a, b) = (self.spec.alpha as f32, self.beta(params));
         for (chunk, (colour, depth)) in rays.chunks(per_pass).zip(
             view.colour
@@ -455,6 +479,7 @@ impl SurfaceObjective {
                 view.evaluated += coarse.t.len();
                 self.upsample(
                     params,
+                    Levels::All,
                     b,
                     chunk,
                     &coarse,
@@ -467,10 +492,14 @@ impl SurfaceObjective {
                 samples.fixed(chunk.len(), t.len(), |_| &t, last);
             }
             samples.points(chunk, &mut points, &mut dirs);
-            self.sdf
-                .forward(&params[..self.sdf.len], &points, &mut sdf_work);
+            self.sdf.forward(
+                &params[..self.sdf.len()],
+                &points,
+                Levels::All,
+                &mut sdf_work,
+            );
             view.evaluated += points.len() / 3;
-            let f = sdf_work.distance();
+            let f = self.sdf.distances(&sdf_work);
             let mut sigma = vec![0.0; f.len()];
             let (mut slope, mut slope_next, mut slope_beta) =
                 (vec![0.0; f.len()], vec![0.0; f.len()], vec![0.0; f.len()]);
@@ -487,8 +516,13 @@ impl SurfaceObjective {
                 &mut slope_beta,
             );
             let delta = vec![1.0; f.len()];
-            self.color
-                .forward(params, &points, sdf_work.gradient(), &dirs, &mut color_work);
+            self.color.forward(
+                params,
+                &points,
+                self.sdf.gradients(&sdf_work),
+                &dirs,
+                &mut color_work,
+            );
             let rgb = self.color.rgb(&color_work);
             colour
                 .par_iter_mut()
@@ -513,11 +547,7 @@ impl SurfaceObjective {
 
 impl Objective for SurfaceObjective {
     fn tensors(&self) -> Vec<TensorSpec> {
-        let sdf = self
-            .sdf
-            .layers()
-            .into_iter()
-            .flat_map(|(name, d)| d.tensors(&format!("sdf.{name}")));
+        let sdf = self.sdf.tensors();
         let n = self.color.layers.len();
         let color = self
             .color
@@ -537,7 +567,7 @@ impl Objective for SurfaceObjective {
             offset,
             len: 1,
         });
-        sdf.chain(color).chain(beta).collect()
+        sdf.into_iter().chain(color).chain(beta).collect()
     }
 
     fn project(&self, values: &mut [f32]) {
@@ -550,7 +580,7 @@ impl Objective for SurfaceObjective {
     fn initial(&self) -> Vec<f32> {
         let mut v = self
             .sdf
-            .init_geometric(self.spec.sdf.seed, self.spec.sdf.radius as f32);
+            .initial(self.spec.sdf.seed, self.spec.sdf.radius as f32);
         v.resize(self.color.end(), 0.0);
         let mut rng = SplitMix64::new(self.spec.sdf.seed ^ 0x0063_6f6c_6f72);
         for d in &self.color.layers {
@@ -593,6 +623,7 @@ impl Objective for SurfaceObjective {
             let mut merged = Samples::default();
             self.upsample(
                 values,
+                Levels::AtStep(batch.step),
                 self.beta(values),
                 rays,
                 &self.samples,
@@ -608,15 +639,19 @@ impl Objective for SurfaceObjective {
             n
         };
         self.samples.points(rays, &mut self.points, &mut self.dirs);
-        let sdf_params = &values[..self.sdf.len];
-        self.sdf
-            .forward(sdf_params, &self.points, &mut self.sdf_work);
+        let sdf_params = &values[..self.sdf.len()];
+        self.sdf.forward(
+            sdf_params,
+            &self.points,
+            Levels::AtStep(batch.step),
+            &mut self.sdf_work,
+        );
         let beta = self.beta(values);
         self.densities(n, beta);
         self.color.forward(
             values,
             &self.points,
-            self.sdf_work.gradient(),
+            self.sdf.gradients(&self.sdf_work),
             &self.dirs,
             &mut self.color_work,
         );
@@ -667,7 +702,7 @@ impl Objective for SurfaceObjective {
         self.d_normal.resize(3 * rows, 0.0);
         self.color.backward(
             values,
-            self.sdf_work.gradient(),
+            self.sdf.gradients(&self.sdf_work),
             &mut self.d_rgb,
             &mut self.d_normal,
             &mut self.color_work,
@@ -702,7 +737,11 @@ impl Objective for SurfaceObjective {
             });
         self.d_g.resize(3 * rows, 0.0);
         if self.eikonal > 0.0 {
-            loss += eikonal_loss(self.sdf_work.gradient(), self.eikonal, &mut self.d_g);
+            loss += eikonal_loss(
+                self.sdf.gradients(&self.sdf_work),
+                self.eikonal,
+                &mut self.d_g,
+            );
         } else {
             self.d_g.fill(0.0);
         }
@@ -711,10 +750,11 @@ impl Objective for SurfaceObjective {
         }
         self.sdf.backward(
             sdf_params,
+            &self.points,
             &self.d_f,
             &self.d_g,
             &mut self.sdf_work,
-            &mut grad[..self.sdf.len],
+            &mut grad[..self.sdf.len()],
         );
         Ok(loss)
     }
@@ -740,10 +780,7 @@ impl TrainedField for Trained<SurfaceObjective> {
     }
 
     fn surface<'a>(&'a self, values: &'a [f32]) -> Option<Box<dyn DistanceField + 'a>> {
-        let field = NetDistance {
-            net: &self.objective.sdf,
-            params: self.objective.sdf_params(values),
-        };
+        let field = self.objective.sdf.field(self.objective.sdf_params(values));
         Some(Box::new(crate::mesh::Lipschitz(field, 2.0)))
     }
 
@@ -757,9 +794,16 @@ impl TrainedField for Trained<SurfaceObjective> {
         cam: &Camera,
         size: ImageSize,
     ) -> Option<Result<Vec<[f32; 3]>, String>> {
-        let (net, far) = (&self.objective.sdf, self.viewing.sampler.far);
-        let params = self.objective.sdf_params(values);
-        Some(geometry_view(net, params, cam, size, far).map(|v| v.colour))
+        let settings = TraceSettings {
+            far: self.viewing.sampler.far as f32,
+            ..Default::default()
+        };
+        let field = self.objective.sdf.field(self.objective.sdf_params(values));
+        Some(
+            trace_field(&field, cam, size, settings)
+                .map(|v| v.colour)
+                .map_err(|e| e.to_string()),
+        )
     }
 
     /// A trained or scheduled β, by its value (it is kept as `ln β / BETA_RATE`).
@@ -782,9 +826,9 @@ impl TrainedField for Trained<SurfaceObjective> {
         let bounds = self.viewing.region.map_or(0.0, |r| r.1[0]);
         Description {
             trainable: format!(
-                "all {weights} weights (distance network {}, colour network {}){}, the distance starting as a sphere of radius {}",
-                o.sdf.len,
-                weights - o.sdf.len,
+                "all {weights} weights ({}, colour network {}){}, the distance starting as a sphere of radius {}",
+                o.sdf.describe(),
+                weights - o.sdf.len(),
                 match (n.train_beta, n.beta_end) {
                     (true, _) => format!(", and beta from {} (as ln(beta)/{BETA_RATE}: it moves {BETA_RATE} times faster than a weight; kept in 1e-4..10)", n.beta),
                     (false, Some(end)) => format!(" (beta is not trained: it falls geometrically from {} to {end} over the steps)", n.beta),
@@ -792,11 +836,16 @@ impl TrainedField for Trained<SurfaceObjective> {
                 },
                 n.sdf.radius
             ),
-            gradient: "none: the distance network's exact gradient by a reverse pass in the forward; colour network, density and compositing by hand-written backward passes".into(),
+            gradient: format!(
+                "none: {}; colour network, density and compositing by hand-written backward passes",
+                o.sdf.gradient_words()
+            ),
             mesh_region: format!("[-{bounds}, {bounds}]^3"),
         }
     }
 }
+
+pub mod geometry;
 
 #[cfg(test)]
 mod tests;

@@ -1,0 +1,368 @@
+//! The hash SDF as the geometry of a volume trained from images (NeuS2,
+//! Neuralangelo): the objective asks for `f` and `∇f` at every sample,
+//! composites, and hands back `∂L/∂f` and `∂L/∂∇f` per sample; this adds
+//! `∂L/∂params`.
+//!
+//! Memory stays flat in the number of samples: the forward keeps only `f`
+//! and `∇f` (four floats a sample); the backward recomputes each point's
+//! forward (the layers' values and tangents) in [`BLOCK`]s of points,
+//! parallel over [`CHUNK`]s, and folds each block into the gradient before
+//! the next: the MLP's share as chunk partials in chunk order, the tables'
+//! per level in point order. The sums' order never depends on the thread
+//! count, so the gradient is bit-identical at any.
+//!
+//! `∇f` is exact ([`Eikonal::Exact`]: forward-mode tangents, the backward
+//! second order) or by central differences ([`Eikonal::FiniteDifference`]:
+//! seven values a point, the backward exact for that expression); either
+//! way it is the `∇f` the colour network sees as the normal.
+
+use rayon::prelude::*;
+
+use super::{Eikonal, HashSdf, CHUNK, FD_PROBES};
+use crate::neural::hashgrid::Touched;
+
+/// Points whose feature adjoints the backward holds at once: the memory
+/// bound (64 chunks keep two cores, or sixteen, busy).
+pub const BLOCK: usize = 64 * CHUNK;
+
+/// One chunk's buffers.
+#[derive(Debug, Default)]
+struct ChunkBuffers {
+    /// One point's forward scratch (or its seven probes').
+    buf: Vec<f32>,
+    /// Two adjoint buffers of the MLP's backward.
+    adj: Vec<f32>,
+    /// This chunk's share of the MLP's gradient.
+    d_mlp: Vec<f32>,
+}
+
+/// Buffers of [`HashSdf::volume_forward`] and [`HashSdf::volume_backward`],
+/// grown to the largest batch seen (no allocation once grown).
+#[derive(Debug, Default)]
+pub struct VolumeWork {
+    rows: usize,
+    /// `f` per point.
+    f: Vec<f32>,
+    /// `∇f` per point, flat (rows × 3).
+    g: Vec<f32>,
+    chunks: Vec<ChunkBuffers>,
+    /// Where each probe of a block was evaluated.
+    probes: Vec<[f32; 3]>,
+    /// Each probe's feature adjoints in a block, `(1 + tangents) × E`.
+    d_feat: Vec<f32>,
+    /// Table rows the last backward wrote (the trainer's Adam is dense).
+    touched: Option<Touched>,
+}
+
+/// Probes a point and tangents a probe of `eikonal`'s form.
+fn form(eikonal: Eikonal) -> (usize, usize) {
+    match eikonal {
+        Eikonal::Exact => (1, 3),
+        Eikonal::FiniteDifference { .. } => (FD_PROBES, 0),
+    }
+}
+
+impl VolumeWork {
+    fn resize(&mut self, net: &HashSdf, rows: usize, eikonal: Eikonal) {
+        let (probes, nt) = form(eikonal);
+        self.rows = rows;
+        grow(&mut self.f, rows);
+        grow(&mut self.g, 3 * rows);
+        let (e, w) = (net.grid.output_dim(), net.width);
+        let buf = if nt == 0 {
+            probes * net.scratch_len::<0>()
+        } else {
+            net.scratch_len::<3>()
+        };
+        let nchunks = BLOCK / CHUNK;
+        if self.chunks.len() < nchunks {
+            self.chunks.resize_with(nchunks, ChunkBuffers::default);
+        }
+        for c in &mut self.chunks {
+            grow(&mut c.buf, buf);
+            grow(&mut c.adj, 2 * (1 + nt) * e.max(w));
+            grow(&mut c.d_mlp, net.len - net.table_params());
+        }
+        if self.probes.len() < BLOCK * probes {
+            self.probes.resize(BLOCK * probes, [0.0; 3]);
+        }
+        grow(&mut self.d_feat, BLOCK * probes * (1 + nt) * e);
+        if self.touched.is_none() {
+            self.touched = Some(net.grid.touched_set());
+        }
+    }
+
+    /// `f` at the points of the last forward.
+    pub fn distance(&self) -> &[f32] {
+        &self.f[..self.rows]
+    }
+
+    /// `∇f` (rows × 3, flat) at the points of the last forward: the
+    /// exact gradient or the central differences, as asked.
+    pub fn gradient(&self) -> &[f32] {
+        &self.g[..3 * self.rows]
+    }
+
+    /// Bytes held for `rows` points with `eikonal`'s form of `∇f`, at
+    /// most (the blocks' buffers do not grow with `rows`).
+    pub fn bytes_for(net: &HashSdf, rows: usize, eikonal: Eikonal) -> u64 {
+        let (probes, nt) = (form(eikonal).0 as u64, form(eikonal).1 as u64);
+        let (e, w) = (net.grid.output_dim() as u64, net.width as u64);
+        let per_chunk = 4
+            * (probes * net.scratch_len::<3>() as u64
+                + 2 * (1 + nt) * e.max(w)
+                + (net.len - net.table_params()) as u64);
+        let block = BLOCK as u64 * probes * 4 * (3 + (1 + nt) * e);
+        let touched = net.grid.param_count() as u64 / 8;
+        16 * rows as u64 + (BLOCK / CHUNK) as u64 * per_chunk + block + touched
+    }
+}
+
+fn grow(v: &mut Vec<f32>, n: usize) {
+    if v.len() < n {
+        v.resize(n, 0.0);
+    }
+}
+
+/// The six probes about `p` (±step on each axis, `2a + 1` then `2a + 2`)
+/// after `p` itself.
+fn fd_probes(p: [f32; 3], step: f32, at: &mut [[f32; 3]]) {
+    at[0] = p;
+    for a in 0..3 {
+        for (s, sign) in [(1, step), (2, -step)] {
+            let mut q = p;
+            q[a] += sign;
+            at[2 * a + s] = q;
+        }
+    }
+}
+
+/// The realised span of axis `a`'s probes (so the difference quotient is
+/// exact in f32); 0 where the step vanished in rounding.
+fn span(at: &[[f32; 3]], a: usize) -> f32 {
+    (at[2 * a + 1][a] - at[2 * a + 2][a]).max(0.0)
+}
+
+impl HashSdf {
+    /// `f` and `∇f` at `points` with the first `active` levels, kept in
+    /// `work` ([`VolumeWork::distance`], [`VolumeWork::gradient`]).
+    pub fn volume_forward(
+        &self,
+        params: &[f32],
+        points: &[[f32; 3]],
+        eikonal: Eikonal,
+        active: usize,
+        work: &mut VolumeWork,
+    ) {
+        self.check_params(params);
+        work.resize(self, points.len(), eikonal);
+        let VolumeWork { f, g, chunks, .. } = work;
+        for ((f, g), pts) in f[..points.len()]
+            .chunks_mut(BLOCK)
+            .zip(g[..3 * points.len()].chunks_mut(3 * BLOCK))
+            .zip(points.chunks(BLOCK))
+        {
+            f.par_chunks_mut(CHUNK)
+                .zip(g.par_chunks_mut(3 * CHUNK))
+                .zip(pts.par_chunks(CHUNK))
+                .zip(chunks.par_iter_mut())
+                .for_each(|(((f, g), pts), cw)| {
+                    for ((f, g), &p) in f.iter_mut().zip(g.chunks_exact_mut(3)).zip(pts) {
+                        let (v, grad) = self.point_forward(params, p, eikonal, active, cw);
+                        *f = v;
+                        g.copy_from_slice(&grad);
+                    }
+                });
+        }
+    }
+
+    /// One point's `f` and `∇f`; leaves its forward (or its probes') in
+    /// `cw.buf` for the backward.
+    #[inline(always)]
+    fn point_forward(
+        &self,
+        params: &[f32],
+        p: [f32; 3],
+        eikonal: Eikonal,
+        active: usize,
+        cw: &mut ChunkBuffers,
+    ) -> (f32, [f32; 3]) {
+        match eikonal {
+            Eikonal::Exact => self.value_grad(params, p, active, &mut cw.buf),
+            Eikonal::FiniteDifference { step } => {
+                let mut at = [[0f32; 3]; FD_PROBES];
+                fd_probes(p, step, &mut at);
+                let len = self.scratch_len::<0>();
+                let mut fv = [0f32; FD_PROBES];
+                for (k, &q) in at.iter().enumerate() {
+                    fv[k] = self.value(params, q, active, &mut cw.buf[k * len..][..len]);
+                }
+                let g = std::array::from_fn(|a| {
+                    let s = span(&at, a);
+                    if s > 0.0 {
+                        (fv[2 * a + 1] - fv[2 * a + 2]) / s
+                    } else {
+                        0.0
+                    }
+                });
+                (fv[0], g)
+            }
+        }
+    }
+
+    /// *Adds* `∂L/∂params` to `grad` given `∂L/∂f` (`d_f`, one a point)
+    /// and `∂L/∂∇f` (`d_g`, three a point) at `points`, for the `∇f` of
+    /// [`Self::volume_forward`] with the same `eikonal` and `active`
+    /// levels. Each point's forward is recomputed here; see the module's
+    /// note on memory and the order of the sums.
+    #[allow(clippy::too_many_arguments)]
+    pub fn volume_backward(
+        &self,
+        params: &[f32],
+        points: &[[f32; 3]],
+        d_f: &[f32],
+        d_g: &[f32],
+        eikonal: Eikonal,
+        active: usize,
+        work: &mut VolumeWork,
+        grad: &mut [f32],
+    ) {
+        self.check_params(params);
+        assert_eq!(grad.len(), self.len, "gradient");
+        assert_eq!((d_f.len(), d_g.len()), (points.len(), 3 * points.len()));
+        work.resize(self, points.len(), eikonal);
+        let (probes, nt) = form(eikonal);
+        let feat = (1 + nt) * self.grid.output_dim();
+        let tables = self.table_params();
+        let mlp = self.len - tables;
+        let VolumeWork {
+            chunks,
+            probes: at,
+            d_feat,
+            touched,
+            ..
+        } = work;
+        let touched = touched.as_mut().expect("sized by resize");
+        touched.clear();
+        let (g_tables, g_mlp) = grad.split_at_mut(tables);
+        for ((pts, d_f), d_g) in points
+            .chunks(BLOCK)
+            .zip(d_f.chunks(BLOCK))
+            .zip(d_g.chunks(3 * BLOCK))
+        {
+            let n = pts.len();
+            let nchunks = n.div_ceil(CHUNK);
+            chunks[..nchunks]
+                .par_iter_mut()
+                .zip(at[..n * probes].par_chunks_mut(CHUNK * probes))
+                .zip(d_feat[..n * probes * feat].par_chunks_mut(CHUNK * probes * feat))
+                .enumerate()
+                .for_each(|(ci, ((cw, at), d_feat))| {
+                    cw.d_mlp[..mlp].fill(0.0);
+                    let from = ci * CHUNK;
+                    for (j, &p) in pts[from..(from + CHUNK).min(n)].iter().enumerate() {
+                        let (df, dg) = (d_f[from + j], &d_g[3 * (from + j)..][..3]);
+                        let at = &mut at[j * probes..][..probes];
+                        let d_feat = &mut d_feat[j * probes * feat..][..probes * feat];
+                        self.point_backward(
+                            params,
+                            p,
+                            df,
+                            [dg[0], dg[1], dg[2]],
+                            eikonal,
+                            active,
+                            cw,
+                            at,
+                            d_feat,
+                        );
+                    }
+                });
+            // The MLP's share: chunk partials in chunk order.
+            g_mlp.par_chunks_mut(256).enumerate().for_each(|(b, g)| {
+                for cw in &chunks[..nchunks] {
+                    for (g, d) in g.iter_mut().zip(&cw.d_mlp[b * 256..]) {
+                        *g += d;
+                    }
+                }
+            });
+            self.tables_backward(
+                &at[..n * probes],
+                &d_feat[..n * probes * feat],
+                nt,
+                active,
+                g_tables,
+                touched,
+            );
+        }
+    }
+
+    /// One point's reverse pass: its forward recomputed, then the MLP's
+    /// gradient into `cw.d_mlp` and each probe's position and feature
+    /// adjoints into `at` and `d_feat` (the tables' share, summed later).
+    #[allow(clippy::too_many_arguments)]
+    #[inline(always)]
+    fn point_backward(
+        &self,
+        params: &[f32],
+        p: [f32; 3],
+        d_f: f32,
+        d_g: [f32; 3],
+        eikonal: Eikonal,
+        active: usize,
+        cw: &mut ChunkBuffers,
+        at: &mut [[f32; 3]],
+        d_feat: &mut [f32],
+    ) {
+        if d_f == 0.0 && d_g == [0.0; 3] {
+            at.fill(p);
+            d_feat.fill(0.0);
+            return;
+        }
+        self.point_forward(params, p, eikonal, active, cw);
+        match eikonal {
+            Eikonal::Exact => {
+                let t = self.tangent_out::<3>();
+                at[0] = p;
+                self.mlp_backward::<3>(
+                    params,
+                    &cw.buf[..t + 3],
+                    d_f,
+                    d_g,
+                    &mut cw.d_mlp,
+                    &mut cw.adj,
+                    d_feat,
+                );
+            }
+            Eikonal::FiniteDifference { step } => {
+                fd_probes(p, step, at);
+                // f is probe 0; ∇f_a = (f(2a+1) − f(2a+2)) / span_a.
+                let mut d = [0f32; FD_PROBES];
+                d[0] = d_f;
+                for a in 0..3 {
+                    let s = span(at, a);
+                    if s > 0.0 {
+                        d[2 * a + 1] = d_g[a] / s;
+                        d[2 * a + 2] = -d_g[a] / s;
+                    }
+                }
+                let (len, feat) = (self.scratch_len::<0>(), self.grid.output_dim());
+                for k in 0..FD_PROBES {
+                    let df = &mut d_feat[k * feat..][..feat];
+                    if d[k] == 0.0 {
+                        df.fill(0.0);
+                        continue;
+                    }
+                    self.mlp_backward::<0>(
+                        params,
+                        &cw.buf[k * len..][..len],
+                        d[k],
+                        [0.0; 3],
+                        &mut cw.d_mlp,
+                        &mut cw.adj,
+                        df,
+                    );
+                }
+            }
+        }
+    }
+}
