@@ -797,26 +797,43 @@ impl HashSdf {
                 }
                 cw.loss = loss;
             });
-        // The MLP's gradient: chunk partials summed in chunk order.
-        let tables = self.table_params();
-        let (g_tables, g_mlp) = grad.split_at_mut(tables);
-        g_mlp.par_chunks_mut(256).enumerate().for_each(|(b, g)| {
-            g.fill(0.0);
-            for cw in &chunks[..nchunks] {
-                for (g, d) in g.iter_mut().zip(&cw.d_mlp[b * 256..]) {
-                    *g += d;
-                }
-            }
-        });
-        self.tables_backward(
+        self.add_partials(
+            &chunks[..nchunks],
+            |c| &c.d_mlp,
             &at[..n * probes],
             &d_feat[..n * probes * feat],
             nt,
             active,
-            g_tables,
+            grad,
             touched,
         );
         chunks[..nchunks].iter().map(|c| c.loss).sum()
+    }
+
+    /// *Adds* to `grad` the MLP's gradient, the chunks' partials (`d_mlp`) summed in
+    /// chunk order (so the sum does not depend on the thread count), and
+    /// the tables' from the probes' feature adjoints.
+    #[allow(clippy::too_many_arguments)]
+    fn add_partials<C: Sync>(
+        &self,
+        chunks: &[C],
+        d_mlp: impl Fn(&C) -> &[f32] + Sync,
+        probes: &[[f32; 3]],
+        d_feat: &[f32],
+        nt: usize,
+        active: usize,
+        grad: &mut [f32],
+        touched: &mut Touched,
+    ) {
+        let (g_tables, g_mlp) = grad.split_at_mut(self.table_params());
+        g_mlp.par_chunks_mut(256).enumerate().for_each(|(b, g)| {
+            for cw in chunks {
+                for (g, d) in g.iter_mut().zip(&d_mlp(cw)[b * 256..]) {
+                    *g += d;
+                }
+            }
+        });
+        self.tables_backward(probes, d_feat, nt, active, g_tables, touched);
     }
 
     /// Adds the tables' gradient given each probe's feature adjoints

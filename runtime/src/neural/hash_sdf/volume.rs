@@ -233,8 +233,7 @@ impl HashSdf {
         work.resize(self, points.len(), eikonal);
         let (probes, nt) = form(eikonal);
         let feat = (1 + nt) * self.grid.output_dim();
-        let tables = self.table_params();
-        let mlp = self.len - tables;
+        let mlp = self.len - self.table_params();
         let VolumeWork {
             chunks,
             probes: at,
@@ -244,7 +243,6 @@ impl HashSdf {
         } = work;
         let touched = touched.as_mut().expect("sized by resize");
         touched.clear();
-        let (g_tables, g_mlp) = grad.split_at_mut(tables);
         for ((pts, d_f), d_g) in points
             .chunks(BLOCK)
             .zip(d_f.chunks(BLOCK))
@@ -277,20 +275,14 @@ impl HashSdf {
                         );
                     }
                 });
-            // The MLP's share: chunk partials in chunk order.
-            g_mlp.par_chunks_mut(256).enumerate().for_each(|(b, g)| {
-                for cw in &chunks[..nchunks] {
-                    for (g, d) in g.iter_mut().zip(&cw.d_mlp[b * 256..]) {
-                        *g += d;
-                    }
-                }
-            });
-            self.tables_backward(
+            self.add_partials(
+                &chunks[..nchunks],
+                |c| &c.d_mlp,
                 &at[..n * probes],
                 &d_feat[..n * probes * feat],
                 nt,
                 active,
-                g_tables,
+                grad,
                 touched,
             );
         }
