@@ -57,6 +57,24 @@ pub(crate) fn weights(losses: &[Loss]) -> SdfLoss {
     w
 }
 
+/// A point fit's step: refuses a batch without points, else draws as many
+/// random points as it has, from the step's seed, into `out`. Every neural
+/// SDF's point fit draws here, so each sees the same points at a step.
+pub fn step_random_points(
+    batch: &Batch,
+    bounds: f32,
+    out: &mut Vec<f32>,
+) -> Result<(), TrainError> {
+    if batch.points.is_empty() {
+        return Err(TrainError::Invalid(
+            "a neural SDF trains on points, and the batch has none".into(),
+        ));
+    }
+    let mut rng = SplitMix64::new(batch.seed ^ 0x7361_6d70_6c65);
+    random_points(batch.points.len() / 3, bounds, &mut rng, out);
+    Ok(())
+}
+
 /// `n` points uniform in `[-bounds, bounds]³`, rows of 3.
 pub fn random_points(n: usize, bounds: f32, rng: &mut SplitMix64, out: &mut Vec<f32>) {
     out.clear();
@@ -110,19 +128,7 @@ impl Objective for NeuralSdfObjective {
         weight: f64,
         grad: &mut [f32],
     ) -> Result<f64, TrainError> {
-        if batch.points.is_empty() {
-            return Err(TrainError::Invalid(
-                "a neural SDF trains on points, and the batch has none".into(),
-            ));
-        }
-        // As many random points as surface points, from the step's seed.
-        let mut rng = SplitMix64::new(batch.seed ^ 0x7361_6d70_6c65);
-        random_points(
-            batch.points.len() / 3,
-            self.bounds,
-            &mut rng,
-            &mut self.random,
-        );
+        step_random_points(batch, self.bounds, &mut self.random)?;
         let w = self.weights;
         let scale = weight as f32;
         let scaled = SdfLoss {

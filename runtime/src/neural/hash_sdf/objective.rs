@@ -21,12 +21,11 @@ use sdfl_stdlib::work::FIT_CHUNK;
 use super::{progressive_levels, Eikonal, HashSdf, HashSdfField, HashSdfLoss, HashSdfSpec};
 use super::{Clearance, HashSdfWork, CHUNK};
 use crate::mesh::DistanceField;
-use crate::neural::distance::{fit_with, random_points, trace_field, SdfFit, TraceSettings};
+use crate::neural::distance::{fit_with, step_random_points, trace_field, SdfFit, TraceSettings};
 use crate::neural::hashgrid::{HashGridConfig, Touched};
 use crate::train::field::{Description, Region, View};
 use crate::train::fused::Batch;
 use crate::train::{Objective, TensorSpec, TrainError, Trained, TrainedField};
-use crate::volume::SplitMix64;
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use rayon::prelude::*;
 
@@ -164,20 +163,7 @@ impl Objective for HashSdfObjective {
         weight: f64,
         grad: &mut [f32],
     ) -> Result<f64, TrainError> {
-        if batch.points.is_empty() {
-            return Err(TrainError::Invalid(
-                "a neural SDF trains on points, and the batch has none".into(),
-            ));
-        }
-        // As many random points as surface points, from the step's seed
-        // (the harmonic network's draw, so both see the same points).
-        let mut rng = SplitMix64::new(batch.seed ^ 0x7361_6d70_6c65);
-        random_points(
-            batch.points.len() / 3,
-            self.bounds,
-            &mut rng,
-            &mut self.random,
-        );
+        step_random_points(batch, self.bounds, &mut self.random)?;
         let scale = weight as f32;
         let w = HashSdfLoss {
             surface: self.weights.surface * scale,
@@ -374,6 +360,7 @@ impl TrainedField for Trained<HashSdfObjective> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::volume::SplitMix64;
 
     fn brute_nearest(p: [f32; 3], set: &[[f32; 3]], skip: Option<usize>) -> f64 {
         set.iter()
