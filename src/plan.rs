@@ -442,6 +442,9 @@ pub(crate) fn plan_text(program: &sdfl_stdlib::Program) -> String {
                         sdfl_stdlib::value::LossKind::Inter { alpha } => {
                             format!("exp(-{alpha}|f|) at random points")
                         }
+                        sdfl_stdlib::value::LossKind::Silhouette => {
+                            "BCE of opacity against coverage".into()
+                        }
                     };
                     if l.weight == 1.0 {
                         name

@@ -267,6 +267,7 @@ pub fn load(
                 pixels,
             },
             mask,
+            coverage: None,
         };
         let name = format!("{} {}", c.source.display(), f.label);
         if c.test.binary_search(&k).is_ok() {

@@ -59,4 +59,8 @@ pub struct TrainView {
     /// Pixels to train on and score (row-major, `false`: masked out, as a
     /// capture's `mask_path` says); `None`: every pixel.
     pub mask: Option<std::sync::Arc<[bool]>>,
+    /// How much of each pixel the object covers, 0..1 (row-major; the
+    /// target of [`sdfl_stdlib::value::LossKind::Silhouette`]); `None`:
+    /// not known.
+    pub coverage: Option<std::sync::Arc<[f32]>>,
 }

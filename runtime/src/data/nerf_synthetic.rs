@@ -96,6 +96,7 @@ fn read_frames(file: &Path, t: &Transforms, background: DVec3) -> io::Result<Vec
                 pixels,
             },
             mask: None,
+            coverage: None,
         });
     }
     Ok(views)

@@ -454,6 +454,7 @@ pub fn load_views(data: &Dataset, base: &Path) -> io::Result<Views> {
                             camera: *c,
                             image: load_image(&path)?,
                             mask: None,
+                            coverage: None,
                         },
                         path.display().to_string(),
                     ))
@@ -484,6 +485,7 @@ pub fn load_views(data: &Dataset, base: &Path) -> io::Result<Views> {
                             camera: *c,
                             image,
                             mask: None,
+                            coverage: None,
                         },
                         format!("rendered view {k}"),
                     ))
@@ -623,7 +625,7 @@ pub fn traced_views(job: &RenderJob) -> Vec<TrainView> {
         color: true,
         depth: false,
         normals: false,
-        mask: false,
+        mask: true,
     };
     job.cameras
         .iter()
@@ -637,6 +639,7 @@ pub fn traced_views(job: &RenderJob) -> Vec<TrainView> {
                 &|_| {},
             );
             let rgb = view.color.expect("colour is asked for");
+            let hits = view.mask.expect("the hit mask is asked for");
             TrainView {
                 camera: *c,
                 image: RgbImage {
@@ -648,6 +651,12 @@ pub fn traced_views(job: &RenderJob) -> Vec<TrainView> {
                         .collect(),
                 },
                 mask: None,
+                // Each pixel is its centre's thin ray: hit or missed.
+                coverage: Some(
+                    hits.iter()
+                        .map(|&h| if h > 0 { 1.0 } else { 0.0 })
+                        .collect(),
+                ),
             }
         })
         .collect()

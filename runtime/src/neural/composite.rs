@@ -113,6 +113,42 @@ pub fn squared_error_backward_bg(
     loss
 }
 
+/// Opacities are kept this far from 0 and 1 in [`silhouette_backward`], so
+/// that a ray that sees nothing (or is opaque) where the pixel says
+/// otherwise costs at most `-ln 1e-6 ≈ 14` and its gradient stays finite.
+const OPACITY_CLAMP: f32 = 1e-6;
+
+/// One ray's binary cross-entropy of its opacity `O = 1 − T_n` against the
+/// pixel's coverage `a`, times `scale` (NeuS's mask loss): adds `∂L/∂σ_k =
+/// scale·∂BCE/∂O·δ_k·T_n` into `d_sigma`. Unlike the colour error, its
+/// gradient does not fade with the contrast between the object and the
+/// background, nor (through `1/O`) where the ray barely grazes the
+/// surface. Where the clamp binds the gradient is 0, as the clamp's.
+pub fn silhouette_backward(
+    sigma: &[f32],
+    delta: &[f32],
+    coverage: f32,
+    scale: f32,
+    d_sigma: &mut [f32],
+) -> f64 {
+    // In f64: the cross-entropy of an opacity near ½ is about 0.7 a ray,
+    // and its change with a parameter is small next to that.
+    let tau: f64 = sigma.iter().zip(delta).map(|(s, d)| (s * d) as f64).sum();
+    let t_n = (-tau).exp();
+    let opacity = -(-tau).exp_m1();
+    let clamp = OPACITY_CLAMP as f64;
+    let o = opacity.clamp(clamp, 1.0 - clamp);
+    let (a, scale) = (coverage as f64, scale as f64);
+    let loss = -(a * o.ln() + (1.0 - a) * (1.0 - o).ln()) * scale;
+    if o == opacity {
+        let g_o = (-a / o + (1.0 - a) / (1.0 - o)) * scale;
+        for (ds, &d) in d_sigma.iter_mut().zip(delta) {
+            *ds += (g_o * d as f64 * t_n) as f32;
+        }
+    }
+    loss
+}
+
 /// Given `g = ∂L/∂C`, writes `∂L/∂σ_k` into `d_sigma` and `∂L/∂c_k` into
 /// `d_rgb` (3 per sample); `trans` is scratch space.
 #[allow(clippy::too_many_arguments)]
@@ -226,6 +262,65 @@ mod tests {
             down[k] -= h;
             let fd = (loss(&s64, &up) - loss(&s64, &down)) / (2.0 * h);
             assert!((dc[k] as f64 - fd).abs() < 1e-5, "c{k}: {} vs {fd}", dc[k]);
+        }
+    }
+
+    /// BCE of the opacity by its definition in f64.
+    fn silhouette_reference(sigma: &[f64], delta: &[f64], a: f64) -> f64 {
+        let o = 1.0 - (-sigma.iter().zip(delta).map(|(s, d)| s * d).sum::<f64>()).exp();
+        -(a * o.ln() + (1.0 - a) * (1.0 - o).ln())
+    }
+
+    #[test]
+    fn silhouette_matches_f64_reference_and_finite_differences() {
+        let (sigma, _, _, delta) = case();
+        // Scaled down so that the opacity is neither 0 nor 1.
+        let sigma: Vec<f32> = sigma.iter().map(|s| 0.05 * s).collect();
+        let f = |v: &[f32]| v.iter().map(|&x| x as f64).collect::<Vec<_>>();
+        for a in [0.0f32, 0.3, 1.0] {
+            let mut ds = vec![0.25; sigma.len()];
+            let loss = silhouette_backward(&sigma, &delta, a, 2.0, &mut ds);
+            let want = 2.0 * silhouette_reference(&f(&sigma), &f(&delta), a as f64);
+            assert!(
+                (loss - want).abs() < 1e-5 * want.abs().max(1.0),
+                "{loss} vs {want}"
+            );
+            let s64 = f(&sigma);
+            let h = 1e-6;
+            for k in 0..sigma.len() {
+                let (mut up, mut down) = (s64.clone(), s64.clone());
+                up[k] += h;
+                down[k] -= h;
+                let fd = 2.0
+                    * (silhouette_reference(&up, &f(&delta), a as f64)
+                        - silhouette_reference(&down, &f(&delta), a as f64))
+                    / (2.0 * h);
+                // Added to what `d_sigma` held.
+                let got = ds[k] as f64 - 0.25;
+                assert!(
+                    (got - fd).abs() < 1e-4 * fd.abs().max(1.0),
+                    "a {a}, σ{k}: {got} vs {fd}"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn silhouette_hard_cases_are_finite() {
+        // Nothing on a covered pixel, an opaque ray on an uncovered one,
+        // huge and zero densities, an infinite last interval, no samples.
+        for (sigma, delta, a) in [
+            (vec![0.0f32; 4], vec![0.5f32; 4], 1.0f32),
+            (vec![1e30, 1e30], vec![1.0, 1e10], 0.0),
+            (vec![1e-30, 3.0], vec![0.0, 1e10], 1.0),
+            (vec![], vec![], 1.0),
+        ] {
+            let mut ds = vec![0.0; sigma.len()];
+            let loss = silhouette_backward(&sigma, &delta, a, 1.0, &mut ds);
+            assert!(loss.is_finite() && loss >= 0.0, "{loss}");
+            // The clamp bounds the cost of a ray that sees nothing.
+            assert!(loss <= -(OPACITY_CLAMP as f64).ln() + 1e-3, "{loss}");
+            assert!(ds.iter().all(|x| x.is_finite()), "{ds:?}");
         }
     }
 

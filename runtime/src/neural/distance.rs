@@ -51,7 +51,7 @@ pub(crate) fn weights(losses: &[Loss]) -> SdfLoss {
                 w.alpha = alpha as f32;
             }
             // The language keeps image terms off distance fields.
-            LossKind::Mse => {}
+            LossKind::Mse | LossKind::Silhouette => {}
         }
     }
     w

@@ -1062,6 +1062,7 @@ mod tests {
                 .map(|_| [rng.next_f32(), rng.next_f32(), rng.next_f32()])
                 .collect(),
             rays,
+            coverage: Vec::new(),
             depths,
             samples,
             shared: false,

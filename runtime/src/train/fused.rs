@@ -35,6 +35,8 @@ pub struct Batch {
     pub rays: Vec<Ray>,
     /// The colour each ray's pixel should have.
     pub targets: Vec<[f32; 3]>,
+    /// How much of each ray's pixel the object covers (empty: not known).
+    pub coverage: Vec<f32>,
     /// `samples` depths per ray, all rays alike (`shared`) or one row each.
     pub depths: Vec<f32>,
     /// Samples per ray.

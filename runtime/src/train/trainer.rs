@@ -117,6 +117,21 @@ impl<'a> TrainSetup<'a> {
             .iter()
             .map(|r| self.views[r.view as usize].image.pixels[r.pixel as usize])
             .collect();
+        // Each ray's pixel coverage where every view knows it (else none:
+        // the language allows `silhouette()` only on such data).
+        let coverage = if self.views.iter().all(|v| v.coverage.is_some()) {
+            rays.iter()
+                .map(|r| {
+                    self.views[r.view as usize]
+                        .coverage
+                        .as_ref()
+                        .and_then(|c| c.get(r.pixel as usize).copied())
+                        .unwrap_or(0.0)
+                })
+                .collect()
+        } else {
+            Vec::new()
+        };
         let s = &self.sampler;
         let strat = Stratified::new(s.samples, s.near as f32, s.far as f32)?;
         let depths = if s.jitter {
@@ -131,6 +146,7 @@ impl<'a> TrainSetup<'a> {
         Ok(Batch {
             rays,
             targets,
+            coverage,
             depths,
             samples: s.samples,
             shared: !s.jitter,
@@ -159,6 +175,7 @@ impl<'a> TrainSetup<'a> {
         Batch {
             rays: Vec::new(),
             targets: Vec::new(),
+            coverage: Vec::new(),
             depths: Vec::new(),
             samples: 0,
             shared: true,
@@ -644,11 +661,13 @@ mod tests {
                 camera: cam,
                 image: image.clone(),
                 mask: Some(mask.clone()),
+                coverage: None,
             },
             TrainView {
                 camera: cam,
                 image,
                 mask: None,
+                coverage: None,
             },
         ];
         let mut s = setup(&[]);

@@ -572,8 +572,11 @@ fn train_losses(
             "add `mse()`: `losses: [mse(), eikonal()]`",
         ));
     }
-    let applies =
-        |k: LossKind| k.on_images() != on_points || (surface_volume && k == LossKind::Eikonal);
+    let applies = |k: LossKind| match k {
+        LossKind::Silhouette => surface_volume,
+        LossKind::Eikonal => on_points || surface_volume,
+        _ => k.on_images() != on_points,
+    };
     if let Some(l) = losses.iter().find(|l| !applies(l.kind)) {
         return Err(value_error(
             losses_span,
@@ -582,10 +585,21 @@ fn train_losses(
             if on_points {
                 "a neural SDF trains on `surface()`, `eikonal()` and `inter()`"
             } else if surface_volume {
-                "a neural SDF's volume trains on `mse()` and `eikonal()`"
+                "a neural SDF's volume trains on `mse()`, `eikonal()` and `silhouette()`"
             } else {
                 "a field rendered to images trains on `mse()`"
             },
+        ));
+    }
+    // Only a shape's own views know how much of each pixel it covers.
+    if losses.iter().any(|l| l.kind == LossKind::Silhouette)
+        && !matches!(data, Dataset::Traced { .. })
+    {
+        return Err(value_error(
+            losses_span,
+            "`silhouette()` compares each pixel's opacity with how much of it the object covers, and this data set does not say",
+            "needs each pixel's coverage",
+            "train on the views of a shape, `render_views(shape, ...)`, or leave `silhouette()` out",
         ));
     }
     // A neural SDF is sphere-traced (normals as colours, depth): volume
@@ -808,5 +822,6 @@ fn loss_name(kind: LossKind) -> &'static str {
         LossKind::Surface => "surface",
         LossKind::Eikonal => "eikonal",
         LossKind::Inter { .. } => "inter",
+        LossKind::Silhouette => "silhouette",
     }
 }

@@ -737,6 +737,13 @@ fn table() -> Vec<Builtin> {
             LOSS,
             |a| Ok(Value::Loss(Loss { kind: LossKind::Mse, weight: a.positive("weight")? })),
         ),
+        func(
+            "silhouette",
+            "Binary cross-entropy of each ray's opacity against its pixel's coverage by the object (NeuS's mask loss), times `weight`. A neural SDF's volume only, on the views of a shape by `render_views` (which know each pixel's coverage). Unlike the colour error, it does not fade where the object is dark against the background.",
+            vec![opt("weight", Type::Number, "0.1", "weight of this term (> 0)")],
+            LOSS,
+            |a| Ok(Value::Loss(Loss { kind: LossKind::Silhouette, weight: a.positive("weight")? })),
+        ),
         // ---- math
         each("sin", "Sine (radians); of each component of a vector.", |a| map_each(a, "sin", f64::sin)),
         each("cos", "Cosine (radians); of each component of a vector.", |a| map_each(a, "cos", f64::cos)),

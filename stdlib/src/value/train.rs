@@ -116,11 +116,16 @@ pub enum LossKind {
         /// How fast the penalty falls with |f|.
         alpha: f64,
     },
+    /// Mean binary cross-entropy of each ray's opacity against its pixel's
+    /// coverage by the object (NeuS's mask loss): a missed silhouette
+    /// costs as much on a dark side as on a lit one.
+    Silhouette,
 }
 
 impl LossKind {
     /// Whether the term compares rendered colours (else it is a distance
-    /// field's term on points).
+    /// field's term on points, or [`LossKind::Silhouette`], which the
+    /// surface objective weighs itself).
     pub fn on_images(&self) -> bool {
         matches!(self, LossKind::Mse)
     }

@@ -333,6 +333,7 @@ fn loss_title(losses: &[sdfl_stdlib::value::Loss]) -> String {
         LossKind::Surface => "|f|".to_string(),
         LossKind::Eikonal => "eikonal".to_string(),
         LossKind::Inter { alpha } => format!("exp(−{}·|f|)", short_num(*alpha)),
+        LossKind::Silhouette => "silhouette BCE".to_string(),
     };
     match losses {
         [] => "loss".to_string(),

@@ -18,7 +18,7 @@ use sdfl_stdlib::camera::Camera;
 use sdfl_stdlib::num::{Dual, Real};
 use sdfl_stdlib::value::{DensityKind, LastInterval, Loss, LossKind, NeuralSurface};
 
-use super::composite::{composite, squared_error_backward};
+use super::composite::{composite, silhouette_backward, squared_error_backward};
 use super::distance::{trace_field, TraceSettings};
 use super::encoding::Harmonic;
 use super::field::{fine_samples, NerfView, Samples};
@@ -236,6 +236,8 @@ pub struct SurfaceObjective {
     spec: NeuralSurface,
     /// Weight of the eikonal term (the trainer weighs the colour term).
     eikonal: f32,
+    /// Weight of the silhouette term (0: none).
+    silhouette: f32,
     /// The training's steps, over which a scheduled β falls to
     /// `spec.beta_end`.
     steps: usize,
@@ -268,6 +270,11 @@ impl SurfaceObjective {
             eikonal: losses
                 .iter()
                 .filter(|l| l.kind == LossKind::Eikonal)
+                .map(|l| l.weight as f32)
+                .sum(),
+            silhouette: losses
+                .iter()
+                .filter(|l| l.kind == LossKind::Silhouette)
                 .map(|l| l.weight as f32)
                 .sum(),
             sdf,
@@ -612,6 +619,11 @@ impl Objective for SurfaceObjective {
                 "a neural SDF's volume trains on rays, and the batch has none".into(),
             ));
         }
+        if self.silhouette > 0.0 && batch.coverage.len() != rays.len() {
+            return Err(TrainError::Invalid(
+                "`silhouette()` needs each pixel's coverage, and these views do not give it".into(),
+            ));
+        }
         self.samples
             .fixed(rays.len(), n, |r| batch.depths_of(r), batch.last_interval);
         let n = if self.spec.fine > 0 {
@@ -661,6 +673,8 @@ impl Objective for SurfaceObjective {
         // `weight` scales the image terms as the trainer weighs them; the
         // MSE is a mean over rays and channels.
         let scale = (weight / (3 * rays.len()) as f64) as f32;
+        // The silhouette term is a mean over rays.
+        let silhouette = self.silhouette / rays.len() as f32;
         let background = self.background();
         self.ones.resize(rows, 1.0);
         let (sigma, rgb) = (&self.sigma, self.color.rgb(&self.color_work));
@@ -693,6 +707,15 @@ impl Objective for SurfaceObjective {
                         dc,
                         &mut trans,
                     );
+                    if silhouette > 0.0 {
+                        loss += silhouette_backward(
+                            sg,
+                            &delta[k.clone()],
+                            batch.coverage[r],
+                            silhouette,
+                            ds,
+                        );
+                    }
                 }
                 loss
             })

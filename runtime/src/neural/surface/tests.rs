@@ -62,6 +62,7 @@ fn batch(rays: usize, samples: usize) -> Batch {
     Batch {
         rays,
         targets,
+        coverage: Vec::new(),
         depths,
         samples,
         shared: true,
@@ -330,6 +331,17 @@ const MSE_AND_EIKONAL: [Loss; 2] = [
     },
 ];
 
+/// The terms above and the silhouette term, weighed up so that it
+/// weighs in the gradients as much as the colour.
+const WITH_SILHOUETTE: [Loss; 3] = [
+    MSE_AND_EIKONAL[0],
+    MSE_AND_EIKONAL[1],
+    Loss {
+        kind: LossKind::Silhouette,
+        weight: 0.5,
+    },
+];
+
 /// Starting values with the tables drawn U(−0.05, 0.05), so that the
 /// field is no longer the sphere and every term feels the tables.
 fn rough_values(obj: &SurfaceObjective) -> Vec<f32> {
@@ -351,16 +363,21 @@ fn rough_values(obj: &SurfaceObjective) -> Vec<f32> {
 /// a finite difference.)
 #[test]
 fn hash_surface_gradient_matches_finite_differences() {
-    for (density, step) in [
-        (DensityKind::VolSdf, 0.0),
-        (DensityKind::Neus, 0.0),
-        (DensityKind::VolSdf, 0.02),
-        (DensityKind::Neus, 0.02),
+    for (density, step, losses) in [
+        (DensityKind::VolSdf, 0.0, &MSE_AND_EIKONAL[..]),
+        (DensityKind::Neus, 0.0, &MSE_AND_EIKONAL[..]),
+        (DensityKind::VolSdf, 0.02, &MSE_AND_EIKONAL[..]),
+        (DensityKind::Neus, 0.02, &MSE_AND_EIKONAL[..]),
+        (DensityKind::VolSdf, 0.0, &WITH_SILHOUETTE[..]),
+        (DensityKind::Neus, 0.0, &WITH_SILHOUETTE[..]),
     ] {
         let s = hash_spec(density, step, 0);
-        let mut obj = SurfaceObjective::new(&s, &MSE_AND_EIKONAL).unwrap();
+        let mut obj = SurfaceObjective::new(&s, losses).unwrap();
         let values = rough_values(&obj);
-        let b = batch(9, 20);
+        let mut b = batch(9, 20);
+        // Pixels alternately covered and not, so that the silhouette term
+        // pulls both ways.
+        b.coverage = (0..b.rays.len()).map(|r| (r % 2) as f32).collect();
         let mut grad = vec![0.0; values.len()];
         let loss = obj.loss_and_grad(&values, &b, 1.0, &mut grad).unwrap();
         assert!(loss.is_finite() && loss > 0.0);
@@ -417,7 +434,7 @@ fn hash_surface_gradient_matches_finite_differences() {
             assert!(
                 fds.iter()
                     .any(|&(fd, floor)| (got - fd).abs() <= 3e-2 * fd.abs() + floor),
-                "{density:?} step {step}: {what} parameter {i}: {got:e} vs {fds:?}"
+                "{density:?} step {step} {losses:?}: {what} parameter {i}: {got:e} vs {fds:?}"
             );
             checked += (fds[0].0.abs() > 10.0 * fds[0].1) as usize;
         }

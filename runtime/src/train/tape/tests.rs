@@ -204,6 +204,7 @@ fn the_tape_kernel_gives_the_same_bits_at_any_thread_count() {
     let batch = Batch {
         rays,
         targets: (0..n).map(|k| [0.5, 0.3 + 0.001 * k as f32, 0.2]).collect(),
+        coverage: Vec::new(),
         depths: Stratified::new(40, 0.0, 6.0).unwrap().depths(),
         samples: 40,
         shared: true,
