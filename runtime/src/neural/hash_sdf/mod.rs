@@ -819,33 +819,46 @@ impl HashSdf {
             .zip(marks[..active].par_iter_mut())
             .enumerate()
             .for_each(|(l, (g, bits))| {
-                for (p, d) in probes.iter().zip(d_feat.chunks_exact(feat)) {
-                    let dv = &d[l * f..][..f];
-                    if nt == 0 {
-                        if dv.iter().all(|&v| v == 0.0) {
-                            continue;
+                // A batch of probes' corners first, then their adds in
+                // probe order: the reads of `g` then do not wait on the
+                // hashing, and the sums' order is the probes'.
+                let mut rows = [[0u32; 8]; CHUNK];
+                let mut w = [[0f32; 8]; CHUNK];
+                let mut dw = [[[0f32; 3]; 8]; CHUNK];
+                for (probes, d_feat) in probes.chunks(CHUNK).zip(d_feat.chunks(CHUNK * feat)) {
+                    for (i, &p) in probes.iter().enumerate() {
+                        if nt == 0 {
+                            (rows[i], w[i]) = self.grid.corners_at(l, p);
+                        } else {
+                            (rows[i], w[i], dw[i]) = self.grid.corners_dx(l, p);
                         }
-                        let (rows, w) = self.grid.corners_at(l, *p);
-                        for c in 0..8 {
-                            let r = rows[c] as usize;
-                            bits[r / 64] |= 1 << (r % 64);
-                            let g = &mut g[r * f..][..f];
-                            for k in 0..f {
-                                g[k] += w[c] * dv[k];
+                    }
+                    for (i, d) in d_feat.chunks_exact(feat).enumerate() {
+                        let dv = &d[l * f..][..f];
+                        if nt == 0 {
+                            if dv.iter().all(|&v| v == 0.0) {
+                                continue;
                             }
-                        }
-                    } else {
-                        let (rows, w, dw) = self.grid.corners_dx(l, *p);
-                        for c in 0..8 {
-                            let r = rows[c] as usize;
-                            bits[r / 64] |= 1 << (r % 64);
-                            let g = &mut g[r * f..][..f];
-                            for k in 0..f {
-                                let mut s = w[c] * dv[k];
-                                for a in 0..3 {
-                                    s += dw[c][a] * d[(1 + a) * e + l * f + k];
+                            for c in 0..8 {
+                                let r = rows[i][c] as usize;
+                                bits[r / 64] |= 1 << (r % 64);
+                                let g = &mut g[r * f..][..f];
+                                for k in 0..f {
+                                    g[k] += w[i][c] * dv[k];
                                 }
-                                g[k] += s;
+                            }
+                        } else {
+                            for c in 0..8 {
+                                let r = rows[i][c] as usize;
+                                bits[r / 64] |= 1 << (r % 64);
+                                let g = &mut g[r * f..][..f];
+                                for k in 0..f {
+                                    let mut s = w[i][c] * dv[k];
+                                    for a in 0..3 {
+                                        s += dw[i][c][a] * d[(1 + a) * e + l * f + k];
+                                    }
+                                    g[k] += s;
+                                }
                             }
                         }
                     }
