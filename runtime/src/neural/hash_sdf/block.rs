@@ -388,22 +388,21 @@ fn value_grads_lanes(
 }
 
 crate::sdf::lanes::widest_simd!(
-    /// [`HashSdf::backward_block`], compiled for the widest vectors this
-    /// CPU has.
-    pub(super) fn grads_backward_block(net: &HashSdf, params: &[f32], buf: &[f32], d_f: &[f32], d_g: &[f32], adj: &mut [f32], d_mlp: &mut [f32], d_feat: &mut [f32]) -> () = grads_backward_lanes
+    /// [`HashSdf::backward_block`] on the forward and adjoint buffers of
+    /// `scratch`, compiled for the widest vectors this CPU has.
+    pub(super) fn grads_backward_block(net: &HashSdf, params: &[f32], scratch: &mut BlockScratch, d_f: &[f32], d_g: &[f32], d_mlp: &mut [f32], d_feat: &mut [f32]) -> () = grads_backward_lanes
 );
 
-#[allow(clippy::too_many_arguments)]
 #[inline(always)]
 fn grads_backward_lanes(
     net: &HashSdf,
     params: &[f32],
-    buf: &[f32],
+    scratch: &mut BlockScratch,
     d_f: &[f32],
     d_g: &[f32],
-    adj: &mut [f32],
     d_mlp: &mut [f32],
     d_feat: &mut [f32],
 ) {
-    net.backward_block(params, buf, d_f, d_g, adj, d_mlp, d_feat);
+    let BlockScratch { forward, adjoint } = scratch;
+    net.backward_block(params, forward, d_f, d_g, adjoint, d_mlp, d_feat);
 }

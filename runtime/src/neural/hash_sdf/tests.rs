@@ -953,7 +953,7 @@ fn hash_sdf_blocked_backward_is_the_pointwise_backward() {
         let pts = random_points(n, seed + 1, 1.2);
         let mut rng = SplitMix64::new(seed + 2);
         let mut d = |k: usize| -> f32 {
-            if k % 5 == 0 {
+            if k.is_multiple_of(5) {
                 0.0
             } else {
                 rng.next_f32() * 2.0 - 1.0

@@ -309,28 +309,10 @@ impl HashSdf {
                         with_block(blocks, |s| {
                             let (mut f, mut g) = ([0f32; CHUNK], [[0f32; 3]; CHUNK]);
                             let m = to - from;
-                            let (forward, adjoint) = (&mut s.forward, &mut s.adjoint);
-                            let pts = &pts[from..to];
-                            value_grads_block(
-                                self,
-                                params,
-                                pts,
-                                active,
-                                forward,
-                                &mut f[..m],
-                                &mut g[..m],
-                            );
+                            let (pts, f, g) = (&pts[from..to], &mut f[..m], &mut g[..m]);
+                            value_grads_block(self, params, pts, active, &mut s.forward, f, g);
                             let (d_f, d_g) = (&d_f[from..to], &d_g[3 * from..3 * to]);
-                            grads_backward_block(
-                                self,
-                                params,
-                                forward,
-                                d_f,
-                                d_g,
-                                adjoint,
-                                &mut cw.d_mlp,
-                                d_feat,
-                            );
+                            grads_backward_block(self, params, s, d_f, d_g, &mut cw.d_mlp, d_feat);
                         });
                         return;
                     };
