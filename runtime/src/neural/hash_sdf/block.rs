@@ -109,40 +109,34 @@ impl HashSdf {
         let dim = self.grid.output_dim();
         let n = pts.len();
         x[..(1 + NT) * dim * CHUNK].fill(0.0);
-        let mut rows = [[0u32; CHUNK]; 8];
-        let mut w = [[0f32; CHUNK]; 8];
-        let mut dw = [[[0f32; CHUNK]; 3]; 8];
+        let mut rows = [[0u32; 8]; CHUNK];
+        let mut w = [[0f32; 8]; CHUNK];
+        let mut dw = [[[0f32; 3]; 8]; CHUNK];
         let levels = self.offsets.len() - 1;
         for (l, &off) in self.offsets[..levels].iter().enumerate().take(active) {
             let table = &params[off..self.offsets[l + 1]];
             for (i, &p) in pts.iter().enumerate() {
                 if NT == 0 {
-                    let (r, wc) = self.grid.corners_at(l, p);
-                    for c in 0..8 {
-                        (rows[c][i], w[c][i]) = (r[c], wc[c]);
-                    }
+                    (rows[i], w[i]) = self.grid.corners_at(l, p);
                 } else {
-                    let (r, wc, dwc) = self.grid.corners_dx(l, p);
-                    for c in 0..8 {
-                        (rows[c][i], w[c][i]) = (r[c], wc[c]);
-                        for a in 0..NT {
-                            dw[c][a][i] = dwc[c][a];
-                        }
-                    }
+                    (rows[i], w[i], dw[i]) = self.grid.corners_dx(l, p);
                 }
             }
-            // Per feature and point the corners in order from 0, as
+            // Per point and feature the corners in order from 0, as
             // `encode` sums them.
-            for c in 0..8 {
+            for i in 0..n {
                 for k in 0..f {
-                    let (value, tangents) = x.split_at_mut(dim * CHUNK);
-                    let value = &mut value[(l * f + k) * CHUNK..][..n];
-                    for (i, v) in value.iter_mut().enumerate() {
-                        let t = table[rows[c][i] as usize * f + k];
-                        *v += w[c][i] * t;
+                    let (mut v, mut t) = (0f32, [0f32; 3]);
+                    for c in 0..8 {
+                        let row = table[rows[i][c] as usize * f + k];
+                        v += w[i][c] * row;
                         for a in 0..NT {
-                            tangents[(a * dim + l * f + k) * CHUNK + i] += dw[c][a][i] * t;
+                            t[a] += dw[i][c][a] * row;
                         }
+                    }
+                    x[(l * f + k) * CHUNK + i] = v;
+                    for a in 0..NT {
+                        x[((1 + a) * dim + l * f + k) * CHUNK + i] = t[a];
                     }
                 }
             }
