@@ -8,14 +8,16 @@
 //!   [`HashSdf::value_grad`]). The scratch has the point-at-a-time
 //!   layout with every float widened to a row.
 //! - **Backward** (the exact form's reverse pass): the adjoints per point
-//!   as [`HashSdf::mlp_backward`] forms them; the weights' gradient summed
-//!   over the chunk's points in [`LANES`] partial sums folded pairwise, a
-//!   fixed order, so the result does not depend on the thread count.
+//!   as [`HashSdf::mlp_backward`] forms them; the weights' gradient and the
+//!   inputs' adjoints as matrix products over the chunk (fp32's AVX-512
+//!   register tiles, or lane loops on other CPUs), a fixed order, so the
+//!   result does not depend on the thread count.
 //!
 //! Lanes past the chunk's points hold zero features and zero adjoints, so
 //! they add nothing and stay finite.
 
 use super::{HashSdf, CHUNK};
+use crate::neural::fp32::{self, Strided};
 use crate::neural::mlp::softplus_layer;
 
 /// Lanes of a partial sum across points (four AVX-512 registers).
@@ -28,6 +30,9 @@ const LANES: usize = 64;
 pub(super) struct BlockScratch {
     pub(super) forward: Vec<f32>,
     pub(super) adjoint: Vec<f32>,
+    /// A layer's input point-major (the weight gradient's product reads
+    /// it so), `(1 + NT) × CHUNK × max(E, width)`.
+    pub(super) transposed: Vec<f32>,
 }
 
 impl BlockScratch {
@@ -41,12 +46,16 @@ impl BlockScratch {
         if self.adjoint.len() < adjoint {
             self.adjoint.resize(adjoint, 0.0);
         }
+        if NT > 0 && self.transposed.len() < adjoint / 2 {
+            self.transposed.resize(adjoint / 2, 0.0);
+        }
     }
 
     /// Bytes of a scratch of `net` with `NT` tangents.
     pub(super) fn bytes<const NT: usize>(net: &HashSdf) -> u64 {
         let adjoint = 2 * (1 + NT) * net.grid.output_dim().max(net.width) * CHUNK;
-        4 * (net.block_len::<NT>() + adjoint) as u64
+        let transposed = if NT > 0 { adjoint / 2 } else { 0 };
+        4 * (net.block_len::<NT>() + adjoint + transposed) as u64
     }
 }
 
@@ -221,7 +230,9 @@ impl HashSdf {
     /// (its forward in `buf`), given `∂L/∂f` (`d_f`) and `∂L/∂∇f` (`d_g`,
     /// three a point) at its `n` points: *adds* the MLP's gradient to
     /// `d_mlp` (from the first MLP param) and writes each point's feature
-    /// adjoints (`4 × E`, point-major) into `d_feat`.
+    /// adjoints (`4 × E`, point-major) into `d_feat`. The weights' products
+    /// run as [`fp32::matmul`]'s register tiles when `tiles` (AVX-512 only),
+    /// else as lane loops.
     #[allow(clippy::too_many_arguments)]
     #[inline(always)]
     pub(super) fn backward_block(
@@ -231,8 +242,10 @@ impl HashSdf {
         d_f: &[f32],
         d_g: &[f32],
         adj: &mut [f32],
+        transposed: &mut [f32],
         d_mlp: &mut [f32],
         d_feat: &mut [f32],
+        tiles: bool,
     ) {
         const NT: usize = 3;
         let n = d_f.len();
@@ -310,26 +323,55 @@ impl HashSdf {
                     }
                 }
                 dbias[j] += fold(acc);
-                for k in 0..input {
-                    let mut acc = [0f32; LANES];
-                    for from in (0..CHUNK).step_by(LANES) {
-                        for r in 0..1 + NT {
-                            let zb = &cur[(r * w + j) * CHUNK + from..][..LANES];
-                            let xk = &x[(r * input + k) * CHUNK + from..][..LANES];
-                            for q in 0..LANES {
-                                acc[q] += zb[q] * xk[q];
-                            }
+            }
+            if tiles {
+                // dW += Σ_r Z̄_r · X_rᵀ (w × CHUNK by CHUNK × input), the
+                // input point-major first.
+                let xt = &mut transposed[..(1 + NT) * CHUNK * input];
+                for (r, xt) in xt.chunks_exact_mut(CHUNK * input).enumerate() {
+                    for k in 0..input {
+                        let row = &x[(r * input + k) * CHUNK..][..CHUNK];
+                        for (i, &v) in row.iter().enumerate() {
+                            xt[i * input + k] = v;
                         }
                     }
-                    dweights[j * input + k] += fold(acc);
                 }
-            }
-            // The input's adjoints: Wᵀ·z̄ (and for each tangent).
-            for r in 0..1 + NT {
-                for k in 0..input {
-                    for from in (0..CHUNK).step_by(LANES) {
-                        let v = weighted_rows(0.0, w, |j| weights[j * input + k], cur, r * w, from);
-                        prev[(r * input + k) * CHUNK + from..][..LANES].copy_from_slice(&v);
+                for r in 0..1 + NT {
+                    let zbar = Strided::row_major(&cur[r * w * CHUNK..][..w * CHUNK], CHUNK);
+                    let xt = &xt[r * CHUNK * input..][..CHUNK * input];
+                    fp32::matmul(w, CHUNK, input, zbar, xt, input, dweights, input, true);
+                }
+                // X̄_r = Wᵀ · Z̄_r (input × w by w × CHUNK).
+                for r in 0..1 + NT {
+                    let zbar = &cur[r * w * CHUNK..][..w * CHUNK];
+                    let xbar = &mut prev[r * input * CHUNK..][..input * CHUNK];
+                    let wt = Strided::transposed(weights, input);
+                    fp32::matmul(input, w, CHUNK, wt, zbar, CHUNK, xbar, CHUNK, false);
+                }
+            } else {
+                for j in 0..w {
+                    for k in 0..input {
+                        let mut acc = [0f32; LANES];
+                        for from in (0..CHUNK).step_by(LANES) {
+                            for r in 0..1 + NT {
+                                let zb = &cur[(r * w + j) * CHUNK + from..][..LANES];
+                                let xk = &x[(r * input + k) * CHUNK + from..][..LANES];
+                                for q in 0..LANES {
+                                    acc[q] += zb[q] * xk[q];
+                                }
+                            }
+                        }
+                        dweights[j * input + k] += fold(acc);
+                    }
+                }
+                // The input's adjoints: Wᵀ·z̄ (and for each tangent).
+                for r in 0..1 + NT {
+                    for k in 0..input {
+                        for from in (0..CHUNK).step_by(LANES) {
+                            let v =
+                                weighted_rows(0.0, w, |j| weights[j * input + k], cur, r * w, from);
+                            prev[(r * input + k) * CHUNK + from..][..LANES].copy_from_slice(&v);
+                        }
                     }
                 }
             }
@@ -397,6 +439,15 @@ fn grads_backward_lanes(
     d_mlp: &mut [f32],
     d_feat: &mut [f32],
 ) {
-    let BlockScratch { forward, adjoint } = scratch;
-    net.backward_block(params, forward, d_f, d_g, adjoint, d_mlp, d_feat);
+    let BlockScratch {
+        forward,
+        adjoint,
+        transposed,
+    } = scratch;
+    // The products as fp32's register tiles where the CPU has them
+    // (AVX-512), else lane loops; either sums in a fixed order.
+    let tiles = fp32::available();
+    net.backward_block(
+        params, forward, d_f, d_g, adjoint, transposed, d_mlp, d_feat, tiles,
+    );
 }

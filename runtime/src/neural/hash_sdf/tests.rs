@@ -1022,3 +1022,61 @@ fn hash_sdf_blocked_backward_is_the_pointwise_backward() {
         assert!(scale > 0.1);
     }
 }
+
+/// The blocked backward's two ways to run its products (fp32's register
+/// tiles where AVX-512 runs, the lane loops elsewhere) agree, at a full
+/// chunk and a partial one.
+#[test]
+fn hash_sdf_blocked_backward_tiles_are_the_lane_loops() {
+    use super::block::BlockScratch;
+    let sp = HashSdfSpec {
+        layers: 2,
+        width: 16,
+        ..spec(100.0)
+    };
+    let net = HashSdf::new(&sp).unwrap();
+    let params = random_params(&net, 70);
+    let feat = 4 * net.grid().output_dim();
+    for n in [CHUNK, 45] {
+        let pts = random_points(n, 71, 1.1);
+        let mut rng = SplitMix64::new(72);
+        let d_f: Vec<f32> = (0..n).map(|_| rng.next_f32() - 0.5).collect();
+        let d_g: Vec<f32> = (0..3 * n).map(|_| rng.next_f32() - 0.5).collect();
+        let run = |tiles: bool| {
+            let mut s = BlockScratch::default();
+            s.fit::<3>(&net);
+            let (mut f, mut g) = (vec![0.0; n], vec![[0.0; 3]; n]);
+            net.forward_block::<3>(&params, &pts, 4, &mut s.forward, &mut f, &mut g);
+            let mut d_mlp = vec![0.0; net.param_count() - net.table_params()];
+            let mut d_feat = vec![0.0; n * feat];
+            let BlockScratch {
+                forward,
+                adjoint,
+                transposed,
+            } = &mut s;
+            net.backward_block(
+                &params,
+                forward,
+                &d_f,
+                &d_g,
+                adjoint,
+                transposed,
+                &mut d_mlp,
+                &mut d_feat,
+                tiles,
+            );
+            (d_mlp, d_feat)
+        };
+        let (lanes_mlp, lanes_feat) = run(false);
+        let (tiles_mlp, tiles_feat) = run(crate::neural::fp32::available());
+        let close = |a: &[f32], b: &[f32]| {
+            let scale = a.iter().fold(0f32, |m, v| m.max(v.abs()));
+            assert!(scale > 0.01);
+            for (x, y) in a.iter().zip(b) {
+                assert!((x - y).abs() <= 1e-5 * scale, "{x} vs {y}");
+            }
+        };
+        close(&lanes_mlp, &tiles_mlp);
+        close(&lanes_feat, &tiles_feat);
+    }
+}
