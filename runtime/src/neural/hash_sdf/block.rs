@@ -36,7 +36,17 @@ pub(super) struct BlockScratch {
 }
 
 impl BlockScratch {
-    /// Grows to `net`'s size with `NT` tangents (no allocation once grown).
+    /// The forward's buffer alone, for `net` with `NT` tangents (a pass
+    /// with no backward: distances, normals).
+    pub(super) fn forward_only<const NT: usize>(net: &HashSdf) -> Self {
+        BlockScratch {
+            forward: vec![0.0; net.block_len::<NT>()],
+            ..Default::default()
+        }
+    }
+
+    /// Grows to `net`'s size with `NT` tangents, the backward's buffers
+    /// too (no allocation once grown).
     pub(super) fn fit<const NT: usize>(&mut self, net: &HashSdf) {
         let forward = net.block_len::<NT>();
         if self.forward.len() < forward {

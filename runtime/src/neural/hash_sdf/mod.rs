@@ -499,11 +499,7 @@ impl HashSdf {
         out.par_chunks_mut(CHUNK)
             .zip(points.par_chunks(CHUNK))
             .for_each_init(
-                || {
-                    let mut s = BlockScratch::default();
-                    s.fit::<0>(self);
-                    s
-                },
+                || BlockScratch::forward_only::<0>(self),
                 |s, (out, pts)| block::values_block(self, params, pts, active, &mut s.forward, out),
             );
     }
@@ -547,11 +543,7 @@ impl HashSdf {
             .zip(g.par_chunks_mut(CHUNK))
             .zip(points.par_chunks(CHUNK))
             .for_each_init(
-                || {
-                    let mut s = BlockScratch::default();
-                    s.fit::<3>(self);
-                    s
-                },
+                || BlockScratch::forward_only::<3>(self),
                 |s, ((f, g), pts)| {
                     block::value_grads_block(self, params, pts, active, &mut s.forward, f, g)
                 },
