@@ -13,7 +13,7 @@
 //! `-- user` times a torus the user writes (`sdf(torus_d, ...)`) against
 //! the built-in one and fidget's JIT on the same expression (see `user.rs`).
 //! `cargo run --release -p sdfl-bench -- train` times training steps instead
-//! (see `train.rs`; `-- train 20 fused` the fused kernel only); `-- nerf` times NeRF steps and `-- neural-sdf` neural SDF steps (see `nerf.rs`); `-- density` what each density runs through (see `density.rs`); `-- view` the frames per second of `sdfl view` (see `view.rs`); `-- surface` a neural surface step against PyTorch and `-- hash-sdf` the hash-grid SDF step (see `surface.rs`, `hash_sdf.rs`).
+//! (see `train.rs`; `-- train 20 fused` the fused kernel only); `-- nerf` times NeRF steps and `-- neural-sdf` neural SDF steps (see `nerf.rs`); `-- density` what each density runs through (see `density.rs`); `-- view` the frames per second of `sdfl view` (see `view.rs`); `-- surface` a neural surface step against PyTorch, `-- hash-sdf` the hash-grid SDF step and `-- hash-surface` a hash-grid NeuS step and its parts (see `surface.rs`, `hash_sdf.rs`, `hash_surface.rs`).
 #![warn(missing_docs)]
 
 use std::time::Instant;
@@ -29,6 +29,7 @@ use std::sync::Arc;
 
 mod density;
 mod hash_sdf;
+mod hash_surface;
 mod nerf;
 mod peer;
 mod surface;
@@ -337,6 +338,13 @@ fn main() {
             .and_then(|r| r.parse().ok())
             .unwrap_or(20);
         return hash_sdf::main(reps);
+    }
+    if std::env::args().nth(1).as_deref() == Some("hash-surface") {
+        let reps = std::env::args()
+            .nth(2)
+            .and_then(|r| r.parse().ok())
+            .unwrap_or(10);
+        return hash_surface::main(reps);
     }
     if std::env::args().nth(1).as_deref() == Some("frames") {
         let sizes: Vec<usize> = std::env::args()

@@ -32,7 +32,9 @@
 
 use rayon::prelude::*;
 
+use self::block::BlockScratch;
 use super::hashgrid::{HashGrid, HashGridConfig, Touched};
+use super::mlp::softplus_layer;
 use crate::mesh::DistanceField;
 use crate::volume::SplitMix64;
 
@@ -325,12 +327,17 @@ impl HashSdf {
                         *t += row[k] * x[(1 + a) * input + k];
                     }
                 }
-                let (sp, sl) = softplus(z, beta);
-                h[j] = sp;
-                s[j] = sl;
+                h[j] = z;
                 for a in 0..NT {
                     zt[a * w + j] = t[a];
-                    h[(1 + a) * w + j] = sl * t[a];
+                }
+            }
+            // The one softplus kernel of every path (the blocked ones too).
+            let (h, ht) = h.split_at_mut(w);
+            softplus_layer(h, Some(s), beta);
+            for a in 0..NT {
+                for j in 0..w {
+                    ht[a * w + j] = s[j] * zt[a * w + j];
                 }
             }
         }
@@ -492,8 +499,8 @@ impl HashSdf {
         out.par_chunks_mut(CHUNK)
             .zip(points.par_chunks(CHUNK))
             .for_each_init(
-                || Block::new(self),
-                |block, (out, pts)| self.values_block(params, pts, active, block, out),
+                || BlockScratch::forward_only::<0>(self),
+                |s, (out, pts)| block::values_block(self, params, pts, active, &mut s.forward, out),
             );
     }
 
@@ -521,74 +528,6 @@ impl HashSdf {
             );
     }
 
-    /// [`Self::value`] at up to [`CHUNK`] points at once, the same bits:
-    /// each layer's sums run across the points (vector lanes), every
-    /// point's sum still in `mlp_forward`'s order (bias, then the inputs
-    /// in turn), and the same softplus.
-    fn values_block(
-        &self,
-        params: &[f32],
-        pts: &[[f32; 3]],
-        active: usize,
-        block: &mut Block,
-        out: &mut [f32],
-    ) {
-        let n = pts.len();
-        debug_assert!(n <= CHUNK && out.len() == n);
-        let Block { x, y } = block;
-        // Features feature-major, a level at a time over the block (its
-        // table stays in cache), each summed over the corners in
-        // `encode`'s order from 0.
-        let f = self.grid.config().features as usize;
-        let levels = self.offsets.len() - 1;
-        for (l, &off) in self.offsets[..levels].iter().enumerate() {
-            let feats = &mut x[l * f * CHUNK..][..f * CHUNK];
-            if l >= active {
-                feats.fill(0.0);
-                continue;
-            }
-            let table = &params[off..];
-            for (i, &p) in pts.iter().enumerate() {
-                let (rows, w) = self.grid.corners_at(l, p);
-                for k in 0..f {
-                    let mut acc = 0.0;
-                    for c in 0..8 {
-                        acc += w[c] * table[rows[c] as usize * f + k];
-                    }
-                    feats[k * CHUNK + i] = acc;
-                }
-            }
-        }
-        let (w, beta) = (self.width, self.beta);
-        for &(input, off) in &self.hidden {
-            let weights = &params[off..][..input * w];
-            let bias = &params[off + input * w..][..w];
-            for j in 0..w {
-                let z = &mut y[j * CHUNK..][..n];
-                z.fill(bias[j]);
-                for (k, &wk) in weights[j * input..][..input].iter().enumerate() {
-                    for (z, &xk) in z.iter_mut().zip(&x[k * CHUNK..][..n]) {
-                        *z += wk * xk;
-                    }
-                }
-                for z in z {
-                    *z = softplus_value(*z, beta);
-                }
-            }
-            std::mem::swap(x, y);
-        }
-        let wo = &params[self.output..][..w];
-        out.fill(params[self.output + w]);
-        for (j, &wj) in wo.iter().enumerate() {
-            for (o, &h) in out.iter_mut().zip(&x[j * CHUNK..][..n]) {
-                *o += wj * h;
-            }
-        }
-        for (o, &p) in out.iter_mut().zip(pts) {
-            *o += self.sphere(p).0;
-        }
-    }
-
     /// `f` and the exact `∇f` at `points`, with the first `active` levels.
     pub fn gradients(
         &self,
@@ -604,11 +543,9 @@ impl HashSdf {
             .zip(g.par_chunks_mut(CHUNK))
             .zip(points.par_chunks(CHUNK))
             .for_each_init(
-                || Scratch::new(self, 3),
+                || BlockScratch::forward_only::<3>(self),
                 |s, ((f, g), pts)| {
-                    for ((f, g), &p) in f.iter_mut().zip(g.iter_mut()).zip(pts) {
-                        (*f, *g) = self.value_grad(params, p, active, &mut s.buf);
-                    }
+                    block::value_grads_block(self, params, pts, active, &mut s.forward, f, g)
                 },
             );
     }
@@ -874,33 +811,46 @@ impl HashSdf {
             .zip(marks[..active].par_iter_mut())
             .enumerate()
             .for_each(|(l, (g, bits))| {
-                for (p, d) in probes.iter().zip(d_feat.chunks_exact(feat)) {
-                    let dv = &d[l * f..][..f];
-                    if nt == 0 {
-                        if dv.iter().all(|&v| v == 0.0) {
-                            continue;
+                // A batch of probes' corners first, then their adds in
+                // probe order: the reads of `g` then do not wait on the
+                // hashing, and the sums' order is the probes'.
+                let mut rows = [[0u32; 8]; CHUNK];
+                let mut w = [[0f32; 8]; CHUNK];
+                let mut dw = [[[0f32; 3]; 8]; CHUNK];
+                for (probes, d_feat) in probes.chunks(CHUNK).zip(d_feat.chunks(CHUNK * feat)) {
+                    for (i, &p) in probes.iter().enumerate() {
+                        if nt == 0 {
+                            (rows[i], w[i]) = self.grid.corners_at(l, p);
+                        } else {
+                            (rows[i], w[i], dw[i]) = self.grid.corners_dx(l, p);
                         }
-                        let (rows, w) = self.grid.corners_at(l, *p);
-                        for c in 0..8 {
-                            let r = rows[c] as usize;
-                            bits[r / 64] |= 1 << (r % 64);
-                            let g = &mut g[r * f..][..f];
-                            for k in 0..f {
-                                g[k] += w[c] * dv[k];
+                    }
+                    for (i, d) in d_feat.chunks_exact(feat).enumerate() {
+                        let dv = &d[l * f..][..f];
+                        if nt == 0 {
+                            if dv.iter().all(|&v| v == 0.0) {
+                                continue;
                             }
-                        }
-                    } else {
-                        let (rows, w, dw) = self.grid.corners_dx(l, *p);
-                        for c in 0..8 {
-                            let r = rows[c] as usize;
-                            bits[r / 64] |= 1 << (r % 64);
-                            let g = &mut g[r * f..][..f];
-                            for k in 0..f {
-                                let mut s = w[c] * dv[k];
-                                for a in 0..3 {
-                                    s += dw[c][a] * d[(1 + a) * e + l * f + k];
+                            for c in 0..8 {
+                                let r = rows[i][c] as usize;
+                                bits[r / 64] |= 1 << (r % 64);
+                                let g = &mut g[r * f..][..f];
+                                for k in 0..f {
+                                    g[k] += w[i][c] * dv[k];
                                 }
-                                g[k] += s;
+                            }
+                        } else {
+                            for c in 0..8 {
+                                let r = rows[i][c] as usize;
+                                bits[r / 64] |= 1 << (r % 64);
+                                let g = &mut g[r * f..][..f];
+                                for k in 0..f {
+                                    let mut s = w[i][c] * dv[k];
+                                    for a in 0..3 {
+                                        s += dw[i][c][a] * d[(1 + a) * e + l * f + k];
+                                    }
+                                    g[k] += s;
+                                }
                             }
                         }
                     }
@@ -985,35 +935,6 @@ fn to_f32(x: f64) -> f32 {
     x.clamp(-f32::MAX as f64, f32::MAX as f64) as f32
 }
 
-/// `softplus_β(z) = ln(1 + e^{βz})/β` and its slope `σ(βz)`, stable for
-/// any `z` (no overflow of the exponential).
-#[inline(always)]
-fn softplus(z: f32, beta: f32) -> (f32, f32) {
-    let t = beta * z;
-    let e = (-t.abs()).exp();
-    let sp = z.max(0.0) + e.ln_1p() / beta;
-    let s = if t >= 0.0 {
-        1.0 / (1.0 + e)
-    } else {
-        e / (1.0 + e)
-    };
-    (sp, s)
-}
-
-/// Below this `ln(1 + e)` rounds to `e` in f32: its relative deficit
-/// `e/2` is under half an ulp (and libm returns `e` there).
-const LN_1P_IS_IDENTITY: f32 = 1.0 / (1u32 << 24) as f32;
-
-/// [`softplus`]'s value, the same bits, without the logarithm where it
-/// is the identity: a saturated unit (`|βz| > 16.6`) costs an exponential
-/// only.
-#[inline(always)]
-fn softplus_value(z: f32, beta: f32) -> f32 {
-    let e = (-(beta * z).abs()).exp();
-    let ln = if e < LN_1P_IS_IDENTITY { e } else { e.ln_1p() };
-    z.max(0.0) + ln / beta
-}
-
 /// One point's forward scratch (or seven, for the finite differences).
 struct Scratch {
     buf: Vec<f32>,
@@ -1028,23 +949,6 @@ impl Scratch {
         };
         Scratch {
             buf: vec![0.0; len],
-        }
-    }
-}
-
-/// The buffers of [`HashSdf::values_block`]: two layers' values
-/// feature-major (`max(E, width) × CHUNK`).
-struct Block {
-    x: Vec<f32>,
-    y: Vec<f32>,
-}
-
-impl Block {
-    fn new(net: &HashSdf) -> Self {
-        let rows = net.grid.output_dim().max(net.width) * CHUNK;
-        Block {
-            x: vec![0.0; rows],
-            y: vec![0.0; rows],
         }
     }
 }
@@ -1158,6 +1062,7 @@ impl DistanceField for HashSdfField<'_> {
     }
 }
 
+mod block;
 pub mod objective;
 pub mod volume;
 

@@ -701,8 +701,10 @@ fn hash_sdf_fits_a_box_in_a_few_hundred_steps() {
     );
 }
 
-/// The blocked distance pass gives `value`'s bits at every point: partial
-/// blocks, both network depths, some levels off, and hard points.
+/// The blocked passes give the point-at-a-time bits at every point (`f`
+/// from `value`, `f` and `∇f` from `value_grad`), and the value-only form
+/// gives the form with tangents' `f`: partial blocks, both network depths,
+/// some levels off, and hard points.
 #[test]
 fn hash_sdf_blocked_distances_are_the_pointwise_values() {
     for (layers, width, active, seed) in [(2, 8, 4, 50), (1, 16, 3, 51), (2, 5, 1, 52)] {
@@ -728,12 +730,19 @@ fn hash_sdf_blocked_distances_are_the_pointwise_values() {
             let mut pointwise = vec![0.0; n];
             net.distances(&params, pts, active, &mut blocked);
             net.distances_pointwise(&params, pts, active, &mut pointwise);
+            let (mut f, mut g) = (vec![f32::NAN; n], vec![[f32::NAN; 3]; n]);
+            net.gradients(&params, pts, active, &mut f, &mut g);
             let mut s = Scratch::new(&net, 0);
+            let mut s3 = Scratch::new(&net, 3);
             for (i, &p) in pts.iter().enumerate() {
                 let v = net.value(&params, p, active, &mut s.buf);
                 assert!(v.is_finite(), "{p:?}");
                 assert_eq!(blocked[i].to_bits(), v.to_bits(), "{p:?}, {n} points");
                 assert_eq!(pointwise[i].to_bits(), v.to_bits(), "{p:?}");
+                let (fv, gv) = net.value_grad(&params, p, active, &mut s3.buf);
+                assert_eq!(fv.to_bits(), v.to_bits(), "value_grad's f at {p:?}");
+                assert_eq!(f[i].to_bits(), v.to_bits(), "blocked f at {p:?}");
+                assert_eq!(g[i].map(f32::to_bits), gv.map(f32::to_bits), "∇f at {p:?}");
             }
         }
     }
@@ -858,14 +867,17 @@ fn hash_sdf_clearance_removes_the_stray_surface() {
     assert!(all > 500 && stray == 0, "{stray} of {all} stray");
 }
 
-/// The value-only softplus is `softplus`'s value bit for bit: across the
-/// threshold where the logarithm is skipped, at saturation and at extremes.
+/// The hash SDF's one softplus kernel ([`softplus_layer`]): its value-only
+/// form is the form with slopes' value bit for bit (the distance passes
+/// and the training passes see the same `f`), over a dense range, every
+/// f32 about saturation and extremes; near the f64 formula; NaN-free and
+/// finite at ±1e30 for every β used.
 #[test]
 fn hash_sdf_softplus_value_is_the_softplus() {
-    let beta = 100.0f32;
     let mut z: Vec<f32> = (-40000..=40000).map(|i| i as f32 * 1e-5).collect();
-    // βz about the threshold ln(2^24) ≈ 16.64, every f32 near it.
-    let edge = (2f32.powi(24)).ln() / beta;
+    // βz about ln(2^24) ≈ 16.64 (where ln(1 + e) starts to round to e),
+    // every f32 near it.
+    let edge = (2f32.powi(24)).ln() / 100.0;
     for s in [edge, -edge] {
         let mut v = s * 0.999;
         while v.abs() < edge.abs() * 1.001 {
@@ -873,7 +885,7 @@ fn hash_sdf_softplus_value_is_the_softplus() {
             v = f32::from_bits(v.to_bits() + 1);
         }
     }
-    z.extend([
+    let extremes = [
         0.0,
         -0.0,
         1e-30,
@@ -886,25 +898,185 @@ fn hash_sdf_softplus_value_is_the_softplus() {
         -1e30,
         f32::MAX,
         -f32::MAX,
-    ]);
+    ];
+    z.extend(extremes);
     let mut rng = SplitMix64::new(9);
     z.extend((0..200_000).map(|_| (rng.next_f32() * 2.0 - 1.0) * 0.5));
-    for beta in [beta, 10.0, 1.0] {
-        for &z in &z {
+    for beta in [100.0f32, 10.0, 1.0] {
+        let (mut with_slope, mut slope) = (z.clone(), vec![0.0; z.len()]);
+        softplus_layer(&mut with_slope, Some(&mut slope), beta);
+        let mut alone = z.clone();
+        softplus_layer(&mut alone, None, beta);
+        for (i, &zi) in z.iter().enumerate() {
             assert_eq!(
-                softplus_value(z, beta).to_bits(),
-                softplus(z, beta).0.to_bits(),
-                "softplus_{beta}({z})"
+                alone[i].to_bits(),
+                with_slope[i].to_bits(),
+                "softplus_{beta}({zi})"
             );
+            assert!(
+                !alone[i].is_nan() && !slope[i].is_nan(),
+                "softplus_{beta}({zi})"
+            );
+            if zi.abs() <= 1e30 {
+                assert!(alone[i].is_finite() && (0.0..=1.0).contains(&slope[i]));
+                // βz as the kernel forms it: its f32 rounding moves
+                // e^{−|βz|} by up to |βz|·2^-24 relative, which no formula
+                // after it can undo.
+                let x = (beta * zi) as f64;
+                let want = (x.max(0.0) + (-x.abs()).exp().ln_1p()) / beta as f64;
+                assert!(
+                    (alone[i] as f64 - want).abs() <= 6.0 * f32::EPSILON as f64 * want + 1.2e-38,
+                    "softplus_{beta}({zi}) = {} vs {want}",
+                    alone[i]
+                );
+            }
         }
     }
-    // ln(1 + e) = e below the threshold, for every exponent there.
-    let mut e = LN_1P_IS_IDENTITY;
-    for _ in 0..2_000_000 {
-        e = f32::from_bits(e.to_bits() - 37);
-        if e <= 0.0 {
-            break;
+}
+
+/// The blocked exact backward (`volume_backward`) against the point at a
+/// time reverse pass (`mlp_backward` per point, the same tables'
+/// pass): the same gradient up to the order of the sums, at partial
+/// chunks, both depths, some levels off, and with zero adjoints mixed in.
+#[test]
+fn hash_sdf_blocked_backward_is_the_pointwise_backward() {
+    use super::volume::VolumeWork;
+    for (layers, width, active, seed) in [(2, 8, 4, 60), (1, 16, 3, 61)] {
+        let sp = HashSdfSpec {
+            layers,
+            width,
+            ..spec(100.0)
+        };
+        let net = HashSdf::new(&sp).unwrap();
+        let params = random_params(&net, seed);
+        let n = 2 * CHUNK + 37;
+        let pts = random_points(n, seed + 1, 1.2);
+        let mut rng = SplitMix64::new(seed + 2);
+        let mut d = |k: usize| -> f32 {
+            if k.is_multiple_of(5) {
+                0.0
+            } else {
+                rng.next_f32() * 2.0 - 1.0
+            }
+        };
+        let d_f: Vec<f32> = (0..n).map(&mut d).collect();
+        let d_g: Vec<f32> = (0..3 * n)
+            .map(|k| if k % 15 < 3 { 0.0 } else { d(k + 1) })
+            .collect();
+        let mut work = VolumeWork::default();
+        net.volume_forward(&params, &pts, Eikonal::Exact, active, &mut work);
+        let mut blocked = vec![0.0; net.param_count()];
+        net.volume_backward(
+            &params,
+            &pts,
+            &d_f,
+            &d_g,
+            Eikonal::Exact,
+            active,
+            &mut work,
+            &mut blocked,
+        );
+        // The reference, one point at a time.
+        let mut reference = vec![0.0; net.param_count()];
+        let tables = net.table_params();
+        let feat = 4 * net.grid().output_dim();
+        let mut d_feat = vec![0.0; n * feat];
+        let mut s = Scratch::new(&net, 3);
+        let mut adj = vec![0.0; 2 * 4 * net.grid().output_dim().max(width)];
+        let mut d_mlp = vec![0.0; net.param_count() - tables];
+        for (i, &p) in pts.iter().enumerate() {
+            let (f, g) = net.value_grad(&params, p, active, &mut s.buf);
+            assert_eq!(work.distance()[i].to_bits(), f.to_bits());
+            assert_eq!(&work.gradient()[3 * i..3 * i + 3], &g);
+            let t = net.tangent_out::<3>();
+            let dg = [d_g[3 * i], d_g[3 * i + 1], d_g[3 * i + 2]];
+            let df = &mut d_feat[i * feat..][..feat];
+            net.mlp_backward::<3>(
+                &params,
+                &s.buf[..t + 3],
+                d_f[i],
+                dg,
+                &mut d_mlp,
+                &mut adj,
+                df,
+            );
         }
-        assert_eq!(e.ln_1p().to_bits(), e.to_bits(), "ln_1p({e})");
+        reference[tables..].copy_from_slice(&d_mlp);
+        let mut touched = net.grid().touched_set();
+        net.tables_backward(
+            &pts,
+            &d_feat,
+            3,
+            active,
+            &mut reference[..tables],
+            &mut touched,
+        );
+        let scale = reference.iter().fold(0f32, |m, v| m.max(v.abs()));
+        for (i, (b, r)) in blocked.iter().zip(&reference).enumerate() {
+            assert!(
+                (b - r).abs() <= 1e-5 * scale,
+                "param {i} of {}: {b} vs {r}",
+                blocked.len()
+            );
+        }
+        assert!(scale > 0.1);
+    }
+}
+
+/// The blocked backward's two ways to run its products (fp32's register
+/// tiles where AVX-512 runs, the lane loops elsewhere) agree, at a full
+/// chunk and a partial one.
+#[test]
+fn hash_sdf_blocked_backward_tiles_are_the_lane_loops() {
+    use super::block::BlockScratch;
+    let sp = HashSdfSpec {
+        layers: 2,
+        width: 16,
+        ..spec(100.0)
+    };
+    let net = HashSdf::new(&sp).unwrap();
+    let params = random_params(&net, 70);
+    let feat = 4 * net.grid().output_dim();
+    for n in [CHUNK, 45] {
+        let pts = random_points(n, 71, 1.1);
+        let mut rng = SplitMix64::new(72);
+        let d_f: Vec<f32> = (0..n).map(|_| rng.next_f32() - 0.5).collect();
+        let d_g: Vec<f32> = (0..3 * n).map(|_| rng.next_f32() - 0.5).collect();
+        let run = |tiles: bool| {
+            let mut s = BlockScratch::default();
+            s.fit::<3>(&net);
+            let (mut f, mut g) = (vec![0.0; n], vec![[0.0; 3]; n]);
+            net.forward_block::<3>(&params, &pts, 4, &mut s.forward, &mut f, &mut g);
+            let mut d_mlp = vec![0.0; net.param_count() - net.table_params()];
+            let mut d_feat = vec![0.0; n * feat];
+            let BlockScratch {
+                forward,
+                adjoint,
+                transposed,
+            } = &mut s;
+            net.backward_block(
+                &params,
+                forward,
+                &d_f,
+                &d_g,
+                adjoint,
+                transposed,
+                &mut d_mlp,
+                &mut d_feat,
+                tiles,
+            );
+            (d_mlp, d_feat)
+        };
+        let (lanes_mlp, lanes_feat) = run(false);
+        let (tiles_mlp, tiles_feat) = run(crate::neural::fp32::available());
+        let close = |a: &[f32], b: &[f32]| {
+            let scale = a.iter().fold(0f32, |m, v| m.max(v.abs()));
+            assert!(scale > 0.01);
+            for (x, y) in a.iter().zip(b) {
+                assert!((x - y).abs() <= 1e-5 * scale, "{x} vs {y}");
+            }
+        };
+        close(&lanes_mlp, &tiles_mlp);
+        close(&lanes_feat, &tiles_feat);
     }
 }

@@ -11,13 +11,21 @@
 //! per level in point order. The sums' order never depends on the thread
 //! count, so the gradient is bit-identical at any.
 //!
+//! The exact form runs a chunk at a time through the blocked kernels
+//! (`block.rs`: each layer's sums across the chunk's points in vector
+//! lanes), its scratch one per thread; the differences' form a point at a
+//! time.
+//!
 //! `∇f` is exact ([`Eikonal::Exact`]: forward-mode tangents, the backward
 //! second order) or by central differences ([`Eikonal::FiniteDifference`]:
 //! seven values a point, the backward exact for that expression); either
 //! way it is the `∇f` the colour network sees as the normal.
 
+use std::sync::Mutex;
+
 use rayon::prelude::*;
 
+use super::block::{grads_backward_block, value_grads_block, BlockScratch};
 use super::{Eikonal, HashSdf, CHUNK, FD_PROBES};
 use crate::neural::hashgrid::Touched;
 
@@ -52,6 +60,17 @@ pub struct VolumeWork {
     d_feat: Vec<f32>,
     /// Table rows the last backward wrote (the trainer's Adam is dense).
     touched: Option<Touched>,
+    /// The exact form's chunk scratch, one a worker thread (and one for a
+    /// caller outside the pool); each lock is only ever taken by the task
+    /// running on its thread, so it never waits.
+    blocks: Vec<Mutex<BlockScratch>>,
+}
+
+/// Runs `f` on the calling thread's blocked scratch.
+fn with_block<R>(blocks: &[Mutex<BlockScratch>], f: impl FnOnce(&mut BlockScratch) -> R) -> R {
+    let i = rayon::current_thread_index().map_or(blocks.len() - 1, |i| i % blocks.len());
+    let mut s = blocks[i].lock().unwrap_or_else(|e| e.into_inner());
+    f(&mut s)
 }
 
 /// Probes a point and tangents a probe of `eikonal`'s form.
@@ -69,19 +88,25 @@ impl VolumeWork {
         grow(&mut self.f, rows);
         grow(&mut self.g, 3 * rows);
         let (e, w) = (net.grid.output_dim(), net.width);
-        let buf = if nt == 0 {
-            probes * net.scratch_len::<0>()
-        } else {
-            net.scratch_len::<3>()
-        };
         let nchunks = BLOCK / CHUNK;
         if self.chunks.len() < nchunks {
             self.chunks.resize_with(nchunks, ChunkBuffers::default);
         }
         for c in &mut self.chunks {
-            grow(&mut c.buf, buf);
-            grow(&mut c.adj, 2 * (1 + nt) * e.max(w));
+            if nt == 0 {
+                grow(&mut c.buf, probes * net.scratch_len::<0>());
+                grow(&mut c.adj, 2 * e.max(w));
+            }
             grow(&mut c.d_mlp, net.len - net.table_params());
+        }
+        if nt > 0 {
+            let threads = rayon::current_num_threads() + 1;
+            if self.blocks.len() < threads {
+                self.blocks.resize_with(threads, Default::default);
+            }
+            for b in &mut self.blocks {
+                b.get_mut().unwrap_or_else(|e| e.into_inner()).fit::<3>(net);
+            }
         }
         if self.probes.len() < BLOCK * probes {
             self.probes.resize(BLOCK * probes, [0.0; 3]);
@@ -104,7 +129,8 @@ impl VolumeWork {
     }
 
     /// Bytes held for `rows` points with `eikonal`'s form of `∇f`, at
-    /// most (the blocks' buffers do not grow with `rows`).
+    /// most (the blocks' buffers do not grow with `rows`), with the thread
+    /// pool this is called from.
     pub fn bytes_for(net: &HashSdf, rows: usize, eikonal: Eikonal) -> u64 {
         let (probes, nt) = (form(eikonal).0 as u64, form(eikonal).1 as u64);
         let (e, w) = (net.grid.output_dim() as u64, net.width as u64);
@@ -114,7 +140,12 @@ impl VolumeWork {
                 + (net.len - net.table_params()) as u64);
         let block = BLOCK as u64 * probes * 4 * (3 + (1 + nt) * e);
         let touched = net.grid.param_count() as u64 / 8;
-        16 * rows as u64 + (BLOCK / CHUNK) as u64 * per_chunk + block + touched
+        let scratch = if nt > 0 {
+            (rayon::current_num_threads() as u64 + 1) * BlockScratch::bytes::<3>(net)
+        } else {
+            0
+        };
+        16 * rows as u64 + (BLOCK / CHUNK) as u64 * per_chunk + block + touched + scratch
     }
 }
 
@@ -156,7 +187,26 @@ impl HashSdf {
     ) {
         self.check_params(params);
         work.resize(self, points.len(), eikonal);
-        let VolumeWork { f, g, chunks, .. } = work;
+        let VolumeWork {
+            f,
+            g,
+            chunks,
+            blocks,
+            ..
+        } = work;
+        let Eikonal::FiniteDifference { step } = eikonal else {
+            f[..points.len()]
+                .par_chunks_mut(CHUNK)
+                .zip(g[..3 * points.len()].par_chunks_mut(3 * CHUNK))
+                .zip(points.par_chunks(CHUNK))
+                .for_each(|((f, g), pts)| {
+                    with_block(blocks, |s| {
+                        let g = g.as_chunks_mut::<3>().0;
+                        value_grads_block(self, params, pts, active, &mut s.forward, f, g)
+                    })
+                });
+            return;
+        };
         for ((f, g), pts) in f[..points.len()]
             .chunks_mut(BLOCK)
             .zip(g[..3 * points.len()].chunks_mut(3 * BLOCK))
@@ -168,7 +218,7 @@ impl HashSdf {
                 .zip(chunks.par_iter_mut())
                 .for_each(|(((f, g), pts), cw)| {
                     for ((f, g), &p) in f.iter_mut().zip(g.chunks_exact_mut(3)).zip(pts) {
-                        let (v, grad) = self.point_forward(params, p, eikonal, active, cw);
+                        let (v, grad) = self.fd_point_forward(params, p, step, active, cw);
                         *f = v;
                         g.copy_from_slice(&grad);
                     }
@@ -176,38 +226,33 @@ impl HashSdf {
         }
     }
 
-    /// One point's `f` and `∇f`; leaves its forward (or its probes') in
-    /// `cw.buf` for the backward.
+    /// One point's `f` and `∇f` by central differences of `step`; leaves
+    /// its probes' forwards in `cw.buf` for the backward.
     #[inline(always)]
-    fn point_forward(
+    fn fd_point_forward(
         &self,
         params: &[f32],
         p: [f32; 3],
-        eikonal: Eikonal,
+        step: f32,
         active: usize,
         cw: &mut ChunkBuffers,
     ) -> (f32, [f32; 3]) {
-        match eikonal {
-            Eikonal::Exact => self.value_grad(params, p, active, &mut cw.buf),
-            Eikonal::FiniteDifference { step } => {
-                let mut at = [[0f32; 3]; FD_PROBES];
-                fd_probes(p, step, &mut at);
-                let len = self.scratch_len::<0>();
-                let mut fv = [0f32; FD_PROBES];
-                for (k, &q) in at.iter().enumerate() {
-                    fv[k] = self.value(params, q, active, &mut cw.buf[k * len..][..len]);
-                }
-                let g = std::array::from_fn(|a| {
-                    let s = span(&at, a);
-                    if s > 0.0 {
-                        (fv[2 * a + 1] - fv[2 * a + 2]) / s
-                    } else {
-                        0.0
-                    }
-                });
-                (fv[0], g)
-            }
+        let mut at = [[0f32; 3]; FD_PROBES];
+        fd_probes(p, step, &mut at);
+        let len = self.scratch_len::<0>();
+        let mut fv = [0f32; FD_PROBES];
+        for (k, &q) in at.iter().enumerate() {
+            fv[k] = self.value(params, q, active, &mut cw.buf[k * len..][..len]);
         }
+        let g = std::array::from_fn(|a| {
+            let s = span(&at, a);
+            if s > 0.0 {
+                (fv[2 * a + 1] - fv[2 * a + 2]) / s
+            } else {
+                0.0
+            }
+        });
+        (fv[0], g)
     }
 
     /// *Adds* `∂L/∂params` to `grad` given `∂L/∂f` (`d_f`, one a point)
@@ -239,6 +284,7 @@ impl HashSdf {
             probes: at,
             d_feat,
             touched,
+            blocks,
             ..
         } = work;
         let touched = touched.as_mut().expect("sized by resize");
@@ -257,17 +303,29 @@ impl HashSdf {
                 .enumerate()
                 .for_each(|(ci, ((cw, at), d_feat))| {
                     cw.d_mlp[..mlp].fill(0.0);
-                    let from = ci * CHUNK;
-                    for (j, &p) in pts[from..(from + CHUNK).min(n)].iter().enumerate() {
+                    let (from, to) = (ci * CHUNK, (ci * CHUNK + CHUNK).min(n));
+                    let Eikonal::FiniteDifference { step } = eikonal else {
+                        at.copy_from_slice(&pts[from..to]);
+                        with_block(blocks, |s| {
+                            let (mut f, mut g) = ([0f32; CHUNK], [[0f32; 3]; CHUNK]);
+                            let m = to - from;
+                            let (pts, f, g) = (&pts[from..to], &mut f[..m], &mut g[..m]);
+                            value_grads_block(self, params, pts, active, &mut s.forward, f, g);
+                            let (d_f, d_g) = (&d_f[from..to], &d_g[3 * from..3 * to]);
+                            grads_backward_block(self, params, s, d_f, d_g, &mut cw.d_mlp, d_feat);
+                        });
+                        return;
+                    };
+                    for (j, &p) in pts[from..to].iter().enumerate() {
                         let (df, dg) = (d_f[from + j], &d_g[3 * (from + j)..][..3]);
                         let at = &mut at[j * probes..][..probes];
                         let d_feat = &mut d_feat[j * probes * feat..][..probes * feat];
-                        self.point_backward(
+                        self.fd_point_backward(
                             params,
                             p,
                             df,
                             [dg[0], dg[1], dg[2]],
-                            eikonal,
+                            step,
                             active,
                             cw,
                             at,
@@ -288,18 +346,19 @@ impl HashSdf {
         }
     }
 
-    /// One point's reverse pass: its forward recomputed, then the MLP's
-    /// gradient into `cw.d_mlp` and each probe's position and feature
-    /// adjoints into `at` and `d_feat` (the tables' share, summed later).
+    /// One point's reverse pass with `∇f` by central differences of
+    /// `step`: its probes' forwards recomputed, then the MLP's gradient
+    /// into `cw.d_mlp` and each probe's position and feature adjoints into
+    /// `at` and `d_feat` (the tables' share, summed later).
     #[allow(clippy::too_many_arguments)]
     #[inline(always)]
-    fn point_backward(
+    fn fd_point_backward(
         &self,
         params: &[f32],
         p: [f32; 3],
         d_f: f32,
         d_g: [f32; 3],
-        eikonal: Eikonal,
+        step: f32,
         active: usize,
         cw: &mut ChunkBuffers,
         at: &mut [[f32; 3]],
@@ -310,51 +369,34 @@ impl HashSdf {
             d_feat.fill(0.0);
             return;
         }
-        self.point_forward(params, p, eikonal, active, cw);
-        match eikonal {
-            Eikonal::Exact => {
-                let t = self.tangent_out::<3>();
-                at[0] = p;
-                self.mlp_backward::<3>(
-                    params,
-                    &cw.buf[..t + 3],
-                    d_f,
-                    d_g,
-                    &mut cw.d_mlp,
-                    &mut cw.adj,
-                    d_feat,
-                );
+        self.fd_point_forward(params, p, step, active, cw);
+        fd_probes(p, step, at);
+        // f is probe 0; ∇f_a = (f(2a+1) − f(2a+2)) / span_a.
+        let mut d = [0f32; FD_PROBES];
+        d[0] = d_f;
+        for a in 0..3 {
+            let s = span(at, a);
+            if s > 0.0 {
+                d[2 * a + 1] = d_g[a] / s;
+                d[2 * a + 2] = -d_g[a] / s;
             }
-            Eikonal::FiniteDifference { step } => {
-                fd_probes(p, step, at);
-                // f is probe 0; ∇f_a = (f(2a+1) − f(2a+2)) / span_a.
-                let mut d = [0f32; FD_PROBES];
-                d[0] = d_f;
-                for a in 0..3 {
-                    let s = span(at, a);
-                    if s > 0.0 {
-                        d[2 * a + 1] = d_g[a] / s;
-                        d[2 * a + 2] = -d_g[a] / s;
-                    }
-                }
-                let (len, feat) = (self.scratch_len::<0>(), self.grid.output_dim());
-                for k in 0..FD_PROBES {
-                    let df = &mut d_feat[k * feat..][..feat];
-                    if d[k] == 0.0 {
-                        df.fill(0.0);
-                        continue;
-                    }
-                    self.mlp_backward::<0>(
-                        params,
-                        &cw.buf[k * len..][..len],
-                        d[k],
-                        [0.0; 3],
-                        &mut cw.d_mlp,
-                        &mut cw.adj,
-                        df,
-                    );
-                }
+        }
+        let (len, feat) = (self.scratch_len::<0>(), self.grid.output_dim());
+        for k in 0..FD_PROBES {
+            let df = &mut d_feat[k * feat..][..feat];
+            if d[k] == 0.0 {
+                df.fill(0.0);
+                continue;
             }
+            self.mlp_backward::<0>(
+                params,
+                &cw.buf[k * len..][..len],
+                d[k],
+                [0.0; 3],
+                &mut cw.d_mlp,
+                &mut cw.adj,
+                df,
+            );
         }
     }
 }
