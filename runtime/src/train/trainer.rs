@@ -698,4 +698,39 @@ mod tests {
         s.views = &all_masked;
         assert!(s.batch(0).is_err());
     }
+
+    /// Each ray's coverage is its own pixel's, where every view knows it;
+    /// none where a view does not.
+    #[test]
+    fn batch_coverage_follows_the_rays() {
+        use glam::DVec3;
+        let cam = Camera::look_at(DVec3::new(0.0, 0.0, -3.0), DVec3::ZERO, DVec3::Y, 1.0);
+        let image = RgbImage {
+            width: 4,
+            height: 4,
+            pixels: vec![[0.5; 3]; 16],
+        };
+        let cover = |k: usize| -> std::sync::Arc<[f32]> {
+            (0..16).map(|i| (i * 7 + k) as f32 / 100.0).collect()
+        };
+        let mut views: Vec<TrainView> = (0..2)
+            .map(|k| TrainView {
+                camera: cam,
+                image: image.clone(),
+                mask: None,
+                coverage: Some(cover(k)),
+            })
+            .collect();
+        let mut s = setup(&[]);
+        s.views = &views;
+        s.rays = 24;
+        let b = s.batch(3).unwrap();
+        assert_eq!(b.coverage.len(), b.rays.len());
+        for (r, c) in b.rays.iter().zip(&b.coverage) {
+            assert_eq!(*c, cover(r.view as usize)[r.pixel as usize]);
+        }
+        views[1].coverage = None;
+        s.views = &views;
+        assert!(s.batch(3).unwrap().coverage.is_empty());
+    }
 }
