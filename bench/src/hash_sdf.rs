@@ -16,6 +16,7 @@
 
 use std::time::Instant;
 
+use crate::stats::{load, median_min};
 use sdfl_runtime::mesh::{surface_nets, DistanceField, Lipschitz, Mesh, MeshGrid};
 use sdfl_runtime::neural::hash_sdf::{
     Eikonal, HashSdf, HashSdfField, HashSdfLoss, HashSdfSpec, HashSdfWork,
@@ -24,17 +25,6 @@ use sdfl_runtime::neural::hashgrid::Adam;
 use sdfl_runtime::neural::hashgrid::HashGridConfig;
 use sdfl_runtime::neural::sdf_net::{SdfLoss, SdfNet, SdfNetSpec, SdfWork};
 use sdfl_runtime::volume::SplitMix64;
-
-fn median_min(mut ms: Vec<f64>) -> (f64, f64) {
-    ms.sort_by(f64::total_cmp);
-    (ms[ms.len() / 2], ms[0])
-}
-
-fn load() -> String {
-    std::fs::read_to_string("/proc/loadavg")
-        .map(|s| s.split_whitespace().take(3).collect::<Vec<_>>().join(" "))
-        .unwrap_or_else(|_| "unknown".into())
-}
 
 /// Prints step times of the three methods, `reps` turns each.
 pub fn main(reps: usize) {

@@ -22,6 +22,7 @@
 use std::hint::black_box;
 use std::time::Instant;
 
+use crate::stats::{load, median_min};
 use sdfl_runtime::neural::hash_sdf::volume::VolumeWork;
 use sdfl_runtime::neural::hash_sdf::Eikonal;
 use sdfl_runtime::neural::mlp::softplus_layer;
@@ -29,17 +30,6 @@ use sdfl_runtime::neural::surface::{SurfaceObjective, SurfaceSdf};
 use sdfl_runtime::train::{Run, TrainSetup};
 use sdfl_runtime::volume::SplitMix64;
 use sdfl_stdlib::value::Field;
-
-fn median_min(mut ms: Vec<f64>) -> (f64, f64) {
-    ms.sort_by(f64::total_cmp);
-    (ms[ms.len() / 2], ms[0])
-}
-
-fn load() -> String {
-    std::fs::read_to_string("/proc/loadavg")
-        .map(|s| s.split_whitespace().take(3).collect::<Vec<_>>().join(" "))
-        .unwrap_or_else(|_| "unknown".into())
-}
 
 /// Milliseconds `f` takes.
 fn ms(f: impl FnOnce()) -> f64 {

@@ -32,6 +32,7 @@ mod hash_sdf;
 mod hash_surface;
 mod nerf;
 mod peer;
+mod stats;
 mod surface;
 mod train;
 mod user;

@@ -12,6 +12,7 @@
 
 use std::time::Instant;
 
+use crate::stats::median_min;
 use sdfl_runtime::neural::field::NerfObjective;
 use sdfl_runtime::neural::mlp::{Activation, Dense};
 use sdfl_runtime::train::{Run, TrainSetup};
@@ -27,11 +28,6 @@ train nerf_step {
   sampler: sampler, rays: 1024, optimizer: adam(lr: 5e-4),
 }
 "#;
-
-fn median_min(mut ms: Vec<f64>) -> (f64, f64) {
-    ms.sort_by(f64::total_cmp);
-    (ms[ms.len() / 2], ms[0])
-}
 
 /// Times `f` for fp32 and bf16 alternately (`reps` each, after one warm-up
 /// call), so that load from other work falls on both alike: the medians

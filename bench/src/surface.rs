@@ -20,23 +20,13 @@ use std::path::Path;
 use std::process::Command;
 use std::time::Instant;
 
+use crate::stats::{load, median_min};
 use sdfl_runtime::neural::surface::SurfaceObjective;
 use sdfl_runtime::train::{Run, TrainSetup, TrainView};
 use sdfl_stdlib::value::{Field, TrainJob};
 
 /// The peer script, beside this crate.
 const SCRIPT: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/pytorch/neus_bench.py");
-
-fn median_min(mut ms: Vec<f64>) -> (f64, f64) {
-    ms.sort_by(f64::total_cmp);
-    (ms[ms.len() / 2], ms[0])
-}
-
-fn load() -> String {
-    std::fs::read_to_string("/proc/loadavg")
-        .map(|s| s.split_whitespace().take(3).collect::<Vec<_>>().join(" "))
-        .unwrap_or_else(|_| "unknown".into())
-}
 
 /// The interpreter (`SDFL_PYTHON`, else `python3`) when it imports torch:
 /// its version, or why the peer is skipped.
