@@ -137,6 +137,7 @@ fn batch(eye: [f64; 3], last: LastInterval) -> Batch {
     Batch {
         rays,
         targets: (0..n).map(|k| [0.5, 0.3 + 0.01 * k as f32, 0.2]).collect(),
+        coverage: Vec::new(),
         depths: Stratified::new(48, 0.0, 6.0).unwrap().depths(),
         samples: 48,
         shared: true,

@@ -517,6 +517,7 @@ fn batch(eye: DVec3, targets: Option<Vec<[f32; 3]>>) -> Batch {
         rays,
         targets: targets
             .unwrap_or_else(|| (0..n).map(|k| [0.5, 0.3 + 0.01 * k as f32, 0.2]).collect()),
+        coverage: Vec::new(),
         depths: Stratified::new(48, 0.0, 6.0).unwrap().depths(),
         samples: 48,
         shared: true,
