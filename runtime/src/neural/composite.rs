@@ -113,17 +113,20 @@ pub fn squared_error_backward_bg(
     loss
 }
 
-/// Opacities are kept this far from 0 and 1 in [`silhouette_backward`], so
-/// that a ray that sees nothing (or is opaque) where the pixel says
-/// otherwise costs at most `-ln 1e-6 ≈ 14` and its gradient stays finite.
-const OPACITY_CLAMP: f32 = 1e-6;
+/// A covered pixel's opacity is taken as at least this in
+/// [`silhouette_backward`], so that a ray that sees nothing there costs at
+/// most `-ln 1e-6 ≈ 14` and its gradient stays finite.
+const OPACITY_FLOOR: f32 = 1e-6;
 
 /// One ray's binary cross-entropy of its opacity `O = 1 − T_n` against the
-/// pixel's coverage `a`, times `scale` (NeuS's mask loss): adds `∂L/∂σ_k =
-/// scale·∂BCE/∂O·δ_k·T_n` into `d_sigma`. Unlike the colour error, its
-/// gradient does not fade with the contrast between the object and the
-/// background, nor (through `1/O`) where the ray barely grazes the
-/// surface. Where the clamp binds the gradient is 0, as the clamp's.
+/// pixel's coverage `a`, times `scale` (NeuS's mask loss), written as
+/// `(1 − a)·τ − a·ln O` with `τ = Σ σ_k·δ_k` (`−ln(1 − O) = τ` exactly), and
+/// adds `∂L/∂σ_k = scale·δ_k·((1 − a) − a·T_n/O)` into `d_sigma`. Unlike the
+/// colour error, its gradient does not fade with the contrast between the
+/// object and the background: an uncovered pixel pushes its ray's density
+/// down however opaque the ray is, and a covered one pulls it up through
+/// `1/O` however faint the ray is, until `O` falls below
+/// [`OPACITY_FLOOR`], where that half's gradient is 0, as the floor's.
 pub fn silhouette_backward(
     sigma: &[f32],
     delta: &[f32],
@@ -136,15 +139,18 @@ pub fn silhouette_backward(
     let tau: f64 = sigma.iter().zip(delta).map(|(s, d)| (s * d) as f64).sum();
     let t_n = (-tau).exp();
     let opacity = -(-tau).exp_m1();
-    let clamp = OPACITY_CLAMP as f64;
-    let o = opacity.clamp(clamp, 1.0 - clamp);
+    let floor = OPACITY_FLOOR as f64;
     let (a, scale) = (coverage as f64, scale as f64);
-    let loss = -(a * o.ln() + (1.0 - a) * (1.0 - o).ln()) * scale;
-    if o == opacity {
-        let g_o = (-a / o + (1.0 - a) / (1.0 - o)) * scale;
-        for (ds, &d) in d_sigma.iter_mut().zip(delta) {
-            *ds += (g_o * d as f64 * t_n) as f32;
-        }
+    let loss = ((1.0 - a) * tau - a * opacity.max(floor).ln()) * scale;
+    // ∂L/∂τ: the uncovered part's 1 − a, the covered part's −a·T/O.
+    let covered = if opacity > floor {
+        a * t_n / opacity
+    } else {
+        0.0
+    };
+    let g_tau = ((1.0 - a) - covered) * scale;
+    for (ds, &d) in d_sigma.iter_mut().zip(delta) {
+        *ds += (g_tau * d as f64) as f32;
     }
     loss
 }
@@ -307,21 +313,29 @@ mod tests {
 
     #[test]
     fn silhouette_hard_cases_are_finite() {
-        // Nothing on a covered pixel, an opaque ray on an uncovered one,
-        // huge and zero densities, an infinite last interval, no samples.
+        // Nothing on a covered pixel, opaque rays on covered and uncovered
+        // ones, huge and zero densities, no samples.
         for (sigma, delta, a) in [
             (vec![0.0f32; 4], vec![0.5f32; 4], 1.0f32),
-            (vec![1e30, 1e30], vec![1.0, 1e10], 0.0),
-            (vec![1e-30, 3.0], vec![0.0, 1e10], 1.0),
+            (vec![1e30, 1e30], vec![1.0, 1.0], 1.0),
+            (vec![1e30, 1e30], vec![1.0, 1.0], 0.0),
+            (vec![1e-30, 3.0], vec![0.0, 1.0], 1.0),
             (vec![], vec![], 1.0),
         ] {
             let mut ds = vec![0.0; sigma.len()];
             let loss = silhouette_backward(&sigma, &delta, a, 1.0, &mut ds);
             assert!(loss.is_finite() && loss >= 0.0, "{loss}");
-            // The clamp bounds the cost of a ray that sees nothing.
-            assert!(loss <= -(OPACITY_CLAMP as f64).ln() + 1e-3, "{loss}");
+            if a == 1.0 {
+                // The floor bounds the cost of a ray that sees nothing.
+                assert!(loss <= -(OPACITY_FLOOR as f64).ln() + 1e-3, "{loss}");
+            }
             assert!(ds.iter().all(|x| x.is_finite()), "{ds:?}");
         }
+        // An uncovered pixel pushes an opaque ray's density down at full
+        // strength: the gradient does not saturate with the opacity.
+        let mut ds = vec![0.0; 2];
+        silhouette_backward(&[40.0, 40.0], &[1.0, 1.0], 0.0, 1.0, &mut ds);
+        assert_eq!(ds, [1.0, 1.0]);
     }
 
     #[test]

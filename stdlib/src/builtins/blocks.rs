@@ -591,6 +591,18 @@ fn train_losses(
             },
         ));
     }
+    // Absorption past `far` is not geometry: an infinite last interval would
+    // make every background ray opaque to the silhouette term.
+    if losses.iter().any(|l| l.kind == LossKind::Silhouette)
+        && matches!(a.get("sampler").0, Value::Sampler(s) if s.last_interval == LastInterval::Infinite)
+    {
+        return Err(value_error(
+            a.get("sampler").1,
+            "`silhouette()` counts what a ray absorbs as the object covering its pixel, and an infinite last interval absorbs beyond `far` on every ray",
+            "last_interval: \"infinite\"",
+            "leave `last_interval` at \"zero\" (the default), or leave `silhouette()` out",
+        ));
+    }
     // Only a shape's own views know how much of each pixel it covers.
     if losses.iter().any(|l| l.kind == LossKind::Silhouette)
         && !matches!(data, Dataset::Traced { .. })
