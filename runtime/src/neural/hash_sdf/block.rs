@@ -23,7 +23,7 @@ use crate::neural::mlp::softplus_layer;
 /// Lanes of a partial sum across points (four AVX-512 registers).
 const LANES: usize = 64;
 // A chunk is whole lane groups: the last group's `[..LANES]` must fit.
-const _: () = assert!(CHUNK % LANES == 0);
+const _: () = assert!(CHUNK.is_multiple_of(LANES));
 
 /// One chunk's forward (features, each layer's values, tangents and
 /// slopes, the output's value and tangents) and the backward's two adjoint
