@@ -677,58 +677,12 @@ impl HashSdf {
                             (*of, *og) = (f, g);
                         }
                         Eikonal::FiniteDifference { step } => {
-                            at[0] = p;
-                            for a in 0..3 {
-                                for (s, sign) in [(1, step), (2, -step)] {
-                                    let mut q = p;
-                                    q[a] += sign;
-                                    at[2 * a + s] = q;
-                                }
-                            }
-                            let len = self.scratch_len::<0>();
-                            let mut fv = [0f32; FD_PROBES];
-                            for (k, &q) in at.iter().enumerate() {
-                                let buf = &mut cw.buf[k * len..][..len];
-                                fv[k] = self.value(params, q, active, buf);
-                            }
-                            // The realised step, so the expression is exact in f32.
-                            let g: [f32; 3] = std::array::from_fn(|a| {
-                                let span = at[2 * a + 1][a] - at[2 * a + 2][a];
-                                if span > 0.0 {
-                                    (fv[2 * a + 1] - fv[2 * a + 2]) / span
-                                } else {
-                                    0.0
-                                }
-                            });
-                            let (l, df, dg) = point_loss(fv[0], g, role(i), k_s, k_e, inter);
+                            let (f, g) = self.fd_point_forward(params, p, step, active, cw);
+                            volume::fd_probes(p, step, at);
+                            let (l, df, dg) = point_loss(f, g, role(i), k_s, k_e, inter);
                             loss += l;
-                            let mut d = [0f32; FD_PROBES];
-                            d[0] = df;
-                            for a in 0..3 {
-                                let span = at[2 * a + 1][a] - at[2 * a + 2][a];
-                                if span > 0.0 {
-                                    d[2 * a + 1] = dg[a] / span;
-                                    d[2 * a + 2] = -dg[a] / span;
-                                }
-                            }
-                            for k in 0..FD_PROBES {
-                                let buf = &cw.buf[k * len..][..len];
-                                let df = &mut d_feat[k * feat..][..feat];
-                                if d[k] == 0.0 {
-                                    df.fill(0.0);
-                                    continue;
-                                }
-                                self.mlp_backward::<0>(
-                                    params,
-                                    buf,
-                                    d[k],
-                                    [0.0; 3],
-                                    &mut cw.d_mlp,
-                                    &mut cw.adj,
-                                    df,
-                                );
-                            }
-                            (*of, *og) = (fv[0], g);
+                            self.fd_probes_backward(params, at, df, dg, cw, d_feat);
+                            (*of, *og) = (f, g);
                         }
                     }
                 }
@@ -953,7 +907,7 @@ impl Scratch {
     }
 }
 
-/// One chunk's buffers.
+/// One chunk's buffers (the volume passes leave `loss` unused).
 #[derive(Debug, Default)]
 struct ChunkWork {
     /// The forward scratch of one point (or its seven probes).

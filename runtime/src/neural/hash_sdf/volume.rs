@@ -26,23 +26,12 @@ use std::sync::Mutex;
 use rayon::prelude::*;
 
 use super::block::{grads_backward_block, value_grads_block, BlockScratch};
-use super::{Eikonal, HashSdf, CHUNK, FD_PROBES};
+use super::{grow, ChunkWork, Eikonal, HashSdf, CHUNK, FD_PROBES};
 use crate::neural::hashgrid::Touched;
 
 /// Points whose feature adjoints the backward holds at once: the memory
 /// bound (64 chunks keep two cores, or sixteen, busy).
 pub const BLOCK: usize = 64 * CHUNK;
-
-/// One chunk's buffers.
-#[derive(Debug, Default)]
-struct ChunkBuffers {
-    /// One point's forward scratch (or its seven probes').
-    buf: Vec<f32>,
-    /// Two adjoint buffers of the MLP's backward.
-    adj: Vec<f32>,
-    /// This chunk's share of the MLP's gradient.
-    d_mlp: Vec<f32>,
-}
 
 /// Buffers of [`HashSdf::volume_forward`] and [`HashSdf::volume_backward`],
 /// grown to the largest batch seen (no allocation once grown).
@@ -53,7 +42,7 @@ pub struct VolumeWork {
     f: Vec<f32>,
     /// `∇f` per point, flat (rows × 3).
     g: Vec<f32>,
-    chunks: Vec<ChunkBuffers>,
+    chunks: Vec<ChunkWork>,
     /// Where each probe of a block was evaluated.
     probes: Vec<[f32; 3]>,
     /// Each probe's feature adjoints in a block, `(1 + tangents) × E`.
@@ -90,7 +79,7 @@ impl VolumeWork {
         let (e, w) = (net.grid.output_dim(), net.width);
         let nchunks = BLOCK / CHUNK;
         if self.chunks.len() < nchunks {
-            self.chunks.resize_with(nchunks, ChunkBuffers::default);
+            self.chunks.resize_with(nchunks, ChunkWork::default);
         }
         for c in &mut self.chunks {
             if nt == 0 {
@@ -154,15 +143,9 @@ impl VolumeWork {
     }
 }
 
-fn grow(v: &mut Vec<f32>, n: usize) {
-    if v.len() < n {
-        v.resize(n, 0.0);
-    }
-}
-
 /// The six probes about `p` (±step on each axis, `2a + 1` then `2a + 2`)
 /// after `p` itself.
-fn fd_probes(p: [f32; 3], step: f32, at: &mut [[f32; 3]]) {
+pub(super) fn fd_probes(p: [f32; 3], step: f32, at: &mut [[f32; 3]]) {
     at[0] = p;
     for a in 0..3 {
         for (s, sign) in [(1, step), (2, -step)] {
@@ -234,13 +217,13 @@ impl HashSdf {
     /// One point's `f` and `∇f` by central differences of `step`; leaves
     /// its probes' forwards in `cw.buf` for the backward.
     #[inline(always)]
-    fn fd_point_forward(
+    pub(super) fn fd_point_forward(
         &self,
         params: &[f32],
         p: [f32; 3],
         step: f32,
         active: usize,
-        cw: &mut ChunkBuffers,
+        cw: &mut ChunkWork,
     ) -> (f32, [f32; 3]) {
         let mut at = [[0f32; 3]; FD_PROBES];
         fd_probes(p, step, &mut at);
@@ -365,7 +348,7 @@ impl HashSdf {
         d_g: [f32; 3],
         step: f32,
         active: usize,
-        cw: &mut ChunkBuffers,
+        cw: &mut ChunkWork,
         at: &mut [[f32; 3]],
         d_feat: &mut [f32],
     ) {
@@ -376,6 +359,23 @@ impl HashSdf {
         }
         self.fd_point_forward(params, p, step, active, cw);
         fd_probes(p, step, at);
+        self.fd_probes_backward(params, at, d_f, d_g, cw, d_feat);
+    }
+
+    /// The reverse pass of one point's central differences, its probes'
+    /// forwards in `cw.buf` and their positions in `at`: the MLP's
+    /// gradient into `cw.d_mlp` and each probe's feature adjoints into
+    /// `d_feat`.
+    #[inline(always)]
+    pub(super) fn fd_probes_backward(
+        &self,
+        params: &[f32],
+        at: &[[f32; 3]],
+        d_f: f32,
+        d_g: [f32; 3],
+        cw: &mut ChunkWork,
+        d_feat: &mut [f32],
+    ) {
         // f is probe 0; ∇f_a = (f(2a+1) − f(2a+2)) / span_a.
         let mut d = [0f32; FD_PROBES];
         d[0] = d_f;
