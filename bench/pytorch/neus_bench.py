@@ -40,9 +40,12 @@ otherwise (the work is the same).
     python bench/pytorch/neus_bench.py --check DIR/neus.txt     # same step as sdfl?
     python bench/pytorch/neus_bench.py --check DIR/volsdf.txt --volsdf
 
+    python bench/pytorch/neus_bench.py --views DIR/views.txt --data DATA   # same pixels?
+
 (`cargo run --release -p sdfl-bench -- surface check DIR` writes DIR/*.txt;
 where a file also holds `coverage` and `silhouette` lines, the check
-includes the silhouette term.)
+includes the silhouette term, and `views.txt`, where it is written, holds
+every training pixel of the examples' views.)
 
 Prints one Markdown row: implementation, model, threads, median and
 minimum step ms.
@@ -333,6 +336,25 @@ def check(path, volsdf):
         print(f"| {name} | {scale:.3e} | {err / scale if scale > 0 else err:.1e} |")
 
 
+def check_views(path, data):
+    """Compares every training pixel sdfl trains on (`views.txt`: per ray its
+    view among the training views, pixel, origin, direction, target colour
+    and coverage) with the data set's: the same rays, colours and alpha.
+    Prints the largest differences; the views are the same when the rays
+    agree to float rounding and colours and coverage exactly."""
+    from nerf_train import load_split, rays_of
+
+    rows = np.loadtxt(path)
+    img, pose, focal, alpha = load_split(data, "train", with_alpha=True)
+    n, h, w, _ = img.shape
+    o, d = rays_of(pose, h, w, focal)
+    at = rows[:, 0].astype(np.int64) * h * w + rows[:, 1].astype(np.int64)
+    print(f"{len(rows)} rays from sdfl over {n} training views of {w}x{h} ({n * h * w} pixels, {len(np.unique(at))} distinct)")
+    print(f"largest difference: origin {np.abs(rows[:, 2:5] - o[at]).max():.1e}, direction {np.abs(rows[:, 5:8] - d[at]).max():.1e}, "
+          f"colour {np.abs(rows[:, 8:11] - img.reshape(-1, 3)[at]).max():.1e}, coverage {np.abs(rows[:, 11] - alpha.reshape(-1)[at]).max():.1e}")
+    print(f"covered pixels: sdfl {int(rows[:, 11].sum())}, data set {int(alpha.sum())}")
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("reps", nargs="?", type=int, default=10)
@@ -344,7 +366,10 @@ def main():
         "--silhouette", type=float, default=0.0,
         help="weight of the silhouette term (needs --data; 0, as examples/neus.sdfl, which `sdfl-bench surface` times)",
     )
+    ap.add_argument("--views", default=None, help="with --data: compare sdfl's training pixels (views.txt) with the data set")
     args = ap.parse_args()
+    if args.views:
+        return check_views(args.views, args.data)
     if args.check:
         return check(args.check, args.volsdf)
     if args.silhouette > 0 and not args.data:
