@@ -22,7 +22,7 @@ bounds; 50 000 samples of each mesh against 1 000 000 of the other
 
     sdfl run bench/pytorch/neus_data.sdfl --out /tmp/neus
     python bench/pytorch/neus_train.py /tmp/neus/neus_data [--threads 2]
-        [--minutes 10] [--eval 60] [--target 0.019] [--volsdf]
+        [--minutes 10] [--eval 60 | --marks 15,30,60,...] [--target 0.019] [--volsdf]
         [--silhouette 0.1] [--no-psnr]
 
 bench/pytorch/time_to_chamfer.py runs it against sdfl's fast path.
@@ -30,6 +30,7 @@ bench/pytorch/time_to_chamfer.py runs it against sdfl's fast path.
 Needs numpy, torch, scipy and scikit-image.
 """
 import argparse
+import itertools
 import math
 import time
 
@@ -128,7 +129,11 @@ def main():
     ap.add_argument("data")
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--minutes", type=float, default=10.0)
-    ap.add_argument("--eval", type=float, default=60.0)
+    ap.add_argument("--eval", type=float, default=60.0, help="seconds of training between evaluations")
+    ap.add_argument(
+        "--marks", default=None,
+        help="training seconds to evaluate at, comma-separated, instead of --eval (the run ends at the last)",
+    )
     ap.add_argument("--target", type=float, default=0.0)
     ap.add_argument("--volsdf", action="store_true")
     ap.add_argument(
@@ -172,15 +177,23 @@ def main():
     print("| training seconds | steps | Chamfer to the true surface | held-out PSNR (dB) |")
     print("|---:|---:|---:|---:|")
     report(0.0)
-    trained, next_eval = 0.0, args.eval
+    limit = args.minutes * 60
+    if args.marks:
+        marks = iter(sorted(float(m) for m in args.marks.split(",")))
+        limit = min(limit, max(float(m) for m in args.marks.split(",")))
+    else:
+        marks = (args.eval * k for k in itertools.count(1))
+    trained, next_eval = 0.0, next(marks)
     while True:
         t0 = time.perf_counter()
         trainer.step()
         trained += time.perf_counter() - t0
-        if trained >= next_eval or trained >= args.minutes * 60:
+        if trained >= next_eval or trained >= limit:
             c = report(trained)
-            next_eval += args.eval
-            if c <= args.target or trained >= args.minutes * 60:
+            # The next mark not yet passed (a step may outlast several).
+            while trained >= next_eval:
+                next_eval = next(marks, math.inf)
+            if c <= args.target or trained >= limit:
                 break
 
 

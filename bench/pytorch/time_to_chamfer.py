@@ -15,7 +15,8 @@ issue 25's "sdfl's fast path >= 10x shorter to the same Chamfer".
 3. PyTorch: bench/pytorch/neus_train.py on the data set with the same
    silhouette term (weight 0.1), `torch.set_num_threads(T)`, the Chamfer
    distance (computed as sdfl's `mesh_fit`) every `--eval` seconds of
-   training, evaluation excluded, until `--torch-seconds` of training.
+   training (or at `--marks`), evaluation excluded, until `--torch-seconds`
+   of training.
 4. The ratio: PyTorch's first training time at or below sdfl's Chamfer
    over sdfl's training time, for each sdfl row; the headline is sdfl's
    last row. If PyTorch never gets there: its best Chamfer, the time sdfl
@@ -26,7 +27,7 @@ results.md, results.json) and the text results into
 DIR/time_to_chamfer.tar.gz for a remote run.
 
     python3 bench/pytorch/time_to_chamfer.py --out /tmp/ttc [--sdfl target/release/sdfl]
-        [--torch-seconds 1200] [--eval 30] [--steps 200,400,800] [--threads 1]
+        [--torch-seconds 1200] [--eval 30 | --marks 15,30,60,...] [--steps 200,400,800] [--threads 1]
         [--volsdf] [--stop-when-reached] [--psnr]
 
 Without `--sdfl` it builds the binary with `cargo build --release --bin
@@ -177,9 +178,9 @@ def torch_rows(python, data, args, target, out):
         python, os.path.join(HERE, "neus_train.py"), data,
         "--threads", str(args.threads),
         "--minutes", str(args.torch_seconds / 60.0),
-        "--eval", str(args.eval),
         "--silhouette", str(args.silhouette),
     ]
+    cmd += ["--marks", args.marks] if args.marks else ["--eval", str(args.eval)]
     if args.volsdf:
         cmd.append("--volsdf")
     if not args.psnr:
@@ -210,7 +211,9 @@ def first_at_or_below(rows, chamfer):
 
 def comparison(sdfl, torch_rows, limit):
     """Per sdfl row, PyTorch's first time at or below its Chamfer and the
-    ratio; and the headline for sdfl's last row."""
+    ratio; and the headline for sdfl's last row. PyTorch's untrained start
+    (the initial sphere) does not count."""
+    torch_rows = [r for r in torch_rows if r["steps"] > 0]
     per_row = []
     for s in sdfl:
         p = first_at_or_below(torch_rows, s["chamfer"])
@@ -249,6 +252,7 @@ def report(args, env, sdfl, torch_rows, per_row, head):
     model = "VolSDF" if args.volsdf else "NeuS"
     example = "volsdf_fast.sdfl" if args.volsdf else "neus_fast.sdfl"
     t = env["torch"]
+    marks = f"at {args.marks} s of training" if args.marks else f"every {args.eval:g} s of training"
     lines = [
         f"## Time to Chamfer: sdfl `{example}` vs PyTorch {model} ({env['date']})",
         "",
@@ -258,15 +262,19 @@ def report(args, env, sdfl, torch_rows, per_row, head):
         f"- PyTorch {t['torch']} (numpy, scipy, scikit-image {t['numpy_scipy_skimage']}; Python {t['python']}),"
         f" `torch.set_num_threads({args.threads})` (it reports {t['torch_threads']}), silhouette weight"
         f" {args.silhouette}, the textbook {model} MLP (4 × 64, 1024 rays × 48 samples, Adam 5e-4),"
-        f" Chamfer every {args.eval:g} s of training (evaluation excluded), up to {args.torch_seconds:g} s.",
+        f" Chamfer {marks} (evaluation excluded), up to {args.torch_seconds:g} s.",
         "",
-        "| side | steps | training s | Chamfer to the truth |",
-        "|---|---:|---:|---:|",
+        "| side | steps | training s | Chamfer to the truth | held-out PSNR (dB) |",
+        "|---|---:|---:|---:|---:|",
     ]
     for s in sdfl:
-        lines.append(f"| sdfl | {s['steps']} | {s['train_seconds']:.1f} | {s['chamfer']:.4f} |")
+        lines.append(
+            f"| sdfl | {s['steps']} | {s['train_seconds']:.1f} | {s['chamfer']:.4f} | {fmt(s['held_out_psnr'], '.2f')} |"
+        )
     for r in torch_rows:
-        lines.append(f"| PyTorch | {r['steps']} | {r['train_seconds']:.1f} | {r['chamfer']:.4f} |")
+        lines.append(
+            f"| PyTorch | {r['steps']} | {r['train_seconds']:.1f} | {r['chamfer']:.4f} | {fmt(r['held_out_psnr'], '.2f')} |"
+        )
     lines += [
         "",
         "| sdfl steps | sdfl s | Chamfer | PyTorch first at or below (s) | stays below from (s) | PyTorch / sdfl |",
@@ -306,6 +314,7 @@ def main():
     ap.add_argument("--python", default=sys.executable, help="the interpreter with torch (default: this one)")
     ap.add_argument("--torch-seconds", type=float, default=1200.0, help="PyTorch's training-time limit")
     ap.add_argument("--eval", type=float, default=30.0, help="seconds of PyTorch training between Chamfer evaluations")
+    ap.add_argument("--marks", default=None, help="PyTorch's evaluation times (training s, comma-separated) instead of --eval")
     ap.add_argument("--steps", default="200,400,800", help="sdfl's step counts")
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--silhouette", type=float, default=0.1, help="PyTorch's silhouette weight (the examples' 0.1)")
