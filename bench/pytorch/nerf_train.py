@@ -82,19 +82,24 @@ def read_png(path):
     return img
 
 
-def load_split(root, split):
+def load_split(root, split, with_alpha=False):
+    """A split's images (over black), poses and focal length in pixels; with
+    `with_alpha`, each pixel's alpha too (sdfl's data sets: the hit mask)."""
     with open(os.path.join(root, f"transforms_{split}.json")) as f:
         meta = json.load(f)
-    images, poses = [], []
+    images, poses, alphas = [], [], []
     for frame in meta["frames"]:
         path = os.path.join(root, frame["file_path"])
         if not path.endswith(".png"):
             path += ".png"
         rgba = read_png(path)
         images.append(rgba[..., :3] * rgba[..., 3:])  # over black
+        alphas.append(rgba[..., 3])
         poses.append(np.array(frame["transform_matrix"], np.float32))
     h, w = images[0].shape[:2]
     focal = 0.5 * w / math.tan(0.5 * meta["camera_angle_x"])
+    if with_alpha:
+        return np.stack(images), np.stack(poses), focal, np.stack(alphas)
     return np.stack(images), np.stack(poses), focal
 
 

@@ -23,17 +23,29 @@ network sdfl trains there (runtime/src/neural/surface/, sdf_net/).
   + 0.02 x mean (|grad f| - 1)^2 over every sample, the gradient from
   torch.autograd.grad(create_graph=True) (double backward), Adam 5e-4
   (beta 0.9, 0.999, eps 1e-8), halved every 1500 steps.
+- Optionally (`silhouette` > 0, as examples/neus_fast.sdfl's
+  `silhouette(weight: 0.1)`; off here, as in neus.sdfl): NeuS's mask loss,
+  each ray's binary cross-entropy of its opacity O = 1 - exp(-tau) against
+  its pixel's coverage a (the data set's alpha, sdfl's hit mask), tau the
+  ray's total optical depth: weight x mean over rays of
+  (1 - a) tau - a ln max(O, 1e-6) (runtime/src/neural/composite.rs
+  `silhouette_backward`; below the floor the covered half has no gradient).
 
 A step is the batch's rays and depths, forward, backward and Adam, as
 sdfl's `Run::advance` times it. The targets are the data set's when
 `--data DIR` names one (bench/pytorch/neus_data.sdfl writes it), grey
 otherwise (the work is the same).
 
-    python bench/pytorch/neus_bench.py [reps] [threads] [--volsdf] [--data DIR]
+    python bench/pytorch/neus_bench.py [reps] [threads] [--volsdf] [--data DIR [--silhouette 0.1]]
     python bench/pytorch/neus_bench.py --check DIR/neus.txt     # same step as sdfl?
     python bench/pytorch/neus_bench.py --check DIR/volsdf.txt --volsdf
 
-(`cargo run --release -p sdfl-bench -- surface check DIR` writes DIR/*.txt.)
+    python bench/pytorch/neus_bench.py --views DIR/views.txt --data DATA   # same pixels?
+
+(`cargo run --release -p sdfl-bench -- surface check DIR` writes DIR/*.txt;
+where a file also holds `coverage` and `silhouette` lines, the check
+includes the silhouette term, and `views.txt`, where it is written, holds
+every training pixel of the examples' views.)
 
 Prints one Markdown row: implementation, model, threads, median and
 minimum step ms.
@@ -161,7 +173,8 @@ class Surface(nn.Module):
         self.log_beta.clamp_(math.log(1e-4) / BETA_RATE, math.log(10.0) / BETA_RATE)
 
     def render(self, origins, dirs, t, step, create_graph=True):
-        """Colour of each ray and the eikonal term over every sample."""
+        """Colour of each ray, the eikonal term over every sample and each
+        ray's total optical depth (the sum of its samples' absorptions)."""
         n, s = t.shape
         x = (origins[:, None, :] + t[..., None] * dirs[:, None, :]).reshape(-1, 3)
         x.requires_grad_(True)
@@ -184,7 +197,21 @@ class Surface(nn.Module):
         w = trans * -torch.expm1(-tau)
         colour = (w[..., None] * rgb).sum(dim=1)
         eikonal = ((g.norm(dim=-1) - 1.0) ** 2).mean()
-        return colour, eikonal
+        return colour, eikonal, tau.sum(dim=-1)
+
+
+# sdfl's OPACITY_FLOOR: a covered ray's opacity is taken as at least this.
+OPACITY_FLOOR = 1e-6
+
+
+def silhouette(depth, coverage):
+    """Mean over rays of the binary cross-entropy of each ray's opacity
+    O = 1 - exp(-depth) against its pixel's coverage, written as sdfl's
+    `silhouette_backward` does: (1 - a) depth - a ln max(O, 1e-6). Below
+    the floor the covered half is constant (no gradient), as sdfl's."""
+    opacity = -torch.expm1(-depth)
+    kept = torch.where(opacity > OPACITY_FLOOR, opacity, torch.full_like(opacity, OPACITY_FLOOR))
+    return ((1.0 - coverage) * depth - coverage * kept.log()).mean()
 
 
 def orbit_rays(views=40, radius=3.0, focal=1.2, size=64):
@@ -219,13 +246,20 @@ def stratified(rays, samples, near, far):
 
 
 class Trainer:
-    """sdfl's training loop for a neural surface: the model, Adam, the step."""
+    """sdfl's training loop for a neural surface: the model, Adam, the step;
+    with `silhouette` > 0 (and each pixel's `coverage`) the mask loss too."""
 
-    def __init__(self, volsdf, origins, dirs, targets, rays=1024, samples=48, near=1.5, far=4.5, steps=3000):
+    def __init__(
+        self, volsdf, origins, dirs, targets, rays=1024, samples=48, near=1.5, far=4.5, steps=3000,
+        coverage=None, silhouette=0.0,
+    ):
+        if silhouette > 0 and coverage is None:
+            raise ValueError("the silhouette term needs each pixel's coverage")
         self.model = Surface(volsdf=volsdf, steps=steps)
         self.opt = torch.optim.Adam([p for p in self.model.parameters() if p.requires_grad], lr=5e-4)
         self.sched = torch.optim.lr_scheduler.StepLR(self.opt, step_size=1500, gamma=0.5)
         self.o, self.d, self.target = origins, dirs, targets
+        self.coverage, self.silhouette = coverage, silhouette
         self.rays, self.samples, self.near, self.far = rays, samples, near, far
         self.step_count = 0
 
@@ -233,8 +267,10 @@ class Trainer:
         idx = torch.randperm(len(self.o))[: self.rays]
         t = stratified(self.rays, self.samples, self.near, self.far)
         self.opt.zero_grad(set_to_none=True)
-        colour, eikonal = self.model.render(self.o[idx], self.d[idx], t, self.step_count)
+        colour, eikonal, depth = self.model.render(self.o[idx], self.d[idx], t, self.step_count)
         loss = ((colour - self.target[idx]) ** 2).mean() + 0.02 * eikonal
+        if self.silhouette > 0:
+            loss = loss + self.silhouette * silhouette(depth, self.coverage[idx])
         loss.backward()
         self.opt.step()
         self.sched.step()
@@ -279,8 +315,13 @@ def check(path, volsdf):
     n = int(rows["samples"][0])
     o, d = rows["origins"].reshape(-1, 3), rows["dirs"].reshape(-1, 3)
     t, target = rows["depths"].reshape(-1, n), rows["targets"].reshape(-1, 3)
-    colour, eikonal = model.render(o, d, t, 0)
+    colour, eikonal, depth = model.render(o, d, t, 0)
     loss = ((colour - target) ** 2).mean() + 0.02 * eikonal
+    weight = rows["silhouette"][0].item() if "silhouette" in rows else 0.0
+    if weight > 0:
+        loss = loss + weight * silhouette(depth, rows["coverage"])
+        covered = int((rows["coverage"] > 0.5).sum())
+        print(f"silhouette term, weight {weight}: {covered} of {len(o)} rays covered")
     loss.backward()
     ref = rows["loss"][0].item()
     print(f"loss: PyTorch {loss.item():.6e}, sdfl {ref:.6e}, relative difference {abs(loss.item() - ref) / abs(ref):.1e}")
@@ -295,6 +336,25 @@ def check(path, volsdf):
         print(f"| {name} | {scale:.3e} | {err / scale if scale > 0 else err:.1e} |")
 
 
+def check_views(path, data):
+    """Compares every training pixel sdfl trains on (`views.txt`: per ray its
+    view among the training views, pixel, origin, direction, target colour
+    and coverage) with the data set's: the same rays, colours and alpha.
+    Prints the largest differences; the views are the same when the rays
+    agree to float rounding and colours and coverage exactly."""
+    from nerf_train import load_split, rays_of
+
+    rows = np.loadtxt(path)
+    img, pose, focal, alpha = load_split(data, "train", with_alpha=True)
+    n, h, w, _ = img.shape
+    o, d = rays_of(pose, h, w, focal)
+    at = rows[:, 0].astype(np.int64) * h * w + rows[:, 1].astype(np.int64)
+    print(f"{len(rows)} rays from sdfl over {n} training views of {w}x{h} ({n * h * w} pixels, {len(np.unique(at))} distinct)")
+    print(f"largest difference: origin {np.abs(rows[:, 2:5] - o[at]).max():.1e}, direction {np.abs(rows[:, 5:8] - d[at]).max():.1e}, "
+          f"colour {np.abs(rows[:, 8:11] - img.reshape(-1, 3)[at]).max():.1e}, coverage {np.abs(rows[:, 11] - alpha.reshape(-1)[at]).max():.1e}")
+    print(f"covered pixels: sdfl {int(rows[:, 11].sum())}, data set {int(alpha.sum())}")
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("reps", nargs="?", type=int, default=10)
@@ -302,22 +362,33 @@ def main():
     ap.add_argument("--volsdf", action="store_true")
     ap.add_argument("--data", default=None)
     ap.add_argument("--check", default=None, help="compare with sdfl's step written by `sdfl-bench surface check`")
+    ap.add_argument(
+        "--silhouette", type=float, default=0.0,
+        help="weight of the silhouette term (needs --data; 0, as examples/neus.sdfl, which `sdfl-bench surface` times)",
+    )
+    ap.add_argument("--views", default=None, help="with --data: compare sdfl's training pixels (views.txt) with the data set")
     args = ap.parse_args()
+    if args.views:
+        return check_views(args.views, args.data)
     if args.check:
         return check(args.check, args.volsdf)
+    if args.silhouette > 0 and not args.data:
+        ap.error("--silhouette needs --data (each pixel's coverage is its alpha)")
     torch.set_num_threads(args.threads)
     torch.manual_seed(0)
+    coverage = None
     if args.data:
         from nerf_train import load_split, rays_of
 
-        img, pose, focal = load_split(args.data, "train")
+        img, pose, focal, alpha = load_split(args.data, "train", with_alpha=True)
         _, h, w, _ = img.shape
         o, d = (torch.from_numpy(a) for a in rays_of(pose, h, w, focal))
         target = torch.from_numpy(img.reshape(-1, 3))
+        coverage = torch.from_numpy(alpha.reshape(-1))
     else:
         o, d = orbit_rays(views=36)
         target = torch.full((len(o), 3), 0.5)
-    trainer = Trainer(args.volsdf, o, d, target)
+    trainer = Trainer(args.volsdf, o, d, target, coverage=coverage, silhouette=args.silhouette)
     for _ in range(2):
         trainer.step()
     ts = []

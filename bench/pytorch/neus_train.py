@@ -1,9 +1,13 @@
 """The textbook NeuS (`--volsdf`: VolSDF) trained in PyTorch on CPU from
-the views examples/neus.sdfl trains on, timed to a Chamfer distance to the
-true surface: the peer of sdfl's neural surfaces on the same data.
+the views examples/neus.sdfl and neus_fast.sdfl train on, timed to a
+Chamfer distance to the true surface: the peer of sdfl's neural surfaces
+on the same data.
 
 The model and the step are neus_bench.py's (the network, density, batch,
-losses and Adam of examples/neus.sdfl and volsdf.sdfl). Every `--eval`
+losses and Adam of examples/neus.sdfl and volsdf.sdfl), with the
+silhouette term of examples/neus_fast.sdfl (`silhouette(weight: 0.1)`:
+each ray's opacity against its pixel's coverage, the PNGs' alpha) unless
+`--silhouette 0`, so that both see the same supervision. Every `--eval`
 seconds of training the clock stops and the run prints the Chamfer
 distance of its mesh to the true surface and the held-out PSNR (mean over
 the test views) with the training seconds and steps; it ends at
@@ -18,11 +22,15 @@ bounds; 50 000 samples of each mesh against 1 000 000 of the other
 
     sdfl run bench/pytorch/neus_data.sdfl --out /tmp/neus
     python bench/pytorch/neus_train.py /tmp/neus/neus_data [--threads 2]
-        [--minutes 10] [--eval 60] [--target 0.019] [--volsdf]
+        [--minutes 10] [--eval 60 | --marks 15,30,60,...] [--target 0.019] [--volsdf]
+        [--silhouette 0.1] [--no-psnr]
+
+bench/pytorch/time_to_chamfer.py runs it against sdfl's fast path.
 
 Needs numpy, torch, scipy and scikit-image.
 """
 import argparse
+import itertools
 import math
 import time
 
@@ -109,7 +117,7 @@ def held_out_psnr(trainer, o, d, target, views, step):
         parts = []
         for a in range(v * px, (v + 1) * px, 4096):
             b = min(a + 4096, (v + 1) * px)
-            colour, _ = trainer.model.render(o[a:b], d[a:b], t.expand(b - a, s), step, create_graph=False)
+            colour, _, _ = trainer.model.render(o[a:b], d[a:b], t.expand(b - a, s), step, create_graph=False)
             parts.append(colour.detach())
         mse = ((torch.cat(parts) - target[v * px : (v + 1) * px]) ** 2).mean().item()
         psnrs.append(-10 * math.log10(max(mse, 1e-12)))
@@ -121,43 +129,71 @@ def main():
     ap.add_argument("data")
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--minutes", type=float, default=10.0)
-    ap.add_argument("--eval", type=float, default=60.0)
+    ap.add_argument("--eval", type=float, default=60.0, help="seconds of training between evaluations")
+    ap.add_argument(
+        "--marks", default=None,
+        help="training seconds to evaluate at, comma-separated, instead of --eval (the run ends at the last)",
+    )
     ap.add_argument("--target", type=float, default=0.0)
     ap.add_argument("--volsdf", action="store_true")
+    ap.add_argument(
+        "--silhouette", type=float, default=0.1,
+        help="weight of the silhouette term (examples/neus_fast.sdfl's 0.1; 0: none, as examples/neus.sdfl)",
+    )
+    ap.add_argument("--no-psnr", action="store_true", help="evaluate the Chamfer distance only")
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
+    try:
+        torch.set_num_interop_threads(args.threads)
+    except RuntimeError:  # only before any parallel work; intra-op threads are what counts
+        pass
     torch.manual_seed(0)
     rng = np.random.default_rng(0)
 
-    train_img, train_pose, focal = load_split(args.data, "train")
+    train_img, train_pose, focal, train_alpha = load_split(args.data, "train", with_alpha=True)
     test_img, test_pose, _ = load_split(args.data, "test")
     _, h, w, _ = train_img.shape
     o, d = (torch.from_numpy(a) for a in rays_of(train_pose, h, w, focal))
     to, td = (torch.from_numpy(a) for a in rays_of(test_pose, h, w, focal))
     test_target = torch.from_numpy(test_img.reshape(-1, 3))
-    trainer = Trainer(args.volsdf, o, d, torch.from_numpy(train_img.reshape(-1, 3)))
+    coverage = torch.from_numpy(train_alpha.reshape(-1))
+    trainer = Trainer(
+        args.volsdf, o, d, torch.from_numpy(train_img.reshape(-1, 3)), coverage=coverage, silhouette=args.silhouette
+    )
     truth_queries, truth_tree = true_surface(rng)
     model = "VolSDF" if args.volsdf else "NeuS"
-    print(f"{model}, PyTorch {torch.__version__}, {args.threads} threads: {len(train_img)} training and {len(test_img)} held-out views of {w}x{h}")
+    term = f"silhouette weight {args.silhouette}" if args.silhouette > 0 else "no silhouette term"
+    print(
+        f"{model}, PyTorch {torch.__version__}, {args.threads} threads, {term}: "
+        f"{len(train_img)} training and {len(test_img)} held-out views of {w}x{h}"
+    )
 
     def report(trained):
         c = chamfer(trainer.model.sdf, truth_queries, truth_tree, rng, args.threads)
-        p = held_out_psnr(trainer, to, td, test_target, len(test_img), trainer.step_count)
+        p = math.nan if args.no_psnr else held_out_psnr(trainer, to, td, test_target, len(test_img), trainer.step_count)
         print(f"| {trained:.1f} | {trainer.step_count} | {c:.4f} | {p:.2f} |", flush=True)
         return c
 
     print("| training seconds | steps | Chamfer to the true surface | held-out PSNR (dB) |")
     print("|---:|---:|---:|---:|")
     report(0.0)
-    trained, next_eval = 0.0, args.eval
+    limit = args.minutes * 60
+    if args.marks:
+        marks = iter(sorted(float(m) for m in args.marks.split(",")))
+        limit = min(limit, max(float(m) for m in args.marks.split(",")))
+    else:
+        marks = (args.eval * k for k in itertools.count(1))
+    trained, next_eval = 0.0, next(marks)
     while True:
         t0 = time.perf_counter()
         trainer.step()
         trained += time.perf_counter() - t0
-        if trained >= next_eval or trained >= args.minutes * 60:
+        if trained >= next_eval or trained >= limit:
             c = report(trained)
-            next_eval += args.eval
-            if c <= args.target or trained >= args.minutes * 60:
+            # The next mark not yet passed (a step may outlast several).
+            while trained >= next_eval:
+                next_eval = next(marks, math.inf)
+            if c <= args.target or trained >= limit:
                 break
 
 
