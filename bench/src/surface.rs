@@ -183,7 +183,13 @@ pub fn check(dir: &Path) {
         ("volsdf", include_str!("../../examples/volsdf.sdfl")),
     ];
     for (name, src) in examples {
-        let (job, views) = crate::train::prepare(src);
+        // The examples with neus_fast.sdfl's silhouette term added.
+        let src = src.replacen(
+            "  optimizer:",
+            "  losses: [mse(), eikonal(weight: 0.02), silhouette(weight: 0.1)],\n  optimizer:",
+            1,
+        );
+        let (job, views) = crate::train::prepare(&src);
         let Field::NeuralSurface(spec) = &*job.model else {
             panic!("not a neural surface")
         };
@@ -224,6 +230,35 @@ pub fn check(dir: &Path) {
             "targets",
             &mut batch.targets.iter().flat_map(|t| t.map(f64::from)),
         );
+        line("silhouette", &mut std::iter::once(0.1));
+        line("coverage", &mut batch.coverage.iter().map(|&c| c as f64));
+        if name == "neus" {
+            // Every training pixel once: the views the examples train on.
+            let mut all = TrainSetup::of(&job, &views);
+            all.rays = views.iter().map(|v| v.image.pixels.len()).sum();
+            let b = all.batch(0).expect("batch");
+            let mut t = String::new();
+            for ((r, c), a) in b.rays.iter().zip(&b.targets).zip(&b.coverage) {
+                writeln!(
+                    t,
+                    "{} {} {:e} {:e} {:e} {:e} {:e} {:e} {:e} {:e} {:e} {:e}",
+                    r.view,
+                    r.pixel,
+                    r.origin[0],
+                    r.origin[1],
+                    r.origin[2],
+                    r.dir[0],
+                    r.dir[1],
+                    r.dir[2],
+                    c[0],
+                    c[1],
+                    c[2],
+                    a
+                )
+                .expect("string");
+            }
+            std::fs::write(dir.join("views.txt"), t).expect("write");
+        }
         for t in model.tensors() {
             let range = t.offset..t.offset + t.len;
             line(
