@@ -409,7 +409,7 @@ fn stacked_charts_are_one_panel_each_one_above_another() {
         render_stacked(&many, 640, 400),
         Err(PlotError::Size { .. })
     ));
-    assert!(render_stacked(&[psnr.clone()], 640, 100).is_err());
+    assert!(render_stacked(std::slice::from_ref(&psnr), 640, 100).is_err());
     assert!(render_stacked(&[psnr], 640, u32::MAX).is_err());
 }
 
