@@ -516,3 +516,88 @@ fn an_interrupted_training_setting_resumes_from_its_checkpoint() {
         row(&whole)["reports"][0]["params"]
     );
 }
+
+/// A sweep of a tiny NeuS training (a hash-grid SDF from 8 × 8 images of a
+/// sphere, a few steps) whose mesh is measured against the true surface:
+/// the table has the Chamfer distance beside held-out PSNR, the row keeps
+/// it as a number, and the plot has a panel for each measure.
+#[test]
+fn a_surface_training_sweep_tabulates_chamfer_to_the_truth() {
+    let tmp = temp("chamfer");
+    let scene = tmp.join("tiny_neus.sdfl");
+    std::fs::write(
+        &scene,
+        r#"let steps = 4
+let cams = orbit(radius: 3, up: [0, 1, 0], focal: 1.5, views: 8)
+let grid = hashgrid(levels: 4, log2_table: 10, min_res: 4, max_res: 16, min: [-1.2, -1.2, -1.2], max: [1.2, 1.2, 1.2])
+train fit {
+  model: neus(neural_sdf(encoding: grid, network: mlp(layers: 1, width: 8, skips: []), radius: 0.5), beta: param(0.08), view_dependent: false, fine: 4),
+  data: render_views(sphere(0.7), cameras: cams, size: [8, 8], material: lambert(albedo: [0.9, 0.5, 0.2]), test_views: 2, split_seed: 3, hit_tolerance: "absolute"),
+  sampler: stratified(samples: 8, near: 1.8, far: 4.2, jitter: true),
+  rays: 32,
+  optimizer: adam(lr: 1e-2),
+  iterations: steps,
+  bounds: 1.2,
+  views: look_at(eye: [0, 0, -3]),
+  size: [8, 8],
+  after: [mesh("fit.ply", resolution: 16)],
+}
+"#,
+    )
+    .unwrap();
+    let out = tmp.join("out");
+    let args = [
+        "sweep",
+        scene.to_str().unwrap(),
+        "--set",
+        "steps=2,4",
+        "--out",
+        out.to_str().unwrap(),
+    ];
+    ok(&sdfl(&args));
+    let csv = std::fs::read_to_string(out.join("sweep.csv")).unwrap();
+    let lines: Vec<Vec<&str>> = csv.lines().map(|l| l.split(',').collect()).collect();
+    assert_eq!(lines.len(), 3, "{csv}");
+    let column = |name: &str| {
+        lines[0]
+            .iter()
+            .position(|c| *c == name)
+            .unwrap_or_else(|| panic!("no {name} column: {csv}"))
+    };
+    let (chamfer, psnr) = (column("mesh_chamfer"), column("held_out_psnr_db"));
+    for row in &lines[1..] {
+        let c: f64 = row[chamfer].parse().unwrap();
+        // A sphere of radius 0.7 after a few steps: near, not on it.
+        assert!(c.is_finite() && c > 0.0 && c < 1.0, "{csv}");
+        let p: f64 = row[psnr].parse().unwrap();
+        assert!(p.is_finite() && p > 0.0, "{csv}");
+    }
+    // The row keeps it as a number (what `--collect` and reruns read).
+    let row: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("rows").join("steps=4.json")).unwrap())
+            .unwrap();
+    assert_eq!(
+        row["metrics"]["mesh_chamfer"]
+            .as_f64()
+            .map(|c| c.to_string()),
+        Some(lines[2][chamfer].to_string()),
+        "{row}"
+    );
+    assert_eq!(row["metrics"]["mesh_chamfer_to"], "true_surface", "{row}");
+    let md = std::fs::read_to_string(out.join("sweep.md")).unwrap();
+    let header = md.lines().next().unwrap();
+    assert!(
+        header.contains("| held-out PSNR (dB) |")
+            && header.contains("| mesh Chamfer to the true surface (scene units) |"),
+        "{md}"
+    );
+    // A panel (640 × 400) per measure: PSNR, SSIM and Chamfer.
+    for plot in ["sweep.png", "sweep_value.png"] {
+        let img = image::open(out.join(plot)).unwrap();
+        assert_eq!((img.width(), img.height()), (640, 1200), "{plot}");
+    }
+    // Collected again from the rows alone: the same table.
+    let collect: Vec<&str> = args.iter().copied().chain(["--collect"]).collect();
+    ok(&sdfl(&collect));
+    assert_eq!(std::fs::read_to_string(out.join("sweep.csv")).unwrap(), csv);
+}

@@ -6,9 +6,12 @@
 //! skips the settings already done and resumes one that was interrupted
 //! (training from its checkpoint), `--shard I/N` runs one slice of the
 //! settings (for a scheduler's job array), and `--collect` merges the
-//! slices' rows, copied into one `--out`, into the table. Past one machine
+//! slices' rows, copied into one `--out`, into the table. A row keeps what
+//! the run measured (`metrics.rs`: held-out PSNR, Chamfer distance…) as
+//! typed fields, each a column and a panel of the plots. Past one machine
 //! sdfl runs on such an existing scheduler, not one of its own.
 
+mod metrics;
 mod rows;
 mod table;
 
@@ -197,13 +200,15 @@ fn run_setting(src: &SourceFile, a: &SweepArgs, out: &Path, s: &Setting) -> Resu
         }
     };
     bar.finish();
+    let reports: Vec<serde_json::Value> = reports.into_iter().map(|r| r.report).collect();
     let row = Row {
         format: rows::ROW_FORMAT,
         name: a.name.to_string(),
         value: s.value,
         fingerprint: s.fingerprint.clone(),
         seconds: before + t.elapsed().as_secs_f64(),
-        reports: reports.into_iter().map(|r| r.report).collect(),
+        metrics: Some(metrics::Metrics::of_reports(&reports)),
+        reports,
     };
     if let Err(e) = rows::write(out, &s.label, &row) {
         return Err(io_error("writing the row of", e));

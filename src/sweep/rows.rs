@@ -14,7 +14,10 @@ use std::path::{Path, PathBuf};
 
 use sdfl_runtime::train::checkpoint::Fnv;
 
-/// The row file's format: a row of another format is run again.
+use super::metrics::Metrics;
+
+/// The row file's format: a row of another format is run again. (Rows
+/// gained `metrics` within format 1: one without them still stands.)
 pub(super) const ROW_FORMAT: u32 = 1;
 
 /// Largest row file read (reports of a few statements; a file this large
@@ -36,6 +39,20 @@ pub(super) struct Row {
     pub seconds: f64,
     /// Each statement's report, as `sdfl run --json` prints it (`report`).
     pub reports: Vec<serde_json::Value>,
+    /// What the reports measure, read when the row was written; absent in
+    /// rows written before rows kept them.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub metrics: Option<Metrics>,
+}
+
+impl Row {
+    /// The setting's measures: as kept in the row, or, in a row written
+    /// before rows kept them, read from its reports (kept whole); a
+    /// measure no report gives is absent.
+    pub fn metrics(&self) -> Metrics {
+        self.metrics
+            .unwrap_or_else(|| Metrics::of_reports(&self.reports))
+    }
 }
 
 /// A setting's name: `NAME=VALUE`, also its folder's and its row's.
@@ -291,6 +308,93 @@ mod tests {
             "the spans moved"
         );
         assert_eq!(a, fingerprint(&load(&moved, 8.0), "n", 8.0, None));
+    }
+
+    fn temp(name: &str) -> PathBuf {
+        let d = std::env::temp_dir().join(format!("sdfl-rows-{}-{name}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&d);
+        std::fs::create_dir_all(d.join("steps=400")).unwrap();
+        std::fs::write(d.join("steps=400").join("fit.ply"), b"ply").unwrap();
+        d
+    }
+
+    const LABEL: &str = "steps=400";
+
+    /// A NeuS training report with a mesh measured against the truth.
+    fn report() -> serde_json::Value {
+        serde_json::json!({
+            "iterations": 400,
+            "held_out": [{"step": 400, "seconds": 2.0, "psnr": 27.5, "ssim": 0.875}],
+            "mesh_fit": {"chamfer": 0.0125, "against": "true surface"},
+            "written": [{"path": "fit.ply", "kind": "mesh"}],
+        })
+    }
+
+    #[test]
+    fn a_row_with_chamfer_round_trips() {
+        let out = temp("round-trip");
+        let reports = vec![report()];
+        let row = Row {
+            format: ROW_FORMAT,
+            name: "steps".into(),
+            value: 400.0,
+            fingerprint: "f".into(),
+            seconds: 12.5,
+            metrics: Some(Metrics::of_reports(&reports)),
+            reports,
+        };
+        write(&out, LABEL, &row).unwrap();
+        let text = std::fs::read_to_string(row_path(&out, LABEL)).unwrap();
+        assert!(text.contains(r#""mesh_chamfer": 0.0125"#), "{text}");
+        let Found::Done(back) = find(&out, LABEL, "f") else {
+            panic!("the row stands")
+        };
+        assert_eq!(back.metrics, row.metrics);
+        let m = back.metrics();
+        assert_eq!(m.mesh_chamfer, Some(0.0125));
+        assert_eq!(m.held_out_psnr_db, Some(27.5));
+        // The kept measures are the row's, whatever its reports say.
+        let kept = Row {
+            metrics: Some(Metrics {
+                mesh_chamfer: Some(0.5),
+                ..Metrics::default()
+            }),
+            ..back
+        };
+        assert_eq!(kept.metrics().mesh_chamfer, Some(0.5));
+        assert_eq!(kept.metrics().held_out_psnr_db, None);
+    }
+
+    #[test]
+    fn an_old_row_without_metrics_loads() {
+        let out = temp("old");
+        // As sdfl wrote rows before they kept measures: a render's report.
+        let old = r#"{
+  "format": 1,
+  "name": "steps",
+  "value": 400.0,
+  "fingerprint": "f",
+  "seconds": 3.25,
+  "reports": [{"views": 1, "written": [{"path": "fit.ply", "kind": "image"}]}]
+}"#;
+        std::fs::create_dir_all(out.join("rows")).unwrap();
+        std::fs::write(row_path(&out, LABEL), old).unwrap();
+        let Found::Done(row) = find(&out, LABEL, "f") else {
+            panic!("an old row still stands")
+        };
+        assert_eq!(row.metrics, None);
+        // Nothing reported: every measure absent (not zero).
+        assert_eq!(row.metrics(), Metrics::default());
+        // An old training row: the measures its reports hold, the others absent.
+        let mut trained: serde_json::Value = serde_json::from_str(old).unwrap();
+        trained["reports"] = serde_json::json!([report()]);
+        std::fs::write(row_path(&out, LABEL), trained.to_string()).unwrap();
+        let Found::Done(row) = find(&out, LABEL, "f") else {
+            panic!("{trained}")
+        };
+        let m = row.metrics();
+        assert_eq!(m.mesh_chamfer, Some(0.0125));
+        assert_eq!(m.field_chamfer, None);
     }
 
     #[test]

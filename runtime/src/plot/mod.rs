@@ -1,4 +1,6 @@
 //! Charts for people to read: loss curves, held-out PSNR curves and sweeps.
+//! [`render_stacked`] draws several charts one above another on one image
+//! (a sweep's measures against the same seconds, one panel each).
 //!
 //! A [`Chart`] is typed: a title, two [`Axis`]es whose titles carry their
 //! units, and named [`Series`] whose points may carry a label (a sweep's
@@ -69,6 +71,11 @@ pub enum Scale {
     Linear,
     /// Logarithmic; values ≤ 0 are skipped and noted.
     Log,
+    /// As [`Scale::Auto`], but a linear axis starts at zero: for
+    /// magnitudes (a distance, an error), whose heights then compare as
+    /// ratios, and whose small differences are not blown up by an axis
+    /// cut to the data.
+    AutoFromZero,
 }
 
 /// An axis: its title with units (`"time per run (s)"`) and scale.
@@ -183,18 +190,52 @@ pub struct Plot {
 impl Plot {
     /// The image as PNG bytes (for [`crate::output::write_bytes`]).
     pub fn png(&self) -> Result<Vec<u8>, PlotError> {
-        use image::ImageEncoder;
-        let mut out = Vec::new();
-        image::codecs::png::PngEncoder::new(&mut out)
-            .write_image(
-                &self.rgb,
-                self.width,
-                self.height,
-                image::ExtendedColorType::Rgb8,
-            )
-            .map_err(|e| PlotError::Draw(e.to_string()))?;
-        Ok(out)
+        png(&self.rgb, self.width, self.height)
     }
+}
+
+/// Charts drawn one above another on one image ([`render_stacked`]): a
+/// sweep's measures against the same seconds, one panel each.
+#[derive(Debug, Clone)]
+pub struct Figure {
+    /// Image width in pixels.
+    pub width: u32,
+    /// Image height in pixels (the panels' heights together).
+    pub height: u32,
+    /// RGB8, row-major from the top-left.
+    pub rgb: Vec<u8>,
+    /// Each chart's panel, top to bottom.
+    pub panels: Vec<Panel>,
+}
+
+/// One chart of a [`Figure`]: what [`Plot`] says of a chart drawn alone,
+/// its plotting area in the figure's pixels.
+#[derive(Debug, Clone)]
+pub struct Panel {
+    /// Whether the x axis came out logarithmic.
+    pub log_x: bool,
+    /// Whether the y axis came out logarithmic.
+    pub log_y: bool,
+    /// The plotting area in the figure's pixels: `[left, top, right, bottom)`.
+    pub area: [i32; 4],
+    /// What was not drawn and why (see [`Plot::notes`]).
+    pub notes: Vec<String>,
+}
+
+impl Figure {
+    /// The image as PNG bytes (for [`crate::output::write_bytes`]).
+    pub fn png(&self) -> Result<Vec<u8>, PlotError> {
+        png(&self.rgb, self.width, self.height)
+    }
+}
+
+fn png(rgb: &[u8], width: u32, height: u32) -> Result<Vec<u8>, PlotError> {
+    use image::ImageEncoder;
+    let mut out = Vec::new();
+    image::codecs::png::PngEncoder::new(&mut out)
+        .write_image(rgb, width, height, image::ExtendedColorType::Rgb8)
+        .map_err(|e| PlotError::Draw(e.to_string()))?;
+    Ok(out)
 }
 
 /// Why a chart could not be drawn (never the data: see the module docs).
@@ -293,6 +334,56 @@ pub fn render(chart: &Chart, width: u32, height: u32) -> Result<Plot, PlotError>
     })
 }
 
+/// Draws `charts` one above another, each on a `width × panel_height`
+/// panel exactly as [`render`] draws it alone, so one chart gives
+/// [`render`]'s image. No charts give one placeholder panel ("no data to
+/// plot"). The whole image must be within [`MIN_SIDE`]..=[`MAX_SIDE`].
+pub fn render_stacked(
+    charts: &[Chart],
+    width: u32,
+    panel_height: u32,
+) -> Result<Figure, PlotError> {
+    let placeholder = [Chart {
+        title: String::new(),
+        x: Axis::new(""),
+        y: Axis::new(""),
+        series: Vec::new(),
+    }];
+    let charts = if charts.is_empty() {
+        &placeholder[..]
+    } else {
+        charts
+    };
+    let height = u32::try_from(charts.len())
+        .ok()
+        .and_then(|n| n.checked_mul(panel_height))
+        .filter(|&h| h <= MAX_SIDE && panel_height >= MIN_SIDE.1)
+        .ok_or(PlotError::Size {
+            width,
+            height: panel_height.saturating_mul(charts.len().min(u32::MAX as usize) as u32),
+        })?;
+    let mut rgb = Vec::new();
+    let mut panels = Vec::with_capacity(charts.len());
+    for (k, chart) in charts.iter().enumerate() {
+        let p = render(chart, width, panel_height)?;
+        let top = (k as u32 * panel_height) as i32;
+        let [l, t, r, b] = p.area;
+        panels.push(Panel {
+            log_x: p.log_x,
+            log_y: p.log_y,
+            area: [l, t + top, r, b + top],
+            notes: p.notes,
+        });
+        rgb.extend_from_slice(&p.rgb);
+    }
+    Ok(Figure {
+        width,
+        height,
+        rgb,
+        panels,
+    })
+}
+
 /// Consecutive drawable points of a series: x, y and label.
 type Run = Vec<(f64, f64, Option<String>)>;
 
@@ -323,7 +414,7 @@ impl Prepared {
         let log = |scale: Scale, v: &dyn Fn(&Point) -> f64| match scale {
             Scale::Linear => false,
             Scale::Log => true,
-            Scale::Auto => {
+            Scale::Auto | Scale::AutoFromZero => {
                 let (lo, hi, pos) = all()
                     .filter(|p| usable(p))
                     .map(v)
@@ -357,8 +448,9 @@ impl Prepared {
             .collect();
         let pts = || runs.iter().flatten().flatten();
         let empty = pts().next().is_none();
-        let xr = range(pts().map(|p| p.0), log_x);
-        let yr = range(pts().map(|p| p.1), log_y);
+        let from_zero = |a: &Axis, log: bool| a.scale == Scale::AutoFromZero && !log;
+        let xr = range(pts().map(|p| p.0), log_x, from_zero(&chart.x, log_x));
+        let yr = range(pts().map(|p| p.1), log_y, from_zero(&chart.y, log_y));
 
         let mut notes = Vec::new();
         let plural = |n: usize| if n == 1 { "point" } else { "points" };
@@ -396,9 +488,11 @@ impl Prepared {
 }
 
 /// The axis range of the drawn values: padded by 5% each side, a range
-/// around a lone value, and on a log axis at least one whole decade inside.
-fn range(vals: impl Iterator<Item = f64>, log: bool) -> Range<f64> {
-    let (lo, hi) = vals
+/// around a lone value, and on a log axis at least one whole decade inside;
+/// `from_zero` (linear): zero inside, as one end when the values are of one
+/// sign.
+fn range(vals: impl Iterator<Item = f64>, log: bool, from_zero: bool) -> Range<f64> {
+    let (mut lo, mut hi) = vals
         .map(|v| if log { v.log10() } else { v })
         .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| {
             (a.min(v), b.max(v))
@@ -414,6 +508,9 @@ fn range(vals: impl Iterator<Item = f64>, log: bool) -> Range<f64> {
         }
         return 10f64.powf(a)..10f64.powf(b);
     }
+    if from_zero {
+        (lo, hi) = (lo.min(0.0), hi.max(0.0));
+    }
     let mid = 0.5 * lo + 0.5 * hi;
     let span = hi - lo;
     // Values equal to nine digits are drawn as one value: ticks a part in
@@ -422,7 +519,14 @@ fn range(vals: impl Iterator<Item = f64>, log: bool) -> Range<f64> {
         let pad = if mid == 0.0 { 1.0 } else { 0.1 * mid.abs() };
         return (mid - pad)..(mid + pad);
     }
-    (lo - 0.05 * span)..(hi + 0.05 * span)
+    let pad = |end: f64| {
+        if from_zero && end == 0.0 {
+            0.0
+        } else {
+            0.05 * span
+        }
+    };
+    (lo - pad(lo))..(hi + pad(hi))
 }
 
 /// `s` cut to `n` characters, ending in "…" when cut.

@@ -326,6 +326,93 @@ fn hard_cases_never_panic_and_say_what_was_left_out() {
     assert!(count_in_area(&big, PALETTE[0]) > 1000);
 }
 
+/// A sweep's Chamfer distance against seconds (a diverged setting's
+/// infinite), on an axis from zero.
+fn chamfer_sweep() -> Chart {
+    Chart {
+        title: "Sweep of `steps`: mesh Chamfer to the true surface against time".into(),
+        x: Axis::new("time per run (s)"),
+        y: Axis::new("Chamfer distance (scene units)").scale(Scale::AutoFromZero),
+        series: vec![Series::labelled(
+            "mesh Chamfer",
+            [
+                (100.1, 0.041, "steps=200"),
+                (150.0, f64::INFINITY, "steps=300"),
+                (191.0, 0.017, "steps=400"),
+                (379.2, 0.009, "steps=800"),
+            ]
+            .map(|(x, y, l)| (x, y, l.to_string())),
+        )],
+    }
+}
+
+#[test]
+fn stacked_charts_are_one_panel_each_one_above_another() {
+    let psnr = Chart {
+        title: "Sweep of `beta`: held-out PSNR against time".into(),
+        x: Axis::new("time per run (s)"),
+        y: Axis::new("held-out PSNR (dB)"),
+        series: vec![beta_sweep("held-out PSNR")],
+    };
+    let f = render_stacked(&[psnr.clone(), chamfer_sweep()], 640, 400).unwrap();
+    assert_eq!((f.width, f.height, f.rgb.len()), (640, 800, 640 * 800 * 3));
+    assert_eq!(f.panels.len(), 2);
+    let (top, bottom) = (&f.panels[0], &f.panels[1]);
+    // Each panel's plotting area lies in its own half, in figure pixels.
+    assert!(top.area[1] > 0 && top.area[3] < 400, "{:?}", top.area);
+    assert!(
+        bottom.area[1] > 400 && bottom.area[3] < 800,
+        "{:?}",
+        bottom.area
+    );
+    // Both span less than two decades: linear (Chamfer's from zero).
+    assert!(!top.log_y && !bottom.log_y);
+    assert!(top.notes.is_empty(), "{:?}", top.notes);
+    // The diverged setting is skipped, said so, and the rest is drawn.
+    assert_eq!(
+        bottom.notes,
+        ["1 point not finite (NaN or ±∞): not drawn"],
+        "{:?}",
+        bottom.notes
+    );
+    let as_plot = |p: &Panel| Plot {
+        width: f.width,
+        height: f.height,
+        rgb: f.rgb.clone(),
+        log_x: p.log_x,
+        log_y: p.log_y,
+        area: p.area,
+        notes: p.notes.clone(),
+    };
+    for p in &f.panels {
+        assert!(count_in_area(&as_plot(p), PALETTE[0]) > 100, "{:?}", p.area);
+    }
+    // Each panel is the chart drawn alone, pixel for pixel; one chart
+    // stacked is `render`'s image.
+    let alone = render(&psnr, 640, 400).unwrap();
+    assert_eq!(&f.rgb[..alone.rgb.len()], &alone.rgb[..]);
+    let below = render(&chamfer_sweep(), 640, 400).unwrap();
+    assert_eq!(&f.rgb[alone.rgb.len()..], &below.rgb[..]);
+    // Chamfer spanning two decades (a setting that failed): log.
+    let mut failed = chamfer_sweep();
+    failed.series[0].points[1].y = 2.5;
+    let f = render_stacked(&[psnr.clone(), failed], 640, 400).unwrap();
+    assert!(!f.panels[0].log_y && f.panels[1].log_y);
+    let one = render_stacked(std::slice::from_ref(&psnr), 640, 400).unwrap();
+    assert_eq!((one.height, one.rgb), (400, alone.rgb));
+    // No charts: a placeholder; too tall or too small: an error, no panic.
+    let none = render_stacked(&[], 640, 400).unwrap();
+    assert_eq!(none.panels.len(), 1);
+    assert_eq!(none.panels[0].notes, ["no data to plot"]);
+    let many = vec![psnr.clone(); 30];
+    assert!(matches!(
+        render_stacked(&many, 640, 400),
+        Err(PlotError::Size { .. })
+    ));
+    assert!(render_stacked(std::slice::from_ref(&psnr), 640, 100).is_err());
+    assert!(render_stacked(&[psnr], 640, u32::MAX).is_err());
+}
+
 #[test]
 fn tick_labels_are_short_and_distinct() {
     assert_eq!(fmt_value(0.05, 1), "0.05");
@@ -343,11 +430,18 @@ fn tick_labels_are_short_and_distinct() {
     assert_eq!(tick_digits(&[1.0e8, 1.000001e8]), 7);
     assert_eq!(shorten("abcdef", 4), "abc…");
     assert_eq!(shorten("abc", 4), "abc");
-    let r = range([3.0, 3.0].into_iter(), false);
+    let r = range([3.0, 3.0].into_iter(), false, false);
     assert!(r.start < 3.0 && r.end > 3.0);
-    let r = range([2.0, 5.0].into_iter(), true);
+    let r = range([2.0, 5.0].into_iter(), true, false);
     assert!(r.start <= 1.0 && r.end > 5.0, "a decade inside: {r:?}");
-    assert_eq!(range(std::iter::empty(), false), 0.0..1.0);
+    assert_eq!(range(std::iter::empty(), false, false), 0.0..1.0);
+    // From zero: zero is the near end, the far end padded.
+    let r = range([0.009, 0.041].into_iter(), false, true);
+    assert!(r.start == 0.0 && r.end > 0.041 && r.end < 0.045, "{r:?}");
+    let r = range([-2.0, -1.0].into_iter(), false, true);
+    assert!(r.start < -2.0 && r.end == 0.0, "{r:?}");
+    let r = range([0.0, 0.0].into_iter(), false, true);
+    assert!(r.start < 0.0 && r.end > 0.0, "{r:?}");
 }
 
 /// Writes example plots for a look: `SDFL_WRITE_FIGURES=1 cargo test
@@ -397,5 +491,13 @@ fn write_plots_for_inspection() {
     std::fs::write(dir.join("plot_log.png"), p.png().unwrap()).unwrap();
     let p = render(&chart(vec![]), 512, 320).unwrap();
     std::fs::write(dir.join("plot_empty.png"), p.png().unwrap()).unwrap();
+    let psnr = Chart {
+        title: "Sweep of `beta`: held-out PSNR against time".into(),
+        x: Axis::new("time per run (s)"),
+        y: Axis::new("held-out PSNR (dB)"),
+        series: vec![beta_sweep("held-out PSNR")],
+    };
+    let f = render_stacked(&[psnr, chamfer_sweep()], 640, 400).unwrap();
+    std::fs::write(dir.join("plot_stacked.png"), f.png().unwrap()).unwrap();
     eprintln!("plots in {}", dir.display());
 }
