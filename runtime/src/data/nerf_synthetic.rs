@@ -1,7 +1,8 @@
 //! NeRF-synthetic (Blender) data sets: `transforms_<split>.json` with one
 //! camera-to-world `transform_matrix` per frame in OpenGL axes (the camera
 //! looks down −z, +y up, +x right), `camera_angle_x` (the horizontal field
-//! of view; `fl_x`/`fl_y` in pixels where given), and RGBA PNGs.
+//! of view; `fl_x`/`fl_y` in pixels where given), and RGBA PNGs (alpha:
+//! the object's coverage of each pixel, the target of `silhouette()`).
 //!
 //! Poses convert exactly to sdfl cameras (`Camera::from_opengl`): the same
 //! ray through every pixel, pixel `i` centred at `i + ½` as Blender renders
