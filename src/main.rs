@@ -642,6 +642,8 @@ fn runtime_diag(src: &SourceFile, job: &str, e: &std::io::Error) -> (sdfl_lang::
             sdfl_runtime::train::NON_FINITE,
             "the fit diverged: lower the learning rate (`adam(lr: ...)`), then run again (it resumes from the kept checkpoint; `--restart` starts over)",
         )
+    } else if let Some(c) = sdfl_runtime::data::coded(e) {
+        (c.code, c.help)
     } else {
         (sdfl_lang::codes::IO, help)
     };

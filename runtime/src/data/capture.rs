@@ -17,7 +17,7 @@ use sdfl_stdlib::value::{CaptureFormat, CaptureOrient, CaptureSpec};
 use super::image::{check_dataset, composite_over, read_rgba_image};
 use super::normalize::{Orient, SceneFrame};
 use super::npy::RgbImage;
-use super::TrainView;
+use super::{coverage_from_alpha, no_coverage, DataNeeds, TrainView};
 
 pub use sdfl_stdlib::lens::{Distortion, Intrinsics};
 
@@ -194,12 +194,16 @@ pub fn every_nth(n: usize, every: usize) -> Vec<usize> {
 
 /// Reads a capture's images (sizes checked before any is decoded), moves
 /// its cameras into the scene frame (`frame`, or one from the cameras by
-/// `normalize`) and composites images with alpha over `background`.
+/// `normalize`) and composites images with alpha over `background`. With
+/// `needs.coverage`, each training view's coverage is its image's alpha
+/// (an error where an image has none); masks keep their own meaning (which
+/// pixels are trained on and scored).
 pub fn load(
     c: &Capture,
     normalize: Normalize,
     frame: Option<SceneFrame>,
     background: DVec3,
+    needs: DataNeeds,
 ) -> io::Result<CaptureViews> {
     check_dataset(
         c.frames
@@ -230,7 +234,8 @@ pub fn load(
     let (mut train, mut test, mut names) = (Vec::new(), Vec::new(), Vec::new());
     let mut test_names = Vec::new();
     for (k, (f, camera)) in c.frames.iter().zip(cameras).enumerate() {
-        let (w, h, rgba) = read_rgba_image(&f.image)?;
+        let rgba = read_rgba_image(&f.image)?;
+        let (w, h) = (rgba.width, rgba.height);
         if (w, h) != (f.intrinsics.width, f.intrinsics.height) {
             return Err(invalid(
                 &f.image,
@@ -254,7 +259,14 @@ pub fn load(
                 ),
             ));
         }
-        let pixels = composite_over(&rgba, bg);
+        let held_out = c.test.binary_search(&k).is_ok();
+        // Held-out views are only scored: their coverage is never read.
+        let coverage = match (needs.coverage && !held_out, rgba.has_alpha) {
+            (false, _) => None,
+            (true, true) => Some(coverage_from_alpha(&rgba.pixels)),
+            (true, false) => return Err(no_coverage(&f.image)),
+        };
+        let pixels = composite_over(&rgba.pixels, bg);
         let mask = match &f.mask {
             None => None,
             Some(m) => Some(read_mask(m, (w, h), f, &c.source)?),
@@ -267,10 +279,10 @@ pub fn load(
                 pixels,
             },
             mask,
-            coverage: None,
+            coverage,
         };
         let name = format!("{} {}", c.source.display(), f.label);
-        if c.test.binary_search(&k).is_ok() {
+        if held_out {
             test.push(view);
             test_names.push(name);
         } else {
@@ -330,6 +342,11 @@ pub fn detect(dir: &Path) -> Option<CaptureFormat> {
 /// Reads the capture `spec` names (relative to `base`): its frames, split,
 /// scene frame and images.
 pub fn read(spec: &CaptureSpec, base: &Path) -> io::Result<CaptureViews> {
+    read_for(spec, base, DataNeeds::default())
+}
+
+/// [`read`], with what the job reads beyond colours (`needs`).
+pub fn read_for(spec: &CaptureSpec, base: &Path, needs: DataNeeds) -> io::Result<CaptureViews> {
     let path = base.join(&spec.path);
     let format = match spec.format {
         CaptureFormat::Auto => detect(&path).ok_or_else(|| {
@@ -376,6 +393,7 @@ pub fn read(spec: &CaptureSpec, base: &Path) -> io::Result<CaptureViews> {
         normalize,
         frame,
         spec.background.unwrap_or(glam::DVec3::ONE),
+        needs,
     )?;
     // LLFF's normalisation puts the average camera at the origin looking
     // down −z and the nearest bound at 1/BD_FACTOR: NDC's near plane is 1,
@@ -404,7 +422,8 @@ fn read_mask(
     f: &CaptureFrame,
     source: &Path,
 ) -> io::Result<std::sync::Arc<[bool]>> {
-    let (w, h, rgba) = read_rgba_image(path)?;
+    let mask = read_rgba_image(path)?;
+    let (w, h) = (mask.width, mask.height);
     if (w, h) != size {
         return Err(invalid(
             path,
@@ -417,7 +436,8 @@ fn read_mask(
             ),
         ));
     }
-    let keep: std::sync::Arc<[bool]> = rgba
+    let keep: std::sync::Arc<[bool]> = mask
+        .pixels
         .iter()
         .map(|p| p[0].max(p[1]).max(p[2]) > 0.0)
         .collect();

@@ -139,9 +139,23 @@ pub fn read_rgb_image(path: &Path) -> io::Result<RgbImage> {
     })
 }
 
+/// An image read as f32 RGBA.
+#[derive(Debug, Clone)]
+pub struct RgbaImage {
+    /// Width in pixels.
+    pub width: u32,
+    /// Height in pixels.
+    pub height: u32,
+    /// Row-major RGBA in 0..1 (alpha 1 where the file has none).
+    pub pixels: Vec<[f32; 4]>,
+    /// Whether the file has an alpha channel: without one, alpha says
+    /// nothing of what covers a pixel.
+    pub has_alpha: bool,
+}
+
 /// Reads an image with its alpha channel as f32 RGBA in 0..1 (opaque where
 /// the file has no alpha), its size checked first. Not `.npy`.
-pub fn read_rgba_image(path: &Path) -> io::Result<(u32, u32, Vec<[f32; 4]>)> {
+pub fn read_rgba_image(path: &Path) -> io::Result<RgbaImage> {
     let size = image_dimensions(path)?;
     if is_npy(path) {
         return Err(invalid(
@@ -151,17 +165,17 @@ pub fn read_rgba_image(path: &Path) -> io::Result<(u32, u32, Vec<[f32; 4]>)> {
     }
     let img = reader(path, Some(size))?
         .decode()
-        .map_err(|e| invalid(path, e))?
-        .to_rgba32f();
-    Ok((
-        img.width(),
-        img.height(),
-        img.pixels().map(|p| p.0).collect(),
-    ))
+        .map_err(|e| invalid(path, e))?;
+    let has_alpha = img.color().has_alpha();
+    let img = img.to_rgba32f();
+    Ok(RgbaImage {
+        width: img.width(),
+        height: img.height(),
+        pixels: img.pixels().map(|p| p.0).collect(),
+        has_alpha,
+    })
 }
 
-/// The bytes of a checkpoint: a regular file of at most 1 GiB, never read
-/// through a symbolic link; every error names the path.
 /// RGBA pixels composited over `background` (alpha clamped to [0, 1]).
 pub fn composite_over(rgba: &[[f32; 4]], background: [f32; 3]) -> Vec<[f32; 3]> {
     rgba.iter()
@@ -286,8 +300,9 @@ mod tests {
         iccp.extend((((n % 65521) << 16) as u32 | 1).to_be_bytes());
         let path = d.join("iccp.png");
         std::fs::write(&path, png_with_chunk(b"iCCP", &iccp)).unwrap();
-        let (w, h, px) = read_rgba_image(&path).unwrap();
-        assert_eq!((w, h), (16, 16));
+        let img = read_rgba_image(&path).unwrap();
+        assert_eq!((img.width, img.height), (16, 16));
+        let px = &img.pixels;
         assert!((px[0][0] - 128.0 / 255.0).abs() < 1e-6, "{:?}", px[0]);
         // Metadata beyond the limit that cannot be dropped is refused.
         let text = [b"k\0".as_slice(), &vec![b'x'; 17 << 20]].concat();
@@ -295,6 +310,58 @@ mod tests {
         std::fs::write(&path, png_with_chunk(b"tEXt", &text)).unwrap();
         let e = read_rgb_image(&path).unwrap_err().to_string();
         assert!(e.contains("text.png") && e.contains("limit"), "{e}");
+    }
+
+    /// Whether a file has alpha is what it declares, not what its alpha
+    /// holds: RGB PNG and JPEG have none, grey+alpha and RGBA have it (an
+    /// opaque one too); coverage is alpha in 255ths, 16-bit to the nearest.
+    #[test]
+    fn alpha_is_known_and_read_as_coverage() {
+        let d = dir("alpha");
+        let grey = |x: u8| image::Rgb([x, x, x]);
+        let rgb = image::RgbImage::from_fn(4, 2, |i, _| grey(60 * i as u8));
+        rgb.save(d.join("rgb.png")).unwrap();
+        rgb.save(d.join("rgb.jpg")).unwrap();
+        let rgba = image::RgbaImage::from_fn(4, 2, |i, j| {
+            image::Rgba([
+                9,
+                9,
+                9,
+                [0, 1, 128, 255][i as usize] * (1 - j as u8) + 255 * j as u8,
+            ])
+        });
+        rgba.save(d.join("rgba.png")).unwrap();
+        image::RgbaImage::from_pixel(4, 2, image::Rgba([9, 9, 9, 255]))
+            .save(d.join("opaque.png"))
+            .unwrap();
+        let wide = image::ImageBuffer::<image::LumaA<u16>, Vec<u16>>::from_fn(2, 1, |i, _| {
+            image::LumaA([1000, [32768, 65535][i as usize]])
+        });
+        wide.save(d.join("la16.png")).unwrap();
+        for (name, alpha) in [
+            ("rgb.png", false),
+            ("rgb.jpg", false),
+            ("rgba.png", true),
+            ("opaque.png", true),
+            ("la16.png", true),
+        ] {
+            let img = read_rgba_image(&d.join(name)).unwrap();
+            assert_eq!(img.has_alpha, alpha, "{name}");
+            // Without alpha, opaque.
+            if !alpha {
+                assert!(img.pixels.iter().all(|p| p[3] == 1.0), "{name}");
+            }
+        }
+        let c =
+            crate::data::coverage_from_alpha(&read_rgba_image(&d.join("rgba.png")).unwrap().pixels);
+        assert_eq!(&c[..], &[0, 1, 128, 255, 255, 255, 255, 255]);
+        // 32768/65535 lies 0.5/65535 above 127.5/255: the nearest 255th is 128.
+        let c =
+            crate::data::coverage_from_alpha(&read_rgba_image(&d.join("la16.png")).unwrap().pixels);
+        assert_eq!(&c[..], &[128, 255]);
+        // Alpha beyond 0..1 (a float source) is clamped, not wrapped.
+        let c = crate::data::coverage_from_alpha(&[[0.0, 0.0, 0.0, -0.5], [0.0, 0.0, 0.0, 1.5]]);
+        assert_eq!(&c[..], &[0, 255]);
     }
 
     #[test]

@@ -1,7 +1,8 @@
 //! NeRF-synthetic (Blender) data sets: `transforms_<split>.json` with one
 //! camera-to-world `transform_matrix` per frame in OpenGL axes (the camera
 //! looks down −z, +y up, +x right), `camera_angle_x` (the horizontal field
-//! of view; `fl_x`/`fl_y` in pixels where given), and RGBA PNGs.
+//! of view; `fl_x`/`fl_y` in pixels where given), and RGBA PNGs (alpha:
+//! the object's coverage of each pixel, the target of `silhouette()`).
 //!
 //! Poses convert exactly to sdfl cameras (`Camera::from_opengl`): the same
 //! ray through every pixel, pixel `i` centred at `i + ½` as Blender renders
@@ -18,7 +19,7 @@ use glam::DVec3;
 use super::capture::{camera_of, invalid};
 use super::image::{check_dataset, composite_over, read_rgba_image};
 use super::npy::RgbImage;
-use super::TrainView;
+use super::{coverage_from_alpha, no_coverage, TrainView};
 
 pub use super::nerfstudio::{read_transforms, Frame, Transforms, MAX_JSON_BYTES};
 
@@ -44,18 +45,23 @@ pub fn transforms_path(path: &Path, split: &str) -> PathBuf {
 /// Reads one split's views, composited over `background`: every image the
 /// same size, checked before any is decoded.
 pub fn read_split(path: &Path, split: &str, background: DVec3) -> io::Result<Vec<TrainView>> {
-    read_splits(path, &[split], background).map(|mut s| s.remove(0))
+    read_splits(path, &[(split, false)], background).map(|mut s| s.remove(0))
 }
 
 /// Reads several splits' views (one list each), every image's declared
 /// size checked (all splits together within the data-set limit) before
-/// any is decoded.
+/// any is decoded. A split paired with `true` gives each view its coverage
+/// from its image's alpha (`silhouette()`), an error where an image has
+/// none.
 pub fn read_splits(
     path: &Path,
-    splits: &[&str],
+    splits: &[(&str, bool)],
     background: DVec3,
 ) -> io::Result<Vec<Vec<TrainView>>> {
-    let files: Vec<PathBuf> = splits.iter().map(|s| transforms_path(path, s)).collect();
+    let files: Vec<PathBuf> = splits
+        .iter()
+        .map(|(s, _)| transforms_path(path, s))
+        .collect();
     let all = files
         .iter()
         .map(|f| read_transforms(f))
@@ -64,15 +70,22 @@ pub fn read_splits(
     files
         .iter()
         .zip(&all)
-        .map(|(file, t)| read_frames(file, t, background))
+        .zip(splits)
+        .map(|((file, t), (_, coverage))| read_frames(file, t, background, *coverage))
         .collect()
 }
 
-fn read_frames(file: &Path, t: &Transforms, background: DVec3) -> io::Result<Vec<TrainView>> {
+fn read_frames(
+    file: &Path,
+    t: &Transforms,
+    background: DVec3,
+    coverage: bool,
+) -> io::Result<Vec<TrainView>> {
     let mut views = Vec::with_capacity(t.frames.len());
     let mut size = None;
     for (k, f) in t.frames.iter().enumerate() {
-        let (w, h, rgba) = read_rgba_image(&f.image)?;
+        let rgba = read_rgba_image(&f.image)?;
+        let (w, h) = (rgba.width, rgba.height);
         match size {
             None => size = Some((w, h)),
             Some(s) if s != (w, h) => {
@@ -86,8 +99,13 @@ fn read_frames(file: &Path, t: &Transforms, background: DVec3) -> io::Result<Vec
         let named = |e: String| invalid(file, format!("frame {k}: {e}"));
         let intrinsics = t.intrinsics(k, (w, h), 1).map_err(named)?;
         let camera = camera_of(&f.pose, &intrinsics).map_err(named)?;
+        let coverage = match (coverage, rgba.has_alpha) {
+            (false, _) => None,
+            (true, true) => Some(coverage_from_alpha(&rgba.pixels)),
+            (true, false) => return Err(no_coverage(&f.image)),
+        };
         let bg = background.as_vec3().to_array();
-        let pixels = composite_over(&rgba, bg);
+        let pixels = composite_over(&rgba.pixels, bg);
         views.push(TrainView {
             camera,
             image: RgbImage {
@@ -96,7 +114,7 @@ fn read_frames(file: &Path, t: &Transforms, background: DVec3) -> io::Result<Vec
                 pixels,
             },
             mask: None,
-            coverage: None,
+            coverage,
         });
     }
     Ok(views)

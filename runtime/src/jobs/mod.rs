@@ -18,6 +18,7 @@ use serde::Serialize;
 
 use crate::data::export::DatasetWriter;
 use crate::data::npy::RgbImage;
+use crate::data::DataNeeds;
 use crate::metrics;
 use crate::neural::field::NerfObjective;
 use crate::neural::nerf::{NerfNet, NerfWork};
@@ -425,7 +426,8 @@ pub struct Views {
     /// A capture's normalisation (data frame → scene frame) and the lines
     /// that report it; exports map back with `SceneFrame::to_data`.
     pub scene_frame: Option<crate::data::normalize::SceneFrame>,
-    /// Lines describing the normalisation, for the run's report.
+    /// Lines for people about the data as read (a capture's
+    /// normalisation, a warning about its alpha), for the run's report.
     pub scene_report: Vec<String>,
     /// A forward-facing capture's camera for NDC (LLFF).
     pub forward_facing: Option<crate::data::capture::ForwardFacing>,
@@ -435,7 +437,15 @@ pub struct Views {
 /// volume-rendered, sphere-traced (exactly as `render` draws them) or read
 /// from a NeRF-synthetic data set; split into training and test views.
 /// Every pixel must be a finite colour; the first that is not is named.
+/// Coverage is read from no image's alpha (see [`load_views_for`]).
 pub fn load_views(data: &Dataset, base: &Path) -> io::Result<Views> {
+    load_views_for(data, base, DataNeeds::default())
+}
+
+/// [`load_views`], reading what `needs` asks beyond colours: each training
+/// view's coverage from its image's alpha (a NeRF-synthetic set, a
+/// capture) when `silhouette()` trains on it.
+pub fn load_views_for(data: &Dataset, base: &Path, needs: DataNeeds) -> io::Result<Views> {
     let views: Vec<(TrainView, String)> = match data {
         Dataset::Points {
             path,
@@ -507,7 +517,8 @@ pub fn load_views(data: &Dataset, base: &Path) -> io::Result<Views> {
             let at = |e| crate::data::at_argument(*path_span, e);
             use crate::data::nerf_synthetic::{read_splits, transforms_path};
             let dir = base.join(path);
-            let mut splits = vec![split.as_str()];
+            // The training split's coverage only: held-out views are scored.
+            let mut splits = vec![(split.as_str(), needs.coverage)];
             if let Some(t) = test_split {
                 // The lone transforms.json stands in for the training split
                 // only: it never doubles as the test views.
@@ -517,7 +528,7 @@ pub fn load_views(data: &Dataset, base: &Path) -> io::Result<Views> {
                         dir.display()
                     ))));
                 }
-                splits.push(t);
+                splits.push((t, false));
             }
             let mut read = read_splits(&dir, &splits, *background).map_err(at)?;
             let test = if read.len() > 1 {
@@ -538,19 +549,20 @@ pub fn load_views(data: &Dataset, base: &Path) -> io::Result<Views> {
             let test = named(test_split.as_deref().unwrap_or(""), test);
             check_finite(&train).map_err(at)?;
             check_finite(&test).map_err(at)?;
+            let train: Vec<TrainView> = train.into_iter().map(|(v, _)| v).collect();
             return Ok(Views {
-                train: train.into_iter().map(|(v, _)| v).collect(),
+                scene_report: opaque_alpha_warning(&train).into_iter().collect(),
+                train,
                 test: test.into_iter().map(|(v, _)| v).collect(),
                 points: Vec::new(),
                 all_points: Vec::new(),
                 scene_frame: None,
-                scene_report: Vec::new(),
                 forward_facing: None,
             });
         }
         Dataset::Capture(spec) => {
             let at = |e| crate::data::at_argument(spec.path_span, e);
-            let c = crate::data::capture::read(spec, base).map_err(at)?;
+            let c = crate::data::capture::read_for(spec, base, needs).map_err(at)?;
             let named: Vec<(TrainView, String)> = c
                 .train
                 .into_iter()
@@ -560,13 +572,15 @@ pub fn load_views(data: &Dataset, base: &Path) -> io::Result<Views> {
             check_finite(&named).map_err(at)?;
             let mut train: Vec<TrainView> = named.into_iter().map(|(v, _)| v).collect();
             let test = train.split_off(train.len() - c.test.len());
+            let mut scene_report = c.report;
+            scene_report.extend(opaque_alpha_warning(&train));
             return Ok(Views {
                 train,
                 test,
                 points: Vec::new(),
                 all_points: Vec::new(),
                 scene_frame: Some(c.frame),
-                scene_report: c.report,
+                scene_report,
                 forward_facing: c.forward_facing,
             });
         }
@@ -651,15 +665,23 @@ pub fn traced_views(job: &RenderJob) -> Vec<TrainView> {
                         .collect(),
                 },
                 mask: None,
-                // Each pixel is its centre's thin ray: hit or missed.
-                coverage: Some(
-                    hits.iter()
-                        .map(|&h| if h > 0 { 1.0 } else { 0.0 })
-                        .collect(),
-                ),
+                // Each pixel is its centre's thin ray: hit or missed. Kept
+                // whether or not `silhouette()` asks: it comes with the
+                // trace, a byte a pixel.
+                coverage: Some(hits.iter().map(|&h| if h > 0 { 255 } else { 0 }).collect()),
             }
         })
         .collect()
+}
+
+/// A warning when the views' coverage, read from alpha, is everywhere
+/// whole: such alpha says nothing of the object's outline, and
+/// `silhouette()` then pulls every ray opaque, the background too.
+fn opaque_alpha_warning(views: &[TrainView]) -> Option<String> {
+    let read: Vec<&[u8]> = views.iter().filter_map(|v| v.coverage.as_deref()).collect();
+    (!read.is_empty() && read.iter().all(|c| c.iter().all(|&a| a == 255))).then(|| {
+        "warning: every pixel of the training images is opaque (alpha 1): `silhouette()` then takes the object to cover every pixel and makes every ray opaque; give images whose alpha is the object's coverage, or leave `silhouette()` out".to_string()
+    })
 }
 
 fn check_finite(views: &[(TrainView, String)]) -> io::Result<()> {

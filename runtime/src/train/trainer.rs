@@ -125,8 +125,9 @@ impl<'a> TrainSetup<'a> {
                     self.views[r.view as usize]
                         .coverage
                         .as_ref()
-                        .and_then(|c| c.get(r.pixel as usize).copied())
-                        .unwrap_or(0.0)
+                        .and_then(|c| c.get(r.pixel as usize))
+                        // 255ths: 0 and 255 give exactly 0 and 1.
+                        .map_or(0.0, |&c| f32::from(c) / 255.0)
                 })
                 .collect()
         } else {
@@ -710,9 +711,8 @@ mod tests {
             height: 4,
             pixels: vec![[0.5; 3]; 16],
         };
-        let cover = |k: usize| -> std::sync::Arc<[f32]> {
-            (0..16).map(|i| (i * 7 + k) as f32 / 100.0).collect()
-        };
+        let cover =
+            |k: usize| -> std::sync::Arc<[u8]> { (0..16).map(|i| (i * 16 + k) as u8).collect() };
         let views: Vec<TrainView> = (0..2)
             .map(|k| TrainView {
                 camera: cam,
@@ -728,7 +728,7 @@ mod tests {
         let b = s.batch(3).unwrap();
         assert_eq!(b.coverage.len(), b.rays.len());
         for (r, c) in b.rays.iter().zip(&b.coverage) {
-            assert_eq!(*c, cover(r.view as usize)[r.pixel as usize]);
+            assert_eq!(*c, cover(r.view as usize)[r.pixel as usize] as f32 / 255.0);
         }
         let mut partly = views.clone();
         partly[1].coverage = None;

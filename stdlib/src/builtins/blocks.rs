@@ -603,15 +603,21 @@ fn train_losses(
             "leave `last_interval` at \"zero\" (the default), or leave `silhouette()` out",
         ));
     }
-    // Only a shape's own views know how much of each pixel it covers.
+    // A shape's own views know how much of each pixel it covers (the
+    // tracer's hit mask), and so do images whose alpha is the object's
+    // coverage (NeRF-synthetic sets, captures with alpha: whether the files
+    // have alpha is known only once they are read, and checked then).
     if losses.iter().any(|l| l.kind == LossKind::Silhouette)
-        && !matches!(data, Dataset::Traced { .. })
+        && !matches!(
+            data,
+            Dataset::Traced { .. } | Dataset::NerfSynthetic { .. } | Dataset::Capture(_)
+        )
     {
         return Err(value_error(
             losses_span,
             "`silhouette()` compares each pixel's opacity with how much of it the object covers, and this data set does not say",
             "needs each pixel's coverage",
-            "train on the views of a shape, `render_views(shape, ...)`, or leave `silhouette()` out",
+            "train on the views of a shape (`render_views(shape, ...)`), on images whose alpha is the object's coverage (`nerf_synthetic(...)`, `capture(...)`), or leave `silhouette()` out",
         ));
     }
     // A neural SDF is sphere-traced (normals as colours, depth): volume

@@ -739,7 +739,7 @@ fn table() -> Vec<Builtin> {
         ),
         func(
             "silhouette",
-            "Binary cross-entropy of each ray's opacity against its pixel's coverage by the object (NeuS's mask loss), times `weight`. A neural SDF's volume only, on the views of a shape by `render_views` (which know each pixel's coverage). Unlike the colour error, it does not fade where the object is dark against the background.",
+            "Binary cross-entropy of each ray's opacity against its pixel's coverage by the object (NeuS's mask loss), times `weight`. A neural SDF's volume only, on data that give each pixel's coverage: the views of a shape by `render_views` (whether each pixel's ray hits), or `nerf_synthetic(...)` and `capture(...)` images whose alpha is the coverage (an image without alpha is an error when read). Unlike the colour error, it does not fade where the object is dark against the background.",
             vec![opt("weight", Type::Number, "0.1", "weight of this term (> 0)")],
             LOSS,
             |a| Ok(Value::Loss(Loss { kind: LossKind::Silhouette, weight: a.positive("weight")? })),

@@ -98,7 +98,8 @@ pub fn run_train_job(
         scene_report,
         scene_frame,
         forward_facing,
-    } = load_views(&job.data, base).map_err(|e| crate::data::at_argument(job.data_span, e))?;
+    } = load_views_for(&job.data, base, DataNeeds::of(job))
+        .map_err(|e| crate::data::at_argument(job.data_span, e))?;
     for line in &scene_report {
         status(line);
     }
