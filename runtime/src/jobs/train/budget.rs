@@ -136,8 +136,10 @@ pub(super) fn within_budget_once_read(
             test_views.len()
         )));
     }
-    // Pixels as f32 colours, as read.
-    let data: f64 = views.iter().chain(test_views).map(pixels).sum::<f64>() * 12.0;
+    // Pixels as f32 colours, as read, and a coverage byte each where kept.
+    let coverage = |v: &TrainView| v.coverage.as_ref().map_or(0.0, |c| c.len() as f64);
+    let data: f64 = views.iter().chain(test_views).map(pixels).sum::<f64>() * 12.0
+        + views.iter().chain(test_views).map(coverage).sum::<f64>();
     let memory = work.memory + data + held_out.memory;
     if memory > MAX_MEMORY {
         return Err(invalid(format!(
