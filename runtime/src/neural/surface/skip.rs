@@ -222,14 +222,16 @@ impl SkipGrid {
         };
         std::mem::swap(&mut self.distance, &mut self.fresh);
         self.refreshed_at = Some(step);
-        (self.crossing, self.threshold) = if first || !drift.is_finite() || !(band >= 0.0) {
-            (f32::MAX, f32::MAX)
-        } else {
-            let half_diagonal = 0.5 * self.cell.iter().map(|c| c * c).sum::<f64>().sqrt() as f32;
-            let lipschitz = LIPSCHITZ_FLOOR.max(LIPSCHITZ_FLOOR * self.steepest_slope());
-            let crossing = lipschitz * half_diagonal + DRIFT_SAFETY * drift;
-            (crossing, crossing + band)
-        };
+        (self.crossing, self.threshold) =
+            if first || !drift.is_finite() || band.is_nan() || band < 0.0 {
+                (f32::MAX, f32::MAX)
+            } else {
+                let half_diagonal =
+                    0.5 * self.cell.iter().map(|c| c * c).sum::<f64>().sqrt() as f32;
+                let lipschitz = LIPSCHITZ_FLOOR.max(LIPSCHITZ_FLOOR * self.steepest_slope());
+                let crossing = lipschitz * half_diagonal + DRIFT_SAFETY * drift;
+                (crossing, crossing + band)
+            };
         self.mark();
     }
 
@@ -277,7 +279,7 @@ impl SkipGrid {
     /// The part of the ray `origin + t·dir` between `lo` and `hi` that
     /// crosses occupied cells (see the module doc).
     pub fn span(&self, origin: [f32; 3], dir: [f32; 3], lo: f32, hi: f32) -> Span {
-        if self.whole || !(lo < hi) {
+        if self.whole || lo.is_nan() || hi.is_nan() || lo >= hi {
             return Span::Whole;
         }
         let (o, d) = (origin.map(f64::from), dir.map(f64::from));
@@ -294,7 +296,7 @@ impl SkipGrid {
             enter = enter.max(t0.min(t1));
             exit = exit.min(t0.max(t1));
         }
-        if !(enter < exit) {
+        if enter.is_nan() || exit.is_nan() || enter >= exit {
             return Span::Empty;
         }
         // Amanatides–Woo through the cells from `enter` to `exit`.
