@@ -701,7 +701,15 @@ pub fn train_work(j: &TrainJob, size: Option<(u32, u32)>) -> Work {
         Field::Nerf(n) => n.occupancy.as_ref(),
         _ => None,
     };
-    let cells = grid.map_or(0.0, |g| (g.resolution as f64).powi(3));
+    // A neural surface's grid that skips empty space keeps a distance a
+    // cell (its state), copied as the NeRF's is.
+    let surface_cells = match &*j.model {
+        Field::NeuralSurface(n) if n.skips_empty_space() => {
+            (crate::value::NeuralSurface::SKIP_CELLS as f64).powi(3)
+        }
+        _ => 0.0,
+    };
+    let cells = grid.map_or(surface_cells, |g| (g.resolution as f64).powi(3));
     let mut w = Work::new(data_bytes + weights * BYTES_PER_WEIGHT + cells * 4.0 * GRID_COPIES);
     w.add(Stage::Data, data_evals, 0.0);
 
@@ -749,6 +757,18 @@ pub fn train_work(j: &TrainJob, size: Option<(u32, u32)>) -> Work {
             // One pass of points, their directions and densities.
             cells.min(NETWORK_PASS) * (nerf_bytes_per_sample(n) + 28.0),
         );
+    }
+
+    if let Field::NeuralSurface(n) = &*j.model {
+        if surface_cells > 0.0 {
+            let every = crate::value::NeuralSurface::SKIP_EVERY as f64;
+            w.add(
+                Stage::GridRefresh,
+                (iterations / every).ceil() * surface_cells * network(n.sdf.multiply_adds()),
+                // The centres, this refresh's distances and the last's.
+                surface_cells * 20.0,
+            );
+        }
     }
 
     let (test_views, test_pixels) = match &*j.data {

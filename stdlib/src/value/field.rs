@@ -218,6 +218,17 @@ pub struct NeuralSurface {
 impl NeuralSurface {
     /// Harmonic frequencies of the view direction.
     pub const DIRECTION_FREQS: usize = 2;
+    /// Cells a side of the grid that skips empty space over a hash-grid
+    /// SDF's box.
+    pub const SKIP_CELLS: u32 = 32;
+    /// Training steps between refreshes of that grid.
+    pub const SKIP_EVERY: usize = 8;
+
+    /// Whether empty space is skipped (a hash-grid SDF, whose box the grid
+    /// tiles).
+    pub fn skips_empty_space(&self) -> bool {
+        matches!(self.sdf.encoding, Encoding::HashGrid(_))
+    }
 
     /// Width of the colour network's input.
     pub fn color_input(&self) -> usize {

@@ -31,6 +31,7 @@ use crate::train::{Objective, TensorSpec, TrainError, Trained, TrainedField};
 use crate::volume::importance::Spacing;
 use crate::volume::{camera_rays, ImageSize, Ray, SplitMix64, Stratified, VolumeError};
 pub use geometry::{GeometryWork, HashSurface, Levels, SurfaceField, SurfaceSdf};
+use skip::{Selection, SkipGrid};
 
 /// A trained β is kept as `θ = ln β / BETA_RATE`: Adam's steps in θ are
 /// about the learning rate whatever the gradient's scale, so this makes
@@ -241,7 +242,13 @@ pub struct SurfaceObjective {
     /// The training's steps, over which a scheduled β falls to
     /// `spec.beta_end`.
     steps: usize,
+    /// Empty space skipped (a hash-grid SDF): the grid, and each step's
+    /// rays that cross it.
+    skip: Option<SkipGrid>,
+    selection: Selection,
     samples: Samples,
+    /// The samples with the fine ones merged in.
+    merged: Samples,
     points: Vec<f32>,
     dirs: Vec<f32>,
     sdf_work: GeometryWork,
@@ -281,7 +288,10 @@ impl SurfaceObjective {
             color,
             steps: 1,
             spec: spec.clone(),
+            skip: SkipGrid::of(spec)?,
+            selection: Selection::default(),
             samples: Samples::default(),
+            merged: Samples::default(),
             points: Vec::new(),
             dirs: Vec::new(),
             sdf_work: GeometryWork::default(),
@@ -312,10 +322,31 @@ impl SurfaceObjective {
             0
         };
         let colour = 3 * n.color_input() + 3 * n.color_layers * n.color_width + 24;
+        // The skipping grid, and the selected rays with their depths.
+        let skip = self.skip.as_ref().map_or(0, |g| g.bytes()) + (rays * (48 + 4 * samples)) as u64;
         self.sdf.bytes_for(rows)
             + (4 * rows * colour) as u64
             + 24 * (self.sdf.len() + n.color_multiply_adds()) as u64
             + placing
+            + skip
+    }
+
+    /// The grid that skips empty space, if any.
+    pub fn skip_grid(&self) -> Option<&SkipGrid> {
+        self.skip.as_ref()
+    }
+
+    /// Refreshes the skipping grid from the distance at `values` when
+    /// `step` is due (see [`skip`]).
+    fn refresh_skip(&mut self, values: &[f32], step: usize) {
+        let (beta, alpha) = (self.beta(values), self.spec.alpha as f32);
+        let (sdf, params, kind) = (&self.sdf, &values[..self.sdf.len()], self.spec.density);
+        if let Some(g) = self.skip.as_mut().filter(|g| g.due(step)) {
+            let band = skip::band(kind, alpha, beta, g.diagonal());
+            g.refresh(step, band, |points, out| {
+                sdf.distance(params, points.as_flattened(), Levels::AtStep(step), out)
+            });
+        }
     }
 
     /// A run of `steps` steps: a scheduled β reaches `beta_end` at the last.
@@ -475,14 +506,26 @@ impl SurfaceObjective {
         let (mut samples, mut points, mut dirs) = (Samples::default(), Vec::new(), Vec::new());
         let mut coarse = Samples::default();
         let (mut sdf_work, mut color_work) = (GeometryWork::default(), ColorWork::default());
+        let mut selection = Selection::default();
+        let mut shaded = Vec::new();
         let (a, b) = (self.spec.alpha as f32, self.beta(params));
-        for (chunk, (colour, depth)) in rays.chunks(per_pass).zip(
+        for (all, (colour, depth)) in rays.chunks(per_pass).zip(
             view.colour
                 .chunks_mut(per_pass)
                 .zip(view.depth.chunks_mut(per_pass)),
         ) {
+            // Rays crossing no occupied cell see the background.
+            selection.select(self.skip.as_ref(), all, t.len(), |_| &t);
+            for &r in &selection.misses {
+                (colour[r], depth[r]) = (self.background(), 0.0);
+            }
+            if selection.hits.is_empty() {
+                continue;
+            }
+            let (chunk, depths) = (&selection.rays, &selection.depths);
+            let m = t.len();
             if self.spec.fine > 0 {
-                coarse.fixed(chunk.len(), t.len(), |_| &t, last);
+                coarse.fixed(chunk.len(), m, |r| &depths[r * m..(r + 1) * m], last);
                 view.evaluated += coarse.t.len();
                 self.upsample(
                     params,
@@ -496,7 +539,7 @@ impl SurfaceObjective {
                     &mut samples,
                 )?;
             } else {
-                samples.fixed(chunk.len(), t.len(), |_| &t, last);
+                samples.fixed(chunk.len(), m, |r| &depths[r * m..(r + 1) * m], last);
             }
             samples.points(chunk, &mut points, &mut dirs);
             self.sdf.forward(
@@ -531,22 +574,21 @@ impl SurfaceObjective {
                 &mut color_work,
             );
             let rgb = self.color.rgb(&color_work);
-            colour
-                .par_iter_mut()
-                .zip(depth.par_iter_mut())
-                .enumerate()
-                .for_each(|(r, (c, d))| {
-                    let k = r * n..(r + 1) * n;
-                    let out = composite(
-                        &sigma[k.clone()],
-                        &rgb[3 * k.start..3 * k.end],
-                        &samples.t[k.clone()],
-                        &delta[k.clone()],
-                        self.background(),
-                    );
-                    *c = out.colour;
-                    *d = out.depth;
-                });
+            shaded.resize(chunk.len(), ([0.0; 3], 0.0));
+            shaded.par_iter_mut().enumerate().for_each(|(r, out)| {
+                let k = r * n..(r + 1) * n;
+                let c = composite(
+                    &sigma[k.clone()],
+                    &rgb[3 * k.start..3 * k.end],
+                    &samples.t[k.clone()],
+                    &delta[k.clone()],
+                    self.background(),
+                );
+                *out = (c.colour, c.depth);
+            });
+            for (&r, &(c, d)) in selection.hits.iter().zip(&shaded) {
+                (colour[r], depth[r]) = (c, d);
+            }
         }
         Ok(view)
     }
@@ -599,6 +641,25 @@ impl Objective for SurfaceObjective {
         v
     }
 
+    /// The skipping grid: a resumed run sees the grid the uninterrupted
+    /// one did.
+    fn state(&self) -> Vec<(String, Vec<f32>)> {
+        self.skip.as_ref().map_or_else(Vec::new, SkipGrid::state)
+    }
+
+    fn restore_state(&mut self, state: &[(String, Vec<f32>)]) -> Result<(), TrainError> {
+        let names: Vec<&str> = state.iter().map(|s| s.0.as_str()).collect();
+        match (&mut self.skip, names.as_slice()) {
+            (None, []) => Ok(()),
+            (Some(g), ["skip.distance", "skip.refresh"]) => g
+                .restore(&state[0].1, &state[1].1)
+                .map_err(TrainError::Invalid),
+            _ => Err(TrainError::Invalid(format!(
+                "the checkpoint holds state {names:?}, which this model does not have"
+            ))),
+        }
+    }
+
     fn at_step(&self, step: usize, values: &mut [f32]) {
         if let (Some(i), Some(_)) = (self.beta_at(), self.spec.beta_end) {
             values[i] = (self.scheduled_beta(step) as f32).ln() / BETA_RATE;
@@ -624,15 +685,75 @@ impl Objective for SurfaceObjective {
                 "`silhouette()` needs each pixel's coverage, and these views do not give it".into(),
             ));
         }
-        self.samples
-            .fixed(rays.len(), n, |r| batch.depths_of(r), batch.last_interval);
+        self.refresh_skip(values, batch.step);
+        // The rays that cross occupied cells, their depths on their spans;
+        // taken out of `self` for the step, put back at its end.
+        let mut selection = std::mem::take(&mut self.selection);
+        selection.select(self.skip.as_ref(), rays, n, |r| batch.depths_of(r));
+        let result = self.fit_selected(values, batch, weight, &selection, grad);
+        self.selection = selection;
+        result
+    }
+}
+
+impl SurfaceObjective {
+    /// The loss of [`Objective::loss_and_grad`] over the selected rays
+    /// (their samples) and the missed ones (the background, opacity 0).
+    fn fit_selected(
+        &mut self,
+        values: &[f32],
+        batch: &Batch,
+        weight: f64,
+        selection: &Selection,
+        grad: &mut [f32],
+    ) -> Result<f64, TrainError> {
+        let all = batch.rays.len();
+        // `weight` scales the image terms as the trainer weighs them; the
+        // MSE is a mean over rays and channels.
+        let scale = (weight / (3 * all) as f64) as f32;
+        // The silhouette term is a mean over rays.
+        let silhouette = self.silhouette / all as f32;
+        let background = self.background();
+        // A missed ray: the same terms through no samples (in ray order,
+        // summed after the sampled rays').
+        let mut missed = 0f64;
+        let mut trans = Vec::new();
+        for &r in &selection.misses {
+            missed += squared_error_backward(
+                &[],
+                &[],
+                &[],
+                &[],
+                background,
+                batch.targets[r],
+                scale,
+                &mut [],
+                &mut [],
+                &mut trans,
+            );
+            if silhouette > 0.0 {
+                missed += silhouette_backward(&[], &[], batch.coverage[r], silhouette, &mut []);
+            }
+        }
+        let rays: &[Ray] = &selection.rays;
+        if rays.is_empty() {
+            return Ok(missed);
+        }
+        let n = batch.samples;
+        let depths = &selection.depths;
+        self.samples.fixed(
+            rays.len(),
+            n,
+            |r| &depths[r * n..(r + 1) * n],
+            batch.last_interval,
+        );
         let n = if self.spec.fine > 0 {
             let spacing = if batch.shared {
                 Spacing::Even
             } else {
                 Spacing::Jittered(batch.seed)
             };
-            let mut merged = Samples::default();
+            let mut merged = std::mem::take(&mut self.merged);
             self.upsample(
                 values,
                 Levels::AtStep(batch.step),
@@ -645,7 +766,8 @@ impl Objective for SurfaceObjective {
                 &mut merged,
             )
             .map_err(|e| TrainError::Invalid(e.to_string()))?;
-            self.samples = merged;
+            std::mem::swap(&mut self.samples, &mut merged);
+            self.merged = merged;
             n + self.spec.fine
         } else {
             n
@@ -670,12 +792,6 @@ impl Objective for SurfaceObjective {
         let rows = self.points.len() / 3;
         self.d_sigma.resize(rows, 0.0);
         self.d_rgb.resize(3 * rows, 0.0);
-        // `weight` scales the image terms as the trainer weighs them; the
-        // MSE is a mean over rays and channels.
-        let scale = (weight / (3 * rays.len()) as f64) as f32;
-        // The silhouette term is a mean over rays.
-        let silhouette = self.silhouette / rays.len() as f32;
-        let background = self.background();
         self.ones.resize(rows, 1.0);
         let (sigma, rgb) = (&self.sigma, self.color.rgb(&self.color_work));
         let (t, delta) = (&self.samples.t, &self.ones);
@@ -694,6 +810,8 @@ impl Objective for SurfaceObjective {
                 {
                     let r = blk * RAY_BLOCK + j;
                     let k = r * n..(r + 1) * n;
+                    // The ray's index in the batch.
+                    let b = selection.hits[r];
                     let (sg, c) = (&sigma[k.clone()], &rgb[3 * k.start..3 * k.end]);
                     loss += squared_error_backward(
                         sg,
@@ -701,7 +819,7 @@ impl Objective for SurfaceObjective {
                         &t[k.clone()],
                         &delta[k.clone()],
                         background,
-                        batch.targets[r],
+                        batch.targets[b],
                         scale,
                         ds,
                         dc,
@@ -711,7 +829,7 @@ impl Objective for SurfaceObjective {
                         loss += silhouette_backward(
                             sg,
                             &delta[k.clone()],
-                            batch.coverage[r],
+                            batch.coverage[b],
                             silhouette,
                             ds,
                         );
@@ -720,7 +838,7 @@ impl Objective for SurfaceObjective {
                 loss
             })
             .collect();
-        let mut loss: f64 = losses.iter().sum();
+        let mut loss: f64 = losses.iter().sum::<f64>() + missed;
         // The colour network: its weights, and the normal's adjoint.
         self.d_normal.resize(3 * rows, 0.0);
         self.color.backward(
@@ -869,6 +987,7 @@ impl TrainedField for Trained<SurfaceObjective> {
 }
 
 pub mod geometry;
+pub mod skip;
 
 #[cfg(test)]
 mod tests;

@@ -563,3 +563,410 @@ fn hash_surface_normals_are_the_fields_gradient() {
     exact.sdf.distance(p, &points, Levels::All, &mut f);
     assert_eq!(f, exact.sdf.distances(&a));
 }
+
+// ---- Empty space skipped ----
+
+use super::skip::{band, Span};
+
+/// A field with thin features, steeper than a distance: a torus of tube
+/// radius 0.012 and a plate 0.016 thick (both under a fifth of a cell of
+/// a 32³ grid over [-1, 1]³), scaled by 1.3 and moved `shift` along x.
+fn thin_field(p: [f64; 3], shift: f64) -> f64 {
+    let [x, y, z] = [p[0] - shift, p[1], p[2]];
+    let torus = (((x * x + z * z).sqrt() - 0.5).powi(2) + y * y).sqrt() - 0.012;
+    let plate = (y - 0.3).abs() - 0.008;
+    1.3 * torus.min(plate.max((x * x + z * z).sqrt() - 0.7))
+}
+
+/// Cells of `grid` that the zero set of `f` passes through, found by brute
+/// force: a lattice six points a cell, a sign change between neighbours
+/// bisected to its point.
+fn crossed_cells(grid: &skip::SkipGrid, f: impl Fn([f64; 3]) -> f64) -> Vec<usize> {
+    let m = 32 * 6 + 1;
+    let at = |i: usize| -1.0 + 2.0 * i as f64 / (m - 1) as f64;
+    let point = |i: usize, j: usize, k: usize| [at(i), at(j), at(k)];
+    let mut cells = Vec::new();
+    for i in 0..m {
+        for j in 0..m {
+            for k in 0..m {
+                let p = point(i, j, k);
+                let fp = f(p);
+                for q in [
+                    (i + 1 < m).then(|| point(i + 1, j, k)),
+                    (j + 1 < m).then(|| point(i, j + 1, k)),
+                    (k + 1 < m).then(|| point(i, j, k + 1)),
+                ]
+                .into_iter()
+                .flatten()
+                {
+                    if (fp > 0.0) == (f(q) > 0.0) {
+                        continue;
+                    }
+                    let (mut a, mut b) = (p, q);
+                    for _ in 0..30 {
+                        let mid = std::array::from_fn(|d| 0.5 * (a[d] + b[d]));
+                        if (f(mid) > 0.0) == (fp > 0.0) {
+                            a = mid;
+                        } else {
+                            b = mid;
+                        }
+                    }
+                    let x = a.map(|v| v as f32);
+                    if let Some(c) = grid.cell_of(x) {
+                        cells.push(c);
+                    }
+                }
+            }
+        }
+    }
+    cells.sort_unstable();
+    cells.dedup();
+    cells
+}
+
+/// No zero crossing is lost: every cell the surface passes is occupied,
+/// for a field with features thinner than a cell, steeper than a
+/// distance, that moves between refreshes (the grid of the refresh at
+/// step 8 against the field anywhere up to the next refresh at 16). The
+/// grid skips most cells all the same.
+#[test]
+fn skip_grid_keeps_every_cell_the_surface_crosses() {
+    let mut grid = skip::SkipGrid::new([-1.0; 3], [1.0; 3], 32).unwrap();
+    let speed = 0.002; // along x, a step
+    let refresh = |grid: &mut skip::SkipGrid, step: usize| {
+        let shift = speed * step as f64;
+        grid.refresh(step, 0.0, |points, out| {
+            for (o, p) in out.iter_mut().zip(points) {
+                *o = thin_field(p.map(f64::from), shift) as f32;
+            }
+        })
+    };
+    refresh(&mut grid, 0);
+    assert!(grid.is_whole(), "the first refresh has no drift to go by");
+    refresh(&mut grid, 8);
+    assert!(!grid.is_whole());
+    assert!(
+        grid.occupied_count() < grid.cells() / 4,
+        "{} of {} occupied",
+        grid.occupied_count(),
+        grid.cells()
+    );
+    for step in [8, 12, 16] {
+        let shift = speed * step as f64;
+        let crossed = crossed_cells(&grid, |p| thin_field(p, shift));
+        assert!(crossed.len() > 300, "the surface crosses cells");
+        let lost: Vec<usize> = crossed
+            .iter()
+            .copied()
+            .filter(|&c| !grid.is_occupied(c))
+            .collect();
+        assert!(lost.is_empty(), "step {step}: cells {lost:?} lost");
+    }
+    // A field that leaves the box leaks: nothing is skipped.
+    let mut wide = skip::SkipGrid::new([-1.0; 3], [1.0; 3], 32).unwrap();
+    for step in [0, 8] {
+        wide.refresh(step, 0.0, |points, out| {
+            for (o, p) in out.iter_mut().zip(points) {
+                *o = (p[0] * p[0] + p[1] * p[1]).sqrt() - 0.3;
+            }
+        });
+    }
+    assert!(wide.is_whole());
+}
+
+/// A ray's span holds every depth whose point lies in an occupied cell
+/// (brute force along the ray), and rays that cross none are empty.
+#[test]
+fn skip_span_holds_every_occupied_cell_a_ray_crosses() {
+    let mut grid = skip::SkipGrid::new([-1.0; 3], [1.0; 3], 32).unwrap();
+    for step in [0, 8] {
+        grid.refresh(step, 0.0, |points, out| {
+            for (o, p) in out.iter_mut().zip(points) {
+                *o = thin_field(p.map(f64::from), 0.0) as f32;
+            }
+        });
+    }
+    let mut rng = SplitMix64::new(3);
+    let (mut parts, mut empties) = (0, 0);
+    for k in 0..440 {
+        let (o, d) = if k < 400 {
+            let o = [0.0f32; 3].map(|_| 4.0 * (rng.next_f32() - 0.5));
+            let o = [o[0], o[1], -2.5 + 0.5 * o[2]];
+            let target = [0.0f32; 3].map(|_| 1.6 * (rng.next_f32() - 0.5));
+            let d: [f32; 3] = std::array::from_fn(|a| target[a] - o[a]);
+            let len = d.iter().map(|x| x * x).sum::<f32>().sqrt();
+            (o, d.map(|x| x / len))
+        } else {
+            // Along z through the box's corners, far from the field's
+            // features: nothing occupied.
+            let sx = if k % 2 == 0 { 1.0 } else { -1.0 };
+            let sy = if k % 4 < 2 { 1.0 } else { -1.0 };
+            let off = 0.01 * (k % 7) as f32;
+            ([sx * (0.88 + off), sy * (0.9 - off), -2.5], [0.0, 0.0, 1.0])
+        };
+        let (lo, hi) = (0.5, 5.0);
+        let span = grid.span(o, d, lo, hi);
+        let (a, b) = match span {
+            Span::Whole => (lo, hi),
+            Span::Part(a, b) => {
+                parts += 1;
+                (a, b)
+            }
+            Span::Empty => {
+                empties += 1;
+                (f32::INFINITY, f32::NEG_INFINITY)
+            }
+        };
+        for k in 0..=20_000 {
+            let t = lo + (hi - lo) * k as f32 / 20_000.0;
+            let p = std::array::from_fn(|i| o[i] + t * d[i]);
+            if let Some(c) = grid.cell_of(p) {
+                if grid.is_occupied(c) {
+                    assert!(
+                        a <= t && t <= b,
+                        "{o:?} {d:?}: occupied at {t}, span {span:?}"
+                    );
+                }
+            }
+        }
+    }
+    assert!(
+        parts > 50 && empties >= 40,
+        "{parts} parts, {empties} empty"
+    );
+}
+
+/// NeuS's tail is `e^(−b/β)`; VolSDF's, over a length, `α·ℓ/2·e^(−b/β)`.
+#[test]
+fn the_band_bounds_what_the_skipped_tail_absorbs() {
+    let b = band(DensityKind::Neus, 10.0, 0.02, 3.0);
+    assert!(((-b / 0.02).exp() - skip::OPACITY_LOST).abs() < 1e-6);
+    let b = band(DensityKind::VolSdf, 50.0, 0.02, 3.0);
+    let tail = 0.5 * 50.0 * 3.0 * (-b / 0.02).exp();
+    assert!((tail - skip::OPACITY_LOST).abs() < 1e-6, "{tail}");
+}
+
+/// A hash surface (NeuS, β small enough that the grid skips) refreshed at
+/// steps 0 and 8 at the same values: nothing moved, so the grid is in use
+/// from step 8.
+fn skipping_surface(beta: f64) -> (SurfaceObjective, Vec<f32>, Batch) {
+    let s = NeuralSurface {
+        beta,
+        ..hash_spec(DensityKind::Neus, 0.0, 0)
+    };
+    let mut obj = SurfaceObjective::new(&s, &WITH_SILHOUETTE).unwrap();
+    let values = rough_values(&obj);
+    let mut b = batch(40, 20);
+    // Spread over [-1, 1]² so that some rays miss the sphere's band.
+    for r in &mut b.rays {
+        r.origin = [2.0 * r.origin[0], 2.0 * r.origin[1], r.origin[2]];
+    }
+    b.coverage = (0..b.rays.len()).map(|r| (r % 2) as f32).collect();
+    for step in [0, 8] {
+        b.step = step;
+        let mut g = vec![0.0; values.len()];
+        obj.loss_and_grad(&values, &b, 1.0, &mut g).unwrap();
+    }
+    assert!(!obj.skip_grid().unwrap().is_whole());
+    (obj, values, b)
+}
+
+/// Where a ray's span is whole its samples are the same, and so is
+/// everything: skipping with a grid that keeps the whole of every ray
+/// gives the loss and gradient of no grid, bit for bit.
+#[test]
+fn skipping_leaves_a_whole_span_unchanged() {
+    // β 0.2: the band covers the whole box, and the depths lie inside it:
+    // every span is whole.
+    let (mut skipping, values, mut b) = skipping_surface(0.2);
+    // Rays within the box over those depths.
+    b.rays = batch(40, 20).rays;
+    b.depths = (0..20).map(|i| 1.3 + 1.4 * i as f32 / 19.0).collect();
+    let grid = skipping.skip_grid().unwrap();
+    for r in &b.rays {
+        assert_eq!(grid.span(r.origin, r.dir, 1.3, 2.7), Span::Whole);
+    }
+    let s = NeuralSurface {
+        beta: 0.2,
+        ..hash_spec(DensityKind::Neus, 0.0, 0)
+    };
+    let mut plain = SurfaceObjective::new(&s, &WITH_SILHOUETTE).unwrap();
+    plain.skip = None;
+    let run = |obj: &mut SurfaceObjective| {
+        let mut g = vec![0.0; values.len()];
+        let loss = obj.loss_and_grad(&values, &b, 1.0, &mut g).unwrap();
+        (
+            loss.to_bits(),
+            g.iter().map(|x| x.to_bits()).collect::<Vec<_>>(),
+        )
+    };
+    assert_eq!(run(&mut skipping), run(&mut plain));
+}
+
+/// Skipping in use (some rays cut to their span, some missing): the
+/// gradient against finite differences, and the same bits at one and two
+/// threads.
+#[test]
+fn skipping_gradient_matches_finite_differences() {
+    let (mut obj, values, b) = skipping_surface(0.03);
+    let grid = obj.skip_grid().unwrap();
+    let spans: Vec<Span> = b
+        .rays
+        .iter()
+        .map(|r| grid.span(r.origin, r.dir, 1.0, 3.0))
+        .collect();
+    assert!(spans.iter().any(|s| matches!(s, Span::Part(..))));
+    assert!(spans.contains(&Span::Empty));
+    let mut grad = vec![0.0; values.len()];
+    let loss = obj.loss_and_grad(&values, &b, 1.0, &mut grad).unwrap();
+    assert!(loss.is_finite() && loss > 0.0);
+    let sdf_len = obj.sdf.len();
+    let mut rng = SplitMix64::new(8);
+    let read: Vec<usize> = (0..values.len()).filter(|&i| grad[i] != 0.0).collect();
+    assert!(read.len() > 40);
+    let mut checked = 0;
+    for _ in 0..60 {
+        let i = read[rng.below(read.len() as u64) as usize];
+        let steps: &[(f32, f64)] = if i >= sdf_len {
+            &[(1e-3, 1e-5)]
+        } else {
+            &[(1e-3, 1e-5), (3e-3, 3e-6)]
+        };
+        let got = grad[i] as f64;
+        let fds: Vec<(f64, f64)> = steps
+            .iter()
+            .map(|&(h, floor)| {
+                let mut at = |x: f32| {
+                    let mut v = values.clone();
+                    v[i] = x;
+                    let mut g = vec![0.0; v.len()];
+                    obj.loss_and_grad(&v, &b, 1.0, &mut g).unwrap()
+                };
+                (
+                    (at(values[i] + h) - at(values[i] - h)) / (2.0 * h as f64),
+                    floor,
+                )
+            })
+            .collect();
+        assert!(
+            fds.iter()
+                .any(|&(fd, floor)| (got - fd).abs() <= 3e-2 * fd.abs() + floor),
+            "parameter {i}: {got:e} vs {fds:?}"
+        );
+        checked += (fds[0].0.abs() > 10.0 * fds[0].1) as usize;
+    }
+    assert!(checked >= 10, "{checked} well above the noise");
+    let threads = |n: usize| {
+        let (mut obj, values, b) = skipping_surface(0.03);
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(n)
+            .build()
+            .unwrap();
+        pool.install(|| {
+            let mut g = vec![0.0; values.len()];
+            let loss = obj.loss_and_grad(&values, &b, 1.0, &mut g).unwrap();
+            (
+                loss.to_bits(),
+                g.iter().map(|x| x.to_bits()).collect::<Vec<_>>(),
+            )
+        })
+    };
+    assert_eq!(threads(1), threads(2));
+}
+
+/// A scene with nothing in it (the distance ≥ 0.5 everywhere): every cell
+/// empty, every ray missed. The loss is finite (the background against
+/// the targets, opacity 0 against the coverage), nothing reaches the
+/// parameters, and a rendered view is the background at no network cost.
+#[test]
+fn skipping_an_empty_scene_gives_the_background() {
+    let s = NeuralSurface {
+        beta: 0.01,
+        ..hash_spec(DensityKind::VolSdf, 0.0, 0)
+    };
+    let mut obj = SurfaceObjective::new(&s, &WITH_SILHOUETTE).unwrap();
+    let mut values = obj.initial();
+    let bias = obj.sdf.len() - 1;
+    values[bias] += 1.0;
+    let mut b = batch(20, 16);
+    b.coverage = vec![1.0; b.rays.len()];
+    let mut grad = vec![0.0; values.len()];
+    for step in [0, 8] {
+        b.step = step;
+        grad.fill(0.0);
+        let loss = obj.loss_and_grad(&values, &b, 1.0, &mut grad).unwrap();
+        assert!(loss.is_finite() && loss > 0.0, "step {step}: {loss}");
+    }
+    assert_eq!(obj.skip_grid().unwrap().occupied_count(), 0);
+    assert!(grad.iter().all(|&g| g == 0.0));
+    let cam = Camera::look_at(
+        glam::DVec3::new(0.0, 0.0, -3.0),
+        glam::DVec3::ZERO,
+        glam::DVec3::Y,
+        1.0,
+    );
+    let size = ImageSize {
+        width: 6,
+        height: 5,
+    };
+    let strat = Stratified::new(16, 1.0, 5.0).unwrap();
+    let v = obj
+        .render_view(&values, &strat, LastInterval::Zero, &cam, size)
+        .unwrap();
+    assert_eq!(v.evaluated, 0);
+    assert!(v.colour.iter().all(|&c| c == [0.2, 0.3, 0.4]));
+    assert!(v.depth.iter().all(|&d| d == 0.0));
+}
+
+/// A run resumed from its state at step 13 (the grid last refreshed at
+/// 8) continues as the uninterrupted one, bit for bit, across the
+/// refreshes at 16 and 24.
+#[test]
+fn skipping_resumes_the_same_run() {
+    let s = NeuralSurface {
+        beta: 0.01,
+        ..hash_spec(DensityKind::Neus, 0.0, 0)
+    };
+    let mut b = batch(40, 20);
+    b.coverage = (0..b.rays.len()).map(|r| (r % 2) as f32).collect();
+    // Plain gradient descent stands in for the optimiser.
+    let step = |obj: &mut SurfaceObjective, values: &mut Vec<f32>, b: &mut Batch, s: usize| {
+        b.step = s;
+        let mut g = vec![0.0; values.len()];
+        let loss = obj.loss_and_grad(values, b, 1.0, &mut g).unwrap();
+        for (v, g) in values.iter_mut().zip(&g) {
+            *v -= 0.5 * g;
+        }
+        loss.to_bits()
+    };
+    let mut whole = SurfaceObjective::new(&s, &WITH_SILHOUETTE).unwrap();
+    let mut values = rough_values(&whole);
+    let (mut losses, mut at_break) = (Vec::new(), None);
+    for s in 0..30 {
+        losses.push(step(&mut whole, &mut values, &mut b, s));
+        if s == 13 {
+            at_break = Some((values.clone(), whole.state()));
+        }
+    }
+    let (mut resumed_values, state) = at_break.unwrap();
+    assert_eq!(state[1].1[0], 9.0, "last refreshed at step 8");
+    let mut resumed = SurfaceObjective::new(&s, &WITH_SILHOUETTE).unwrap();
+    resumed.restore_state(&state).unwrap();
+    for (s, &loss) in losses.iter().enumerate().skip(14) {
+        assert_eq!(
+            step(&mut resumed, &mut resumed_values, &mut b, s),
+            loss,
+            "step {s}"
+        );
+    }
+    assert_eq!(resumed_values, values);
+    assert!(!resumed.skip_grid().unwrap().is_whole());
+    // State of another shape is refused.
+    let mut other = SurfaceObjective::new(&s, &WITH_SILHOUETTE).unwrap();
+    let mut bad = state.clone();
+    bad[0].1.pop();
+    assert!(other.restore_state(&bad).is_err());
+    bad = state.clone();
+    bad[1].1[1] = -1.0;
+    assert!(other.restore_state(&bad).is_err());
+}
