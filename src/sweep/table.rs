@@ -524,6 +524,20 @@ mod tests {
         (img.width(), img.height())
     }
 
+    /// The rows' measures as the plots take them, `reference` marked.
+    fn qualities(rows: &[(Row, PathBuf)], reference: Option<f64>) -> Vec<Quality> {
+        rows.iter()
+            .map(|(r, _)| Quality {
+                value: r.value,
+                secs: r.seconds,
+                psnr: None,
+                perr: None,
+                metrics: r.metrics(),
+                is_ref: Some(r.value) == reference,
+            })
+            .collect()
+    }
+
     #[test]
     fn the_table_has_a_chamfer_column_and_the_plot_a_panel_for_it() {
         let rows = [
@@ -551,17 +565,7 @@ mod tests {
         // Two measures: two panels, one above the other.
         assert_eq!(png_size(&t.against_time), (640, 800));
         assert_eq!(png_size(&t.against_value), (640, 800));
-        let quality: Vec<Quality> = rows
-            .iter()
-            .map(|(r, _)| Quality {
-                value: r.value,
-                secs: r.seconds,
-                psnr: None,
-                perr: None,
-                metrics: r.metrics(),
-                is_ref: r.value == 800.0,
-            })
-            .collect();
+        let quality = qualities(&rows, Some(800.0));
         let to = chamfer_reference(&quality);
         assert_eq!(to, Some(ChamferReference::TrueSurface));
         let panels = charts("steps", "steps=800", to, &quality, Against::Time);
@@ -622,17 +626,7 @@ mod tests {
         assert_eq!(csv[2], "400,60,,,NaN,inf,,");
         assert_eq!(png_size(&t.against_time), (640, 800));
         // Drawn, the non-finite points are left out and noted.
-        let quality: Vec<Quality> = rows
-            .iter()
-            .map(|(r, _)| Quality {
-                value: r.value,
-                secs: r.seconds,
-                psnr: None,
-                perr: None,
-                metrics: r.metrics(),
-                is_ref: false,
-            })
-            .collect();
+        let quality = qualities(&rows, None);
         let panels = charts("steps", "steps=800", None, &quality, Against::Time);
         let figure = sdfl_runtime::plot::render_stacked(&panels, 640, 400).unwrap();
         for p in &figure.panels {

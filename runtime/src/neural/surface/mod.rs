@@ -507,6 +507,7 @@ impl SurfaceObjective {
         let mut coarse = Samples::default();
         let (mut sdf_work, mut color_work) = (GeometryWork::default(), ColorWork::default());
         let mut selection = Selection::default();
+        let grid = skipping(self.skip.as_ref(), last);
         let mut shaded = Vec::new();
         let (a, b) = (self.spec.alpha as f32, self.beta(params));
         for (all, (colour, depth)) in rays.chunks(per_pass).zip(
@@ -515,7 +516,7 @@ impl SurfaceObjective {
                 .zip(view.depth.chunks_mut(per_pass)),
         ) {
             // Rays crossing no occupied cell see the background.
-            selection.select(self.skip.as_ref(), all, t.len(), |_| &t);
+            selection.select(grid, all, t.len(), |_| &t, |_| false);
             for &r in &selection.misses {
                 (colour[r], depth[r]) = (self.background(), 0.0);
             }
@@ -650,7 +651,9 @@ impl Objective for SurfaceObjective {
     fn restore_state(&mut self, state: &[(String, Vec<f32>)]) -> Result<(), TrainError> {
         let names: Vec<&str> = state.iter().map(|s| s.0.as_str()).collect();
         match (&mut self.skip, names.as_slice()) {
-            (None, []) => Ok(()),
+            // A checkpoint from before skipping: as if never refreshed
+            // (the first interval skips nothing), as safe as a fresh start.
+            (None, []) | (Some(_), []) => Ok(()),
             (Some(g), ["skip.distance", "skip.refresh"]) => g
                 .restore(&state[0].1, &state[1].1)
                 .map_err(TrainError::Invalid),
@@ -689,11 +692,26 @@ impl Objective for SurfaceObjective {
         // The rays that cross occupied cells, their depths on their spans;
         // taken out of `self` for the step, put back at its end.
         let mut selection = std::mem::take(&mut self.selection);
-        selection.select(self.skip.as_ref(), rays, n, |r| batch.depths_of(r));
+        let grid = skipping(self.skip.as_ref(), batch.last_interval);
+        let pulled = self.silhouette > 0.0;
+        selection.select(
+            grid,
+            rays,
+            n,
+            |r| batch.depths_of(r),
+            |r| pulled && batch.coverage[r] > 0.0,
+        );
         let result = self.fit_selected(values, batch, weight, &selection, grad);
         self.selection = selection;
         result
     }
+}
+
+/// The grid to skip by, if any: none with an infinite last interval, where
+/// the last sample's absorption beyond a cut span's end would make a ray
+/// that passes near the surface opaque.
+fn skipping(grid: Option<&SkipGrid>, last: LastInterval) -> Option<&SkipGrid> {
+    grid.filter(|_| last != LastInterval::Infinite)
 }
 
 impl SurfaceObjective {

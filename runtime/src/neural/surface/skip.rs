@@ -120,8 +120,14 @@ impl SkipGrid {
     }
 
     /// The grid of `spec`'s hash SDF over its box; `None` for the harmonic
-    /// MLP, which has no box to tile.
+    /// MLP, which has no box to tile, and for the per-sample `Opacity`
+    /// density, whose opacity depends on how many samples fall in the
+    /// surface's band (so moving them would change the image, not only
+    /// its cost).
     pub fn of(spec: &NeuralSurface) -> Result<Option<Self>, String> {
+        if spec.density == DensityKind::Opacity {
+            return Ok(None);
+        }
         match &spec.sdf.encoding {
             sdfl_stdlib::value::Encoding::HashGrid(g) => Self::new(
                 g.min.map(|x| x as f32),
@@ -363,12 +369,13 @@ impl SkipGrid {
     /// refresh, and `[step + 1 (0: never), threshold, crossing]`.
     pub fn state(&self) -> Vec<(String, Vec<f32>)> {
         let at = self.refreshed_at.map_or(0.0, |s| (s + 1) as f32);
+        // A threshold that overflowed (a diverging field) marks every cell,
+        // as f32::MAX does: saved so, the checkpoint stays resumable.
+        let finite = |x: f32| if x.is_finite() { x } else { f32::MAX };
+        let (threshold, crossing) = (finite(self.threshold), finite(self.crossing));
         vec![
             ("skip.distance".into(), self.distance.clone()),
-            (
-                "skip.refresh".into(),
-                vec![at, self.threshold, self.crossing],
-            ),
+            ("skip.refresh".into(), vec![at, threshold, crossing]),
         ]
     }
 
@@ -442,13 +449,17 @@ pub struct Selection {
 
 impl Selection {
     /// Selects among `rays` of `n` depths each (`depth_of(r)`, sorted) by
-    /// `grid` (none: every ray whole).
+    /// `grid` (none: every ray whole). A ray for which `keep(r)` holds is
+    /// sampled whole where it would be dropped: a covered pixel's ray far
+    /// from the surface is what the silhouette term grows the surface
+    /// towards, and its pull (`a/β` however far) needs its samples.
     pub fn select<'d>(
         &mut self,
         grid: Option<&SkipGrid>,
         rays: &[Ray],
         n: usize,
         depth_of: impl Fn(usize) -> &'d [f32],
+        keep: impl Fn(usize) -> bool,
     ) {
         self.hits.clear();
         self.misses.clear();
@@ -461,10 +472,11 @@ impl Selection {
                 _ => Span::Whole,
             };
             match span {
-                Span::Empty => {
+                Span::Empty if !keep(r) => {
                     self.misses.push(r);
                     continue;
                 }
+                Span::Empty => self.depths.extend_from_slice(&t[..n]),
                 Span::Whole => self.depths.extend_from_slice(&t[..n]),
                 Span::Part(a, b) => map_depths(&t[..n], a, b, &mut self.depths),
             }

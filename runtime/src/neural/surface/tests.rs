@@ -889,7 +889,7 @@ fn skipping_an_empty_scene_gives_the_background() {
     let bias = obj.sdf.len() - 1;
     values[bias] += 1.0;
     let mut b = batch(20, 16);
-    b.coverage = vec![1.0; b.rays.len()];
+    b.coverage = vec![0.0; b.rays.len()];
     let mut grad = vec![0.0; values.len()];
     for step in [0, 8] {
         b.step = step;
@@ -899,6 +899,12 @@ fn skipping_an_empty_scene_gives_the_background() {
     }
     assert_eq!(obj.skip_grid().unwrap().occupied_count(), 0);
     assert!(grad.iter().all(|&g| g == 0.0));
+    // Pixels that show the object keep their rays (whole): the silhouette
+    // term's pull grows a surface there, finite.
+    b.coverage = vec![1.0; b.rays.len()];
+    let loss = obj.loss_and_grad(&values, &b, 1.0, &mut grad).unwrap();
+    assert!(loss.is_finite());
+    assert!(grad.iter().all(|g| g.is_finite()) && grad.iter().any(|&g| g != 0.0));
     let cam = Camera::look_at(
         glam::DVec3::new(0.0, 0.0, -3.0),
         glam::DVec3::ZERO,
@@ -969,4 +975,55 @@ fn skipping_resumes_the_same_run() {
     bad = state.clone();
     bad[1].1[1] = -1.0;
     assert!(other.restore_state(&bad).is_err());
+}
+
+/// A covered pixel's ray that crosses no occupied cell is kept, sampled
+/// whole, where the silhouette term needs its pull; an uncovered one is
+/// dropped. With an infinite last interval nothing is skipped.
+#[test]
+fn covered_rays_far_from_the_surface_are_kept_whole() {
+    let mut g = SkipGrid::new([-1.0; 3], [1.0; 3], 8).unwrap();
+    let sphere = |c: &[[f32; 3]], o: &mut [f32]| {
+        for (p, o) in c.iter().zip(o) {
+            *o = (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt() - 0.2;
+        }
+    };
+    g.refresh(0, 0.01, sphere);
+    g.refresh(8, 0.01, sphere);
+    let ray = |x: f32, pixel| Ray {
+        origin: [x, 0.9, -3.0],
+        dir: [0.0, 0.0, 1.0],
+        view: 0,
+        pixel,
+    };
+    // Both pass far from the small sphere, in the box's corner rows.
+    let rays = [ray(0.9, 0), ray(-0.9, 1)];
+    let t: Vec<f32> = (0..8).map(|k| 1.0 + k as f32 * 0.5).collect();
+    assert_eq!(g.span(rays[0].origin, rays[0].dir, t[0], t[7]), Span::Empty);
+    let mut sel = Selection::default();
+    sel.select(Some(&g), &rays, 8, |_| &t, |r| r == 0);
+    assert_eq!(
+        (sel.hits.as_slice(), sel.misses.as_slice()),
+        (&[0][..], &[1][..])
+    );
+    assert_eq!(sel.depths, t, "kept whole");
+    let grid = skipping(Some(&g), LastInterval::Infinite);
+    sel.select(grid, &rays, 8, |_| &t, |_| false);
+    assert_eq!(sel.hits, [0, 1]);
+}
+
+/// A grid whose threshold overflowed (a diverging field) saves a state
+/// that restores: the checkpoint stays resumable.
+#[test]
+fn an_overflowed_skip_threshold_still_restores() {
+    let mut g = SkipGrid::new([-1.0; 3], [1.0; 3], 4).unwrap();
+    g.refresh(0, 0.01, |_, o| o.fill(0.0));
+    g.refresh(8, 0.01, |_, o| {
+        o.fill(0.0);
+        o[5] = 3e38;
+    });
+    let s = g.state();
+    let mut h = SkipGrid::new([-1.0; 3], [1.0; 3], 4).unwrap();
+    h.restore(&s[0].1, &s[1].1).unwrap();
+    assert_eq!(h.occupied_count(), g.occupied_count());
 }
