@@ -164,25 +164,23 @@ impl Metrics {
     /// `report`s) give.
     pub fn of_reports(reports: &[serde_json::Value]) -> Metrics {
         // A reported measure: a number, or `null` for a non-finite one
-        // (`if_null`: what a `null` stands for).
-        let number = |v: &serde_json::Value, if_null: f64| {
-            if v.is_null() {
-                Some(if_null)
-            } else {
-                v.as_f64()
-            }
+        // (`if_null`: what a `null` stands for); a key not there, none.
+        let number = |v: Option<&serde_json::Value>, if_null: f64| match v? {
+            serde_json::Value::Null => Some(if_null),
+            v => v.as_f64(),
         };
         let last_held_out = |key: &str| {
             mean(reports.iter().filter_map(|r| {
                 let last = r["held_out"].as_array()?.last()?;
-                number(&last[key], f64::NAN)
+                number(last.get(key), f64::NAN)
             }))
         };
         let fits = |key: &'static str| reports.iter().filter(move |r| r[key].is_object());
         // An empty mesh or a field with no surface found has no finite
         // distance (reported as `null`): infinity.
-        let mesh_chamfer =
-            mean(fits("mesh_fit").filter_map(|r| number(&r["mesh_fit"]["chamfer"], f64::INFINITY)));
+        let mesh_chamfer = mean(
+            fits("mesh_fit").filter_map(|r| number(r["mesh_fit"].get("chamfer"), f64::INFINITY)),
+        );
         let against: Vec<Option<ChamferReference>> = fits("mesh_fit")
             .map(|r| {
                 r["mesh_fit"]["against"]
@@ -201,7 +199,7 @@ impl Metrics {
             mesh_chamfer,
             mesh_chamfer_to,
             field_chamfer: mean(
-                fits("fit").filter_map(|r| number(&r["fit"]["chamfer"], f64::INFINITY)),
+                fits("fit").filter_map(|r| number(r["fit"].get("chamfer"), f64::INFINITY)),
             ),
         }
     }
@@ -295,6 +293,18 @@ mod tests {
         let fit = json!({"fit": {"surface_mean_abs": 0.001, "eikonal": 0.01, "chamfer": 0.004,
                                  "surface_samples": 100}});
         assert_eq!(Metrics::of_reports(&[fit]).field_chamfer, Some(0.004));
+        // A key not reported is absent, not a non-finite value.
+        let mut partial = neus_report(json!(27.5), json!(0.0125));
+        partial["mesh_fit"]
+            .as_object_mut()
+            .unwrap()
+            .remove("chamfer");
+        for e in partial["held_out"].as_array_mut().unwrap() {
+            e.as_object_mut().unwrap().remove("ssim");
+        }
+        let m = Metrics::of_reports(&[partial]);
+        assert_eq!((m.held_out_ssim, m.mesh_chamfer), (None, None));
+        assert_eq!(m.held_out_psnr_db, Some(27.5));
     }
 
     #[test]
