@@ -110,6 +110,9 @@ pub fn view(v: View) -> ExitCode {
         tracing: tracing.clone(),
         fields: field::Fields::start(v.out.clone(), base, tracing),
     });
+    // Stamped before the first read, so a save at any moment after it,
+    // even before the follower thread first runs, is seen as a change.
+    let seen = crate::watch::sources_stamp(&shared.file);
     reload(&shared);
     crate::Stdout::new().line(&format!(
         "sdfl view: http://{addr}/  ({}; Ctrl-C stops)",
@@ -117,7 +120,7 @@ pub fn view(v: View) -> ExitCode {
     ));
     {
         let shared = shared.clone();
-        std::thread::spawn(move || follow(&shared));
+        std::thread::spawn(move || follow(&shared, seen));
     }
     let workers: Vec<_> = (0..WORKERS)
         .map(|_| {
@@ -135,9 +138,9 @@ pub fn view(v: View) -> ExitCode {
     ExitCode::SUCCESS
 }
 
-/// Reloads the file whenever it (or a `.sdfl` file beside it) is saved.
-fn follow(shared: &Shared) {
-    let mut seen = crate::watch::sources_stamp(&shared.file);
+/// Reloads the file whenever it (or a `.sdfl` file beside it) differs
+/// from `seen`, its stamp when it was last read.
+fn follow(shared: &Shared, mut seen: String) {
     loop {
         seen = crate::watch::next_change(&shared.file, seen);
         reload(shared);
