@@ -472,6 +472,7 @@ impl NerfObjective {
 
 /// Fine samples for rays with `n` coarse samples each and their weights:
 /// `m` depths by inverse CDF merged with the coarse ones (`n + m` per ray).
+/// `scratch` holds the fine and the merged depths between calls.
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn fine_samples(
     coarse: &Samples,
@@ -480,14 +481,14 @@ pub(crate) fn fine_samples(
     m: usize,
     spacing: Spacing,
     last: LastInterval,
-    fine_t: &mut Vec<f32>,
+    scratch: &mut Vec<f32>,
     out: &mut Samples,
 ) -> Result<(), VolumeError> {
     let rays = coarse.rays();
-    fine_t.resize(rays * m, 0.0);
+    scratch.resize(rays * m + rays * (n + m), 0.0);
+    let (fine_t, merged) = scratch.split_at_mut(rays * m);
     sample_pdf(&coarse.t, weights, n, m, spacing, fine_t)?;
-    let mut merged = vec![0.0; rays * (n + m)];
-    merge_depths(&coarse.t, n, fine_t, m, &mut merged)?;
+    merge_depths(&coarse.t, n, fine_t, m, merged)?;
     out.fixed(
         rays,
         n + m,

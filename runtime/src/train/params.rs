@@ -29,6 +29,9 @@ struct Param {
     trainable: bool,
     m: Moments,
     v: Moments,
+    /// The gradient in the device's storage, as dfdx's Adam kernel takes
+    /// it: allocated on the first update from slices, then reused.
+    grad: Option<Moments>,
 }
 
 /// Named, runtime-sized f32 parameters on a dfdx CPU device.
@@ -86,6 +89,7 @@ impl ParamStore {
             trainable,
             m,
             v,
+            grad: None,
         });
         Ok(ParamId(self.params.len() - 1))
     }
@@ -103,6 +107,12 @@ impl ParamStore {
     /// Current values.
     pub fn values(&self, id: ParamId) -> Vec<f32> {
         self.dev.tensor_to_vec(&self.params[id.0].tensor)
+    }
+
+    /// Copies the current values into `out` (the parameter's length), so
+    /// a step reads them without allocating.
+    pub fn copy_values(&self, id: ParamId, out: &mut [f32]) {
+        self.params[id.0].tensor.copy_into(out);
     }
 
     /// The parameter's name, as reports and checkpoints show it.
@@ -269,10 +279,13 @@ impl Adam {
         for &(id, g) in grads {
             let p = &mut store.params[id.0];
             if p.trainable {
-                let mut buf = store.dev.try_alloc_len(g.len())?;
+                let buf = match &mut p.grad {
+                    Some(buf) => buf,
+                    empty => empty.insert(store.dev.try_alloc_len(g.len())?),
+                };
                 buf.copy_from_slice(g);
                 self.cfg
-                    .try_update(self.step, &mut p.tensor, &mut p.m, &mut p.v, &buf)?;
+                    .try_update(self.step, &mut p.tensor, &mut p.m, &mut p.v, buf)?;
             }
         }
         Ok(())

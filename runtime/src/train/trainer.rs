@@ -200,6 +200,8 @@ pub struct Run<O: Objective + ?Sized = dyn Objective> {
     adam: Adam,
     /// Reused each step.
     grad: Vec<f32>,
+    /// The values a step reads, refreshed in place from the store.
+    step_values: Vec<f32>,
     /// Steps done.
     pub step: usize,
     /// The loss of every step done.
@@ -223,6 +225,7 @@ impl<O: Objective + ?Sized> Run<O> {
         Ok(Run {
             layout,
             grad: vec![0.0; init.len()],
+            step_values: vec![0.0; init.len()],
             objective,
             tensors,
             store,
@@ -399,11 +402,11 @@ impl<O: Objective + ?Sized> Run<O> {
         } else {
             1.0
         };
-        let values = self.values();
+        self.read_step_values();
         self.grad.iter_mut().for_each(|g| *g = 0.0);
-        let loss = self
-            .objective
-            .loss_and_grad(&values, &batch, weight, &mut self.grad)?;
+        let loss =
+            self.objective
+                .loss_and_grad(&self.step_values, &batch, weight, &mut self.grad)?;
         if !loss.is_finite() {
             return Err(TrainError::Gradient(format!(
                 "the loss is {loss} at step {}",
@@ -419,9 +422,10 @@ impl<O: Objective + ?Sized> Run<O> {
         self.adam.cfg.lr = setup.optimizer.lr_at(self.step);
         self.adam.update_from_slices(&mut self.store, &pairs)?;
         // Back into range: a radius stays positive, a colour in 0..1.
-        let mut v = self.values();
-        self.objective.project(&mut v);
-        self.objective.at_step(self.step + 1, &mut v);
+        self.read_step_values();
+        self.objective.project(&mut self.step_values);
+        self.objective.at_step(self.step + 1, &mut self.step_values);
+        let v = &self.step_values;
         if let Some(k) = v.iter().position(|x| !x.is_finite()) {
             return Err(TrainError::Gradient(format!(
                 "`{}` became {} at step {}",
@@ -436,6 +440,15 @@ impl<O: Objective + ?Sized> Run<O> {
         self.step += 1;
         self.losses.push(loss as f32);
         Ok(loss as f32)
+    }
+
+    /// Copies the current values into `step_values`, a buffer kept for the
+    /// run: a step allocates nothing the size of the model.
+    fn read_step_values(&mut self) {
+        for (id, t) in self.ids.iter().zip(&self.tensors) {
+            self.store
+                .copy_values(*id, &mut self.step_values[t.offset..t.offset + t.len]);
+        }
     }
 
     /// Steps until `steps` are done or `each` breaks; `each` sees every

@@ -496,12 +496,19 @@ impl HashSdf {
     pub fn distances(&self, params: &[f32], points: &[[f32; 3]], active: usize, out: &mut [f32]) {
         self.check_params(params);
         assert_eq!(points.len(), out.len(), "one distance a point");
+        let len = self.block_len::<0>();
         out.par_chunks_mut(CHUNK)
             .zip(points.par_chunks(CHUNK))
-            .for_each_init(
-                || BlockScratch::forward_only::<0>(self),
-                |s, (out, pts)| block::values_block(self, params, pts, active, &mut s.forward, out),
-            );
+            .for_each(|(out, pts)| {
+                // One buffer a worker thread, kept between calls: the
+                // placing pass runs every step.
+                DISTANCE_SCRATCH.with_borrow_mut(|buf| {
+                    if buf.len() < len {
+                        buf.resize(len, 0.0);
+                    }
+                    block::values_block(self, params, pts, active, &mut buf[..len], out)
+                })
+            });
     }
 
     /// [`Self::distances`] one point at a time through `value`:
@@ -989,6 +996,12 @@ impl HashSdfWork {
     pub fn gradient(&self) -> &[[f32; 3]] {
         &self.g[..self.rows]
     }
+}
+
+thread_local! {
+    /// [`HashSdf::distances`]'s block buffer on this thread.
+    static DISTANCE_SCRATCH: std::cell::RefCell<Vec<f32>> =
+        const { std::cell::RefCell::new(Vec::new()) };
 }
 
 fn grow(v: &mut Vec<f32>, n: usize) {

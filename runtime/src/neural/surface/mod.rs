@@ -228,6 +228,24 @@ fn absorption(
         });
 }
 
+/// The buffers of the pass that places fine samples
+/// ([`SurfaceObjective::upsample`]), kept from step to step.
+#[derive(Default)]
+struct Placing {
+    points: Vec<f32>,
+    dirs: Vec<f32>,
+    /// Per coarse sample: the distance, what it absorbs and its slopes,
+    /// and its weight in the ray's colour.
+    f: Vec<f32>,
+    a: Vec<f32>,
+    s: Vec<f32>,
+    s_next: Vec<f32>,
+    s_beta: Vec<f32>,
+    weights: Vec<f32>,
+    /// The fine depths and the merged ones ([`fine_samples`]).
+    depths: Vec<f32>,
+}
+
 /// A neural SDF with a colour network, fitted to images.
 pub struct SurfaceObjective {
     /// The signed-distance network whose zero set is the surface.
@@ -249,6 +267,7 @@ pub struct SurfaceObjective {
     samples: Samples,
     /// The samples with the fine ones merged in.
     merged: Samples,
+    placing: Placing,
     points: Vec<f32>,
     dirs: Vec<f32>,
     sdf_work: GeometryWork,
@@ -292,6 +311,7 @@ impl SurfaceObjective {
             selection: Selection::default(),
             samples: Samples::default(),
             merged: Samples::default(),
+            placing: Placing::default(),
             points: Vec::new(),
             dirs: Vec::new(),
             sdf_work: GeometryWork::default(),
@@ -435,31 +455,48 @@ impl SurfaceObjective {
         n: usize,
         spacing: Spacing,
         last: LastInterval,
+        work: &mut Placing,
         out: &mut Samples,
     ) -> Result<(), VolumeError> {
-        let (mut points, mut dirs) = (Vec::new(), Vec::new());
-        coarse.points(rays, &mut points, &mut dirs);
+        let Placing {
+            points,
+            dirs,
+            f,
+            a,
+            s,
+            s_next,
+            s_beta,
+            weights,
+            depths,
+        } = work;
+        coarse.points(rays, points, dirs);
         let rows = points.len() / 3;
-        let mut f = vec![0.0; rows];
+        for v in [
+            &mut *f,
+            &mut *a,
+            &mut *s,
+            &mut *s_next,
+            &mut *s_beta,
+            &mut *weights,
+        ] {
+            v.resize(rows, 0.0);
+        }
         self.sdf
-            .distance(&params[..self.sdf.len()], &points, levels, &mut f);
+            .distance(&params[..self.sdf.len()], points, levels, f);
         let span: f32 = coarse.t.chunks(n).map(|t| t[n - 1] - t[0]).sum::<f32>()
             / (coarse.rays().max(1) * (n - 1).max(1)) as f32;
-        let mut a = vec![0.0; rows];
-        let (mut s, mut s_next, mut s_beta) = (vec![0.0; rows], vec![0.0; rows], vec![0.0; rows]);
         absorption(
             self.spec.density,
-            &f,
+            f,
             &coarse.delta,
             n,
             self.spec.alpha as f32,
             beta.max(0.5 * span),
-            &mut a,
-            &mut s,
-            &mut s_next,
-            &mut s_beta,
+            a,
+            s,
+            s_next,
+            s_beta,
         );
-        let mut weights = vec![0.0; rows];
         weights
             .par_chunks_mut(n)
             .zip(a.par_chunks(n))
@@ -471,15 +508,14 @@ impl SurfaceObjective {
                     trans *= (-tau).exp();
                 }
             });
-        let mut fine_t = Vec::new();
         fine_samples(
             coarse,
             n,
-            &weights,
+            weights,
             self.spec.fine,
             spacing,
             last,
-            &mut fine_t,
+            depths,
             out,
         )
     }
@@ -504,7 +540,7 @@ impl SurfaceObjective {
         };
         let per_pass = (RENDER_ROWS / n).max(1);
         let (mut samples, mut points, mut dirs) = (Samples::default(), Vec::new(), Vec::new());
-        let mut coarse = Samples::default();
+        let (mut coarse, mut placing) = (Samples::default(), Placing::default());
         let (mut sdf_work, mut color_work) = (GeometryWork::default(), ColorWork::default());
         let mut selection = Selection::default();
         let grid = skipping(self.skip.as_ref(), last);
@@ -537,6 +573,7 @@ impl SurfaceObjective {
                     t.len(),
                     Spacing::Even,
                     last,
+                    &mut placing,
                     &mut samples,
                 )?;
             } else {
@@ -771,8 +808,11 @@ impl SurfaceObjective {
             } else {
                 Spacing::Jittered(batch.seed)
             };
-            let mut merged = std::mem::take(&mut self.merged);
-            self.upsample(
+            let (mut merged, mut placing) = (
+                std::mem::take(&mut self.merged),
+                std::mem::take(&mut self.placing),
+            );
+            let placed = self.upsample(
                 values,
                 Levels::AtStep(batch.step),
                 self.beta(values),
@@ -781,9 +821,11 @@ impl SurfaceObjective {
                 n,
                 spacing,
                 batch.last_interval,
+                &mut placing,
                 &mut merged,
-            )
-            .map_err(|e| TrainError::Invalid(e.to_string()))?;
+            );
+            self.placing = placing;
+            placed.map_err(|e| TrainError::Invalid(e.to_string()))?;
             std::mem::swap(&mut self.samples, &mut merged);
             self.merged = merged;
             n + self.spec.fine

@@ -216,20 +216,31 @@ fn fine_samples_gather_at_the_surface() {
             .collect();
         let mut coarse = Samples::default();
         coarse.fixed(2, n, |_| &t, LastInterval::Zero);
-        let mut out = Samples::default();
-        obj.upsample(
-            &values,
-            Levels::All,
-            obj.beta(&values),
-            &rays,
-            &coarse,
-            n,
-            Spacing::Even,
-            LastInterval::Zero,
-            &mut out,
-        )
-        .unwrap();
+        let place = |rays: &[Ray], coarse: &Samples, work: &mut Placing| {
+            let mut out = Samples::default();
+            obj.upsample(
+                &values,
+                Levels::All,
+                obj.beta(&values),
+                rays,
+                coarse,
+                n,
+                Spacing::Even,
+                LastInterval::Zero,
+                work,
+                &mut out,
+            )
+            .unwrap();
+            out
+        };
+        let mut work = Placing::default();
+        let out = place(&rays, &coarse, &mut work);
         let m = n + 16;
+        // The buffers kept from a larger call change nothing.
+        let mut one = Samples::default();
+        one.fixed(1, n, |_| &t, LastInterval::Zero);
+        assert_eq!(place(&rays[1..], &one, &mut work).t, out.t[m..]);
+        assert_eq!(place(&rays, &coarse, &mut work).t, out.t);
         assert_eq!(out.t.len(), 2 * m);
         let mut f = vec![0.0; 2 * m];
         let (mut points, mut dirs) = (Vec::new(), Vec::new());
