@@ -357,15 +357,20 @@ impl SurfaceObjective {
     }
 
     /// Refreshes the skipping grid from the distance at `values` when
-    /// `step` is due (see [`skip`]).
+    /// `step` is due, and otherwise widens it to this step's β (see
+    /// [`skip`]).
     fn refresh_skip(&mut self, values: &[f32], step: usize) {
         let (beta, alpha) = (self.beta(values), self.spec.alpha as f32);
         let (sdf, params, kind) = (&self.sdf, &values[..self.sdf.len()], self.spec.density);
-        if let Some(g) = self.skip.as_mut().filter(|g| g.due(step)) {
+        if let Some(g) = self.skip.as_mut() {
             let band = skip::band(kind, alpha, beta, g.diagonal());
-            g.refresh(step, band, |points, out| {
-                sdf.distance(params, points.as_flattened(), Levels::AtStep(step), out)
-            });
+            if g.due(step) {
+                g.refresh(step, band, |points, out| {
+                    sdf.distance(params, points.as_flattened(), Levels::AtStep(step), out)
+                });
+            } else {
+                g.widen(band);
+            }
         }
     }
 
@@ -543,9 +548,12 @@ impl SurfaceObjective {
         let (mut coarse, mut placing) = (Samples::default(), Placing::default());
         let (mut sdf_work, mut color_work) = (GeometryWork::default(), ColorWork::default());
         let mut selection = Selection::default();
-        let grid = skipping(self.skip.as_ref(), last);
-        let mut shaded = Vec::new();
         let (a, b) = (self.spec.alpha as f32, self.beta(params));
+        // Not where β has grown past the band the grid was marked with
+        // (after the last step's update).
+        let grid = skipping(self.skip.as_ref(), last)
+            .filter(|g| g.covers(skip::band(self.spec.density, a, b, g.diagonal())));
+        let mut shaded = Vec::new();
         for (all, (colour, depth)) in rays.chunks(per_pass).zip(
             view.colour
                 .chunks_mut(per_pass)

@@ -27,6 +27,8 @@
 //!   and no ray skips anything (the grid *leaks*). Outside the box only a
 //!   density's tail is skipped, where the surface comes within `b` of a
 //!   face: the box should leave the object that much room.
+//!   - A trained β that grows past the band's before the next refresh
+//!     widens the threshold at once (the same distances, a wider `b`).
 //! - **A ray's span** runs from the entry of the first occupied cell it
 //!   crosses to the exit of the last (cells in between, occupied or not,
 //!   included: deep inside an object VolSDF is still opaque), within the
@@ -239,6 +241,32 @@ impl SkipGrid {
                 (crossing, crossing + band)
             };
         self.mark();
+    }
+
+    /// Widens the grid to the density's `band` at this step, when that is
+    /// wider than the one it was marked with: a trained β may grow between
+    /// refreshes (Adam can grow it 2.2-fold in an interval), and the
+    /// skipped space must stay beyond the band of the β a step uses. The
+    /// distances are those of the last refresh; it never narrows.
+    pub fn widen(&mut self, band: f32) {
+        if self.threshold == f32::MAX || self.crossing == f32::MAX {
+            return;
+        }
+        let threshold = if band >= 0.0 {
+            self.crossing + band
+        } else {
+            // NaN: the band is unknown, nothing is skipped.
+            f32::MAX
+        };
+        if threshold > self.threshold {
+            self.threshold = threshold;
+            self.mark();
+        }
+    }
+
+    /// Whether the grid skips only space beyond `band` (see [`Self::widen`]).
+    pub fn covers(&self, band: f32) -> bool {
+        self.whole || self.threshold == f32::MAX || self.crossing + band <= self.threshold
     }
 
     /// The largest `|f(i) − f(j)| / |i − j|` over neighbouring centres.

@@ -1038,3 +1038,96 @@ fn an_overflowed_skip_threshold_still_restores() {
     h.restore(&s[0].1, &s[1].1).unwrap();
     assert_eq!(h.occupied_count(), g.occupied_count());
 }
+
+/// A trained β that grows between refreshes widens the grid's band at
+/// once: no cell left empty lies within the band of the β a step uses
+/// (plus half a cell's diagonal), so the skipped space still absorbs less
+/// than `OPACITY_LOST`. Adam can grow β 2.2-fold in one refresh interval.
+#[test]
+fn a_growing_trained_beta_widens_the_band_before_the_next_refresh() {
+    let s = NeuralSurface {
+        beta: 0.02,
+        train_beta: true,
+        ..hash_spec(DensityKind::Neus, 0.0, 0)
+    };
+    let mut obj = SurfaceObjective::new(&s, &MSE_AND_EIKONAL).unwrap();
+    let mut values = obj.initial();
+    obj.refresh_skip(&values, 0);
+    obj.refresh_skip(&values, NeuralSurface::SKIP_EVERY);
+    let (res, cell) = (NeuralSurface::SKIP_CELLS as usize, 2.0 / 32.0);
+    let centres: Vec<f32> = (0..res * res * res)
+        .flat_map(|i| [i % res, i / res % res, i / (res * res)])
+        .map(|c| -1.0 + (c as f32 + 0.5) * cell)
+        .collect();
+    let mut f = vec![0.0; res * res * res];
+    let half_diagonal = 0.5 * 3f32.sqrt() * cell;
+    // Cells left empty that lie within the band of β at `values`.
+    let within_band = |obj: &SurfaceObjective, values: &[f32], f: &mut Vec<f32>| {
+        obj.sdf
+            .distance(&values[..obj.sdf.len()], &centres, Levels::All, f);
+        let b = band(DensityKind::Neus, 10.0, obj.beta(values), 2.0 * 3f32.sqrt());
+        let grid = obj.skip_grid().unwrap();
+        assert!(!grid.is_whole());
+        (0..f.len())
+            .filter(|&i| !grid.is_occupied(i) && f[i].abs() <= b + half_diagonal)
+            .count()
+    };
+    assert_eq!(within_band(&obj, &values, &mut f), 0);
+    let before = obj.skip_grid().unwrap().occupied_count();
+    // β four times larger, before the next refresh.
+    let i = obj.beta_at().unwrap();
+    values[i] += 4f32.ln() / BETA_RATE;
+    obj.refresh_skip(&values, NeuralSurface::SKIP_EVERY + 1);
+    assert_eq!(within_band(&obj, &values, &mut f), 0);
+    let widened = obj.skip_grid().unwrap().occupied_count();
+    assert!(
+        widened > before,
+        "{widened} cells occupied, {before} before"
+    );
+    // A smaller β narrows nothing before the next refresh.
+    values[i] -= 4f32.ln() / BETA_RATE;
+    obj.refresh_skip(&values, NeuralSurface::SKIP_EVERY + 2);
+    assert_eq!(obj.skip_grid().unwrap().occupied_count(), widened);
+    // The widened grid is what a resumed run sees.
+    let mut resumed = SurfaceObjective::new(&s, &MSE_AND_EIKONAL).unwrap();
+    resumed.restore_state(&obj.state()).unwrap();
+    assert_eq!(resumed.skip_grid().unwrap().occupied_count(), widened);
+}
+
+/// A render after β grew past the grid's band samples every ray whole, as
+/// the same render without skipping does (and with the β the grid was
+/// marked with, it does skip).
+#[test]
+fn a_render_past_the_grids_band_skips_nothing() {
+    let s = NeuralSurface {
+        beta: 0.02,
+        train_beta: true,
+        ..hash_spec(DensityKind::Neus, 0.0, 0)
+    };
+    let mut obj = SurfaceObjective::new(&s, &MSE_AND_EIKONAL).unwrap();
+    let mut values = obj.initial();
+    obj.refresh_skip(&values, 0);
+    obj.refresh_skip(&values, NeuralSurface::SKIP_EVERY);
+    let mut unskipped = SurfaceObjective::new(&s, &MSE_AND_EIKONAL).unwrap();
+    unskipped.skip = None;
+    let cam = Camera::look_at(
+        glam::DVec3::new(0.0, 0.3, -2.5),
+        glam::DVec3::ZERO,
+        glam::DVec3::Y,
+        1.2,
+    );
+    let size = ImageSize {
+        width: 12,
+        height: 12,
+    };
+    let sampler = Stratified::new(24, 1.0, 4.0).unwrap();
+    let render = |obj: &SurfaceObjective, values: &[f32]| {
+        obj.render_view(values, &sampler, LastInterval::Zero, &cam, size)
+            .unwrap()
+            .colour
+    };
+    assert_ne!(render(&obj, &values), render(&unskipped, &values));
+    let i = obj.beta_at().unwrap();
+    values[i] += 4f32.ln() / BETA_RATE;
+    assert_eq!(render(&obj, &values), render(&unskipped, &values));
+}
