@@ -27,6 +27,11 @@
 //!   and no ray skips anything (the grid *leaks*). Outside the box only a
 //!   density's tail is skipped, where the surface comes within `b` of a
 //!   face: the box should leave the object that much room.
+//!   - For VolSDF, whose density inside is about α, every cell with
+//!     `f(centre) < 0` is occupied as well: a ray that starts or ends
+//!     inside the object samples its interior. A ray that passes through
+//!     has the same span either way (the cells between its first and last
+//!     occupied ones are in it).
 //!   - A trained β that grows past the band's before the next refresh
 //!     widens the threshold at once (the same distances, a wider `b`).
 //! - **A ray's span** runs from the entry of the first occupied cell it
@@ -88,6 +93,10 @@ pub struct SkipGrid {
     crossing: f32,
     /// No ray skips anything: every cell occupied, or the grid leaks.
     whole: bool,
+    /// Cells inside the surface are occupied too: VolSDF's density there
+    /// is about α, so a ray whose near or far plane lies inside the object
+    /// must still sample its interior.
+    opaque_inside: bool,
 }
 
 impl SkipGrid {
@@ -118,6 +127,7 @@ impl SkipGrid {
             threshold: f32::MAX,
             crossing: f32::MAX,
             whole: true,
+            opaque_inside: false,
         })
     }
 
@@ -136,7 +146,12 @@ impl SkipGrid {
                 g.max.map(|x| x as f32),
                 NeuralSurface::SKIP_CELLS,
             )
-            .map(Some),
+            .map(|grid| {
+                Some(SkipGrid {
+                    opaque_inside: spec.density == DensityKind::VolSdf,
+                    ..grid
+                })
+            }),
             sdfl_stdlib::value::Encoding::Harmonic(_) => Ok(None),
         }
     }
@@ -302,7 +317,7 @@ impl SkipGrid {
         for (i, &f) in self.distance.iter().enumerate() {
             let ijk = [i % r, i / r % r, i / (r * r)];
             let on_face = ijk.iter().any(|&c| c == 0 || c + 1 == r);
-            if f.abs() <= thr {
+            if f.abs() <= thr || (self.opaque_inside && f < 0.0) {
                 self.bits.set_occupied(i, true);
             }
             leaks |= on_face && f <= crossing;

@@ -1131,3 +1131,48 @@ fn a_render_past_the_grids_band_skips_nothing() {
     values[i] += 4f32.ln() / BETA_RATE;
     assert_eq!(render(&obj, &values), render(&unskipped, &values));
 }
+
+/// VolSDF is opaque inside: a ray whose near plane lies inside the object
+/// sees its interior with skipping as without (the same depth and colour
+/// to within what sampling a shorter span changes).
+#[test]
+fn volsdf_rays_starting_inside_the_object_keep_its_interior() {
+    // A β small enough that the centre of the sphere is beyond the band.
+    let s = NeuralSurface {
+        beta: 0.01,
+        ..hash_spec(DensityKind::VolSdf, 0.0, 0)
+    };
+    let mut obj = SurfaceObjective::new(&s, &MSE_AND_EIKONAL).unwrap();
+    let values = obj.initial();
+    obj.refresh_skip(&values, 0);
+    obj.refresh_skip(&values, NeuralSurface::SKIP_EVERY);
+    assert!(!obj.skip_grid().unwrap().is_whole());
+    let mut unskipped = SurfaceObjective::new(&s, &MSE_AND_EIKONAL).unwrap();
+    unskipped.skip = None;
+    // The sphere of radius 0.5 spans t ∈ [1.5, 2.5] on the axis; the
+    // near plane at 1.8 is inside it for every ray of this narrow view.
+    let cam = Camera::look_at(
+        glam::DVec3::new(0.0, 0.0, -2.0),
+        glam::DVec3::ZERO,
+        glam::DVec3::Y,
+        4.0,
+    );
+    let size = ImageSize {
+        width: 6,
+        height: 6,
+    };
+    let sampler = Stratified::new(48, 1.8, 4.0).unwrap();
+    let render = |obj: &SurfaceObjective| {
+        obj.render_view(&values, &sampler, LastInterval::Zero, &cam, size)
+            .unwrap()
+    };
+    let (skipped, whole) = (render(&obj), render(&unskipped));
+    for (p, (d, e)) in skipped.depth.iter().zip(&whole.depth).enumerate() {
+        assert!(*e < 2.1, "pixel {p}: the interior starts at 1.8, depth {e}");
+        assert!((d - e).abs() < 0.05, "pixel {p}: depth {d}, {e} unskipped");
+        for c in 0..3 {
+            let (a, b) = (skipped.colour[p][c], whole.colour[p][c]);
+            assert!((a - b).abs() < 0.02, "pixel {p}: colour {a}, {b} unskipped");
+        }
+    }
+}
