@@ -248,11 +248,13 @@ impl SurfaceSdf {
     }
 
     /// Bytes of the distance-only pass that places fine samples, for
-    /// `rows` coarse samples (points, the distances, the weights).
+    /// `rows` coarse samples: the network's activations (an MLP's), and
+    /// the points, directions, distances, absorption with its three
+    /// slopes and weights the pass keeps (the depths are counted apart).
     pub fn placing_bytes(&self, rows: usize) -> u64 {
         let per_row = match self {
-            SurfaceSdf::Mlp(n) => n.encoding.width() + 2 * n.width() + 16,
-            SurfaceSdf::Hash(_) => 16,
+            SurfaceSdf::Mlp(n) => n.encoding.width() + 2 * n.width() + 12,
+            SurfaceSdf::Hash(_) => 12,
         };
         (4 * rows * per_row) as u64
     }

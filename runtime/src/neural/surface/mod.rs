@@ -337,7 +337,8 @@ impl SurfaceObjective {
         let n = &self.spec;
         let rows = rays * (samples + n.fine);
         let placing = if n.fine > 0 {
-            self.sdf.placing_bytes(rays * samples)
+            // And the fine depths with the merged ones.
+            self.sdf.placing_bytes(rays * samples) + (4 * rays * (2 * n.fine + samples)) as u64
         } else {
             0
         };
@@ -549,10 +550,23 @@ impl SurfaceObjective {
         let (mut sdf_work, mut color_work) = (GeometryWork::default(), ColorWork::default());
         let mut selection = Selection::default();
         let (a, b) = (self.spec.alpha as f32, self.beta(params));
-        // Not where β has grown past the band the grid was marked with
-        // (after the last step's update).
-        let grid = skipping(self.skip.as_ref(), last)
-            .filter(|g| g.covers(skip::band(self.spec.density, a, b, g.diagonal())));
+        // Where β has grown past the band the grid was marked with (by the
+        // last step's update), a copy widened as the next step would widen it.
+        let widened;
+        let grid = match skipping(self.skip.as_ref(), last) {
+            Some(g) => {
+                let band = skip::band(self.spec.density, a, b, g.diagonal());
+                if g.covers(band) {
+                    Some(g)
+                } else {
+                    let mut wide = g.clone();
+                    wide.widen(band);
+                    widened = wide;
+                    Some(&widened)
+                }
+            }
+            None => None,
+        };
         let mut shaded = Vec::new();
         for (all, (colour, depth)) in rays.chunks(per_pass).zip(
             view.colour

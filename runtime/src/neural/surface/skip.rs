@@ -5,7 +5,7 @@
 //!
 //! - **Occupied** when the distance at a cell's centre could reach the
 //!   density's support anywhere in the cell before the next refresh:
-//!   `|f(centre)| ≤ L·h + b + m`, with `h` the half-diagonal, `L` a
+//!   `f(centre) ≤ L·h + b + m` (inside included, below), with `h` the half-diagonal, `L` a
 //!   Lipschitz allowance, `b` the density's band and `m` the drift.
 //!   - `L = max(1.5, 1.5 · s)`, `s` the largest slope between neighbouring
 //!     centres: a learned SDF is only about 1-Lipschitz (the eikonal term
@@ -27,11 +27,12 @@
 //!   and no ray skips anything (the grid *leaks*). Outside the box only a
 //!   density's tail is skipped, where the surface comes within `b` of a
 //!   face: the box should leave the object that much room.
-//!   - For VolSDF, whose density inside is about α, every cell with
-//!     `f(centre) < 0` is occupied as well: a ray that starts or ends
-//!     inside the object samples its interior. A ray that passes through
-//!     has the same span either way (the cells between its first and last
-//!     occupied ones are in it).
+//!   - Every cell inside (`f(centre) < 0`) is occupied as well: a ray
+//!     that starts or ends inside the object samples its interior, which
+//!     is opaque (VolSDF's density there is about α; NeuS's opacity grows
+//!     as `f` falls, as much going deeper as crossing the surface). A ray
+//!     that passes through has the same span either way (the cells
+//!     between its first and last occupied ones are in it).
 //!   - A trained β that grows past the band's before the next refresh
 //!     widens the threshold at once (the same distances, a wider `b`).
 //! - **A ray's span** runs from the entry of the first occupied cell it
@@ -93,10 +94,6 @@ pub struct SkipGrid {
     crossing: f32,
     /// No ray skips anything: every cell occupied, or the grid leaks.
     whole: bool,
-    /// Cells inside the surface are occupied too: VolSDF's density there
-    /// is about α, so a ray whose near or far plane lies inside the object
-    /// must still sample its interior.
-    opaque_inside: bool,
 }
 
 impl SkipGrid {
@@ -127,7 +124,6 @@ impl SkipGrid {
             threshold: f32::MAX,
             crossing: f32::MAX,
             whole: true,
-            opaque_inside: false,
         })
     }
 
@@ -146,12 +142,7 @@ impl SkipGrid {
                 g.max.map(|x| x as f32),
                 NeuralSurface::SKIP_CELLS,
             )
-            .map(|grid| {
-                Some(SkipGrid {
-                    opaque_inside: spec.density == DensityKind::VolSdf,
-                    ..grid
-                })
-            }),
+            .map(Some),
             sdfl_stdlib::value::Encoding::Harmonic(_) => Ok(None),
         }
     }
@@ -264,7 +255,7 @@ impl SkipGrid {
     /// skipped space must stay beyond the band of the β a step uses. The
     /// distances are those of the last refresh; it never narrows.
     pub fn widen(&mut self, band: f32) {
-        if self.threshold == f32::MAX || self.crossing == f32::MAX {
+        if !(self.threshold < f32::MAX && self.crossing < f32::MAX) {
             return;
         }
         let threshold = if band >= 0.0 {
@@ -307,7 +298,9 @@ impl SkipGrid {
     /// The bits from the distances and the threshold.
     fn mark(&mut self) {
         let (r, thr, crossing) = (self.res, self.threshold, self.crossing);
-        if thr == f32::MAX || crossing == f32::MAX {
+        // Not finite (an infinite band or drift): every cell, as a restore
+        // of its saved `f32::MAX` gives.
+        if !(thr < f32::MAX && crossing < f32::MAX) {
             self.bits.fill(true);
             self.whole = true;
             return;
@@ -317,7 +310,7 @@ impl SkipGrid {
         for (i, &f) in self.distance.iter().enumerate() {
             let ijk = [i % r, i / r % r, i / (r * r)];
             let on_face = ijk.iter().any(|&c| c == 0 || c + 1 == r);
-            if f.abs() <= thr || (self.opaque_inside && f < 0.0) {
+            if f <= thr {
                 self.bits.set_occupied(i, true);
             }
             leaks |= on_face && f <= crossing;

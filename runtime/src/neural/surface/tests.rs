@@ -935,22 +935,31 @@ fn skipping_an_empty_scene_gives_the_background() {
     assert!(v.depth.iter().all(|&d| d == 0.0));
 }
 
-/// A run resumed from its state at step 13 (the grid last refreshed at
-/// 8) continues as the uninterrupted one, bit for bit, across the
-/// refreshes at 16 and 24.
+/// A run resumed from its state at step 21 (the grid last refreshed at
+/// 16, then widened for a grown β) continues as the uninterrupted one,
+/// bit for bit, across the refresh at 24.
 #[test]
 fn skipping_resumes_the_same_run() {
+    // A trained β, grown threefold at step 18 so that the grid is widened
+    // between the refreshes at 16 and 24, before the break at 21.
     let s = NeuralSurface {
         beta: 0.01,
+        train_beta: true,
         ..hash_spec(DensityKind::Neus, 0.0, 0)
     };
     let mut b = batch(40, 20);
     b.coverage = (0..b.rays.len()).map(|r| (r % 2) as f32).collect();
-    // Plain gradient descent stands in for the optimiser.
+    let beta = SurfaceObjective::new(&s, &WITH_SILHOUETTE)
+        .unwrap()
+        .beta_at()
+        .unwrap();
+    // Plain gradient descent stands in for the optimiser (β moved only
+    // by hand: a step of 0.5 would fling it out of range).
     let step = |obj: &mut SurfaceObjective, values: &mut Vec<f32>, b: &mut Batch, s: usize| {
         b.step = s;
         let mut g = vec![0.0; values.len()];
         let loss = obj.loss_and_grad(values, b, 1.0, &mut g).unwrap();
+        g[beta] = 0.0;
         for (v, g) in values.iter_mut().zip(&g) {
             *v -= 0.5 * g;
         }
@@ -958,18 +967,27 @@ fn skipping_resumes_the_same_run() {
     };
     let mut whole = SurfaceObjective::new(&s, &WITH_SILHOUETTE).unwrap();
     let mut values = rough_values(&whole);
-    let (mut losses, mut at_break) = (Vec::new(), None);
+    let (mut losses, mut at_break, mut threshold) = (Vec::new(), None, Vec::new());
     for s in 0..30 {
+        if s == 18 {
+            values[beta] += 3f32.ln() / BETA_RATE;
+        }
         losses.push(step(&mut whole, &mut values, &mut b, s));
-        if s == 13 {
+        threshold.push(whole.state()[1].1[1]);
+        if s == 21 {
             at_break = Some((values.clone(), whole.state()));
         }
     }
+    assert!(
+        threshold[18] > threshold[17],
+        "widened at step 18: {threshold:?}"
+    );
     let (mut resumed_values, state) = at_break.unwrap();
-    assert_eq!(state[1].1[0], 9.0, "last refreshed at step 8");
+    assert_eq!(state[1].1[0], 17.0, "last refreshed at step 16");
     let mut resumed = SurfaceObjective::new(&s, &WITH_SILHOUETTE).unwrap();
     resumed.restore_state(&state).unwrap();
-    for (s, &loss) in losses.iter().enumerate().skip(14) {
+    assert!(!resumed.skip_grid().unwrap().is_whole());
+    for (s, &loss) in losses.iter().enumerate().skip(22) {
         assert_eq!(
             step(&mut resumed, &mut resumed_values, &mut b, s),
             loss,
@@ -1094,11 +1112,11 @@ fn a_growing_trained_beta_widens_the_band_before_the_next_refresh() {
     assert_eq!(resumed.skip_grid().unwrap().occupied_count(), widened);
 }
 
-/// A render after β grew past the grid's band samples every ray whole, as
-/// the same render without skipping does (and with the β the grid was
-/// marked with, it does skip).
+/// A render after β grew past the grid's band skips by a copy widened to
+/// it: the same frame as after a step had widened the grid itself, and
+/// not the frame without skipping.
 #[test]
-fn a_render_past_the_grids_band_skips_nothing() {
+fn a_render_past_the_grids_band_widens_a_copy() {
     let s = NeuralSurface {
         beta: 0.02,
         train_beta: true,
@@ -1126,53 +1144,74 @@ fn a_render_past_the_grids_band_skips_nothing() {
             .unwrap()
             .colour
     };
-    assert_ne!(render(&obj, &values), render(&unskipped, &values));
     let i = obj.beta_at().unwrap();
     values[i] += 4f32.ln() / BETA_RATE;
-    assert_eq!(render(&obj, &values), render(&unskipped, &values));
+    let before = obj.skip_grid().unwrap().occupied_count();
+    let frame = render(&obj, &values);
+    assert_eq!(
+        obj.skip_grid().unwrap().occupied_count(),
+        before,
+        "the grid is left as it was"
+    );
+    obj.refresh_skip(&values, NeuralSurface::SKIP_EVERY + 1);
+    assert!(obj.skip_grid().unwrap().occupied_count() > before);
+    assert_eq!(frame, render(&obj, &values));
+    assert_ne!(frame, render(&unskipped, &values));
 }
 
-/// VolSDF is opaque inside: a ray whose near plane lies inside the object
-/// sees its interior with skipping as without (the same depth and colour
+/// Inside the object both densities are opaque (VolSDF's is about α,
+/// NeuS's opacity grows as `f` falls): a ray whose near plane lies inside
+/// sees the interior with skipping as without (the same depth and colour
 /// to within what sampling a shorter span changes).
 #[test]
-fn volsdf_rays_starting_inside_the_object_keep_its_interior() {
-    // A β small enough that the centre of the sphere is beyond the band.
-    let s = NeuralSurface {
-        beta: 0.01,
-        ..hash_spec(DensityKind::VolSdf, 0.0, 0)
-    };
-    let mut obj = SurfaceObjective::new(&s, &MSE_AND_EIKONAL).unwrap();
-    let values = obj.initial();
-    obj.refresh_skip(&values, 0);
-    obj.refresh_skip(&values, NeuralSurface::SKIP_EVERY);
-    assert!(!obj.skip_grid().unwrap().is_whole());
-    let mut unskipped = SurfaceObjective::new(&s, &MSE_AND_EIKONAL).unwrap();
-    unskipped.skip = None;
-    // The sphere of radius 0.5 spans t ∈ [1.5, 2.5] on the axis; the
-    // near plane at 1.8 is inside it for every ray of this narrow view.
-    let cam = Camera::look_at(
-        glam::DVec3::new(0.0, 0.0, -2.0),
-        glam::DVec3::ZERO,
-        glam::DVec3::Y,
-        4.0,
-    );
-    let size = ImageSize {
-        width: 6,
-        height: 6,
-    };
-    let sampler = Stratified::new(48, 1.8, 4.0).unwrap();
-    let render = |obj: &SurfaceObjective| {
-        obj.render_view(&values, &sampler, LastInterval::Zero, &cam, size)
-            .unwrap()
-    };
-    let (skipped, whole) = (render(&obj), render(&unskipped));
-    for (p, (d, e)) in skipped.depth.iter().zip(&whole.depth).enumerate() {
-        assert!(*e < 2.1, "pixel {p}: the interior starts at 1.8, depth {e}");
-        assert!((d - e).abs() < 0.05, "pixel {p}: depth {d}, {e} unskipped");
-        for c in 0..3 {
-            let (a, b) = (skipped.colour[p][c], whole.colour[p][c]);
-            assert!((a - b).abs() < 0.02, "pixel {p}: colour {a}, {b} unskipped");
+fn rays_starting_inside_the_object_keep_its_interior() {
+    for density in [DensityKind::VolSdf, DensityKind::Neus] {
+        // A β small enough that the centre of the sphere is beyond the band.
+        let s = NeuralSurface {
+            beta: 0.01,
+            ..hash_spec(density, 0.0, 0)
+        };
+        let mut obj = SurfaceObjective::new(&s, &MSE_AND_EIKONAL).unwrap();
+        let values = obj.initial();
+        obj.refresh_skip(&values, 0);
+        obj.refresh_skip(&values, NeuralSurface::SKIP_EVERY);
+        assert!(!obj.skip_grid().unwrap().is_whole());
+        let mut unskipped = SurfaceObjective::new(&s, &MSE_AND_EIKONAL).unwrap();
+        unskipped.skip = None;
+        // The sphere of radius 0.5 spans t ∈ [1.5, 2.5] on the axis; the
+        // near plane at 1.8 is inside it for every ray of this narrow view.
+        let cam = Camera::look_at(
+            glam::DVec3::new(0.0, 0.0, -2.0),
+            glam::DVec3::ZERO,
+            glam::DVec3::Y,
+            4.0,
+        );
+        let size = ImageSize {
+            width: 6,
+            height: 6,
+        };
+        let sampler = Stratified::new(48, 1.8, 4.0).unwrap();
+        let render = |obj: &SurfaceObjective| {
+            obj.render_view(&values, &sampler, LastInterval::Zero, &cam, size)
+                .unwrap()
+        };
+        let (skipped, whole) = (render(&obj), render(&unskipped));
+        for (p, (d, e)) in skipped.depth.iter().zip(&whole.depth).enumerate() {
+            assert!(
+                *e < 2.1,
+                "{density:?} pixel {p}: the interior starts at 1.8, depth {e}"
+            );
+            assert!(
+                (d - e).abs() < 0.05,
+                "{density:?} pixel {p}: depth {d}, {e} unskipped"
+            );
+            for c in 0..3 {
+                let (a, b) = (skipped.colour[p][c], whole.colour[p][c]);
+                assert!(
+                    (a - b).abs() < 0.02,
+                    "{density:?} pixel {p}: colour {a}, {b} unskipped"
+                );
+            }
         }
     }
 }
