@@ -695,7 +695,7 @@ pub fn train_work(j: &TrainJob, size: Option<(u32, u32)>) -> Work {
             n.weights() as f64 * if n.fine > 0 { 2.0 } else { 1.0 } + n.background_weights() as f64
         }
         Field::NeuralSdf(n) => n.weights() as f64,
-        Field::NeuralSurface(n) => (n.sdf.multiply_adds() + n.color_multiply_adds()) as f64,
+        Field::NeuralSurface(n) => n.weights() as f64,
     };
     let grid = match &*j.model {
         Field::Nerf(n) => n.occupancy.as_ref(),

@@ -246,6 +246,13 @@ impl NeuralSurface {
         self.color_input() * w + (self.color_layers - 1) * w * w + 3 * w
     }
 
+    /// Trainable numbers: the distance network's (its hash tables
+    /// included), the colour network's and a trained β.
+    pub fn weights(&self) -> u64 {
+        let colour = self.color_multiply_adds() + self.color_layers * self.color_width + 3;
+        self.sdf.weights() + colour as u64 + u64::from(self.train_beta)
+    }
+
     /// Multiply-adds of one sample: the distance with its gradient (four
     /// passes' worth) and the colour.
     pub fn multiply_adds_per_sample(&self) -> usize {

@@ -1215,3 +1215,23 @@ fn rays_starting_inside_the_object_keep_its_interior() {
         }
     }
 }
+
+/// What `sdfl plan` counts as the model's trained numbers is what the
+/// objective trains: the hash tables, both networks and a trained β.
+#[test]
+fn the_plans_weight_count_is_the_objectives() {
+    for density in [DensityKind::VolSdf, DensityKind::Neus] {
+        for s in [
+            spec(density, true),
+            spec(density, false),
+            hash_spec(density, 0.0, 0),
+            NeuralSurface {
+                train_beta: true,
+                ..hash_spec(density, 0.0, 0)
+            },
+        ] {
+            let obj = SurfaceObjective::new(&s, &[]).unwrap();
+            assert_eq!(obj.initial().len() as u64, s.weights(), "{s:?}");
+        }
+    }
+}
