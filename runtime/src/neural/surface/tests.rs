@@ -1112,6 +1112,19 @@ fn a_growing_trained_beta_widens_the_band_before_the_next_refresh() {
     assert_eq!(resumed.skip_grid().unwrap().occupied_count(), widened);
 }
 
+/// The objective of `s` at its starting values with its grid refreshed
+/// twice (so that it skips), and its twin without a grid.
+fn skipping_and_not(s: &NeuralSurface) -> (SurfaceObjective, SurfaceObjective, Vec<f32>) {
+    let mut obj = SurfaceObjective::new(s, &MSE_AND_EIKONAL).unwrap();
+    let values = obj.initial();
+    obj.refresh_skip(&values, 0);
+    obj.refresh_skip(&values, NeuralSurface::SKIP_EVERY);
+    assert!(!obj.skip_grid().unwrap().is_whole());
+    let mut unskipped = SurfaceObjective::new(s, &MSE_AND_EIKONAL).unwrap();
+    unskipped.skip = None;
+    (obj, unskipped, values)
+}
+
 /// A render after β grew past the grid's band skips by a copy widened to
 /// it: the same frame as after a step had widened the grid itself, and
 /// not the frame without skipping.
@@ -1122,24 +1135,19 @@ fn a_render_past_the_grids_band_widens_a_copy() {
         train_beta: true,
         ..hash_spec(DensityKind::Neus, 0.0, 0)
     };
-    let mut obj = SurfaceObjective::new(&s, &MSE_AND_EIKONAL).unwrap();
-    let mut values = obj.initial();
-    obj.refresh_skip(&values, 0);
-    obj.refresh_skip(&values, NeuralSurface::SKIP_EVERY);
-    let mut unskipped = SurfaceObjective::new(&s, &MSE_AND_EIKONAL).unwrap();
-    unskipped.skip = None;
+    let (mut obj, unskipped, mut values) = skipping_and_not(&s);
     let cam = Camera::look_at(
         glam::DVec3::new(0.0, 0.3, -2.5),
         glam::DVec3::ZERO,
         glam::DVec3::Y,
         1.2,
     );
-    let size = ImageSize {
-        width: 12,
-        height: 12,
-    };
     let sampler = Stratified::new(24, 1.0, 4.0).unwrap();
     let render = |obj: &SurfaceObjective, values: &[f32]| {
+        let size = ImageSize {
+            width: 12,
+            height: 12,
+        };
         obj.render_view(values, &sampler, LastInterval::Zero, &cam, size)
             .unwrap()
             .colour
@@ -1171,13 +1179,7 @@ fn rays_starting_inside_the_object_keep_its_interior() {
             beta: 0.01,
             ..hash_spec(density, 0.0, 0)
         };
-        let mut obj = SurfaceObjective::new(&s, &MSE_AND_EIKONAL).unwrap();
-        let values = obj.initial();
-        obj.refresh_skip(&values, 0);
-        obj.refresh_skip(&values, NeuralSurface::SKIP_EVERY);
-        assert!(!obj.skip_grid().unwrap().is_whole());
-        let mut unskipped = SurfaceObjective::new(&s, &MSE_AND_EIKONAL).unwrap();
-        unskipped.skip = None;
+        let (obj, unskipped, values) = skipping_and_not(&s);
         // The sphere of radius 0.5 spans t ∈ [1.5, 2.5] on the axis; the
         // near plane at 1.8 is inside it for every ray of this narrow view.
         let cam = Camera::look_at(
