@@ -397,7 +397,8 @@ pub struct NerfObjective {
     samples: Samples,
     fine_samples: Samples,
     weights: Vec<f32>,
-    fine_t: Vec<f32>,
+    /// The fine and the merged depths ([`fine_samples`]'s scratch).
+    fine_depths: Vec<f32>,
 }
 
 impl NerfObjective {
@@ -433,7 +434,7 @@ impl NerfObjective {
             samples: Samples::default(),
             fine_samples: Samples::default(),
             weights: Vec::new(),
-            fine_t: Vec::new(),
+            fine_depths: Vec::new(),
         })
     }
 
@@ -665,7 +666,7 @@ impl Objective for NerfObjective {
                 *m,
                 spacing,
                 batch.last_interval,
-                &mut self.fine_t,
+                &mut self.fine_depths,
                 &mut self.fine_samples,
             )?;
             loss += fit_pass(
@@ -728,7 +729,7 @@ pub fn render_nerf_view(
     let per_pass = (RENDER_ROWS / per_sample.max(1)).max(1);
     let (mut pass, mut samples, mut fine_s) =
         (Pass::default(), Samples::default(), Samples::default());
-    let (mut weights, mut fine_t) = (Vec::new(), Vec::new());
+    let (mut weights, mut fine_depths) = (Vec::new(), Vec::new());
     let (mut backgrounds, mut backdrop_work) = (Vec::new(), BackdropWork::default());
     let (mut mapped, mut candidates) = (Vec::new(), Samples::default());
     for (chunk, (colour, depth)) in rays.chunks(per_pass).zip(
@@ -787,7 +788,7 @@ pub fn render_nerf_view(
                     m,
                     Spacing::Even,
                     last,
-                    &mut fine_t,
+                    &mut fine_depths,
                     &mut fine_s,
                 )?;
                 &fine_s

@@ -39,7 +39,7 @@ pub(super) struct BlockScratch {
 
 impl BlockScratch {
     /// The forward's buffer alone, for `net` with `NT` tangents (a pass
-    /// with no backward: distances, normals).
+    /// with no backward: normals; distances keep theirs per thread).
     pub(super) fn forward_only<const NT: usize>(net: &HashSdf) -> Self {
         BlockScratch {
             forward: vec![0.0; net.block_len::<NT>()],

@@ -251,9 +251,10 @@ impl SkipGrid {
 
     /// Widens the grid to the density's `band` at this step, when that is
     /// wider than the one it was marked with: a trained β may grow between
-    /// refreshes (Adam can grow it 2.2-fold in an interval), and the
-    /// skipped space must stay beyond the band of the β a step uses. The
-    /// distances are those of the last refresh; it never narrows.
+    /// refreshes (Adam moves ln β by about 20·lr a step: 2.2-fold over 8
+    /// steps at lr 5e-3), and the skipped space must stay beyond the band
+    /// of the β a step uses. The distances are those of the last refresh;
+    /// it never narrows.
     pub fn widen(&mut self, band: f32) {
         if !(self.threshold < f32::MAX && self.crossing < f32::MAX) {
             return;
