@@ -491,13 +491,34 @@ pub(crate) fn plan_text(program: &sdfl_stdlib::Program) -> String {
             "  checkpoint     {}",
             sdfl_runtime::describe::checkpoint(job)
         );
-        work_lines(&mut o, &sdfl_stdlib::work::train_work(job, None));
+        let work = sdfl_stdlib::work::train_work(job, None);
+        work_lines(&mut o, &work);
+        host_line(&mut o, &work);
     }
     if o.is_empty() {
         // A file of `let`s and `fn`s only (one meant to be imported).
         o.push_str("no statements: nothing runs (a file of `let`s and `fn`s is for `import`)\n");
     }
     o
+}
+
+/// What the machine's threads add to the statement's memory: the scratch
+/// each keeps (a hash-grid surface's blocks, the dfdx graph's matrix
+/// library), where there is any.
+fn host_line(o: &mut String, work: &sdfl_stdlib::work::Work) {
+    use std::fmt::Write;
+    let host = sdfl_runtime::cpu::host();
+    let on_host = work.memory_on(&host);
+    if on_host > work.memory {
+        let _ = writeln!(
+            o,
+            "    {:<20} {} with this machine's {} threads' scratch (kernels: {})",
+            "on this machine",
+            sdfl_stdlib::size::fmt_bytes(on_host),
+            host.threads,
+            sdfl_runtime::cpu::kernels().describe()
+        );
+    }
 }
 
 /// The statement's estimated work, then each stage's share and memory.

@@ -2,6 +2,7 @@
 //! volume rendering, dfdx training, data sets, and writing outputs.
 #![warn(missing_docs)]
 
+pub mod cpu;
 pub mod data;
 pub mod describe;
 pub mod effects;

@@ -93,7 +93,26 @@ pub struct Work {
     /// Bytes held throughout: the lowered scene, the data, the weights with
     /// their gradients, moments and checkpoint copies, grids.
     pub resident: f64,
+    /// Bytes each computing thread keeps for the run (a hash-grid
+    /// surface's blocked scratch), counted by [`Work::memory_on`].
+    pub per_thread: f64,
+    /// Whether the run multiplies matrices through the dfdx graph, whose
+    /// library keeps [`Host::matmul_scratch`] in each thread that has.
+    pub matmul: bool,
     stages: [Cost; Stage::ALL.len()],
+}
+
+/// What a run's memory depends on besides its file: the machine's
+/// threads and its matrix library's scratch (the runtime reads both;
+/// neither is known to the file).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Host {
+    /// Threads that may compute at once: the pool's workers and the
+    /// thread that called them.
+    pub threads: usize,
+    /// Bytes the matrix library behind the dfdx graph keeps in each thread
+    /// that has multiplied (sized from the CPU's L2 cache).
+    pub matmul_scratch: f64,
 }
 
 impl Work {
@@ -103,8 +122,21 @@ impl Work {
             evaluations: 0.0,
             memory: resident,
             resident,
+            per_thread: 0.0,
+            matmul: false,
             stages: [Cost::default(); Stage::ALL.len()],
         }
+    }
+
+    /// Peak bytes on `host`: [`Work::memory`] and what each of its threads
+    /// keeps for the run.
+    pub fn memory_on(&self, host: &Host) -> f64 {
+        let matmul = if self.matmul {
+            host.matmul_scratch
+        } else {
+            0.0
+        };
+        self.memory + host.threads as f64 * (self.per_thread + matmul)
     }
 
     /// Adds a stage's evaluations and its own memory.
@@ -748,6 +780,10 @@ pub fn train_work(j: &TrainJob, size: Option<(u32, u32)>) -> Work {
             }
         };
     w.add(Stage::Training, iterations * rays * per_ray, batch);
+    w.matmul = matches!(&*j.model, Field::Sdf(_)) && j.backend == crate::value::Backend::Dfdx;
+    if let Field::NeuralSurface(n) = &*j.model {
+        w.per_thread = n.sdf.thread_scratch() as f64;
+    }
 
     if let (Some(g), Field::Nerf(n)) = (grid, &*j.model) {
         let refreshes = (iterations / g.every.max(1) as f64).ceil();

@@ -24,15 +24,10 @@ pub enum Kernel {
 }
 
 impl Kernel {
-    /// The AVX-512 BF16 kernel, where this CPU has AVX-512 F and BF16.
+    /// The AVX-512 BF16 kernel, where this CPU has AVX-512 F and BF16
+    /// and [`crate::cpu::kernels`] allows them.
     pub fn native() -> Option<Kernel> {
-        #[cfg(target_arch = "x86_64")]
-        if std::arch::is_x86_feature_detected!("avx512f")
-            && std::arch::is_x86_feature_detected!("avx512bf16")
-        {
-            return Some(Kernel::Avx512);
-        }
-        None
+        crate::cpu::kernels().avx512bf16.then_some(Kernel::Avx512)
     }
 }
 

@@ -23,16 +23,11 @@ const MR: usize = 12;
 /// Steps of the sum per chunk: a 32-column panel of `B` is 16 KiB.
 const KC: usize = 128;
 
-/// Whether this CPU runs the kernel (AVX-512 F).
+/// Whether the kernel runs here: the CPU has AVX-512 F and
+/// [`crate::cpu::kernels`] allows it.
+#[inline]
 pub fn available() -> bool {
-    #[cfg(target_arch = "x86_64")]
-    {
-        std::arch::is_x86_feature_detected!("avx512f")
-    }
-    #[cfg(not(target_arch = "x86_64"))]
-    {
-        false
-    }
+    crate::cpu::kernels().avx512f
 }
 
 /// An operand read in place: element `(i, r)` at `data[i·rows + r·cols]`.

@@ -111,19 +111,13 @@ pub fn per_lane(p: &P8, f: impl Fn(Vec3A) -> f32) -> F8 {
     F8(r)
 }
 
-/// Whether the CPU has AVX2: the packed kernels then run a copy of
-/// themselves compiled with it (`#[target_feature]`, the generic formula
-/// inlined into it and vectorised 8 wide); else the baseline build.
+/// Whether the kernels may use AVX2 ([`crate::cpu::kernels`]): the packed
+/// kernels then run a copy of themselves compiled with it
+/// (`#[target_feature]`, the generic formula inlined into it and
+/// vectorised 8 wide); else the baseline build.
 #[inline(always)]
 pub fn has_avx2() -> bool {
-    #[cfg(any(target_arch = "x86_64", target_arch = "x86"))]
-    {
-        std::arch::is_x86_feature_detected!("avx2")
-    }
-    #[cfg(not(any(target_arch = "x86_64", target_arch = "x86")))]
-    {
-        false
-    }
+    crate::cpu::kernels().avx2
 }
 
 /// `$vis fn $name<P: Prim>(node: &$node, p: &[P8], out: &mut [F8])`

@@ -127,6 +127,25 @@ pub struct NeuralSdf {
 }
 
 impl NeuralSdf {
+    /// Points a hash-grid network's blocked passes take at once.
+    pub const BLOCK_ROWS: usize = 128;
+
+    /// Bytes each thread keeps to take the exact gradient of a hash-grid
+    /// network through a volume (its blocked scratch: the features with
+    /// three tangents, each hidden layer's values, tangents and adjoints);
+    /// 0 for a harmonic encoding or central differences, which keep none.
+    pub fn thread_scratch(&self) -> usize {
+        match (&self.encoding, self.eikonal_step) {
+            (Encoding::HashGrid(_), None) => {
+                let (e, w) = (self.encoding_width(), self.width);
+                let values = 4 * e + 8 * w * self.layers + 4;
+                let adjoints = 12 * e.max(w);
+                4 * Self::BLOCK_ROWS * (values + adjoints)
+            }
+            _ => 0,
+        }
+    }
+
     /// Width of the encoded point.
     pub fn encoding_width(&self) -> usize {
         self.encoding.width()

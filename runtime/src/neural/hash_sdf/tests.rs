@@ -1080,3 +1080,47 @@ fn hash_sdf_blocked_backward_tiles_are_the_lane_loops() {
         close(&lanes_feat, &tiles_feat);
     }
 }
+
+/// The plan's per-thread bytes (`NeuralSdf::thread_scratch`, summed over
+/// the host's threads) are the blocked scratch each thread keeps: a change
+/// to either shows here.
+#[test]
+fn the_estimates_thread_scratch_is_the_blocks() {
+    use sdfl_stdlib::value::{Encoding, HashGridSpec, NeuralSdf};
+    assert_eq!(CHUNK, NeuralSdf::BLOCK_ROWS);
+    for (levels, features, layers, width) in
+        [(4, 2, 1, 16), (16, 2, 2, 64), (8, 4, 3, 32), (2, 1, 1, 128)]
+    {
+        let g = HashGridSpec {
+            levels,
+            features,
+            log2_table: 12,
+            min_res: 4,
+            max_res: 64,
+            min: [-1.0; 3],
+            max: [1.0; 3],
+        };
+        let n = NeuralSdf {
+            encoding: Encoding::HashGrid(g),
+            layers,
+            width,
+            skips: vec![],
+            beta: 100.0,
+            radius: 0.5,
+            seed: 0,
+            level_every: 0,
+            eikonal_step: None,
+        };
+        let net = objective::hash_sdf(&n, &g).unwrap();
+        assert_eq!(
+            block::BlockScratch::bytes::<3>(&net) as usize,
+            n.thread_scratch(),
+            "{levels} levels × {features}, {layers} × {width}"
+        );
+        let central = NeuralSdf {
+            eikonal_step: Some(1e-3),
+            ..n
+        };
+        assert_eq!(central.thread_scratch(), 0);
+    }
+}
