@@ -8,8 +8,13 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
-/// Longest any one command may take (the slowest cases need about a second).
-pub const TIME_LIMIT: Duration = Duration::from_secs(20);
+/// Longest any one command may take before it is killed (the slowest
+/// cases need about a second).
+pub const TIME_LIMIT: Duration = Duration::from_secs(90);
+
+/// What a case that once hung may take: generous, so that only a hang
+/// trips it, however loaded the machine.
+pub const HANG_GUARD: Duration = Duration::from_secs(60);
 
 /// What a run of the binary did.
 pub struct Outcome {
@@ -18,10 +23,16 @@ pub struct Outcome {
     pub elapsed: Duration,
 }
 
-/// A fresh, empty directory for one case.
+/// A fresh, empty directory for one case, under the calling file's name
+/// (the suites share one test binary: two files' cases of the same name
+/// run at once).
+#[track_caller]
 pub fn case_dir(name: &str) -> PathBuf {
+    let file = Path::new(std::panic::Location::caller().file());
+    let suite = file.file_stem().unwrap_or_default();
     let dir = Path::new(env!("CARGO_TARGET_TMPDIR"))
         .join("hostile")
+        .join(suite)
         .join(name);
     let _ = fs::remove_dir_all(&dir);
     fs::create_dir_all(&dir).expect("temp dir is writable");
@@ -107,6 +118,7 @@ pub fn assert_outcome(what: &str, o: &Outcome, expect: Expect) {
 }
 
 /// Writes `contents` to a file and runs both `check` and `run` on it.
+#[track_caller]
 pub fn hostile(name: &str, contents: impl AsRef<[u8]>, expect: Expect) -> Vec<Outcome> {
     let dir = case_dir(name);
     let file = dir.join(format!("{name}.sdfl"));

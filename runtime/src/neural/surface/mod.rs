@@ -936,10 +936,14 @@ impl SurfaceObjective {
         let (slope, slope_next, d_sigma) = (&self.slope, &self.slope_next, &self.d_sigma);
         if let (Some(i), true) = (self.beta_at(), self.spec.train_beta) {
             let slope_beta = &self.slope_beta;
-            let d_beta: f64 = (0..rows)
-                .into_par_iter()
-                .map(|k| (d_sigma[k] * slope_beta[k]) as f64)
-                .sum();
+            // Sums of fixed chunks, added in order: the same bits at any
+            // thread count (rayon's own sum splits by the pool).
+            let sums: Vec<f64> = d_sigma[..rows]
+                .par_chunks(4096)
+                .zip(slope_beta[..rows].par_chunks(4096))
+                .map(|(d, s)| d.iter().zip(s).map(|(d, s)| (d * s) as f64).sum())
+                .collect();
+            let d_beta: f64 = sums.iter().sum();
             grad[i] += (d_beta * beta as f64 * BETA_RATE as f64) as f32;
         }
         // ∂L/∂f_k through what sample k absorbs and (NeuS) what the

@@ -522,13 +522,15 @@ fn hash_surface_hard_rays_give_finite_loss_and_gradient() {
     }
 }
 
-/// The gradient is the same, bit for bit, at one and at two threads, over
-/// more samples than one block of the backward holds.
+/// The gradient is the same, bit for bit, at one, two and three threads,
+/// over more samples than one block of the backward holds, with β fixed
+/// and trained (its gradient a sum over every sample).
 #[test]
 fn hash_surface_gradient_is_bit_identical_at_any_thread_count() {
-    for step in [0.0, 0.02] {
+    for (step, train_beta) in [(0.0, false), (0.02, false), (0.0, true)] {
         let s = NeuralSurface {
             fine: 8,
+            train_beta,
             ..hash_spec(DensityKind::VolSdf, step, 0)
         };
         let run = |threads: usize| {
@@ -549,7 +551,9 @@ fn hash_surface_gradient_is_bit_identical_at_any_thread_count() {
             })
         };
         const { assert!(300 * 32 > crate::neural::hash_sdf::volume::BLOCK) };
-        assert_eq!(run(1), run(2), "eikonal step {step}");
+        let one = run(1);
+        assert_eq!(one, run(2), "eikonal step {step}, β trained {train_beta}");
+        assert_eq!(one, run(3), "eikonal step {step}, β trained {train_beta}");
     }
 }
 

@@ -1,6 +1,6 @@
 //! Tests of tracing and compiling tapes. The kernel's agreement with the
 //! f64 reference and the scalar kernel, for every primitive, operator,
-//! density and colour, is in `tests/gradients.rs`.
+//! density and colour, is in `runtime/tests/suite/gradients.rs`.
 
 use super::*;
 use crate::train::fused::{loss_and_grad_f32, Batch};

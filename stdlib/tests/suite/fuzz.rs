@@ -16,7 +16,7 @@
 //!   checks.
 //!
 //! Each property runs 256 cases by default; set `PROPTEST_CASES` for more
-//! (`PROPTEST_CASES=20000 cargo test -p sdfl-stdlib --test fuzz`).
+//! (`PROPTEST_CASES=20000 cargo test -p sdfl-stdlib --test suite fuzz::`).
 
 use std::sync::OnceLock;
 use std::time::{Duration, Instant};
@@ -31,7 +31,8 @@ use sdfl_stdlib::StdEnv;
 
 /// No single input may take longer than this to load (the slowest legal
 /// inputs, a million-iteration loop, take well under a second).
-const TIME_LIMIT: Duration = Duration::from_secs(10);
+/// A hang guard: generous, so that only a hang trips it on a loaded machine.
+const TIME_LIMIT: Duration = Duration::from_secs(60);
 
 /// Loads `text` and checks the result. The failure message quotes the input
 /// so that a shrunk counterexample can be turned into a regression test.
@@ -710,7 +711,7 @@ fn check_bomb(text: &str) -> Result<(), TestCaseError> {
         }
     }
     let elapsed = t0.elapsed();
-    prop_assert!(elapsed < Duration::from_secs(5), "{elapsed:?} on {text:?}");
+    prop_assert!(elapsed < TIME_LIMIT, "{elapsed:?} on {text:?}");
     Ok(())
 }
 

@@ -3,8 +3,7 @@
 //! and eikonal term measured by the report), and a resumed run is the same
 //! run.
 
-mod common;
-use common::write_sphere_points;
+use crate::common::write_sphere_points;
 
 use std::path::{Path, PathBuf};
 

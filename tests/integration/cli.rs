@@ -1,10 +1,10 @@
 //! The `sdfl` binary end to end: check, run (with --json), plan, sweep and
 //! transmittance, as a user calls them.
 
+use crate::common;
 use std::path::{Path, PathBuf};
 
-mod common;
-use common::run_sdfl as sdfl;
+use crate::common::run_sdfl as sdfl;
 
 fn temp(name: &str) -> PathBuf {
     common::temp_dir("cli", name)

@@ -2,8 +2,7 @@
 //! (issue 21): memory proportional to the source, every error of a file in
 //! one run, units, and errors inside `fn`s reported once.
 
-mod common;
-use common::*;
+use crate::common::*;
 
 use std::fs;
 use std::path::Path;

@@ -2,12 +2,10 @@
 //! and LLFF's `poses_bounds.npy`, written here as small fixtures, read by
 //! `capture(...)`'s readers and by the CLI.
 
-mod common;
-
 use std::fs;
 use std::path::{Path, PathBuf};
 
-use common::{assert_outcome, case_dir, head, run_into, sdfl, Expect};
+use crate::common::{assert_outcome, case_dir, head, run_into, sdfl, Expect};
 use glam::{DMat3, DQuat, DVec3};
 use sdfl_runtime::data::capture::{self, Distortion, Intrinsics};
 use sdfl_runtime::data::nerfstudio::read_transforms_scaled;

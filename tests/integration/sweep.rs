@@ -3,12 +3,12 @@
 //! and `--collect`, and a sweep killed halfway. Every setting here is an
 //! analytic volume render of a few pixels, not training.
 
+use crate::common;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
-mod common;
-use common::run_sdfl as sdfl;
+use crate::common::run_sdfl as sdfl;
 
 fn temp(name: &str) -> PathBuf {
     common::temp_dir("sweep", name)

@@ -3,8 +3,7 @@
 //! It now warns (`sdfl::warn::diverged`) on stderr and in `--json`, and a
 //! sound fit of the same scene does not.
 
-mod common;
-use common::*;
+use crate::common::*;
 
 use std::fs;
 

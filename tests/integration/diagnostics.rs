@@ -7,7 +7,7 @@
 //! and review the diff:
 //!
 //! ```text
-//! SDFL_BLESS=1 cargo test --test diagnostics
+//! SDFL_BLESS=1 cargo test --test integration diagnostics::
 //! git diff tests/diagnostics
 //! ```
 
@@ -133,7 +133,7 @@ fn diagnostics_match_expected_files() {
 /// The stable codes of `lang::diag::codes`, read from its source so that a
 /// new code is noticed here.
 fn all_codes() -> Vec<String> {
-    let source = include_str!("../lang/src/diag.rs");
+    let source = include_str!("../../lang/src/diag.rs");
     let module = source
         .split("pub mod codes {")
         .nth(1)

@@ -1,13 +1,12 @@
 //! `sdfl view`'s HTTP API, driven as a browser would: the binary started
 //! with `--port 0`, requests over a plain TcpStream.
 
+use crate::common;
 use std::io::{BufRead, BufReader, Read, Write};
 use std::net::TcpStream;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::Duration;
-
-mod common;
 
 fn temp(name: &str) -> PathBuf {
     common::temp_dir("view", name)

@@ -1,8 +1,7 @@
 //! The budget covers what is known only once data are read: a NeRF-synthetic
 //! test split scored every step is refused after loading, before any step.
 
-mod common;
-use common::*;
+use crate::common::*;
 
 use std::fs;
 use std::path::Path;

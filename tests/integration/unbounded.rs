@@ -4,9 +4,7 @@
 //! declared once, and a scene with content far outside the inner box
 //! trains with them.
 
-mod common;
-
-use common::{case_dir, sdfl};
+use crate::common::{case_dir, sdfl};
 use sdfl_lang::SourceFile;
 use sdfl_stdlib::value::{Background, Field, LearnedBackground};
 

@@ -24,8 +24,7 @@
 //!   (into the slots of `k3 k4`), OpenCV unless `is_fisheye`;
 //!   `transform_matrix` (3 × 4).
 
-mod common;
-
+use crate::common;
 use std::cmp::Ordering;
 use std::fs;
 use std::path::{Path, PathBuf};
@@ -33,7 +32,7 @@ use std::path::{Path, PathBuf};
 use glam::DVec3;
 use serde_json::Value;
 
-use common::{case_dir, run_into, Expect};
+use crate::common::{case_dir, run_into, Expect};
 use sdfl_runtime::data::export::DatasetWriter;
 use sdfl_stdlib::camera::Camera;
 use sdfl_stdlib::lens::{Distortion, Intrinsics};

@@ -7,8 +7,7 @@
 //! checkpoint, diagnostics on failure, `check --json`).
 #![cfg(unix)]
 
-mod common;
-use common::*;
+use crate::common::*;
 
 use std::fs;
 use std::os::unix::fs::MetadataExt;

@@ -5,8 +5,7 @@
 //! check lets the term train on such data and still refuses data that
 //! cannot say; a short hash-grid NeuS run learns from a written set.
 
-mod common;
-use common::*;
+use crate::common::*;
 
 use std::fs;
 use std::path::Path;

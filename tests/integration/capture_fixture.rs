@@ -7,12 +7,11 @@
 //! learned). The long version is `examples/capture.sdfl` (README, "Your
 //! own capture").
 
-mod common;
-
+use crate::common;
 use std::fs;
 use std::path::Path;
 
-use common::{assert_outcome, case_dir, run_into, Expect};
+use crate::common::{assert_outcome, case_dir, run_into, Expect};
 
 /// `examples/capture_world.sdfl` with fewer cameras.
 fn world() -> String {
@@ -72,7 +71,7 @@ render capture {
     let r = &common::run_report(&dir, "train.sdfl");
     // Held-out views are fitted, not a blur (18.3 dB measured at this
     // size; the long example reaches 30.8 dB). Exact rays through the lens
-    // are tested in stdlib::lens and tests/cameras.rs.
+    // are tested in stdlib::lens and tests/integration/cameras.rs.
     let psnr = r["held_out"][0]["psnr"].as_f64().unwrap();
     assert!(psnr > 16.0, "held-out PSNR {psnr}");
     // The scene frame: centred on the cameras as the file has them (their

@@ -82,7 +82,7 @@ fn the_grammar_lists_exactly_the_standard_librarys_builtins_and_statements() {
     }
     assert!(
         stale.is_empty(),
-        "{GRAMMAR} is stale (rewrite it with SDFL_BLESS=1 cargo test --release --test textmate): {stale:?}"
+        "{GRAMMAR} is stale (rewrite it with SDFL_BLESS=1 cargo test --release --test integration textmate::): {stale:?}"
     );
 }
 

@@ -6,11 +6,10 @@
 //! Without a browser this test fails, naming what to install: set
 //! `SDFL_BROWSER` to another Chromium-like binary to use that one.
 
+use crate::common;
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
-
-mod common;
 
 fn temp(name: &str) -> PathBuf {
     common::temp_dir("browser", name)

@@ -2,8 +2,7 @@
 //! a sphere it finds them (Chamfer distance from the report, a mesh on the
 //! sphere), and a resumed run is the same run, bit for bit.
 
-mod common;
-use common::write_sphere_points;
+use crate::common::write_sphere_points;
 
 use std::path::{Path, PathBuf};
 

@@ -4,13 +4,11 @@
 //! within a time bound (never a signal, a panic's 101 or a stack overflow),
 //! and when it fails, stderr names a diagnostic code (`sdfl::...`).
 
-mod common;
-use common::*;
+use crate::common::*;
 
 use std::fs;
 use std::path::PathBuf;
 use std::process::{Command, Stdio};
-use std::time::Duration;
 
 /// Deterministic pseudo-random bytes (no dependency on a RNG crate).
 fn noise(len: usize, mut seed: u64) -> Vec<u8> {
@@ -321,11 +319,7 @@ fn nested_loops_in_brackets_parse_in_linear_time() {
         e = format!("[for i{i} in {e} {{ 1 }}]");
     }
     let o = hostile("nested_loop_lists", format!("let a = {e}\n"), Expect::Ok);
-    assert!(
-        o[0].elapsed < Duration::from_secs(5),
-        "took {:?}",
-        o[0].elapsed
-    );
+    assert!(o[0].elapsed < HANG_GUARD, "took {:?}", o[0].elapsed);
 }
 
 // ------------------------------------------------------------ absurd numbers
@@ -440,13 +434,11 @@ fn run_in(name: &str, text: &str, extra: &[&str]) -> (Outcome, PathBuf) {
     (sdfl(&dir, &args), dir)
 }
 
-/// A file that used to hang finishes, or is refused, in under 5 s.
+/// A file that used to hang finishes, or is refused, within the hang
+/// guard (about a second each when quiet; the guard is generous so that
+/// only a hang trips it on a loaded machine: one took 6.6 s of a 5 s guard).
 fn quick(what: &str, o: &Outcome) {
-    assert!(
-        o.elapsed < Duration::from_secs(5),
-        "{what} took {:?}",
-        o.elapsed
-    );
+    assert!(o.elapsed < HANG_GUARD, "{what} took {:?}", o.elapsed);
 }
 
 #[test]
@@ -1120,11 +1112,7 @@ fn function_bombs_are_refused() {
                 "{name}: {}",
                 head(&o.stderr)
             );
-            assert!(
-                o.elapsed < Duration::from_secs(10),
-                "{name}: {:?}",
-                o.elapsed
-            );
+            assert!(o.elapsed < HANG_GUARD, "{name}: {:?}", o.elapsed);
         }
     }
 }

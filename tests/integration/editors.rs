@@ -1,12 +1,12 @@
 //! Editor support end to end: `sdfl fmt` (in place, `--check`, stdin,
 //! files that do not parse) and `sdfl completions`.
 
+use crate::common;
 use std::io::Write;
 use std::path::PathBuf;
 use std::process::{Command, Stdio};
 
-mod common;
-use common::run_sdfl as sdfl;
+use crate::common::run_sdfl as sdfl;
 
 fn temp(name: &str) -> PathBuf {
     common::temp_dir("editors", name)

@@ -4,14 +4,12 @@
 //! checkpoints. Each ends as a diagnostic (or loads correctly), never an
 //! abort, a hang or a silently wrong result.
 
-mod common;
-
 use std::fs;
 use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::Instant;
 
-use common::*;
+use crate::common::*;
 
 /// Address space the binary may use in the bomb cases: far below what the
 /// bombs inflate to (2 GiB and more).

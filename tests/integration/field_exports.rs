@@ -3,11 +3,9 @@
 //! colour-mapped depth, from a volume render of an analytic field and from
 //! trained models; their diagnostics.
 
-mod common;
-
 use std::fs;
 
-use common::*;
+use crate::common::*;
 
 /// A VolSDF sphere of radius 0.6 (sharp: β = 0.01) seen from four sides.
 const SPHERE: &str = r#"

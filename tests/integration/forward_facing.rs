@@ -5,12 +5,11 @@
 //! "llff")` and trained in NDC (`unbounded: ndc()`); and the checks that
 //! keep NDC and its data in agreement.
 
-mod common;
-
+use crate::common;
 use std::fs;
 use std::path::Path;
 
-use common::{assert_outcome, case_dir, run_into, Expect};
+use crate::common::{assert_outcome, case_dir, run_into, Expect};
 use sdfl_lang::SourceFile;
 use sdfl_stdlib::value::{Field, Unbounded};
 

@@ -58,7 +58,7 @@ fn examples_match_their_golden_images() {
         let out = std::env::temp_dir().join(format!("sdfl-golden-{}-{name}", std::process::id()));
         let _ = std::fs::remove_dir_all(&out);
         // Sphere-traced and volume renders (training is checked end to end
-        // by tests/train.rs).
+        // by tests/integration/train.rs).
         let mut reports = Vec::new();
         for job in &program.renders {
             let r = run_job(
@@ -79,7 +79,7 @@ fn examples_match_their_golden_images() {
             reports.push((r.written, job.cameras.len()));
         }
         for (written, views) in reports {
-            // Data sets are checked by runtime/tests/views.rs.
+            // Data sets are checked by runtime/tests/suite/views.rs.
             for w in written
                 .iter()
                 .filter(|w| w.kind != WrittenKind::Gif && w.kind != WrittenKind::Dataset)

@@ -117,7 +117,7 @@ fn huge_loops_are_refused_quickly() {
     assert_eq!(c, vec![codes::TOO_LARGE]);
     let c = codes_of("let s = union(for i in 0..1e5, j in 0..1e5 { sphere() })");
     assert_eq!(c, vec![codes::TOO_LARGE]);
-    assert!(t.elapsed().as_secs() < 30);
+    assert!(t.elapsed().as_secs() < 60);
 }
 
 #[test]
@@ -336,7 +336,7 @@ fn functions_stay_inside_the_work_budget() {
         !c.is_empty() && c.iter().all(|c| *c == codes::TOO_LARGE),
         "{c:?}"
     );
-    assert!(t.elapsed().as_secs() < 30, "{:?}", t.elapsed());
+    assert!(t.elapsed().as_secs() < 60, "{:?}", t.elapsed());
 }
 
 #[test]
@@ -418,7 +418,7 @@ fn indexing_is_cheap_and_comparing_lists_is_budgeted() {
     // Comparing lists walks them: 1e5 comparisons of 4e5 items is refused.
     let src = "let xs = for i in 0..400000 { i }\nlet ys = for i in 0..100000 { xs == xs }";
     assert_eq!(codes_of(src), [codes::TOO_LARGE]);
-    assert!(t.elapsed().as_secs() < 20, "{:?}", t.elapsed());
+    assert!(t.elapsed().as_secs() < 60, "{:?}", t.elapsed());
 }
 
 /// A repetition lowers its child once, but each point evaluates it in every
