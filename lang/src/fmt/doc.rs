@@ -109,6 +109,9 @@ pub fn print(mut doc: Doc, width: usize) -> String {
         match d {
             Doc::Text(t) => p.text(t, indent),
             Doc::Inline(t) => {
+                // One space between two inline comments, not the first's
+                // space and this one's.
+                p.space_before_token = false;
                 if !p
                     .out
                     .ends_with(|c: char| c == ' ' || c == '\n' || is_opener(c))

@@ -127,15 +127,18 @@ impl Token {
 }
 
 fn comment_docs(comments: &[Comment], first_at_line_start: bool, docs: &mut Vec<Doc>) {
-    for c in comments {
-        let own_line = c.newlines_before > 0 || first_at_line_start;
+    for (i, c) in comments.iter().enumerate() {
+        let own_line = c.newlines_before > 0 || (i == 0 && first_at_line_start);
+        // A comment followed on its line by another (`/* a */ // b`): the
+        // line ends after the last.
+        let next_on_line = comments.get(i + 1).is_some_and(|n| n.newlines_before == 0);
         if own_line {
             docs.push(Doc::LineStart);
             if c.newlines_before > 1 {
                 docs.push(Doc::Blank);
             }
         }
-        match (own_line, c.ends_line) {
+        match (own_line, c.ends_line && !next_on_line) {
             (_, true) => {
                 docs.push(Doc::text(c.text));
                 docs.push(Doc::HardLine);
@@ -178,16 +181,19 @@ impl<'a> Formatter<'a> {
     /// enclosing groups so that the line ends there.
     fn trailing(&mut self) -> Doc {
         let (comments, _, _) = trivia(self.text, self.pos);
-        let mut docs = Vec::new();
-        for c in comments
-            .iter()
-            .take_while(|c| c.newlines_before == 0 && c.ends_line)
-        {
-            docs.push(Doc::LineSuffix(c.text.to_string()));
-            docs.push(Doc::BreakParent);
-            self.pos = c.end;
+        // The comments left on the token's line, taken only when they end
+        // it (else they stay before the next token), and kept as one suffix
+        // (`/* a */ // b`): as two, the second would start a line of its own.
+        let same_line = comments.iter().take_while(|c| c.newlines_before == 0);
+        let line: Vec<_> = same_line.collect();
+        match line.last() {
+            Some(last) if last.ends_line => {
+                self.pos = last.end;
+                let text: Vec<&str> = line.iter().map(|c| c.text).collect();
+                Doc::Concat(vec![Doc::LineSuffix(text.join(" ")), Doc::BreakParent])
+            }
+            _ => Doc::Concat(Vec::new()),
         }
-        Doc::Concat(docs)
     }
 
     /// The next token, which must be `expected` (else the error is noted).

@@ -350,3 +350,75 @@ proptest! {
         prop_assert_eq!(&fmt(&messy), text, "{} respaced:\n{}", path.display(), messy);
     }
 }
+
+/// Small statements as tokens, every construct a comment can sit between.
+const STATEMENTS: &[&[&str]] = &[
+    &["import", "\"lib.sdfl\"", ";"],
+    &["let", "a", "=", "1", ";"],
+    &[
+        "let", "s", "=", "sphere", "(", "radius", ":", "-", "0.5", ")",
+    ],
+    &[
+        "fn", "f", "(", "p", ",", "k", ":", "2", ")", "{", "length", "(", "p", ")", "*", "k", "}",
+    ],
+    &[
+        "render",
+        "r",
+        "{",
+        "scene",
+        ":",
+        "s",
+        ",",
+        "outputs",
+        ":",
+        "[",
+        "image",
+        "(",
+        "\"r.png\"",
+        ")",
+        ",",
+        "]",
+        "}",
+    ],
+];
+
+/// What may stand between two tokens: spaces, line breaks, and comments of
+/// both kinds, alone or together on a line.
+const GAPS: &[&str] = &[
+    " ",
+    "\n",
+    "\n\n",
+    " /* c */ ",
+    " // c\n",
+    "\n// own\n",
+    " /* a */ // b\n",
+    " /* a */ /* b */ ",
+    "\n/* own */\n",
+];
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 256, ..ProptestConfig::default() })]
+
+    /// Formatting is idempotent wherever comments stand: a file of small
+    /// statements with a comment or a line break in any gap formats, and
+    /// formats again to the same text.
+    #[test]
+    fn formatting_twice_changes_nothing(
+        order in prop::collection::vec(0..STATEMENTS.len(), 1..4),
+        gaps in prop::collection::vec(prop::sample::select(GAPS), 64),
+    ) {
+        let mut src = String::new();
+        let mut k = 0;
+        for &i in &order {
+            for t in STATEMENTS[i] {
+                src.push_str(t);
+                src.push_str(gaps[k % gaps.len()]);
+                k += 1;
+            }
+            src.push('\n');
+        }
+        let once = fmt(&src);
+        let twice = fmt(&once);
+        prop_assert_eq!(&twice, &once, "formatted from:\n{}", src);
+    }
+}

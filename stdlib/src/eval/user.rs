@@ -287,14 +287,27 @@ impl<'e> Evaluator<'e> {
         };
         let analysis = shape.tape.analyse(-half, half, &shape.arg_values());
         if let Some(i) = analysis.unbounded {
-            return Err(Some(Diag::new(
-                codes::SHAPE_UNBOUNDED,
-                shape.tape.span(i),
-                format!("`{}` can be infinite within its bound", f.name.name),
-            )
-            .label("unbounded over the bound box")
-            .note(bspan, "the box it is evaluated in")
-            .help("guard the division or root (`max(x, 1e-3)`, `abs`), or give a box that keeps away from the pole")));
+            let d = if analysis.past_f32 {
+                Diag::new(
+                    codes::SHAPE_UNBOUNDED,
+                    shape.tape.span(i),
+                    format!(
+                        "`{}` can pass f32's range (±3.4e38) within its bound, and shapes are evaluated in f32",
+                        f.name.name
+                    ),
+                )
+                .label("past f32's range over the bound box")
+                .help("scale the constants so that every step stays within ±1e38 (`x · 1e30 · 1e30 / 1e60` is `x`)")
+            } else {
+                Diag::new(
+                    codes::SHAPE_UNBOUNDED,
+                    shape.tape.span(i),
+                    format!("`{}` can be infinite within its bound", f.name.name),
+                )
+                .label("unbounded over the bound box")
+                .help("guard the division or root (`max(x, 1e-3)`, `abs`), or give a box that keeps away from the pole")
+            };
+            return Err(Some(d.note(bspan, "the box it is evaluated in")));
         }
         let lipschitz = match declared {
             Some((l, _)) => l,

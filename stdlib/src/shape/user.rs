@@ -475,17 +475,22 @@ impl Tape {
 
     /// Interval arithmetic over the box `lo..hi` with the arguments at
     /// `args`: each instruction's range, the first instruction whose range
-    /// is not finite (from finite operands), and a bound on the gradient's
+    /// is not finite in f32, the precision shapes run in (from finite
+    /// operands: `1e30 · 1e30` is finite in f64 and infinite on the lanes),
+    /// and a bound on the gradient's
     /// norm over the box (infinite where none is derived: a division by
     /// a range holding 0, `floor`, a select whose condition changes).
     pub fn analyse(&self, lo: DVec3, hi: DVec3, args: &[f64]) -> Analysis {
         let mut at: Vec<Bounds> = Vec::with_capacity(self.ops.len());
         let mut unbounded = None;
+        let mut past_f32 = false;
+        const F32_MAX: f64 = f32::MAX as f64;
         for (i, op) in self.ops.iter().enumerate() {
             let b = bounds_of(op, &at, lo, hi, args);
-            let finite = b.lo.is_finite() && b.hi.is_finite();
+            let finite = b.lo >= -F32_MAX && b.hi <= F32_MAX;
             if !finite && unbounded.is_none() {
                 unbounded = Some(i);
+                past_f32 = b.lo.is_finite() && b.hi.is_finite();
             }
             at.push(b);
         }
@@ -493,6 +498,7 @@ impl Tape {
         Analysis {
             range: (out.lo, out.hi),
             unbounded,
+            past_f32,
             lipschitz: if unbounded.is_some() {
                 f64::INFINITY
             } else {
@@ -507,8 +513,10 @@ impl Tape {
 pub struct Analysis {
     /// The result's range.
     pub range: (f64, f64),
-    /// The first instruction whose range is not finite.
+    /// The first instruction whose range is not finite in f32.
     pub unbounded: Option<usize>,
+    /// Whether that range is finite in f64, only past f32's (±3.4e38).
+    pub past_f32: bool,
     /// A bound on the result's gradient norm (infinite: none derived).
     pub lipschitz: f64,
 }
