@@ -39,6 +39,17 @@ pub struct Size {
     /// Items of lists, nested lists included (not what shapes hold): what
     /// a builtin flattening a list argument walks.
     pub items: u64,
+    /// The most instructions of one leaf (a user function's; 0 for
+    /// built-in primitives): what a step near it may pay.
+    pub leaf_ops: u64,
+}
+
+impl Size {
+    /// What one evaluation near the costliest leaf counts, in primitive
+    /// distances (at least one).
+    pub fn leaf_cost(&self) -> f64 {
+        (self.leaf_ops as f64 / crate::shape::user::UserShape::OPS_PER_EVALUATION as f64).max(1.0)
+    }
 }
 
 impl Size {
@@ -47,6 +58,7 @@ impl Size {
         primitives: 0,
         depth: 1,
         items: 0,
+        leaf_ops: 0,
     };
     /// A node over `children` (saturating: expanded sizes of shared values
     /// grow exponentially with the sharing depth).
@@ -56,12 +68,14 @@ impl Size {
             primitives: primitive as u64,
             depth: 0,
             items: 0,
+            leaf_ops: 0,
         };
         for c in children {
             s.nodes = s.nodes.saturating_add(c.nodes);
             s.primitives = s.primitives.saturating_add(c.primitives);
             s.depth = s.depth.max(c.depth);
             s.items = s.items.saturating_add(c.items);
+            s.leaf_ops = s.leaf_ops.max(c.leaf_ops);
         }
         s.depth = s.depth.saturating_add(1);
         s
@@ -140,7 +154,14 @@ impl Sizes {
         let children = sh.children();
         if children.is_empty() {
             // Measured in O(1); not kept alive by the memo.
-            return Size::node([], true);
+            let leaf_ops = match &**sh {
+                Shape::User(u) => u.tape.ops().len() as u64,
+                _ => 0,
+            };
+            return Size {
+                leaf_ops,
+                ..Size::node([], true)
+            };
         }
         let sizes: Vec<Size> = children
             .into_iter()

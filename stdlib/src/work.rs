@@ -396,11 +396,13 @@ fn chamfer_cost() -> Cost {
 
 /// What a `render` of a shape costs (at `size` when `--size` overrides it).
 pub fn render_work(j: &RenderJob, size: Option<(u32, u32)>) -> Work {
-    render_work_of(j, size, j.scene.primitive_count() as u64)
+    render_work_of(j, size, &crate::size::Sizes::default().shape(&j.scene, 0))
 }
 
-/// [`render_work`] with the scene's expanded primitive count known.
-pub fn render_work_of(j: &RenderJob, size: Option<(u32, u32)>, primitives: u64) -> Work {
+/// [`render_work`] with the scene's expanded size known (its primitives,
+/// its costliest leaf).
+pub fn render_work_of(j: &RenderJob, size: Option<(u32, u32)>, scene: &crate::size::Size) -> Work {
+    let primitives = scene.primitives;
     let px = pixels((j.width, j.height), size);
     let mesh = mesh_work(j.outputs.iter().map(|o| &o.kind), 1.0);
     // Supersampled colour traces `samples_per_pixel` rays, and the pixel
@@ -427,9 +429,11 @@ pub fn render_work_of(j: &RenderJob, size: Option<(u32, u32)>, primitives: u64) 
         .effect_evaluations()
         .max(painted_effects(&j.scene)) as f64;
     let mut w = Work::new(primitives as f64 * BYTES_PER_PRIMITIVE as f64);
+    // A step near a user function pays its instructions.
+    let leaf = scene.leaf_cost();
     w.add(
         Stage::Views,
-        px * j.cameras.len() as f64 * (j.iterations as f64 * rays + spp * effects),
+        px * j.cameras.len() as f64 * (j.iterations as f64 * rays + spp * effects) * leaf,
         px * bytes_per_pixel(j.outputs.iter().map(|o| o.kind.clone()), false),
     );
     w.add(Stage::Meshes, mesh.evaluations, mesh.memory);

@@ -150,7 +150,7 @@ impl<'e> Evaluator<'e> {
             }
             StatementKind::Render => {
                 let j = program.renders.last().expect("just added");
-                let prims = self.sizes.shape(&j.scene, 0).primitives;
+                let scene_size = self.sizes.shape(&j.scene, 0);
                 default_far = format!("`far` is {} unless given", fmt_num(j.far));
                 let far_note = if field("far") == b.kind.span {
                     (b.kind.span, default_far.as_str())
@@ -158,7 +158,7 @@ impl<'e> Evaluator<'e> {
                     (field("far"), "rays end here")
                 };
                 let reach = (&j.cameras, j.near, j.far, far_note);
-                let w = work::render_work_of(j, None, prims);
+                let w = work::render_work_of(j, None, &scene_size);
                 (w, "iterations", Some(j.scene.clone()), Some(reach))
             }
         };

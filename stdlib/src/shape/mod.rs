@@ -454,10 +454,19 @@ impl Shape {
     pub fn evaluation_cost(&self) -> f64 {
         let children = self.children();
         if children.is_empty() {
-            return 1.0;
+            return self.leaf_cost();
         }
         let sum: f64 = children.iter().map(|s| s.evaluation_cost()).sum();
         sum * self.copies_per_point() as f64
+    }
+
+    /// What one evaluation of a leaf counts: 1 for a primitive, a user
+    /// function's instructions in primitive distances.
+    fn leaf_cost(&self) -> f64 {
+        match self {
+            Shape::User(u) => u.evaluation_cost(),
+            _ => 1.0,
+        }
     }
 
     /// For a repetition, the most copies evaluated at one point (the

@@ -841,6 +841,16 @@ pub struct UserShape {
 }
 
 impl UserShape {
+    /// Instructions a built-in primitive's distance is worth: one
+    /// evaluation in the estimates (a rounded box takes about a dozen).
+    pub const OPS_PER_EVALUATION: usize = 12;
+
+    /// What one evaluation of this shape counts in the estimates: its
+    /// instructions in primitive distances, at least one.
+    pub fn evaluation_cost(&self) -> f64 {
+        (self.tape.ops().len() as f64 / Self::OPS_PER_EVALUATION as f64).max(1.0)
+    }
+
     /// The arguments' values as the tape reads them.
     pub fn arg_values(&self) -> Vec<f64> {
         let mut out = Vec::with_capacity(self.tape.arg_count());

@@ -155,3 +155,37 @@ train t {{
     assert!(meshed.evaluations > 197f64.powi(3), "{meshed:?}");
     assert!(meshed.memory > 1e6 * 12.0, "{meshed:?}");
 }
+
+/// A user function's instructions are in the estimate: a render of a
+/// function of about 2 000 instructions counts about 170 times the
+/// evaluations of one of a few (each step near it pays them all).
+#[test]
+fn a_user_functions_size_is_in_its_renders_estimate() {
+    let render = |body: &str| {
+        let src = format!(
+            "fn f(p) {{ {body} }}\nlet s = sdf(f, bound: 1)\nrender r {{ scene: s, camera: look_at(eye: [0, 0, -3]), size: [32, 32], outputs: [image(\"r.png\")] }}\n"
+        );
+        let p = load(&SourceFile::new("user.sdfl", src)).unwrap_or_else(|e| panic!("{e:?}"));
+        sdfl_stdlib::work::render_work(&p.renders[0], None).evaluations
+    };
+    let small = render("length(p) - 0.5");
+    // Four parts of 100 terms (an expression holds at most 512 operators),
+    // each term about five instructions.
+    let parts: Vec<String> = (0..4)
+        .map(|i| {
+            let terms: Vec<String> = (1..=100)
+                .map(|k| format!("0.0001 * sin(p.x * {}.5)", 100 * i + k))
+                .collect();
+            format!("let t{i} = {};", terms.join(" + "))
+        })
+        .collect();
+    let large = render(&format!(
+        "{} length(p) - 0.5 + t0 + t1 + t2 + t3",
+        parts.join(" ")
+    ));
+    let ratio = large / small;
+    assert!(
+        (120.0..=200.0).contains(&ratio),
+        "{large} / {small} = {ratio}"
+    );
+}
