@@ -923,8 +923,39 @@ impl<'e> Evaluator<'e> {
                 Value::Param(decl)
             }
             Ok(v) => self.size_checked(v, span),
-            Err(d) => self.error(d),
+            Err(d) => self.every_error(builtin, bound, d, span),
         }
+    }
+
+    /// A built-in's errors all together, not only its first: the argument
+    /// an error points into, where it was written and has a default, is
+    /// set to its default and the call evaluated again, until an error
+    /// points elsewhere or none is left (at most once an argument).
+    fn every_error(
+        &mut self,
+        builtin: &crate::builtins::Builtin,
+        mut bound: Args,
+        first: Diag,
+        span: Span,
+    ) -> Value {
+        let sig = &builtin.sig;
+        let mut next = Some(first);
+        while let Some(d) = next.take() {
+            let within = |s: &Span| s.start <= d.span.start && d.span.end <= s.end;
+            let culprit = sig.params.iter().find(|p| {
+                p.default.is_some()
+                    && !bound.defaulted.contains(&p.name)
+                    && bound.named.get(p.name).is_some_and(|(_, s)| within(s))
+            });
+            self.report(d);
+            let Some(p) = culprit else { break };
+            let default = p.default.unwrap_or_default();
+            let v = self.default_value(sig.name, p.name, default);
+            bound.named.insert(p.name, (v, span));
+            bound.defaulted.push(p.name);
+            next = (builtin.eval)(&bound).err();
+        }
+        Value::Poison
     }
 
     /// The value, or poison with a diagnostic when it nests too deep or
