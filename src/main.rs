@@ -417,35 +417,38 @@ fn main() -> ExitCode {
 const MAX_SOURCE_BYTES: u64 = 64 << 20;
 
 /// Reads a scene file: a regular file (not a FIFO or `/dev/zero`, which
-/// would block or never end) of at most [`MAX_SOURCE_BYTES`].
+/// would block or never end) of at most [`MAX_SOURCE_BYTES`], in UTF-8.
 fn read(path: &Path) -> Result<SourceFile, ()> {
-    read_source(path).map_err(|e| say!("error[sdfl::io]: {e}\n  help: {READ_HELP}"))
+    read_source(path).map_err(|e| match e {
+        Unread::Io(e) => say!("error[sdfl::io]: {e}\n  help: {READ_HELP}"),
+        Unread::Encoding(src, diags) => say_raw(&sdfl_lang::render(&src, &diags, term::color())),
+    })
 }
 
 /// What to do when a scene file cannot be read.
 const READ_HELP: &str = "give the path of a .sdfl file";
 
+/// Why a scene file was not read.
+enum Unread {
+    /// It cannot be read (the message names it).
+    Io(String),
+    /// It is not UTF-8: its diagnostic, placed in the text as decoded
+    /// lossily (only to show where).
+    Encoding(SourceFile, sdfl_lang::Diagnostics),
+}
+
 /// Reads a scene file, or says why it cannot.
-fn read_source(path: &Path) -> Result<SourceFile, String> {
-    use std::io::Read;
-    let bytes = sdfl_runtime::data::image::open_regular(path).and_then(|f| {
-        let mut bytes = Vec::new();
-        f.take(MAX_SOURCE_BYTES + 1).read_to_end(&mut bytes)?;
-        if bytes.len() as u64 > MAX_SOURCE_BYTES {
-            return Err(std::io::Error::other(format!(
-                "{}: larger than {MAX_SOURCE_BYTES} bytes",
-                path.display()
-            )));
-        }
-        Ok(bytes)
-    });
-    match bytes {
-        Ok(bytes) => {
-            let text = String::from_utf8_lossy(&bytes).into_owned();
-            Ok(SourceFile::new(path.display().to_string(), text))
-        }
-        Err(e) => Err(format!("cannot read the scene file: {e}")),
-    }
+fn read_source(path: &Path) -> Result<SourceFile, Unread> {
+    let bytes = sdfl_stdlib::files::read_capped(path, MAX_SOURCE_BYTES)
+        .map_err(|e| Unread::Io(format!("cannot read the scene file: {e}")))?;
+    let name = path.display().to_string();
+    sdfl_stdlib::files::utf8(bytes)
+        .map(|text| SourceFile::new(name.clone(), text))
+        .map_err(|bad| {
+            let mut diags = sdfl_lang::Diagnostics::default();
+            diags.push(bad.diag());
+            Unread::Encoding(SourceFile::new(name, bad.lossy), diags)
+        })
 }
 
 /// Loads a file, printing its diagnostics: errors fail, warnings do not.
@@ -479,7 +482,13 @@ fn check_json(files: &[PathBuf]) -> ExitCode {
         .map(|f| {
             let name = f.display().to_string();
             let diags = match read_source(f) {
-                Err(e) => vec![json::unplaced(&name, sdfl_lang::codes::IO, &e, READ_HELP)],
+                Err(Unread::Io(e)) => {
+                    vec![json::unplaced(&name, sdfl_lang::codes::IO, &e, READ_HELP)]
+                }
+                Err(Unread::Encoding(src, diags)) => {
+                    say_raw(&sdfl_lang::render(&src, &diags, term::color()));
+                    json::diagnostics(&src, &diags)
+                }
                 Ok(src) => match load_diagnosed(&src) {
                     Ok((_, warnings)) => json::diagnostics(&src, &warnings),
                     Err(errors) => json::diagnostics(&src, &errors),
@@ -741,9 +750,17 @@ fn run(file: Option<&Path>, out: &Path, options: RunOptions, json: bool) -> Exit
     let src = match file {
         Some(f) => match read_source(f) {
             Ok(s) => s,
-            Err(e) => {
+            Err(Unread::Io(e)) => {
                 let name = f.display().to_string();
                 return failed_early(&name, sdfl_lang::codes::IO, &e, READ_HELP, json);
+            }
+            Err(Unread::Encoding(src, diags)) => {
+                say_raw(&sdfl_lang::render(&src, &diags, term::color()));
+                if json {
+                    let found = json::diagnostics(&src, &diags);
+                    print_json(&json::run_failed(&src.name, found, None));
+                }
+                return ExitCode::FAILURE;
             }
         },
         None => SourceFile::new("showcase.sdfl (built in)", SHOWCASE),

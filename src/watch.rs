@@ -42,6 +42,10 @@ const STORE_VERSION: u32 = 1;
 /// larger ones by size and modification time.
 const MAX_HASHED_SOURCE: u64 = 1 << 20;
 
+/// Largest fingerprint store read (a few hundred bytes a statement and
+/// input file).
+const MAX_STORE_BYTES: u64 = 64 << 20;
+
 /// Most files of one data directory fingerprinted (the readers cap frames
 /// at 10 000; more is not a data set).
 const MAX_INPUT_FILES: usize = 100_000;
@@ -330,7 +334,7 @@ fn content_hash(path: &Path, cache: &mut BTreeMap<String, InputStamp>) -> String
         }
     }
     let mut h = Fnv::default();
-    let Ok(mut f) = sdfl_runtime::data::image::open_regular(path) else {
+    let Ok(mut f) = sdfl_stdlib::files::open_regular(path) else {
         return "unreadable".into();
     };
     let mut buf = vec![0u8; 1 << 16];
@@ -391,10 +395,12 @@ pub fn sources_stamp(file: &Path) -> String {
         match stamp(&f) {
             Some((len, modified)) => {
                 h.str(&format!("{len} {modified}"));
+                // A FIFO or device named `.sdfl` is refused, never read.
                 if len <= MAX_HASHED_SOURCE {
-                    if let Ok(bytes) = std::fs::read(&f) {
-                        h.bytes(&bytes);
-                    }
+                    match sdfl_stdlib::files::read_capped(&f, MAX_HASHED_SOURCE) {
+                        Ok(bytes) => h.bytes(&bytes),
+                        Err(_) => h.str("unreadable"),
+                    };
                 }
             }
             None => {
@@ -462,7 +468,11 @@ impl Store {
     /// The store in `out`; empty when missing, unreadable or of another
     /// version (everything then runs).
     fn load(out: &Path) -> Store {
-        std::fs::read(out.join(STORE))
+        let path = out.join(STORE);
+        // Only the file sdfl wrote: a FIFO there would block, a link lead
+        // anywhere.
+        sdfl_stdlib::files::open_regular_unlinked(&path)
+            .and_then(|f| sdfl_stdlib::files::read_to_cap(f, &path, MAX_STORE_BYTES))
             .ok()
             .and_then(|b| serde_json::from_slice::<Store>(&b).ok())
             .filter(|s| s.version == STORE_VERSION)

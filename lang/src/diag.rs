@@ -78,6 +78,9 @@ pub mod codes {
     pub const PATH: &str = "sdfl::path::escape";
     /// A file that could not be read or written.
     pub const IO: &str = "sdfl::io";
+    /// A scene file (or an imported one) that is not UTF-8 text: refused at
+    /// its first bad byte, never read with the bytes replaced.
+    pub const SOURCE_ENCODING: &str = "sdfl::source::encoding";
     /// Two outputs (or an output and a checkpoint) write the same file.
     pub const OUTPUT_COLLISION: &str = "sdfl::path::collision";
     /// A number that the f32 runtime would flush to zero or overflow.

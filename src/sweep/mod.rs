@@ -99,7 +99,7 @@ pub(crate) fn sweep(a: SweepArgs) -> ExitCode {
     if a.dry_run {
         let mut stdout = Stdout::new();
         for s in &settings {
-            let state = match rows::find(out, &s.label, &s.fingerprint) {
+            let state = match rows::find(out, &s.label, a.name, s.value, &s.fingerprint) {
                 Found::Done(_) => "done (skipped)".to_string(),
                 Found::Missing => "to run".to_string(),
                 Found::Stale(why) => format!("to run again: {why}"),
@@ -111,7 +111,7 @@ pub(crate) fn sweep(a: SweepArgs) -> ExitCode {
     if !a.collect {
         let mut skipped = 0;
         for s in &settings {
-            match rows::find(out, &s.label, &s.fingerprint) {
+            match rows::find(out, &s.label, a.name, s.value, &s.fingerprint) {
                 Found::Done(_) => {
                     say!("{}: skipped (done)", s.label);
                     skipped += 1;
@@ -225,16 +225,27 @@ fn run_setting(src: &SourceFile, a: &SweepArgs, out: &Path, s: &Setting) -> Resu
 fn collect(name: &str, settings: &[Setting], out: &Path) -> ExitCode {
     let mut found = Vec::new();
     let mut absent = Vec::new();
+    let mut stale = false;
     for s in settings {
-        match rows::find(out, &s.label, &s.fingerprint) {
+        match rows::find(out, &s.label, name, s.value, &s.fingerprint) {
             Found::Done(row) => found.push((row, out.join(&s.label))),
             Found::Missing => absent.push(format!("{}: no row yet", s.label)),
-            Found::Stale(why) => absent.push(format!("{}: {why}", s.label)),
+            Found::Stale(why) => {
+                stale = true;
+                absent.push(format!("{}: {why}", s.label))
+            }
         }
     }
     if !absent.is_empty() {
+        // A row that no longer stands (edited, its outputs gone) is run
+        // again by the sweep itself.
+        let again = if stale {
+            "; a setting whose row no longer stands runs again with this command without `--collect`"
+        } else {
+            ""
+        };
         say!(
-            "error[{}]: {} of the sweep's {} settings have no finished row under {}:\n  {}\n  help: run the shards that hold them (setting k of `--set`, from 0, is shard k mod N's) and copy their `--out` folders into this one, then `--collect` again",
+            "error[{}]: {} of the sweep's {} settings have no finished row under {}:\n  {}\n  help: run the shards that hold them (setting k of `--set`, from 0, is shard k mod N's) and copy their `--out` folders into this one, then `--collect` again{again}",
             sdfl_lang::codes::IO,
             absent.len(),
             settings.len(),

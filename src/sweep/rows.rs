@@ -7,9 +7,15 @@
 //! seconds it took and each statement's report. The table and plots are
 //! rebuilt from these files, so a sweep can stop and resume, and shards run
 //! apart can be copied into one `--out` and collected.
+//!
+//! A row stands for its setting only as sdfl wrote it: its first line is a
+//! check of every byte after it (value, seconds, measures, reports), so a
+//! row edited by hand is refused, naming it. Its value must be the
+//! setting's, its time and measures plausible, its outputs regular files in
+//! its folder. Rows written before rows had a check are read (their values
+//! checked the same way).
 
 use std::fmt::Write as _;
-use std::io::Read as _;
 use std::path::{Path, PathBuf};
 
 use sdfl_runtime::train::checkpoint::Fnv;
@@ -136,21 +142,102 @@ pub(super) enum Found {
     Stale(String),
 }
 
-/// The row of setting `label` under `out`, checked against `fingerprint`
-/// and against its outputs still being on disk (in `OUT/label/`).
-pub(super) fn find(out: &Path, label: &str, fingerprint: &str) -> Found {
+/// What a row file starts with when sdfl wrote it with a check: the key of
+/// the check, whose value covers every byte after its line.
+const CHECK_START: &str = "{\n  \"check\": \"";
+
+/// The check of a row's JSON as written without its check line.
+fn check_of(body: &[u8]) -> String {
+    let mut h = Fnv::default();
+    h.str("sdfl sweep row check").bytes(body);
+    h.finish()
+}
+
+/// A row file split into its check and the row without the check's line
+/// (as it was hashed); `None` for a row written before rows had a check.
+fn split_check(bytes: &[u8]) -> Option<(&[u8], Vec<u8>)> {
+    let rest = bytes.strip_prefix(CHECK_START.as_bytes())?;
+    let end = rest.iter().position(|&b| b == b'"')?;
+    let body = rest[end..].strip_prefix(b"\",\n")?;
+    Some((&rest[..end], [b"{\n", body].concat()))
+}
+
+/// Longest time a setting may have taken: a row claiming more (about 30
+/// years) was not measured.
+const MAX_SECONDS: f64 = 1e9;
+
+/// What is wrong with a row's values, if anything: what it measured must
+/// be plausible (non-finite measures are kept as such, see `metrics.rs`),
+/// its time finite, and what it wrote inside its setting's folder.
+fn implausible(row: &Row) -> Option<String> {
+    if !(row.seconds.is_finite() && (0.0..=MAX_SECONDS).contains(&row.seconds)) {
+        return Some(format!(
+            "an implausible time of {} seconds",
+            sdfl_lang::fmt_num(row.seconds)
+        ));
+    }
+    let m = row.metrics();
+    // (measure, value, least, most, whether +∞ is one sdfl writes: a
+    // Chamfer distance to an empty mesh).
+    let ranges = [
+        ("held-out PSNR", m.held_out_psnr_db, -1e3, 1e3, false),
+        ("held-out SSIM", m.held_out_ssim, -1.001, 1.001, false),
+        ("mesh Chamfer distance", m.mesh_chamfer, 0.0, 1e18, true),
+        ("field Chamfer distance", m.field_chamfer, 0.0, 1e18, true),
+    ];
+    for (what, v, least, most, infinite) in ranges {
+        let ok =
+            |v: f64| v.is_nan() || (least..=most).contains(&v) || (infinite && v == f64::INFINITY);
+        if let Some(v) = v.filter(|v| !ok(*v)) {
+            return Some(format!(
+                "an implausible {what} of {}",
+                sdfl_lang::fmt_num(v)
+            ));
+        }
+    }
+    let outside = written(&row.reports).into_iter().find(|rel| {
+        let p = Path::new(rel);
+        rel.is_empty()
+            || !p
+                .components()
+                .all(|c| matches!(c, std::path::Component::Normal(_)))
+    });
+    outside.map(|rel| format!("an output `{rel}` outside its setting's folder"))
+}
+
+/// Whether two readings of one value agree: a row's value went through
+/// JSON, whose reader may round the last bit.
+fn same_value(a: f64, b: f64) -> bool {
+    a == b || (a - b).abs() <= 4.0 * f64::EPSILON * a.abs().max(b.abs())
+}
+
+/// The row of setting `name` = `value` (named `label`) under `out`,
+/// checked against `fingerprint`, against its own check (a row edited
+/// since it was written is refused, naming it), against its value being
+/// the setting's and its measures plausible, and against its outputs
+/// still being on disk (in `OUT/label/`) as regular files.
+pub(super) fn find(out: &Path, label: &str, name: &str, value: f64, fingerprint: &str) -> Found {
     let path = row_path(out, label);
-    let bytes = match sdfl_runtime::data::image::open_regular(&path).and_then(|f| {
-        let mut bytes = Vec::new();
-        f.take(MAX_ROW_BYTES + 1).read_to_end(&mut bytes)?;
-        Ok(bytes)
-    }) {
-        Ok(b) if b.len() as u64 <= MAX_ROW_BYTES => b,
-        Ok(_) => return Found::Stale("its row file is too large to be one sdfl wrote".into()),
+    let bytes = match sdfl_stdlib::files::read_capped(&path, MAX_ROW_BYTES) {
+        Ok(b) => b,
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Found::Missing,
+        Err(e) if e.kind() == std::io::ErrorKind::FileTooLarge => {
+            return Found::Stale("its row file is too large to be one sdfl wrote".into())
+        }
         Err(e) => return Found::Stale(format!("its row file cannot be read ({e})")),
     };
-    let row: Row = match serde_json::from_slice(&bytes) {
+    let shown = path.display();
+    // Rows written before rows had a check are read as they are.
+    let body = match split_check(&bytes) {
+        Some((check, body)) if check == check_of(&body).as_bytes() => body,
+        Some(_) => {
+            return Found::Stale(format!(
+                "its row {shown} was edited after sdfl wrote it (its check does not match)"
+            ))
+        }
+        None => bytes,
+    };
+    let mut row: Row = match serde_json::from_slice(&body) {
         Ok(r) => r,
         Err(_) => return Found::Stale("its row file is not a sweep row".into()),
     };
@@ -160,12 +247,27 @@ pub(super) fn find(out: &Path, label: &str, fingerprint: &str) -> Found {
     if row.fingerprint != fingerprint {
         return Found::Stale("the file or the setting changed since it ran".into());
     }
+    // The fingerprint covers the setting, so the row must say the same.
+    if row.name != name || !same_value(row.value, value) {
+        return Found::Stale(format!(
+            "its row {shown} holds {}={}, not the setting's value",
+            row.name,
+            sdfl_lang::fmt_num(row.value)
+        ));
+    }
+    row.value = value;
+    if let Some(why) = implausible(&row) {
+        return Found::Stale(format!("its row {shown} holds {why}"));
+    }
     let dir = out.join(label);
-    let lost = written(&row.reports)
-        .into_iter()
-        .find(|rel| !dir.join(rel).exists());
-    if let Some(rel) = lost {
-        return Found::Stale(format!("its output {label}/{rel} is gone"));
+    for rel in written(&row.reports) {
+        match std::fs::metadata(dir.join(&rel)) {
+            Ok(m) if m.is_file() => {}
+            Ok(_) => {
+                return Found::Stale(format!("its output {label}/{rel} is not a regular file"))
+            }
+            Err(_) => return Found::Stale(format!("its output {label}/{rel} is gone")),
+        }
     }
     Found::Done(row)
 }
@@ -183,8 +285,17 @@ pub(super) fn written(reports: &[serde_json::Value]) -> Vec<String> {
 /// Writes a finished setting's row (atomically: a sweep stopped while
 /// writing it leaves no row, and the setting runs again).
 pub(super) fn write(out: &Path, label: &str, row: &Row) -> std::io::Result<()> {
-    let json = serde_json::to_vec_pretty(row).map_err(std::io::Error::other)?;
-    sdfl_runtime::output::write_bytes(&row_path(out, label), &json)
+    let body = serde_json::to_vec_pretty(row).map_err(std::io::Error::other)?;
+    // The check goes first, on a line of its own, covering every byte after.
+    let rest = body
+        .strip_prefix(b"{\n")
+        .ok_or_else(|| std::io::Error::other("a row is a JSON object"))?;
+    let bytes = [
+        format!("{CHECK_START}{}\",\n", check_of(&body)).as_bytes(),
+        rest,
+    ]
+    .concat();
+    sdfl_runtime::output::write_bytes(&row_path(out, label), &bytes)
 }
 
 /// A setting that has started and not finished: written before it runs,
@@ -206,9 +317,7 @@ fn started_path(out: &Path, label: &str) -> PathBuf {
 
 /// The mark of an unfinished setting, if it is for `fingerprint`.
 pub(super) fn started(out: &Path, label: &str, fingerprint: &str) -> Option<Started> {
-    let f = sdfl_runtime::data::image::open_regular(&started_path(out, label)).ok()?;
-    let mut bytes = Vec::new();
-    f.take(1 << 16).read_to_end(&mut bytes).ok()?;
+    let bytes = sdfl_stdlib::files::read_capped(&started_path(out, label), 1 << 16).ok()?;
     serde_json::from_slice::<Started>(&bytes)
         .ok()
         .filter(|s| s.fingerprint == fingerprint)
@@ -346,7 +455,7 @@ mod tests {
         write(&out, LABEL, &row).unwrap();
         let text = std::fs::read_to_string(row_path(&out, LABEL)).unwrap();
         assert!(text.contains(r#""mesh_chamfer": 0.0125"#), "{text}");
-        let Found::Done(back) = find(&out, LABEL, "f") else {
+        let Found::Done(back) = find(&out, LABEL, "steps", 400.0, "f") else {
             panic!("the row stands")
         };
         assert_eq!(back.metrics, row.metrics);
@@ -379,7 +488,7 @@ mod tests {
 }"#;
         std::fs::create_dir_all(out.join("rows")).unwrap();
         std::fs::write(row_path(&out, LABEL), old).unwrap();
-        let Found::Done(row) = find(&out, LABEL, "f") else {
+        let Found::Done(row) = find(&out, LABEL, "steps", 400.0, "f") else {
             panic!("an old row still stands")
         };
         assert_eq!(row.metrics, None);
@@ -389,12 +498,72 @@ mod tests {
         let mut trained: serde_json::Value = serde_json::from_str(old).unwrap();
         trained["reports"] = serde_json::json!([report()]);
         std::fs::write(row_path(&out, LABEL), trained.to_string()).unwrap();
-        let Found::Done(row) = find(&out, LABEL, "f") else {
+        let Found::Done(row) = find(&out, LABEL, "steps", 400.0, "f") else {
             panic!("{trained}")
         };
         let m = row.metrics();
         assert_eq!(m.mesh_chamfer, Some(0.0125));
         assert_eq!(m.field_chamfer, None);
+    }
+
+    #[test]
+    fn a_row_s_check_covers_every_value() {
+        let out = temp("check");
+        let row = Row {
+            format: ROW_FORMAT,
+            name: "steps".into(),
+            value: 400.0,
+            fingerprint: "f".into(),
+            seconds: 12.5,
+            metrics: None,
+            reports: vec![report()],
+        };
+        write(&out, LABEL, &row).unwrap();
+        let path = row_path(&out, LABEL);
+        let text = std::fs::read_to_string(&path).unwrap();
+        assert!(text.starts_with(CHECK_START), "{text}");
+        let stands = || matches!(find(&out, LABEL, "steps", 400.0, "f"), Found::Done(_));
+        assert!(stands());
+        let stale = |text: &str| {
+            std::fs::write(&path, text).unwrap();
+            match find(&out, LABEL, "steps", 400.0, "f") {
+                Found::Stale(why) => why,
+                _ => panic!("{text}"),
+            }
+        };
+        for edit in [("12.5", "1.5"), ("0.0125", "0.0126"), ("400.0", "1e308")] {
+            let why = stale(&text.replace(edit.0, edit.1));
+            assert!(
+                why.contains("edited") && why.contains("steps=400.json"),
+                "{why}"
+            );
+        }
+        // Without the check (as before rows had one), values are checked.
+        let old: Vec<&str> = text
+            .lines()
+            .filter(|l| !l.starts_with("  \"check\""))
+            .collect();
+        let old = old.join("\n");
+        std::fs::write(&path, &old).unwrap();
+        assert!(stands());
+        for (edit, says) in [
+            (("400.0", "1e308"), "not the setting's value"),
+            (("12.5", "1e308"), "implausible time"),
+            (("12.5", "-1.0"), "implausible time"),
+            (("0.875", "7.5"), "implausible held-out SSIM"),
+            (
+                ("\"fit.ply\"", "\"../fit.ply\""),
+                "outside its setting's folder",
+            ),
+        ] {
+            let mut forged: serde_json::Value = serde_json::from_str(&old).unwrap();
+            forged["metrics"] = serde_json::json!(null);
+            let forged = serde_json::to_string_pretty(&forged)
+                .unwrap()
+                .replace(edit.0, edit.1);
+            let why = stale(&forged);
+            assert!(why.contains(says), "{edit:?}: {why}");
+        }
     }
 
     #[test]

@@ -8,12 +8,23 @@ use sdfl_runtime::plot::{Axis, Chart, Scale, Series};
 
 use super::metrics::{ChamferReference, Metric, Metrics};
 use super::rows::Row;
+/// An image a setting wrote, as 8-bit RGB: only a regular file (a FIFO
+/// copied in would block), of at most the largest side sdfl renders.
+fn rgb8(path: &Path) -> Option<image::RgbImage> {
+    let file = sdfl_stdlib::files::open_regular(path).ok()?;
+    let mut reader = image::ImageReader::new(std::io::BufReader::new(file))
+        .with_guessed_format()
+        .ok()?;
+    let mut limits = image::Limits::default();
+    let side = sdfl_runtime::data::image::MAX_SIDE;
+    (limits.max_image_width, limits.max_image_height) = (Some(side), Some(side));
+    reader.limits(limits);
+    Some(reader.decode().ok()?.to_rgb8())
+}
+
 /// Mean squared error of two 8-bit images of the same size.
 fn mse(a: &Path, b: &Path) -> Option<f64> {
-    let (a, b) = (
-        image::open(a).ok()?.to_rgb8(),
-        image::open(b).ok()?.to_rgb8(),
-    );
+    let (a, b) = (rgb8(a)?, rgb8(b)?);
     if a.dimensions() != b.dimensions() {
         return None;
     }

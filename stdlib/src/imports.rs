@@ -232,13 +232,23 @@ impl Resolver<'_> {
         }
         let text = match self.read(&canonical) {
             Ok(t) => t,
-            Err(why) => {
+            Err(Unread::Io(why)) => {
                 self.error(
                     codes::IMPORT_MISSING,
                     span,
                     format!("cannot read `{name}`: {why}"),
                     "cannot be read",
                     "import a readable scene file",
+                );
+                return None;
+            }
+            Err(Unread::Encoding(bad)) => {
+                self.error(
+                    codes::SOURCE_ENCODING,
+                    span,
+                    format!("`{name}` is not UTF-8 text: {} is not UTF-8", bad.place()),
+                    "imports a file that is not UTF-8",
+                    &format!("save `{name}` as UTF-8: sdfl reads no other encoding"),
                 );
                 return None;
             }
@@ -274,23 +284,28 @@ impl Resolver<'_> {
     }
 
     /// A regular file's text, within the byte budget of the load.
-    fn read(&mut self, path: &Path) -> Result<String, String> {
-        let meta = std::fs::metadata(path).map_err(|e| e.to_string())?;
-        if !meta.is_file() {
-            return Err("not a regular file".into());
-        }
-        use std::io::Read;
+    fn read(&mut self, path: &Path) -> Result<String, Unread> {
         let left = MAX_IMPORTED_BYTES.saturating_sub(self.bytes);
-        let mut bytes = Vec::new();
-        std::fs::File::open(path)
-            .and_then(|f| f.take(left + 1).read_to_end(&mut bytes))
-            .map_err(|e| e.to_string())?;
+        let bytes = crate::files::open_regular(path)
+            .and_then(|f| crate::files::read_to_cap(f, path, left))
+            .map_err(|e| match e.kind() {
+                std::io::ErrorKind::FileTooLarge => Unread::Io(format!(
+                    "the files imported add up to more than {MAX_IMPORTED_BYTES} bytes"
+                )),
+                // The error names the canonical path; the message names the import.
+                _ => Unread::Io(
+                    e.to_string()
+                        .strip_prefix(&format!("{}: ", path.display()))
+                        .map_or_else(|| e.to_string(), str::to_string),
+                ),
+            })?;
         self.bytes = self.bytes.saturating_add(bytes.len() as u64);
-        if self.bytes > MAX_IMPORTED_BYTES {
-            return Err(format!(
-                "the files imported add up to more than {MAX_IMPORTED_BYTES} bytes"
-            ));
-        }
-        Ok(String::from_utf8_lossy(&bytes).into_owned())
+        crate::files::utf8(bytes).map_err(Unread::Encoding)
     }
+}
+
+/// Why an imported file was not read.
+enum Unread {
+    Io(String),
+    Encoding(crate::files::NotUtf8),
 }

@@ -13,6 +13,7 @@ pub mod camera_path;
 pub mod density;
 pub mod effects;
 pub mod eval;
+pub mod files;
 pub mod imports;
 pub mod lens;
 pub mod limits;

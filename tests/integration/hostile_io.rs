@@ -578,3 +578,218 @@ fn output_directories_are_checked_before_any_work() {
     assert!(o.stderr.contains("symbolic link"), "{}", head(&o.stderr));
     assert!(!out.join("t.ckpt").exists());
 }
+
+// ------------------------------------------------------------ special files
+
+/// Makes a FIFO at `path`; false where there is no `mkfifo`.
+fn mkfifo(path: &Path) -> bool {
+    Command::new("mkfifo")
+        .arg(path)
+        .status()
+        .is_ok_and(|s| s.success())
+}
+
+/// The resident memory of process `pid` in KiB, where `/proc` tells it.
+fn resident_kib(pid: u32) -> Option<u64> {
+    let status = fs::read_to_string(format!("/proc/{pid}/status")).ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmRSS:"))?;
+    line.split_whitespace().nth(1)?.parse().ok()
+}
+
+/// Spawns `sdfl watch` with `args` in `dir` and waits until its stderr holds
+/// each of `wanted` (it then waits for a change: killed here). Fails when
+/// that takes [`HANG_GUARD`], or when it grows past 1 GiB (a read without
+/// limit, stopped before it fills the machine). Returns its stderr.
+fn watch_until(dir: &Path, args: &[&OsStr], wanted: &[&str]) -> String {
+    let mut child = spawn(dir, args, |_| {});
+    let t0 = Instant::now();
+    let stderr = loop {
+        let stderr = read(&dir.join("stderr.txt"));
+        if wanted.iter().all(|w| stderr.contains(w)) {
+            break stderr;
+        }
+        let exited = child.try_wait().expect("wait for sdfl");
+        let big = resident_kib(child.id()).is_some_and(|k| k > 1 << 20);
+        if exited.is_some() || big || t0.elapsed() > HANG_GUARD {
+            let _ = child.kill();
+            let _ = child.wait();
+            panic!(
+                "sdfl {args:?}: {} before saying {wanted:?}; stderr:\n{}",
+                if big {
+                    "grew past 1 GiB".to_string()
+                } else if let Some(s) = exited {
+                    format!("ended ({s})")
+                } else {
+                    format!("still silent after {HANG_GUARD:?}")
+                },
+                head(&stderr)
+            );
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    let _ = child.kill();
+    let _ = child.wait();
+    assert!(!stderr.contains("panicked"), "{}", head(&stderr));
+    stderr
+}
+
+/// A FIFO or a link to `/dev/zero` where a scene file, an import's
+/// neighbour or a sweep's image should be: `watch` hung on the FIFO and
+/// read the device without limit, `sweep --collect` hung on a FIFO image.
+/// Every command ends with a diagnostic (watch says so and waits) at once.
+#[test]
+fn every_command_refuses_fifos_and_devices_without_hanging() {
+    let dir = case_dir("special_files");
+    let good = write_case(&dir, "good.sdfl", WARNS);
+    let zero = dir.join("zero.sdfl");
+    std::os::unix::fs::symlink("/dev/zero", &zero).unwrap();
+    let mut specials = vec![zero];
+    let fifo = dir.join("fifo.sdfl");
+    if mkfifo(&fifo) {
+        specials.push(fifo);
+    }
+    let out = dir.join("out");
+    for special in &specials {
+        let s = special.to_str().unwrap();
+        let o = out.to_str().unwrap();
+        for args in [
+            vec!["check", s],
+            vec!["check", "--json", s],
+            vec!["run", s, "--out", o, "--size", "8x8"],
+            vec!["run", s, "--out", o, "--json"],
+            vec!["fmt", s],
+            vec!["plan", s],
+            vec!["sweep", s, "--set", "x=1,2", "--out", o, "--collect"],
+        ] {
+            let what = format!("sdfl {}", args.join(" "));
+            let r = sdfl(&dir, &args);
+            assert!(r.elapsed < HANG_GUARD, "{what}: {:?}", r.elapsed);
+            // With `--json` the diagnostic may be on stdout alone.
+            let said = format!("{}{}", r.stderr, read(&dir.join("stdout.txt")));
+            assert_eq!(r.code, Some(1), "{what}: {}", head(&said));
+            assert!(
+                said.contains("sdfl::io") && said.contains("not a regular file"),
+                "{what}: {}",
+                head(&said)
+            );
+            assert!(!said.contains("panicked"), "{what}: {}", head(&said));
+        }
+        let args = [
+            os("watch"),
+            special.as_os_str(),
+            os("--out"),
+            out.as_os_str(),
+        ];
+        let stderr = watch_until(&dir, &args, &["not a regular file", "watch: waiting"]);
+        assert!(stderr.contains("sdfl::io"), "{}", head(&stderr));
+    }
+    // A watched file beside them: the FIFO and the device are looked at
+    // for changes (they end in `.sdfl`), never read.
+    let args = [os("watch"), good.as_os_str(), os("--out"), out.as_os_str()];
+    watch_until(&dir, &args, &["watch: waiting"]);
+    assert!(out.join("r.png").is_file());
+}
+
+/// `sweep --collect` where a finished setting's image is a FIFO, or a link
+/// to `/dev/zero`: the row no longer stands (its output is not the file
+/// it wrote), said with the setting, never read.
+#[test]
+fn a_sweep_whose_image_is_special_is_refused_on_collect() {
+    let dir = case_dir("special_sweep");
+    let scene = write_case(
+        &dir,
+        "scene.sdfl",
+        "let samples = 4\nrender v { scene: sdf_volume(box(size: 1.5)), camera: look_at([0, 0, -3]),\n\
+         sampler: stratified(samples: samples), outputs: [image(\"v.png\")], size: [8, 8] }\n",
+    );
+    let out = dir.join("out");
+    let (s, o) = (scene.to_str().unwrap(), out.to_str().unwrap());
+    let sweep = ["sweep", s, "--set", "samples=4,8", "--out", o];
+    assert_outcome("the sweep", &sdfl(&dir, &sweep), Expect::Ok);
+    let collect = ["sweep", s, "--set", "samples=4,8", "--out", o, "--collect"];
+    assert_outcome("a collect", &sdfl(&dir, &collect), Expect::Ok);
+    let image = out.join("samples=4").join("v.png");
+    for what in ["a link to /dev/zero", "a FIFO"] {
+        fs::remove_file(&image).unwrap();
+        if what == "a FIFO" {
+            if !mkfifo(&image) {
+                continue;
+            }
+        } else {
+            std::os::unix::fs::symlink("/dev/zero", &image).unwrap();
+        }
+        let r = sdfl(&dir, &collect);
+        assert!(r.elapsed < HANG_GUARD, "{what}: {:?}", r.elapsed);
+        assert_outcome(what, &r, Expect::Error);
+        assert!(
+            r.stderr.contains("samples=4/v.png") && r.stderr.contains("not a regular file"),
+            "{what}: {}",
+            head(&r.stderr)
+        );
+    }
+}
+
+// ------------------------------------------------------------ encodings
+
+/// A scene file with a byte that is not UTF-8 (Latin-1 `é`): `check` and
+/// `run` replaced it silently; now refused at that byte, as are imports.
+#[test]
+fn a_scene_that_is_not_utf8_is_refused_at_its_first_bad_byte() {
+    let dir = case_dir("not_utf8");
+    // `\xe9` at byte 25: line 2, column 9 (after `let b = `).
+    let text = b"let a = sphere()\nlet b = \xe9\nlet c = \xff\n";
+    let file = dir.join("latin1.sdfl");
+    fs::write(&file, text).unwrap();
+    let f = file.to_str().unwrap();
+    let out = dir.join("out");
+    let o = out.to_str().unwrap();
+    for args in [
+        vec!["check", f],
+        vec!["run", f, "--out", o, "--size", "8x8"],
+    ] {
+        let r = sdfl(&dir, &args);
+        assert_outcome(args[0], &r, Expect::Error);
+        assert!(
+            r.stderr.contains("sdfl::source::encoding"),
+            "{}",
+            head(&r.stderr)
+        );
+        assert!(r.stderr.contains("UTF-8"), "{}", head(&r.stderr));
+        assert!(r.stderr.contains("latin1.sdfl:2:9"), "{}", head(&r.stderr));
+    }
+    for args in [
+        vec!["check", "--json", f],
+        vec!["run", f, "--out", o, "--json"],
+    ] {
+        let r = sdfl(&dir, &args);
+        assert_eq!(r.code, Some(1), "{}", head(&r.stderr));
+        let json: serde_json::Value =
+            serde_json::from_str(&read(&dir.join("stdout.txt"))).expect("JSON");
+        let d = if args[0] == "check" {
+            &json["files"][0]["diagnostics"][0]
+        } else {
+            &json["diagnostics"][0]
+        };
+        assert_eq!(d["code"], "sdfl::source::encoding", "{json:#}");
+        assert_eq!(d["span"]["start"], 25, "{json:#}");
+        assert_eq!(
+            (d["line"].as_u64(), d["column"].as_u64()),
+            (Some(2), Some(9))
+        );
+        assert!(d["help"].as_str().unwrap().contains("UTF-8"), "{d}");
+    }
+    // An import that is not UTF-8: refused at the `import`, with the byte.
+    let main = write_case(&dir, "main.sdfl", "import \"latin1.sdfl\"\nlet x = 1\n");
+    let r = sdfl(&dir, &["check", main.to_str().unwrap()]);
+    assert_outcome("import", &r, Expect::Error);
+    assert!(
+        r.stderr.contains("sdfl::source::encoding"),
+        "{}",
+        head(&r.stderr)
+    );
+    assert!(
+        r.stderr.contains("byte 25") && r.stderr.contains("main.sdfl:1:8"),
+        "{}",
+        head(&r.stderr)
+    );
+}

@@ -601,3 +601,89 @@ train fit {
     ok(&sdfl(&collect));
     assert_eq!(std::fs::read_to_string(out.join("sweep.csv")).unwrap(), csv);
 }
+
+/// A row edited after it was written: `--collect` took a `value` of
+/// 1e308 (or any seconds) as long as the fingerprint was intact. The row's
+/// check covers its values now, its value must be the setting's, and what
+/// it measured must be plausible; a refusal names the row file. Rows
+/// written before rows had a check still load (their values checked).
+#[test]
+fn forged_rows_are_refused_on_collect_naming_the_row() {
+    let tmp = temp("forged");
+    let scene = tmp.join("scene.sdfl");
+    std::fs::write(&scene, SCENE).unwrap();
+    let out = tmp.join("out");
+    ok(&sweep(&scene, &out, &[]));
+    let row = out.join("rows").join("samples=8.json");
+    let written = std::fs::read_to_string(&row).unwrap();
+    assert!(written.contains("\"value\": 8.0"), "{written}");
+    let refused = |what: &str, text: &str| {
+        std::fs::write(&row, text).unwrap();
+        let o = sweep(&scene, &out, &["--collect"]);
+        let err = String::from_utf8_lossy(&o.stderr).into_owned();
+        assert_eq!(o.status.code(), Some(1), "{what}: {err}");
+        assert!(
+            err.contains("sdfl::") && err.contains("rows/samples=8.json"),
+            "{what}: {err}"
+        );
+        err
+    };
+    // The value, with the fingerprint intact.
+    let err = refused(
+        "value 1e308",
+        &written.replace("\"value\": 8.0", "\"value\": 1e308"),
+    );
+    assert!(err.contains("edited"), "{err}");
+    // A plausible time, edited by hand, is caught by the check alone.
+    let seconds = written
+        .lines()
+        .find(|l| l.trim_start().starts_with("\"seconds\""))
+        .unwrap();
+    let err = refused(
+        "seconds edited",
+        &written.replace(seconds, "  \"seconds\": 2.5,"),
+    );
+    assert!(err.contains("edited"), "{err}");
+
+    // A row as sdfl wrote them before rows had a check: still read...
+    let old: String = written
+        .lines()
+        .filter(|l| !l.trim_start().starts_with("\"check\""))
+        .collect::<Vec<_>>()
+        .join("\n");
+    assert_ne!(old, written.trim_end(), "new rows carry a check");
+    std::fs::write(&row, &old).unwrap();
+    ok(&sweep(&scene, &out, &["--collect"]));
+    // ... with its values checked: the setting's value, a time that is
+    // finite and plausible.
+    for (what, text) in [
+        (
+            "old value 1e308",
+            old.replace("\"value\": 8.0", "\"value\": 1e308"),
+        ),
+        (
+            "old value 9",
+            old.replace("\"value\": 8.0", "\"value\": 9.0"),
+        ),
+        (
+            "old seconds 1e308",
+            old.replace(seconds, "  \"seconds\": 1e308,"),
+        ),
+        (
+            "old seconds -1",
+            old.replace(seconds, "  \"seconds\": -1.0,"),
+        ),
+    ] {
+        let err = refused(what, &text);
+        assert!(
+            err.contains("implausible") || err.contains("not the setting's"),
+            "{what}: {err}"
+        );
+    }
+    // A run (not a collect) writes the forged setting's row again.
+    let again = ok(&sweep(&scene, &out, &[]));
+    assert!(again.contains("samples=8: running again"), "{again}");
+    ok(&sweep(&scene, &out, &["--collect"]));
+    let csv = std::fs::read_to_string(out.join("sweep.csv")).unwrap();
+    assert!(!csv.contains("e308"), "{csv}");
+}

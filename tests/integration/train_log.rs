@@ -602,3 +602,139 @@ fn json_reports_carry_a_version_the_checkpoint_and_diagnostics() {
     let o = sdfl_env(&dir, &["check", "--json", "t.sdfl"], &[]);
     assert!(o.status.success());
 }
+
+/// Where, in an event file's bytes, the record of `tag` at `step` starts.
+fn record_offset(bytes: &[u8], step: u64, tag: &str) -> usize {
+    let mut at = 0;
+    while at < bytes.len() {
+        let n = u64::from_le_bytes(bytes[at..at + 8].try_into().unwrap()) as usize;
+        let data = &bytes[at + 12..at + 12 + n];
+        let f = pb_fields(data);
+        let s = f
+            .iter()
+            .find(|x| x.0 == 2 && x.1 == 0)
+            .map(|x| varint(x.2, &mut 0));
+        let holds = f
+            .iter()
+            .find(|x| x.0 == 5)
+            .is_some_and(|x| x.2.windows(tag.len()).any(|w| w == tag.as_bytes()));
+        if s == Some(step) && holds {
+            return at;
+        }
+        at += 16 + n;
+    }
+    panic!("no {tag} at step {step}");
+}
+
+#[test]
+fn logs_cut_mid_record_are_whole_again_after_a_resume() {
+    // Both logs cut in the middle of step 25's record (a disk that filled,
+    // a copy cut short) while the checkpoint holds step 60: the resume
+    // kept steps 1 to 24 and went on from 60, a gap in both curves. The
+    // checkpoint holds every loss and held-out score: steps 25 to 59 are
+    // written again from it, once each.
+    let dir = case_dir("log_cut");
+    let file = write(&dir, "t.sdfl", &training(60));
+    let run = |out: &str| {
+        let o = sdfl_env(
+            &dir,
+            &["run", file.to_str().unwrap(), "--out", out, "--json"],
+            &[],
+        );
+        assert!(o.status.success(), "{}", text(&o.stderr));
+        let v: Value = serde_json::from_slice(&o.stdout).unwrap();
+        (v["jobs"][0]["report"].clone(), text(&o.stderr))
+    };
+    run("cut");
+    let csv = dir.join("cut/t.metrics.csv");
+    let t = fs::read_to_string(&csv).unwrap();
+    let row25 = t.find("\n25,").unwrap() + 1;
+    fs::write(&csv, &t[..row25 + 6]).unwrap();
+    let events = dir.join("cut/tensorboard/t/events.out.tfevents.sdfl");
+    let bytes = fs::read(&events).unwrap();
+    let at = record_offset(&bytes, 25, "train/loss");
+    fs::write(&events, &bytes[..at + 20]).unwrap();
+
+    write(&dir, "t.sdfl", &training(80));
+    let (resumed, stderr) = run("cut");
+    assert_eq!(resumed["resumed_from"].as_u64(), Some(60));
+    let (whole, _) = run("whole");
+    let (a, b) = (
+        csv_rows(&dir.join("cut/t.metrics.csv")),
+        csv_rows(&dir.join("whole/t.metrics.csv")),
+    );
+    let steps: Vec<usize> = a.iter().map(|r| r[0].parse().unwrap()).collect();
+    assert_eq!(steps, (1..=80).collect::<Vec<_>>());
+    assert_eq!(untimed(&a), untimed(&b));
+    assert!(
+        stderr.contains("steps 25 to 59") && stderr.contains("t.metrics.csv"),
+        "says what it wrote again: {stderr}"
+    );
+    // Seconds are kept where the checkpoint knows them (its step, each
+    // evaluation) and left empty where it does not.
+    for r in &a {
+        let k: usize = r[0].parse().unwrap();
+        let rebuilt = (25..60).contains(&k) && !k.is_multiple_of(10);
+        assert_eq!(r[1].is_empty(), rebuilt, "{r:?}");
+    }
+    assert_eq!(held_out_scores(&resumed), held_out_scores(&whole));
+    let tb = |d: &str| -> Vec<(u64, String, u32)> {
+        scalars(&dir.join(d).join("tensorboard/t/events.out.tfevents.sdfl"))
+            .into_iter()
+            .map(|(s, t, x)| (s, t, x.to_bits()))
+            .collect()
+    };
+    assert_eq!(tb("cut"), tb("whole"));
+}
+
+/// The peak resident memory of `child` in KiB once it ends, and its status.
+fn wait_with_peak(child: std::process::Child) -> (i32, u64) {
+    let mut status = 0;
+    // SAFETY: wait4(2) on a child we started and have not reaped; the
+    // rusage it fills is plain data.
+    let mut usage: libc::rusage = unsafe { std::mem::zeroed() };
+    let pid = child.id() as libc::pid_t;
+    let r = unsafe { libc::wait4(pid, &mut status, 0, &mut usage) };
+    assert_eq!(r, pid);
+    (status, usage.ru_maxrss as u64)
+}
+
+#[test]
+fn huge_logs_in_out_are_streamed_not_read_whole() {
+    // A 2 GB metrics CSV and event file (sparse: no disk used) were read
+    // whole into memory when training opened its logs.
+    let dir = case_dir("log_huge");
+    let file = write(&dir, "t.sdfl", &training(5));
+    let out = dir.join("out");
+    fs::create_dir_all(out.join("tensorboard/t")).unwrap();
+    for p in ["t.metrics.csv", "tensorboard/t/events.out.tfevents.sdfl"] {
+        fs::File::create(out.join(p))
+            .unwrap()
+            .set_len(2_000_000_000)
+            .unwrap();
+    }
+    let t0 = Instant::now();
+    let child = Command::new(env!("CARGO_BIN_EXE_sdfl"))
+        .args(["run", file.to_str().unwrap(), "--out"])
+        .arg(&out)
+        .current_dir(&dir)
+        .stdin(Stdio::null())
+        .stdout(Stdio::null())
+        .stderr(fs::File::create(dir.join("stderr.txt")).unwrap())
+        .spawn()
+        .unwrap();
+    let (status, peak_kib) = wait_with_peak(child);
+    let stderr = fs::read_to_string(dir.join("stderr.txt")).unwrap();
+    assert_eq!(status, 0, "{stderr}");
+    assert!(t0.elapsed() < HANG_GUARD);
+    assert!(peak_kib < 512 << 10, "peak {peak_kib} KiB: {stderr}");
+    let rows = csv_rows(&out.join("t.metrics.csv"));
+    assert_eq!(rows.len(), 5);
+    assert_eq!(
+        scalars(&out.join("tensorboard/t/events.out.tfevents.sdfl"))
+            .iter()
+            .filter(|e| e.1 == "train/loss")
+            .count(),
+        5
+    );
+}

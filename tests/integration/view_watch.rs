@@ -232,3 +232,57 @@ fn a_changed_data_file_runs_its_training_again() {
     assert!(ok, "{err}");
     assert_eq!(lines, ["ran fit"]);
 }
+
+/// The fingerprint store in `--out` replaced by a FIFO or a link to
+/// `/dev/zero`: watch read it with `fs::read`, so it blocked or read
+/// without end. Now it is ignored (everything runs) and replaced.
+#[cfg(unix)]
+#[test]
+fn a_special_fingerprint_store_is_ignored_not_read() {
+    use std::time::Instant;
+    let dir = temp("special_store");
+    let (file, out) = (dir.join("scene.sdfl"), dir.join("out"));
+    std::fs::write(&file, scene(5.0)).unwrap();
+    std::fs::create_dir_all(&out).unwrap();
+    let store = out.join(".sdfl-watch.json");
+    let fifo = Command::new("mkfifo")
+        .arg(&store)
+        .status()
+        .is_ok_and(|s| s.success());
+    for special in ["fifo", "zero"] {
+        if special == "fifo" && !fifo {
+            continue;
+        }
+        if special == "zero" {
+            let _ = std::fs::remove_file(&store);
+            std::os::unix::fs::symlink("/dev/zero", &store).unwrap();
+        }
+        let mut child = Command::new(env!("CARGO_BIN_EXE_sdfl"))
+            .args(["watch", file.to_str().unwrap(), "--out"])
+            .arg(&out)
+            .args(["--max-runs", "1"])
+            .stdin(Stdio::null())
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap();
+        let t0 = Instant::now();
+        let status = loop {
+            if let Some(s) = child.try_wait().unwrap() {
+                break s;
+            }
+            if t0.elapsed() > crate::common::HANG_GUARD {
+                let _ = child.kill();
+                let _ = child.wait();
+                panic!("{special}: watch hung on its store");
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        };
+        assert!(status.success(), "{special}: {status}");
+        assert!(out.join("near.png").is_file());
+        // Replaced by a store sdfl wrote: the next watch skips both.
+        let (ok, lines, err) = watch_once(&file, &out);
+        assert!(ok, "{err}");
+        assert_eq!(lines, ["skipped near", "skipped far"], "{special}");
+    }
+}

@@ -23,20 +23,11 @@ fn invalid(path: &Path, m: impl std::fmt::Display) -> io::Error {
     )
 }
 
-/// Opens `path` for reading if, after following links, it is a regular file.
+/// Opens `path` for reading if, after following links, it is a regular
+/// file (never blocking on a FIFO): [`sdfl_stdlib::files::open_regular`],
+/// kept here for the readers that call it.
 pub fn open_regular(path: &Path) -> io::Result<File> {
-    let named = |e: io::Error| io::Error::new(e.kind(), format!("{}: {e}", path.display()));
-    // Checked before opening: opening a FIFO for reading blocks.
-    let meta = std::fs::metadata(path).map_err(named)?;
-    if !meta.is_file() {
-        return Err(invalid(path, "not a regular file"));
-    }
-    let file = File::open(path).map_err(named)?;
-    // And again on what was opened, in case it changed in between.
-    if !file.metadata().map_err(named)?.is_file() {
-        return Err(invalid(path, "not a regular file"));
-    }
-    Ok(file)
+    sdfl_stdlib::files::open_regular(path)
 }
 
 fn is_npy(path: &Path) -> bool {

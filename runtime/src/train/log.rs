@@ -12,13 +12,18 @@
 //!
 //! The checkpoint carries the run's [`History`] (held-out scores, training
 //! seconds), so a resumed run keeps its whole curve. On resume both logs
-//! keep what precedes the checkpoint's step and the checkpoint's own step
-//! is written again from its history: rows past it (a `kill -9` after the
-//! checkpoint) are dropped, none is missing, none repeated.
+//! keep their whole records of steps 1, 2, … in sequence before the
+//! checkpoint's step, read as streams (a log of any size costs only what
+//! is kept); steps from the first one missing, torn or out of sequence up
+//! to the checkpoint's are written again from the checkpoint, which holds
+//! every loss and held-out score (their seconds only where an evaluation
+//! recorded them; the events' wall time is the resume's), and a note says
+//! so. Rows past the checkpoint (a `kill -9` after it) are dropped: none is
+//! missing, none repeated.
 
 pub mod tensorboard;
 
-use std::io::{self, Write};
+use std::io::{self, BufRead, Read, Write};
 use std::path::{Path, PathBuf};
 use std::time::{Instant, SystemTime};
 
@@ -114,7 +119,9 @@ pub fn paths(out_dir: &Path, name: &str) -> (PathBuf, PathBuf, PathBuf) {
 #[derive(Debug, Clone, Copy)]
 struct Row {
     step: usize,
-    seconds: f64,
+    /// Unknown (empty) for a row written again from a checkpoint between
+    /// its evaluations.
+    seconds: Option<f64>,
     loss: f32,
     lr: f64,
     scores: Option<(f64, f64)>,
@@ -127,9 +134,10 @@ impl Row {
             .map_or((String::new(), String::new()), |(p, s)| {
                 (p.to_string(), s.to_string())
             });
+        let seconds = self.seconds.map_or(String::new(), |s| format!("{s:.3}"));
         format!(
-            "{},{:.3},{},{},{psnr},{ssim}\n",
-            self.step, self.seconds, self.loss, self.lr
+            "{},{seconds},{},{},{psnr},{ssim}\n",
+            self.step, self.loss, self.lr
         )
     }
 }
@@ -140,71 +148,183 @@ fn wall_time() -> f64 {
         .map_or(0.0, |d| d.as_secs_f64())
 }
 
-/// An append-only file whose kept prefix was rewritten atomically on
-/// opening (a link planted there is replaced, not followed).
-fn reopen(path: &Path, prefix: &[u8]) -> io::Result<io::BufWriter<std::fs::File>> {
+/// Longest CSV line read back: a row is six numbers, a few hundred bytes
+/// even with a rate of 1e-300 written out in full.
+const MAX_CSV_LINE: u64 = 4096;
+
+/// Largest event record read back (sdfl writes them under 200 bytes).
+const MAX_EVENT_RECORD: u64 = 1 << 16;
+
+/// An append-only file whose kept prefix, written by `prefix`, replaced it
+/// atomically on opening (a link planted there is replaced, not followed).
+fn reopen<T>(
+    path: &Path,
+    prefix: impl FnOnce(&mut dyn Write) -> io::Result<T>,
+) -> io::Result<(io::BufWriter<std::fs::File>, T)> {
     let mut f = Atomic::create(path)?;
-    f.writer().write_all(prefix)?;
+    let kept = prefix(f.writer())?;
     f.commit()?;
     let file = std::fs::OpenOptions::new().append(true).open(path)?;
-    Ok(io::BufWriter::new(file))
+    Ok((io::BufWriter::new(file), kept))
 }
 
-/// The bytes of `path` if it is a regular file (not through a link).
-fn existing(path: &Path) -> Vec<u8> {
-    match std::fs::symlink_metadata(path) {
-        Ok(m) if m.is_file() => std::fs::read(path).unwrap_or_default(),
-        _ => Vec::new(),
-    }
+/// The log at `path` to read back, if it is a regular file there (not a
+/// link, a FIFO or a device): streamed, never read whole.
+fn read_back(path: &Path) -> Option<io::BufReader<std::fs::File>> {
+    sdfl_stdlib::files::open_regular_unlinked(path)
+        .ok()
+        .map(io::BufReader::new)
 }
 
-/// The CSV's header and rows before step `before`, in order; stops at the
-/// first row that is torn, malformed or out of order.
-fn csv_prefix(text: &[u8], before: usize) -> Vec<u8> {
-    let mut keep = format!("{CSV_HEADER}\n").into_bytes();
-    let Some(body) = text.strip_prefix(keep.as_slice()) else {
-        return keep;
+/// One line of `from` with its newline, at most `max` bytes; `None` at the
+/// end, on an error, or for a line torn or too long.
+fn line(from: &mut impl BufRead, max: u64) -> Option<Vec<u8>> {
+    let mut line = Vec::new();
+    from.take(max).read_until(b'\n', &mut line).ok()?;
+    line.ends_with(b"\n").then_some(line)
+}
+
+/// Copies to `to` the CSV's header and its rows of steps 1, 2, … in
+/// sequence before step `before`, read from `from`; stops at the first row
+/// that is torn, malformed or out of sequence. Returns the last step kept
+/// (0 for none).
+fn copy_csv_prefix(
+    from: Option<impl BufRead>,
+    before: usize,
+    to: &mut dyn Write,
+) -> io::Result<usize> {
+    let header = format!("{CSV_HEADER}\n");
+    to.write_all(header.as_bytes())?;
+    let Some(mut from) = from else {
+        return Ok(0);
     };
-    let mut last = 0;
-    let mut at = 0;
-    for line in body.split_inclusive(|&b| b == b'\n') {
-        let step = std::str::from_utf8(line)
-            .ok()
-            .filter(|l| l.ends_with('\n') && l.split(',').count() == 6)
-            .and_then(|l| l.split(',').next()?.parse::<usize>().ok());
-        match step {
-            Some(s) if s > last && s < before => {
-                last = s;
-                at += line.len();
-            }
-            _ => break,
-        }
+    if line(&mut from, MAX_CSV_LINE).is_none_or(|l| l != header.as_bytes()) {
+        return Ok(0);
     }
-    keep.extend_from_slice(&body[..at]);
-    keep
+    let mut last = 0;
+    while last + 1 < before {
+        let Some(row) = line(&mut from, MAX_CSV_LINE) else {
+            break;
+        };
+        let step = std::str::from_utf8(&row)
+            .ok()
+            .filter(|l| l.split(',').count() == 6)
+            .and_then(|l| l.split(',').next()?.parse::<usize>().ok());
+        if step != Some(last + 1) {
+            break;
+        }
+        to.write_all(&row)?;
+        last += 1;
+    }
+    Ok(last)
 }
 
-/// The event file's records before step `before` (the version record
-/// first), whole and in order.
-fn events_prefix(bytes: &[u8], before: usize) -> Vec<u8> {
-    let records = tensorboard::records(bytes);
-    let mut end = 0;
-    for (i, (e, data)) in records.iter().enumerate() {
-        let step = tensorboard::event_step(data).ok();
-        let keep = match step {
-            Some(s) if i == 0 => s == 0 && tensorboard::fields(data).is_ok(),
-            Some(s) => (s as usize) < before,
-            None => false,
+/// The next whole record of an event stream with a valid checksum, at most
+/// [`MAX_EVENT_RECORD`] long: its bytes and where its data starts.
+fn next_record(from: &mut impl Read) -> Option<Vec<u8>> {
+    let mut record = vec![0u8; 12];
+    from.read_exact(&mut record).ok()?;
+    let (len, crc) = record.split_at(8);
+    if tensorboard::masked_crc(len).to_le_bytes() != crc {
+        return None;
+    }
+    let n = u64::from_le_bytes(len.try_into().expect("8 bytes"));
+    if n > MAX_EVENT_RECORD {
+        return None;
+    }
+    let want = n as usize + 4;
+    from.take(want as u64).read_to_end(&mut record).ok()?;
+    // Whole, and its data's checksum right.
+    let whole = tensorboard::records(&record);
+    (whole.len() == 1 && whole[0].0 == record.len()).then_some(record)
+}
+
+/// The first length-delimited field numbered `n`.
+fn bytes_field<'a>(fields: Vec<(u64, tensorboard::Field<'a>)>, n: u64) -> Option<&'a [u8]> {
+    fields.into_iter().find_map(|(k, f)| match f {
+        tensorboard::Field::Bytes(b) if k == n => Some(b),
+        _ => None,
+    })
+}
+
+/// The first tag of an `Event`'s summary, if it has one.
+fn first_tag(event: &[u8]) -> Option<&[u8]> {
+    let summary = bytes_field(tensorboard::fields(event).ok()?, 5)?;
+    let value = bytes_field(tensorboard::fields(summary).ok()?, 1)?;
+    bytes_field(tensorboard::fields(value).ok()?, 1)
+}
+
+/// Copies to `to` the event file's version record and its records before
+/// step `before`: the loss of steps 1, 2, … in sequence, a step's held-out
+/// scores once after its loss; stops at the first record that is torn,
+/// corrupt or out of sequence. Returns the last step whose loss was kept
+/// (0 for none) and whether its scores were.
+fn copy_events_prefix(
+    from: Option<impl Read>,
+    before: usize,
+    to: &mut dyn Write,
+) -> io::Result<(usize, bool)> {
+    let version = |to: &mut dyn Write| {
+        to.write_all(&tensorboard::record(&tensorboard::version_event(
+            wall_time(),
+        )))
+    };
+    let Some(mut from) = from else {
+        version(to)?;
+        return Ok((0, false));
+    };
+    let first = next_record(&mut from).filter(|r| {
+        let data = &r[12..r.len() - 4];
+        tensorboard::fields(data).is_ok_and(|f| {
+            f.iter().any(|(k, v)| {
+                *k == 3 && *v == tensorboard::Field::Bytes(tensorboard::FILE_VERSION.as_bytes())
+            })
+        })
+    });
+    let Some(first) = first else {
+        version(to)?;
+        return Ok((0, false));
+    };
+    to.write_all(&first)?;
+    let (mut last, mut scored) = (0, false);
+    while let Some(record) = next_record(&mut from) {
+        let data = &record[12..record.len() - 4];
+        let Ok(step) = tensorboard::event_step(data).map(|s| s as usize) else {
+            break;
+        };
+        let keep = match first_tag(data) {
+            Some(b"train/loss") if step == last + 1 && step < before => {
+                (last, scored) = (step, false);
+                true
+            }
+            Some(t) if t.starts_with(b"held_out/") && step == last && last > 0 && !scored => {
+                scored = true;
+                true
+            }
+            _ => false,
         };
         if !keep {
             break;
         }
-        end = *e;
+        to.write_all(&record)?;
     }
-    if end == 0 {
-        return tensorboard::record(&tensorboard::version_event(wall_time()));
-    }
-    bytes[..end].to_vec()
+    Ok((last, scored))
+}
+
+/// The CSV's kept prefix, as [`copy_csv_prefix`] writes it.
+#[cfg(test)]
+fn csv_prefix(text: &[u8], before: usize) -> Vec<u8> {
+    let mut out = Vec::new();
+    copy_csv_prefix(Some(text), before, &mut out).expect("in memory");
+    out
+}
+
+/// The event file's kept prefix, as [`copy_events_prefix`] writes it.
+#[cfg(test)]
+fn events_prefix(bytes: &[u8], before: usize) -> Vec<u8> {
+    let mut out = Vec::new();
+    copy_events_prefix(Some(bytes), before, &mut out).expect("in memory");
+    out
 }
 
 /// A training run's logs and clock.
@@ -244,8 +364,12 @@ impl<'o> TrainLog<'o> {
     ) -> io::Result<TrainLog<'o>> {
         let (csv_path, events_path, heldout_png) = paths(out_dir, name);
         let step = losses.len();
-        let csv = reopen(&csv_path, &csv_prefix(&existing(&csv_path), step))?;
-        let events = reopen(&events_path, &events_prefix(&existing(&events_path), step))?;
+        let (csv, csv_kept) = reopen(&csv_path, |to| {
+            copy_csv_prefix(read_back(&csv_path), step, to)
+        })?;
+        let (events, events_kept) = reopen(&events_path, |to| {
+            copy_events_prefix(read_back(&events_path), step, to)
+        })?;
         let mut log = TrainLog {
             observer,
             optimizer,
@@ -260,6 +384,7 @@ impl<'o> TrainLog<'o> {
             evaluating: 0.0,
             error: None,
         };
+        log.rebuild(name, losses, csv_kept, events_kept);
         // The checkpoint's own step, again from its history.
         if let Some(&loss) = losses.last() {
             let scores = log
@@ -275,6 +400,82 @@ impl<'o> TrainLog<'o> {
         }
         observer(&TrainEvent::Started { name, step, total });
         Ok(log)
+    }
+
+    /// Writes again from the checkpoint (`losses`, the history) the steps
+    /// the logs lack before the checkpoint's own: the CSV kept up to step
+    /// `csv_kept`, the event file up to `events_kept.0` (with its scores
+    /// if `events_kept.1`). Says which steps, where there are any.
+    fn rebuild(&mut self, name: &str, losses: &[f32], csv_kept: usize, events_kept: (usize, bool)) {
+        let step = losses.len();
+        let held_out = self.history.held_out.clone();
+        let scored = |k: usize| held_out.iter().find(|h| h.step == k).copied();
+        let mut rows = String::new();
+        for k in csv_kept + 1..step {
+            let h = scored(k);
+            let row = Row {
+                step: k,
+                seconds: h.map(|h| h.seconds),
+                loss: losses[k - 1],
+                lr: self.lr(k),
+                scores: h.map(|h| (h.psnr, h.ssim)),
+            };
+            rows += &row.line();
+        }
+        let r = self.csv.write_all(rows.as_bytes());
+        self.check(r);
+        let (events_kept, kept_scores) = events_kept;
+        let mut records = Vec::new();
+        let now = wall_time();
+        let scores = |k: usize, records: &mut Vec<u8>| {
+            if let Some(h) = scored(k) {
+                let values = [
+                    ("held_out/psnr", h.psnr as f32),
+                    ("held_out/ssim", h.ssim as f32),
+                ];
+                let e = tensorboard::scalars_event(now, k as i64, &values);
+                records.extend(tensorboard::record(&e));
+            }
+        };
+        if events_kept > 0 && events_kept < step && !kept_scores {
+            scores(events_kept, &mut records);
+        }
+        for k in events_kept + 1..step {
+            let values = [
+                ("train/loss", losses[k - 1]),
+                ("train/lr", self.lr(k) as f32),
+            ];
+            let e = tensorboard::scalars_event(now, k as i64, &values);
+            records.extend(tensorboard::record(&e));
+            scores(k, &mut records);
+        }
+        let r = self.events.write_all(&records);
+        self.check(r);
+        let logs = TrainingLogs::of(name);
+        for (file, kept, what) in [
+            (
+                logs.metrics_csv.display().to_string(),
+                csv_kept,
+                "losses and held-out scores; seconds only where an evaluation recorded them",
+            ),
+            (
+                logs.events().display().to_string(),
+                events_kept,
+                "losses and held-out scores, at the wall time of this run",
+            ),
+        ] {
+            if kept + 1 < step {
+                let steps = if kept + 2 == step {
+                    format!("step {}", kept + 1)
+                } else {
+                    format!("steps {} to {}", kept + 1, step - 1)
+                };
+                let note = format!(
+                    "{file}: {steps} missing or cut short; written again from the checkpoint ({what})"
+                );
+                (self.observer)(&TrainEvent::Note(&note));
+            }
+        }
     }
 
     /// Keeps the first error.
@@ -301,7 +502,7 @@ impl<'o> TrainLog<'o> {
         let lr = self.lr(step);
         self.pending = Some(Row {
             step,
-            seconds,
+            seconds: Some(seconds),
             loss,
             lr,
             scores: None,
@@ -457,7 +658,7 @@ mod tests {
     use super::*;
 
     #[test]
-    fn the_csv_keeps_whole_ordered_rows_before_the_step() {
+    fn the_csv_keeps_whole_rows_in_sequence_before_the_step() {
         let head = format!("{CSV_HEADER}\n");
         let text =
             format!("{head}1,0.1,0.5,0.01,,\n2,0.2,0.4,0.01,30,0.9\n3,0.3,0.3,0.01,,\n4,0.4,0.");
@@ -471,26 +672,127 @@ mod tests {
         assert!(kept(100).ends_with("3,0.3,0.3,0.01,,\n"));
         // A foreign file keeps only a header.
         assert_eq!(csv_prefix(b"a,b\n1,2\n", 5), head.as_bytes());
+        // Out of order, or a step skipped: kept up to the gap.
         let disordered = format!("{head}2,0,0,0,,\n1,0,0,0,,\n");
+        assert_eq!(csv_prefix(disordered.as_bytes(), 5), head.as_bytes());
+        let gap = format!("{head}1,0,0,0,,\n3,0,0,0,,\n");
         assert_eq!(
-            csv_prefix(disordered.as_bytes(), 5),
-            format!("{head}2,0,0,0,,\n").as_bytes()
+            csv_prefix(gap.as_bytes(), 5),
+            format!("{head}1,0,0,0,,\n").as_bytes()
+        );
+        // A line longer than any row (a file of zeros) ends the prefix.
+        let long = format!("{head}1,{},0,0,,\n", "0".repeat(8192));
+        assert_eq!(csv_prefix(long.as_bytes(), 5), head.as_bytes());
+        assert_eq!(csv_prefix(&[0u8; 100_000], 5), head.as_bytes());
+    }
+
+    fn loss(step: i64) -> Vec<u8> {
+        tensorboard::record(&tensorboard::scalars_event(
+            1.0,
+            step,
+            &[("train/loss", 1.0), ("train/lr", 0.1)],
+        ))
+    }
+
+    fn scores(step: i64) -> Vec<u8> {
+        tensorboard::record(&tensorboard::scalars_event(
+            1.0,
+            step,
+            &[("held_out/psnr", 20.0), ("held_out/ssim", 0.5)],
+        ))
+    }
+
+    #[test]
+    fn the_event_file_keeps_whole_records_in_sequence_before_the_step() {
+        let version = tensorboard::record(&tensorboard::version_event(1.0));
+        let mut file = [version.clone(), loss(1), loss(2), scores(2), loss(3)].concat();
+        file.extend_from_slice(&loss(4)[..7]);
+        let kept = |before| {
+            let mut out = Vec::new();
+            let k = copy_events_prefix(Some(&file[..]), before, &mut out).unwrap();
+            (tensorboard::records(&out).len(), k)
+        };
+        assert_eq!(kept(3), (4, (2, true)));
+        assert_eq!(kept(2), (2, (1, false)));
+        assert_eq!(kept(1), (1, (0, false)));
+        assert_eq!(kept(100), (5, (3, false)));
+        assert_eq!(events_prefix(&file, 2), [version.clone(), loss(1)].concat());
+        // A step skipped, or scores twice: kept up to there.
+        let gap = [version.clone(), loss(1), loss(3)].concat();
+        assert_eq!(events_prefix(&gap, 9), [version.clone(), loss(1)].concat());
+        let twice = [version.clone(), loss(1), scores(1), scores(1)].concat();
+        assert_eq!(
+            events_prefix(&twice, 9),
+            [version.clone(), loss(1), scores(1)].concat()
+        );
+        // No version record first: a fresh file.
+        let fresh = events_prefix(&loss(1), 5);
+        let first = tensorboard::records(&fresh);
+        assert_eq!(first.len(), 1);
+        assert_eq!(tensorboard::event_step(first[0].1).unwrap(), 0);
+        assert_eq!(
+            tensorboard::records(&events_prefix(&[0u8; 4096], 5)).len(),
+            1
         );
     }
 
     #[test]
-    fn the_event_file_keeps_whole_records_before_the_step() {
-        let rec = |step| tensorboard::record(&tensorboard::scalars_event(1.0, step, &[("x", 1.0)]));
+    fn logs_cut_short_are_written_again_from_the_checkpoint() {
+        let dir = std::env::temp_dir().join(format!("sdfl-log-rebuild-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        let (csv, events, _) = paths(&dir, "t");
+        std::fs::write(&csv, format!("{CSV_HEADER}\n1,0.1,0.5,0.01,,\n2,0.2,0.")).unwrap();
+        std::fs::create_dir_all(events.parent().unwrap()).unwrap();
         let version = tensorboard::record(&tensorboard::version_event(1.0));
-        let mut file = [version.clone(), rec(1), rec(2), rec(3)].concat();
-        file.extend_from_slice(&rec(4)[..7]);
-        let n = |before| tensorboard::records(&events_prefix(&file, before)).len();
-        assert_eq!((n(3), n(1), n(100)), (3, 1, 4));
-        assert_eq!(events_prefix(&file, 2), [version, rec(1)].concat());
-        // No version record first: a fresh file.
-        let fresh = events_prefix(&rec(1), 5);
-        let first = tensorboard::records(&fresh);
-        assert_eq!(first.len(), 1);
-        assert_eq!(tensorboard::event_step(first[0].1).unwrap(), 0);
+        std::fs::write(&events, [version, loss(1), loss(2)].concat()).unwrap();
+        let notes = std::sync::Mutex::new(Vec::new());
+        let observer = |e: &TrainEvent<'_>| {
+            if let TrainEvent::Note(n) = e {
+                notes.lock().unwrap().push(n.to_string());
+            }
+        };
+        let history = History {
+            seconds: 5.0,
+            held_out: vec![HeldOut {
+                step: 3,
+                seconds: 3.0,
+                psnr: 20.0,
+                ssim: 0.5,
+            }],
+        };
+        let optimizer = Optimizer {
+            lr: 0.01,
+            schedule: sdfl_stdlib::value::Schedule::Constant,
+        };
+        let losses = [0.5, 0.4, 0.3, 0.2];
+        let log = TrainLog::open(&dir, "t", optimizer, &losses, history, 10, &observer).unwrap();
+        log.finish().unwrap();
+        let text = std::fs::read_to_string(&csv).unwrap();
+        let rows: Vec<&str> = text.lines().skip(1).collect();
+        assert_eq!(rows.len(), 4, "{text}");
+        let steps: Vec<&str> = rows.iter().map(|r| r.split(',').next().unwrap()).collect();
+        assert_eq!(steps, ["1", "2", "3", "4"]);
+        // Step 2 without a time, 3 with its evaluation's, 4 the checkpoint's.
+        assert!(rows[1].starts_with("2,,0.4,"), "{text}");
+        assert!(rows[2].starts_with("3,3.000,0.3,") && rows[2].ends_with(",20,0.5"));
+        assert!(rows[3].starts_with("4,5.000,0.2,"), "{text}");
+        let bytes = std::fs::read(&events).unwrap();
+        let steps: Vec<u64> = tensorboard::records(&bytes)
+            .iter()
+            .map(|(_, d)| tensorboard::event_step(d).unwrap())
+            .collect();
+        // Version, 1, 2 (kept), 3 and its scores, 4.
+        assert_eq!(steps, [0, 1, 2, 3, 3, 4]);
+        let notes = notes.into_inner().unwrap();
+        assert_eq!(notes.len(), 2, "{notes:?}");
+        assert!(
+            notes[0].starts_with("t.metrics.csv: steps 2 to 3 missing"),
+            "{notes:?}"
+        );
+        assert!(
+            notes[1].contains("events.out.tfevents.sdfl: step 3 missing"),
+            "{notes:?}"
+        );
     }
 }

@@ -1,0 +1,288 @@
+//! Reading a file a user named, or one found where sdfl writes, only if it
+//! is a regular file: a FIFO blocks whoever opens it for reading until a
+//! writer comes, and `/dev/zero` never ends. Every reader of such paths
+//! (scene files, imports, data, logs, sweep rows, the watcher's stamps)
+//! goes through here, so none of them can hang or read without limit.
+
+use std::fs::File;
+use std::io::{self, Read};
+use std::path::Path;
+
+use sdfl_lang::diag::{codes, Diag};
+use sdfl_lang::Span;
+
+/// `O_NONBLOCK` where it is known: opening a FIFO with it returns at once
+/// (the handle's metadata then refuses it) instead of waiting for a writer.
+/// It changes nothing for reads of a regular file. Elsewhere 0: the check
+/// before opening still refuses anything that is no regular file then.
+#[cfg(all(
+    any(target_os = "linux", target_os = "android"),
+    any(
+        target_arch = "x86",
+        target_arch = "x86_64",
+        target_arch = "arm",
+        target_arch = "aarch64",
+        target_arch = "riscv32",
+        target_arch = "riscv64",
+        target_arch = "powerpc",
+        target_arch = "powerpc64",
+        target_arch = "s390x",
+        target_arch = "loongarch64"
+    )
+))]
+const NONBLOCK: i32 = 0o4000;
+#[cfg(any(
+    target_os = "macos",
+    target_os = "ios",
+    target_os = "freebsd",
+    target_os = "netbsd",
+    target_os = "openbsd",
+    target_os = "dragonfly"
+))]
+const NONBLOCK: i32 = 0x4;
+#[cfg(not(any(
+    all(
+        any(target_os = "linux", target_os = "android"),
+        any(
+            target_arch = "x86",
+            target_arch = "x86_64",
+            target_arch = "arm",
+            target_arch = "aarch64",
+            target_arch = "riscv32",
+            target_arch = "riscv64",
+            target_arch = "powerpc",
+            target_arch = "powerpc64",
+            target_arch = "s390x",
+            target_arch = "loongarch64"
+        )
+    ),
+    target_os = "macos",
+    target_os = "ios",
+    target_os = "freebsd",
+    target_os = "netbsd",
+    target_os = "openbsd",
+    target_os = "dragonfly"
+)))]
+const NONBLOCK: i32 = 0;
+
+/// An error that names `path`.
+fn named(path: &Path, e: io::Error) -> io::Error {
+    io::Error::new(e.kind(), format!("{}: {e}", path.display()))
+}
+
+fn not_regular(path: &Path) -> io::Error {
+    io::Error::new(
+        io::ErrorKind::InvalidData,
+        format!("{}: not a regular file", path.display()),
+    )
+}
+
+/// Opens `path` without ever waiting on a FIFO; the caller checks what
+/// was opened.
+fn open_nonblocking(path: &Path) -> io::Result<File> {
+    let mut o = std::fs::OpenOptions::new();
+    o.read(true);
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::OpenOptionsExt;
+        o.custom_flags(NONBLOCK);
+    }
+    #[cfg(not(unix))]
+    let _ = NONBLOCK;
+    o.open(path).map_err(|e| named(path, e))
+}
+
+/// Opens `path` for reading if, after following links, it is a regular
+/// file: checked before opening (a device is never opened) and again on
+/// the handle (the path may have changed in between).
+pub fn open_regular(path: &Path) -> io::Result<File> {
+    if !std::fs::metadata(path)
+        .map_err(|e| named(path, e))?
+        .is_file()
+    {
+        return Err(not_regular(path));
+    }
+    let file = open_nonblocking(path)?;
+    if !file.metadata().map_err(|e| named(path, e))?.is_file() {
+        return Err(not_regular(path));
+    }
+    Ok(file)
+}
+
+/// Opens `path` for reading if it is itself a regular file, not a link to
+/// one: for files sdfl wrote in its output directory, where a planted link
+/// must not make it read (and copy into its logs) what lies elsewhere.
+pub fn open_regular_unlinked(path: &Path) -> io::Result<File> {
+    let meta = std::fs::symlink_metadata(path).map_err(|e| named(path, e))?;
+    if !meta.is_file() {
+        return Err(not_regular(path));
+    }
+    let file = open_nonblocking(path)?;
+    let opened = file.metadata().map_err(|e| named(path, e))?;
+    if !opened.is_file() || !same_file(&meta, &opened) {
+        return Err(not_regular(path));
+    }
+    Ok(file)
+}
+
+#[cfg(unix)]
+fn same_file(a: &std::fs::Metadata, b: &std::fs::Metadata) -> bool {
+    use std::os::unix::fs::MetadataExt;
+    (a.dev(), a.ino()) == (b.dev(), b.ino())
+}
+
+#[cfg(not(unix))]
+fn same_file(_: &std::fs::Metadata, _: &std::fs::Metadata) -> bool {
+    true
+}
+
+/// Reads `file` (named `path` in errors) to its end, refusing more than
+/// `cap` bytes; never holds more than `cap + 1`.
+pub fn read_to_cap(file: File, path: &Path, cap: u64) -> io::Result<Vec<u8>> {
+    let mut bytes = Vec::new();
+    file.take(cap.saturating_add(1))
+        .read_to_end(&mut bytes)
+        .map_err(|e| named(path, e))?;
+    if bytes.len() as u64 > cap {
+        return Err(io::Error::new(
+            io::ErrorKind::FileTooLarge,
+            format!("{}: larger than {cap} bytes", path.display()),
+        ));
+    }
+    Ok(bytes)
+}
+
+/// The bytes of the regular file `path` (links followed), at most `cap`.
+pub fn read_capped(path: &Path, cap: u64) -> io::Result<Vec<u8>> {
+    read_to_cap(open_regular(path)?, path, cap)
+}
+
+/// Text that is not UTF-8: where its first bad byte is, and the text as
+/// decoded with U+FFFD for each bad sequence (the same up to that byte, so
+/// the offset places a label in it).
+pub struct NotUtf8 {
+    /// Offset of the first byte that is not UTF-8.
+    pub at: usize,
+    /// That byte.
+    pub byte: u8,
+    /// The text, decoded lossily, for showing where the error is.
+    pub lossy: String,
+}
+
+/// `bytes` as UTF-8 text, or where they stop being it.
+pub fn utf8(bytes: Vec<u8>) -> Result<String, NotUtf8> {
+    String::from_utf8(bytes).map_err(|e| {
+        let at = e.utf8_error().valid_up_to();
+        let bytes = e.into_bytes();
+        NotUtf8 {
+            at,
+            byte: bytes[at],
+            lossy: String::from_utf8_lossy(&bytes).into_owned(),
+        }
+    })
+}
+
+impl NotUtf8 {
+    /// 1-based line and column (in characters) of the bad byte.
+    pub fn line_col(&self) -> (usize, usize) {
+        let before = &self.lossy[..self.at];
+        let line = before.matches('\n').count() + 1;
+        let column = before.rsplit('\n').next().unwrap_or("").chars().count() + 1;
+        (line, column)
+    }
+
+    /// Where the bad byte is, in words: `byte 25 (0xe9, line 2, column 9)`.
+    pub fn place(&self) -> String {
+        let (line, column) = self.line_col();
+        format!(
+            "byte {} ({:#04x}, line {line}, column {column})",
+            self.at, self.byte
+        )
+    }
+
+    /// The diagnostic of a scene file that is not UTF-8, placed in
+    /// [`NotUtf8::lossy`] at the replacement character of the bad byte.
+    pub fn diag(&self) -> Diag {
+        let (line, column) = self.line_col();
+        Diag::new(
+            codes::SOURCE_ENCODING,
+            Span::new(self.at, self.at + char::REPLACEMENT_CHARACTER.len_utf8()),
+            format!(
+                "the file is not UTF-8 text: byte {} ({:#04x}, line {line}, column {column}) is not UTF-8",
+                self.at, self.byte
+            ),
+        )
+        .label(format!("byte {:#04x}, not UTF-8", self.byte))
+        .help("save the file as UTF-8: sdfl reads no other encoding")
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn dir(name: &str) -> std::path::PathBuf {
+        let d = std::env::temp_dir().join(format!("sdfl-files-{name}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&d);
+        std::fs::create_dir_all(&d).unwrap();
+        d
+    }
+
+    #[test]
+    fn regular_files_are_read_within_their_cap() {
+        let d = dir("cap");
+        let p = d.join("f.txt");
+        std::fs::write(&p, b"hello").unwrap();
+        assert_eq!(read_capped(&p, 5).unwrap(), b"hello");
+        let e = read_capped(&p, 4).unwrap_err();
+        assert_eq!(e.kind(), io::ErrorKind::FileTooLarge);
+        assert!(e.to_string().contains("f.txt"), "{e}");
+        assert!(read_capped(&d.join("missing"), 5).is_err());
+        assert!(read_capped(&d, 5).is_err(), "a directory");
+    }
+
+    #[cfg(unix)]
+    #[test]
+    fn devices_fifos_and_links_are_refused_without_blocking() {
+        let d = dir("special");
+        let zero = d.join("zero");
+        std::os::unix::fs::symlink("/dev/zero", &zero).unwrap();
+        let e = read_capped(&zero, 1 << 20).unwrap_err();
+        assert!(e.to_string().contains("not a regular file"), "{e}");
+        let fifo = d.join("fifo");
+        let made = std::process::Command::new("mkfifo")
+            .arg(&fifo)
+            .status()
+            .is_ok_and(|s| s.success());
+        if made {
+            assert!(open_regular(&fifo).is_err());
+            assert!(open_regular_unlinked(&fifo).is_err());
+            // Opened without waiting for a writer, then refused.
+            assert!(open_nonblocking(&fifo).is_ok());
+        }
+        let file = d.join("f");
+        std::fs::write(&file, b"x").unwrap();
+        let link = d.join("link");
+        std::os::unix::fs::symlink(&file, &link).unwrap();
+        assert!(open_regular(&link).is_ok());
+        assert!(open_regular_unlinked(&link).is_err());
+        assert!(open_regular_unlinked(&file).is_ok());
+    }
+
+    #[test]
+    fn the_first_bad_byte_is_found() {
+        assert_eq!(utf8(b"ok".to_vec()).ok().as_deref(), Some("ok"));
+        let e = utf8(b"ab\xffcd\xfe".to_vec()).err().unwrap();
+        assert_eq!((e.at, e.byte), (2, 0xff));
+        assert_eq!(e.lossy, "ab\u{fffd}cd\u{fffd}");
+        assert_eq!(&e.lossy[..e.at], "ab");
+        let e = utf8("é\nlet b = \u{1}".bytes().chain([0xe9]).collect())
+            .err()
+            .unwrap();
+        assert_eq!(e.line_col(), (2, 10));
+        assert_eq!(e.place(), "byte 12 (0xe9, line 2, column 10)");
+        let d = e.diag();
+        assert_eq!(d.code, codes::SOURCE_ENCODING);
+        assert_eq!(&e.lossy[d.span.start..d.span.end], "\u{fffd}");
+    }
+}
