@@ -181,7 +181,15 @@ fn export_lines(o: &mut String, outputs: &[sdfl_stdlib::Output], samples: usize,
     }
 }
 
+/// [`plan_text_in`] with data paths relative to the current directory.
 pub(crate) fn plan_text(program: &sdfl_stdlib::Program) -> String {
+    plan_text_in(program, std::path::Path::new(""))
+}
+
+/// The plan of `program`, whose data paths are relative to `base` (the
+/// scene file's directory): data sets read from files are sized from
+/// their images' headers.
+pub(crate) fn plan_text_in(program: &sdfl_stdlib::Program, base: &std::path::Path) -> String {
     use std::fmt::Write;
     let mut o = String::new();
     let row = |o: &mut String, what: &str, who: &[String]| {
@@ -402,6 +410,7 @@ pub(crate) fn plan_text(program: &sdfl_stdlib::Program) -> String {
             ),
         };
         let _ = writeln!(o, "  data           {data}");
+        let estimate = data_lines(&mut o, job, base);
         let on_points = matches!(&*job.model, sdfl_stdlib::value::Field::NeuralSdf(_));
         let _ = writeln!(
             o,
@@ -493,6 +502,20 @@ pub(crate) fn plan_text(program: &sdfl_stdlib::Program) -> String {
         );
         let work = sdfl_stdlib::work::train_work(job, None);
         work_lines(&mut o, &work);
+        if let Some(e) = estimate {
+            let b = e.budget;
+            let _ = writeln!(
+                o,
+                "    {:<20} at most {:.1e} evaluations ({:.1e} scoring {} held-out views), about {} of memory (limits {:.0e} and {}), as checked once read",
+                "with the data",
+                b.evaluations,
+                b.held_out_evaluations,
+                e.test_views,
+                sdfl_stdlib::size::fmt_bytes(b.memory),
+                sdfl_stdlib::work::MAX_EVALUATIONS,
+                sdfl_stdlib::size::fmt_bytes(sdfl_stdlib::work::MAX_MEMORY)
+            );
+        }
         host_line(&mut o, &work);
     }
     if o.is_empty() {
@@ -500,6 +523,52 @@ pub(crate) fn plan_text(program: &sdfl_stdlib::Program) -> String {
         o.push_str("no statements: nothing runs (a file of `let`s and `fn`s is for `import`)\n");
     }
     o
+}
+
+/// The memory of a data set read from files, from its images' headers
+/// (a sample of a large set): what `run` checks once it has read them.
+/// Returns the estimate, `None` where the data are not files or cannot be
+/// read here.
+fn data_lines(
+    o: &mut String,
+    job: &sdfl_stdlib::value::TrainJob,
+    base: &std::path::Path,
+) -> Option<sdfl_runtime::data::Estimate> {
+    use sdfl_stdlib::size::fmt_bytes;
+    use std::fmt::Write;
+    let e = match sdfl_runtime::data::estimate(job, base) {
+        Ok(e) => e?,
+        Err(err) => {
+            let _ = writeln!(o, "  data memory    known once read ({err})");
+            return None;
+        }
+    };
+    let views = match e.size {
+        Some((w, h)) => format!("{} views of {w}x{h}", e.views),
+        None => format!("{} views", e.views),
+    };
+    let read = if e.headers < e.views {
+        format!(
+            "{} of {} image headers read, the others taken as their mean",
+            e.headers, e.views
+        )
+    } else {
+        format!("from {} image headers", e.headers)
+    };
+    let _ = writeln!(
+        o,
+        "  data memory    {views}{}, {:.0} pixels: {} held through training (f32 colour, and a byte a pixel of coverage or mask where kept; {read})",
+        held_out(e.test_views),
+        e.pixels,
+        fmt_bytes(e.held)
+    );
+    let _ = writeln!(
+        o,
+        "    {:<20} at most {} (the views read so far and one image decoding: its file, its pixels, two f32 copies)",
+        "reading",
+        fmt_bytes(e.reading)
+    );
+    Some(e)
 }
 
 /// What the machine's threads add to the statement's memory: the scratch

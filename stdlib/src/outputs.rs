@@ -8,9 +8,10 @@
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
-use sdfl_lang::diag::{codes, Diag};
+use sdfl_lang::diag::{codes, fmt_num, Diag};
 use sdfl_lang::Span;
 
+use crate::lens::{Distortion, Intrinsics};
 use crate::value::{Output, OutputKind, Program, StatementKind};
 
 /// Most files one scene file may write (all statements, all views).
@@ -61,6 +62,88 @@ pub const DATASET_JSON: [&str; 4] = [
     "transforms_test.json",
     "transforms.json",
 ];
+
+/// Why LLFF's layout (`dataset(..., llff_bounds: ...)`) cannot hold these
+/// views, each numbered, through these intrinsics (`None`: it can):
+/// `poses_bounds.npy` has one height, width and focal length per view and
+/// no principal point or distortion, so every view must be one centred
+/// pinhole camera. Checked when the file is evaluated and again by the
+/// writer, for views made at run time.
+pub fn llff_refusal(views: impl IntoIterator<Item = (usize, Intrinsics)>) -> Option<String> {
+    let close = |x: f64, y: f64| (x - y).abs() <= 1e-9 * x.abs().max(y.abs()).max(1.0);
+    let mut first: Option<(usize, Intrinsics)> = None;
+    let problem = views.into_iter().find_map(|(k, i)| {
+        let (w, h) = (i.width as f64, i.height as f64);
+        let why = if i.distortion != Distortion::None {
+            Some(format!("view {k} is seen through a distorted lens"))
+        } else if !close(i.fx, i.fy) {
+            Some(format!(
+                "view {k} has two focal lengths ({} and {} pixels)",
+                fmt_num(i.fx),
+                fmt_num(i.fy)
+            ))
+        } else if !(close(i.cx, w / 2.0) && close(i.cy, h / 2.0)) {
+            Some(format!(
+                "view {k}'s principal point ({}, {}) is not the {}x{} image's centre",
+                fmt_num(i.cx),
+                fmt_num(i.cy),
+                i.width,
+                i.height
+            ))
+        } else {
+            match first {
+                Some((j, f))
+                    if !(close(i.fx, f.fx) && (i.width, i.height) == (f.width, f.height)) =>
+                {
+                    Some(format!("view {k}'s camera differs from view {j}'s"))
+                }
+                _ => None,
+            }
+        };
+        first.get_or_insert((k, i));
+        why
+    })?;
+    Some(format!(
+        "LLFF's `poses_bounds.npy` holds one centred pinhole camera (one focal length, no distortion) for every view, and {problem}"
+    ))
+}
+
+/// The `llff_bounds` data sets among `outputs` that views through
+/// `cameras` at `size` cannot be written as.
+fn llff_errors<'a>(
+    outputs: impl IntoIterator<Item = &'a Output>,
+    cameras: &[crate::camera::Camera],
+    (w, h): (u32, u32),
+) -> Vec<Diag> {
+    let mut llff = outputs.into_iter().filter(|o| {
+        matches!(
+            o.kind,
+            OutputKind::Dataset {
+                llff_bounds: Some(_),
+                ..
+            }
+        )
+    });
+    let Some(first) = llff.next() else {
+        return Vec::new();
+    };
+    let Some(why) = llff_refusal(
+        cameras
+            .iter()
+            .enumerate()
+            .map(|(k, c)| (k, c.to_opengl_intrinsics(w, h).1)),
+    ) else {
+        return Vec::new();
+    };
+    std::iter::once(first)
+        .chain(llff)
+        .map(|o| {
+            Diag::new(codes::VALUE, o.span, why.clone())
+                .label("LLFF's layout needs one centred pinhole camera")
+                .help("write this set without `llff_bounds` (its `transforms.json` keeps the lens), or give every view one pinhole camera: `look_at(...)`, or `lens(...)` with one focal length, the principal point at the centre and no distortion")
+        })
+        .collect()
+}
 
 /// The event file's name in a training run's TensorBoard directory: fixed,
 /// so a resumed run continues the same file (TensorBoard reads every file
@@ -399,6 +482,7 @@ pub fn check_job(
     let mut logs = None;
     let count;
     let held;
+    let llff;
     match kind {
         StatementKind::Train => {
             let Some(j) = program.trains.last() else {
@@ -406,6 +490,15 @@ pub fn check_job(
             };
             count = file_count(&j.before, j.views.len()) + file_count(&j.after, j.views.len());
             held = held_out_errors(j.before.iter().chain(&j.after), j.views.len());
+            // Views made from the data at run time are the writer's to check.
+            llff = match j.view_path {
+                None => llff_errors(
+                    j.before.iter().chain(&j.after),
+                    &j.views,
+                    (j.width, j.height),
+                ),
+                Some(_) => Vec::new(),
+            };
             if count <= MAX_FILES {
                 claims = output_files(&j.before, j.views.len(), JobKind::TrainBefore);
                 claims.extend(output_files(&j.after, j.views.len(), JobKind::TrainAfter));
@@ -425,6 +518,7 @@ pub fn check_job(
             };
             count = file_count(&j.outputs, j.cameras.len());
             held = held_out_errors(&j.outputs, j.cameras.len());
+            llff = llff_errors(&j.outputs, &j.cameras, (j.width, j.height));
             if count <= MAX_FILES {
                 claims = output_files(&j.outputs, j.cameras.len(), JobKind::Volume);
             }
@@ -435,6 +529,7 @@ pub fn check_job(
             };
             count = file_count(&j.outputs, j.cameras.len());
             held = held_out_errors(&j.outputs, j.cameras.len());
+            llff = llff_errors(&j.outputs, &j.cameras, (j.width, j.height));
             if count <= MAX_FILES {
                 claims = output_files(&j.outputs, j.cameras.len(), JobKind::Render);
             }
@@ -455,8 +550,8 @@ pub fn check_job(
         .label("one file per output and view")
         .help("use fewer views, or a `gif(...)` output, which holds every view in one file")];
     }
-    if !held.is_empty() {
-        return held;
+    if !held.is_empty() || !llff.is_empty() {
+        return held.into_iter().chain(llff).collect();
     }
     // Names the file system refuses fail here, not after rendering.
     let log_paths = logs.iter().flat_map(|(files, (dir, w))| {

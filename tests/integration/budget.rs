@@ -1,5 +1,6 @@
 //! The budget covers what is known only once data are read: a NeRF-synthetic
-//! test split scored every step is refused after loading, before any step.
+//! test split scored every step is refused after loading, before any step;
+//! `sdfl plan` estimates the same from the images' headers.
 
 use crate::common::*;
 
@@ -64,4 +65,116 @@ fn a_test_split_scored_every_step_is_refused_before_training() {
     .unwrap();
     let o = sdfl(&dir, &["run", file2.to_str().unwrap(), "--out", out_s]);
     assert_outcome("held-out split at the end", &o, Expect::Ok);
+}
+
+/// `sdfl plan FILE` run in `dir` (so that the data's relative paths are
+/// found whether the CLI resolves them against the scene file's directory
+/// or the current one): its stdout.
+fn plan_in(dir: &Path, file: &str) -> String {
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_sdfl"))
+        .args(["plan", file])
+        .current_dir(dir)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    String::from_utf8(o.stdout).unwrap()
+}
+
+/// The line of `plan` that starts with `start` (after its indent).
+fn line<'a>(plan: &'a str, start: &str) -> &'a str {
+    plan.lines()
+        .find(|l| l.trim_start().starts_with(start))
+        .unwrap_or_else(|| panic!("no `{start}` line in\n{plan}"))
+}
+
+/// `sdfl plan` showed no memory for data read from files: it reads the
+/// images' headers and says the views, their pixels and the bytes they
+/// hold as f32, the same count `run` checks once it has read them, and
+/// the peak while one image decodes. A large set is sampled, and says so.
+#[test]
+fn plan_sizes_file_data_from_the_image_headers() {
+    let dir = case_dir("plan_file_data");
+    data_set(&dir);
+    fs::write(dir.join("t.sdfl"), scene(100)).unwrap();
+    let plan = plan_in(&dir, "t.sdfl");
+    // Three 16×16 views a split: 1536 pixels.
+    let data = line(&plan, "data memory");
+    assert!(
+        data.contains("6 views of 16x16, 3 held out as test views, 1536 pixels")
+            && data.contains("from 6 image headers"),
+        "{data}"
+    );
+    // The bytes `run` counts once the views are read.
+    let views: Vec<_> = sdfl_runtime::data::nerf_synthetic::read_splits(
+        &dir.join("set"),
+        &[("train", false), ("test", false)],
+        glam::DVec3::ONE,
+    )
+    .unwrap()
+    .into_iter()
+    .flatten()
+    .collect();
+    let held = sdfl_runtime::data::views_bytes(&views);
+    assert_eq!(held, 1536.0 * 12.0);
+    let shown = sdfl_stdlib::size::fmt_bytes(held);
+    assert!(
+        data.contains(&format!(": {shown} held through training")),
+        "{data}"
+    );
+    // Decoding holds more than the views: at least twice an image's f32.
+    let reading = line(&plan, "reading");
+    assert!(reading.contains("at most"), "{reading}");
+    assert!(
+        line(&plan, "with the data").contains("scoring 3 held-out views"),
+        "{plan}"
+    );
+    // `silhouette()` keeps a byte of coverage a training pixel.
+    let silhouette = r#"
+train s {
+  model: neus(neural_sdf(encoding: hashgrid(levels: 4, log2_table: 10, min_res: 4, max_res: 24, min: [-1, -1, -1], max: [1, 1, 1]), network: mlp(layers: 1, width: 16, skips: []), radius: 0.4), background: [1, 1, 1], view_dependent: false),
+  data: nerf_synthetic("set", test_split: "test"),
+  sampler: stratified(samples: 16, near: 1, far: 5),
+  losses: [mse(), silhouette()],
+  iterations: 2,
+}
+"#;
+    fs::write(dir.join("s.sdfl"), silhouette).unwrap();
+    let plan = plan_in(&dir, "s.sdfl");
+    let want = sdfl_stdlib::size::fmt_bytes(1536.0 * 12.0 + 768.0);
+    assert!(line(&plan, "data memory").contains(&want), "{plan}");
+
+    // 10 000 frames: a sample of the headers, and plan stays quick.
+    let frames: Vec<String> = (0..10_000)
+        .map(|k| format!("{{\"file_path\": \"./r_{}\", \"transform_matrix\": [[1,0,0,0],[0,1,0,0],[0,0,1,3],[0,0,0,1]]}}", k % 3))
+        .collect();
+    fs::write(
+        dir.join("set/transforms_big.json"),
+        format!(
+            "{{\"camera_angle_x\": 0.7, \"frames\": [{}]}}",
+            frames.join(",")
+        ),
+    )
+    .unwrap();
+    fs::write(
+        dir.join("big.sdfl"),
+        scene(100).replace("test_split: \"test\"", "split: \"big\""),
+    )
+    .unwrap();
+    let t0 = std::time::Instant::now();
+    let plan = plan_in(&dir, "big.sdfl");
+    let data = line(&plan, "data memory");
+    assert!(
+        data.contains("10000 views of 16x16, 2560000 pixels")
+            && data.contains("64 of 10000 image headers read"),
+        "{data}"
+    );
+    assert!(t0.elapsed().as_secs_f64() < 20.0, "{:?}", t0.elapsed());
+
+    // Data not found here: the plan still prints, saying so.
+    fs::remove_file(dir.join("set/r_1.png")).unwrap();
+    let plan = plan_in(&dir, "t.sdfl");
+    assert!(
+        line(&plan, "data memory").contains("known once read"),
+        "{plan}"
+    );
 }

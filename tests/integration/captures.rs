@@ -981,3 +981,103 @@ fn masks_mark_the_pixels_to_leave_out() {
     let e = err(capture::read(&spec(&dir), Path::new("/")));
     assert!(e.contains("1 of 2 frames have a `mask_path`"), "{e}");
 }
+
+/// Cameras at ±1e300 in a `transforms.json` were read (COLMAP and LLFF
+/// refuse positions past 1e18): normalised into the unit cube they
+/// trained, and exports mapped back into the data's frame held
+/// non-finite vertices. The nerfstudio reader (and so NeRF-synthetic's)
+/// refuses them, as it does a huge rotation entry and a huge
+/// `applied_transform`, naming the frame.
+#[test]
+fn far_away_cameras_are_refused_by_the_nerfstudio_reader() {
+    let dir = case_dir("cap_far_cameras");
+    let poses = ring(3);
+    let base = || -> Vec<Value> {
+        (0..3)
+            .map(|k| {
+                let mut f = frame(k, &poses[k]);
+                f["fl_x"] = json!(10.0);
+                f
+            })
+            .collect()
+    };
+    let cases: Vec<Spoil> = vec![
+        (
+            "position 1e300",
+            Box::new(|f: &mut Vec<Value>| {
+                for (row, x) in [1e300, -1e300, 1e300].iter().enumerate() {
+                    f[2]["transform_matrix"][row][3] = json!(x);
+                }
+            }),
+            "out of range (at most 1e18",
+        ),
+        (
+            "position 1e19",
+            Box::new(|f: &mut Vec<Value>| f[2]["transform_matrix"][1][3] = json!(-1e19)),
+            "out of range (at most 1e18",
+        ),
+        (
+            "rotation entry 1e300",
+            Box::new(|f: &mut Vec<Value>| f[2]["transform_matrix"][0][1] = json!(1e300)),
+            "orthonormal",
+        ),
+    ];
+    for (what, change, says) in cases {
+        let mut frames = base();
+        change(&mut frames);
+        nerfstudio(&dir, json!({}), frames, (12, 8));
+        // The reader itself refuses: before any normalisation or camera.
+        let e = err(read_transforms_scaled(&dir.join("transforms.json"), 1));
+        assert!(e.contains("frame 2") && e.contains(says), "{what}: {e}");
+        // NeRF-synthetic's files go through the same reader.
+        fs::copy(
+            dir.join("transforms.json"),
+            dir.join("transforms_train.json"),
+        )
+        .unwrap();
+        let e = err(sdfl_runtime::data::nerf_synthetic::read_transforms(
+            &dir.join("transforms_train.json"),
+        ));
+        assert!(e.contains("frame 2") && e.contains(says), "{what}: {e}");
+        fs::remove_file(dir.join("transforms_train.json")).unwrap();
+    }
+    // `applied_transform` moves every camera: its translation is bounded alike.
+    nerfstudio(
+        &dir,
+        json!({"applied_transform": [[1, 0, 0, 1e300], [0, 1, 0, 0], [0, 0, 1, 0]]}),
+        base(),
+        (12, 8),
+    );
+    let e = err(read_transforms_scaled(&dir.join("transforms.json"), 1));
+    assert!(
+        e.contains("applied_transform") && e.contains("out of range"),
+        "{e}"
+    );
+    // Positions up to 1e18 still read.
+    let mut frames = base();
+    frames[2]["transform_matrix"][0][3] = json!(1e18);
+    nerfstudio(&dir, json!({}), frames, (12, 8));
+    read_transforms_scaled(&dir.join("transforms.json"), 1).unwrap();
+
+    // Through the CLI: cameras at ±1e300 trained and exported a mesh of
+    // non-finite vertices; now the run stops at the data, naming it.
+    let mut frames = base();
+    for (k, x) in [(0, 1e300), (1, -1e300)] {
+        frames[k]["transform_matrix"][0][3] = json!(x);
+    }
+    let cap = dir.join("cli");
+    nerfstudio(&cap, json!({}), frames, (8, 8));
+    let f = scene(
+        &dir,
+        "train t {\n  model: sdf_volume(sphere(param(0.8))),\n  data: capture(\"cli\"),\n  iterations: 1,\n  size: [8, 8],\n  after: [mesh(\"m.ply\", resolution: 8)],\n}\n",
+    );
+    let out = dir.join("out");
+    let o = run_into(&dir, &f, &out, &[]);
+    assert_outcome("cameras at 1e300", &o, Expect::Error);
+    assert!(
+        o.stderr.contains("frame 0") && o.stderr.contains("out of range"),
+        "{}",
+        head(&o.stderr)
+    );
+    assert!(!out.join("m.ply").exists());
+}

@@ -679,3 +679,195 @@ fn a_lens_data_set_from_the_cli() {
         );
     }
 }
+
+/// A render writing an LLFF set of `cameras` to `set` (8×6 images).
+fn llff_scene(cameras: &str) -> String {
+    format!("render r {{\n  scene: sphere(0.5),\n  camera: {cameras},\n  size: [8, 6],\n  outputs: [dataset(\"set\", llff_bounds: [1, 10])],\n}}\n")
+}
+
+/// Three pinhole cameras side by side, looking down −z.
+const PINHOLES: &str =
+    "[look_at(eye: [-0.2, 0, 3]), look_at(eye: [0, 0, 3]), look_at(eye: [0.2, 0, 3])]";
+
+/// The same cameras through a distorted lens.
+fn distorted() -> String {
+    format!("lens({PINHOLES}, size: [8, 6], focal: [7, 7], center: [4, 3], model: \"opencv\", distortion: [-0.1, 0.01, 0, 0])")
+}
+
+/// Whether `set` holds a complete LLFF set of three views that every
+/// reader loads: `poses_bounds.npy` with its images, and the transforms
+/// files.
+fn loads(set: &Path) -> Result<(), String> {
+    let e = |e: std::io::Error| e.to_string();
+    let (shape, _) = sdfl_runtime::data::npy::read_f64(set.join("poses_bounds.npy"))
+        .map_err(|x| x.to_string())?;
+    if shape != [3, 17] {
+        return Err(format!("poses_bounds.npy is {shape:?}"));
+    }
+    for k in 0..3 {
+        image::open(set.join(format!("images/{k:04}.png"))).map_err(|x| x.to_string())?;
+    }
+    let n = sdfl_runtime::data::nerf_synthetic::read_split(set, "train", DVec3::ONE)
+        .map_err(e)?
+        .len();
+    if n != 3 {
+        return Err(format!("{n} training views"));
+    }
+    let spec = sdfl_stdlib::value::CaptureSpec {
+        path: set.to_path_buf(),
+        path_span: Default::default(),
+        format: sdfl_stdlib::value::CaptureFormat::Llff,
+        downscale: 1,
+        test_every: 0,
+        normalize: true,
+        orient: sdfl_stdlib::value::CaptureOrient::None,
+        extent: 1.0,
+        background: None,
+    };
+    sdfl_runtime::data::capture::read(&spec, Path::new("/")).map_err(e)?;
+    Ok(())
+}
+
+/// `dataset(llff_bounds: ...)` through a distorted lens passed `check`;
+/// `run` refused it only after it had marked an earlier complete LLFF set
+/// incomplete and overwritten its images. It is refused when checked, at
+/// the `dataset` output, and the earlier set is untouched.
+#[test]
+fn an_llff_set_through_a_distorted_lens_is_refused_when_checked() {
+    let dir = case_dir("export_llff_lens");
+    let file = dir.join("scene.sdfl");
+    let out = dir.join("out");
+    fs::write(&file, llff_scene(PINHOLES)).unwrap();
+    let o = run_into(&dir, &file, &out, &[]);
+    common::assert_outcome("a pinhole LLFF set", &o, Expect::Ok);
+    let set = out.join("set");
+    assert_eq!(loads(&set), Ok(()));
+    let before: Vec<Vec<u8>> = ["poses_bounds.npy", "images/0000.png", "transforms.json"]
+        .iter()
+        .map(|f| fs::read(set.join(f)).unwrap())
+        .collect();
+
+    fs::write(&file, llff_scene(&distorted())).unwrap();
+    let o = common::sdfl(&dir, &["check", file.to_str().unwrap()]);
+    common::assert_outcome("check", &o, Expect::Error);
+    assert!(
+        o.stderr.contains("sdfl::value::range")
+            && o.stderr.contains("centred pinhole")
+            && o.stderr.contains("llff_bounds"),
+        "{}",
+        common::head(&o.stderr)
+    );
+    let o = run_into(&dir, &file, &out, &[]);
+    common::assert_outcome("run", &o, Expect::Error);
+    assert_eq!(loads(&set), Ok(()));
+    let after: Vec<Vec<u8>> = ["poses_bounds.npy", "images/0000.png", "transforms.json"]
+        .iter()
+        .map(|f| fs::read(set.join(f)).unwrap())
+        .collect();
+    assert!(before == after, "the earlier set changed");
+}
+
+/// What `check` cannot see (views made at run time) is refused by the
+/// writer: before it touches an earlier set, which stays loadable whether
+/// the new set is refused at its first view or its writer fails half-way.
+/// Its views are written beside the set and moved in only once complete.
+#[test]
+fn an_earlier_set_survives_a_refused_or_failed_rewrite() {
+    let dir = case_dir("export_llff_keep");
+    let out = dir.join("out");
+    fs::create_dir_all(&out).unwrap();
+    let rgb = vec![90u8; 8 * 6 * 3];
+    let cams: Vec<Camera> = [-0.2, 0.0, 0.2]
+        .iter()
+        .map(|x| {
+            Camera::look_at(
+                DVec3::new(*x, 0.0, 3.0),
+                DVec3::new(*x, 0.0, 0.0),
+                DVec3::Y,
+                1.5,
+            )
+        })
+        .collect();
+    let write = |cams: &[Camera]| {
+        let mut w =
+            DatasetWriter::new(&out, Path::new("set"), (8, 6), 3, 0, 0).with_llff([1.0, 10.0]);
+        for (k, c) in cams.iter().enumerate() {
+            w.push(k, c, &rgb, None)?;
+        }
+        w.finish()
+    };
+    write(&cams).unwrap();
+    let set = out.join("set");
+    assert_eq!(loads(&set), Ok(()));
+    let listing = || {
+        let mut l: Vec<String> = walk(&out);
+        l.sort();
+        l
+    };
+    let files = listing();
+
+    // A distorted view: refused at that view, the earlier set as it was.
+    let lens = Intrinsics {
+        width: 8,
+        height: 6,
+        fx: 7.0,
+        fy: 7.0,
+        cx: 4.0,
+        cy: 3.0,
+        distortion: Distortion::OpenCv {
+            k1: -0.1,
+            k2: 0.01,
+            p1: 0.0,
+            p2: 0.0,
+        },
+    };
+    let mut w = DatasetWriter::new(&out, Path::new("set"), (8, 6), 3, 0, 0).with_llff([1.0, 10.0]);
+    w.push(0, &cams[0], &rgb, None).unwrap();
+    let (c2w, _) = cams[1].to_opengl_intrinsics(8, 6);
+    let e = w
+        .push_view(1, c2w, lens, &rgb, None)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("centred pinhole"), "{e}");
+    drop(w);
+    assert_eq!(loads(&set), Ok(()));
+    assert_eq!(listing(), files, "nothing left beside the set");
+
+    // A writer dropped half-way (its job failed): the same.
+    let mut w = DatasetWriter::new(&out, Path::new("set"), (8, 6), 3, 0, 0).with_llff([1.0, 10.0]);
+    w.push(0, &cams[0], &rgb, None).unwrap();
+    w.push(1, &cams[1], &rgb, None).unwrap();
+    drop(w);
+    assert_eq!(loads(&set), Ok(()));
+    assert_eq!(listing(), files);
+
+    // A complete rewrite replaces it.
+    let brighter = vec![200u8; 8 * 6 * 3];
+    let mut w = DatasetWriter::new(&out, Path::new("set"), (8, 6), 3, 0, 0).with_llff([1.0, 10.0]);
+    for (k, c) in cams.iter().enumerate() {
+        w.push(k, c, &brighter, None).unwrap();
+    }
+    w.finish().unwrap();
+    assert_eq!(loads(&set), Ok(()));
+    assert_eq!(listing(), files);
+    let img = image::open(set.join("images/0002.png")).unwrap().to_rgba8();
+    assert_eq!(img.get_pixel(0, 0)[0], 200);
+}
+
+/// Every file under `dir`, relative to it.
+fn walk(dir: &Path) -> Vec<String> {
+    let mut out = Vec::new();
+    for e in fs::read_dir(dir).unwrap() {
+        let p = e.unwrap().path();
+        if p.is_dir() {
+            out.extend(
+                walk(&p)
+                    .into_iter()
+                    .map(|f| format!("{}/{f}", p.file_name().unwrap().to_string_lossy())),
+            );
+        } else {
+            out.push(p.file_name().unwrap().to_string_lossy().into_owned());
+        }
+    }
+    out
+}

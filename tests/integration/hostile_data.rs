@@ -574,3 +574,43 @@ fn too_many_points_are_refused_from_the_array_header() {
         head(&o.stderr)
     );
 }
+
+/// A PLY header written with CRLF line endings (as Windows tools write
+/// them) was "not a PLY file": no `end_header\n`. ASCII and binary read
+/// alike; a binary body starts right after the header's last `\r\n`, so a
+/// first coordinate whose bytes start with `\n` is not taken for it.
+#[test]
+fn ply_headers_with_crlf_line_endings_are_read() {
+    use sdfl_runtime::data::points::read_points;
+    let dir = case_dir("data_ply_crlf");
+    let want = vec![
+        [f32::from_le_bytes([b'\n', 0, 0, 64]), -1.0, 2.0],
+        [3.25, 0.0, -0.125],
+    ];
+    let header = |format: &str| {
+        format!("ply\r\nformat {format} 1.0\r\ncomment made on Windows\r\nelement vertex 2\r\nproperty float x\r\nproperty float y\r\nproperty float z\r\nend_header\r\n")
+    };
+    let mut ascii = header("ascii");
+    for p in &want {
+        ascii.push_str(&format!("{} {} {}\r\n", p[0], p[1], p[2]));
+    }
+    let mut binary = header("binary_little_endian").into_bytes();
+    for p in &want {
+        binary.extend(p.iter().flat_map(|x| x.to_le_bytes()));
+    }
+    for (name, bytes) in [("a.ply", ascii.into_bytes()), ("b.ply", binary)] {
+        let path = dir.join(name);
+        fs::write(&path, bytes).unwrap();
+        assert_eq!(
+            read_points(&path).map_err(|e| e.to_string()),
+            Ok(want.clone()),
+            "{name}"
+        );
+    }
+    // Through the binary: a CRLF cloud trains.
+    let o = run_scene(
+        &dir,
+        "train t {\n  model: neural_sdf(layers: 2, width: 8, skips: []),\n  data: points(\"b.ply\"),\n  iterations: 1,\n}\n",
+    );
+    assert_outcome("CRLF PLY", &o, Expect::Ok);
+}

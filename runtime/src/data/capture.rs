@@ -339,6 +339,33 @@ pub fn detect(dir: &Path) -> Option<CaptureFormat> {
     }
 }
 
+/// The format of the capture at `path` (`spec.path` resolved): as given,
+/// or detected.
+pub fn format_of(spec: &CaptureSpec, path: &Path) -> io::Result<CaptureFormat> {
+    match spec.format {
+        CaptureFormat::Auto => detect(path).ok_or_else(|| {
+            invalid(
+                path,
+                "holds no transforms.json, COLMAP model (sparse/0/cameras.txt) or poses_bounds.npy",
+            )
+        }),
+        f => Ok(f),
+    }
+}
+
+/// A nerfstudio capture's transforms file: `path` itself when it is a
+/// `.json` file, else `path/transforms.json`.
+pub fn nerfstudio_file(path: &Path) -> PathBuf {
+    if path
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("json"))
+    {
+        path.to_path_buf()
+    } else {
+        path.join("transforms.json")
+    }
+}
+
 /// Reads the capture `spec` names (relative to `base`): its frames, split,
 /// scene frame and images.
 pub fn read(spec: &CaptureSpec, base: &Path) -> io::Result<CaptureViews> {
@@ -348,15 +375,7 @@ pub fn read(spec: &CaptureSpec, base: &Path) -> io::Result<CaptureViews> {
 /// [`read`], with what the job reads beyond colours (`needs`).
 pub fn read_for(spec: &CaptureSpec, base: &Path, needs: DataNeeds) -> io::Result<CaptureViews> {
     let path = base.join(&spec.path);
-    let format = match spec.format {
-        CaptureFormat::Auto => detect(&path).ok_or_else(|| {
-            invalid(
-                &path,
-                "holds no transforms.json, COLMAP model (sparse/0/cameras.txt) or poses_bounds.npy",
-            )
-        })?,
-        f => f,
-    };
+    let format = format_of(spec, &path)?;
     let normalize = Normalize {
         enabled: spec.normalize,
         orient: match spec.orient {
@@ -367,14 +386,7 @@ pub fn read_for(spec: &CaptureSpec, base: &Path, needs: DataNeeds) -> io::Result
     };
     let (capture, frame) = match format {
         CaptureFormat::Nerfstudio | CaptureFormat::Auto => {
-            let file = if path
-                .extension()
-                .is_some_and(|e| e.eq_ignore_ascii_case("json"))
-            {
-                path
-            } else {
-                path.join("transforms.json")
-            };
+            let file = nerfstudio_file(&path);
             let t = super::nerfstudio::read_transforms_scaled(&file, spec.downscale)?;
             (t.capture(spec.downscale, spec.test_every)?, None)
         }

@@ -32,16 +32,22 @@ use std::path::{Path, PathBuf};
 
 use sdfl_stdlib::camera::Camera;
 use sdfl_stdlib::lens::{Distortion, Intrinsics};
-use sdfl_stdlib::outputs::DATASET_JSON;
+use sdfl_stdlib::outputs::{llff_refusal, DATASET_JSON};
 use sdfl_stdlib::value::held_out;
 use serde_json::{json, Map, Value};
 
-use crate::output::{write_bytes, write_png, write_png_rgba};
+use crate::output::{with_path, write_bytes, write_png, write_png_rgba};
 use crate::output::{Written, WrittenKind};
 
 /// The key of the transforms files a [`DatasetWriter`] leaves while it
-/// writes.
+/// moves a finished set into place over an earlier one.
 pub(crate) const INCOMPLETE: &str = "sdfl_incomplete";
+
+/// The folder, inside the set's directory, where a [`DatasetWriter`] writes
+/// the new set until it is complete: an earlier set there stays whole and
+/// loadable until then. What a stopped run left in it is removed by the
+/// next writer of the set.
+pub const STAGING: &str = ".sdfl-partial";
 
 /// The distortion keys and values of `d`. Only the model's own keys:
 /// instant-ngp reads `p1`, `p2` into the slots of `k3`, `k4`, so a fisheye
@@ -127,8 +133,12 @@ struct FrameRecord {
 }
 
 /// Writes a data set: `r_<k>.png` per view as it is pushed, and on
-/// [`DatasetWriter::finish`] the transforms files, each atomically. From the
-/// first view until then every transforms file marks the set incomplete.
+/// [`DatasetWriter::finish`] the transforms files, each atomically, all into
+/// [`STAGING`]; only a complete set is moved into place (every refusal
+/// comes before), so a refused, failed or stopped rewrite leaves an
+/// earlier set as it was. While the files move, the transforms files mark
+/// the set incomplete (a run stopped then leaves no silent mix of two).
+/// Dropped unfinished, the staged files are removed.
 pub struct DatasetWriter {
     /// Relative to the output directory.
     dir: PathBuf,
@@ -142,6 +152,8 @@ pub struct DatasetWriter {
     alpha: bool,
     /// LLFF's layout too, with these depth bounds for every frame.
     llff_bounds: Option<[f64; 2]>,
+    /// Whether [`STAGING`] holds this writer's files.
+    staged: bool,
 }
 
 impl DatasetWriter {
@@ -167,6 +179,7 @@ impl DatasetWriter {
             held,
             alpha: true,
             llff_bounds: None,
+            staged: false,
         }
     }
 
@@ -255,44 +268,81 @@ impl DatasetWriter {
                 )));
             }
         }
+        // Refused at the first view that LLFF cannot hold, not after all.
+        if self.llff_bounds.is_some() {
+            let seen = self.frames.first().map(|f| (f.k, f.intrinsics));
+            if let Some(why) = llff_refusal(seen.into_iter().chain([(k, intrinsics)])) {
+                return Err(bad(format!(
+                    "{}: {why}: write this set without `llff_bounds`",
+                    self.dir.display()
+                )));
+            }
+        }
         let rgba: Vec<u8> = rgb
             .chunks_exact(3)
             .enumerate()
             .flat_map(|(i, c)| [c[0], c[1], c[2], alpha.map_or(255, |a| a[i])])
             .collect();
-        if self.frames.is_empty() {
-            // Until `finish`, the data set says it is being written: a run
-            // stopped half-way (or a rerun stopped over an older set) leaves
-            // a set that refuses to load in every reader, not a silent mix
-            // of two runs. (nerfstudio finds no `frames`; instant-ngp skips
-            // a file without them and then has no images.)
-            let marker = format!("{{\"{INCOMPLETE}\": true}}\n");
-            for name in DATASET_JSON {
-                write_bytes(&self.out_dir.join(self.dir.join(name)), marker.as_bytes())?;
-            }
-        }
-        let rel = self.dir.join(format!("r_{k}.png"));
-        // LLFF pairs `poses_bounds.npy`'s rows with `images/` sorted by
-        // name: zero-padded view numbers sort in view order.
-        let llff = self
-            .llff_bounds
-            .map(|_| self.dir.join(format!("images/{k:04}.png")));
-        for path in std::iter::once(&rel).chain(llff.as_ref()) {
+        self.stage()?;
+        let staging = self.staging();
+        for path in self.view_files(k) {
+            let path = staging.join(path);
             if self.alpha {
-                write_png_rgba(&self.out_dir.join(path), w, h, &rgba)?;
+                write_png_rgba(&path, w, h, &rgba)?;
             } else {
-                write_png(&self.out_dir.join(path), w, h, rgb)?;
+                write_png(&path, w, h, rgb)?;
             }
         }
         self.frames.push(FrameRecord { k, c2w, intrinsics });
         Ok(Written {
-            path: rel,
+            path: self.dir.join(format!("r_{k}.png")),
             kind: WrittenKind::Dataset,
             width: w,
             height: h,
             frames: 1,
             mesh: None,
         })
+    }
+
+    /// The set's directory under the output directory.
+    fn set_dir(&self) -> PathBuf {
+        self.out_dir.join(&self.dir)
+    }
+
+    /// Where the new set is written until it is complete.
+    fn staging(&self) -> PathBuf {
+        self.set_dir().join(STAGING)
+    }
+
+    /// View `k`'s images, relative to the set: `r_<k>.png`, and for LLFF
+    /// `images/<kkkk>.png` (LLFF pairs `poses_bounds.npy`'s rows with
+    /// `images/` sorted by name: zero-padded numbers sort in view order).
+    fn view_files(&self, k: usize) -> Vec<PathBuf> {
+        let mut files = vec![PathBuf::from(format!("r_{k}.png"))];
+        if self.llff_bounds.is_some() {
+            files.push(PathBuf::from(format!("images/{k:04}.png")));
+        }
+        files
+    }
+
+    /// Before this writer's first file: an empty staging folder, after
+    /// what a stopped run left there. The way to it is checked first
+    /// (no links), so nothing outside the set is ever removed.
+    fn stage(&mut self) -> io::Result<()> {
+        if self.staged {
+            return Ok(());
+        }
+        crate::output::ensure_dir(&self.set_dir())?;
+        let staging = self.staging();
+        match std::fs::remove_dir_all(&staging) {
+            Err(e) if e.kind() != io::ErrorKind::NotFound => {
+                // A file or link there: removed as such (links not followed).
+                std::fs::remove_file(&staging).map_err(|_| with_path(&staging, e))?;
+            }
+            _ => {}
+        }
+        self.staged = true;
+        Ok(())
     }
 
     /// The four transforms files' names and contents, in the order they
@@ -399,21 +449,63 @@ impl DatasetWriter {
         docs
     }
 
-    /// Writes the transforms files for the views pushed: the splits first,
-    /// `transforms.json` last.
-    pub fn finish(self) -> io::Result<Written> {
+    /// Writes the transforms files for the views pushed, then moves the
+    /// complete set into place: the images, `poses_bounds.npy`, the splits,
+    /// `transforms.json` last. Everything that can refuse the set does so
+    /// before the first move.
+    pub fn finish(mut self) -> io::Result<Written> {
         let (w, h) = self.size;
-        if let Some(bounds) = self.llff_bounds {
-            let bytes = self.poses_bounds(bounds)?;
-            write_bytes(
-                &self.out_dir.join(self.dir.join("poses_bounds.npy")),
-                &bytes,
-            )?;
+        let poses_bounds = match self.llff_bounds {
+            Some(bounds) => Some(self.poses_bounds(bounds)?),
+            None => None,
+        };
+        let docs = self
+            .documents()
+            .into_iter()
+            .map(|(name, doc)| {
+                Ok((
+                    name,
+                    serde_json::to_string_pretty(&doc).map_err(io::Error::other)?,
+                ))
+            })
+            .collect::<io::Result<Vec<_>>>()?;
+        self.stage()?;
+        let staging = self.staging();
+        let mut moves: Vec<PathBuf> = self
+            .frames
+            .iter()
+            .flat_map(|f| self.view_files(f.k))
+            .collect();
+        if let Some(bytes) = &poses_bounds {
+            write_bytes(&staging.join("poses_bounds.npy"), bytes)?;
+            moves.push("poses_bounds.npy".into());
         }
-        for (name, doc) in self.documents() {
-            let text = serde_json::to_string_pretty(&doc).map_err(io::Error::other)?;
-            write_bytes(&self.out_dir.join(self.dir.join(name)), text.as_bytes())?;
+        for (name, text) in &docs {
+            write_bytes(&staging.join(name), text.as_bytes())?;
+            moves.push(name.into());
         }
+        // An earlier set's transforms files say it is being replaced until
+        // the last move: a stop in between leaves a set that refuses to
+        // load in every reader (nerfstudio finds no `frames`; instant-ngp
+        // skips a file without them), not a silent mix of two runs.
+        let set = self.set_dir();
+        let marker = format!("{{\"{INCOMPLETE}\": true}}\n");
+        for name in DATASET_JSON {
+            if std::fs::symlink_metadata(set.join(name)).is_ok() {
+                write_bytes(&set.join(name), marker.as_bytes())?;
+            }
+        }
+        if self.llff_bounds.is_some() {
+            crate::output::ensure_dir(&set.join("images"))?;
+        }
+        for rel in &moves {
+            let to = set.join(rel);
+            std::fs::rename(staging.join(rel), &to).map_err(|e| with_path(&to, e))?;
+        }
+        self.staged = false;
+        // Only emptied folders are left; a failure to remove them is no
+        // failure of the set.
+        let _ = std::fs::remove_dir_all(&staging);
         Ok(Written {
             path: self.dir.join(DATASET_JSON[3]),
             kind: WrittenKind::Dataset,
@@ -425,6 +517,16 @@ impl DatasetWriter {
     }
 }
 
+impl Drop for DatasetWriter {
+    fn drop(&mut self) {
+        // Unfinished (refused, or its job failed): the new set goes, an
+        // earlier one stays as it was.
+        if self.staged {
+            let _ = std::fs::remove_dir_all(self.staging());
+        }
+    }
+}
+
 impl DatasetWriter {
     /// `poses_bounds.npy`: per view in order, the OpenGL pose's rotation
     /// columns in LLFF's axes (down, right, back), its position and the
@@ -433,25 +535,23 @@ impl DatasetWriter {
     fn poses_bounds(&self, [near, far]: [f64; 2]) -> io::Result<Vec<u8>> {
         let mut frames: Vec<&FrameRecord> = self.frames.iter().collect();
         frames.sort_by_key(|f| f.k);
-        let refuse = |m: String| {
-            io::Error::new(
+        let Some(i) = frames.first().map(|f| f.intrinsics) else {
+            return Err(io::Error::new(
                 io::ErrorKind::InvalidInput,
-                format!("{}: LLFF's layout {m}", self.dir.display()),
-            )
+                format!(
+                    "{}: LLFF's layout needs at least one view",
+                    self.dir.display()
+                ),
+            ));
         };
-        let Some(first) = frames.first().map(|f| f.intrinsics) else {
-            return Err(refuse("needs at least one view".into()));
-        };
-        let i = first;
         let (w, h) = (i.width as f64, i.height as f64);
-        let close = |x: f64, y: f64| (x - y).abs() <= 1e-9 * x.abs().max(y.abs()).max(1.0);
-        let centred_pinhole = i.distortion == Distortion::None
-            && close(i.fx, i.fy)
-            && close(i.cx, w / 2.0)
-            && close(i.cy, h / 2.0);
-        if !centred_pinhole || frames.iter().any(|f| !same(&f.intrinsics, &i)) {
-            return Err(refuse(
-                "holds one centred pinhole camera (one focal length, no distortion) for every view: write this set without `llff_bounds`".into(),
+        if let Some(why) = llff_refusal(frames.iter().map(|f| (f.k, f.intrinsics))) {
+            return Err(io::Error::new(
+                io::ErrorKind::InvalidInput,
+                format!(
+                    "{}: {why}: write this set without `llff_bounds`",
+                    self.dir.display()
+                ),
             ));
         }
         let mut rows = Vec::with_capacity(frames.len() * 17);
@@ -482,26 +582,25 @@ mod writer_tests {
         )
     }
 
-    /// A data set whose writing stopped half-way refuses to load from any
-    /// of its transforms files (it may mix two runs' images); once finished
-    /// every split loads.
+    /// A data set is moved into place only once complete: half-written,
+    /// nothing of it is where readers look, and an earlier set there still
+    /// loads. Each file moved over an earlier set while it is replaced says
+    /// so, and such a file refuses to load. Once finished every split loads
+    /// and nothing is left beside it.
     #[test]
-    fn a_data_set_written_half_way_refuses_to_load() {
+    fn a_data_set_appears_only_once_complete() {
         let dir = tempfile::tempdir().unwrap();
         let out = dir.path();
+        let set = out.join("set");
         let rgb = vec![128u8; 4 * 4 * 3];
         let mut w = DatasetWriter::new(out, Path::new("set"), (4, 4), 3, 1, 0);
         w.push(0, &camera(), &rgb, None).unwrap();
-        for name in DATASET_JSON {
-            let err = read_transforms(&out.join("set").join(name))
-                .unwrap_err()
-                .to_string();
-            assert!(err.contains("stopped while it wrote"), "{name}: {err}");
+        for name in DATASET_JSON.iter().chain(&["r_0.png"]) {
+            assert!(!set.join(name).exists(), "{name}");
         }
         w.push(1, &camera(), &rgb, None).unwrap();
         w.push(2, &camera(), &rgb, None).unwrap();
         w.finish().unwrap();
-        let set = out.join("set");
         let count = |split| {
             read_transforms(&transforms_path(&set, split))
                 .unwrap()
@@ -516,6 +615,21 @@ mod writer_tests {
                 .len(),
             3
         );
+        assert!(!set.join(STAGING).exists());
+        // A rewrite stopped half-way (its writer dropped) leaves it loading.
+        let mut w = DatasetWriter::new(out, Path::new("set"), (4, 4), 3, 1, 0);
+        w.push(0, &camera(), &rgb, None).unwrap();
+        assert!(set.join(STAGING).join("r_0.png").exists());
+        drop(w);
+        assert_eq!(count("train"), 2);
+        assert!(!set.join(STAGING).exists());
+        // What a stop during the moves leaves refuses to load.
+        let marker = format!("{{\"{INCOMPLETE}\": true}}");
+        std::fs::write(set.join("transforms.json"), marker).unwrap();
+        let err = read_transforms(&set.join("transforms.json"))
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("stopped while it wrote"), "{err}");
     }
 
     fn doc<'a>(docs: &'a [(&str, Value)], name: &str) -> &'a Value {

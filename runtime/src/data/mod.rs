@@ -49,6 +49,46 @@ pub fn argument_span(e: &io::Error) -> Option<Span> {
         .map(|a| a.span)
 }
 
+/// Farthest a data file may put a camera from its origin, on any axis and
+/// in its own units: as far as a number a program may write, so that the
+/// scene frame, and exports mapped back into the data's frame, stay finite.
+pub const MAX_POSITION: f64 = sdfl_stdlib::precision::F32_SAFE.1;
+
+/// Checks a position read from a data file (`what`: "camera position",
+/// "translation") against [`MAX_POSITION`]: one check for every reader
+/// (nerfstudio and NeRF-synthetic, COLMAP, LLFF).
+pub fn check_position(what: &str, p: glam::DVec3) -> Result<(), String> {
+    if p.is_finite() && p.abs().max_element() <= MAX_POSITION {
+        return Ok(());
+    }
+    Err(format!(
+        "the {what} [{}, {}, {}] is out of range (at most {} from the origin on each axis)",
+        sdfl_lang::fmt_num(p.x),
+        sdfl_lang::fmt_num(p.y),
+        sdfl_lang::fmt_num(p.z),
+        sdfl_lang::fmt_num(MAX_POSITION)
+    ))
+}
+
+/// Checks that `r` is a rotation (orthonormal within 1e-3, not mirrored):
+/// a scaled, sheared or mirrored pose is no camera, and a huge entry would
+/// overflow once normalised.
+pub fn check_rotation(r: glam::DMat3) -> Result<(), String> {
+    let e = r.transpose() * r - glam::DMat3::IDENTITY;
+    if e.to_cols_array().iter().all(|x| x.abs() <= 1e-3) && r.determinant() > 0.0 {
+        return Ok(());
+    }
+    Err("the rotation is not orthonormal (a scaled, sheared or mirrored pose)".into())
+}
+
+/// Checks a rigid map given as rows (the first three rows of a 4 × 4 or a
+/// 3 × 4 matrix): its rotation, and its translation (`what`) in range.
+pub fn check_rigid(what: &str, rows: &[[f64; 4]; 3]) -> Result<(), String> {
+    let col = |c: usize| glam::DVec3::new(rows[0][c], rows[1][c], rows[2][c]);
+    check_rotation(glam::DMat3::from_cols(col(0), col(1), col(2)))?;
+    check_position(what, col(3))
+}
+
 /// One training view: a camera and the image it sees.
 #[derive(Debug, Clone)]
 pub struct TrainView {
@@ -151,4 +191,293 @@ pub fn no_coverage(path: &std::path::Path) -> io::Error {
         help: "give RGBA PNGs whose alpha is the object's coverage (as Blender's NeRF-synthetic sets and sdfl's `dataset(...)` are), or leave `silhouette()` out",
     }
     .into_io()
+}
+
+/// Bytes a view read from files holds from its reading to the end of
+/// training, per pixel: its colours as f32 RGB.
+pub const BYTES_PER_PIXEL: f64 = 12.0;
+
+/// Bytes a view of `pixels` holds once read: its colours
+/// ([`BYTES_PER_PIXEL`]) and a byte a pixel of coverage and of mask where
+/// it keeps them. The one count of the budget checked once data are read
+/// and of `sdfl plan`'s estimate from image headers.
+pub fn view_bytes(pixels: f64, coverage: bool, mask: bool) -> f64 {
+    pixels * (BYTES_PER_PIXEL + f64::from(u8::from(coverage)) + f64::from(u8::from(mask)))
+}
+
+/// [`view_bytes`] of views read.
+pub fn views_bytes<'a>(views: impl IntoIterator<Item = &'a TrainView>) -> f64 {
+    views
+        .into_iter()
+        .map(|v| {
+            let pixels = v.image.width as f64 * v.image.height as f64;
+            view_bytes(pixels, v.coverage.is_some(), v.mask.is_some())
+        })
+        .sum()
+}
+
+/// Bytes beyond the views already read while one image of `pixels` from a
+/// file of `file_bytes` is decoded (images are read one at a time): the
+/// file's bytes, the decoder's pixels (up to 8 a pixel, 16-bit RGBA), its
+/// f32 RGBA copy and the list made of it (16 each), about 3× the f32 RGB
+/// the view keeps.
+pub fn decode_bytes(pixels: f64, file_bytes: f64) -> f64 {
+    file_bytes + 40.0 * pixels
+}
+
+/// What a data set read from files adds to its statement's budget: the
+/// held-out views' scoring and the views' bytes. Checked once the data are
+/// read ([`view_bytes`] of what was read), estimated by `sdfl plan` (from
+/// image headers), with the same numbers.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct OnceRead {
+    /// The statement's evaluations with the held-out views' scoring.
+    pub evaluations: f64,
+    /// Of those, the held-out views' scoring.
+    pub held_out_evaluations: f64,
+    /// The statement's peak memory with the views held.
+    pub memory: f64,
+}
+
+impl OnceRead {
+    /// The budget of `job` (at `size` when `--size` overrides its
+    /// images) with `test_views` held-out views, the largest of
+    /// `largest_test` pixels, and views holding `held` bytes.
+    pub fn of(
+        job: &sdfl_stdlib::value::TrainJob,
+        size: Option<(u32, u32)>,
+        test_views: usize,
+        largest_test: f64,
+        held: f64,
+    ) -> OnceRead {
+        use sdfl_stdlib::work::{held_out_cost, train_work};
+        let held_out = held_out_cost(job, test_views, largest_test);
+        let work = train_work(job, size);
+        OnceRead {
+            evaluations: work.evaluations + held_out.evaluations,
+            held_out_evaluations: held_out.evaluations,
+            memory: work.memory + held + held_out.memory,
+        }
+    }
+}
+
+/// Most image headers `sdfl plan` reads of one data set: a sample spread
+/// over a larger one, the rest taken as their mean, so that a set of
+/// 10 000 images plans in milliseconds.
+pub const MAX_HEADERS: usize = 64;
+
+/// A data set read from files, estimated from its image headers before it
+/// is read (`sdfl plan`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Estimate {
+    /// Views read, held-out ones included.
+    pub views: usize,
+    /// Of those, held out.
+    pub test_views: usize,
+    /// Headers read (all views' up to [`MAX_HEADERS`]).
+    pub headers: usize,
+    /// The image size, where every header read gives the same.
+    pub size: Option<(u32, u32)>,
+    /// Every view's pixels (a view not read as the mean of those read).
+    pub pixels: f64,
+    /// Bytes the views hold through training ([`view_bytes`]).
+    pub held: f64,
+    /// Most bytes while they are read: every view held, and the largest
+    /// image read being decoded ([`decode_bytes`]).
+    pub reading: f64,
+    /// The statement's budget with these views.
+    pub budget: OnceRead,
+}
+
+/// One view a data set will read: its image, mask, and whether it is held
+/// out.
+struct Planned {
+    image: std::path::PathBuf,
+    mask: bool,
+    held_out: bool,
+}
+
+/// The views `job`'s data set reads from files (paths relative to
+/// `base`), without reading an image; `None` where its data are not
+/// images read from files.
+fn planned(
+    job: &sdfl_stdlib::value::TrainJob,
+    base: &std::path::Path,
+) -> io::Result<Option<Vec<Planned>>> {
+    use sdfl_stdlib::value::{CaptureFormat, Dataset};
+    let view = |image: std::path::PathBuf, held_out: bool| Planned {
+        image,
+        mask: false,
+        held_out,
+    };
+    Ok(Some(match &*job.data {
+        Dataset::Rendered { .. } | Dataset::Traced { .. } | Dataset::Points { .. } => {
+            return Ok(None)
+        }
+        Dataset::Files { images, .. } => images.iter().map(|p| view(base.join(p), false)).collect(),
+        Dataset::NerfSynthetic {
+            path,
+            split,
+            test_split,
+            ..
+        } => {
+            use nerf_synthetic::{read_transforms, transforms_path};
+            let dir = base.join(path);
+            let train = transforms_path(&dir, split);
+            let mut files = vec![(train.clone(), false)];
+            if let Some(t) = test_split.as_deref() {
+                let test = transforms_path(&dir, t);
+                if test != train {
+                    files.push((test, true));
+                }
+            }
+            let mut views = Vec::new();
+            for (file, held_out) in files {
+                let t = read_transforms(&file)?;
+                views.extend(t.frames.into_iter().map(|f| view(f.image, held_out)));
+            }
+            views
+        }
+        Dataset::Capture(spec) => {
+            let path = base.join(&spec.path);
+            let folder = match spec.downscale {
+                0 | 1 => "images".to_string(),
+                d => format!("images_{d}"),
+            };
+            let (images, test): (Vec<std::path::PathBuf>, Vec<usize>) =
+                match capture::format_of(spec, &path)? {
+                    CaptureFormat::Nerfstudio | CaptureFormat::Auto => {
+                        let t = nerfstudio::read_transforms_scaled(
+                            &capture::nerfstudio_file(&path),
+                            spec.downscale,
+                        )?;
+                        return Ok(Some(
+                            t.selection(spec.test_every)?
+                                .into_iter()
+                                .map(|(k, held_out)| Planned {
+                                    image: t.frames[k].image.clone(),
+                                    mask: t.frames[k].mask.is_some(),
+                                    held_out,
+                                })
+                                .collect(),
+                        ));
+                    }
+                    CaptureFormat::Colmap => {
+                        let model = colmap::model_dir(&path).ok_or_else(|| {
+                            capture::invalid(
+                                &path,
+                                "holds no COLMAP text model (sparse/0/cameras.txt and images.txt)",
+                            )
+                        })?;
+                        let mut names: Vec<String> =
+                            colmap::read_images(&model.join("images.txt"))?
+                                .into_iter()
+                                .map(|i| i.name)
+                                .collect();
+                        names.sort();
+                        let dir = std::path::Path::new(&folder);
+                        let images = names
+                            .iter()
+                            .map(|n| {
+                                nerfstudio::inside(&path, &dir.join(n), n)
+                                    .map_err(|e| capture::invalid(&path, e))
+                            })
+                            .collect::<io::Result<Vec<_>>>()?;
+                        let test = capture::every_nth(images.len(), spec.test_every);
+                        (images, test)
+                    }
+                    CaptureFormat::Llff => {
+                        let images = image_files(&path.join(&folder))?;
+                        let test = capture::every_nth(images.len(), spec.test_every);
+                        (images, test)
+                    }
+                };
+            images
+                .into_iter()
+                .enumerate()
+                .map(|(k, image)| view(image, test.binary_search(&k).is_ok()))
+                .collect()
+        }
+    }))
+}
+
+/// The PNG and JPEG files of `folder`, sorted by name, as LLFF's reader
+/// takes them; at most `MAX_VIEWS`.
+fn image_files(folder: &std::path::Path) -> io::Result<Vec<std::path::PathBuf>> {
+    let mut files = Vec::new();
+    for e in std::fs::read_dir(folder).map_err(|e| capture::invalid(folder, e))? {
+        let p = e.map_err(|e| capture::invalid(folder, e))?.path();
+        let ext = p
+            .extension()
+            .and_then(|x| x.to_str())
+            .map(str::to_ascii_lowercase);
+        if matches!(ext.as_deref(), Some("png" | "jpg" | "jpeg")) {
+            files.push(p);
+        }
+        if files.len() > sdfl_stdlib::builtins::MAX_VIEWS {
+            return Err(capture::invalid(
+                folder,
+                format!("more than {} images", sdfl_stdlib::builtins::MAX_VIEWS),
+            ));
+        }
+    }
+    files.sort();
+    Ok(files)
+}
+
+/// Estimates `job`'s data set read from files (paths relative to `base`)
+/// from the headers of its images, at most [`MAX_HEADERS`] of them spread
+/// over the set; `None` where its data are not images read from files.
+/// Errors are those reading its files (a missing image, a bad header).
+pub fn estimate(
+    job: &sdfl_stdlib::value::TrainJob,
+    base: &std::path::Path,
+) -> io::Result<Option<Estimate>> {
+    let Some(views) = planned(job, base)? else {
+        return Ok(None);
+    };
+    let n = views.len();
+    let sample: Vec<usize> = if n <= MAX_HEADERS {
+        (0..n).collect()
+    } else {
+        (0..MAX_HEADERS).map(|i| i * n / MAX_HEADERS).collect()
+    };
+    let mut pixels: Vec<Option<f64>> = vec![None; n];
+    let (mut size, mut same) = (None, true);
+    let mut largest = (0.0, 0.0);
+    for &k in &sample {
+        let image = &views[k].image;
+        let (w, h) = image::image_dimensions(image)?;
+        let px = w as f64 * h as f64;
+        let file = std::fs::metadata(image).map_or(0.0, |m| m.len() as f64);
+        if decode_bytes(px, file) > decode_bytes(largest.0, largest.1) {
+            largest = (px, file);
+        }
+        same &= size.is_none_or(|s| s == (w, h));
+        size = Some((w, h));
+        pixels[k] = Some(px);
+    }
+    let mean = sample.iter().filter_map(|&k| pixels[k]).sum::<f64>() / sample.len().max(1) as f64;
+    let coverage = DataNeeds::of(job).coverage;
+    let (mut all, mut held, mut test, mut largest_test) = (0.0, 0.0, 0, 0.0f64);
+    for (v, px) in views.iter().zip(&pixels) {
+        let px = px.unwrap_or(mean);
+        all += px;
+        // Held-out views are only scored: no coverage is kept for them.
+        held += view_bytes(px, coverage && !v.held_out, v.mask);
+        if v.held_out {
+            test += 1;
+            largest_test = largest_test.max(px);
+        }
+    }
+    Ok(Some(Estimate {
+        views: n,
+        test_views: test,
+        headers: sample.len(),
+        size: size.filter(|_| same),
+        pixels: all,
+        held,
+        reading: held + decode_bytes(largest.0, largest.1),
+        budget: OnceRead::of(job, None, test, largest_test, held),
+    }))
 }

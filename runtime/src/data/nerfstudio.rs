@@ -325,6 +325,11 @@ pub fn read_transforms_scaled(path: &Path, downscale: u32) -> io::Result<Transfo
                 pose[3]
             )));
         }
+        // Bounded here, before any normalisation: cameras at 1e300 would
+        // be scaled into the unit cube and train, and exports mapped back
+        // would not be finite.
+        super::check_rigid("camera position", &[pose[0], pose[1], pose[2]])
+            .map_err(|e| at(&format!("`transform_matrix`: {e}")))?;
         let lens = global.over(&Lens::read(f).map_err(|e| at(&e))?);
         if lens.fl_x.is_none() && lens.camera_angle_x.is_none() {
             return Err(at(
@@ -392,12 +397,8 @@ pub fn read_transforms_scaled(path: &Path, downscale: u32) -> io::Result<Transfo
                 )
             })?;
             let m = [m[0], m[1], m[2]];
-            if !rigid(&m) {
-                return Err(invalid(
-                    path,
-                    "`applied_transform` is not a rotation and a translation",
-                ));
-            }
+            super::check_rigid("translation", &m)
+                .map_err(|e| invalid(path, format!("`applied_transform`: {e}")))?;
             Some(m)
         }
     };
@@ -413,17 +414,6 @@ pub fn read_transforms_scaled(path: &Path, downscale: u32) -> io::Result<Transfo
 /// Reads and checks a transforms file (not its images).
 pub fn read_transforms(path: &Path) -> io::Result<Transforms> {
     read_transforms_scaled(path, 1)
-}
-
-/// Whether the 3×3 part of rows `m` is a rotation (within 1e-3).
-fn rigid(m: &[[f64; 4]; 3]) -> bool {
-    let r = glam::DMat3::from_cols_array_2d(&[
-        [m[0][0], m[1][0], m[2][0]],
-        [m[0][1], m[1][1], m[2][1]],
-        [m[0][2], m[1][2], m[2][2]],
-    ]);
-    let e = r.transpose() * r - glam::DMat3::IDENTITY;
-    e.to_cols_array().iter().all(|x| x.abs() < 1e-3) && r.determinant() > 0.0
 }
 
 impl Transforms {
@@ -518,10 +508,16 @@ impl Transforms {
 
     /// The indices of the frames named by split list `names`.
     fn named(&self, key: &str, names: &[PathBuf]) -> io::Result<Vec<usize>> {
+        // By a map: 10 000 names against 10 000 frames one by one is 1e8
+        // comparisons. The first frame of a path, as a search would find.
+        let mut index = std::collections::HashMap::with_capacity(self.frames.len());
+        for (k, f) in self.frames.iter().enumerate().rev() {
+            index.insert(&f.rel, k);
+        }
         names
             .iter()
             .map(|n| {
-                self.frames.iter().position(|f| &f.rel == n).ok_or_else(|| {
+                index.get(n).copied().ok_or_else(|| {
                     invalid(
                         &self.file,
                         format!("`{key}` names {}, which no frame has", n.display()),
@@ -531,32 +527,18 @@ impl Transforms {
             .collect()
     }
 
-    /// The frames as a capture: image sizes read from their headers,
-    /// intrinsics resolved and checked (errors name the frame), test views
+    /// The frames a capture keeps, in file-name order (nerfstudio sorts
+    /// frames by file name), each with whether it is held out: test views
     /// from `test_filenames` (else `val_filenames`) with the rest of
-    /// `train_filenames`, else every `test_every`-th frame in file-name
-    /// order (nerfstudio sorts frames by file name).
-    pub fn capture(&self, downscale: u32, test_every: usize) -> io::Result<Capture> {
+    /// `train_filenames` (frames in neither list dropped), else every
+    /// `test_every`-th frame. Reads no image.
+    pub fn selection(&self, test_every: usize) -> io::Result<Vec<(usize, bool)>> {
         let mut order: Vec<usize> = (0..self.frames.len()).collect();
         order.sort_by(|a, b| self.frames[*a].rel.cmp(&self.frames[*b].rel));
-        let mut frames = Vec::with_capacity(order.len());
-        for &k in &order {
-            let f = &self.frames[k];
-            let size = image_dimensions(&f.image)?;
-            let intrinsics = self
-                .intrinsics(k, size, downscale)
-                .map_err(|e| invalid(&self.file, format!("frame {k}: {e}")))?;
-            frames.push(CaptureFrame {
-                label: format!("frame {k}"),
-                image: f.image.clone(),
-                mask: f.mask.clone(),
-                c2w: f.pose,
-                intrinsics,
-            });
-        }
         let [train, val, test] = &self.splits;
         let any = train.is_some() || val.is_some() || test.is_some();
-        let (train_set, test_set) = if any {
+        // Per frame: in the train list, in the test list.
+        let lists = if any {
             let train = train.as_ref().ok_or_else(|| {
                 invalid(
                     &self.file,
@@ -569,53 +551,61 @@ impl Transforms {
                 (None, Some(v)) => self.named("val_filenames", v)?,
                 (None, None) => Vec::new(),
             };
-            (Some(train), test)
+            let mut is = vec![(false, false); self.frames.len()];
+            train.iter().for_each(|&k| is[k].0 = true);
+            test.iter().for_each(|&k| is[k].1 = true);
+            Some(is)
         } else {
-            (None, Vec::new())
+            None
         };
-        // Positions in sorted order.
-        let (mut kept, mut held) = (Vec::new(), Vec::new());
+        let mut chosen = Vec::with_capacity(order.len());
         for (pos, &k) in order.iter().enumerate() {
             // A frame in the train list trains, even when the test list
             // names it too (sdfl's `dataset` with nothing held out lists
             // every view in all three, for parsers that need the splits).
-            let is_train = match &train_set {
-                Some(t) => t.contains(&k),
-                None => !(test_every > 0 && pos % test_every == 0 && order.len() > 1),
+            let (is_train, is_test) = match &lists {
+                Some(is) => is[k],
+                None => {
+                    let held = test_every > 0 && pos % test_every == 0 && order.len() > 1;
+                    (!held, held)
+                }
             };
-            let is_test = !is_train
-                && match &train_set {
-                    Some(_) => test_set.contains(&k),
-                    None => true,
-                };
-            if is_test {
-                held.push(pos);
-            } else if is_train {
-                kept.push(pos);
+            if is_train || is_test {
+                chosen.push((k, !is_train));
             }
         }
-        // Frames in neither list are dropped.
-        let frames: Vec<CaptureFrame> = frames
-            .into_iter()
-            .enumerate()
-            .filter(|(pos, _)| kept.contains(pos) || held.contains(pos))
-            .map(|(_, f)| f)
-            .collect();
-        let mut test = Vec::new();
-        let mut next = 0;
-        for (pos, _) in order.iter().enumerate() {
-            if held.contains(&pos) {
-                test.push(next);
-            }
-            if held.contains(&pos) || kept.contains(&pos) {
-                next += 1;
-            }
-        }
-        if frames.len() == test.len() {
+        if chosen.iter().all(|(_, held)| *held) {
             return Err(invalid(
                 &self.file,
                 "no training frames (every frame is held out)",
             ));
+        }
+        Ok(chosen)
+    }
+
+    /// The frames as a capture ([`Transforms::selection`]): image sizes
+    /// read from their headers, intrinsics resolved and checked (errors
+    /// name the frame).
+    pub fn capture(&self, downscale: u32, test_every: usize) -> io::Result<Capture> {
+        let chosen = self.selection(test_every)?;
+        let mut frames = Vec::with_capacity(chosen.len());
+        let mut test = Vec::new();
+        for (pos, &(k, held)) in chosen.iter().enumerate() {
+            let f = &self.frames[k];
+            let size = image_dimensions(&f.image)?;
+            let intrinsics = self
+                .intrinsics(k, size, downscale)
+                .map_err(|e| invalid(&self.file, format!("frame {k}: {e}")))?;
+            frames.push(CaptureFrame {
+                label: format!("frame {k}"),
+                image: f.image.clone(),
+                mask: f.mask.clone(),
+                c2w: f.pose,
+                intrinsics,
+            });
+            if held {
+                test.push(pos);
+            }
         }
         Ok(Capture {
             source: self.file.clone(),

@@ -166,17 +166,31 @@ struct PlyElement {
     props: Vec<PlyProp>,
 }
 
+/// Where a PLY header's `end_header` line starts, and where the body
+/// starts: right after that line's newline, `\n` or `\r\n` (Windows tools
+/// write CRLF headers). Whole lines from the top, so the search stops at
+/// the header and never reads a binary body as text.
+fn header_end(bytes: &[u8]) -> Option<(usize, usize)> {
+    let mut start = 0;
+    while start < bytes.len() {
+        let nl = start + bytes[start..].iter().position(|&b| b == b'\n')?;
+        let line = &bytes[start..nl];
+        if line.trim_ascii_end() == b"end_header" {
+            return Some((start, nl + 1));
+        }
+        start = nl + 1;
+    }
+    None
+}
+
 /// PLY (ASCII or binary little-endian): the `x y z` properties of the
 /// `vertex` element. Every element is read in the header's order and those
 /// other than `vertex` (faces, edges, anything) are skipped, list
 /// properties by their counts, so nothing else is ever read as a vertex.
 fn parse_ply(bytes: &[u8]) -> Result<Vec<[f32; 3]>, String> {
-    let end = bytes
-        .windows(11)
-        .position(|w| w == b"end_header\n")
-        .ok_or("no `end_header` line: not a PLY file")?;
+    let (end, body_at) = header_end(bytes).ok_or("no `end_header` line: not a PLY file")?;
     let header = std::str::from_utf8(&bytes[..end]).map_err(|_| "the PLY header is not text")?;
-    let body = &bytes[end + 11..];
+    let body = &bytes[body_at..];
     let mut lines = header.lines();
     if lines.next().map(str::trim) != Some("ply") {
         return Err("not a PLY file".into());

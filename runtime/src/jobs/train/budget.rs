@@ -112,40 +112,37 @@ pub(super) fn held_out_views_present(job: &TrainJob, test_views: &[TrainView]) -
 /// What a data set read from files holds is known only once it is read (a
 /// NeRF-synthetic test split, its images' sizes): its held-out evaluation
 /// and its pixels join the statement's budget then, before any step runs.
+/// The numbers are those `sdfl plan` estimates from the images' headers
+/// ([`crate::data::OnceRead`], [`crate::data::view_bytes`]).
 pub(super) fn within_budget_once_read(
     job: &TrainJob,
     size: Option<(u32, u32)>,
     views: &[TrainView],
     test_views: &[TrainView],
 ) -> io::Result<()> {
-    use sdfl_stdlib::work::{held_out_cost, train_work, MAX_EVALUATIONS, MAX_MEMORY};
+    use sdfl_stdlib::work::{MAX_EVALUATIONS, MAX_MEMORY};
     if matches!(*job.data, Dataset::Rendered { .. } | Dataset::Traced { .. }) {
         // Rendered by sdfl: counted when the file was evaluated.
         return Ok(());
     }
     let pixels = |v: &TrainView| v.image.width as f64 * v.image.height as f64;
     let largest = test_views.iter().map(pixels).fold(0.0, f64::max);
-    let held_out = held_out_cost(job, test_views.len(), largest);
-    let work = train_work(job, size);
-    let total = work.evaluations + held_out.evaluations;
-    if total > MAX_EVALUATIONS {
+    let data = crate::data::views_bytes(views.iter().chain(test_views));
+    let budget = crate::data::OnceRead::of(job, size, test_views.len(), largest, data);
+    if budget.evaluations > MAX_EVALUATIONS {
         return Err(invalid(format!(
-            "training `{}` would need {total:.1e} SDF evaluations (at most {MAX_EVALUATIONS:.0e}), {:.1e} of them scoring its {} held-out views: score less often (`eval_every`), with fewer views or samples",
+            "training `{}` would need {:.1e} SDF evaluations (at most {MAX_EVALUATIONS:.0e}), {:.1e} of them scoring its {} held-out views: score less often (`eval_every`), with fewer views or samples",
             job.name,
-            held_out.evaluations,
+            budget.evaluations,
+            budget.held_out_evaluations,
             test_views.len()
         )));
     }
-    // Pixels as f32 colours, as read, and a coverage byte each where kept.
-    let coverage = |v: &TrainView| v.coverage.as_ref().map_or(0.0, |c| c.len() as f64);
-    let data: f64 = views.iter().chain(test_views).map(pixels).sum::<f64>() * 12.0
-        + views.iter().chain(test_views).map(coverage).sum::<f64>();
-    let memory = work.memory + data + held_out.memory;
-    if memory > MAX_MEMORY {
+    if budget.memory > MAX_MEMORY {
         return Err(invalid(format!(
             "training `{}` would hold about {:.1} GB ({:.1} GB of it the data set's {} views): use fewer or smaller views",
             job.name,
-            memory / 1e9,
+            budget.memory / 1e9,
             data / 1e9,
             views.len() + test_views.len()
         )));
