@@ -106,15 +106,17 @@ fn expand(paths: &[PathBuf], failed: &mut bool) -> Vec<PathBuf> {
 /// [`crate::MAX_SOURCE_BYTES`], in UTF-8 (a lossy conversion would be
 /// written back).
 fn read_text(path: &Path) -> Result<String, String> {
-    let file = sdfl_runtime::data::image::open_regular(path).map_err(|e| e.to_string())?;
-    let mut bytes = Vec::new();
-    file.take(crate::MAX_SOURCE_BYTES + 1)
-        .read_to_end(&mut bytes)
+    // The reader's errors name the path.
+    let bytes = sdfl_stdlib::files::read_capped(path, crate::MAX_SOURCE_BYTES)
         .map_err(|e| e.to_string())?;
-    if bytes.len() as u64 > crate::MAX_SOURCE_BYTES {
-        return Err(format!("larger than {} bytes", crate::MAX_SOURCE_BYTES));
-    }
-    String::from_utf8(bytes).map_err(|e| format!("not UTF-8 text ({e})"))
+    sdfl_stdlib::files::utf8(bytes).map_err(|e| {
+        format!(
+            "{}: not UTF-8 text (byte {}, 0x{:02x})",
+            path.display(),
+            e.at,
+            e.byte
+        )
+    })
 }
 
 /// The formatted text, or the diagnostics printed.
@@ -139,10 +141,7 @@ fn format_file(path: &Path, check: bool) -> Outcome {
     let text = match read_text(path) {
         Ok(t) => t,
         Err(e) => {
-            say!(
-                "error[sdfl::io]: cannot read {}: {e}\n  help: give the path of a .sdfl file",
-                path.display()
-            );
+            say!("error[sdfl::io]: cannot read {e}\n  help: give the path of a .sdfl file");
             return Outcome::Failed;
         }
     };

@@ -22,7 +22,6 @@ mod sweep;
 mod view;
 mod watch;
 
-use plan::plan_text;
 use progress::Progress;
 use sdfl_runtime::interrupt::{self, Stopped};
 use sdfl_runtime::output::OutDir;
@@ -330,7 +329,7 @@ fn main() -> ExitCode {
             let Ok(program) = read(&file).and_then(|s| load(&s)) else {
                 return ExitCode::FAILURE;
             };
-            Stdout::new().print(&plan_text(&program));
+            Stdout::new().print(&plan::plan_text_in(&program, &base_dir(Some(&file))));
             ExitCode::SUCCESS
         }
         Command::Sweep {

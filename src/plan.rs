@@ -181,11 +181,6 @@ fn export_lines(o: &mut String, outputs: &[sdfl_stdlib::Output], samples: usize,
     }
 }
 
-/// [`plan_text_in`] with data paths relative to the current directory.
-pub(crate) fn plan_text(program: &sdfl_stdlib::Program) -> String {
-    plan_text_in(program, std::path::Path::new(""))
-}
-
 /// The plan of `program`, whose data paths are relative to `base` (the
 /// scene file's directory): data sets read from files are sized from
 /// their images' headers.

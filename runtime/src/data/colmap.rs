@@ -318,9 +318,7 @@ pub fn read_images(path: &Path) -> io::Result<Vec<ColmapImage>> {
             )));
         }
         let t = DVec3::new(v[4], v[5], v[6]);
-        if t.abs().max_element() > 1e18 {
-            return Err(at("the translation is out of range".into()));
-        }
+        super::check_position("translation", t).map_err(&at)?;
         let camera: u64 = f[8]
             .parse()
             .map_err(|_| at("CAMERA_ID is not a whole number".into()))?;

@@ -66,15 +66,8 @@ pub fn parse(shape: &[usize], v: &[f64], at: &Path) -> io::Result<Vec<LlffPose>>
             // LLFF (down, right, back) → OpenGL (right, up, back).
             let (right, up, back, eye) = (col(1), -col(0), col(2), col(3));
             let rot = DMat3::from_cols(right, up, back);
-            let e = rot.transpose() * rot - DMat3::IDENTITY;
-            if e.to_cols_array().iter().any(|x| x.abs() > 1e-3) || rot.determinant() < 0.0 {
-                return Err(bad(
-                    "the rotation is not orthonormal (a scaled, sheared or mirrored pose)".into(),
-                ));
-            }
-            if eye.abs().max_element() > 1e18 {
-                return Err(bad("the camera position is out of range".into()));
-            }
+            super::check_rotation(rot).map_err(&bad)?;
+            super::check_position("camera position", eye).map_err(&bad)?;
             let hwf = [m(0, 4), m(1, 4), m(2, 4)];
             let max = super::image::MAX_SIDE as f64;
             if !(hwf[0] >= 1.0 && hwf[0] <= max && hwf[1] >= 1.0 && hwf[1] <= max) {
