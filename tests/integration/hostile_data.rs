@@ -30,6 +30,12 @@ fn sdfl_limited(dir: &Path, args: &[&str]) -> Outcome {
         .arg(env!("CARGO_BIN_EXE_sdfl"))
         .args(args)
         .current_dir(dir)
+        // Address space, not memory, is limited: each thread's stack and
+        // each malloc arena (64 MiB reserved apiece, up to 8 a core) count,
+        // so the machine's core count would decide the case. Two threads
+        // and two arenas, as on the 2-core machine the limit was set on.
+        .env("RAYON_NUM_THREADS", "2")
+        .env("MALLOC_ARENA_MAX", "2")
         .stdin(Stdio::null())
         .output()
         .expect("prlimit starts");
