@@ -31,8 +31,10 @@ pub struct Curves {
 
 /// The run's curves; `None` while it has no metrics file.
 pub fn read(path: &Path) -> Option<Curves> {
-    // A FIFO or device planted there is refused, never waited on.
-    let file = sdfl_stdlib::files::open_regular(path).ok()?;
+    // A FIFO or device planted there is refused, never waited on; the
+    // path is the one resolved inside `--out`, so a link swapped in since
+    // is refused too.
+    let file = sdfl_stdlib::files::open_regular_unlinked(path).ok()?;
     let mut text = String::new();
     file.take(MAX_BYTES).read_to_string(&mut text).ok()?;
     Some(parse(&text))

@@ -39,4 +39,5 @@ mod train_log;
 mod unbounded;
 mod view_api;
 mod view_browser;
+mod view_load;
 mod view_watch;

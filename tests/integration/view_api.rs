@@ -508,3 +508,47 @@ fn hostile_field_requests_are_refused() {
     let (status, png) = server.get(&format!("{at}&size=8x8"));
     assert_eq!(status, 200, "{}", String::from_utf8_lossy(&png));
 }
+
+#[cfg(unix)]
+#[test]
+fn files_linked_from_out_to_elsewhere_are_not_served() {
+    let dir = temp("links");
+    let (file, out) = (dir.join("scene.sdfl"), dir.join("out"));
+    save(&file, &scene(0.8));
+    std::fs::create_dir_all(&out).unwrap();
+    // Outside `--out`: what a planted link must not reveal.
+    let secret = image::RgbImage::from_pixel(5, 4, image::Rgb([1, 2, 3]));
+    secret.save(dir.join("secret.png")).unwrap();
+    std::fs::write(
+        dir.join("secret.csv"),
+        "step,seconds,loss,lr,psnr,ssim\n1,0.1,0.4242,0.01,,\n",
+    )
+    .unwrap();
+    let link = |to: &Path, name: &str| {
+        let at = out.join(name);
+        let _ = std::fs::remove_file(&at);
+        std::os::unix::fs::symlink(to, &at).unwrap();
+    };
+    link(&dir.join("secret.png"), "fit.heldout.png");
+    link(Path::new("../secret.csv"), "fit.metrics.csv");
+    let server = Server::start(&file, &out);
+    let (status, body) = server.get("/api/heldout?train=fit");
+    assert!(
+        status == 403 || status == 404,
+        "{status}: a file outside --out was served"
+    );
+    assert!(image::load_from_memory(&body).is_err());
+    let t = server.json("/api/train");
+    assert_eq!(t["trains"][0]["heldout"], false, "{t}");
+    assert!(t["trains"][0]["metrics"].is_null(), "{t}");
+    assert!(!t.to_string().contains("0.4242"), "{t}");
+
+    // A link that stays inside `--out` is followed.
+    let inside = image::RgbImage::from_pixel(3, 2, image::Rgb([9, 8, 7]));
+    inside.save(out.join("kept.png")).unwrap();
+    link(&out.join("kept.png"), "fit.heldout.png");
+    let (status, png) = server.get("/api/heldout?train=fit");
+    assert_eq!(status, 200, "{}", String::from_utf8_lossy(&png));
+    assert_eq!(image::load_from_memory(&png).unwrap().to_rgb8(), inside);
+    assert_eq!(server.json("/api/train")["trains"][0]["heldout"], true);
+}
