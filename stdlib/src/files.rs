@@ -11,60 +11,6 @@ use std::path::Path;
 use sdfl_lang::diag::{codes, Diag};
 use sdfl_lang::Span;
 
-/// `O_NONBLOCK` where it is known: opening a FIFO with it returns at once
-/// (the handle's metadata then refuses it) instead of waiting for a writer.
-/// It changes nothing for reads of a regular file. Elsewhere 0: the check
-/// before opening still refuses anything that is no regular file then.
-#[cfg(all(
-    any(target_os = "linux", target_os = "android"),
-    any(
-        target_arch = "x86",
-        target_arch = "x86_64",
-        target_arch = "arm",
-        target_arch = "aarch64",
-        target_arch = "riscv32",
-        target_arch = "riscv64",
-        target_arch = "powerpc",
-        target_arch = "powerpc64",
-        target_arch = "s390x",
-        target_arch = "loongarch64"
-    )
-))]
-const NONBLOCK: i32 = 0o4000;
-#[cfg(any(
-    target_os = "macos",
-    target_os = "ios",
-    target_os = "freebsd",
-    target_os = "netbsd",
-    target_os = "openbsd",
-    target_os = "dragonfly"
-))]
-const NONBLOCK: i32 = 0x4;
-#[cfg(not(any(
-    all(
-        any(target_os = "linux", target_os = "android"),
-        any(
-            target_arch = "x86",
-            target_arch = "x86_64",
-            target_arch = "arm",
-            target_arch = "aarch64",
-            target_arch = "riscv32",
-            target_arch = "riscv64",
-            target_arch = "powerpc",
-            target_arch = "powerpc64",
-            target_arch = "s390x",
-            target_arch = "loongarch64"
-        )
-    ),
-    target_os = "macos",
-    target_os = "ios",
-    target_os = "freebsd",
-    target_os = "netbsd",
-    target_os = "openbsd",
-    target_os = "dragonfly"
-)))]
-const NONBLOCK: i32 = 0;
-
 /// An error that names `path`.
 fn named(path: &Path, e: io::Error) -> io::Error {
     io::Error::new(e.kind(), format!("{}: {e}", path.display()))
@@ -82,13 +28,15 @@ fn not_regular(path: &Path) -> io::Error {
 fn open_nonblocking(path: &Path) -> io::Result<File> {
     let mut o = std::fs::OpenOptions::new();
     o.read(true);
+    // Opening a FIFO with O_NONBLOCK returns at once (the handle's
+    // metadata then refuses it) instead of waiting for a writer; it changes
+    // nothing for reads of a regular file. Elsewhere the check before
+    // opening still refuses anything that is no regular file then.
     #[cfg(unix)]
     {
         use std::os::unix::fs::OpenOptionsExt;
-        o.custom_flags(NONBLOCK);
+        o.custom_flags(libc::O_NONBLOCK);
     }
-    #[cfg(not(unix))]
-    let _ = NONBLOCK;
     o.open(path).map_err(|e| named(path, e))
 }
 
