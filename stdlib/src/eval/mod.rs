@@ -939,20 +939,37 @@ impl<'e> Evaluator<'e> {
         span: Span,
     ) -> Value {
         let sig = &builtin.sig;
+        let mut replaced: Vec<&'static str> = Vec::new();
         let mut next = Some(first);
         while let Some(d) = next.take() {
             let within = |s: &Span| s.start <= d.span.start && d.span.end <= s.end;
-            let culprit = sig.params.iter().find(|p| {
-                p.default.is_some()
-                    && !bound.defaulted.contains(&p.name)
+            let written = |p: &&sdfl_lang::types::Param| {
+                !bound.defaulted.contains(&p.name)
                     && bound.named.get(p.name).is_some_and(|(_, s)| within(s))
-            });
+            };
+            // A later error stands only where it points into an argument
+            // as written and names no argument set to its default here:
+            // else it may be the default's own conflict with the rest
+            // (`hashgrid(min_res: 0, max_res: 8)` is not "max below min").
+            let genuine = replaced.is_empty()
+                || (sig.params.iter().any(|p| written(&p))
+                    && !replaced
+                        .iter()
+                        .any(|r| d.message.contains(&format!("`{r}`"))));
+            if !genuine {
+                break;
+            }
+            let culprit = sig
+                .params
+                .iter()
+                .find(|p| p.default.is_some() && written(p));
             self.report(d);
             let Some(p) = culprit else { break };
             let default = p.default.unwrap_or_default();
             let v = self.default_value(sig.name, p.name, default);
             bound.named.insert(p.name, (v, span));
             bound.defaulted.push(p.name);
+            replaced.push(p.name);
             next = (builtin.eval)(&bound).err();
         }
         Value::Poison

@@ -333,7 +333,7 @@ impl<'e> Evaluator<'e> {
             _ => Err(Diag::new(
                 codes::VALUE,
                 s,
-                "`bound` must be a half-size > 0 (a number or a vector)",
+                "`bound` must be a half-size from 0 (excluded) to 1e6 (a number or a vector)",
             )
             .label(format!("this is {}", describe(v)))
             .help("the shape lies in the box from -bound to +bound: `bound: 1.5` or `bound: [2, 1, 1]`")),
