@@ -87,6 +87,16 @@ pub fn head(s: &str) -> &str {
     &s[..end]
 }
 
+/// A rendered diagnostic with miette's line wrapping undone: words joined by
+/// single spaces, the gutter's `│` dropped. Where a message wraps depends on
+/// the length of the paths in it, so on where the tests run.
+pub fn unwrapped(s: &str) -> String {
+    s.split_whitespace()
+        .filter(|w| *w != "│")
+        .collect::<Vec<_>>()
+        .join(" ")
+}
+
 pub fn assert_outcome(what: &str, o: &Outcome, expect: Expect) {
     assert!(
         matches!(o.code, Some(0 | 1)),

@@ -787,8 +787,9 @@ fn a_scene_that_is_not_utf8_is_refused_at_its_first_bad_byte() {
         "{}",
         head(&r.stderr)
     );
+    let text = unwrapped(&r.stderr);
     assert!(
-        r.stderr.contains("byte 25") && r.stderr.contains("main.sdfl:1:8"),
+        text.contains("byte 25") && text.contains("main.sdfl:1:8"),
         "{}",
         head(&r.stderr)
     );
