@@ -271,6 +271,13 @@ fn parse_set(s: &str) -> Result<(String, Vec<f64>), String> {
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
+    // The limit every statement's estimate is checked against: a bad
+    // value is refused, not silently replaced by the default.
+    let limit = std::env::var(sdfl_stdlib::work::MAX_EVALUATIONS_VAR).ok();
+    if let Err(e) = sdfl_stdlib::work::max_evaluations_from(limit.as_deref()) {
+        say!("error[sdfl::arg::max_evaluations]: {e}");
+        return ExitCode::FAILURE;
+    }
     let threads = match cli.command {
         Command::Run { threads, .. }
         | Command::Watch { threads, .. }
@@ -931,6 +938,13 @@ fn summarise(r: &Report, out: &Path, stdout: &mut Stdout) {
                 rep["final_loss"].as_f64().unwrap_or(f64::NAN),
                 stages.join(", ")
             );
+            if let Some(n) = rep["samples_per_ray"]["evaluated"].as_f64() {
+                let of = rep["samples_per_ray"]["sampled"].as_f64().unwrap_or(0.0);
+                say!(
+                    "  samples: {n:.1} a ray reached the network, of {of:.0} placed ({:.0} %; the rest skipped as empty space)",
+                    100.0 * n / of.max(1.0)
+                );
+            }
             if let Some(h) = rep["held_out"].as_array().and_then(|h| h.last()) {
                 say!(
                     "  held-out views at step {}: PSNR {:.2} dB, SSIM {:.3}",

@@ -388,10 +388,25 @@ pub(crate) fn plan_text_in(program: &sdfl_stdlib::Program, base: &std::path::Pat
                 } else {
                     "split lists, else no test views".to_string()
                 },
-                match (c.normalize, c.format, c.orient) {
+                // What `auto` finds decides the frame (LLFF's and IDR's
+                // are their own); the files are read again when run.
+                match (
+                    c.normalize,
+                    match c.format {
+                        sdfl_stdlib::value::CaptureFormat::Auto => {
+                            sdfl_runtime::data::capture::detect(&base.join(&c.path))
+                                .unwrap_or(c.format)
+                        }
+                        f => f,
+                    },
+                    c.orient,
+                ) {
                     (false, _, _) => ", the data's own frame".to_string(),
                     (true, sdfl_stdlib::value::CaptureFormat::Llff, _) => {
                         ", recentred on the average camera (looking down -z), the nearest depth bound at 4/3 (as NeRF does)".to_string()
+                    }
+                    (true, sdfl_stdlib::value::CaptureFormat::Idr, _) => {
+                        ", scale_mat's unit sphere around the object (as NeuS does; exports in the world frame)".to_string()
                     }
                     (true, _, orient) => format!(
                         ", cameras centred into [-{e}, {e}]^3{}",
@@ -501,13 +516,16 @@ pub(crate) fn plan_text_in(program: &sdfl_stdlib::Program, base: &std::path::Pat
             let b = e.budget;
             let _ = writeln!(
                 o,
-                "    {:<20} at most {:.1e} evaluations ({:.1e} scoring {} held-out views), about {} of memory (limits {:.0e} and {}), as checked once read",
+                "    {:<20} {:.1e} evaluations expected ({:.1e} scoring {} held-out views, {}), about {} of memory (limits {:.0e} and {}), as checked once read",
                 "with the data",
                 b.evaluations,
                 b.held_out_evaluations,
                 e.test_views,
+                sdfl_stdlib::work::fmt_duration(
+                    b.held_out_evaluations / sdfl_runtime::pace::evaluation_rate()
+                ),
                 sdfl_stdlib::size::fmt_bytes(b.memory),
-                sdfl_stdlib::work::MAX_EVALUATIONS,
+                sdfl_stdlib::work::max_evaluations(),
                 sdfl_stdlib::size::fmt_bytes(sdfl_stdlib::work::MAX_MEMORY)
             );
         }
@@ -585,11 +603,18 @@ fn host_line(o: &mut String, work: &sdfl_stdlib::work::Work) {
     }
 }
 
-/// The statement's estimated work, then each stage's share and memory.
+/// The statement's estimated work and time on this machine, then each
+/// stage's share, time and memory.
 fn work_lines(o: &mut String, work: &sdfl_stdlib::work::Work) {
     use std::fmt::Write;
-    let _ = writeln!(o, "  work           {}", work.describe());
-    for line in work.stage_lines() {
+    let rate = sdfl_runtime::pace::evaluation_rate();
+    let _ = writeln!(
+        o,
+        "  work           {}; {} on this machine",
+        work.describe(),
+        sdfl_stdlib::work::fmt_duration(work.total_seconds(rate))
+    );
+    for line in work.stage_lines(Some(rate)) {
         let _ = writeln!(o, "    {line}");
     }
 }

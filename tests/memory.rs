@@ -133,18 +133,25 @@ fn profile_here(src: &str, dir: &Path) -> (Profile, f64) {
     )
 }
 
-/// Live bytes may wobble by a step's rounding (a vector grown once), never
-/// climb: the growth from the 10th step to the last, per step, stays under
-/// a kilobyte (the leak this guards against was megabytes a step).
+/// Live bytes may wobble by a step's rounding or grow once (a vector grown
+/// once, a worker thread's first scratch when a busy machine lets it join
+/// late: 72 kB once, seen under load), never climb: a climb grows in both
+/// halves of the run from the 10th step, and it is refused at a kilobyte a
+/// step in each (the leak this guards against was megabytes a step); any
+/// growth over 16 kB a step is refused outright.
 fn assert_flat(what: &str, p: &Profile) {
     let steps = &p.live_after_step;
     assert!(steps.len() >= 60, "{what}: {} steps seen", steps.len());
-    let (early, late) = (steps[9], *steps.last().unwrap());
-    let per_step = late.saturating_sub(early) as f64 / (steps.len() - 10) as f64;
+    let last = steps.len() - 1;
+    let mid = (9 + last) / 2;
+    let (early, middle, late) = (steps[9], steps[mid], steps[last]);
+    let rate = |a: usize, b: usize, n: usize| b.saturating_sub(a) as f64 / n as f64;
+    let (first, second) = (rate(early, middle, mid - 9), rate(middle, late, last - mid));
+    let whole = rate(early, late, last - 9);
     assert!(
-        per_step < 1024.0,
-        "{what}: live heap grew from {early} to {late} bytes over {} steps ({per_step:.0} bytes a step)",
-        steps.len() - 10
+        first.min(second) < 1024.0 && whole < 16384.0,
+        "{what}: live heap grew from {early} to {middle} to {late} bytes over {} steps ({first:.0} then {second:.0} bytes a step)",
+        last - 9
     );
 }
 

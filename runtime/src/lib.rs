@@ -13,6 +13,7 @@ pub mod mesh;
 pub mod metrics;
 pub mod neural;
 pub mod output;
+pub mod pace;
 pub mod plot;
 pub mod render;
 pub mod sdf;

@@ -39,6 +39,19 @@ pub fn write_mesh(
     field: &dyn DistanceField,
     auto: Option<([f64; 3], [f64; 3])>,
 ) -> io::Result<(Written, Mesh)> {
+    write_mesh_to(out_dir, o, field, auto, &glam::DAffine3::IDENTITY)
+}
+
+/// [`write_mesh`] of a field trained in a capture's scene frame: the mesh
+/// (written and returned) is moved by `to_data` into the data's own frame,
+/// as the other exports are.
+pub fn write_mesh_to(
+    out_dir: &Path,
+    o: &Output,
+    field: &dyn DistanceField,
+    auto: Option<([f64; 3], [f64; 3])>,
+    to_data: &glam::DAffine3,
+) -> io::Result<(Written, Mesh)> {
     let t = std::time::Instant::now();
     let OutputKind::Mesh { resolution, region } = o.kind else {
         return Err(io::Error::other("not a mesh output"));
@@ -72,19 +85,21 @@ pub fn write_mesh(
         ));
     }
     let max = sdfl_stdlib::work::MAX_MESH_VERTICES;
-    let mesh = match surface_nets(field, &grid, max, &|_| {}) {
+    let mut mesh = match surface_nets(field, &grid, max, &|_| {}) {
         // A field steeper than its assumed bound (a network) is sampled
         // again at every grid point.
         Err(MeshError::BoundBroken) => surface_nets(&Dense(field), &grid, max, &|_| {}),
         r => r,
     }
     .map_err(|e| io::Error::other(format!("`{}`: {e}", o.path.display())))?;
+    crate::export::transform_mesh(&mut mesh, to_data);
     mesh.write_ply(&out_dir.join(&o.path))?;
     let stats = MeshStats {
         vertices: mesh.vertices.len(),
         triangles: mesh.triangles.len(),
         resolution,
-        cell: grid.step,
+        // In the file's units, as the area.
+        cell: grid.step * to_data.matrix3.determinant().abs().cbrt(),
         area: mesh.area(),
         seconds: t.elapsed().as_secs_f64(),
     };

@@ -12,9 +12,57 @@ use crate::shape::Aabb;
 use crate::size::{fmt_bytes, BYTES_PER_PRIMITIVE};
 use crate::value::{Dataset, Field, OutputKind, Program, RenderJob, TrainJob, VolumeJob};
 
-/// Most SDF (or density) evaluations one statement may ask for: about an
-/// hour of tracing on a few cores. The examples need 1e7 to 1e11.
+/// Most SDF (or density) evaluations one statement is expected to take
+/// unless [`MAX_EVALUATIONS_VAR`] says otherwise: about an hour of tracing
+/// on a few cores. The examples need 1e7 to 1e11. A safety net against a
+/// typo's cost, not a wall: the refusal names the override.
 pub const MAX_EVALUATIONS: f64 = 1e12;
+/// The environment variable that sets the limit on a statement's expected
+/// evaluations in place of [`MAX_EVALUATIONS`] (a file's together: four
+/// times it), for runs meant to take hours.
+pub const MAX_EVALUATIONS_VAR: &str = "SDFL_MAX_EVALUATIONS";
+
+/// The limit [`MAX_EVALUATIONS_VAR`] sets (`value`), or [`MAX_EVALUATIONS`]
+/// without one; an error for a value that is no positive finite number.
+pub fn max_evaluations_from(value: Option<&str>) -> Result<f64, String> {
+    let Some(v) = value else {
+        return Ok(MAX_EVALUATIONS);
+    };
+    match v.trim().parse::<f64>() {
+        Ok(x) if x.is_finite() && x > 0.0 => Ok(x),
+        _ => Err(format!(
+            "{MAX_EVALUATIONS_VAR}={v:?} is not a positive number of evaluations (such as 5e12)"
+        )),
+    }
+}
+
+/// The limit on one statement's expected evaluations in this process:
+/// [`MAX_EVALUATIONS_VAR`]'s, read once (the CLI refuses a bad value at
+/// start; here one falls back to [`MAX_EVALUATIONS`]).
+pub fn max_evaluations() -> f64 {
+    static LIMIT: std::sync::OnceLock<f64> = std::sync::OnceLock::new();
+    *LIMIT.get_or_init(|| {
+        let v = std::env::var(MAX_EVALUATIONS_VAR).ok();
+        max_evaluations_from(v.as_deref()).unwrap_or(MAX_EVALUATIONS)
+    })
+}
+
+/// Most evaluations of all statements of a file together.
+pub fn max_file_evaluations() -> f64 {
+    4.0 * max_evaluations()
+}
+
+/// The share of a ray's samples a NeRF's occupancy grid is expected to
+/// pass to the networks over a run: the rest lie in empty space, or behind
+/// an opaque surface where a ray has stopped. An expectation, not a bound:
+/// the estimate's "at most" counts every sample, and `sdfl run` reports
+/// the share it really kept (`samples: ... reached the network`): 10 % for
+/// `examples/nerf_fast.sdfl` over its 2500 steps, 18 % over its first 600
+/// (the grid empties as the field sharpens).
+pub const OCCUPIED_SHARE: f64 = 0.1;
+/// The same for a hash-grid surface that skips empty space (whole rays
+/// that cross no occupied cell): 19 % for `examples/neus_fast.sdfl`.
+pub const SURFACE_KEPT_SHARE: f64 = 0.2;
 /// Largest estimated peak memory of one statement.
 pub const MAX_MEMORY: f64 = 8e9;
 
@@ -78,8 +126,23 @@ impl Stage {
 pub struct Cost {
     /// SDF (or network) evaluations, an upper bound.
     pub evaluations: f64,
+    /// Of those, the ones expected once empty space is skipped (an
+    /// occupancy grid's [`OCCUPIED_SHARE`]); the limit and the time are
+    /// counted on these.
+    pub expected: f64,
     /// Bytes held.
     pub memory: f64,
+}
+
+impl Cost {
+    /// `evaluations`, every one expected, holding `memory`.
+    pub fn all(evaluations: f64, memory: f64) -> Cost {
+        Cost {
+            evaluations,
+            expected: evaluations,
+            memory,
+        }
+    }
 }
 
 /// The estimated cost of one statement, stage by stage.
@@ -88,6 +151,9 @@ pub struct Work {
     /// SDF or density evaluations of every stage, at most (every ray takes
     /// every step).
     pub evaluations: f64,
+    /// Of those, the ones expected once empty space is skipped: what the
+    /// limit ([`max_evaluations`]) and the time are counted on.
+    pub expected: f64,
     /// Peak bytes: what is held throughout, plus the largest stage's own.
     pub memory: f64,
     /// Bytes held throughout: the lowered scene, the data, the weights with
@@ -99,6 +165,10 @@ pub struct Work {
     /// Whether the run multiplies matrices through the dfdx graph, whose
     /// library keeps [`Host::matmul_scratch`] in each thread that has.
     pub matmul: bool,
+    /// Time a training evaluation of this model takes, in evaluations of
+    /// the machine's calibrated rate ([`training_pace`]): the count is of
+    /// multiply-adds, and models spend their time differently.
+    pub training_pace: f64,
     stages: [Cost; Stage::ALL.len()],
 }
 
@@ -120,10 +190,12 @@ impl Work {
     pub fn new(resident: f64) -> Self {
         Work {
             evaluations: 0.0,
+            expected: 0.0,
             memory: resident,
             resident,
             per_thread: 0.0,
             matmul: false,
+            training_pace: 1.0,
             stages: [Cost::default(); Stage::ALL.len()],
         }
     }
@@ -139,13 +211,41 @@ impl Work {
         self.memory + host.threads as f64 * (self.per_thread + matmul)
     }
 
-    /// Adds a stage's evaluations and its own memory.
+    /// Adds a stage's evaluations (every one expected) and its own memory.
     pub fn add(&mut self, stage: Stage, evaluations: f64, memory: f64) {
+        self.add_skipping(stage, evaluations, 1.0, memory);
+    }
+
+    /// Adds a stage's evaluations of which `share` is expected (the rest
+    /// skipped as empty space), and its own memory.
+    pub fn add_skipping(&mut self, stage: Stage, evaluations: f64, share: f64, memory: f64) {
         let c = &mut self.stages[stage as usize];
         c.evaluations += evaluations;
+        c.expected += evaluations * share.clamp(0.0, 1.0);
         c.memory = c.memory.max(memory);
         self.evaluations = self.stages.iter().map(|c| c.evaluations).sum();
+        self.expected = self.stages.iter().map(|c| c.expected).sum();
         self.memory = self.resident + self.stages.iter().map(|c| c.memory).fold(0.0, f64::max);
+    }
+
+    /// Seconds `stage` is expected to take at `rate` calibrated
+    /// evaluations a second.
+    pub fn seconds(&self, stage: Stage, rate: f64) -> f64 {
+        let pace = match stage {
+            Stage::Training | Stage::GridRefresh => self.training_pace,
+            _ => 1.0,
+        };
+        self.stage(stage).expected * pace / rate
+    }
+
+    /// Seconds the whole statement is expected to take at `rate`.
+    pub fn total_seconds(&self, rate: f64) -> f64 {
+        Stage::ALL.iter().map(|s| self.seconds(*s, rate)).sum()
+    }
+
+    /// Whether some evaluations are expected to be skipped.
+    pub fn skips(&self) -> bool {
+        self.expected < self.evaluations
     }
 
     /// The cost of one stage.
@@ -161,23 +261,33 @@ impl Work {
             .filter(|(_, c)| c.evaluations > 0.0 || c.memory > 0.0)
     }
 
-    /// The stage with the most evaluations.
+    /// The stage with the most expected evaluations.
     pub fn largest(&self) -> Stage {
         Stage::ALL
             .into_iter()
-            .max_by(|a, b| {
-                self.stage(*a)
-                    .evaluations
-                    .total_cmp(&self.stage(*b).evaluations)
-            })
+            .max_by(|a, b| self.stage(*a).expected.total_cmp(&self.stage(*b).expected))
             .unwrap_or(Stage::Training)
+    }
+
+    /// The evaluations in one phrase: expected, and at most where
+    /// skipping makes them differ.
+    pub fn describe_evaluations(&self) -> String {
+        if self.skips() {
+            format!(
+                "{} evaluations expected with empty space skipped (at most {})",
+                approx(self.expected),
+                approx(self.evaluations)
+            )
+        } else {
+            format!("at most {} evaluations", approx(self.evaluations))
+        }
     }
 
     /// The whole statement in one phrase, for messages.
     pub fn describe(&self) -> String {
         format!(
-            "at most {} SDF evaluations, about {} of memory",
-            approx(self.evaluations),
+            "{}, about {} of memory",
+            self.describe_evaluations(),
             fmt_bytes(self.memory)
         )
     }
@@ -185,15 +295,15 @@ impl Work {
     /// Each stage's share of the evaluations and its memory, on one line
     /// (a refused statement's breakdown, which `sdfl plan` cannot print).
     pub fn stage_shares(&self) -> String {
-        let total = self.evaluations.max(1.0);
+        let total = self.expected.max(1.0);
         let shares: Vec<String> = self
             .stages()
             .map(|(s, c)| {
                 format!(
                     "{} {} ({:.0} %, {})",
                     s.name(),
-                    approx(c.evaluations),
-                    100.0 * c.evaluations / total,
+                    approx(c.expected),
+                    100.0 * c.expected / total,
                     fmt_bytes(c.memory)
                 )
             })
@@ -209,23 +319,28 @@ impl Work {
         }
     }
 
-    /// One line per stage, as `sdfl plan` prints them: evaluations, share
-    /// of the whole, and the stage's own memory.
-    pub fn stage_lines(&self) -> Vec<String> {
-        let total = self.evaluations.max(1.0);
+    /// One line per stage, as `sdfl plan` prints them: expected
+    /// evaluations, share of the whole, the time they take at `rate`
+    /// evaluations a second (where the machine's is known), and the
+    /// stage's own memory.
+    pub fn stage_lines(&self, rate: Option<f64>) -> Vec<String> {
+        let total = self.expected.max(1.0);
         let mut lines: Vec<String> = self
             .stages()
             .map(|(s, c)| {
+                let time = rate
+                    .map(|r| format!(", {}", fmt_duration(self.seconds(s, r))))
+                    .unwrap_or_default();
                 let memory = if c.memory > 0.0 {
                     format!(", {} while it runs", fmt_bytes(c.memory))
                 } else {
                     String::new()
                 };
                 format!(
-                    "{:<20} {:>8} evaluations ({:>3.0} %){memory}",
+                    "{:<20} {:>8} evaluations ({:>3.0} %){time}{memory}",
                     s.name(),
-                    approx(c.evaluations),
-                    100.0 * c.evaluations / total,
+                    approx(c.expected),
+                    100.0 * c.expected / total,
                 )
             })
             .collect();
@@ -237,6 +352,24 @@ impl Work {
             ));
         }
         lines
+    }
+}
+
+/// A time estimate to the unit that matters: `about 40 s`, `about
+/// 12 min`, `about 3.5 h`, `under a second`.
+pub fn fmt_duration(seconds: f64) -> String {
+    if !seconds.is_finite() {
+        return "an unbounded time".into();
+    }
+    let about = |t: String| format!("about {t}");
+    if seconds < 1.0 {
+        "under a second".into()
+    } else if seconds < 90.0 {
+        about(format!("{seconds:.0} s"))
+    } else if seconds < 90.0 * 60.0 {
+        about(format!("{:.0} min", seconds / 60.0))
+    } else {
+        about(format!("{:.1} h", seconds / 3600.0))
     }
 }
 
@@ -303,10 +436,10 @@ fn mesh_cost(resolution: u32, per_point: f64) -> Cost {
     // Two planes of points and values, two layers of vertex numbers, and
     // vertices, normals and triangles of the surface.
     let surface = (8.0 * n * n).min(MAX_MESH_VERTICES as f64);
-    Cost {
-        evaluations: n * n * n * per_point,
-        memory: 2.0 * n * n * 16.0 + 2.0 * n * n * 4.0 + surface * 100.0,
-    }
+    Cost::all(
+        n * n * n * per_point,
+        2.0 * n * n * 16.0 + 2.0 * n * n * 4.0 + surface * 100.0,
+    )
 }
 
 /// The grid evaluations and peak memory of the meshes among `outputs`.
@@ -316,6 +449,7 @@ fn mesh_work<'a>(outputs: impl Iterator<Item = &'a OutputKind>, per_point: f64) 
         if let OutputKind::Mesh { resolution, .. } = o {
             let c = mesh_cost(*resolution, per_point);
             w.evaluations += c.evaluations;
+            w.expected += c.expected;
             w.memory = w.memory.max(c.memory);
         }
     }
@@ -349,21 +483,19 @@ fn field_export_work(
                 let c = mesh_cost(resolution, per_sample);
                 let n = resolution as f64 + 5.0;
                 let surface = (8.0 * n * n).min(MAX_MESH_VERTICES as f64);
-                Cost {
-                    evaluations: c.evaluations + surface * per_sample,
-                    memory: c.memory + surface * 16.0,
-                }
+                Cost::all(
+                    c.evaluations + surface * per_sample,
+                    c.memory + surface * 16.0,
+                )
             }
             OutputKind::PointCloud { points, .. } => {
                 let rays = points as f64 * CLOUD_RAYS_PER_POINT as f64;
-                Cost {
-                    evaluations: rays * samples * per_sample,
-                    memory: points as f64 * 32.0 + chunk,
-                }
+                Cost::all(rays * samples * per_sample, points as f64 * 32.0 + chunk)
             }
             _ => continue,
         };
         meshes.evaluations += c.evaluations;
+        meshes.expected += c.expected;
         meshes.memory = meshes.memory.max(c.memory);
     }
     let depth = if outputs.iter().any(|o| {
@@ -372,11 +504,11 @@ fn field_export_work(
             OutputKind::RawDepth { .. } | OutputKind::DepthMap { .. }
         )
     }) {
-        Cost {
-            evaluations: views * px * samples * per_sample,
+        Cost::all(
+            views * px * samples * per_sample,
             // Colour, depth and opacity per pixel, the PNG's bytes and a chunk.
-            memory: px * 24.0 + chunk,
-        }
+            px * 24.0 + chunk,
+        )
     } else {
         Cost::default()
     };
@@ -387,11 +519,11 @@ fn field_export_work(
 /// both sides and a k-d tree over the larger (about 40 bytes a point).
 fn chamfer_cost() -> Cost {
     let points = (SURFACE_SAMPLES + 2 * MESH_FIT_POINTS) as f64;
-    Cost {
+    Cost::all(
         // Each query walks a few dozen tree nodes.
-        evaluations: 2.0 * MESH_FIT_POINTS as f64 * 30.0,
-        memory: points * 40.0,
-    }
+        2.0 * MESH_FIT_POINTS as f64 * 30.0,
+        points * 40.0,
+    )
 }
 
 /// What a `render` of a shape costs (at `size` when `--size` overrides it).
@@ -452,8 +584,6 @@ fn painted_effects(s: &crate::shape::Shape) -> u64 {
         .fold(own, u64::max)
 }
 
-/// Most evaluations of all statements of a file together.
-pub const MAX_FILE_EVALUATIONS: f64 = 4.0 * MAX_EVALUATIONS;
 /// Most primitives lowered by all statements of a file together (each
 /// statement lowers its scene again).
 pub const MAX_FILE_PRIMITIVES: u64 = 10 * crate::size::MAX_PRIMITIVES;
@@ -461,14 +591,14 @@ pub const MAX_FILE_PRIMITIVES: u64 = 10 * crate::size::MAX_PRIMITIVES;
 /// The diagnostic for a statement that takes a file's totals past the
 /// limits.
 pub fn refuse_total(evaluations: f64, primitives: u64, span: Span) -> Option<Diag> {
-    let (what, help) = if evaluations > MAX_FILE_EVALUATIONS {
+    let (what, help) = if evaluations > max_file_evaluations() {
         (
             format!(
-                "{} SDF evaluations (at most {})",
+                "{} evaluations expected (at most {})",
                 approx(evaluations),
-                fmt_num(MAX_FILE_EVALUATIONS)
+                fmt_num(max_file_evaluations())
             ),
-            "lower image sizes, views or steps, or split the file",
+            "lower image sizes, views or steps, or split the file; a file meant to run for hours may raise the limit (a quarter of it for one statement) with SDFL_MAX_EVALUATIONS",
         )
     } else if primitives > MAX_FILE_PRIMITIVES {
         (
@@ -656,6 +786,46 @@ fn render_buffers(j: &TrainJob) -> f64 {
     }
 }
 
+/// How long one of `j`'s training evaluations takes against the
+/// machine's calibrated rate (`sdfl_runtime::pace`), by the model's kind:
+/// measured by `plan` against `run` on the examples, one after another on
+/// one machine (docs/results.md, "plan's times"). Hash grids spend their
+/// time gathering table rows, which a count of multiply-adds misses; a
+/// surface's tangents through them more so.
+pub fn training_pace(j: &TrainJob) -> f64 {
+    use crate::value::Encoding;
+    // Measured: examples/nerf_fast.sdfl, nerf.sdfl, neus_fast.sdfl,
+    // neus.sdfl, volsdf_fast.sdfl, volsdf.sdfl, neural_sdf_fast.sdfl and
+    // train_box.sdfl. A harmonic neural SDF is not measured: 1.
+    match &*j.model {
+        Field::Nerf(n) => match n.position {
+            Encoding::HashGrid(_) => 1.0,
+            Encoding::Harmonic(_) => 0.45,
+        },
+        Field::NeuralSurface(n) => match n.sdf.encoding {
+            Encoding::HashGrid(_) => 4.0,
+            Encoding::Harmonic(_) => 0.3,
+        },
+        Field::NeuralSdf(n) => match n.encoding {
+            Encoding::HashGrid(_) => 2.3,
+            Encoding::Harmonic(_) => 1.0,
+        },
+        // 0.8 in the shared batch, 1.8 on the quiet machine: between.
+        Field::Sdf(_) => 1.5,
+    }
+}
+
+/// The share of `j`'s samples along rays expected to reach its networks:
+/// [`OCCUPIED_SHARE`] behind a NeRF's occupancy grid,
+/// [`SURFACE_KEPT_SHARE`] for a hash-grid surface's, else all.
+pub fn expected_share(j: &TrainJob) -> f64 {
+    match &*j.model {
+        Field::Nerf(n) if n.occupancy.is_some() => OCCUPIED_SHARE,
+        Field::NeuralSurface(n) if n.skips_empty_space() => SURFACE_KEPT_SHARE,
+        _ => 1.0,
+    }
+}
+
 /// The held-out evaluation of a training run with `views` held-out views
 /// of `pixels` each: every `eval_every` steps and once at the end; all
 /// renders of the last one kept for the comparison image.
@@ -669,8 +839,10 @@ pub fn held_out_cost(j: &TrainJob, views: usize, pixels: f64) -> Cost {
     } else {
         0.0
     } + 1.0;
+    let evaluations = times * views as f64 * pixels * render_per_pixel(j);
     Cost {
-        evaluations: times * views as f64 * pixels * render_per_pixel(j),
+        evaluations,
+        expected: evaluations * expected_share(j),
         memory: views as f64 * pixels * 24.0 + pixels * 16.0 + render_buffers(j),
     }
 }
@@ -783,8 +955,14 @@ pub fn train_work(j: &TrainJob, size: Option<(u32, u32)>) -> Work {
                 rays * samples * nerf_bytes_per_sample(n) * (1.0 + fine) + rays * background
             }
         };
-    w.add(Stage::Training, iterations * rays * per_ray, batch);
+    w.add_skipping(
+        Stage::Training,
+        iterations * rays * per_ray,
+        expected_share(j),
+        batch,
+    );
     w.matmul = matches!(&*j.model, Field::Sdf(_)) && j.backend == crate::value::Backend::Dfdx;
+    w.training_pace = training_pace(j);
     if let Field::NeuralSurface(n) = &*j.model {
         w.per_thread = n.sdf.thread_scratch() as f64;
     }
@@ -826,7 +1004,12 @@ pub fn train_work(j: &TrainJob, size: Option<(u32, u32)>) -> Work {
         | Dataset::Points { .. } => (0, 0.0),
     };
     let held_out = held_out_cost(j, test_views, test_pixels);
-    w.add(Stage::HeldOut, held_out.evaluations, held_out.memory);
+    w.add_skipping(
+        Stage::HeldOut,
+        held_out.evaluations,
+        expected_share(j),
+        held_out.memory,
+    );
 
     // Views rendered for the outputs before and after training (each set
     // of outputs renders every view once), and geometry GIFs sphere-traced
@@ -861,11 +1044,16 @@ pub fn train_work(j: &TrainJob, size: Option<(u32, u32)>) -> Work {
         .count() as f64;
     let outputs = j.before.len() + j.after.len();
     if outputs > 0 {
+        w.add_skipping(
+            Stage::Outputs,
+            passes * px * views * render_per_pixel(j),
+            expected_share(j),
+            px * 16.0 + render_buffers(j),
+        );
         w.add(
             Stage::Outputs,
-            passes * px * views * render_per_pixel(j)
-                + geometry_gifs * px * views * 96.0 * per_point,
-            px * 16.0 + render_buffers(j),
+            geometry_gifs * px * views * 96.0 * per_point,
+            0.0,
         );
     }
 
@@ -919,9 +1107,10 @@ pub fn train_work(j: &TrainJob, size: Option<(u32, u32)>) -> Work {
 
 /// The diagnostic for a statement whose estimate is beyond the limits.
 pub fn refuse(work: Work, span: Span, what: &str) -> Option<Diag> {
-    let (too, fix) = if work.evaluations > MAX_EVALUATIONS {
+    let limit = max_evaluations();
+    let (too, fix, over) = if work.expected > limit {
         let largest = work.largest();
-        let share = work.stage(largest).evaluations / work.evaluations;
+        let share = work.stage(largest).expected / work.expected;
         let fix = match largest {
             Stage::GridRefresh => {
                 "refresh the occupancy grid less often (`every`) or lower its `resolution`"
@@ -937,13 +1126,31 @@ pub fn refuse(work: Work, span: Span, what: &str) -> Option<Diag> {
         };
         (
             format!(
-                "{} SDF evaluations (at most {}), {:.0} % of them for {}",
-                approx(work.evaluations),
-                fmt_num(MAX_EVALUATIONS),
+                "{} evaluations{} (the limit is {}), {:.0} % of them for {}",
+                approx(work.expected),
+                if work.skips() {
+                    format!(
+                        " with empty space skipped, {} counting every sample",
+                        approx(work.evaluations)
+                    )
+                } else {
+                    String::new()
+                },
+                fmt_num(limit),
                 100.0 * share,
                 largest.name()
             ),
             fix,
+            // Past a hundred times the limit (days of work) it is a
+            // mistake, not a long run: no override is offered.
+            if work.expected <= 100.0 * limit {
+                format!(
+                    "; a run meant to take hours may raise the limit: {MAX_EVALUATIONS_VAR}={}",
+                    fmt_num(raised(work.expected))
+                )
+            } else {
+                String::new()
+            },
         )
     } else if work.memory > MAX_MEMORY {
         (
@@ -953,6 +1160,7 @@ pub fn refuse(work: Work, span: Span, what: &str) -> Option<Diag> {
                 fmt_bytes(MAX_MEMORY)
             ),
             "lower the image size or the number of primitives".to_string(),
+            String::new(),
         )
     } else {
         return None;
@@ -965,10 +1173,16 @@ pub fn refuse(work: Work, span: Span, what: &str) -> Option<Diag> {
         )
         .label(work.describe())
         .help(format!(
-            "{fix} (sizes can also be lowered with `--size`); by stage: {}",
+            "{fix} (sizes can also be lowered with `--size`){over}; by stage: {}",
             work.stage_shares()
         )),
     )
+}
+
+/// A round limit above `expected` evaluations, for the override's hint.
+fn raised(expected: f64) -> f64 {
+    let e = 10f64.powf(expected.log10().floor());
+    (expected / e).ceil() * e
 }
 
 /// Distance from `p` to the box (0 inside) and to its farthest corner.

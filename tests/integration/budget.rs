@@ -67,6 +67,52 @@ fn a_test_split_scored_every_step_is_refused_before_training() {
     assert_outcome("held-out split at the end", &o, Expect::Ok);
 }
 
+/// The limit is a safety net with a named override: the refusal states
+/// `SDFL_MAX_EVALUATIONS`, and with it raised the same file is accepted
+/// (and `run` refuses the data's scoring only past the raised limit); a
+/// value that is not a number is refused, not ignored.
+#[test]
+fn the_evaluation_limit_is_raised_by_its_variable() {
+    let dir = case_dir("limit_override");
+    data_set(&dir);
+    let file = dir.join("t.sdfl");
+    // Every sample counted (no occupancy grid): 1.2e12 evaluations.
+    fs::write(
+        &file,
+        scene(0)
+            .replace("rays: 1,", "rays: 48,")
+            .replace("iterations: 20000", "iterations: 3000"),
+    )
+    .unwrap();
+    let file = file.to_str().unwrap();
+    let check = |limit: Option<&str>| {
+        let mut c = std::process::Command::new(env!("CARGO_BIN_EXE_sdfl"));
+        c.args(["check", file]).current_dir(&dir);
+        match limit {
+            Some(v) => c.env("SDFL_MAX_EVALUATIONS", v),
+            None => c.env_remove("SDFL_MAX_EVALUATIONS"),
+        };
+        let o = c.output().expect("sdfl runs");
+        (
+            o.status.code(),
+            unwrapped(&String::from_utf8_lossy(&o.stderr)),
+        )
+    };
+    let (code, err) = check(None);
+    assert_eq!(code, Some(1), "{err}");
+    assert!(
+        err.contains("sdfl::limit::work") && err.contains("SDFL_MAX_EVALUATIONS=2e12"),
+        "{err}"
+    );
+    let (code, err) = check(Some("2e12"));
+    assert_eq!(code, Some(0), "{err}");
+    for bad in ["many", "-5", "0"] {
+        let (code, err) = check(Some(bad));
+        assert_eq!(code, Some(1), "{bad}: {err}");
+        assert!(err.contains("sdfl::arg::max_evaluations"), "{bad}: {err}");
+    }
+}
+
 /// `sdfl plan FILE` run in `dir` (so that the data's relative paths are
 /// found whether the CLI resolves them against the scene file's directory
 /// or the current one): its stdout.
@@ -89,7 +135,8 @@ fn line<'a>(plan: &'a str, start: &str) -> &'a str {
 
 /// `sdfl plan` showed no memory for data read from files: it reads the
 /// images' headers and says the views, their pixels and the bytes they
-/// hold as f32, the same count `run` checks once it has read them, and
+/// hold (8-bit files as 8-bit RGBA, 4 bytes a pixel, where they were f32
+/// RGB's 12), the same count `run` checks once it has read them, and
 /// the peak while one image decodes. A large set is sampled, and says so.
 #[test]
 fn plan_sizes_file_data_from_the_image_headers() {
@@ -115,7 +162,7 @@ fn plan_sizes_file_data_from_the_image_headers() {
     .flatten()
     .collect();
     let held = sdfl_runtime::data::views_bytes(&views);
-    assert_eq!(held, 1536.0 * 12.0);
+    assert_eq!(held, 1536.0 * 4.0);
     let shown = sdfl_stdlib::size::fmt_bytes(held);
     assert!(
         data.contains(&format!(": {shown} held through training")),
@@ -140,7 +187,7 @@ train s {
 "#;
     fs::write(dir.join("s.sdfl"), silhouette).unwrap();
     let plan = plan_in(&dir, "s.sdfl");
-    let want = sdfl_stdlib::size::fmt_bytes(1536.0 * 12.0 + 768.0);
+    let want = sdfl_stdlib::size::fmt_bytes(1536.0 * 4.0 + 768.0);
     assert!(line(&plan, "data memory").contains(&want), "{plan}");
 
     // 10 000 frames: a sample of the headers, and plan stays quick.

@@ -516,11 +516,13 @@ fn png_header(w: u32, h: u32) -> Vec<u8> {
 fn the_decoded_size_cap_covers_every_split() {
     let dir = case_dir("data_cap_splits");
     fs::create_dir_all(dir.join("set")).unwrap();
+    // 8-bit: 576 MB as training holds it; a split of two fits the 2 GB
+    // cap, two splits do not.
     fs::write(dir.join("set/big.png"), png_header(12_000, 12_000)).unwrap();
     for split in ["train", "test"] {
         fs::write(
             dir.join(format!("set/transforms_{split}.json")),
-            format!("{{\"camera_angle_x\": 0.7, \"frames\": [{{\"file_path\": \"big\", \"transform_matrix\": {POSE}}}]}}"),
+            format!("{{\"camera_angle_x\": 0.7, \"frames\": [{{\"file_path\": \"big\", \"transform_matrix\": {POSE}}}, {{\"file_path\": \"big\", \"transform_matrix\": {POSE}}}]}}"),
         )
         .unwrap();
     }

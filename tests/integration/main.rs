@@ -27,6 +27,7 @@ mod hostile;
 mod hostile_data;
 mod hostile_io;
 mod hostile_lang;
+mod idr;
 mod nerf;
 mod neural_sdf;
 mod neural_surface;

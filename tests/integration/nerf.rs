@@ -168,6 +168,12 @@ fn hash_grid_with_occupancy_learns_and_skips_empty_space() {
     assert_eq!(names, ["occupancy.ema", "occupancy.occupied"]);
     let occupied = ck.state[1].1.iter().filter(|&&x| x != 0.0).count();
     assert!(occupied * 3 < 4096 * 2, "{occupied} of 4096 cells occupied");
+    // The report counts the samples that reached the network: fewer than
+    // the sampler placed, since the grid skipped some (the work really
+    // done, which `plan`'s expected share stands for).
+    let s = r.samples_per_ray.expect("a NeRF counts its samples");
+    assert_eq!(s.sampled, 48);
+    assert!(s.evaluated > 0.5 && s.evaluated < 0.9 * 48.0, "{s:?}");
     let _ = std::fs::remove_dir_all(&out);
 }
 

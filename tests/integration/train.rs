@@ -164,7 +164,7 @@ fn png_views_load_as_linear_floats() {
     };
     let views = sdfl_runtime::jobs::load_views(&data, &dir).unwrap().train;
     assert_eq!((views[0].image.width, views[0].image.height), (3, 2));
-    for (i, p) in views[0].image.pixels.iter().enumerate() {
+    for (i, p) in views[0].image.colours().enumerate() {
         let want = [
             (i * 40) as f32 / 255.0,
             (255 - i * 40) as f32 / 255.0,

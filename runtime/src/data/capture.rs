@@ -1,9 +1,10 @@
 //! Real captures: frames (an image, an optional mask, an OpenGL
 //! camera-to-world pose and pixel intrinsics) read from nerfstudio's
-//! `transforms.json`, COLMAP's text model or LLFF's `poses_bounds.npy`,
-//! normalised into sdfl's scene frame and turned into training views.
+//! `transforms.json`, COLMAP's text model, LLFF's `poses_bounds.npy` or
+//! IDR's `cameras_sphere.npz`, normalised into sdfl's scene frame and
+//! turned into training views.
 //!
-//! The three readers only parse; what they share (image sizes checked
+//! The four readers only parse; what they share (image sizes checked
 //! before decoding, the scene frame, splits, alpha over a background,
 //! masks) is done here once.
 
@@ -14,10 +15,9 @@ use glam::DVec3;
 use sdfl_stdlib::camera::Camera;
 use sdfl_stdlib::value::{CaptureFormat, CaptureOrient, CaptureSpec};
 
-use super::image::{check_dataset, composite_over, read_rgba_image};
+use super::image::{check_dataset, read_rgba_image, read_view_images};
 use super::normalize::{Orient, SceneFrame};
-use super::npy::RgbImage;
-use super::{coverage_from_alpha, no_coverage, DataNeeds, TrainView};
+use super::{no_coverage, DataNeeds, TrainView};
 
 pub use sdfl_stdlib::lens::{Distortion, Intrinsics};
 
@@ -117,6 +117,10 @@ pub struct CaptureFrame {
     pub image: PathBuf,
     /// Pixels whose mask is 0 are neither trained on nor scored.
     pub mask: Option<PathBuf>,
+    /// The object's mask (IDR's `mask/`): where it is white the object
+    /// covers the pixel. Read only for `silhouette()`, as each pixel's
+    /// coverage in place of alpha; every pixel is still trained on.
+    pub object_mask: Option<PathBuf>,
     /// Camera to world in OpenGL axes, in the data's own frame.
     pub c2w: [[f64; 4]; 4],
     /// Pixel intrinsics and distortion at the image's full resolution.
@@ -195,9 +199,10 @@ pub fn every_nth(n: usize, every: usize) -> Vec<usize> {
 /// Reads a capture's images (sizes checked before any is decoded), moves
 /// its cameras into the scene frame (`frame`, or one from the cameras by
 /// `normalize`) and composites images with alpha over `background`. With
-/// `needs.coverage`, each training view's coverage is its image's alpha
-/// (an error where an image has none); masks keep their own meaning (which
-/// pixels are trained on and scored).
+/// `needs.coverage`, each training view's coverage is its object mask
+/// where it has one, else its image's alpha (an error where an image has
+/// none); masks keep their own meaning (which pixels are trained on and
+/// scored).
 pub fn load(
     c: &Capture,
     normalize: Normalize,
@@ -205,11 +210,10 @@ pub fn load(
     background: DVec3,
     needs: DataNeeds,
 ) -> io::Result<CaptureViews> {
-    check_dataset(
-        c.frames
-            .iter()
-            .flat_map(|f| std::iter::once(&f.image).chain(f.mask.as_ref())),
-    )?;
+    check_dataset(c.frames.iter().flat_map(|f| {
+        let object = f.object_mask.as_ref().filter(|_| needs.coverage);
+        std::iter::once(&f.image).chain(&f.mask).chain(object)
+    }))?;
     let frame = frame.unwrap_or_else(|| {
         if normalize.enabled {
             let poses: Vec<_> = c.frames.iter().map(|f| f.c2w).collect();
@@ -233,8 +237,10 @@ pub fn load(
     let bg = background.as_vec3().to_array();
     let (mut train, mut test, mut names) = (Vec::new(), Vec::new(), Vec::new());
     let mut test_names = Vec::new();
-    for (k, (f, camera)) in c.frames.iter().zip(cameras).enumerate() {
-        let rgba = read_rgba_image(&f.image)?;
+    // Decoded a batch at a time in parallel, kept in the frames' order.
+    let images: Vec<&Path> = c.frames.iter().map(|f| f.image.as_path()).collect();
+    read_view_images(&images, |k, rgba| {
+        let (f, camera) = (&c.frames[k], cameras[k]);
         let (w, h) = (rgba.width, rgba.height);
         if (w, h) != (f.intrinsics.width, f.intrinsics.height) {
             return Err(invalid(
@@ -261,23 +267,19 @@ pub fn load(
         }
         let held_out = c.test.binary_search(&k).is_ok();
         // Held-out views are only scored: their coverage is never read.
-        let coverage = match (needs.coverage && !held_out, rgba.has_alpha) {
+        let coverage = match (needs.coverage && !held_out, &f.object_mask) {
             (false, _) => None,
-            (true, true) => Some(coverage_from_alpha(&rgba.pixels)),
-            (true, false) => return Err(no_coverage(&f.image)),
+            (true, Some(m)) => Some(read_object_mask(m, (w, h), f, &c.source)?),
+            (true, None) if rgba.has_alpha => Some(rgba.coverage()),
+            (true, None) => return Err(no_coverage(&f.image)),
         };
-        let pixels = composite_over(&rgba.pixels, bg);
         let mask = match &f.mask {
             None => None,
             Some(m) => Some(read_mask(m, (w, h), f, &c.source)?),
         };
         let view = TrainView {
             camera,
-            image: RgbImage {
-                width: w,
-                height: h,
-                pixels,
-            },
+            image: rgba.over(bg),
             mask,
             coverage,
         };
@@ -289,7 +291,8 @@ pub fn load(
             train.push(view);
             names.push(name);
         }
-    }
+        Ok(())
+    })?;
     names.extend(test_names);
     let mut report = vec![frame.describe()];
     if let Some((lo, hi)) = points_extent(&c.points, &frame) {
@@ -322,7 +325,7 @@ pub fn load(
 }
 
 /// The format a capture directory holds: `transforms.json`, then a COLMAP
-/// text model, then `poses_bounds.npy`.
+/// text model, then `poses_bounds.npy`, then `cameras_sphere.npz`.
 pub fn detect(dir: &Path) -> Option<CaptureFormat> {
     if dir
         .extension()
@@ -334,6 +337,8 @@ pub fn detect(dir: &Path) -> Option<CaptureFormat> {
         Some(CaptureFormat::Colmap)
     } else if dir.join("poses_bounds.npy").is_file() {
         Some(CaptureFormat::Llff)
+    } else if dir.join(super::idr::CAMERAS).is_file() {
+        Some(CaptureFormat::Idr)
     } else {
         None
     }
@@ -346,7 +351,7 @@ pub fn format_of(spec: &CaptureSpec, path: &Path) -> io::Result<CaptureFormat> {
         CaptureFormat::Auto => detect(path).ok_or_else(|| {
             invalid(
                 path,
-                "holds no transforms.json, COLMAP model (sparse/0/cameras.txt) or poses_bounds.npy",
+                "holds no transforms.json, COLMAP model (sparse/0/cameras.txt), poses_bounds.npy or cameras_sphere.npz",
             )
         }),
         f => Ok(f),
@@ -398,6 +403,12 @@ pub fn read_for(spec: &CaptureSpec, base: &Path, needs: DataNeeds) -> io::Result
             let (c, frame) = super::llff::read(&path, spec.downscale, spec.test_every)?;
             (c, spec.normalize.then_some(frame))
         }
+        // The unit sphere of `scale_mat` is the frame NeuS trains in; the
+        // cameras' own centring and `orient`/`extent` do not apply.
+        CaptureFormat::Idr => {
+            let (c, frame) = super::idr::read(&path, spec.downscale, spec.test_every)?;
+            (c, spec.normalize.then_some(frame))
+        }
     };
     let llff = format == CaptureFormat::Llff && spec.normalize;
     let mut views = load(
@@ -407,6 +418,12 @@ pub fn read_for(spec: &CaptureSpec, base: &Path, needs: DataNeeds) -> io::Result
         spec.background.unwrap_or(glam::DVec3::ONE),
         needs,
     )?;
+    if format == CaptureFormat::Idr && spec.normalize {
+        views.report.insert(
+            1,
+            "scene frame: cameras_sphere.npz's scale_mat, the object's bounding sphere is the unit sphere (exports map back to the world frame)".to_string(),
+        );
+    }
     // LLFF's normalisation puts the average camera at the origin looking
     // down −z and the nearest bound at 1/BD_FACTOR: NDC's near plane is 1,
     // as NeRF's. Every frame shares one camera (poses_bounds.npy's hwf).
@@ -464,6 +481,42 @@ fn read_mask(
         ));
     }
     Ok(keep)
+}
+
+/// A frame's object mask as each pixel's coverage in 255ths: covered
+/// (255) where the mask is brighter than half, as NeuS binarises
+/// `mask > 0.5`; the image's size.
+fn read_object_mask(
+    path: &Path,
+    size: (u32, u32),
+    f: &CaptureFrame,
+    source: &Path,
+) -> io::Result<std::sync::Arc<[u8]>> {
+    let mask = read_rgba_image(path)?;
+    let (w, h) = (mask.width, mask.height);
+    if (w, h) != size {
+        return Err(invalid(
+            path,
+            format!(
+                "the object mask of {} of {} is {w}x{h} pixels, its image {}x{}",
+                f.label,
+                source.display(),
+                size.0,
+                size.1
+            ),
+        ));
+    }
+    Ok(mask
+        .pixels
+        .iter()
+        .map(|p| {
+            if p[0].max(p[1]).max(p[2]) > 0.5 {
+                255
+            } else {
+                0
+            }
+        })
+        .collect())
 }
 
 fn short(x: f64) -> String {

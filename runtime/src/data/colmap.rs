@@ -459,6 +459,7 @@ pub fn read(dir: &Path, downscale: u32, test_every: usize) -> io::Result<Capture
             label: format!("image {} (line {} of images.txt)", im.name, im.line),
             image,
             mask: None,
+            object_mask: None,
             c2w: im.c2w,
             intrinsics,
         });

@@ -12,8 +12,9 @@ use super::npy::{read_rgb_f32, read_shape, RgbImage};
 
 /// Largest image side accepted for data, as for rendered images.
 pub const MAX_SIDE: u32 = sdfl_stdlib::builtins::MAX_IMAGE_SIDE;
-/// Most decoded bytes of one data set (f32 RGB, 12 bytes a pixel): about
-/// 40 views of 2048×2048.
+/// Most decoded bytes of one data set as training holds it (8-bit files 4
+/// bytes a pixel, others 12): 500 views of 1000×1000 8-bit PNGs, or
+/// about 40 views of 2048×2048 f32.
 pub const MAX_DATASET_BYTES: u64 = 2_000_000_000;
 
 fn invalid(path: &Path, m: impl std::fmt::Display) -> io::Error {
@@ -99,7 +100,8 @@ pub fn check_dataset<P: AsRef<Path>>(paths: impl IntoIterator<Item = P>) -> io::
     let mut total = 0u64;
     for p in paths {
         let (w, h) = image_dimensions(p.as_ref())?;
-        total = total.saturating_add(w as u64 * h as u64 * 12);
+        let colour = view_bytes_per_pixel(p.as_ref())? as u64;
+        total = total.saturating_add((w as u64 * h as u64).saturating_mul(colour));
         if total > MAX_DATASET_BYTES {
             return Err(invalid(
                 p.as_ref(),
@@ -164,6 +166,117 @@ pub fn read_rgba_image(path: &Path) -> io::Result<RgbaImage> {
         height: img.height(),
         pixels: img.pixels().map(|p| p.0).collect(),
         has_alpha,
+    })
+}
+
+/// An image decoded for training: 8-bit RGBA as the file has it, or f32
+/// RGBA where it has more bits.
+#[derive(Debug, Clone)]
+pub struct DecodedView {
+    /// Width in pixels.
+    pub width: u32,
+    /// Height in pixels.
+    pub height: u32,
+    /// Whether the file has an alpha channel.
+    pub has_alpha: bool,
+    pixels: Decoded,
+}
+
+#[derive(Debug, Clone)]
+enum Decoded {
+    Rgba8(Vec<[u8; 4]>),
+    Rgba32(Vec<[f32; 4]>),
+}
+
+impl DecodedView {
+    /// Each pixel's coverage from its alpha, in 255ths (see
+    /// [`super::coverage_from_alpha`]).
+    pub fn coverage(&self) -> std::sync::Arc<[u8]> {
+        match &self.pixels {
+            Decoded::Rgba8(p) => p.iter().map(|p| p[3]).collect(),
+            Decoded::Rgba32(p) => super::coverage_from_alpha(p),
+        }
+    }
+
+    /// The view's colours over `background`: kept 8-bit where they were.
+    pub fn over(self, background: [f32; 3]) -> super::view_image::ViewImage {
+        use super::view_image::ViewImage;
+        match self.pixels {
+            Decoded::Rgba8(p) => ViewImage::rgba8(self.width, self.height, p, background),
+            Decoded::Rgba32(p) => {
+                ViewImage::rgb32(self.width, self.height, composite_over(&p, background))
+            }
+        }
+    }
+}
+
+/// Reads a training image (not `.npy`), its size checked first: 8-bit
+/// files stay 8-bit, others become f32; opaque where it has no alpha.
+pub fn read_view_image(path: &Path) -> io::Result<DecodedView> {
+    let size = image_dimensions(path)?;
+    if is_npy(path) {
+        return Err(invalid(
+            path,
+            "expected an image with alpha (PNG), not .npy",
+        ));
+    }
+    let img = reader(path, Some(size))?
+        .decode()
+        .map_err(|e| invalid(path, e))?;
+    let has_alpha = img.color().has_alpha();
+    let eight = img.color().bytes_per_pixel() == img.color().channel_count();
+    let (width, height) = (img.width(), img.height());
+    let pixels = if eight {
+        Decoded::Rgba8(img.to_rgba8().pixels().map(|p| p.0).collect())
+    } else {
+        Decoded::Rgba32(img.to_rgba32f().pixels().map(|p| p.0).collect())
+    };
+    Ok(DecodedView {
+        width,
+        height,
+        has_alpha,
+        pixels,
+    })
+}
+
+/// Training images decoded a pool's width at a time, in parallel: most of
+/// a large set's load is decoding. Returns each path's image, in order;
+/// `each` sees every decoded one in order before the next batch is
+/// decoded (so that no more than a batch is held beside what `each`
+/// keeps), and stops the read with its error.
+pub fn read_view_images<'a, P: AsRef<Path> + Sync + 'a>(
+    paths: &'a [P],
+    mut each: impl FnMut(usize, DecodedView) -> io::Result<()>,
+) -> io::Result<()> {
+    use rayon::prelude::*;
+    let batch = rayon::current_num_threads().max(1);
+    for (b, chunk) in paths.chunks(batch).enumerate() {
+        let decoded: Vec<io::Result<DecodedView>> = chunk
+            .par_iter()
+            .map(|p| read_view_image(p.as_ref()))
+            .collect();
+        for (i, d) in decoded.into_iter().enumerate() {
+            each(b * batch + i, d?)?;
+        }
+    }
+    Ok(())
+}
+
+/// Bytes a pixel of the image at `path` takes once read for training
+/// (4: 8-bit files, kept as RGBA; 12: others, as f32 RGB), from its header.
+pub fn view_bytes_per_pixel(path: &Path) -> io::Result<f64> {
+    use image::ImageDecoder;
+    if is_npy(path) {
+        return Ok(super::view_image::RGB32_BYTES);
+    }
+    let decoder = reader(path, None)?
+        .into_decoder()
+        .map_err(|e| invalid(path, e))?;
+    let c = decoder.color_type();
+    Ok(if c.bytes_per_pixel() == c.channel_count() {
+        super::view_image::RGBA8_BYTES
+    } else {
+        super::view_image::RGB32_BYTES
     })
 }
 
@@ -257,8 +370,10 @@ mod tests {
         assert!(read_rgb_image(&huge).is_err());
         // Each fits, together they do not.
         let big = d.join("big.png");
-        std::fs::write(&big, png_header(12_000, 12_000)).unwrap();
-        assert_eq!(image_dimensions(&big).unwrap(), (12_000, 12_000));
+        // 8-bit: 1.02 GB each as training holds it.
+        std::fs::write(&big, png_header(16_000, 16_000)).unwrap();
+        assert_eq!(image_dimensions(&big).unwrap(), (16_000, 16_000));
+        check_dataset([&big]).unwrap();
         let e = check_dataset([&big, &big]).unwrap_err().to_string();
         assert!(e.contains("at most"), "{e}");
     }

@@ -207,6 +207,7 @@ pub fn read(dir: &Path, downscale: u32, test_every: usize) -> io::Result<(Captur
             label: format!("frame {k}"),
             image,
             mask: None,
+            object_mask: None,
             c2w: p.c2w,
             intrinsics,
         });

@@ -3,6 +3,7 @@
 pub mod capture;
 pub mod colmap;
 pub mod export;
+pub mod idr;
 pub mod image;
 pub mod llff;
 pub mod nerf_synthetic;
@@ -10,6 +11,7 @@ pub mod nerfstudio;
 pub mod normalize;
 pub mod npy;
 pub mod points;
+pub mod view_image;
 
 use std::io;
 
@@ -95,7 +97,7 @@ pub struct TrainView {
     /// The camera the image was taken with, in the scene frame.
     pub camera: sdfl_stdlib::camera::Camera,
     /// The image the camera sees: the training target.
-    pub image: npy::RgbImage,
+    pub image: view_image::ViewImage,
     /// Pixels to train on and score (row-major, `false`: masked out, as a
     /// capture's `mask_path` says); `None`: every pixel.
     pub mask: Option<std::sync::Arc<[bool]>>,
@@ -118,9 +120,10 @@ pub fn coverage_from_alpha(rgba: &[[f32; 4]]) -> std::sync::Arc<[u8]> {
 /// What a job reads of its data beyond each view's camera and colours.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct DataNeeds {
-    /// Each training view's coverage by the object, from its image's alpha
-    /// (`silhouette()`), which the images must then have. Read only when
-    /// asked: a 100-view 800² set holds 64 MB more with it. (A shape's
+    /// Each training view's coverage by the object (`silhouette()`), from
+    /// its object mask (IDR's `mask/`) or else its image's alpha, which the
+    /// images must then have. Read only when asked: a 100-view 800² set
+    /// holds 64 MB more with it. (A shape's
     /// traced views always carry theirs: the hit mask comes with the
     /// trace.)
     pub coverage: bool,
@@ -193,16 +196,13 @@ pub fn no_coverage(path: &std::path::Path) -> io::Error {
     .into_io()
 }
 
-/// Bytes a view read from files holds from its reading to the end of
-/// training, per pixel: its colours as f32 RGB.
-pub const BYTES_PER_PIXEL: f64 = 12.0;
-
-/// Bytes a view of `pixels` holds once read: its colours
-/// ([`BYTES_PER_PIXEL`]) and a byte a pixel of coverage and of mask where
-/// it keeps them. The one count of the budget checked once data are read
-/// and of `sdfl plan`'s estimate from image headers.
-pub fn view_bytes(pixels: f64, coverage: bool, mask: bool) -> f64 {
-    pixels * (BYTES_PER_PIXEL + f64::from(u8::from(coverage)) + f64::from(u8::from(mask)))
+/// Bytes a view of `pixels` holds once read: its colours (`colour`
+/// bytes a pixel: 4 for 8-bit files, 12 for others, see
+/// [`view_image`]) and a byte a pixel of coverage and of mask where it
+/// keeps them. The one count of the budget checked once data are read and
+/// of `sdfl plan`'s estimate from image headers.
+pub fn view_bytes(pixels: f64, colour: f64, coverage: bool, mask: bool) -> f64 {
+    pixels * (colour + f64::from(u8::from(coverage)) + f64::from(u8::from(mask)))
 }
 
 /// [`view_bytes`] of views read.
@@ -211,7 +211,12 @@ pub fn views_bytes<'a>(views: impl IntoIterator<Item = &'a TrainView>) -> f64 {
         .into_iter()
         .map(|v| {
             let pixels = v.image.width as f64 * v.image.height as f64;
-            view_bytes(pixels, v.coverage.is_some(), v.mask.is_some())
+            view_bytes(
+                pixels,
+                v.image.bytes_per_pixel(),
+                v.coverage.is_some(),
+                v.mask.is_some(),
+            )
         })
         .sum()
 }
@@ -231,7 +236,8 @@ pub fn decode_bytes(pixels: f64, file_bytes: f64) -> f64 {
 /// image headers), with the same numbers.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct OnceRead {
-    /// The statement's evaluations with the held-out views' scoring.
+    /// The statement's expected evaluations (empty space skipped) with
+    /// the held-out views' scoring.
     pub evaluations: f64,
     /// Of those, the held-out views' scoring.
     pub held_out_evaluations: f64,
@@ -254,8 +260,8 @@ impl OnceRead {
         let held_out = held_out_cost(job, test_views, largest_test);
         let work = train_work(job, size);
         OnceRead {
-            evaluations: work.evaluations + held_out.evaluations,
-            held_out_evaluations: held_out.evaluations,
+            evaluations: work.expected + held_out.expected,
+            held_out_evaluations: held_out.expected,
             memory: work.memory + held + held_out.memory,
         }
     }
@@ -282,8 +288,8 @@ pub struct Estimate {
     pub pixels: f64,
     /// Bytes the views hold through training ([`view_bytes`]).
     pub held: f64,
-    /// Most bytes while they are read: every view held, and the largest
-    /// image read being decoded ([`decode_bytes`]).
+    /// Most bytes while they are read: every view held, and a pool's width
+    /// of the largest image being decoded ([`decode_bytes`]).
     pub reading: f64,
     /// The statement's budget with these views.
     pub budget: OnceRead,
@@ -391,6 +397,13 @@ fn planned(
                         let test = capture::every_nth(images.len(), spec.test_every);
                         (images, test)
                     }
+                    // Object masks are read only as coverage, which
+                    // `view_bytes` counts by itself.
+                    CaptureFormat::Idr => {
+                        let images = idr::images(&path, spec.downscale)?;
+                        let test = capture::every_nth(images.len(), spec.test_every);
+                        (images, test)
+                    }
                 };
             images
                 .into_iter()
@@ -445,9 +458,12 @@ pub fn estimate(
     let mut pixels: Vec<Option<f64>> = vec![None; n];
     let (mut size, mut same) = (None, true);
     let mut largest = (0.0, 0.0);
+    // The widest colour of the sample stands for every view's.
+    let mut colour = view_image::RGBA8_BYTES;
     for &k in &sample {
         let image = &views[k].image;
         let (w, h) = image::image_dimensions(image)?;
+        colour = colour.max(image::view_bytes_per_pixel(image)?);
         let px = w as f64 * h as f64;
         let file = std::fs::metadata(image).map_or(0.0, |m| m.len() as f64);
         if decode_bytes(px, file) > decode_bytes(largest.0, largest.1) {
@@ -464,7 +480,7 @@ pub fn estimate(
         let px = px.unwrap_or(mean);
         all += px;
         // Held-out views are only scored: no coverage is kept for them.
-        held += view_bytes(px, coverage && !v.held_out, v.mask);
+        held += view_bytes(px, colour, coverage && !v.held_out, v.mask);
         if v.held_out {
             test += 1;
             largest_test = largest_test.max(px);
@@ -477,7 +493,8 @@ pub fn estimate(
         size: size.filter(|_| same),
         pixels: all,
         held,
-        reading: held + decode_bytes(largest.0, largest.1),
+        // Images decode a pool's width at a time.
+        reading: held + rayon::current_num_threads() as f64 * decode_bytes(largest.0, largest.1),
         budget: OnceRead::of(job, None, test, largest_test, held),
     }))
 }

@@ -17,9 +17,8 @@ use std::path::{Path, PathBuf};
 use glam::DVec3;
 
 use super::capture::{camera_of, invalid};
-use super::image::{check_dataset, composite_over, read_rgba_image};
-use super::npy::RgbImage;
-use super::{coverage_from_alpha, no_coverage, TrainView};
+use super::image::{check_dataset, read_view_images};
+use super::{no_coverage, TrainView};
 
 pub use super::nerfstudio::{read_transforms, Frame, Transforms, MAX_JSON_BYTES};
 
@@ -83,8 +82,10 @@ fn read_frames(
 ) -> io::Result<Vec<TrainView>> {
     let mut views = Vec::with_capacity(t.frames.len());
     let mut size = None;
-    for (k, f) in t.frames.iter().enumerate() {
-        let rgba = read_rgba_image(&f.image)?;
+    // Decoded a batch at a time in parallel, kept in the frames' order.
+    let images: Vec<&Path> = t.frames.iter().map(|f| f.image.as_path()).collect();
+    read_view_images(&images, |k, rgba| {
+        let f = &t.frames[k];
         let (w, h) = (rgba.width, rgba.height);
         match size {
             None => size = Some((w, h)),
@@ -101,21 +102,17 @@ fn read_frames(
         let camera = camera_of(&f.pose, &intrinsics).map_err(named)?;
         let coverage = match (coverage, rgba.has_alpha) {
             (false, _) => None,
-            (true, true) => Some(coverage_from_alpha(&rgba.pixels)),
+            (true, true) => Some(rgba.coverage()),
             (true, false) => return Err(no_coverage(&f.image)),
         };
         let bg = background.as_vec3().to_array();
-        let pixels = composite_over(&rgba.pixels, bg);
         views.push(TrainView {
             camera,
-            image: RgbImage {
-                width: w,
-                height: h,
-                pixels,
-            },
+            image: rgba.over(bg),
             mask: None,
             coverage,
         });
-    }
+        Ok(())
+    })?;
     Ok(views)
 }

@@ -600,6 +600,7 @@ impl Transforms {
                 label: format!("frame {k}"),
                 image: f.image.clone(),
                 mask: f.mask.clone(),
+                object_mask: None,
                 c2w: f.pose,
                 intrinsics,
             });

@@ -57,9 +57,14 @@ pub fn read_rgb_f32(path: impl AsRef<Path>) -> Result<RgbImage, NpyError> {
 
 /// The bytes of a regular file no larger than an array may be.
 fn read_limited(path: &Path) -> Result<Vec<u8>, NpyError> {
+    read_at_most(path, MAX_ARRAY_BYTES + 10 + u16::MAX as u64)
+}
+
+/// The bytes of a regular file of at most `limit` bytes (a larger one is
+/// refused, after reading no more than one byte past it).
+fn read_at_most(path: &Path, limit: u64) -> Result<Vec<u8>, NpyError> {
     use std::io::Read;
     let file = super::image::open_regular(path)?;
-    let limit = MAX_ARRAY_BYTES + 10 + u16::MAX as u64;
     let mut buf = Vec::new();
     file.take(limit + 1).read_to_end(&mut buf)?;
     if buf.len() as u64 > limit {
@@ -214,7 +219,8 @@ fn header(bytes: &[u8], f64_too: bool) -> Result<(Vec<usize>, usize, u64), NpyEr
         Some(HeaderValue::Str(d)) if d == "<f8" && f64_too => 8,
         Some(HeaderValue::Str(d)) => {
             return Err(NpyError::Unsupported(format!(
-                "dtype {d} (only little-endian float32 '<f4')"
+                "dtype {d} (only little-endian float32 '<f4'{})",
+                if f64_too { " or float64 '<f8'" } else { "" }
             )))
         }
         _ => return Err(NpyError::Format("header has no 'descr' string".into())),
@@ -245,27 +251,7 @@ fn header(bytes: &[u8], f64_too: bool) -> Result<(Vec<usize>, usize, u64), NpyEr
 /// A float32 or float64 (`<f4`, `<f8`) `.npy` v1 file of any shape, as
 /// f64 (LLFF's `poses_bounds.npy` is float64).
 pub fn read_f64(path: impl AsRef<Path>) -> Result<(Vec<usize>, Vec<f64>), NpyError> {
-    let bytes = read_limited(path.as_ref())?;
-    let (shape, start, width) = header(&bytes, true)?;
-    let n: usize = shape.iter().product();
-    let data = &bytes[start..];
-    if data.len() as u64 != n as u64 * width {
-        return Err(NpyError::Format(format!(
-            "expected {} data bytes for shape {shape:?}, found {}",
-            n as u64 * width,
-            data.len()
-        )));
-    }
-    let values = if width == 8 {
-        data.chunks_exact(8)
-            .map(|b| f64::from_le_bytes(b.try_into().unwrap_or([0; 8])))
-            .collect()
-    } else {
-        data.chunks_exact(4)
-            .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]) as f64)
-            .collect()
-    };
-    Ok((shape, values))
+    parse_f64(&read_limited(path.as_ref())?)
 }
 
 /// An array of `shape` holds at most `max_values` numbers.
@@ -363,9 +349,25 @@ pub fn parse_npz_f32_at_most(
     key: &str,
     max_values: u64,
 ) -> Result<F32Array, NpyError> {
+    let mut zip = open_zip(std::io::Cursor::new(bytes))?;
+    parse_f32(&entry_bytes(&mut zip, key, max_values, false)?)
+}
+
+fn open_zip<R: std::io::Read + std::io::Seek>(r: R) -> Result<zip::ZipArchive<R>, NpyError> {
+    zip::ZipArchive::new(r).map_err(|e| NpyError::Format(format!("not a zip archive: {e}")))
+}
+
+/// The inflated bytes of the `.npy` entry `key` of an archive: refused
+/// from the size the archive declares, and from the shape its header
+/// declares (more than `max_values` numbers, of `<f4`, or `<f8` as well
+/// when `f64_too`), before the rest is inflated.
+fn entry_bytes<R: std::io::Read + std::io::Seek>(
+    zip: &mut zip::ZipArchive<R>,
+    key: &str,
+    max_values: u64,
+    f64_too: bool,
+) -> Result<Vec<u8>, NpyError> {
     use std::io::Read;
-    let mut zip = zip::ZipArchive::new(std::io::Cursor::new(bytes))
-        .map_err(|e| NpyError::Format(format!("not a zip archive: {e}")))?;
     let name = format!("{key}.npy");
     let mut entry = match zip.by_name(&name) {
         Ok(e) => e,
@@ -395,7 +397,7 @@ pub fn parse_npz_f32_at_most(
         let hlen = u16::from_le_bytes([buf[8], buf[9]]) as usize;
         // A header that does not parse is reported after the whole entry
         // is read, with the entry's other faults.
-        if let Some(Ok((shape, _))) = buf.get(..10 + hlen).map(header_shape) {
+        if let Some(Ok((shape, _, _))) = buf.get(..10 + hlen).map(|h| header(h, f64_too)) {
             check_values(&shape, max_values)?;
         }
     }
@@ -414,7 +416,74 @@ pub fn parse_npz_f32_at_most(
             buf.len().min(declared as usize)
         )));
     }
-    parse_f32(&buf)
+    Ok(buf)
+}
+
+/// A float32 or float64 `.npy` file's bytes as f64, with its shape.
+fn parse_f64(bytes: &[u8]) -> Result<(Vec<usize>, Vec<f64>), NpyError> {
+    let (shape, start, width) = header(bytes, true)?;
+    let n: usize = shape.iter().product();
+    let data = &bytes[start..];
+    if data.len() as u64 != n as u64 * width {
+        return Err(NpyError::Format(format!(
+            "expected {} data bytes for shape {shape:?}, found {}",
+            n as u64 * width,
+            data.len()
+        )));
+    }
+    let values = if width == 8 {
+        data.chunks_exact(8)
+            .map(|b| f64::from_le_bytes(b.try_into().unwrap_or([0; 8])))
+            .collect()
+    } else {
+        data.chunks_exact(4)
+            .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]) as f64)
+            .collect()
+    };
+    Ok((shape, values))
+}
+
+/// An `.npz` archive (as `np.savez` writes it) whose float32 or float64
+/// arrays are read by name, one at a time, as f64: for archives of many
+/// small named arrays (IDR's `cameras_sphere.npz`), of which a reader
+/// wants some.
+pub struct Npz {
+    zip: zip::ZipArchive<std::io::Cursor<Vec<u8>>>,
+}
+
+impl Npz {
+    /// Reads the archive at `path`, refusing a file over `max_bytes`
+    /// before reading it.
+    pub fn read(path: impl AsRef<Path>, max_bytes: u64) -> Result<Npz, NpyError> {
+        Npz::parse(read_at_most(path.as_ref(), max_bytes)?)
+    }
+
+    /// The archive of `bytes`.
+    pub fn parse(bytes: Vec<u8>) -> Result<Npz, NpyError> {
+        Ok(Npz {
+            zip: open_zip(std::io::Cursor::new(bytes))?,
+        })
+    }
+
+    /// The names of the arrays the archive holds (its `.npy` entries,
+    /// without the extension), in the archive's order.
+    pub fn keys(&self) -> Vec<&str> {
+        self.zip
+            .file_names()
+            .filter_map(|n| n.strip_suffix(".npy"))
+            .collect()
+    }
+
+    /// Array `key` as f64 with its shape; an array of more than
+    /// `max_values` numbers is refused from its header, before it is
+    /// inflated.
+    pub fn read_f64(
+        &mut self,
+        key: &str,
+        max_values: u64,
+    ) -> Result<(Vec<usize>, Vec<f64>), NpyError> {
+        parse_f64(&entry_bytes(&mut self.zip, key, max_values, true)?)
+    }
 }
 
 /// A `.npy` v1 header for a little-endian, C-order array of `descr`
@@ -665,6 +734,55 @@ pub(crate) mod tests {
         lying[at..at + 4].copy_from_slice(&1000u32.to_le_bytes());
         let e = parse_npz_f32(&lying, "verts").unwrap_err().to_string();
         assert!(e.contains("declares 1000"), "{e}");
+    }
+
+    #[test]
+    fn npz_arrays_read_by_name_as_f64() {
+        let f64s = encode_f64(&[2, 2], &[1.5, -2.0, 1e300, 0.25]);
+        let f32s = encode_rgb_f32(&sample());
+        let ints = with_header(
+            "{'descr': '<i4', 'fortran_order': False, 'shape': (2,), }",
+            8,
+        );
+        let z = npz(
+            &[
+                ("world_mat_0.npy", &f64s),
+                ("img.npy", &f32s),
+                ("ints.npy", &ints),
+                ("notes.txt", b"x"),
+            ],
+            zip::CompressionMethod::Deflated,
+        );
+        let mut a = Npz::parse(z).unwrap();
+        assert_eq!(a.keys(), vec!["world_mat_0", "img", "ints"]);
+        assert_eq!(
+            a.read_f64("world_mat_0", 4).unwrap(),
+            (vec![2, 2], vec![1.5, -2.0, 1e300, 0.25])
+        );
+        let (shape, v) = a.read_f64("img", 100).unwrap();
+        assert_eq!((shape, v[3], v[5]), (vec![2, 3, 3], 1.0, -1.25));
+        // Too many numbers for the caller: refused from the header.
+        let e = a.read_f64("world_mat_0", 3).unwrap_err().to_string();
+        assert!(e.contains("more than 3"), "{e}");
+        let e = a.read_f64("ints", 100).unwrap_err().to_string();
+        assert!(e.contains("<i4") && e.contains("'<f8'"), "{e}");
+        assert!(matches!(
+            a.read_f64("scale_mat_0", 16),
+            Err(NpyError::MissingKey(_))
+        ));
+        assert!(Npz::parse(b"not a zip".to_vec()).is_err());
+        // A 3 GiB bomb is refused from its declared size.
+        let mut bomb = Npz::parse(zip_bomb("world_mat_0.npy", 3 << 10)).unwrap();
+        let e = bomb.read_f64("world_mat_0", 16).unwrap_err().to_string();
+        assert!(e.contains("declares 3221225472 bytes"), "{e}");
+        // And a file larger than the caller's cap is not read.
+        let dir = std::env::temp_dir().join(format!("sdfl-npz-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("big.npz");
+        std::fs::write(&path, vec![0u8; 2000]).unwrap();
+        let e = Npz::read(&path, 1000).err().unwrap().to_string();
+        assert!(e.contains("larger than 1000 bytes"), "{e}");
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     #[test]

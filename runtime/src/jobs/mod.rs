@@ -17,7 +17,7 @@ use sdfl_stdlib::RenderJob;
 use serde::Serialize;
 
 use crate::data::export::DatasetWriter;
-use crate::data::npy::RgbImage;
+use crate::data::view_image::ViewImage;
 use crate::data::DataNeeds;
 use crate::metrics;
 use crate::neural::field::NerfObjective;
@@ -407,8 +407,8 @@ pub fn run_volume_job(
     Ok(report)
 }
 
-fn load_image(path: &Path) -> io::Result<RgbImage> {
-    crate::data::image::read_rgb_image(path)
+fn load_image(path: &Path) -> io::Result<ViewImage> {
+    crate::data::image::read_rgb_image(path).map(ViewImage::from)
 }
 
 /// A data set's views: those to train on and those held out for testing.
@@ -485,11 +485,7 @@ pub fn load_views_for(data: &Dataset, base: &Path, needs: DataNeeds) -> io::Resu
                 .enumerate()
                 .map(|(k, c)| {
                     let (colour, _) = render(c, (*width, *height), false)?;
-                    let image = RgbImage {
-                        width: *width,
-                        height: *height,
-                        pixels: colour,
-                    };
+                    let image = ViewImage::rgb32(*width, *height, colour);
                     Ok((
                         TrainView {
                             camera: *c,
@@ -656,14 +652,15 @@ pub fn traced_views(job: &RenderJob) -> Vec<TrainView> {
             let hits = view.mask.expect("the hit mask is asked for");
             TrainView {
                 camera: *c,
-                image: RgbImage {
-                    width: job.width,
-                    height: job.height,
-                    pixels: rgb
-                        .chunks_exact(3)
-                        .map(|p| [p[0], p[1], p[2]].map(|x| x as f32 / 255.0))
+                // The trace's 8-bit colours, opaque: read as `x / 255`.
+                image: ViewImage::rgba8(
+                    job.width,
+                    job.height,
+                    rgb.chunks_exact(3)
+                        .map(|p| [p[0], p[1], p[2], 255])
                         .collect(),
-                },
+                    [0.0; 3],
+                ),
                 mask: None,
                 // Each pixel is its centre's thin ray: hit or missed. Kept
                 // whether or not `silhouette()` asks: it comes with the
@@ -688,8 +685,7 @@ fn check_finite(views: &[(TrainView, String)]) -> io::Result<()> {
     for (v, origin) in views {
         if let Some(i) = v
             .image
-            .pixels
-            .iter()
+            .colours()
             .position(|p| !p.iter().all(|x| x.is_finite()))
         {
             let w = v.image.width.max(1) as usize;
@@ -697,7 +693,7 @@ fn check_finite(views: &[(TrainView, String)]) -> io::Result<()> {
                 "{origin}: pixel (column {}, row {}) is {:?}, not a finite colour",
                 i % w,
                 i / w,
-                v.image.pixels[i]
+                v.image.pixel(i)
             )));
         }
     }

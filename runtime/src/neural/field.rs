@@ -399,6 +399,9 @@ pub struct NerfObjective {
     weights: Vec<f32>,
     /// The fine and the merged depths ([`fine_samples`]'s scratch).
     fine_depths: Vec<f32>,
+    /// Samples the networks evaluated in this process's steps: counted,
+    /// never read by a step.
+    evaluated: u64,
 }
 
 impl NerfObjective {
@@ -435,6 +438,7 @@ impl NerfObjective {
             fine_samples: Samples::default(),
             weights: Vec::new(),
             fine_depths: Vec::new(),
+            evaluated: 0,
         })
     }
 
@@ -525,6 +529,10 @@ impl Objective for NerfObjective {
                     .flat_map(|(name, d)| d.tensors(&name)),
             )
             .collect()
+    }
+
+    fn samples_evaluated(&self) -> Option<u64> {
+        Some(self.evaluated)
     }
 
     fn state(&self) -> Vec<(String, Vec<f32>)> {
@@ -630,6 +638,7 @@ impl Objective for NerfObjective {
             }
             None => std::mem::swap(&mut self.samples, &mut self.candidates),
         }
+        self.evaluated += self.samples.t.len() as u64;
         self.backdrop.colours(
             values,
             &batch.rays,
@@ -669,6 +678,7 @@ impl Objective for NerfObjective {
                 &mut self.fine_depths,
                 &mut self.fine_samples,
             )?;
+            self.evaluated += self.fine_samples.t.len() as u64;
             loss += fit_pass(
                 fine,
                 values,

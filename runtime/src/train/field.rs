@@ -165,6 +165,9 @@ impl<O: Objective> Objective for Trained<O> {
     fn state(&self) -> Vec<(String, Vec<f32>)> {
         self.objective.state()
     }
+    fn samples_evaluated(&self) -> Option<u64> {
+        self.objective.samples_evaluated()
+    }
     fn restore_state(&mut self, state: &[(String, Vec<f32>)]) -> Result<(), TrainError> {
         self.objective.restore_state(state)
     }

@@ -639,7 +639,7 @@ fn write_side_by_side(path: &Path, view: &TrainView, render: &[[f32; 3]]) -> io:
     for y in 0..h {
         for x in 0..w {
             let i = y * w + x;
-            for (panel, px) in [render.get(i).copied(), Some(view.image.pixels[i])]
+            for (panel, px) in [render.get(i).copied(), Some(view.image.pixel(i))]
                 .into_iter()
                 .enumerate()
             {

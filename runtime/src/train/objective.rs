@@ -45,6 +45,12 @@ pub trait Objective {
     /// function of its step and resumed runs stay the same run.
     /// [`Self::initial`] gives step 0's.
     fn at_step(&self, _step: usize, _values: &mut [f32]) {}
+    /// Samples along rays that reached the network in this process's steps
+    /// (those an occupancy grid skipped not counted), for the report of
+    /// the work really done; `None` where the model does not count them.
+    fn samples_evaluated(&self) -> Option<u64> {
+        None
+    }
     /// State that changes with training besides the parameters (an
     /// occupancy grid), kept in checkpoints.
     fn state(&self) -> Vec<(String, Vec<f32>)> {

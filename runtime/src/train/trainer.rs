@@ -56,12 +56,8 @@ impl<'a> TrainSetup<'a> {
 
     /// Steps of one pass over every training pixel.
     pub fn steps_per_epoch(&self) -> usize {
-        let pixels: usize = self
-            .views
-            .iter()
-            .map(|v| v.image.pixels.len())
-            .sum::<usize>()
-            + self.points.len();
+        let pixels: usize =
+            self.views.iter().map(|v| v.image.len()).sum::<usize>() + self.points.len();
         pixels.div_ceil(self.rays.max(1)).max(1)
     }
 
@@ -115,7 +111,7 @@ impl<'a> TrainSetup<'a> {
         }
         let targets = rays
             .iter()
-            .map(|r| self.views[r.view as usize].image.pixels[r.pixel as usize])
+            .map(|r| self.views[r.view as usize].image.pixel(r.pixel as usize))
             .collect();
         // Each ray's pixel coverage where every view knows it (else none:
         // the language allows `silhouette()` only on such data).
@@ -570,7 +566,7 @@ mod warning_tests {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::data::npy::RgbImage;
+    use crate::data::view_image::ViewImage;
     use crate::train::objective::TensorSpec;
     use sdfl_stdlib::param::Bound;
     use sdfl_stdlib::value::{LastInterval, Optimizer, Sampler, Schedule};
@@ -663,11 +659,7 @@ mod tests {
     fn batches_leave_out_masked_pixels() {
         use glam::DVec3;
         let cam = Camera::look_at(DVec3::new(0.0, 0.0, -3.0), DVec3::ZERO, DVec3::Y, 1.0);
-        let image = RgbImage {
-            width: 4,
-            height: 4,
-            pixels: vec![[0.5; 3]; 16],
-        };
+        let image = ViewImage::rgb32(4, 4, vec![[0.5; 3]; 16]);
         // View 0: only the left column kept.
         let mask: std::sync::Arc<[bool]> = (0..16).map(|i| i % 4 == 0).collect();
         let views = [
@@ -719,11 +711,7 @@ mod tests {
     fn batch_coverage_follows_the_rays() {
         use glam::DVec3;
         let cam = Camera::look_at(DVec3::new(0.0, 0.0, -3.0), DVec3::ZERO, DVec3::Y, 1.0);
-        let image = RgbImage {
-            width: 4,
-            height: 4,
-            pixels: vec![[0.5; 3]; 16],
-        };
+        let image = ViewImage::rgb32(4, 4, vec![[0.5; 3]; 16]);
         let cover =
             |k: usize| -> std::sync::Arc<[u8]> { (0..16).map(|i| (i * 16 + k) as u8).collect() };
         let views: Vec<TrainView> = (0..2)

@@ -184,7 +184,7 @@ fn an_absolute_tolerance_data_set_shows_the_exact_silhouette() {
         let (mut lit, mut exact) = (0, 0);
         for v in &views.train {
             let cam = &v.camera;
-            for (k, px) in v.image.pixels.iter().enumerate() {
+            for (k, px) in v.image.colours().enumerate() {
                 let (i, j) = ((k % 48) as u32, (k / 48) as u32);
                 let (x, y) = cam.pixel_ndc(i, j, 48, 48);
                 let d = cam.ray_direction(x, y).normalize();
@@ -233,8 +233,8 @@ fn a_traced_data_set_is_exactly_the_render() {
             .unwrap()
             .to_rgb8();
         assert_eq!((png.width(), png.height()), (24, 20));
-        for (a, b) in png.pixels().zip(&v.image.pixels) {
-            assert_eq!(a.0.map(|x| x as f32 / 255.0), *b, "view {k}");
+        for (a, b) in png.pixels().zip(v.image.colours()) {
+            assert_eq!(a.0.map(|x| x as f32 / 255.0), b, "view {k}");
         }
     }
 }
@@ -253,10 +253,10 @@ fn a_written_nerf_synthetic_data_set_reads_back_as_the_render() {
         let png = image::open(out.join(format!("v_{k:02}.png")))
             .unwrap()
             .to_rgb8();
-        for (a, b) in png.pixels().zip(&v.image.pixels) {
+        for (a, b) in png.pixels().zip(v.image.colours()) {
             // Hits are the colour itself; misses the background composited
             // (within 8-bit rounding of the background the image holds).
-            for (x, y) in a.0.iter().zip(b) {
+            for (x, y) in a.0.iter().zip(&b) {
                 assert!(
                     (*x as f32 / 255.0 - y).abs() <= 0.5 / 255.0 + 1e-6,
                     "view {k}"
@@ -270,7 +270,7 @@ fn a_written_nerf_synthetic_data_set_reads_back_as_the_render() {
     );
     let again = load_views(dataset(&data), &out).unwrap();
     assert_eq!(again.train.len(), 4);
-    assert_eq!(again.train[2].image.pixels, views[2].image.pixels);
+    assert_eq!(again.train[2].image, views[2].image);
     // A test split comes from its own file, never from the lone
     // transforms.json that stands in for the training split. (`dataset`
     // writes `transforms_test.json`, every view when none is held out: a
@@ -316,7 +316,7 @@ fn the_checked_in_fixture_matches_its_scene() {
         let now = render_view(&scene, job, &job.cameras[k], (16, 16), needs, &|_| {});
         let (rgb, mask) = (now.color.unwrap(), now.mask.unwrap());
         assert!(now.hits > 20, "view {k} shows the scene");
-        for (i, px) in v.image.pixels.iter().enumerate() {
+        for (i, px) in v.image.colours().enumerate() {
             let want = if mask[i] == 255 {
                 [0, 1, 2].map(|c| rgb[3 * i + c] as f32 / 255.0)
             } else {

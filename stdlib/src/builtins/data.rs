@@ -286,6 +286,14 @@ pub(super) fn capture(a: &Args) -> Result<Value, Diag> {
             "name the capture's directory, or use format: \"nerfstudio\"",
         ));
     }
+    if format == CaptureFormat::Idr && downscale > 1 {
+        return Err(value_error(
+            a.get("downscale").1,
+            format!("IDR's layout keeps full-size images only (image/), not images_{downscale}"),
+            "no such image folder",
+            "leave `downscale` out",
+        ));
+    }
     check_input(
         a,
         Path::new(path.as_ref()),

@@ -688,14 +688,14 @@ fn table() -> Vec<Builtin> {
         ),
         func(
             "capture",
-            "A real capture: nerfstudio's `transforms.json` (as `ns-process-data` writes it: intrinsics global or per frame, `camera_model` PINHOLE / SIMPLE_PINHOLE / OPENCV / OPENCV_FISHEYE with its distortion, `mask_path`, split lists), COLMAP's text model (`sparse/0/cameras.txt`, `images.txt`, images in `images/`) or LLFF's `poses_bounds.npy` (forward-facing). Cameras are centred and scaled into the unit cube as nerfstudio does (the scene frame is reported); images with alpha are composited over `background`.",
+            "A real capture: nerfstudio's `transforms.json` (as `ns-process-data` writes it: intrinsics global or per frame, `camera_model` PINHOLE / SIMPLE_PINHOLE / OPENCV / OPENCV_FISHEYE with its distortion, `mask_path`, split lists), COLMAP's text model (`sparse/0/cameras.txt`, `images.txt`, images in `images/`), LLFF's `poses_bounds.npy` (forward-facing) or IDR's and NeuS's layout (DTU, BlendedMVS: `image/`, object masks in `mask/` paired by sorted name, `cameras_sphere.npz` with `world_mat_i` and `scale_mat_i`). Cameras are centred and scaled into the unit cube as nerfstudio does (IDR: `scale_mat`'s unit sphere around the object, and exports come back in the world frame; the scene frame is reported); images with alpha are composited over `background`. An IDR capture's masks are what `silhouette()` trains on.",
             vec![
                 req("path", Type::Str, "the capture's directory (relative to the scene file), or its transforms .json file"),
-                opt("format", Type::Str, "\"auto\"", "\"auto\" (by the files present: transforms.json, a COLMAP model, poses_bounds.npy), \"nerfstudio\", \"colmap\" or \"llff\""),
-                opt("downscale", Type::Number, "1", "read images from `images_<downscale>` (1, 2, 4 or 8), intrinsics scaled to match"),
+                opt("format", Type::Str, "\"auto\"", "\"auto\" (by the files present: transforms.json, a COLMAP model, poses_bounds.npy, cameras_sphere.npz), \"nerfstudio\", \"colmap\", \"llff\" or \"idr\""),
+                opt("downscale", Type::Number, "1", "read images from `images_<downscale>` (1, 2, 4 or 8), intrinsics scaled to match (IDR: 1 only)"),
                 opt("test_every", Type::Number, "8", "hold out every n-th frame (in file-name order) as a test view, where the data has no split lists (0: none)"),
-                opt("normalize", Type::Bool, "true", "centre the cameras and scale them into [-1, 1]^3 (LLFF: its own recentring, nearest bound at 4/3); false keeps the data's frame"),
-                opt("orient", Type::Str, "\"up\"", "\"up\": turn the cameras' mean up onto +z; \"none\": keep the data's axes"),
+                opt("normalize", Type::Bool, "true", "centre the cameras and scale them into [-1, 1]^3 (LLFF: its own recentring, nearest bound at 4/3; IDR: `scale_mat`'s unit sphere); false keeps the data's frame"),
+                opt("orient", Type::Str, "\"up\"", "\"up\": turn the cameras' mean up onto +z; \"none\": keep the data's axes (LLFF and IDR keep their own)"),
                 opt("background", Type::Vec3, "[1, 1, 1]", "colour behind transparent pixels of images with alpha; when given, also the model's background (not given: white there, and a model on the data's background learns the world behind)"),
             ],
             DATASET,
@@ -739,7 +739,7 @@ fn table() -> Vec<Builtin> {
         ),
         func(
             "silhouette",
-            "Binary cross-entropy of each ray's opacity against its pixel's coverage by the object (NeuS's mask loss), times `weight`. A neural SDF's volume only, on data that give each pixel's coverage: the views of a shape by `render_views` (whether each pixel's ray hits), or `nerf_synthetic(...)` and `capture(...)` images whose alpha is the coverage (an image without alpha is an error when read). Unlike the colour error, it does not fade where the object is dark against the background.",
+            "Binary cross-entropy of each ray's opacity against its pixel's coverage by the object (NeuS's mask loss), times `weight`. A neural SDF's volume only, on data that give each pixel's coverage: the views of a shape by `render_views` (whether each pixel's ray hits), or `nerf_synthetic(...)` and `capture(...)` images whose alpha is the coverage (an image without alpha is an error when read), or an IDR capture's masks. Unlike the colour error, it does not fade where the object is dark against the background.",
             vec![opt("weight", Type::Number, "0.1", "weight of this term (> 0)")],
             LOSS,
             |a| Ok(Value::Loss(Loss { kind: LossKind::Silhouette, weight: a.positive("weight")? })),

@@ -181,7 +181,7 @@ impl<'e> Evaluator<'e> {
             ));
         }
         // Totals over the file: each statement runs, one after another.
-        self.total_evaluations += w.evaluations;
+        self.total_evaluations += w.expected;
         self.total_primitives = self.total_primitives.saturating_add(size.primitives);
         if found.is_empty() && !self.total_refused {
             let refused = work::refuse_total(self.total_evaluations, self.total_primitives, span);

@@ -69,8 +69,8 @@ pub enum Dataset {
         background: DVec3,
     },
     /// A real capture (`capture(...)`): nerfstudio's `transforms.json`,
-    /// COLMAP's text model or LLFF's `poses_bounds.npy`, normalised into
-    /// the scene frame. Cameras are known once the files are read.
+    /// COLMAP's text model, LLFF's `poses_bounds.npy` or IDR's
+    /// `cameras_sphere.npz`, normalised into the scene frame. Cameras are known once the files are read.
     Capture(Arc<CaptureSpec>),
 }
 
@@ -136,7 +136,7 @@ pub enum DataBackground {
 pub enum CaptureFormat {
     /// Decided by what the directory holds: `transforms.json`, then a
     /// COLMAP model (`sparse/0/cameras.txt`, `sparse/cameras.txt` or
-    /// `cameras.txt`), then `poses_bounds.npy`.
+    /// `cameras.txt`), then `poses_bounds.npy`, then `cameras_sphere.npz`.
     Auto,
     /// nerfstudio's `transforms.json`.
     Nerfstudio,
@@ -144,15 +144,19 @@ pub enum CaptureFormat {
     Colmap,
     /// LLFF's `poses_bounds.npy`.
     Llff,
+    /// IDR's and NeuS's `cameras_sphere.npz` with `image/` and `mask/`
+    /// (DTU, BlendedMVS).
+    Idr,
 }
 
 impl CaptureFormat {
     /// Each format with the name scene files write.
-    pub const NAMES: [(&'static str, CaptureFormat); 4] = [
+    pub const NAMES: [(&'static str, CaptureFormat); 5] = [
         ("auto", CaptureFormat::Auto),
         ("nerfstudio", CaptureFormat::Nerfstudio),
         ("colmap", CaptureFormat::Colmap),
         ("llff", CaptureFormat::Llff),
+        ("idr", CaptureFormat::Idr),
     ];
 
     /// The name scene files write.
@@ -188,8 +192,8 @@ pub struct CaptureSpec {
     /// Without split lists in the data, every `test_every`-th frame is
     /// held out (0: none).
     pub test_every: usize,
-    /// Centre on the cameras and scale them into [−extent, extent]³
-    /// (`false`: the data's own frame).
+    /// Centre on the cameras and scale them into [−extent, extent]³ (LLFF
+    /// and IDR: their own normalisation; `false`: the data's own frame).
     pub normalize: bool,
     /// How the cameras are turned when normalising.
     pub orient: CaptureOrient,

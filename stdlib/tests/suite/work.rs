@@ -4,7 +4,9 @@
 
 use sdfl_lang::SourceFile;
 use sdfl_stdlib::load;
-use sdfl_stdlib::work::{train_work, Stage, MAX_EVALUATIONS};
+use sdfl_stdlib::work::{
+    max_evaluations_from, train_work, Stage, MAX_EVALUATIONS, MAX_EVALUATIONS_VAR, OCCUPIED_SHARE,
+};
 
 /// A hash-grid NeRF trained on rendered views, with `model` and `train`
 /// settings spliced in.
@@ -69,9 +71,78 @@ fn a_plain_run_has_its_stages_and_fits_the_budget() {
     // The grid's copies are held throughout.
     assert!(w.resident >= 32f64.powi(3) * 4.0 * 2.0, "{}", w.resident);
     assert!(w
-        .stage_lines()
+        .stage_lines(None)
         .iter()
         .any(|l| l.starts_with("grid refreshes")));
+    // At 1e6 evaluations a second, each stage's time beside it.
+    let lines = w.stage_lines(Some(1e6));
+    let training = lines.iter().find(|l| l.starts_with("training")).unwrap();
+    assert!(
+        training.contains("min") || training.contains(" h"),
+        "{training}"
+    );
+}
+
+/// instant-ngp's own settings on a NeRF-synthetic scene (16 levels × 2
+/// features, 2^19 rows, 16..2048 cells, a 128³ occupancy grid, 4096 rays ×
+/// 256 samples) were refused at 1.2e12 evaluations counting every sample,
+/// where the grid skips most of them. Counted with the grid's expected
+/// share, they are accepted; the same model without a grid still counts
+/// every sample.
+#[test]
+fn an_occupancy_grid_counts_the_samples_it_keeps() {
+    let run = |occupancy: &str| {
+        format!(
+            r#"
+train lego {{
+  model: nerf(position: hashgrid(levels: 16, features: 2, log2_table: 19, min_res: 16, max_res: 2048), layers: 1, width: 64, skips: [], density: "exp"{occupancy}),
+  data: nerf_synthetic("lego"),
+  sampler: stratified(samples: 256, near: 2, far: 6),
+  rays: 4096,
+  iterations: 3000,
+  eval_every: 0,
+}}
+"#
+        )
+    };
+    let grid = run(", occupancy: occupancy_grid(resolution: 128, min: [-1.5, -1.5, -1.5], max: [1.5, 1.5, 1.5], every: 16)");
+    let p = load(&SourceFile::new("lego.sdfl", grid)).unwrap_or_else(|e| panic!("{e:?}"));
+    let w = train_work(&p.trains[0], None);
+    let t = w.stage(Stage::Training);
+    assert!(t.evaluations > MAX_EVALUATIONS, "counted as before: {t:?}");
+    assert!(
+        (t.expected / t.evaluations - OCCUPIED_SHARE).abs() < 1e-9,
+        "{t:?}"
+    );
+    assert!(w.expected < MAX_EVALUATIONS && w.skips(), "{w:?}");
+    assert!(
+        w.describe().contains("expected with empty space skipped"),
+        "{}",
+        w.describe()
+    );
+    // Without a grid every sample is expected: refused, with the override.
+    let found = codes_and_messages(&run(""));
+    let (_, m) = found
+        .iter()
+        .find(|(c, _)| c == "sdfl::limit::work")
+        .unwrap_or_else(|| panic!("{found:?}"));
+    assert!(m.contains("the limit is 1e12"), "{m}");
+    let p = load(&SourceFile::new("lego.sdfl", run(""))).err().unwrap();
+    let help = p.diags[0].help.clone().unwrap_or_default();
+    assert!(help.contains(&format!("{MAX_EVALUATIONS_VAR}=")), "{help}");
+}
+
+/// The override is a positive number; anything else is refused, not
+/// replaced by the default in silence.
+#[test]
+fn the_evaluation_limit_is_set_by_its_variable() {
+    assert_eq!(max_evaluations_from(None), Ok(MAX_EVALUATIONS));
+    assert_eq!(max_evaluations_from(Some("5e12")), Ok(5e12));
+    assert_eq!(max_evaluations_from(Some(" 2000000 ")), Ok(2e6));
+    for bad in ["", "lots", "-1", "0", "inf", "NaN", "1e400"] {
+        let e = max_evaluations_from(Some(bad)).unwrap_err();
+        assert!(e.contains(MAX_EVALUATIONS_VAR), "{bad}: {e}");
+    }
 }
 
 /// A 512³ grid refreshed every step took 183 s a step while the plan showed

@@ -120,7 +120,7 @@ pub(super) fn within_budget_once_read(
     views: &[TrainView],
     test_views: &[TrainView],
 ) -> io::Result<()> {
-    use sdfl_stdlib::work::{MAX_EVALUATIONS, MAX_MEMORY};
+    use sdfl_stdlib::work::{max_evaluations, MAX_EVALUATIONS_VAR, MAX_MEMORY};
     if matches!(*job.data, Dataset::Rendered { .. } | Dataset::Traced { .. }) {
         // Rendered by sdfl: counted when the file was evaluated.
         return Ok(());
@@ -129,9 +129,10 @@ pub(super) fn within_budget_once_read(
     let largest = test_views.iter().map(pixels).fold(0.0, f64::max);
     let data = crate::data::views_bytes(views.iter().chain(test_views));
     let budget = crate::data::OnceRead::of(job, size, test_views.len(), largest, data);
-    if budget.evaluations > MAX_EVALUATIONS {
+    let limit = max_evaluations();
+    if budget.evaluations > limit {
         return Err(invalid(format!(
-            "training `{}` would need {:.1e} SDF evaluations (at most {MAX_EVALUATIONS:.0e}), {:.1e} of them scoring its {} held-out views: score less often (`eval_every`), with fewer views or samples",
+            "training `{}` is expected to need {:.1e} evaluations (the limit is {limit:.0e}), {:.1e} of them scoring its {} held-out views: score less often (`eval_every`), with fewer views or samples; a run meant to take hours may raise the limit with {MAX_EVALUATIONS_VAR}",
             job.name,
             budget.evaluations,
             budget.held_out_evaluations,

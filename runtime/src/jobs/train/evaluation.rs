@@ -21,7 +21,7 @@ pub(super) fn comparison_image(
         for y in 0..vh {
             for x in 0..vw {
                 let i = (y * vw + x) as usize;
-                let (t, c) = (v.image.pixels[i], r[i]);
+                let (t, c) = (v.image.pixel(i), r[i]);
                 let err = [0, 1, 2].map(|k| (4.0 * (t[k] - c[k]).abs()).min(1.0));
                 for (panel, px) in [t, c, err].iter().enumerate() {
                     let o = 3 * (((y0 + y) * 3 * w) + panel as u32 * w + x) as usize;
@@ -89,14 +89,13 @@ pub(super) fn evaluate(
         // Masked pixels are not scored: left out of PSNR, and the
         // render's own colour in the target for SSIM's windows.
         let target: std::borrow::Cow<[[f32; 3]]> = match &v.mask {
-            None => (&v.image.pixels[..]).into(),
+            None => v.image.to_rgb().into(),
             Some(m) => v
                 .image
-                .pixels
-                .iter()
+                .colours()
                 .zip(&colour)
                 .zip(m.iter())
-                .map(|((t, c), keep)| if *keep { *t } else { *c })
+                .map(|((t, c), keep)| if *keep { t } else { *c })
                 .collect::<Vec<_>>()
                 .into(),
         };

@@ -39,6 +39,11 @@ pub struct TrainReport {
     pub final_loss: f32,
     /// Mean wall-clock seconds per training step of this run.
     pub seconds_per_step: f64,
+    /// Samples a ray that reached the network in this run's steps, of the
+    /// sampler's (the rest skipped as empty space); `None` where the model
+    /// does not count them.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub samples_per_ray: Option<SamplesPerRay>,
     /// Learned values by parameter name (`box.center`, or a `let` name);
     /// empty for a neural field (its weights are in the checkpoint).
     pub params: Vec<(String, Vec<f32>)>,
@@ -65,6 +70,17 @@ pub struct TrainReport {
     /// What looks wrong with the fit (code `sdfl::warn::diverged`): a loss
     /// that ended far above its lowest, parameters held at their range.
     pub warnings: Vec<String>,
+}
+
+/// What a training step really evaluated a ray, against what its sampler
+/// places.
+#[derive(Debug, Clone, Copy, serde::Serialize)]
+pub struct SamplesPerRay {
+    /// Mean samples a ray that the networks evaluated (a fine network's
+    /// included).
+    pub evaluated: f64,
+    /// The sampler's samples a ray.
+    pub sampled: usize,
 }
 
 /// Options of a training run that are not in the file.
@@ -300,6 +316,10 @@ pub fn run_train_job(
         resumed_from,
         final_loss: run.losses.last().copied().unwrap_or(f32::NAN),
         seconds_per_step: train_s / steps_run as f64,
+        samples_per_ray: field.samples_evaluated().map(|n| SamplesPerRay {
+            evaluated: n as f64 / (steps_run as f64 * job.rays.max(1) as f64),
+            sampled: job.sampler.samples,
+        }),
         params: field.reported(&values),
         network_weights: network.then_some(values.len()),
         held_out,

@@ -112,7 +112,8 @@ impl Outputs<'_> {
         Ok(r.written)
     }
 
-    /// The `mesh` outputs among `outputs`, with the meshes written.
+    /// The `mesh` outputs among `outputs`, with the meshes written (in the
+    /// data's frame, as the field exports).
     fn meshes(
         &self,
         field: &dyn TrainedField,
@@ -131,7 +132,10 @@ impl Outputs<'_> {
             .ok_or_else(|| invalid("only a distance field has a surface to mesh"))?;
         meshes
             .iter()
-            .map(|o| crate::mesh::write_mesh(self.out_dir, o, &*surface, field.region()))
+            .map(|o| {
+                let region = field.region();
+                crate::mesh::write_mesh_to(self.out_dir, o, &*surface, region, &self.to_data)
+            })
             .collect()
     }
 

@@ -18,8 +18,8 @@ pub fn fingerprint(job: &TrainJob, views: &[TrainView]) -> [String; 4] {
     for v in views {
         data.str(&format!("{:?}", v.camera))
             .f32s(&[v.image.width as f32, v.image.height as f32]);
-        for p in &v.image.pixels {
-            data.f32s(p);
+        for p in v.image.colours() {
+            data.f32s(&p);
         }
     }
     let hash = |value: &dyn std::fmt::Debug| {

@@ -264,6 +264,9 @@ pub struct SurfaceObjective {
     /// rays that cross it.
     skip: Option<SkipGrid>,
     selection: Selection,
+    /// Samples the networks evaluated in this process's steps: counted,
+    /// never read by a step.
+    evaluated: u64,
     samples: Samples,
     /// The samples with the fine ones merged in.
     merged: Samples,
@@ -309,6 +312,7 @@ impl SurfaceObjective {
             spec: spec.clone(),
             skip: SkipGrid::of(spec)?,
             selection: Selection::default(),
+            evaluated: 0,
             samples: Samples::default(),
             merged: Samples::default(),
             placing: Placing::default(),
@@ -728,6 +732,10 @@ impl Objective for SurfaceObjective {
         }
     }
 
+    fn samples_evaluated(&self) -> Option<u64> {
+        Some(self.evaluated)
+    }
+
     fn loss_and_grad(
         &mut self,
         values: &[f32],
@@ -761,6 +769,7 @@ impl Objective for SurfaceObjective {
             |r| pulled && batch.coverage[r] > 0.0,
         );
         let result = self.fit_selected(values, batch, weight, &selection, grad);
+        self.evaluated += selection.depths.len() as u64;
         self.selection = selection;
         result
     }

@@ -1,0 +1,713 @@
+//! IDR's and NeuS's layout of object captures (DTU and BlendedMVS as they
+//! ship them, e.g. `dtu_scan24/`): the images in `image/`, optional object
+//! masks in `mask/` (paired with the images by sorted file name; their
+//! names may differ: `000000.png` against `000.png`), and
+//! `cameras_sphere.npz` holding for image `i`
+//!
+//! - `world_mat_i`: a 4 × 4 whose first three rows are the projection
+//!   `P = K[R | t]` (world to OpenCV pixels: x right, y down, z forward);
+//! - `scale_mat_i`: `diag(s, s, s, 1)` with the translation `c`, which maps
+//!   the unit sphere around the object into the world.
+//!
+//! NeuS projects with `P · scale_mat`, so that it trains in the frame where
+//! the object is inside the unit sphere: that frame is the scene frame
+//! here, `(x − c) / s`, and exports map back into the world's (NeuS's
+//! `world_space`). Other arrays (`camera_mat_i`, the `*_inv` ones) are
+//! ignored.
+//!
+//! Pixel centres: NeuS casts the ray of pixel `(i, j)` through
+//! `K⁻¹ (i, j, 1)`, so its pixel centres sit at whole pixel coordinates;
+//! sdfl's intrinsics put pixel `i`'s centre at `i + ½` (as Blender and
+//! COLMAP do). The principal point therefore moves by +½ on each axis.
+
+use std::io;
+use std::path::{Path, PathBuf};
+
+use glam::{DMat3, DVec3};
+
+use super::capture::{
+    every_nth, invalid, Capture, CaptureFrame, CheckNamed, Distortion, Intrinsics, Keys,
+};
+use super::image::image_dimensions;
+use super::nerfstudio::inside;
+use super::normalize::SceneFrame;
+use super::npy::Npz;
+
+/// The cameras' file, whose presence marks the layout.
+pub const CAMERAS: &str = "cameras_sphere.npz";
+
+/// Largest `cameras_sphere.npz` read: six 4 × 4 arrays an image take
+/// about 2 KB, so 10 000 images fit many times over.
+const MAX_CAMERAS_BYTES: u64 = 64 << 20;
+
+/// Largest pixel shift that dropping a projection's skew may cause over
+/// the image (sdfl's cameras have none). DTU's is about 5e-5 px
+/// (`K[0][1]` ≈ −2.6e-4 with `fx` ≈ 2892 on 1600 × 1200 images).
+pub const MAX_SKEW_SHIFT: f64 = 0.01;
+
+/// How far (relative to the scale) a `scale_mat` may be from a uniform
+/// scale plus a translation, and two images' from each other.
+const SCALE_TOLERANCE: f64 = 1e-6;
+
+/// A projection matrix split into intrinsics and pose: `P ∝ K [R | t]`
+/// with `K`'s diagonal positive and `K[2][2] = 1`, `R` a rotation.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Projection {
+    /// Horizontal focal length in pixels.
+    pub fx: f64,
+    /// Vertical focal length in pixels.
+    pub fy: f64,
+    /// `K[0][1]`: how far x moves per unit of y at depth one.
+    pub skew: f64,
+    /// Principal point, OpenCV pixels (centres at whole numbers).
+    pub cx: f64,
+    /// Principal point's y.
+    pub cy: f64,
+    /// World to camera (OpenCV axes), rows.
+    pub rotation: DMat3,
+    /// World to camera translation: `x_cam = R x + t`.
+    pub translation: DVec3,
+}
+
+impl Projection {
+    /// The camera's position in the projection's world frame.
+    pub fn eye(&self) -> DVec3 {
+        -(self.rotation.transpose() * self.translation)
+    }
+
+    /// The OpenGL camera-to-world pose (columns right, up, back, eye): the
+    /// camera's OpenCV axes (x right, y down, z forward) are the rows of
+    /// `R`.
+    pub fn opengl_c2w(&self) -> [[f64; 4]; 4] {
+        let r = self.rotation;
+        let row = |i: usize| r.row(i);
+        let cols = [row(0), -row(1), -row(2), self.eye()];
+        let mut m = [[0.0; 4]; 4];
+        for (i, out) in m.iter_mut().take(3).enumerate() {
+            for (c, v) in cols.iter().enumerate() {
+                out[c] = v[i];
+            }
+        }
+        m[3][3] = 1.0;
+        m
+    }
+
+    /// How far dropping the skew moves a pixel of an image `height` pixels
+    /// tall, at most: x moves by `skew` times the depth-one y.
+    pub fn skew_shift(&self, height: f64) -> f64 {
+        self.skew.abs() * self.cy.abs().max((height - self.cy).abs()) / self.fy
+    }
+}
+
+/// Splits the projection `p` (3 × 4, rows) by an RQ decomposition of its
+/// left 3 × 3 `M = K R`: Gram–Schmidt on `M`'s rows from the last, so that
+/// `K`'s diagonal comes out positive; `P` is first negated where
+/// `det M < 0` (the same projective map), which makes `det R = +1`: the
+/// camera looks towards the points `P` gives positive depth (Hartley and
+/// Zisserman's sign rule).
+#[allow(
+    clippy::neg_cmp_op_on_partial_ord,
+    reason = "a NaN determinant (from huge entries) must take the refusing branch"
+)]
+pub fn decompose(p: &[[f64; 4]; 3]) -> Result<Projection, String> {
+    if !p.iter().flatten().all(|v| v.is_finite()) {
+        return Err("the projection holds a non-finite number".into());
+    }
+    let row = |i: usize| DVec3::new(p[i][0], p[i][1], p[i][2]);
+    let (mut m0, mut m1, mut m2) = (row(0), row(1), row(2));
+    let mut last = DVec3::new(p[0][3], p[1][3], p[2][3]);
+    let det = DMat3::from_cols(m0, m1, m2).determinant();
+    // Relative to the rows' lengths, so that units do not matter.
+    let size = m0.length() * m1.length() * m2.length();
+    if !(det.abs() > 1e-9 * size) {
+        return Err("the projection's left 3x3 part is singular (no camera has it)".into());
+    }
+    if det < 0.0 {
+        (m0, m1, m2, last) = (-m0, -m1, -m2, -last);
+    }
+    let k22 = m2.length();
+    let r2 = m2 / k22;
+    let k12 = m1.dot(r2);
+    let u1 = m1 - r2 * k12;
+    let k11 = u1.length();
+    let r1 = u1 / k11;
+    // Right-handed by construction; k00 = det M / (k11 k22) > 0.
+    let r0 = r1.cross(r2);
+    let (k00, k01, k02) = (m0.dot(r0), m0.dot(r1), m0.dot(r2));
+    // t = K⁻¹ p₄, by back-substitution (K upper triangular).
+    let t2 = last.z / k22;
+    let t1 = (last.y - k12 * t2) / k11;
+    let t0 = (last.x - k01 * t1 - k02 * t2) / k00;
+    let out = Projection {
+        fx: k00 / k22,
+        fy: k11 / k22,
+        skew: k01 / k22,
+        cx: k02 / k22,
+        cy: k12 / k22,
+        rotation: DMat3::from_cols(r0, r1, r2).transpose(),
+        translation: DVec3::new(t0, t1, t2),
+    };
+    let finite = [out.fx, out.fy, out.skew, out.cx, out.cy]
+        .iter()
+        .all(|v| v.is_finite())
+        && out.translation.is_finite();
+    if !(finite && out.fx > 0.0 && out.fy > 0.0) {
+        return Err("the projection does not split into a camera".into());
+    }
+    super::check_rotation(out.rotation)?;
+    Ok(out)
+}
+
+/// The uniform scale `s` and translation `c` of a `scale_mat` (4 × 4,
+/// rows), refusing anything else: a rotation, a non-uniform or
+/// non-positive scale, a projective last row.
+pub fn scale_of(m: &[[f64; 4]; 4]) -> Result<(f64, DVec3), String> {
+    if !m.iter().flatten().all(|v| v.is_finite()) {
+        return Err("it holds a non-finite number".into());
+    }
+    let s = m[0][0];
+    let (lo, hi) = sdfl_stdlib::precision::F32_SAFE;
+    if !(lo..=hi).contains(&s) {
+        return Err(format!(
+            "its scale {} is not a positive number from {lo:e} to {hi:e}",
+            sdfl_lang::fmt_num(s)
+        ));
+    }
+    let tol = SCALE_TOLERANCE * s;
+    for (i, row) in m.iter().take(3).enumerate() {
+        for (j, v) in row.iter().take(3).enumerate() {
+            let want = if i == j { s } else { 0.0 };
+            if (v - want).abs() > tol {
+                return Err(format!(
+                    "it is not a uniform scale plus a translation: entry [{i}][{j}] is {}, not {}",
+                    sdfl_lang::fmt_num(*v),
+                    sdfl_lang::fmt_num(want)
+                ));
+            }
+        }
+    }
+    if m[3] != [0.0, 0.0, 0.0, 1.0] {
+        return Err(format!(
+            "its last row is {:?}, not [0, 0, 0, 1]",
+            m[3].map(sdfl_lang::fmt_num)
+        ));
+    }
+    let c = DVec3::new(m[0][3], m[1][3], m[2][3]);
+    super::check_position("sphere centre", c)?;
+    Ok((s, c))
+}
+
+/// The image files of `dir/image/`, sorted by name: IDR's layout has no
+/// downscaled copies, so `downscale` must be 1.
+pub fn images(dir: &Path, downscale: u32) -> io::Result<Vec<PathBuf>> {
+    if downscale > 1 {
+        return Err(invalid(
+            dir,
+            format!("IDR's layout keeps full-size images only (image/), not images_{downscale}/: leave `downscale` out"),
+        ));
+    }
+    let folder = dir.join("image");
+    let files = super::image_files(&folder)?;
+    if files.is_empty() {
+        return Err(invalid(&folder, "holds no PNG or JPEG images"));
+    }
+    Ok(files)
+}
+
+/// The object masks of `dir/mask/`, sorted by name, one for each of
+/// `images` images; `None` without the folder.
+fn object_masks(dir: &Path, images: usize) -> io::Result<Option<Vec<PathBuf>>> {
+    let folder = dir.join("mask");
+    if !folder.is_dir() {
+        return Ok(None);
+    }
+    let files = super::image_files(&folder)?;
+    if files.len() != images {
+        return Err(invalid(
+            &folder,
+            format!(
+                "{} masks for {images} images in image/ (they pair by sorted name)",
+                files.len()
+            ),
+        ));
+    }
+    Ok(Some(files))
+}
+
+/// `name` of the archive as a 4 × 4 of finite numbers (rows).
+fn matrix4(npz: &mut Npz, name: &str) -> Result<[[f64; 4]; 4], String> {
+    let (shape, v) = npz.read_f64(name, 16).map_err(|e| match e {
+        super::npy::NpyError::MissingKey(_) => format!("it has no `{name}`"),
+        e => format!("`{name}`: {e}"),
+    })?;
+    if shape != [4, 4] {
+        return Err(format!("`{name}` has shape {shape:?}, not (4, 4)"));
+    }
+    if let Some(i) = v.iter().position(|x| !x.is_finite()) {
+        return Err(format!(
+            "`{name}`[{}][{}] is not a finite number",
+            i / 4,
+            i % 4
+        ));
+    }
+    let mut m = [[0.0; 4]; 4];
+    for (i, row) in m.iter_mut().enumerate() {
+        row.copy_from_slice(&v[i * 4..i * 4 + 4]);
+    }
+    Ok(m)
+}
+
+/// `world_mat_k` of the archive is `world_mat_<digits>`: counts the cameras.
+fn is_world_mat(key: &str) -> bool {
+    key.strip_prefix("world_mat_")
+        .is_some_and(|d| !d.is_empty() && d.bytes().all(|b| b.is_ascii_digit()))
+}
+
+/// An IDR capture in `dir`: its frames (cameras in the world frame, as
+/// OpenGL poses), and the scene frame that `scale_mat` gives (the unit
+/// sphere around the object).
+pub fn read(dir: &Path, downscale: u32, test_every: usize) -> io::Result<(Capture, SceneFrame)> {
+    let file = dir.join(CAMERAS);
+    let images = images(dir, downscale)?;
+    let masks = object_masks(dir, images.len())?;
+    let mut npz = Npz::read(&file, MAX_CAMERAS_BYTES).map_err(|e| invalid(&file, e))?;
+    let cameras = npz.keys().into_iter().filter(|k| is_world_mat(k)).count();
+    if cameras != images.len() {
+        return Err(invalid(
+            &file,
+            format!(
+                "{cameras} cameras (world_mat_<i>) for {} images in image/",
+                images.len()
+            ),
+        ));
+    }
+    // Each file checked to stay inside the capture (a link may lead out),
+    // named as listed.
+    let inside_as = |folder: &str, p: &Path| {
+        let leaf = p.file_name().unwrap_or_default();
+        let name = leaf.to_string_lossy();
+        inside(dir, &Path::new(folder).join(leaf), &name).map(|q| (q, name.into_owned()))
+    };
+    let mut sphere: Option<(f64, DVec3, [[f64; 4]; 4])> = None;
+    let mut frames = Vec::with_capacity(images.len());
+    for (k, path) in images.iter().enumerate() {
+        let (image, name) =
+            inside_as("image", path).map_err(|e| invalid(&file, format!("image {k}: {e}")))?;
+        let at = |m: String| invalid(&file, format!("image {k} ({name}): {m}"));
+        let object_mask = match &masks {
+            None => None,
+            Some(m) => Some(inside_as("mask", &m[k]).map_err(at)?.0),
+        };
+        let world = matrix4(&mut npz, &format!("world_mat_{k}")).map_err(at)?;
+        let scale = matrix4(&mut npz, &format!("scale_mat_{k}")).map_err(at)?;
+        let (s, c) = scale_of(&scale).map_err(|e| at(format!("`scale_mat_{k}`: {e}")))?;
+        // One sphere for every image: each NeuS camera is projected with
+        // its own, so images with different ones would not agree.
+        let (s0, c0, scale0) = *sphere.get_or_insert((s, c, scale));
+        if (s - s0).abs() > SCALE_TOLERANCE * s0 || (c - c0).length() > SCALE_TOLERANCE * s0 {
+            return Err(at(format!(
+                "`scale_mat_{k}` (scale {}, centre {c}) differs from scale_mat_0's (scale {}, centre {c0}): the images disagree on the object's sphere",
+                sdfl_lang::fmt_num(s),
+                sdfl_lang::fmt_num(s0)
+            )));
+        }
+        if world[3] != [0.0, 0.0, 0.0, 1.0] {
+            return Err(at(format!(
+                "`world_mat_{k}`'s last row is {:?}, not [0, 0, 0, 1]",
+                world[3].map(sdfl_lang::fmt_num)
+            )));
+        }
+        // As NeuS: P · scale_mat, the camera in the unit sphere's frame.
+        let mut p = [[0.0; 4]; 3];
+        for (i, out) in p.iter_mut().enumerate() {
+            for (j, v) in out.iter_mut().enumerate() {
+                *v = (0..4).map(|n| world[i][n] * scale0[n][j]).sum();
+            }
+        }
+        let cam = decompose(&p).map_err(|e| at(format!("`world_mat_{k}`: {e}")))?;
+        let (w, h) = image_dimensions(&image)?;
+        let shift = cam.skew_shift(h as f64);
+        if shift > MAX_SKEW_SHIFT {
+            return Err(at(format!(
+                "`world_mat_{k}` has a skew of {:.3} px (K[0][1], against fx {:.1}): dropping it would move pixels by up to {shift:.3} px (at most {MAX_SKEW_SHIFT}), and sdfl's cameras have none (a sheared pose, or a skewed sensor)",
+                cam.skew, cam.fx
+            )));
+        }
+        let intrinsics = Intrinsics {
+            width: w,
+            height: h,
+            fx: cam.fx,
+            fy: cam.fy,
+            cx: cam.cx + 0.5,
+            cy: cam.cy + 0.5,
+            distortion: Distortion::None,
+        };
+        intrinsics
+            .check_named(Keys { fx: "fx", fy: "fy" }, (cam.fx, cam.fy))
+            .map_err(|e| at(format!("`world_mat_{k}`: {e}")))?;
+        let unit_eye = cam.eye();
+        super::check_position("camera position in the unit sphere's frame", unit_eye)
+            .map_err(|e| at(format!("`world_mat_{k}`: {e}")))?;
+        // Kept in the world frame, as the other readers keep the data's:
+        // the scene frame maps it back to the unit sphere's.
+        let eye = unit_eye * s0 + c0;
+        super::check_position("camera position", eye)
+            .map_err(|e| at(format!("`world_mat_{k}`: {e}")))?;
+        let mut c2w = cam.opengl_c2w();
+        for (row, e) in c2w.iter_mut().zip(eye.to_array()) {
+            row[3] = e;
+        }
+        frames.push(CaptureFrame {
+            label: format!("image {k} ({name})"),
+            image,
+            mask: None,
+            object_mask,
+            c2w,
+            intrinsics,
+        });
+    }
+    let test = every_nth(frames.len(), test_every);
+    if test.len() == frames.len() {
+        return Err(invalid(
+            &file,
+            "no training images (every image is held out)",
+        ));
+    }
+    // Images exist, so the sphere was read.
+    let (s, c, _) = sphere.ok_or_else(|| invalid(&file, "no cameras"))?;
+    Ok((
+        Capture {
+            source: file,
+            frames,
+            test,
+            applied: None,
+            points: Vec::new(),
+            bounds: None,
+        },
+        SceneFrame::new(1.0 / s, c, DMat3::IDENTITY),
+    ))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::data::capture::camera_of;
+
+    /// A small deterministic generator (SplitMix64) for random cameras.
+    struct Rng(u64);
+
+    impl Rng {
+        fn next(&mut self) -> f64 {
+            self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
+            let mut z = self.0;
+            z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+            z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+            ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64
+        }
+
+        fn range(&mut self, lo: f64, hi: f64) -> f64 {
+            lo + (hi - lo) * self.next()
+        }
+
+        /// A uniformly random rotation (a unit quaternion from four normals
+        /// would do; Shoemake's three uniforms are exact).
+        fn rotation(&mut self) -> DMat3 {
+            let (u1, u2, u3) = (self.next(), self.next(), self.next());
+            let tau = std::f64::consts::TAU;
+            let q = glam::DQuat::from_xyzw(
+                (1.0 - u1).sqrt() * (tau * u2).sin(),
+                (1.0 - u1).sqrt() * (tau * u2).cos(),
+                u1.sqrt() * (tau * u3).sin(),
+                u1.sqrt() * (tau * u3).cos(),
+            );
+            DMat3::from_quat(q.normalize())
+        }
+    }
+
+    /// `K [R | t]` as rows, `K = [[fx, skew, cx], [0, fy, cy], [0, 0, 1]]`.
+    fn projection(k: [f64; 5], r: DMat3, t: DVec3) -> [[f64; 4]; 3] {
+        let [fx, skew, cx, fy, cy] = k;
+        let kk = DMat3::from_cols_array_2d(&[[fx, skew, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+            .transpose();
+        let m = kk * r;
+        let p4 = kk * t;
+        let mut p = [[0.0; 4]; 3];
+        for (i, row) in p.iter_mut().enumerate() {
+            let mr = m.row(i);
+            *row = [mr.x, mr.y, mr.z, p4[i]];
+        }
+        p
+    }
+
+    fn max_diff(a: DMat3, b: DMat3) -> f64 {
+        (a - b)
+            .to_cols_array()
+            .iter()
+            .fold(0.0, |m, v| m.max(v.abs()))
+    }
+
+    fn close(a: f64, b: f64, tol: f64) -> bool {
+        (a - b).abs() <= tol * a.abs().max(b.abs()).max(1.0)
+    }
+
+    #[test]
+    fn decomposition_recovers_random_cameras_looking_every_way() {
+        let mut rng = Rng(7);
+        for n in 0..2000 {
+            let k = [
+                rng.range(50.0, 5000.0),
+                0.0,
+                rng.range(-100.0, 1700.0),
+                rng.range(50.0, 5000.0),
+                rng.range(-100.0, 1300.0),
+            ];
+            let r = rng.rotation();
+            let t = DVec3::new(
+                rng.range(-500.0, 500.0),
+                rng.range(-500.0, 500.0),
+                rng.range(-500.0, 500.0),
+            );
+            // Any overall scale of P, of either sign, is the same camera.
+            let scale = rng.range(1e-3, 1e3) * if n % 2 == 0 { 1.0 } else { -1.0 };
+            let mut p = projection(k, r, t);
+            for v in p.iter_mut().flatten() {
+                *v *= scale;
+            }
+            let d = decompose(&p).unwrap();
+            let tol = 1e-9;
+            assert!(
+                close(d.fx, k[0], tol) && close(d.fy, k[3], tol),
+                "{n}: {d:?}"
+            );
+            assert!(
+                close(d.cx, k[2], tol) && close(d.cy, k[4], tol),
+                "{n}: {d:?}"
+            );
+            assert!(d.skew.abs() < 1e-9 * k[0], "{n}: {d:?}");
+            assert!(max_diff(d.rotation, r) < 1e-12, "{n}");
+            assert!(
+                (d.translation - t).length() < 1e-9 * t.length().max(1.0),
+                "{n}"
+            );
+            assert!((d.rotation.determinant() - 1.0).abs() < 1e-12);
+        }
+        // Skew survives the round trip too (it is refused later, by size).
+        let r = rng.rotation();
+        let d = decompose(&projection(
+            [800.0, 3.0, 400.0, 790.0, 300.0],
+            r,
+            DVec3::new(1.0, 2.0, 3.0),
+        ))
+        .unwrap();
+        assert!(close(d.skew, 3.0, 1e-9), "{d:?}");
+    }
+
+    #[test]
+    fn signs_are_fixed_so_focal_lengths_are_positive_and_r_is_a_rotation() {
+        let r = DMat3::from_rotation_y(0.4) * DMat3::from_rotation_x(-0.2);
+        let t = DVec3::new(0.1, -0.3, 4.0);
+        let k = [500.0, 0.0, 320.0, 480.0, 240.0];
+        let p = projection(k, r, t);
+        let neg = p.map(|row| row.map(|v| -v));
+        // A factorisation with negative focal lengths, K·D and D·R with
+        // D = diag(-1, -1, 1), is the same matrix: the decomposition picks
+        // the positive one.
+        for q in [p, neg] {
+            let d = decompose(&q).unwrap();
+            assert!(d.fx > 0.0 && d.fy > 0.0, "{d:?}");
+            assert!((d.rotation.determinant() - 1.0).abs() < 1e-12);
+            assert!(max_diff(d.rotation, r) < 1e-12);
+            assert!((d.translation - t).length() < 1e-12);
+            // The point straight ahead is in front of the camera.
+            let ahead = d.eye() + d.rotation.row(2) * 2.0;
+            assert!((d.rotation * ahead + d.translation).z > 0.0);
+        }
+        // The OpenGL pose looks down −z of its own axes: back = −forward.
+        let d = decompose(&p).unwrap();
+        let m = d.opengl_c2w();
+        let back = DVec3::new(m[0][2], m[1][2], m[2][2]);
+        assert!((back + r.row(2)).length() < 1e-12);
+        let up = DVec3::new(m[0][1], m[1][1], m[2][1]);
+        assert!((up + r.row(1)).length() < 1e-12);
+    }
+
+    #[test]
+    fn degenerate_and_non_finite_projections_are_refused() {
+        let zero = [[0.0; 4]; 3];
+        assert!(decompose(&zero).unwrap_err().contains("singular"));
+        // Rank 2: two equal rows.
+        let p = [
+            [1.0, 2.0, 3.0, 4.0],
+            [1.0, 2.0, 3.0, 5.0],
+            [0.0, 0.0, 1.0, 1.0],
+        ];
+        assert!(decompose(&p).unwrap_err().contains("singular"));
+        let mut p = projection([500.0, 0.0, 320.0, 500.0, 240.0], DMat3::IDENTITY, DVec3::Z);
+        p[1][2] = f64::NAN;
+        assert!(decompose(&p).unwrap_err().contains("non-finite"));
+        p[1][2] = f64::INFINITY;
+        assert!(decompose(&p).unwrap_err().contains("non-finite"));
+    }
+
+    #[test]
+    fn skew_and_sheared_poses_are_measured_in_pixels() {
+        // A sheared pose (R times a shear) is no rigid camera: it shows
+        // as skew in K, which moves pixels by far more than the limit.
+        let shear = DMat3::from_cols_array_2d(&[[1.0, 0.0, 0.0], [0.2, 1.0, 0.0], [0.0, 0.0, 1.0]]);
+        let p = projection(
+            [1000.0, 0.0, 400.0, 1000.0, 300.0],
+            shear * DMat3::from_rotation_z(0.3),
+            DVec3::new(0.0, 0.0, 5.0),
+        );
+        let d = decompose(&p).unwrap();
+        assert!(d.skew_shift(600.0) > 10.0, "{d:?}");
+        // DTU's own (scan24, image 0): K[0][1] ≈ -2.6e-4 against fx 2892
+        // on 1600 x 1200: about 5e-5 px, far inside the limit.
+        let dtu = projection(
+            [2892.33, -2.586e-4, 823.205, 2883.18, 619.071],
+            DMat3::from_rotation_y(0.24),
+            DVec3::new(-0.5, 0.1, 2.7),
+        );
+        let d = decompose(&dtu).unwrap();
+        let shift = d.skew_shift(1200.0);
+        assert!(shift < 1e-4 && shift > 1e-5, "{shift}");
+        assert!(shift < MAX_SKEW_SHIFT);
+    }
+
+    #[test]
+    fn scale_mats_must_be_a_uniform_scale_and_a_translation() {
+        let good = [
+            [2.5, 0.0, 0.0, 10.0],
+            [0.0, 2.5, 0.0, -3.0],
+            [0.0, 0.0, 2.5, 600.0],
+            [0.0, 0.0, 0.0, 1.0],
+        ];
+        assert_eq!(
+            scale_of(&good).unwrap(),
+            (2.5, DVec3::new(10.0, -3.0, 600.0))
+        );
+        type Spoil = fn(&mut [[f64; 4]; 4]);
+        let cases: [(&str, Spoil, &str); 6] = [
+            ("non-uniform", |m| m[1][1] = 2.6, "[1][1]"),
+            ("rotated", |m| m[0][1] = 0.3, "[0][1]"),
+            (
+                "negative",
+                |m| {
+                    for (i, row) in m.iter_mut().take(3).enumerate() {
+                        row[i] = -2.5
+                    }
+                },
+                "positive",
+            ),
+            (
+                "zero",
+                |m| {
+                    for (i, row) in m.iter_mut().take(3).enumerate() {
+                        row[i] = 0.0
+                    }
+                },
+                "positive",
+            ),
+            ("projective", |m| m[3][2] = 0.1, "last row"),
+            ("far", |m| m[0][3] = 1e300, "out of range"),
+        ];
+        for (what, spoil, says) in cases {
+            let mut m = good;
+            spoil(&mut m);
+            let e = scale_of(&m).unwrap_err();
+            assert!(e.contains(says), "{what}: {e}");
+        }
+        let mut m = good;
+        m[2][3] = f64::NAN;
+        assert!(scale_of(&m).unwrap_err().contains("non-finite"));
+    }
+
+    /// NeuS's pixel of a world point: `P · X`, divided through. Its pixel
+    /// centres are whole numbers.
+    fn neus_pixel(p: &[[f64; 4]; 3], x: DVec3) -> (f64, f64) {
+        let h = [x.x, x.y, x.z, 1.0];
+        let row = |i: usize| (0..4).map(|n| p[i][n] * h[n]).sum::<f64>();
+        let w = row(2);
+        (row(0) / w, row(1) / w)
+    }
+
+    #[test]
+    fn the_ray_through_neus_pixel_position_passes_through_the_point() {
+        // NeuS casts pixel (i, j)'s ray through K⁻¹(i, j, 1); sdfl's pixel
+        // (i, j) is at OpenCV (i + ½, j + ½). With the reader's +½ on the
+        // principal point, sdfl's ray through pixel position (u, v) (the
+        // NeuS pixel P·X lands on) passes through X. Two lenses: an
+        // off-centre one (sdfl keeps pixel intrinsics) and one whose
+        // NeuS principal point is (W−1)/2, (H−1)/2 (centred once moved by
+        // ½: sdfl's NDC pinhole with half-pixel centres).
+        let (w, h) = (64u32, 48u32);
+        let c = DVec3::new(120.0, -40.0, 650.0);
+        let s = 210.0;
+        let frame = SceneFrame::new(1.0 / s, c, DMat3::IDENTITY);
+        let mut rng = Rng(11);
+        for k in [[70.0, 0.0, 30.2, 72.5, 21.7], [60.0, 0.0, 31.5, 60.0, 23.5]] {
+            for _ in 0..50 {
+                let r = rng.rotation();
+                // A camera in the world ~3 sphere radii from the centre,
+                // looking near it.
+                let eye = c + r.row(2) * (-3.0 * s);
+                let t = -(r * eye);
+                let p = projection(k, r, t);
+                let d = decompose(&p).unwrap();
+                let intrinsics = Intrinsics {
+                    width: w,
+                    height: h,
+                    fx: d.fx,
+                    fy: d.fy,
+                    cx: d.cx + 0.5,
+                    cy: d.cy + 0.5,
+                    distortion: Distortion::None,
+                };
+                let cam = camera_of(&frame.pose_to_scene(&d.opengl_c2w()), &intrinsics).unwrap();
+                let centred = k[2] == (w as f64 - 1.0) / 2.0;
+                assert_eq!(
+                    cam.lens == sdfl_stdlib::camera::Lens::Ndc,
+                    centred,
+                    "{:?}",
+                    cam.lens
+                );
+                for _ in 0..10 {
+                    // A world point inside the sphere that lands in the image.
+                    let x = c + DVec3::new(
+                        rng.range(-0.5, 0.5),
+                        rng.range(-0.5, 0.5),
+                        rng.range(-0.5, 0.5),
+                    ) * s;
+                    let (u, v) = neus_pixel(&p, x);
+                    let ray = cam.pixel_direction(u, v, w, h);
+                    let to = frame.to_scene(x) - cam.eye;
+                    let off = ray.cross(to).length() / to.length();
+                    assert!(off < 1e-9, "{off} at ({u}, {v})");
+                    // Without the half-pixel move, it misses by ~½ px.
+                    let wrong = Intrinsics {
+                        cx: d.cx,
+                        cy: d.cy,
+                        ..intrinsics
+                    };
+                    let cam2 = camera_of(&frame.pose_to_scene(&d.opengl_c2w()), &wrong).unwrap();
+                    let off2 = cam2.pixel_direction(u, v, w, h).cross(to).length() / to.length();
+                    assert!(off2 > 0.3 / k[0], "{off2}");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn world_mat_keys_are_counted_exactly() {
+        assert!(is_world_mat("world_mat_0") && is_world_mat("world_mat_48"));
+        for k in [
+            "world_mat_inv_0",
+            "world_mat_",
+            "world_mat_1a",
+            "scale_mat_0",
+            "camera_mat_0",
+        ] {
+            assert!(!is_world_mat(k), "{k}");
+        }
+    }
+}

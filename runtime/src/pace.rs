@@ -1,0 +1,73 @@
+//! How fast this machine does sdfl's unit of work, so that `sdfl plan` can
+//! put a wall time beside each stage's evaluations. An evaluation is a
+//! primitive's distance or [`MULTIPLY_ADDS_PER_EVALUATION`] of a network's
+//! multiply-adds; the machine's rate is measured once a process, on the
+//! layer kernel the networks use, with every thread.
+
+use std::sync::OnceLock;
+use std::time::{Duration, Instant};
+
+use sdfl_stdlib::work::MULTIPLY_ADDS_PER_EVALUATION;
+
+use crate::neural::mlp::{Activation, Dense};
+
+/// The share of a dense layer's multiply-add rate that whole training
+/// runs and renders reach per evaluation counted: their hash-grid gathers,
+/// compositing, backward passes and narrow layers run slower than one
+/// wide product. Measured by `plan` against `run` on this project's
+/// examples (docs/results.md, "plan's times").
+pub const RUN_EFFICIENCY: f64 = 0.5;
+
+/// Rows of the calibration layer: enough to keep every thread busy.
+const ROWS: usize = 16_384;
+/// Width of the calibration layer, the examples' typical hidden width.
+const WIDTH: usize = 64;
+/// How long the calibration runs (after one warm-up pass).
+const MEASURE: Duration = Duration::from_millis(40);
+
+/// Multiply-adds a second of a `WIDTH`-wide dense layer on this machine
+/// with every thread of the pool, measured once.
+pub fn layer_rate() -> f64 {
+    static RATE: OnceLock<f64> = OnceLock::new();
+    *RATE.get_or_init(measure_layer)
+}
+
+/// Evaluations a second on this machine, for whole runs: [`layer_rate`]
+/// in evaluations, times [`RUN_EFFICIENCY`].
+pub fn evaluation_rate() -> f64 {
+    layer_rate() / MULTIPLY_ADDS_PER_EVALUATION * RUN_EFFICIENCY
+}
+
+fn measure_layer() -> f64 {
+    let layer = Dense::new(&[WIDTH], WIDTH, Activation::Relu, 0);
+    let params: Vec<f32> = (0..layer.len())
+        .map(|i| ((i % 7) as f32 - 3.0) * 0.01)
+        .collect();
+    let input: Vec<f32> = (0..ROWS * WIDTH).map(|i| ((i % 11) as f32) * 0.1).collect();
+    let mut out = vec![0.0f32; ROWS * WIDTH];
+    layer.forward(&params, &[&input], &mut out);
+    let t = Instant::now();
+    let mut passes = 0u32;
+    while t.elapsed() < MEASURE {
+        layer.forward(&params, &[&input], &mut out);
+        passes += 1;
+    }
+    let seconds = t.elapsed().as_secs_f64().max(1e-9);
+    passes as f64 * (ROWS * WIDTH * WIDTH) as f64 / seconds
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_rate_is_a_plausible_number_of_multiply_adds() {
+        // Between a slow core's scalar loop and a large machine's peak.
+        let r = layer_rate();
+        assert!((1e8..1e14).contains(&r), "{r:e} multiply-adds a second");
+        assert_eq!(
+            evaluation_rate(),
+            r / MULTIPLY_ADDS_PER_EVALUATION * RUN_EFFICIENCY
+        );
+    }
+}
