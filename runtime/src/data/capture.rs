@@ -443,6 +443,32 @@ pub fn read_for(spec: &CaptureSpec, base: &Path, needs: DataNeeds) -> io::Result
     Ok(views)
 }
 
+/// A frame's mask image (`what`: "mask", "object mask"), which must be
+/// its image's size.
+fn read_mask_image(
+    path: &Path,
+    what: &str,
+    size: (u32, u32),
+    f: &CaptureFrame,
+    source: &Path,
+) -> io::Result<super::image::RgbaImage> {
+    let mask = read_rgba_image(path)?;
+    let (w, h) = (mask.width, mask.height);
+    if (w, h) != size {
+        return Err(invalid(
+            path,
+            format!(
+                "the {what} of {} of {} is {w}x{h} pixels, its image {}x{}",
+                f.label,
+                source.display(),
+                size.0,
+                size.1
+            ),
+        ));
+    }
+    Ok(mask)
+}
+
 /// A frame's mask: a pixel is kept where the mask image is not black (as
 /// nerfstudio reads `mask_path`: nonzero keeps), the image's size.
 fn read_mask(
@@ -451,21 +477,7 @@ fn read_mask(
     f: &CaptureFrame,
     source: &Path,
 ) -> io::Result<std::sync::Arc<[bool]>> {
-    let mask = read_rgba_image(path)?;
-    let (w, h) = (mask.width, mask.height);
-    if (w, h) != size {
-        return Err(invalid(
-            path,
-            format!(
-                "the mask of {} of {} is {w}x{h} pixels, its image {}x{}",
-                f.label,
-                source.display(),
-                size.0,
-                size.1
-            ),
-        ));
-    }
-    let keep: std::sync::Arc<[bool]> = mask
+    let keep: std::sync::Arc<[bool]> = read_mask_image(path, "mask", size, f, source)?
         .pixels
         .iter()
         .map(|p| p[0].max(p[1]).max(p[2]) > 0.0)
@@ -492,21 +504,7 @@ fn read_object_mask(
     f: &CaptureFrame,
     source: &Path,
 ) -> io::Result<std::sync::Arc<[u8]>> {
-    let mask = read_rgba_image(path)?;
-    let (w, h) = (mask.width, mask.height);
-    if (w, h) != size {
-        return Err(invalid(
-            path,
-            format!(
-                "the object mask of {} of {} is {w}x{h} pixels, its image {}x{}",
-                f.label,
-                source.display(),
-                size.0,
-                size.1
-            ),
-        ));
-    }
-    Ok(mask
+    Ok(read_mask_image(path, "object mask", size, f, source)?
         .pixels
         .iter()
         .map(|p| {

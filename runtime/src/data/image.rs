@@ -146,9 +146,9 @@ pub struct RgbaImage {
     pub has_alpha: bool,
 }
 
-/// Reads an image with its alpha channel as f32 RGBA in 0..1 (opaque where
-/// the file has no alpha), its size checked first. Not `.npy`.
-pub fn read_rgba_image(path: &Path) -> io::Result<RgbaImage> {
+/// Decodes an image file that may have alpha (not `.npy`), its size
+/// checked first.
+fn decode_with_alpha(path: &Path) -> io::Result<image::DynamicImage> {
     let size = image_dimensions(path)?;
     if is_npy(path) {
         return Err(invalid(
@@ -156,9 +156,15 @@ pub fn read_rgba_image(path: &Path) -> io::Result<RgbaImage> {
             "expected an image with alpha (PNG), not .npy",
         ));
     }
-    let img = reader(path, Some(size))?
+    reader(path, Some(size))?
         .decode()
-        .map_err(|e| invalid(path, e))?;
+        .map_err(|e| invalid(path, e))
+}
+
+/// Reads an image with its alpha channel as f32 RGBA in 0..1 (opaque where
+/// the file has no alpha), its size checked first. Not `.npy`.
+pub fn read_rgba_image(path: &Path) -> io::Result<RgbaImage> {
+    let img = decode_with_alpha(path)?;
     let has_alpha = img.color().has_alpha();
     let img = img.to_rgba32f();
     Ok(RgbaImage {
@@ -213,16 +219,7 @@ impl DecodedView {
 /// Reads a training image (not `.npy`), its size checked first: 8-bit
 /// files stay 8-bit, others become f32; opaque where it has no alpha.
 pub fn read_view_image(path: &Path) -> io::Result<DecodedView> {
-    let size = image_dimensions(path)?;
-    if is_npy(path) {
-        return Err(invalid(
-            path,
-            "expected an image with alpha (PNG), not .npy",
-        ));
-    }
-    let img = reader(path, Some(size))?
-        .decode()
-        .map_err(|e| invalid(path, e))?;
+    let img = decode_with_alpha(path)?;
     let has_alpha = img.color().has_alpha();
     let eight = img.color().bytes_per_pixel() == img.color().channel_count();
     let (width, height) = (img.width(), img.height());
