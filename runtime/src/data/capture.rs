@@ -196,6 +196,19 @@ pub fn every_nth(n: usize, every: usize) -> Vec<usize> {
     (0..n).step_by(every).collect()
 }
 
+/// [`every_nth`] of a capture's `n` frames, refused where it would hold
+/// every one out (`what`: the file's word for them, "images", "frames").
+pub fn held_out_every(n: usize, every: usize, file: &Path, what: &str) -> io::Result<Vec<usize>> {
+    let test = every_nth(n, every);
+    if test.len() == n {
+        return Err(invalid(
+            file,
+            format!("no training {what} (every one is held out)"),
+        ));
+    }
+    Ok(test)
+}
+
 /// Reads a capture's images (sizes checked before any is decoded), moves
 /// its cameras into the scene frame (`frame`, or one from the cameras by
 /// `normalize`) and composites images with alpha over `background`. With

@@ -17,7 +17,7 @@ use glam::{DMat3, DQuat, DVec3};
 use sdfl_stdlib::builtins::MAX_VIEWS;
 
 use super::capture::{
-    every_nth, invalid, Capture, CaptureFrame, CheckNamed, Distortion, Intrinsics, Keys,
+    held_out_every, invalid, Capture, CaptureFrame, CheckNamed, Distortion, Intrinsics, Keys,
 };
 use super::image::{image_dimensions, open_regular};
 use super::nerfstudio::inside;
@@ -464,13 +464,7 @@ pub fn read(dir: &Path, downscale: u32, test_every: usize) -> io::Result<Capture
             intrinsics,
         });
     }
-    let test = every_nth(frames.len(), test_every);
-    if test.len() == frames.len() {
-        return Err(invalid(
-            &images_txt,
-            "no training images (every image is held out)",
-        ));
-    }
+    let test = held_out_every(frames.len(), test_every, &images_txt, "images")?;
     let points_txt = model.join("points3D.txt");
     let points = if points_txt.is_file() {
         read_points(&points_txt)?

@@ -26,7 +26,7 @@ use std::path::{Path, PathBuf};
 use glam::{DMat3, DVec3};
 
 use super::capture::{
-    every_nth, invalid, Capture, CaptureFrame, CheckNamed, Distortion, Intrinsics, Keys,
+    held_out_every, invalid, Capture, CaptureFrame, CheckNamed, Distortion, Intrinsics, Keys,
 };
 use super::image::image_dimensions;
 use super::nerfstudio::inside;
@@ -366,13 +366,7 @@ pub fn read(dir: &Path, downscale: u32, test_every: usize) -> io::Result<(Captur
             intrinsics,
         });
     }
-    let test = every_nth(frames.len(), test_every);
-    if test.len() == frames.len() {
-        return Err(invalid(
-            &file,
-            "no training images (every image is held out)",
-        ));
-    }
+    let test = held_out_every(frames.len(), test_every, &file, "images")?;
     // Images exist, so the sphere was read.
     let (s, c, _) = sphere.ok_or_else(|| invalid(&file, "no cameras"))?;
     Ok((

@@ -19,7 +19,7 @@ use glam::{DMat3, DVec3};
 use sdfl_stdlib::builtins::MAX_VIEWS;
 
 use super::capture::{
-    every_nth, invalid, Capture, CaptureFrame, CheckNamed, Distortion, Intrinsics, Keys,
+    held_out_every, invalid, Capture, CaptureFrame, CheckNamed, Distortion, Intrinsics, Keys,
 };
 use super::image::image_dimensions;
 use super::nerfstudio::inside;
@@ -212,13 +212,7 @@ pub fn read(dir: &Path, downscale: u32, test_every: usize) -> io::Result<(Captur
             intrinsics,
         });
     }
-    let test = every_nth(frames.len(), test_every);
-    if test.len() == frames.len() {
-        return Err(invalid(
-            &file,
-            "no training frames (every frame is held out)",
-        ));
-    }
+    let test = held_out_every(frames.len(), test_every, &file, "frames")?;
     let frame = scene_frame(&poses);
     let near = poses.iter().map(|p| p.near).fold(f64::INFINITY, f64::min);
     let far = poses.iter().map(|p| p.far).fold(0.0, f64::max);
