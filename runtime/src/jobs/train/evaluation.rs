@@ -3,6 +3,7 @@
 //! training and at its end.
 
 use super::super::*;
+use crate::train::log::{Observer, TrainEvent};
 use crate::train::TrainedField;
 
 pub use crate::train::log::HeldOut;
@@ -53,30 +54,66 @@ pub(super) fn due(job: &TrainJob, step: usize, views: &[TrainView]) -> bool {
     step > 0 && job.eval_every > 0 && !views.is_empty() && step.is_multiple_of(job.eval_every)
 }
 
-/// Scores the held-out `views` at step `step` into `log`.
+/// Scores the held-out `views` at step `step` into `log`, telling
+/// `observer` (see [`announce`]).
 pub(super) fn evaluate_into(
     log: &mut crate::train::log::TrainLog,
     step: usize,
     field: &dyn TrainedField,
     values: &[f32],
     views: &[TrainView],
+    (name, observer): (&str, &Observer),
 ) -> io::Result<()> {
     let t = std::time::Instant::now();
-    let e = evaluate(field, values, views)?;
+    let e = evaluate(field, values, views, &announce(name, step, views, observer))?;
     let took = t.elapsed().as_secs_f64();
     let first = crate::train::log::first_view(views, &e.renders);
     log.evaluated(step, e.psnr, e.ssim, took, first);
     Ok(())
 }
 
-/// The held-out `views` rendered by `field` at `values` and scored.
+/// Held-out pixels from which an evaluation is announced with a line of
+/// its own: scoring a megapixel takes seconds, 200 views of 800² minutes;
+/// smaller ones would only add lines.
+pub const ANNOUNCED_PIXELS: usize = 1 << 20;
+
+/// What a held-out evaluation tells whoever watches the run (`observer`):
+/// a line when it starts, for views of [`ANNOUNCED_PIXELS`] or more (shown
+/// piped too), then each view done on the status line. Returns the
+/// per-view callback for [`evaluate`].
+pub fn announce<'a>(
+    name: &'a str,
+    step: usize,
+    views: &[TrainView],
+    observer: &'a Observer,
+) -> impl Fn(usize) + 'a {
+    let n = views.len();
+    let pixels: usize = views.iter().map(|v| v.image.len()).sum();
+    if let Some(v) = views.first().filter(|_| pixels >= ANNOUNCED_PIXELS) {
+        observer(&TrainEvent::Note(&format!(
+            "{name}: scoring {n} held-out view{} of {}x{} at step {step}",
+            if n == 1 { "" } else { "s" },
+            v.image.width,
+            v.image.height
+        )));
+    }
+    move |done| {
+        observer(&TrainEvent::Status(&format!(
+            "{name}: scored held-out view {done} of {n} at step {step}"
+        )))
+    }
+}
+
+/// The held-out `views` rendered by `field` at `values` and scored;
+/// `scored(k)` after the `k`-th view.
 pub(super) fn evaluate(
     field: &dyn TrainedField,
     values: &[f32],
     views: &[TrainView],
+    scored: &dyn Fn(usize),
 ) -> io::Result<Evaluation> {
     let (mut psnr, mut ssim, mut renders) = (0.0, 0.0, Vec::new());
-    for v in views {
+    for (k, v) in views.iter().enumerate() {
         let (w, h) = (v.image.width, v.image.height);
         let size = ImageSize {
             width: w,
@@ -114,6 +151,7 @@ pub(super) fn evaluate(
         };
         ssim += metrics::ssim(&colour, &target, w as usize, h as usize);
         renders.push(colour);
+        scored(k + 1);
     }
     let n = views.len().max(1) as f64;
     Ok(Evaluation {
@@ -121,4 +159,62 @@ pub(super) fn evaluate(
         ssim: ssim / n,
         renders,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::data::view_image::ViewImage;
+    use std::sync::Mutex;
+
+    fn views(n: usize, side: u32) -> Vec<TrainView> {
+        let cam = Camera::look_at(
+            glam::DVec3::new(0.0, 0.0, -3.0),
+            glam::DVec3::ZERO,
+            glam::DVec3::Y,
+            1.0,
+        );
+        (0..n)
+            .map(|_| TrainView {
+                camera: cam,
+                image: ViewImage::rgba8(side, side, vec![[0; 4]; (side * side) as usize], [0.0; 3]),
+                mask: None,
+                coverage: None,
+            })
+            .collect()
+    }
+
+    /// Large held-out sets are announced with a line (shown piped), every
+    /// view on the status line; small ones only on the status line.
+    #[test]
+    fn a_large_evaluation_says_so_and_counts_its_views() {
+        let seen = Mutex::new(Vec::new());
+        let observer = |e: &TrainEvent| {
+            let line = match e {
+                TrainEvent::Note(t) => format!("note {t}"),
+                TrainEvent::Status(t) => format!("status {t}"),
+                _ => return,
+            };
+            seen.lock().unwrap().push(line);
+        };
+        let large = views(2, 800);
+        let scored = announce("lego", 250, &large, &observer);
+        scored(1);
+        scored(2);
+        assert_eq!(
+            *seen.lock().unwrap(),
+            [
+                "note lego: scoring 2 held-out views of 800x800 at step 250",
+                "status lego: scored held-out view 1 of 2 at step 250",
+                "status lego: scored held-out view 2 of 2 at step 250",
+            ]
+        );
+        seen.lock().unwrap().clear();
+        let small = views(3, 100);
+        announce("t", 10, &small, &observer)(1);
+        assert_eq!(
+            *seen.lock().unwrap(),
+            ["status t: scored held-out view 1 of 3 at step 10"]
+        );
+    }
 }

@@ -193,6 +193,7 @@ pub fn run_train_job(
             &*run.objective,
             &run.values(),
             &test_views,
+            (&job.name, observer),
         )?;
         eval_s += te.elapsed().as_secs_f64();
     }
@@ -225,7 +226,14 @@ pub fn run_train_job(
         // Each held-out evaluation.
         if evaluation::due(job, r.step, &test_views) {
             let te = Instant::now();
-            let scored = evaluate_into(&mut log, r.step, &*r.objective, &r.values(), &test_views);
+            let scored = evaluate_into(
+                &mut log,
+                r.step,
+                &*r.objective,
+                &r.values(),
+                &test_views,
+                (&job.name, observer),
+            );
             if let Err(e) = scored {
                 io_error = Some(e);
                 return ControlFlow::Break(());
@@ -299,7 +307,8 @@ pub fn run_train_job(
     written.extend(after);
     written.extend(outputs.loss_curves(&run.losses)?);
     if !test_views.is_empty() {
-        let e = evaluate(field, &values, &test_views)?;
+        let scored = evaluation::announce(&job.name, run.step, &test_views, observer);
+        let e = evaluate(field, &values, &test_views, &scored)?;
         let first = first_view(&test_views, &e.renders);
         log.evaluated(run.step, e.psnr, e.ssim, 0.0, first);
         written.extend(outputs.held_out(log.held_out(), &test_views, &e.renders)?);
