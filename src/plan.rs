@@ -570,14 +570,14 @@ fn data_lines(
     };
     let _ = writeln!(
         o,
-        "  data memory    {views}{}, {:.0} pixels: {} held through training (f32 colour, and a byte a pixel of coverage or mask where kept; {read})",
+        "  data memory    {views}{}, {:.0} pixels: {} held through training (8-bit files as 8-bit RGBA, others as f32 RGB, and a byte a pixel of coverage or mask where kept; {read})",
         held_out(e.test_views),
         e.pixels,
         fmt_bytes(e.held)
     );
     let _ = writeln!(
         o,
-        "    {:<20} at most {} (the views read so far and one image decoding: its file, its pixels, two f32 copies)",
+        "    {:<20} at most {} (the views read so far and an image decoding on each thread: its file, its pixels, two f32 copies)",
         "reading",
         fmt_bytes(e.reading)
     );
