@@ -826,9 +826,15 @@ pub fn expected_share(j: &TrainJob) -> f64 {
     }
 }
 
+/// Held-out views a `comparison` output shows, the first ones: their
+/// renders are all an evaluation keeps (200 views of 800² kept whole were
+/// 3 GB, and a PNG 160 000 rows tall).
+pub const COMPARISON_VIEWS: usize = 8;
+
 /// The held-out evaluation of a training run with `views` held-out views
-/// of `pixels` each: every `eval_every` steps and once at the end; all
-/// renders of the last one kept for the comparison image.
+/// of `pixels` each: every `eval_every` steps and once at the end; the
+/// last one's renders of the first [`COMPARISON_VIEWS`] kept for the
+/// comparison image.
 pub fn held_out_cost(j: &TrainJob, views: usize, pixels: f64) -> Cost {
     if views == 0 {
         return Cost::default();
@@ -843,7 +849,9 @@ pub fn held_out_cost(j: &TrainJob, views: usize, pixels: f64) -> Cost {
     Cost {
         evaluations,
         expected: evaluations * expected_share(j),
-        memory: views as f64 * pixels * 24.0 + pixels * 16.0 + render_buffers(j),
+        memory: views.min(COMPARISON_VIEWS) as f64 * pixels * 24.0
+            + pixels * 16.0
+            + render_buffers(j),
     }
 }
 

@@ -402,3 +402,34 @@ fn edits_that_do_not_change_the_run_still_resume() {
     assert_eq!(r.iterations, 12);
     let _ = std::fs::remove_dir_all(&out);
 }
+
+/// Every held-out view is scored, and the comparison shows the first
+/// [`COMPARISON_VIEWS`](sdfl_stdlib::work::COMPARISON_VIEWS): with 12 held
+/// out, 8 rows (200 views of 800² kept whole were 3 GB of renders and a
+/// PNG 160 000 rows tall).
+#[test]
+fn the_comparison_shows_the_first_views_and_all_are_scored() {
+    let src = r#"
+let target = sdf_volume(sphere(0.8), color: [0.2, 0.6, 0.9])
+let sampler = stratified(samples: 8, near: 1, far: 5)
+train t {
+  model: sdf_volume(sphere(param(0.6)), color: [0.2, 0.6, 0.9]),
+  data: render_views(target, cameras: orbit(radius: 3, views: 16), size: [8, 6], sampler: sampler, test_views: 12),
+  sampler: sampler,
+  rays: 16,
+  iterations: 2,
+  after: [comparison("c.png")],
+}
+"#;
+    let program = sdfl_stdlib::load(&SourceFile::new("c.sdfl", src)).unwrap();
+    let out = temp("comparison");
+    let r = run_train_job(&program.trains[0], &out, &out, None, RESUME, &|_| {}).unwrap();
+    let kept = sdfl_stdlib::work::COMPARISON_VIEWS as u32;
+    assert!(kept < 12);
+    let png = image::open(out.join("c.png")).unwrap();
+    assert_eq!((png.width(), png.height()), (3 * 8, kept * 6));
+    // Scored once, at the end.
+    assert_eq!(r.held_out.len(), 1, "{:?}", r.held_out);
+    assert!(r.held_out[0].psnr.is_finite());
+    let _ = std::fs::remove_dir_all(&out);
+}

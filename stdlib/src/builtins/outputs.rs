@@ -183,7 +183,7 @@ pub(crate) fn builtins() -> Vec<Builtin> {
         output("sample_points", "The sample points along the first camera's rays (16 across the image, every depth), as a square PNG chart (twice the image's side, 256 to 1024 pixels): world axes, the frustum, the eye, points coloured by depth, turned so the rays are seen from the side.", |a| out(a, OutputKind::SamplePoints, "png")),
         output("loss_curve", "The training loss per iteration as a PNG plot.", |a| out(a, OutputKind::LossCurve, "png")),
         output("psnr_curve", "Held-out PSNR of a training run against seconds of training, as a PNG plot (needs test views).", |a| out(a, OutputKind::PsnrCurve, "png")),
-        output("comparison", "Every held-out view after training: truth | render | error (×4), one row each, as a PNG (needs test views).", |a| out(a, OutputKind::Comparison, "png")),
+        output("comparison", "The first held-out views (up to 8) after training: truth | render | error (×4), one row each, as a PNG (needs test views; every view is scored).", |a| out(a, OutputKind::Comparison, "png")),
     ]
 }
 

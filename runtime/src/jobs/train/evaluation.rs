@@ -8,11 +8,13 @@ use crate::train::TrainedField;
 
 pub use crate::train::log::HeldOut;
 
-/// Each held-out view as a row: truth | render | |error|×4.
+/// Each held-out view that has a render as a row: truth | render |
+/// |error|×4.
 pub(super) fn comparison_image(
     views: &[TrainView],
     renders: &[Vec<[f32; 3]>],
 ) -> (u32, u32, Vec<u8>) {
+    let views = &views[..renders.len().min(views.len())];
     let w = views.iter().map(|v| v.image.width).max().unwrap_or(1);
     let h: u32 = views.iter().map(|v| v.image.height).sum::<u32>().max(1);
     let mut out = vec![0u8; (3 * w * h * 3) as usize];
@@ -37,14 +39,14 @@ pub(super) fn comparison_image(
     (3 * w, h, out)
 }
 
-/// The held-out views' mean PSNR and SSIM at some values, with each
-/// view's render.
+/// The held-out views' mean PSNR and SSIM at some values, with the
+/// renders of the first views.
 pub(super) struct Evaluation {
     /// Mean over the views of each view's PSNR (dB).
     pub psnr: f64,
     /// Mean over the views of each view's SSIM.
     pub ssim: f64,
-    /// Each view's colours, row by row.
+    /// The first views' colours, row by row (as many as asked to keep).
     pub renders: Vec<Vec<[f32; 3]>>,
 }
 
@@ -65,7 +67,14 @@ pub(super) fn evaluate_into(
     (name, observer): (&str, &Observer),
 ) -> io::Result<()> {
     let t = std::time::Instant::now();
-    let e = evaluate(field, values, views, &announce(name, step, views, observer))?;
+    // The first view's render is logged.
+    let e = evaluate(
+        field,
+        values,
+        views,
+        1,
+        &announce(name, step, views, observer),
+    )?;
     let took = t.elapsed().as_secs_f64();
     let first = crate::train::log::first_view(views, &e.renders);
     log.evaluated(step, e.psnr, e.ssim, took, first);
@@ -104,12 +113,13 @@ pub fn announce<'a>(
     }
 }
 
-/// The held-out `views` rendered by `field` at `values` and scored;
-/// `scored(k)` after the `k`-th view.
+/// The held-out `views` rendered by `field` at `values` and scored, the
+/// renders of the first `keep` kept; `scored(k)` after the `k`-th view.
 pub(super) fn evaluate(
     field: &dyn TrainedField,
     values: &[f32],
     views: &[TrainView],
+    keep: usize,
     scored: &dyn Fn(usize),
 ) -> io::Result<Evaluation> {
     let (mut psnr, mut ssim, mut renders) = (0.0, 0.0, Vec::new());
@@ -150,7 +160,9 @@ pub(super) fn evaluate(
             }
         };
         ssim += metrics::ssim(&colour, &target, w as usize, h as usize);
-        renders.push(colour);
+        if k < keep {
+            renders.push(colour);
+        }
         scored(k + 1);
     }
     let n = views.len().max(1) as f64;

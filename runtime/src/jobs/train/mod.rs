@@ -308,7 +308,8 @@ pub fn run_train_job(
     written.extend(outputs.loss_curves(&run.losses)?);
     if !test_views.is_empty() {
         let scored = evaluation::announce(&job.name, run.step, &test_views, observer);
-        let e = evaluate(field, &values, &test_views, &scored)?;
+        let keep = sdfl_stdlib::work::COMPARISON_VIEWS;
+        let e = evaluate(field, &values, &test_views, keep, &scored)?;
         let first = first_view(&test_views, &e.renders);
         log.evaluated(run.step, e.psnr, e.ssim, 0.0, first);
         written.extend(outputs.held_out(log.held_out(), &test_views, &e.renders)?);
