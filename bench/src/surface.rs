@@ -235,7 +235,7 @@ pub fn check(dir: &Path) {
         if name == "neus" {
             // Every training pixel once: the views the examples train on.
             let mut all = TrainSetup::of(&job, &views);
-            all.rays = views.iter().map(|v| v.image.pixels.len()).sum();
+            all.rays = views.iter().map(|v| v.image.len()).sum();
             let b = all.batch(0).expect("batch");
             let mut t = String::new();
             for ((r, c), a) in b.rays.iter().zip(&b.targets).zip(&b.coverage) {
