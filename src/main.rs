@@ -946,8 +946,18 @@ fn summarise(r: &Report, out: &Path, stdout: &mut Stdout) {
                 );
             }
             if let Some(h) = rep["held_out"].as_array().and_then(|h| h.last()) {
+                let views = match h["views"].as_u64() {
+                    Some(n) if n > 0 => {
+                        format!("{n} held-out view{}", if n == 1 { "" } else { "s" })
+                    }
+                    _ => "held-out views".into(),
+                };
+                let in_mask = h["psnr_in_mask"]
+                    .as_f64()
+                    .map(|p| format!(" ({p:.2} dB inside the object masks)"))
+                    .unwrap_or_default();
                 say!(
-                    "  held-out views at step {}: PSNR {:.2} dB, SSIM {:.3}",
+                    "  {views} at step {}: PSNR {:.2} dB{in_mask}, SSIM {:.3}",
                     h["step"],
                     h["psnr"].as_f64().unwrap_or(f64::NAN),
                     h["ssim"].as_f64().unwrap_or(f64::NAN)

@@ -571,7 +571,10 @@ fn data_lines(
     let _ = writeln!(
         o,
         "  data memory    {views}{}, {:.0} pixels: {} held through training (8-bit files as 8-bit RGBA, others as f32 RGB, and a byte a pixel of coverage or mask where kept; {read})",
-        held_out(e.test_views),
+        match (e.test_views, e.test_views_in_data) {
+            (n, all) if n < all => format!(", {n} of its {all} held-out views read and scored (`eval_views`)"),
+            (n, _) => held_out(n),
+        },
         e.pixels,
         fmt_bytes(e.held)
     );

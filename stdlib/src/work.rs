@@ -826,6 +826,20 @@ pub fn expected_share(j: &TrainJob) -> f64 {
     }
 }
 
+/// How many of a data set's `held_out` views each evaluation of `j`
+/// scores: `eval_views`, at most all of them.
+pub fn scored_views(j: &TrainJob, held_out: usize) -> usize {
+    j.eval_views.map_or(held_out, |n| n.min(held_out))
+}
+
+/// Which of a data set's `held_out` views each evaluation of `j` scores
+/// (positions among the held-out views): [`scored_views`] of them, evenly
+/// spaced and the first included, so a comparison still shows view 0.
+pub fn scored_view_positions(j: &TrainJob, held_out: usize) -> Vec<usize> {
+    let n = scored_views(j, held_out);
+    (0..n).map(|i| i * held_out / n).collect()
+}
+
 /// Held-out views a `comparison` output shows, the first ones: their
 /// renders are all an evaluation keeps (200 views of 800² kept whole were
 /// 3 GB, and a PNG 160 000 rows tall).
@@ -836,6 +850,7 @@ pub const COMPARISON_VIEWS: usize = 8;
 /// last one's renders of the first [`COMPARISON_VIEWS`] kept for the
 /// comparison image.
 pub fn held_out_cost(j: &TrainJob, views: usize, pixels: f64) -> Cost {
+    let views = scored_views(j, views);
     if views == 0 {
         return Cost::default();
     }

@@ -4,6 +4,7 @@
 
 use crate::common::*;
 
+use sdfl_runtime::data::nerf_synthetic::SplitRead;
 use std::fs;
 use std::path::Path;
 
@@ -154,7 +155,7 @@ fn plan_sizes_file_data_from_the_image_headers() {
     // The bytes `run` counts once the views are read.
     let views: Vec<_> = sdfl_runtime::data::nerf_synthetic::read_splits(
         &dir.join("set"),
-        &[("train", false), ("test", false)],
+        &[SplitRead::all("train"), SplitRead::all("test")],
         glam::DVec3::ONE,
     )
     .unwrap()
@@ -224,4 +225,69 @@ train s {
         line(&plan, "data memory").contains("known once read"),
         "{plan}"
     );
+}
+
+/// `eval_views` scores fewer held-out views, evenly spaced with the first
+/// included, and the others are never read: `plan` counts only those
+/// (their bytes and their scoring), `run` scores only those, and a view
+/// left out may even be unreadable.
+#[test]
+fn eval_views_reads_and_scores_only_the_views_it_names() {
+    let dir = case_dir("eval_views");
+    data_set(&dir);
+    let set = dir.join("set");
+    // Six held-out frames: r_0, r_1, r_2, then three that do not decode.
+    fs::write(set.join("broken.png"), b"not a png").unwrap();
+    let frames: Vec<String> = ["r_0", "r_1", "r_2", "broken", "broken", "broken"]
+        .iter()
+        .map(|f| format!("{{\"file_path\": \"./{f}\", \"transform_matrix\": [[1,0,0,0],[0,1,0,0],[0,0,1,3],[0,0,0,1]]}}"))
+        .collect();
+    fs::write(
+        set.join("transforms_test.json"),
+        format!(
+            "{{\"camera_angle_x\": 0.7, \"frames\": [{}]}}",
+            frames.join(",")
+        ),
+    )
+    .unwrap();
+    let small = scene(0)
+        .replace("layers: 4, width: 128", "layers: 1, width: 16")
+        .replace("samples: 4096", "samples: 16")
+        .replace("iterations: 20000", "iterations: 2");
+    // Two of six: positions 0 and 3 (a broken one): read, so refused.
+    fs::write(
+        dir.join("two.sdfl"),
+        small.replace("eval_every: 0,", "eval_every: 0, eval_views: 2,"),
+    )
+    .unwrap();
+    let two = dir.join("two.sdfl");
+    let o = sdfl(
+        &dir,
+        &[
+            "run",
+            two.to_str().unwrap(),
+            "--out",
+            dir.join("out2").to_str().unwrap(),
+        ],
+    );
+    assert_outcome("eval_views 2 reads a broken view", &o, Expect::Error);
+    assert!(o.stderr.contains("broken"), "{}", head(&o.stderr));
+    // Only the first of six: the broken ones are never read.
+    fs::write(
+        dir.join("one.sdfl"),
+        small.replace("eval_every: 0,", "eval_every: 0, eval_views: 1,"),
+    )
+    .unwrap();
+    let plan = plan_in(&dir, "one.sdfl");
+    let data = line(&plan, "data memory");
+    assert!(
+        data.contains("4 views of 16x16, 1 of its 6 held-out views read and scored (`eval_views`), 1024 pixels"),
+        "{data}"
+    );
+    assert!(
+        line(&plan, "with the data").contains("scoring 1 held-out views"),
+        "{plan}"
+    );
+    let r = run_report(&dir, "one.sdfl");
+    assert_eq!(r["held_out"][0]["views"].as_u64(), Some(1), "{r}");
 }

@@ -88,6 +88,7 @@ fn spec(path: &Path) -> CaptureSpec {
         orient: CaptureOrient::Up,
         extent: 1.0,
         background: Some(DVec3::ONE),
+        object_masks: Default::default(),
     }
 }
 

@@ -723,6 +723,7 @@ fn loads(set: &Path) -> Result<(), String> {
         orient: sdfl_stdlib::value::CaptureOrient::None,
         extent: 1.0,
         background: None,
+        object_masks: Default::default(),
     };
     sdfl_runtime::data::capture::read(&spec, Path::new("/")).map_err(e)?;
     Ok(())

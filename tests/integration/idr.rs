@@ -9,12 +9,12 @@ use std::fs;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
-use crate::common::{assert_outcome, case_dir, head, run_into, sdfl, Expect};
+use crate::common::{assert_outcome, case_dir, head, run_into, run_report, sdfl, Expect};
 use glam::{DMat3, DVec3};
 use sdfl_runtime::data::capture;
 use sdfl_runtime::data::normalize::SceneFrame;
 use sdfl_runtime::data::DataNeeds;
-use sdfl_stdlib::value::{CaptureFormat, CaptureOrient, CaptureSpec};
+use sdfl_stdlib::value::{CaptureFormat, CaptureOrient, CaptureSpec, ObjectMasks};
 
 const W: u32 = 24;
 const H: u32 = 18;
@@ -180,6 +180,7 @@ fn spec(path: &Path) -> CaptureSpec {
         orient: CaptureOrient::Up,
         extent: 1.0,
         background: None,
+        object_masks: Default::default(),
     }
 }
 
@@ -196,7 +197,10 @@ fn the_reader_puts_the_object_sphere_at_the_unit_sphere() {
     let cams = cameras();
     write_set(&dir, &cams, &arrays(&cams));
     assert_eq!(capture::detect(&dir), Some(CaptureFormat::Idr));
-    let coverage = DataNeeds { coverage: true };
+    let coverage = DataNeeds {
+        coverage: true,
+        held_out: None,
+    };
     let v = capture::read_for(&spec(&dir), Path::new("/"), coverage).unwrap();
     assert_eq!((v.train.len(), v.test.len()), (VIEWS, 0));
     // The scene frame is (x − c)/s: the world's centre and scale.
@@ -395,7 +399,10 @@ fn broken_sets_are_refused_naming_the_file_and_the_image() {
     let e = err(capture::read_for(
         &spec(&d),
         Path::new("/"),
-        DataNeeds { coverage: true },
+        DataNeeds {
+            coverage: true,
+            held_out: None,
+        },
     ));
     assert!(
         e.contains("003.png") && e.contains("image 3 (000003.png)") && e.contains("12x9"),
@@ -526,4 +533,76 @@ fn the_cli_trains_on_an_idr_capture_and_exports_in_the_world_frame() {
     let o = sdfl(&dir, &["check", f.to_str().unwrap()]);
     assert_outcome("downscale", &o, Expect::Error);
     assert!(o.stderr.contains("full-size"), "{}", head(&o.stderr));
+}
+
+/// `object_masks: "alpha"` composites each photograph over `background`
+/// through its mask (NeuS's "with mask" setting): on the ball the image's
+/// own colour, elsewhere the background, where the photograph was grey.
+/// Held-out views keep their masks, and held-out PSNR is also given
+/// inside them (`psnr_in_mask`); the option is refused where no mask
+/// can give the alpha.
+#[test]
+fn object_masks_as_alpha_composite_the_photographs_and_score_inside_them() {
+    let dir = case_dir("idr_alpha");
+    let cams = cameras();
+    write_set(&dir, &cams, &arrays(&cams));
+    let mut s = spec(&dir);
+    s.background = Some(DVec3::new(0.0, 0.0, 1.0));
+    s.object_masks = ObjectMasks::Alpha;
+    s.test_every = 3;
+    let v = capture::read(&s, Path::new("/")).unwrap();
+    let mut photo = spec(&dir);
+    photo.test_every = 3;
+    let whole = capture::read(&photo, Path::new("/")).unwrap();
+    assert_eq!((v.train.len(), v.test.len()), (4, 2));
+    let (mut on, mut off) = (0, 0);
+    for (n, (a, b)) in v.train.iter().zip(&whole.train).enumerate() {
+        for i in 0..a.image.len() {
+            let (got, photo) = (a.image.pixel(i), b.image.pixel(i));
+            if photo == [60.0 / 255.0; 3] {
+                assert_eq!(got, [0.0, 0.0, 1.0], "view {n} pixel {i}");
+                off += 1;
+            } else {
+                assert_eq!(got, photo, "view {n} pixel {i}");
+                on += 1;
+            }
+        }
+        assert!(a.coverage.is_none(), "no `silhouette()` asked for coverage");
+    }
+    assert!(on > 100 && off > 100, "{on} {off}");
+    // Held-out views carry their masks (for PSNR inside them).
+    for t in v.test.iter().chain(&whole.test) {
+        let c = t.coverage.as_deref().expect("a held-out view's mask");
+        assert!(c.contains(&255) && c.contains(&0));
+    }
+    // No masks: refused, naming the image.
+    fs::remove_dir_all(dir.join("mask")).unwrap();
+    let e = err(capture::read(&s, Path::new("/")));
+    assert!(e.contains("no object mask") && e.contains("image 0"), "{e}");
+
+    // End to end: the report gives the PSNR inside the masks beside the
+    // whole image's; `check` refuses alpha without a background.
+    let dir = case_dir("idr_alpha_cli");
+    write_set(&dir.join("scan"), &cams, &arrays(&cams));
+    let f = scene(
+        &dir,
+        "capture(\"scan\", test_every: 3, object_masks: \"alpha\", background: [0, 0, 0])",
+        "",
+    );
+    let r = run_report(&dir, f.file_name().unwrap().to_str().unwrap());
+    let h = &r["held_out"][0];
+    let (psnr, inside) = (h["psnr"].as_f64().unwrap(), h["psnr_in_mask"].as_f64());
+    assert!(
+        psnr.is_finite() && inside.is_some_and(f64::is_finite),
+        "{r}"
+    );
+    assert_ne!(Some(psnr), inside, "{r}");
+    let f = scene(&dir, "capture(\"scan\", object_masks: \"alpha\")", "");
+    let o = sdfl(&dir, &["check", f.to_str().unwrap()]);
+    assert_outcome("alpha without a background", &o, Expect::Error);
+    assert!(
+        crate::common::unwrapped(&o.stderr).contains("add background: [0, 0, 0]"),
+        "{}",
+        head(&o.stderr)
+    );
 }

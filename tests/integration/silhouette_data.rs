@@ -17,7 +17,10 @@ use sdfl_runtime::render::{run_job, RunOptions};
 use sdfl_runtime::train::checkpoint::Checkpoint;
 use sdfl_stdlib::Program;
 
-const COVERAGE: DataNeeds = DataNeeds { coverage: true };
+const COVERAGE: DataNeeds = DataNeeds {
+    coverage: true,
+    held_out: None,
+};
 
 fn load(src: &str) -> Program {
     sdfl_stdlib::load(&SourceFile::new("silhouette.sdfl", src)).unwrap_or_else(|e| panic!("{e:?}"))

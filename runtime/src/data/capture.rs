@@ -13,7 +13,7 @@ use std::path::{Path, PathBuf};
 
 use glam::DVec3;
 use sdfl_stdlib::camera::Camera;
-use sdfl_stdlib::value::{CaptureFormat, CaptureOrient, CaptureSpec};
+use sdfl_stdlib::value::{CaptureFormat, CaptureOrient, CaptureSpec, ObjectMasks};
 
 use super::image::{check_dataset, read_rgba_image, read_view_images};
 use super::normalize::{Orient, SceneFrame};
@@ -222,7 +222,16 @@ pub fn load(
     frame: Option<SceneFrame>,
     background: DVec3,
     needs: DataNeeds,
+    masks: ObjectMasks,
 ) -> io::Result<CaptureViews> {
+    if masks == ObjectMasks::Alpha {
+        if let Some(f) = c.frames.iter().find(|f| f.object_mask.is_none()) {
+            return Err(invalid(
+                &c.source,
+                format!("{}: no object mask to composite by (`object_masks: \"alpha\"` needs IDR's mask/ for every image)", f.label),
+            ));
+        }
+    }
     check_dataset(c.frames.iter().flat_map(|f| {
         let object = f.object_mask.as_ref().filter(|_| needs.coverage);
         std::iter::once(&f.image).chain(&f.mask).chain(object)
@@ -250,9 +259,15 @@ pub fn load(
     let bg = background.as_vec3().to_array();
     let (mut train, mut test, mut names) = (Vec::new(), Vec::new(), Vec::new());
     let mut test_names = Vec::new();
+    // Held-out frames no evaluation scores are never decoded.
+    let keep = needs.keeps_held_out(c.test.len());
+    let read: Vec<usize> = (0..c.frames.len())
+        .filter(|k| c.test.binary_search(k).map_or(true, |i| keep[i]))
+        .collect();
     // Decoded a batch at a time in parallel, kept in the frames' order.
-    let images: Vec<&Path> = c.frames.iter().map(|f| f.image.as_path()).collect();
-    read_view_images(&images, |k, rgba| {
+    let images: Vec<&Path> = read.iter().map(|&k| c.frames[k].image.as_path()).collect();
+    read_view_images(&images, |i, rgba| {
+        let k = read[i];
         let (f, camera) = (&c.frames[k], cameras[k]);
         let (w, h) = (rgba.width, rgba.height);
         if (w, h) != (f.intrinsics.width, f.intrinsics.height) {
@@ -279,10 +294,23 @@ pub fn load(
             ));
         }
         let held_out = c.test.binary_search(&k).is_ok();
-        // Held-out views are only scored: their coverage is never read.
-        let coverage = match (needs.coverage && !held_out, &f.object_mask) {
-            (false, _) => None,
-            (true, Some(m)) => Some(read_object_mask(m, (w, h), f, &c.source)?),
+        // An object mask is read where training's silhouette, the
+        // compositing or a held-out view's PSNR inside it needs it.
+        let object = match &f.object_mask {
+            Some(m) if needs.coverage || held_out || masks == ObjectMasks::Alpha => {
+                Some(read_object_mask(m, (w, h), f, &c.source)?)
+            }
+            _ => None,
+        };
+        let rgba = match (&object, masks) {
+            (Some(m), ObjectMasks::Alpha) => rgba.with_alpha(m),
+            _ => rgba,
+        };
+        // A held-out view keeps its object mask, for PSNR inside it;
+        // otherwise held-out views are only scored.
+        let coverage = match (needs.coverage && !held_out, object) {
+            (false, object) => object.filter(|_| held_out),
+            (true, Some(m)) => Some(m),
             (true, None) if rgba.has_alpha => Some(rgba.coverage()),
             (true, None) => return Err(no_coverage(&f.image)),
         };
@@ -430,6 +458,7 @@ pub fn read_for(spec: &CaptureSpec, base: &Path, needs: DataNeeds) -> io::Result
         frame,
         spec.background.unwrap_or(glam::DVec3::ONE),
         needs,
+        spec.object_masks,
     )?;
     if format == CaptureFormat::Idr && spec.normalize {
         views.report.insert(

@@ -204,6 +204,20 @@ impl DecodedView {
         }
     }
 
+    /// The view with `coverage` (255ths, a pixel each) as its alpha in
+    /// place of its own: an object mask to composite it by.
+    pub fn with_alpha(mut self, coverage: &[u8]) -> Self {
+        match &mut self.pixels {
+            Decoded::Rgba8(p) => p.iter_mut().zip(coverage).for_each(|(p, &c)| p[3] = c),
+            Decoded::Rgba32(p) => p
+                .iter_mut()
+                .zip(coverage)
+                .for_each(|(p, &c)| p[3] = c as f32 / 255.0),
+        }
+        self.has_alpha = true;
+        self
+    }
+
     /// The view's colours over `background`: kept 8-bit where they were.
     pub fn over(self, background: [f32; 3]) -> super::view_image::ViewImage {
         use super::view_image::ViewImage;

@@ -127,17 +127,33 @@ pub struct DataNeeds {
     /// traced views always carry theirs: the hit mask comes with the
     /// trace.)
     pub coverage: bool,
+    /// Held-out views to read (`eval_views`), evenly spaced over the data
+    /// set's ([`DataNeeds::keeps_held_out`]); `None`: all of them. The
+    /// others are never decoded: 200 test views of 800² are 512 MB.
+    pub held_out: Option<usize>,
 }
 
 impl DataNeeds {
-    /// What `job`'s loss terms read of its data.
+    /// What `job`'s loss terms and evaluations read of its data.
     pub fn of(job: &sdfl_stdlib::value::TrainJob) -> Self {
         DataNeeds {
             coverage: job
                 .losses
                 .iter()
                 .any(|l| l.kind == sdfl_stdlib::value::LossKind::Silhouette),
+            held_out: job.eval_views,
         }
+    }
+
+    /// Which of `held_out` held-out views are read: for each, whether it
+    /// is (by position among the held-out views).
+    pub fn keeps_held_out(&self, held_out: usize) -> Vec<bool> {
+        let n = self.held_out.map_or(held_out, |n| n.min(held_out));
+        let mut keep = vec![false; held_out];
+        for i in 0..n {
+            keep[i * held_out / n] = true;
+        }
+        keep
     }
 }
 
@@ -280,6 +296,9 @@ pub struct Estimate {
     pub views: usize,
     /// Of those, held out.
     pub test_views: usize,
+    /// The data set's held-out views, those `eval_views` leaves unread
+    /// included.
+    pub test_views_in_data: usize,
     /// Headers read (all views' up to [`MAX_HEADERS`]).
     pub headers: usize,
     /// The image size, where every header read gives the same.
@@ -446,9 +465,19 @@ pub fn estimate(
     job: &sdfl_stdlib::value::TrainJob,
     base: &std::path::Path,
 ) -> io::Result<Option<Estimate>> {
-    let Some(views) = planned(job, base)? else {
+    let Some(mut views) = planned(job, base)? else {
         return Ok(None);
     };
+    // Held-out views no evaluation scores are never read.
+    let test_views_in_data = views.iter().filter(|v| v.held_out).count();
+    let keep = DataNeeds::of(job).keeps_held_out(test_views_in_data);
+    let mut k = 0;
+    views.retain(|v| {
+        !v.held_out || {
+            k += 1;
+            keep[k - 1]
+        }
+    });
     let n = views.len();
     let sample: Vec<usize> = if n <= MAX_HEADERS {
         (0..n).collect()
@@ -489,6 +518,7 @@ pub fn estimate(
     Ok(Some(Estimate {
         views: n,
         test_views: test,
+        test_views_in_data,
         headers: sample.len(),
         size: size.filter(|_| same),
         pixels: all,

@@ -44,33 +44,70 @@ pub fn transforms_path(path: &Path, split: &str) -> PathBuf {
 /// Reads one split's views, composited over `background`: every image the
 /// same size, checked before any is decoded.
 pub fn read_split(path: &Path, split: &str, background: DVec3) -> io::Result<Vec<TrainView>> {
-    read_splits(path, &[(split, false)], background).map(|mut s| s.remove(0))
+    read_splits(path, &[SplitRead::all(split)], background).map(|mut s| s.remove(0))
+}
+
+/// One split to read and what of it.
+#[derive(Debug, Clone, Copy)]
+pub struct SplitRead<'a> {
+    /// The split's name (`transforms_<name>.json`).
+    pub name: &'a str,
+    /// Each view's coverage from its image's alpha (`silhouette()`), an
+    /// error where an image has none.
+    pub coverage: bool,
+    /// How many frames, evenly spaced and the first included
+    /// ([`crate::data::DataNeeds::keeps_held_out`]); `None`: every frame.
+    /// The others are never decoded.
+    pub frames: Option<usize>,
+}
+
+impl<'a> SplitRead<'a> {
+    /// Every frame of split `name`, colours only.
+    pub fn all(name: &'a str) -> Self {
+        SplitRead {
+            name,
+            coverage: false,
+            frames: None,
+        }
+    }
 }
 
 /// Reads several splits' views (one list each), every image's declared
 /// size checked (all splits together within the data-set limit) before
-/// any is decoded. A split paired with `true` gives each view its coverage
-/// from its image's alpha (`silhouette()`), an error where an image has
-/// none.
+/// any is decoded; see [`SplitRead`] for what of each is read.
 pub fn read_splits(
     path: &Path,
-    splits: &[(&str, bool)],
+    splits: &[SplitRead],
     background: DVec3,
 ) -> io::Result<Vec<Vec<TrainView>>> {
     let files: Vec<PathBuf> = splits
         .iter()
-        .map(|(s, _)| transforms_path(path, s))
+        .map(|s| transforms_path(path, s.name))
         .collect();
     let all = files
         .iter()
-        .map(|f| read_transforms(f))
+        .zip(splits)
+        .map(|(f, s)| {
+            let mut t = read_transforms(f)?;
+            let needs = crate::data::DataNeeds {
+                coverage: false,
+                held_out: s.frames,
+            };
+            let keep = needs.keeps_held_out(t.frames.len());
+            let mut k = 0;
+            t.frames.retain(|_| {
+                k += 1;
+                keep[k - 1]
+            });
+            Ok(t)
+        })
         .collect::<io::Result<Vec<_>>>()?;
     check_dataset(all.iter().flat_map(|t| t.frames.iter().map(|f| &f.image)))?;
     files
         .iter()
         .zip(&all)
         .zip(splits)
-        .map(|((file, t), (_, coverage))| read_frames(file, t, background, *coverage))
+        .map(|((file, t), s)| read_frames(file, t, background, s.coverage))
         .collect()
 }
 

@@ -511,10 +511,13 @@ pub fn load_views_for(data: &Dataset, base: &Path, needs: DataNeeds) -> io::Resu
             background,
         } => {
             let at = |e| crate::data::at_argument(*path_span, e);
-            use crate::data::nerf_synthetic::{read_splits, transforms_path};
+            use crate::data::nerf_synthetic::{read_splits, transforms_path, SplitRead};
             let dir = base.join(path);
             // The training split's coverage only: held-out views are scored.
-            let mut splits = vec![(split.as_str(), needs.coverage)];
+            let mut splits = vec![SplitRead {
+                coverage: needs.coverage,
+                ..SplitRead::all(split)
+            }];
             if let Some(t) = test_split {
                 // The lone transforms.json stands in for the training split
                 // only: it never doubles as the test views.
@@ -524,7 +527,10 @@ pub fn load_views_for(data: &Dataset, base: &Path, needs: DataNeeds) -> io::Resu
                         dir.display()
                     ))));
                 }
-                splits.push((t, false));
+                splits.push(SplitRead {
+                    frames: needs.held_out,
+                    ..SplitRead::all(t)
+                });
             }
             let mut read = read_splits(&dir, &splits, *background).map_err(at)?;
             let test = if read.len() > 1 {

@@ -31,7 +31,8 @@ const HISTORY: &str = "history";
 /// The history as the metadata holds it: JSON whose numbers are strings
 /// as Rust prints an f64 (exact when read back, and `inf` for the PSNR of
 /// a perfect render, which JSON numbers cannot hold):
-/// `{"seconds": "12.5", "held_out": [[100, "3.2", "27.31", "0.91"], ...]}`.
+/// `{"seconds": "12.5", "held_out": [[100, "3.2", "27.31", "0.91", 200, "24.5" or null], ...]}`
+/// (step, seconds, PSNR, SSIM, views scored, PSNR inside the object masks).
 fn stored_history(h: &History) -> String {
     let rows: Vec<Value> = h
         .held_out
@@ -41,7 +42,9 @@ fn stored_history(h: &History) -> String {
                 e.step,
                 e.seconds.to_string(),
                 e.psnr.to_string(),
-                e.ssim.to_string()
+                e.ssim.to_string(),
+                e.views,
+                e.psnr_in_mask.map(|p| p.to_string())
             ])
         })
         .collect();
@@ -61,6 +64,15 @@ fn read_history(text: &str) -> Option<History> {
                 seconds: num(r.get(1)?)?,
                 psnr: num(r.get(2)?)?,
                 ssim: num(r.get(3)?)?,
+                // Absent from checkpoints written before it was kept.
+                views: match r.get(4) {
+                    None => 0,
+                    Some(v) => usize::try_from(v.as_u64()?).ok()?,
+                },
+                psnr_in_mask: match r.get(5) {
+                    None | Some(Value::Null) => None,
+                    Some(v) => Some(num(v)?),
+                },
             })
         })
         .collect::<Option<Vec<_>>>()?;
@@ -519,7 +531,9 @@ impl Checkpoint {
                 && (0.0..=h.seconds).contains(&e.seconds)
                 && !e.psnr.is_nan()
                 && e.psnr > f64::NEG_INFINITY
-                && e.ssim.is_finite();
+                && e.ssim.is_finite()
+                && e.psnr_in_mask
+                    .is_none_or(|p| !p.is_nan() && p > f64::NEG_INFINITY);
             if e.step <= last && last > 0 || e.step > self.step || !fine {
                 return Err(format!(
                     "its held-out score of step {} (PSNR {}, {} s) is out of order or out of range",
@@ -574,6 +588,8 @@ mod tests {
                     seconds: 1.5,
                     psnr: f64::INFINITY,
                     ssim: 1.0,
+                    views: 1,
+                    psnr_in_mask: Some(24.25),
                 }],
             },
         };
@@ -610,6 +626,10 @@ mod tests {
             (|c| c.history.held_out[0].step = 3, "score of step 3"),
             (|c| c.history.held_out[0].psnr = f64::NAN, "PSNR NaN"),
             (|c| c.history.held_out[0].seconds = 9.0, "9 s"),
+            (
+                |c| c.history.held_out[0].psnr_in_mask = Some(f64::NAN),
+                "held-out score of step",
+            ),
         ];
         for (tamper, says) in cases {
             let mut c = good.clone();
@@ -658,12 +678,16 @@ mod tests {
                         seconds: 0.5,
                         psnr: 21.5,
                         ssim: 0.75,
+                        views: 3,
+                        psnr_in_mask: Some(31.5),
                     },
                     HeldOut {
                         step: 2,
                         seconds: 12.0,
                         psnr: f64::INFINITY,
                         ssim: 1.0,
+                        views: 200,
+                        psnr_in_mask: None,
                     },
                 ],
             },

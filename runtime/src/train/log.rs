@@ -87,6 +87,27 @@ pub struct HeldOut {
     pub psnr: f64,
     /// Mean over the views of each view's SSIM.
     pub ssim: f64,
+    /// The held-out views scored (`eval_views` of the data's, or all);
+    /// 0 in a checkpoint written before this was kept.
+    #[serde(default)]
+    pub views: usize,
+    /// Mean over the views of each view's PSNR inside its object mask
+    /// (dB), where the data have object masks (IDR's `mask/`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub psnr_in_mask: Option<f64>,
+}
+
+/// What one held-out evaluation measured.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Scores {
+    /// Mean PSNR over the views (dB).
+    pub psnr: f64,
+    /// Mean SSIM over the views.
+    pub ssim: f64,
+    /// Mean PSNR inside the views' object masks, where they have them.
+    pub psnr_in_mask: Option<f64>,
+    /// The views scored.
+    pub views: usize,
 }
 
 /// A run's history beyond its losses, carried by its checkpoint.
@@ -558,17 +579,24 @@ impl<'o> TrainLog<'o> {
     pub fn evaluated(
         &mut self,
         step: usize,
-        psnr: f64,
-        ssim: f64,
+        scores: Scores,
         took: f64,
         first: Option<(&TrainView, &[[f32; 3]])>,
     ) -> HeldOut {
         let t = Instant::now();
+        let Scores {
+            psnr,
+            ssim,
+            psnr_in_mask,
+            views,
+        } = scores;
         let h = HeldOut {
             step,
             seconds: self.last_seconds,
             psnr,
             ssim,
+            views,
+            psnr_in_mask,
         };
         if self.history.held_out.last().map(|h| h.step) != Some(step) {
             self.history.held_out.push(h);
@@ -759,6 +787,8 @@ mod tests {
                 seconds: 3.0,
                 psnr: 20.0,
                 ssim: 0.5,
+                views: 2,
+                psnr_in_mask: None,
             }],
         };
         let optimizer = Optimizer {

@@ -300,6 +300,26 @@ pub(super) fn capture(a: &Args) -> Result<Value, Diag> {
         path_span,
         if is_json { Input::File } else { Input::Dir },
     )?;
+    let masks: Vec<&str> = ObjectMasks::NAMES.iter().map(|(n, _)| *n).collect();
+    let object_masks = ObjectMasks::NAMES[choice("object_masks", &masks)?].1;
+    if object_masks == ObjectMasks::Alpha
+        && !matches!(format, CaptureFormat::Auto | CaptureFormat::Idr)
+    {
+        return Err(value_error(
+            a.get("object_masks").1,
+            format!("{} captures have no object masks", format.name()),
+            "no masks to composite by",
+            "object masks come with IDR's layout (mask/); nerfstudio's `mask_path` marks pixels to ignore",
+        ));
+    }
+    if object_masks == ObjectMasks::Alpha && !a.given("background") {
+        return Err(value_error(
+            a.get("object_masks").1,
+            "compositing by the object masks needs the colour to composite over",
+            "no `background` given",
+            "add background: [0, 0, 0] (it is also the model's background)",
+        ));
+    }
     // Photographs have no alpha: unless the user names a colour, the
     // background is the world, learned by a model left on the data's.
     let background = if a.given("background") {
@@ -319,6 +339,7 @@ pub(super) fn capture(a: &Args) -> Result<Value, Diag> {
             orient,
             extent: 1.0,
             background,
+            object_masks,
         },
     )))))
 }

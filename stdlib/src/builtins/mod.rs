@@ -22,9 +22,9 @@ use crate::shape::{
 use crate::value::{
     describe, Backend, CaptureFormat, CaptureOrient, CaptureSpec, Colormap, Dataset,
     DensityActivation, DensityKind, Encoding, Field, Harmonic, HashGridSpec, HitTolerance,
-    LastInterval, Loss, LossKind, MeshRegion, Nerf, NeuralSdf, NeuralSurface, OccupancySpec,
-    Optimizer, Output, OutputKind, Precision, RenderJob, Sampler, Schedule, SdfField, TrainJob,
-    Value, ViewPath, VolumeJob,
+    LastInterval, Loss, LossKind, MeshRegion, Nerf, NeuralSdf, NeuralSurface, ObjectMasks,
+    OccupancySpec, Optimizer, Output, OutputKind, Precision, RenderJob, Sampler, Schedule,
+    SdfField, TrainJob, Value, ViewPath, VolumeJob,
 };
 
 /// The checker's type of shapes ([`Value::Shape`]).
@@ -697,6 +697,7 @@ fn table() -> Vec<Builtin> {
                 opt("normalize", Type::Bool, "true", "centre the cameras and scale them into [-1, 1]^3 (LLFF: its own recentring, nearest bound at 4/3; IDR: `scale_mat`'s unit sphere); false keeps the data's frame"),
                 opt("orient", Type::Str, "\"up\"", "\"up\": turn the cameras' mean up onto +z; \"none\": keep the data's axes (LLFF and IDR keep their own)"),
                 opt("background", Type::Vec3, "[1, 1, 1]", "colour behind transparent pixels of images with alpha; when given, also the model's background (not given: white there, and a model on the data's background learns the world behind)"),
+                opt("object_masks", Type::Str, "\"coverage\"", "what IDR's object masks are for: \"coverage\" (what `silhouette()` trains on; held-out PSNR is also given inside them as `psnr_in_mask`) or \"alpha\" (also each photograph's alpha, composited over `background`, which must be given: outside the object the model learns the background, NeuS's \"with mask\" setting)"),
             ],
             DATASET,
             data::capture,

@@ -177,6 +177,27 @@ pub enum CaptureOrient {
     Up,
 }
 
+/// What a capture's object masks (IDR's `mask/`) are used for.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum ObjectMasks {
+    /// Each training pixel's coverage for `silhouette()`, and the pixels
+    /// held-out PSNR is also given inside; the photographs stay whole.
+    #[default]
+    Coverage,
+    /// Also each image's alpha: photographs are composited over the
+    /// capture's `background` through their masks, so outside the object
+    /// the model learns the background (NeuS's "with mask" setting).
+    Alpha,
+}
+
+impl ObjectMasks {
+    /// Each use with the name scene files write.
+    pub const NAMES: [(&'static str, ObjectMasks); 2] = [
+        ("coverage", ObjectMasks::Coverage),
+        ("alpha", ObjectMasks::Alpha),
+    ];
+}
+
 /// What `capture(...)` reads, and how.
 #[derive(Debug, Clone)]
 pub struct CaptureSpec {
@@ -203,4 +224,6 @@ pub struct CaptureSpec {
     /// (not given): white there, and the world behind (a model on the
     /// data's background learns it).
     pub background: Option<DVec3>,
+    /// What its object masks are used for, where it has them.
+    pub object_masks: ObjectMasks,
 }

@@ -49,6 +49,9 @@ pub struct TrainJob {
     pub checkpoint: Option<std::path::PathBuf>,
     /// Steps between held-out evaluations (0: at the end only).
     pub eval_every: usize,
+    /// Held-out views each evaluation scores, evenly spaced over the
+    /// data's (the first included); `None`: all of them.
+    pub eval_views: Option<usize>,
     /// Half-extent of the cube random points are drawn in (distance fields).
     pub bounds: f64,
 }

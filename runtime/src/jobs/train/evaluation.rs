@@ -46,8 +46,23 @@ pub(super) struct Evaluation {
     pub psnr: f64,
     /// Mean over the views of each view's SSIM.
     pub ssim: f64,
+    /// Mean over the views of each view's PSNR inside its object mask
+    /// (pixels covered at least half), where every view has one.
+    pub psnr_in_mask: Option<f64>,
     /// The first views' colours, row by row (as many as asked to keep).
     pub renders: Vec<Vec<[f32; 3]>>,
+}
+
+impl Evaluation {
+    /// Its scores of `views` views, as the log keeps them.
+    pub fn scores(&self, views: usize) -> crate::train::log::Scores {
+        crate::train::log::Scores {
+            psnr: self.psnr,
+            ssim: self.ssim,
+            psnr_in_mask: self.psnr_in_mask,
+            views,
+        }
+    }
 }
 
 /// Whether a held-out evaluation is due after step `step`: every
@@ -77,7 +92,7 @@ pub(super) fn evaluate_into(
     )?;
     let took = t.elapsed().as_secs_f64();
     let first = crate::train::log::first_view(views, &e.renders);
-    log.evaluated(step, e.psnr, e.ssim, took, first);
+    log.evaluated(step, e.scores(views.len()), took, first);
     Ok(())
 }
 
@@ -123,6 +138,7 @@ pub(super) fn evaluate(
     scored: &dyn Fn(usize),
 ) -> io::Result<Evaluation> {
     let (mut psnr, mut ssim, mut renders) = (0.0, 0.0, Vec::new());
+    let mut in_mask = Some(0.0);
     for (k, v) in views.iter().enumerate() {
         let (w, h) = (v.image.width, v.image.height);
         let size = ImageSize {
@@ -160,6 +176,20 @@ pub(super) fn evaluate(
             }
         };
         ssim += metrics::ssim(&colour, &target, w as usize, h as usize);
+        in_mask = match (in_mask, &v.coverage) {
+            (Some(sum), Some(c)) => {
+                let inside = |img: &[[f32; 3]]| -> Vec<[f32; 3]> {
+                    img.iter()
+                        .zip(c.iter())
+                        .enumerate()
+                        .filter(|(i, (_, &c))| c >= 128 && v.mask.as_ref().is_none_or(|m| m[*i]))
+                        .map(|(_, (p, _))| *p)
+                        .collect()
+                };
+                Some(sum + metrics::psnr(&inside(&colour), &inside(&target)))
+            }
+            _ => None,
+        };
         if k < keep {
             renders.push(colour);
         }
@@ -169,6 +199,7 @@ pub(super) fn evaluate(
     Ok(Evaluation {
         psnr: psnr / n,
         ssim: ssim / n,
+        psnr_in_mask: in_mask.filter(|_| !views.is_empty()).map(|s| s / n),
         renders,
     })
 }

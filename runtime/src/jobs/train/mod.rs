@@ -311,7 +311,7 @@ pub fn run_train_job(
         let keep = sdfl_stdlib::work::COMPARISON_VIEWS;
         let e = evaluate(field, &values, &test_views, keep, &scored)?;
         let first = first_view(&test_views, &e.renders);
-        log.evaluated(run.step, e.psnr, e.ssim, 0.0, first);
+        log.evaluated(run.step, e.scores(test_views.len()), 0.0, first);
         written.extend(outputs.held_out(log.held_out(), &test_views, &e.renders)?);
     }
     let held_out = log.finish()?;

@@ -308,8 +308,10 @@ fn grazing_rays_and_misses() {
 fn update_tracks_a_moving_sphere() {
     let mut cfg = OccupancyConfig::new([-1.0; 3], [1.0; 3]);
     cfg.res = 16;
-    // Density threshold 1 (0.01 / 0.01).
+    // Density threshold 1 (0.01 / 0.01); the EMA's decay from the first
+    // update on (warm-up is tested on its own).
     cfg.step_size = 0.01;
+    cfg.warmup = 1;
     let mut g = OccupancyGrid::new(cfg).unwrap();
     assert_eq!(g.occupied_count(), g.cells());
     let sphere = |c: [f32; 3], r: f32| {
@@ -441,4 +443,55 @@ fn march_throughput() {
         rays.len() as f64 / plain / 1e6,
         update * 1e3
     );
+}
+
+/// An untrained network's density is about uniform (Lego at 800²: 1.1
+/// everywhere, above the 0.64 the threshold asks). With the EMA's decay
+/// of 0.95 that stale value kept every cell occupied for 11 refreshes
+/// (176 steps, each evaluating 71 % of the samples); warm-up refreshes
+/// forget at [`WARMUP_DECAY`] a refresh, so the grid follows the network
+/// from the second refresh, while a cell seen dense once stays occupied
+/// for a few refreshes of other jitter points.
+#[test]
+fn warm_up_forgets_an_untrained_networks_density() {
+    let mut cfg = OccupancyConfig::new([-1.0; 3], [1.0; 3]);
+    cfg.res = 8;
+    cfg.warmup = 64;
+    // Density threshold 0.64.
+    cfg.step_size = 0.015625;
+    let mut g = OccupancyGrid::new(cfg).unwrap();
+    let mut rng = SplitMix64::new(3);
+    let mut uniform = |_: &[[f32; 3]], o: &mut [f32]| o.fill(1.1);
+    g.update(0, &mut uniform, &mut rng);
+    assert_eq!(g.occupied_count(), g.cells());
+    // The network learns the space is empty, but for one cell.
+    let dense = g.index([2, 3, 4]);
+    let mut empty = |p: &[[f32; 3]], o: &mut [f32]| {
+        for (q, o) in p.iter().zip(o.iter_mut()) {
+            let inside = (-0.5..-0.25).contains(&q[0])
+                && (-0.25..0.0).contains(&q[1])
+                && (0.0..0.25).contains(&q[2]);
+            *o = if inside { 8.0 } else { 0.0 };
+        }
+    };
+    g.update(16, &mut empty, &mut rng);
+    assert_eq!(g.occupied_count(), 1);
+    assert!(g.is_occupied(dense));
+    // Seen once at 8, it stays for refreshes that miss it (8·0.5^k > 0.64
+    // for k ≤ 3), then goes.
+    let mut zero = |_: &[[f32; 3]], o: &mut [f32]| o.fill(0.0);
+    for (k, step) in [32u64, 48, 60].into_iter().enumerate() {
+        g.update(step, &mut zero, &mut rng);
+        assert!(g.is_occupied(dense), "refresh {k}");
+    }
+    g.update(63, &mut zero, &mut rng);
+    assert_eq!(g.occupied_count(), 0);
+    // After warm-up the EMA decays at `decay`.
+    g.update(
+        64,
+        &mut |_: &[[f32; 3]], o: &mut [f32]| o.fill(10.0),
+        &mut rng,
+    );
+    g.update(80, &mut zero, &mut rng);
+    assert!(g.ema().iter().all(|&v| v == 9.5));
 }
