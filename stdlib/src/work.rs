@@ -991,10 +991,11 @@ pub fn train_work(j: &TrainJob, size: Option<(u32, u32)>) -> Work {
     }
 
     if let (Some(g), Field::Nerf(n)) = (grid, &*j.model) {
-        let refreshes = (iterations / g.every.max(1) as f64).ceil();
+        // The density alone at each cell refreshed.
+        let density = nerf_multiply_adds(n) - n.multiply_adds_per_sample() + n.density_multiply_adds();
         w.add(
             Stage::GridRefresh,
-            refreshes * cells * network(nerf_multiply_adds(n)),
+            crate::value::occupancy_refresh_cells(cells, iterations, g.every) * network(density),
             // One pass of points, their directions and densities.
             cells.min(NETWORK_PASS) * (nerf_bytes_per_sample(n) + 28.0),
         );

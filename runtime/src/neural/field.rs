@@ -253,6 +253,8 @@ impl Occupancy {
             }
         };
         let mut cfg = OccupancyConfig::new(min, max);
+        cfg.warmup = sdfl_stdlib::value::OCCUPANCY_WARMUP;
+        cfg.subsets = sdfl_stdlib::value::OCCUPANCY_SUBSETS;
         cfg.res = spec.resolution;
         cfg.threshold = spec.threshold as f32;
         cfg.step_size = step;
@@ -298,12 +300,11 @@ impl Occupancy {
         }
         let work = &mut self.work;
         let warp = self.warp;
-        let mut dirs = Vec::new();
         let mut density = |points: &[[f32; 3]], out: &mut [f32]| {
             let flat: Vec<f32> = points.iter().flatten().copied().collect();
-            dirs.resize(flat.len(), 0.0);
-            // The grid's points are in the encoding's space already.
-            net.forward_encoded(values, &flat, &dirs, work);
+            // The grid's points are in the encoding's space already; only
+            // their density is read.
+            net.density_encoded(values, &flat, work);
             out.copy_from_slice(&work.sigma);
             // In a warped box a cell's opacity is its density times the
             // world length a step of the box spans there.

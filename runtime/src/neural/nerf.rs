@@ -275,17 +275,36 @@ impl NerfNet {
         dirs: &[f32],
         work: &mut NerfWork,
     ) {
-        let rows = points.len() / 3;
-        work.resize(self, rows);
+        self.density_encoded(params, points, work);
         let NerfWork {
-            enc,
             dir_enc,
             hidden,
-            sigma,
             feature,
             color_hidden,
             rgb,
             ..
+        } = work;
+        let h = hidden.last().expect("at least one layer");
+        match (&self.feature, self.direction) {
+            (Some(f), Some(de)) => {
+                de.encode(dirs, dir_enc);
+                f.forward(params, &[h], feature);
+                self.color_hidden
+                    .forward(params, &[feature, dir_enc], color_hidden);
+            }
+            _ => self.color_hidden.forward(params, &[h], color_hidden),
+        }
+        self.color_out.forward(params, &[color_hidden], rgb);
+    }
+
+    /// The density alone at points already in the encoding's space (into
+    /// `work.sigma`; the trunk's activations are kept for the colour): an
+    /// occupancy grid's refresh reads no colour.
+    pub fn density_encoded(&self, params: &[f32], points: &[f32], work: &mut NerfWork) {
+        let rows = points.len() / 3;
+        work.resize(self, rows);
+        let NerfWork {
+            enc, hidden, sigma, ..
         } = work;
         match &self.position {
             PositionEncoding::Harmonic(h) => h.encode(points, enc),
@@ -307,16 +326,6 @@ impl NerfNet {
         }
         let h = hidden.last().expect("at least one layer");
         self.density.forward(params, &[h], sigma);
-        match (&self.feature, self.direction) {
-            (Some(f), Some(de)) => {
-                de.encode(dirs, dir_enc);
-                f.forward(params, &[h], feature);
-                self.color_hidden
-                    .forward(params, &[feature, dir_enc], color_hidden);
-            }
-            _ => self.color_hidden.forward(params, &[h], color_hidden),
-        }
-        self.color_out.forward(params, &[color_hidden], rgb);
     }
 
     /// Adds `∂L/∂params` to `grad` given `∂L/∂σ` and `∂L/∂rgb` per sample

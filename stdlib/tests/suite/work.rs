@@ -149,11 +149,13 @@ fn the_evaluation_limit_is_set_by_its_variable() {
 /// 2e8 evaluations: it is refused, naming the grid.
 #[test]
 fn an_occupancy_grid_refreshed_every_step_is_refused() {
+    // After warm-up a refresh evaluates a quarter of the cells.
     let src = nerf(
         ", occupancy: occupancy_grid(resolution: 512, every: 1)",
         "test_views: 1",
         "",
-    );
+    )
+    .replace("iterations: 1000", "iterations: 3000");
     let found = codes_and_messages(&src);
     assert!(
         found
@@ -259,4 +261,15 @@ fn a_user_functions_size_is_in_its_renders_estimate() {
         (120.0..=200.0).contains(&ratio),
         "{large} / {small} = {ratio}"
     );
+}
+
+/// An occupancy grid refreshes every cell during warm-up and a quarter
+/// after it, as plan counts: 16 full refreshes in the first 256 steps of
+/// 1000 at every 16, then 47 of a quarter each.
+#[test]
+fn grid_refreshes_count_a_quarter_of_the_cells_after_warm_up() {
+    use sdfl_stdlib::value::occupancy_refresh_cells;
+    assert_eq!(occupancy_refresh_cells(100.0, 1000.0, 16), (16.0 + 47.0 / 4.0) * 100.0);
+    assert_eq!(occupancy_refresh_cells(100.0, 200.0, 16), 13.0 * 100.0);
+    assert_eq!(occupancy_refresh_cells(100.0, 0.0, 16), 0.0);
 }
