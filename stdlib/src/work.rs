@@ -992,7 +992,8 @@ pub fn train_work(j: &TrainJob, size: Option<(u32, u32)>) -> Work {
 
     if let (Some(g), Field::Nerf(n)) = (grid, &*j.model) {
         // The density alone at each cell refreshed.
-        let density = nerf_multiply_adds(n) - n.multiply_adds_per_sample() + n.density_multiply_adds();
+        let density =
+            nerf_multiply_adds(n) - n.multiply_adds_per_sample() + n.density_multiply_adds();
         w.add(
             Stage::GridRefresh,
             crate::value::occupancy_refresh_cells(cells, iterations, g.every) * network(density),

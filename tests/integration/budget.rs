@@ -291,3 +291,32 @@ fn eval_views_reads_and_scores_only_the_views_it_names() {
     let r = run_report(&dir, "one.sdfl");
     assert_eq!(r["held_out"][0]["views"].as_u64(), Some(1), "{r}");
 }
+
+/// examples/benchmarks/nerf_synthetic.sdfl, its data path pointed at a
+/// small set of the same layout and its steps cut to 2: `plan` reads the
+/// set, and `run` trains, scores the test views and writes its outputs.
+#[test]
+fn the_nerf_synthetic_benchmark_runs_on_a_set_of_its_layout() {
+    let dir = case_dir("benchmark_nerf_synthetic");
+    data_set(&dir);
+    let example =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/benchmarks/nerf_synthetic.sdfl");
+    let text = fs::read_to_string(example).unwrap();
+    for line in ["let data = \"nerf_synthetic/lego\"", "let steps = 5000"] {
+        assert!(text.contains(line), "the example's `{line}` moved");
+    }
+    let text = text
+        .replace("let data = \"nerf_synthetic/lego\"", "let data = \"set\"")
+        .replace("let steps = 5000", "let steps = 2");
+    fs::write(dir.join("lego.sdfl"), text).unwrap();
+    let plan = plan_in(&dir, "lego.sdfl");
+    assert!(
+        line(&plan, "data memory").contains("3 held out as test views"),
+        "{plan}"
+    );
+    let r = run_report(&dir, "lego.sdfl");
+    assert_eq!(r["held_out"][0]["views"].as_u64(), Some(3), "{r}");
+    for f in ["lego_psnr.png", "lego_test.png", "lego.ckpt"] {
+        assert!(dir.join("out").join(f).is_file(), "{f}");
+    }
+}

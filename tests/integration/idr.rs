@@ -606,3 +606,40 @@ fn object_masks_as_alpha_composite_the_photographs_and_score_inside_them() {
         head(&o.stderr)
     );
 }
+
+/// examples/benchmarks/dtu.sdfl, its data path pointed at a small set of
+/// IDR's layout, its steps and mesh cut down: it trains with the masks as
+/// alpha, reports PSNR inside them and meshes in the world frame.
+#[test]
+fn the_dtu_benchmark_runs_on_a_set_of_its_layout() {
+    let dir = case_dir("benchmark_dtu");
+    let cams = cameras();
+    write_set(&dir.join("scan"), &cams, &arrays(&cams));
+    let example = Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/benchmarks/dtu.sdfl");
+    let text = fs::read_to_string(example).unwrap();
+    for line in [
+        "let data = \"dtu_scan24\"",
+        "let steps = 5000",
+        "resolution: 256",
+    ] {
+        assert!(text.contains(line), "the example's `{line}` moved");
+    }
+    let text = text
+        .replace("let data = \"dtu_scan24\"", "let data = \"scan\"")
+        .replace("let steps = 5000", "let steps = 2")
+        .replace("resolution: 256", "resolution: 16");
+    fs::write(dir.join("dtu.sdfl"), text).unwrap();
+    let r = run_report(&dir, "dtu.sdfl");
+    let h = &r["held_out"][0];
+    assert!(
+        h["psnr_in_mask"].as_f64().is_some_and(f64::is_finite),
+        "{r}"
+    );
+    let points = sdfl_runtime::data::points::read_points(&dir.join("out/scan.ply")).unwrap();
+    let mean = points
+        .iter()
+        .map(|p| DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64))
+        .sum::<DVec3>()
+        / points.len().max(1) as f64;
+    assert!((mean - CENTRE).length() < 0.1 * SCALE, "{mean}");
+}

@@ -34,6 +34,9 @@ const RENDER_ROWS: usize = 1 << 16;
 pub const EARLY_STOP: f32 = 1e-4;
 /// Samples per ray per network pass of early-stopping rendering.
 const SEGMENT: usize = 16;
+/// Most sample depths a rendering pass places before its network passes
+/// (their depths and intervals: 32 MB).
+const MARCHED_DEPTHS: usize = 1 << 22;
 
 /// The samples of a batch of rays: ray `r`'s depths are
 /// `t[offsets[r]..offsets[r + 1]]`, each with its interval in `delta`.
@@ -285,9 +288,11 @@ impl Occupancy {
         }
         self.grid
             .march_rays(rays, self.near, self.far, self.step, &mut self.marched)?;
-        out.offsets.clone_from(&self.marched.offsets);
-        out.t.clone_from(&self.marched.t);
-        out.delta.clone_from(&self.marched.dt);
+        // Swapped, not copied (a batch's depths are megabytes): the next
+        // march overwrites `marched` whole.
+        std::mem::swap(&mut out.offsets, &mut self.marched.offsets);
+        std::mem::swap(&mut out.t, &mut self.marched.t);
+        std::mem::swap(&mut out.delta, &mut self.marched.dt);
         Ok(())
     }
 
@@ -736,8 +741,16 @@ pub fn render_nerf_view(
         depth: vec![0.0; rays.len()],
         evaluated: 0,
     };
-    let per_sample = n + fine.map_or(0, |(_, m)| n + m);
-    let per_pass = (RENDER_ROWS / per_sample.max(1)).max(1);
+    // A pass's rays: the coarse network of a two-network NeRF sees every
+    // sample of its rays at once; otherwise the network sees a segment of
+    // each ray at a time, so a pass takes as many rays as a segment's rows
+    // allow (256 rays a pass made 800² views of Lego spend their time in
+    // 5000 small network passes), its depths bounded by `MARCHED_DEPTHS`.
+    let per_pass = match fine.filter(|_| occupancy.is_none()) {
+        Some((_, m)) => RENDER_ROWS / (2 * n + m).max(1),
+        None => (RENDER_ROWS / SEGMENT).min(MARCHED_DEPTHS / n.max(1)),
+    }
+    .max(1);
     let (mut pass, mut samples, mut fine_s) =
         (Pass::default(), Samples::default(), Samples::default());
     let (mut weights, mut fine_depths) = (Vec::new(), Vec::new());

@@ -269,7 +269,10 @@ fn a_user_functions_size_is_in_its_renders_estimate() {
 #[test]
 fn grid_refreshes_count_a_quarter_of_the_cells_after_warm_up() {
     use sdfl_stdlib::value::occupancy_refresh_cells;
-    assert_eq!(occupancy_refresh_cells(100.0, 1000.0, 16), (16.0 + 47.0 / 4.0) * 100.0);
+    assert_eq!(
+        occupancy_refresh_cells(100.0, 1000.0, 16),
+        (16.0 + 47.0 / 4.0) * 100.0
+    );
     assert_eq!(occupancy_refresh_cells(100.0, 200.0, 16), 13.0 * 100.0);
     assert_eq!(occupancy_refresh_cells(100.0, 0.0, 16), 0.0);
 }
