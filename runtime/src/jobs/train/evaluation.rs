@@ -138,7 +138,9 @@ pub(super) fn evaluate(
     scored: &dyn Fn(usize),
 ) -> io::Result<Evaluation> {
     let (mut psnr, mut ssim, mut renders) = (0.0, 0.0, Vec::new());
-    let mut in_mask = Some(0.0);
+    // PSNR inside the object masks: its sum and the views with pixels
+    // inside (a view whose mask is empty has no such PSNR).
+    let mut in_mask = Some((0.0, 0usize));
     for (k, v) in views.iter().enumerate() {
         let (w, h) = (v.image.width, v.image.height);
         let size = ImageSize {
@@ -177,16 +179,11 @@ pub(super) fn evaluate(
         };
         ssim += metrics::ssim(&colour, &target, w as usize, h as usize);
         in_mask = match (in_mask, &v.coverage) {
-            (Some(sum), Some(c)) => {
-                let inside = |img: &[[f32; 3]]| -> Vec<[f32; 3]> {
-                    img.iter()
-                        .zip(c.iter())
-                        .enumerate()
-                        .filter(|(i, (_, &c))| c >= 128 && v.mask.as_ref().is_none_or(|m| m[*i]))
-                        .map(|(_, (p, _))| *p)
-                        .collect()
-                };
-                Some(sum + metrics::psnr(&inside(&colour), &inside(&target)))
+            (Some(acc), Some(c)) => {
+                Some(match psnr_inside(&colour, &target, c, v.mask.as_deref()) {
+                    Some(p) => (acc.0 + p, acc.1 + 1),
+                    None => acc,
+                })
             }
             _ => None,
         };
@@ -199,9 +196,31 @@ pub(super) fn evaluate(
     Ok(Evaluation {
         psnr: psnr / n,
         ssim: ssim / n,
-        psnr_in_mask: in_mask.filter(|_| !views.is_empty()).map(|s| s / n),
+        psnr_in_mask: in_mask
+            .filter(|&(_, counted)| counted > 0)
+            .map(|(sum, counted)| sum / counted as f64),
         renders,
     })
+}
+
+/// PSNR over the pixels a view's object mask covers at least half
+/// (`coverage` in 255ths) and its `mask` keeps; `None` where none are.
+fn psnr_inside(
+    colour: &[[f32; 3]],
+    target: &[[f32; 3]],
+    coverage: &[u8],
+    mask: Option<&[bool]>,
+) -> Option<f64> {
+    let inside = |img: &[[f32; 3]]| -> Vec<[f32; 3]> {
+        img.iter()
+            .zip(coverage)
+            .enumerate()
+            .filter(|(i, (_, &c))| c >= 128 && mask.is_none_or(|m| m[*i]))
+            .map(|(_, (p, _))| *p)
+            .collect()
+    };
+    let (ours, truth) = (inside(colour), inside(target));
+    (!ours.is_empty()).then(|| metrics::psnr(&ours, &truth))
 }
 
 #[cfg(test)]
@@ -225,6 +244,24 @@ mod tests {
                 coverage: None,
             })
             .collect()
+    }
+
+    /// PSNR inside a mask counts only the pixels it covers at least
+    /// half, and a view whose mask covers none has no such PSNR (not
+    /// NaN, which a checkpoint would refuse on resuming).
+    #[test]
+    fn psnr_inside_a_mask_counts_its_pixels_only() {
+        let target = [[0.5f32; 3]; 4];
+        let colour = [[0.5, 0.5, 0.5], [0.6, 0.5, 0.5], [0.0; 3], [1.0; 3]];
+        let cover = [255u8, 128, 127, 0];
+        let want = metrics::psnr(&colour[..2], &target[..2]);
+        assert_eq!(psnr_inside(&colour, &target, &cover, None), Some(want));
+        let keep = [true, false, true, true];
+        assert_eq!(
+            psnr_inside(&colour, &target, &cover, Some(&keep)),
+            Some(f64::INFINITY)
+        );
+        assert_eq!(psnr_inside(&colour, &target, &[0; 4], None), None);
     }
 
     /// Large held-out sets are announced with a line (shown piped), every
