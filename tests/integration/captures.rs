@@ -10,7 +10,7 @@ use glam::{DMat3, DQuat, DVec3};
 use sdfl_runtime::data::capture::{self, Distortion, Intrinsics};
 use sdfl_runtime::data::nerfstudio::read_transforms_scaled;
 use sdfl_runtime::data::normalize::SceneFrame;
-use sdfl_stdlib::value::{CaptureFormat, CaptureOrient, CaptureSpec};
+use sdfl_stdlib::value::CaptureSpec;
 use serde_json::{json, Value};
 
 /// An OpenGL camera-to-world pose at `eye` looking at `at` (+y of the
@@ -79,16 +79,9 @@ fn frame(k: usize, pose: &[[f64; 4]; 4]) -> Value {
 
 fn spec(path: &Path) -> CaptureSpec {
     CaptureSpec {
-        path: path.to_path_buf(),
-        path_span: Default::default(),
-        format: CaptureFormat::Auto,
-        downscale: 1,
         test_every: 0,
-        normalize: true,
-        orient: CaptureOrient::Up,
-        extent: 1.0,
         background: Some(DVec3::ONE),
-        object_masks: Default::default(),
+        ..CaptureSpec::at(path)
     }
 }
 

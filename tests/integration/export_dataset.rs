@@ -714,16 +714,10 @@ fn loads(set: &Path) -> Result<(), String> {
         return Err(format!("{n} training views"));
     }
     let spec = sdfl_stdlib::value::CaptureSpec {
-        path: set.to_path_buf(),
-        path_span: Default::default(),
         format: sdfl_stdlib::value::CaptureFormat::Llff,
-        downscale: 1,
         test_every: 0,
-        normalize: true,
         orient: sdfl_stdlib::value::CaptureOrient::None,
-        extent: 1.0,
-        background: None,
-        object_masks: Default::default(),
+        ..sdfl_stdlib::value::CaptureSpec::at(set)
     };
     sdfl_runtime::data::capture::read(&spec, Path::new("/")).map_err(e)?;
     Ok(())

@@ -14,7 +14,7 @@ use glam::{DMat3, DVec3};
 use sdfl_runtime::data::capture;
 use sdfl_runtime::data::normalize::SceneFrame;
 use sdfl_runtime::data::DataNeeds;
-use sdfl_stdlib::value::{CaptureFormat, CaptureOrient, CaptureSpec, ObjectMasks};
+use sdfl_stdlib::value::{CaptureFormat, CaptureSpec, ObjectMasks};
 
 const W: u32 = 24;
 const H: u32 = 18;
@@ -171,16 +171,8 @@ fn write_set(dir: &Path, cams: &[Cam], arrays: &[(String, Vec<u8>)]) {
 
 fn spec(path: &Path) -> CaptureSpec {
     CaptureSpec {
-        path: path.to_path_buf(),
-        path_span: Default::default(),
-        format: CaptureFormat::Auto,
-        downscale: 1,
         test_every: 0,
-        normalize: true,
-        orient: CaptureOrient::Up,
-        extent: 1.0,
-        background: None,
-        object_masks: Default::default(),
+        ..CaptureSpec::at(path)
     }
 }
 

@@ -227,3 +227,24 @@ pub struct CaptureSpec {
     /// What its object masks are used for, where it has them.
     pub object_masks: ObjectMasks,
 }
+
+impl CaptureSpec {
+    /// The capture at `path` with `capture(...)`'s defaults: format found
+    /// from the files, full-size images, every 8th frame held out,
+    /// normalised with its up turned onto +z, no background named, object
+    /// masks as coverage.
+    pub fn at(path: impl Into<std::path::PathBuf>) -> Self {
+        CaptureSpec {
+            path: path.into(),
+            path_span: sdfl_lang::Span::default(),
+            format: CaptureFormat::Auto,
+            downscale: 1,
+            test_every: 8,
+            normalize: true,
+            orient: CaptureOrient::Up,
+            extent: 1.0,
+            background: None,
+            object_masks: ObjectMasks::Coverage,
+        }
+    }
+}
