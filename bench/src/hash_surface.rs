@@ -63,7 +63,7 @@ pub fn main(reps: usize) {
     let model = SurfaceObjective::new(spec, &job.losses)
         .expect("the hash surface builds")
         .with_steps(job.iterations);
-    let mut run = Run::of(Box::new(model), job.optimizer.lr).expect("run");
+    let mut run = Run::for_optimizer(Box::new(model), &job.optimizer).expect("run");
 
     // The parts: the hash SDF alone at one batch's samples.
     let SurfaceSdf::Hash(hash) = SurfaceSdf::new(&spec.sdf).expect("hash SDF") else {

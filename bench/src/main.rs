@@ -27,6 +27,7 @@ use sdfl_stdlib::shape::{Shape, Sphere};
 use sdfl_stdlib::RenderJob;
 use std::sync::Arc;
 
+mod adam;
 mod density;
 mod hash_sdf;
 mod hash_surface;
@@ -339,6 +340,13 @@ fn main() {
             .and_then(|r| r.parse().ok())
             .unwrap_or(20);
         return hash_sdf::main(reps);
+    }
+    if std::env::args().nth(1).as_deref() == Some("adam") {
+        let reps = std::env::args()
+            .nth(2)
+            .and_then(|r| r.parse().ok())
+            .unwrap_or(10);
+        return adam::main(reps);
     }
     if std::env::args().nth(1).as_deref() == Some("hash-surface") {
         let reps = std::env::args()

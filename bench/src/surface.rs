@@ -91,7 +91,7 @@ fn sdfl_step(job: &TrainJob, views: &[TrainView], reps: usize) -> (f64, f64) {
     let model = SurfaceObjective::new(spec, &job.losses)
         .expect("a harmonic surface builds")
         .with_steps(job.iterations);
-    let mut run = Run::of(Box::new(model), job.optimizer.lr).expect("run");
+    let mut run = Run::for_optimizer(Box::new(model), &job.optimizer).expect("run");
     for _ in 0..2 {
         run.advance(&setup).expect("step");
     }

@@ -63,7 +63,7 @@ fn time_steps(src: &str, backend: Backend, reps: usize) -> (f64, f64) {
     let model = TrainModel::new(job.model.as_sdf().expect("an analytic field"));
     let setup = TrainSetup::of(&job, &views);
     let objective = Box::new(FieldObjective::new(&model, job.backend));
-    let mut run = Run::of(objective, job.optimizer.lr).expect("run");
+    let mut run = Run::for_optimizer(objective, &job.optimizer).expect("run");
     for _ in 0..2 {
         run.advance(&setup).expect("step");
     }

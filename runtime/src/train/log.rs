@@ -4,7 +4,7 @@
 //!
 //! * `<out>/<name>.metrics.csv`: `step,seconds,loss,lr,psnr,ssim`, one row
 //!   per step (psnr and ssim empty without a held-out evaluation), flushed
-//!   at every evaluation and checkpoint;
+//!   every [`FLUSH_EVERY`] and at every evaluation and checkpoint;
 //! * `<out>/tensorboard/<name>/events.out.tfevents.sdfl`: the same scalars
 //!   for TensorBoard ([`tensorboard`]);
 //! * `<out>/<name>.heldout.png`: at each held-out evaluation, the first
@@ -25,7 +25,7 @@ pub mod tensorboard;
 
 use std::io::{self, BufRead, Read, Write};
 use std::path::{Path, PathBuf};
-use std::time::{Instant, SystemTime};
+use std::time::{Duration, Instant, SystemTime};
 
 use serde::{Deserialize, Serialize};
 
@@ -33,6 +33,11 @@ use sdfl_stdlib::value::Optimizer;
 
 use crate::data::TrainView;
 use crate::output::{to_u8, Atomic};
+
+/// How often the logs reach their files while steps run (also at every
+/// evaluation and checkpoint): a dashboard or `tail -f` following them
+/// lags by at most this and a step. Flushing costs a write per interval.
+pub const FLUSH_EVERY: Duration = Duration::from_secs(2);
 
 /// What a run reports to its observer.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -351,6 +356,10 @@ fn events_prefix(bytes: &[u8], before: usize) -> Vec<u8> {
 /// A training run's logs and clock.
 pub struct TrainLog<'o> {
     observer: &'o Observer<'o>,
+    /// When the logs last reached their files.
+    flushed: Instant,
+    /// At most this long between flushes while steps run.
+    flush_every: Duration,
     optimizer: Optimizer,
     csv: io::BufWriter<std::fs::File>,
     events: io::BufWriter<std::fs::File>,
@@ -393,6 +402,8 @@ impl<'o> TrainLog<'o> {
         })?;
         let mut log = TrainLog {
             observer,
+            flushed: Instant::now(),
+            flush_every: FLUSH_EVERY,
             optimizer,
             csv,
             events,
@@ -565,6 +576,10 @@ impl<'o> TrainLog<'o> {
         let seconds = self.seconds();
         self.last_seconds = seconds;
         self.record_step(step, loss, seconds);
+        if self.flushed.elapsed() >= self.flush_every {
+            let r = self.flush();
+            self.check(r);
+        }
         (self.observer)(&TrainEvent::Step {
             step,
             loss,
@@ -614,6 +629,7 @@ impl<'o> TrainLog<'o> {
     }
 
     fn flush(&mut self) -> io::Result<()> {
+        self.flushed = Instant::now();
         self.csv.flush()?;
         self.events.flush()
     }
@@ -794,6 +810,7 @@ mod tests {
         let optimizer = Optimizer {
             lr: 0.01,
             schedule: sdfl_stdlib::value::Schedule::Constant,
+            moments: Default::default(),
         };
         let losses = [0.5, 0.4, 0.3, 0.2];
         let log = TrainLog::open(&dir, "t", optimizer, &losses, history, 10, &observer).unwrap();
@@ -824,5 +841,39 @@ mod tests {
             notes[1].contains("events.out.tfevents.sdfl: step 3 missing"),
             "{notes:?}"
         );
+    }
+
+    #[test]
+    fn steps_reach_the_files_between_evaluations() {
+        let dir = std::env::temp_dir().join(format!("sdfl-log-flush-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        let (csv, events, _) = paths(&dir, "t");
+        let observer = |_: &TrainEvent<'_>| {};
+        let optimizer = Optimizer {
+            lr: 0.01,
+            schedule: sdfl_stdlib::value::Schedule::Constant,
+            moments: Default::default(),
+        };
+        let mut log =
+            TrainLog::open(&dir, "t", optimizer, &[], History::default(), 10, &observer).unwrap();
+        let rows = || std::fs::read_to_string(&csv).unwrap().lines().count() - 1;
+        let events_len = || std::fs::metadata(&events).unwrap().len();
+        // Within the interval nothing more reaches the files...
+        log.flush_every = Duration::from_secs(3600);
+        log.flush().unwrap();
+        let before = events_len();
+        log.step(1, 0.5);
+        log.step(2, 0.4);
+        assert_eq!((rows(), events_len()), (0, before));
+        // ...past it, every step before the last (still pending its
+        // possible scores) and every event.
+        log.flush_every = Duration::ZERO;
+        log.step(3, 0.3);
+        assert_eq!(rows(), 2);
+        assert!(events_len() > before);
+        log.finish().unwrap();
+        assert_eq!(rows(), 3);
+        let _ = std::fs::remove_dir_all(&dir);
     }
 }

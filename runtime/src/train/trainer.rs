@@ -10,7 +10,7 @@
 use std::ops::ControlFlow;
 
 use sdfl_stdlib::camera::Camera;
-use sdfl_stdlib::value::{Loss, Optimizer, Sampler};
+use sdfl_stdlib::value::{Loss, Moments, Optimizer, Sampler};
 
 use super::checkpoint::{Checkpoint, ParamState};
 use super::export_names::{Layout, Piece};
@@ -208,8 +208,19 @@ pub struct Run<O: Objective + ?Sized = dyn Objective> {
 }
 
 impl<O: Objective + ?Sized> Run<O> {
-    /// A fresh run of any model at its starting values.
+    /// A fresh run of any model at its starting values, with Adam's
+    /// default moments.
     pub fn of(objective: Box<O>, lr: f64) -> Result<Self, TrainError> {
+        Self::with(objective, lr, Moments::default())
+    }
+
+    /// A fresh run of a `train` statement's model under its optimizer.
+    pub fn for_optimizer(objective: Box<O>, optimizer: &Optimizer) -> Result<Self, TrainError> {
+        Self::with(objective, optimizer.lr, optimizer.moments)
+    }
+
+    /// A fresh run of any model at its starting values.
+    fn with(objective: Box<O>, lr: f64, moments: Moments) -> Result<Self, TrainError> {
         let mut store = ParamStore::new();
         let init = objective.initial();
         let tensors = objective.tensors();
@@ -226,7 +237,7 @@ impl<O: Objective + ?Sized> Run<O> {
             tensors,
             store,
             ids,
-            adam: Adam::new(lr)?,
+            adam: Adam::with_moments(lr, moments)?,
             step: 0,
             losses: Vec::new(),
         })
@@ -399,30 +410,50 @@ impl<O: Objective + ?Sized> Run<O> {
             1.0
         };
         self.read_step_values();
-        self.grad.iter_mut().for_each(|g| *g = 0.0);
-        let loss =
-            self.objective
-                .loss_and_grad(&self.step_values, &batch, weight, &mut self.grad)?;
-        if !loss.is_finite() {
-            return Err(TrainError::Gradient(format!(
-                "the loss is {loss} at step {}",
-                self.step + 1
-            )));
-        }
-        let pairs: Vec<(ParamId, &[f32])> = self
+        // The gradient is zero here: a finished step's update leaves it so,
+        // and a failed one zeroes it below.
+        let loss = self
+            .objective
+            .loss_and_grad(&self.step_values, &batch, weight, &mut self.grad)
+            .and_then(|loss| {
+                if loss.is_finite() {
+                    Ok(loss)
+                } else {
+                    Err(TrainError::Gradient(format!(
+                        "the loss is {loss} at step {}",
+                        self.step + 1
+                    )))
+                }
+            });
+        let parts: Vec<(ParamId, std::ops::Range<usize>)> = self
             .ids
             .iter()
             .zip(&self.tensors)
-            .map(|(id, p)| (*id, &self.grad[p.offset..p.offset + p.len]))
+            .map(|(id, p)| (*id, p.offset..p.offset + p.len))
             .collect();
         self.adam.cfg.lr = setup.optimizer.lr_at(self.step);
-        self.adam.update_from_slices(&mut self.store, &pairs)?;
+        let updated = loss.and_then(|loss| {
+            self.adam
+                .update_in_place(
+                    &mut self.store,
+                    &parts,
+                    &mut self.step_values,
+                    &mut self.grad,
+                )
+                .map(|()| loss)
+        });
+        let loss = match updated {
+            Ok(loss) => loss,
+            Err(e) => {
+                self.grad.fill(0.0);
+                return Err(e);
+            }
+        };
         // Back into range: a radius stays positive, a colour in 0..1.
-        self.read_step_values();
         self.objective.project(&mut self.step_values);
         self.objective.at_step(self.step + 1, &mut self.step_values);
         let v = &self.step_values;
-        if let Some(k) = v.iter().position(|x| !x.is_finite()) {
+        if let Some(k) = super::params::first_non_finite(v) {
             return Err(TrainError::Gradient(format!(
                 "`{}` became {} at step {}",
                 self.tensors[self.tensor_at(k)].name,
@@ -615,6 +646,7 @@ mod tests {
             optimizer: Optimizer {
                 lr: 0.1,
                 schedule: Schedule::Constant,
+                moments: Default::default(),
             },
             losses: &[],
             seed: 0,

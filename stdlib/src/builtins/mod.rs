@@ -22,7 +22,7 @@ use crate::shape::{
 use crate::value::{
     describe, Backend, CaptureFormat, CaptureOrient, CaptureSpec, Colormap, Dataset,
     DensityActivation, DensityKind, Encoding, Field, Harmonic, HashGridSpec, HitTolerance,
-    LastInterval, Loss, LossKind, MeshRegion, Nerf, NeuralSdf, NeuralSurface, ObjectMasks,
+    LastInterval, Loss, LossKind, MeshRegion, Moments, Nerf, NeuralSdf, NeuralSurface, ObjectMasks,
     OccupancySpec, Optimizer, Output, OutputKind, Precision, RenderJob, Sampler, Schedule,
     SdfField, TrainJob, Value, ViewPath, VolumeJob,
 };
@@ -710,6 +710,9 @@ fn table() -> Vec<Builtin> {
                 opt("decay", Type::Number, "1", "learning-rate factor (0 < decay ≤ 1)"),
                 opt("decay_every", Type::Number, "0", "steps between decays (0: never)"),
                 opt("schedule", Type::Str, "\"step\"", "\"step\" or \"exponential\""),
+                opt("beta1", Type::Number, "0.9", "decay of the gradient's running mean, in [0, 1)"),
+                opt("beta2", Type::Number, "0.999", "decay of the squared gradient's running mean, in [0, 1) (instant-ngp: 0.99)"),
+                opt("eps", Type::Number, "1e-8", "added to the root of the second moment (> 0; instant-ngp: 1e-15, so that rarely seen hash-table rows still move)"),
             ],
             OPTIMIZER,
             |a| {
@@ -728,7 +731,16 @@ fn table() -> Vec<Builtin> {
                         return Err(value_error(kind_span, format!("unknown schedule `{other}`"), "not a schedule", "use \"step\" or \"exponential\""))
                     }
                 };
-                Ok(Value::Optimizer(Optimizer { lr: a.positive("lr")?, schedule }))
+                let decay_rate = |name: &str| -> Result<f64, Diag> {
+                    let b = a.number(name)?;
+                    if (0.0..1.0).contains(&b) {
+                        Ok(b)
+                    } else {
+                        Err(value_error(a.get(name).1, format!("`{name}` must be in [0, 1), got {b}"), "not a decay rate", "use a rate such as 0.9 or 0.99"))
+                    }
+                };
+                let moments = Moments { beta1: decay_rate("beta1")?, beta2: decay_rate("beta2")?, eps: a.positive("eps")? };
+                Ok(Value::Optimizer(Optimizer { lr: a.positive("lr")?, schedule, moments }))
             },
         ),
         func(

@@ -63,6 +63,32 @@ pub struct Optimizer {
     pub lr: f64,
     /// How it changes with the step.
     pub schedule: Schedule,
+    /// Adam's moment decays and ε.
+    pub moments: Moments,
+}
+
+/// Adam's decay rates of its two moment estimates and the ε added to the
+/// second's root. The defaults are dfdx's (and PyTorch's); instant-ngp
+/// trains its hash tables with β₂ = 0.99 and ε = 1e-15, since a table row
+/// seen rarely has small gradients that a larger ε would mute.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct Moments {
+    /// Decay of the gradient's running mean, in `[0, 1)`.
+    pub beta1: f64,
+    /// Decay of the squared gradient's running mean, in `[0, 1)`.
+    pub beta2: f64,
+    /// Added to the root of the second moment (> 0).
+    pub eps: f64,
+}
+
+impl Default for Moments {
+    fn default() -> Self {
+        Moments {
+            beta1: 0.9,
+            beta2: 0.999,
+            eps: 1e-8,
+        }
+    }
 }
 
 /// How the learning rate changes with the step.

@@ -156,7 +156,7 @@ pub fn run_train_job(
     let field = trained_field(job, steps, &points).map_err(invalid)?;
     let network = field.is_network();
     let fail = |e: TrainError| io::Error::other(format!("training `{}`: {e}", job.name));
-    let mut run = Run::of(field, job.optimizer.lr).map_err(fail)?;
+    let mut run = Run::for_optimizer(field, &job.optimizer).map_err(fail)?;
     // Checkpoints name and shape the tensors by role and carry the model.
     let tensors = run.objective.tensors();
     run.describe(crate::train::export_names::Layout::of(&job.model, &tensors));

@@ -5,6 +5,27 @@
 use super::super::*;
 use crate::train::log::History;
 use crate::train::Objective;
+use sdfl_stdlib::value::Moments;
+
+/// The optimizer as the fingerprint sees it. Adam's moments join it only
+/// when not the defaults, so checkpoints written before they could be set
+/// still resume: the text is then what `{:?}` gave before.
+fn optimizer_key(o: &sdfl_stdlib::value::Optimizer) -> String {
+    if o.moments == Moments::default() {
+        format!("Optimizer {{ lr: {:?}, schedule: {:?} }}", o.lr, o.schedule)
+    } else {
+        format!("{o:?}")
+    }
+}
+
+/// Text that `{:?}` writes as it is (not quoted, as a `String` would be).
+struct Verbatim(String);
+
+impl std::fmt::Debug for Verbatim {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.0)
+    }
+}
 
 /// How often a checkpoint is written.
 pub(crate) const CHECKPOINT_EVERY: usize = 100;
@@ -27,11 +48,12 @@ pub fn fingerprint(job: &TrainJob, views: &[TrainView]) -> [String; 4] {
         let _ = write!(h, "{value:?}");
         h.finish()
     };
+    let optimizer = Verbatim(optimizer_key(&job.optimizer));
     [
         hash(&job.model),
         data.finish(),
         hash(&job.sampler),
-        hash(&(job.optimizer, &job.losses, job.rays, job.seed, job.backend)),
+        hash(&(optimizer, &job.losses, job.rays, job.seed, job.backend)),
     ]
 }
 
@@ -117,5 +139,32 @@ impl Checkpoints {
             Some(cp) => self.of_run(run, history).write(cp),
             None => Ok(()),
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use sdfl_stdlib::value::{Optimizer, Schedule};
+
+    #[test]
+    fn default_moments_keep_the_fingerprint_of_checkpoints_before_them() {
+        let mut o = Optimizer {
+            lr: 0.01,
+            schedule: Schedule::Step {
+                factor: 0.5,
+                every: 100,
+            },
+            moments: Moments::default(),
+        };
+        // The text `{:?}` gave before `moments` existed.
+        let before = "Optimizer { lr: 0.01, schedule: Step { factor: 0.5, every: 100 } }";
+        assert_eq!(optimizer_key(&o), before);
+        assert_eq!(
+            format!("{:?}", (Verbatim(optimizer_key(&o)), 1)),
+            format!("({before}, 1)")
+        );
+        o.moments.beta2 = 0.99;
+        assert_ne!(optimizer_key(&o), before);
     }
 }

@@ -129,7 +129,7 @@ impl CheckpointedField {
             )));
         }
         let field = trained_field(&job, job.iterations, &[]).map_err(|e| refused(&e))?;
-        let mut run = Run::of(field, job.optimizer.lr).map_err(|e| refused(&e))?;
+        let mut run = Run::for_optimizer(field, &job.optimizer).map_err(|e| refused(&e))?;
         run.describe(Layout::of(&job.model, &run.objective.tensors()));
         // The same checks as a resume: names, shapes, ranges, state.
         run.resume(&ck).map_err(|e| refused(&e))?;
