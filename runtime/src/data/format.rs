@@ -44,9 +44,10 @@ pub trait Format: Sync {
         None
     }
 
-    /// The views `request` reads, the held-out ones that it reads
-    /// included, without decoding an image: what `sdfl plan` reads the
-    /// headers of.
+    /// The views `request` may read, held-out ones marked (a job's
+    /// `eval_views` picks among those), without decoding an image: what
+    /// `sdfl plan` reads the headers of. It reads no more than it needs,
+    /// so it may accept files that [`Format::read`] refuses.
     fn plan(&self, request: &Request) -> io::Result<Vec<PlannedView>>;
 
     /// Reads the views `request` asks for: cameras checked, image sizes
@@ -78,7 +79,8 @@ pub struct Request {
 
 impl Request {
     /// Every `n`-th frame held out where the data set has no split lists
-    /// (0: none): [`Split::Every`]'s `n`, and 0 for split files.
+    /// (0: none): [`Split::Every`]'s `n`; 0 for split files, which hold
+    /// out a file's frames instead.
     pub fn test_every(&self) -> usize {
         match self.split {
             Split::Every(n) => n,

@@ -13,7 +13,7 @@ use sdfl_stdlib::value::ObjectMasks;
 
 use super::camera::{camera_of, Intrinsics};
 use super::error::{invalid, no_coverage};
-use super::format::{FormatViews, Request};
+use super::format::{FormatViews, PlannedView, Request};
 use super::image::{check_dataset, read_rgba_image, read_view_images, RgbaImage};
 use super::normalize::SceneFrame;
 use super::view::TrainView;
@@ -64,6 +64,21 @@ pub fn every_nth(n: usize, every: usize) -> Vec<usize> {
         return Vec::new();
     }
     (0..n).step_by(every).collect()
+}
+
+/// `images` as a run will read them, without masks, every `every`-th
+/// held out ([`every_nth`]): what formats that list images plan.
+pub fn planned_every_nth(images: Vec<PathBuf>, every: usize) -> Vec<PlannedView> {
+    let test = every_nth(images.len(), every);
+    images
+        .into_iter()
+        .enumerate()
+        .map(|(k, image)| PlannedView {
+            image,
+            mask: false,
+            held_out: test.binary_search(&k).is_ok(),
+        })
+        .collect()
 }
 
 /// [`every_nth`] of a capture's `n` frames, refused where it would hold

@@ -390,6 +390,20 @@ fn data_modules_have_no_loops() {
 }
 
 #[test]
+fn no_data_format_imports_another() {
+    let data = Path::new(env!("CARGO_MANIFEST_DIR")).join("src/data");
+    let graph = folder_graph(&data, &["data"]);
+    let is_format = |m: &str| m.starts_with("formats::");
+    assert!(graph.keys().filter(|m| is_format(m)).count() >= 5);
+    for (m, uses) in graph.iter().filter(|(m, _)| is_format(m)) {
+        let formats: Vec<&String> = uses.iter().filter(|u| is_format(u)).collect();
+        assert!(formats.is_empty(), "{m} imports {formats:?}");
+        // Nor the registry: what formats share lives beside it.
+        assert!(!uses.contains("formats"), "{m} imports the registry");
+    }
+}
+
+#[test]
 fn runtime_modules_have_no_new_loops() {
     let src = Path::new(env!("CARGO_MANIFEST_DIR")).join("src");
     let graph = crate_graph(&src);

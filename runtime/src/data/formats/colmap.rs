@@ -20,7 +20,7 @@ use sdfl_stdlib::value::CaptureFormat;
 use crate::data::camera::{check_position, CheckNamed, Distortion, Intrinsics, Keys};
 use crate::data::error::invalid;
 use crate::data::format::{Format, FormatViews, PlannedView, Request};
-use crate::data::frames::{every_nth, held_out_every, load, Capture, CaptureFrame};
+use crate::data::frames::{held_out_every, load, planned_every_nth, Capture, CaptureFrame};
 use crate::data::image::{image_dimensions, open_regular, MAX_SIDE};
 use crate::data::paths::{images_folder, inside};
 
@@ -72,18 +72,11 @@ impl Format for Colmap {
             .collect();
         names.sort();
         let folder = PathBuf::from(images_folder(request.downscale));
-        let test = every_nth(names.len(), request.test_every());
-        names
+        let images = names
             .iter()
-            .enumerate()
-            .map(|(k, n)| {
-                Ok(PlannedView {
-                    image: inside(path, &folder.join(n), n).map_err(|e| invalid(path, e))?,
-                    mask: false,
-                    held_out: test.binary_search(&k).is_ok(),
-                })
-            })
-            .collect()
+            .map(|n| inside(path, &folder.join(n), n).map_err(|e| invalid(path, e)))
+            .collect::<io::Result<Vec<_>>>()?;
+        Ok(planned_every_nth(images, request.test_every()))
     }
 
     fn read(&self, request: &Request) -> io::Result<FormatViews> {

@@ -31,7 +31,7 @@ use crate::data::camera::{
 };
 use crate::data::error::invalid;
 use crate::data::format::{Format, FormatViews, PlannedView, Request};
-use crate::data::frames::{every_nth, held_out_every, load, Capture, CaptureFrame};
+use crate::data::frames::{held_out_every, load, planned_every_nth, Capture, CaptureFrame};
 use crate::data::image::image_dimensions;
 use crate::data::normalize::SceneFrame;
 use crate::data::npy::{NpyError, Npz};
@@ -68,16 +68,7 @@ impl Format for Idr {
     /// are read only as coverage, which the budget counts by itself.
     fn plan(&self, request: &Request) -> io::Result<Vec<PlannedView>> {
         let images = images(&request.path, request.downscale)?;
-        let test = every_nth(images.len(), request.test_every());
-        Ok(images
-            .into_iter()
-            .enumerate()
-            .map(|(k, image)| PlannedView {
-                image,
-                mask: false,
-                held_out: test.binary_search(&k).is_ok(),
-            })
-            .collect())
+        Ok(planned_every_nth(images, request.test_every()))
     }
 
     /// The unit sphere of `scale_mat` is the frame NeuS trains in: the

@@ -26,7 +26,7 @@ use crate::data::camera::{
 };
 use crate::data::error::invalid;
 use crate::data::format::{ForwardFacing, Format, FormatViews, PlannedView, Request};
-use crate::data::frames::{every_nth, held_out_every, load, Capture, CaptureFrame};
+use crate::data::frames::{held_out_every, load, planned_every_nth, Capture, CaptureFrame};
 use crate::data::image::{image_dimensions, MAX_SIDE};
 use crate::data::normalize::SceneFrame;
 use crate::data::paths::{image_files, images_folder, inside};
@@ -58,16 +58,7 @@ impl Format for Llff {
     /// The images of the folder, without reading the poses.
     fn plan(&self, request: &Request) -> io::Result<Vec<PlannedView>> {
         let images = image_files(&request.path.join(images_folder(request.downscale)))?;
-        let test = every_nth(images.len(), request.test_every());
-        Ok(images
-            .into_iter()
-            .enumerate()
-            .map(|(k, image)| PlannedView {
-                image,
-                mask: false,
-                held_out: test.binary_search(&k).is_ok(),
-            })
-            .collect())
+        Ok(planned_every_nth(images, request.test_every()))
     }
 
     fn read(&self, request: &Request) -> io::Result<FormatViews> {

@@ -1,13 +1,13 @@
 //! Every data format, one file each, each a [`Format`]: the registry that
 //! `capture(format: "auto")` detects from and the tests iterate, and the
 //! one path from a data statement to its format. A new format is a file
-//! here and a line in [`formats!`]'s list (and, for `capture(...)`, its
-//! name in `sdfl_stdlib::value::CaptureFormat`).
+//! here and a line in the `formats!` list below (and, for `capture(...)`,
+//! its name in `sdfl_stdlib::value::CaptureFormat`).
 
 use std::io;
 use std::path::Path;
 
-use sdfl_stdlib::value::{CaptureFormat, CaptureOrient, CaptureSpec, Dataset};
+use sdfl_stdlib::value::{CaptureFormat, CaptureOrient, CaptureSpec, Dataset, ObjectMasks};
 
 use super::error::{at_argument, invalid};
 use super::format::{Format, FormatViews, Normalize, PlannedView, Request, Split};
@@ -125,7 +125,7 @@ fn source(data: &Dataset, base: &Path, needs: DataNeeds) -> io::Result<Option<So
                 },
                 normalize: Normalize::NONE,
                 background: *background,
-                object_masks: Default::default(),
+                object_masks: ObjectMasks::default(),
                 needs,
             },
             span: *path_span,
@@ -152,10 +152,9 @@ pub fn read(data: &Dataset, base: &Path, needs: DataNeeds) -> io::Result<Option<
         return Ok(None);
     };
     let at = |e| at_argument(span, e);
-    let views = format.read(&request).map_err(at)?;
+    let mut views = format.read(&request).map_err(at)?;
     let names = views.names.iter().map(String::as_str);
     check_finite(views.train.iter().chain(&views.test).zip(names)).map_err(at)?;
-    let mut views = views;
     views.report.extend(opaque_alpha_warning(&views.train));
     Ok(Some(views))
 }
