@@ -392,22 +392,11 @@ pub(crate) fn plan_text_in(program: &sdfl_stdlib::Program, base: &std::path::Pat
                 // are their own); the files are read again when run.
                 match (
                     c.normalize,
-                    match c.format {
-                        sdfl_stdlib::value::CaptureFormat::Auto => {
-                            sdfl_runtime::data::capture::detect(&base.join(&c.path))
-                                .unwrap_or(c.format)
-                        }
-                        f => f,
-                    },
+                    sdfl_runtime::data::capture::own_frame(c, base),
                     c.orient,
                 ) {
                     (false, _, _) => ", the data's own frame".to_string(),
-                    (true, sdfl_stdlib::value::CaptureFormat::Llff, _) => {
-                        ", recentred on the average camera (looking down -z), the nearest depth bound at 4/3 (as NeRF does)".to_string()
-                    }
-                    (true, sdfl_stdlib::value::CaptureFormat::Idr, _) => {
-                        ", scale_mat's unit sphere around the object (as NeuS does; exports in the world frame)".to_string()
-                    }
+                    (true, Some(own), _) => format!(", {own}"),
                     (true, _, orient) => format!(
                         ", cameras centred into [-{e}, {e}]^3{}",
                         match orient {

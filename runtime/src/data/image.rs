@@ -196,11 +196,11 @@ enum Decoded {
 
 impl DecodedView {
     /// Each pixel's coverage from its alpha, in 255ths (see
-    /// [`super::coverage_from_alpha`]).
+    /// [`super::view::coverage_from_alpha`]).
     pub fn coverage(&self) -> std::sync::Arc<[u8]> {
         match &self.pixels {
             Decoded::Rgba8(p) => p.iter().map(|p| p[3]).collect(),
-            Decoded::Rgba32(p) => super::coverage_from_alpha(p),
+            Decoded::Rgba32(p) => super::view::coverage_from_alpha(p),
         }
     }
 

@@ -64,7 +64,7 @@ fn read_limited(path: &Path) -> Result<Vec<u8>, NpyError> {
 /// refused, after reading no more than one byte past it).
 fn read_at_most(path: &Path, limit: u64) -> Result<Vec<u8>, NpyError> {
     use std::io::Read;
-    let file = super::image::open_regular(path)?;
+    let file = sdfl_stdlib::files::open_regular(path)?;
     let mut buf = Vec::new();
     file.take(limit + 1).read_to_end(&mut buf)?;
     if buf.len() as u64 > limit {
@@ -271,7 +271,7 @@ pub fn check_values(shape: &[usize], max_values: u64) -> Result<(), NpyError> {
 /// The shape declared by a `.npy` file's header, reading only the header.
 pub fn read_shape(path: impl AsRef<Path>) -> Result<Vec<usize>, NpyError> {
     use std::io::Read;
-    let file = super::image::open_regular(path.as_ref())?;
+    let file = sdfl_stdlib::files::open_regular(path.as_ref())?;
     let mut head = Vec::new();
     file.take(10 + u16::MAX as u64).read_to_end(&mut head)?;
     if head.len() >= 10 {

@@ -17,6 +17,7 @@ use sdfl_stdlib::RenderJob;
 use serde::Serialize;
 
 use crate::data::export::DatasetWriter;
+use crate::data::view::check_finite;
 use crate::data::view_image::ViewImage;
 use crate::data::DataNeeds;
 use crate::metrics;
@@ -430,7 +431,7 @@ pub struct Views {
     /// normalisation, a warning about its alpha), for the run's report.
     pub scene_report: Vec<String>,
     /// A forward-facing capture's camera for NDC (LLFF).
-    pub forward_facing: Option<crate::data::capture::ForwardFacing>,
+    pub forward_facing: Option<crate::data::format::ForwardFacing>,
 }
 
 /// The views of a data set: read from files (relative to `base`),
@@ -503,91 +504,22 @@ pub fn load_views_for(data: &Dataset, base: &Path, needs: DataNeeds) -> io::Resu
             .enumerate()
             .map(|(k, v)| (v, format!("traced view {k}")))
             .collect(),
-        Dataset::NerfSynthetic {
-            path,
-            path_span,
-            split,
-            test_split,
-            background,
-        } => {
-            let at = |e| crate::data::at_argument(*path_span, e);
-            use crate::data::nerf_synthetic::{read_splits, transforms_path, SplitRead};
-            let dir = base.join(path);
-            // The training split's coverage only: held-out views are scored.
-            let mut splits = vec![SplitRead {
-                coverage: needs.coverage,
-                ..SplitRead::all(split)
-            }];
-            if let Some(t) = test_split {
-                // The lone transforms.json stands in for the training split
-                // only: it never doubles as the test views.
-                if transforms_path(&dir, t) == transforms_path(&dir, split) {
-                    return Err(at(invalid(format!(
-                        "{}: no transforms_{t}.json for the test split `{t}`",
-                        dir.display()
-                    ))));
-                }
-                splits.push(SplitRead {
-                    frames: needs.held_out,
-                    ..SplitRead::all(t)
-                });
-            }
-            let mut read = read_splits(&dir, &splits, *background).map_err(at)?;
-            let test = if read.len() > 1 {
-                read.pop().unwrap_or_default()
-            } else {
-                Vec::new()
-            };
-            let train = read.pop().unwrap_or_default();
-            let named = |split: &str, views: Vec<TrainView>| -> Vec<(TrainView, String)> {
-                let file = transforms_path(&dir, split).display().to_string();
-                views
-                    .into_iter()
-                    .enumerate()
-                    .map(|(k, v)| (v, format!("{file} frame {k}")))
-                    .collect()
-            };
-            let train = named(split, train);
-            let test = named(test_split.as_deref().unwrap_or(""), test);
-            check_finite(&train).map_err(at)?;
-            check_finite(&test).map_err(at)?;
-            let train: Vec<TrainView> = train.into_iter().map(|(v, _)| v).collect();
+        // Read by their format, whichever it is.
+        Dataset::NerfSynthetic { .. } | Dataset::Capture(_) => {
+            let read = crate::data::formats::read(data, base, needs)?
+                .ok_or_else(|| invalid("no data format reads this data set"))?;
             return Ok(Views {
-                scene_report: opaque_alpha_warning(&train).into_iter().collect(),
-                train,
-                test: test.into_iter().map(|(v, _)| v).collect(),
+                train: read.train,
+                test: read.test,
                 points: Vec::new(),
                 all_points: Vec::new(),
-                scene_frame: None,
-                forward_facing: None,
-            });
-        }
-        Dataset::Capture(spec) => {
-            let at = |e| crate::data::at_argument(spec.path_span, e);
-            let c = crate::data::capture::read_for(spec, base, needs).map_err(at)?;
-            let named: Vec<(TrainView, String)> = c
-                .train
-                .into_iter()
-                .chain(c.test.iter().cloned())
-                .zip(c.names)
-                .collect();
-            check_finite(&named).map_err(at)?;
-            let mut train: Vec<TrainView> = named.into_iter().map(|(v, _)| v).collect();
-            let test = train.split_off(train.len() - c.test.len());
-            let mut scene_report = c.report;
-            scene_report.extend(opaque_alpha_warning(&train));
-            return Ok(Views {
-                train,
-                test,
-                points: Vec::new(),
-                all_points: Vec::new(),
-                scene_frame: Some(c.frame),
-                scene_report,
-                forward_facing: c.forward_facing,
+                scene_frame: read.frame,
+                scene_report: read.report,
+                forward_facing: read.forward_facing,
             });
         }
     };
-    check_finite(&views)?;
+    check_finite(views.iter().map(|(v, origin)| (v, origin.as_str())))?;
     let held = data.test_views();
     let (mut train, mut test) = (Vec::new(), Vec::new());
     for (k, (v, _)) in views.into_iter().enumerate() {
@@ -675,35 +607,6 @@ pub fn traced_views(job: &RenderJob) -> Vec<TrainView> {
             }
         })
         .collect()
-}
-
-/// A warning when the views' coverage, read from alpha, is everywhere
-/// whole: such alpha says nothing of the object's outline, and
-/// `silhouette()` then pulls every ray opaque, the background too.
-fn opaque_alpha_warning(views: &[TrainView]) -> Option<String> {
-    let read: Vec<&[u8]> = views.iter().filter_map(|v| v.coverage.as_deref()).collect();
-    (!read.is_empty() && read.iter().all(|c| c.iter().all(|&a| a == 255))).then(|| {
-        "warning: every pixel of the training images is opaque (alpha 1): `silhouette()` then takes the object to cover every pixel and makes every ray opaque; give images whose alpha is the object's coverage, or leave `silhouette()` out".to_string()
-    })
-}
-
-fn check_finite(views: &[(TrainView, String)]) -> io::Result<()> {
-    for (v, origin) in views {
-        if let Some(i) = v
-            .image
-            .colours()
-            .position(|p| !p.iter().all(|x| x.is_finite()))
-        {
-            let w = v.image.width.max(1) as usize;
-            return Err(invalid(format!(
-                "{origin}: pixel (column {}, row {}) is {:?}, not a finite colour",
-                i % w,
-                i / w,
-                v.image.pixel(i)
-            )));
-        }
-    }
-    Ok(())
 }
 
 mod train;

@@ -2,7 +2,9 @@
 //! tracer, volumes, views), one module per concern in one test binary.
 
 mod evaluators;
+mod formats;
 mod gradients;
+mod module_loops;
 mod nerf_graph;
 mod tiles;
 mod tracer;

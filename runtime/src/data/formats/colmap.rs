@@ -15,12 +15,14 @@ use std::path::{Path, PathBuf};
 
 use glam::{DMat3, DQuat, DVec3};
 use sdfl_stdlib::builtins::MAX_VIEWS;
+use sdfl_stdlib::value::CaptureFormat;
 
-use super::capture::{
-    held_out_every, invalid, Capture, CaptureFrame, CheckNamed, Distortion, Intrinsics, Keys,
-};
-use super::image::{image_dimensions, open_regular};
-use super::nerfstudio::inside;
+use crate::data::camera::{check_position, CheckNamed, Distortion, Intrinsics, Keys};
+use crate::data::error::invalid;
+use crate::data::format::{Format, FormatViews, PlannedView, Request};
+use crate::data::frames::{held_out_every, load, planned_every_nth, Capture, CaptureFrame};
+use crate::data::image::{image_dimensions, open_regular, MAX_SIDE};
+use crate::data::paths::{images_folder, inside};
 
 /// Longest line read (a 2-D point line of a 50-megapixel image's features
 /// is a few megabytes).
@@ -39,6 +41,52 @@ pub fn model_dir(dir: &Path) -> Option<PathBuf> {
         .into_iter()
         .find(|d| d.join("cameras.txt").is_file() && d.join("images.txt").is_file())
 }
+
+/// The COLMAP format.
+pub struct Colmap;
+
+impl Format for Colmap {
+    fn name(&self) -> &'static str {
+        "colmap"
+    }
+
+    fn capture_format(&self) -> Option<CaptureFormat> {
+        Some(CaptureFormat::Colmap)
+    }
+
+    fn marker(&self) -> &'static str {
+        "COLMAP model (sparse/0/cameras.txt)"
+    }
+
+    fn detect(&self, path: &Path) -> bool {
+        model_dir(path).is_some()
+    }
+
+    /// The images `images.txt` names, without reading the cameras.
+    fn plan(&self, request: &Request) -> io::Result<Vec<PlannedView>> {
+        let path = &request.path;
+        let model = model_dir(path).ok_or_else(|| invalid(path, NO_MODEL))?;
+        let mut names: Vec<String> = read_images(&model.join("images.txt"))?
+            .into_iter()
+            .map(|i| i.name)
+            .collect();
+        names.sort();
+        let folder = PathBuf::from(images_folder(request.downscale));
+        let images = names
+            .iter()
+            .map(|n| inside(path, &folder.join(n), n).map_err(|e| invalid(path, e)))
+            .collect::<io::Result<Vec<_>>>()?;
+        Ok(planned_every_nth(images, request.test_every()))
+    }
+
+    fn read(&self, request: &Request) -> io::Result<FormatViews> {
+        let capture = read(&request.path, request.downscale, request.test_every())?;
+        load(&capture, request, None)
+    }
+}
+
+/// Why a directory is no COLMAP capture.
+const NO_MODEL: &str = "holds no COLMAP text model (sparse/0/cameras.txt and images.txt)";
 
 /// Calls `each(line_number, line)` for every line of `path`, lines and
 /// the file capped.
@@ -217,11 +265,11 @@ pub fn read_cameras(path: &Path) -> io::Result<HashMap<u64, ColmapCamera>> {
         let side = |s: &str| -> io::Result<u32> {
             s.parse::<u32>()
                 .ok()
-                .filter(|v| (1..=super::image::MAX_SIDE).contains(v))
+                .filter(|v| (1..=MAX_SIDE).contains(v))
                 .ok_or_else(|| {
                     at(format!(
                         "image side `{s}` is not 1 to {} pixels",
-                        super::image::MAX_SIDE
+                        MAX_SIDE
                     ))
                 })
         };
@@ -318,7 +366,7 @@ pub fn read_images(path: &Path) -> io::Result<Vec<ColmapImage>> {
             )));
         }
         let t = DVec3::new(v[4], v[5], v[6]);
-        super::check_position("translation", t).map_err(&at)?;
+        check_position("translation", t).map_err(&at)?;
         let camera: u64 = f[8]
             .parse()
             .map_err(|_| at("CAMERA_ID is not a whole number".into()))?;
@@ -387,21 +435,12 @@ pub fn read_points(path: &Path) -> io::Result<Vec<DVec3>> {
 /// `images_<downscale>/`, intrinsics scaled by 1/downscale), sorted by
 /// name; every `test_every`-th held out.
 pub fn read(dir: &Path, downscale: u32, test_every: usize) -> io::Result<Capture> {
-    let model = model_dir(dir).ok_or_else(|| {
-        invalid(
-            dir,
-            "holds no COLMAP text model (sparse/0/cameras.txt and images.txt)",
-        )
-    })?;
+    let model = model_dir(dir).ok_or_else(|| invalid(dir, NO_MODEL))?;
     let cams = read_cameras(&model.join("cameras.txt"))?;
     let images_txt = model.join("images.txt");
     let mut images = read_images(&images_txt)?;
     images.sort_by(|a, b| a.name.cmp(&b.name));
-    let folder = if downscale > 1 {
-        format!("images_{downscale}")
-    } else {
-        "images".to_string()
-    };
+    let folder = images_folder(downscale);
     let d = downscale.max(1) as f64;
     let mut frames = Vec::with_capacity(images.len());
     for im in &images {

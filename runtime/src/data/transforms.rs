@@ -4,22 +4,24 @@
 //! w h`, or `camera_angle_x`/`camera_angle_y`), `camera_model` with its
 //! distortion (`k1 k2 p1 p2`, fisheye `k1`–`k4`), `mask_path`, the split
 //! lists `train_filenames`/`val_filenames`/`test_filenames` and
-//! `applied_transform`. One reader serves `nerf_synthetic(...)` and
-//! `capture(...)`, so both read the same keys the same way.
+//! `applied_transform`. One reader serves the NeRF-synthetic and the
+//! nerfstudio formats, so both read the same keys the same way.
 //!
 //! Hostile-input safe: the JSON is a capped regular file, every key is
 //! checked, frames are capped, image paths stay inside the data set's
 //! directory.
 
 use std::io::{self, Read};
-use std::path::{Component, Path, PathBuf};
+use std::path::{Path, PathBuf};
 
 use sdfl_stdlib::builtins::MAX_VIEWS;
 use serde_json::Value;
 
-use super::capture::{invalid, Capture, CaptureFrame, CheckNamed, Distortion, Intrinsics, Keys};
+use super::camera::{check_rigid, CheckNamed, Distortion, Intrinsics, Keys};
+use super::error::invalid;
 use super::export::INCOMPLETE;
-use super::image::{image_dimensions, open_regular};
+use super::image::{open_regular, MAX_SIDE};
+use super::paths::{inside, relative};
 
 /// Largest transforms file read: the 200-frame Blender files are ~0.1 MB,
 /// 10 000 frames ~6 MB; parsed JSON takes up to ~16× its text.
@@ -97,7 +99,7 @@ impl Lens {
         let size = |key: &str| -> Result<Option<f64>, String> {
             let s = number(v, key)?;
             if let Some(s) = s {
-                let max = super::image::MAX_SIDE as f64;
+                let max = MAX_SIDE as f64;
                 if !(s >= 1.0 && s <= max && s.fract() == 0.0) {
                     return Err(format!(
                         "`{key}` {s} is not an image side (1 to {max} pixels)"
@@ -171,51 +173,6 @@ pub struct Transforms {
     pub splits: [Option<Vec<PathBuf>>; 3],
     /// `applied_transform`: rows of the 3×4 map from the original (COLMAP) frame to the file's.
     pub applied: Option<[[f64; 4]; 3]>,
-}
-
-/// A relative path inside the data set as components (no `..`, no root,
-/// not empty), `.png` added when it has no extension (as Blender's files
-/// omit it).
-fn relative(file_path: &str, add_png: bool) -> Option<PathBuf> {
-    if file_path.contains('\0') {
-        return None;
-    }
-    // Only named components: `./r_0` is `r_0`, and `.` or `./` name the
-    // directory itself (whose `.png` would lie beside it).
-    let mut rel = PathBuf::new();
-    for c in Path::new(file_path).components() {
-        match c {
-            Component::Normal(n) => rel.push(n),
-            Component::CurDir => {}
-            _ => return None,
-        }
-    }
-    if rel.as_os_str().is_empty() {
-        return None;
-    }
-    if add_png && rel.extension().is_none() {
-        rel.set_extension("png");
-    }
-    Some(rel)
-}
-
-/// `dir/rel`, which must exist and, links followed, lie strictly inside
-/// `dir`. `file_path` is the text as written, for messages.
-pub fn inside(dir: &Path, rel: &Path, file_path: &str) -> Result<PathBuf, String> {
-    let image = dir.join(rel);
-    let real = image
-        .canonicalize()
-        .map_err(|e| format!("{}: {e}", image.display()))?;
-    let real_dir = dir
-        .canonicalize()
-        .map_err(|e| format!("{}: {e}", dir.display()))?;
-    if !real.starts_with(&real_dir) || real == real_dir {
-        return Err(format!(
-            "frame image `{file_path}` leads outside the data set (to {})",
-            real.display()
-        ));
-    }
-    Ok(image)
 }
 
 fn outside(file_path: &str) -> String {
@@ -328,7 +285,7 @@ pub fn read_transforms_scaled(path: &Path, downscale: u32) -> io::Result<Transfo
         // Bounded here, before any normalisation: cameras at 1e300 would
         // be scaled into the unit cube and train, and exports mapped back
         // would not be finite.
-        super::check_rigid("camera position", &[pose[0], pose[1], pose[2]])
+        check_rigid("camera position", &[pose[0], pose[1], pose[2]])
             .map_err(|e| at(&format!("`transform_matrix`: {e}")))?;
         let lens = global.over(&Lens::read(f).map_err(|e| at(&e))?);
         if lens.fl_x.is_none() && lens.camera_angle_x.is_none() {
@@ -397,7 +354,7 @@ pub fn read_transforms_scaled(path: &Path, downscale: u32) -> io::Result<Transfo
                 )
             })?;
             let m = [m[0], m[1], m[2]];
-            super::check_rigid("translation", &m)
+            check_rigid("translation", &m)
                 .map_err(|e| invalid(path, format!("`applied_transform`: {e}")))?;
             Some(m)
         }
@@ -504,117 +461,5 @@ impl Transforms {
             (fx_given, fy_given),
         )?;
         Ok(k)
-    }
-
-    /// The indices of the frames named by split list `names`.
-    fn named(&self, key: &str, names: &[PathBuf]) -> io::Result<Vec<usize>> {
-        // By a map: 10 000 names against 10 000 frames one by one is 1e8
-        // comparisons. The first frame of a path, as a search would find.
-        let mut index = std::collections::HashMap::with_capacity(self.frames.len());
-        for (k, f) in self.frames.iter().enumerate().rev() {
-            index.insert(&f.rel, k);
-        }
-        names
-            .iter()
-            .map(|n| {
-                index.get(n).copied().ok_or_else(|| {
-                    invalid(
-                        &self.file,
-                        format!("`{key}` names {}, which no frame has", n.display()),
-                    )
-                })
-            })
-            .collect()
-    }
-
-    /// The frames a capture keeps, in file-name order (nerfstudio sorts
-    /// frames by file name), each with whether it is held out: test views
-    /// from `test_filenames` (else `val_filenames`) with the rest of
-    /// `train_filenames` (frames in neither list dropped), else every
-    /// `test_every`-th frame. Reads no image.
-    pub fn selection(&self, test_every: usize) -> io::Result<Vec<(usize, bool)>> {
-        let mut order: Vec<usize> = (0..self.frames.len()).collect();
-        order.sort_by(|a, b| self.frames[*a].rel.cmp(&self.frames[*b].rel));
-        let [train, val, test] = &self.splits;
-        let any = train.is_some() || val.is_some() || test.is_some();
-        // Per frame: in the train list, in the test list.
-        let lists = if any {
-            let train = train.as_ref().ok_or_else(|| {
-                invalid(
-                    &self.file,
-                    "the file has split lists but no `train_filenames`",
-                )
-            })?;
-            let train = self.named("train_filenames", train)?;
-            let test = match (test, val) {
-                (Some(t), _) => self.named("test_filenames", t)?,
-                (None, Some(v)) => self.named("val_filenames", v)?,
-                (None, None) => Vec::new(),
-            };
-            let mut is = vec![(false, false); self.frames.len()];
-            train.iter().for_each(|&k| is[k].0 = true);
-            test.iter().for_each(|&k| is[k].1 = true);
-            Some(is)
-        } else {
-            None
-        };
-        let mut chosen = Vec::with_capacity(order.len());
-        for (pos, &k) in order.iter().enumerate() {
-            // A frame in the train list trains, even when the test list
-            // names it too (sdfl's `dataset` with nothing held out lists
-            // every view in all three, for parsers that need the splits).
-            let (is_train, is_test) = match &lists {
-                Some(is) => is[k],
-                None => {
-                    let held = test_every > 0 && pos % test_every == 0 && order.len() > 1;
-                    (!held, held)
-                }
-            };
-            if is_train || is_test {
-                chosen.push((k, !is_train));
-            }
-        }
-        if chosen.iter().all(|(_, held)| *held) {
-            return Err(invalid(
-                &self.file,
-                "no training frames (every frame is held out)",
-            ));
-        }
-        Ok(chosen)
-    }
-
-    /// The frames as a capture ([`Transforms::selection`]): image sizes
-    /// read from their headers, intrinsics resolved and checked (errors
-    /// name the frame).
-    pub fn capture(&self, downscale: u32, test_every: usize) -> io::Result<Capture> {
-        let chosen = self.selection(test_every)?;
-        let mut frames = Vec::with_capacity(chosen.len());
-        let mut test = Vec::new();
-        for (pos, &(k, held)) in chosen.iter().enumerate() {
-            let f = &self.frames[k];
-            let size = image_dimensions(&f.image)?;
-            let intrinsics = self
-                .intrinsics(k, size, downscale)
-                .map_err(|e| invalid(&self.file, format!("frame {k}: {e}")))?;
-            frames.push(CaptureFrame {
-                label: format!("frame {k}"),
-                image: f.image.clone(),
-                mask: f.mask.clone(),
-                object_mask: None,
-                c2w: f.pose,
-                intrinsics,
-            });
-            if held {
-                test.push(pos);
-            }
-        }
-        Ok(Capture {
-            source: self.file.clone(),
-            frames,
-            test,
-            applied: self.applied,
-            points: Vec::new(),
-            bounds: None,
-        })
     }
 }

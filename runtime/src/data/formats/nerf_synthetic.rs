@@ -16,11 +16,120 @@ use std::path::{Path, PathBuf};
 
 use glam::DVec3;
 
-use super::capture::{camera_of, invalid};
-use super::image::{check_dataset, read_view_images};
-use super::{no_coverage, TrainView};
+use crate::data::camera::camera_of;
+use crate::data::error::{invalid, no_coverage};
+use crate::data::format::{Format, FormatViews, PlannedView, Request, Split};
+use crate::data::image::{check_dataset, read_view_images};
+use crate::data::view::{DataNeeds, TrainView};
 
-pub use super::nerfstudio::{read_transforms, Frame, Transforms, MAX_JSON_BYTES};
+pub use crate::data::transforms::{read_transforms, Frame, Transforms, MAX_JSON_BYTES};
+
+/// The NeRF-synthetic format, read by `nerf_synthetic(...)`.
+pub struct NerfSynthetic;
+
+impl Format for NerfSynthetic {
+    fn name(&self) -> &'static str {
+        "nerf_synthetic"
+    }
+
+    fn capture_format(&self) -> Option<sdfl_stdlib::value::CaptureFormat> {
+        None
+    }
+
+    fn marker(&self) -> &'static str {
+        "transforms_train.json"
+    }
+
+    fn detect(&self, path: &Path) -> bool {
+        transforms_path(path, "train").is_file()
+    }
+
+    /// Every frame of the split files, those of a test split that is the
+    /// training split's file read once.
+    fn plan(&self, request: &Request) -> io::Result<Vec<PlannedView>> {
+        let (split, test_split) = splits(request)?;
+        let train = transforms_path(&request.path, split);
+        let mut files = vec![(train.clone(), false)];
+        if let Some(t) = test_split {
+            let test = transforms_path(&request.path, t);
+            if test != train {
+                files.push((test, true));
+            }
+        }
+        let mut views = Vec::new();
+        for (file, held_out) in files {
+            let t = read_transforms(&file)?;
+            views.extend(t.frames.into_iter().map(|f| PlannedView {
+                image: f.image,
+                mask: false,
+                held_out,
+            }));
+        }
+        Ok(views)
+    }
+
+    /// The training split's views with coverage where asked (held-out
+    /// views are only scored), and those of the test split that the job
+    /// scores.
+    fn read(&self, request: &Request) -> io::Result<FormatViews> {
+        let (split, test_split) = splits(request)?;
+        let dir = &request.path;
+        let mut splits = vec![SplitRead {
+            coverage: request.needs.coverage,
+            ..SplitRead::all(split)
+        }];
+        if let Some(t) = test_split {
+            // The lone transforms.json stands in for the training split
+            // only: it never doubles as the test views.
+            if transforms_path(dir, t) == transforms_path(dir, split) {
+                return Err(io::Error::new(
+                    io::ErrorKind::InvalidInput,
+                    format!(
+                        "{}: no transforms_{t}.json for the test split `{t}`",
+                        dir.display()
+                    ),
+                ));
+            }
+            splits.push(SplitRead {
+                frames: request.needs.held_out,
+                ..SplitRead::all(t)
+            });
+        }
+        let mut read = read_splits(dir, &splits, request.background)?;
+        let test = if read.len() > 1 {
+            read.pop().unwrap_or_default()
+        } else {
+            Vec::new()
+        };
+        let train = read.pop().unwrap_or_default();
+        let named = |split: &str, n: usize| {
+            let file = transforms_path(dir, split).display().to_string();
+            (0..n).map(move |k| format!("{file} frame {k}"))
+        };
+        let names = named(split, train.len())
+            .chain(named(test_split.unwrap_or(""), test.len()))
+            .collect();
+        Ok(FormatViews {
+            train,
+            test,
+            names,
+            frame: None,
+            report: Vec::new(),
+            forward_facing: None,
+        })
+    }
+}
+
+/// The training split and the held-out one that `request` names.
+fn splits(request: &Request) -> io::Result<(&str, Option<&str>)> {
+    match &request.split {
+        Split::Files { train, test } => Ok((train, test.as_deref())),
+        Split::Every(_) => Err(invalid(
+            &request.path,
+            "a NeRF-synthetic set is split by its files (transforms_<split>.json), not every n-th frame",
+        )),
+    }
+}
 
 /// The transforms file of `split` under `path`: `path` itself when it is a
 /// `.json` file; else `path/transforms_<split>.json`, or `path/transforms.json`
@@ -56,7 +165,7 @@ pub struct SplitRead<'a> {
     /// error where an image has none.
     pub coverage: bool,
     /// How many frames, evenly spaced and the first included
-    /// ([`crate::data::DataNeeds::keeps_held_out`]); `None`: every frame.
+    /// ([`DataNeeds::keeps_held_out`]); `None`: every frame.
     /// The others are never decoded.
     pub frames: Option<usize>,
 }
@@ -89,7 +198,7 @@ pub fn read_splits(
         .zip(splits)
         .map(|(f, s)| {
             let mut t = read_transforms(f)?;
-            let needs = crate::data::DataNeeds {
+            let needs = DataNeeds {
                 coverage: false,
                 held_out: s.frames,
             };

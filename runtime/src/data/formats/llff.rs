@@ -9,21 +9,84 @@
 //! Normalised as NeRF does for these scenes: the average camera becomes
 //! the origin looking down −z, and lengths are scaled so the nearest
 //! bound is 4/3 (NeRF's `bd_factor` 0.75), which puts the `near = 1`
-//! plane of NDC rays ([`super::normalize::ndc_ray`]) in front of every
-//! camera's content.
+//! plane of NDC rays ([`crate::data::normalize::ndc_ray`]) in front of
+//! every camera's content. So normalised, a capture is forward-facing: it
+//! declares the NDC camera ([`ForwardFacing`]) that training warps rays
+//! into.
 
 use std::io;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use glam::{DMat3, DVec3};
 use sdfl_stdlib::builtins::MAX_VIEWS;
+use sdfl_stdlib::value::{CaptureFormat, NdcFrame};
 
-use super::capture::{
-    held_out_every, invalid, Capture, CaptureFrame, CheckNamed, Distortion, Intrinsics, Keys,
+use crate::data::camera::{
+    check_position, check_rotation, CheckNamed, Distortion, Intrinsics, Keys,
 };
-use super::image::image_dimensions;
-use super::nerfstudio::inside;
-use super::normalize::SceneFrame;
+use crate::data::error::invalid;
+use crate::data::format::{ForwardFacing, Format, FormatViews, PlannedView, Request};
+use crate::data::frames::{held_out_every, load, planned_every_nth, Capture, CaptureFrame};
+use crate::data::image::{image_dimensions, MAX_SIDE};
+use crate::data::normalize::SceneFrame;
+use crate::data::paths::{image_files, images_folder, inside};
+
+/// The LLFF format.
+pub struct Llff;
+
+impl Format for Llff {
+    fn name(&self) -> &'static str {
+        "llff"
+    }
+
+    fn capture_format(&self) -> Option<CaptureFormat> {
+        Some(CaptureFormat::Llff)
+    }
+
+    fn marker(&self) -> &'static str {
+        "poses_bounds.npy"
+    }
+
+    fn detect(&self, path: &Path) -> bool {
+        path.join("poses_bounds.npy").is_file()
+    }
+
+    fn own_frame(&self) -> Option<&'static str> {
+        Some("recentred on the average camera (looking down -z), the nearest depth bound at 4/3 (as NeRF does)")
+    }
+
+    /// The images of the folder, without reading the poses.
+    fn plan(&self, request: &Request) -> io::Result<Vec<PlannedView>> {
+        let images = image_files(&request.path.join(images_folder(request.downscale)))?;
+        Ok(planned_every_nth(images, request.test_every()))
+    }
+
+    fn read(&self, request: &Request) -> io::Result<FormatViews> {
+        let (capture, frame) = read(&request.path, request.downscale, request.test_every())?;
+        let mut views = load(&capture, request, Some(frame))?;
+        // NeRF's normalisation puts the average camera at the origin
+        // looking down −z and the nearest bound at 1/BD_FACTOR: NDC's near
+        // plane is 1, as NeRF's. Every frame shares one camera
+        // (poses_bounds.npy's hwf).
+        let scene = views.frame.filter(|_| request.normalize.enabled);
+        if let (Some(scene), Some(first), Some((_, far))) =
+            (scene, capture.frames.first(), capture.bounds)
+        {
+            let i = &first.intrinsics;
+            views.forward_facing = Some(ForwardFacing {
+                ndc: NdcFrame {
+                    width: i.width as f64,
+                    height: i.height as f64,
+                    fx: i.fx,
+                    fy: i.fy,
+                    near: 1.0,
+                },
+                far: far * scene.scale,
+            });
+        }
+        Ok(views)
+    }
+}
 
 /// NeRF's `bd_factor`: the nearest bound lands at `1 / BD_FACTOR`.
 pub const BD_FACTOR: f64 = 0.75;
@@ -66,10 +129,10 @@ pub fn parse(shape: &[usize], v: &[f64], at: &Path) -> io::Result<Vec<LlffPose>>
             // LLFF (down, right, back) → OpenGL (right, up, back).
             let (right, up, back, eye) = (col(1), -col(0), col(2), col(3));
             let rot = DMat3::from_cols(right, up, back);
-            super::check_rotation(rot).map_err(&bad)?;
-            super::check_position("camera position", eye).map_err(&bad)?;
+            check_rotation(rot).map_err(&bad)?;
+            check_position("camera position", eye).map_err(&bad)?;
             let hwf = [m(0, 4), m(1, 4), m(2, 4)];
-            let max = super::image::MAX_SIDE as f64;
+            let max = MAX_SIDE as f64;
             if !(hwf[0] >= 1.0 && hwf[0] <= max && hwf[1] >= 1.0 && hwf[1] <= max) {
                 return Err(bad(format!(
                     "image size {}x{} is not 1 to {max} pixels a side",
@@ -123,37 +186,12 @@ pub fn scene_frame(poses: &[LlffPose]) -> SceneFrame {
     SceneFrame::new(1.0 / (near * BD_FACTOR), center, rotation)
 }
 
-/// The image files of `folder`: PNG and JPEG, sorted by name.
-fn image_files(folder: &Path) -> io::Result<Vec<PathBuf>> {
-    let mut files = Vec::new();
-    for e in std::fs::read_dir(folder).map_err(|e| invalid(folder, e))? {
-        let e = e.map_err(|e| invalid(folder, e))?;
-        let p = e.path();
-        let ok = p
-            .extension()
-            .and_then(|x| x.to_str())
-            .is_some_and(|x| ["png", "jpg", "jpeg"].contains(&x.to_ascii_lowercase().as_str()));
-        if ok {
-            files.push(p);
-        }
-        if files.len() > MAX_VIEWS {
-            return Err(invalid(folder, format!("more than {MAX_VIEWS} images")));
-        }
-    }
-    files.sort();
-    Ok(files)
-}
-
 /// An LLFF capture in `dir` and its normalising scene frame.
 pub fn read(dir: &Path, downscale: u32, test_every: usize) -> io::Result<(Capture, SceneFrame)> {
     let file = dir.join("poses_bounds.npy");
-    let (shape, values) = super::npy::read_f64(&file).map_err(|e| invalid(&file, e))?;
+    let (shape, values) = crate::data::npy::read_f64(&file).map_err(|e| invalid(&file, e))?;
     let poses = parse(&shape, &values, &file)?;
-    let folder_name = if downscale > 1 {
-        format!("images_{downscale}")
-    } else {
-        "images".to_string()
-    };
+    let folder_name = images_folder(downscale);
     let files = image_files(&dir.join(&folder_name))?;
     if files.len() != poses.len() {
         return Err(invalid(

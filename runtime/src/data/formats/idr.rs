@@ -24,17 +24,67 @@ use std::io;
 use std::path::{Path, PathBuf};
 
 use glam::{DMat3, DVec3};
+use sdfl_stdlib::value::CaptureFormat;
 
-use super::capture::{
-    held_out_every, invalid, Capture, CaptureFrame, CheckNamed, Distortion, Intrinsics, Keys,
+use crate::data::camera::{
+    check_position, check_rotation, CheckNamed, Distortion, Intrinsics, Keys,
 };
-use super::image::image_dimensions;
-use super::nerfstudio::inside;
-use super::normalize::SceneFrame;
-use super::npy::Npz;
+use crate::data::error::invalid;
+use crate::data::format::{Format, FormatViews, PlannedView, Request};
+use crate::data::frames::{held_out_every, load, planned_every_nth, Capture, CaptureFrame};
+use crate::data::image::image_dimensions;
+use crate::data::normalize::SceneFrame;
+use crate::data::npy::{NpyError, Npz};
+use crate::data::paths::{image_files, inside};
 
 /// The cameras' file, whose presence marks the layout.
 pub const CAMERAS: &str = "cameras_sphere.npz";
+
+/// IDR's and NeuS's format.
+pub struct Idr;
+
+impl Format for Idr {
+    fn name(&self) -> &'static str {
+        "idr"
+    }
+
+    fn capture_format(&self) -> Option<CaptureFormat> {
+        Some(CaptureFormat::Idr)
+    }
+
+    fn marker(&self) -> &'static str {
+        CAMERAS
+    }
+
+    fn detect(&self, path: &Path) -> bool {
+        path.join(CAMERAS).is_file()
+    }
+
+    fn own_frame(&self) -> Option<&'static str> {
+        Some("scale_mat's unit sphere around the object (as NeuS does; exports in the world frame)")
+    }
+
+    /// The images of `image/`, without reading the cameras. Object masks
+    /// are read only as coverage, which the budget counts by itself.
+    fn plan(&self, request: &Request) -> io::Result<Vec<PlannedView>> {
+        let images = images(&request.path, request.downscale)?;
+        Ok(planned_every_nth(images, request.test_every()))
+    }
+
+    /// The unit sphere of `scale_mat` is the frame NeuS trains in: the
+    /// cameras' own centring and `orient`/`extent` do not apply.
+    fn read(&self, request: &Request) -> io::Result<FormatViews> {
+        let (capture, frame) = read(&request.path, request.downscale, request.test_every())?;
+        let mut views = load(&capture, request, Some(frame))?;
+        if request.normalize.enabled {
+            views.report.insert(
+                1,
+                "scene frame: cameras_sphere.npz's scale_mat, the object's bounding sphere is the unit sphere (exports map back to the world frame)".to_string(),
+            );
+        }
+        Ok(views)
+    }
+}
 
 /// Largest `cameras_sphere.npz` read: six 4 × 4 arrays an image take
 /// about 2 KB, so 10 000 images fit many times over.
@@ -154,7 +204,7 @@ pub fn decompose(p: &[[f64; 4]; 3]) -> Result<Projection, String> {
     if !(finite && out.fx > 0.0 && out.fy > 0.0) {
         return Err("the projection does not split into a camera".into());
     }
-    super::check_rotation(out.rotation)?;
+    check_rotation(out.rotation)?;
     Ok(out)
 }
 
@@ -193,7 +243,7 @@ pub fn scale_of(m: &[[f64; 4]; 4]) -> Result<(f64, DVec3), String> {
         ));
     }
     let c = DVec3::new(m[0][3], m[1][3], m[2][3]);
-    super::check_position("sphere centre", c)?;
+    check_position("sphere centre", c)?;
     Ok((s, c))
 }
 
@@ -207,7 +257,7 @@ pub fn images(dir: &Path, downscale: u32) -> io::Result<Vec<PathBuf>> {
         ));
     }
     let folder = dir.join("image");
-    let files = super::image_files(&folder)?;
+    let files = image_files(&folder)?;
     if files.is_empty() {
         return Err(invalid(&folder, "holds no PNG or JPEG images"));
     }
@@ -221,7 +271,7 @@ fn object_masks(dir: &Path, images: usize) -> io::Result<Option<Vec<PathBuf>>> {
     if !folder.is_dir() {
         return Ok(None);
     }
-    let files = super::image_files(&folder)?;
+    let files = image_files(&folder)?;
     if files.len() != images {
         return Err(invalid(
             &folder,
@@ -237,7 +287,7 @@ fn object_masks(dir: &Path, images: usize) -> io::Result<Option<Vec<PathBuf>>> {
 /// `name` of the archive as a 4 × 4 of finite numbers (rows).
 fn matrix4(npz: &mut Npz, name: &str) -> Result<[[f64; 4]; 4], String> {
     let (shape, v) = npz.read_f64(name, 16).map_err(|e| match e {
-        super::npy::NpyError::MissingKey(_) => format!("it has no `{name}`"),
+        NpyError::MissingKey(_) => format!("it has no `{name}`"),
         e => format!("`{name}`: {e}"),
     })?;
     if shape != [4, 4] {
@@ -346,12 +396,12 @@ pub fn read(dir: &Path, downscale: u32, test_every: usize) -> io::Result<(Captur
             .check_named(Keys { fx: "fx", fy: "fy" }, (cam.fx, cam.fy))
             .map_err(|e| at(format!("`world_mat_{k}`: {e}")))?;
         let unit_eye = cam.eye();
-        super::check_position("camera position in the unit sphere's frame", unit_eye)
+        check_position("camera position in the unit sphere's frame", unit_eye)
             .map_err(|e| at(format!("`world_mat_{k}`: {e}")))?;
         // Kept in the world frame, as the other readers keep the data's:
         // the scene frame maps it back to the unit sphere's.
         let eye = unit_eye * s0 + c0;
-        super::check_position("camera position", eye)
+        check_position("camera position", eye)
             .map_err(|e| at(format!("`world_mat_{k}`: {e}")))?;
         let mut c2w = cam.opengl_c2w();
         for (row, e) in c2w.iter_mut().zip(eye.to_array()) {
