@@ -250,27 +250,58 @@ pub fn read_view_image(path: &Path) -> io::Result<DecodedView> {
     })
 }
 
+/// Decoded pixels that [`read_view_images`] decodes in parallel at most:
+/// beyond it images are decoded one at a time, so that two very large
+/// images do not double the peak (a decoder holds its output twice while
+/// converting).
+pub const PARALLEL_DECODE_BYTES: u64 = 256 << 20;
+
 /// Training images decoded a pool's width at a time, in parallel: most of
-/// a large set's load is decoding. Returns each path's image, in order;
-/// `each` sees every decoded one in order before the next batch is
-/// decoded (so that no more than a batch is held beside what `each`
-/// keeps), and stops the read with its error.
+/// a large set's load is decoding. A batch holds at most
+/// [`PARALLEL_DECODE_BYTES`] of decoded pixels (by the headers), or one
+/// image. Returns each path's image, in order; `each` sees every decoded
+/// one in order before the next batch is decoded (so that no more than a
+/// batch is held beside what `each` keeps), and stops the read with its
+/// error.
 pub fn read_view_images<'a, P: AsRef<Path> + Sync + 'a>(
     paths: &'a [P],
     mut each: impl FnMut(usize, DecodedView) -> io::Result<()>,
 ) -> io::Result<()> {
     use rayon::prelude::*;
-    let batch = rayon::current_num_threads().max(1);
-    for (b, chunk) in paths.chunks(batch).enumerate() {
-        let decoded: Vec<io::Result<DecodedView>> = chunk
+    let width = rayon::current_num_threads().max(1);
+    let mut start = 0;
+    while start < paths.len() {
+        let ahead = &paths[start..paths.len().min(start + width)];
+        let sizes = ahead
+            .iter()
+            .map(|p| image_dimensions(p.as_ref()))
+            .collect::<io::Result<Vec<_>>>()?;
+        let end = start + batch_len(&sizes);
+        let decoded: Vec<io::Result<DecodedView>> = paths[start..end]
             .par_iter()
             .map(|p| read_view_image(p.as_ref()))
             .collect();
         for (i, d) in decoded.into_iter().enumerate() {
-            each(b * batch + i, d?)?;
+            each(start + i, d?)?;
         }
+        start = end;
     }
     Ok(())
+}
+
+/// How many of the next images (their sizes) one parallel batch decodes:
+/// as many as fit [`PARALLEL_DECODE_BYTES`] at 4 bytes a pixel (8-bit
+/// RGBA, the least a decoder holds), and at least one.
+fn batch_len(sizes: &[(u32, u32)]) -> usize {
+    let mut bytes = 0u64;
+    let fitting = sizes
+        .iter()
+        .take_while(|&&(w, h)| {
+            bytes = bytes.saturating_add(w as u64 * h as u64 * 4);
+            bytes <= PARALLEL_DECODE_BYTES
+        })
+        .count();
+    fitting.max(1).min(sizes.len())
 }
 
 /// Bytes a pixel of the image at `path` takes once read for training
@@ -331,6 +362,17 @@ pub fn read_checkpoint_bytes(path: &Path) -> io::Result<Vec<u8>> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn large_images_are_decoded_one_at_a_time() {
+        // Small images fill the pool's width; a 12000² one (576 MB) goes
+        // alone, and so does whatever follows it past the budget.
+        assert_eq!(batch_len(&[(800, 800); 2]), 2);
+        assert_eq!(batch_len(&[(12_000, 12_000), (12_000, 12_000)]), 1);
+        assert_eq!(batch_len(&[(800, 800), (12_000, 12_000)]), 1);
+        assert_eq!(batch_len(&[(8000, 8000), (800, 800)]), 2);
+        assert_eq!(batch_len(&[]), 0);
+    }
 
     fn dir(name: &str) -> std::path::PathBuf {
         let d = std::env::temp_dir().join(format!("sdfl-data-image-{name}-{}", std::process::id()));
