@@ -851,6 +851,8 @@ pub const COMPARISON_VIEWS: usize = 8;
 /// comparison image.
 pub fn held_out_cost(j: &TrainJob, views: usize, pixels: f64) -> Cost {
     let views = scored_views(j, views);
+    // Scored at 1/eval_downscale a side.
+    let pixels = pixels / (j.eval_downscale.max(1) as f64).powi(2);
     if views == 0 {
         return Cost::default();
     }

@@ -613,13 +613,16 @@ fn the_dtu_benchmark_runs_on_a_set_of_its_layout() {
         "let data = \"dtu_scan24\"",
         "let steps = 5000",
         "resolution: 256",
+        "eval_downscale: 4,",
     ] {
         assert!(text.contains(line), "the example's `{line}` moved");
     }
     let text = text
         .replace("let data = \"dtu_scan24\"", "let data = \"scan\"")
         .replace("let steps = 5000", "let steps = 2")
-        .replace("resolution: 256", "resolution: 16");
+        .replace("resolution: 256", "resolution: 16")
+        // The set's 24×18 views scored at 12×9.
+        .replace("eval_downscale: 4,", "eval_downscale: 2,");
     fs::write(dir.join("dtu.sdfl"), text).unwrap();
     let r = run_report(&dir, "dtu.sdfl");
     let h = &r["held_out"][0];
@@ -634,4 +637,9 @@ fn the_dtu_benchmark_runs_on_a_set_of_its_layout() {
         .sum::<DVec3>()
         / points.len().max(1) as f64;
     assert!((mean - CENTRE).length() < 0.1 * SCALE, "{mean}");
+    // The comparison shows the views as scored: truth | render | error,
+    // each at half the size.
+    let comparison = image::open(dir.join("out/scan_test.png")).unwrap();
+    assert_eq!(comparison.width(), 3 * W / 2, "{r}");
+    assert_eq!(comparison.height() % (H / 2), 0, "{r}");
 }

@@ -33,6 +33,67 @@ pub fn coverage_from_alpha(rgba: &[[f32; 4]]) -> Arc<[u8]> {
         .collect()
 }
 
+impl TrainView {
+    /// The view at 1/`n` of its size a side (`n` dividing both): each
+    /// block of `n`×`n` pixels becomes its mean over the block's unmasked
+    /// pixels (masked out only where all of them are), its coverage the
+    /// block's mean. The camera is the same: it renders at any size.
+    pub fn downscaled(&self, n: u32) -> Result<TrainView, String> {
+        let (w, h) = (self.image.width, self.image.height);
+        if n <= 1 {
+            return Ok(self.clone());
+        }
+        if w % n != 0 || h % n != 0 {
+            let divisors: Vec<String> = (2..=16)
+                .filter(|d| w % d == 0 && h % d == 0)
+                .map(|d| d.to_string())
+                .collect();
+            return Err(format!(
+                "{n} does not divide its {w}x{h} images{}",
+                if divisors.is_empty() {
+                    String::new()
+                } else {
+                    format!(" (factors that do: {})", divisors.join(", "))
+                }
+            ));
+        }
+        let (sw, sh, n) = ((w / n) as usize, (h / n) as usize, n as usize);
+        let (w, nn) = (w as usize, (n * n) as f32);
+        let kept = |i: usize| self.mask.as_ref().is_none_or(|m| m[i]);
+        let mut colour = Vec::with_capacity(sw * sh);
+        let mut mask = Vec::with_capacity(sw * sh);
+        let mut coverage = Vec::with_capacity(sw * sh);
+        for by in 0..sh {
+            for bx in 0..sw {
+                let (mut sum, mut count, mut covered) = ([0f32; 3], 0u32, 0u32);
+                for y in by * n..(by + 1) * n {
+                    for x in bx * n..(bx + 1) * n {
+                        let i = y * w + x;
+                        if let Some(c) = &self.coverage {
+                            covered += c[i] as u32;
+                        }
+                        if kept(i) {
+                            let p = self.image.pixel(i);
+                            (0..3).for_each(|k| sum[k] += p[k]);
+                            count += 1;
+                        }
+                    }
+                }
+                let mean = sum.map(|v| if count > 0 { v / count as f32 } else { 0.0 });
+                colour.push(mean);
+                mask.push(count > 0);
+                coverage.push((covered as f32 / nn).round() as u8);
+            }
+        }
+        Ok(TrainView {
+            camera: self.camera,
+            image: ViewImage::rgb32(sw as u32, sh as u32, colour),
+            mask: self.mask.as_ref().map(|_| mask.into()),
+            coverage: self.coverage.as_ref().map(|_| coverage.into()),
+        })
+    }
+}
+
 /// What a job reads of its data beyond each view's camera and colours.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct DataNeeds {
@@ -107,4 +168,56 @@ pub fn opaque_alpha_warning(views: &[TrainView]) -> Option<String> {
     (!read.is_empty() && read.iter().all(|c| c.iter().all(|&a| a == 255))).then(|| {
         "warning: every pixel of the training images is opaque (alpha 1): `silhouette()` then takes the object to cover every pixel and makes every ray opaque; give images whose alpha is the object's coverage, or leave `silhouette()` out".to_string()
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_downscaled_view_averages_its_blocks_unmasked_pixels() {
+        // 4×2 pixels, scored at 2×1: the left block's masked pixel (a
+        // garbage colour) is left out of its mean; the right block is all
+        // masked and stays masked.
+        let colours = vec![
+            [0.2, 0.4, 0.6],
+            [9.0, 9.0, 9.0],
+            [1.0, 1.0, 1.0],
+            [1.0, 1.0, 1.0],
+            [0.4, 0.4, 0.6],
+            [0.6, 0.4, 0.6],
+            [1.0, 1.0, 1.0],
+            [0.0, 0.0, 0.0],
+        ];
+        let mask: Arc<[bool]> = [true, false, false, false, true, true, false, false].into();
+        let coverage: Arc<[u8]> = [255, 255, 0, 0, 255, 0, 0, 0].into();
+        let view = TrainView {
+            camera: sdfl_stdlib::camera::Camera::look_at(
+                glam::DVec3::Z * 3.0,
+                glam::DVec3::ZERO,
+                glam::DVec3::Y,
+                1.0,
+            ),
+            image: ViewImage::rgb32(4, 2, colours),
+            mask: Some(mask),
+            coverage: Some(coverage),
+        };
+        let small = view.downscaled(2).unwrap();
+        assert_eq!((small.image.width, small.image.height), (2, 1));
+        let left = small.image.pixel(0);
+        for (got, want) in left.iter().zip([0.4, 0.4, 0.6]) {
+            assert!((got - want).abs() < 1e-6, "{left:?}");
+        }
+        assert_eq!(&*small.mask.unwrap(), &[true, false]);
+        assert_eq!(&*small.coverage.unwrap(), &[191, 0]);
+        assert_eq!(small.camera, view.camera);
+        // A factor that does not divide the size is refused, naming ones
+        // that do.
+        let e = view.downscaled(3).unwrap_err();
+        assert!(
+            e.contains("3 does not divide its 4x2 images (factors that do: 2)"),
+            "{e}"
+        );
+        assert_eq!(view.downscaled(1).unwrap().image.width, 4);
+    }
 }

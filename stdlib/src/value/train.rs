@@ -52,6 +52,9 @@ pub struct TrainJob {
     /// Held-out views each evaluation scores, evenly spaced over the
     /// data's (the first included); `None`: all of them.
     pub eval_views: Option<usize>,
+    /// Held-out views are scored at 1/`eval_downscale` of their size a
+    /// side (blocks averaged); 1: full size.
+    pub eval_downscale: u32,
     /// Half-extent of the cube random points are drawn in (distance fields).
     pub bounds: f64,
 }

@@ -130,6 +130,8 @@ pub fn run_train_job(
     stages.push(("load data".to_string(), t.elapsed().as_secs_f64()));
     budget::within_budget_once_read(job, size, &views, &test_views)?;
     budget::held_out_views_present(job, &test_views)?;
+    // The budget counted them at full size, and the cost at the scored one.
+    let test_views = scored_at_size(job, test_views)?;
     let outputs = outputs::Outputs {
         job,
         out_dir,
@@ -356,4 +358,21 @@ fn output_cameras(job: &TrainJob, views: &[TrainView]) -> io::Result<Vec<Camera>
             })
         }
     }
+}
+
+/// The held-out views at the size they are scored (`eval_downscale`).
+fn scored_at_size(job: &TrainJob, views: Vec<TrainView>) -> io::Result<Vec<TrainView>> {
+    if job.eval_downscale <= 1 {
+        return Ok(views);
+    }
+    views
+        .iter()
+        .map(|v| v.downscaled(job.eval_downscale))
+        .collect::<Result<_, _>>()
+        .map_err(|e| {
+            crate::data::at_argument(
+                job.data_span,
+                invalid(format!("`eval_downscale: {}`: {e}", job.eval_downscale)),
+            )
+        })
 }
