@@ -105,7 +105,7 @@ pub fn depth_map(
             .disable_x_mesh()
             .disable_y_mesh()
             .disable_x_axis()
-            .y_desc("depth (scene units)")
+            .y_desc("depth (data units)")
             .y_labels(6)
             .label_style(("sans-serif", 11))
             .axis_desc_style(("sans-serif", 12))

@@ -167,6 +167,70 @@ fn depth_is_the_expected_depth_over_the_opacity() {
     assert!(hits > 20 && misses > 20, "{hits} hits, {misses} misses");
 }
 
+/// Raw depth is written in the data's units: a field trained in a frame
+/// scaled by 1/4 (moved and turned too) gives depths 4 times its own,
+/// NaN where nothing was hit; without a normalisation, the same bits.
+#[test]
+fn raw_depth_is_in_the_datas_units() {
+    use sdfl_stdlib::value::{Output, OutputKind, Sampler};
+    let f = sphere(20.0, 0.05);
+    let dir = tempfile::tempdir().unwrap();
+    let (cam, size) = cameras()[0];
+    let sampler = Sampler {
+        samples: 64,
+        near: 1.0,
+        far: 5.0,
+        jitter: false,
+        last_interval: LastInterval::Infinite,
+    };
+    let out = [Output {
+        kind: OutputKind::RawDepth { min_opacity: 0.5 },
+        path: "d.npy".into(),
+        span: Default::default(),
+    }];
+    let depths = |to_data: DAffine3| {
+        let cx = write::ExportContext {
+            out_dir: dir.path(),
+            sampler: &sampler,
+            cameras: &[cam],
+            size: (size.width, size.height),
+            ray_views: &[],
+            auto_region: None,
+            seed: 1,
+            to_data,
+        };
+        write::write_field_exports(&f, &out, &cx).unwrap();
+        let bytes = std::fs::read(dir.path().join("d.npy")).unwrap();
+        crate::data::npy::parse_f32(&bytes).unwrap().data
+    };
+    let own = depths(DAffine3::IDENTITY);
+    let ends = render_ends(
+        &f,
+        &cam,
+        size,
+        &Stratified::new(64, 1.0, 5.0).unwrap(),
+        LastInterval::Infinite,
+    )
+    .unwrap();
+    let raw = depth::depth_values(&ends, 0.5);
+    assert_eq!(
+        own.iter().map(|d| d.to_bits()).collect::<Vec<_>>(),
+        raw.iter().map(|d| d.to_bits()).collect::<Vec<_>>()
+    );
+    let scaled = depths(DAffine3::from_scale_rotation_translation(
+        DVec3::splat(4.0),
+        glam::DQuat::from_rotation_y(0.8),
+        DVec3::new(10.0, -3.0, 2.0),
+    ));
+    assert!(own.iter().any(|d| d.is_finite()) && own.iter().any(|d| d.is_nan()));
+    for (a, b) in own.iter().zip(&scaled) {
+        assert!(a.is_nan() == b.is_nan(), "{a} vs {b}");
+        if a.is_finite() {
+            assert!((b - 4.0 * a).abs() <= 1e-6 * b.abs(), "{b} vs 4 × {a}");
+        }
+    }
+}
+
 #[test]
 fn point_cloud_points_lie_on_the_surface_with_its_colour() {
     let f = sphere(200.0, 0.005);

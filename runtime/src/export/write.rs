@@ -32,8 +32,9 @@ pub struct ExportContext<'a> {
     pub auto_region: Option<([f64; 3], [f64; 3])>,
     /// Seed of the point cloud's rays.
     pub seed: u64,
-    /// From the field's frame into the data's own (positions of meshes and
-    /// point clouds; depth is a length along the ray and is not moved).
+    /// From the field's frame into the data's own: positions of meshes
+    /// and point clouds are moved by it, depths (lengths along the ray)
+    /// scaled by it.
     pub to_data: DAffine3,
 }
 
@@ -157,6 +158,17 @@ pub fn write_field_exports(
         height: h,
     };
     let n = cx.cameras.len();
+    // The field's lengths in the data's units: `to_data` is a similarity,
+    // so any axis's stretch (exactly 1 without a normalisation, which
+    // leaves depths' bits alone).
+    let unit = cx.to_data.matrix3.x_axis.length() as f32;
+    let depth_values = |ends: &[super::RayEnd], min_opacity: f64| {
+        let mut d = depth::depth_values(ends, min_opacity as f32);
+        if unit != 1.0 {
+            d.iter_mut().for_each(|v| *v *= unit);
+        }
+        d
+    };
     for (k, cam) in cx.cameras.iter().enumerate() {
         let ends = super::render_ends(field, cam, size, &strat, last).map_err(invalid)?;
         for o in &depths {
@@ -164,7 +176,7 @@ pub fn write_field_exports(
             let path = cx.out_dir.join(&rel);
             let (kind, pw, ph) = match o.kind {
                 OutputKind::RawDepth { min_opacity } => {
-                    let d = depth::depth_values(&ends, min_opacity as f32);
+                    let d = depth_values(&ends, min_opacity);
                     write_bytes(&path, &depth::npy_bytes(&d, h as usize, w as usize))?;
                     (WrittenKind::RawDepth, w, h)
                 }
@@ -173,7 +185,7 @@ pub fn write_field_exports(
                     range,
                     min_opacity,
                 } => {
-                    let d = depth::depth_values(&ends, min_opacity as f32);
+                    let d = depth_values(&ends, min_opacity);
                     let r = depth::depth_range(&d, range);
                     let (pw, ph, rgb) =
                         depth::depth_map(&d, (w, h), colormap, r).map_err(invalid)?;

@@ -432,6 +432,10 @@ pub struct Views {
     pub scene_report: Vec<String>,
     /// A forward-facing capture's camera for NDC (LLFF).
     pub forward_facing: Option<crate::data::format::ForwardFacing>,
+    /// The mean a point cloud's points were moved by (`center: true`):
+    /// the model sees `p − mean`. Exports stay in that centred frame (as
+    /// the assignment's meshes are); checkpoints record it.
+    pub points_mean: Option<[f64; 3]>,
 }
 
 /// The views of a data set: read from files (relative to `base`),
@@ -516,6 +520,7 @@ pub fn load_views_for(data: &Dataset, base: &Path, needs: DataNeeds) -> io::Resu
                 scene_frame: read.frame,
                 scene_report: read.report,
                 forward_facing: read.forward_facing,
+                points_mean: None,
             });
         }
     };
@@ -537,6 +542,7 @@ pub fn load_views_for(data: &Dataset, base: &Path, needs: DataNeeds) -> io::Resu
         scene_frame: None,
         scene_report: Vec::new(),
         forward_facing: None,
+        points_mean: None,
     })
 }
 
@@ -545,6 +551,7 @@ pub fn load_views_for(data: &Dataset, base: &Path, needs: DataNeeds) -> io::Resu
 fn load_points(path: &Path, every: usize, center: bool) -> io::Result<Views> {
     let mut all = crate::data::points::read_points(path)?;
     let mut points: Vec<[f32; 3]> = all.iter().step_by(every.max(1)).copied().collect();
+    let mut points_mean = None;
     if center {
         let n = points.len().max(1) as f64;
         let mean = [0, 1, 2].map(|k| points.iter().map(|p| p[k] as f64).sum::<f64>() / n);
@@ -553,6 +560,7 @@ fn load_points(path: &Path, every: usize, center: bool) -> io::Result<Views> {
                 p[k] = (p[k] as f64 - mean[k]) as f32;
             }
         }
+        points_mean = Some(mean);
     }
     Ok(Views {
         train: Vec::new(),
@@ -562,6 +570,7 @@ fn load_points(path: &Path, every: usize, center: bool) -> io::Result<Views> {
         scene_frame: None,
         scene_report: Vec::new(),
         forward_facing: None,
+        points_mean,
     })
 }
 

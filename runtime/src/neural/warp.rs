@@ -8,7 +8,8 @@
 //! them, and density is integrated over world lengths. NeRF instead
 //! integrates over the NDC ray's parameter; the two differ by a smooth
 //! positive factor per point, which the learned density absorbs, and
-//! world lengths keep depth outputs and exports in scene units.
+//! world lengths keep depth outputs lengths along the ray (written in the
+//! data's units, as every export is).
 
 use sdfl_stdlib::value::{NdcFrame, Unbounded};
 

@@ -12,6 +12,7 @@ use safetensors::tensor::{Dtype, SafeTensors, TensorView};
 use serde_json::Value;
 
 use super::export_names::Piece;
+use super::frame::ModelFrame;
 use super::log::{HeldOut, History};
 
 use crate::output::Atomic;
@@ -155,6 +156,9 @@ pub struct Checkpoint {
     pub pieces: Vec<Vec<Piece>>,
     /// The model's specification (JSON; `Null` when unknown).
     pub model: Value,
+    /// Where the model sits relative to its data (identity, no warp and
+    /// no background when read from a file written before it was kept).
+    pub frame: ModelFrame,
     /// The loss of every step done, so a resumed run's history is whole.
     pub losses: Vec<f32>,
     /// A model's state beyond its parameters (an occupancy grid), by name.
@@ -294,6 +298,7 @@ impl Checkpoint {
             env!("CARGO_PKG_VERSION").to_string(),
         );
         meta.insert("model".to_string(), self.model.to_string());
+        meta.extend(self.frame.metadata());
         meta.insert("step".to_string(), self.step.to_string());
         meta.insert("adam_steps".to_string(), self.adam_steps.to_string());
         meta.insert(
@@ -440,6 +445,8 @@ impl Checkpoint {
             };
             state.push((name, read(&stored, None)?));
         }
+        let frame = ModelFrame::from_metadata(|k| meta.get(k).map(String::as_str))
+            .map_err(|e| invalid(path, e))?;
         let fp = |i: usize| get(&format!("fingerprint.{}", PARTS[i]));
         // Written by sdfl before it kept the history: none.
         let history = match meta.get(HISTORY) {
@@ -452,6 +459,7 @@ impl Checkpoint {
             params,
             pieces,
             model,
+            frame,
             losses,
             state,
             fingerprint: [fp(0)?, fp(1)?, fp(2)?, fp(3)?],
@@ -578,6 +586,7 @@ mod tests {
             }],
             pieces: Vec::new(),
             model: Value::Null,
+            frame: ModelFrame::default(),
             losses: vec![0.5, 0.25],
             state: vec![("occupancy.ema".into(), vec![0.0, 3.5])],
             fingerprint: Default::default(),
@@ -667,6 +676,21 @@ mod tests {
                 }],
             ],
             model: serde_json::json!({ "kind": "test" }),
+            frame: ModelFrame {
+                data_to_model: crate::data::normalize::SceneFrame::new(
+                    0.25,
+                    glam::DVec3::new(3.0, -1.0, 0.5),
+                    // A quarter turn about z: exact in JSON.
+                    glam::DMat3::from_cols_array(&[0.0, 1.0, 0.0, -1.0, 0.0, 0.0, 0.0, 0.0, 1.0]),
+                ),
+                warp: Some(sdfl_stdlib::value::Unbounded::Contract(
+                    sdfl_stdlib::value::Contraction {
+                        min: [-1.0; 3],
+                        max: [1.0; 3],
+                    },
+                )),
+                background: super::super::frame::Behind::Color([1.0, 1.0, 1.0]),
+            },
             losses: vec![0.5, 0.25],
             state: vec![("occupancy.ema".into(), vec![0.0, 3.5, 1e-30])],
             fingerprint: ["a".into(), "b".into(), "c".into(), "d".into()],
@@ -788,6 +812,26 @@ mod tests {
         .unwrap();
         let e = Checkpoint::read(&path).unwrap_err().to_string();
         assert!(e.contains("bad `history`"), "{e}");
+        // So is a frame that is no similarity (every key's checks are
+        // frame.rs's): an error naming the file and the key.
+        sample().write(&path).unwrap();
+        let bytes = std::fs::read(&path).unwrap();
+        let (_, header) = SafeTensors::read_metadata(&bytes).unwrap();
+        let mut meta = header.metadata().clone().unwrap();
+        let scaled = meta["data_to_model"].replace("\"scale\":0.25", "\"scale\":-0.25");
+        assert_ne!(scaled, meta["data_to_model"]);
+        meta.insert("data_to_model".into(), scaled);
+        let t = SafeTensors::deserialize(&bytes).unwrap();
+        std::fs::write(
+            &path,
+            safetensors::serialize(t.tensors(), &Some(meta)).unwrap(),
+        )
+        .unwrap();
+        let e = Checkpoint::read(&path).unwrap_err().to_string();
+        assert!(
+            e.contains("ck.safetensors") && e.contains("bad `data_to_model`: its scale is -0.25"),
+            "{e}"
+        );
         let mut ck = sample();
         ck.pieces[1][0].name = "torus.major".into();
         let e = ck.write(&path).unwrap_err().to_string();
@@ -840,5 +884,7 @@ mod tests {
         assert!(ck.pieces.is_empty());
         // Written before checkpoints kept a history: an empty one.
         assert_eq!(ck.history, History::default());
+        // Written before checkpoints kept the model's frame: the data's.
+        assert_eq!(ck.frame, ModelFrame::default());
     }
 }

@@ -10,10 +10,13 @@
 
 use serde_json::{json, Value};
 
-use sdfl_stdlib::value::{DensityActivation, Encoding, Field, Nerf};
+use sdfl_stdlib::value::{DensityActivation, Encoding, Field, Nerf, NeuralSdf, NeuralSurface};
 
+use super::frame::ModelFrame;
 use super::TensorSpec;
+use crate::data::normalize::SceneFrame;
 use crate::neural::background::Backdrop;
+use crate::neural::hashgrid::HashGrid;
 use crate::neural::mlp::{Activation, Dense};
 use crate::neural::nerf::{NerfNet, PositionEncoding};
 
@@ -58,6 +61,8 @@ pub struct Layout {
     pub params: Vec<Vec<Piece>>,
     /// The model's specification (JSON), stored in the file's metadata.
     pub model: Value,
+    /// Where the model sits relative to its data, stored beside it.
+    pub frame: ModelFrame,
 }
 
 impl Layout {
@@ -69,24 +74,100 @@ impl Layout {
                 .map(|t| vec![Piece::flat(&t.name, t.len)])
                 .collect(),
             model,
+            frame: ModelFrame::default(),
         }
     }
 
-    /// The layout of `field`'s tensors. A NeRF's are named by role and
-    /// shaped; other models' are stored flat under their trainer names
-    /// (their specification still says what they are).
+    /// The layout of `field`'s tensors. A NeRF's and a neural SDF's (or
+    /// surface's) are named by role and shaped; an analytic field's are
+    /// stored flat under their trainer names. The frame records the
+    /// field's warp and background, in the data's frame until
+    /// [`Self::in_data_frame`].
     pub fn of(field: &Field, tensors: &[TensorSpec]) -> Layout {
-        match field {
+        // A layout that does not match the trainer's tensors would be a
+        // bug: the model is then stored flat, still loadable.
+        let layout = match field {
             Field::Nerf(n) => nerf_layout(n, tensors)
                 .unwrap_or_else(|| Layout::flat(tensors, json!({ "kind": "nerf" }))),
             Field::Sdf(_) => Layout::flat(
                 tensors,
                 json!({ "kind": "sdf", "note": "analytic parameters, one tensor each, named as in the scene" }),
             ),
-            Field::NeuralSdf(_) => Layout::flat(tensors, json!({ "kind": "neural_sdf" })),
-            Field::NeuralSurface(_) => Layout::flat(tensors, json!({ "kind": "neural_surface" })),
+            Field::NeuralSdf(n) => neural_sdf_layout(n, tensors)
+                .unwrap_or_else(|| Layout::flat(tensors, json!({ "kind": "neural_sdf" }))),
+            Field::NeuralSurface(n) => surface_layout(n, tensors)
+                .unwrap_or_else(|| Layout::flat(tensors, json!({ "kind": "neural_surface" }))),
+        };
+        Layout {
+            frame: ModelFrame::of(field),
+            ..layout
         }
     }
+
+    /// This layout for a model trained in `frame` (the data loader's
+    /// similarity; `None`: the data's own frame).
+    pub fn in_data_frame(self, frame: Option<SceneFrame>) -> Layout {
+        Layout {
+            frame: self.frame.in_data_frame(frame),
+            ..self
+        }
+    }
+}
+
+/// The pieces of each trainer tensor in `tensors`, looked up by name in
+/// `by_name`, which must name every one of them exactly once with the
+/// tensor's length (`None` otherwise).
+fn cover(by_name: &[(String, Vec<Piece>)], tensors: &[TensorSpec]) -> Option<Vec<Vec<Piece>>> {
+    let params = tensors
+        .iter()
+        .map(|t| {
+            let (_, pieces) = by_name.iter().find(|(n, _)| *n == t.name)?;
+            let len: usize = pieces.iter().map(|p| p.len().unwrap_or(0)).sum();
+            (len == t.len).then(|| pieces.clone())
+        })
+        .collect::<Option<Vec<_>>>()?;
+    (params.len() == by_name.len()).then_some(params)
+}
+
+/// A dense layer's weight `(out, in)` and bias, stored under `file`
+/// (`transposed`: held `(in, out)` by the trainer, as [`Dense`] does).
+fn dense_pieces(
+    trainer: &str,
+    file: &str,
+    out: usize,
+    fan_in: usize,
+    transposed: bool,
+) -> [(String, Vec<Piece>); 2] {
+    [
+        (
+            format!("{trainer}.weight"),
+            vec![Piece {
+                name: format!("{file}.weight"),
+                shape: vec![out, fan_in],
+                transposed,
+            }],
+        ),
+        (
+            format!("{trainer}.bias"),
+            vec![Piece::flat(&format!("{file}.bias"), out)],
+        ),
+    ]
+}
+
+/// A hash grid's tables: one `[rows, features]` piece a level, named
+/// `{file}level<l>.table`.
+fn grid_pieces(grid: &HashGrid, file: &str) -> Vec<Piece> {
+    let f = grid.config().features as usize;
+    let mut ends = grid.level_offsets();
+    ends.push(grid.param_count());
+    ends.windows(2)
+        .enumerate()
+        .map(|(l, w)| Piece {
+            name: format!("{file}level{l}.table"),
+            shape: vec![(w[1] - w[0]) / f, f],
+            transposed: false,
+        })
+        .collect()
 }
 
 /// A layer's role in the file: the trainer's `color_hidden` and
@@ -109,21 +190,29 @@ fn activation(a: Activation) -> Value {
     }
 }
 
-fn encoding(e: &Encoding, net: Option<&PositionEncoding>) -> Value {
+fn harmonic_spec(freqs: usize, include_input: bool) -> Value {
+    json!({
+        "kind": "harmonic",
+        "freqs": freqs,
+        "include_input": include_input,
+        "width": 3 * 2 * freqs + if include_input { 3 } else { 0 },
+        "order": "sin(2^k x_i) for i in 0..3 (outer), k in 0..freqs (inner); then cos likewise; then x",
+    })
+}
+
+/// An encoding as the file describes it; a hash grid's from the runtime's
+/// grid (`grid`), whose box is the warp's cube where the model has one.
+fn encoding(e: &Encoding, grid: Option<&HashGrid>) -> Value {
     match e {
-        Encoding::Harmonic(h) => json!({
-            "kind": "harmonic",
-            "freqs": h.freqs,
-            "include_input": h.include_input,
-            "width": 3 * 2 * h.freqs + if h.include_input { 3 } else { 0 },
-            "order": "sin(2^k x_i) for i in 0..3 (outer), k in 0..freqs (inner); then cos likewise; then x",
-        }),
+        Encoding::Harmonic(h) => harmonic_spec(h.freqs, h.include_input),
         Encoding::HashGrid(g) => {
-            let (res, dense) = match net {
-                Some(PositionEncoding::Grid { grid, .. }) => {
-                    (grid.resolutions(), grid.dense_levels())
+            let (res, dense, bounds) = match grid {
+                Some(grid) => {
+                    let c = grid.config();
+                    let (lo, hi) = (c.bbox_min.map(f64::from), c.bbox_max.map(f64::from));
+                    (grid.resolutions(), grid.dense_levels(), [lo, hi])
                 }
-                _ => (Vec::new(), Vec::new()),
+                None => (Vec::new(), Vec::new(), [g.min, g.max]),
             };
             json!({
                 "kind": "hash_grid",
@@ -132,7 +221,7 @@ fn encoding(e: &Encoding, net: Option<&PositionEncoding>) -> Value {
                 "log2_table": g.log2_table,
                 "min_res": g.min_res,
                 "max_res": g.max_res,
-                "bounds": [g.min, g.max],
+                "bounds": bounds,
                 "resolutions": res,
                 "dense": dense,
                 "primes": [1u32, 2_654_435_761u32, 805_459_861u32],
@@ -158,37 +247,19 @@ fn nerf_layout(spec: &Nerf, tensors: &[TensorSpec]) -> Option<Layout> {
     let mut by_name: Vec<(String, Vec<Piece>)> = Vec::new();
     for (prefix, net) in &nets {
         if let PositionEncoding::Grid { grid, .. } = &net.position {
-            let f = grid.config().features as usize;
-            let mut ends = grid.level_offsets();
-            ends.push(grid.param_count());
-            let pieces = ends
-                .windows(2)
-                .enumerate()
-                .map(|(l, w)| Piece {
-                    name: format!("{prefix}hashgrid.level{l}.table"),
-                    shape: vec![(w[1] - w[0]) / f, f],
-                    transposed: false,
-                })
-                .collect();
-            by_name.push((format!("{prefix}position.hashgrid"), pieces));
+            by_name.push((
+                format!("{prefix}position.hashgrid"),
+                grid_pieces(grid, &format!("{prefix}hashgrid.")),
+            ));
         }
         for (name, d) in net.layers() {
             let file = format!("{prefix}{}", role(&name));
-            by_name.push((
-                format!("{prefix}{name}.weight"),
-                vec![Piece {
-                    name: format!("{file}.weight"),
-                    shape: vec![d.out, d.fan_in()],
-                    transposed: true,
-                }],
-            ));
-            by_name.push((
-                format!("{prefix}{name}.bias"),
-                vec![Piece {
-                    name: format!("{file}.bias"),
-                    shape: vec![d.out],
-                    transposed: false,
-                }],
+            by_name.extend(dense_pieces(
+                &format!("{prefix}{name}"),
+                &file,
+                d.out,
+                d.fan_in(),
+                true,
             ));
         }
     }
@@ -196,34 +267,9 @@ fn nerf_layout(spec: &Nerf, tensors: &[TensorSpec]) -> Option<Layout> {
     // lays them out).
     let backdrop = Backdrop::new(&spec.background, 0);
     for (name, d) in backdrop.layers() {
-        by_name.push((
-            format!("{name}.weight"),
-            vec![Piece {
-                name: format!("{name}.weight"),
-                shape: vec![d.out, d.fan_in()],
-                transposed: true,
-            }],
-        ));
-        by_name.push((
-            format!("{name}.bias"),
-            vec![Piece {
-                name: format!("{name}.bias"),
-                shape: vec![d.out],
-                transposed: false,
-            }],
-        ));
+        by_name.extend(dense_pieces(&name, &name, d.out, d.fan_in(), true));
     }
-    let params = tensors
-        .iter()
-        .map(|t| {
-            let (_, pieces) = by_name.iter().find(|(n, _)| *n == t.name)?;
-            let len: usize = pieces.iter().map(|p| p.len().unwrap_or(0)).sum();
-            (len == t.len).then(|| pieces.clone())
-        })
-        .collect::<Option<Vec<_>>>()?;
-    if params.len() != by_name.len() {
-        return None;
-    }
+    let params = cover(&by_name, tensors)?;
     let mut model = nerf_spec(spec, &coarse, fine.is_some());
     if let Value::Object(m) = &mut model {
         let background_layers: Vec<Value> = backdrop
@@ -237,7 +283,7 @@ fn nerf_layout(spec: &Nerf, tensors: &[TensorSpec]) -> Option<Layout> {
                 "background_direction_encoding".into(),
                 json!({
                     "kind": "harmonic",
-                    "input": "the unit ray direction d (world axes)",
+                    "input": "the unit ray direction d in the model's frame (rotation @ d_data, see data_to_model)",
                     "freqs": match spec.background {
                         sdfl_stdlib::value::Background::Learned(l) => l.freqs,
                         _ => 0,
@@ -250,7 +296,11 @@ fn nerf_layout(spec: &Nerf, tensors: &[TensorSpec]) -> Option<Layout> {
         }
         m.insert("unbounded".into(), json!(spec.unbounded));
     }
-    Some(Layout { params, model })
+    Some(Layout {
+        params,
+        model,
+        frame: ModelFrame::default(),
+    })
 }
 
 /// A dense layer: what it reads (names of earlier values, concatenated in
@@ -300,9 +350,15 @@ fn nerf_spec(spec: &Nerf, net: &NerfNet, fine: bool) -> Value {
     json!({
         "kind": "nerf",
         "networks": if fine { json!(["coarse", "fine"]) } else { json!([""]) },
-        "position_encoding": encoding(&spec.position, Some(&net.position)),
+        "position_encoding": encoding(
+            &spec.position,
+            match &net.position {
+                PositionEncoding::Grid { grid, .. } => Some(grid),
+                PositionEncoding::Harmonic(_) => None,
+            },
+        ),
         "direction_encoding": spec.direction.as_ref().map(|e| encoding(e, None)),
-        "direction": "the unit direction of the ray (from the camera into the scene), world axes",
+        "direction": "the unit direction of the ray (from the camera into the scene) in the model's frame (rotation @ d_data, see data_to_model); never warped",
         "layers": layers,
         "width": spec.width,
         "depth": spec.layers,
@@ -318,6 +374,181 @@ fn nerf_spec(spec: &Nerf, net: &NerfNet, fine: bool) -> Value {
         "fine_samples": spec.fine,
         "precision": spec.precision,
         "linear": "y = x @ weight.T + bias (weight is (out, in), as torch.nn.Linear)",
+    })
+}
+
+/// A neural SDF's pieces (trainer names after `trainer`, file names after
+/// `file`) and its specification: the distance in the model's frame.
+fn sdf_parts(
+    spec: &NeuralSdf,
+    trainer: &str,
+    file: &str,
+) -> Option<(Vec<(String, Vec<Piece>)>, Value)> {
+    let mut by_name = Vec::new();
+    let mut layers = Vec::new();
+    // Layers are named without `file` in the specification (as a NeRF's
+    // are without `coarse.`); its `prefix` gives it.
+    let hidden = |i: usize| format!("hidden.{i}");
+    let (position, sphere) = match &spec.encoding {
+        Encoding::Harmonic(h) => {
+            let net = crate::neural::distance::sdf_net(spec);
+            for (i, d) in net.hidden.iter().enumerate() {
+                let prev = if i == 0 { String::new() } else { hidden(i - 1) };
+                let inputs: Vec<&str> = match (i, d.parts.len()) {
+                    (0, _) => vec!["position"],
+                    (_, 2) => vec![&prev, "position"],
+                    _ => vec![&prev],
+                };
+                by_name.extend(dense_pieces(
+                    &format!("{trainer}hidden.{i}"),
+                    &format!("{file}hidden.{i}"),
+                    d.out,
+                    d.fan_in(),
+                    true,
+                ));
+                layers.push(layer_spec(&hidden(i), &inputs, d));
+            }
+            let d = &net.output;
+            by_name.extend(dense_pieces(
+                &format!("{trainer}output"),
+                &format!("{file}output"),
+                d.out,
+                d.fan_in(),
+                true,
+            ));
+            let last = hidden(net.hidden.len() - 1);
+            layers.push(layer_spec("output", &[&last], d));
+            (harmonic_spec(h.freqs, h.include_input), Value::Null)
+        }
+        Encoding::HashGrid(g) => {
+            let net = crate::neural::hash_sdf::objective::hash_sdf(spec, g).ok()?;
+            let grid = net.grid();
+            for (l, piece) in grid_pieces(grid, &format!("{file}hashgrid."))
+                .into_iter()
+                .enumerate()
+            {
+                by_name.push((format!("{trainer}grid.level{l}"), vec![piece]));
+            }
+            // Its layers hold W as (out, in) already.
+            let act = Activation::Softplus {
+                beta: spec.beta as f32,
+            };
+            let mut fan_in = grid.output_dim();
+            for i in 0..spec.layers {
+                let prev = if i == 0 {
+                    "position".to_string()
+                } else {
+                    hidden(i - 1)
+                };
+                let d = Dense::new(&[fan_in], spec.width, act, 0);
+                by_name.extend(dense_pieces(
+                    &format!("{trainer}layer{i}"),
+                    &format!("{file}hidden.{i}"),
+                    spec.width,
+                    fan_in,
+                    false,
+                ));
+                layers.push(layer_spec(&hidden(i), &[&prev], &d));
+                fan_in = spec.width;
+            }
+            let d = Dense::new(&[fan_in], 1, Activation::Identity, 0);
+            by_name.extend(dense_pieces(
+                &format!("{trainer}output"),
+                &format!("{file}output"),
+                1,
+                fan_in,
+                false,
+            ));
+            layers.push(layer_spec("output", &[&hidden(spec.layers - 1)], &d));
+            // As `HashSdf` places it: the grid box's centre (of its f32
+            // corners), the f32 radius.
+            let c = grid.config();
+            let centre: [f64; 3] =
+                std::array::from_fn(|a| 0.5 * (c.bbox_min[a] as f64 + c.bbox_max[a] as f64));
+            (
+                encoding(&spec.encoding, Some(grid)),
+                json!({ "center": centre, "radius": spec.radius as f32 as f64 }),
+            )
+        }
+    };
+    let mut model = json!({
+        "kind": "neural_sdf",
+        "prefix": file,
+        "position_encoding": position,
+        "layers": layers,
+        "distance": "output (plus the sphere term where given), in the model's frame: divide by data_to_model's scale for the data's units",
+        "linear": "y = x @ weight.T + bias (weight is (out, in), as torch.nn.Linear)",
+    });
+    if !sphere.is_null() {
+        model["sphere"] = sphere;
+        model["sphere_term"] = json!("|x - center| - radius, added to the output");
+    }
+    Some((by_name, model))
+}
+
+/// A neural SDF fitted to points: its layers named `hidden.<i>` and
+/// `output` (a hash grid's tables `hashgrid.level<l>.table`).
+fn neural_sdf_layout(spec: &NeuralSdf, tensors: &[TensorSpec]) -> Option<Layout> {
+    let (by_name, model) = sdf_parts(spec, "", "")?;
+    Some(Layout {
+        params: cover(&by_name, tensors)?,
+        model,
+        frame: ModelFrame::default(),
+    })
+}
+
+/// A neural surface: its distance network as a neural SDF's under `sdf.`,
+/// its colour network `color.<i>` … `color.out`, a trained β flat as
+/// `log_beta`.
+fn surface_layout(spec: &NeuralSurface, tensors: &[TensorSpec]) -> Option<Layout> {
+    let (mut by_name, sdf) = sdf_parts(&spec.sdf, "sdf.", "sdf.")?;
+    let colours: Vec<&TensorSpec> = tensors
+        .iter()
+        .filter(|t| t.name.starts_with("color.") && t.name.ends_with(".weight"))
+        .collect();
+    let mut color_layers = Vec::new();
+    let mut fan_in = spec.color_input();
+    for (i, t) in colours.iter().enumerate() {
+        let name = t.name.strip_suffix(".weight")?;
+        let last = i + 1 == colours.len();
+        let out = if last { 3 } else { spec.color_width };
+        by_name.extend(dense_pieces(name, name, out, fan_in, true));
+        let inputs: Vec<String> = if i == 0 {
+            let mut v = vec!["color_position".to_string(), "normal".into()];
+            if spec.view_dependent {
+                v.push("direction".into());
+            }
+            v
+        } else {
+            vec![colours[i - 1].name.strip_suffix(".weight")?.to_string()]
+        };
+        color_layers.push(json!({
+            "name": name,
+            "inputs": inputs,
+            "in": fan_in,
+            "out": out,
+            "activation": if last { "sigmoid" } else { "relu" },
+        }));
+        fan_in = out;
+    }
+    if let Some(b) = tensors.iter().find(|t| t.name == "log_beta") {
+        by_name.push((b.name.clone(), vec![Piece::flat(&b.name, b.len)]));
+    }
+    let model = json!({
+        "kind": "neural_surface",
+        "sdf": sdf,
+        "density": spec.density.name(),
+        "alpha": spec.alpha,
+        "beta": spec.beta,
+        "color_layers": color_layers,
+        "color_position_encoding": harmonic_spec(spec.color_freqs, true),
+        "normal": "the distance's gradient at the point in the model's frame, not normalised",
+        "direction_encoding": spec.view_dependent.then(|| harmonic_spec(NeuralSurface::DIRECTION_FREQS, true)),
+    });
+    Some(Layout {
+        params: cover(&by_name, tensors)?,
+        model,
+        frame: ModelFrame::default(),
     })
 }
 
@@ -450,6 +681,122 @@ mod tests {
                 assert_eq!(piece("hashgrid.level3.table").shape, vec![64, 2]);
             } else {
                 assert!(names.contains(&"fine.color.1.weight".to_string()));
+            }
+        }
+    }
+
+    /// A neural SDF's and a neural surface's tensors are named and shaped
+    /// (not the flat fallback), the MLP's weights (out, in) from the
+    /// trainer's (in, out), the hash SDF's stored as held; the surface's
+    /// frame records its background.
+    #[test]
+    fn neural_sdf_pieces_cover_the_tensors() {
+        use crate::neural::distance::NeuralSdfObjective;
+        use crate::neural::hash_sdf::objective::HashSdfObjective;
+        use crate::neural::surface::SurfaceObjective;
+        use sdfl_stdlib::value::{DensityKind, NeuralSdf, NeuralSurface};
+        let sdf = |encoding| NeuralSdf {
+            encoding,
+            layers: 2,
+            width: 8,
+            skips: vec![1],
+            beta: 20.0,
+            radius: 0.5,
+            seed: 3,
+            level_every: 0,
+            eikonal_step: None,
+        };
+        let harmonic = sdf(Encoding::Harmonic(Harmonic {
+            freqs: 2,
+            include_input: true,
+        }));
+        let grid = HashGridSpec {
+            levels: 3,
+            features: 2,
+            log2_table: 6,
+            min_res: 2,
+            max_res: 8,
+            min: [-1.0; 3],
+            max: [1.0; 3],
+        };
+        let hash = NeuralSdf {
+            skips: vec![],
+            ..sdf(Encoding::HashGrid(grid))
+        };
+        let surface = NeuralSurface {
+            sdf: harmonic.clone(),
+            density: DensityKind::VolSdf,
+            alpha: 10.0,
+            beta: 0.1,
+            train_beta: true,
+            beta_end: None,
+            color_layers: 2,
+            color_width: 8,
+            color_freqs: 2,
+            view_dependent: true,
+            background: [0.2, 0.3, 0.4],
+            fine: 0,
+        };
+        let cases: Vec<(Field, Vec<TensorSpec>)> = vec![
+            (
+                Field::NeuralSdf(harmonic.clone()),
+                NeuralSdfObjective::new(&harmonic, &[], 1.0).tensors(),
+            ),
+            (
+                Field::NeuralSdf(hash.clone()),
+                HashSdfObjective::new(&hash, &grid, &[], 1.0)
+                    .unwrap()
+                    .tensors(),
+            ),
+            (
+                Field::NeuralSurface(surface.clone()),
+                SurfaceObjective::new(&surface, &[]).unwrap().tensors(),
+            ),
+        ];
+        for (field, tensors) in cases {
+            let layout = Layout::of(&field, &tensors);
+            let kind = layout.model["kind"].as_str().unwrap().to_string();
+            let piece = |name: &str| {
+                layout
+                    .params
+                    .iter()
+                    .flatten()
+                    .find(|p| p.name == name)
+                    .unwrap_or_else(|| panic!("{kind}: no {name}"))
+                    .clone()
+            };
+            assert_eq!(layout.params.len(), tensors.len());
+            match &field {
+                Field::NeuralSdf(n) if n == &harmonic => {
+                    // 3 + 12 encoded; the skip layer reads 8 + 15.
+                    assert_eq!(piece("hidden.0.weight").shape, vec![8, 15]);
+                    assert!(piece("hidden.0.weight").transposed);
+                    assert_eq!(piece("hidden.1.weight").shape, vec![8, 23]);
+                    assert_eq!(piece("output.weight").shape, vec![1, 8]);
+                    assert_eq!(layout.model["layers"][1]["inputs"][1], "position");
+                    assert_eq!(layout.frame.background, super::super::frame::Behind::None);
+                }
+                Field::NeuralSdf(_) => {
+                    assert_eq!(piece("hashgrid.level0.table").shape, vec![27, 2]);
+                    assert_eq!(piece("hidden.0.weight").shape, vec![8, 6]);
+                    assert!(!piece("hidden.0.weight").transposed);
+                    assert_eq!(piece("hidden.1.weight").shape, vec![8, 8]);
+                    assert_eq!(layout.model["sphere"]["radius"], 0.5);
+                    assert_eq!(layout.model["position_encoding"]["bounds"][1][2], 1.0);
+                }
+                _ => {
+                    assert_eq!(kind, "neural_surface");
+                    assert_eq!(layout.model["sdf"]["prefix"], "sdf.");
+                    assert_eq!(piece("sdf.hidden.1.weight").shape, vec![8, 23]);
+                    // Point (15), normal (3), direction (15).
+                    assert_eq!(piece("color.0.weight").shape, vec![8, 33]);
+                    assert_eq!(piece("color.out.weight").shape, vec![3, 8]);
+                    assert_eq!(piece("log_beta").shape, vec![1]);
+                    assert_eq!(
+                        layout.frame.background,
+                        super::super::frame::Behind::Color([0.2, 0.3, 0.4])
+                    );
+                }
             }
         }
     }

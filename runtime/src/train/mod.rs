@@ -14,6 +14,8 @@
 //! * [`field`]: the trained field as the job sees it (render a view, a
 //!   distance for meshes, a density for exports, reported parameters).
 //! * [`checkpoint`]: safetensors checkpoints with a fingerprint of the run.
+//! * [`frame`]: where a checkpoint's model sits relative to its data (the
+//!   data → model similarity, the warp, the background).
 //! * [`log`]: what a run reports as it goes: events for an observer, a
 //!   metrics CSV, TensorBoard events and the current held-out view.
 //! * [`params`]: runtime-sized named parameters, Adam through dfdx's kernel.
@@ -24,6 +26,7 @@
 pub mod checkpoint;
 pub mod export_names;
 pub mod field;
+pub mod frame;
 pub mod fused;
 pub mod graph;
 pub mod graph_ops;

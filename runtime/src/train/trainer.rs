@@ -291,11 +291,16 @@ impl<O: Objective + ?Sized> Run<O> {
             )));
         }
         // A file of this format stores each tensor as the model does (a
-        // first-format file has no pieces and is flat).
+        // first-format file has no pieces and is flat), or whole and flat
+        // under its trainer name, as files did before neural SDFs' tensors
+        // were named and shaped (the values read back in the trainer's
+        // order either way).
         if !ck.pieces.is_empty() {
             for (i, ours) in self.layout.params.iter().enumerate() {
                 let theirs = ck.pieces.get(i).map_or(&[][..], |p| &p[..]);
-                if theirs != &ours[..] {
+                let t = &self.tensors[i];
+                let flat = theirs == [Piece::flat(&t.name, t.len)];
+                if theirs != &ours[..] && !flat {
                     let show = |p: &[Piece]| {
                         p.iter()
                             .map(|q| {
@@ -390,6 +395,7 @@ impl<O: Objective + ?Sized> Run<O> {
                 .collect(),
             pieces: self.layout.params.clone(),
             model: self.layout.model.clone(),
+            frame: self.layout.frame.clone(),
             losses: self.losses.clone(),
             state: self.objective.state(),
             fingerprint,
@@ -667,6 +673,72 @@ mod tests {
         run.resume(&ck).unwrap();
         let e = run.advance(&setup).unwrap_err().to_string();
         assert!(e.contains("`sphere.radius` became NaN at step 2"), "{e}");
+    }
+
+    /// A neural SDF's checkpoint written before its tensors were named
+    /// (each stored flat under its trainer name, no frame in the
+    /// metadata) still resumes, to the same values; a piece stored under
+    /// another shape is still refused.
+    #[test]
+    fn a_flat_neural_sdf_checkpoint_still_resumes() {
+        use crate::neural::distance::NeuralSdfObjective;
+        use sdfl_stdlib::value::{Encoding, Field, Harmonic, NeuralSdf};
+        let spec = NeuralSdf {
+            encoding: Encoding::Harmonic(Harmonic {
+                freqs: 2,
+                include_input: true,
+            }),
+            layers: 2,
+            width: 8,
+            skips: vec![],
+            beta: 20.0,
+            radius: 0.5,
+            seed: 3,
+            level_every: 0,
+            eikonal_step: None,
+        };
+        let run_of = || {
+            let obj = NeuralSdfObjective::new(&spec, &[], 1.0);
+            let mut run = Run::of(Box::new(obj), 0.1).unwrap();
+            let tensors = run.objective.tensors();
+            run.describe(Layout::of(&Field::NeuralSdf(spec.clone()), &tensors));
+            run
+        };
+        let run = run_of();
+        assert!(run.layout.params[0][0].transposed, "named and shaped");
+        let mut ck = run.checkpoint(Default::default());
+        // As such a file was: flat pieces, no model, no frame.
+        ck.pieces = run
+            .tensors
+            .iter()
+            .map(|t| vec![Piece::flat(&t.name, t.len)])
+            .collect();
+        ck.model = serde_json::Value::Null;
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("old.ckpt");
+        ck.write(&path).unwrap();
+        let bytes = std::fs::read(&path).unwrap();
+        let (_, header) = safetensors::SafeTensors::read_metadata(&bytes).unwrap();
+        let mut meta = header.metadata().clone().unwrap();
+        for key in ["data_to_model", "warp", "background"] {
+            assert!(meta.remove(key).is_some(), "{key}");
+        }
+        let t = safetensors::SafeTensors::deserialize(&bytes).unwrap();
+        std::fs::write(
+            &path,
+            safetensors::serialize(t.tensors(), &Some(meta)).unwrap(),
+        )
+        .unwrap();
+        let old = Checkpoint::read(&path).unwrap();
+        assert_eq!(old.frame, super::super::frame::ModelFrame::default());
+        let mut resumed = run_of();
+        resumed.resume(&old).unwrap();
+        assert_eq!(resumed.values(), run.values());
+        // A shape that is neither the model's nor the flat one is refused.
+        let mut odd = old.clone();
+        odd.pieces[0][0].shape = vec![2, odd.pieces[0][0].shape[0] / 2];
+        let e = run_of().resume(&odd).unwrap_err().to_string();
+        assert!(e.contains("the checkpoint stores `hidden.0.weight`"), "{e}");
     }
 
     /// Values outside their parameter's range are refused on resuming.

@@ -253,7 +253,7 @@ pub(crate) fn builtins() -> Vec<Builtin> {
         ),
         func(
             "ndc",
-            "Normalised device coordinates for forward-facing captures (the original NeRF's LLFF scenes, such as `nerf_fern`): positions are mapped through the projection of the capture's reference camera (the average camera, which an LLFF capture's normalisation puts at the origin looking down −z), so all depths from its near plane to infinity fit in [-1, 1]; samples are spaced evenly in NDC depth (evenly in disparity) from the near plane to the sampler's `far`, so give it a large `far` (e.g. 1000). Density is integrated over world lengths, so depth outputs are in scene units. Needs `capture(..., format: \"llff\")` data.",
+            "Normalised device coordinates for forward-facing captures (the original NeRF's LLFF scenes, such as `nerf_fern`): positions are mapped through the projection of the capture's reference camera (the average camera, which an LLFF capture's normalisation puts at the origin looking down −z), so all depths from its near plane to infinity fit in [-1, 1]; samples are spaced evenly in NDC depth (evenly in disparity) from the near plane to the sampler's `far`, so give it a large `far` (e.g. 1000). Density is integrated over world lengths, so depth outputs are lengths (in the data's units, as every depth export is). Needs `capture(..., format: \"llff\")` data.",
             vec![],
             NDC,
             |_| Ok(Value::Ndc),

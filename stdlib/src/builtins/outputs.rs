@@ -145,7 +145,7 @@ pub(crate) fn builtins() -> Vec<Builtin> {
         ),
         func(
             "raw_depth",
-            "Depth per view as a float32 `.npy` array of rows × columns (numpy's `np.load`): the expected depth along the ray divided by the accumulated opacity (distance from the camera centre along the ray, in scene units), NaN where the opacity is below `min_opacity`.",
+            "Depth per view as a float32 `.npy` array of rows × columns (numpy's `np.load`): the expected depth along the ray divided by the accumulated opacity (distance from the camera centre along the ray, in the data's units: a normalised capture's depths are scaled back, as its meshes are moved back), NaN where the opacity is below `min_opacity`.",
             vec![
                 req("path", Type::Str, "file name inside the output directory (.npy)"),
                 opt("min_opacity", Type::Number, "0.5", "accumulated opacity a pixel needs for a depth (0 to 1)"),
@@ -158,7 +158,7 @@ pub(crate) fn builtins() -> Vec<Builtin> {
         ),
         func(
             "depth_map",
-            "Depth per view (as `raw_depth`) colour-mapped, beside a colour bar whose axis is titled \"depth (scene units)\", as PNG; pixels below `min_opacity` black.",
+            "Depth per view (as `raw_depth`) colour-mapped, beside a colour bar whose axis is titled \"depth (data units)\", as PNG; `range` in the same units; pixels below `min_opacity` black.",
             vec![
                 req("path", Type::Str, "file name inside the output directory (.png)"),
                 opt("colormap", Type::Str, "\"turbo\"", "turbo, viridis, inferno, magma, plasma or cividis"),

@@ -114,6 +114,7 @@ pub fn run_train_job(
         scene_report,
         scene_frame,
         forward_facing,
+        points_mean,
     } = load_views_for(&job.data, base, DataNeeds::of(job))
         .map_err(|e| crate::data::at_argument(job.data_span, e))?;
     for line in &scene_report {
@@ -159,9 +160,22 @@ pub fn run_train_job(
     let network = field.is_network();
     let fail = |e: TrainError| io::Error::other(format!("training `{}`: {e}", job.name));
     let mut run = Run::for_optimizer(field, &job.optimizer).map_err(fail)?;
-    // Checkpoints name and shape the tensors by role and carry the model.
+    // Checkpoints name and shape the tensors by role and carry the model
+    // and its place relative to the data: a capture's normalisation, or
+    // the point cloud's centring (a translation).
     let tensors = run.objective.tensors();
-    run.describe(crate::train::export_names::Layout::of(&job.model, &tensors));
+    let data_frame = scene_frame.or_else(|| {
+        points_mean.map(|m| {
+            crate::data::normalize::SceneFrame::new(
+                1.0,
+                glam::DVec3::from_array(m),
+                glam::DMat3::IDENTITY,
+            )
+        })
+    });
+    run.describe(
+        crate::train::export_names::Layout::of(&job.model, &tensors).in_data_frame(data_frame),
+    );
     let checkpoints = Checkpoints::of(job, &views, out_dir);
     let (resumed_from, history) = checkpoints.resume_or_start(&mut run, steps, options.restart)?;
     let mut written = Vec::new();

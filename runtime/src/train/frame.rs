@@ -1,0 +1,443 @@
+//! Where a trained model sits relative to the data it was trained on, as a
+//! checkpoint's metadata records it (docs/checkpoints.md), so that the
+//! file can be evaluated at points of the data's own frame without sdfl:
+//!
+//! * `data_to_model`: the similarity the data loader applied (a capture's
+//!   normalisation, IDR's `scale_mat`, a point cloud's centring):
+//!   `x_model = scale · R · (x_data − center)`;
+//! * `warp`: how model-frame positions reach the encoding (none, scene
+//!   contraction, or a forward-facing capture's NDC);
+//! * `background`: what a ray sees behind the field.
+//!
+//! Files written before these keys load as identity, no warp and no
+//! background; a present value is checked like any input.
+
+use glam::{DMat3, DVec3};
+use serde_json::{json, Value};
+
+use sdfl_stdlib::value::{Background, Contraction, Field, LearnedBackground, NdcFrame, Unbounded};
+
+use crate::data::normalize::SceneFrame;
+
+/// The metadata key of the data → model similarity.
+pub const DATA_TO_MODEL: &str = "data_to_model";
+/// The metadata key of the warp.
+pub const WARP: &str = "warp";
+/// The metadata key of the background.
+pub const BACKGROUND: &str = "background";
+
+/// Positions and lengths sdfl reads are within this magnitude (and above
+/// its inverse where not zero), so a recorded frame is too.
+const MAGNITUDE: f64 = 1e18;
+/// How far a recorded rotation may be from orthonormal (f64 rounding of a
+/// rotation built from f64 axes is far below it).
+const ORTHONORMAL: f64 = 1e-6;
+
+/// What a ray sees where it leaves the field.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Behind {
+    /// Nothing: the model is never rendered against one (a point fit).
+    None,
+    /// A fixed linear RGB colour.
+    Color([f64; 3]),
+    /// A colour learned from the ray's direction (the model's
+    /// `background_layers`).
+    Learned(LearnedBackground),
+}
+
+/// A model's place relative to its data.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ModelFrame {
+    /// Data frame → model frame: `x_model = scale·R·(x_data − center)`
+    /// (`applied` is not recorded).
+    pub data_to_model: SceneFrame,
+    /// Model frame → the encoding's input (`None`: the model frame itself);
+    /// never an NDC whose camera is unknown.
+    pub warp: Option<Unbounded>,
+    /// What its rays see behind it.
+    pub background: Behind,
+}
+
+impl Default for ModelFrame {
+    /// What a file without the keys means: the data's frame, no warp, no
+    /// background.
+    fn default() -> Self {
+        ModelFrame {
+            data_to_model: SceneFrame::IDENTITY,
+            warp: None,
+            background: Behind::None,
+        }
+    }
+}
+
+impl ModelFrame {
+    /// The warp and background `field` declares, in the data's frame until
+    /// [`Self::in_data_frame`] says otherwise. An NDC whose camera is not
+    /// yet known (before the capture is read) is recorded as no warp.
+    pub fn of(field: &Field) -> ModelFrame {
+        let (warp, background) = match field {
+            Field::Nerf(n) => (
+                n.unbounded.filter(|u| *u != Unbounded::Ndc(None)),
+                match n.background {
+                    Background::Learned(l) => Behind::Learned(l),
+                    b => Behind::Color(b.color().unwrap_or([0.0; 3])),
+                },
+            ),
+            Field::NeuralSurface(s) => (None, Behind::Color(s.background)),
+            // An analytic field composites over nothing: black.
+            Field::Sdf(_) => (None, Behind::Color([0.0; 3])),
+            Field::NeuralSdf(_) => (None, Behind::None),
+        };
+        ModelFrame {
+            data_to_model: SceneFrame::IDENTITY,
+            warp,
+            background,
+        }
+    }
+
+    /// This frame with the data loader's similarity (`None`: the data's
+    /// own frame).
+    pub fn in_data_frame(self, frame: Option<SceneFrame>) -> ModelFrame {
+        ModelFrame {
+            data_to_model: SceneFrame {
+                applied: None,
+                ..frame.unwrap_or(SceneFrame::IDENTITY)
+            },
+            ..self
+        }
+    }
+
+    /// The three metadata entries.
+    pub fn metadata(&self) -> [(String, String); 3] {
+        let f = &self.data_to_model;
+        let data_to_model = json!({
+            "scale": f.scale,
+            "center": f.center,
+            "rotation": f.rotation,
+            "map": "x_model = scale * rotation @ (x_data - center); a direction d_model = rotation @ d_data; a length or distance in the model is scale times the data's",
+        });
+        let warp = match &self.warp {
+            None => json!({ "kind": "none" }),
+            Some(Unbounded::Contract(c)) => json!({
+                "kind": "contraction",
+                "min": c.min,
+                "max": c.max,
+                "map": "y = (x - (min + max)/2) * 2/(max - min); m = max_i |y_i|; the encoding sees y where m <= 1, else (2 - 1/m) * y/m",
+            }),
+            Some(Unbounded::Ndc(Some(f))) => json!({
+                "kind": "ndc",
+                "width": f.width,
+                "height": f.height,
+                "fx": f.fx,
+                "fy": f.fy,
+                "near": f.near,
+                "map": "z = min(x_2, -0.001 * near); the encoding sees (-2 fx/width * x_0/z, -2 fy/height * x_1/z, 1 + 2 near/z); directions are not warped",
+            }),
+            // Not a frame `of` records (its camera is unknown).
+            Some(Unbounded::Ndc(None)) => json!({ "kind": "none" }),
+        };
+        let background = match self.background {
+            Behind::None => json!({ "kind": "none" }),
+            Behind::Color(c) => json!({ "kind": "color", "color": c }),
+            Behind::Learned(l) => json!({
+                "kind": "learned",
+                "freqs": l.freqs,
+                "width": l.width,
+                "layers": ["background.hidden", "background.out"],
+                "input": "the ray's unit direction in the model's frame",
+            }),
+        };
+        [
+            (DATA_TO_MODEL.to_string(), data_to_model.to_string()),
+            (WARP.to_string(), warp.to_string()),
+            (BACKGROUND.to_string(), background.to_string()),
+        ]
+    }
+
+    /// The frame a file's metadata records (`get` its entries), each key
+    /// missing meaning identity, no warp, no background. A present value
+    /// that is malformed, not finite or out of range is an error naming
+    /// its key.
+    pub fn from_metadata<'m>(get: impl Fn(&str) -> Option<&'m str>) -> Result<ModelFrame, String> {
+        let parse = |key: &str| -> Result<Option<Value>, String> {
+            get(key)
+                .map(|s| serde_json::from_str(s).map_err(|_| format!("bad `{key}`: not JSON")))
+                .transpose()
+        };
+        let bad = |key: &str, e: String| format!("bad `{key}`: {e}");
+        let mut frame = ModelFrame::default();
+        if let Some(v) = parse(DATA_TO_MODEL)? {
+            frame.data_to_model = similarity(&v).map_err(|e| bad(DATA_TO_MODEL, e))?;
+        }
+        if let Some(v) = parse(WARP)? {
+            frame.warp = warp(&v).map_err(|e| bad(WARP, e))?;
+        }
+        if let Some(v) = parse(BACKGROUND)? {
+            frame.background = background(&v).map_err(|e| bad(BACKGROUND, e))?;
+        }
+        Ok(frame)
+    }
+}
+
+/// A number of `v[key]`.
+fn number(v: &Value, key: &str) -> Result<f64, String> {
+    v.get(key)
+        .and_then(Value::as_f64)
+        .ok_or_else(|| format!("no number `{key}`"))
+}
+
+/// Three numbers of `v[key]`, each finite and within [`MAGNITUDE`].
+fn vec3(v: &Value, key: &str) -> Result<[f64; 3], String> {
+    let a: [f64; 3] = v
+        .get(key)
+        .and_then(|x| serde_json::from_value(x.clone()).ok())
+        .ok_or_else(|| format!("`{key}` is not three numbers"))?;
+    if let Some(x) = a.iter().find(|x| x.is_nan() || x.abs() > MAGNITUDE) {
+        return Err(format!("`{key}` holds {x}, beyond ±1e18"));
+    }
+    Ok(a)
+}
+
+/// The kind of a warp or background record.
+fn kind(v: &Value) -> Result<&str, String> {
+    v.get("kind")
+        .and_then(Value::as_str)
+        .ok_or_else(|| "no `kind`".to_string())
+}
+
+fn similarity(v: &Value) -> Result<SceneFrame, String> {
+    let scale = number(v, "scale")?;
+    if !(scale.is_finite() && (1.0 / MAGNITUDE..=MAGNITUDE).contains(&scale)) {
+        return Err(format!("its scale is {scale}, not a number in 1e-18..1e18"));
+    }
+    let center = vec3(v, "center")?;
+    let rows: [[f64; 3]; 3] = v
+        .get("rotation")
+        .and_then(|x| serde_json::from_value(x.clone()).ok())
+        .ok_or("`rotation` is not 3 rows of 3 numbers")?;
+    let r = DMat3::from_cols_array_2d(&rows).transpose();
+    // Rows of a rotation are orthonormal (a reflection would still map
+    // points, but sdfl never makes one; either way lengths are kept).
+    let gram = r * r.transpose() - DMat3::IDENTITY;
+    if !gram.to_cols_array().iter().all(|e| e.abs() <= ORTHONORMAL) {
+        return Err(format!("`rotation` {rows:?} is not a rotation"));
+    }
+    Ok(SceneFrame::new(scale, DVec3::from_array(center), r))
+}
+
+fn warp(v: &Value) -> Result<Option<Unbounded>, String> {
+    match kind(v)? {
+        "none" => Ok(None),
+        "contraction" => {
+            let (min, max) = (vec3(v, "min")?, vec3(v, "max")?);
+            // Finite (`vec3`), so no NaN slips through.
+            if (0..3).any(|a| min[a] >= max[a]) {
+                return Err(format!("its box {min:?}..{max:?} is empty"));
+            }
+            Ok(Some(Unbounded::Contract(Contraction { min, max })))
+        }
+        "ndc" => {
+            let f = NdcFrame {
+                width: number(v, "width")?,
+                height: number(v, "height")?,
+                fx: number(v, "fx")?,
+                fy: number(v, "fy")?,
+                near: number(v, "near")?,
+            };
+            let positive = |x: f64| x.is_finite() && x > 0.0 && x <= MAGNITUDE;
+            if ![f.width, f.height, f.fx, f.fy, f.near]
+                .into_iter()
+                .all(positive)
+            {
+                return Err(format!(
+                    "NDC needs positive image size, focal lengths and near plane (got {}x{}, fx {}, fy {}, near {})",
+                    f.width, f.height, f.fx, f.fy, f.near
+                ));
+            }
+            // The runtime's own checks of the map (its scales in range).
+            crate::neural::warp::Ndc::new(&f)?;
+            Ok(Some(Unbounded::Ndc(Some(f))))
+        }
+        k => Err(format!("unknown kind `{k}`")),
+    }
+}
+
+fn background(v: &Value) -> Result<Behind, String> {
+    match kind(v)? {
+        "none" => Ok(Behind::None),
+        "color" => {
+            let c = vec3(v, "color")?;
+            if c.iter().any(|x| !(0.0..=1.0).contains(x)) {
+                return Err(format!("its colour {c:?} is not within 0..1"));
+            }
+            Ok(Behind::Color(c))
+        }
+        "learned" => {
+            // The ranges `learned_background(...)` accepts.
+            let count = |key: &str, lo: u64, hi: u64| -> Result<usize, String> {
+                match v.get(key).and_then(Value::as_u64) {
+                    Some(n) if (lo..=hi).contains(&n) => Ok(n as usize),
+                    _ => Err(format!("`{key}` is not a whole number in {lo}..{hi}")),
+                }
+            };
+            Ok(Behind::Learned(LearnedBackground {
+                freqs: count("freqs", 0, 8)?,
+                width: count("width", 1, 256)?,
+            }))
+        }
+        k => Err(format!("unknown kind `{k}`")),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::collections::HashMap;
+
+    fn frames() -> Vec<ModelFrame> {
+        let turn = DMat3::from_rotation_y(0.7) * DMat3::from_rotation_x(-1.2);
+        vec![
+            ModelFrame::default(),
+            ModelFrame {
+                data_to_model: SceneFrame::new(0.2857, DVec3::new(3.0, -2.5, 1e-3), turn),
+                warp: Some(Unbounded::Contract(Contraction {
+                    min: [-1.5, -1.0, -2.0],
+                    max: [1.5, 1.25, 2.0],
+                })),
+                background: Behind::Learned(LearnedBackground {
+                    freqs: 4,
+                    width: 32,
+                }),
+            },
+            ModelFrame {
+                data_to_model: SceneFrame::new(1.0 / 3.0, DVec3::new(-7.0, 0.5, 2.0), turn),
+                warp: Some(Unbounded::Ndc(Some(NdcFrame {
+                    width: 504.0,
+                    height: 378.0,
+                    fx: 407.5,
+                    fy: 407.25,
+                    near: 1.0,
+                }))),
+                background: Behind::Color([1.0, 0.5, 0.0]),
+            },
+        ]
+    }
+
+    fn read(meta: &HashMap<String, String>) -> Result<ModelFrame, String> {
+        ModelFrame::from_metadata(|k| meta.get(k).map(String::as_str))
+    }
+
+    /// Every value reads back exactly; a file without the keys is the
+    /// identity with nothing around it.
+    #[test]
+    fn round_trips_and_defaults() {
+        for f in frames() {
+            let meta: HashMap<String, String> = f.metadata().into_iter().collect();
+            let back = read(&meta).unwrap();
+            assert_eq!((back.warp, back.background), (f.warp, f.background));
+            // serde_json parses a printed f64 to within an ulp (Python's
+            // json exactly).
+            let (a, b) = (&back.data_to_model, &f.data_to_model);
+            let close = |x: f64, y: f64| (x - y).abs() <= 1e-15 * y.abs().max(1.0);
+            assert!(close(a.scale, b.scale), "{a:?} vs {b:?}");
+            for i in 0..3 {
+                assert!(close(a.center[i], b.center[i]), "{a:?} vs {b:?}");
+                for j in 0..3 {
+                    assert!(close(a.rotation[i][j], b.rotation[i][j]), "{a:?} vs {b:?}");
+                }
+            }
+        }
+        assert_eq!(read(&HashMap::new()).unwrap(), ModelFrame::default());
+        // The recorded map is the loader's: x_model = scale·R·(x − c).
+        let f = &frames()[1].data_to_model;
+        let meta: HashMap<String, String> = frames()[1].metadata().into_iter().collect();
+        let v: Value = serde_json::from_str(&meta[DATA_TO_MODEL]).unwrap();
+        let rows: [[f64; 3]; 3] = serde_json::from_value(v["rotation"].clone()).unwrap();
+        let p = DVec3::new(0.3, -4.0, 2.5);
+        let c = DVec3::from_array(vec3(&v, "center").unwrap());
+        let q = p - c;
+        let by_rows = DVec3::from_array(rows.map(|r| DVec3::from_array(r).dot(q)))
+            * v["scale"].as_f64().unwrap();
+        assert!((by_rows - f.to_scene(p)).length() < 1e-12);
+    }
+
+    /// Bad values are errors naming their key, never panics.
+    #[test]
+    fn refuses_bad_values() {
+        let good: HashMap<String, String> = frames()[1].metadata().into_iter().collect();
+        let cases = [
+            (
+                DATA_TO_MODEL,
+                r#"{"scale": -1, "center": [0,0,0], "rotation": [[1,0,0],[0,1,0],[0,0,1]]}"#,
+                "scale is -1",
+            ),
+            (
+                DATA_TO_MODEL,
+                r#"{"scale": 0, "center": [0,0,0], "rotation": [[1,0,0],[0,1,0],[0,0,1]]}"#,
+                "scale is 0",
+            ),
+            (
+                DATA_TO_MODEL,
+                r#"{"scale": 1e300, "center": [0,0,0], "rotation": [[1,0,0],[0,1,0],[0,0,1]]}"#,
+                "scale",
+            ),
+            (
+                DATA_TO_MODEL,
+                r#"{"scale": 1, "center": [0,null,0], "rotation": [[1,0,0],[0,1,0],[0,0,1]]}"#,
+                "`center`",
+            ),
+            (
+                DATA_TO_MODEL,
+                r#"{"scale": 1, "center": [0,1e19,0], "rotation": [[1,0,0],[0,1,0],[0,0,1]]}"#,
+                "beyond",
+            ),
+            (
+                DATA_TO_MODEL,
+                r#"{"scale": 1, "center": [0,0,0], "rotation": [[2,0,0],[0,1,0],[0,0,1]]}"#,
+                "not a rotation",
+            ),
+            (
+                DATA_TO_MODEL,
+                r#"{"scale": 1, "center": [0,0,0], "rotation": [[1,0],[0,1]]}"#,
+                "rotation",
+            ),
+            (DATA_TO_MODEL, "[1, 2", "not JSON"),
+            (
+                WARP,
+                r#"{"kind": "contraction", "min": [1,0,0], "max": [0,1,1]}"#,
+                "empty",
+            ),
+            (
+                WARP,
+                r#"{"kind": "ndc", "width": 10, "height": 10, "fx": -5, "fy": 5, "near": 1}"#,
+                "fx -5",
+            ),
+            (
+                WARP,
+                r#"{"kind": "ndc", "width": 10, "height": 10, "fx": 5, "fy": 5}"#,
+                "`near`",
+            ),
+            (WARP, r#"{"kind": "spherical"}"#, "unknown kind"),
+            (
+                BACKGROUND,
+                r#"{"kind": "color", "color": [0, 2, 0]}"#,
+                "within 0..1",
+            ),
+            (
+                BACKGROUND,
+                r#"{"kind": "learned", "freqs": 4, "width": 0}"#,
+                "`width`",
+            ),
+            (BACKGROUND, r#"{"color": [0, 0, 0]}"#, "no `kind`"),
+        ];
+        for (key, value, says) in cases {
+            let mut meta = good.clone();
+            meta.insert(key.to_string(), value.to_string());
+            let e = read(&meta).unwrap_err();
+            assert!(
+                e.contains(&format!("bad `{key}`")) && e.contains(says),
+                "{key} {value}: {e}"
+            );
+        }
+    }
+}
