@@ -114,6 +114,9 @@ impl Layout {
     }
 }
 
+/// Trainer tensor names and the pieces each is stored as.
+type ByName = Vec<(String, Vec<Piece>)>;
+
 /// The pieces of each trainer tensor in `tensors`, looked up by name in
 /// `by_name`, which must name every one of them exactly once with the
 /// tensor's length (`None` otherwise).
@@ -379,11 +382,7 @@ fn nerf_spec(spec: &Nerf, net: &NerfNet, fine: bool) -> Value {
 
 /// A neural SDF's pieces (trainer names after `trainer`, file names after
 /// `file`) and its specification: the distance in the model's frame.
-fn sdf_parts(
-    spec: &NeuralSdf,
-    trainer: &str,
-    file: &str,
-) -> Option<(Vec<(String, Vec<Piece>)>, Value)> {
+fn sdf_parts(spec: &NeuralSdf, trainer: &str, file: &str) -> Option<(ByName, Value)> {
     let mut by_name = Vec::new();
     let mut layers = Vec::new();
     // Layers are named without `file` in the specification (as a NeRF's
