@@ -798,35 +798,33 @@ mod tests {
             "{e}"
         );
         // A history that is not the stored form is refused by name.
-        sample().write(&path).unwrap();
-        let bytes = std::fs::read(&path).unwrap();
-        let (_, header) = SafeTensors::read_metadata(&bytes).unwrap();
-        let mut meta = header.metadata().clone().unwrap();
-        assert!(meta[HISTORY].contains("\"inf\""), "{}", meta[HISTORY]);
-        meta.insert(HISTORY.into(), "{\"seconds\": 1}".into());
-        let t = SafeTensors::deserialize(&bytes).unwrap();
-        std::fs::write(
-            &path,
-            safetensors::serialize(t.tensors(), &Some(meta)).unwrap(),
-        )
-        .unwrap();
+        // The sample checkpoint written with one metadata key rewritten.
+        let rewritten = |key: &str, edit: &dyn Fn(&str) -> String| {
+            sample().write(&path).unwrap();
+            let bytes = std::fs::read(&path).unwrap();
+            let (_, header) = SafeTensors::read_metadata(&bytes).unwrap();
+            let mut meta = header.metadata().clone().unwrap();
+            let value = edit(&meta[key]);
+            assert_ne!(value, meta[key], "the edit changes `{key}`");
+            meta.insert(key.into(), value);
+            let t = SafeTensors::deserialize(&bytes).unwrap();
+            std::fs::write(
+                &path,
+                safetensors::serialize(t.tensors(), &Some(meta)).unwrap(),
+            )
+            .unwrap();
+        };
+        rewritten(HISTORY, &|h| {
+            assert!(h.contains("\"inf\""), "{h}");
+            "{\"seconds\": 1}".into()
+        });
         let e = Checkpoint::read(&path).unwrap_err().to_string();
         assert!(e.contains("bad `history`"), "{e}");
         // So is a frame that is no similarity (every key's checks are
         // frame.rs's): an error naming the file and the key.
-        sample().write(&path).unwrap();
-        let bytes = std::fs::read(&path).unwrap();
-        let (_, header) = SafeTensors::read_metadata(&bytes).unwrap();
-        let mut meta = header.metadata().clone().unwrap();
-        let scaled = meta["data_to_model"].replace("\"scale\":0.25", "\"scale\":-0.25");
-        assert_ne!(scaled, meta["data_to_model"]);
-        meta.insert("data_to_model".into(), scaled);
-        let t = SafeTensors::deserialize(&bytes).unwrap();
-        std::fs::write(
-            &path,
-            safetensors::serialize(t.tensors(), &Some(meta)).unwrap(),
-        )
-        .unwrap();
+        rewritten("data_to_model", &|f| {
+            f.replace("\"scale\":0.25", "\"scale\":-0.25")
+        });
         let e = Checkpoint::read(&path).unwrap_err().to_string();
         assert!(
             e.contains("ck.safetensors") && e.contains("bad `data_to_model`: its scale is -0.25"),
