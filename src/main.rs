@@ -139,6 +139,10 @@ enum Command {
         /// Worker threads for tracing frames (default: all cores).
         #[arg(long)]
         threads: Option<usize>,
+        /// Seconds a response may make no progress before its connection
+        /// is closed (a client that stops reading frees its slot).
+        #[arg(long, default_value_t = view::WRITE_STALL.as_secs_f64(), value_parser = write_stall)]
+        write_stall: f64,
     },
     /// The assignment's part 0: transmittance through three slabs; prints
     /// the four transmittances and writes the figure.
@@ -157,6 +161,17 @@ enum Command {
 /// Most worker threads per core: more only spend time spawning and
 /// switching (100 000 threads took a minute to start).
 const THREADS_PER_CORE: usize = 4;
+
+/// `--write-stall`: finite seconds from 0.1 to a day (a zero stall would
+/// drop every connection at its first full socket buffer).
+fn write_stall(s: &str) -> Result<f64, String> {
+    let v: f64 = s.parse().map_err(|e| format!("{e}"))?;
+    if (0.1..=86_400.0).contains(&v) {
+        Ok(v)
+    } else {
+        Err("seconds from 0.1 to 86400".into())
+    }
+}
 
 fn cores() -> usize {
     std::thread::available_parallelism().map_or(1, |c| c.get())
@@ -378,7 +393,13 @@ fn main() -> ExitCode {
             out,
             port,
             threads: _,
-        } => view::view(view::View { file, out, port }),
+            write_stall,
+        } => view::view(view::View {
+            file,
+            out,
+            port,
+            write_stall: std::time::Duration::from_secs_f64(write_stall),
+        }),
         Command::Fmt(args) => fmt::fmt(&args),
         Command::Completions { shell } => {
             Stdout::new().print(&completions::completion_script(shell, &mut Cli::command()));

@@ -75,8 +75,8 @@ const BACKLOG: u32 = 1024;
 /// connections and clients that send headers a byte at a time).
 const HEADER_READ: Duration = Duration::from_secs(10);
 /// A write that makes no progress for this long ends the connection: a
-/// client that stops reading a large response frees it.
-const WRITE_STALL: Duration = Duration::from_secs(10);
+/// client that stops reading a large response frees it (`--write-stall`).
+pub const WRITE_STALL: Duration = Duration::from_secs(10);
 /// A connection is asked to close after this long (a client trickling a
 /// large response never stalls a write outright); one still busy
 /// [`CLOSE_GRACE`] later is dropped.
@@ -116,6 +116,9 @@ pub struct View {
     pub out: PathBuf,
     /// The port on 127.0.0.1 (0: any free one).
     pub port: u16,
+    /// How long a write may make no progress before its connection ends
+    /// (default [`WRITE_STALL`]).
+    pub write_stall: Duration,
 }
 
 /// The file as last loaded.
@@ -135,6 +138,8 @@ struct Shared {
     out: PathBuf,
     /// The port served on (the `Host` a request must name).
     port: u16,
+    /// [`View::write_stall`].
+    write_stall: Duration,
     loaded: Mutex<Loaded>,
     /// Frames are traced one at a time (each uses every core).
     tracing: Arc<Mutex<()>>,
@@ -185,6 +190,7 @@ pub fn view(v: View) -> ExitCode {
         file: v.file.clone(),
         out: v.out.clone(),
         port: addr.port(),
+        write_stall: v.write_stall,
         loaded: Mutex::new(Loaded {
             version: 0,
             program: None,
@@ -279,7 +285,7 @@ async fn accept(listener: TcpListener, shared: Arc<Shared>) {
 async fn connection(stream: TcpStream, shared: Arc<Shared>, _open: OwnedSemaphorePermit) {
     // Frames are single responses: no point delaying their last packet.
     let _ = stream.set_nodelay(true);
-    let io = TokioIo::new(WriteDeadline::new(stream));
+    let io = TokioIo::new(WriteDeadline::new(stream, shared.write_stall));
     let service = hyper::service::service_fn(move |request| {
         let shared = shared.clone();
         async move { Ok::<_, Infallible>(respond(&shared, request).await) }
@@ -300,24 +306,26 @@ async fn connection(stream: TcpStream, shared: Arc<Shared>, _open: OwnedSemaphor
     }
 }
 
-/// A TCP stream whose writes fail after [`WRITE_STALL`] without progress.
+/// A TCP stream whose writes fail after `limit` without progress.
 struct WriteDeadline {
     stream: TcpStream,
+    limit: Duration,
     stall: Pin<Box<Sleep>>,
     /// Whether `stall` is counting (a write is pending).
     armed: bool,
 }
 
 impl WriteDeadline {
-    fn new(stream: TcpStream) -> WriteDeadline {
+    fn new(stream: TcpStream, limit: Duration) -> WriteDeadline {
         WriteDeadline {
             stream,
-            stall: Box::pin(tokio::time::sleep(WRITE_STALL)),
+            limit,
+            stall: Box::pin(tokio::time::sleep(limit)),
             armed: false,
         }
     }
 
-    /// `polled` as it is, unless it has been pending for [`WRITE_STALL`].
+    /// `polled` as it is, unless it has been pending for `limit`.
     fn guard<T>(
         &mut self,
         cx: &mut Context<'_>,
@@ -329,7 +337,7 @@ impl WriteDeadline {
         }
         if !self.armed {
             self.armed = true;
-            let deadline = tokio::time::Instant::now() + WRITE_STALL;
+            let deadline = tokio::time::Instant::now() + self.limit;
             self.stall.as_mut().reset(deadline);
         }
         ready!(self.stall.as_mut().poll(cx));

@@ -414,12 +414,9 @@ pub const MAX_MESH_VERTICES: usize = 20_000_000;
 /// Cells a side of the grid the true surface is meshed on, where a mesh is
 /// measured against the shape sdfl rendered its data from.
 pub const TRUE_SURFACE_RESOLUTION: u32 = 192;
-/// Samples standing for a surface that distances are measured to: the
-/// mean gap to the nearest of them adds about `0.5·√(area/n)` (0.001 on a
-/// surface of area 4) to a distance. The runtime's Chamfer distances use
-/// these, so the estimate and the work cannot drift apart.
-pub const SURFACE_SAMPLES: usize = 1_000_000;
-/// Query samples on each side of a mesh's Chamfer distance.
+/// Query samples on each side of a mesh's Chamfer distance (the runtime's
+/// Chamfer distances use these, so the estimate and the work cannot drift
+/// apart).
 pub const MESH_FIT_POINTS: usize = 50_000;
 /// Random points a neural SDF's fit projects onto its surface.
 pub const FIT_PROBES: usize = 65_536;
@@ -515,14 +512,18 @@ fn field_export_work(
     (meshes, depth)
 }
 
-/// A Chamfer distance between a mesh and a reference: surface samples on
-/// both sides and a k-d tree over the larger (about 40 bytes a point).
+/// A Chamfer distance between a mesh and a reference: samples on both
+/// sides, each measured exactly to the other mesh through a hierarchy of
+/// its triangles (the true surface's mesh at [`TRUE_SURFACE_RESOLUTION`]
+/// is the larger: about 2π·res² triangles, 80 bytes each with the
+/// hierarchy), or to the nearest data point by a k-d tree.
 fn chamfer_cost() -> Cost {
-    let points = (SURFACE_SAMPLES + 2 * MESH_FIT_POINTS) as f64;
+    let res = TRUE_SURFACE_RESOLUTION as f64;
+    let triangles = 2.0 * std::f64::consts::PI * res * res;
     Cost::all(
-        // Each query walks a few dozen tree nodes.
-        2.0 * MESH_FIT_POINTS as f64 * 30.0,
-        points * 40.0,
+        // Each query visits a few dozen boxes and triangles.
+        2.0 * MESH_FIT_POINTS as f64 * 40.0,
+        triangles * 80.0 + 2.0 * MESH_FIT_POINTS as f64 * 12.0,
     )
 }
 

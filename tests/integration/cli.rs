@@ -429,3 +429,16 @@ train l { model: nerf(background: learned_background(freqs: 3, width: 16)), data
         "{text}"
     );
 }
+
+/// `sdfl view --write-stall` takes seconds from 0.1 to a day; others are
+/// refused before anything is served.
+#[test]
+fn a_write_stall_out_of_range_is_refused() {
+    for bad in ["0", "-1", "NaN", "inf", "1e9", "soon"] {
+        let stall = format!("--write-stall={bad}");
+        let o = sdfl(&["view", "scene.sdfl", "--port", "0", &stall]);
+        assert!(!o.status.success(), "--write-stall {bad} was accepted");
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(err.contains("--write-stall"), "{bad}: {err}");
+    }
+}

@@ -44,11 +44,17 @@ struct Viewer {
 
 impl Viewer {
     fn start(dir: &Path, file: &Path, nofile: Option<u64>) -> Viewer {
+        Viewer::start_with(dir, file, nofile, &[])
+    }
+
+    /// [`Viewer::start`] with further arguments.
+    fn start_with(dir: &Path, file: &Path, nofile: Option<u64>, extra: &[&str]) -> Viewer {
         let stderr = dir.join("viewer-stderr.txt");
         let mut cmd = Command::new(env!("CARGO_BIN_EXE_sdfl"));
         cmd.args(["view", file.to_str().unwrap(), "--port", "0"])
             .args(["--out", dir.join("out").to_str().unwrap()])
             .args(["--threads", "2"])
+            .args(extra)
             .stdin(Stdio::null())
             .stdout(Stdio::piped())
             .stderr(std::fs::File::create(&stderr).unwrap());
@@ -247,7 +253,10 @@ fn slow_readers_of_a_large_file_do_not_hold_the_server() {
     const BIG: usize = 48 << 20;
     let big: Vec<u8> = (0..BIG).map(|i| (i * 7 % 251) as u8).collect();
     std::fs::write(out.join("fit.heldout.png"), &big).unwrap();
-    let mut v = Viewer::start(&dir, &file, None);
+    // Stalled writes are given up after 5 s here (10 s by default), still
+    // far longer than the reader below takes.
+    const STALL: u64 = 5;
+    let mut v = Viewer::start_with(&dir, &file, None, &["--write-stall", &STALL.to_string()]);
     assert_eq!(v.version_within(Duration::from_secs(10))["ok"], true);
 
     let request = format!(
@@ -276,7 +285,7 @@ fn slow_readers_of_a_large_file_do_not_hold_the_server() {
 
     // A stalled write is given up: the slow clients get part of the file,
     // then the end of the connection.
-    std::thread::sleep(Duration::from_secs(20).saturating_sub(t0.elapsed()));
+    std::thread::sleep(Duration::from_secs(2 * STALL).saturating_sub(t0.elapsed()));
     for mut s in slow {
         s.set_read_timeout(Some(Duration::from_secs(10))).unwrap();
         let mut got = Vec::new();

@@ -8,7 +8,7 @@
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use rayon::prelude::*;
 use sdfl_stdlib::value::{Loss, LossKind, NeuralSdf};
-use sdfl_stdlib::work::{FIT_CHUNK, FIT_PROBES as PROBES, MESH_FIT_POINTS, SURFACE_SAMPLES};
+use sdfl_stdlib::work::{FIT_CHUNK, FIT_PROBES as PROBES, MESH_FIT_POINTS};
 
 use super::sdf_net::{SdfLoss, SdfNet, SdfNetSpec, SdfWork};
 use crate::mesh::DistanceField;
@@ -254,7 +254,8 @@ pub struct MeshFit {
     pub chamfer: f64,
     /// Mean distance from a reference point to the mesh, and back.
     pub points_to_mesh: f64,
-    /// Mean distance from a mesh sample to the nearest reference point.
+    /// Mean distance from a mesh sample to the reference: to its nearest
+    /// point, or to the reference surface.
     pub mesh_to_points: f64,
     /// What the points are from: "data" or "true surface".
     pub against: &'static str,
@@ -275,31 +276,33 @@ pub enum Reference<'a> {
 
 /// How well `mesh` passes through `reference`: the chamfer distance both
 /// ways (`against` names the reference in reports; `seed` picks samples).
+/// Distances to a mesh are exact (to its triangles); distances to points
+/// are to the nearest point.
 pub fn mesh_fit(
     mesh: &crate::mesh::Mesh,
     reference: Reference,
     against: &'static str,
     seed: u64,
 ) -> MeshFit {
-    let dense = mesh.sample_surface(SURFACE_SAMPLES, seed ^ 0x6465_6e73);
-    let (queries, targets): (Vec<[f32; 3]>, Vec<[f32; 3]>) = match reference {
+    use crate::mesh::MeshDistance;
+    let queries: Vec<[f32; 3]> = match reference {
         Reference::Points(p) => {
             let every = p.len().div_ceil(MESH_FIT_POINTS).max(1);
-            (p.iter().step_by(every).copied().collect(), p.to_vec())
+            p.iter().step_by(every).copied().collect()
         }
-        Reference::Surface(m) => (
-            m.sample_surface(MESH_FIT_POINTS, seed ^ 0x0074_7275_7468),
-            m.sample_surface(SURFACE_SAMPLES, seed ^ 0x7472_7565),
-        ),
+        Reference::Surface(m) => m.sample_surface(MESH_FIT_POINTS, seed ^ 0x0074_7275_7468),
     };
     let samples = mesh.sample_surface(MESH_FIT_POINTS.min(4 * queries.len()).max(1000), seed);
-    let (to_mesh, to_points) = if samples.is_empty() {
-        (f64::INFINITY, f64::INFINITY)
+    let to_mesh = MeshDistance::new(mesh).map_or(f64::INFINITY, |m| m.mean_distance(&queries));
+    let to_points = if samples.is_empty() {
+        f64::INFINITY
     } else {
-        (
-            mean_nearest(&queries, &dense),
-            mean_nearest(&samples, &targets),
-        )
+        match reference {
+            Reference::Points(p) => mean_nearest(&samples, p),
+            Reference::Surface(m) => {
+                MeshDistance::new(m).map_or(f64::INFINITY, |m| m.mean_distance(&samples))
+            }
+        }
     };
     MeshFit {
         chamfer: 0.5 * (to_mesh + to_points),

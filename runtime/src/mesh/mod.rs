@@ -1,5 +1,6 @@
 //! Triangle meshes of a distance field's zero level set (surface nets), PLY
-//! files, and surface samples for geometric error.
+//! files, surface samples, and exact distances to a mesh for geometric
+//! error ([`nearest`]).
 //!
 //! Surface nets: the field is sampled on a grid one plane at a time (memory
 //! grows with the square of the resolution, not its cube); every cell whose
@@ -29,6 +30,9 @@ use crate::output::Atomic;
 pub use crate::output::MeshStats;
 use crate::output::{Written, WrittenKind};
 use crate::volume::SplitMix64;
+
+pub mod nearest;
+pub use nearest::MeshDistance;
 
 /// Extracts and writes the `mesh` output `o` of `field`. `auto` is the
 /// region `bounds: "auto"` stands for (none for unbounded shapes, which
