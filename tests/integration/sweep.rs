@@ -4,6 +4,7 @@
 //! analytic volume render of a few pixels, not training.
 
 use crate::common;
+use sdfl_runtime::train::checkpoint::Checkpoint;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};
 use std::time::{Duration, Instant};
@@ -462,7 +463,7 @@ fn an_interrupted_training_setting_resumes_from_its_checkpoint() {
             "sweep".to_string(),
             scene.display().to_string(),
             "--set".into(),
-            "n=2,40000".into(),
+            "n=2,12000".into(),
             "--out".into(),
             out.display().to_string(),
         ]
@@ -475,10 +476,11 @@ fn an_interrupted_training_setting_resumes_from_its_checkpoint() {
         .stderr(Stdio::piped())
         .spawn()
         .unwrap();
-    // Past the first setting and the second's first checkpoint (step 0).
-    let checkpoint = out.join("n=40000").join("fit.ckpt");
+    // Past the first setting and a checkpoint of the second after its
+    // first step (they are written every 100 steps, atomically).
+    let checkpoint = out.join("n=12000").join("fit.ckpt");
     let t = Instant::now();
-    while !checkpoint.exists() {
+    while !Checkpoint::read(&checkpoint).is_ok_and(|c| c.step > 0) {
         assert!(t.elapsed() < Duration::from_secs(60), "no checkpoint");
         assert!(
             child.try_wait().unwrap().is_none(),
@@ -486,28 +488,27 @@ fn an_interrupted_training_setting_resumes_from_its_checkpoint() {
         );
         std::thread::sleep(Duration::from_millis(5));
     }
-    std::thread::sleep(Duration::from_millis(300));
     // SAFETY: signalling our own child by its id.
     assert_eq!(unsafe { libc::kill(child.id() as i32, libc::SIGTERM) }, 0);
     let stopped = child.wait_with_output().unwrap();
     let err = String::from_utf8_lossy(&stopped.stderr);
     assert_eq!(stopped.status.code(), Some(143), "{err}");
-    assert!(!out.join("rows").join("n=40000.json").exists(), "{err}");
+    assert!(!out.join("rows").join("n=12000.json").exists(), "{err}");
 
     let err = ok(&run(&out));
     assert!(err.contains("n=2: skipped (done)"), "{err}");
     assert!(
-        err.contains("n=40000: resuming where an interrupted run stopped"),
+        err.contains("n=12000: resuming where an interrupted run stopped"),
         "{err}"
     );
     let row = |out: &Path| -> serde_json::Value {
-        serde_json::from_slice(&std::fs::read(out.join("rows").join("n=40000.json")).unwrap())
+        serde_json::from_slice(&std::fs::read(out.join("rows").join("n=12000.json")).unwrap())
             .unwrap()
     };
     let resumed = row(&out);
     let from = resumed["reports"][0]["resumed_from"].as_u64();
-    assert!(from.is_some_and(|k| k > 0 && k < 40000), "{resumed}");
-    assert!(!out.join("rows").join("n=40000.started.json").exists());
+    assert!(from.is_some_and(|k| k > 0 && k < 12000), "{resumed}");
+    assert!(!out.join("rows").join("n=12000.started.json").exists());
     // Bit-identical to a sweep that was never stopped.
     let whole = tmp.join("whole");
     ok(&run(&whole));
