@@ -167,11 +167,22 @@ fn export_lines(o: &mut String, outputs: &[sdfl_stdlib::Output], samples: usize,
             K::PointCloud {
                 points,
                 min_opacity,
-            } => writeln!(
-                o,
-                "  point cloud    {p}: up to {points} points where the training cameras' rays end (opacity ≥ {min_opacity}), at most {} rays of {samples} samples",
-                points as u64 * sdfl_stdlib::work::CLOUD_RAYS_PER_POINT
-            ),
+                crop,
+            } => {
+                let kept = match crop {
+                    sdfl_stdlib::value::CloudCrop::Auto => "in the object's region".to_string(),
+                    sdfl_stdlib::value::CloudCrop::None => "anywhere".to_string(),
+                    sdfl_stdlib::value::CloudCrop::Box { min, max } => {
+                        format!("in the box {min:?} to {max:?} of the data's frame")
+                    }
+                };
+                writeln!(
+                    o,
+                    "  point cloud    {p}: up to {points} points where the training cameras' rays end (opacity ≥ {min_opacity}, {kept}), at most {} rays of {samples} samples, normals from each point's {} nearest",
+                    points as u64 * sdfl_stdlib::work::CLOUD_RAYS_PER_POINT,
+                    sdfl_stdlib::work::CLOUD_NORMAL_NEIGHBOURS,
+                )
+            }
             K::RawDepth { .. } | K::DepthMap { .. } => writeln!(
                 o,
                 "  depth export   {p}: expected depth over opacity, one march of {samples} samples a ray over {views} views"

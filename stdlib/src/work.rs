@@ -456,6 +456,9 @@ fn mesh_work<'a>(outputs: impl Iterator<Item = &'a OutputKind>, per_point: f64) 
 /// Rays a point cloud casts at most per point it keeps (it stops once it
 /// has its points; rays whose opacity is too low keep none).
 pub const CLOUD_RAYS_PER_POINT: u64 = 4;
+/// Nearest points a point cloud's normal is fitted to (the point's own
+/// included).
+pub const CLOUD_NORMAL_NEIGHBOURS: usize = 16;
 /// Rays a field export marches at a time (colour, depth, opacity and the
 /// samples' densities and colours of each).
 pub const EXPORT_RAY_CHUNK: usize = 4096;
@@ -487,7 +490,13 @@ fn field_export_work(
             }
             OutputKind::PointCloud { points, .. } => {
                 let rays = points as f64 * CLOUD_RAYS_PER_POINT as f64;
-                Cost::all(rays * samples * per_sample, points as f64 * 32.0 + chunk)
+                // A point, its normal, colour and ray origin, a k-d tree
+                // over the points and the normals' neighbour lists.
+                let points = points as f64;
+                Cost::all(
+                    rays * samples * per_sample + points * CLOUD_NORMAL_NEIGHBOURS as f64 * 30.0,
+                    points * 80.0 + chunk,
+                )
             }
             _ => continue,
         };

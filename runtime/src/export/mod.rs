@@ -24,6 +24,7 @@ use crate::volume::rays::pixel_ray;
 use crate::volume::{DensityModel, ImageSize, Ray, SplitMix64, Stratified, VolumeError};
 
 pub mod depth;
+pub mod normals;
 /// nerfstudio's `camera_path.json`, read when the file is evaluated.
 pub use sdfl_stdlib::camera_path as paths;
 pub mod ply;
@@ -217,44 +218,104 @@ pub fn render_ends(
     march_rays(field, &rays, sampler, last)
 }
 
-/// A coloured point cloud.
+/// A coloured point cloud with normals.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct Cloud {
     /// Point positions.
     pub points: Vec<[f32; 3]>,
+    /// Unit normal per point, facing the camera that saw it
+    /// ([`normals::estimate_normals`]).
+    pub normals: Vec<[f32; 3]>,
     /// Colour per point.
     pub colours: Vec<[u8; 3]>,
     /// Rays it took.
     pub rays: usize,
 }
 
+/// Which of a cloud's points are kept by where they are.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Crop {
+    /// Every point.
+    None,
+    /// Points inside a box of the field's frame.
+    Field {
+        /// Its low corner.
+        min: [f64; 3],
+        /// Its high corner.
+        max: [f64; 3],
+    },
+    /// Points inside a box of the data's frame.
+    Data {
+        /// Its low corner.
+        min: [f64; 3],
+        /// Its high corner.
+        max: [f64; 3],
+    },
+}
+
+impl Crop {
+    /// Whether the point at `field` (the field's frame), `data` (the
+    /// data's) is kept.
+    fn keeps(&self, field: DVec3, data: DVec3) -> bool {
+        let inside = |p: DVec3, min: &[f64; 3], max: &[f64; 3]| {
+            (0..3).all(|a| p[a] >= min[a] && p[a] <= max[a])
+        };
+        match self {
+            Crop::None => true,
+            Crop::Field { min, max } => inside(field, min, max),
+            Crop::Data { min, max } => inside(data, min, max),
+        }
+    }
+}
+
+/// What a point cloud keeps, and how hard it looks.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CloudSettings {
+    /// Points to keep.
+    pub count: usize,
+    /// Opacity a ray needs for its point.
+    pub min_opacity: f32,
+    /// At most this many rays a point are cast.
+    pub rays_per_point: usize,
+    /// Where points are kept.
+    pub crop: Crop,
+    /// Seed of the rays' pixels.
+    pub seed: u64,
+}
+
 /// Up to `count` points where rays through seeded random pixels of `views`
 /// (each camera with its image size) end, where their opacity reaches
-/// `min_opacity`; at most `rays_per_point · count` rays are cast.
-#[allow(clippy::too_many_arguments)]
+/// `min_opacity` inside `crop`; at most `rays_per_point · count` rays are
+/// cast. Positions and normals are in the data's frame (`to_data`).
 pub fn point_cloud(
     field: &dyn RadianceField,
     views: &[(Camera, ImageSize)],
-    count: usize,
-    min_opacity: f32,
-    rays_per_point: usize,
+    settings: CloudSettings,
     sampler: &Stratified,
     last: LastInterval,
-    seed: u64,
     to_data: &DAffine3,
 ) -> Result<Cloud, VolumeError> {
+    let CloudSettings {
+        count,
+        min_opacity,
+        rays_per_point,
+        crop,
+        seed,
+    } = settings;
     let mut cloud = Cloud::default();
     let views: Vec<&(Camera, ImageSize)> = views.iter().filter(|(_, s)| s.pixels() > 0).collect();
     if views.is_empty() {
         return Err(VolumeError::Invalid("no views to cast rays from".into()));
     }
-    if let Some((c, _)) = views.iter().find(|(c, _)| !c.is_valid()) {
-        let _ = c;
+    if views.iter().any(|(c, _)| !c.is_valid()) {
         return Err(VolumeError::InvalidCamera);
     }
     let budget = count.saturating_mul(rays_per_point.max(1));
     let batch = 16_384usize;
     let mut rng = SplitMix64::new(seed ^ 0x0c10_0d00);
+    // Where each kept point was seen from, and the point, in the field's
+    // frame (its normal's way round is found there).
+    let (mut seen_from, mut at) = (Vec::new(), Vec::new());
     while cloud.points.len() < count && cloud.rays < budget {
         let n = batch.min(budget - cloud.rays);
         let rays: Vec<Ray> = (0..n)
@@ -274,19 +335,90 @@ pub fn point_cloud(
             let Some(d) = e.surface_depth(min_opacity) else {
                 continue;
             };
-            let p =
-                DVec3::from(r.origin.map(f64::from)) + DVec3::from(r.dir.map(f64::from)) * d as f64;
+            let origin = DVec3::from(r.origin.map(f64::from));
+            let p = origin + DVec3::from(r.dir.map(f64::from)) * d as f64;
             let q = to_data.transform_point3(p);
-            if !q.is_finite() {
+            if !q.is_finite() || !crop.keeps(p, q) {
                 continue;
             }
             cloud.points.push(q.as_vec3().to_array());
+            seen_from.push(origin);
+            at.push(p);
             cloud
                 .colours
                 .push(e.surface_colour().map(|c| (c * 255.0).round() as u8));
         }
     }
+    let fits = normals::fit_planes(&cloud.points);
+    let outward = density_descent(field, &at, &fits, to_data);
+    let linear = to_data.matrix3;
+    cloud.normals = fits
+        .iter()
+        .zip(&outward)
+        .zip(at.iter().zip(&seen_from))
+        .map(|((f, o), (p, s))| {
+            let back = linear * (*s - *p);
+            normals::orient(f, o.map(|o| o.to_array()), back.to_array())
+        })
+        .collect();
     Ok(cloud)
+}
+
+/// Per point (`at`, in the field's frame), the direction the density
+/// falls fastest in the data's frame, by central differences over the
+/// point's neighbour spacing; `None` where it is not finite.
+fn density_descent(
+    field: &dyn RadianceField,
+    at: &[DVec3],
+    fits: &[normals::Fitted],
+    to_data: &DAffine3,
+) -> Vec<Option<DVec3>> {
+    let to_field = to_data.matrix3.inverse();
+    // Normals move with the inverse transpose (a similarity: its rotation).
+    let normal_to_data = to_field.transpose();
+    let mut probes = Vec::with_capacity(6 * at.len());
+    let mut steps = Vec::with_capacity(at.len());
+    for (p, f) in at.iter().zip(fits) {
+        // The data-frame spacing as a field-frame length (half of it: the
+        // fit's scale, not beyond).
+        let h = 0.5 * (to_field * DVec3::new(f.spacing, 0.0, 0.0)).length();
+        let h = if h > 0.0 && h.is_finite() { h } else { 1e-3 };
+        steps.push(h);
+        for a in 0..3 {
+            for sign in [1.0, -1.0] {
+                let mut q = *p;
+                q[a] += sign * h;
+                probes.push(q.as_vec3().to_array());
+            }
+        }
+    }
+    let dirs = vec![[0.0, 0.0, 1.0]; probes.len()];
+    let mut sigma = vec![0.0f32; probes.len()];
+    let mut rgb = vec![[0.0f32; 3]; probes.len()];
+    for ((p, d), (s, c)) in probes
+        .chunks(NETWORK_ROWS)
+        .zip(dirs.chunks(NETWORK_ROWS))
+        .zip(
+            sigma
+                .chunks_mut(NETWORK_ROWS)
+                .zip(rgb.chunks_mut(NETWORK_ROWS)),
+        )
+    {
+        field.query(p, d, s, c);
+    }
+    sigma
+        .chunks(6)
+        .zip(&steps)
+        .map(|(s, h)| {
+            let gradient = DVec3::new(
+                s[0] as f64 - s[1] as f64,
+                s[2] as f64 - s[3] as f64,
+                s[4] as f64 - s[5] as f64,
+            ) / (2.0 * h);
+            let out = normal_to_data * -gradient;
+            (out.is_finite() && out.length_squared() > 0.0).then_some(out)
+        })
+        .collect()
 }
 
 /// A triangle mesh with a colour per vertex.

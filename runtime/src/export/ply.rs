@@ -40,13 +40,14 @@ pub fn cloud_bytes(c: &Cloud) -> Vec<u8> {
     let mut out = format!(
         "ply\nformat binary_little_endian 1.0\ncomment written by sdfl\n\
          element vertex {}\nproperty float x\nproperty float y\nproperty float z\n\
+         property float nx\nproperty float ny\nproperty float nz\n\
          property uchar red\nproperty uchar green\nproperty uchar blue\nend_header\n",
         c.points.len()
     )
     .into_bytes();
-    out.reserve(c.points.len() * 15);
-    for (p, col) in c.points.iter().zip(&c.colours) {
-        for x in p {
+    out.reserve(c.points.len() * 27);
+    for ((p, n), col) in c.points.iter().zip(&c.normals).zip(&c.colours) {
+        for x in p.iter().chain(n) {
             out.extend_from_slice(&x.to_le_bytes());
         }
         out.extend_from_slice(col);

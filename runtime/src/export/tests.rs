@@ -196,6 +196,7 @@ fn raw_depth_is_in_the_datas_units() {
             size: (size.width, size.height),
             ray_views: &[],
             auto_region: None,
+            object_region: None,
             seed: 1,
             to_data,
         };
@@ -239,21 +240,27 @@ fn point_cloud_points_lie_on_the_surface_with_its_colour() {
     let cloud = point_cloud(
         &f,
         &views,
-        500,
-        0.9,
-        4,
+        CloudSettings {
+            count: 500,
+            min_opacity: 0.9,
+            rays_per_point: 4,
+            crop: Crop::None,
+            seed: 7,
+        },
         &s,
         LastInterval::Infinite,
-        7,
         &DAffine3::IDENTITY,
     )
     .unwrap();
     assert_eq!(cloud.points.len(), 500);
     assert!(cloud.rays >= 500);
     let want = COLOUR.map(|c| (c * 255.0).round() as u8);
-    for (p, c) in cloud.points.iter().zip(&cloud.colours) {
+    for ((p, c), n) in cloud.points.iter().zip(&cloud.colours).zip(&cloud.normals) {
         let r = (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
         assert!((r - R).abs() < 0.02, "point at radius {r}");
+        // The sphere's outward normal, from the neighbouring points.
+        let along = (0..3).map(|a| n[a] * p[a] / r).sum::<f32>();
+        assert!(along > 0.95, "normal {n:?} at {p:?}");
         assert!(
             c.iter().zip(&want).all(|(a, b)| a.abs_diff(*b) <= 1),
             "{c:?}"
@@ -263,12 +270,15 @@ fn point_cloud_points_lie_on_the_surface_with_its_colour() {
     let again = point_cloud(
         &f,
         &views,
-        500,
-        0.9,
-        4,
+        CloudSettings {
+            count: 500,
+            min_opacity: 0.9,
+            rays_per_point: 4,
+            crop: Crop::None,
+            seed: 7,
+        },
         &s,
         LastInterval::Infinite,
-        7,
         &DAffine3::IDENTITY,
     )
     .unwrap();
@@ -281,12 +291,15 @@ fn point_cloud_points_lie_on_the_surface_with_its_colour() {
     let none = point_cloud(
         &empty,
         &views,
-        100,
-        0.5,
-        4,
+        CloudSettings {
+            count: 100,
+            min_opacity: 0.5,
+            rays_per_point: 4,
+            crop: Crop::None,
+            seed: 1,
+        },
         &s,
         LastInterval::Infinite,
-        1,
         &DAffine3::IDENTITY,
     )
     .unwrap();
@@ -334,10 +347,70 @@ fn ply_files_have_the_declared_sizes() {
     );
     let cloud = Cloud {
         points: vec![[1.0, 2.0, 3.0]],
+        normals: vec![[0.0, 0.6, 0.8]],
         colours: vec![[4, 5, 6]],
         rays: 1,
     };
     let b = ply::cloud_bytes(&cloud);
     assert!(b.ends_with(&[4, 5, 6]));
-    assert_eq!(&b[b.len() - 15..b.len() - 11], &1.0f32.to_le_bytes());
+    assert_eq!(&b[b.len() - 27..b.len() - 23], &1.0f32.to_le_bytes());
+    assert_eq!(&b[b.len() - 11..b.len() - 7], &0.6f32.to_le_bytes());
+    let end = b.windows(11).position(|w| w == b"end_header\n").unwrap() + 11;
+    assert_eq!(b.len() - end, 27);
+}
+
+/// A crop keeps only the points inside its box: in the field's frame, or
+/// in the data's (here twice the field's, moved by 1 along x).
+#[test]
+fn point_clouds_keep_only_the_points_in_their_crop() {
+    let f = sphere(200.0, 0.005);
+    let s = Stratified::new(512, 1.0, 5.0).unwrap();
+    let views = cameras();
+    let to_data = DAffine3::from_scale_rotation_translation(
+        DVec3::splat(2.0),
+        glam::DQuat::IDENTITY,
+        DVec3::new(1.0, 0.0, 0.0),
+    );
+    let cloud = |crop| {
+        point_cloud(
+            &f,
+            &views,
+            CloudSettings {
+                count: 300,
+                min_opacity: 0.9,
+                rays_per_point: 8,
+                crop,
+                seed: 3,
+            },
+            &s,
+            LastInterval::Infinite,
+            &to_data,
+        )
+        .unwrap()
+    };
+    // The upper half of the sphere (y ≥ 0), in either frame.
+    let field = cloud(Crop::Field {
+        min: [-2.0, 0.0, -2.0],
+        max: [2.0, 2.0, 2.0],
+    });
+    let data = cloud(Crop::Data {
+        min: [-3.0, 0.0, -4.0],
+        max: [5.0, 4.0, 4.0],
+    });
+    for c in [&field, &data] {
+        assert_eq!(c.points.len(), 300);
+        assert_eq!(c.normals.len(), 300);
+        assert!(c.points.iter().all(|p| p[1] >= 0.0), "a point below y = 0");
+    }
+    assert_eq!(field, data);
+    // Without a crop, points fall on both halves.
+    let all = cloud(Crop::None);
+    assert!(all.points.iter().any(|p| p[1] < -0.1) && all.points.iter().any(|p| p[1] > 0.1));
+    // A box nothing reaches keeps no point, within the ray budget.
+    let none = cloud(Crop::Field {
+        min: [5.0; 3],
+        max: [6.0; 3],
+    });
+    assert!(none.points.is_empty() && none.normals.is_empty());
+    assert_eq!(none.rays, 300 * 8);
 }

@@ -7,7 +7,7 @@ use std::time::Instant;
 
 use glam::DAffine3;
 use sdfl_stdlib::camera::Camera;
-use sdfl_stdlib::value::{MeshRegion, Output, OutputKind, Sampler};
+use sdfl_stdlib::value::{CloudCrop, MeshRegion, Output, OutputKind, Sampler};
 
 use super::{depth, ply, RadianceField};
 use crate::mesh::{MeshGrid, MeshStats};
@@ -30,6 +30,9 @@ pub struct ExportContext<'a> {
     pub ray_views: &'a [(Camera, ImageSize)],
     /// The region `bounds: "auto"` stands for.
     pub auto_region: Option<([f64; 3], [f64; 3])>,
+    /// The object's region in the field's frame, where a point cloud with
+    /// `crop: "auto"` keeps its points (none: everywhere).
+    pub object_region: Option<([f64; 3], [f64; 3])>,
     /// Seed of the point cloud's rays.
     pub seed: u64,
     /// From the field's frame into the data's own: positions of meshes
@@ -105,16 +108,27 @@ pub fn write_field_exports(
             OutputKind::PointCloud {
                 points,
                 min_opacity,
+                crop,
             } => {
+                let crop = match crop {
+                    CloudCrop::None => super::Crop::None,
+                    CloudCrop::Auto => cx.object_region.map_or(super::Crop::None, |(min, max)| {
+                        super::Crop::Field { min, max }
+                    }),
+                    CloudCrop::Box { min, max } => super::Crop::Data { min, max },
+                };
                 let cloud = super::point_cloud(
                     field,
                     cx.ray_views,
-                    points as usize,
-                    min_opacity as f32,
-                    sdfl_stdlib::work::CLOUD_RAYS_PER_POINT as usize,
+                    super::CloudSettings {
+                        count: points as usize,
+                        min_opacity: min_opacity as f32,
+                        rays_per_point: sdfl_stdlib::work::CLOUD_RAYS_PER_POINT as usize,
+                        crop,
+                        seed: cx.seed,
+                    },
                     &strat,
                     last,
-                    cx.seed,
                     &cx.to_data,
                 )
                 .map_err(|e| named(&e))?;

@@ -343,6 +343,7 @@ pub fn run_volume_job(
             size: wh,
             ray_views: &ray_views,
             auto_region: job.field.export_region(),
+            object_region: job.field.object_region(),
             seed: 0,
             to_data: glam::DAffine3::IDENTITY,
         };

@@ -20,7 +20,7 @@ use crate::shape::{
     ArgKind, ArgReader, Axis, CappedCone, Check, Cuboid, Declared, KindVisitor, Primitive, Shape,
 };
 use crate::value::{
-    describe, Backend, CaptureFormat, CaptureOrient, CaptureSpec, Colormap, Dataset,
+    describe, Backend, CaptureFormat, CaptureOrient, CaptureSpec, CloudCrop, Colormap, Dataset,
     DensityActivation, DensityKind, Encoding, Field, Harmonic, HashGridSpec, HitTolerance,
     LastInterval, Loss, LossKind, MeshRegion, Moments, Nerf, NeuralSdf, NeuralSurface, ObjectMasks,
     OccupancySpec, Optimizer, Output, OutputKind, Precision, RenderJob, Sampler, Schedule,

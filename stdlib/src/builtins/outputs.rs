@@ -130,17 +130,30 @@ pub(crate) fn builtins() -> Vec<Builtin> {
         ),
         func(
             "point_cloud",
-            "Points where rays of the training cameras (a `volume`'s cameras) end: at the expected depth over the accumulated opacity, coloured by the rendered colour over the opacity, kept where the opacity reaches `min_opacity`; a binary PLY point cloud with colours, as nerfstudio's `ns-export pointcloud`. Rays go through seeded random pixels until `points` are kept or four times as many rays were cast.",
+            "Points where rays of the training cameras (a `volume`'s cameras) end: at the expected depth over the accumulated opacity, coloured by the rendered colour over the opacity, kept where the opacity reaches `min_opacity` inside `crop`; a binary PLY point cloud with normals (fitted to each point's 16 nearest, facing where the density falls) and colours, as nerfstudio's `ns-export pointcloud`. Rays go through seeded random pixels until `points` are kept or four times as many rays were cast (a tight crop may keep fewer).",
             vec![
                 req("path", Type::Str, "file name inside the output directory (.ply)"),
                 opt("points", Type::Number, "100000", "points to keep (1 to 10 000 000)"),
                 opt("min_opacity", Type::Number, "0.5", "accumulated opacity a ray needs for its point (0 to 1)"),
+                opt(
+                    "crop",
+                    Type::OneOf(vec![Type::Str, Type::list(Type::Vec3)]),
+                    "\"auto\"",
+                    "which points are kept by where they are: `[[x0, y0, z0], [x1, y1, z1]]` in the data's frame, \"none\", or \"auto\": the object's region (an unbounded scene's inner box, else the field's hash grid or occupancy grid box)",
+                ),
             ],
             OUTPUT,
             |a| {
                 let points = a.count("points", 1, MAX_CLOUD_POINTS)? as u32;
                 let min_opacity = opacity(a)?;
-                out(a, OutputKind::PointCloud { points, min_opacity }, "ply")
+                let crop = match a.get("crop").0 {
+                    Value::Str(s) if &**s == "none" => CloudCrop::None,
+                    _ => match region(a, "crop")? {
+                        MeshRegion::Auto => CloudCrop::Auto,
+                        MeshRegion::Box { min, max } => CloudCrop::Box { min, max },
+                    },
+                };
+                out(a, OutputKind::PointCloud { points, min_opacity, crop }, "ply")
             },
         ),
         func(
@@ -206,13 +219,19 @@ fn out(a: &Args, kind: OutputKind, ext: &str) -> Result<Value, Diag> {
 }
 
 fn mesh_region(a: &Args) -> Result<MeshRegion, Diag> {
-    let (v, span) = a.get("bounds");
+    region(a, "bounds")
+}
+
+/// The region argument `name`: "auto" or two corners.
+fn region(a: &Args, name: &str) -> Result<MeshRegion, Diag> {
+    let (v, span) = a.get(name);
     let wrong = || {
+        let none = if name == "crop" { ", \"none\"" } else { "" };
         value_error(
             span,
-            "`bounds` is \"auto\" or two corners",
+            format!("`{name}` is \"auto\"{none} or two corners"),
             "not a region",
-            "write `bounds: [[-1, -1, -1], [1, 1, 1]]` (lower and upper corner) or leave it out",
+            format!("write `{name}: [[-1, -1, -1], [1, 1, 1]]` (lower and upper corner) or leave it out"),
         )
     };
     match v {
@@ -221,7 +240,7 @@ fn mesh_region(a: &Args) -> Result<MeshRegion, Diag> {
             let corner = |v: &Value| -> Result<[f64; 3], Diag> {
                 let p = v.as_vec3().ok_or_else(wrong)?.to_array();
                 for x in p {
-                    f32_range(x, span, "bounds")?;
+                    f32_range(x, span, name)?;
                 }
                 Ok(p)
             };

@@ -2,7 +2,7 @@
 
 use std::sync::Arc;
 
-use super::{Encoding, Harmonic, Nerf};
+use super::{Encoding, Harmonic, Nerf, Unbounded};
 use crate::density::DensityKind;
 use crate::material::Material;
 use crate::param::Arg;
@@ -42,6 +42,20 @@ impl Field {
                 .bounds()
                 .map(|b| (b.min.to_array(), b.max.to_array())),
             Field::NeuralSdf(_) | Field::NeuralSurface(_) => None,
+        }
+    }
+
+    /// The object's region, where a point cloud with `crop: "auto"` keeps
+    /// its points: an unbounded NeRF's inner box (none in NDC, where all
+    /// of the view is the scene), else [`Field::export_region`].
+    pub fn object_region(&self) -> Option<([f64; 3], [f64; 3])> {
+        match self {
+            Field::Nerf(n) => match &n.unbounded {
+                Some(Unbounded::Contract(c)) => Some((c.min, c.max)),
+                Some(Unbounded::Ndc(_)) => None,
+                None => self.export_region(),
+            },
+            _ => self.export_region(),
         }
     }
 }

@@ -90,12 +90,14 @@ pub enum OutputKind {
     },
     /// Where rays of the training cameras end (expected depth), coloured by
     /// the rendered colour, where the accumulated opacity reaches
-    /// `min_opacity`: a PLY point cloud.
+    /// `min_opacity` inside `crop`: a PLY point cloud with normals.
     PointCloud {
         /// Points kept (spread over the views).
         points: u32,
         /// Rays less opaque than this give no point.
         min_opacity: f64,
+        /// Which points are kept by where they are.
+        crop: CloudCrop,
     },
     /// Expected depth over accumulated opacity per view as float32 `.npy`
     /// (rows × columns), NaN where the opacity is below `min_opacity`.
@@ -177,6 +179,25 @@ impl Colormap {
             Colormap::Cividis => "cividis",
         }
     }
+}
+
+/// Which of a point cloud's points are kept by where they are.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum CloudCrop {
+    /// The object's region: a contraction's inner box, else the field's
+    /// bounds (its hash grid's or occupancy grid's box); every point when
+    /// the field has neither.
+    Auto,
+    /// Every point.
+    None,
+    /// Points inside a box of the data's frame (the cloud's own).
+    Box {
+        /// Its low corner.
+        min: [f64; 3],
+        /// Its high corner.
+        max: [f64; 3],
+    },
 }
 
 /// Where a mesh is extracted.

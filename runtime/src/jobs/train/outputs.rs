@@ -157,6 +157,11 @@ impl Outputs<'_> {
             size: self.size,
             ray_views: &self.ray_views,
             auto_region: field.region(),
+            // A neural surface's region is its training bounds.
+            object_region: match &*self.job.model {
+                Field::Nerf(_) => self.job.model.object_region(),
+                other => other.object_region().or(field.region()),
+            },
             seed: self.job.seed,
             to_data: self.to_data,
         };
