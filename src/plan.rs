@@ -376,14 +376,20 @@ pub(crate) fn plan_text_in(program: &sdfl_stdlib::Program, base: &std::path::Pat
                 path,
                 split,
                 test_split,
+                downscale,
                 ..
             } => format!(
-                "NeRF-synthetic data set {}, split `{split}`{}",
+                "NeRF-synthetic data set {}, split `{split}`{}{}",
                 path.display(),
                 test_split
                     .as_ref()
                     .map(|t| format!(", test views from split `{t}`"))
-                    .unwrap_or_default()
+                    .unwrap_or_default(),
+                if *downscale > 1 {
+                    format!(", every image box-filtered to 1/{downscale} a side")
+                } else {
+                    String::new()
+                }
             ),
             sdfl_stdlib::value::Dataset::Capture(c) => format!(
                 "capture {} ({}{}), {}{}; the scene frame is reported when read",
@@ -570,7 +576,7 @@ fn data_lines(
     };
     let _ = writeln!(
         o,
-        "  data memory    {views}{}, {:.0} pixels: {} held through training (8-bit files as 8-bit RGBA, others as f32 RGB, and a byte a pixel of coverage or mask where kept; {read})",
+        "  data memory    {views}{}, {:.0} pixels: {} held through training (8-bit files as 8-bit RGBA, others and box-filtered ones as f32 RGB, and a byte a pixel of coverage or mask where kept; {read})",
         match (e.test_views, e.test_views_in_data) {
             (n, all) if n < all => format!(", {n} of its {all} held-out views read and scored (`eval_views`)"),
             (n, _) => held_out(n),

@@ -11,3 +11,6 @@ pub const MAX_IMAGE_SIDE: u32 = 16_384;
 pub const MAX_VIEWS: usize = 10_000;
 /// Most sphere-tracing iterations per ray.
 pub const MAX_ITERATIONS: u32 = 100_000;
+/// The largest factor images are box-filtered down by a side
+/// (`nerf_synthetic(downscale:)`, `eval_downscale`).
+pub const MAX_DOWNSCALE: u64 = 64;

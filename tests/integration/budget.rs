@@ -227,6 +227,47 @@ train s {
     );
 }
 
+/// `nerf_synthetic(downscale: 4)`: `plan` counts the views at their small
+/// size, held as f32 RGB (the blocks' means): the same bytes `run` counts
+/// once it has read them.
+#[test]
+fn plan_counts_a_downscaled_set_at_its_small_size() {
+    let dir = case_dir("plan_downscaled");
+    data_set(&dir);
+    let text = scene(100).replace("test_split: \"test\"", "test_split: \"test\", downscale: 4");
+    fs::write(dir.join("t.sdfl"), text).unwrap();
+    let plan = plan_in(&dir, "t.sdfl");
+    // Six 16×16 views at 4×4: 96 pixels of 12 bytes.
+    let data = line(&plan, "data memory");
+    assert!(
+        data.contains("6 views of 4x4, 3 held out as test views, 96 pixels"),
+        "{data}"
+    );
+    assert!(
+        line(&plan, "data ").contains("box-filtered to 1/4 a side"),
+        "{plan}"
+    );
+    let views: Vec<_> = sdfl_runtime::data::nerf_synthetic::read_splits(
+        &dir.join("set"),
+        &["train", "test"].map(|s| SplitRead {
+            downscale: 4,
+            ..SplitRead::all(s)
+        }),
+        glam::DVec3::ONE,
+    )
+    .unwrap()
+    .into_iter()
+    .flatten()
+    .collect();
+    let held = sdfl_runtime::data::views_bytes(&views);
+    assert_eq!(held, 96.0 * 12.0);
+    let shown = sdfl_stdlib::size::fmt_bytes(held);
+    assert!(
+        data.contains(&format!(": {shown} held through training")),
+        "{data}"
+    );
+}
+
 /// `eval_views` scores fewer held-out views, evenly spaced with the first
 /// included, and the others are never read: `plan` counts only those
 /// (their bytes and their scoring), `run` scores only those, and a view
@@ -317,6 +358,51 @@ fn the_nerf_synthetic_benchmark_runs_on_a_set_of_its_layout() {
     let r = run_report(&dir, "lego.sdfl");
     assert_eq!(r["held_out"][0]["views"].as_u64(), Some(3), "{r}");
     for f in ["lego_psnr.png", "lego_test.png", "lego.ckpt"] {
+        assert!(dir.join("out").join(f).is_file(), "{f}");
+    }
+}
+
+/// examples/benchmarks/nerf_synthetic_small.sdfl on a small set of its
+/// layout (16² read at 4²), its steps cut to 2: `plan` reads the set at
+/// the small size, and `run` trains, scores the test views and writes its
+/// outputs.
+#[test]
+fn the_small_nerf_synthetic_benchmark_runs_on_a_set_of_its_layout() {
+    let dir = case_dir("benchmark_nerf_synthetic_small");
+    data_set(&dir);
+    let example =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/benchmarks/nerf_synthetic_small.sdfl");
+    let text = fs::read_to_string(example).unwrap();
+    let (data, steps) = ("let data = \"nerf_synthetic/lego\"", "let steps = ");
+    assert!(
+        text.contains(data) && text.contains(steps),
+        "the example's settings moved"
+    );
+    let text: String = text
+        .replace(data, "let data = \"set\"")
+        .lines()
+        .map(|l| {
+            if l.starts_with(steps) {
+                "let steps = 2"
+            } else {
+                l
+            }
+        })
+        .collect::<Vec<_>>()
+        .join("\n");
+    fs::write(dir.join("lego.sdfl"), text).unwrap();
+    let plan = plan_in(&dir, "lego.sdfl");
+    assert!(
+        line(&plan, "data memory").contains("6 views of 4x4, 3 held out as test views"),
+        "{plan}"
+    );
+    let r = run_report(&dir, "lego.sdfl");
+    assert_eq!(r["held_out"][0]["views"].as_u64(), Some(3), "{r}");
+    for f in [
+        "lego_small_psnr.png",
+        "lego_small_test.png",
+        "lego_small.ckpt",
+    ] {
         assert!(dir.join("out").join(f).is_file(), "{f}");
     }
 }

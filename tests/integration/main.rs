@@ -29,6 +29,7 @@ mod hostile_io;
 mod hostile_lang;
 mod idr;
 mod nerf;
+mod nerf_synthetic_downscale;
 mod neural_sdf;
 mod neural_surface;
 mod readme;

@@ -6,8 +6,8 @@ use std::io;
 
 use super::format::PlannedView;
 use super::formats;
-use super::image::{image_dimensions, view_bytes_per_pixel};
-use super::view::{DataNeeds, TrainView};
+use super::image::{held_bytes_per_pixel, image_dimensions};
+use super::view::{downscale_size_of, DataNeeds, TrainView};
 use super::view_image;
 
 /// Bytes a view of `pixels` holds once read: its colours (`colour`
@@ -99,9 +99,11 @@ pub struct Estimate {
     pub test_views_in_data: usize,
     /// Headers read (all views' up to [`MAX_HEADERS`]).
     pub headers: usize,
-    /// The image size, where every header read gives the same.
+    /// The image size as held (box-filtered where the data set
+    /// downscales), where every header read gives the same.
     pub size: Option<(u32, u32)>,
-    /// Every view's pixels (a view not read as the mean of those read).
+    /// Every view's pixels as held (a view not read as the mean of those
+    /// read).
     pub pixels: f64,
     /// Bytes the views hold through training ([`view_bytes`]).
     pub held: f64,
@@ -127,6 +129,7 @@ fn planned(
                     image: base.join(p),
                     mask: false,
                     held_out: false,
+                    downscale: 1,
                 })
                 .collect(),
         ));
@@ -137,7 +140,10 @@ fn planned(
 /// Estimates `job`'s data set read from files (paths relative to `base`)
 /// from the headers of its images, at most [`MAX_HEADERS`] of them spread
 /// over the set; `None` where its data are not images read from files.
-/// Errors are those reading its files (a missing image, a bad header).
+/// Views box-filtered once decoded (`nerf_synthetic(downscale:)`) count
+/// their small size, held as f32 RGB, and decode at their whole size.
+/// Errors are those reading its files (a missing image, a bad header, a
+/// `downscale` that does not divide the images).
 pub fn estimate(
     job: &sdfl_stdlib::value::TrainJob,
     base: &std::path::Path,
@@ -167,17 +173,19 @@ pub fn estimate(
     // The widest colour of the sample stands for every view's.
     let mut colour = view_image::RGBA8_BYTES;
     for &k in &sample {
-        let image = &views[k].image;
+        let (image, downscale) = (&views[k].image, views[k].downscale);
         let (w, h) = image_dimensions(image)?;
-        colour = colour.max(view_bytes_per_pixel(image)?);
-        let px = w as f64 * h as f64;
+        colour = colour.max(held_bytes_per_pixel(image, downscale)?);
+        // Decoded whole, held box-filtered.
+        let decoded = w as f64 * h as f64;
         let file = std::fs::metadata(image).map_or(0.0, |m| m.len() as f64);
-        if decode_bytes(px, file) > decode_bytes(largest.0, largest.1) {
-            largest = (px, file);
+        if decode_bytes(decoded, file) > decode_bytes(largest.0, largest.1) {
+            largest = (decoded, file);
         }
+        let (w, h) = downscale_size_of(image, (w, h), downscale)?;
         same &= size.is_none_or(|s| s == (w, h));
         size = Some((w, h));
-        pixels[k] = Some(px);
+        pixels[k] = Some(w as f64 * h as f64);
     }
     let mean = sample.iter().filter_map(|&k| pixels[k]).sum::<f64>() / sample.len().max(1) as f64;
     let coverage = DataNeeds::of(job).coverage;

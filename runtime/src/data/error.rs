@@ -91,6 +91,10 @@ pub fn coded(e: &io::Error) -> Option<&Coded> {
     }
 }
 
+/// The stable code of a `downscale` factor that does not divide the data
+/// set's image size.
+pub const DOWNSCALE: &str = "sdfl::data::downscale";
+
 /// The error of an image without alpha read for `silhouette()`.
 pub fn no_coverage(path: &Path) -> io::Error {
     Coded {

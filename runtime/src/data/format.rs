@@ -62,8 +62,10 @@ pub struct Request {
     /// The data set: its directory, or a format's own file (a `.json`),
     /// resolved against the program's directory.
     pub path: PathBuf,
-    /// Images read at `1/downscale` of their size, from the format's
-    /// downscaled folders (1: full size).
+    /// Images read at `1/downscale` of their size (1: full size): a
+    /// capture's from its format's downscaled folders (`images_<n>/`), a
+    /// NeRF-synthetic set's (which has none) decoded whole and
+    /// box-filtered ([`super::view::TrainView::downscaled`]).
     pub downscale: u32,
     /// Which views are held out.
     pub split: Split,
@@ -138,6 +140,9 @@ pub struct PlannedView {
     pub mask: bool,
     /// Whether it is held out (only scored).
     pub held_out: bool,
+    /// The factor it is box-filtered down by a side once decoded (1:
+    /// kept as decoded; a capture's downscaled folders hold small files).
+    pub downscale: u32,
 }
 
 /// A data set's views as its format read them.

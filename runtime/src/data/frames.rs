@@ -77,6 +77,7 @@ pub fn planned_every_nth(images: Vec<PathBuf>, every: usize) -> Vec<PlannedView>
             image,
             mask: false,
             held_out: test.binary_search(&k).is_ok(),
+            downscale: 1,
         })
         .collect()
 }

@@ -97,11 +97,22 @@ pub fn image_dimensions(path: &Path) -> io::Result<(u32, u32)> {
 /// Checks a data set's declared sizes before any image is decoded: each
 /// within the side limit, all together within [`MAX_DATASET_BYTES`].
 pub fn check_dataset<P: AsRef<Path>>(paths: impl IntoIterator<Item = P>) -> io::Result<()> {
+    check_dataset_downscaled(paths.into_iter().map(|p| (p, 1)))
+}
+
+/// [`check_dataset`] of images each held at 1/`downscale` of its size a
+/// side (box-filtered once decoded: [`held_bytes_per_pixel`]); every
+/// image is still decoded whole, so each side stays within the limit.
+pub fn check_dataset_downscaled<P: AsRef<Path>>(
+    images: impl IntoIterator<Item = (P, u32)>,
+) -> io::Result<()> {
     let mut total = 0u64;
-    for p in paths {
+    for (p, downscale) in images {
         let (w, h) = image_dimensions(p.as_ref())?;
-        let colour = view_bytes_per_pixel(p.as_ref())? as u64;
-        total = total.saturating_add((w as u64 * h as u64).saturating_mul(colour));
+        let colour = held_bytes_per_pixel(p.as_ref(), downscale)? as u64;
+        let d = downscale.max(1) as u64;
+        let pixels = (w as u64 / d) * (h as u64 / d);
+        total = total.saturating_add(pixels.saturating_mul(colour));
         if total > MAX_DATASET_BYTES {
             return Err(invalid(
                 p.as_ref(),
@@ -320,6 +331,17 @@ pub fn view_bytes_per_pixel(path: &Path) -> io::Result<f64> {
     } else {
         super::view_image::RGB32_BYTES
     })
+}
+
+/// Bytes a pixel of the image at `path` takes once read for training at
+/// 1/`downscale` of its size a side: [`view_bytes_per_pixel`] as decoded;
+/// 12 (f32 RGB, the blocks' means) when box-filtered.
+pub fn held_bytes_per_pixel(path: &Path, downscale: u32) -> io::Result<f64> {
+    if downscale > 1 {
+        Ok(super::view_image::RGB32_BYTES)
+    } else {
+        view_bytes_per_pixel(path)
+    }
 }
 
 /// RGBA pixels composited over `background` (alpha clamped to [0, 1]).

@@ -29,5 +29,7 @@ pub use budget::{
     decode_bytes, estimate, view_bytes, views_bytes, Estimate, OnceRead, MAX_HEADERS,
 };
 pub use camera::{check_position, check_rigid, check_rotation, MAX_POSITION};
-pub use error::{argument_span, at_argument, coded, no_coverage, AtArgument, Coded, NO_COVERAGE};
-pub use view::{coverage_from_alpha, DataNeeds, TrainView};
+pub use error::{
+    argument_span, at_argument, coded, no_coverage, AtArgument, Coded, DOWNSCALE, NO_COVERAGE,
+};
+pub use view::{coverage_from_alpha, downscale_size_of, downscaled_size, DataNeeds, TrainView};

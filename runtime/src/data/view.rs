@@ -33,31 +33,69 @@ pub fn coverage_from_alpha(rgba: &[[f32; 4]]) -> Arc<[u8]> {
         .collect()
 }
 
+/// The size of a `w × h` image box-filtered to 1/`n` a side (1: as it
+/// is), or why `n` cannot: it must divide both sides (the message names
+/// the factors up to 16 that do).
+pub fn downscaled_size(w: u32, h: u32, n: u32) -> Result<(u32, u32), String> {
+    if n <= 1 {
+        return Ok((w, h));
+    }
+    if !w.is_multiple_of(n) || !h.is_multiple_of(n) {
+        let divisors: Vec<String> = (2..=16)
+            .filter(|&d| w.is_multiple_of(d) && h.is_multiple_of(d))
+            .map(|d| d.to_string())
+            .collect();
+        return Err(format!(
+            "{n} does not divide its {w}x{h} images{}",
+            if divisors.is_empty() {
+                " (no factor up to 16 does)".to_string()
+            } else {
+                format!(" (factors that do: {})", divisors.join(", "))
+            }
+        ));
+    }
+    Ok((w / n, h / n))
+}
+
+/// The size of `path`'s `w × h` images read at 1/`downscale` a side, or
+/// the coded error (`sdfl::data::downscale`) of a factor that does not
+/// divide it, naming the factors that do ([`downscaled_size`]).
+pub fn downscale_size_of(
+    path: &std::path::Path,
+    (w, h): (u32, u32),
+    downscale: u32,
+) -> io::Result<(u32, u32)> {
+    downscaled_size(w, h, downscale).map_err(|why| {
+        super::error::Coded {
+            code: super::error::DOWNSCALE,
+            message: format!("{}: `downscale`: {why}", path.display()),
+            help:
+                "give a factor that divides the images' width and height, or leave `downscale` out",
+        }
+        .into_io()
+    })
+}
+
 impl TrainView {
-    /// The view at 1/`n` of its size a side (`n` dividing both): each
-    /// block of `n`×`n` pixels becomes its mean over the block's unmasked
-    /// pixels (masked out only where all of them are), its coverage the
-    /// block's mean. The camera is the same: it renders at any size.
+    /// The view at 1/`n` of its size a side (`n` dividing both,
+    /// [`downscaled_size`]): each block of `n`×`n` pixels becomes its
+    /// mean over the block's unmasked pixels (masked out only where all of
+    /// them are), its coverage the block's mean. Colours are averaged as
+    /// the view holds them, composited over the background: the mean of
+    /// `rgb·a + bg·(1 − a)` is the block's premultiplied mean over the
+    /// same background, so averaging RGBA with premultiplied alpha and
+    /// compositing after gives the same colour. The camera is the same:
+    /// its rays are functions of the fractional pixel position over the
+    /// image size, so a pixel of the small image sees the ray through its
+    /// block's centre (half-pixel centres and pixel intrinsics; the
+    /// conventions' corner centres do not, but no data set has them).
     pub fn downscaled(&self, n: u32) -> Result<TrainView, String> {
         let (w, h) = (self.image.width, self.image.height);
         if n <= 1 {
             return Ok(self.clone());
         }
-        if w % n != 0 || h % n != 0 {
-            let divisors: Vec<String> = (2..=16)
-                .filter(|d| w % d == 0 && h % d == 0)
-                .map(|d| d.to_string())
-                .collect();
-            return Err(format!(
-                "{n} does not divide its {w}x{h} images{}",
-                if divisors.is_empty() {
-                    String::new()
-                } else {
-                    format!(" (factors that do: {})", divisors.join(", "))
-                }
-            ));
-        }
-        let (sw, sh, n) = ((w / n) as usize, (h / n) as usize, n as usize);
+        let (sw, sh) = downscaled_size(w, h, n)?;
+        let (sw, sh, n) = (sw as usize, sh as usize, n as usize);
         let (w, nn) = (w as usize, (n * n) as f32);
         let kept = |i: usize| self.mask.as_ref().is_none_or(|m| m[i]);
         let mut colour = Vec::with_capacity(sw * sh);

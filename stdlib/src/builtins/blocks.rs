@@ -355,7 +355,7 @@ pub(crate) fn train_block(name: &str, a: &Args) -> Built<TrainJob> {
     };
     let eval_every = e.ok(a.count("eval_every", 0, 10_000_000));
     let eval_views = e.ok(a.count("eval_views", 0, crate::limits::MAX_VIEWS as u64));
-    let eval_downscale = e.ok(a.count("eval_downscale", 1, 64));
+    let eval_downscale = e.ok(a.count("eval_downscale", 1, MAX_DOWNSCALE));
     let bounds = e.ok(a.positive("bounds"));
     let (width, height) = size.unwrap_or((1, 1));
     let epochs = epochs.unwrap_or(0) as usize;

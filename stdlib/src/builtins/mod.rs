@@ -59,7 +59,7 @@ pub const SHADOWS: Type = Type::Named("soft shadow");
 pub const OCCLUSION: Type = Type::Named("ambient occlusion");
 /// The checker's type of fog.
 pub const FOG: Type = Type::Named("fog");
-pub use crate::limits::{MAX_IMAGE_SIDE, MAX_ITERATIONS, MAX_SAMPLES, MAX_VIEWS};
+pub use crate::limits::{MAX_DOWNSCALE, MAX_IMAGE_SIDE, MAX_ITERATIONS, MAX_SAMPLES, MAX_VIEWS};
 
 /// Arguments bound to parameter names, each with the span it came from
 /// (the call's span for defaults).
@@ -654,6 +654,7 @@ fn table() -> Vec<Builtin> {
                 opt("split", Type::Str, "\"train\"", "which transforms file holds the training views"),
                 opt("test_split", Type::Str, "\"\"", "which transforms file holds the test views (\"\": none), e.g. \"test\""),
                 opt("background", Type::Vec3, "[1, 1, 1]", "colour behind transparent pixels"),
+                opt("downscale", Type::Number, "1", "train and score at 1/N of the images' size a side (1 to 64, N dividing the width and height): each block of N×N pixels averaged once composited over `background` (alpha premultiplied), focal lengths and principal point scaled to match; Lego's 800² at 4 is 200²"),
             ],
             DATASET,
             |a| {
@@ -677,12 +678,15 @@ fn table() -> Vec<Builtin> {
                 let test_split = split_name("test_split")?;
                 data::check_nerf_synthetic(a, Path::new(path.as_ref()), &split, test_split.as_deref())?;
                 let (bg, bg_span) = (a.vec3("background")?, a.get("background").1);
+                let downscale = a.count("downscale", 1, MAX_DOWNSCALE)? as u32;
                 Ok(Value::Dataset(Arc::new(Dataset::NerfSynthetic {
                     path: PathBuf::from(path.as_ref()),
                     path_span,
                     split,
                     test_split,
                     background: colour(bg, bg_span)?,
+                    downscale,
+                    downscale_span: a.get("downscale").1,
                 })))
             },
         ),

@@ -67,6 +67,13 @@ pub enum Dataset {
         test_split: Option<String>,
         /// The colour transparent pixels are composited over.
         background: DVec3,
+        /// Every image box-filtered to 1/`downscale` of its size a side
+        /// once composited (1: full size); the cameras see the same rays
+        /// through the blocks' centres.
+        downscale: u32,
+        /// The `downscale` argument (the call's span where it is not
+        /// given), where a factor the images' size refuses points.
+        downscale_span: sdfl_lang::Span,
     },
     /// A real capture (`capture(...)`): nerfstudio's `transforms.json`,
     /// COLMAP's text model, LLFF's `poses_bounds.npy` or IDR's

@@ -9,7 +9,7 @@ use std::path::Path;
 
 use sdfl_stdlib::value::{CaptureFormat, CaptureOrient, CaptureSpec, Dataset, ObjectMasks};
 
-use super::error::{at_argument, invalid};
+use super::error::{at_argument, coded, invalid, DOWNSCALE};
 use super::format::{Format, FormatViews, Normalize, PlannedView, Request, Split};
 use super::normalize::Orient;
 use super::view::{check_finite, opaque_alpha_warning, DataNeeds};
@@ -87,12 +87,29 @@ pub fn capture_request(spec: &CaptureSpec, path: &Path, needs: DataNeeds) -> Req
     }
 }
 
-/// A data set a format reads: the format, the request, and the argument
-/// that names its path (where errors point).
+/// A data set a format reads: the format, the request, and the arguments
+/// that name its path and its downscale (where errors point).
 struct Source {
     format: &'static dyn Format,
     request: Request,
     span: sdfl_lang::Span,
+    downscale_span: sdfl_lang::Span,
+}
+
+impl Source {
+    /// `e` at the argument it is about: a `downscale` the images refuse
+    /// at `downscale`, anything else at the path.
+    fn at(&self, e: io::Error) -> io::Error {
+        let about_downscale = coded(&e).is_some_and(|c| c.code == DOWNSCALE);
+        at_argument(
+            if about_downscale {
+                self.downscale_span
+            } else {
+                self.span
+            },
+            e,
+        )
+    }
 }
 
 /// The format and request of `data` (paths relative to `base`); `None`
@@ -106,6 +123,7 @@ fn source(data: &Dataset, base: &Path, needs: DataNeeds) -> io::Result<Option<So
                 format,
                 request: capture_request(spec, &path, needs),
                 span: spec.path_span,
+                downscale_span: spec.path_span,
             }
         }
         Dataset::NerfSynthetic {
@@ -114,11 +132,13 @@ fn source(data: &Dataset, base: &Path, needs: DataNeeds) -> io::Result<Option<So
             split,
             test_split,
             background,
+            downscale,
+            downscale_span,
         } => Source {
             format: &nerf_synthetic::NerfSynthetic,
             request: Request {
                 path: base.join(path),
-                downscale: 1,
+                downscale: *downscale,
                 split: Split::Files {
                     train: split.clone(),
                     test: test_split.clone(),
@@ -129,6 +149,7 @@ fn source(data: &Dataset, base: &Path, needs: DataNeeds) -> io::Result<Option<So
                 needs,
             },
             span: *path_span,
+            downscale_span: *downscale_span,
         },
         Dataset::Rendered { .. }
         | Dataset::Traced { .. }
@@ -143,16 +164,11 @@ fn source(data: &Dataset, base: &Path, needs: DataNeeds) -> io::Result<Option<So
 /// point at the argument naming the data set's path. `None` where no
 /// format reads the data.
 pub fn read(data: &Dataset, base: &Path, needs: DataNeeds) -> io::Result<Option<FormatViews>> {
-    let Some(Source {
-        format,
-        request,
-        span,
-    }) = source(data, base, needs)?
-    else {
+    let Some(source) = source(data, base, needs)? else {
         return Ok(None);
     };
-    let at = |e| at_argument(span, e);
-    let mut views = format.read(&request).map_err(at)?;
+    let at = |e| source.at(e);
+    let mut views = source.format.read(&source.request).map_err(at)?;
     let names = views.names.iter().map(String::as_str);
     check_finite(views.train.iter().chain(&views.test).zip(names)).map_err(at)?;
     views.report.extend(opaque_alpha_warning(&views.train));
@@ -163,7 +179,7 @@ pub fn read(data: &Dataset, base: &Path, needs: DataNeeds) -> io::Result<Option<
 /// an image; `None` where no format reads it.
 pub fn plan(data: &Dataset, base: &Path) -> io::Result<Option<Vec<PlannedView>>> {
     match source(data, base, DataNeeds::default())? {
-        Some(s) => s.format.plan(&s.request).map(Some),
+        Some(s) => s.format.plan(&s.request).map(Some).map_err(|e| s.at(e)),
         None => Ok(None),
     }
 }

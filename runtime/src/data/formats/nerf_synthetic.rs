@@ -19,8 +19,8 @@ use glam::DVec3;
 use crate::data::camera::camera_of;
 use crate::data::error::{invalid, no_coverage};
 use crate::data::format::{Format, FormatViews, PlannedView, Request, Split};
-use crate::data::image::{check_dataset, read_view_images};
-use crate::data::view::{DataNeeds, TrainView};
+use crate::data::image::{check_dataset_downscaled, image_dimensions, read_view_images};
+use crate::data::view::{downscale_size_of, DataNeeds, TrainView};
 
 pub use crate::data::transforms::{read_transforms, Frame, Transforms, MAX_JSON_BYTES};
 
@@ -63,6 +63,7 @@ impl Format for NerfSynthetic {
                 image: f.image,
                 mask: false,
                 held_out,
+                downscale: request.downscale,
             }));
         }
         Ok(views)
@@ -76,6 +77,7 @@ impl Format for NerfSynthetic {
         let dir = &request.path;
         let mut splits = vec![SplitRead {
             coverage: request.needs.coverage,
+            downscale: request.downscale,
             ..SplitRead::all(split)
         }];
         if let Some(t) = test_split {
@@ -92,6 +94,7 @@ impl Format for NerfSynthetic {
             }
             splits.push(SplitRead {
                 frames: request.needs.held_out,
+                downscale: request.downscale,
                 ..SplitRead::all(t)
             });
         }
@@ -168,6 +171,11 @@ pub struct SplitRead<'a> {
     /// ([`DataNeeds::keeps_held_out`]); `None`: every frame.
     /// The others are never decoded.
     pub frames: Option<usize>,
+    /// Each image box-filtered to 1/`downscale` a side once composited
+    /// ([`TrainView::downscaled`]; 1: as decoded). Refused, before any
+    /// image is decoded, where it does not divide the first frame's size
+    /// (every frame has that size).
+    pub downscale: u32,
 }
 
 impl<'a> SplitRead<'a> {
@@ -177,6 +185,7 @@ impl<'a> SplitRead<'a> {
             name,
             coverage: false,
             frames: None,
+            downscale: 1,
         }
     }
 }
@@ -211,20 +220,30 @@ pub fn read_splits(
             Ok(t)
         })
         .collect::<io::Result<Vec<_>>>()?;
-    check_dataset(all.iter().flat_map(|t| t.frames.iter().map(|f| &f.image)))?;
+    check_dataset_downscaled(all.iter().zip(splits).flat_map(|(t, s)| {
+        t.frames.iter().map(move |f| (&f.image, s.downscale))
+    }))?;
+    for (t, s) in all.iter().zip(splits) {
+        if let Some(f) = t.frames.first() {
+            downscale_size_of(&f.image, image_dimensions(&f.image)?, s.downscale)?;
+        }
+    }
     files
         .iter()
         .zip(&all)
         .zip(splits)
-        .map(|((file, t), s)| read_frames(file, t, background, s.coverage))
+        .map(|((file, t), s)| read_frames(file, t, background, s))
         .collect()
 }
 
+/// The frames of `t` (read from `file`) over `background`, with coverage
+/// and at the size `split` asks. Each image is box-filtered as soon as it
+/// is decoded, so that only one batch of full-size images is ever held.
 fn read_frames(
     file: &Path,
     t: &Transforms,
     background: DVec3,
-    coverage: bool,
+    split: &SplitRead,
 ) -> io::Result<Vec<TrainView>> {
     let mut views = Vec::with_capacity(t.frames.len());
     let mut size = None;
@@ -246,17 +265,24 @@ fn read_frames(
         let named = |e: String| invalid(file, format!("frame {k}: {e}"));
         let intrinsics = t.intrinsics(k, (w, h), 1).map_err(named)?;
         let camera = camera_of(&f.pose, &intrinsics).map_err(named)?;
-        let coverage = match (coverage, rgba.has_alpha) {
+        let coverage = match (split.coverage, rgba.has_alpha) {
             (false, _) => None,
             (true, true) => Some(rgba.coverage()),
             (true, false) => return Err(no_coverage(&f.image)),
         };
         let bg = background.as_vec3().to_array();
-        views.push(TrainView {
+        let view = TrainView {
             camera,
             image: rgba.over(bg),
             mask: None,
             coverage,
+        };
+        views.push(if split.downscale > 1 {
+            downscale_size_of(&f.image, (w, h), split.downscale)?;
+            view.downscaled(split.downscale)
+                .map_err(|e| invalid(&f.image, e))?
+        } else {
+            view
         });
         Ok(())
     })?;

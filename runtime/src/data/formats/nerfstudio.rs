@@ -46,6 +46,7 @@ impl Format for Nerfstudio {
                 image: t.frames[k].image.clone(),
                 mask: t.frames[k].mask.is_some(),
                 held_out,
+                downscale: 1,
             })
             .collect())
     }
