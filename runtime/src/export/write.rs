@@ -100,6 +100,7 @@ pub fn write_field_exports(
                         area: m.mesh.area(),
                         seconds: t.elapsed().as_secs_f64(),
                     }),
+                    fallback: None,
                 });
             }
             OutputKind::PointCloud {
@@ -134,6 +135,7 @@ pub fn write_field_exports(
                         area: 0.0,
                         seconds: t.elapsed().as_secs_f64(),
                     }),
+                    fallback: None,
                 });
             }
             _ => {}
@@ -201,6 +203,7 @@ pub fn write_field_exports(
                 height: ph,
                 frames: 1,
                 mesh: None,
+                fallback: None,
             });
         }
     }

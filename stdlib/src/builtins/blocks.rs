@@ -638,7 +638,7 @@ fn train_losses(
                         a.get(field).1,
                         "a neural SDF is sphere-traced: it has no volume samples or data set to write",
                         "not an output of a neural SDF",
-                        "write `image`, `gif`, `depth`, `depth_gif` or `loss_curve`",
+                        "write `image`, `gif`, `video`, `depth`, `depth_gif` or `loss_curve`",
                     ));
                 }
             }

@@ -210,6 +210,7 @@ impl Outputs<'_> {
                 height: h,
                 frames,
                 mesh: None,
+                fallback: None,
             });
         }
         Ok(written)
@@ -242,6 +243,7 @@ impl Outputs<'_> {
                 height: ph,
                 frames: 1,
                 mesh: None,
+                fallback: None,
             });
         }
         Ok(written)
@@ -291,6 +293,7 @@ impl Outputs<'_> {
                 height: ph,
                 frames: 1,
                 mesh: None,
+                fallback: None,
             });
         }
         Ok(written)
