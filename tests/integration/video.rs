@@ -235,3 +235,92 @@ fn a_real_ffmpeg_writes_a_video_that_decodes_at_its_size() {
     // H.264 at crf 18: close to the frames, not equal.
     assert!(decoded.stdout.iter().any(|&b| b > 32));
 }
+
+/// A fit to four 48 × 32 views, with nothing said of its before/after views.
+const FIT: &str = r#"
+let cameras = for eye in [[0, 0, -3], [2.6, 0, -1.5], [0, 2.6, -1.5], [-2.6, 0, 1.5]] { look_at(eye: eye) }
+let target = sdf_volume(torus(major: 1.0, minor: 0.25), color: [0.9, 0.5, 0.2])
+
+train fit {
+  model: sdf_volume(torus(major: param(0.8), minor: param(0.3)), color: [0.9, 0.5, 0.2]),
+  data: render_views(target, cameras: cameras, size: [48, 32], sampler: stratified(samples: 16, near: 0, far: 6)),
+  sampler: stratified(samples: 16, near: 0, far: 6),
+  rays: 64, iterations: 1,
+  after: [video("fit.mp4")],
+}
+"#;
+
+#[test]
+fn a_fit_is_seen_along_its_training_cameras_at_their_aspect() {
+    let dir = case_dir("fit_path");
+    let bin = dir.join("bin");
+    fs::create_dir_all(&bin).unwrap();
+    let ffmpeg = fake_ffmpeg(&bin, 0, "");
+    fs::write(dir.join("fit.sdfl"), FIT).unwrap();
+    let o = Command::new(env!("CARGO_BIN_EXE_sdfl"))
+        .args(["run", "fit.sdfl", "--out", "out", "--json"])
+        .current_dir(&dir)
+        .env("SDFL_FFMPEG", &ffmpeg)
+        .stdin(Stdio::null())
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{stderr}");
+    // 48 × 32 data: 128 pixels on the shorter side, 192 on the longer;
+    // training_path()'s 60 frames.
+    let args = fs::read_to_string(bin.join("args.txt")).unwrap();
+    assert!(
+        args.lines().all(|l| l.contains("-s 192x128 -r 24 ")),
+        "{args}"
+    );
+    let raw = fs::read(dir.join("out/fit.mp4")).unwrap();
+    assert_eq!(raw.len(), 60 * 192 * 128 * 3);
+    let json: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let w = written(&json);
+    let video = w.iter().find(|w| w["kind"] == "video").expect("a video");
+    assert_eq!(
+        (video["width"].as_u64(), video["height"].as_u64()),
+        (Some(192), Some(128))
+    );
+    assert_eq!(video["frames"], 60);
+}
+
+#[test]
+fn views_read_from_files_give_their_aspect_once_read() {
+    let dir = case_dir("files_path");
+    let bin = dir.join("bin");
+    fs::create_dir_all(&bin).unwrap();
+    let ffmpeg = fake_ffmpeg(&bin, 0, "");
+    // Three portrait 30 × 50 photographs: 128 wide, 214 (213.3 rounded to
+    // even) tall.
+    for k in 0..3 {
+        let img = image::RgbImage::from_pixel(30, 50, image::Rgb([40 * k, 90, 200]));
+        img.save(dir.join(format!("v{k}.png"))).unwrap();
+    }
+    let scene = r#"
+train fit {
+  model: sdf_volume(sphere(radius: param(0.5)), color: param([0.5, 0.5, 0.5])),
+  data: views(["v0.png", "v1.png", "v2.png"], cameras: [look_at([0, 0, -3]), look_at([3, 0, 0]), look_at([0, 3, 0.1])]),
+  sampler: stratified(samples: 8, near: 1, far: 5),
+  rays: 16, iterations: 1,
+  views: training_path(frames: 5),
+  after: [video("files.mp4", fps: 10)],
+}
+"#;
+    fs::write(dir.join("files.sdfl"), scene).unwrap();
+    let o = Command::new(env!("CARGO_BIN_EXE_sdfl"))
+        .args(["run", "files.sdfl", "--out", "out"])
+        .current_dir(&dir)
+        .env("SDFL_FFMPEG", &ffmpeg)
+        .stdin(Stdio::null())
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let args = fs::read_to_string(bin.join("args.txt")).unwrap();
+    assert!(
+        args.lines().all(|l| l.contains("-s 128x214 -r 10 ")),
+        "{args}"
+    );
+    let raw = fs::read(dir.join("out/files.mp4")).unwrap();
+    assert_eq!(raw.len(), 5 * 128 * 214 * 3);
+}
