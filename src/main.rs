@@ -856,10 +856,19 @@ fn run(file: Option<&Path>, out: &Path, options: RunOptions, json: bool) -> Exit
 }
 
 /// A fit's warnings on stderr, with `--json` too (where they are also in
-/// each report's `warnings`).
+/// each report's `warnings`), and each video written as its GIF fallback
+/// (in the report as its written file's `fallback`).
 fn print_fit_warnings(reports: &[Report]) {
     for r in reports {
         let name = r.report["name"].as_str().unwrap_or("?");
+        for w in r.report["written"].as_array().into_iter().flatten() {
+            if let Some(why) = w["fallback"].as_str() {
+                say!(
+                    "warning[{}]: `{name}`: {why}",
+                    sdfl_runtime::video::FALLBACK
+                );
+            }
+        }
         for w in r.report["warnings"].as_array().into_iter().flatten() {
             say!(
                 "warning[{}]: `{name}`: {}",

@@ -294,7 +294,7 @@ pub(crate) fn plan_text_in(program: &sdfl_stdlib::Program, base: &std::path::Pat
         row(
             &mut o,
             "composite",
-            &names(&|k| matches!(k, K::Image | K::Gif { .. } | K::Depth)),
+            &names(&|k| matches!(k, K::Image | K::Gif { .. } | K::Video { .. } | K::Depth)),
         );
         row(&mut o, "depth", &names(&|k| matches!(k, K::Depth)));
         row(&mut o, "view branch", &[]);

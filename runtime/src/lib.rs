@@ -19,6 +19,7 @@ pub mod render;
 pub mod sdf;
 pub mod trace;
 pub mod train;
+pub mod video;
 pub mod volume;
 
 pub use render::{run_job, JobReport, Plan, RunOptions};

@@ -352,6 +352,19 @@ impl Atomic {
         }
     }
 
+    /// The temporary file's path, for a program that writes it itself
+    /// (ffmpeg); it becomes the destination on [`Atomic::commit`].
+    pub fn temporary_path(&self) -> &Path {
+        self.tmp
+            .as_deref()
+            .expect("temporary path used after commit")
+    }
+
+    /// The destination.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
     /// The file's writer: its errors name the destination (never the
     /// temporary file, which the user did not ask for).
     pub fn writer(&mut self) -> &mut BufWriter<Named<fs::File>> {
@@ -561,6 +574,10 @@ pub struct Written {
     /// What a mesh holds.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub mesh: Option<MeshStats>,
+    /// Why this file is a `video`'s GIF fallback instead of its MP4 (no
+    /// `ffmpeg` found, or it failed): the warning the run prints.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub fallback: Option<String>,
 }
 
 /// What a written file holds; reports spell it in snake case (`image`,
@@ -572,6 +589,8 @@ pub enum WrittenKind {
     Image,
     /// An animation, colour or colour-mapped depth, one frame per view.
     Gif,
+    /// An H.264 MP4 video of the views' colour, one frame per view.
+    Video,
     /// Colour-mapped depth of a view.
     Depth,
     /// Normals as colours.

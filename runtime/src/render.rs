@@ -19,6 +19,7 @@ use crate::output::{colormap, to_u8, write_png, GifWriter, Written, WrittenKind}
 use crate::sdf::tiles::{Margin, TILE};
 use crate::sdf::{LowerOptions, Lowered};
 use crate::trace::{normal, normal_step, TraceSettings};
+use crate::video::VideoWriter;
 
 /// Rows per parallel work unit: one row of screen tiles.
 const BAND_ROWS: usize = TILE;
@@ -71,7 +72,9 @@ impl Plan {
         for o in &job.outputs {
             let who = o.path.display().to_string();
             match o.kind {
-                OutputKind::Image | OutputKind::Gif { .. } => plan.color.push(who),
+                OutputKind::Image | OutputKind::Gif { .. } | OutputKind::Video { .. } => {
+                    plan.color.push(who)
+                }
                 OutputKind::Depth | OutputKind::DepthGif { .. } => plan.depth.push(who),
                 OutputKind::Normals => plan.normals.push(who),
                 OutputKind::Mask => plan.mask.push(who),
@@ -593,24 +596,38 @@ fn split<T>(buf: Option<&mut [T]>, chunk: usize, bands: usize) -> Vec<Option<&mu
     }
 }
 
-/// The GIF outputs of a job, open for one frame per view; each shows
-/// colour or (colour-mapped) depth.
-pub(crate) struct Gifs(Vec<(GifWriter, PathBuf, bool)>);
+/// An animated output of a job: a GIF (colour or depth) or a video.
+enum Animation {
+    Gif(GifWriter, PathBuf),
+    Video(VideoWriter),
+}
+
+/// The GIF and video outputs of a job, open for one frame per view; each
+/// shows colour or (colour-mapped) depth.
+pub(crate) struct Gifs(Vec<(Animation, bool)>);
 
 impl Gifs {
     pub(crate) fn open(outputs: &[sdfl_stdlib::Output], out_dir: &Path) -> std::io::Result<Gifs> {
         let mut gifs = Vec::new();
         for o in outputs {
-            let (fps, depth) = match o.kind {
-                OutputKind::Gif { fps } => (fps, false),
-                OutputKind::DepthGif { fps } => (fps, true),
+            let (animation, depth) = match o.kind {
+                OutputKind::Gif { fps } | OutputKind::DepthGif { fps } => (
+                    Animation::Gif(
+                        GifWriter::create(&out_dir.join(&o.path), fps)?,
+                        o.path.clone(),
+                    ),
+                    matches!(o.kind, OutputKind::DepthGif { .. }),
+                ),
+                OutputKind::Video { fps } => {
+                    let fallback = o.fallback().expect("a video has a fallback");
+                    (
+                        Animation::Video(VideoWriter::new(out_dir, &o.path, &fallback, fps)),
+                        false,
+                    )
+                }
                 _ => continue,
             };
-            gifs.push((
-                GifWriter::create(&out_dir.join(&o.path), fps)?,
-                o.path.clone(),
-                depth,
-            ));
+            gifs.push((animation, depth));
         }
         Ok(Gifs(gifs))
     }
@@ -621,7 +638,7 @@ impl Gifs {
 
     /// Whether a GIF shows depth (so the caller colour-maps it).
     pub(crate) fn wants_depth(&self) -> bool {
-        self.0.iter().any(|g| g.2)
+        self.0.iter().any(|g| g.1)
     }
 
     /// One frame: the colour, and the colour-mapped depth when
@@ -633,31 +650,35 @@ impl Gifs {
         colour: Option<&[u8]>,
         depth: Option<&[u8]>,
     ) -> std::io::Result<()> {
-        self.0.iter_mut().try_for_each(|(g, _, is_depth)| {
+        self.0.iter_mut().try_for_each(|(g, is_depth)| {
             let frame = if *is_depth { depth } else { colour };
-            g.push(
-                width,
-                height,
-                frame.expect("the plan computes what every GIF shows"),
-            )
+            let frame = frame.expect("the plan computes what every GIF shows");
+            match g {
+                Animation::Gif(g, _) => g.push(width, height, frame),
+                Animation::Video(v) => v.push(width, height, frame),
+            }
         })
     }
 
-    /// Write every GIF (atomically) and report it.
+    /// Write every GIF and video (atomically) and report it.
     pub(crate) fn finish(self, width: u32, height: u32) -> std::io::Result<Vec<Written>> {
         self.0
             .into_iter()
-            .map(|(g, path, _)| {
-                let frames = g.frames;
-                g.finish()?;
-                Ok(Written {
-                    path,
-                    kind: WrittenKind::Gif,
-                    width,
-                    height,
-                    frames,
-                    mesh: None,
-                })
+            .map(|(g, _)| match g {
+                Animation::Gif(g, path) => {
+                    let frames = g.frames;
+                    g.finish()?;
+                    Ok(Written {
+                        path,
+                        kind: WrittenKind::Gif,
+                        width,
+                        height,
+                        frames,
+                        mesh: None,
+                        fallback: None,
+                    })
+                }
+                Animation::Video(v) => v.finish(),
             })
             .collect()
     }
@@ -756,6 +777,7 @@ pub fn run_job(
             let rel = view_path(&o.path, k, views);
             let (kind, rgb): (WrittenKind, Option<Vec<u8>>) = match o.kind {
                 OutputKind::Gif { .. }
+                | OutputKind::Video { .. }
                 | OutputKind::DepthGif { .. }
                 | OutputKind::Dataset { .. } => continue,
                 OutputKind::Image => (WrittenKind::Image, view.color.clone()),
@@ -807,6 +829,7 @@ pub fn run_job(
                 height,
                 frames: 1,
                 mesh: None,
+                fallback: None,
             });
         }
         if !gifs.is_empty() {

@@ -251,6 +251,7 @@ pub fn kind_name(kind: &OutputKind) -> &'static str {
     match kind {
         OutputKind::Image => "image",
         OutputKind::Gif { .. } => "gif",
+        OutputKind::Video { .. } => "video",
         OutputKind::DepthGif { .. } => "depth_gif",
         OutputKind::Depth => "depth",
         OutputKind::Normals => "normal_map",
@@ -426,6 +427,10 @@ fn output_files(outputs: &[Output], views: usize, job: JobKind) -> Vec<(PathBuf,
         } else {
             out.push((o.path.clone(), o.span, describe(o, 0, 1)));
         }
+        if let Some(gif) = o.fallback() {
+            let who = "`video` writes its GIF fallback there (when no ffmpeg encodes the MP4)";
+            out.push((gif, o.span, who.to_string()));
+        }
     }
     out
 }
@@ -439,6 +444,7 @@ fn file_count(outputs: &[Output], views: usize) -> u64 {
                 views as u64 + DATASET_JSON.len() as u64 + llff
             }
             _ if per_view(&o.kind) => views as u64,
+            OutputKind::Video { .. } => 2,
             _ => 1,
         })
         .sum()

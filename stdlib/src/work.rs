@@ -395,6 +395,8 @@ fn bytes_per_pixel(kinds: impl Iterator<Item = OutputKind>, volume: bool) -> f64
         b += match k {
             OutputKind::Image => 3.0,
             OutputKind::Gif { .. } | OutputKind::DepthGif { .. } => 7.0,
+            // The RGB frame piped to ffmpeg (or the fallback GIF's frame).
+            OutputKind::Video { .. } => 7.0,
             OutputKind::Depth => 7.0,
             OutputKind::Normals => 3.0,
             OutputKind::Mask => 4.0,

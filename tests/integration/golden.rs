@@ -79,10 +79,12 @@ fn examples_match_their_golden_images() {
             reports.push((r.written, job.cameras.len()));
         }
         for (written, views) in reports {
-            // Data sets are checked by runtime/tests/suite/views.rs.
+            // Data sets are checked by runtime/tests/suite/views.rs, videos
+            // by tests/integration/video.rs.
+            let animated = |k: WrittenKind| matches!(k, WrittenKind::Gif | WrittenKind::Video);
             for w in written
                 .iter()
-                .filter(|w| w.kind != WrittenKind::Gif && w.kind != WrittenKind::Dataset)
+                .filter(|w| !animated(w.kind) && w.kind != WrittenKind::Dataset)
             {
                 let file_name = w.path.to_string_lossy().into_owned();
                 if !is_first_view(&file_name) {
@@ -113,8 +115,8 @@ fn examples_match_their_golden_images() {
                     ));
                 }
             }
-            // Every GIF has one frame per view.
-            for w in written.iter().filter(|w| w.kind == WrittenKind::Gif) {
+            // Every GIF and video has one frame per view.
+            for w in written.iter().filter(|w| animated(w.kind)) {
                 assert_eq!(w.frames, views);
                 assert!(out.join(&w.path).metadata().unwrap().len() > 0);
             }

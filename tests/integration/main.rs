@@ -39,6 +39,7 @@ mod textmate;
 mod train;
 mod train_log;
 mod unbounded;
+mod video;
 mod view_api;
 mod view_browser;
 mod view_load;

@@ -301,6 +301,7 @@ impl DatasetWriter {
             height: h,
             frames: 1,
             mesh: None,
+            fallback: None,
         })
     }
 
@@ -513,6 +514,7 @@ impl DatasetWriter {
             height: h,
             frames: 0,
             mesh: None,
+            fallback: None,
         })
     }
 }

@@ -103,6 +103,7 @@ pub fn write_field_exports(
                         area: m.mesh.area(),
                         seconds: t.elapsed().as_secs_f64(),
                     }),
+                    fallback: None,
                 });
             }
             OutputKind::PointCloud {
@@ -148,6 +149,7 @@ pub fn write_field_exports(
                         area: 0.0,
                         seconds: t.elapsed().as_secs_f64(),
                     }),
+                    fallback: None,
                 });
             }
             _ => {}
@@ -215,6 +217,7 @@ pub fn write_field_exports(
                 height: ph,
                 frames: 1,
                 mesh: None,
+                fallback: None,
             });
         }
     }

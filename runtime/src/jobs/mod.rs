@@ -204,6 +204,7 @@ pub fn write_volume_outputs(
             o.kind,
             OutputKind::Image
                 | OutputKind::Gif { .. }
+                | OutputKind::Video { .. }
                 | OutputKind::DepthGif { .. }
                 | OutputKind::Depth
                 | OutputKind::Dataset { .. }
@@ -233,6 +234,7 @@ pub fn write_volume_outputs(
             let rel = if once { o.path.clone() } else { rel };
             let (kind, rgb, (pw, ph)) = match o.kind {
                 OutputKind::Gif { .. }
+                | OutputKind::Video { .. }
                 | OutputKind::DepthGif { .. }
                 | OutputKind::Dataset { .. }
                 | OutputKind::LossCurve
@@ -271,6 +273,7 @@ pub fn write_volume_outputs(
                 height: ph,
                 frames: 1,
                 mesh: None,
+                fallback: None,
             });
         }
         if !gifs.is_empty() {

@@ -1,6 +1,7 @@
 //! The statements: `render` (sphere-traced or volume-rendered) and `train`.
 
 use super::*;
+use crate::value::{size_at_aspect, DATA_ASPECT_SHORT_SIDE};
 
 // ------------------------------------------------------------ render block
 
@@ -195,8 +196,8 @@ pub(crate) fn train_sig() -> BlockSig {
             opt("epochs", Type::Number, "0", "passes over all training pixels (0: use `iterations`)"),
             opt("seed", Type::Number, "0", "seed of the ray batches and jitter"),
             opt("backend", Type::Str, "\"fused\"", "\"fused\" (one kernel per ray, hand-written backward) or \"dfdx\" (an autodiff graph)"),
-            opt("views", Type::OneOf(vec![CAMERA, Type::list(CAMERA), super::paths::VIEW_PATH]), "orbit()", "cameras of the before/after outputs, or `training_loop(...)`: a loop through the training cameras made when the run starts"),
-            opt("size", Type::list(Type::Number), "[128, 128]", "size of the before/after outputs"),
+            opt("views", Type::OneOf(vec![CAMERA, Type::list(CAMERA), super::paths::VIEW_PATH]), "training_path()", "cameras of the before/after outputs: a path through the training cameras made when the run starts (`training_path(...)`, `training_loop(...)`), or cameras (`orbit()`, `camera_path(\"camera_path.json\")`); data without cameras (`points(...)`) is seen from `orbit()` unless this is given"),
+            opt("size", Type::list(Type::Number), "[128, 128]", "size of the before/after outputs; where not given and `views` is a path through the training cameras, 128 pixels on the shorter side at the training images' aspect (the longer side rounded to even)"),
             opt("before", Type::list(OUTPUT), "[]", "outputs rendered from the starting model"),
             opt("after", Type::list(OUTPUT), "[]", "outputs rendered from the trained model, and `loss_curve`, `psnr_curve` and `comparison` (the last two need held-out views)"),
             opt("eval_every", Type::Number, "0", "steps between held-out evaluations (PSNR, SSIM on the data's test views; 0: at the end only)"),
@@ -339,6 +340,46 @@ pub(crate) fn train_block(name: &str, a: &Args) -> Built<TrainJob> {
         Value::ViewPath(p) => Some(*p),
         _ => None,
     };
+    let no_cameras = data
+        .as_deref()
+        .is_some_and(|d| matches!(d, Dataset::Points { .. }));
+    let (view_path, default_views) = match view_path {
+        // Points have no cameras to pass through: the default looks on
+        // from the orbit, a written path is refused.
+        Some(_) if no_cameras && !a.given("views") => {
+            (None, Some(Camera::orbit(3.0, OrbitUp::Y, 1.0, 20)))
+        }
+        Some(_) if no_cameras => {
+            e.ok::<()>(Err(value_error(
+                a.get("views").1,
+                "a point cloud has no cameras to make a path through",
+                "no training cameras",
+                "look at the fitted surface from cameras: `views: orbit()`",
+            )));
+            // Refused: no cameras to read from `views` either.
+            (None, Some(Vec::new()))
+        }
+        p => (p, None),
+    };
+    // Where not written, the size of views along the data's own cameras
+    // follows its images' aspect: known now for views sdfl renders, once
+    // read for files.
+    let mut size_at_data_aspect = view_path.is_some() && !a.given("size");
+    let size = match (size, data.as_deref()) {
+        (Some(_), Some(Dataset::Rendered { width, height, .. })) if size_at_data_aspect => {
+            size_at_data_aspect = false;
+            Some(size_at_aspect(*width, *height, DATA_ASPECT_SHORT_SIDE))
+        }
+        (Some(_), Some(Dataset::Traced { job, .. })) if size_at_data_aspect => {
+            size_at_data_aspect = false;
+            Some(size_at_aspect(
+                job.width,
+                job.height,
+                DATA_ASPECT_SHORT_SIDE,
+            ))
+        }
+        (size, _) => size,
+    };
     let views = match view_path {
         // As many placeholders as the path will have cameras: files and
         // work are counted before the run makes them.
@@ -351,6 +392,7 @@ pub(crate) fn train_block(name: &str, a: &Args) -> Built<TrainJob> {
             );
             p.frames()
         ]),
+        None if default_views.is_some() => default_views,
         None => e.ok(camera_list(a, "views")),
     };
     let eval_every = e.ok(a.count("eval_every", 0, 10_000_000));
@@ -377,6 +419,7 @@ pub(crate) fn train_block(name: &str, a: &Args) -> Built<TrainJob> {
             view_path,
             width,
             height,
+            size_at_data_aspect,
             before: before?,
             after: after?,
             checkpoint: checkpoint?,
@@ -638,7 +681,7 @@ fn train_losses(
                         a.get(field).1,
                         "a neural SDF is sphere-traced: it has no volume samples or data set to write",
                         "not an output of a neural SDF",
-                        "write `image`, `gif`, `depth`, `depth_gif` or `loss_curve`",
+                        "write `image`, `gif`, `video`, `depth`, `depth_gif` or `loss_curve`",
                     ));
                 }
             }

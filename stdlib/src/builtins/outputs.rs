@@ -5,6 +5,8 @@ use super::*;
 
 /// Finest mesh grid: a billion evaluations, planes of a million points.
 pub const MAX_MESH_RESOLUTION: u32 = 1024;
+/// Highest frame rate of a `video`.
+pub const MAX_VIDEO_FPS: f64 = 1000.0;
 /// Most points of a point cloud (16 bytes each in memory, 15 in the file).
 pub const MAX_CLOUD_POINTS: u64 = 10_000_000;
 
@@ -40,6 +42,27 @@ pub(crate) fn builtins() -> Vec<Builtin> {
             out(a, OutputKind::Image, "png")
         }),
         animation("gif", "All views as an animated GIF.", |a| out(a, OutputKind::Gif { fps: a.positive("fps")? }, "gif")),
+        func(
+            "video",
+            "All views as an H.264 MP4 video that every player plays, encoded by `ffmpeg` (the one named by the environment variable `SDFL_FFMPEG`, else the first on `PATH`). Where none is found, or it fails, the views are written as the animated GIF of the same name (`.gif`) instead, and the run says so in a warning.",
+            vec![
+                req("path", Type::Str, "file name inside the output directory (.mp4; its .gif name is kept for the fallback)"),
+                opt("fps", Type::Number, "24", "frames per second (above 0, at most 1000)"),
+            ],
+            OUTPUT,
+            |a| {
+                let fps = a.positive("fps")?;
+                if fps > MAX_VIDEO_FPS {
+                    return Err(value_error(
+                        a.get("fps").1,
+                        format!("{} frames per second is more than a video holds", sdfl_lang::fmt_num(fps)),
+                        format!("above {}", sdfl_lang::fmt_num(MAX_VIDEO_FPS)),
+                        "players show 24 to 60 frames a second; write e.g. `fps: 30`",
+                    ));
+                }
+                out(a, OutputKind::Video { fps }, "mp4")
+            },
+        ),
         animation("depth_gif", "Depth of all views (colour-mapped as `depth`) as an animated GIF.", |a| out(a, OutputKind::DepthGif { fps: a.positive("fps")? }, "gif")),
         output("depth", "Hit depth normalised by its maximum, colour-mapped, as PNG per view; misses black.", |a| {
             out(a, OutputKind::Depth, "png")

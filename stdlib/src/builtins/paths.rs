@@ -23,6 +23,15 @@ pub const VIEW_PATH: Type = Type::Named("camera path");
 
 pub(crate) fn builtins() -> Vec<Builtin> {
     vec![func(
+        "training_path",
+        "As a `train`'s `views` (its default): nerfstudio's interpolated path through the training cameras in the order the data lists them, made when the run has read its data. Positions follow a centripetal Catmull-Rom spline through every camera, orientations a slerp between consecutive cameras, focal lengths a blend; the path starts at the first camera and ends at the last, an equal share of frames between each two. Views are pinhole cameras (a lens's distortion is not rendered) at the data's aspect unless the `train` gives `size`.",
+        vec![opt("frames", Type::Number, "60", "cameras on the path (1 to 10 000)")],
+        VIEW_PATH,
+        |a| {
+            let frames = a.count("frames", 1, MAX_FRAMES)? as usize;
+            Ok(Value::ViewPath(ViewPath::TrainingPath { frames }))
+        },
+    ), func(
         "training_loop",
         "As a `train`'s `views`: `camera_loop` through the training cameras, made when the run has read its data (a data set from files has its cameras only then).",
         vec![
@@ -220,6 +229,78 @@ pub fn camera_loop(
     Ok(path)
 }
 
+/// A camera's orientation as a unit quaternion: the rotation whose
+/// columns are its axes (left, up, forward), a right-handed frame.
+fn orientation(c: &Camera) -> glam::DQuat {
+    let (x, y, z) = c.axes();
+    glam::DQuat::from_mat3(&glam::DMat3::from_cols(x, y, z)).normalize()
+}
+
+/// `frames` cameras along nerfstudio's interpolated path through `cams` in
+/// their order (its `get_interpolated_camera_path`, with a smooth curve for
+/// the positions where it has straight segments): eyes on the centripetal
+/// Catmull-Rom spline through every camera (the ends continued by
+/// reflecting their neighbour), orientations slerped between consecutive
+/// cameras, focal lengths blended; an equal share of frames between each
+/// two cameras, the first frame the first camera and the last the last.
+/// Each is an NDC pinhole with half-pixel centres, as data sets' cameras
+/// (a real lens's intrinsics become its focal length, centred).
+pub fn training_path(cams: &[Camera], frames: usize) -> Result<Vec<Camera>, String> {
+    let Some(first) = cams.first() else {
+        return Err("no cameras".into());
+    };
+    let pinhole = |eye: DVec3, q: glam::DQuat, focal: f64| {
+        let (z, y) = (q * DVec3::Z, q * DVec3::Y);
+        Camera::look_at(eye, eye + z, y, focal).with_pixel_centers(PixelCenters::Half)
+    };
+    if cams.len() == 1 {
+        return Ok(vec![
+            pinhole(first.eye, orientation(first), first.focal);
+            frames
+        ]);
+    }
+    let n = cams.len();
+    let eyes: Vec<DVec3> = cams.iter().map(|c| c.eye).collect();
+    // Each orientation on the side of its predecessor, so that slerp takes
+    // the short way round.
+    let mut turns: Vec<glam::DQuat> = Vec::with_capacity(n);
+    for c in cams {
+        let q = orientation(c);
+        let q = match turns.last() {
+            Some(prev) if prev.dot(q) < 0.0 => -q,
+            _ => q,
+        };
+        turns.push(q);
+    }
+    let eye_at = |j: isize| -> DVec3 {
+        match j {
+            -1 => 2.0 * eyes[0] - eyes[1],
+            j if j as usize >= n => 2.0 * eyes[n - 1] - eyes[n - 2],
+            j => eyes[j as usize],
+        }
+    };
+    let path: Vec<Camera> = (0..frames)
+        .map(|k| {
+            let s = if frames > 1 {
+                k as f64 * (n - 1) as f64 / (frames - 1) as f64
+            } else {
+                0.0
+            };
+            let i = (s.floor() as usize).min(n - 2);
+            let u = s - i as f64;
+            let j = i as isize;
+            let eye = catmull_rom([eye_at(j - 1), eye_at(j), eye_at(j + 1), eye_at(j + 2)], u);
+            let q = turns[i].slerp(turns[i + 1], u).normalize();
+            let focal = cams[i].focal * (1.0 - u) + cams[i + 1].focal * u;
+            pinhole(eye, q, focal)
+        })
+        .collect();
+    if let Some(c) = path.iter().find(|c| !(c.is_valid() && c.eye.is_finite())) {
+        return Err(format!("a camera at {} has no orientation", c.eye));
+    }
+    Ok(path)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -315,6 +396,88 @@ mod tests {
         }
         let path = camera_loop(&cams, 30, 4).unwrap();
         assert!(path.iter().all(|p| p.eye.y > 0.0 && p.is_valid()));
+    }
+
+    #[test]
+    fn the_training_path_goes_through_every_camera_in_the_data_order() {
+        let f = DVec3::new(0.3, -0.2, 0.5);
+        // Out of azimuth order on purpose: the path keeps the data's.
+        let mut cams = ring(5, f);
+        cams.swap(1, 3);
+        cams[2].focal = 2.5;
+        let per = 12;
+        let frames = (cams.len() - 1) * per + 1;
+        let path = training_path(&cams, frames).unwrap();
+        assert_eq!(path.len(), frames);
+        for (i, c) in cams.iter().enumerate() {
+            let p = path[i * per];
+            assert!(
+                (p.eye - c.eye).length() < 1e-9,
+                "camera {i}: {} vs {}",
+                p.eye,
+                c.eye
+            );
+            let ((px, py, pz), (cx, cy, cz)) = (p.axes(), c.axes());
+            assert!(
+                (px - cx).length() < 1e-9 && (py - cy).length() < 1e-9 && (pz - cz).length() < 1e-9,
+                "camera {i} turned"
+            );
+            assert!((p.focal - c.focal).abs() < 1e-12);
+            assert!(p.is_valid());
+        }
+        // Halfway between two cameras, the orientation is the slerp's
+        // midpoint: half the turn from one to the other, on the way.
+        let (a, b) = (orientation(&cams[0]), orientation(&cams[1]));
+        let mid = orientation(&path[per / 2]);
+        let (ab, am, mb) = (
+            a.angle_between(b),
+            a.angle_between(mid),
+            mid.angle_between(b),
+        );
+        assert!(ab > 0.1, "the cameras turn: {ab}");
+        assert!(
+            (am - ab / 2.0).abs() < 1e-9 && (mb - ab / 2.0).abs() < 1e-9,
+            "{am} {mb} of {ab}"
+        );
+        assert!((path[per / 2].focal - (cams[0].focal + cams[1].focal) / 2.0).abs() < 1e-12);
+        // Smooth: no corner where the spline passes a camera (consecutive
+        // steps turn little), and the forward axis changes gradually.
+        let step = |k: usize| path[k + 1].eye - path[k].eye;
+        for k in 0..frames - 2 {
+            let (s, t) = (step(k), step(k + 1));
+            assert!(
+                s.normalize().dot(t.normalize()) > 0.8,
+                "frame {k} turns by {}",
+                s.normalize().dot(t.normalize()).acos()
+            );
+            let (z0, z1) = (path[k].axes().2, path[k + 1].axes().2);
+            assert!(z0.dot(z1) > 0.95, "frame {k}");
+        }
+    }
+
+    #[test]
+    fn a_training_path_of_few_cameras_or_frames() {
+        let cams = ring(3, DVec3::ZERO);
+        let one = training_path(&cams, 1).unwrap();
+        assert_eq!(one.len(), 1);
+        assert!((one[0].eye - cams[0].eye).length() < 1e-9);
+        let two = training_path(&cams, 2).unwrap();
+        assert!((two[1].eye - cams[2].eye).length() < 1e-9);
+        let alone = training_path(&cams[..1], 4).unwrap();
+        assert!(alone
+            .iter()
+            .all(|c| (c.eye - cams[0].eye).length() < 1e-12 && c.is_valid()));
+        assert!(training_path(&[], 4).is_err());
+        // Two cameras at one place looking opposite ways: the path turns
+        // on the spot, never through a degenerate orientation.
+        let here = DVec3::new(1.0, 2.0, 3.0);
+        let back = [
+            Camera::look_at(here, here + DVec3::Z, DVec3::Y, 1.0),
+            Camera::look_at(here, here - DVec3::Z, DVec3::Y, 1.0),
+        ];
+        for c in training_path(&back, 9).unwrap() {
+            assert!(c.is_valid() && (c.eye - here).length() < 1e-6, "{c:?}");
+        }
     }
 
     #[test]

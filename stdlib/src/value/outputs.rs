@@ -14,6 +14,15 @@ pub struct Output {
     pub span: sdfl_lang::Span,
 }
 
+impl Output {
+    /// Where a `video` writes its GIF when no `ffmpeg` encodes the MP4:
+    /// its path with the extension `.gif` (claimed with the MP4, so no
+    /// other output may write it). `None` for other kinds.
+    pub fn fallback(&self) -> Option<PathBuf> {
+        matches!(self.kind, OutputKind::Video { .. }).then(|| self.path.with_extension("gif"))
+    }
+}
+
 /// What an output file holds.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 #[serde(rename_all = "snake_case")]
@@ -22,6 +31,13 @@ pub enum OutputKind {
     Image,
     /// Shaded colour of all views as an animated GIF.
     Gif {
+        /// Frames per second.
+        fps: f64,
+    },
+    /// Shaded colour of all views as an H.264 MP4 video, encoded by an
+    /// `ffmpeg` found on the system; where none is found or it fails, the
+    /// animated GIF at [`Output::fallback`] instead.
+    Video {
         /// Frames per second.
         fps: f64,
     },

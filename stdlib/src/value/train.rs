@@ -41,6 +41,11 @@ pub struct TrainJob {
     pub width: u32,
     /// Height of the before/after images.
     pub height: u32,
+    /// `width` × `height` are placeholders (the square default) for views
+    /// along the training cameras of a data set read from files: the run
+    /// makes them the training images' aspect
+    /// ([`size_at_aspect`](super::size_at_aspect)) once it has read them.
+    pub size_at_data_aspect: bool,
     /// Outputs of the model as it starts.
     pub before: Vec<Output>,
     /// Outputs of the trained model.

@@ -6,6 +6,12 @@ use glam::DVec3;
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum ViewPath {
+    /// nerfstudio's interpolated path through the training cameras in the
+    /// order the data lists them (`training_path`).
+    TrainingPath {
+        /// Views made along the path.
+        frames: usize,
+    },
     /// `camera_loop` through the training cameras.
     TrainingLoop {
         /// Views made along the loop.
@@ -19,8 +25,30 @@ impl ViewPath {
     /// How many views it makes.
     pub fn frames(&self) -> usize {
         match self {
-            ViewPath::TrainingLoop { frames, .. } => *frames,
+            ViewPath::TrainingPath { frames } | ViewPath::TrainingLoop { frames, .. } => *frames,
         }
+    }
+}
+
+/// The shorter side of a `train`'s before/after views where neither `size`
+/// is written nor the data's images are square: the default `[128, 128]`'s.
+pub const DATA_ASPECT_SHORT_SIDE: u32 = 128;
+
+/// A `short`-pixel image at the aspect of `width × height` images (pixels
+/// are square, CONVENTIONS.md: the shorter side is the one the focal length
+/// refers to, so a camera frames the same view): the shorter side `short`,
+/// the longer one in proportion, rounded to an even number of pixels (as a
+/// video needs), at most [`MAX_IMAGE_SIDE`](crate::limits::MAX_IMAGE_SIDE).
+pub fn size_at_aspect(width: u32, height: u32, short: u32) -> (u32, u32) {
+    let (w, h) = (width.max(1) as f64, height.max(1) as f64);
+    let long = |ratio: f64| {
+        let even = ((short as f64 * ratio / 2.0).round() * 2.0) as u32;
+        even.clamp(short, crate::limits::MAX_IMAGE_SIDE)
+    };
+    if w >= h {
+        (long(w / h), short)
+    } else {
+        (short, long(h / w))
     }
 }
 
@@ -89,6 +117,18 @@ pub fn spread_views(eyes: &[DVec3], held: &[usize], k: usize) -> Vec<usize> {
 mod tests {
     use super::{held_out, spread_views};
     use glam::DVec3;
+    #[test]
+    fn sizes_at_the_data_aspect_keep_the_shorter_side() {
+        use super::size_at_aspect;
+        assert_eq!(size_at_aspect(800, 800, 128), (128, 128));
+        assert_eq!(size_at_aspect(1600, 1200, 128), (170, 128));
+        assert_eq!(size_at_aspect(1920, 1080, 128), (228, 128));
+        assert_eq!(size_at_aspect(1080, 1920, 128), (128, 228));
+        assert_eq!(size_at_aspect(1000, 999, 128), (128, 128));
+        let (w, _) = size_at_aspect(16_384, 1, 128);
+        assert_eq!(w, crate::limits::MAX_IMAGE_SIDE);
+    }
+
     #[test]
     fn held_out_views_are_a_seeded_sorted_subset() {
         let a = held_out(100, 10, 3);

@@ -129,6 +129,7 @@ pub fn run_train_job(
         None => job,
     };
     stages.push(("load data".to_string(), t.elapsed().as_secs_f64()));
+    let size = size.or_else(|| output_size_at_data_aspect(job, &views));
     budget::within_budget_once_read(job, size, &views, &test_views)?;
     budget::held_out_views_present(job, &test_views)?;
     // The budget counted them at full size, and the cost at the scored one.
@@ -362,6 +363,15 @@ pub fn run_train_job(
 fn output_cameras(job: &TrainJob, views: &[TrainView]) -> io::Result<Vec<Camera>> {
     match job.view_path {
         None => Ok(job.views.clone()),
+        Some(ViewPath::TrainingPath { frames }) => {
+            let train_cams: Vec<Camera> = views.iter().map(|v| v.camera).collect();
+            sdfl_stdlib::builtins::paths::training_path(&train_cams, frames).map_err(|e| {
+                invalid(format!(
+                    "training `{}`: no path through its training cameras: {e}",
+                    job.name
+                ))
+            })
+        }
         Some(ViewPath::TrainingLoop { frames, keyframes }) => {
             let train_cams: Vec<Camera> = views.iter().map(|v| v.camera).collect();
             sdfl_stdlib::builtins::paths::camera_loop(&train_cams, frames, keyframes).map_err(|e| {
@@ -372,6 +382,16 @@ fn output_cameras(job: &TrainJob, views: &[TrainView]) -> io::Result<Vec<Camera>
             })
         }
     }
+}
+
+/// The size of the before/after views at the training images' aspect
+/// (the first view's), where the statement leaves it to the data read
+/// from files; `None` where it is the statement's.
+fn output_size_at_data_aspect(job: &TrainJob, views: &[TrainView]) -> Option<(u32, u32)> {
+    use sdfl_stdlib::value::{size_at_aspect, DATA_ASPECT_SHORT_SIDE};
+    let first = views.first().filter(|_| job.size_at_data_aspect)?;
+    let (w, h) = (first.image.width, first.image.height);
+    Some(size_at_aspect(w, h, DATA_ASPECT_SHORT_SIDE))
 }
 
 /// The held-out views at the size they are scored (`eval_downscale`).

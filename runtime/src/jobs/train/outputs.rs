@@ -215,6 +215,7 @@ impl Outputs<'_> {
                 height: h,
                 frames,
                 mesh: None,
+                fallback: None,
             });
         }
         Ok(written)
@@ -247,6 +248,7 @@ impl Outputs<'_> {
                 height: ph,
                 frames: 1,
                 mesh: None,
+                fallback: None,
             });
         }
         Ok(written)
@@ -296,6 +298,7 @@ impl Outputs<'_> {
                 height: ph,
                 frames: 1,
                 mesh: None,
+                fallback: None,
             });
         }
         Ok(written)
