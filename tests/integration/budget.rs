@@ -153,22 +153,7 @@ fn plan_sizes_file_data_from_the_image_headers() {
         "{data}"
     );
     // The bytes `run` counts once the views are read.
-    let views: Vec<_> = sdfl_runtime::data::nerf_synthetic::read_splits(
-        &dir.join("set"),
-        &[SplitRead::all("train"), SplitRead::all("test")],
-        glam::DVec3::ONE,
-    )
-    .unwrap()
-    .into_iter()
-    .flatten()
-    .collect();
-    let held = sdfl_runtime::data::views_bytes(&views);
-    assert_eq!(held, 1536.0 * 4.0);
-    let shown = sdfl_stdlib::size::fmt_bytes(held);
-    assert!(
-        data.contains(&format!(": {shown} held through training")),
-        "{data}"
-    );
+    assert_plan_holds_what_run_reads(&dir, data, 1, 1536.0 * 4.0);
     // Decoding holds more than the views: at least twice an image's f32.
     let reading = line(&plan, "reading");
     assert!(reading.contains("at most"), "{reading}");
@@ -247,10 +232,16 @@ fn plan_counts_a_downscaled_set_at_its_small_size() {
         line(&plan, "data ").contains("box-filtered to 1/4 a side"),
         "{plan}"
     );
+    assert_plan_holds_what_run_reads(&dir, data, 4, 96.0 * 12.0);
+}
+
+/// The views of the set in `dir` read as `run` reads them (at 1/`downscale`
+/// a side) hold `bytes`, and the plan's `data` line says so.
+fn assert_plan_holds_what_run_reads(dir: &Path, data: &str, downscale: u32, bytes: f64) {
     let views: Vec<_> = sdfl_runtime::data::nerf_synthetic::read_splits(
         &dir.join("set"),
         &["train", "test"].map(|s| SplitRead {
-            downscale: 4,
+            downscale,
             ..SplitRead::all(s)
         }),
         glam::DVec3::ONE,
@@ -260,7 +251,7 @@ fn plan_counts_a_downscaled_set_at_its_small_size() {
     .flatten()
     .collect();
     let held = sdfl_runtime::data::views_bytes(&views);
-    assert_eq!(held, 96.0 * 12.0);
+    assert_eq!(held, bytes);
     let shown = sdfl_stdlib::size::fmt_bytes(held);
     assert!(
         data.contains(&format!(": {shown} held through training")),

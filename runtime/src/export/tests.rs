@@ -237,21 +237,18 @@ fn point_cloud_points_lie_on_the_surface_with_its_colour() {
     let f = sphere(200.0, 0.005);
     let s = Stratified::new(512, 1.0, 5.0).unwrap();
     let views = cameras();
-    let cloud = point_cloud(
-        &f,
-        &views,
-        CloudSettings {
-            count: 500,
-            min_opacity: 0.9,
+    let cloud_of = |field: &dyn RadianceField, count: usize, min_opacity: f32, seed: u64| {
+        let settings = CloudSettings {
+            count,
+            min_opacity,
             rays_per_point: 4,
             crop: Crop::None,
-            seed: 7,
-        },
-        &s,
-        LastInterval::Infinite,
-        &DAffine3::IDENTITY,
-    )
-    .unwrap();
+            seed,
+        };
+        let last = LastInterval::Infinite;
+        point_cloud(field, &views, settings, &s, last, &DAffine3::IDENTITY).unwrap()
+    };
+    let cloud = cloud_of(&f, 500, 0.9, 7);
     assert_eq!(cloud.points.len(), 500);
     assert!(cloud.rays >= 500);
     let want = COLOUR.map(|c| (c * 255.0).round() as u8);
@@ -267,42 +264,14 @@ fn point_cloud_points_lie_on_the_surface_with_its_colour() {
         );
     }
     // Seeded: the same cloud again.
-    let again = point_cloud(
-        &f,
-        &views,
-        CloudSettings {
-            count: 500,
-            min_opacity: 0.9,
-            rays_per_point: 4,
-            crop: Crop::None,
-            seed: 7,
-        },
-        &s,
-        LastInterval::Infinite,
-        &DAffine3::IDENTITY,
-    )
-    .unwrap();
+    let again = cloud_of(&f, 500, 0.9, 7);
     assert_eq!(cloud, again);
     // An empty field keeps nothing and stops after its ray budget.
     let empty = Analytic {
         field: |_: [f32; 3]| (10.0f32, COLOUR),
         model: f.model,
     };
-    let none = point_cloud(
-        &empty,
-        &views,
-        CloudSettings {
-            count: 100,
-            min_opacity: 0.5,
-            rays_per_point: 4,
-            crop: Crop::None,
-            seed: 1,
-        },
-        &s,
-        LastInterval::Infinite,
-        &DAffine3::IDENTITY,
-    )
-    .unwrap();
+    let none = cloud_of(&empty, 100, 0.5, 1);
     assert!(none.points.is_empty());
     assert_eq!(none.rays, 400);
 }
