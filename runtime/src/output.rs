@@ -545,7 +545,27 @@ impl Write for SharedFile {
 /// in 0..1 (clamped; non-finite is the dark end): depth images and GIFs,
 /// the same map as `depth_map(colormap: "inferno")`.
 pub fn colormap(x: f32) -> [u8; 3] {
-    crate::export::depth::colour(sdfl_stdlib::value::Colormap::Inferno, x as f64)
+    colour(sdfl_stdlib::value::Colormap::Inferno, x as f64)
+}
+
+/// `map` at `x` in 0..1 (clamped; non-finite gives the low end).
+pub fn colour(map: sdfl_stdlib::value::Colormap, x: f64) -> [u8; 3] {
+    use sdfl_stdlib::value::Colormap;
+    let g = match map {
+        Colormap::Turbo => colorous::TURBO,
+        Colormap::Viridis => colorous::VIRIDIS,
+        Colormap::Inferno => colorous::INFERNO,
+        Colormap::Magma => colorous::MAGMA,
+        Colormap::Plasma => colorous::PLASMA,
+        Colormap::Cividis => colorous::CIVIDIS,
+    };
+    let x = if x.is_finite() {
+        x.clamp(0.0, 1.0)
+    } else {
+        0.0
+    };
+    let c = g.eval_continuous(x);
+    [c.r, c.g, c.b]
 }
 
 /// Linear 0..1 to 8 bits (no gamma: the assignment's images are linear).

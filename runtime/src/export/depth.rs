@@ -7,6 +7,7 @@ use plotters::prelude::*;
 use sdfl_stdlib::value::Colormap;
 
 use super::RayEnd;
+use crate::output::colour;
 
 /// Depth per pixel: `Σ wᵢtᵢ / Σ wᵢ` where the opacity reaches
 /// `min_opacity`, NaN elsewhere (no surface: NaN, not 0, so that a mean
@@ -26,25 +27,6 @@ pub fn npy_bytes(values: &[f32], rows: usize, cols: usize) -> Vec<u8> {
         out.extend_from_slice(&v.to_le_bytes());
     }
     out
-}
-
-/// `map` at `x` in 0..1 (clamped; non-finite gives the low end).
-pub fn colour(map: Colormap, x: f64) -> [u8; 3] {
-    let g = match map {
-        Colormap::Turbo => colorous::TURBO,
-        Colormap::Viridis => colorous::VIRIDIS,
-        Colormap::Inferno => colorous::INFERNO,
-        Colormap::Magma => colorous::MAGMA,
-        Colormap::Plasma => colorous::PLASMA,
-        Colormap::Cividis => colorous::CIVIDIS,
-    };
-    let x = if x.is_finite() {
-        x.clamp(0.0, 1.0)
-    } else {
-        0.0
-    };
-    let c = g.eval_continuous(x);
-    [c.r, c.g, c.b]
 }
 
 /// The depths at a colour map's ends: `fixed`, else the finite values'

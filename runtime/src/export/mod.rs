@@ -17,7 +17,6 @@ use sdfl_stdlib::camera::Camera;
 use sdfl_stdlib::value::LastInterval;
 
 use crate::mesh::{DistanceField, Mesh, MeshGrid};
-use crate::neural::nerf::{NerfNet, NerfWork};
 use crate::volume::composite::{weights_from_density, weights_from_opacity};
 use crate::volume::march::intervals_into;
 use crate::volume::rays::pixel_ray;
@@ -31,7 +30,7 @@ pub mod ply;
 pub mod write;
 
 /// Samples a network pass evaluates at most (its buffers grow with it).
-const NETWORK_ROWS: usize = 65_536;
+pub(crate) const NETWORK_ROWS: usize = 65_536;
 
 /// A field that has density and colour everywhere.
 pub trait RadianceField: Sync {
@@ -78,45 +77,6 @@ impl<F: Fn([f32; 3]) -> (f32, [f32; 3]) + Sync> RadianceField for Analytic<F> {
     fn opacity_form(&self) -> bool {
         self.model.kind.per_sample_opacity()
     }
-}
-
-/// A NeRF network at its parameters (the fine network where there is one:
-/// the one that renders).
-pub struct NerfField<'a> {
-    /// The network.
-    pub net: &'a NerfNet,
-    /// Its parameters.
-    pub params: &'a [f32],
-}
-
-impl RadianceField for NerfField<'_> {
-    fn query(
-        &self,
-        points: &[[f32; 3]],
-        dirs: &[[f32; 3]],
-        sigma: &mut [f32],
-        rgb: &mut [[f32; 3]],
-    ) {
-        let mut work = NerfWork::default();
-        for (start, p) in (0..points.len())
-            .step_by(NETWORK_ROWS)
-            .zip(points.chunks(NETWORK_ROWS))
-        {
-            let end = start + p.len();
-            let flat: &[f32] = bytemuck_flat(p);
-            let d: &[f32] = bytemuck_flat(&dirs[start..end]);
-            self.net.forward(self.params, flat, d, &mut work);
-            sigma[start..end].copy_from_slice(&work.sigma[..p.len()]);
-            for (c, w) in rgb[start..end].iter_mut().zip(work.rgb.chunks_exact(3)) {
-                *c = [w[0], w[1], w[2]];
-            }
-        }
-    }
-}
-
-/// `[[f32; 3]]` as a flat `[f32]` (the same memory).
-fn bytemuck_flat(p: &[[f32; 3]]) -> &[f32] {
-    p.as_flattened()
 }
 
 /// The end of one ray through a field.
@@ -495,27 +455,8 @@ pub fn density_mesh(
             })
         })
         .collect();
-    transform_mesh(&mut mesh, to_data);
+    mesh.transform(to_data);
     Ok(ColouredMesh { mesh, colours })
-}
-
-/// Moves a mesh's vertices by `m` and its normals by the inverse transpose
-/// of `m`'s linear part (renormalised).
-pub fn transform_mesh(mesh: &mut Mesh, m: &DAffine3) {
-    if *m == DAffine3::IDENTITY {
-        return;
-    }
-    let normal_m = m.matrix3.inverse().transpose();
-    for v in &mut mesh.vertices {
-        *v = m
-            .transform_point3(DVec3::from(v.map(f64::from)))
-            .as_vec3()
-            .to_array();
-    }
-    for n in &mut mesh.normals {
-        let q = (normal_m * DVec3::from(n.map(f64::from))).normalize_or_zero();
-        *n = q.as_vec3().to_array();
-    }
 }
 
 #[cfg(test)]

@@ -363,7 +363,7 @@ pub fn run_volume_job(
                 let model = NerfObjective::new(n, &job.sampler).map_err(invalid)?;
                 let params = model.initial();
                 let net = model.fine.as_ref().map_or(&model.net, |(f, _)| f);
-                let field = crate::export::NerfField {
+                let field = crate::neural::nerf::NerfField {
                     net,
                     params: &params,
                 };

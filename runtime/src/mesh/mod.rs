@@ -96,7 +96,7 @@ pub fn write_mesh_to(
         r => r,
     }
     .map_err(|e| io::Error::other(format!("`{}`: {e}", o.path.display())))?;
-    crate::export::transform_mesh(&mut mesh, to_data);
+    mesh.transform(to_data);
     mesh.write_ply(&out_dir.join(&o.path))?;
     let stats = MeshStats {
         vertices: mesh.vertices.len(),
@@ -808,6 +808,26 @@ fn refine(field: &dyn DistanceField, step: f32, mesh: &mut Mesh) {
 }
 
 impl Mesh {
+    /// Moves the vertices by `m` and the normals by the inverse transpose
+    /// of `m`'s linear part (renormalised).
+    pub fn transform(&mut self, m: &glam::DAffine3) {
+        use glam::{DAffine3, DVec3};
+        if *m == DAffine3::IDENTITY {
+            return;
+        }
+        let normal_m = m.matrix3.inverse().transpose();
+        for v in &mut self.vertices {
+            *v = m
+                .transform_point3(DVec3::from(v.map(f64::from)))
+                .as_vec3()
+                .to_array();
+        }
+        for n in &mut self.normals {
+            let q = (normal_m * DVec3::from(n.map(f64::from))).normalize_or_zero();
+            *n = q.as_vec3().to_array();
+        }
+    }
+
     /// Total surface area.
     pub fn area(&self) -> f64 {
         self.triangles.iter().map(|t| self.triangle_area(t)).sum()

@@ -944,7 +944,7 @@ impl TrainedField for Trained<NerfObjective> {
         let o = &self.objective;
         // The network that renders: the fine one where there is one.
         let net = o.fine.as_ref().map_or(&o.net, |(f, _)| f);
-        Some(Box::new(crate::export::NerfField {
+        Some(Box::new(crate::neural::nerf::NerfField {
             net,
             params: values,
         }))

@@ -542,6 +542,38 @@ impl NerfWork {
     }
 }
 
+/// A NeRF network at its parameters (the fine network where there is one:
+/// the one that renders).
+pub struct NerfField<'a> {
+    /// The network.
+    pub net: &'a NerfNet,
+    /// Its parameters.
+    pub params: &'a [f32],
+}
+
+impl crate::export::RadianceField for NerfField<'_> {
+    fn query(
+        &self,
+        points: &[[f32; 3]],
+        dirs: &[[f32; 3]],
+        sigma: &mut [f32],
+        rgb: &mut [[f32; 3]],
+    ) {
+        let mut work = NerfWork::default();
+        let rows = crate::export::NETWORK_ROWS;
+        for (start, p) in (0..points.len()).step_by(rows).zip(points.chunks(rows)) {
+            let end = start + p.len();
+            let flat = p.as_flattened();
+            let d = dirs[start..end].as_flattened();
+            self.net.forward(self.params, flat, d, &mut work);
+            sigma[start..end].copy_from_slice(&work.sigma[..p.len()]);
+            for (c, w) in rgb[start..end].iter_mut().zip(work.rgb.chunks_exact(3)) {
+                *c = [w[0], w[1], w[2]];
+            }
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
