@@ -183,8 +183,9 @@ pub fn render_ends(
 pub struct Cloud {
     /// Point positions.
     pub points: Vec<[f32; 3]>,
-    /// Unit normal per point, facing the camera that saw it
-    /// ([`normals::estimate_normals`]).
+    /// Unit normal per point: fitted to its neighbours
+    /// ([`normals::fit_planes`]), facing where the density falls, else the
+    /// camera that saw it ([`normals::orient`]).
     pub normals: Vec<[f32; 3]>,
     /// Colour per point.
     pub colours: Vec<[u8; 3]>,

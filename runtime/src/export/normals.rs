@@ -79,17 +79,6 @@ pub fn orient(fit: &Fitted, outward: Option<[f64; 3]>, back: [f64; 3]) -> [f32; 
     n.map_or([0.0; 3], |n| n.map(|x| x as f32))
 }
 
-/// A unit normal per point of `points`, facing `seen_from` (each point's
-/// ray origin): [`fit_planes`] and [`orient`] without the field.
-pub fn estimate_normals(points: &[[f32; 3]], seen_from: &[[f32; 3]]) -> Vec<[f32; 3]> {
-    assert_eq!(points.len(), seen_from.len());
-    fit_planes(points)
-        .iter()
-        .zip(points.iter().zip(seen_from))
-        .map(|(f, (p, o))| orient(f, None, [0, 1, 2].map(|a| o[a] as f64 - p[a] as f64)))
-        .collect()
-}
-
 fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
     a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 }
@@ -169,6 +158,17 @@ fn smallest_eigenvalue(c: &[[f64; 3]; 3]) -> f64 {
 mod tests {
     use super::*;
     use crate::volume::SplitMix64;
+
+    /// A unit normal per point of `points`, facing `seen_from` (each point's
+    /// ray origin): [`fit_planes`] and [`orient`] without the field.
+    fn estimate_normals(points: &[[f32; 3]], seen_from: &[[f32; 3]]) -> Vec<[f32; 3]> {
+        assert_eq!(points.len(), seen_from.len());
+        fit_planes(points)
+            .iter()
+            .zip(points.iter().zip(seen_from))
+            .map(|(f, (p, o))| orient(f, None, [0, 1, 2].map(|a| o[a] as f64 - p[a] as f64)))
+            .collect()
+    }
 
     /// The smallest eigenvalue against the minimum of the Rayleigh
     /// quotient over many directions (brute force).
