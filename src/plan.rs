@@ -4,121 +4,7 @@ use super::*;
 
 /// One line on what a field is and what it will compute.
 fn describe_field(field: &sdfl_stdlib::value::Field) -> String {
-    use sdfl_stdlib::value::{Encoding, Field};
-    let enc = |e: &Encoding| match e {
-        Encoding::Harmonic(h) => format!(
-            "harmonic({}{})",
-            h.freqs,
-            if h.include_input { "" } else { ", no input" }
-        ),
-        Encoding::HashGrid(g) => format!(
-            "hashgrid({} levels x {} features, 2^{} rows, {}..{} cells a side)",
-            g.levels, g.features, g.log2_table, g.min_res, g.max_res
-        ),
-    };
-    match field {
-        Field::NeuralSdf(n) => format!(
-            "neural SDF: {} position, {}x{} softplus(beta {}) layers{}; {} multiply-adds per point and 3x that for its exact gradient",
-            enc(&n.encoding),
-            n.layers,
-            n.width,
-            n.beta,
-            if n.skips.is_empty() {
-                String::new()
-            } else {
-                format!(" (position again at layers {:?})", n.skips)
-            },
-            n.multiply_adds()
-        ),
-        Field::NeuralSurface(n) => format!(
-            "neural SDF as a {:?} volume (alpha {}, beta {}{}): {} position, {}x{} softplus layers with the exact gradient at every sample; colour network {}x{} ReLU on the point, the normal{}; {} multiply-adds per sample",
-            n.density,
-            n.alpha,
-            n.beta,
-            match (n.train_beta, n.beta_end) {
-                (true, _) => ", trained".to_string(),
-                (false, Some(end)) => format!(" falling to {end} over the steps"),
-                (false, None) => String::new(),
-            },
-            enc(&n.sdf.encoding),
-            n.sdf.layers,
-            n.sdf.width,
-            n.color_layers,
-            n.color_width,
-            if n.view_dependent {
-                " and the view direction"
-            } else {
-                " (no view direction)"
-            },
-            n.multiply_adds_per_sample()
-        ),
-        Field::Sdf(f) => format!(
-            "{:?} density, alpha {}, beta {}, {} primitives",
-            f.density,
-            f.alpha.value,
-            f.beta.value,
-            f.shape.primitive_count()
-        ),
-        Field::Nerf(n) => format!(
-            "NeRF: {} position, {}x{} ReLU trunk{}, {} density, {}; {} multiply-adds per sample{}; {}; {}; {}{}",
-            enc(&n.position),
-            n.layers,
-            n.width,
-            if n.skips.is_empty() {
-                String::new()
-            } else {
-                format!(" (position again at layers {:?})", n.skips)
-            },
-            n.density.name(),
-            match &n.direction {
-                Some(d) => format!(
-                    "view-dependent colour ({} direction, {}-wide branch)",
-                    enc(d),
-                    n.color_width
-                ),
-                None => "colour without the view direction (no direction branch built)".into(),
-            },
-            n.multiply_adds_per_sample(),
-            match n.fine {
-                0 => " (one network)".to_string(),
-                m => format!(", twice: coarse, and fine on the coarse samples + {m} by inverse CDF"),
-            },
-            match &n.occupancy {
-                Some(o) => format!(
-                    "occupancy grid {}^3 refreshed every {} steps: samples only in occupied cells",
-                    o.resolution, o.every
-                ),
-                None => "every sample evaluated (no occupancy grid)".into(),
-            },
-            sdfl_runtime::describe::precision(n.precision),
-            match &n.background {
-                sdfl_stdlib::value::Background::Data => "background: the data's".to_string(),
-                sdfl_stdlib::value::Background::Color(c) => format!(
-                    "background [{}, {}, {}]",
-                    sdfl_lang::fmt_num(c[0]),
-                    sdfl_lang::fmt_num(c[1]),
-                    sdfl_lang::fmt_num(c[2])
-                ),
-                sdfl_stdlib::value::Background::Learned(l) => format!(
-                    "background learned from the ray direction (harmonic({}), {} wide)",
-                    l.freqs, l.width
-                ),
-            },
-            match &n.unbounded {
-                Some(sdfl_stdlib::value::Unbounded::Ndc(_)) => "; unbounded: positions in the capture camera's NDC, samples evenly in disparity from its near plane".to_string(),
-                Some(sdfl_stdlib::value::Unbounded::Contract(c)) => format!(
-                    "; unbounded: positions outside [{}, {}, {}]..[{}, {}, {}] contracted into [-2, 2]^3 (mip-NeRF 360)",
-                    sdfl_lang::fmt_num(c.min[0]),
-                    sdfl_lang::fmt_num(c.min[1]),
-                    sdfl_lang::fmt_num(c.min[2]),
-                    sdfl_lang::fmt_num(c.max[0]),
-                    sdfl_lang::fmt_num(c.max[1]),
-                    sdfl_lang::fmt_num(c.max[2])
-                ),
-                None => String::new(),
-            }
-        ),
-    }
+    field.model().describe(&sdfl_runtime::describe::precision)
 }
 
 /// ", N held out as test views" (empty for none).
@@ -427,7 +313,7 @@ pub(crate) fn plan_text_in(program: &sdfl_stdlib::Program, base: &std::path::Pat
         };
         let _ = writeln!(o, "  data           {data}");
         let estimate = data_lines(&mut o, job, base);
-        let on_points = matches!(&*job.model, sdfl_stdlib::value::Field::NeuralSdf(_));
+        let on_points = job.model.model().trains_on_points();
         let _ = writeln!(
             o,
             "  step           {}, {}, Adam lr {} ({}), {}",

@@ -18,6 +18,7 @@ pub mod imports;
 pub mod lens;
 pub mod limits;
 pub mod material;
+pub mod model;
 pub mod num;
 pub mod outputs;
 pub mod param;

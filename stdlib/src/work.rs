@@ -10,7 +10,7 @@ use sdfl_lang::Span;
 use crate::camera::Camera;
 use crate::shape::Aabb;
 use crate::size::{fmt_bytes, BYTES_PER_PRIMITIVE};
-use crate::value::{Dataset, Field, OutputKind, Program, RenderJob, TrainJob, VolumeJob};
+use crate::value::{Dataset, OutputKind, Program, RenderJob, TrainJob, VolumeJob};
 
 /// Most SDF (or density) evaluations one statement is expected to take
 /// unless [`MAX_EVALUATIONS_VAR`] says otherwise: about an hour of tracing
@@ -166,7 +166,7 @@ pub struct Work {
     /// library keeps [`Host::matmul_scratch`] in each thread that has.
     pub matmul: bool,
     /// Time a training evaluation of this model takes, in evaluations of
-    /// the machine's calibrated rate ([`training_pace`]): the count is of
+    /// the machine's calibrated rate ([`crate::model::Model::training_pace`]): the count is of
     /// multiply-adds, and models spend their time differently.
     pub training_pace: f64,
     stages: [Cost; Stage::ALL.len()],
@@ -528,7 +528,7 @@ fn field_export_work(
 /// its triangles (the true surface's mesh at [`TRUE_SURFACE_RESOLUTION`]
 /// is the larger: about 2π·res² triangles, 80 bytes each with the
 /// hierarchy), or to the nearest data point by a k-d tree.
-fn chamfer_cost() -> Cost {
+pub(crate) fn chamfer_cost() -> Cost {
     let res = TRUE_SURFACE_RESOLUTION as f64;
     let triangles = 2.0 * std::f64::consts::PI * res * res;
     Cost::all(
@@ -635,82 +635,25 @@ pub fn refuse_total(evaluations: f64, primitives: u64, span: Span) -> Option<Dia
     )
 }
 
-/// A network pass of `multiply_adds`, in evaluations (at least one).
-fn network(multiply_adds: usize) -> f64 {
-    (multiply_adds as f64 / MULTIPLY_ADDS_PER_EVALUATION).max(1.0)
-}
-
-/// Multiply-adds of a NeRF sample's forward pass, its encoding included (a
-/// hash grid interpolates eight corners a level).
-fn nerf_multiply_adds(n: &crate::value::Nerf) -> usize {
-    let encoding = match &n.position {
-        crate::value::Encoding::HashGrid(g) => (g.levels * 8 * (g.features + 4)) as usize,
-        crate::value::Encoding::Harmonic(_) => 0,
-    };
-    // A contracted position: a handful of operations, about 10
-    // multiply-adds' worth.
-    let contraction = if n.unbounded.is_some() { 10 } else { 0 };
-    n.multiply_adds_per_sample() + encoding + contraction
-}
-
-/// Multiply-adds of a NeRF's background per ray (0 for a colour).
-fn background_multiply_adds(n: &crate::value::Nerf) -> usize {
-    match n.background {
-        crate::value::Background::Learned(l) => l.multiply_adds(),
-        crate::value::Background::Data | crate::value::Background::Color(_) => 0,
-    }
-}
-
-/// Evaluations of a NeRF's learned background per ray (0 for a colour).
-fn background_evaluations(n: &crate::value::Nerf) -> f64 {
-    match background_multiply_adds(n) {
-        0 => 0.0,
-        m => network(m),
-    }
-}
-
-/// Bytes of a NeRF's buffers per sample of a pass: the encoding, every
-/// layer's values and the colour branch, forward and back.
-fn nerf_bytes_per_sample(n: &crate::value::Nerf) -> f64 {
-    (4 * (2 * n.position.width() + (n.layers + 4) * n.width + 2 * n.color_width + 16)) as f64
-}
-
-/// Samples a NeRF render or refresh evaluates in one pass.
-const NETWORK_PASS: f64 = 65_536.0;
-
 /// What a volume `render` costs (at `size` when `--size` overrides it).
 pub fn volume_work(j: &VolumeJob, size: Option<(u32, u32)>) -> Work {
     let px = pixels((j.width, j.height), size);
-    // A network's sample costs its multiply-adds and holds its activations
-    // for one pass of 65 536 samples.
-    let (per_sample, network_bytes) = match &*j.field {
-        Field::Sdf(_) => (1.0, 0.0),
-        Field::Nerf(n) => (
-            network(nerf_multiply_adds(n)),
-            NETWORK_PASS * nerf_bytes_per_sample(n) + 4.0 * n.weights() as f64,
-        ),
-        // Refused as a volume when evaluated; counted like a network.
-        Field::NeuralSdf(n) => (network(n.multiply_adds()), 0.0),
-        Field::NeuralSurface(n) => (network(n.multiply_adds_per_sample()), 0.0),
-    };
+    let model = j.field.model();
+    let per_sample = model.volume_sample();
     let mesh = mesh_work(j.outputs.iter().map(|o| &o.kind), per_sample);
-    let mut w = Work::new(network_bytes);
+    let mut w = Work::new(model.volume_buffers());
     w.add(
         Stage::Views,
         px * j.cameras.len() as f64 * j.sampler.samples as f64 * per_sample,
         px * bytes_per_pixel(j.outputs.iter().map(|o| o.kind.clone()), true),
     );
     w.add(Stage::Meshes, mesh.evaluations, mesh.memory);
-    let per_sample = match &*j.field {
-        Field::Sdf(f) => f.shape.evaluation_cost(),
-        _ => per_sample,
-    };
     let (meshes, depth) = field_export_work(
         &j.outputs,
         j.cameras.len() as f64,
         px,
         j.sampler.samples as f64,
-        per_sample,
+        model.export_sample(),
     );
     w.add(Stage::Meshes, meshes.evaluations, meshes.memory);
     w.add(Stage::Views, depth.evaluations, depth.memory);
@@ -761,83 +704,6 @@ fn training_steps(j: &TrainJob) -> f64 {
     }
 }
 
-/// Evaluations of one pixel of a rendered view of the trained model.
-fn render_per_pixel(j: &TrainJob) -> f64 {
-    let samples = j.sampler.samples as f64;
-    match &*j.model {
-        Field::Sdf(f) => samples * f.shape.evaluation_cost(),
-        Field::Nerf(n) => {
-            (samples + n.fine as f64) * network(nerf_multiply_adds(n)) + background_evaluations(n)
-        }
-        // Sphere-traced, up to 96 steps of a distance.
-        Field::NeuralSdf(n) => 96.0 * network(n.multiply_adds()),
-        Field::NeuralSurface(n) => samples * network(n.multiply_adds_per_sample()),
-    }
-}
-
-/// Bytes of a neural surface's buffers per sample: every SDF layer's
-/// values, three tangents and their slopes, and the colour network's
-/// activations.
-fn surface_bytes_per_sample(n: &crate::value::NeuralSurface) -> f64 {
-    let s = &n.sdf;
-    (4 * (3 * 4 * (s.layers + 1) * s.width
-        + 4 * s.encoding_width()
-        + 2 * n.color_layers * n.color_width
-        + n.color_input()
-        + 16)) as f64
-}
-
-/// Bytes of a network's buffers while it renders (one pass of samples).
-fn render_buffers(j: &TrainJob) -> f64 {
-    match &*j.model {
-        Field::Nerf(n) => NETWORK_PASS * nerf_bytes_per_sample(n),
-        Field::NeuralSdf(n) => (4 * 64 * ((n.layers + 1) * n.width + n.encoding_width())) as f64,
-        // Samples of 16 384 a pass.
-        Field::NeuralSurface(n) => 16_384.0 * surface_bytes_per_sample(n),
-        Field::Sdf(_) => 0.0,
-    }
-}
-
-/// How long one of `j`'s training evaluations takes against the
-/// machine's calibrated rate (`sdfl_runtime::pace`), by the model's kind:
-/// measured by `plan` against `run` on the examples, one after another on
-/// one machine (docs/results.md, "plan's times"). Hash grids spend their
-/// time gathering table rows, which a count of multiply-adds misses; a
-/// surface's tangents through them more so.
-pub fn training_pace(j: &TrainJob) -> f64 {
-    use crate::value::Encoding;
-    // Measured: examples/nerf_fast.sdfl, nerf.sdfl, neus_fast.sdfl,
-    // neus.sdfl, volsdf_fast.sdfl, volsdf.sdfl, neural_sdf_fast.sdfl and
-    // train_box.sdfl. A harmonic neural SDF is not measured: 1.
-    match &*j.model {
-        Field::Nerf(n) => match n.position {
-            Encoding::HashGrid(_) => 1.0,
-            Encoding::Harmonic(_) => 0.45,
-        },
-        Field::NeuralSurface(n) => match n.sdf.encoding {
-            Encoding::HashGrid(_) => 4.0,
-            Encoding::Harmonic(_) => 0.3,
-        },
-        Field::NeuralSdf(n) => match n.encoding {
-            Encoding::HashGrid(_) => 2.3,
-            Encoding::Harmonic(_) => 1.0,
-        },
-        // 0.8 in the shared batch, 1.8 on the quiet machine: between.
-        Field::Sdf(_) => 1.5,
-    }
-}
-
-/// The share of `j`'s samples along rays expected to reach its networks:
-/// [`OCCUPIED_SHARE`] behind a NeRF's occupancy grid,
-/// [`SURFACE_KEPT_SHARE`] for a hash-grid surface's, else all.
-pub fn expected_share(j: &TrainJob) -> f64 {
-    match &*j.model {
-        Field::Nerf(n) if n.occupancy.is_some() => OCCUPIED_SHARE,
-        Field::NeuralSurface(n) if n.skips_empty_space() => SURFACE_KEPT_SHARE,
-        _ => 1.0,
-    }
-}
-
 /// How many of a data set's `held_out` views each evaluation of `j`
 /// scores: `eval_views`, at most all of them.
 pub fn scored_views(j: &TrainJob, held_out: usize) -> usize {
@@ -874,13 +740,14 @@ pub fn held_out_cost(j: &TrainJob, views: usize, pixels: f64) -> Cost {
     } else {
         0.0
     } + 1.0;
-    let evaluations = times * views as f64 * pixels * render_per_pixel(j);
+    let model = j.model.model();
+    let evaluations = times * views as f64 * pixels * model.render_pixel(j.sampler.samples as f64);
     Cost {
         evaluations,
-        expected: evaluations * expected_share(j),
+        expected: evaluations * model.expected_share(),
         memory: views.min(COMPARISON_VIEWS) as f64 * pixels * 24.0
             + pixels * 16.0
-            + render_buffers(j),
+            + model.render_buffers(),
     }
 }
 
@@ -889,29 +756,10 @@ pub fn train_work(j: &TrainJob, size: Option<(u32, u32)>) -> Work {
     let samples = j.sampler.samples as f64;
     let iterations = training_steps(j);
     let rays = j.rays as f64;
-    // Training walks the whole model at every sample (no culling), once for
-    // values and once per 16 parameters for tangents; a network forward and
-    // backward (about three passes).
+    let model = j.model.model();
     let mut scalars = 0usize;
     j.model.visit_params(&mut |u| scalars += u.decl.init.len());
-    let per_ray = match &*j.model {
-        Field::Sdf(f) => samples * f.shape.evaluation_cost() * (1.0 + scalars.div_ceil(16) as f64),
-        Field::Nerf(n) => {
-            // The fine network sees the coarse samples and its own.
-            let fine = if n.fine > 0 {
-                samples + n.fine as f64
-            } else {
-                0.0
-            };
-            // The learned background: once a ray, forward and backward.
-            3.0 * (samples + fine) * network(nerf_multiply_adds(n))
-                + 3.0 * background_evaluations(n)
-        }
-        // A distance and its three tangents, forward and backward, at a
-        // surface and a random point per ray of the batch (not per sample).
-        Field::NeuralSdf(n) => 2.0 * 12.0 * network(n.multiply_adds()),
-        Field::NeuralSurface(n) => 3.0 * samples * network(n.multiply_adds_per_sample()),
-    };
+    let per_ray = model.train_ray(samples, scalars);
     let (data_evals, data_bytes) = match &*j.data {
         Dataset::Rendered {
             cameras,
@@ -934,99 +782,25 @@ pub fn train_work(j: &TrainJob, size: Option<(u32, u32)>) -> Work {
         | Dataset::Capture(_)
         | Dataset::Points { .. } => (0.0, 0.0),
     };
-    let weights = match &*j.model {
-        Field::Sdf(_) => scalars as f64,
-        Field::Nerf(n) => {
-            n.weights() as f64 * if n.fine > 0 { 2.0 } else { 1.0 } + n.background_weights() as f64
-        }
-        Field::NeuralSdf(n) => n.weights() as f64,
-        Field::NeuralSurface(n) => n.weights() as f64,
-    };
-    let grid = match &*j.model {
-        Field::Nerf(n) => n.occupancy.as_ref(),
-        _ => None,
-    };
-    // A neural surface's grid that skips empty space keeps a distance a
-    // cell (its state), copied as the NeRF's is.
-    let surface_cells = match &*j.model {
-        Field::NeuralSurface(n) if n.skips_empty_space() => {
-            (crate::value::NeuralSurface::SKIP_CELLS as f64).powi(3)
-        }
-        _ => 0.0,
-    };
-    let cells = grid.map_or(surface_cells, |g| (g.resolution as f64).powi(3));
+    let weights = model.trained_numbers(scalars);
+    let cells = model.grid_cells();
     let mut w = Work::new(data_bytes + weights * BYTES_PER_WEIGHT + cells * 4.0 * GRID_COPIES);
     w.add(Stage::Data, data_evals, 0.0);
 
-    // Per-ray buffers of a batch (samples, weights, gradients); a network
-    // keeps every layer's activations per sample, twice with a fine
-    // network (which sees the coarse samples too).
-    let batch = rays * samples * 64.0
-        + match &*j.model {
-            // The dfdx graph keeps every op's values and gradients per
-            // sample, and composites by a triangular samples × samples
-            // product per ray.
-            Field::Sdf(_) if j.backend == crate::value::Backend::Dfdx => {
-                rays * samples * (samples * 8.0 + 256.0)
-            }
-            Field::Sdf(_) => 0.0,
-            // Every layer's values and three tangents, forward and back,
-            // for 2 points a ray.
-            Field::NeuralSdf(n) => {
-                rays * 2.0 * 8.0 * 4.0 * ((n.layers + 1) * n.width + 4 * n.encoding_width()) as f64
-            }
-            Field::NeuralSurface(n) => rays * samples * surface_bytes_per_sample(n),
-            Field::Nerf(n) => {
-                let fine = if n.fine > 0 {
-                    2.0 + n.fine as f64 / samples.max(1.0)
-                } else {
-                    0.0
-                };
-                // A learned background's activations per ray, forward and back.
-                let background = match n.background {
-                    crate::value::Background::Learned(l) => {
-                        4.0 * (2 * l.input() + 2 * l.width + 12) as f64
-                    }
-                    _ => 0.0,
-                };
-                rays * samples * nerf_bytes_per_sample(n) * (1.0 + fine) + rays * background
-            }
-        };
+    // Per-ray buffers of a batch (samples, weights, gradients), and the
+    // model's own (a network's activations, the dfdx graph).
+    let batch = rays * samples * 64.0 + model.batch_bytes(rays, samples, j.backend);
     w.add_skipping(
         Stage::Training,
         iterations * rays * per_ray,
-        expected_share(j),
+        model.expected_share(),
         batch,
     );
-    w.matmul = matches!(&*j.model, Field::Sdf(_)) && j.backend == crate::value::Backend::Dfdx;
-    w.training_pace = training_pace(j);
-    if let Field::NeuralSurface(n) = &*j.model {
-        w.per_thread = n.sdf.thread_scratch() as f64;
-    }
-
-    if let (Some(g), Field::Nerf(n)) = (grid, &*j.model) {
-        // The density alone at each cell refreshed.
-        let density =
-            nerf_multiply_adds(n) - n.multiply_adds_per_sample() + n.density_multiply_adds();
-        w.add(
-            Stage::GridRefresh,
-            crate::value::occupancy_refresh_cells(cells, iterations, g.every) * network(density),
-            // One pass of points, their directions and densities.
-            cells.min(NETWORK_PASS) * (nerf_bytes_per_sample(n) + 28.0),
-        );
-    }
-
-    if let Field::NeuralSurface(n) = &*j.model {
-        if surface_cells > 0.0 {
-            let every = crate::value::NeuralSurface::SKIP_EVERY as f64;
-            w.add(
-                Stage::GridRefresh,
-                (iterations / every).ceil() * surface_cells * network(n.sdf.multiply_adds()),
-                // The centres, this refresh's distances and the last's.
-                surface_cells * 20.0,
-            );
-        }
-    }
+    w.matmul = model.uses_matmul(j.backend);
+    w.training_pace = model.training_pace();
+    w.per_thread = model.thread_scratch();
+    let refresh = model.grid_refresh(iterations);
+    w.add(Stage::GridRefresh, refresh.evaluations, refresh.memory);
 
     let (test_views, test_pixels) = match &*j.data {
         Dataset::Rendered {
@@ -1046,7 +820,7 @@ pub fn train_work(j: &TrainJob, size: Option<(u32, u32)>) -> Work {
     w.add_skipping(
         Stage::HeldOut,
         held_out.evaluations,
-        expected_share(j),
+        model.expected_share(),
         held_out.memory,
     );
 
@@ -1068,13 +842,7 @@ pub fn train_work(j: &TrainJob, size: Option<(u32, u32)>) -> Work {
         })
     };
     let passes = renders(&j.before) as u8 as f64 + renders(&j.after) as u8 as f64;
-    let per_point = match &*j.model {
-        Field::Sdf(f) => f.shape.primitive_count() as f64,
-        Field::Nerf(n) => network(nerf_multiply_adds(n)),
-        // A distance and its gradient.
-        Field::NeuralSdf(n) => 4.0 * network(n.multiply_adds()),
-        Field::NeuralSurface(n) => 4.0 * network(n.sdf.multiply_adds()),
-    };
+    let per_point = model.geometry_point();
     let geometry_gifs = j
         .before
         .iter()
@@ -1085,9 +853,9 @@ pub fn train_work(j: &TrainJob, size: Option<(u32, u32)>) -> Work {
     if outputs > 0 {
         w.add_skipping(
             Stage::Outputs,
-            passes * px * views * render_per_pixel(j),
-            expected_share(j),
-            px * 16.0 + render_buffers(j),
+            passes * px * views * model.render_pixel(samples),
+            model.expected_share(),
+            px * 16.0 + model.render_buffers(),
         );
         w.add(
             Stage::Outputs,
@@ -1097,11 +865,7 @@ pub fn train_work(j: &TrainJob, size: Option<(u32, u32)>) -> Work {
     }
 
     // Field exports march their own rays through the model.
-    let export_sample = match &*j.model {
-        Field::Sdf(f) => f.shape.evaluation_cost(),
-        Field::Nerf(n) => network(nerf_multiply_adds(n)),
-        _ => per_point,
-    };
+    let export_sample = model.export_sample();
     for outputs in [&j.before, &j.after] {
         let (meshes, depth) = field_export_work(outputs, views, px, samples, export_sample);
         w.add(Stage::Meshes, meshes.evaluations, meshes.memory);
@@ -1132,15 +896,8 @@ pub fn train_work(j: &TrainJob, size: Option<(u32, u32)>) -> Work {
         let c = chamfer_cost();
         w.add(Stage::Meshes, c.evaluations, c.memory);
     }
-    if let Field::NeuralSdf(n) = &*j.model {
-        let probes = FIT_PROBES as f64;
-        let per_row = (4 * (3 * n.encoding_width() + 6 * (n.layers + 1) * n.width + 16)) as f64;
-        w.add(
-            Stage::Meshes,
-            10.0 * probes * 4.0 * network(n.multiply_adds()),
-            FIT_CHUNK as f64 * per_row + probes * 16.0 + chamfer_cost().memory,
-        );
-    }
+    let fit = model.fit_work();
+    w.add(Stage::Meshes, fit.evaluations, fit.memory);
     w
 }
 

@@ -11,7 +11,7 @@ use sdfl_stdlib::camera::Camera;
 use sdfl_stdlib::material::Material;
 use sdfl_stdlib::num::V3;
 use sdfl_stdlib::shape::Fixed;
-use sdfl_stdlib::value::{Backend, Dataset, Field, Output, Sampler, SdfField, TrainJob, VolumeJob};
+use sdfl_stdlib::value::{Dataset, Field, Output, Sampler, SdfField, TrainJob, VolumeJob};
 use sdfl_stdlib::OutputKind;
 use sdfl_stdlib::RenderJob;
 use serde::Serialize;
@@ -22,7 +22,6 @@ use crate::data::view_image::ViewImage;
 use crate::data::DataNeeds;
 use crate::metrics;
 use crate::neural::field::NerfObjective;
-use crate::neural::nerf::{NerfNet, NerfWork};
 use crate::output::{to_u8, write_png, Written, WrittenKind};
 use crate::render::{render_view, view_path, Gifs, Needs, ViewScenes};
 use crate::sdf::{LowerOptions, Lowered};
@@ -627,6 +626,6 @@ mod train;
 pub(crate) use train::CHECKPOINT_EVERY;
 
 pub use train::{
-    checkpoint_path, fingerprint, run_train_job, step_memory, trained_field, CheckpointStamp,
-    CheckpointedField, FieldUnavailable, HeldOut, TrainOptions, TrainReport,
+    checkpoint_path, fingerprint, run_train_job, trained_field, CheckpointStamp, CheckpointedField,
+    FieldUnavailable, HeldOut, TrainOptions, TrainReport,
 };

@@ -527,19 +527,6 @@ impl NerfWork {
             set(&mut self.d_enc, rows * net.position.width());
         }
     }
-
-    /// Bytes held for `rows` samples (for memory estimates).
-    pub fn bytes_for(net: &NerfNet, rows: usize) -> u64 {
-        let w = net.trunk[0].out;
-        let trainable = if net.position.is_trainable() { 2 } else { 1 };
-        let per_row = trainable * net.position.width()
-            + net.trunk.len() * w
-            + 4
-            + 2 * net.color_hidden.out
-            + net.direction.map_or(0, |d| d.width() + 2 * w)
-            + 2 * w;
-        (4 * per_row * rows) as u64
-    }
 }
 
 /// A NeRF network at its parameters (the fine network where there is one:

@@ -89,14 +89,7 @@ impl Dataset {
         match self {
             Dataset::NerfSynthetic { background, .. } => DataBackground::Color(*background),
             Dataset::Traced { job, .. } => DataBackground::Color(job.background),
-            Dataset::Rendered { field, .. } => match &**field {
-                Field::Nerf(n) => match n.background.color() {
-                    Some(c) => DataBackground::Color(DVec3::from_array(c)),
-                    None => DataBackground::World,
-                },
-                Field::NeuralSurface(s) => DataBackground::Color(DVec3::from_array(s.background)),
-                Field::Sdf(_) | Field::NeuralSdf(_) => DataBackground::Color(DVec3::ZERO),
-            },
+            Dataset::Rendered { field, .. } => field.model().data_background(),
             Dataset::Capture(c) => c
                 .background
                 .map_or(DataBackground::World, DataBackground::Color),

@@ -2,7 +2,7 @@
 
 use std::sync::Arc;
 
-use super::{Encoding, Harmonic, Nerf, Unbounded};
+use super::{Encoding, Harmonic, Nerf};
 use crate::density::DensityKind;
 use crate::material::Material;
 use crate::param::Arg;
@@ -26,48 +26,24 @@ pub enum Field {
 }
 
 impl Field {
-    /// The region `bounds: "auto"` stands for in a `density_mesh`: a hash
-    /// grid's box, else an occupancy grid's, else an SDF field's bounds
-    /// (none for a harmonic NeRF without a grid, an unbounded shape, or a
-    /// neural SDF, which has no density to mesh).
+    /// The region `bounds: "auto"` stands for in a `density_mesh`
+    /// ([`crate::model::Model::export_region`]).
     pub fn export_region(&self) -> Option<([f64; 3], [f64; 3])> {
-        match self {
-            Field::Nerf(n) => match (&n.position, &n.occupancy) {
-                (Encoding::HashGrid(g), _) => Some((g.min, g.max)),
-                (_, Some(o)) => Some((o.min, o.max)),
-                _ => None,
-            },
-            Field::Sdf(f) => f
-                .shape
-                .bounds()
-                .map(|b| (b.min.to_array(), b.max.to_array())),
-            Field::NeuralSdf(_) | Field::NeuralSurface(_) => None,
-        }
+        self.model().export_region()
     }
 
     /// The object's region, where a point cloud with `crop: "auto"` keeps
-    /// its points: an unbounded NeRF's inner box (none in NDC, where all
-    /// of the view is the scene), else [`Field::export_region`].
+    /// its points ([`crate::model::Model::object_region`]).
     pub fn object_region(&self) -> Option<([f64; 3], [f64; 3])> {
-        match self {
-            Field::Nerf(n) => match &n.unbounded {
-                Some(Unbounded::Contract(c)) => Some((c.min, c.max)),
-                Some(Unbounded::Ndc(_)) => None,
-                None => self.export_region(),
-            },
-            _ => self.export_region(),
-        }
+        self.model().object_region()
     }
-}
 
-impl Field {
     /// Every trainable `param(...)` argument of the field, in a fixed
     /// order; a parameter used twice appears twice. (A neural field's
     /// weights are not `param`s: they are trained whenever it is a model.)
     pub fn visit_params<'s>(&'s self, f: &mut dyn FnMut(&'s crate::param::ParamUse)) {
-        match self {
-            Field::Sdf(s) => s.visit_params(f),
-            Field::Nerf(_) | Field::NeuralSdf(_) | Field::NeuralSurface(_) => {}
+        if let Field::Sdf(s) = self {
+            s.visit_params(f);
         }
     }
 

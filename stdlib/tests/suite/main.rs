@@ -5,6 +5,7 @@
 mod bounds;
 mod eval;
 mod fuzz;
+mod models;
 mod module_loops;
 mod primitives;
 mod registry;

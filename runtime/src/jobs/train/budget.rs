@@ -1,62 +1,9 @@
-//! What a training run may hold and do, checked before any step: the
-//! memory a step needs against what the system has, the work and memory
+//! What a training run may hold and do, checked before any step: its
+//! estimated peak memory against what the system has, the work and memory
 //! of data known only once it is read, and outputs that need held-out
 //! views the data does not have.
 
 use super::super::*;
-
-/// Bytes a training step holds beyond the data: per ray its description,
-/// target and (when jittered) its own depths; the dfdx graph also holds
-/// every sample's intermediates and the samples × samples cumsum matrix.
-pub fn step_memory(job: &TrainJob) -> u64 {
-    let (rays, samples) = (job.rays as u64, job.sampler.samples as u64);
-    let jitter = if job.sampler.jitter { 4 * samples } else { 0 };
-    let graph = match (&*job.model, job.backend) {
-        // Every layer's activations and two adjoint buffers per sample,
-        // the sample points, and the optimiser's copies of the weights.
-        (Field::Nerf(n), _) => {
-            let net = NerfNet::new(&crate::neural::warp::for_layout(n));
-            // The fine network sees the coarse and the fine samples.
-            let per_ray = samples
-                + if n.fine > 0 {
-                    samples + n.fine as u64
-                } else {
-                    0
-                };
-            let weights = net.len as u64 * if n.fine > 0 { 2 } else { 1 };
-            NerfWork::bytes_for(&net, (rays * per_ray) as usize)
-                + rays * per_ray * 40
-                + 24 * weights
-        }
-        // Values and three tangents per layer, forward and back, for a
-        // surface and a random point per ray.
-        (Field::NeuralSdf(n), _) => match &n.encoding {
-            sdfl_stdlib::value::Encoding::Harmonic(_) => {
-                let net = crate::neural::distance::sdf_net(n);
-                crate::neural::sdf_net::SdfWork::bytes_for(&net, 2 * rays as usize)
-                    + 24 * net.len as u64
-            }
-            // The network's buffers, the tables' gradient and the
-            // optimiser's copies.
-            sdfl_stdlib::value::Encoding::HashGrid(g) => {
-                use crate::neural::hash_sdf::objective::HashSdfObjective;
-                HashSdfObjective::new(n, g, &job.losses, job.bounds)
-                    .map_or(0, |o| o.step_bytes(2 * rays as usize))
-            }
-        },
-        // The distance network's values and reverse pass at every sample,
-        // plus the colour network's activations and the adjoints.
-        (Field::NeuralSurface(n), _) => {
-            crate::neural::surface::SurfaceObjective::new(n, &job.losses)
-                .map_or(0, |o| o.step_bytes(rays as usize, samples as usize))
-        }
-        (Field::Sdf(_), Backend::Fused) => 0,
-        (Field::Sdf(_), Backend::Dfdx) => {
-            rays * samples * crate::train::graph::BYTES_PER_SAMPLE + 4 * samples * samples
-        }
-    };
-    rays * (48 + jitter) + graph
-}
 
 /// Memory this process may use: what the system says is available, or
 /// 8 GiB where it cannot tell.
@@ -71,18 +18,22 @@ fn available_memory() -> u64 {
         .map_or(8 << 30, |kib| kib * 1024)
 }
 
-/// Refuses a run whose step would hold more than half the memory available.
-pub(super) fn step_fits_in_memory(job: &TrainJob) -> io::Result<()> {
-    let need = step_memory(job);
-    let have = available_memory();
-    if need > have / 2 {
+/// Refuses a run whose estimated peak (the plan's, one estimate for both:
+/// [`sdfl_stdlib::work::train_work`] on this machine) is more than the
+/// memory available. Data read from files joins it once read
+/// ([`within_budget_once_read`]).
+pub(super) fn fits_in_memory(job: &TrainJob) -> io::Result<()> {
+    let need = sdfl_stdlib::work::train_work(job, None).memory_on(&crate::cpu::host());
+    let have = available_memory() as f64;
+    if need > have {
+        let gib = |b: f64| b / (1u64 << 30) as f64;
         return Err(invalid(format!(
-            "training `{}` would hold about {:.1} GiB per step ({} rays × {} samples), more than half of the {:.1} GiB available: use fewer `rays` or samples (or, for an analytic field, no jitter or the fused backend)",
+            "training `{}` would hold about {:.1} GiB at its peak ({} rays × {} samples a step), more than the {:.1} GiB available: use fewer `rays` or samples (or, for an analytic field, no jitter or the fused backend); `sdfl plan` shows the estimate by stage",
             job.name,
-            need as f64 / (1u64 << 30) as f64,
+            gib(need),
             job.rays,
             job.sampler.samples,
-            have as f64 / (1u64 << 30) as f64
+            gib(have)
         )));
     }
     Ok(())

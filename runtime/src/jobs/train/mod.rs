@@ -16,7 +16,6 @@ mod resume;
 mod view;
 
 use crate::train::log::{first_view, Observer, TrainEvent, TrainLog};
-pub use budget::step_memory;
 pub use evaluation::HeldOut;
 pub use field::trained_field;
 pub use resume::fingerprint;
@@ -103,7 +102,7 @@ pub fn run_train_job(
     observer: &Observer,
 ) -> io::Result<TrainReport> {
     let status = |m: &str| observer(&TrainEvent::Note(m));
-    budget::step_fits_in_memory(job)?;
+    budget::fits_in_memory(job)?;
     let mut stages = Vec::new();
     let t = Instant::now();
     let Views {

@@ -63,7 +63,9 @@ impl BlockScratch {
         }
     }
 
-    /// Bytes of a scratch of `net` with `NT` tangents.
+    /// Bytes of a scratch of `net` with `NT` tangents: what the plan's
+    /// per-thread estimate (`NeuralSdf::thread_scratch`) must equal.
+    #[cfg(test)]
     pub(super) fn bytes<const NT: usize>(net: &HashSdf) -> u64 {
         let adjoint = 2 * (1 + NT) * net.grid.output_dim().max(net.width) * CHUNK;
         let transposed = if NT > 0 { adjoint / 2 } else { 0 };

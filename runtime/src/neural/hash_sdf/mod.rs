@@ -972,22 +972,6 @@ impl HashSdfWork {
         self.rows = rows;
     }
 
-    /// Bytes [`HashSdf::loss_and_grad`] holds for `rows` points with
-    /// `probes` evaluations each (1: the exact eikonal form, 7: the
-    /// finite differences), at most.
-    pub fn bytes_for(net: &HashSdf, rows: usize, probes: usize) -> u64 {
-        let nchunks = rows.div_ceil(CHUNK) as u64;
-        let cap = nchunks * CHUNK as u64;
-        let (e, w) = (net.grid.output_dim() as u64, net.width as u64);
-        let nt = if probes == 1 { 3 } else { 0 };
-        let per_chunk = 4
-            * (probes as u64 * net.scratch_len::<3>() as u64
-                + 2 * (1 + nt) * e.max(w)
-                + (net.len - net.table_params()) as u64);
-        let per_point = 4 * (probes as u64 * (3 + (1 + nt) * e) + 4);
-        nchunks * per_chunk + cap * per_point
-    }
-
     /// `f` at the last loss's points (surface points first).
     pub fn distance(&self) -> &[f32] {
         &self.f[..self.rows]

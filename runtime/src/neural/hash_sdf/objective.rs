@@ -110,19 +110,6 @@ impl HashSdfObjective {
         let every = self.spec.level_every as u64;
         progressive_levels(step as u64, levels, levels.div_ceil(4), every)
     }
-
-    /// Bytes a step holds for `rows` points (surface and random).
-    pub fn step_bytes(&self, rows: usize) -> u64 {
-        let probes = match self.eikonal {
-            Eikonal::Exact => 1,
-            Eikonal::FiniteDifference { .. } => 7,
-        };
-        // The clearances and their k-d tree over the surface points.
-        let clearance = 48 * rows as u64;
-        HashSdfWork::bytes_for(&self.net, rows, probes)
-            + 24 * self.net.param_count() as u64
-            + clearance
-    }
 }
 
 impl Objective for HashSdfObjective {

@@ -116,31 +116,6 @@ impl VolumeWork {
     pub fn gradient(&self) -> &[f32] {
         &self.g[..3 * self.rows]
     }
-
-    /// Bytes held for `rows` points with `eikonal`'s form of `∇f`, at
-    /// most (the blocks' buffers do not grow with `rows`), with the thread
-    /// pool this is called from.
-    pub fn bytes_for(net: &HashSdf, rows: usize, eikonal: Eikonal) -> u64 {
-        let (probes, nt) = (form(eikonal).0 as u64, form(eikonal).1 as u64);
-        let (e, w) = (net.grid.output_dim() as u64, net.width as u64);
-        // As `resize` holds them: a chunk's point scratch and adjoints only
-        // for the central-difference form (the exact one uses the blocked
-        // scratch below), its share of the MLP's gradient for both.
-        let point_scratch = if nt == 0 {
-            probes * net.scratch_len::<0>() as u64 + 2 * e.max(w)
-        } else {
-            0
-        };
-        let per_chunk = 4 * (point_scratch + (net.len - net.table_params()) as u64);
-        let block = BLOCK as u64 * probes * 4 * (3 + (1 + nt) * e);
-        let touched = net.grid.param_count() as u64 / 8;
-        let scratch = if nt > 0 {
-            (rayon::current_num_threads() as u64 + 1) * BlockScratch::bytes::<3>(net)
-        } else {
-            0
-        };
-        16 * rows as u64 + (BLOCK / CHUNK) as u64 * per_chunk + block + touched + scratch
-    }
 }
 
 /// The six probes about `p` (±step on each axis, `2a + 1` then `2a + 2`)

@@ -786,13 +786,6 @@ impl SdfWork {
     pub fn gradient(&self) -> &[f32] {
         &self.out[self.rows..4 * self.rows]
     }
-
-    /// Bytes held for `rows` points (for memory estimates).
-    pub fn bytes_for(net: &SdfNet, rows: usize) -> u64 {
-        let (e, w, l) = (net.encoding.width(), net.width(), net.hidden.len());
-        let per_row = 6 + 3 * e + l * 6 * w + 10 + w;
-        (4 * per_row * rows) as u64
-    }
 }
 
 #[cfg(test)]

@@ -239,26 +239,6 @@ impl SurfaceSdf {
         }
     }
 
-    /// Bytes a step's forward and backward hold for `rows` samples.
-    pub fn bytes_for(&self, rows: usize) -> u64 {
-        match self {
-            SurfaceSdf::Mlp(n) => SdfWork::bytes_for(n, rows),
-            SurfaceSdf::Hash(h) => VolumeWork::bytes_for(&h.net, rows, h.eikonal),
-        }
-    }
-
-    /// Bytes of the distance-only pass that places fine samples, for
-    /// `rows` coarse samples: the network's activations (an MLP's), and
-    /// the points, directions, distances, absorption with its three
-    /// slopes and weights the pass keeps (the depths are counted apart).
-    pub fn placing_bytes(&self, rows: usize) -> u64 {
-        let per_row = match self {
-            SurfaceSdf::Mlp(n) => n.encoding.width() + 2 * n.width() + 12,
-            SurfaceSdf::Hash(_) => 12,
-        };
-        (4 * rows * per_row) as u64
-    }
-
     /// What is trained, in words, for `sdfl plan`.
     pub fn describe(&self) -> String {
         match self {

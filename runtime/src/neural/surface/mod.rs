@@ -333,29 +333,6 @@ impl SurfaceObjective {
         })
     }
 
-    /// Bytes a step holds for `rays` rays of `samples` stratified samples
-    /// (and the fine ones): the distance network's buffers, the colour
-    /// network's activations and the adjoints, the weights with their
-    /// gradient and Adam's moments, and the pass that places fine samples.
-    pub fn step_bytes(&self, rays: usize, samples: usize) -> u64 {
-        let n = &self.spec;
-        let rows = rays * (samples + n.fine);
-        let placing = if n.fine > 0 {
-            // And the fine depths with the merged ones.
-            self.sdf.placing_bytes(rays * samples) + (4 * rays * (2 * n.fine + samples)) as u64
-        } else {
-            0
-        };
-        let colour = 3 * n.color_input() + 3 * n.color_layers * n.color_width + 24;
-        // The skipping grid, and the selected rays with their depths.
-        let skip = self.skip.as_ref().map_or(0, |g| g.bytes()) + (rays * (48 + 4 * samples)) as u64;
-        self.sdf.bytes_for(rows)
-            + (4 * rows * colour) as u64
-            + 24 * (self.sdf.len() + n.color_multiply_adds()) as u64
-            + placing
-            + skip
-    }
-
     /// The grid that skips empty space, if any.
     pub fn skip_grid(&self) -> Option<&SkipGrid> {
         self.skip.as_ref()

@@ -152,16 +152,6 @@ impl SkipGrid {
         self.centres.len()
     }
 
-    /// Bytes it holds: centres, two distances and a bit a cell.
-    pub fn bytes(&self) -> u64 {
-        Self::bytes_for(self.cells())
-    }
-
-    /// Bytes a grid of `cells` holds.
-    pub fn bytes_for(cells: usize) -> u64 {
-        (cells * (12 + 4 + 4) + cells / 8) as u64
-    }
-
     /// Whether `step` is one the grid is refreshed at and has not been.
     pub fn due(&self, step: usize) -> bool {
         step.is_multiple_of(NeuralSurface::SKIP_EVERY) && self.refreshed_at != Some(step)
