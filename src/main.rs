@@ -1034,6 +1034,13 @@ fn summarise(r: &Report, out: &Path, stdout: &mut Stdout) {
             }
         }
     }
+    if let Some(kept) = rep["kept_outputs"].as_array().filter(|k| !k.is_empty()) {
+        let names: Vec<&str> = kept.iter().filter_map(|k| k.as_str()).collect();
+        say!(
+            "  kept as they were (made at this checkpoint step from the same declarations): {}",
+            names.join(", ")
+        );
+    }
     for w in rep["written"].as_array().into_iter().flatten() {
         let cloud = w["kind"].as_str() == Some("point_cloud");
         if let Some(m) = w.get("mesh").filter(|m| m.is_object() && cloud) {

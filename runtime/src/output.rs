@@ -579,7 +579,7 @@ pub fn to_u8(x: f64) -> u8 {
 }
 
 /// A file that was written, as reports list it.
-#[derive(Debug, Clone, serde::Serialize)]
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
 pub struct Written {
     /// The file, relative to the output directory.
     pub path: PathBuf,
@@ -602,7 +602,7 @@ pub struct Written {
 
 /// What a written file holds; reports spell it in snake case (`image`,
 /// `grid_image`, `rays_image`, …).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum WrittenKind {
     /// A colour image of a view.
@@ -646,7 +646,7 @@ pub enum WrittenKind {
 }
 
 /// What a written mesh holds.
-#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct MeshStats {
     /// Vertices written.
     pub vertices: usize,

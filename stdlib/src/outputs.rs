@@ -163,6 +163,9 @@ pub struct TrainingLogs {
     /// `<name>.heldout.png`: the first held-out view beside its truth,
     /// replaced at each held-out evaluation.
     pub held_out_image: PathBuf,
+    /// `<name>.outputs.json`: what each output was made from, so that a
+    /// finished run run again writes only the outputs that changed.
+    pub outputs_record: PathBuf,
 }
 
 impl TrainingLogs {
@@ -172,6 +175,7 @@ impl TrainingLogs {
             metrics_csv: PathBuf::from(format!("{name}.metrics.csv")),
             tensorboard: Path::new("tensorboard").join(name),
             held_out_image: PathBuf::from(format!("{name}.heldout.png")),
+            outputs_record: PathBuf::from(format!("{name}.outputs.json")),
         }
     }
 
@@ -298,9 +302,10 @@ fn clash(path: &Path, what: &str, new: &Writer, first: &Writer) -> Diag {
         Some(name) => {
             let logs = TrainingLogs::of(name);
             format!(
-                "`{}`, `{}` and `{}/` are the logs of training `{name}`: give the output another name",
+                "`{}`, `{}`, `{}` and `{}/` are the logs of training `{name}`: give the output another name",
                 logs.metrics_csv.display(),
                 logs.held_out_image.display(),
+                logs.outputs_record.display(),
                 logs.tensorboard.display()
             )
         }
@@ -399,6 +404,7 @@ fn log_claims(name: &str, span: Span) -> (Vec<(PathBuf, Writer)>, (PathBuf, Writ
         vec![
             (logs.metrics_csv, writer("logs its metrics to it")),
             (logs.held_out_image, writer("shows its held-out view in it")),
+            (logs.outputs_record, writer("records its outputs in it")),
         ],
         (
             logs.tensorboard,

@@ -442,3 +442,116 @@ train t {
     assert!(r.held_out[0].psnr.is_finite());
     let _ = std::fs::remove_dir_all(&out);
 }
+
+/// A small fit with held-out views, its `after` outputs spliced in.
+fn outputs_fit(after: &str) -> sdfl_stdlib::value::TrainJob {
+    let src = format!(
+        r#"
+    let sampler = stratified(samples: 24, near: 1, far: 5)
+    let target = sdf_volume(sphere(0.8, center: [-0.2, 0.1, 0.15]), color: [0.2, 0.6, 0.9])
+    train kept {{
+      model: sdf_volume(sphere(0.8, center: param([0.1, 0, 0])), color: param([0.3, 0.1, 0.1])),
+      data: render_views(target, cameras: orbit(radius: 3, views: 6), size: [16, 16], sampler: sampler, test_views: 2),
+      sampler: sampler,
+      rays: 128,
+      iterations: 10,
+      views: orbit(radius: 3, views: 3),
+      size: [16, 16],
+      after: [{after}],
+      checkpoint: "kept.ckpt",
+    }}
+"#
+    );
+    let program = sdfl_stdlib::load(&SourceFile::new("kept.sdfl", src)).unwrap();
+    program.trains[0].clone()
+}
+
+/// Run again at its last step with one output added, a finished run
+/// renders only that output: the others' files are left as they were,
+/// the held-out views are not scored again (the report keeps their
+/// scores), and the record follows what was written.
+#[test]
+fn an_output_added_to_a_finished_run_is_the_only_one_rendered() {
+    use sdfl_runtime::train::log::TrainEvent;
+    use std::sync::atomic::{AtomicUsize, Ordering};
+    let out = temp("kept-outputs");
+    let first =
+        r#"gif("views.gif"), image("view.png"), psnr_curve("psnr.png"), loss_curve("loss.png")"#;
+    let scorings = AtomicUsize::new(0);
+    let observe = |e: &TrainEvent| {
+        if let TrainEvent::Status(n) = e {
+            if n.contains("scored held-out view") {
+                scorings.fetch_add(1, Ordering::Relaxed);
+            }
+        }
+    };
+    let run = |after: &str| {
+        run_train_job(
+            &outputs_fit(after),
+            &out,
+            Path::new("."),
+            None,
+            RESUME,
+            &observe,
+        )
+        .unwrap()
+    };
+    let a = run(first);
+    assert!(a.kept_outputs.is_empty(), "{:?}", a.kept_outputs);
+    let scored_once = scorings.load(Ordering::Relaxed);
+    let stamp = |p: &str| std::fs::metadata(out.join(p)).unwrap().modified().unwrap();
+    let files = [
+        "views.gif",
+        "view_00.png",
+        "view_02.png",
+        "psnr.png",
+        "loss.png",
+    ];
+    let before: Vec<_> = files.iter().map(|p| stamp(p)).collect();
+    std::thread::sleep(std::time::Duration::from_millis(20));
+
+    let b = run(&format!(r#"{first}, depth("depth.png")"#));
+    assert_eq!(b.resumed_from, Some(10));
+    let kept: Vec<&str> = b.kept_outputs.iter().map(|p| p.to_str().unwrap()).collect();
+    assert_eq!(
+        kept,
+        ["views.gif", "view.png", "psnr.png", "loss.png"],
+        "{kept:?}"
+    );
+    for (p, t) in files.iter().zip(&before) {
+        assert_eq!(stamp(p), *t, "{p} was written again");
+    }
+    assert!(out.join("depth_00.png").is_file());
+    assert_eq!(
+        scorings.load(Ordering::Relaxed),
+        scored_once,
+        "the held-out views were scored again"
+    );
+    assert_eq!(
+        b.held_out.last().map(|h| h.psnr),
+        a.held_out.last().map(|h| h.psnr)
+    );
+    // Every file is still in the report, kept or new.
+    for p in [
+        "views.gif",
+        "view_01.png",
+        "psnr.png",
+        "loss.png",
+        "depth_02.png",
+    ] {
+        assert!(
+            b.written.iter().any(|w| w.path == Path::new(p)),
+            "{p} not reported"
+        );
+    }
+
+    // A changed output or a deleted file: rendered again.
+    std::fs::remove_file(out.join("view_01.png")).unwrap();
+    let c = run(&format!(
+        r#"gif("views.gif", fps: 5), image("view.png"), psnr_curve("psnr.png"), loss_curve("loss.png"), depth("depth.png")"#
+    ));
+    let kept: Vec<&str> = c.kept_outputs.iter().map(|p| p.to_str().unwrap()).collect();
+    assert_eq!(kept, ["psnr.png", "loss.png", "depth.png"], "{kept:?}");
+    assert!(out.join("view_01.png").is_file());
+    let _ = std::fs::remove_dir_all(&out);
+}

@@ -12,6 +12,7 @@ mod budget;
 mod evaluation;
 mod field;
 mod outputs;
+mod record;
 mod resume;
 mod view;
 
@@ -22,6 +23,7 @@ pub use resume::fingerprint;
 pub use view::{checkpoint_path, CheckpointStamp, CheckpointedField, FieldUnavailable};
 
 use evaluation::{evaluate, evaluate_into};
+use record::Kept;
 use resume::Checkpoints;
 pub(crate) use resume::CHECKPOINT_EVERY;
 
@@ -64,6 +66,10 @@ pub struct TrainReport {
     pub mesh_fit: Option<crate::neural::distance::MeshFit>,
     /// Files written after training (images, meshes, exports), relative to `--out`.
     pub written: Vec<Written>,
+    /// The outputs among `written` kept as they were: the run was already
+    /// at their checkpoint step and nothing they are made from changed.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub kept_outputs: Vec<PathBuf>,
     /// Wall-clock seconds of each stage (load data, train, held-out evaluation…).
     pub stages: Vec<(String, f64)>,
     /// What looks wrong with the fit (code `sdfl::warn::diverged`): a loss
@@ -178,9 +184,22 @@ pub fn run_train_job(
     );
     let checkpoints = Checkpoints::of(job, &views, out_dir);
     let (resumed_from, history) = checkpoints.resume_or_start(&mut run, steps, options.restart)?;
+    // Run again at the step its outputs were made at, a run keeps those
+    // unchanged since and renders the rest.
+    let record = resumed_from.and_then(|step| {
+        checkpoints.path.as_ref()?;
+        record::OutputsRecord::read(job, out_dir, step, &checkpoints.fingerprint)
+    });
+    let mut kept = Kept::new(
+        job,
+        (&outputs.cameras, outputs.size),
+        record.as_ref(),
+        out_dir,
+    );
     let mut written = Vec::new();
-    if !job.before.is_empty() {
-        written.extend(outputs.before(&*run.objective, &run.values())?);
+    let before = kept.to_render(&job.before, false);
+    if !before.is_empty() {
+        written.extend(outputs.before(&*run.objective, &run.values(), &before)?);
     }
 
     let mut log = TrainLog::open(
@@ -319,16 +338,44 @@ pub fn run_train_job(
 
     let t = Instant::now();
     let (field, values) = (&*run.objective, run.values());
-    let (after, mesh_fit) = outputs.after(field, &values, &all_points)?;
-    written.extend(after);
-    written.extend(outputs.loss_curves(&run.losses)?);
+    // Nothing ran since the record's step: what it kept stays.
+    if run.step != done_before {
+        kept = Kept::new(job, (&outputs.cameras, outputs.size), None, out_dir);
+    }
+    let after = kept.to_render(&job.after, true);
+    let (rendered, mesh_fit) = outputs.after(field, &values, &all_points, &after)?;
+    let mesh_fit = kept.mesh_fit().or(mesh_fit);
+    written.extend(rendered);
+    written.extend(outputs.loss_curves(&run.losses, &after)?);
+    let comparison = after.iter().any(|o| o.kind == OutputKind::Comparison);
+    let mut final_scores = None;
     if !test_views.is_empty() {
-        let scored = evaluation::announce(&job.name, run.step, &test_views, observer);
-        let keep = sdfl_stdlib::work::COMPARISON_VIEWS;
-        let e = evaluate(field, &values, &test_views, keep, &scored)?;
-        let first = first_view(&test_views, &e.renders);
-        log.evaluated(run.step, e.scores(test_views.len()), 0.0, first);
-        written.extend(outputs.held_out(log.held_out(), &test_views, &e.renders)?);
+        // Scored at this step already, and no comparison to redraw: the
+        // scores stand and only the curves are drawn again.
+        if let Some(h) = kept.held_out().filter(|_| !comparison) {
+            final_scores = Some(log.evaluated(run.step, record::scores(&h), 0.0, None));
+            written.extend(outputs.held_out(log.held_out(), &test_views, &[], &after)?);
+        } else {
+            let scored = evaluation::announce(&job.name, run.step, &test_views, observer);
+            let keep = sdfl_stdlib::work::COMPARISON_VIEWS;
+            let e = evaluate(field, &values, &test_views, keep, &scored)?;
+            let first = first_view(&test_views, &e.renders);
+            let scores = e.scores(test_views.len());
+            final_scores = Some(log.evaluated(run.step, scores, 0.0, first));
+            written.extend(outputs.held_out(log.held_out(), &test_views, &e.renders, &after)?);
+        }
+    }
+    let kept_outputs = kept.paths();
+    written.extend(kept.written());
+    if checkpoints.path.is_some() {
+        record::OutputsRecord {
+            step: run.step,
+            fingerprint: checkpoints.fingerprint.clone(),
+            outputs: kept.record(&written),
+            held_out: final_scores,
+            mesh_fit: mesh_fit.as_ref().map(Into::into),
+        }
+        .write(job, out_dir)?;
     }
     let held_out = log.finish()?;
     let fit = field.fit_to_points(&values, &points, job.seed);
@@ -352,6 +399,7 @@ pub fn run_train_job(
         fit,
         mesh_fit,
         written,
+        kept_outputs,
         stages,
         warnings,
     })

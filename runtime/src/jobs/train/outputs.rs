@@ -28,9 +28,14 @@ pub(super) struct Outputs<'a> {
 }
 
 impl Outputs<'_> {
-    /// The statement's `before` outputs, of `field` at its starting `values`.
-    pub fn before(&self, field: &dyn TrainedField, values: &[f32]) -> io::Result<Vec<Written>> {
-        let before = &self.job.before;
+    /// The `before` outputs among `before`, of `field` at its starting
+    /// `values`.
+    pub fn before(
+        &self,
+        field: &dyn TrainedField,
+        values: &[f32],
+        before: &[Output],
+    ) -> io::Result<Vec<Written>> {
         let mut written = self.views(field, values, before)?;
         written.extend(self.meshes(field, values, before)?.into_iter().map(|m| m.0));
         written.extend(self.geometry_gifs(field, values, before)?);
@@ -38,17 +43,17 @@ impl Outputs<'_> {
         Ok(written)
     }
 
-    /// The statement's `after` outputs of the trained `field` at `values`
-    /// (but the curves and comparisons, written by their own), and the
-    /// first mesh's fit: against `all_points`, the data's, or against the
-    /// true surface where sdfl rendered the data itself.
+    /// The `after` outputs among `after` of the trained `field` at
+    /// `values` (but the curves and comparisons, written by their own),
+    /// and the first mesh's fit: against `all_points`, the data's, or
+    /// against the true surface where sdfl rendered the data itself.
     pub fn after(
         &self,
         field: &dyn TrainedField,
         values: &[f32],
         all_points: &[[f32; 3]],
+        after: &[Output],
     ) -> io::Result<(Vec<Written>, Option<MeshFit>)> {
-        let after = &self.job.after;
         let views: Vec<Output> = after
             .iter()
             .filter(|o| {
@@ -221,11 +226,12 @@ impl Outputs<'_> {
         Ok(written)
     }
 
-    /// The `loss_curve` outputs: `losses` (one a step) over the steps.
-    pub fn loss_curves(&self, losses: &[f32]) -> io::Result<Vec<Written>> {
+    /// The `loss_curve` outputs among `outputs`: `losses` (one a step)
+    /// over the steps.
+    pub fn loss_curves(&self, losses: &[f32], outputs: &[Output]) -> io::Result<Vec<Written>> {
         let job = self.job;
         let mut written = Vec::new();
-        for o in job.after.iter().filter(|o| o.kind == OutputKind::LossCurve) {
+        for o in outputs.iter().filter(|o| o.kind == OutputKind::LossCurve) {
             let pts = losses
                 .iter()
                 .enumerate()
@@ -254,17 +260,19 @@ impl Outputs<'_> {
         Ok(written)
     }
 
-    /// The held-out outputs: the PSNR curve over `held_out` and the
-    /// comparison of `test_views` with their final `renders`.
+    /// The held-out outputs among `outputs`: the PSNR curve over
+    /// `held_out` and the comparison of `test_views` with their final
+    /// `renders`.
     pub fn held_out(
         &self,
         held_out: &[HeldOut],
         test_views: &[TrainView],
         renders: &[Vec<[f32; 3]>],
+        outputs: &[Output],
     ) -> io::Result<Vec<Written>> {
         let job = self.job;
         let mut written = Vec::new();
-        for o in &job.after {
+        for o in outputs {
             let path = self.out_dir.join(&o.path);
             let (kind, pw, ph) = match o.kind {
                 OutputKind::PsnrCurve => {
