@@ -9,10 +9,10 @@ use super::*;
 use sdfl_stdlib::value::ViewPath;
 
 mod budget;
-mod evaluation;
+pub mod evaluation;
 mod field;
 mod outputs;
-mod resume;
+pub mod resume;
 mod view;
 
 use crate::train::log::{first_view, Observer, TrainEvent, TrainLog};
