@@ -26,7 +26,7 @@ pub enum Level {
 
 impl Level {
     /// `SDFL_KERNELS`'s value as a cap (`native` and unset: none).
-    fn parse(s: &str) -> Option<Option<Level>> {
+    pub fn parse(s: &str) -> Option<Option<Level>> {
         match s.trim().to_ascii_lowercase().as_str() {
             "" | "native" => Some(None),
             "portable" => Some(Some(Level::Portable)),
@@ -144,35 +144,5 @@ pub fn host() -> sdfl_stdlib::work::Host {
         matmul_scratch: gemm_common::cache::CACHE_INFO[1].cache_bytes as f64
             // The buffer's alignment slack (a cache line).
             + 64.0,
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn the_cap_removes_wider_sets_and_keeps_narrower_ones() {
-        let all = |cap| Kernels::capped(true, true, true, cap);
-        assert_eq!(all(None).level(), Level::Avx512);
-        assert!(all(None).avx512bf16);
-        assert_eq!(all(Some(Level::Avx512)).level(), Level::Avx512);
-        let k = all(Some(Level::Avx2));
-        assert_eq!((k.level(), k.avx512bf16), (Level::Avx2, false));
-        let k = all(Some(Level::Portable));
-        assert_eq!((k.avx2, k.avx512f, k.avx512bf16), (false, false, false));
-        // A cap above what the CPU has changes nothing; BF16 needs F.
-        let k = Kernels::capped(true, false, true, Some(Level::Avx512));
-        assert_eq!((k.level(), k.avx512bf16), (Level::Avx2, false));
-    }
-
-    #[test]
-    fn the_variable_names_the_caps() {
-        assert_eq!(Level::parse("portable"), Some(Some(Level::Portable)));
-        assert_eq!(Level::parse(" AVX2 "), Some(Some(Level::Avx2)));
-        assert_eq!(Level::parse("avx512"), Some(Some(Level::Avx512)));
-        assert_eq!(Level::parse("native"), Some(None));
-        assert_eq!(Level::parse(""), Some(None));
-        assert_eq!(Level::parse("sse9"), None);
     }
 }

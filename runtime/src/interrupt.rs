@@ -212,21 +212,3 @@ impl fmt::Display for Stopped {
 }
 
 impl std::error::Error for Stopped {}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn a_stop_is_an_error_that_says_so() {
-        let e = Stopped::error(2, "training `t` stopped at step 7".into());
-        let s = Stopped::of(&e).expect("a Stopped");
-        assert_eq!(s.signal, 2);
-        assert_eq!(
-            e.to_string(),
-            "stopped by SIGINT: training `t` stopped at step 7"
-        );
-        assert!(Stopped::of(&io::Error::other("other")).is_none());
-        assert_eq!((exit_code(2), exit_code(15)), (130, 143));
-    }
-}

@@ -459,6 +459,3 @@ pub fn density_mesh(
     mesh.transform(to_data);
     Ok(ColouredMesh { mesh, colours })
 }
-
-#[cfg(test)]
-mod tests;

@@ -621,7 +621,10 @@ pub fn traced_views(job: &RenderJob) -> Vec<TrainView> {
         .collect()
 }
 
-mod train;
+/// Running `train` statements (public for the test suite; the jobs
+/// re-export what callers use).
+#[doc(hidden)]
+pub mod train;
 
 pub(crate) use train::CHECKPOINT_EVERY;
 

@@ -77,12 +77,13 @@ impl Samples {
         self.offsets.len().saturating_sub(1)
     }
 
-    fn range(&self, r: usize) -> std::ops::Range<usize> {
+    /// Ray `r`'s samples: indices into `t` and `delta`.
+    pub fn range(&self, r: usize) -> std::ops::Range<usize> {
         self.offsets[r]..self.offsets[r + 1]
     }
 
     /// Positions and directions of every sample.
-    pub(crate) fn points(&self, rays: &[Ray], points: &mut Vec<f32>, dirs: &mut Vec<f32>) {
+    pub fn points(&self, rays: &[Ray], points: &mut Vec<f32>, dirs: &mut Vec<f32>) {
         let n = self.t.len();
         points.resize(n * 3, 0.0);
         dirs.resize(n * 3, 0.0);
@@ -236,7 +237,13 @@ pub struct Occupancy {
 }
 
 impl Occupancy {
-    fn new(spec: &OccupancySpec, sampler: &Sampler, warp: Option<Warp>) -> Result<Self, String> {
+    /// The grid `spec` asks for, its fixed step from `sampler`'s range and
+    /// count; with `warp`, over the contracted (or NDC) box.
+    pub fn new(
+        spec: &OccupancySpec,
+        sampler: &Sampler,
+        warp: Option<Warp>,
+    ) -> Result<Self, String> {
         let (step, min, max) = match &warp {
             None => (
                 ((sampler.far - sampler.near) / sampler.samples.max(1) as f64) as f32,
@@ -276,7 +283,7 @@ impl Occupancy {
     /// The samples of `rays` in occupied cells: the grid's fixed steps,
     /// or in an unbounded scene `candidates` (the sampler's) kept where
     /// their contracted point's cell is occupied.
-    fn march(
+    pub fn march(
         &mut self,
         rays: &[Ray],
         candidates: &Samples,
@@ -363,7 +370,8 @@ fn keep_occupied(
 
 /// Per ray, stratified depths `depth_of(r)` on `[near, far]` moved to the
 /// contraction's linear-then-disparity spacing, into `out` (`n` a ray).
-fn unbounded_depths<'d>(
+#[doc(hidden)]
+pub fn unbounded_depths<'d>(
     c: &Warp,
     rays: &[Ray],
     near: f64,
@@ -485,7 +493,7 @@ impl NerfObjective {
 /// `m` depths by inverse CDF merged with the coarse ones (`n + m` per ray).
 /// `scratch` holds the fine and the merged depths between calls.
 #[allow(clippy::too_many_arguments)]
-pub(crate) fn fine_samples(
+pub fn fine_samples(
     coarse: &Samples,
     n: usize,
     weights: &[f32],
@@ -978,349 +986,5 @@ impl TrainedField for Trained<NerfObjective> {
             gradient: "none: fused layer kernels with a hand-written backward through the network and the compositing; renders stop each ray once less than 1e-4 of its light is left".into(),
             mesh_region: "the starting bounds grown by half".into(),
         }
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::neural::mlp::Activation;
-    use crate::volume::SplitMix64;
-    use sdfl_stdlib::value::{Encoding, Harmonic};
-
-    fn small_spec() -> Nerf {
-        Nerf {
-            position: Encoding::Harmonic(Harmonic {
-                freqs: 2,
-                include_input: true,
-            }),
-            direction: Some(Encoding::Harmonic(Harmonic {
-                freqs: 1,
-                include_input: true,
-            })),
-            layers: 3,
-            width: 12,
-            skips: vec![1],
-            color_width: 6,
-            fine: 0,
-            background: sdfl_stdlib::value::Background::Color([0.3, 0.6, 0.9]),
-            background_at: Default::default(),
-            unbounded: None,
-            seed: 4,
-            density: sdfl_stdlib::value::DensityActivation::Exp,
-            occupancy: None,
-            precision: Default::default(),
-        }
-    }
-
-    #[test]
-    fn objective_gradient_matches_finite_differences() {
-        objective_gradient_check(&small_spec());
-    }
-
-    /// Through a contracted hash grid (most samples beyond the inner box)
-    /// and a learned background: every tensor's gradient, the learned
-    /// background's layers and the grid's most-touched rows included.
-    #[test]
-    fn unbounded_grid_and_learned_background_gradient_matches_finite_differences() {
-        let spec = Nerf {
-            position: Encoding::HashGrid(sdfl_stdlib::value::HashGridSpec {
-                levels: 3,
-                features: 2,
-                log2_table: 8,
-                min_res: 2,
-                max_res: 8,
-                min: [-1.5; 3],
-                max: [1.5; 3],
-            }),
-            background: sdfl_stdlib::value::Background::Learned(
-                sdfl_stdlib::value::LearnedBackground { freqs: 2, width: 5 },
-            ),
-            unbounded: Some(sdfl_stdlib::value::Unbounded::Contract(
-                sdfl_stdlib::value::Contraction {
-                    min: [-0.5; 3],
-                    max: [0.5; 3],
-                },
-            )),
-            ..small_spec()
-        };
-        objective_gradient_check(&spec);
-    }
-
-    fn objective_gradient_check(spec: &Nerf) {
-        let sampler = Sampler {
-            samples: 7,
-            near: 1.0,
-            far: 4.0,
-            jitter: true,
-            last_interval: LastInterval::Zero,
-        };
-        let mut obj = NerfObjective::new(spec, &sampler).unwrap();
-        // Smooth activations so differences see no kinks; same wiring.
-        let smooth = Activation::Softplus { beta: 1.0 };
-        let net = &mut obj.net;
-        for d in net
-            .trunk
-            .iter_mut()
-            .chain([&mut net.density, &mut net.color_hidden])
-        {
-            d.act = smooth;
-        }
-        if let Backdrop::Learned(b) = &mut obj.backdrop {
-            b.hidden.act = smooth;
-        }
-        let mut rng = SplitMix64::new(8);
-        let rays: Vec<Ray> = (0..9)
-            .map(|k| Ray {
-                origin: [0.1 * k as f32, -0.2, -2.0],
-                dir: [0.1, 0.05 * k as f32, 1.0],
-                view: 0,
-                pixel: k,
-            })
-            .collect();
-        let samples = 7;
-        let depths: Vec<f32> = (0..rays.len() * samples)
-            .map(|i| 1.0 + 0.4 * (i % samples) as f32 + 0.1 * rng.next_f32())
-            .collect();
-        let batch = Batch {
-            targets: rays
-                .iter()
-                .map(|_| [rng.next_f32(), rng.next_f32(), rng.next_f32()])
-                .collect(),
-            rays,
-            coverage: Vec::new(),
-            depths,
-            samples,
-            shared: false,
-            last_interval: LastInterval::Zero,
-            seed: 5,
-            step: 0,
-            points: Vec::new(),
-        };
-        let values = obj.initial();
-        let mut grad = vec![0.0; values.len()];
-        obj.loss_and_grad(&values, &batch, 2.0, &mut grad).unwrap();
-        let mut loss_at = |v: &[f32]| {
-            let mut g = vec![0.0; v.len()];
-            obj.loss_and_grad(v, &batch, 2.0, &mut g).unwrap()
-        };
-        let tensors = NerfObjective::new(spec, &sampler).unwrap().tensors();
-        let names: Vec<&str> = tensors.iter().map(|t| t.name.as_str()).collect();
-        let learned = matches!(spec.background, sdfl_stdlib::value::Background::Learned(_));
-        assert_eq!(
-            names.contains(&"background.out.weight"),
-            learned,
-            "{names:?}"
-        );
-        for t in &tensors {
-            // The largest entry too: a grid's ends may be rows no sample touches.
-            let largest = (t.offset..t.offset + t.len)
-                .max_by(|&a, &b| grad[a].abs().total_cmp(&grad[b].abs()))
-                .unwrap();
-            if t.name.starts_with("background") || t.name.contains("hashgrid") {
-                assert!(grad[largest] != 0.0, "{} has no gradient", t.name);
-            }
-            for i in [
-                t.offset,
-                t.offset + t.len / 2,
-                t.offset + t.len - 1,
-                largest,
-            ] {
-                let h = 1e-2;
-                let mut v = values.clone();
-                v[i] += h;
-                let up = loss_at(&v);
-                v[i] -= 2.0 * h;
-                let down = loss_at(&v);
-                let fd = (up - down) / (2.0 * h as f64);
-                let got = grad[i] as f64;
-                assert!(
-                    (got - fd).abs() < 2e-2 * fd.abs().max(got.abs()) + 2e-5,
-                    "{} [{i}]: {got} vs {fd}",
-                    t.name
-                );
-            }
-        }
-    }
-
-    /// In an unbounded scene the occupancy grid keeps exactly the
-    /// candidates whose contracted point lies in an occupied cell: all of
-    /// them at first, none once emptied, and only the far sample whose
-    /// cell alone is marked (beyond the inner box, so found in contracted
-    /// space).
-    #[test]
-    fn unbounded_occupancy_keeps_the_samples_in_occupied_contracted_cells() {
-        let spec = OccupancySpec {
-            resolution: 16,
-            min: [-1.5; 3],
-            max: [1.5; 3],
-            threshold: 0.01,
-            every: 1,
-        };
-        let c = Warp::Contract(crate::neural::contract::Contract::new(
-            &sdfl_stdlib::value::Contraction {
-                min: [-1.0; 3],
-                max: [1.0; 3],
-            },
-        ));
-        let sampler = Sampler {
-            samples: 16,
-            near: 0.5,
-            far: 100.0,
-            jitter: false,
-            last_interval: LastInterval::Zero,
-        };
-        let mut occ = Occupancy::new(&spec, &sampler, Some(c)).unwrap();
-        let rays: Vec<Ray> = (0..3)
-            .map(|k| Ray {
-                origin: [0.0, 0.1 * k as f32, -3.0],
-                dir: [0.05 * k as f32, 0.0, 1.0],
-                view: 0,
-                pixel: k,
-            })
-            .collect();
-        let t: Vec<f32> = (0..16).map(|k| 0.5 + k as f32 * 99.5 / 15.0).collect();
-        let mut mapped = Vec::new();
-        unbounded_depths(&c, &rays, 0.5, 100.0, |_| &t, &mut mapped);
-        let mut candidates = Samples::default();
-        candidates.fixed(3, 16, |r| &mapped[r * 16..(r + 1) * 16], LastInterval::Zero);
-        let mut out = Samples::default();
-        occ.march(&rays, &candidates, &mut out).unwrap();
-        assert_eq!(out, candidates);
-        occ.grid.fill(false);
-        occ.march(&rays, &candidates, &mut out).unwrap();
-        assert!(out.t.is_empty() && out.offsets == vec![0; 4]);
-        // The last sample of ray 1, far beyond the box (t ≈ 100).
-        let k = candidates.offsets[2] - 1;
-        let tk = candidates.t[k];
-        assert!(tk > 50.0);
-        let p = std::array::from_fn(|a| rays[1].origin[a] + tk * rays[1].dir[a]);
-        let cell = occ
-            .grid
-            .cell_of(c.apply(p))
-            .expect("in the contracted cube");
-        let index = occ.grid.index(cell);
-        occ.grid.set_occupied(index, true);
-        occ.march(&rays, &candidates, &mut out).unwrap();
-        assert!(out.t.contains(&tk), "{:?}", out.t);
-        assert!(out.offsets[2] - out.offsets[1] >= 1);
-        assert_eq!(out.t.len(), out.delta.len());
-    }
-
-    /// A small NeRF whose density head starts at `density_bias`.
-    fn opaque_nerf(density_bias: f32) -> (NerfNet, Vec<f32>) {
-        let spec = Nerf {
-            position: Encoding::Harmonic(Harmonic {
-                freqs: 2,
-                include_input: true,
-            }),
-            direction: None,
-            layers: 2,
-            width: 16,
-            skips: vec![],
-            color_width: 8,
-            fine: 0,
-            background: sdfl_stdlib::value::Background::Color([0.0; 3]),
-            background_at: Default::default(),
-            unbounded: None,
-            seed: 2,
-            density: sdfl_stdlib::value::DensityActivation::Softplus,
-            occupancy: None,
-            precision: Default::default(),
-        };
-        let net = NerfNet::new(&spec);
-        let mut params = net.init(spec.seed);
-        params[net.density.offset + net.density.fan_in()] = density_bias;
-        (net, params)
-    }
-
-    fn small_view(stop: f32, density_bias: f32) -> NerfView {
-        let (net, params) = opaque_nerf(density_bias);
-        let cam = Camera::look_at(
-            glam::DVec3::new(0.0, 0.0, -3.0),
-            glam::DVec3::ZERO,
-            glam::DVec3::Y,
-            1.0,
-        );
-        let sampler = Stratified::new(96, 1.0, 5.0).unwrap();
-        let size = ImageSize {
-            width: 12,
-            height: 10,
-        };
-        render_nerf_view(
-            &net,
-            None,
-            None,
-            &params,
-            &Backdrop::Color([0.2, 0.4, 0.6]),
-            &sampler,
-            LastInterval::Zero,
-            &cam,
-            size,
-            stop,
-        )
-        .unwrap()
-    }
-
-    /// Without stopping, every sample is evaluated and each pixel is the
-    /// plain composite of all of them, bit for bit.
-    #[test]
-    fn rendering_without_early_stop_is_the_plain_composite() {
-        let view = small_view(0.0, 0.5);
-        let (net, params) = opaque_nerf(0.5);
-        let cam = Camera::look_at(
-            glam::DVec3::new(0.0, 0.0, -3.0),
-            glam::DVec3::ZERO,
-            glam::DVec3::Y,
-            1.0,
-        );
-        let size = ImageSize {
-            width: 12,
-            height: 10,
-        };
-        let rays = camera_rays(&cam, size).unwrap();
-        let t = Stratified::new(96, 1.0, 5.0).unwrap().depths();
-        let mut samples = Samples::default();
-        samples.fixed(rays.len(), t.len(), |_| &t, LastInterval::Zero);
-        let (mut points, mut dirs, mut work) = (Vec::new(), Vec::new(), NerfWork::default());
-        samples.points(&rays, &mut points, &mut dirs);
-        net.forward(&params, &points, &dirs, &mut work);
-        assert_eq!(view.evaluated, rays.len() * t.len());
-        for (r, (c, d)) in view.colour.iter().zip(&view.depth).enumerate() {
-            let k = samples.range(r);
-            let want = crate::neural::composite::composite(
-                &work.sigma[k.clone()],
-                &work.rgb[3 * k.start..3 * k.end],
-                &samples.t[k.clone()],
-                &samples.delta[k.clone()],
-                [0.2, 0.4, 0.6],
-            );
-            assert_eq!((*c, *d), (want.colour, want.depth), "pixel {r}");
-        }
-    }
-
-    /// Stopped rays differ from the full composite by at most the light
-    /// left when they stopped, and an opaque field takes far fewer
-    /// evaluations; a transparent one stops no ray.
-    #[test]
-    fn early_stop_keeps_its_bound_and_saves_work() {
-        let (full, early) = (small_view(0.0, 20.0), small_view(EARLY_STOP, 20.0));
-        for (a, b) in full.colour.iter().zip(&early.colour) {
-            for j in 0..3 {
-                assert!((a[j] - b[j]).abs() <= 1.01 * EARLY_STOP, "{a:?} vs {b:?}");
-            }
-        }
-        for (a, b) in full.depth.iter().zip(&early.depth) {
-            assert!((a - b).abs() <= 5.0 * EARLY_STOP + 1e-5, "{a} vs {b}");
-        }
-        assert!(
-            early.evaluated * 3 < full.evaluated,
-            "{} of {} evaluations",
-            early.evaluated,
-            full.evaluated
-        );
-        let (full, early) = (small_view(0.0, -8.0), small_view(EARLY_STOP, -8.0));
-        assert_eq!(early.evaluated, full.evaluated);
-        assert_eq!(early.colour, full.colour);
     }
 }

@@ -27,7 +27,8 @@ use plotters::prelude::*;
 use plotters::style::text_anchor::{HPos, Pos, VPos};
 
 /// DejaVu Sans 2.37 (licence in `runtime/assets/DejaVuSans.LICENSE.md`).
-static FONT: &[u8] = include_bytes!("../../assets/DejaVuSans.ttf");
+#[doc(hidden)]
+pub static FONT: &[u8] = include_bytes!("../../assets/DejaVuSans.ttf");
 /// Registered as the generic family, which plotters' defaults also name.
 pub(crate) const FAMILY: &str = "sans-serif";
 
@@ -491,7 +492,8 @@ impl Prepared {
 /// around a lone value, and on a log axis at least one whole decade inside;
 /// `from_zero` (linear): zero inside, as one end when the values are of one
 /// sign.
-fn range(vals: impl Iterator<Item = f64>, log: bool, from_zero: bool) -> Range<f64> {
+#[doc(hidden)]
+pub fn range(vals: impl Iterator<Item = f64>, log: bool, from_zero: bool) -> Range<f64> {
     let (mut lo, mut hi) = vals
         .map(|v| if log { v.log10() } else { v })
         .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| {
@@ -530,7 +532,8 @@ fn range(vals: impl Iterator<Item = f64>, log: bool, from_zero: bool) -> Range<f
 }
 
 /// `s` cut to `n` characters, ending in "…" when cut.
-fn shorten(s: &str, n: usize) -> String {
+#[doc(hidden)]
+pub fn shorten(s: &str, n: usize) -> String {
     if s.chars().count() <= n {
         s.to_string()
     } else {
@@ -542,7 +545,8 @@ fn shorten(s: &str, n: usize) -> String {
 
 /// A tick value to `digits` significant digits (whole numbers whole),
 /// without trailing zeros; exponent form outside 1e-3..1e5.
-fn fmt_value(v: f64, digits: usize) -> String {
+#[doc(hidden)]
+pub fn fmt_value(v: f64, digits: usize) -> String {
     let a = v.abs();
     if a == 0.0 {
         return "0".into();
@@ -567,7 +571,8 @@ fn fmt_value(v: f64, digits: usize) -> String {
 }
 
 /// The fewest significant digits (up to 10) that tell `ticks` apart.
-fn tick_digits(ticks: &[f64]) -> usize {
+#[doc(hidden)]
+pub fn tick_digits(ticks: &[f64]) -> usize {
     (1..=10)
         .find(|&d| {
             let labels: Vec<String> = ticks.iter().map(|&t| fmt_value(t, d)).collect();
@@ -894,6 +899,3 @@ fn fit(
     }
     Ok(chars[..lo].iter().chain(std::iter::once(&'…')).collect())
 }
-
-#[cfg(test)]
-mod tests;

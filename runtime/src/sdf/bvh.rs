@@ -22,13 +22,15 @@ pub(super) struct BvhNode {
 
 /// A union culled with a bounding volume hierarchy, and a grid of cells
 /// each listing the only members that can attain the minimum inside it.
-pub(super) struct BvhUnion {
+#[doc(hidden)]
+pub struct BvhUnion {
     pub(super) nodes: Vec<BvhNode>,
-    pub(super) members: Vec<Box<dyn Node>>,
+    /// The bounded members.
+    pub members: Vec<Box<dyn Node>>,
     /// Each member's world box as (centre, half extents).
-    pub(super) boxes: Vec<(Vec3A, Vec3A)>,
+    pub boxes: Vec<(Vec3A, Vec3A)>,
     /// Members without bounds (planes): always evaluated.
-    pub(super) unbounded: Vec<Box<dyn Node>>,
+    pub unbounded: Vec<Box<dyn Node>>,
     pub(super) grid: Option<CellGrid>,
     /// The members as one table when all are primitives of one packable
     /// kind: a cell's candidates are then evaluated eight at a time.

@@ -32,7 +32,9 @@ pub mod lanes;
 mod lower;
 mod nodes;
 pub mod tiles;
-mod user;
+/// Shapes users write (`sdf(f, ...)`), as leaves of the lowered scene.
+#[doc(hidden)]
+pub mod user;
 
 use bvh::*;
 use lanes::{per_lane, F8, LANES, P8};
@@ -136,12 +138,14 @@ pub struct Lowered {
     /// The top-level union's members with their boxes, for culling per
     /// screen tile, when the root is not already such a union (small
     /// unions are lowered without one).
-    tile_union: Option<Box<BvhUnion>>,
+    #[doc(hidden)]
+    pub tile_union: Option<Box<BvhUnion>>,
     /// The scene's box in the evaluator's coordinates (centre, half
     /// extents), when bounded.
     bounds: Option<(Vec3A, Vec3A)>,
     /// Tiles cull (`LowerOptions::cull` and `tiles`).
-    tiles: bool,
+    #[doc(hidden)]
+    pub tiles: bool,
 }
 
 impl Lowered {
@@ -266,7 +270,8 @@ pub const BATCH_PACKS: usize = 32;
 
 /// The accumulated transform from world space to a node's local space.
 #[derive(Clone)]
-pub(super) struct Frame {
+#[doc(hidden)]
+pub struct Frame {
     /// World → local.
     pub(super) to_local: DAffine3,
     /// Local distances are multiplied by this to give world distances.
@@ -275,7 +280,8 @@ pub(super) struct Frame {
 }
 
 impl Frame {
-    pub(super) fn identity() -> Self {
+    /// World space itself.
+    pub fn identity() -> Self {
         Frame {
             to_local: DAffine3::IDENTITY,
             scale: 1.0,
@@ -289,7 +295,8 @@ impl Frame {
             material: self.material.clone(),
         }
     }
-    pub(super) fn xform(&self) -> Xform {
+    /// World → local as the leaves apply it.
+    pub fn xform(&self) -> Xform {
         if self.to_local == DAffine3::IDENTITY {
             Xform::Identity
         } else {
@@ -308,8 +315,10 @@ impl Frame {
     }
 }
 
+/// A leaf's world → local transform.
 #[derive(Clone, Copy)]
-pub(super) enum Xform {
+#[doc(hidden)]
+pub enum Xform {
     Identity,
     Affine(Affine3A),
 }

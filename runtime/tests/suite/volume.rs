@@ -1,6 +1,13 @@
 //! Volume rendering through the language: images must not depend on where
 //! `far` lies unless the reference assignment's infinite last interval is
-//! asked for.
+//! asked for. The submodules test `volume`'s modules one by one.
+
+mod composite;
+mod figures;
+mod importance;
+mod march;
+mod rays;
+mod render;
 
 use sdfl_lang::SourceFile;
 use sdfl_runtime::volume::march::{intervals_into, march, Depths};

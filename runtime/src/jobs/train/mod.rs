@@ -9,11 +9,11 @@ use super::*;
 use sdfl_stdlib::value::ViewPath;
 
 mod budget;
-mod evaluation;
+pub mod evaluation;
 mod field;
 mod outputs;
 mod record;
-mod resume;
+pub mod resume;
 mod view;
 
 use crate::train::log::{first_view, Observer, TrainEvent, TrainLog};

@@ -29,12 +29,14 @@ const _: () = assert!(CHUNK.is_multiple_of(LANES));
 /// slopes, the output's value and tangents) and the backward's two adjoint
 /// buffers, feature-major.
 #[derive(Debug, Default)]
-pub(super) struct BlockScratch {
-    pub(super) forward: Vec<f32>,
-    pub(super) adjoint: Vec<f32>,
+pub struct BlockScratch {
+    /// The forward's values, a row each.
+    pub forward: Vec<f32>,
+    /// The backward's two adjoint buffers.
+    pub adjoint: Vec<f32>,
     /// A layer's input point-major (the weight gradient's product reads
     /// it so), `(1 + NT) × CHUNK × max(E, width)`.
-    pub(super) transposed: Vec<f32>,
+    pub transposed: Vec<f32>,
 }
 
 impl BlockScratch {
@@ -49,7 +51,7 @@ impl BlockScratch {
 
     /// Grows to `net`'s size with `NT` tangents, the backward's buffers
     /// too (no allocation once grown).
-    pub(super) fn fit<const NT: usize>(&mut self, net: &HashSdf) {
+    pub fn fit<const NT: usize>(&mut self, net: &HashSdf) {
         let forward = net.block_len::<NT>();
         if self.forward.len() < forward {
             self.forward.resize(forward, 0.0);
@@ -65,8 +67,7 @@ impl BlockScratch {
 
     /// Bytes of a scratch of `net` with `NT` tangents: what the plan's
     /// per-thread estimate (`NeuralSdf::thread_scratch`) must equal.
-    #[cfg(test)]
-    pub(super) fn bytes<const NT: usize>(net: &HashSdf) -> u64 {
+    pub fn bytes<const NT: usize>(net: &HashSdf) -> u64 {
         let adjoint = 2 * (1 + NT) * net.grid.output_dim().max(net.width) * CHUNK;
         let transposed = if NT > 0 { adjoint / 2 } else { 0 };
         4 * (net.block_len::<NT>() + adjoint + transposed) as u64
@@ -171,7 +172,7 @@ impl HashSdf {
     /// [`Self::backward_block`]: [`Self::value`]'s and
     /// [`Self::value_grad`]'s bits.
     #[inline(always)]
-    pub(super) fn forward_block<const NT: usize>(
+    pub fn forward_block<const NT: usize>(
         &self,
         params: &[f32],
         pts: &[[f32; 3]],
@@ -249,7 +250,7 @@ impl HashSdf {
     /// else as lane loops.
     #[allow(clippy::too_many_arguments)]
     #[inline(always)]
-    pub(super) fn backward_block(
+    pub fn backward_block(
         &self,
         params: &[f32],
         buf: &[f32],

@@ -257,7 +257,8 @@ impl HashSdf {
 
     /// `‖x − c‖ − r` and its gradient (0 at the centre), in f64 and
     /// saturated at the f32 range so huge coordinates stay finite.
-    fn sphere(&self, p: [f32; 3]) -> (f32, [f32; 3]) {
+    #[doc(hidden)]
+    pub fn sphere(&self, p: [f32; 3]) -> (f32, [f32; 3]) {
         let d: [f64; 3] = std::array::from_fn(|a| p[a] as f64 - self.centre[a]);
         let n = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
         let g = if n > 0.0 {
@@ -365,7 +366,8 @@ impl HashSdf {
     }
 
     /// Where the output's tangents sit in the scratch.
-    fn tangent_out<const NT: usize>(&self) -> usize {
+    #[doc(hidden)]
+    pub fn tangent_out<const NT: usize>(&self) -> usize {
         // The features, then per layer its h, zt and s.
         (1 + NT) * self.grid.output_dim() + self.hidden.len() * self.layer_block::<NT>()
     }
@@ -393,7 +395,8 @@ impl HashSdf {
     /// `(1 + NT)·max(E, width)`.
     #[allow(clippy::too_many_arguments)]
     #[inline(always)]
-    fn mlp_backward<const NT: usize>(
+    #[doc(hidden)]
+    pub fn mlp_backward<const NT: usize>(
         &self,
         params: &[f32],
         buf: &[f32],
@@ -467,14 +470,16 @@ impl HashSdf {
 
     /// `f` at one point (value only), scratch in `buf`.
     #[inline(always)]
-    fn value(&self, params: &[f32], p: [f32; 3], active: usize, buf: &mut [f32]) -> f32 {
+    #[doc(hidden)]
+    pub fn value(&self, params: &[f32], p: [f32; 3], active: usize, buf: &mut [f32]) -> f32 {
         self.encode::<0>(params, p, active, buf);
         self.mlp_forward::<0>(params, buf) + self.sphere(p).0
     }
 
     /// `f` and exact `∇f` at one point, scratch in `buf`.
     #[inline(always)]
-    fn value_grad(
+    #[doc(hidden)]
+    pub fn value_grad(
         &self,
         params: &[f32],
         p: [f32; 3],
@@ -736,7 +741,8 @@ impl HashSdf {
 
     /// Adds the tables' gradient given each probe's feature adjoints
     /// (`(1 + nt) × E` a probe), in parallel over levels, probes in order.
-    fn tables_backward(
+    #[doc(hidden)]
+    pub fn tables_backward(
         &self,
         probes: &[[f32; 3]],
         d_feat: &[f32],
@@ -897,12 +903,15 @@ fn to_f32(x: f64) -> f32 {
 }
 
 /// One point's forward scratch (or seven, for the finite differences).
-struct Scratch {
-    buf: Vec<f32>,
+#[doc(hidden)]
+pub struct Scratch {
+    /// The floats of the forward (and its tangents).
+    pub buf: Vec<f32>,
 }
 
 impl Scratch {
-    fn new(net: &HashSdf, nt: usize) -> Self {
+    /// A point's scratch for `net` with `nt` tangents (0 or 3).
+    pub fn new(net: &HashSdf, nt: usize) -> Self {
         let len = if nt == 0 {
             net.scratch_len::<0>()
         } else {
@@ -1013,9 +1022,8 @@ impl DistanceField for HashSdfField<'_> {
     }
 }
 
-mod block;
+/// Chunks of points through the network at once, lane by lane.
+#[doc(hidden)]
+pub mod block;
 pub mod objective;
 pub mod volume;
-
-#[cfg(test)]
-mod tests;

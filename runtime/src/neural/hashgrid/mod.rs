@@ -91,7 +91,9 @@ pub struct HashGrid {
 /// bits starting on a fresh word so levels can be written in parallel.
 #[derive(Debug, Clone)]
 pub struct Touched {
-    bits: Vec<u64>,
+    /// One bit per row, set where touched.
+    #[doc(hidden)]
+    pub bits: Vec<u64>,
     /// Per level its first word; one more entry at the end.
     words: Vec<usize>,
 }
@@ -544,6 +546,3 @@ impl HashGrid {
         Ok(())
     }
 }
-
-#[cfg(test)]
-mod tests;

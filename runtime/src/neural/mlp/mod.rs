@@ -32,7 +32,7 @@ use super::fp32::{self, Strided};
 use crate::volume::SplitMix64;
 
 /// Rows per block of the forward and input-adjoint passes.
-const ROW_BLOCK: usize = 1024;
+pub const ROW_BLOCK: usize = 1024;
 /// Rows per block of the weight-gradient pass (each block's partial sums
 /// are added in block order, so the result does not depend on threads).
 const GRAD_ROWS: usize = 4096;
@@ -59,11 +59,12 @@ pub enum Activation {
 }
 
 /// The cap of [`Activation::Exp`]'s argument.
-const EXP_CAP: f32 = 15.0;
+pub const EXP_CAP: f32 = 15.0;
 
 impl Activation {
+    /// The activation at `z`.
     #[inline(always)]
-    fn apply(self, z: f32) -> f32 {
+    pub fn apply(self, z: f32) -> f32 {
         match self {
             Activation::Identity => z,
             Activation::Relu => z.max(0.0),
@@ -77,7 +78,7 @@ impl Activation {
     /// needs no pre-activations: for softplus `σ(βz) = 1 − e^{−βy}`
     /// (through `exp_m1`, exact for tiny `y`).
     #[inline(always)]
-    fn slope(self, y: f32) -> f32 {
+    pub fn slope(self, y: f32) -> f32 {
         match self {
             Activation::Identity => 1.0,
             Activation::Relu => {
@@ -584,6 +585,3 @@ impl Dense {
             });
     }
 }
-
-#[cfg(test)]
-mod tests;

@@ -102,13 +102,16 @@ const RAY_CHUNK: usize = 256;
 /// The grid: EMA per cell and the occupied bits derived from it.
 #[derive(Debug, Clone)]
 pub struct OccupancyGrid {
-    cfg: OccupancyConfig,
+    /// The grid's box, resolution and update settings.
+    #[doc(hidden)]
+    pub cfg: OccupancyConfig,
     enabled: bool,
     ema: Vec<f32>,
     bits: Vec<u64>,
     /// Occupied cells per block of `BLOCK³` cells: march skips an empty
     /// block at once instead of cell by cell.
-    blocks: Vec<u32>,
+    #[doc(hidden)]
+    pub blocks: Vec<u32>,
     /// `R / extent` per axis (f32: the cell test), cell size in f64 (exits).
     scale: [f32; 3],
     cell: [f64; 3],
@@ -291,7 +294,9 @@ impl OccupancyGrid {
             };
         }
     }
-    fn block_of(&self, c: [u32; 3]) -> usize {
+    /// The block of cell `c`: its index in `blocks`.
+    #[doc(hidden)]
+    pub fn block_of(&self, c: [u32; 3]) -> usize {
         let nb = self.cfg.res.div_ceil(BLOCK) as usize;
         let b = c.map(|v| (v / BLOCK) as usize);
         b[0] + nb * (b[1] + nb * b[2])
@@ -561,6 +566,3 @@ impl RayCtx {
         best
     }
 }
-
-#[cfg(test)]
-mod tests;

@@ -652,7 +652,8 @@ pub fn eikonal_loss(g: &[f32], weight: f32, d_g: &mut [f32]) -> f64 {
 /// `v` (rows × 3), the transpose of [`Harmonic::backward`]. Only the
 /// features of `x_j` move with it: `2^k cos`, `−2^k sin`, and 1 for the raw
 /// input.
-fn encode_pushforward(h: &Harmonic, points: &[f32], v: &[f32], out: &mut [f32]) {
+#[doc(hidden)]
+pub fn encode_pushforward(h: &Harmonic, points: &[f32], v: &[f32], out: &mut [f32]) {
     let (f, e) = (h.freqs, h.width());
     assert_eq!(out.len(), points.len() / 3 * e);
     out.par_chunks_mut(ROW_BLOCK * e)
@@ -714,7 +715,8 @@ fn value_bias(
 }
 
 /// A standard normal sample (Box–Muller).
-fn normal(rng: &mut SplitMix64) -> f64 {
+#[doc(hidden)]
+pub fn normal(rng: &mut SplitMix64) -> f64 {
     let unit = |rng: &mut SplitMix64| (rng.next_u64() >> 11) as f64 / (1u64 << 53) as f64;
     let u = 1.0 - unit(rng); // in (0, 1]: ln stays finite
     let v = unit(rng);
@@ -787,6 +789,3 @@ impl SdfWork {
         &self.out[self.rows..4 * self.rows]
     }
 }
-
-#[cfg(test)]
-mod tests;

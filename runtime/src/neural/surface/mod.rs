@@ -231,7 +231,8 @@ fn absorption(
 /// The buffers of the pass that places fine samples
 /// ([`SurfaceObjective::upsample`]), kept from step to step.
 #[derive(Default)]
-struct Placing {
+#[doc(hidden)]
+pub struct Placing {
     points: Vec<f32>,
     dirs: Vec<f32>,
     /// Per coarse sample: the distance, what it absorbs and its slopes,
@@ -262,7 +263,8 @@ pub struct SurfaceObjective {
     steps: usize,
     /// Empty space skipped (a hash-grid SDF): the grid, and each step's
     /// rays that cross it.
-    skip: Option<SkipGrid>,
+    #[doc(hidden)]
+    pub skip: Option<SkipGrid>,
     selection: Selection,
     /// Samples the networks evaluated in this process's steps: counted,
     /// never read by a step.
@@ -341,7 +343,8 @@ impl SurfaceObjective {
     /// Refreshes the skipping grid from the distance at `values` when
     /// `step` is due, and otherwise widens it to this step's β (see
     /// [`skip`]).
-    fn refresh_skip(&mut self, values: &[f32], step: usize) {
+    #[doc(hidden)]
+    pub fn refresh_skip(&mut self, values: &[f32], step: usize) {
         let (beta, alpha) = (self.beta(values), self.spec.alpha as f32);
         let (sdf, params, kind) = (&self.sdf, &values[..self.sdf.len()], self.spec.density);
         if let Some(g) = self.skip.as_mut() {
@@ -382,7 +385,8 @@ impl SurfaceObjective {
 
     /// Where `log β` is kept when β is trained or scheduled (after the
     /// colour network).
-    fn beta_at(&self) -> Option<usize> {
+    #[doc(hidden)]
+    pub fn beta_at(&self) -> Option<usize> {
         (self.spec.train_beta || self.spec.beta_end.is_some()).then(|| self.color.end())
     }
 
@@ -432,7 +436,8 @@ impl SurfaceObjective {
     /// inverse CDF, merged in (`n + fine` a ray into `out`). Where samples
     /// go is a constant to the gradient.
     #[allow(clippy::too_many_arguments)]
-    fn upsample(
+    #[doc(hidden)]
+    pub fn upsample(
         &self,
         params: &[f32],
         levels: Levels,
@@ -755,7 +760,8 @@ impl Objective for SurfaceObjective {
 /// The grid to skip by, if any: none with an infinite last interval, where
 /// the last sample's absorption beyond a cut span's end would make a ray
 /// that passes near the surface opaque.
-fn skipping(grid: Option<&SkipGrid>, last: LastInterval) -> Option<&SkipGrid> {
+#[doc(hidden)]
+pub fn skipping(grid: Option<&SkipGrid>, last: LastInterval) -> Option<&SkipGrid> {
     grid.filter(|_| last != LastInterval::Infinite)
 }
 
@@ -1060,6 +1066,3 @@ impl TrainedField for Trained<SurfaceObjective> {
 
 pub mod geometry;
 pub mod skip;
-
-#[cfg(test)]
-mod tests;

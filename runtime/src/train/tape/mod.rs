@@ -25,8 +25,6 @@
 //! traced; tracing then fails and the trainer takes the scalar kernel.
 
 mod kernel;
-#[cfg(test)]
-mod tests;
 
 use std::cell::RefCell;
 use std::collections::HashMap;
@@ -49,7 +47,8 @@ const MAX_NODES: usize = 1 << 14;
 /// One operation; operands are node (or, in a compiled tape, register)
 /// numbers.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
-enum Op {
+#[doc(hidden)]
+pub enum Op {
     /// A per-sample input: 0, 1, 2 the point, 3 the interval.
     Input(u8),
     /// A constant, by its bits.
@@ -77,7 +76,7 @@ enum Op {
 
 impl Op {
     /// The operands and how many there are.
-    fn operands(self) -> ([u32; 4], usize) {
+    pub fn operands(self) -> ([u32; 4], usize) {
         use Op::*;
         match self {
             Input(_) | Const(_) | Param(_) => ([0; 4], 0),
@@ -120,7 +119,8 @@ impl Op {
 /// operations). `Dual<F, 0>`'s arithmetic, so that the tape's values are
 /// the scalar kernel's.
 #[inline(always)]
-fn forward<F: Real>(op: Op, x: [F; 4]) -> F {
+#[doc(hidden)]
+pub fn forward<F: Real>(op: Op, x: [F; 4]) -> F {
     use Op::*;
     match op {
         Input(_) | Const(_) | Param(_) => x[0],
@@ -146,7 +146,8 @@ fn forward<F: Real>(op: Op, x: [F; 4]) -> F {
 /// What an operation of value `y` on operands `x` passes back to each
 /// operand from the adjoint `g` of its value: `Dual`'s derivative rules.
 #[inline(always)]
-fn backward<F: Real>(op: Op, x: [F; 4], y: F, g: F) -> [F; 4] {
+#[doc(hidden)]
+pub fn backward<F: Real>(op: Op, x: [F; 4], y: F, g: F) -> [F; 4] {
     use Op::*;
     let z = F::zero();
     match op {
@@ -177,7 +178,8 @@ fn backward<F: Real>(op: Op, x: [F; 4], y: F, g: F) -> [F; 4] {
 /// What the derivative rule of an operation ([`backward`]) reads: a bit
 /// per operand, and whether it reads the operation's own value. Values
 /// nothing reads are not computed.
-fn rule_reads(op: Op) -> (u8, bool) {
+#[doc(hidden)]
+pub fn rule_reads(op: Op) -> (u8, bool) {
     use Op::*;
     match op {
         Input(_) | Const(_) | Param(_) | Add(..) | Sub(..) | Neg(_) => (0, false),
@@ -364,12 +366,13 @@ const OUTPUTS: usize = 6;
 /// A value that does not depend on the sample, held in every lane of a
 /// register.
 #[derive(Debug, Clone, Copy)]
-struct Uniform {
+#[doc(hidden)]
+pub struct Uniform {
     register: u32,
     value: f32,
     node: u32,
     /// Whether it depends on a parameter (its adjoint is summed).
-    grad: bool,
+    pub grad: bool,
 }
 
 /// A traced model compiled for evaluation on lanes of samples. Every node
@@ -380,12 +383,14 @@ struct Uniform {
 pub struct Tape {
     /// Operations of the varying nodes in order, operands and result as
     /// registers: (operation, result register).
-    forward: Vec<(Op, u32)>,
+    #[doc(hidden)]
+    pub forward: Vec<(Op, u32)>,
     /// The instructions whose result carries a gradient, last first, with a
     /// bit per operand that wants its adjoint and a bit per operand whose
     /// adjoint it writes first (stores rather than adds: no register is
     /// zeroed that something writes before reading).
-    reverse: Vec<(Op, u32, u8, u8)>,
+    #[doc(hidden)]
+    pub reverse: Vec<(Op, u32, u8, u8)>,
     registers: usize,
     /// Registers of the inputs (point x, y, z, interval), if used.
     inputs: [Option<u32>; 4],
@@ -398,9 +403,11 @@ pub struct Tape {
     seed_first: [bool; OUTPUTS],
     /// Registers whose adjoints are read before anything writes them
     /// (zeroed first; none in the tapes the compiler makes).
-    adjoint_registers: Vec<u32>,
+    #[doc(hidden)]
+    pub adjoint_registers: Vec<u32>,
     /// Uniform values held in registers.
-    uniforms: Vec<Uniform>,
+    #[doc(hidden)]
+    pub uniforms: Vec<Uniform>,
     /// The uniform nodes, for the gradient through what depends on the
     /// parameters only: (operation on nodes, value).
     nodes: Vec<(Op, f32)>,

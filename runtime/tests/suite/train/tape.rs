@@ -2,13 +2,13 @@
 //! f64 reference and the scalar kernel, for every primitive, operator,
 //! density and colour, is in `runtime/tests/suite/gradients.rs`.
 
-use super::*;
-use crate::train::fused::{loss_and_grad_f32, Batch};
-use crate::train::TrainModel;
-use crate::volume::{camera_rays, ImageSize, Stratified};
 use sdfl_lang::SourceFile;
+use sdfl_runtime::train::fused::{loss_and_grad_f32, Batch};
+use sdfl_runtime::train::tape::*;
+use sdfl_runtime::train::TrainModel;
+use sdfl_runtime::volume::{camera_rays, ImageSize, Stratified};
 use sdfl_stdlib::camera::Camera;
-use sdfl_stdlib::num::Dual;
+use sdfl_stdlib::num::{Dual, Real};
 use sdfl_stdlib::value::LastInterval;
 
 fn model(field: &str) -> TrainModel {

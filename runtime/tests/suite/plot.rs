@@ -1,7 +1,8 @@
 //! Charts drawn and read back: colours, legends, log axes, point labels,
 //! hard data that must never panic, tick labels.
 
-use super::*;
+use plotters::prelude::*;
+use sdfl_runtime::plot::*;
 
 fn chart(series: Vec<Series>) -> Chart {
     Chart {

@@ -2,7 +2,10 @@
 //! thread-count invariance, bf16 against fp32, softplus against f64 and
 //! its scalar formula, extremes, initialisation.
 
-use super::*;
+use sdfl_runtime::neural::mlp::*;
+use sdfl_runtime::neural::{bf16, fp32};
+use sdfl_runtime::volume::SplitMix64;
+use sdfl_stdlib::value::Precision;
 
 /// The layer in f64, textbook loops.
 fn reference(layer: &Dense, params: &[f32], inputs: &[&[f32]], rows: usize) -> Vec<f64> {

@@ -2,7 +2,10 @@
 //! extreme inputs, geometric initialisation, thread-count invariance, a
 //! short fit and the timing of a step.
 
-use super::*;
+use sdfl_runtime::neural::encoding::Harmonic;
+use sdfl_runtime::neural::mlp::Dense;
+use sdfl_runtime::neural::sdf_net::*;
+use sdfl_runtime::volume::SplitMix64;
 
 fn small(beta: f32) -> SdfNetSpec {
     SdfNetSpec {

@@ -1,6 +1,7 @@
 //! Tests of the occupancy grid and its march.
 
-use super::*;
+use sdfl_runtime::neural::occupancy::*;
+use sdfl_runtime::volume::{Ray, SplitMix64};
 
 fn grid(res: u32) -> OccupancyGrid {
     let mut c = OccupancyConfig::new([-1.0, -0.5, 0.0], [1.0, 1.5, 3.0]);

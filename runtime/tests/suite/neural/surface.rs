@@ -1,8 +1,17 @@
 //! The neural surface's gradient against finite differences, β's schedule,
 //! fine samples at the surface, finite colours.
 
-use super::*;
-use sdfl_stdlib::value::{Harmonic as HarmonicSpec, NeuralSdf};
+use sdfl_runtime::neural::field::Samples;
+use sdfl_runtime::neural::surface::skip::{Selection, SkipGrid};
+use sdfl_runtime::neural::surface::*;
+use sdfl_runtime::train::fused::Batch;
+use sdfl_runtime::train::Objective;
+use sdfl_runtime::volume::importance::Spacing;
+use sdfl_runtime::volume::{ImageSize, Ray, SplitMix64, Stratified};
+use sdfl_stdlib::camera::Camera;
+use sdfl_stdlib::value::{
+    DensityKind, Harmonic as HarmonicSpec, LastInterval, Loss, LossKind, NeuralSdf, NeuralSurface,
+};
 
 fn spec(density: DensityKind, view_dependent: bool) -> NeuralSurface {
     NeuralSurface {
@@ -550,7 +559,7 @@ fn hash_surface_gradient_is_bit_identical_at_any_thread_count() {
                 )
             })
         };
-        const { assert!(300 * 32 > crate::neural::hash_sdf::volume::BLOCK) };
+        const { assert!(300 * 32 > sdfl_runtime::neural::hash_sdf::volume::BLOCK) };
         let one = run(1);
         assert_eq!(one, run(2), "eikonal step {step}, β trained {train_beta}");
         assert_eq!(one, run(3), "eikonal step {step}, β trained {train_beta}");
@@ -581,7 +590,7 @@ fn hash_surface_normals_are_the_fields_gradient() {
 
 // ---- Empty space skipped ----
 
-use super::skip::{band, Span};
+use sdfl_runtime::neural::surface::skip::{band, Span};
 
 /// A field with thin features, steeper than a distance: a torus of tube
 /// radius 0.012 and a plate 0.016 thick (both under a fifth of a cell of

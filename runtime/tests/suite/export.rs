@@ -1,8 +1,17 @@
+//! Exports from a radiance field: density meshes at their level, the data
+//! frame, depths, point clouds and their crop, PLY sizes, hostile fields.
+
+mod depth;
+mod normals;
+
 use glam::{DAffine3, DVec3};
 use sdfl_stdlib::camera::Camera;
 use sdfl_stdlib::value::{DensityKind, LastInterval};
 
-use super::*;
+use sdfl_runtime::export::depth::depth_values;
+use sdfl_runtime::export::*;
+use sdfl_runtime::mesh::MeshGrid;
+use sdfl_runtime::volume::{DensityModel, ImageSize, Stratified};
 
 const R: f32 = 0.6;
 const COLOUR: [f32; 3] = [0.2, 0.6, 0.9];
@@ -128,10 +137,10 @@ fn depth_is_the_expected_depth_over_the_opacity() {
     let s = Stratified::new(128, 1.0, 5.0).unwrap();
     let (cam, size) = cameras()[0];
     let ends = render_ends(&f, &cam, size, &s, LastInterval::Infinite).unwrap();
-    let d = depth::depth_values(&ends, 0.5);
+    let d = depth_values(&ends, 0.5);
     let (mut hits, mut misses) = (0, 0);
     for (p, (e, d)) in ends.iter().zip(&d).enumerate() {
-        let r = crate::volume::rays::pixel_ray(&cam, size, 0, p as u32);
+        let r = sdfl_runtime::volume::rays::pixel_ray(&cam, size, 0, p as u32);
         let (o, dir) = (
             DVec3::from(r.origin.map(f64::from)),
             DVec3::from(r.dir.map(f64::from)),
@@ -202,7 +211,7 @@ fn raw_depth_is_in_the_datas_units() {
         };
         write::write_field_exports(&f, &out, &cx).unwrap();
         let bytes = std::fs::read(dir.path().join("d.npy")).unwrap();
-        crate::data::npy::parse_f32(&bytes).unwrap().data
+        sdfl_runtime::data::npy::parse_f32(&bytes).unwrap().data
     };
     let own = depths(DAffine3::IDENTITY);
     let ends = render_ends(
@@ -213,7 +222,7 @@ fn raw_depth_is_in_the_datas_units() {
         LastInterval::Infinite,
     )
     .unwrap();
-    let raw = depth::depth_values(&ends, 0.5);
+    let raw = depth_values(&ends, 0.5);
     assert_eq!(
         own.iter().map(|d| d.to_bits()).collect::<Vec<_>>(),
         raw.iter().map(|d| d.to_bits()).collect::<Vec<_>>()

@@ -2,7 +2,8 @@
 //! continuity, points outside the box, gradients against finite
 //! differences, thread-count invariance, sparse Adam, throughput.
 
-use super::*;
+use sdfl_runtime::neural::hashgrid::*;
+use sdfl_runtime::volume::SplitMix64;
 
 fn small(levels: u32, log2_table: u32, min_res: u32, max_res: u32) -> HashGrid {
     HashGrid::new(HashGridConfig {

@@ -8,9 +8,15 @@
     reason = "axis and entry indices address several arrays at once"
 )]
 
-use super::*;
-use crate::mesh::{surface_nets, MeshGrid};
-use crate::neural::distance::mean_nearest;
+mod objective;
+
+use sdfl_runtime::mesh::{surface_nets, MeshGrid};
+use sdfl_runtime::neural::distance::mean_nearest;
+use sdfl_runtime::neural::hash_sdf::objective::{clearances, hash_sdf};
+use sdfl_runtime::neural::hash_sdf::*;
+use sdfl_runtime::neural::hashgrid::HashGridConfig;
+use sdfl_runtime::neural::mlp::softplus_layer;
+use sdfl_runtime::volume::SplitMix64;
 
 fn spec(beta: f32) -> HashSdfSpec {
     HashSdfSpec {
@@ -810,7 +816,7 @@ fn fit_two_spheres(clearance: f32) -> (usize, usize) {
         surface.extend((0..512).map(|_| data[(rng.next_u64() % data.len() as u64) as usize]));
         random.clear();
         random.extend((0..512).map(|_| std::array::from_fn(|_| rng.next_f32() * 2.0 - 1.0)));
-        objective::clearances(&surface, &random, 2.0, &mut at_least);
+        clearances(&surface, &random, 2.0, &mut at_least);
         let clear = Clearance {
             weight: clearance,
             at_least: &at_least,
@@ -940,7 +946,7 @@ fn hash_sdf_softplus_value_is_the_softplus() {
 /// chunks, both depths, some levels off, and with zero adjoints mixed in.
 #[test]
 fn hash_sdf_blocked_backward_is_the_pointwise_backward() {
-    use super::volume::VolumeWork;
+    use sdfl_runtime::neural::hash_sdf::volume::VolumeWork;
     for (layers, width, active, seed) in [(2, 8, 4, 60), (1, 16, 3, 61)] {
         let sp = HashSdfSpec {
             layers,
@@ -1028,7 +1034,7 @@ fn hash_sdf_blocked_backward_is_the_pointwise_backward() {
 /// chunk and a partial one.
 #[test]
 fn hash_sdf_blocked_backward_tiles_are_the_lane_loops() {
-    use super::block::BlockScratch;
+    use sdfl_runtime::neural::hash_sdf::block::BlockScratch;
     let sp = HashSdfSpec {
         layers: 2,
         width: 16,
@@ -1068,7 +1074,7 @@ fn hash_sdf_blocked_backward_tiles_are_the_lane_loops() {
             (d_mlp, d_feat)
         };
         let (lanes_mlp, lanes_feat) = run(false);
-        let (tiles_mlp, tiles_feat) = run(crate::neural::fp32::available());
+        let (tiles_mlp, tiles_feat) = run(sdfl_runtime::neural::fp32::available());
         let close = |a: &[f32], b: &[f32]| {
             let scale = a.iter().fold(0f32, |m, v| m.max(v.abs()));
             assert!(scale > 0.01);
@@ -1111,7 +1117,7 @@ fn the_estimates_thread_scratch_is_the_blocks() {
             level_every: 0,
             eikonal_step: None,
         };
-        let net = objective::hash_sdf(&n, &g).unwrap();
+        let net = hash_sdf(&n, &g).unwrap();
         assert_eq!(
             block::BlockScratch::bytes::<3>(&net) as usize,
             n.thread_scratch(),
