@@ -225,11 +225,26 @@ impl Progress {
                 self.with(|job, _| job.psnr = Some((step, psnr)));
             }
             TrainEvent::Note(text) => self.note(text),
-            TrainEvent::Status(text) => {
-                if let Some(bar) = &self.bar {
-                    bar.set_message(text.to_string());
+            TrainEvent::Status(text) => match &self.bar {
+                Some(bar) => bar.set_message(text.to_string()),
+                // Piped: the status itself every interval, so the phases
+                // after training (outputs, scoring) are not silent.
+                None => {
+                    let now = Instant::now();
+                    let due = self.with(|job, last| {
+                        // While steps run, their lines say more.
+                        let stepping = job.training && job.done < job.total;
+                        let due = !stepping && now.duration_since(*last) >= self.every;
+                        if due {
+                            *last = now;
+                        }
+                        due
+                    });
+                    if due {
+                        say!("{text}");
+                    }
                 }
-            }
+            },
         }
     }
 

@@ -547,9 +547,9 @@ fn an_output_added_to_a_finished_run_is_the_only_one_rendered() {
 
     // A changed output or a deleted file: rendered again.
     std::fs::remove_file(out.join("view_01.png")).unwrap();
-    let c = run(&format!(
-        r#"gif("views.gif", fps: 5), image("view.png"), psnr_curve("psnr.png"), loss_curve("loss.png"), depth("depth.png")"#
-    ));
+    let c = run(
+        r#"gif("views.gif", fps: 5), image("view.png"), psnr_curve("psnr.png"), loss_curve("loss.png"), depth("depth.png")"#,
+    );
     let kept: Vec<&str> = c.kept_outputs.iter().map(|p| p.to_str().unwrap()).collect();
     assert_eq!(kept, ["psnr.png", "loss.png", "depth.png"], "{kept:?}");
     assert!(out.join("view_01.png").is_file());

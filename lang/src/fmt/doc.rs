@@ -196,7 +196,11 @@ fn fits(next: &Doc, rest: &[(usize, Mode, &Doc)], room: usize) -> bool {
                 }
             }
             Doc::HardLine | Doc::LineStart => return true,
-            Doc::Blank | Doc::LineSuffix(_) | Doc::BreakParent => {}
+            // A trailing comment is printed on this line: it counts, or a
+            // line that fits only without it would, formatted again from
+            // its own output, be laid out otherwise.
+            Doc::LineSuffix(t) => room -= first_line_width(t).0 as isize + 1,
+            Doc::Blank | Doc::BreakParent => {}
             Doc::IfBreak(t) => {
                 if mode == Mode::Break {
                     room -= t.len() as isize;

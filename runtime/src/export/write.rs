@@ -39,6 +39,8 @@ pub struct ExportContext<'a> {
     /// and point clouds are moved by it, depths (lengths along the ray)
     /// scaled by it.
     pub to_data: DAffine3,
+    /// Told what is being written, for progress.
+    pub status: &'a (dyn Fn(&str) + Sync),
 }
 
 fn invalid(e: impl std::fmt::Display) -> io::Error {
@@ -65,6 +67,12 @@ pub fn write_field_exports(
     let last = cx.sampler.last_interval;
     for o in outputs {
         let t = Instant::now();
+        if matches!(
+            o.kind,
+            OutputKind::DensityMesh { .. } | OutputKind::PointCloud { .. }
+        ) {
+            (cx.status)(&format!("writing {}", o.path.display()));
+        }
         let path = cx.out_dir.join(&o.path);
         let named = |e: &dyn std::fmt::Display| invalid(format!("`{}`: {e}", o.path.display()));
         match o.kind {
@@ -185,7 +193,16 @@ pub fn write_field_exports(
         }
         d
     };
+    let names: Vec<String> = depths
+        .iter()
+        .map(|o| o.path.display().to_string())
+        .collect();
     for (k, cam) in cx.cameras.iter().enumerate() {
+        (cx.status)(&format!(
+            "depth of view {} of {n} for {}",
+            k + 1,
+            names.join(", ")
+        ));
         let ends = super::render_ends(field, cam, size, &strat, last).map_err(invalid)?;
         for o in &depths {
             let rel = sdfl_stdlib::outputs::view_path(&o.path, k, n);

@@ -348,6 +348,7 @@ pub fn run_volume_job(
             object_region: job.field.object_region(),
             seed: 0,
             to_data: glam::DAffine3::IDENTITY,
+            status: &|_| {},
         };
         let written = match &*job.field {
             Field::Sdf(f) => {

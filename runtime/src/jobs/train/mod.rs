@@ -154,6 +154,7 @@ pub fn run_train_job(
         to_data: scene_frame
             .as_ref()
             .map_or(glam::DAffine3::IDENTITY, |f| f.to_data_affine()),
+        observer,
     };
 
     let mut setup = TrainSetup::of(job, &views);
@@ -197,7 +198,7 @@ pub fn run_train_job(
         out_dir,
     );
     let mut written = Vec::new();
-    let before = kept.to_render(&job.before, false);
+    let before = kept.needing_render(&job.before, false);
     if !before.is_empty() {
         written.extend(outputs.before(&*run.objective, &run.values(), &before)?);
     }
@@ -342,7 +343,7 @@ pub fn run_train_job(
     if run.step != done_before {
         kept = Kept::new(job, (&outputs.cameras, outputs.size), None, out_dir);
     }
-    let after = kept.to_render(&job.after, true);
+    let after = kept.needing_render(&job.after, true);
     let (rendered, mesh_fit) = outputs.after(field, &values, &all_points, &after)?;
     let mesh_fit = kept.mesh_fit().or(mesh_fit);
     written.extend(rendered);

@@ -25,6 +25,17 @@ pub(super) struct Outputs<'a> {
     /// From the training frame into the data's own: meshes and points are
     /// written in the frame of the data's file, not the normalised one.
     pub to_data: glam::DAffine3,
+    /// Told what is being written (a status line: on a terminal the
+    /// bar's, piped a line every few seconds).
+    pub observer: &'a crate::train::log::Observer<'a>,
+}
+
+impl Outputs<'_> {
+    /// Tells the observer `what` is being written.
+    fn status(&self, what: &str) {
+        let line = format!("{}: {what}", self.job.name);
+        (self.observer)(&crate::train::log::TrainEvent::Status(&line));
+    }
 }
 
 impl Outputs<'_> {
@@ -104,6 +115,11 @@ impl Outputs<'_> {
             Ok((v.colour, v.depth))
         };
         let job = self.job;
+        let names: Vec<String> = outputs
+            .iter()
+            .map(|o| o.path.display().to_string())
+            .collect();
+        let (done, n) = (std::sync::atomic::AtomicUsize::new(0), self.cameras.len());
         let r = write_volume_outputs(
             &job.name,
             &view,
@@ -112,7 +128,13 @@ impl Outputs<'_> {
             &job.sampler,
             outputs,
             self.out_dir,
-            &|_| {},
+            &|_| {
+                let k = done.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1;
+                self.status(&format!(
+                    "rendered view {k} of {n} for {}",
+                    names.join(", ")
+                ));
+            },
         )?;
         Ok(r.written)
     }
@@ -138,6 +160,7 @@ impl Outputs<'_> {
         meshes
             .iter()
             .map(|o| {
+                self.status(&format!("writing {}", o.path.display()));
                 let region = field.region();
                 crate::mesh::write_mesh_to(self.out_dir, o, &*surface, region, &self.to_data)
             })
@@ -169,6 +192,7 @@ impl Outputs<'_> {
             },
             seed: self.job.seed,
             to_data: self.to_data,
+            status: &|what| self.status(what),
         };
         let radiance = field
             .radiance(values)
@@ -196,7 +220,13 @@ impl Outputs<'_> {
                 continue;
             };
             let mut gif = None;
-            for cam in &self.cameras {
+            for (k, cam) in self.cameras.iter().enumerate() {
+                let n = self.cameras.len();
+                self.status(&format!(
+                    "traced view {} of {n} for {}",
+                    k + 1,
+                    o.path.display()
+                ));
                 let Some(view) = field.geometry_view(values, cam, size) else {
                     break;
                 };

@@ -211,7 +211,7 @@ impl<'a> Kept<'a> {
 
     /// The outputs of `list` (the `after` list or the `before` one) that
     /// must be rendered; the others are kept.
-    pub fn to_render(&mut self, list: &[Output], after: bool) -> Vec<Output> {
+    pub fn needing_render(&mut self, list: &[Output], after: bool) -> Vec<Output> {
         let mut render = Vec::new();
         for o in list {
             let key = output_key(self.job, o, after, self.cameras, self.size);
