@@ -444,7 +444,7 @@ train t {
 }
 
 /// A small fit with held-out views, its `after` outputs spliced in.
-fn outputs_fit(after: &str) -> sdfl_stdlib::value::TrainJob {
+fn outputs_fit(after: &str, iterations: usize) -> sdfl_stdlib::value::TrainJob {
     let src = format!(
         r#"
     let sampler = stratified(samples: 24, near: 1, far: 5)
@@ -454,7 +454,7 @@ fn outputs_fit(after: &str) -> sdfl_stdlib::value::TrainJob {
       data: render_views(target, cameras: orbit(radius: 3, views: 6), size: [16, 16], sampler: sampler, test_views: 2),
       sampler: sampler,
       rays: 128,
-      iterations: 10,
+      iterations: {iterations},
       views: orbit(radius: 3, views: 3),
       size: [16, 16],
       after: [{after}],
@@ -485,17 +485,11 @@ fn an_output_added_to_a_finished_run_is_the_only_one_rendered() {
             }
         }
     };
-    let run = |after: &str| {
-        run_train_job(
-            &outputs_fit(after),
-            &out,
-            Path::new("."),
-            None,
-            RESUME,
-            &observe,
-        )
-        .unwrap()
+    let run_for = |after: &str, iterations: usize| {
+        let job = outputs_fit(after, iterations);
+        run_train_job(&job, &out, Path::new("."), None, RESUME, &observe).unwrap()
     };
+    let run = |after: &str| run_for(after, 10);
     let a = run(first);
     assert!(a.kept_outputs.is_empty(), "{:?}", a.kept_outputs);
     let scored_once = scorings.load(Ordering::Relaxed);
@@ -553,5 +547,10 @@ fn an_output_added_to_a_finished_run_is_the_only_one_rendered() {
     let kept: Vec<&str> = c.kept_outputs.iter().map(|p| p.to_str().unwrap()).collect();
     assert_eq!(kept, ["psnr.png", "loss.png", "depth.png"], "{kept:?}");
     assert!(out.join("view_01.png").is_file());
+
+    // Trained on: every output is of new values.
+    let d = run_for(first, 12);
+    assert_eq!(d.resumed_from, Some(10));
+    assert!(d.kept_outputs.is_empty(), "{:?}", d.kept_outputs);
     let _ = std::fs::remove_dir_all(&out);
 }

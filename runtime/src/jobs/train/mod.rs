@@ -339,9 +339,10 @@ pub fn run_train_job(
 
     let t = Instant::now();
     let (field, values) = (&*run.objective, run.values());
-    // Nothing ran since the record's step: what it kept stays.
+    // Steps ran since the record's step: its `after` outputs and scores
+    // are of other values.
     if run.step != done_before {
-        kept = Kept::new(job, (&outputs.cameras, outputs.size), None, out_dir);
+        kept.forget_record();
     }
     let after = kept.needing_render(&job.after, true);
     let (rendered, mesh_fit) = outputs.after(field, &values, &all_points, &after)?;
@@ -353,7 +354,7 @@ pub fn run_train_job(
     if !test_views.is_empty() {
         // Scored at this step already, and no comparison to redraw: the
         // scores stand and only the curves are drawn again.
-        if let Some(h) = kept.held_out().filter(|_| !comparison) {
+        if let Some(h) = kept.held_out(&test_views).filter(|_| !comparison) {
             final_scores = Some(log.evaluated(run.step, record::scores(&h), 0.0, None));
             written.extend(outputs.held_out(log.held_out(), &test_views, &[], &after)?);
         } else {
@@ -374,6 +375,7 @@ pub fn run_train_job(
             fingerprint: checkpoints.fingerprint.clone(),
             outputs: kept.record(&written),
             held_out: final_scores,
+            held_out_key: record::held_out_key(job, &test_views),
             mesh_fit: mesh_fit.as_ref().map(Into::into),
         }
         .write(job, out_dir)?;

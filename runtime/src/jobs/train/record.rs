@@ -24,6 +24,9 @@ pub(super) struct OutputsRecord {
     pub outputs: Vec<RecordedOutput>,
     /// The held-out scores at `step` (the final evaluation's).
     pub held_out: Option<HeldOut>,
+    /// [`held_out_key`] of the views those scores are of.
+    #[serde(default)]
+    pub held_out_key: String,
     /// The first mesh's fit.
     pub mesh_fit: Option<RecordedFit>,
 }
@@ -95,6 +98,21 @@ pub(super) fn output_key(
             "{size:?} {:?} {} {:?}",
             job.eval_views, job.eval_downscale, job.view_path
         ));
+    h.finish()
+}
+
+/// What held-out scores depend on beyond the checkpoint: the views
+/// scored (their cameras and sizes) and how (`eval_views`,
+/// `eval_downscale`).
+pub(super) fn held_out_key(job: &TrainJob, views: &[TrainView]) -> String {
+    let mut h = crate::train::checkpoint::Fnv::default();
+    for v in views {
+        h.str(&format!(
+            "{:?} {}x{}",
+            v.camera, v.image.width, v.image.height
+        ));
+    }
+    h.str(&format!("{:?} {}", job.eval_views, job.eval_downscale));
     h.finish()
 }
 
@@ -235,9 +253,19 @@ impl<'a> Kept<'a> {
         self.record?.mesh_fit.map(Into::into)
     }
 
-    /// The recorded held-out scores at this step.
-    pub fn held_out(&self) -> Option<HeldOut> {
-        self.record?.held_out
+    /// The recorded held-out scores at this step, where they are of
+    /// `views` scored as now.
+    pub fn held_out(&self, views: &[TrainView]) -> Option<HeldOut> {
+        let r = self.record?;
+        (r.held_out_key == held_out_key(self.job, views))
+            .then_some(r.held_out)
+            .flatten()
+    }
+
+    /// Steps ran after the record's: nothing more is kept from it (what
+    /// was kept before training stays kept).
+    pub fn forget_record(&mut self) {
+        self.record = None;
     }
 
     /// The kept outputs' paths.
