@@ -58,7 +58,7 @@ pub(super) fn with_ndc_frame(
     let Field::Nerf(n) = &*job.model else {
         return Ok(None);
     };
-    if n.unbounded != Some(Unbounded::Ndc(None)) {
+    if !needs_ndc_frame(job) {
         return Ok(None);
     }
     let Some(ff) = forward_facing else {
@@ -85,6 +85,24 @@ pub(super) fn with_ndc_frame(
         model: std::sync::Arc::new(Field::Nerf(model)),
         ..job.clone()
     }))
+}
+
+/// The object's region in the trained field's frame, where a point cloud
+/// with `crop: "auto"` keeps its points: the model's own
+/// ([`sdfl_stdlib::model::Model::object_region`]), else the region the
+/// trained field covers (a neural surface's training bounds), but for a
+/// NeRF, whose region where it has none (NDC) is everywhere.
+pub(super) fn object_region(job: &TrainJob, field: &dyn TrainedField) -> Option<Region> {
+    match &*job.model {
+        Field::Nerf(_) => job.model.object_region(),
+        other => other.object_region().or(field.region()),
+    }
+}
+
+/// Whether `job`'s model waits for the forward-facing capture's NDC frame
+/// (`unbounded: ndc()`, filled in once the data is read).
+pub(super) fn needs_ndc_frame(job: &TrainJob) -> bool {
+    matches!(&*job.model, Field::Nerf(n) if n.unbounded == Some(Unbounded::Ndc(None)))
 }
 
 /// The region a neural SDF's mesh covers by default: its points' box grown

@@ -185,11 +185,7 @@ impl Outputs<'_> {
             size: self.size,
             ray_views: &self.ray_views,
             auto_region: field.region(),
-            // A neural surface's region is its training bounds.
-            object_region: match &*self.job.model {
-                Field::Nerf(_) => self.job.model.object_region(),
-                other => other.object_region().or(field.region()),
-            },
+            object_region: super::field::object_region(self.job, field),
             seed: self.job.seed,
             to_data: self.to_data,
             status: &|what| self.status(what),

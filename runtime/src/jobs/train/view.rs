@@ -7,7 +7,7 @@
 use std::time::SystemTime;
 
 use super::super::*;
-use super::field::{trained_field, with_ndc_frame};
+use super::field::{needs_ndc_frame, trained_field, with_ndc_frame};
 use crate::train::export_names::Layout;
 use crate::train::TrainedField;
 
@@ -73,14 +73,13 @@ impl CheckpointedField {
     /// capture's frame; other fields read only the checkpoint.
     pub fn load(job: &TrainJob, out_dir: &Path, base: &Path) -> Result<Self, FieldUnavailable> {
         let refused = |e: &dyn std::fmt::Display| FieldUnavailable::Refused(e.to_string());
-        let resolved = match &*job.model {
-            Field::Nerf(n) if n.unbounded == Some(sdfl_stdlib::value::Unbounded::Ndc(None)) => {
-                let views = load_views(&job.data, base).map_err(|e| refused(&e))?;
-                with_ndc_frame(job, views.forward_facing, &|_| {})
-                    .map_err(|e| refused(&e))?
-                    .unwrap_or_else(|| job.clone())
-            }
-            _ => job.clone(),
+        let resolved = if needs_ndc_frame(job) {
+            let views = load_views(&job.data, base).map_err(|e| refused(&e))?;
+            with_ndc_frame(job, views.forward_facing, &|_| {})
+                .map_err(|e| refused(&e))?
+                .unwrap_or_else(|| job.clone())
+        } else {
+            job.clone()
         };
         Self::read(resolved, out_dir)
     }
