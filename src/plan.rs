@@ -421,6 +421,7 @@ pub(crate) fn plan_text_in(program: &sdfl_stdlib::Program, base: &std::path::Pat
                 sdfl_stdlib::size::fmt_bytes(sdfl_stdlib::work::MAX_MEMORY)
             );
         }
+        output_time_lines(&mut o, job);
         host_line(&mut o, &work);
     }
     if o.is_empty() {
@@ -494,6 +495,27 @@ fn host_line(o: &mut String, work: &sdfl_stdlib::work::Work) {
             sdfl_stdlib::size::fmt_bytes(on_host),
             host.threads,
             sdfl_runtime::cpu::kernels().describe()
+        );
+    }
+}
+
+/// Each output's expected time on this machine, longest first (the views
+/// of a phase, rendered once for all its view outputs, as one).
+fn output_time_lines(o: &mut String, job: &sdfl_stdlib::value::TrainJob) {
+    use std::fmt::Write;
+    let rate = sdfl_runtime::pace::evaluation_rate();
+    let mut parts = sdfl_stdlib::work::train_output_costs(job, None);
+    if parts.is_empty() {
+        return;
+    }
+    parts.sort_by(|a, b| b.seconds(rate).total_cmp(&a.seconds(rate)));
+    let _ = writeln!(o, "  output times");
+    for p in parts {
+        let _ = writeln!(
+            o,
+            "    {:<20} {}",
+            p.what,
+            sdfl_stdlib::work::fmt_duration(p.seconds(rate))
         );
     }
 }

@@ -824,60 +824,126 @@ pub fn train_work(j: &TrainJob, size: Option<(u32, u32)>) -> Work {
         held_out.memory,
     );
 
-    // Views rendered for the outputs before and after training (each set
-    // of outputs renders every view once), and geometry GIFs sphere-traced
-    // with up to 96 steps.
+    for part in train_output_costs(j, size) {
+        w.add_skipping(
+            part.stage,
+            part.cost.evaluations,
+            part.share,
+            part.cost.memory,
+        );
+    }
+    w
+}
+
+/// What one of a training's outputs (or a group that shares its work)
+/// costs after (or before) training: the parts of the estimate's outputs
+/// and meshes stages, which `sdfl plan` times one by one.
+#[derive(Debug, Clone, PartialEq)]
+pub struct OutputCost {
+    /// The files, or what is measured.
+    pub what: String,
+    /// The stage it is counted in.
+    pub stage: Stage,
+    /// Its evaluations (every sample counted) and memory.
+    pub cost: Cost,
+    /// The share of its evaluations expected once empty space is skipped.
+    pub share: f64,
+}
+
+impl OutputCost {
+    /// Seconds it is expected to take at `rate` calibrated evaluations a
+    /// second.
+    pub fn seconds(&self, rate: f64) -> f64 {
+        self.cost.evaluations * self.share / rate
+    }
+}
+
+/// The outputs of a `train` one by one (at `size` when `--size` overrides
+/// its images): each phase's views rendered once for all its view
+/// outputs; each geometry GIF sphere-traced with up to 96 steps; each
+/// field export marching its own rays (the depth outputs one march for
+/// all); each mesh; and the first mesh's and a point fit's measurements.
+pub fn train_output_costs(j: &TrainJob, size: Option<(u32, u32)>) -> Vec<OutputCost> {
+    use crate::value::Output;
+    let model = j.model.model();
+    let samples = j.sampler.samples as f64;
     let px = pixels((j.width, j.height), size);
     let views = j.views.len() as f64;
-    let renders = |outputs: &[crate::value::Output]| {
-        outputs.iter().any(|o| {
-            !matches!(
-                o.kind,
-                OutputKind::LossCurve
-                    | OutputKind::PsnrCurve
-                    | OutputKind::Comparison
-                    | OutputKind::Mesh { .. }
-                    | OutputKind::GeometryGif { .. }
-            ) && !o.kind.field_export()
-        })
-    };
-    let passes = renders(&j.before) as u8 as f64 + renders(&j.after) as u8 as f64;
     let per_point = model.geometry_point();
-    let geometry_gifs = j
-        .before
-        .iter()
-        .chain(&j.after)
-        .filter(|o| matches!(o.kind, OutputKind::GeometryGif { .. }))
-        .count() as f64;
-    let outputs = j.before.len() + j.after.len();
-    if outputs > 0 {
-        w.add_skipping(
-            Stage::Outputs,
-            passes * px * views * model.render_pixel(samples),
-            model.expected_share(),
-            px * 16.0 + model.render_buffers(),
-        );
-        w.add(
-            Stage::Outputs,
-            geometry_gifs * px * views * 96.0 * per_point,
-            0.0,
-        );
-    }
-
-    // Field exports march their own rays through the model.
-    let export_sample = model.export_sample();
+    let names = |os: &[&Output]| {
+        let names: Vec<String> = os.iter().map(|o| o.path.display().to_string()).collect();
+        names.join(", ")
+    };
+    let part = |what: String, stage: Stage, cost: Cost, share: f64| OutputCost {
+        what,
+        stage,
+        cost,
+        share,
+    };
+    let mut parts = Vec::new();
     for outputs in [&j.before, &j.after] {
-        let (meshes, depth) = field_export_work(outputs, views, px, samples, export_sample);
-        w.add(Stage::Meshes, meshes.evaluations, meshes.memory);
-        w.add(Stage::Outputs, depth.evaluations, depth.memory);
+        let rendered: Vec<&Output> = outputs
+            .iter()
+            .filter(|o| {
+                !matches!(
+                    o.kind,
+                    OutputKind::LossCurve
+                        | OutputKind::PsnrCurve
+                        | OutputKind::Comparison
+                        | OutputKind::Mesh { .. }
+                        | OutputKind::GeometryGif { .. }
+                ) && !o.kind.field_export()
+            })
+            .collect();
+        if !rendered.is_empty() {
+            let cost = Cost::all(
+                px * views * model.render_pixel(samples),
+                px * 16.0 + model.render_buffers(),
+            );
+            parts.push(part(
+                names(&rendered),
+                Stage::Outputs,
+                cost,
+                model.expected_share(),
+            ));
+        }
+        let depth: Vec<&Output> = outputs
+            .iter()
+            .filter(|o| {
+                matches!(
+                    o.kind,
+                    OutputKind::RawDepth { .. } | OutputKind::DepthMap { .. }
+                )
+            })
+            .collect();
+        if !depth.is_empty() {
+            let all: Vec<Output> = depth.iter().map(|o| (*o).clone()).collect();
+            let (_, cost) = field_export_work(&all, views, px, samples, model.export_sample());
+            parts.push(part(names(&depth), Stage::Outputs, cost, 1.0));
+        }
+        for o in outputs {
+            let one = std::slice::from_ref(o);
+            let (stage, cost) = match o.kind {
+                OutputKind::GeometryGif { .. } => (
+                    Stage::Outputs,
+                    Cost::all(px * views * 96.0 * per_point, 0.0),
+                ),
+                OutputKind::DensityMesh { .. } | OutputKind::PointCloud { .. } => {
+                    let e = field_export_work(one, views, px, samples, model.export_sample());
+                    (Stage::Meshes, e.0)
+                }
+                OutputKind::Mesh { .. } => (
+                    Stage::Meshes,
+                    mesh_work(std::iter::once(&o.kind), per_point),
+                ),
+                _ => continue,
+            };
+            parts.push(part(o.path.display().to_string(), stage, cost, 1.0));
+        }
     }
-
-    // Meshes; the first mesh after training is measured against the true
-    // surface (meshed finely) where sdfl rendered the data from a shape, or
-    // against the data's points; a neural SDF's fit is measured by random
-    // points projected onto its surface, ten passes.
-    let meshes = mesh_work(j.before.iter().chain(&j.after).map(|o| &o.kind), per_point);
-    w.add(Stage::Meshes, meshes.evaluations, meshes.memory);
+    // The first mesh after training is measured against the true surface
+    // (meshed finely) where sdfl rendered the data from a shape, or
+    // against the data's points.
     if j.after
         .iter()
         .any(|o| matches!(o.kind, OutputKind::Mesh { .. }))
@@ -889,16 +955,31 @@ pub fn train_work(j: &TrainJob, size: Option<(u32, u32)>) -> Work {
             }
             _ => None,
         };
+        let mut cost = chamfer_cost();
         if let Some(primitives) = truth {
             let t = mesh_cost(TRUE_SURFACE_RESOLUTION, primitives);
-            w.add(Stage::Meshes, t.evaluations, t.memory);
+            cost.evaluations += t.evaluations;
+            cost.expected += t.expected;
+            cost.memory = cost.memory.max(t.memory);
         }
-        let c = chamfer_cost();
-        w.add(Stage::Meshes, c.evaluations, c.memory);
+        parts.push(part(
+            "the first mesh's fit".into(),
+            Stage::Meshes,
+            cost,
+            1.0,
+        ));
     }
+    // A neural SDF's fit: random points projected onto its surface.
     let fit = model.fit_work();
-    w.add(Stage::Meshes, fit.evaluations, fit.memory);
-    w
+    if fit.evaluations > 0.0 {
+        parts.push(part(
+            "the fit to the points".into(),
+            Stage::Meshes,
+            fit,
+            1.0,
+        ));
+    }
+    parts
 }
 
 /// The diagnostic for a statement whose estimate is beyond the limits.

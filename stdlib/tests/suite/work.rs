@@ -276,3 +276,34 @@ fn grid_refreshes_count_a_quarter_of_the_cells_after_warm_up() {
     assert_eq!(occupancy_refresh_cells(100.0, 200.0, 16), 13.0 * 100.0);
     assert_eq!(occupancy_refresh_cells(100.0, 0.0, 16), 0.0);
 }
+
+/// `plan`'s output times are the estimate's parts: every output is named
+/// (the views of a phase together, the depth outputs together), and the
+/// parts add up to the outputs and meshes stages.
+#[test]
+fn output_costs_name_every_output_and_add_up_to_their_stages() {
+    use sdfl_stdlib::work::train_output_costs;
+    let src = nerf(
+        ", occupancy: occupancy_grid(resolution: 32, every: 16)",
+        "test_views: 2",
+        "  views: orbit(radius: 3, views: 4),\n  after: [gif(\"a.gif\"), image(\"v.png\"), raw_depth(\"d.npy\"), depth_map(\"d.png\"), point_cloud(\"p.ply\", points: 1000), density_mesh(\"m.ply\", level: 5, bounds: [[-1, -1, -1], [1, 1, 1]]), loss_curve(\"l.png\")],",
+    );
+    let p = load(&SourceFile::new("ok.sdfl", src)).unwrap_or_else(|e| panic!("{e:?}"));
+    let job = &p.trains[0];
+    let parts = train_output_costs(job, None);
+    let what: Vec<&str> = parts.iter().map(|p| p.what.as_str()).collect();
+    assert_eq!(what, ["a.gif, v.png", "d.npy, d.png", "p.ply", "m.ply"]);
+    let w = train_work(job, None);
+    for stage in [Stage::Outputs, Stage::Meshes] {
+        let sum: f64 = parts
+            .iter()
+            .filter(|p| p.stage == stage)
+            .map(|p| p.cost.evaluations * p.share)
+            .sum();
+        let expected = w.stage(stage).expected;
+        assert!(
+            (sum - expected).abs() <= 1e-9 * expected && expected > 0.0,
+            "{stage:?}: {sum} against {expected}"
+        );
+    }
+}
