@@ -916,7 +916,19 @@ pub fn train_output_costs(j: &TrainJob, size: Option<(u32, u32)>) -> Vec<OutputC
                 )
             })
             .collect();
-        if !depth.is_empty() {
+        if !depth.is_empty() && model.renders_depth() {
+            // Rendered as its views are, each view once for all of them.
+            let cost = Cost::all(
+                px * views * model.render_pixel(samples),
+                px * 24.0 + model.render_buffers(),
+            );
+            parts.push(part(
+                names(&depth),
+                Stage::Outputs,
+                cost,
+                model.expected_share(),
+            ));
+        } else if !depth.is_empty() {
             let all: Vec<Output> = depth.iter().map(|o| (*o).clone()).collect();
             let (_, cost) = field_export_work(&all, views, px, samples, model.export_sample());
             parts.push(part(names(&depth), Stage::Outputs, cost, 1.0));

@@ -383,3 +383,38 @@ fn a_training_loop_is_the_loop_through_the_training_cameras() {
     );
     assert_ne!(at_run, other);
 }
+
+/// A trained NeRF's depth exports come from its renders (empty space
+/// skipped, opaque rays stopped), and agree with a march of every sample:
+/// the same depths and opacities, to the early stop's 1e-4 of light.
+#[test]
+fn a_nerfs_rendered_ray_ends_match_a_march_of_every_sample() {
+    use sdfl_runtime::export::render_ends;
+    use sdfl_runtime::volume::{ImageSize, Stratified};
+    let program =
+        sdfl_stdlib::load(&sdfl_lang::SourceFile::new("nerf.sdfl", NERF.to_string())).unwrap();
+    let job = &program.trains[0];
+    let field = sdfl_runtime::jobs::trained_field(job, job.iterations, &[]).unwrap();
+    let values = field.initial();
+    let s = &job.sampler;
+    let strat = Stratified::new(s.samples, s.near as f32, s.far as f32).unwrap();
+    let size = ImageSize {
+        width: 12,
+        height: 10,
+    };
+    let radiance = field.radiance(&values).unwrap();
+    for cam in &job.views {
+        let rendered = field.ray_ends(&values, cam, size).unwrap().unwrap();
+        let marched = render_ends(&*radiance, cam, size, &strat, s.last_interval).unwrap();
+        assert_eq!(rendered.len(), marched.len());
+        for (r, m) in rendered.iter().zip(&marched) {
+            assert!((r.opacity - m.opacity).abs() <= 2e-4, "{r:?} {m:?}");
+            assert!(
+                (r.depth - m.depth).abs() <= 2e-3 * m.depth.max(1.0),
+                "{r:?} {m:?}"
+            );
+        }
+        // Not all empty: the comparison has something to compare.
+        assert!(marched.iter().any(|m| m.opacity > 0.01));
+    }
+}

@@ -41,7 +41,13 @@ pub struct ExportContext<'a> {
     pub to_data: DAffine3,
     /// Told what is being written, for progress.
     pub status: &'a (dyn Fn(&str) + Sync),
+    /// A view's ray ends as the field renders it, skipping empty space
+    /// (a trained NeRF's); `None`: depth outputs march every sample.
+    pub ray_ends: Option<&'a RayEnds<'a>>,
 }
+
+/// A view's ray ends from `camera` at a size, as a field renders it.
+pub type RayEnds<'a> = dyn Fn(&Camera, ImageSize) -> Result<Vec<super::RayEnd>, String> + Sync + 'a;
 
 fn invalid(e: impl std::fmt::Display) -> io::Error {
     io::Error::new(io::ErrorKind::InvalidInput, e.to_string())
@@ -203,7 +209,10 @@ pub fn write_field_exports(
             k + 1,
             names.join(", ")
         ));
-        let ends = super::render_ends(field, cam, size, &strat, last).map_err(invalid)?;
+        let ends = match cx.ray_ends {
+            Some(rendered) => rendered(cam, size).map_err(invalid)?,
+            None => super::render_ends(field, cam, size, &strat, last).map_err(invalid)?,
+        };
         for o in &depths {
             let rel = sdfl_stdlib::outputs::view_path(&o.path, k, n);
             let path = cx.out_dir.join(&rel);

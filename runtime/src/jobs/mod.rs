@@ -349,6 +349,7 @@ pub fn run_volume_job(
             seed: 0,
             to_data: glam::DAffine3::IDENTITY,
             status: &|_| {},
+            ray_ends: None,
         };
         let written = match &*job.field {
             Field::Sdf(f) => {

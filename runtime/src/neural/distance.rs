@@ -362,6 +362,7 @@ impl TrainedField for Trained<NeuralSdfObjective> {
         Ok(View {
             colour: v.colour,
             depth: v.depth,
+            opacity: Vec::new(),
         })
     }
 

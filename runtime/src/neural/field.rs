@@ -717,8 +717,10 @@ impl Objective for NerfObjective {
 pub struct NerfView {
     /// Colour per pixel, row by row.
     pub colour: Vec<[f32; 3]>,
-    /// Expected depth per pixel.
+    /// Expected depth per pixel (`Σ wᵢtᵢ`).
     pub depth: Vec<f32>,
+    /// Accumulated opacity per pixel (`Σ wᵢ`).
+    pub opacity: Vec<f32>,
     /// Network evaluations it took.
     pub evaluated: usize,
 }
@@ -747,6 +749,7 @@ pub fn render_nerf_view(
     let mut view = NerfView {
         colour: vec![[0.0; 3]; rays.len()],
         depth: vec![0.0; rays.len()],
+        opacity: vec![0.0; rays.len()],
         evaluated: 0,
     };
     // A pass's rays: the coarse network of a two-network NeRF sees every
@@ -764,10 +767,11 @@ pub fn render_nerf_view(
     let (mut weights, mut fine_depths) = (Vec::new(), Vec::new());
     let (mut backgrounds, mut backdrop_work) = (Vec::new(), BackdropWork::default());
     let (mut mapped, mut candidates) = (Vec::new(), Samples::default());
-    for (chunk, (colour, depth)) in rays.chunks(per_pass).zip(
+    for (chunk, ((colour, depth), opacity)) in rays.chunks(per_pass).zip(
         view.colour
             .chunks_mut(per_pass)
-            .zip(view.depth.chunks_mut(per_pass)),
+            .zip(view.depth.chunks_mut(per_pass))
+            .zip(view.opacity.chunks_mut(per_pass)),
     ) {
         // Unbounded: the stratified depths spaced linearly through the
         // inner box, in disparity beyond it.
@@ -835,7 +839,7 @@ pub fn render_nerf_view(
             stop,
             &mut pass,
             colour,
-            depth,
+            (depth, opacity),
         );
     }
     Ok(view)
@@ -860,7 +864,7 @@ fn composite_until_opaque(
     stop: f32,
     pass: &mut Pass,
     colour: &mut [[f32; 3]],
-    depth: &mut [f32],
+    (depth, opacity): (&mut [f32], &mut [f32]),
 ) -> usize {
     // Per ray: transmittance, colour and depth so far.
     let mut state = vec![(1.0f32, [0.0f32; 3], 0.0f32); samples.rays()];
@@ -912,9 +916,10 @@ fn composite_until_opaque(
         start += SEGMENT;
         alive.retain(|&r| state[r].0 >= stop && start < samples.range(r).len());
     }
-    for (((c, d), (trans, sum, dep)), bg) in colour
+    for ((((c, d), o), (trans, sum, dep)), bg) in colour
         .iter_mut()
         .zip(depth.iter_mut())
+        .zip(opacity.iter_mut())
         .zip(state)
         .zip(backgrounds)
     {
@@ -922,6 +927,7 @@ fn composite_until_opaque(
             c[j] = sum[j] + trans * bg[j];
         }
         *d = dep;
+        *o = 1.0 - trans;
     }
     evaluated
 }
@@ -942,7 +948,30 @@ impl TrainedField for Trained<NerfObjective> {
         Ok(View {
             colour: v.colour,
             depth: v.depth,
+            opacity: v.opacity,
         })
+    }
+
+    fn ray_ends(
+        &self,
+        values: &[f32],
+        cam: &Camera,
+        size: ImageSize,
+    ) -> Option<Result<Vec<crate::export::RayEnd>, String>> {
+        let (strat, last) = (&self.viewing.strat, self.viewing.sampler.last_interval);
+        let v = self.objective.render_view(values, strat, last, cam, size);
+        Some(v.map_err(|e| e.to_string()).map(|v| {
+            v.colour
+                .iter()
+                .zip(&v.depth)
+                .zip(&v.opacity)
+                .map(|((&colour, &depth), &opacity)| crate::export::RayEnd {
+                    colour,
+                    depth,
+                    opacity,
+                })
+                .collect()
+        }))
     }
 
     fn radiance<'a>(

@@ -30,6 +30,9 @@ pub struct View {
     pub colour: Vec<[f32; 3]>,
     /// Depth per pixel (empty when not asked for, where the field can skip it).
     pub depth: Vec<f32>,
+    /// Accumulated opacity per pixel, where the field renders it (a NeRF;
+    /// else empty): with the depth, what depth exports keep or drop.
+    pub opacity: Vec<f32>,
 }
 
 /// What a trained field is and how it trains, for `sdfl plan`.
@@ -59,6 +62,19 @@ pub trait TrainedField: Objective + Sync {
     /// The signed distance at `values`, for meshes; `None` for a field
     /// with no surface (a radiance field).
     fn surface<'a>(&'a self, _values: &'a [f32]) -> Option<Box<dyn DistanceField + 'a>> {
+        None
+    }
+
+    /// Each pixel's ray end (`Σ wᵢtᵢ` and `Σ wᵢ`; the colour as
+    /// rendered) as this field renders a view, skipping what its training
+    /// skips: what depth exports read where the field has it (a NeRF),
+    /// instead of marching every sample of [`TrainedField::radiance`].
+    fn ray_ends(
+        &self,
+        _values: &[f32],
+        _cam: &Camera,
+        _size: ImageSize,
+    ) -> Option<Result<Vec<crate::export::RayEnd>, String>> {
         None
     }
 
@@ -222,6 +238,7 @@ impl TrainedField for Trained<FieldObjective<'_>> {
         Ok(View {
             colour: img.colour,
             depth: img.depth,
+            opacity: Vec::new(),
         })
     }
 

@@ -209,6 +209,7 @@ fn raw_depth_is_in_the_datas_units() {
             seed: 1,
             to_data,
             status: &|_| {},
+            ray_ends: None,
         };
         write::write_field_exports(&f, &out, &cx).unwrap();
         let bytes = std::fs::read(dir.path().join("d.npy")).unwrap();

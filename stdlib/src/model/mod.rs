@@ -65,6 +65,13 @@ pub trait Model {
     /// Bytes of the buffers a render of the trained model holds (one pass).
     fn render_buffers(&self) -> f64;
 
+    /// Whether a trained model's depth exports come from its renders
+    /// (skipping empty space, stopping opaque rays) rather than a march of
+    /// every sample.
+    fn renders_depth(&self) -> bool {
+        false
+    }
+
     /// Evaluations one training ray costs (forward and backward), with
     /// `samples` samples a ray and `params` trainable scalars of an
     /// analytic field.

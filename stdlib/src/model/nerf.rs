@@ -146,6 +146,10 @@ impl Model for Nerf {
         NETWORK_PASS * bytes_per_sample(self)
     }
 
+    fn renders_depth(&self) -> bool {
+        true
+    }
+
     fn train_ray(&self, samples: f64, _: usize) -> f64 {
         // The fine network sees the coarse samples and its own.
         let fine = if self.fine > 0 {

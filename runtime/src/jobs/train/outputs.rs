@@ -178,6 +178,19 @@ impl Outputs<'_> {
         if !outputs.iter().any(|o| o.kind.field_export()) {
             return Ok(Vec::new());
         }
+        let rendered = |cam: &Camera, size: ImageSize| {
+            field
+                .ray_ends(values, cam, size)
+                .unwrap_or_else(|| Err("no rendered ray ends".into()))
+        };
+        let probe = ImageSize {
+            width: 1,
+            height: 1,
+        };
+        let renders_ends = self
+            .cameras
+            .first()
+            .is_some_and(|c| field.ray_ends(values, c, probe).is_some());
         let cx = crate::export::write::ExportContext {
             out_dir: self.out_dir,
             sampler: &self.job.sampler,
@@ -189,6 +202,7 @@ impl Outputs<'_> {
             seed: self.job.seed,
             to_data: self.to_data,
             status: &|what| self.status(what),
+            ray_ends: renders_ends.then_some(&rendered as &crate::export::write::RayEnds),
         };
         let radiance = field
             .radiance(values)

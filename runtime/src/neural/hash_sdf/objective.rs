@@ -266,6 +266,7 @@ impl TrainedField for Trained<HashSdfObjective> {
         Ok(View {
             colour: v.colour,
             depth: v.depth,
+            opacity: Vec::new(),
         })
     }
 

@@ -528,6 +528,7 @@ impl SurfaceObjective {
         let mut view = NerfView {
             colour: vec![[0.0; 3]; rays.len()],
             depth: vec![0.0; rays.len()],
+            opacity: Vec::new(),
             evaluated: 0,
         };
         let per_pass = (RENDER_ROWS / n).max(1);
@@ -995,6 +996,7 @@ impl TrainedField for Trained<SurfaceObjective> {
         Ok(View {
             colour: v.colour,
             depth: v.depth,
+            opacity: Vec::new(),
         })
     }
 
