@@ -835,6 +835,12 @@ pub fn train_work(j: &TrainJob, size: Option<(u32, u32)>) -> Work {
     w
 }
 
+/// Most bytes of a phase's renders a training keeps for its depth outputs,
+/// so that each view is rendered once for its view outputs and its depth.
+pub const SHARED_RENDER_BYTES: usize = 512 << 20;
+/// Bytes of one pixel's kept render (colour, depth sum, opacity).
+const RAY_END_BYTES: f64 = 20.0;
+
 /// What one of a training's outputs (or a group that shares its work)
 /// costs after (or before) training: the parts of the estimate's outputs
 /// and meshes stages, which `sdfl plan` times one by one.
@@ -895,19 +901,7 @@ pub fn train_output_costs(j: &TrainJob, size: Option<(u32, u32)>) -> Vec<OutputC
                 ) && !o.kind.field_export()
             })
             .collect();
-        if !rendered.is_empty() {
-            let cost = Cost::all(
-                px * views * model.render_pixel(samples),
-                px * 16.0 + model.render_buffers(),
-            );
-            parts.push(part(
-                names(&rendered),
-                Stage::Outputs,
-                cost,
-                model.expected_share(),
-            ));
-        }
-        let depth: Vec<&Output> = outputs
+        let mut depth: Vec<&Output> = outputs
             .iter()
             .filter(|o| {
                 matches!(
@@ -916,6 +910,27 @@ pub fn train_output_costs(j: &TrainJob, size: Option<(u32, u32)>) -> Vec<OutputC
                 )
             })
             .collect();
+        // A renderer's depth outputs are served by the views' renders
+        // while those fit ([`SHARED_RENDER_BYTES`]).
+        let shared = model.renders_depth()
+            && !rendered.is_empty()
+            && px * views * RAY_END_BYTES <= SHARED_RENDER_BYTES as f64;
+        if !rendered.is_empty() {
+            let mut served = rendered.clone();
+            if shared {
+                served.append(&mut depth);
+            }
+            let cost = Cost::all(
+                px * views * model.render_pixel(samples),
+                px * 16.0 + model.render_buffers(),
+            );
+            parts.push(part(
+                names(&served),
+                Stage::Outputs,
+                cost,
+                model.expected_share(),
+            ));
+        }
         if !depth.is_empty() && model.renders_depth() {
             // Rendered as its views are, each view once for all of them.
             let cost = Cost::all(

@@ -147,7 +147,8 @@ fn a_field_exports_its_surface_points_and_depth() {
     assert!(c[2] > c[0] && c != [68, 1, 84], "{c:?}");
 }
 
-/// A tiny NeRF trained briefly, then exported.
+/// A tiny NeRF trained briefly, then exported (its GIF's renders serve
+/// its depth outputs too).
 const NERF: &str = r#"
 let cams = orbit(radius: 2.5, up: [0, 1, 0], focal: 1, views: 6)
 let truth = volsdf(sphere(radius: 0.6), alpha: 10, beta: 0.05)
@@ -159,7 +160,7 @@ train tiny {
   iterations: 20,
   views: orbit(radius: 2.5, up: [0, 1, 0], focal: 1, views: 2),
   size: [12, 10],
-  after: [density_mesh("nerf.ply", level: 1, resolution: 16), point_cloud("nerf_cloud.ply", points: 50, min_opacity: 0), raw_depth("nerf_depth.npy", min_opacity: 0), depth_map("nerf_depth.png")],
+  after: [density_mesh("nerf.ply", level: 1, resolution: 16), point_cloud("nerf_cloud.ply", points: 50, min_opacity: 0), gif("nerf.gif"), raw_depth("nerf_depth.npy", min_opacity: 0), depth_map("nerf_depth.png")],
 }
 "#;
 

@@ -278,8 +278,8 @@ fn grid_refreshes_count_a_quarter_of_the_cells_after_warm_up() {
 }
 
 /// `plan`'s output times are the estimate's parts: every output is named
-/// (the views of a phase together, the depth outputs together), and the
-/// parts add up to the outputs and meshes stages.
+/// (the views of a phase together, with the depth outputs their renders
+/// serve), and the parts add up to the outputs and meshes stages.
 #[test]
 fn output_costs_name_every_output_and_add_up_to_their_stages() {
     use sdfl_stdlib::work::train_output_costs;
@@ -292,7 +292,8 @@ fn output_costs_name_every_output_and_add_up_to_their_stages() {
     let job = &p.trains[0];
     let parts = train_output_costs(job, None);
     let what: Vec<&str> = parts.iter().map(|p| p.what.as_str()).collect();
-    assert_eq!(what, ["a.gif, v.png", "d.npy, d.png", "p.ply", "m.ply"]);
+    // A NeRF's depth outputs are served by its views' renders.
+    assert_eq!(what, ["a.gif, v.png, d.npy, d.png", "p.ply", "m.ply"]);
     let w = train_work(job, None);
     for stage in [Stage::Outputs, Stage::Meshes] {
         let sum: f64 = parts

@@ -47,10 +47,11 @@ impl Outputs<'_> {
         values: &[f32],
         before: &[Output],
     ) -> io::Result<Vec<Written>> {
-        let mut written = self.views(field, values, before)?;
+        let shared = SharedRenders::for_outputs(before);
+        let mut written = self.views(field, values, before, &shared)?;
         written.extend(self.meshes(field, values, before)?.into_iter().map(|m| m.0));
         written.extend(self.geometry_gifs(field, values, before)?);
-        written.extend(self.exports(field, values, before)?);
+        written.extend(self.exports(field, values, before, &shared)?);
         Ok(written)
     }
 
@@ -78,11 +79,12 @@ impl Outputs<'_> {
             .cloned()
             .collect();
         let mut written = Vec::new();
+        let shared = SharedRenders::for_outputs(after);
         if !views.is_empty() {
-            written.extend(self.views(field, values, &views)?);
+            written.extend(self.views(field, values, &views, &shared)?);
         }
         written.extend(self.geometry_gifs(field, values, after)?);
-        written.extend(self.exports(field, values, after)?);
+        written.extend(self.exports(field, values, after, &shared)?);
         let mut mesh_fit = None;
         for (w, mesh) in self.meshes(field, values, after)? {
             if mesh_fit.is_none() {
@@ -106,12 +108,18 @@ impl Outputs<'_> {
         field: &dyn TrainedField,
         values: &[f32],
         outputs: &[Output],
+        shared: &SharedRenders,
     ) -> io::Result<Vec<Written>> {
         let view = |cam: &Camera, (width, height): (u32, u32), want_depth: bool| {
             let size = ImageSize { width, height };
             let v = field
-                .render_view(values, cam, size, want_depth)
+                .render_view(values, cam, size, want_depth || shared.wanted)
                 .map_err(invalid)?;
+            if (width, height) == self.size {
+                if let Some(k) = self.cameras.iter().position(|c| std::ptr::eq(c, cam)) {
+                    shared.keep(k, &v);
+                }
+            }
             Ok((v.colour, v.depth))
         };
         let job = self.job;
@@ -174,11 +182,16 @@ impl Outputs<'_> {
         field: &dyn TrainedField,
         values: &[f32],
         outputs: &[Output],
+        shared: &SharedRenders,
     ) -> io::Result<Vec<Written>> {
         if !outputs.iter().any(|o| o.kind.field_export()) {
             return Ok(Vec::new());
         }
         let rendered = |cam: &Camera, size: ImageSize| {
+            let k = self.cameras.iter().position(|c| std::ptr::eq(c, cam));
+            if let Some(ends) = k.and_then(|k| shared.take(k)) {
+                return Ok(ends);
+            }
             field
                 .ray_ends(values, cam, size)
                 .unwrap_or_else(|| Err("no rendered ray ends".into()))
@@ -350,6 +363,68 @@ impl Outputs<'_> {
             });
         }
         Ok(written)
+    }
+}
+
+/// A phase's renders kept for its depth outputs, so that each view is
+/// rendered once for its view outputs (images, GIFs, video) and its depth
+/// exports, while they fit in [`sdfl_stdlib::work::SHARED_RENDER_BYTES`] (past that, a depth
+/// export renders its view again).
+struct SharedRenders {
+    /// Whether the phase has depth exports (else nothing is kept).
+    wanted: bool,
+    /// Ray ends by view, and their bytes.
+    kept: std::sync::Mutex<(
+        std::collections::HashMap<usize, Vec<crate::export::RayEnd>>,
+        usize,
+    )>,
+}
+
+impl SharedRenders {
+    fn for_outputs(outputs: &[Output]) -> Self {
+        let wanted = outputs.iter().any(|o| {
+            matches!(
+                o.kind,
+                OutputKind::RawDepth { .. } | OutputKind::DepthMap { .. }
+            )
+        });
+        SharedRenders {
+            wanted,
+            kept: Default::default(),
+        }
+    }
+
+    /// Keeps view `k`'s render, if it has opacities and fits.
+    fn keep(&self, k: usize, v: &crate::train::field::View) {
+        if !self.wanted || v.opacity.len() != v.colour.len() || v.depth.len() != v.colour.len() {
+            return;
+        }
+        let bytes = v.colour.len() * std::mem::size_of::<crate::export::RayEnd>();
+        let mut kept = self.kept.lock().unwrap_or_else(|p| p.into_inner());
+        if kept.1 + bytes > sdfl_stdlib::work::SHARED_RENDER_BYTES {
+            return;
+        }
+        let ends = v
+            .colour
+            .iter()
+            .zip(&v.depth)
+            .zip(&v.opacity)
+            .map(|((&colour, &depth), &opacity)| crate::export::RayEnd {
+                colour,
+                depth,
+                opacity,
+            })
+            .collect();
+        kept.1 += bytes;
+        kept.0.insert(k, ends);
+    }
+
+    /// View `k`'s kept render, given up.
+    fn take(&self, k: usize) -> Option<Vec<crate::export::RayEnd>> {
+        let mut kept = self.kept.lock().unwrap_or_else(|p| p.into_inner());
+        let ends = kept.0.remove(&k)?;
+        kept.1 -= ends.len() * std::mem::size_of::<crate::export::RayEnd>();
+        Some(ends)
     }
 }
 
