@@ -506,12 +506,7 @@ fn field_export_work(
         meshes.expected += c.expected;
         meshes.memory = meshes.memory.max(c.memory);
     }
-    let depth = if outputs.iter().any(|o| {
-        matches!(
-            o.kind,
-            OutputKind::RawDepth { .. } | OutputKind::DepthMap { .. }
-        )
-    }) {
+    let depth = if outputs.iter().any(|o| o.kind.depth_export()) {
         Cost::all(
             views * px * samples * per_sample,
             // Colour, depth and opacity per pixel, the PNG's bytes and a chunk.
@@ -901,48 +896,29 @@ pub fn train_output_costs(j: &TrainJob, size: Option<(u32, u32)>) -> Vec<OutputC
                 ) && !o.kind.field_export()
             })
             .collect();
-        let mut depth: Vec<&Output> = outputs
-            .iter()
-            .filter(|o| {
-                matches!(
-                    o.kind,
-                    OutputKind::RawDepth { .. } | OutputKind::DepthMap { .. }
-                )
-            })
-            .collect();
+        let mut depth: Vec<&Output> = outputs.iter().filter(|o| o.kind.depth_export()).collect();
         // A renderer's depth outputs are served by the views' renders
         // while those fit ([`SHARED_RENDER_BYTES`]).
         let shared = model.renders_depth()
             && !rendered.is_empty()
             && px * views * RAY_END_BYTES <= SHARED_RENDER_BYTES as f64;
+        // Views rendered once for the outputs they serve.
+        let renders = |served: &[&Output], bytes_per_pixel: f64| {
+            let cost = Cost::all(
+                px * views * model.render_pixel(samples),
+                px * bytes_per_pixel + model.render_buffers(),
+            );
+            part(names(served), Stage::Outputs, cost, model.expected_share())
+        };
         if !rendered.is_empty() {
             let mut served = rendered.clone();
             if shared {
                 served.append(&mut depth);
             }
-            let cost = Cost::all(
-                px * views * model.render_pixel(samples),
-                px * 16.0 + model.render_buffers(),
-            );
-            parts.push(part(
-                names(&served),
-                Stage::Outputs,
-                cost,
-                model.expected_share(),
-            ));
+            parts.push(renders(&served, 16.0));
         }
         if !depth.is_empty() && model.renders_depth() {
-            // Rendered as its views are, each view once for all of them.
-            let cost = Cost::all(
-                px * views * model.render_pixel(samples),
-                px * 24.0 + model.render_buffers(),
-            );
-            parts.push(part(
-                names(&depth),
-                Stage::Outputs,
-                cost,
-                model.expected_share(),
-            ));
+            parts.push(renders(&depth, 24.0));
         } else if !depth.is_empty() {
             let all: Vec<Output> = depth.iter().map(|o| (*o).clone()).collect();
             let (_, cost) = field_export_work(&all, views, px, samples, model.export_sample());

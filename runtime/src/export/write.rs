@@ -170,15 +170,7 @@ pub fn write_field_exports(
         }
     }
     // Depth: one march per view serves every depth output.
-    let depths: Vec<&Output> = outputs
-        .iter()
-        .filter(|o| {
-            matches!(
-                o.kind,
-                OutputKind::RawDepth { .. } | OutputKind::DepthMap { .. }
-            )
-        })
-        .collect();
+    let depths: Vec<&Output> = outputs.iter().filter(|o| o.kind.depth_export()).collect();
     if depths.is_empty() {
         return Ok(written);
     }

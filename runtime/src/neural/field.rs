@@ -958,20 +958,8 @@ impl TrainedField for Trained<NerfObjective> {
         cam: &Camera,
         size: ImageSize,
     ) -> Option<Result<Vec<crate::export::RayEnd>, String>> {
-        let (strat, last) = (&self.viewing.strat, self.viewing.sampler.last_interval);
-        let v = self.objective.render_view(values, strat, last, cam, size);
-        Some(v.map_err(|e| e.to_string()).map(|v| {
-            v.colour
-                .iter()
-                .zip(&v.depth)
-                .zip(&v.opacity)
-                .map(|((&colour, &depth), &opacity)| crate::export::RayEnd {
-                    colour,
-                    depth,
-                    opacity,
-                })
-                .collect()
-        }))
+        let view = self.render_view(values, cam, size, true);
+        Some(view.and_then(|v| v.ray_ends().ok_or_else(|| "no opacity rendered".into())))
     }
 
     fn radiance<'a>(

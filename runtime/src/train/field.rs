@@ -35,6 +35,26 @@ pub struct View {
     pub opacity: Vec<f32>,
 }
 
+impl View {
+    /// Each pixel's ray end (the colour as rendered, `Σ wᵢtᵢ`, `Σ wᵢ`),
+    /// where the view has depths and opacities.
+    pub fn ray_ends(&self) -> Option<Vec<crate::export::RayEnd>> {
+        let n = self.colour.len();
+        (self.depth.len() == n && self.opacity.len() == n).then(|| {
+            self.colour
+                .iter()
+                .zip(&self.depth)
+                .zip(&self.opacity)
+                .map(|((&colour, &depth), &opacity)| crate::export::RayEnd {
+                    colour,
+                    depth,
+                    opacity,
+                })
+                .collect()
+        })
+    }
+}
+
 /// What a trained field is and how it trains, for `sdfl plan`.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Description {

@@ -146,6 +146,15 @@ impl OutputKind {
         )
     }
 
+    /// Whether it is a depth export (raw or colour-mapped): the field
+    /// exports one march, or one render, a view serves together.
+    pub fn depth_export(&self) -> bool {
+        matches!(
+            self,
+            OutputKind::RawDepth { .. } | OutputKind::DepthMap { .. }
+        )
+    }
+
     /// Whether only a finished training run can write it.
     pub fn training_only(&self) -> bool {
         matches!(

@@ -382,12 +382,7 @@ struct SharedRenders {
 
 impl SharedRenders {
     fn for_outputs(outputs: &[Output]) -> Self {
-        let wanted = outputs.iter().any(|o| {
-            matches!(
-                o.kind,
-                OutputKind::RawDepth { .. } | OutputKind::DepthMap { .. }
-            )
-        });
+        let wanted = outputs.iter().any(|o| o.kind.depth_export());
         SharedRenders {
             wanted,
             kept: Default::default(),
@@ -396,7 +391,7 @@ impl SharedRenders {
 
     /// Keeps view `k`'s render, if it has opacities and fits.
     fn keep(&self, k: usize, v: &crate::train::field::View) {
-        if !self.wanted || v.opacity.len() != v.colour.len() || v.depth.len() != v.colour.len() {
+        if !self.wanted {
             return;
         }
         let bytes = v.colour.len() * std::mem::size_of::<crate::export::RayEnd>();
@@ -404,17 +399,9 @@ impl SharedRenders {
         if kept.1 + bytes > sdfl_stdlib::work::SHARED_RENDER_BYTES {
             return;
         }
-        let ends = v
-            .colour
-            .iter()
-            .zip(&v.depth)
-            .zip(&v.opacity)
-            .map(|((&colour, &depth), &opacity)| crate::export::RayEnd {
-                colour,
-                depth,
-                opacity,
-            })
-            .collect();
+        let Some(ends) = v.ray_ends() else {
+            return;
+        };
         kept.1 += bytes;
         kept.0.insert(k, ends);
     }
