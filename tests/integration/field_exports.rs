@@ -329,6 +329,13 @@ fn a_finished_run_renders_new_views_without_training() {
         "views: [look_at([0, 2, 2], focal: 1.2), look_at([2, 1, 0], focal: 1.2), look_at([-1, 1, 2], focal: 1.2)]",
     ));
     assert_eq!((again.iterations, again.resumed_from), (20, Some(20)));
+    // A NeRF counts the samples its steps evaluate; no step ran now.
+    assert!(first.samples_per_ray.is_some());
+    assert!(
+        again.samples_per_ray.is_none(),
+        "{:?}",
+        again.samples_per_ray
+    );
     // The same weights and steps: nothing was trained.
     let after = read();
     assert_eq!(after.step, ck.step);

@@ -392,10 +392,14 @@ pub fn run_train_job(
         resumed_from,
         final_loss: run.losses.last().copied().unwrap_or(f32::NAN),
         seconds_per_step: train_s / steps_run as f64,
-        samples_per_ray: field.samples_evaluated().map(|n| SamplesPerRay {
-            evaluated: n as f64 / (steps_run as f64 * job.rays.max(1) as f64),
-            sampled: job.sampler.samples,
-        }),
+        // Only steps run now count samples (a finished run run again has none).
+        samples_per_ray: field
+            .samples_evaluated()
+            .filter(|_| run.step > done_before)
+            .map(|n| SamplesPerRay {
+                evaluated: n as f64 / (steps_run as f64 * job.rays.max(1) as f64),
+                sampled: job.sampler.samples,
+            }),
         params: field.reported(&values),
         network_weights: network.then_some(values.len()),
         held_out,
