@@ -412,7 +412,9 @@ fn a_nerfs_rendered_ray_ends_match_a_march_of_every_sample() {
     };
     let radiance = field.radiance(&values).unwrap();
     for cam in &job.views {
-        let rendered = field.ray_ends(&values, cam, size).unwrap().unwrap();
+        assert!(field.renders_opacity());
+        let view = field.render_view(&values, cam, size, true).unwrap();
+        let rendered = view.ray_ends().expect("a NeRF renders opacity");
         let marched = render_ends(&*radiance, cam, size, &strat, s.last_interval).unwrap();
         assert_eq!(rendered.len(), marched.len());
         for (r, m) in rendered.iter().zip(&marched) {

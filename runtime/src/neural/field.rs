@@ -952,14 +952,8 @@ impl TrainedField for Trained<NerfObjective> {
         })
     }
 
-    fn ray_ends(
-        &self,
-        values: &[f32],
-        cam: &Camera,
-        size: ImageSize,
-    ) -> Option<Result<Vec<crate::export::RayEnd>, String>> {
-        let view = self.render_view(values, cam, size, true);
-        Some(view.and_then(|v| v.ray_ends().ok_or_else(|| "no opacity rendered".into())))
+    fn renders_opacity(&self) -> bool {
+        true
     }
 
     fn radiance<'a>(

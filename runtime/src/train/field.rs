@@ -85,17 +85,12 @@ pub trait TrainedField: Objective + Sync {
         None
     }
 
-    /// Each pixel's ray end (`Σ wᵢtᵢ` and `Σ wᵢ`; the colour as
-    /// rendered) as this field renders a view, skipping what its training
-    /// skips: what depth exports read where the field has it (a NeRF),
-    /// instead of marching every sample of [`TrainedField::radiance`].
-    fn ray_ends(
-        &self,
-        _values: &[f32],
-        _cam: &Camera,
-        _size: ImageSize,
-    ) -> Option<Result<Vec<crate::export::RayEnd>, String>> {
-        None
+    /// Whether [`TrainedField::render_view`] with depth also gives each
+    /// pixel's opacity (a NeRF's, skipping what its training skips): then
+    /// depth exports read its renders ([`View::ray_ends`]) instead of
+    /// marching every sample of [`TrainedField::radiance`].
+    fn renders_opacity(&self) -> bool {
+        false
     }
 
     /// Density and colour at `values`, for field exports; `None` for a

@@ -192,18 +192,10 @@ impl Outputs<'_> {
             if let Some(ends) = k.and_then(|k| shared.take(k)) {
                 return Ok(ends);
             }
-            field
-                .ray_ends(values, cam, size)
-                .unwrap_or_else(|| Err("no rendered ray ends".into()))
+            let v = field.render_view(values, cam, size, true)?;
+            v.ray_ends()
+                .ok_or_else(|| "the render gave no opacity".into())
         };
-        let probe = ImageSize {
-            width: 1,
-            height: 1,
-        };
-        let renders_ends = self
-            .cameras
-            .first()
-            .is_some_and(|c| field.ray_ends(values, c, probe).is_some());
         let cx = crate::export::write::ExportContext {
             out_dir: self.out_dir,
             sampler: &self.job.sampler,
@@ -215,7 +207,9 @@ impl Outputs<'_> {
             seed: self.job.seed,
             to_data: self.to_data,
             status: &|what| self.status(what),
-            ray_ends: renders_ends.then_some(&rendered as &crate::export::write::RayEnds),
+            ray_ends: field
+                .renders_opacity()
+                .then_some(&rendered as &crate::export::write::RayEnds),
         };
         let radiance = field
             .radiance(values)
