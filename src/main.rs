@@ -293,6 +293,11 @@ fn main() -> ExitCode {
         say!("error[sdfl::arg::max_evaluations]: {e}");
         return ExitCode::FAILURE;
     }
+    let memory = std::env::var(sdfl_stdlib::work::MAX_MEMORY_VAR).ok();
+    if let Err(e) = sdfl_stdlib::work::max_memory_from(memory.as_deref()) {
+        say!("error[sdfl::arg::max_memory]: {e}");
+        return ExitCode::FAILURE;
+    }
     let threads = match cli.command {
         Command::Run { threads, .. }
         | Command::Watch { threads, .. }

@@ -418,7 +418,7 @@ pub(crate) fn plan_text_in(program: &sdfl_stdlib::Program, base: &std::path::Pat
                 ),
                 sdfl_stdlib::size::fmt_bytes(b.memory),
                 sdfl_stdlib::work::max_evaluations(),
-                sdfl_stdlib::size::fmt_bytes(sdfl_stdlib::work::MAX_MEMORY)
+                sdfl_stdlib::size::fmt_bytes(sdfl_stdlib::work::max_memory())
             );
         }
         output_time_lines(&mut o, job);

@@ -63,8 +63,40 @@ pub const OCCUPIED_SHARE: f64 = 0.1;
 /// The same for a hash-grid surface that skips empty space (whole rays
 /// that cross no occupied cell): 19 % for `examples/neus_fast.sdfl`.
 pub const SURFACE_KEPT_SHARE: f64 = 0.2;
-/// Largest estimated peak memory of one statement.
+/// Largest estimated peak memory of one statement unless
+/// [`MAX_MEMORY_VAR`] says otherwise. A safety net against a typo's size,
+/// not a wall: the refusal names the override (a run still has to fit the
+/// memory the machine has, which `sdfl run` checks).
 pub const MAX_MEMORY: f64 = 8e9;
+/// The environment variable that sets the limit on a statement's
+/// estimated peak memory, in bytes, in place of [`MAX_MEMORY`].
+pub const MAX_MEMORY_VAR: &str = "SDFL_MAX_MEMORY";
+
+/// The limit [`MAX_MEMORY_VAR`] sets (`value`, in bytes), or
+/// [`MAX_MEMORY`] without one; an error for a value that is no positive
+/// finite number.
+pub fn max_memory_from(value: Option<&str>) -> Result<f64, String> {
+    let Some(v) = value else {
+        return Ok(MAX_MEMORY);
+    };
+    match v.trim().parse::<f64>() {
+        Ok(x) if x.is_finite() && x > 0.0 => Ok(x),
+        _ => Err(format!(
+            "{MAX_MEMORY_VAR}={v:?} is not a positive number of bytes (such as 16e9)"
+        )),
+    }
+}
+
+/// The limit on one statement's estimated peak memory in this process:
+/// [`MAX_MEMORY_VAR`]'s, read once (the CLI refuses a bad value at start;
+/// here one falls back to [`MAX_MEMORY`]).
+pub fn max_memory() -> f64 {
+    static LIMIT: std::sync::OnceLock<f64> = std::sync::OnceLock::new();
+    *LIMIT.get_or_init(|| {
+        let v = std::env::var(MAX_MEMORY_VAR).ok();
+        max_memory_from(v.as_deref()).unwrap_or(MAX_MEMORY)
+    })
+}
 
 /// A network's multiply-adds that take about as long as one evaluation of
 /// an analytic primitive, so that networks and SDFs are counted in one
@@ -1026,21 +1058,24 @@ pub fn refuse(work: Work, span: Span, what: &str) -> Option<Diag> {
             if work.expected <= 100.0 * limit {
                 format!(
                     "; a run meant to take hours may raise the limit: {MAX_EVALUATIONS_VAR}={}",
-                    fmt_num(raised(work.expected))
+                    fmt_num(raised_limit(work.expected))
                 )
             } else {
                 String::new()
             },
         )
-    } else if work.memory > MAX_MEMORY {
+    } else if work.memory > max_memory() {
         (
             format!(
                 "about {} of memory (at most {})",
                 fmt_bytes(work.memory),
-                fmt_bytes(MAX_MEMORY)
+                fmt_bytes(max_memory())
             ),
             "lower the image size or the number of primitives".to_string(),
-            String::new(),
+            format!(
+                "; a machine with the memory may raise the limit: {MAX_MEMORY_VAR}={}",
+                fmt_num(raised_limit(work.memory))
+            ),
         )
     } else {
         return None;
@@ -1059,8 +1094,9 @@ pub fn refuse(work: Work, span: Span, what: &str) -> Option<Diag> {
     )
 }
 
-/// A round limit above `expected` evaluations, for the override's hint.
-fn raised(expected: f64) -> f64 {
+/// A round limit above `expected` (evaluations or bytes), for an
+/// override's hint.
+pub fn raised_limit(expected: f64) -> f64 {
     let e = 10f64.powf(expected.log10().floor());
     (expected / e).ceil() * e
 }

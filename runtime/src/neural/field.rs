@@ -10,6 +10,7 @@
 
 use rayon::prelude::*;
 use sdfl_stdlib::camera::Camera;
+use sdfl_stdlib::model::TRAIN_PASS_SAMPLES;
 use sdfl_stdlib::value::{LastInterval, Nerf, OccupancySpec, Sampler};
 
 use super::background::{Backdrop, BackdropWork};
@@ -80,6 +81,21 @@ impl Samples {
     /// Ray `r`'s samples: indices into `t` and `delta`.
     pub fn range(&self, r: usize) -> std::ops::Range<usize> {
         self.offsets[r]..self.offsets[r + 1]
+    }
+
+    /// The samples of rays `span` alone, into `out` (offsets from 0).
+    pub fn rays_into(&self, span: std::ops::Range<usize>, out: &mut Samples) {
+        let (first, last) = (self.offsets[span.start], self.offsets[span.end]);
+        out.offsets.clear();
+        out.offsets.extend(
+            self.offsets[span.start..=span.end]
+                .iter()
+                .map(|&o| o - first),
+        );
+        out.t.clear();
+        out.t.extend_from_slice(&self.t[first..last]);
+        out.delta.clear();
+        out.delta.extend_from_slice(&self.delta[first..last]);
     }
 
     /// Positions and directions of every sample.
@@ -212,6 +228,24 @@ fn fit_pass(
         grad,
     );
     losses.iter().sum()
+}
+
+/// Consecutive spans of rays (by their sample `offsets`) of at most `limit`
+/// samples each; a ray with more is a span of its own. No rays: one empty
+/// span.
+#[doc(hidden)]
+pub fn ray_passes(offsets: &[usize], limit: usize) -> Vec<std::ops::Range<usize>> {
+    let rays = offsets.len().saturating_sub(1);
+    let mut spans = Vec::new();
+    let mut start = 0;
+    for r in 0..rays {
+        if r > start && offsets[r + 1] - offsets[start] > limit {
+            spans.push(start..r);
+            start = r;
+        }
+    }
+    spans.push(start..rays);
+    spans
 }
 
 #[derive(Clone, Copy)]
@@ -409,6 +443,10 @@ pub struct NerfObjective {
     coarse_pass: Pass,
     fine_pass: Pass,
     samples: Samples,
+    /// Most samples a network pass of a step holds.
+    pass_samples: usize,
+    /// One pass's rays' samples when a step takes several.
+    part: Samples,
     fine_samples: Samples,
     weights: Vec<f32>,
     /// The fine and the merged depths ([`fine_samples`]'s scratch).
@@ -449,6 +487,8 @@ impl NerfObjective {
             coarse_pass: Pass::default(),
             fine_pass: Pass::default(),
             samples: Samples::default(),
+            pass_samples: TRAIN_PASS_SAMPLES,
+            part: Samples::default(),
             fine_samples: Samples::default(),
             weights: Vec::new(),
             fine_depths: Vec::new(),
@@ -479,6 +519,13 @@ impl NerfObjective {
             size,
             EARLY_STOP,
         )
+    }
+
+    /// Sets the most samples a network pass of a step holds (tests: several
+    /// passes on a small batch).
+    #[doc(hidden)]
+    pub fn set_pass_samples(&mut self, samples: usize) {
+        self.pass_samples = samples.max(1);
     }
 
     fn networks(&self) -> Vec<(&'static str, &NerfNet)> {
@@ -661,51 +708,67 @@ impl Objective for NerfObjective {
         );
         self.d_backgrounds.clear();
         self.d_backgrounds.resize(rays, [0.0; 3]);
-        let want_weights = self.fine.is_some().then_some(&mut self.weights);
-        let mut loss = fit_pass(
-            &self.net,
-            values,
-            &batch.rays,
-            &batch.targets,
-            &self.samples,
-            &self.backgrounds,
-            &mut self.d_backgrounds,
-            scale,
-            &mut self.coarse_pass,
-            grad,
-            want_weights,
-        );
-        if let Some((fine, m)) = &self.fine {
-            // Jittered like the coarse samples, from the batch's own seed.
-            let spacing = if batch.shared {
-                Spacing::Even
+        // Passes of whole rays, each of at most TRAIN_PASS_SAMPLES samples:
+        // a step's buffers are bounded whatever rays × samples is. One pass
+        // (the usual case) fits the step's samples in place.
+        let passes = ray_passes(&self.samples.offsets, self.pass_samples);
+        let mut loss = 0.0;
+        for (p, span) in passes.iter().enumerate() {
+            let part = if passes.len() == 1 {
+                &self.samples
             } else {
-                Spacing::Jittered(batch.seed)
+                self.samples.rays_into(span.clone(), &mut self.part);
+                &self.part
             };
-            fine_samples(
-                &self.samples,
-                batch.samples,
-                &self.weights,
-                *m,
-                spacing,
-                batch.last_interval,
-                &mut self.fine_depths,
-                &mut self.fine_samples,
-            )?;
-            self.evaluated += self.fine_samples.t.len() as u64;
+            let want_weights = self.fine.is_some().then_some(&mut self.weights);
             loss += fit_pass(
-                fine,
+                &self.net,
                 values,
-                &batch.rays,
-                &batch.targets,
-                &self.fine_samples,
-                &self.backgrounds,
-                &mut self.d_backgrounds,
+                &batch.rays[span.clone()],
+                &batch.targets[span.clone()],
+                part,
+                &self.backgrounds[span.clone()],
+                &mut self.d_backgrounds[span.clone()],
                 scale,
-                &mut self.fine_pass,
+                &mut self.coarse_pass,
                 grad,
-                None,
+                want_weights,
             );
+            if let Some((fine, m)) = &self.fine {
+                // Jittered like the coarse samples, from the batch's own
+                // seed (and the pass's, so passes draw apart).
+                let spacing = if batch.shared {
+                    Spacing::Even
+                } else if p == 0 {
+                    Spacing::Jittered(batch.seed)
+                } else {
+                    Spacing::Jittered(SplitMix64::new(batch.seed ^ span.start as u64).next_u64())
+                };
+                fine_samples(
+                    part,
+                    batch.samples,
+                    &self.weights,
+                    *m,
+                    spacing,
+                    batch.last_interval,
+                    &mut self.fine_depths,
+                    &mut self.fine_samples,
+                )?;
+                self.evaluated += self.fine_samples.t.len() as u64;
+                loss += fit_pass(
+                    fine,
+                    values,
+                    &batch.rays[span.clone()],
+                    &batch.targets[span.clone()],
+                    &self.fine_samples,
+                    &self.backgrounds[span.clone()],
+                    &mut self.d_backgrounds[span.clone()],
+                    scale,
+                    &mut self.fine_pass,
+                    grad,
+                    None,
+                );
+            }
         }
         self.backdrop
             .backward(values, &mut self.backdrop_work, &self.d_backgrounds, grad);

@@ -192,12 +192,12 @@ pub(crate) fn builtins() -> Vec<Builtin> {
         ),
         func(
             "occupancy_grid",
-            "An occupancy grid that skips empty space (nerfacc-style) for `nerf(occupancy: ...)`: `resolution`³ cells over `min`..`max` keep a decaying maximum of the density, refreshed every `every` training steps; samples fall at a fixed step, (far − near)/samples, only inside cells whose density × step exceeds `threshold`. `resolution: 0` turns it off.",
+            "An occupancy grid that skips empty space (nerfacc-style) for `nerf(occupancy: ...)`: `resolution`³ cells over `min`..`max` keep a decaying maximum of the density, refreshed every `every` training steps; samples fall at a fixed step, (far − near)/samples, only inside cells whose density × step exceeds `threshold`, or the mean cell's where that is lower (as instant-ngp and nerfacc: a fine step never empties the grid of a field still near uniform). `resolution: 0` turns it off.",
             vec![
                 opt("resolution", Type::Number, "64", "cells a side (0: no grid)"),
                 opt("min", Type::Vec3, "[-1.5, -1.5, -1.5]", "lower corner of the box"),
                 opt("max", Type::Vec3, "[1.5, 1.5, 1.5]", "upper corner of the box"),
-                opt("threshold", Type::Number, "0.01", "occupied when density × step exceeds this"),
+                opt("threshold", Type::Number, "0.01", "occupied when density × step exceeds this (or the mean cell's density × step, where lower)"),
                 opt("every", Type::Number, "16", "training steps between refreshes"),
             ],
             OCCUPANCY,

@@ -15,6 +15,12 @@ mod surface;
 
 /// Samples a network render or grid refresh evaluates in one pass.
 pub(crate) const NETWORK_PASS: f64 = 65_536.0;
+/// Most samples one network pass of a NeRF's training step holds: a batch
+/// with more (a fine step, or every cell occupied before the grid's first
+/// refresh) is fitted in passes of whole rays whose gradients add up, so
+/// a step's memory is bounded by this and not by rays × samples
+/// (instant-ngp keeps 2^18 samples a step).
+pub const TRAIN_PASS_SAMPLES: usize = 1 << 18;
 
 /// What the plan and the cost model ask of a model kind. Costs are in
 /// evaluations (one analytic primitive's distance, or

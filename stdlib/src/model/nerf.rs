@@ -1,7 +1,7 @@
 //! A neural radiance field: its networks' costs, its occupancy grid's
 //! refreshes, its learned background.
 
-use super::{describe_encoding as enc, network, Model, NETWORK_PASS};
+use super::{describe_encoding as enc, network, Model, NETWORK_PASS, TRAIN_PASS_SAMPLES};
 use crate::value::{
     occupancy_refresh_cells, Backend, Background, DataBackground, Encoding, Nerf, Precision,
     Unbounded,
@@ -163,9 +163,10 @@ impl Model for Nerf {
             + 3.0 * background_evaluations(self)
     }
 
-    // Every layer's activations per sample, twice with a fine network
-    // (which sees the coarse samples too), and a learned background's
-    // activations per ray, forward and back.
+    // Every layer's activations per sample of a pass (at most
+    // [`TRAIN_PASS_SAMPLES`]), twice with a fine network (which sees the
+    // coarse samples too), and a learned background's activations per ray,
+    // forward and back.
     fn batch_bytes(&self, rays: f64, samples: f64, _: Backend) -> f64 {
         let fine = if self.fine > 0 {
             2.0 + self.fine as f64 / samples.max(1.0)
@@ -176,7 +177,8 @@ impl Model for Nerf {
             Background::Learned(l) => 4.0 * (2 * l.input() + 2 * l.width + 12) as f64,
             _ => 0.0,
         };
-        rays * samples * bytes_per_sample(self) * (1.0 + fine) + rays * background
+        let pass = (rays * samples).min(TRAIN_PASS_SAMPLES as f64);
+        pass * bytes_per_sample(self) * (1.0 + fine) + rays * background
     }
 
     fn trained_numbers(&self, _: usize) -> f64 {

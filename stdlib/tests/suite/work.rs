@@ -5,7 +5,8 @@
 use sdfl_lang::SourceFile;
 use sdfl_stdlib::load;
 use sdfl_stdlib::work::{
-    max_evaluations_from, train_work, Stage, MAX_EVALUATIONS, MAX_EVALUATIONS_VAR, OCCUPIED_SHARE,
+    max_evaluations_from, max_memory_from, raised_limit, train_work, Stage, MAX_EVALUATIONS,
+    MAX_EVALUATIONS_VAR, MAX_MEMORY, MAX_MEMORY_VAR, OCCUPIED_SHARE,
 };
 
 /// A hash-grid NeRF trained on rendered views, with `model` and `train`
@@ -143,6 +144,49 @@ fn the_evaluation_limit_is_set_by_its_variable() {
         let e = max_evaluations_from(Some(bad)).unwrap_err();
         assert!(e.contains(MAX_EVALUATIONS_VAR), "{bad}: {e}");
     }
+}
+
+/// A fine step (nerfacc's 0.005 over Lego's [2, 6]: 768 samples a ray)
+/// was refused at 8.3 GB, every sample's activations counted at once; a
+/// step is fitted in passes of at most `TRAIN_PASS_SAMPLES` samples, so
+/// its memory does not grow with the samples a ray.
+#[test]
+fn a_steps_memory_is_bounded_by_its_pass() {
+    let at = |samples: u32| {
+        let src = format!(
+            r#"
+train lego {{
+  model: nerf(position: hashgrid(levels: 16, features: 2, log2_table: 19, min_res: 16, max_res: 2048), layers: 1, width: 64, skips: [], density: "exp", occupancy: occupancy_grid(resolution: 128, min: [-1.5, -1.5, -1.5], max: [1.5, 1.5, 1.5], every: 16)),
+  data: nerf_synthetic("lego"),
+  sampler: stratified(samples: {samples}, near: 2, far: 6),
+  rays: 4096,
+  iterations: 3000,
+  eval_every: 0,
+}}
+"#
+        );
+        let p = load(&SourceFile::new("lego.sdfl", src)).unwrap_or_else(|e| panic!("{e:?}"));
+        train_work(&p.trains[0], None).memory
+    };
+    let (coarse, fine) = (at(256), at(1024));
+    assert!(fine < 2e9, "{fine}");
+    // Only the depths grow (64 bytes a sample), not the network's buffers.
+    assert!(
+        fine - coarse <= 4096.0 * 768.0 * 64.0 * 1.01,
+        "{coarse} {fine}"
+    );
+}
+
+/// The memory limit's override the same way, in bytes.
+#[test]
+fn the_memory_limit_is_set_by_its_variable() {
+    assert_eq!(max_memory_from(None), Ok(MAX_MEMORY));
+    assert_eq!(max_memory_from(Some("16e9")), Ok(16e9));
+    for bad in ["", "lots", "-1", "0", "inf", "NaN"] {
+        let e = max_memory_from(Some(bad)).unwrap_err();
+        assert!(e.contains(MAX_MEMORY_VAR), "{bad}: {e}");
+    }
+    assert_eq!(raised_limit(8.3e9), 9e9);
 }
 
 /// A 512³ grid refreshed every step took 183 s a step while the plan showed

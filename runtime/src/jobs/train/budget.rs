@@ -71,7 +71,9 @@ pub(super) fn within_budget_once_read(
     views: &[TrainView],
     test_views: &[TrainView],
 ) -> io::Result<()> {
-    use sdfl_stdlib::work::{max_evaluations, MAX_EVALUATIONS_VAR, MAX_MEMORY};
+    use sdfl_stdlib::work::{
+        max_evaluations, max_memory, raised_limit, MAX_EVALUATIONS_VAR, MAX_MEMORY_VAR,
+    };
     if matches!(*job.data, Dataset::Rendered { .. } | Dataset::Traced { .. }) {
         // Rendered by sdfl: counted when the file was evaluated.
         return Ok(());
@@ -90,13 +92,21 @@ pub(super) fn within_budget_once_read(
             test_views.len()
         )));
     }
-    if budget.memory > MAX_MEMORY {
+    if budget.memory > max_memory() {
+        // The help names the larger part: the views, or the step itself.
+        let fix = if data > budget.memory / 2.0 {
+            "use fewer or smaller views (`downscale`, `eval_views`)"
+        } else {
+            "use fewer `rays` or samples; `sdfl plan` shows the estimate by stage"
+        };
         return Err(invalid(format!(
-            "training `{}` would hold about {:.1} GB ({:.1} GB of it the data set's {} views): use fewer or smaller views",
+            "training `{}` would hold about {:.1} GB ({:.1} GB of it the data set's {} views; the limit is {:.1} GB): {fix}; a machine with the memory may raise the limit: {MAX_MEMORY_VAR}={:.0e}",
             job.name,
             budget.memory / 1e9,
             data / 1e9,
-            views.len() + test_views.len()
+            views.len() + test_views.len(),
+            max_memory() / 1e9,
+            raised_limit(budget.memory)
         )));
     }
     Ok(())

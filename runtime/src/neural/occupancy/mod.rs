@@ -4,7 +4,9 @@
 //!
 //! * Each cell holds an EMA of density; it is occupied when
 //!   `ema · step_size > threshold`: the opacity one sample of the renderer's
-//!   step would roughly get (`1 − e^{−σδ} ≈ σδ`) exceeds `threshold` (0.01).
+//!   step would roughly get (`1 − e^{−σδ} ≈ σδ`) exceeds `threshold` (0.01),
+//!   or the mean cell's opacity where that is lower (instant-ngp's rule: a
+//!   grid never empties every cell of a field that is still uniform).
 //! * Cells are half-open, `[min + i·h, min + (i+1)·h)` per axis, so a point
 //!   belongs to exactly one cell; the box's max faces are outside.
 //! * Until the first [`OccupancyGrid::update`] every cell is occupied.
@@ -47,7 +49,8 @@ pub struct OccupancyConfig {
     pub bbox_min: [f32; 3],
     /// The grid's high corner.
     pub bbox_max: [f32; 3],
-    /// Occupied when `ema · step_size > threshold`.
+    /// Occupied when `ema · step_size > threshold` (capped at the mean
+    /// cell's: [`OccupancyGrid::update`]).
     pub threshold: f32,
     /// The renderer's step, which makes the threshold an opacity.
     pub step_size: f32,
@@ -360,14 +363,29 @@ impl OccupancyGrid {
             } else {
                 self.cfg.decay
             };
-            let (thr, dt) = (self.cfg.threshold, self.cfg.step_size);
             for i in 0..n {
                 let c = start + i * stride;
-                let e = (self.ema[c] * decay).max(self.density[i].min(f32::MAX));
-                self.ema[c] = e;
-                self.set_occupied(c, e * dt > thr);
+                self.ema[c] = (self.ema[c] * decay).max(self.density[i].min(f32::MAX));
             }
             start += n * stride;
+        }
+        // The threshold is capped at the mean cell's opacity (instant-ngp's
+        // and nerfacc's rule): with a fine step an untrained network's
+        // density is below an absolute threshold everywhere, and a grid that
+        // emptied every cell would stop all training. Where the cap binds,
+        // cells at least the mean stay (a uniform field keeps them all). A
+        // sequential f64 sum: the same bits for any thread count.
+        let dt = self.cfg.step_size as f64;
+        let mean = self.ema.iter().map(|&e| e as f64).sum::<f64>() / cells as f64;
+        let capped = mean * dt < self.cfg.threshold as f64;
+        for c in 0..cells {
+            let e = self.ema[c] as f64;
+            let on = if capped {
+                e >= mean
+            } else {
+                e * dt > self.cfg.threshold as f64
+            };
+            self.set_occupied(c, on);
         }
     }
 

@@ -167,6 +167,84 @@ fn objective_gradient_check(spec: &Nerf) {
     }
 }
 
+#[test]
+fn ray_passes_hold_whole_rays_within_the_limit() {
+    // Rays of 3, 5, 0, 9 and 2 samples.
+    let offsets = [0, 3, 8, 8, 17, 19];
+    assert_eq!(ray_passes(&offsets, 100), vec![0..5]);
+    assert_eq!(ray_passes(&offsets, 8), vec![0..3, 3..4, 4..5]);
+    // A ray above the limit is a pass of its own.
+    assert_eq!(ray_passes(&offsets, 4), vec![0..1, 1..2, 2..3, 3..4, 4..5]);
+    assert_eq!(ray_passes(&[0], 4), vec![0..0]);
+}
+
+/// A step whose samples exceed a pass is fitted in passes of whole rays
+/// (its memory bounded by the pass, not by rays × samples): the same loss
+/// and gradient as one pass, up to the order of the sums. With a fine
+/// network too (evenly spaced fine samples, so both draw the same).
+#[test]
+fn a_step_in_several_passes_is_the_step_in_one() {
+    for fine in [0, 4] {
+        let spec = Nerf {
+            fine,
+            ..small_spec()
+        };
+        let sampler = Sampler {
+            samples: 7,
+            near: 1.0,
+            far: 4.0,
+            jitter: true,
+            last_interval: LastInterval::Zero,
+        };
+        let mut rng = SplitMix64::new(3);
+        let rays: Vec<Ray> = (0..40)
+            .map(|k| Ray {
+                origin: [0.02 * k as f32, -0.2, -2.0],
+                dir: [0.1, 0.01 * k as f32, 1.0],
+                view: 0,
+                pixel: k,
+            })
+            .collect();
+        let batch = Batch {
+            targets: rays
+                .iter()
+                .map(|_| [rng.next_f32(), rng.next_f32(), rng.next_f32()])
+                .collect(),
+            rays,
+            coverage: Vec::new(),
+            depths: (0..7).map(|i| 1.0 + 0.4 * i as f32).collect(),
+            samples: 7,
+            shared: true,
+            last_interval: LastInterval::Zero,
+            seed: 5,
+            step: 0,
+            points: Vec::new(),
+        };
+        let step = |pass: usize| {
+            let mut obj = NerfObjective::new(&spec, &sampler).unwrap();
+            obj.set_pass_samples(pass);
+            let values = obj.initial();
+            let mut grad = vec![0.0; values.len()];
+            let loss = obj.loss_and_grad(&values, &batch, 1.0, &mut grad).unwrap();
+            (loss, grad)
+        };
+        let (one, g1) = step(usize::MAX);
+        let (several, g2) = step(50); // 7 rays a pass: 6 passes
+        assert!(
+            (one - several).abs() <= 1e-6 * one.abs(),
+            "{one} vs {several}"
+        );
+        let scale = g1.iter().fold(0f32, |m, g| m.max(g.abs()));
+        assert!(scale > 0.0);
+        for (i, (a, b)) in g1.iter().zip(&g2).enumerate() {
+            assert!(
+                (a - b).abs() <= 1e-5 * scale,
+                "fine {fine}, [{i}]: {a} vs {b}"
+            );
+        }
+    }
+}
+
 /// In an unbounded scene the occupancy grid keeps exactly the
 /// candidates whose contracted point lies in an occupied cell: all of
 /// them at first, none once emptied, and only the far sample whose

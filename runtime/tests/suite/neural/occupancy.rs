@@ -309,8 +309,10 @@ fn grazing_rays_and_misses() {
 fn update_tracks_a_moving_sphere() {
     let mut cfg = OccupancyConfig::new([-1.0; 3], [1.0; 3]);
     cfg.res = 16;
-    // Density threshold 1 (0.01 / 0.01); the EMA's decay from the first
-    // update on (warm-up is tested on its own).
+    // Density threshold 1 (0.01 / 0.01), below the mean cell's density (the
+    // sphere's 100 over ~7 % of the box), so the cap at the mean never
+    // binds; the EMA's decay from the first update on (warm-up is tested on
+    // its own).
     cfg.step_size = 0.01;
     cfg.warmup = 1;
     let mut g = OccupancyGrid::new(cfg).unwrap();
@@ -319,7 +321,7 @@ fn update_tracks_a_moving_sphere() {
         move |p: &[[f32; 3]], out: &mut [f32]| {
             for (q, o) in p.iter().zip(out.iter_mut()) {
                 let d2: f32 = (0..3).map(|a| (q[a] - c[a]).powi(2)).sum();
-                *o = if d2 < r * r { 10.0 } else { 0.0 };
+                *o = if d2 < r * r { 100.0 } else { 0.0 };
             }
         }
     };
@@ -355,13 +357,13 @@ fn update_tracks_a_moving_sphere() {
     classify(&g, a, 0.5);
     let first = g.ema().to_vec();
     // The sphere moves: new cells at once, old ones after decaying below
-    // the threshold (10·0.95^k ≤ 1 from k = 45 on).
+    // the threshold (100·0.95^k ≤ 1 from k = 90 on).
     let b = [0.4, 0.0, 0.0];
     let only_a = g.index([3, 8, 8]); // centre −0.5625: in a, not in b.
     assert!(g.is_occupied(only_a));
-    for k in 1..=45 {
+    for k in 1..=90 {
         g.update(k, &mut sphere(b, 0.5), &mut rng);
-        assert_eq!(g.is_occupied(only_a), k < 45, "update {k}");
+        assert_eq!(g.is_occupied(only_a), k < 90, "update {k}");
     }
     classify(&g, b, 0.5);
     check_blocks(&g);
@@ -485,8 +487,12 @@ fn warm_up_forgets_an_untrained_networks_density() {
         g.update(step, &mut zero, &mut rng);
         assert!(g.is_occupied(dense), "refresh {k}");
     }
+    // At 0.5 its opacity is below the threshold (0.5 · 0.015625 < 0.01),
+    // but it is the field's only density, far above the mean cell's, and the
+    // threshold is capped at the mean: it stays, and only it.
     g.update(63, &mut zero, &mut rng);
-    assert_eq!(g.occupied_count(), 0);
+    assert_eq!(g.occupied_count(), 1);
+    assert!(g.is_occupied(dense));
     // After warm-up the EMA decays at `decay`.
     g.update(
         64,
@@ -495,4 +501,51 @@ fn warm_up_forgets_an_untrained_networks_density() {
     );
     g.update(80, &mut zero, &mut rng);
     assert!(g.ema().iter().all(|&v| v == 9.5));
+}
+
+/// With a fine step (768 samples over Lego's [2, 6]: 0.0052) the absolute
+/// threshold asks a density of 1.9, above an untrained network's ~1.1 in
+/// every cell: the first refresh emptied the grid and training stopped
+/// dead (a constant loss, no samples reaching the network). The threshold
+/// is capped at the mean cell's, as instant-ngp and nerfacc cap it.
+#[test]
+fn a_fine_step_keeps_an_untrained_field_occupied() {
+    let mut cfg = OccupancyConfig::new([-1.5; 3], [1.5; 3]);
+    cfg.res = 16;
+    cfg.step_size = 4.0 / 768.0;
+    let mut g = OccupancyGrid::new(cfg).unwrap();
+    let mut rng = SplitMix64::new(9);
+    // About uniform: 1.1 with a ripple of ±5 %.
+    let mut untrained = |p: &[[f32; 3]], o: &mut [f32]| {
+        for (q, o) in p.iter().zip(o.iter_mut()) {
+            *o = 1.1 * (1.0 + 0.05 * (7.0 * q[0] + 3.0 * q[1] - 5.0 * q[2]).sin());
+        }
+    };
+    g.update(0, &mut untrained, &mut rng);
+    let share = g.occupied_count() as f64 / g.cells() as f64;
+    assert!((0.3..0.7).contains(&share), "{share}");
+    // Exactly uniform: every cell is at the mean, and all stay.
+    let mut g = OccupancyGrid::new(g.config().clone()).unwrap();
+    g.update(
+        0,
+        &mut |_: &[[f32; 3]], o: &mut [f32]| o.fill(1.1),
+        &mut rng,
+    );
+    assert_eq!(g.occupied_count(), g.cells());
+    // A trained field dense in a corner: the absolute threshold rules, as
+    // the mean is above it.
+    let mut corner = |p: &[[f32; 3]], o: &mut [f32]| {
+        for (q, o) in p.iter().zip(o.iter_mut()) {
+            *o = if q.iter().all(|&x| x < -0.75) {
+                4000.0
+            } else {
+                1.0
+            };
+        }
+    };
+    for step in 1..4 {
+        g.update(step, &mut corner, &mut rng);
+    }
+    let corner_cells = 4usize.pow(3);
+    assert!(g.occupied_count() >= corner_cells && g.occupied_count() < 2 * corner_cells);
 }
