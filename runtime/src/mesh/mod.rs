@@ -666,7 +666,7 @@ pub fn surface_nets(
     if broken {
         return Err(MeshError::BoundBroken);
     }
-    let polygons = separate_strips(&mut mesh, &quads, &strips, &twice, max_vertices)?;
+    let polygons = separate_strips(&mut mesh, &quads, &strips, &twice, grid, max_vertices)?;
     refine(field, grid.step as f32, &mut mesh);
     let v = &mesh.vertices;
     let len2 = |a: u32, b: u32| {
@@ -710,8 +710,10 @@ fn separate_strips(
     quads: &[[u32; 4]],
     strips: &[Strip],
     twice: &HashMap<(usize, u8), (bool, u8)>,
+    grid: &MeshGrid,
     max_vertices: usize,
 ) -> Result<HashMap<usize, (Vec<u32>, u32)>, MeshError> {
+    let [nx, ny, _] = grid.points;
     let mut polygons: HashMap<usize, (Vec<u32>, u32)> = HashMap::new();
     // A face's quads: (quad, inside end, outside end).
     type Ends = Vec<(usize, usize, usize)>;
@@ -749,8 +751,17 @@ fn separate_strips(
                 }
                 let m = mesh.vertices.len() as u32;
                 let (px, py) = (mesh.vertices[x as usize], mesh.vertices[y as usize]);
-                mesh.vertices
-                    .push(std::array::from_fn(|k| 0.5 * (px[k] + py[k])));
+                // Between X and Y, a quarter of the way towards the corner
+                // this strip cuts off: the face's two strips start apart.
+                // At the same midpoint, refinement moved both to one point,
+                // and a mesh welded by position had edges in four triangles.
+                let c = corner(&four[a]);
+                let ijk = [c % nx, c / nx % ny, c / (nx * ny)];
+                mesh.vertices.push(std::array::from_fn(|k| {
+                    let mid = 0.5 * (px[k] as f64 + py[k] as f64);
+                    let at = grid.min[k] + ijk[k] as f64 * grid.step;
+                    (mid + 0.25 * (at - mid)) as f32
+                }));
                 for q in [four[a].0, four[b].0] {
                     let entry = polygons.entry(q).or_insert_with(|| (quads[q].to_vec(), m));
                     let p = &mut entry.0;
