@@ -136,11 +136,19 @@ struct Pass {
     dirs: Vec<f32>,
     d_sigma: Vec<f32>,
     d_rgb: Vec<f32>,
+    /// The samples kept up to where each ray turns opaque.
+    kept: Samples,
+    keep: Vec<usize>,
 }
 
 /// The weighted MSE of `net` on `samples` of `rays` against `targets`,
 /// its gradient added into `grad`; `weights` (when given) receives each
-/// sample's compositing weight.
+/// sample's compositing weight. With `stop`, each ray's samples end at
+/// the one where its transmittance falls below `stop`: the density of
+/// every sample is computed, and the colour and the backward pass only of
+/// those kept (what lies behind changes the ray's colour by less than
+/// `stop`, and rendering stops there too). Returns the loss and the
+/// samples fitted.
 #[allow(clippy::too_many_arguments)]
 fn fit_pass(
     net: &NerfNet,
@@ -154,9 +162,51 @@ fn fit_pass(
     pass: &mut Pass,
     grad: &mut [f32],
     mut weights: Option<&mut Vec<f32>>,
-) -> f64 {
+    stop: Option<f32>,
+) -> (f64, usize) {
     samples.points(rays, &mut pass.points, &mut pass.dirs);
-    net.forward(values, &pass.points, &pass.dirs, &mut pass.work);
+    let samples = match stop {
+        None => {
+            net.forward(values, &pass.points, &pass.dirs, &mut pass.work);
+            samples
+        }
+        Some(stop) => {
+            net.density(values, &pass.points, &mut pass.work);
+            let (kept, keep, sigma) = (&mut pass.kept, &mut pass.keep, &pass.work.sigma);
+            kept.offsets.clear();
+            kept.t.clear();
+            kept.delta.clear();
+            kept.offsets.push(0);
+            keep.clear();
+            for r in 0..samples.rays() {
+                let mut trans = 1.0f32;
+                for k in samples.range(r) {
+                    keep.push(k);
+                    trans *= (-(sigma[k] * samples.delta[k])).exp();
+                    if trans < stop {
+                        break;
+                    }
+                }
+                kept.offsets.push(keep.len());
+            }
+            if keep.len() < samples.t.len() {
+                for (to, &from) in keep.iter().enumerate() {
+                    kept.t.push(samples.t[from]);
+                    kept.delta.push(samples.delta[from]);
+                    pass.points.copy_within(3 * from..3 * from + 3, 3 * to);
+                    pass.dirs.copy_within(3 * from..3 * from + 3, 3 * to);
+                }
+                pass.points.truncate(3 * keep.len());
+                pass.dirs.truncate(3 * keep.len());
+                pass.work.keep_rows(net, keep);
+                net.colour(values, &pass.dirs, &mut pass.work);
+                &pass.kept
+            } else {
+                net.colour(values, &pass.dirs, &mut pass.work);
+                samples
+            }
+        }
+    };
     let n = samples.t.len();
     pass.d_sigma.resize(n, 0.0);
     pass.d_rgb.resize(3 * n, 0.0);
@@ -227,7 +277,7 @@ fn fit_pass(
         &mut pass.d_rgb,
         grad,
     );
-    losses.iter().sum()
+    (losses.iter().sum(), n)
 }
 
 /// Consecutive spans of rays (by their sample `offsets`) of at most `limit`
@@ -445,6 +495,9 @@ pub struct NerfObjective {
     samples: Samples,
     /// Most samples a network pass of a step holds.
     pass_samples: usize,
+    /// A ray's fitted samples end where its transmittance falls below this
+    /// (with an occupancy grid; 0: never).
+    train_stop: f32,
     /// One pass's rays' samples when a step takes several.
     part: Samples,
     fine_samples: Samples,
@@ -488,6 +541,7 @@ impl NerfObjective {
             fine_pass: Pass::default(),
             samples: Samples::default(),
             pass_samples: TRAIN_PASS_SAMPLES,
+            train_stop: EARLY_STOP,
             part: Samples::default(),
             fine_samples: Samples::default(),
             weights: Vec::new(),
@@ -526,6 +580,12 @@ impl NerfObjective {
     #[doc(hidden)]
     pub fn set_pass_samples(&mut self, samples: usize) {
         self.pass_samples = samples.max(1);
+    }
+
+    /// Sets where training stops a ray (tests: 0 fits every sample).
+    #[doc(hidden)]
+    pub fn set_train_stop(&mut self, stop: f32) {
+        self.train_stop = stop;
     }
 
     fn networks(&self) -> Vec<(&'static str, &NerfNet)> {
@@ -699,7 +759,6 @@ impl Objective for NerfObjective {
             }
             None => std::mem::swap(&mut self.samples, &mut self.candidates),
         }
-        self.evaluated += self.samples.t.len() as u64;
         self.backdrop.colours(
             values,
             &batch.rays,
@@ -721,7 +780,11 @@ impl Objective for NerfObjective {
                 &self.part
             };
             let want_weights = self.fine.is_some().then_some(&mut self.weights);
-            loss += fit_pass(
+            // With an occupancy grid (never with a fine network) each ray's
+            // samples end where it turns opaque, as nerfacc trains.
+            let stop = (self.occupancy.is_some() && self.fine.is_none() && self.train_stop > 0.0)
+                .then_some(self.train_stop);
+            let (l, fitted) = fit_pass(
                 &self.net,
                 values,
                 &batch.rays[span.clone()],
@@ -733,7 +796,10 @@ impl Objective for NerfObjective {
                 &mut self.coarse_pass,
                 grad,
                 want_weights,
+                stop,
             );
+            loss += l;
+            self.evaluated += fitted as u64;
             if let Some((fine, m)) = &self.fine {
                 // Jittered like the coarse samples, from the batch's own
                 // seed (and the pass's, so passes draw apart).
@@ -754,8 +820,7 @@ impl Objective for NerfObjective {
                     &mut self.fine_depths,
                     &mut self.fine_samples,
                 )?;
-                self.evaluated += self.fine_samples.t.len() as u64;
-                loss += fit_pass(
+                let (l, fitted) = fit_pass(
                     fine,
                     values,
                     &batch.rays[span.clone()],
@@ -767,7 +832,10 @@ impl Objective for NerfObjective {
                     &mut self.fine_pass,
                     grad,
                     None,
+                    None,
                 );
+                loss += l;
+                self.evaluated += fitted as u64;
             }
         }
         self.backdrop

@@ -265,6 +265,20 @@ impl NerfNet {
         }
     }
 
+    /// The density alone at `points` (rows of 3, in the scene; warped as
+    /// [`Self::forward`] warps them), into `work.sigma`.
+    pub fn density(&self, params: &[f32], points: &[f32], work: &mut NerfWork) {
+        match &self.warp {
+            Some(c) => {
+                let mut contracted = std::mem::take(&mut work.contracted);
+                c.apply_all(points, &mut contracted);
+                self.density_encoded(params, &contracted, work);
+                work.contracted = contracted;
+            }
+            None => self.density_encoded(params, points, work),
+        }
+    }
+
     /// [`Self::forward`] at points already in the encoding's space (the
     /// contracted cube of an unbounded scene; the world otherwise): an
     /// occupancy grid's cells.
@@ -276,6 +290,14 @@ impl NerfNet {
         work: &mut NerfWork,
     ) {
         self.density_encoded(params, points, work);
+        self.colour(params, dirs, work);
+    }
+
+    /// The colour of the rows [`Self::density_encoded`] (or
+    /// [`Self::density`]) left in `work`, into `work.rgb`; `dirs` as
+    /// [`Self::forward`]'s. Rows may have been dropped between the two
+    /// ([`NerfWork::keep_rows`]): only the kept ones are coloured.
+    pub fn colour(&self, params: &[f32], dirs: &[f32], work: &mut NerfWork) {
         let NerfWork {
             dir_enc,
             hidden,
@@ -504,6 +526,32 @@ pub struct NerfWork {
 }
 
 impl NerfWork {
+    /// Keeps only rows `keep` (ascending) of a density pass (the encoding,
+    /// the trunk's activations, the density and the contracted points),
+    /// moved to the front in order; the buffers shrink to them, so a
+    /// [`NerfNet::colour`] and [`NerfNet::backward`] see those rows alone.
+    pub fn keep_rows(&mut self, net: &NerfNet, keep: &[usize]) {
+        fn compact(v: &mut [f32], width: usize, keep: &[usize]) {
+            for (to, &from) in keep.iter().enumerate() {
+                if to != from {
+                    v.copy_within(from * width..(from + 1) * width, to * width);
+                }
+            }
+        }
+        let e = net.position.width();
+        compact(&mut self.enc, e, keep);
+        let w = net.trunk[0].out;
+        for h in &mut self.hidden {
+            compact(h, w, keep);
+        }
+        compact(&mut self.sigma, 1, keep);
+        if net.warp.is_some() {
+            compact(&mut self.contracted, 3, keep);
+            self.contracted.truncate(3 * keep.len());
+        }
+        self.resize(net, keep.len());
+    }
+
     fn resize(&mut self, net: &NerfNet, rows: usize) {
         let w = net.trunk[0].out;
         let set = |v: &mut Vec<f32>, n: usize| v.resize(n, 0.0);

@@ -246,7 +246,8 @@ pub struct OccupancySpec {
     pub min: [f64; 3],
     /// The grid's high corner.
     pub max: [f64; 3],
-    /// A cell is occupied where density × step exceeds this.
+    /// A cell is occupied where density × step exceeds this (capped at
+    /// the mean cell's where that is lower).
     pub threshold: f64,
     /// Training steps between refreshes.
     pub every: usize,
