@@ -364,21 +364,29 @@ impl Occupancy {
         })
     }
 
-    /// The samples of `rays` in occupied cells: the grid's fixed steps,
-    /// or in an unbounded scene `candidates` (the sampler's) kept where
-    /// their contracted point's cell is occupied.
+    /// The samples of `rays` in occupied cells: the grid's fixed steps
+    /// (each ray's moved by an offset drawn from `jitter`, when given), or
+    /// in an unbounded scene `candidates` (the sampler's, jittered by it)
+    /// kept where their contracted point's cell is occupied.
     pub fn march(
         &mut self,
         rays: &[Ray],
         candidates: &Samples,
+        jitter: Option<u64>,
         out: &mut Samples,
     ) -> Result<(), VolumeError> {
         if let Some(c) = self.warp {
             keep_occupied(&self.grid, &c, rays, candidates, out);
             return Ok(());
         }
-        self.grid
-            .march_rays(rays, self.near, self.far, self.step, &mut self.marched)?;
+        self.grid.march_rays(
+            rays,
+            self.near,
+            self.far,
+            self.step,
+            jitter,
+            &mut self.marched,
+        )?;
         // Swapped, not copied (a batch's depths are megabytes): the next
         // march overwrites `marched` whole.
         std::mem::swap(&mut out.offsets, &mut self.marched.offsets);
@@ -746,6 +754,9 @@ impl Objective for NerfObjective {
                     batch.last_interval,
                 );
             }
+            // A bounded grid marches its own fixed steps: the sampler's
+            // depths (a million a Lego batch) are not copied for it.
+            None if self.occupancy.is_some() => {}
             None => self
                 .candidates
                 .fixed(rays, n, |r| batch.depths_of(r), batch.last_interval),
@@ -755,7 +766,10 @@ impl Objective for NerfObjective {
                 if batch.step.is_multiple_of(occ.every) {
                     occ.update(&self.net, values, batch.step, batch.seed);
                 }
-                occ.march(&batch.rays, &self.candidates, &mut self.samples)?;
+                // A jittering sampler's rays see the field between the
+                // grid's fixed steps too.
+                let jitter = (!batch.shared).then_some(batch.seed ^ 0x6A69_7474);
+                occ.march(&batch.rays, &self.candidates, jitter, &mut self.samples)?;
             }
             None => std::mem::swap(&mut self.samples, &mut self.candidates),
         }
@@ -919,7 +933,7 @@ pub fn render_nerf_view(
             Some(o) => {
                 let mut marched = RaySamples::default();
                 o.grid
-                    .march_rays(chunk, o.near, o.far, o.step, &mut marched)?;
+                    .march_rays(chunk, o.near, o.far, o.step, None, &mut marched)?;
                 samples.offsets = marched.offsets;
                 samples.t = marched.t;
                 samples.delta = marched.dt;

@@ -549,7 +549,7 @@ fn table() -> Vec<Builtin> {
         ),
         func(
             "stratified",
-            "`samples` depths evenly spaced from `near` to `far` inclusive; `jitter` moves each within its interval while training.",
+            "`samples` depths evenly spaced from `near` to `far` inclusive; `jitter` moves each within its interval while training (with a NeRF's bounded occupancy grid, which marches fixed steps of (far − near)/samples, it moves each ray's steps by one offset of up to half a step).",
             vec![
                 opt("samples", Type::Number, "64", "samples per ray"),
                 opt("near", Type::Number, "0", "first depth (≥ 0)"),

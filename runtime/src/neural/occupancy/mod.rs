@@ -463,23 +463,38 @@ impl OccupancyGrid {
 impl OccupancyGrid {
     /// [`Self::march`] for every ray, in parallel over chunks of rays and
     /// concatenated in ray order (so the same whatever the thread count);
-    /// the first failing ray's error.
+    /// the first failing ray's error. With `jitter` (a seed), ray `r`'s
+    /// samples are moved by one offset in `[-½, ½)` of a step drawn from
+    /// the seed and `r` (training: the field is seen between the fixed
+    /// steps too, as nerfacc's stratified marching; the first sample stays
+    /// at or after `near`).
     pub fn march_rays(
         &self,
         rays: &[Ray],
         near: f32,
         far: f32,
         step: f32,
+        jitter: Option<u64>,
         out: &mut RaySamples,
     ) -> Result<(), VolumeError> {
         // Per chunk: sample counts per ray and the depths.
         type Part = Result<(Vec<usize>, Vec<f32>), VolumeError>;
         let parts: Vec<Part> = rays
             .par_chunks(RAY_CHUNK)
-            .map(|chunk| {
+            .enumerate()
+            .map(|(c, chunk)| {
                 let (mut counts, mut all) = (Vec::with_capacity(chunk.len()), Vec::new());
                 let (mut t, mut dt) = (Vec::new(), Vec::new());
-                for r in chunk {
+                for (i, r) in chunk.iter().enumerate() {
+                    let near = match jitter {
+                        None => near,
+                        Some(seed) => {
+                            let ray = (c * RAY_CHUNK + i) as u64;
+                            let u = SplitMix64::new(seed ^ ray.wrapping_mul(0x9E37_79B9_7F4A_7C15))
+                                .next_f32();
+                            near + (u - 0.5) * step
+                        }
+                    };
                     self.march(r.origin, r.dir, near, far, step, &mut t, &mut dt)?;
                     counts.push(t.len());
                     all.extend_from_slice(&t);

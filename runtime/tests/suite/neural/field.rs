@@ -203,7 +203,10 @@ fn training_stops_each_ray_where_it_turns_opaque() {
     let mut rng = SplitMix64::new(2);
     let strat = Stratified::new(16, 1.0, 4.0).unwrap();
     let batch = Batch {
-        targets: rays.iter().map(|_| [rng.next_f32(), rng.next_f32(), rng.next_f32()]).collect(),
+        targets: rays
+            .iter()
+            .map(|_| [rng.next_f32(), rng.next_f32(), rng.next_f32()])
+            .collect(),
         rays,
         coverage: Vec::new(),
         depths: strat.depths(),
@@ -227,7 +230,10 @@ fn training_stops_each_ray_where_it_turns_opaque() {
     let (all_loss, all_grad, all) = step(0.0);
     let (loss, grad, fitted) = step(1e-4);
     assert!(fitted * 10 < all * 8, "fitted {fitted} of {all}");
-    assert!((loss - all_loss).abs() <= 1e-3 * all_loss, "{loss} vs {all_loss}");
+    assert!(
+        (loss - all_loss).abs() <= 1e-3 * all_loss,
+        "{loss} vs {all_loss}"
+    );
     let scale = all_grad.iter().fold(0f32, |m, g| m.max(g.abs()));
     for (i, (a, b)) in all_grad.iter().zip(&grad).enumerate() {
         assert!((a - b).abs() <= 1e-3 * scale, "[{i}]: {a} vs {b}");
@@ -354,10 +360,10 @@ fn unbounded_occupancy_keeps_the_samples_in_occupied_contracted_cells() {
     let mut candidates = Samples::default();
     candidates.fixed(3, 16, |r| &mapped[r * 16..(r + 1) * 16], LastInterval::Zero);
     let mut out = Samples::default();
-    occ.march(&rays, &candidates, &mut out).unwrap();
+    occ.march(&rays, &candidates, None, &mut out).unwrap();
     assert_eq!(out, candidates);
     occ.grid.fill(false);
-    occ.march(&rays, &candidates, &mut out).unwrap();
+    occ.march(&rays, &candidates, None, &mut out).unwrap();
     assert!(out.t.is_empty() && out.offsets == vec![0; 4]);
     // The last sample of ray 1, far beyond the box (t ≈ 100).
     let k = candidates.offsets[2] - 1;
@@ -370,7 +376,7 @@ fn unbounded_occupancy_keeps_the_samples_in_occupied_contracted_cells() {
         .expect("in the contracted cube");
     let index = occ.grid.index(cell);
     occ.grid.set_occupied(index, true);
-    occ.march(&rays, &candidates, &mut out).unwrap();
+    occ.march(&rays, &candidates, None, &mut out).unwrap();
     assert!(out.t.contains(&tk), "{:?}", out.t);
     assert!(out.offsets[2] - out.offsets[1] >= 1);
     assert_eq!(out.t.len(), out.delta.len());

@@ -197,7 +197,7 @@ fn batches_match_single_rays_for_any_thread_count() {
             .build()
             .unwrap();
         let mut out = RaySamples::default();
-        pool.install(|| g.march_rays(&rays, 0.1, 12.0, 0.01, &mut out))
+        pool.install(|| g.march_rays(&rays, 0.1, 12.0, 0.01, None, &mut out))
             .unwrap();
         out
     };
@@ -214,7 +214,7 @@ fn batches_match_single_rays_for_any_thread_count() {
     let mut bad = rays.clone();
     bad[2000].dir = [0.0; 3];
     let mut out = RaySamples::default();
-    assert!(g.march_rays(&bad, 0.1, 12.0, 0.01, &mut out).is_err());
+    assert!(g.march_rays(&bad, 0.1, 12.0, 0.01, None, &mut out).is_err());
 }
 
 #[test]
@@ -548,4 +548,66 @@ fn a_fine_step_keeps_an_untrained_field_occupied() {
     }
     let corner_cells = 4usize.pow(3);
     assert!(g.occupied_count() >= corner_cells && g.occupied_count() < 2 * corner_cells);
+}
+
+/// A jittered march moves each ray's fixed steps by one offset of at most
+/// half a step, drawn from the seed and the ray: the same samples for the
+/// same seed, others for another, every sample within `[near, far)` and
+/// spaced by the step; with every cell occupied, as many as the plain
+/// march to within one.
+#[test]
+fn a_jittered_march_moves_each_ray_by_one_offset() {
+    let g = grid(16);
+    let mut rng = SplitMix64::new(4);
+    let rays: Vec<Ray> = (0..64)
+        .map(|k| {
+            let (origin, dir) = random_ray(&mut rng);
+            Ray {
+                origin,
+                dir,
+                view: 0,
+                pixel: k,
+            }
+        })
+        .collect();
+    let (near, far, step) = (0.1, 6.0, 0.05);
+    let march = |jitter| {
+        let mut out = RaySamples::default();
+        g.march_rays(&rays, near, far, step, jitter, &mut out)
+            .unwrap();
+        out
+    };
+    let (plain, a, again, b) = (march(None), march(Some(1)), march(Some(1)), march(Some(2)));
+    assert_eq!(a.t, again.t);
+    assert_ne!(a.t, b.t);
+    let mut moved = 0;
+    for r in 0..rays.len() {
+        let (p, j) = (
+            &plain.t[plain.offsets[r]..plain.offsets[r + 1]],
+            &a.t[a.offsets[r]..a.offsets[r + 1]],
+        );
+        assert!(
+            p.len().abs_diff(j.len()) <= 1,
+            "ray {r}: {} and {}",
+            p.len(),
+            j.len()
+        );
+        assert!(j.iter().all(|&t| (near..far).contains(&t)), "ray {r}");
+        for w in j.windows(2) {
+            assert!((w[1] - w[0] - step).abs() < 1e-4, "ray {r}: {w:?}");
+        }
+        // Each sample's offset from the plain lattice, in steps: one per
+        // ray, at most a half.
+        let offset = |t: f32| {
+            let x = (t - near) / step - 0.5;
+            x - x.round()
+        };
+        assert!(p.iter().all(|&t| offset(t).abs() < 1e-3), "ray {r}");
+        if let Some(&first) = j.first() {
+            let d = offset(first);
+            assert!(j.iter().all(|&t| (offset(t) - d).abs() < 1e-3), "ray {r}");
+            moved += usize::from(d.abs() > 1e-3);
+        }
+    }
+    assert!(moved > 10, "{moved}");
 }
