@@ -25,14 +25,24 @@ pub const MAX_EVALUATIONS_VAR: &str = "SDFL_MAX_EVALUATIONS";
 /// The limit [`MAX_EVALUATIONS_VAR`] sets (`value`), or [`MAX_EVALUATIONS`]
 /// without one; an error for a value that is no positive finite number.
 pub fn max_evaluations_from(value: Option<&str>) -> Result<f64, String> {
+    limit_from(
+        value,
+        MAX_EVALUATIONS,
+        MAX_EVALUATIONS_VAR,
+        "evaluations (such as 5e12)",
+    )
+}
+
+/// A limit set by environment variable `var` (`value`), or `default`
+/// without one; an error naming `var` and `what` for a value that is no
+/// positive finite number.
+fn limit_from(value: Option<&str>, default: f64, var: &str, what: &str) -> Result<f64, String> {
     let Some(v) = value else {
-        return Ok(MAX_EVALUATIONS);
+        return Ok(default);
     };
     match v.trim().parse::<f64>() {
         Ok(x) if x.is_finite() && x > 0.0 => Ok(x),
-        _ => Err(format!(
-            "{MAX_EVALUATIONS_VAR}={v:?} is not a positive number of evaluations (such as 5e12)"
-        )),
+        _ => Err(format!("{var}={v:?} is not a positive number of {what}")),
     }
 }
 
@@ -76,15 +86,7 @@ pub const MAX_MEMORY_VAR: &str = "SDFL_MAX_MEMORY";
 /// [`MAX_MEMORY`] without one; an error for a value that is no positive
 /// finite number.
 pub fn max_memory_from(value: Option<&str>) -> Result<f64, String> {
-    let Some(v) = value else {
-        return Ok(MAX_MEMORY);
-    };
-    match v.trim().parse::<f64>() {
-        Ok(x) if x.is_finite() && x > 0.0 => Ok(x),
-        _ => Err(format!(
-            "{MAX_MEMORY_VAR}={v:?} is not a positive number of bytes (such as 16e9)"
-        )),
-    }
+    limit_from(value, MAX_MEMORY, MAX_MEMORY_VAR, "bytes (such as 16e9)")
 }
 
 /// The limit on one statement's estimated peak memory in this process:

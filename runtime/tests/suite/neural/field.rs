@@ -37,6 +37,43 @@ fn small_spec() -> Nerf {
     }
 }
 
+/// `n` rays from `(spread[0]·k, −0.2, −2)` fanning out by `spread[1]·k`
+/// in y, with random targets drawn from `seed`, `samples` depths a ray
+/// (`depths` one row for all when `shared`, else a row each).
+fn fan_batch(
+    n: usize,
+    spread: [f32; 2],
+    seed: u64,
+    samples: usize,
+    depths: Vec<f32>,
+    shared: bool,
+) -> Batch {
+    let mut rng = SplitMix64::new(seed);
+    let rays: Vec<Ray> = (0..n)
+        .map(|k| Ray {
+            origin: [spread[0] * k as f32, -0.2, -2.0],
+            dir: [0.1, spread[1] * k as f32, 1.0],
+            view: 0,
+            pixel: k as u32,
+        })
+        .collect();
+    Batch {
+        targets: rays
+            .iter()
+            .map(|_| [rng.next_f32(), rng.next_f32(), rng.next_f32()])
+            .collect(),
+        rays,
+        coverage: Vec::new(),
+        depths,
+        samples,
+        shared,
+        last_interval: LastInterval::Zero,
+        seed: 5,
+        step: 0,
+        points: Vec::new(),
+    }
+}
+
 #[test]
 fn objective_gradient_matches_finite_differences() {
     objective_gradient_check(&small_spec());
@@ -93,34 +130,12 @@ fn objective_gradient_check(spec: &Nerf) {
     if let Backdrop::Learned(b) = &mut obj.backdrop {
         b.hidden.act = smooth;
     }
-    let mut rng = SplitMix64::new(8);
-    let rays: Vec<Ray> = (0..9)
-        .map(|k| Ray {
-            origin: [0.1 * k as f32, -0.2, -2.0],
-            dir: [0.1, 0.05 * k as f32, 1.0],
-            view: 0,
-            pixel: k,
-        })
-        .collect();
     let samples = 7;
-    let depths: Vec<f32> = (0..rays.len() * samples)
+    let mut rng = SplitMix64::new(8);
+    let depths: Vec<f32> = (0..9 * samples)
         .map(|i| 1.0 + 0.4 * (i % samples) as f32 + 0.1 * rng.next_f32())
         .collect();
-    let batch = Batch {
-        targets: rays
-            .iter()
-            .map(|_| [rng.next_f32(), rng.next_f32(), rng.next_f32()])
-            .collect(),
-        rays,
-        coverage: Vec::new(),
-        depths,
-        samples,
-        shared: false,
-        last_interval: LastInterval::Zero,
-        seed: 5,
-        step: 0,
-        points: Vec::new(),
-    };
+    let batch = fan_batch(9, [0.1, 0.05], 8, samples, depths, false);
     let values = obj.initial();
     let mut grad = vec![0.0; values.len()];
     obj.loss_and_grad(&values, &batch, 2.0, &mut grad).unwrap();
@@ -192,31 +207,8 @@ fn training_stops_each_ray_where_it_turns_opaque() {
         jitter: false,
         last_interval: LastInterval::Zero,
     };
-    let rays: Vec<Ray> = (0..24)
-        .map(|k| Ray {
-            origin: [0.05 * k as f32, -0.2, -2.0],
-            dir: [0.1, 0.02 * k as f32, 1.0],
-            view: 0,
-            pixel: k,
-        })
-        .collect();
-    let mut rng = SplitMix64::new(2);
     let strat = Stratified::new(16, 1.0, 4.0).unwrap();
-    let batch = Batch {
-        targets: rays
-            .iter()
-            .map(|_| [rng.next_f32(), rng.next_f32(), rng.next_f32()])
-            .collect(),
-        rays,
-        coverage: Vec::new(),
-        depths: strat.depths(),
-        samples: 16,
-        shared: true,
-        last_interval: LastInterval::Zero,
-        seed: 5,
-        step: 0,
-        points: Vec::new(),
-    };
+    let batch = fan_batch(24, [0.05, 0.02], 2, 16, strat.depths(), true);
     let step = |stop: f32| {
         let mut obj = NerfObjective::new(&spec, &sampler).unwrap();
         obj.set_train_stop(stop);
@@ -269,30 +261,8 @@ fn a_step_in_several_passes_is_the_step_in_one() {
             jitter: true,
             last_interval: LastInterval::Zero,
         };
-        let mut rng = SplitMix64::new(3);
-        let rays: Vec<Ray> = (0..40)
-            .map(|k| Ray {
-                origin: [0.02 * k as f32, -0.2, -2.0],
-                dir: [0.1, 0.01 * k as f32, 1.0],
-                view: 0,
-                pixel: k,
-            })
-            .collect();
-        let batch = Batch {
-            targets: rays
-                .iter()
-                .map(|_| [rng.next_f32(), rng.next_f32(), rng.next_f32()])
-                .collect(),
-            rays,
-            coverage: Vec::new(),
-            depths: (0..7).map(|i| 1.0 + 0.4 * i as f32).collect(),
-            samples: 7,
-            shared: true,
-            last_interval: LastInterval::Zero,
-            seed: 5,
-            step: 0,
-            points: Vec::new(),
-        };
+        let depths = (0..7).map(|i| 1.0 + 0.4 * i as f32).collect();
+        let batch = fan_batch(40, [0.02, 0.01], 3, 7, depths, true);
         let step = |pass: usize| {
             let mut obj = NerfObjective::new(&spec, &sampler).unwrap();
             obj.set_pass_samples(pass);

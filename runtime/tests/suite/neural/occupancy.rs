@@ -21,6 +21,21 @@ fn random_ray(rng: &mut SplitMix64) -> ([f32; 3], [f32; 3]) {
     (o, d.map(|v| v / n))
 }
 
+/// `n` rays of [`random_ray`], numbered as pixels.
+fn random_rays(n: u32, rng: &mut SplitMix64) -> Vec<Ray> {
+    (0..n)
+        .map(|k| {
+            let (origin, dir) = random_ray(rng);
+            Ray {
+                origin,
+                dir,
+                view: 0,
+                pixel: k,
+            }
+        })
+        .collect()
+}
+
 /// Fixed-step samples kept by `keep(cell)`, testing every sample.
 fn brute(
     g: &OccupancyGrid,
@@ -180,17 +195,7 @@ fn batches_match_single_rays_for_any_thread_count() {
     for c in 0..g.cells() {
         g.set_occupied(c, rng.next_f32() < 0.05);
     }
-    let rays: Vec<Ray> = (0..3000)
-        .map(|k| {
-            let (origin, dir) = random_ray(&mut rng);
-            Ray {
-                origin,
-                dir,
-                view: 0,
-                pixel: k,
-            }
-        })
-        .collect();
+    let rays = random_rays(3000, &mut rng);
     let run = |threads| {
         let pool = rayon::ThreadPoolBuilder::new()
             .num_threads(threads)
@@ -559,17 +564,7 @@ fn a_fine_step_keeps_an_untrained_field_occupied() {
 fn a_jittered_march_moves_each_ray_by_one_offset() {
     let g = grid(16);
     let mut rng = SplitMix64::new(4);
-    let rays: Vec<Ray> = (0..64)
-        .map(|k| {
-            let (origin, dir) = random_ray(&mut rng);
-            Ray {
-                origin,
-                dir,
-                view: 0,
-                pixel: k,
-            }
-        })
-        .collect();
+    let rays = random_rays(64, &mut rng);
     let (near, far, step) = (0.1, 6.0, 0.05);
     let march = |jitter| {
         let mut out = RaySamples::default();
