@@ -1139,7 +1139,14 @@ impl TrainedField for Trained<NerfObjective> {
                     ""
                 }
             ),
-            gradient: "none: fused layer kernels with a hand-written backward through the network and the compositing; renders stop each ray once less than 1e-4 of its light is left".into(),
+            gradient: format!(
+                "none: fused layer kernels with a hand-written backward through the network and the compositing; renders{} stop each ray once less than 1e-4 of its light is left",
+                if self.objective.occupancy.is_some() {
+                    " and training steps"
+                } else {
+                    ""
+                }
+            ),
             mesh_region: "the starting bounds grown by half".into(),
         }
     }
