@@ -37,6 +37,17 @@ fn small_spec() -> Nerf {
     }
 }
 
+/// `samples` a ray over [1, 4], the last interval absorbing nothing.
+fn sampler(samples: usize, jitter: bool) -> Sampler {
+    Sampler {
+        samples,
+        near: 1.0,
+        far: 4.0,
+        jitter,
+        last_interval: LastInterval::Zero,
+    }
+}
+
 /// `n` rays from `(spread[0]·k, −0.2, −2)` fanning out by `spread[1]·k`
 /// in y, with random targets drawn from `seed`, `samples` depths a ray
 /// (`depths` one row for all when `shared`, else a row each).
@@ -109,13 +120,7 @@ fn unbounded_grid_and_learned_background_gradient_matches_finite_differences() {
 }
 
 fn objective_gradient_check(spec: &Nerf) {
-    let sampler = Sampler {
-        samples: 7,
-        near: 1.0,
-        far: 4.0,
-        jitter: true,
-        last_interval: LastInterval::Zero,
-    };
+    let sampler = sampler(7, true);
     let mut obj = NerfObjective::new(spec, &sampler).unwrap();
     // Smooth activations so differences see no kinks; same wiring.
     let smooth = Activation::Softplus { beta: 1.0 };
@@ -200,13 +205,7 @@ fn training_stops_each_ray_where_it_turns_opaque() {
         }),
         ..small_spec()
     };
-    let sampler = Sampler {
-        samples: 16,
-        near: 1.0,
-        far: 4.0,
-        jitter: false,
-        last_interval: LastInterval::Zero,
-    };
+    let sampler = sampler(16, false);
     let strat = Stratified::new(16, 1.0, 4.0).unwrap();
     let batch = fan_batch(24, [0.05, 0.02], 2, 16, strat.depths(), true);
     let step = |stop: f32| {
@@ -254,13 +253,7 @@ fn a_step_in_several_passes_is_the_step_in_one() {
             fine,
             ..small_spec()
         };
-        let sampler = Sampler {
-            samples: 7,
-            near: 1.0,
-            far: 4.0,
-            jitter: true,
-            last_interval: LastInterval::Zero,
-        };
+        let sampler = sampler(7, true);
         let depths = (0..7).map(|i| 1.0 + 0.4 * i as f32).collect();
         let batch = fan_batch(40, [0.02, 0.01], 3, 7, depths, true);
         let step = |pass: usize| {
