@@ -861,17 +861,17 @@ fn run(file: Option<&Path>, out: &Path, options: RunOptions, json: bool) -> Exit
 }
 
 /// A fit's warnings on stderr, with `--json` too (where they are also in
-/// each report's `warnings`), and each video written as its GIF fallback
-/// (in the report as its written file's `fallback`).
+/// each report's `warnings`), and each written file's (in the report as
+/// that file's `warning`: a video written as its GIF fallback, a data set
+/// the Blender form cannot state).
 fn print_fit_warnings(reports: &[Report]) {
     for r in reports {
         let name = r.report["name"].as_str().unwrap_or("?");
         for w in r.report["written"].as_array().into_iter().flatten() {
-            if let Some(why) = w["fallback"].as_str() {
-                say!(
-                    "warning[{}]: `{name}`: {why}",
-                    sdfl_runtime::video::FALLBACK
-                );
+            let warning = &w["warning"];
+            if let (Some(code), Some(why)) = (warning["code"].as_str(), warning["message"].as_str())
+            {
+                say!("warning[{code}]: `{name}`: {why}");
             }
         }
         for w in r.report["warnings"].as_array().into_iter().flatten() {

@@ -111,6 +111,9 @@ pub mod codes {
     /// A warning: a forward-facing (LLFF) capture trained by a NeRF with
     /// ordinary rays, not its NDC.
     pub const FORWARD_FACING: &str = "sdfl::warn::forward-facing";
+    /// A warning: a `dataset` whose views are not one centred pinhole
+    /// camera, which the Blender form (`camera_angle_x`) cannot state.
+    pub const BLENDER_LENS: &str = "sdfl::warn::blender-lens";
 }
 
 /// A number in a message: plain when short, otherwise in short scientific

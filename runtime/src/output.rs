@@ -601,10 +601,21 @@ pub struct Written {
     /// What a mesh holds.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub mesh: Option<MeshStats>,
-    /// Why this file is a `video`'s GIF fallback instead of its MP4 (no
-    /// `ffmpeg` found, or it failed): the warning the run prints.
+    /// What the run warns of about this file: why it is a `video`'s GIF
+    /// fallback instead of its MP4, why a data set's transforms files
+    /// leave out the Blender form.
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub fallback: Option<String>,
+    pub warning: Option<WrittenWarning>,
+}
+
+/// A warning about a written file, printed by the run and kept in its
+/// report.
+#[derive(Debug, Clone, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub struct WrittenWarning {
+    /// The stable code (`sdfl::warn::...`).
+    pub code: String,
+    /// What happened and why.
+    pub message: String,
 }
 
 /// What a written file holds; reports spell it in snake case (`image`,

@@ -675,7 +675,7 @@ impl Gifs {
                         height,
                         frames,
                         mesh: None,
-                        fallback: None,
+                        warning: None,
                     })
                 }
                 Animation::Video(v) => v.finish(),
@@ -829,7 +829,7 @@ pub fn run_job(
                 height,
                 frames: 1,
                 mesh: None,
-                fallback: None,
+                warning: None,
             });
         }
         if !gifs.is_empty() {

@@ -470,7 +470,7 @@ impl VideoWriter {
                     height,
                     frames,
                     mesh: None,
-                    fallback: None,
+                    warning: None,
                 })
             }
             Encoder::Gif(g, reason) => {
@@ -483,7 +483,10 @@ impl VideoWriter {
                     height,
                     frames,
                     mesh: None,
-                    fallback: Some(reason),
+                    warning: Some(crate::output::WrittenWarning {
+                        code: FALLBACK.to_string(),
+                        message: reason,
+                    }),
                 })
             }
             Encoder::Waiting => unreachable!("a GIF when no frame came"),

@@ -63,16 +63,14 @@ pub const DATASET_JSON: [&str; 4] = [
     "transforms.json",
 ];
 
-/// Why LLFF's layout (`dataset(..., llff_bounds: ...)`) cannot hold these
-/// views, each numbered, through these intrinsics (`None`: it can):
-/// `poses_bounds.npy` has one height, width and focal length per view and
-/// no principal point or distortion, so every view must be one centred
-/// pinhole camera. Checked when the file is evaluated and again by the
-/// writer, for views made at run time.
-pub fn llff_refusal(views: impl IntoIterator<Item = (usize, Intrinsics)>) -> Option<String> {
+/// Why these views, each numbered, through these intrinsics are not one
+/// centred pinhole camera (`None`: they are). Layouts with one focal length
+/// for the set and no principal point or distortion hold only such views:
+/// LLFF's `poses_bounds.npy` and the Blender form's `camera_angle_x`.
+pub fn not_one_pinhole(views: impl IntoIterator<Item = (usize, Intrinsics)>) -> Option<String> {
     let close = |x: f64, y: f64| (x - y).abs() <= 1e-9 * x.abs().max(y.abs()).max(1.0);
     let mut first: Option<(usize, Intrinsics)> = None;
-    let problem = views.into_iter().find_map(|(k, i)| {
+    views.into_iter().find_map(|(k, i)| {
         let (w, h) = (i.width as f64, i.height as f64);
         let why = if i.distortion != Distortion::None {
             Some(format!("view {k} is seen through a distorted lens"))
@@ -102,10 +100,65 @@ pub fn llff_refusal(views: impl IntoIterator<Item = (usize, Intrinsics)>) -> Opt
         };
         first.get_or_insert((k, i));
         why
-    })?;
+    })
+}
+
+/// Why LLFF's layout (`dataset(..., llff_bounds: ...)`) cannot hold these
+/// views (`None`: it can): see [`not_one_pinhole`]. Checked when the file
+/// is evaluated and again by the writer, for views made at run time.
+pub fn llff_refusal(views: impl IntoIterator<Item = (usize, Intrinsics)>) -> Option<String> {
+    let problem = not_one_pinhole(views)?;
     Some(format!(
         "LLFF's `poses_bounds.npy` holds one centred pinhole camera (one focal length, no distortion) for every view, and {problem}"
     ))
+}
+
+/// What a `dataset` of views that are not one centred pinhole camera
+/// writes in place of the Blender form's `camera_angle_x`: nothing, so that
+/// a Blender-format reader (which assumes a centred pinhole) stops at the
+/// missing key rather than reading the views wrongly.
+pub const BLENDER_LENS_HELP: &str = "nerfstudio's `nerfstudio-data` parser, instant-ngp and sdfl's `capture(...)` read the lens from the set's `fl_x fl_y cx cy` and distortion keys; for Blender-format readers, give every view one centred pinhole camera (`look_at(...)`, or `lens(...)` with one focal length, the principal point at the centre and no distortion)";
+
+/// Warnings for the data sets among `outputs` whose views through
+/// `cameras` at `size` the Blender form cannot state (LLFF sets, refused
+/// by [`llff_errors`], excepted).
+fn blender_warnings<'a>(
+    outputs: impl IntoIterator<Item = &'a Output>,
+    cameras: &[crate::camera::Camera],
+    (w, h): (u32, u32),
+) -> Vec<Diag> {
+    let mut sets = outputs.into_iter().filter(|o| {
+        matches!(
+            o.kind,
+            OutputKind::Dataset {
+                llff_bounds: None,
+                ..
+            }
+        )
+    });
+    let Some(first) = sets.next() else {
+        return Vec::new();
+    };
+    let Some(why) = not_one_pinhole(
+        cameras
+            .iter()
+            .enumerate()
+            .map(|(k, c)| (k, c.to_opengl_intrinsics(w, h).1)),
+    ) else {
+        return Vec::new();
+    };
+    std::iter::once(first)
+        .chain(sets)
+        .map(|o| {
+            Diag::new(
+                codes::BLENDER_LENS,
+                o.span,
+                format!("this data set's transforms files leave out the Blender form's `camera_angle_x`, which states one centred pinhole camera, because {why}"),
+            )
+            .label("Blender-format readers cannot read these views")
+            .help(BLENDER_LENS_HELP)
+        })
+        .collect()
 }
 
 /// The `llff_bounds` data sets among `outputs` that views through
@@ -495,6 +548,7 @@ pub fn check_job(
     let count;
     let held;
     let llff;
+    let lens;
     match kind {
         StatementKind::Train => {
             let Some(j) = program.trains.last() else {
@@ -503,13 +557,15 @@ pub fn check_job(
             count = file_count(&j.before, j.views.len()) + file_count(&j.after, j.views.len());
             held = held_out_errors(j.before.iter().chain(&j.after), j.views.len());
             // Views made from the data at run time are the writer's to check.
-            llff = match j.view_path {
-                None => llff_errors(
-                    j.before.iter().chain(&j.after),
-                    &j.views,
-                    (j.width, j.height),
-                ),
-                Some(_) => Vec::new(),
+            (llff, lens) = match j.view_path {
+                None => {
+                    let outputs = || j.before.iter().chain(&j.after);
+                    (
+                        llff_errors(outputs(), &j.views, (j.width, j.height)),
+                        blender_warnings(outputs(), &j.views, (j.width, j.height)),
+                    )
+                }
+                Some(_) => (Vec::new(), Vec::new()),
             };
             if count <= MAX_FILES {
                 claims = output_files(&j.before, j.views.len(), JobKind::TrainBefore);
@@ -531,6 +587,7 @@ pub fn check_job(
             count = file_count(&j.outputs, j.cameras.len());
             held = held_out_errors(&j.outputs, j.cameras.len());
             llff = llff_errors(&j.outputs, &j.cameras, (j.width, j.height));
+            lens = blender_warnings(&j.outputs, &j.cameras, (j.width, j.height));
             if count <= MAX_FILES {
                 claims = output_files(&j.outputs, j.cameras.len(), JobKind::Volume);
             }
@@ -542,6 +599,7 @@ pub fn check_job(
             count = file_count(&j.outputs, j.cameras.len());
             held = held_out_errors(&j.outputs, j.cameras.len());
             llff = llff_errors(&j.outputs, &j.cameras, (j.width, j.height));
+            lens = blender_warnings(&j.outputs, &j.cameras, (j.width, j.height));
             if count <= MAX_FILES {
                 claims = output_files(&j.outputs, j.cameras.len(), JobKind::Render);
             }
@@ -609,6 +667,7 @@ pub fn check_job(
         .into_iter()
         .filter(|d| seen.insert((d.span, d.notes.first().map(|n| n.0))))
         .take(10)
+        .chain(lens)
         .collect()
 }
 

@@ -105,7 +105,11 @@ fn assert_fell_back(dir: &Path, ok: bool, stderr: &str, json: &serde_json::Value
     assert_eq!(w[0]["kind"], "gif");
     assert_eq!(w[0]["path"], "clips/spin.gif");
     assert_eq!(w[0]["frames"], 6);
-    assert!(w[0]["fallback"].as_str().unwrap().contains(why), "{json}");
+    assert_eq!(w[0]["warning"]["code"], sdfl_runtime::video::FALLBACK);
+    assert!(
+        w[0]["warning"]["message"].as_str().unwrap().contains(why),
+        "{json}"
+    );
     no_temporaries(&dir.join("out"));
 }
 
@@ -193,7 +197,7 @@ fn frames_are_piped_to_ffmpeg_as_rgb24_at_even_sides() {
         (Some(34), Some(22))
     );
     assert_eq!(w[0]["frames"], 6);
-    assert!(w[0].get("fallback").is_none(), "{json}");
+    assert!(w[0].get("warning").is_none(), "{json}");
 }
 
 #[test]
@@ -212,7 +216,7 @@ fn a_real_ffmpeg_writes_a_video_that_decodes_at_its_size() {
     let (ok, stderr, json) = run(&dir, &[("SDFL_FFMPEG", ffmpeg.to_str().unwrap())]);
     assert!(ok, "{stderr}");
     let w = written(&json);
-    if w.first().is_some_and(|w| w["fallback"].is_string()) {
+    if w.first().is_some_and(|w| w["warning"].is_object()) {
         // An ffmpeg without libx264 is a fallback, said as such.
         assert!(stderr.contains("video-fallback"), "{stderr}");
         return;

@@ -12,10 +12,13 @@
 //!   given), `camera_model`, `train_filenames` / `val_filenames` /
 //!   `test_filenames`.
 //!
-//! Every file states the intrinsics in both spellings: `camera_angle_x`
-//! (Blender, sdfl) and `fl_x fl_y cx cy w h` with the distortion
-//! (`k1 k2 p1 p2`, or `k1..k4` and `is_fisheye` for a fisheye), at the top
-//! when every view shares them, else per frame. Poses are OpenGL
+//! Every file states the intrinsics as `fl_x fl_y cx cy w h` with the
+//! distortion (`k1 k2 p1 p2`, or `k1..k4` and `is_fisheye` for a fisheye),
+//! at the top when every view shares them, else per frame; and, when the
+//! views are one centred pinhole camera, also as the Blender form's
+//! `camera_angle_x`. For other views that key is left out: a Blender-format
+//! reader assumes a centred pinhole, and stops at the missing key instead
+//! of reading such views wrongly (`check` warns). Poses are OpenGL
 //! camera-to-world matrices (`transform_matrix`: the camera looks down −z,
 //! +y up, +x right), pixel centres at `i + ½` (OpenCV's `cx`).
 //!
@@ -30,14 +33,15 @@
 use std::io;
 use std::path::{Path, PathBuf};
 
+use sdfl_lang::codes;
 use sdfl_stdlib::camera::Camera;
 use sdfl_stdlib::lens::{Distortion, Intrinsics};
-use sdfl_stdlib::outputs::{llff_refusal, DATASET_JSON};
+use sdfl_stdlib::outputs::{llff_refusal, not_one_pinhole, BLENDER_LENS_HELP, DATASET_JSON};
 use sdfl_stdlib::value::held_out;
 use serde_json::{json, Map, Value};
 
 use crate::output::{with_path, write_bytes, write_png, write_png_rgba};
-use crate::output::{Written, WrittenKind};
+use crate::output::{Written, WrittenKind, WrittenWarning};
 
 /// The key of the transforms files a [`DatasetWriter`] leaves while it
 /// moves a finished set into place over an earlier one.
@@ -301,7 +305,7 @@ impl DatasetWriter {
             height: h,
             frames: 1,
             mesh: None,
-            fallback: None,
+            warning: None,
         })
     }
 
@@ -379,14 +383,18 @@ impl DatasetWriter {
             },
             _ => i,
         };
+        let blender_holds = not_one_pinhole(frames.iter().map(|f| (f.k, f.intrinsics))).is_none();
         let top = || {
             let mut m = Map::new();
             m.insert("camera_model".into(), model.into());
-            // The Blender parser and sdfl read the field of view; with
-            // intrinsics per frame it is the first view's (the others'
-            // `fl_x` say theirs).
-            let angle = first.map_or(std::f64::consts::FRAC_PI_2, |i| camera_angle_x(&i));
-            m.insert("camera_angle_x".into(), angle.into());
+            // The field of view the Blender form states is that of one
+            // centred pinhole camera: for other views it is left out, so a
+            // Blender-format reader stops at the missing key instead of
+            // reading the views wrongly (the lens keys below hold them).
+            if blender_holds {
+                let angle = first.map_or(std::f64::consts::FRAC_PI_2, |i| camera_angle_x(&i));
+                m.insert("camera_angle_x".into(), angle.into());
+            }
             if let Some(i) = shared {
                 m.extend(
                     intrinsic_keys(&widen(i))
@@ -456,6 +464,11 @@ impl DatasetWriter {
     /// before the first move.
     pub fn finish(mut self) -> io::Result<Written> {
         let (w, h) = self.size;
+        // LLFF's refusal says as much, and more.
+        let blender_gap = match self.llff_bounds {
+            None => not_one_pinhole(self.frames.iter().map(|f| (f.k, f.intrinsics))),
+            Some(_) => None,
+        };
         let poses_bounds = match self.llff_bounds {
             Some(bounds) => Some(self.poses_bounds(bounds)?),
             None => None,
@@ -514,7 +527,13 @@ impl DatasetWriter {
             height: h,
             frames: 0,
             mesh: None,
-            fallback: None,
+            warning: blender_gap.map(|why| WrittenWarning {
+                code: codes::BLENDER_LENS.to_string(),
+                message: format!(
+                    "{}: the transforms files leave out the Blender form's `camera_angle_x`, which states one centred pinhole camera, because {why}; {BLENDER_LENS_HELP}",
+                    self.dir.display()
+                ),
+            }),
         })
     }
 }

@@ -117,7 +117,7 @@ pub fn write_field_exports(
                         area: m.mesh.area(),
                         seconds: t.elapsed().as_secs_f64(),
                     }),
-                    fallback: None,
+                    warning: None,
                 });
             }
             OutputKind::PointCloud {
@@ -163,7 +163,7 @@ pub fn write_field_exports(
                         area: 0.0,
                         seconds: t.elapsed().as_secs_f64(),
                     }),
-                    fallback: None,
+                    warning: None,
                 });
             }
             _ => {}
@@ -235,7 +235,7 @@ pub fn write_field_exports(
                 height: ph,
                 frames: 1,
                 mesh: None,
-                fallback: None,
+                warning: None,
             });
         }
     }

@@ -272,7 +272,7 @@ pub fn write_volume_outputs(
                 height: ph,
                 frames: 1,
                 mesh: None,
-                fallback: None,
+                warning: None,
             });
         }
         if !gifs.is_empty() {

@@ -114,7 +114,7 @@ pub fn write_mesh_to(
         height: 0,
         frames: 0,
         mesh: Some(stats),
-        fallback: None,
+        warning: None,
     };
     Ok((written, mesh))
 }

@@ -267,7 +267,7 @@ impl Outputs<'_> {
                 height: h,
                 frames,
                 mesh: None,
-                fallback: None,
+                warning: None,
             });
         }
         Ok(written)
@@ -301,7 +301,7 @@ impl Outputs<'_> {
                 height: ph,
                 frames: 1,
                 mesh: None,
-                fallback: None,
+                warning: None,
             });
         }
         Ok(written)
@@ -353,7 +353,7 @@ impl Outputs<'_> {
                 height: ph,
                 frames: 1,
                 mesh: None,
-                fallback: None,
+                warning: None,
             });
         }
         Ok(written)
