@@ -3,8 +3,10 @@
 //! scenes, request a frame and draw it: its frame counter passes 0 and the
 //! canvas in a screenshot is not blank.
 //!
-//! Without a browser this test fails, naming what to install: set
-//! `SDFL_BROWSER` to another Chromium-like binary to use that one.
+//! Without a browser these tests say so on stderr and pass, so that the
+//! README's test command needs only the Rust toolchain; `.ci/run`, which
+//! installs Chromium, sets `SDFL_REQUIRE_BROWSER=1`, under which a missing
+//! browser fails them. `SDFL_BROWSER` names another Chromium-like binary.
 
 use crate::common;
 use std::io::{BufRead, BufReader};
@@ -15,10 +17,14 @@ fn temp(name: &str) -> PathBuf {
     common::temp_dir("browser", name)
 }
 
-/// The browser: `SDFL_BROWSER`, else the first of Chromium's names on PATH.
-fn browser() -> PathBuf {
+/// The variable under which a missing browser fails the tests.
+const REQUIRE: &str = "SDFL_REQUIRE_BROWSER";
+
+/// The browser: `SDFL_BROWSER`, else the first of Chromium's names on
+/// PATH; `None` (said on stderr) where there is none and none is required.
+fn browser() -> Option<PathBuf> {
     if let Some(b) = std::env::var_os("SDFL_BROWSER") {
-        return PathBuf::from(b);
+        return Some(PathBuf::from(b));
     }
     let names = [
         "chromium",
@@ -27,18 +33,21 @@ fn browser() -> PathBuf {
         "google-chrome",
     ];
     let path = std::env::var_os("PATH").unwrap_or_default();
-    for dir in std::env::split_paths(&path) {
-        for n in names {
-            let p = dir.join(n);
-            if p.is_file() {
-                return p;
-            }
-        }
-    }
-    panic!(
+    let found = std::env::split_paths(&path)
+        .flat_map(|dir| names.map(|n| dir.join(n)))
+        .find(|p| p.is_file());
+    let why = format!(
         "no headless browser found (tried {names:?} on PATH): install Debian's `chromium` \
          (`apt-get install -y chromium`, as .ci/run does) or set SDFL_BROWSER"
     );
+    match found {
+        Some(p) => Some(p),
+        None if std::env::var_os(REQUIRE).is_some_and(|v| v != "0") => panic!("{why} ({REQUIRE} is set)"),
+        None => {
+            eprintln!("{why}: the viewer's page is not tested in a browser here");
+            None
+        }
+    }
 }
 
 struct Server(Child);
@@ -72,8 +81,8 @@ fn serve(file: &Path, out: &Path) -> (Server, String) {
 }
 
 /// Headless Chromium on `url` with `args`, its own profile; stdout.
-fn chromium(profile: &Path, url: &str, args: &[&str]) -> Vec<u8> {
-    let out = Command::new(browser())
+fn chromium(browser: &Path, profile: &Path, url: &str, args: &[&str]) -> Vec<u8> {
+    let out = Command::new(browser)
         .args([
             "--headless",
             // Root in containers has no user namespaces for the sandbox;
@@ -101,6 +110,7 @@ fn chromium(profile: &Path, url: &str, args: &[&str]) -> Vec<u8> {
 
 #[test]
 fn the_page_draws_frames_in_a_headless_browser() {
+    let Some(browser) = browser() else { return };
     let dir = temp("page");
     let file = dir.join("scene.sdfl");
     std::fs::write(
@@ -116,7 +126,7 @@ fn the_page_draws_frames_in_a_headless_browser() {
     .unwrap();
     let (_server, url) = serve(&file, &dir.join("out"));
 
-    let dom = chromium(&dir.join("profile-dom"), &url, &["--dump-dom"]);
+    let dom = chromium(&browser, &dir.join("profile-dom"), &url, &["--dump-dom"]);
     let dom = String::from_utf8_lossy(&dom);
     let frames: u64 = dom
         .split("data-frames=\"")
@@ -129,6 +139,7 @@ fn the_page_draws_frames_in_a_headless_browser() {
 
     let shot = dir.join("shot.png");
     chromium(
+        &browser,
         &dir.join("profile-shot"),
         &url,
         &[
@@ -156,6 +167,7 @@ fn the_page_draws_frames_in_a_headless_browser() {
 
 #[test]
 fn the_page_shows_a_trained_field_and_its_training_panel() {
+    let Some(browser) = browser() else { return };
     let dir = temp("field");
     let (file, out) = (dir.join("fit.sdfl"), dir.join("out"));
     std::fs::write(
@@ -185,7 +197,7 @@ fn the_page_shows_a_trained_field_and_its_training_panel() {
     );
     let (_server, url) = serve(&file, &out);
 
-    let dom = chromium(&dir.join("profile-dom"), &url, &["--dump-dom"]);
+    let dom = chromium(&browser, &dir.join("profile-dom"), &url, &["--dump-dom"]);
     let dom = String::from_utf8_lossy(&dom);
     let frames: u64 = dom
         .split("data-frames=\"")
@@ -207,6 +219,7 @@ fn the_page_shows_a_trained_field_and_its_training_panel() {
 
     let shot = dir.join("shot.png");
     chromium(
+        &browser,
         &dir.join("profile-shot"),
         &url,
         &[
