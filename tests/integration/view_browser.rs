@@ -42,7 +42,9 @@ fn browser() -> Option<PathBuf> {
     );
     match found {
         Some(p) => Some(p),
-        None if std::env::var_os(REQUIRE).is_some_and(|v| v != "0") => panic!("{why} ({REQUIRE} is set)"),
+        None if std::env::var_os(REQUIRE).is_some_and(|v| v != "0") => {
+            panic!("{why} ({REQUIRE} is set)")
+        }
         None => {
             eprintln!("{why}: the viewer's page is not tested in a browser here");
             None
