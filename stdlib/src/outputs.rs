@@ -107,10 +107,14 @@ pub fn not_one_pinhole(views: impl IntoIterator<Item = (usize, Intrinsics)>) -> 
 /// views (`None`: it can): see [`not_one_pinhole`]. Checked when the file
 /// is evaluated and again by the writer, for views made at run time.
 pub fn llff_refusal(views: impl IntoIterator<Item = (usize, Intrinsics)>) -> Option<String> {
-    let problem = not_one_pinhole(views)?;
-    Some(format!(
+    not_one_pinhole(views).map(|problem| llff_message(&problem))
+}
+
+/// Why LLFF's layout cannot hold views, given what they are.
+fn llff_message(problem: &str) -> String {
+    format!(
         "LLFF's `poses_bounds.npy` holds one centred pinhole camera (one focal length, no distortion) for every view, and {problem}"
-    ))
+    )
 }
 
 /// What a `dataset` of views that are not one centred pinhole camera
@@ -119,46 +123,52 @@ pub fn llff_refusal(views: impl IntoIterator<Item = (usize, Intrinsics)>) -> Opt
 /// missing key rather than reading the views wrongly.
 pub const BLENDER_LENS_HELP: &str = "nerfstudio's `nerfstudio-data` parser, instant-ngp and sdfl's `capture(...)` read the lens from the set's `fl_x fl_y cx cy` and distortion keys; for Blender-format readers, give every view one centred pinhole camera (`look_at(...)`, or `lens(...)` with one focal length, the principal point at the centre and no distortion)";
 
+/// The data sets among `outputs`, with LLFF's layout (`llff`) or without,
+/// whose views through `cameras` at `size` are not one centred pinhole
+/// camera: `diag(set, why)` for each.
+fn not_pinhole_sets<'a>(
+    outputs: impl IntoIterator<Item = &'a Output>,
+    cameras: &[crate::camera::Camera],
+    (w, h): (u32, u32),
+    llff: bool,
+    diag: impl Fn(&Output, &str) -> Diag,
+) -> Vec<Diag> {
+    let sets: Vec<&Output> = outputs
+        .into_iter()
+        .filter(|o| {
+            matches!(o.kind, OutputKind::Dataset { llff_bounds, .. } if llff_bounds.is_some() == llff)
+        })
+        .collect();
+    if sets.is_empty() {
+        return Vec::new();
+    }
+    let intrinsics = cameras
+        .iter()
+        .enumerate()
+        .map(|(k, c)| (k, c.to_opengl_intrinsics(w, h).1));
+    match not_one_pinhole(intrinsics) {
+        Some(why) => sets.into_iter().map(|o| diag(o, &why)).collect(),
+        None => Vec::new(),
+    }
+}
+
 /// Warnings for the data sets among `outputs` whose views through
 /// `cameras` at `size` the Blender form cannot state (LLFF sets, refused
 /// by [`llff_errors`], excepted).
 fn blender_warnings<'a>(
     outputs: impl IntoIterator<Item = &'a Output>,
     cameras: &[crate::camera::Camera],
-    (w, h): (u32, u32),
+    size: (u32, u32),
 ) -> Vec<Diag> {
-    let mut sets = outputs.into_iter().filter(|o| {
-        matches!(
-            o.kind,
-            OutputKind::Dataset {
-                llff_bounds: None,
-                ..
-            }
+    not_pinhole_sets(outputs, cameras, size, false, |o, why| {
+        Diag::new(
+            codes::BLENDER_LENS,
+            o.span,
+            format!("this data set's transforms files leave out the Blender form's `camera_angle_x`, which states one centred pinhole camera, because {why}"),
         )
-    });
-    let Some(first) = sets.next() else {
-        return Vec::new();
-    };
-    let Some(why) = not_one_pinhole(
-        cameras
-            .iter()
-            .enumerate()
-            .map(|(k, c)| (k, c.to_opengl_intrinsics(w, h).1)),
-    ) else {
-        return Vec::new();
-    };
-    std::iter::once(first)
-        .chain(sets)
-        .map(|o| {
-            Diag::new(
-                codes::BLENDER_LENS,
-                o.span,
-                format!("this data set's transforms files leave out the Blender form's `camera_angle_x`, which states one centred pinhole camera, because {why}"),
-            )
-            .label("Blender-format readers cannot read these views")
-            .help(BLENDER_LENS_HELP)
-        })
-        .collect()
+        .label("Blender-format readers cannot read these views")
+        .help(BLENDER_LENS_HELP)
+    })
 }
 
 /// The `llff_bounds` data sets among `outputs` that views through
@@ -166,36 +176,13 @@ fn blender_warnings<'a>(
 fn llff_errors<'a>(
     outputs: impl IntoIterator<Item = &'a Output>,
     cameras: &[crate::camera::Camera],
-    (w, h): (u32, u32),
+    size: (u32, u32),
 ) -> Vec<Diag> {
-    let mut llff = outputs.into_iter().filter(|o| {
-        matches!(
-            o.kind,
-            OutputKind::Dataset {
-                llff_bounds: Some(_),
-                ..
-            }
-        )
-    });
-    let Some(first) = llff.next() else {
-        return Vec::new();
-    };
-    let Some(why) = llff_refusal(
-        cameras
-            .iter()
-            .enumerate()
-            .map(|(k, c)| (k, c.to_opengl_intrinsics(w, h).1)),
-    ) else {
-        return Vec::new();
-    };
-    std::iter::once(first)
-        .chain(llff)
-        .map(|o| {
-            Diag::new(codes::VALUE, o.span, why.clone())
-                .label("LLFF's layout needs one centred pinhole camera")
-                .help("write this set without `llff_bounds` (its `transforms.json` keeps the lens), or give every view one pinhole camera: `look_at(...)`, or `lens(...)` with one focal length, the principal point at the centre and no distortion")
-        })
-        .collect()
+    not_pinhole_sets(outputs, cameras, size, true, |o, why| {
+        Diag::new(codes::VALUE, o.span, llff_message(why))
+            .label("LLFF's layout needs one centred pinhole camera")
+            .help("write this set without `llff_bounds` (its `transforms.json` keeps the lens), or give every view one pinhole camera: `look_at(...)`, or `lens(...)` with one focal length, the principal point at the centre and no distortion")
+    })
 }
 
 /// The event file's name in a training run's TensorBoard directory: fixed,
