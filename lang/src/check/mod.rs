@@ -920,6 +920,3 @@ impl<'f> Checker<'_, 'f> {
         sig.returns.clone()
     }
 }
-
-#[cfg(test)]
-mod tests;

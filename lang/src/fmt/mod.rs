@@ -15,10 +15,11 @@
 //! before it is returned: it must parse to the same AST (spans aside) and
 //! hold the same comments, else the file is reported, not changed.
 
-mod doc;
-mod source;
-#[cfg(test)]
-mod tests;
+// Public for the tests in lang/tests/suite only.
+#[doc(hidden)]
+pub mod doc;
+#[doc(hidden)]
+pub mod source;
 
 use std::collections::HashMap;
 
@@ -573,7 +574,8 @@ impl<'a> Formatter<'a> {
 // ------------------------------------------------------- comparing trees
 
 /// The tree with every span zeroed, to compare two parses of different text.
-fn spanless(mut file: File) -> File {
+#[doc(hidden)]
+pub fn spanless(mut file: File) -> File {
     for item in &mut file.items {
         erase_item(item);
     }

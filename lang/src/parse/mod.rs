@@ -733,6 +733,3 @@ fn build_if(pair: Pair<Rule>, diags: &mut Diagnostics) -> Built<Expr> {
         };
     }
 }
-
-#[cfg(test)]
-mod tests;

@@ -1,7 +1,11 @@
 //! The parser on small sources: values, precedence, spans, and hostile
 //! input refused with diagnostics.
 
-use super::*;
+use sdfl_lang::codes;
+use std::f64::consts::PI;
+
+use sdfl_lang::ast::*;
+use sdfl_lang::parse::*;
 
 fn expr(src: &str) -> Expr {
     let f = parse(&format!("let x = {src}")).unwrap_or_else(|d| panic!("{d:?}"));

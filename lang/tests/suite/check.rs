@@ -1,8 +1,10 @@
 //! The checker's typing of branches, conditions and operands, without
 //! built-ins.
 
-use super::*;
-use crate::types::{BlockSig, Signature};
+use sdfl_lang::check::*;
+use sdfl_lang::types::*;
+use sdfl_lang::types::{BlockSig, Signature};
+use sdfl_lang::{codes, Diagnostics};
 
 /// No built-ins: enough for the language's own constructs.
 struct Empty;
@@ -28,7 +30,7 @@ impl Env for Empty {
 }
 
 fn check_src(src: &str) -> Diagnostics {
-    check(&crate::parse::parse(src).expect("parses"), &Empty)
+    check(&sdfl_lang::parse::parse(src).expect("parses"), &Empty)
 }
 
 #[test]

@@ -2,7 +2,8 @@ use std::path::{Path, PathBuf};
 
 use proptest::prelude::*;
 
-use super::*;
+use sdfl_lang::fmt::source::trivia;
+use sdfl_lang::fmt::*;
 
 /// Every `.sdfl` file under examples/, recursively, with its text.
 fn examples() -> Vec<(PathBuf, String)> {
@@ -39,7 +40,7 @@ fn assert_stable(text: &str) -> String {
     let once = fmt(text);
     let twice = fmt(&once);
     assert_eq!(once, twice, "not idempotent; from:\n{text}");
-    let tree = |t: &str| spanless(crate::parse::parse(t).expect("parses"));
+    let tree = |t: &str| spanless(sdfl_lang::parse::parse(t).expect("parses"));
     assert_eq!(tree(text), tree(&once));
     once
 }
