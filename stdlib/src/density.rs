@@ -312,6 +312,3 @@ impl Density for Neus {
         }
     }
 }
-
-#[cfg(test)]
-mod tests;

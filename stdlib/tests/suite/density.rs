@@ -3,8 +3,9 @@
 //! without a wildcard, so a new density does not compile until it has one,
 //! and the tests iterate [`visit_densities`], so none is left out.
 
-use super::*;
-use crate::num::Dual;
+use sdfl_stdlib::density::*;
+use sdfl_stdlib::num::Dual;
+use sdfl_stdlib::num::Real;
 
 /// The Laplace CDF `Ψ_β(s)`, two-branch, where it is safe.
 fn psi(s: f64, beta: f64) -> f64 {
