@@ -7,7 +7,7 @@
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
 
-use fancy_regex::Regex;
+use regress::Regex;
 use sdfl_lang::ast::{Body, Expr, ExprKind, Item, Source};
 use serde_json::Value;
 
@@ -192,7 +192,7 @@ fn scopes(rules: &[Rule], text: &str) -> Vec<String> {
             // (start, end, rule): no rule for the region's end.
             let mut best: Option<(usize, usize, Option<usize>)> = None;
             if let Some(end) = end {
-                if let Ok(Some(m)) = end.find_from_pos(line, pos) {
+                if let Some(m) = end.find_from(line, pos).next() {
                     best = Some((m.start(), m.end(), None));
                 }
             }
@@ -201,7 +201,7 @@ fn scopes(rules: &[Rule], text: &str) -> Vec<String> {
                     Rule::Match { regex, .. } => regex,
                     Rule::Region { begin, .. } => begin,
                 };
-                if let Ok(Some(m)) = re.find_from_pos(line, pos) {
+                if let Some(m) = re.find_from(line, pos).next() {
                     if best.is_none_or(|b| m.start() < b.0) {
                         best = Some((m.start(), m.end(), Some(i)));
                     }
@@ -221,10 +221,10 @@ fn scopes(rules: &[Rule], text: &str) -> Vec<String> {
                     captures,
                 }) => {
                     set(&mut scope, fs, fe, name, true);
-                    let caps = regex.captures_from_pos(line, pos).unwrap().unwrap();
+                    let caps = regex.find_from(line, pos).next().expect("it matched");
                     for (k, cname) in captures {
-                        if let Some(c) = caps.get(*k) {
-                            let (cs, ce) = (line_start + c.start(), line_start + c.end());
+                        if let Some(c) = caps.group(*k) {
+                            let (cs, ce) = (line_start + c.start, line_start + c.end);
                             set(&mut scope, cs, ce, &Some(cname.clone()), true);
                         }
                     }

@@ -10,32 +10,34 @@ use sdfl_stdlib::value::Precision;
 /// The layer in f64, textbook loops.
 fn reference(layer: &Dense, params: &[f32], inputs: &[&[f32]], rows: usize) -> Vec<f64> {
     let n = layer.out;
+    (0..rows * n)
+        .map(|e| reference_at(layer, params, inputs, e / n, e % n))
+        .collect()
+}
+
+/// Output `j` of row `r`, in f64.
+fn reference_at(layer: &Dense, params: &[f32], inputs: &[&[f32]], r: usize, j: usize) -> f64 {
+    let n = layer.out;
     let fan_in = layer.fan_in();
     let w = &params[layer.offset..];
-    let mut out = vec![0f64; rows * n];
-    for r in 0..rows {
-        for j in 0..n {
-            let mut z = params[layer.offset + fan_in * n + j] as f64;
-            let mut i = 0;
-            for (x, &k) in inputs.iter().zip(&layer.parts) {
-                for c in 0..k {
-                    z += x[r * k + c] as f64 * w[(i + c) * n + j] as f64;
-                }
-                i += k;
-            }
-            out[r * n + j] = match layer.act {
-                Activation::Identity => z,
-                Activation::Relu => z.max(0.0),
-                Activation::Sigmoid => 1.0 / (1.0 + (-z).exp()),
-                Activation::Exp => z.min(EXP_CAP as f64).exp(),
-                Activation::Softplus { beta } => {
-                    let b = beta as f64;
-                    (1.0 + (b * z).exp()).ln() / b
-                }
-            };
+    let mut z = params[layer.offset + fan_in * n + j] as f64;
+    let mut i = 0;
+    for (x, &k) in inputs.iter().zip(&layer.parts) {
+        for c in 0..k {
+            z += x[r * k + c] as f64 * w[(i + c) * n + j] as f64;
+        }
+        i += k;
+    }
+    match layer.act {
+        Activation::Identity => z,
+        Activation::Relu => z.max(0.0),
+        Activation::Sigmoid => 1.0 / (1.0 + (-z).exp()),
+        Activation::Exp => z.min(EXP_CAP as f64).exp(),
+        Activation::Softplus { beta } => {
+            let b = beta as f64;
+            (1.0 + (b * z).exp()).ln() / b
         }
     }
-    out
 }
 
 fn random(n: usize, rng: &mut SplitMix64) -> Vec<f32> {
@@ -91,12 +93,25 @@ fn forward_matches_f64_reference() {
     }
 }
 
-/// The loss `Σ c ⊙ out` for fixed random `c`, in f64.
-fn loss(layer: &Dense, params: &[f32], inputs: &[&[f32]], c: &[f32], rows: usize) -> f64 {
-    reference(layer, params, inputs, rows)
-        .iter()
-        .zip(c)
-        .map(|(o, c)| o * *c as f64)
+/// The part of the loss `Σ c ⊙ out` (fixed random `c`, in f64) that
+/// output column `j` holds: all a weight or bias of that column moves.
+fn column_loss(
+    layer: &Dense,
+    params: &[f32],
+    inputs: &[&[f32]],
+    c: &[f32],
+    rows: usize,
+    j: usize,
+) -> f64 {
+    (0..rows)
+        .map(|r| reference_at(layer, params, inputs, r, j) * c[r * layer.out + j] as f64)
+        .sum()
+}
+
+/// The part of the loss that row `r` holds: all its inputs move.
+fn row_loss(layer: &Dense, params: &[f32], inputs: &[&[f32]], c: &[f32], r: usize) -> f64 {
+    (0..layer.out)
+        .map(|j| reference_at(layer, params, inputs, r, j) * c[r * layer.out + j] as f64)
         .sum()
 }
 
@@ -156,25 +171,30 @@ fn backward_matches_finite_differences() {
         let max_x = xs.iter().flatten().fold(0f32, |m, v| m.max(v.abs())) + 1.0;
         let max_w = params.iter().fold(0f32, |m, v| m.max(v.abs()));
         let mut checked = 0;
-        // Every parameter of this layer (those before its offset untouched).
+        // Every parameter of this layer; those before its offset untouched.
+        // A weight or bias moves only its own column's outputs, so the
+        // difference quotient is taken on that column's part of the loss.
         for i in 0..params.len() {
-            if i >= layer.offset {
-                let col = if i < layer.offset + fan_in * n {
-                    (i - layer.offset) % n
-                } else {
-                    i - layer.offset - fan_in * n
-                };
-                if !margin((0..rows).map(|r| pre[r * n + col]).collect(), max_x) {
-                    continue;
-                }
+            if i < layer.offset {
+                assert_eq!(grad[i], 0.25, "{layer:?} param {i} is not the layer's");
+                checked += 1;
+                continue;
+            }
+            let col = if i < layer.offset + fan_in * n {
+                (i - layer.offset) % n
+            } else {
+                i - layer.offset - fan_in * n
+            };
+            if !margin((0..rows).map(|r| pre[r * n + col]).collect(), max_x) {
+                continue;
             }
             checked += 1;
             let fd = {
                 let mut p = params.clone();
                 p[i] += h;
-                let up = loss(&layer, &p, &inputs, &c, rows);
+                let up = column_loss(&layer, &p, &inputs, &c, rows, col);
                 p[i] -= 2.0 * h;
-                let down = loss(&layer, &p, &inputs, &c, rows);
+                let down = column_loss(&layer, &p, &inputs, &c, rows, col);
                 (up - down) / (2.0 * h as f64)
             };
             let got = grad[i] as f64 - 0.25;
@@ -200,21 +220,22 @@ fn backward_matches_finite_differences() {
                     continue;
                 }
                 let orig = xs[p][i];
+                // An input moves only its own row's outputs.
                 xs[p][i] = orig + h;
-                let up = loss(
+                let up = row_loss(
                     &layer,
                     &params,
                     &xs.iter().map(|x| x.as_slice()).collect::<Vec<_>>(),
                     &c,
-                    rows,
+                    r,
                 );
                 xs[p][i] = orig - h;
-                let down = loss(
+                let down = row_loss(
                     &layer,
                     &params,
                     &xs.iter().map(|x| x.as_slice()).collect::<Vec<_>>(),
                     &c,
-                    rows,
+                    r,
                 );
                 xs[p][i] = orig;
                 let fd = (up - down) / (2.0 * h as f64);
