@@ -204,7 +204,7 @@ train toy {
   sampler: stratified(samples: 48, near: 0.5, far: FAR, jitter: true),
   rays: 512,
   optimizer: adam(lr: 1e-2),
-  iterations: 250,
+  iterations: 180,
 }
 "#;
     let psnr = |model: &str, far: &str| {
