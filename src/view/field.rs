@@ -10,6 +10,8 @@ use std::sync::{mpsc, Arc, Mutex, MutexGuard};
 
 use glam::DVec3;
 use sdfl_runtime::jobs::{CheckpointedField, FieldUnavailable};
+use sdfl_runtime::train::checkpoint::Checkpoint;
+use sdfl_runtime::train::frame::TrainingCamera;
 use sdfl_stdlib::camera::Camera;
 use sdfl_stdlib::value::TrainJob;
 
@@ -22,9 +24,12 @@ use super::request::Refusal;
 /// a load of 6 (128²: 0.25 s, 384²: 2.2 s).
 pub const MOVING_SIDE: u32 = 64;
 
-/// The camera the page starts from: the statement's first output view,
-/// else one looking at the middle of the field's region from outside it.
-pub fn initial_camera(job: &TrainJob) -> Camera {
+/// The camera the page starts from: the statement's first output view;
+/// else, where its checkpoint records the training cameras (`recorded`),
+/// the first of them, turned about the middle of the field's region (the
+/// point of its axis nearest it, so the page orbits the object, not a
+/// point a unit ahead); else one looking at that middle from outside.
+pub fn initial_camera(job: &TrainJob, recorded: &[TrainingCamera]) -> Camera {
     if job.view_path.is_none() {
         if let Some(c) = job.views.first() {
             return *c;
@@ -34,8 +39,24 @@ pub fn initial_camera(job: &TrainJob) -> Camera {
     let (lo, hi) = (DVec3::from_array(lo), DVec3::from_array(hi));
     let center = 0.5 * (lo + hi);
     let radius = (0.5 * (hi - lo).length()).max(1e-3);
+    if let Some(c) = recorded.first() {
+        let forward = (c.at - c.eye).normalize();
+        let depth = (center - c.eye).dot(forward).max(1e-3 * radius);
+        return Camera::look_at(c.eye, c.eye + depth * forward, c.up, c.focal);
+    }
     let eye = center + radius * DVec3::new(0.8, 0.9, -2.2);
     Camera::look_at(eye, center, DVec3::Y, 1.5)
+}
+
+/// The training cameras `job`'s checkpoint under `out` records: none
+/// where it has no checkpoint yet, or one outside `out`, or unreadable
+/// (the field's frames say why).
+pub fn training_cameras(job: &TrainJob, out: &Path) -> Vec<TrainingCamera> {
+    sdfl_runtime::jobs::checkpoint_path(job, out)
+        .and_then(|p| super::confined(out, &p).ok())
+        .and_then(|p| Checkpoint::read_frame(&p).ok())
+        .map(|f| f.cameras)
+        .unwrap_or_default()
 }
 
 /// A refusal for a field that cannot be shown: nothing written yet is

@@ -525,9 +525,11 @@ async fn serve(shared: &Arc<Shared>, request: &Request<Incoming>) -> Result<Serv
             "diagnostics": diagnostics,
             "file": shared.file.display().to_string(),
         })))),
-        Route::Scenes => blocking(&shared.files, move || Ok(json(&scenes(program.as_deref()))))
-            .await
-            .map(bytes),
+        Route::Scenes => blocking(&shared.files, move || {
+            Ok(json(&scenes(program.as_deref(), &s.out)))
+        })
+        .await
+        .map(bytes),
         Route::Frame => blocking(&shared.frames, move || frame(&s, &target, program))
             .await
             .map(bytes),
@@ -741,8 +743,9 @@ fn view_entry(
 }
 
 /// Every `render` statement with its first camera and size, then every
-/// `train` statement (its field, seen from its checkpoint).
-fn scenes(program: Option<&Program>) -> serde_json::Value {
+/// `train` statement (its field, seen from its checkpoint under `out`,
+/// with the training cameras it records).
+fn scenes(program: Option<&Program>, out: &Path) -> serde_json::Value {
     let renders = program.into_iter().flat_map(|p| &p.renders);
     let mut list: Vec<serde_json::Value> = renders
         .filter_map(|job| {
@@ -759,9 +762,22 @@ fn scenes(program: Option<&Program>) -> serde_json::Value {
         })
         .collect();
     for job in program.into_iter().flat_map(|p| &p.trains) {
-        let c = field::initial_camera(job);
+        let recorded = field::training_cameras(job, out);
+        let c = field::initial_camera(job, &recorded);
         let mut e = view_entry("train", &job.name, &c, (job.width, job.height), FIELD_SIDES);
         e["checkpoint"] = job.checkpoint.is_some().into();
+        e["training_cameras"] = recorded
+            .iter()
+            .map(|c| {
+                serde_json::json!({
+                    "eye": c.eye.to_array(),
+                    "at": c.at.to_array(),
+                    "up": c.up.to_array(),
+                    "focal": c.focal,
+                })
+            })
+            .collect::<Vec<_>>()
+            .into();
         list.push(e);
     }
     serde_json::json!({ "scenes": list })
@@ -837,7 +853,8 @@ fn field_frame(
         .iter()
         .find(|j| j.name == name)
         .ok_or_else(|| Refusal::missing(format!("no train statement named `{name}`")))?;
-    let camera = frame_camera(t, Some(&field::initial_camera(job)))?;
+    let recorded = field::training_cameras(job, &shared.out);
+    let camera = frame_camera(t, Some(&field::initial_camera(job, &recorded)))?;
     Ok((shared.fields.frame(job, version, camera)?, PNG))
 }
 

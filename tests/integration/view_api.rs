@@ -366,6 +366,24 @@ fn a_trained_field_is_rendered_from_its_latest_checkpoint() {
         (&"train".into(), &"fit".into())
     );
     assert!(fit["moving"].as_u64().unwrap() < fit["still"][0].as_u64().unwrap());
+    // With no views of its own, the page starts at the first training
+    // camera its checkpoint records (one of the three is held out), turned
+    // about the middle of the field.
+    let eyes = [[0.0, 0.0, -3.0], [3.0, 0.0, 0.0], [0.0, 3.0, 0.1]];
+    let recorded = fit["training_cameras"].as_array().unwrap();
+    assert_eq!(recorded.len(), 2, "{fit}");
+    let eye_of = |v: &serde_json::Value| -> [f64; 3] { serde_json::from_value(v.clone()).unwrap() };
+    for c in recorded {
+        let e = eye_of(&c["eye"]);
+        assert!(
+            eyes.iter()
+                .any(|w| (0..3).all(|i| (w[i] - e[i]).abs() < 1e-12)),
+            "{c}"
+        );
+    }
+    assert_eq!(fit["eye"], recorded[0]["eye"], "{fit}");
+    let at = eye_of(&fit["at"]);
+    assert!(at.iter().all(|x| x.abs() < 1e-9), "{fit}");
 
     let frame = |target: &str| {
         let (status, png) = server.get(target);

@@ -359,6 +359,19 @@ pub fn composite_over(rgba: &[[f32; 4]], background: [f32; 3]) -> Vec<[f32; 3]> 
 pub fn read_checkpoint_bytes(path: &Path) -> io::Result<Vec<u8>> {
     use std::io::Read;
     const MAX: u64 = 1 << 30;
+    let mut bytes = Vec::new();
+    open_checkpoint(path)?
+        .take(MAX + 1)
+        .read_to_end(&mut bytes)
+        .map_err(|e| invalid(path, e))?;
+    if bytes.len() as u64 > MAX {
+        return Err(invalid(path, "checkpoint larger than 1 GiB"));
+    }
+    Ok(bytes)
+}
+
+/// Opens a checkpoint file to read, refusing symbolic links on its path.
+pub fn open_checkpoint(path: &Path) -> io::Result<File> {
     // Checkpoints live in the output directory, which is never read or
     // written through a link (see `output`).
     let mut at = std::path::PathBuf::new();
@@ -371,13 +384,5 @@ pub fn read_checkpoint_bytes(path: &Path) -> io::Result<Vec<u8>> {
             ));
         }
     }
-    let mut bytes = Vec::new();
-    open_regular(path)?
-        .take(MAX + 1)
-        .read_to_end(&mut bytes)
-        .map_err(|e| invalid(path, e))?;
-    if bytes.len() as u64 > MAX {
-        return Err(invalid(path, "checkpoint larger than 1 GiB"));
-    }
-    Ok(bytes)
+    open_regular(path)
 }

@@ -322,6 +322,39 @@ impl Checkpoint {
         f.commit()
     }
 
+    /// The model frame a checkpoint's header records (its training
+    /// cameras among it), reading the header only: a viewer asks for it
+    /// often, and the tensors behind it may be hundreds of megabytes.
+    pub fn read_frame(path: &Path) -> io::Result<ModelFrame> {
+        use std::io::Read;
+        // safetensors' own bound on a header.
+        const MAX_HEADER: u64 = 100_000_000;
+        let mut file = crate::data::image::open_checkpoint(path)?;
+        let mut len = [0u8; 8];
+        file.read_exact(&mut len).map_err(|e| invalid(path, e))?;
+        let len = u64::from_le_bytes(len);
+        if len > MAX_HEADER {
+            return Err(invalid(
+                path,
+                format!("a header of {len} bytes: not a checkpoint"),
+            ));
+        }
+        let mut header = Vec::new();
+        file.take(len)
+            .read_to_end(&mut header)
+            .map_err(|e| invalid(path, e))?;
+        if header.len() as u64 != len {
+            return Err(invalid(path, "its header is cut short"));
+        }
+        let header: Value = serde_json::from_slice(&header)
+            .map_err(|_| invalid(path, "its header is not JSON: not a checkpoint"))?;
+        let meta = header
+            .get("__metadata__")
+            .ok_or_else(|| invalid(path, "no metadata: not an sdfl checkpoint"))?;
+        ModelFrame::from_metadata(|k| meta.get(k).and_then(Value::as_str))
+            .map_err(|e| invalid(path, e))
+    }
+
     /// Reads a checkpoint of either format, refusing a malformed or hostile file with an error (never a panic).
     pub fn read(path: &Path) -> io::Result<Checkpoint> {
         let bytes = crate::data::image::read_checkpoint_bytes(path)?;

@@ -112,6 +112,18 @@ impl Layout {
             ..self
         }
     }
+
+    /// This layout for a model trained on views taken by `cameras` (in the
+    /// model's frame).
+    pub fn with_cameras<'c>(
+        self,
+        cameras: impl ExactSizeIterator<Item = &'c sdfl_stdlib::camera::Camera>,
+    ) -> Layout {
+        Layout {
+            frame: self.frame.with_cameras(cameras),
+            ..self
+        }
+    }
 }
 
 /// Trainer tensor names and the pieces each is stored as.

@@ -7,7 +7,9 @@
 //!   `x_model = scale · R · (x_data − center)`;
 //! * `warp`: how model-frame positions reach the encoding (none, scene
 //!   contraction, or a forward-facing capture's NDC);
-//! * `background`: what a ray sees behind the field.
+//! * `background`: what a ray sees behind the field;
+//! * `training_cameras`: where the training views were taken from, in the
+//!   model's frame (a viewer starts beside them).
 //!
 //! Files written before these keys load as identity, no warp and no
 //! background; a present value is checked like any input.
@@ -25,6 +27,12 @@ pub const DATA_TO_MODEL: &str = "data_to_model";
 pub const WARP: &str = "warp";
 /// The metadata key of the background.
 pub const BACKGROUND: &str = "background";
+/// The metadata key of the training cameras.
+pub const TRAINING_CAMERAS: &str = "training_cameras";
+/// At most this many training cameras are recorded (evenly spaced over
+/// the views): a viewer needs where they are, not every one of thousands,
+/// and the checkpoint's header stays small (about 100 bytes each).
+pub const RECORDED_CAMERAS: usize = 256;
 
 /// Positions and lengths sdfl reads are within this magnitude (and above
 /// its inverse where not zero), so a recorded frame is too.
@@ -45,6 +53,39 @@ pub enum Behind {
     Learned(LearnedBackground),
 }
 
+/// Where a training view was taken from, in the model's frame: a pinhole
+/// looking from `eye` at `at` (its lens's `fy` as [`Camera::focal`]).
+///
+/// [`Camera::focal`]: sdfl_stdlib::camera::Camera::focal
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TrainingCamera {
+    /// The camera's position.
+    pub eye: DVec3,
+    /// A point on its optical axis.
+    pub at: DVec3,
+    /// Roughly up.
+    pub up: DVec3,
+    /// Focal length in NDC units of the image's shorter side.
+    pub focal: f64,
+}
+
+impl TrainingCamera {
+    /// Where `camera` stands and looks.
+    pub fn of(camera: &sdfl_stdlib::camera::Camera) -> TrainingCamera {
+        TrainingCamera {
+            eye: camera.eye,
+            at: camera.at,
+            up: camera.up,
+            focal: camera.focal,
+        }
+    }
+
+    /// A pinhole camera where this one stands, looking where it looks.
+    pub fn camera(&self) -> sdfl_stdlib::camera::Camera {
+        sdfl_stdlib::camera::Camera::look_at(self.eye, self.at, self.up, self.focal)
+    }
+}
+
 /// A model's place relative to its data.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ModelFrame {
@@ -56,6 +97,9 @@ pub struct ModelFrame {
     pub warp: Option<Unbounded>,
     /// What its rays see behind it.
     pub background: Behind,
+    /// Where its training views were taken from (at most
+    /// [`RECORDED_CAMERAS`], evenly spaced); empty where unknown.
+    pub cameras: Vec<TrainingCamera>,
 }
 
 impl Default for ModelFrame {
@@ -66,6 +110,7 @@ impl Default for ModelFrame {
             data_to_model: SceneFrame::IDENTITY,
             warp: None,
             background: Behind::None,
+            cameras: Vec::new(),
         }
     }
 }
@@ -92,6 +137,21 @@ impl ModelFrame {
             data_to_model: SceneFrame::IDENTITY,
             warp,
             background,
+            cameras: Vec::new(),
+        }
+    }
+
+    /// This frame with the training views' `cameras` (in the model's
+    /// frame), at most [`RECORDED_CAMERAS`] of them evenly spaced.
+    pub fn with_cameras<'c>(
+        self,
+        cameras: impl ExactSizeIterator<Item = &'c sdfl_stdlib::camera::Camera>,
+    ) -> ModelFrame {
+        let n = cameras.len();
+        let every = n.div_ceil(RECORDED_CAMERAS).max(1);
+        ModelFrame {
+            cameras: cameras.step_by(every).map(TrainingCamera::of).collect(),
+            ..self
         }
     }
 
@@ -107,8 +167,8 @@ impl ModelFrame {
         }
     }
 
-    /// The three metadata entries.
-    pub fn metadata(&self) -> [(String, String); 3] {
+    /// The four metadata entries.
+    pub fn metadata(&self) -> [(String, String); 4] {
         let f = &self.data_to_model;
         let data_to_model = json!({
             "scale": f.scale,
@@ -147,10 +207,28 @@ impl ModelFrame {
                 "input": "the ray's unit direction in the model's frame",
             }),
         };
+        let cameras: Vec<Value> = self
+            .cameras
+            .iter()
+            .map(|c| {
+                json!({
+                    "eye": c.eye.to_array(),
+                    "at": c.at.to_array(),
+                    "up": c.up.to_array(),
+                    "focal": c.focal,
+                })
+            })
+            .collect();
+        let cameras = json!({
+            "frame": "model",
+            "cameras": cameras,
+            "map": "each looks from eye at at, up roughly up, focal in NDC units of the image's shorter side; divide by data_to_model for the data's frame",
+        });
         [
             (DATA_TO_MODEL.to_string(), data_to_model.to_string()),
             (WARP.to_string(), warp.to_string()),
             (BACKGROUND.to_string(), background.to_string()),
+            (TRAINING_CAMERAS.to_string(), cameras.to_string()),
         ]
     }
 
@@ -174,6 +252,9 @@ impl ModelFrame {
         }
         if let Some(v) = parse(BACKGROUND)? {
             frame.background = background(&v).map_err(|e| bad(BACKGROUND, e))?;
+        }
+        if let Some(v) = parse(TRAINING_CAMERAS)? {
+            frame.cameras = training_cameras(&v).map_err(|e| bad(TRAINING_CAMERAS, e))?;
         }
         Ok(frame)
     }
@@ -261,6 +342,43 @@ fn warp(v: &Value) -> Result<Option<Unbounded>, String> {
         }
         k => Err(format!("unknown kind `{k}`")),
     }
+}
+
+fn training_cameras(v: &Value) -> Result<Vec<TrainingCamera>, String> {
+    let list = v
+        .get("cameras")
+        .and_then(Value::as_array)
+        .ok_or("`cameras` is not a list")?;
+    if list.len() > RECORDED_CAMERAS {
+        return Err(format!(
+            "{} cameras, where sdfl records at most {RECORDED_CAMERAS}",
+            list.len()
+        ));
+    }
+    list.iter()
+        .enumerate()
+        .map(|(i, c)| {
+            let at = |e: String| format!("camera {i}: {e}");
+            let eye = DVec3::from_array(vec3(c, "eye").map_err(at)?);
+            let look = DVec3::from_array(vec3(c, "at").map_err(at)?);
+            let up = DVec3::from_array(vec3(c, "up").map_err(at)?);
+            let focal = number(c, "focal").map_err(at)?;
+            if !(focal.is_finite() && focal > 0.0 && focal <= MAGNITUDE) {
+                return Err(at(format!("its focal length {focal} is not positive")));
+            }
+            // A camera must look somewhere, with an up not along the view.
+            let forward = (look - eye).normalize_or_zero();
+            if forward == DVec3::ZERO || forward.cross(up).length() <= 1e-9 * up.length() {
+                return Err(at("it looks nowhere, or up along its view".to_string()));
+            }
+            Ok(TrainingCamera {
+                eye,
+                at: look,
+                up,
+                focal,
+            })
+        })
+        .collect()
 }
 
 fn background(v: &Value) -> Result<Behind, String> {

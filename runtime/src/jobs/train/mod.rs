@@ -180,8 +180,11 @@ pub fn run_train_job(
             )
         })
     });
+    // ... and where its views were taken from, for a viewer to start there.
     run.describe(
-        crate::train::export_names::Layout::of(&job.model, &tensors).in_data_frame(data_frame),
+        crate::train::export_names::Layout::of(&job.model, &tensors)
+            .in_data_frame(data_frame)
+            .with_cameras(views.iter().map(|v| &v.camera)),
     );
     let checkpoints = Checkpoints::of(job, &views, out_dir);
     let (resumed_from, history) = checkpoints.resume_or_start(&mut run, steps, options.restart)?;

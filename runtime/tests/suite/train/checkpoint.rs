@@ -127,6 +127,12 @@ fn sample() -> Checkpoint {
                 },
             )),
             background: sdfl_runtime::train::frame::Behind::Color([1.0, 1.0, 1.0]),
+            cameras: vec![sdfl_runtime::train::frame::TrainingCamera {
+                eye: glam::DVec3::new(0.5, 1.0, -3.0),
+                at: glam::DVec3::ZERO,
+                up: glam::DVec3::Y,
+                focal: 1.25,
+            }],
         },
         losses: vec![0.5, 0.25],
         state: vec![("occupancy.ema".into(), vec![0.0, 3.5, 1e-30])],
@@ -186,6 +192,9 @@ fn round_trips_and_rejects_foreign_files() {
     let mut want = ck.clone();
     want.pieces[0] = vec![Piece::flat("torus.major", 2)];
     assert_eq!(back, want);
+    // The header alone gives the same frame, training cameras and all.
+    assert_eq!(Checkpoint::read_frame(&path).unwrap(), ck.frame);
+    assert_eq!(ck.frame.cameras.len(), 1);
     // Weights as (out, in): row o holds the inputs' weights of output o.
     let t = stored(&path);
     let find = |n: &str| t.iter().find(|x| x.0 == n).unwrap().clone();
@@ -320,4 +329,36 @@ fn reads_the_first_format() {
     assert_eq!(ck.history, History::default());
     // Written before checkpoints kept the model's frame: the data's.
     assert_eq!(ck.frame, ModelFrame::default());
+}
+
+/// The header-only read refuses what is no checkpoint, never panicking:
+/// an empty or short file, a header longer than the file or than
+/// safetensors allows, a header that is not JSON or has no metadata.
+#[test]
+fn the_frame_alone_is_read_from_a_header_checked_like_any_input() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("bad.safetensors");
+    let with_len = |len: u64, rest: &[u8]| {
+        let mut b = len.to_le_bytes().to_vec();
+        b.extend_from_slice(rest);
+        b
+    };
+    let header = |rest: &[u8]| with_len(rest.len() as u64, rest);
+    let cases: Vec<(Vec<u8>, &str)> = vec![
+        (Vec::new(), ""),
+        (vec![1, 2, 3], ""),
+        (with_len(64, b"{}"), "cut short"),
+        (with_len(u64::MAX, b"{}"), "not a checkpoint"),
+        (header(b"[1, 2"), "not JSON"),
+        (header(b"{}"), "no metadata"),
+        (
+            header(br#"{"__metadata__": {"training_cameras": "{\"cameras\": 1}"}}"#),
+            "bad `training_cameras`",
+        ),
+    ];
+    for (bytes, says) in cases {
+        std::fs::write(&path, &bytes).unwrap();
+        let e = Checkpoint::read_frame(&path).unwrap_err().to_string();
+        assert!(e.contains(says), "{bytes:?}: {e}");
+    }
 }

@@ -21,6 +21,20 @@ fn frames() -> Vec<ModelFrame> {
                 freqs: 4,
                 width: 32,
             }),
+            cameras: vec![
+                TrainingCamera {
+                    eye: DVec3::new(0.1, 2.0, -3.5),
+                    at: DVec3::new(0.0, 0.25, 0.0),
+                    up: DVec3::Y,
+                    focal: 1.5,
+                },
+                TrainingCamera {
+                    eye: DVec3::new(-4.0, 0.5, 1e-3),
+                    at: DVec3::new(-3.0, 0.5, 1e-3),
+                    up: DVec3::new(0.0, 0.0, 1.0),
+                    focal: 0.71,
+                },
+            ],
         },
         ModelFrame {
             data_to_model: SceneFrame::new(1.0 / 3.0, DVec3::new(-7.0, 0.5, 2.0), turn),
@@ -32,6 +46,7 @@ fn frames() -> Vec<ModelFrame> {
                 near: 1.0,
             }))),
             background: Behind::Color([1.0, 0.5, 0.0]),
+            cameras: Vec::new(),
         },
     ]
 }
@@ -48,6 +63,8 @@ fn round_trips_and_defaults() {
         let meta: HashMap<String, String> = f.metadata().into_iter().collect();
         let back = read(&meta).unwrap();
         assert_eq!((back.warp, back.background), (f.warp, f.background));
+        // The cameras' numbers are printed shortest-exact: they read back.
+        assert_eq!(back.cameras, f.cameras);
         // serde_json parses a printed f64 to within an ulp (Python's
         // json exactly).
         let (a, b) = (&back.data_to_model, &f.data_to_model);
@@ -142,6 +159,37 @@ fn refuses_bad_values() {
             "`width`",
         ),
         (BACKGROUND, r#"{"color": [0, 0, 0]}"#, "no `kind`"),
+        (TRAINING_CAMERAS, r#"{"cameras": 3}"#, "not a list"),
+        (
+            TRAINING_CAMERAS,
+            r#"{"cameras": [{"eye": [0,0,0], "at": [0,0,1], "up": [0,1,0], "focal": 0}]}"#,
+            "camera 0: its focal length 0",
+        ),
+        (
+            TRAINING_CAMERAS,
+            r#"{"cameras": [{"eye": [1,2,3], "at": [1,2,3], "up": [0,1,0], "focal": 1}]}"#,
+            "looks nowhere",
+        ),
+        (
+            TRAINING_CAMERAS,
+            r#"{"cameras": [{"eye": [0,0,0], "at": [0,2,0], "up": [0,1,0], "focal": 1}]}"#,
+            "up along its view",
+        ),
+        (
+            TRAINING_CAMERAS,
+            r#"{"cameras": [{"eye": [0,0,0], "at": [0,0,1], "up": [0,0,0], "focal": 1}]}"#,
+            "up along its view",
+        ),
+        (
+            TRAINING_CAMERAS,
+            r#"{"cameras": [{"eye": [0,1e300,0], "at": [0,0,1], "up": [0,1,0], "focal": 1}]}"#,
+            "camera 0: `eye`",
+        ),
+        (
+            TRAINING_CAMERAS,
+            r#"{"cameras": [{"eye": [0,0,0], "up": [0,1,0], "focal": 1}]}"#,
+            "`at`",
+        ),
     ];
     for (key, value, says) in cases {
         let mut meta = good.clone();
@@ -152,4 +200,43 @@ fn refuses_bad_values() {
             "{key} {value}: {e}"
         );
     }
+}
+
+/// A run's views are recorded evenly spaced, at most
+/// [`RECORDED_CAMERAS`], the first always; more in a file are refused.
+#[test]
+fn training_cameras_are_bounded() {
+    let camera = |i: usize| {
+        sdfl_stdlib::camera::Camera::look_at(
+            DVec3::new(i as f64, 0.0, -3.0),
+            DVec3::ZERO,
+            DVec3::Y,
+            1.2,
+        )
+    };
+    for n in [0, 1, 7, RECORDED_CAMERAS, RECORDED_CAMERAS + 1, 1000] {
+        let cams: Vec<_> = (0..n).map(camera).collect();
+        let f = ModelFrame::default().with_cameras(cams.iter());
+        assert!(
+            f.cameras.len() <= RECORDED_CAMERAS,
+            "{n}: {}",
+            f.cameras.len()
+        );
+        assert!(
+            n == 0 || f.cameras.len() * 4 >= RECORDED_CAMERAS.min(n) * 2,
+            "{n}: {}",
+            f.cameras.len()
+        );
+        if n > 0 {
+            assert_eq!(f.cameras[0], TrainingCamera::of(&cams[0]));
+        }
+    }
+    let one = r#"{"eye": [0,0,-3], "at": [0,0,0], "up": [0,1,0], "focal": 1}"#;
+    let many = format!(
+        r#"{{"cameras": [{}]}}"#,
+        vec![one; RECORDED_CAMERAS + 1].join(",")
+    );
+    let meta: HashMap<String, String> = [(TRAINING_CAMERAS.to_string(), many)].into();
+    let e = read(&meta).unwrap_err();
+    assert!(e.contains("at most"), "{e}");
 }
