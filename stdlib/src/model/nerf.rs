@@ -6,7 +6,7 @@ use crate::value::{
     occupancy_refresh_cells, Backend, Background, DataBackground, Encoding, Nerf, Precision,
     Unbounded,
 };
-use crate::work::{Cost, OCCUPIED_SHARE};
+use crate::work::{Cost, CONTRACTED_OCCUPIED_SHARE, OCCUPIED_SHARE};
 
 /// Multiply-adds of a NeRF sample's forward pass, its encoding included (a
 /// hash grid interpolates eight corners a level).
@@ -208,10 +208,10 @@ impl Model for Nerf {
     }
 
     fn expected_share(&self) -> f64 {
-        if self.occupancy.is_some() {
-            OCCUPIED_SHARE
-        } else {
-            1.0
+        match (&self.occupancy, &self.unbounded) {
+            (None, _) => 1.0,
+            (Some(_), Some(Unbounded::Contract(_))) => CONTRACTED_OCCUPIED_SHARE,
+            (Some(_), _) => OCCUPIED_SHARE,
         }
     }
 

@@ -5,8 +5,9 @@
 use sdfl_lang::SourceFile;
 use sdfl_stdlib::load;
 use sdfl_stdlib::work::{
-    max_evaluations_from, max_memory_from, raised_limit, train_work, Stage, MAX_EVALUATIONS,
-    MAX_EVALUATIONS_VAR, MAX_MEMORY, MAX_MEMORY_VAR, OCCUPIED_SHARE,
+    max_evaluations_from, max_memory_from, raised_limit, train_work, Stage,
+    CONTRACTED_OCCUPIED_SHARE, MAX_EVALUATIONS, MAX_EVALUATIONS_VAR, MAX_MEMORY, MAX_MEMORY_VAR,
+    OCCUPIED_SHARE,
 };
 
 /// A hash-grid NeRF trained on rendered views, with `model` and `train`
@@ -116,6 +117,15 @@ train lego {{
         "{t:?}"
     );
     assert!(w.expected < MAX_EVALUATIONS && w.skips(), "{w:?}");
+    // A contracted scene's grid is expected to keep more: its world.
+    let contracted =
+        run(", occupancy: occupancy_grid(resolution: 128, every: 16), unbounded: contraction()");
+    let p = load(&SourceFile::new("lego.sdfl", contracted)).unwrap_or_else(|e| panic!("{e:?}"));
+    let t = train_work(&p.trains[0], None).stage(Stage::Training);
+    assert!(
+        (t.expected / t.evaluations - CONTRACTED_OCCUPIED_SHARE).abs() < 1e-9,
+        "{t:?}"
+    );
     assert!(
         w.describe().contains("expected with empty space skipped"),
         "{}",
