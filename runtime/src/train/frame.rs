@@ -79,11 +79,6 @@ impl TrainingCamera {
             focal: camera.focal,
         }
     }
-
-    /// A pinhole camera where this one stands, looking where it looks.
-    pub fn camera(&self) -> sdfl_stdlib::camera::Camera {
-        sdfl_stdlib::camera::Camera::look_at(self.eye, self.at, self.up, self.focal)
-    }
 }
 
 /// A model's place relative to its data.
