@@ -704,7 +704,11 @@ type Strip = (usize, (usize, u8), usize, usize);
 /// two pieces' vertices X and Y would share an edge with four quads (the
 /// surface meets itself along two strips across the face). Each strip gets
 /// a vertex of its own between X and Y, in its two quads, which become
-/// polygons. Returns them by quad, with the first inserted vertex.
+/// polygons. Returns them by quad, with the first inserted vertex. Beside
+/// the grid's boundary a face may have only two or three of its quads
+/// (the others' grid edges lie on the boundary, where no quad is made): a
+/// strip with both its quads is separated the same way, and the lone quad
+/// keeps the edge X–Y to itself, an open edge of the cut surface.
 fn separate_strips(
     mesh: &mut Mesh,
     quads: &[[u32; 4]],
@@ -726,14 +730,17 @@ fn separate_strips(
     faces.sort_unstable_by_key(|f| f.0);
     for (face, four) in faces {
         let cut_inside = twice[&face].0;
-        // X and Y: the vertices all four quads share.
+        // X and Y: the vertices all of the face's quads share.
         let shared: Vec<u32> = quads[four[0].0]
             .iter()
             .copied()
             .filter(|v| four.iter().all(|&(q, ..)| quads[q].contains(v)))
             .collect();
-        if four.len() != 4 || shared.len() != 2 {
-            debug_assert!(false, "a face crossed twice on both sides has four quads");
+        if !(2..=4).contains(&four.len()) || shared.len() != 2 {
+            debug_assert!(
+                four.len() < 2,
+                "a face crossed twice on both sides has at most four quads, all through X and Y"
+            );
             continue;
         }
         let (x, y) = (shared[0], shared[1]);
@@ -741,8 +748,8 @@ fn separate_strips(
         // that corner, the end of the class kept apart.
         let corner =
             |&(_, i_end, o_end): &(usize, usize, usize)| if cut_inside { i_end } else { o_end };
-        for a in 0..4 {
-            for b in a + 1..4 {
+        for a in 0..four.len() {
+            for b in a + 1..four.len() {
                 if corner(&four[a]) != corner(&four[b]) {
                     continue;
                 }
