@@ -395,6 +395,32 @@ fn point_clouds_keep_only_the_points_in_their_crop() {
     assert_eq!(none.rays, 300 * 8);
 }
 
+/// Each vertex's index once vertices are welded by position (one index
+/// per distinct position, bit for bit, as `trimesh.merge_vertices` does).
+fn welded_by_position(vertices: &[[f32; 3]]) -> Vec<u32> {
+    let mut index: std::collections::HashMap<[u32; 3], u32> = Default::default();
+    vertices
+        .iter()
+        .map(|v| {
+            let n = index.len() as u32;
+            *index.entry(v.map(f32::to_bits)).or_insert(n)
+        })
+        .collect()
+}
+
+/// How many triangles hold each edge, vertices renamed by `id`.
+fn edge_uses(triangles: &[[u32; 3]], id: &[u32]) -> std::collections::HashMap<(u32, u32), u32> {
+    let mut edges = std::collections::HashMap::new();
+    for t in triangles {
+        let t = t.map(|i| id[i as usize]);
+        for k in 0..3 {
+            let (a, b) = (t[k], t[(k + 1) % 3]);
+            *edges.entry((a.min(b), a.max(b))).or_default() += 1;
+        }
+    }
+    edges
+}
+
 /// A density mesh cut by its grid's box (a world that runs on past the
 /// bounds, as a capture's floor does) is open there, and every edge is in
 /// at most two triangles, welded by position too. Beside the box a face
@@ -404,7 +430,6 @@ fn point_clouds_keep_only_the_points_in_their_crop() {
 /// the box had 2 to 54.
 #[test]
 fn a_density_mesh_cut_by_its_box_has_no_edge_in_three_triangles() {
-    use std::collections::HashMap;
     for (freq, amp, res) in [(17.0f32, 0.3f32, 16), (31.0, 0.15, 48), (53.0, 0.15, 24)] {
         let cut = Analytic {
             field: move |p: [f32; 3]| {
@@ -426,25 +451,10 @@ fn a_density_mesh_cut_by_its_box_has_no_edge_in_three_triangles() {
         let grid = MeshGrid::covering([-1.0; 3], [1.0; 3], res);
         let m = density_mesh(&cut, 25.0, &grid, 1 << 22, &DAffine3::IDENTITY).unwrap();
         assert!(m.mesh.triangles.len() > 1000, "{what}");
-        let mut index: HashMap<[u32; 3], u32> = HashMap::new();
-        let welded: Vec<u32> = m
-            .mesh
-            .vertices
-            .iter()
-            .map(|v| {
-                let n = index.len() as u32;
-                *index.entry(v.map(f32::to_bits)).or_insert(n)
-            })
-            .collect();
-        for (how, id) in [("as written", None), ("welded", Some(&welded))] {
-            let mut edges: HashMap<(u32, u32), u32> = HashMap::new();
-            for t in &m.mesh.triangles {
-                let t = t.map(|i| id.map_or(i, |w| w[i as usize]));
-                for k in 0..3 {
-                    let (a, b) = (t[k], t[(k + 1) % 3]);
-                    *edges.entry((a.min(b), a.max(b))).or_default() += 1;
-                }
-            }
+        let welded = welded_by_position(&m.mesh.vertices);
+        let written: Vec<u32> = (0..m.mesh.vertices.len() as u32).collect();
+        for (how, id) in [("as written", &written), ("welded", &welded)] {
+            let edges = edge_uses(&m.mesh.triangles, id);
             let open = edges.values().filter(|&&n| n == 1).count();
             let bad = edges.values().filter(|&&n| n > 2).count();
             assert!(open > 0, "{what}, {how}: the cut leaves no open edge");
@@ -464,7 +474,6 @@ fn a_density_mesh_cut_by_its_box_has_no_edge_in_three_triangles() {
 /// fine enough to resolve them and at one too coarse to.
 #[test]
 fn a_density_mesh_welded_by_position_is_two_manifold() {
-    use std::collections::HashMap;
     let rough = Analytic {
         field: |p: [f32; 3]| {
             let [x, y, z] = p;
@@ -488,29 +497,15 @@ fn a_density_mesh_welded_by_position_is_two_manifold() {
             "{res}: {}",
             m.mesh.triangles.len()
         );
-        // Weld: one index per distinct position, bit for bit.
-        let mut index: HashMap<[u32; 3], u32> = HashMap::new();
-        let welded: Vec<u32> = m
-            .mesh
-            .vertices
-            .iter()
-            .map(|v| {
-                let n = index.len() as u32;
-                *index.entry(v.map(f32::to_bits)).or_insert(n)
-            })
-            .collect();
-        let mut edges: HashMap<(u32, u32), u32> = HashMap::new();
+        let welded = welded_by_position(&m.mesh.vertices);
         for t in &m.mesh.triangles {
             let t = t.map(|i| welded[i as usize]);
             assert!(
                 t[0] != t[1] && t[1] != t[2] && t[0] != t[2],
                 "{res}: a triangle collapses when welded"
             );
-            for k in 0..3 {
-                let (a, b) = (t[k], t[(k + 1) % 3]);
-                *edges.entry((a.min(b), a.max(b))).or_default() += 1;
-            }
         }
+        let edges = edge_uses(&m.mesh.triangles, &welded);
         let bad = edges.values().filter(|&&n| n != 2).count();
         assert_eq!(
             bad, 0,
