@@ -349,6 +349,7 @@ impl Occupancy {
         let mut cfg = OccupancyConfig::new(min, max);
         cfg.warmup = sdfl_stdlib::value::OCCUPANCY_WARMUP;
         cfg.subsets = sdfl_stdlib::value::OCCUPANCY_SUBSETS;
+        cfg.every = spec.every.max(1) as u64;
         cfg.res = spec.resolution;
         cfg.threshold = spec.threshold as f32;
         cfg.step_size = step;
@@ -419,7 +420,13 @@ impl Occupancy {
             }
         };
         let mut rng = SplitMix64::new(seed ^ 0x6F63_6375);
-        self.grid.update(step as u64, &mut density, &mut rng);
+        // The grid's own warm-up (every cell each refresh, a quick decay)
+        // counts from its first refresh: an unbounded grid starts late.
+        let clock = match self.warp {
+            Some(_) => step - UNBOUNDED_GRID_WARMUP,
+            None => step,
+        };
+        self.grid.update(clock as u64, &mut density, &mut rng);
     }
 }
 

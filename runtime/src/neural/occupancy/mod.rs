@@ -57,11 +57,16 @@ pub struct OccupancyConfig {
     /// EMA decay per update of a cell.
     pub decay: f32,
     /// Updates before `step = warmup` evaluate every cell; later ones only the
-    /// cells with `index ≡ step (mod subsets)` (and decay only those), which
-    /// spreads the cost. `subsets = 1`: every cell every update.
+    /// cells with `index ≡ step / every (mod subsets)` (and decay only
+    /// those), which spreads the cost. `subsets = 1`: every cell every
+    /// update.
     pub warmup: u64,
     /// Cells are refreshed one subset in `subsets` per update after warm-up.
     pub subsets: u32,
+    /// Steps between updates (≥ 1), so that consecutive updates take
+    /// consecutive subsets: with `step` alone, updates every 16 steps took
+    /// the same quarter of the cells forever.
+    pub every: u64,
 }
 
 impl OccupancyConfig {
@@ -80,6 +85,7 @@ impl OccupancyConfig {
             decay: 0.95,
             warmup: 256,
             subsets: 1,
+            every: 1,
         }
     }
 }
@@ -120,6 +126,9 @@ pub struct OccupancyGrid {
     cell: [f64; 3],
     points: Vec<[f32; 3]>,
     density: Vec<f32>,
+    /// Whether every cell has been evaluated (or restored) once: until
+    /// then an update evaluates them all, so no cell is emptied unseen.
+    refreshed: bool,
 }
 
 /// The plain fixed-step sampler: `t_k = near + (k + ½)·step` (in f32, this
@@ -179,9 +188,11 @@ impl OccupancyGrid {
         let ok = |v: f32| v.is_finite() && v >= 0.0;
         if !(ok(cfg.threshold) && ok(cfg.step_size) && (0.0..=1.0).contains(&cfg.decay))
             || cfg.subsets == 0
+            || cfg.every == 0
         {
             return Err(
-                "occupancy grid: threshold, step size ≥ 0, decay in [0, 1], subsets ≥ 1".into(),
+                "occupancy grid: threshold, step size ≥ 0, decay in [0, 1], subsets and every ≥ 1"
+                    .into(),
             );
         }
         let mut scale = [0f32; 3];
@@ -208,6 +219,7 @@ impl OccupancyGrid {
             cfg,
             points: Vec::new(),
             density: Vec::new(),
+            refreshed: false,
         };
         grid.fill(true);
         Ok(grid)
@@ -269,6 +281,7 @@ impl OccupancyGrid {
             ));
         }
         self.ema.copy_from_slice(ema);
+        self.refreshed = true;
         self.fill(false);
         for (i, &on) in occupied.iter().enumerate() {
             if on {
@@ -326,18 +339,24 @@ impl OccupancyGrid {
     }
 
     /// Re-evaluates density at one jittered point per cell (all cells, or one
-    /// subset after warm-up, see [`OccupancyConfig`]), in order, in calls of
+    /// subset after warm-up, see [`OccupancyConfig`]; the first update
+    /// evaluates all, whatever its step), in order, in calls of
     /// at most 65 536 points; each evaluated cell gets
     /// `ema = max(decay·ema, σ)` and its bit. NaN densities count as 0,
     /// +∞ as `f32::MAX`. The jitter comes from one draw of `rng`, so the
     /// result depends only on the grid, `step`, the draw and the densities.
     pub fn update(&mut self, step: u64, density: &mut DensityFn, rng: &mut SplitMix64) {
         let key = rng.next_u64();
-        let (first, stride) = if step < self.cfg.warmup || self.cfg.subsets == 1 {
+        // Every cell until each has been seen once: the bits below are
+        // derived from every cell's EMA, and an unseen cell's 0 would empty
+        // it (an unbounded grid's first refresh comes after warm-up).
+        let every = step < self.cfg.warmup || self.cfg.subsets == 1 || !self.refreshed;
+        self.refreshed = true;
+        let (first, stride) = if every {
             (0, 1)
         } else {
             let s = self.cfg.subsets as u64;
-            ((step % s) as usize, s as usize)
+            ((step / self.cfg.every % s) as usize, s as usize)
         };
         let r = self.cfg.res as usize;
         let cells = self.cells();
