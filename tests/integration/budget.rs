@@ -45,6 +45,14 @@ fn a_test_split_scored_every_step_is_refused_before_training() {
     let dir = case_dir("held_out_split");
     data_set(&dir);
     let file = dir.join("t.sdfl");
+    // A sixteenth of the samples a ray and 16 times the steps: the same
+    // held-out work scored every step, and the accepted run below scores
+    // its views once in a sixteenth of the time.
+    let scene = |every| {
+        scene(every)
+            .replace("samples: 4096", "samples: 256")
+            .replace("iterations: 20000", "iterations: 320000")
+    };
     fs::write(&file, scene(1)).unwrap();
     let out = dir.join("out");
     let (file, out_s) = (file.to_str().unwrap(), out.to_str().unwrap());
@@ -61,7 +69,7 @@ fn a_test_split_scored_every_step_is_refused_before_training() {
     let file2 = dir.join("t2.sdfl");
     fs::write(
         &file2,
-        scene(0).replace("iterations: 20000", "iterations: 2"),
+        scene(0).replace("iterations: 320000", "iterations: 2"),
     )
     .unwrap();
     let o = sdfl(&dir, &["run", file2.to_str().unwrap(), "--out", out_s]);

@@ -387,7 +387,13 @@ pub fn run_train_job(
     let fit = field.fit_to_points(&values, &points, job.seed);
     stages.push(("outputs".to_string(), t.elapsed().as_secs_f64()));
     let steps_run = (run.step - done_before).max(1);
-    let warnings = crate::train::trainer::fit_warnings(&run.losses, &field.held_at_bounds(&values));
+    let mut warnings =
+        crate::train::trainer::fit_warnings(&run.losses, &field.held_at_bounds(&values));
+    let scored: Vec<(usize, f64)> = held_out.iter().map(|h| (h.step, h.psnr)).collect();
+    warnings.extend(crate::train::trainer::held_out_warning(
+        &run.losses,
+        &scored,
+    ));
     Ok(TrainReport {
         scene_frame,
         name: job.name.clone(),

@@ -283,3 +283,26 @@ fn a_diverging_fit_and_parameters_at_bounds_warn() {
     assert!(w[0].contains("did not fall"), "{w:?}");
     assert!(w[1].contains("radius"), "{w:?}");
 }
+
+/// Held-out PSNR that falls by a decibel or more from its best while the
+/// training loss falls is said; a smaller wander, a single evaluation, a
+/// loss that rose too (the divergence warning's case) and a NaN score are
+/// not.
+#[test]
+fn held_out_psnr_falling_while_the_loss_falls_warns() {
+    let falling: Vec<f32> = (0..2000).map(|i| 0.1 / (1.0 + i as f32 / 50.0)).collect();
+    let w = held_out_warning(&falling, &[(500, 25.0), (1000, 26.0), (2000, 24.5)]);
+    let w = w.expect("a warning");
+    assert!(
+        w.contains("26.00 dB (step 1000)") && w.contains("24.50 dB (step 2000)"),
+        "{w}"
+    );
+    assert!(held_out_warning(&falling, &[(1000, 26.0), (2000, 25.5)]).is_none());
+    assert!(held_out_warning(&falling, &[(2000, 20.0)]).is_none());
+    assert!(held_out_warning(&falling, &[]).is_none());
+    assert!(held_out_warning(&falling, &[(1000, 26.0), (2000, f64::NAN)]).is_none());
+    let rising: Vec<f32> = (0..2000).map(|i| 0.01 + i as f32 * 1e-4).collect();
+    assert!(held_out_warning(&rising, &[(1000, 26.0), (2000, 20.0)]).is_none());
+    // Rising held-out PSNR: nothing to say.
+    assert!(held_out_warning(&falling, &[(1000, 20.0), (2000, 26.0)]).is_none());
+}
