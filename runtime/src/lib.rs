@@ -9,6 +9,7 @@ pub mod effects;
 pub mod export;
 pub mod interrupt;
 pub mod jobs;
+pub mod lanes;
 pub mod mesh;
 pub mod metrics;
 pub mod neural;

@@ -2,22 +2,23 @@
 
 use glam::Vec3A;
 
-use crate::sdf::lanes::{self, F8, LANES};
-use crate::sdf::Node;
+use crate::lanes::{self, F8, LANES, P8};
 
 /// What a ray marches: a signed distance (or bound) per point. Every
-/// lowered [`Node`] is one; a screen tile's candidate members
-/// (`sdf::tiles::Tile`) are another.
+/// lowered scene node (`sdf::Node`) is one; a screen tile's candidate
+/// members (`sdf::tiles::Tile`) are another. The tracer knows no scene
+/// representation beyond these two traits.
 pub trait Distance {
     /// The distance (or a lower bound on it) at `p`.
     fn dist(&self, p: Vec3A) -> f32;
 }
 
-impl<T: Node + ?Sized> Distance for T {
-    #[inline(always)]
-    fn dist(&self, p: Vec3A) -> f32 {
-        Node::dist(self, p)
-    }
+/// A [`Distance`] that also evaluates whole packs of points at once, for
+/// rays marched together ([`sphere_trace_packs`]).
+pub trait PackedDistance: Distance {
+    /// The distances at packs of [`LANES`] points, each lane equal to
+    /// [`Distance::dist`] of its point.
+    fn dist_packs(&self, p: &[P8], out: &mut [F8]);
 }
 
 /// Settings of one trace.
@@ -109,7 +110,7 @@ pub enum Step {
 /// One ray's sphere trace (see [`sphere_trace`]) as a machine fed one
 /// distance at a time: [`sphere_trace`] feeds it point by point, and
 /// [`sphere_trace_packs`] feeds many rays' machines from one call of
-/// [`Node::dist_packs`] per step. Both run these same steps on the same
+/// [`PackedDistance::dist_packs`] per step. Both run these same steps on the same
 /// distances, so they end alike.
 #[derive(Debug, Clone, Copy)]
 pub struct March {
@@ -308,10 +309,13 @@ impl March {
 
 /// Rays marched together: `rays` are started marches ([`March::start`]);
 /// each step gathers the points of the rays still marching into packs and
-/// takes their distances from one [`Node::dist_packs`] call (each lane
-/// equal to [`Node::dist`] of its point, so every ray ends as
-/// [`sphere_trace`] ends it). Returns each ray's end, in order.
-pub fn sphere_trace_packs<N: Node + ?Sized>(sdf: &N, rays: Vec<(March, Step)>) -> Vec<Hit> {
+/// takes their distances from one [`PackedDistance::dist_packs`] call
+/// (each lane equal to [`Distance::dist`] of its point, so every ray ends
+/// as [`sphere_trace`] ends it). Returns each ray's end, in order.
+pub fn sphere_trace_packs<N: PackedDistance + ?Sized>(
+    sdf: &N,
+    rays: Vec<(March, Step)>,
+) -> Vec<Hit> {
     let mut hits = vec![
         Hit {
             t: 0.0,

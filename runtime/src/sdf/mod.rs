@@ -28,7 +28,6 @@ use sdfl_stdlib::shape::{
 };
 
 mod bvh;
-pub mod lanes;
 mod lower;
 mod nodes;
 pub mod tiles;
@@ -36,8 +35,8 @@ pub mod tiles;
 #[doc(hidden)]
 pub mod user;
 
+use crate::lanes::{self, per_lane, F8, LANES, P8};
 use bvh::*;
-use lanes::{per_lane, F8, LANES, P8};
 use lower::*;
 use nodes::*;
 use user::UserLeaf;
@@ -64,6 +63,22 @@ pub trait Node: Send + Sync + std::any::Any {
     /// instruction at a time for a point.
     fn traces_in_packs(&self) -> bool {
         false
+    }
+}
+
+// The tracer marches any distance; a lowered node is one, by these two
+// impls (kept here so that `trace` knows nothing of scenes).
+impl<T: Node + ?Sized> crate::trace::Distance for T {
+    #[inline(always)]
+    fn dist(&self, p: Vec3A) -> f32 {
+        Node::dist(self, p)
+    }
+}
+
+impl<T: Node + ?Sized> crate::trace::PackedDistance for T {
+    #[inline(always)]
+    fn dist_packs(&self, p: &[P8], out: &mut [F8]) {
+        Node::dist_packs(self, p, out)
     }
 }
 

@@ -626,7 +626,7 @@ impl Node for UserLeaf {
                 let mut cols = [MaybeUninit::<F16>::uninit(); COLUMN_BUFFER / 2];
                 user_packs(leaf, p, out, &mut cols)
             }
-            if crate::neural::fp32::available() {
+            if crate::cpu::kernels().avx512f {
                 // SAFETY: the CPU supports AVX-512 F (checked just above).
                 return unsafe { avx512(self, p, out) };
             }

@@ -8,8 +8,8 @@ use std::sync::Arc;
 
 use glam::{DVec3, Vec3A};
 use sdfl_lang::SourceFile;
+use sdfl_runtime::lanes::{F8, P8};
 use sdfl_runtime::render::{render_view, Needs, Plan};
-use sdfl_runtime::sdf::lanes::{F8, P8};
 use sdfl_runtime::sdf::Node;
 use sdfl_runtime::trace::{sphere_trace, sphere_trace_packs, March, Step, TraceSettings};
 use sdfl_runtime::train::fused::{loss_and_grad_f32, loss_and_grad_f64, traced, Batch};

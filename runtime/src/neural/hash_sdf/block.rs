@@ -401,7 +401,7 @@ impl HashSdf {
     }
 }
 
-crate::sdf::lanes::widest_simd!(
+crate::lanes::widest_simd!(
     /// [`HashSdf::forward_block`] of `f` alone, compiled for the widest
     /// vectors this CPU has (the same operations, so the same bits).
     pub(super) fn values_block(net: &HashSdf, params: &[f32], pts: &[[f32; 3]], active: usize, buf: &mut [f32], f: &mut [f32]) -> () = values_lanes
@@ -419,7 +419,7 @@ fn values_lanes(
     net.forward_block::<0>(params, pts, active, buf, f, &mut []);
 }
 
-crate::sdf::lanes::widest_simd!(
+crate::lanes::widest_simd!(
     /// [`HashSdf::forward_block`] of `f` and the exact `∇f`, compiled for
     /// the widest vectors this CPU has.
     pub(super) fn value_grads_block(net: &HashSdf, params: &[f32], pts: &[[f32; 3]], active: usize, buf: &mut [f32], f: &mut [f32], g: &mut [[f32; 3]]) -> () = value_grads_lanes
@@ -438,7 +438,7 @@ fn value_grads_lanes(
     net.forward_block::<3>(params, pts, active, buf, f, g);
 }
 
-crate::sdf::lanes::widest_simd!(
+crate::lanes::widest_simd!(
     /// [`HashSdf::backward_block`] on the forward and adjoint buffers of
     /// `scratch`, compiled for the widest vectors this CPU has.
     pub(super) fn grads_backward_block(net: &HashSdf, params: &[f32], scratch: &mut BlockScratch, d_f: &[f32], d_g: &[f32], d_mlp: &mut [f32], d_feat: &mut [f32]) -> () = grads_backward_lanes

@@ -137,7 +137,7 @@ fn softplus_scaled(z: f32, beta: f32, inv_beta: f32) -> (f32, f32) {
     ((t.max(0.0) + ln_1p_unit_f32(e)) * inv_beta, s)
 }
 
-crate::sdf::lanes::widest_simd!(
+crate::lanes::widest_simd!(
     /// [`softplus_and_slope`] of every `y` in place, its slope into `slope`
     /// where given (as long as `y`). Compiled with AVX-512 or AVX2 where the
     /// CPU has them (16 or 8 lanes instead of SSE's 4; the same operations,

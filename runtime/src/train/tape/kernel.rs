@@ -18,7 +18,7 @@ use rayon::prelude::*;
 use super::{backward, forward, Op, Tape, COLOUR, KEEP, LOG_KEEP, OPACITY};
 use sdfl_stdlib::num::Real;
 
-use crate::sdf::lanes::F16;
+use crate::lanes::F16;
 use crate::train::fused::{Batch, LossGrad};
 use crate::train::TrainModel;
 use crate::volume::march::intervals_into;
@@ -117,7 +117,7 @@ pub fn loss_and_grad(tape: &Tape, model: &TrainModel, batch: &Batch, weight: f64
     }
 }
 
-crate::sdf::lanes::widest_simd!(
+crate::lanes::widest_simd!(
     /// [`block`] compiled for the widest vectors the CPU has.
     fn run_block(
         tape: &Tape,

@@ -1,7 +1,7 @@
 //! SIMD lanes: the scalar operations lane by lane, packs, constants.
 
 use glam::Vec3A;
-use sdfl_runtime::sdf::lanes::*;
+use sdfl_runtime::lanes::*;
 use sdfl_stdlib::num::Real;
 
 #[test]

@@ -1,7 +1,7 @@
 //! User shapes: one pack wide equals two.
 
 use glam::Vec3A;
-use sdfl_runtime::sdf::lanes::{F16, F8, LANES, P8};
+use sdfl_runtime::lanes::{self, F16, F8, LANES, P8};
 use sdfl_runtime::sdf::user::*;
 use sdfl_runtime::sdf::*;
 use sdfl_stdlib::eval::globals_of;

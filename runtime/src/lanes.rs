@@ -141,7 +141,7 @@ macro_rules! avx2_kernel {
         }
     };
 }
-pub(super) use avx2_kernel;
+pub(crate) use avx2_kernel;
 
 /// `$vis fn $name(args) -> $ret` running the `#[inline(always)]` function
 /// `$body` on the same arguments, compiled twice more, for AVX-512 F and
@@ -158,7 +158,7 @@ macro_rules! widest_simd {
                 unsafe fn avx512($($arg: $ty),*) -> $ret {
                     $body($($arg),*)
                 }
-                if $crate::neural::fp32::available() {
+                if $crate::cpu::kernels().avx512f {
                     // SAFETY: the CPU supports AVX-512 F (checked just above).
                     return unsafe { avx512($($arg),*) };
                 }
@@ -169,7 +169,7 @@ macro_rules! widest_simd {
                 unsafe fn avx2($($arg: $ty),*) -> $ret {
                     $body($($arg),*)
                 }
-                if $crate::sdf::lanes::has_avx2() {
+                if $crate::lanes::has_avx2() {
                     // SAFETY: the CPU supports AVX2 (checked just above).
                     return unsafe { avx2($($arg),*) };
                 }
