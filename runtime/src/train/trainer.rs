@@ -518,7 +518,9 @@ pub fn held_out_warning(losses: &[f32], held_out: &[(usize, f64)]) -> Option<Str
         .iter()
         .filter(|h| h.1.is_finite())
         .max_by(|a, b| a.1.total_cmp(&b.1))?;
-    if !(best - last >= HELD_OUT_DROP_DB) {
+    // A NaN score is no fall.
+    let drop = best - last;
+    if drop.is_nan() || drop < HELD_OUT_DROP_DB {
         return None;
     }
     // Mean loss over the steps just before `step` (a twentieth of the run).
