@@ -18,6 +18,7 @@ pub mod field;
 pub mod fp32;
 pub mod hash_sdf;
 pub mod hashgrid;
+pub mod layout;
 pub mod mlp;
 pub mod nerf;
 pub mod occupancy;

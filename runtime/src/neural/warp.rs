@@ -137,15 +137,7 @@ pub struct Ndc {
 impl Ndc {
     /// The warp of `f`'s reference camera; an error for a degenerate focal length, image size or near plane.
     pub fn new(f: &NdcFrame) -> Result<Self, String> {
-        let ax = -2.0 * f.fx / f.width;
-        let ay = -2.0 * f.fy / f.height;
-        let ok = |v: f64| v.is_finite() && v.abs() > 1e-6 && v.abs() < 1e6;
-        if !(ok(ax) && ok(ay) && ok(f.near) && f.near > 0.0) {
-            return Err(format!(
-                "NDC needs positive focal lengths, image size and near plane (got fx {}, fy {}, {}x{}, near {})",
-                f.fx, f.fy, f.width, f.height, f.near
-            ));
-        }
+        let (ax, ay) = f.scales()?;
         Ok(Ndc {
             ax: ax as f32,
             ay: ay as f32,

@@ -331,8 +331,8 @@ fn warp(v: &Value) -> Result<Option<Unbounded>, String> {
                     f.width, f.height, f.fx, f.fy, f.near
                 ));
             }
-            // The runtime's own checks of the map (its scales in range).
-            crate::neural::warp::Ndc::new(&f)?;
+            // The map's own check (its scales in range).
+            f.scales()?;
             Ok(Some(Unbounded::Ndc(Some(f))))
         }
         k => Err(format!("unknown kind `{k}`")),

@@ -221,6 +221,24 @@ pub struct NdcFrame {
     pub near: f64,
 }
 
+impl NdcFrame {
+    /// The map's scales of x and y (`−2·fx/width`, `−2·fy/height`); an
+    /// error for a degenerate focal length, image size or near plane. The
+    /// one check of a frame, from a capture or a checkpoint alike.
+    pub fn scales(&self) -> Result<(f64, f64), String> {
+        let ax = -2.0 * self.fx / self.width;
+        let ay = -2.0 * self.fy / self.height;
+        let ok = |v: f64| v.is_finite() && v.abs() > 1e-6 && v.abs() < 1e6;
+        if !(ok(ax) && ok(ay) && ok(self.near) && self.near > 0.0) {
+            return Err(format!(
+                "NDC needs positive focal lengths, image size and near plane (got fx {}, fy {}, {}x{}, near {})",
+                self.fx, self.fy, self.width, self.height, self.near
+            ));
+        }
+        Ok((ax, ay))
+    }
+}
+
 /// Number format of a network's matrix products (weights, gradients and
 /// the optimizer stay fp32 either way).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize)]
