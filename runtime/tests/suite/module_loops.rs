@@ -13,6 +13,14 @@ use std::path::Path;
 mod module_graph;
 use module_graph::{arrows, crate_graph, folder_graph, loops};
 
+/// Each loop of `graph`, as the arrows that close it.
+fn loops_found(graph: &module_graph::Graph) -> Vec<String> {
+    loops(graph)
+        .iter()
+        .map(|group| arrows(graph, group).join(", "))
+        .collect()
+}
+
 #[test]
 fn data_modules_have_no_loops() {
     let data = Path::new(env!("CARGO_MANIFEST_DIR")).join("src/data");
@@ -20,10 +28,7 @@ fn data_modules_have_no_loops() {
     // The graph sees the formats and what they share.
     assert!(graph["formats::llff"].contains("frames"));
     assert!(graph["formats"].contains("formats::llff"));
-    let found: Vec<String> = loops(&graph)
-        .iter()
-        .map(|group| arrows(&graph, group).join(", "))
-        .collect();
+    let found = loops_found(&graph);
     assert!(
         found.is_empty(),
         "data/'s modules import each other in a loop: {found:?}"
@@ -53,10 +58,7 @@ fn runtime_modules_have_no_loops() {
     let src = Path::new(env!("CARGO_MANIFEST_DIR")).join("src");
     let graph = crate_graph(&src);
     assert!(graph["jobs"].contains("data") && graph["neural"].contains("train"));
-    let found: Vec<String> = loops(&graph)
-        .iter()
-        .map(|group| arrows(&graph, group).join(", "))
-        .collect();
+    let found = loops_found(&graph);
     assert!(
         found.is_empty(),
         "the runtime's modules import each other in a loop: {found:?}"

@@ -392,14 +392,21 @@ fn update_tracks_a_moving_sphere() {
     assert_eq!(again.occupied_count(), again.cells());
 }
 
-#[test]
-fn subsets_after_warmup_update_a_stride() {
+/// An 8³ grid over [-1, 1]³ with a step of 0.01, refreshed by quarters
+/// after `warmup`, every `every` steps.
+fn quartered(warmup: u64, every: u64) -> OccupancyGrid {
     let mut cfg = OccupancyConfig::new([-1.0; 3], [1.0; 3]);
     cfg.res = 8;
-    cfg.warmup = 2;
+    cfg.warmup = warmup;
     cfg.subsets = 4;
+    cfg.every = every;
     cfg.step_size = 0.01;
-    let mut g = OccupancyGrid::new(cfg).unwrap();
+    OccupancyGrid::new(cfg).unwrap()
+}
+
+#[test]
+fn subsets_after_warmup_update_a_stride() {
+    let mut g = quartered(2, 1);
     let mut rng = SplitMix64::new(1);
     let mut one = |_: &[[f32; 3]], o: &mut [f32]| o.fill(1.0);
     g.update(0, &mut one, &mut rng);
@@ -615,12 +622,7 @@ fn a_jittered_march_moves_each_ray_by_one_offset() {
 /// to 19.4 dB.)
 #[test]
 fn a_first_refresh_after_warm_up_evaluates_every_cell() {
-    let mut cfg = OccupancyConfig::new([-1.0; 3], [1.0; 3]);
-    cfg.res = 8;
-    cfg.warmup = 4;
-    cfg.subsets = 4;
-    cfg.step_size = 0.01;
-    let mut g = OccupancyGrid::new(cfg).unwrap();
+    let mut g = quartered(4, 1);
     let mut rng = SplitMix64::new(3);
     let mut dense = |_: &[[f32; 3]], o: &mut [f32]| o.fill(10.0);
     g.update(300, &mut dense, &mut rng);
@@ -648,13 +650,7 @@ fn a_first_refresh_after_warm_up_evaluates_every_cell() {
 /// the cells forever, and the rest kept their warm-up state.)
 #[test]
 fn refreshes_every_few_steps_take_every_subset_in_turn() {
-    let mut cfg = OccupancyConfig::new([-1.0; 3], [1.0; 3]);
-    cfg.res = 8;
-    cfg.warmup = 256;
-    cfg.subsets = 4;
-    cfg.every = 16;
-    cfg.step_size = 0.01;
-    let mut g = OccupancyGrid::new(cfg).unwrap();
+    let mut g = quartered(256, 16);
     let mut rng = SplitMix64::new(5);
     g.update(
         0,
