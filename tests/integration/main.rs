@@ -28,6 +28,7 @@ mod hostile_data;
 mod hostile_io;
 mod hostile_lang;
 mod idr;
+mod module_loops;
 mod nerf;
 mod nerf_synthetic_downscale;
 mod neural_sdf;

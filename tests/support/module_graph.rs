@@ -1,7 +1,8 @@
 //! Which modules of a crate's source import which, read from the source
-//! text, and the loops among them: shared by the module-loop tests of the
-//! standard library (`stdlib/tests/suite/module_loops.rs`) and the runtime
-//! (`runtime/tests/suite/module_loops.rs`), each including this file. A
+//! text, and the loops among them: shared by every crate's module-loop
+//! test (`module_loops.rs` in `lang/`, `stdlib/` and `runtime/tests/suite/`
+//! and in `tests/integration/` for the command line and `bench/`), each
+//! including this file. A
 //! module uses another where its code (comments and `#[cfg(test)]`
 //! modules left out: tests may reach anywhere) writes a path into it.
 

@@ -7,5 +7,6 @@ mod diag;
 mod fmt;
 mod fmt_doc;
 mod fmt_source;
+mod module_loops;
 mod parse;
 mod types;
