@@ -283,6 +283,14 @@ pub fn loops(graph: &Graph) -> Vec<Vec<String>> {
     groups.into_iter().collect()
 }
 
+/// Each loop of `graph`, as the arrows that close it (none: no loop).
+pub fn loops_found(graph: &Graph) -> Vec<String> {
+    loops(graph)
+        .iter()
+        .map(|group| arrows(graph, group).join(", "))
+        .collect()
+}
+
 /// The arrows inside `group`, for messages.
 pub fn arrows(graph: &Graph, group: &[String]) -> Vec<String> {
     group

@@ -11,15 +11,7 @@ use std::path::Path;
 
 #[path = "../../../tests/support/module_graph.rs"]
 mod module_graph;
-use module_graph::{arrows, crate_graph, folder_graph, loops};
-
-/// Each loop of `graph`, as the arrows that close it.
-fn loops_found(graph: &module_graph::Graph) -> Vec<String> {
-    loops(graph)
-        .iter()
-        .map(|group| arrows(graph, group).join(", "))
-        .collect()
-}
+use module_graph::{crate_graph, folder_graph, loops_found};
 
 #[test]
 fn data_modules_have_no_loops() {
