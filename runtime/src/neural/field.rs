@@ -11,7 +11,7 @@
 use rayon::prelude::*;
 use sdfl_stdlib::camera::Camera;
 use sdfl_stdlib::model::TRAIN_PASS_SAMPLES;
-use sdfl_stdlib::value::{LastInterval, Nerf, OccupancySpec, Sampler};
+use sdfl_stdlib::value::{LastInterval, Nerf, OccupancySpec, Sampler, UNBOUNDED_GRID_START};
 
 use super::background::{Backdrop, BackdropWork};
 use super::composite::squared_error_backward_bg;
@@ -398,9 +398,12 @@ impl Occupancy {
 
     /// Refreshes the grid from `net`'s density at `values`.
     fn update(&mut self, net: &NerfNet, values: &[f32], step: usize, seed: u64) {
-        // An unbounded field starts transparent: the grid waits until it
-        // has grown some density, rather than emptying every cell at once.
-        if self.warp.is_some() && step < UNBOUNDED_GRID_WARMUP {
+        // An unbounded field starts transparent: its grid waits.
+        let start = match self.warp {
+            Some(_) => UNBOUNDED_GRID_START as usize,
+            None => 0,
+        };
+        if step < start {
             return;
         }
         let work = &mut self.work;
@@ -421,18 +424,11 @@ impl Occupancy {
         };
         let mut rng = SplitMix64::new(seed ^ 0x6F63_6375);
         // The grid's own warm-up (every cell each refresh, a quick decay)
-        // counts from its first refresh: an unbounded grid starts late.
-        let clock = match self.warp {
-            Some(_) => step - UNBOUNDED_GRID_WARMUP,
-            None => step,
-        };
+        // counts from its first refresh.
+        let clock = step - start;
         self.grid.update(clock as u64, &mut density, &mut rng);
     }
 }
-
-/// Training steps before an unbounded scene's occupancy grid is first
-/// refreshed (until then every cell is occupied).
-const UNBOUNDED_GRID_WARMUP: usize = 256;
 
 /// The samples of `candidates` whose contracted point lies in an occupied
 /// cell of `grid` (over the contracted cube), each keeping its interval.

@@ -4,7 +4,7 @@
 use super::{describe_encoding as enc, network, Model, NETWORK_PASS, TRAIN_PASS_SAMPLES};
 use crate::value::{
     occupancy_refresh_cells, Backend, Background, DataBackground, Encoding, Nerf, Precision,
-    Unbounded,
+    Unbounded, UNBOUNDED_GRID_START,
 };
 use crate::work::{Cost, CONTRACTED_OCCUPIED_SHARE, OCCUPIED_SHARE};
 
@@ -202,7 +202,8 @@ impl Model for Nerf {
         let density = sample_multiply_adds(self) - self.multiply_adds_per_sample()
             + self.density_multiply_adds();
         Cost::all(
-            occupancy_refresh_cells(cells, iterations, g.every) * network(density),
+            occupancy_refresh_cells(cells, iterations, g.every, grid_start(self))
+                * network(density),
             cells.min(NETWORK_PASS) * (bytes_per_sample(self) + 28.0),
         )
     }
@@ -220,5 +221,15 @@ impl Model for Nerf {
             Encoding::HashGrid(_) => 1.0,
             Encoding::Harmonic(_) => 0.45,
         }
+    }
+}
+
+/// The step of a NeRF's grid's first refresh: an unbounded field's waits
+/// for density to grow.
+fn grid_start(n: &Nerf) -> u64 {
+    if n.unbounded.is_some() {
+        UNBOUNDED_GRID_START
+    } else {
+        0
     }
 }

@@ -91,13 +91,26 @@ pub const OCCUPANCY_WARMUP: u64 = 256;
 /// training time on Lego.
 pub const OCCUPANCY_SUBSETS: u32 = 4;
 
+/// Training steps before an unbounded scene's occupancy grid is first
+/// refreshed: the field starts transparent, and the grid waits until it
+/// has grown some density rather than emptying every cell at once. The
+/// grid's warm-up ([`OCCUPANCY_WARMUP`]) counts from that first refresh.
+pub const UNBOUNDED_GRID_START: u64 = 256;
+
 /// The cells an occupancy grid of `cells` cells evaluates over
-/// `iterations` training steps refreshed every `every`.
-pub fn occupancy_refresh_cells(cells: f64, iterations: f64, every: usize) -> f64 {
+/// `iterations` training steps refreshed every `every` (at the steps that
+/// are multiples of it), the first refresh at step `start` or after:
+/// every cell during the [`OCCUPANCY_WARMUP`] steps from the first, a
+/// share after.
+pub fn occupancy_refresh_cells(cells: f64, iterations: f64, every: usize, start: u64) -> f64 {
     let every = every.max(1) as f64;
-    let warm = OCCUPANCY_WARMUP as f64;
-    let early = (iterations.min(warm) / every).ceil();
-    let late = ((iterations / every).ceil() - early).max(0.0);
+    let start = start as f64;
+    // Refreshes are the steps k·every with first ≤ k < last.
+    let first = (start / every).ceil();
+    let last = (iterations / every).ceil().max(first);
+    let warm_end = ((start + OCCUPANCY_WARMUP as f64) / every).ceil().min(last);
+    let early = (warm_end - first).max(0.0);
+    let late = last - first - early;
     (early + late / OCCUPANCY_SUBSETS as f64) * cells
 }
 

@@ -319,16 +319,30 @@ fn a_user_functions_size_is_in_its_renders_estimate() {
 
 /// An occupancy grid refreshes every cell during warm-up and a quarter
 /// after it, as plan counts: 16 full refreshes in the first 256 steps of
-/// 1000 at every 16, then 47 of a quarter each.
+/// 1000 at every 16, then 47 of a quarter each. An unbounded scene's grid
+/// first refreshes at step 256 and warms up from there: none before, 16
+/// full ones in steps 256 to 511, then 31 of a quarter.
 #[test]
 fn grid_refreshes_count_a_quarter_of_the_cells_after_warm_up() {
-    use sdfl_stdlib::value::occupancy_refresh_cells;
+    use sdfl_stdlib::value::{occupancy_refresh_cells, UNBOUNDED_GRID_START};
     assert_eq!(
-        occupancy_refresh_cells(100.0, 1000.0, 16),
+        occupancy_refresh_cells(100.0, 1000.0, 16, 0),
         (16.0 + 47.0 / 4.0) * 100.0
     );
-    assert_eq!(occupancy_refresh_cells(100.0, 200.0, 16), 13.0 * 100.0);
-    assert_eq!(occupancy_refresh_cells(100.0, 0.0, 16), 0.0);
+    assert_eq!(occupancy_refresh_cells(100.0, 200.0, 16, 0), 13.0 * 100.0);
+    assert_eq!(occupancy_refresh_cells(100.0, 0.0, 16, 0), 0.0);
+    let start = UNBOUNDED_GRID_START;
+    assert_eq!(start, 256);
+    assert_eq!(
+        occupancy_refresh_cells(100.0, 1000.0, 16, start),
+        (16.0 + 31.0 / 4.0) * 100.0
+    );
+    assert_eq!(occupancy_refresh_cells(100.0, 200.0, 16, start), 0.0);
+    // Steps 256 to 299: refreshes at 256, 272 and 288, all full.
+    assert_eq!(
+        occupancy_refresh_cells(100.0, 300.0, 16, start),
+        3.0 * 100.0
+    );
 }
 
 /// `plan`'s output times are the estimate's parts: every output is named
