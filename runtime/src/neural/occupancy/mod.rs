@@ -342,14 +342,15 @@ impl OccupancyGrid {
     /// subset after warm-up, see [`OccupancyConfig`]; the first update
     /// evaluates all, whatever its step), in order, in calls of
     /// at most 65 536 points; each evaluated cell gets
-    /// `ema = max(decay·ema, σ)` and its bit. NaN densities count as 0,
+    /// `ema = max(decay·ema, σ)`, then every cell its bit from its EMA
+    /// (the threshold capped at the mean cell's). NaN densities count as 0,
     /// +∞ as `f32::MAX`. The jitter comes from one draw of `rng`, so the
     /// result depends only on the grid, `step`, the draw and the densities.
     pub fn update(&mut self, step: u64, density: &mut DensityFn, rng: &mut SplitMix64) {
         let key = rng.next_u64();
         // Every cell until each has been seen once: the bits below are
         // derived from every cell's EMA, and an unseen cell's 0 would empty
-        // it (an unbounded grid's first refresh comes after warm-up).
+        // it (were a grid first refreshed after its warm-up).
         let every = step < self.cfg.warmup || self.cfg.subsets == 1 || !self.refreshed;
         self.refreshed = true;
         let (first, stride) = if every {
