@@ -47,7 +47,7 @@ fn a_test_split_scored_every_step_is_refused_before_training() {
     let file = dir.join("t.sdfl");
     // A sixteenth of the samples a ray and 16 times the steps: the same
     // held-out work scored every step, and the accepted run below scores
-    // its views once in a sixteenth of the time.
+    // its views once with a sixteenth of the samples.
     let scene = |every| {
         scene(every)
             .replace("samples: 4096", "samples: 256")

@@ -461,3 +461,30 @@ fn early_stop_keeps_its_bound_and_saves_work() {
     assert_eq!(early.evaluated, full.evaluated);
     assert_eq!(early.colour, full.colour);
 }
+
+/// A NeRF's grid is told its refresh interval, the warm-up and the share
+/// a refresh takes after it: the quarters rotate with `step / every`, and
+/// a grid left at `every: 1` while refreshed every 16 steps took the same
+/// quarter forever (the capture examples lost 10 dB to it).
+#[test]
+fn a_nerfs_occupancy_grid_knows_how_often_it_is_refreshed() {
+    let spec = OccupancySpec {
+        resolution: 8,
+        min: [-1.5; 3],
+        max: [1.5; 3],
+        threshold: 0.01,
+        every: 16,
+    };
+    let sampler = Sampler {
+        samples: 64,
+        near: 2.0,
+        far: 6.0,
+        jitter: false,
+        last_interval: LastInterval::Zero,
+    };
+    let occ = Occupancy::new(&spec, &sampler, None).unwrap();
+    let cfg = occ.grid.config();
+    assert_eq!(cfg.every, 16);
+    assert_eq!(cfg.warmup, sdfl_stdlib::value::OCCUPANCY_WARMUP);
+    assert_eq!(cfg.subsets, sdfl_stdlib::value::OCCUPANCY_SUBSETS);
+}
